@@ -1,0 +1,380 @@
+"""Scenario configuration: nested dataclasses, loaded with Drake's ``yaml_load_typed``.
+
+Every field carries its unit in a comment and its SPEC default. Value rules
+Drake does not check (vector lengths, signs, allowed words) live in field
+metadata and are enforced by :func:`validate`; any problem becomes one
+:class:`ConfigError` naming the file, the dotted field path and what is wrong.
+"""
+
+import dataclasses
+import math
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import List, Optional
+
+from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
+
+PACKAGE_DIR = Path(__file__).resolve().parent
+TRAJECTORY_DIR = PACKAGE_DIR / "data" / "traj"
+
+
+class ConfigError(ValueError):
+    """A user mistake in a scenario or an override; str() is one line."""
+
+
+def _vec(*values):
+    return field(default_factory=lambda: list(values), metadata={"length": len(values)})
+
+
+def _num(default, **rules):
+    """A scalar field; rules: positive=True, nonnegative=True, minimum=, maximum=."""
+    return field(default=default, metadata=rules)
+
+
+def _std(*values):
+    return field(default_factory=lambda: list(values),
+                 metadata={"length": len(values), "nonnegative": True})
+
+
+@dataclass
+class PhysicsParams:
+    """Truth parameters of the vehicle (what the simulator flies)."""
+    mass: float = _num(0.5, positive=True)                 # kg
+    arm_length: float = _num(0.17, positive=True)          # m, centre to motor (X layout)
+    inertia: List[float] = field(default_factory=lambda: [0.0023, 0.0023, 0.0046],
+                                 metadata={"length": 3, "positive": True})  # kg m^2, Ixx Iyy Izz
+    kappa: float = _num(0.016, positive=True)              # m, yaw torque per newton of thrust
+    min_motor_thrust: float = _num(0.1, nonnegative=True)  # N
+    max_motor_thrust: float = _num(4.5, positive=True)     # N
+    motor_tau_up: float = _num(0.01, positive=True)        # s, lag time constant, rising thrust
+    motor_tau_down: float = _num(0.02, positive=True)      # s, lag time constant, falling thrust
+    motor_noise: float = _num(0.25, nonnegative=True)      # N, half-width of uniform force noise
+    com_offset: List[float] = _vec(0.0, 0.0)               # m, centre of mass (cx, cy) in body x, y
+    x_bounds: List[float] = _vec(-30.0, 30.0)              # m, room limits in N
+    y_bounds: List[float] = _vec(-30.0, 30.0)              # m
+    z_bounds: List[float] = _vec(-40.0, 0.0)               # m, z = 0 is the (sticky) floor
+
+
+@dataclass
+class ControllerParams:
+    """Cascade controller: its vehicle model, gains and limits (SPEC §5)."""
+    mass: float = _num(0.5, positive=True)                 # kg, assumed
+    arm_length: float = _num(0.17, positive=True)          # m
+    inertia: List[float] = field(default_factory=lambda: [0.0023, 0.0023, 0.0046],
+                                 metadata={"length": 3, "positive": True})  # kg m^2
+    kappa: float = _num(0.016, positive=True)              # m
+    min_motor_thrust: float = _num(0.1, nonnegative=True)  # N
+    max_motor_thrust: float = _num(4.5, positive=True)     # N
+    kp_pos_xy: float = _num(2.0, nonnegative=True)         # 1/s
+    kp_pos_z: float = _num(2.0, nonnegative=True)          # 1/s
+    ki_pos_z: float = _num(50.0, nonnegative=True)         # 1/s^2
+    kp_vel_xy: float = _num(8.0, nonnegative=True)         # 1/s
+    kp_vel_z: float = _num(8.0, nonnegative=True)          # 1/s
+    kp_bank: float = _num(12.0, nonnegative=True)          # 1/s
+    kp_yaw: float = _num(3.0, nonnegative=True)            # 1/s
+    kp_pqr: List[float] = field(default_factory=lambda: [70.0, 70.0, 15.0],
+                                metadata={"length": 3, "nonnegative": True})  # 1/s
+    max_ascent_rate: float = _num(5.0, positive=True)      # m/s
+    max_descent_rate: float = _num(2.0, positive=True)     # m/s
+    max_speed_xy: float = _num(5.0, positive=True)         # m/s
+    max_horiz_accel: float = _num(12.0, positive=True)     # m/s^2
+    max_tilt: float = _num(0.7, positive=True)             # dimensionless limit on R02, R12
+
+
+@dataclass
+class ImuParams:
+    accel_std: List[float] = _std(0.5, 0.5, 1.5)           # m/s^2 per sample, body x y z
+    gyro_std: List[float] = _std(0.5, 0.5, 0.5)            # rad/s per sample
+    accel_limit: float = _num(6 * 9.81, positive=True)     # m/s^2, per-axis saturation
+
+
+@dataclass
+class GpsParams:
+    pos_std: List[float] = _std(0.7, 0.7, 2.0)             # m per sample, N x y z
+    vel_std: List[float] = _std(0.1, 0.1, 0.3)             # m/s per sample
+    pos_random_walk_std: List[float] = _std(0.0, 0.0, 0.0)  # m per sample, bias increment
+    period: float = _num(0.1, positive=True)               # s; first sample at t = period
+
+
+@dataclass
+class MagParams:
+    yaw_std: float = _num(0.1, nonnegative=True)           # rad per sample
+    period: float = _num(0.01, positive=True)              # s
+    first_sample_time: float = _num(0.008, nonnegative=True)  # s (reference: tick 4)
+
+
+@dataclass
+class SensorsConfig:
+    """Which sensors the vehicle carries; a missing entry means no such sensor."""
+    imu: Optional[ImuParams] = None
+    gps: Optional[GpsParams] = None
+    mag: Optional[MagParams] = None
+
+
+ATTITUDE_FILTER_VARIANTS = ("nonlinear", "small_angle")
+
+
+@dataclass
+class AttitudeFilterParams:
+    """Complementary filter (SPEC §4 UpdateFromIMU)."""
+    variant: str = field(default="nonlinear", metadata={"choices": ATTITUDE_FILTER_VARIANTS})
+    tau: float = _num(100.0, positive=True)                # s, accelerometer blend time constant
+
+
+@dataclass
+class EkfParams:
+    """What the 7-state EKF assumes (SPEC §4); independent of the sensor truth."""
+    init_state: List[float] = _vec(0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0)  # m, m/s, rad
+    init_std: List[float] = _std(0.1, 0.1, 0.3, 0.1, 0.1, 0.3, 0.05)
+    q_pos_xy_std: float = _num(0.05, nonnegative=True)     # m/sqrt(s): Q = diag(std^2) * dt_imu
+    q_pos_z_std: float = _num(0.05, nonnegative=True)
+    q_vel_xy_std: float = _num(0.05, nonnegative=True)     # m/s/sqrt(s)
+    q_vel_z_std: float = _num(0.1, nonnegative=True)
+    q_yaw_std: float = _num(0.05, nonnegative=True)        # rad/sqrt(s)
+    gps_pos_xy_std: float = _num(1.0, positive=True)       # m
+    gps_pos_z_std: float = _num(3.0, positive=True)        # m
+    gps_vel_xy_std: float = _num(0.1, positive=True)       # m/s
+    gps_vel_z_std: float = _num(0.3, positive=True)        # m/s
+    mag_yaw_std: float = _num(0.1, positive=True)          # rad
+    dt_imu: float = _num(0.002, positive=True)             # s, scales Q
+
+
+TRAJECTORY_KINDS = ("point", "file", "figure_eight")
+
+
+@dataclass
+class TrajectoryConfig:
+    """Reference to fly (SPEC §6). ``file`` is a name in the package data or a path."""
+    kind: str = field(default="point", metadata={"choices": TRAJECTORY_KINDS})
+    point: List[float] = _vec(0.0, 0.0, -1.0)              # m, NED, for kind = point
+    yaw: float = 0.0                                       # rad, for kind = point
+    file: str = ""                                         # for kind = file
+    position_offset: List[float] = _vec(0.0, 0.0, 0.0)     # m, added to every point
+    time_offset: float = 0.0                               # s, added to the lookup time
+
+
+@dataclass
+class VehicleConfig:
+    name: str = "Quad"
+    initial_position: List[float] = _vec(0.0, 0.0, -1.0)   # m, NED
+    initial_velocity: List[float] = _vec(0.0, 0.0, 0.0)    # m/s, NED
+    initial_ypr: List[float] = _vec(0.0, 0.0, 0.0)         # rad, yaw pitch roll
+    initial_omega: List[float] = _vec(0.0, 0.0, 0.0)       # rad/s, body FRD
+    use_ideal_estimator: bool = True   # true: controller flies on truth; false: on the estimate
+    physics: PhysicsParams = field(default_factory=PhysicsParams)
+    controller: ControllerParams = field(default_factory=ControllerParams)
+    trajectory: TrajectoryConfig = field(default_factory=TrajectoryConfig)
+    sensors: SensorsConfig = field(default_factory=SensorsConfig)
+    attitude_filter: AttitudeFilterParams = field(default_factory=AttitudeFilterParams)
+    ekf: EkfParams = field(default_factory=EkfParams)
+
+
+CRITERION_KINDS = ("window", "sigma")
+
+
+@dataclass
+class CriterionConfig:
+    """A reference analyzer (SPEC §0.5) over a named signal such as ``Quad.Pos.X``.
+
+    window: ABS(signal) < threshold for more than ``window`` seconds (latched).
+    sigma:  cumulative share of fresh samples with |signal - ref| <= sigma stays
+            strictly inside (min_percent, max_percent) for the final ``window`` s.
+            ``ref`` and ``sigma`` are numbers, or signal names when the
+            ``*_signal`` field is given.
+    """
+    kind: str = field(default="window", metadata={"choices": CRITERION_KINDS})
+    signal: str = ""
+    threshold: float = _num(0.0, nonnegative=True)
+    window: float = _num(1.0, nonnegative=True)            # s
+    ref: float = 0.0
+    ref_signal: str = ""
+    sigma: float = _num(0.0, nonnegative=True)
+    sigma_signal: str = ""
+    min_percent: float = _num(0.0, minimum=0.0, maximum=100.0)
+    max_percent: float = _num(100.0, minimum=0.0, maximum=100.0)
+
+
+@dataclass
+class ScenarioConfig:
+    name: str = ""
+    description: str = ""
+    end_time: float = _num(1.0, positive=True)             # s
+    seed: int = _num(0, nonnegative=True)
+    vehicles: List[VehicleConfig] = field(default_factory=lambda: [VehicleConfig()])
+    criteria: List[CriterionConfig] = field(default_factory=list)
+
+
+# ----- loading and validation -------------------------------------------------
+
+def _type_name(tp):
+    return getattr(tp, "__name__", str(tp))
+
+
+def _check_node(node, tp, path):
+    """Shape check of raw YAML `node` against annotation `tp`; returns a message or None."""
+    origin = typing.get_origin(tp)
+    if origin is typing.Union:
+        inner = [a for a in typing.get_args(tp) if a is not type(None)][0]
+        return None if node is None else _check_node(node, inner, path)
+    if dataclasses.is_dataclass(tp):
+        if not isinstance(node, dict):
+            return f"{path or 'the file'}: expected a mapping, got {node!r}"
+        names = {f.name: f for f in dataclasses.fields(tp)}
+        for key, value in node.items():
+            sub = f"{path}.{key}" if path else str(key)
+            if key not in names:
+                return f"{sub}: unknown key (known: {', '.join(names)})"
+            message = _check_node(value, typing.get_type_hints(tp)[key], sub)
+            if message:
+                return message
+        return None
+    if origin in (list, typing.List):
+        if not isinstance(node, list):
+            return f"{path}: expected a list, got {node!r}"
+        (item_type,) = typing.get_args(tp)
+        for i, item in enumerate(node):
+            message = _check_node(item, item_type, f"{path}.{i}")
+            if message:
+                return message
+        return None
+    if tp is float:
+        ok = isinstance(node, (int, float)) and not isinstance(node, bool)
+    elif tp is int:
+        ok = isinstance(node, int) and not isinstance(node, bool)
+    elif tp is bool:
+        ok = isinstance(node, bool)
+    else:
+        ok = isinstance(node, tp)
+    return None if ok else f"{path}: expected {_type_name(tp)}, got {node!r}"
+
+
+def validate(config, path=""):
+    """Raise ConfigError for the first field of `config` that breaks its metadata rules."""
+    for f in dataclasses.fields(config):
+        value = getattr(config, f.name)
+        sub = f"{path}.{f.name}" if path else f.name
+        if dataclasses.is_dataclass(value):
+            validate(value, sub)
+            continue
+        if isinstance(value, list) and value and dataclasses.is_dataclass(value[0]):
+            for i, item in enumerate(value):
+                validate(item, f"{sub}.{i}")
+            continue
+        rules = f.metadata
+        if "length" in rules and len(value) != rules["length"]:
+            raise ConfigError(f"{sub}: expected {rules['length']} values, got {len(value)}")
+        if "choices" in rules and value not in rules["choices"]:
+            raise ConfigError(f"{sub}: {value!r} is not one of {', '.join(rules['choices'])}")
+        for x in value if isinstance(value, list) else [value]:
+            if isinstance(x, float) and not math.isfinite(x):
+                raise ConfigError(f"{sub}: must be finite, got {x}")
+            if rules.get("positive") and not x > 0:
+                raise ConfigError(f"{sub}: must be > 0, got {x}")
+            if rules.get("nonnegative") and not x >= 0:
+                raise ConfigError(f"{sub}: must be >= 0, got {x}")
+            if "minimum" in rules and x < rules["minimum"]:
+                raise ConfigError(f"{sub}: must be >= {rules['minimum']}, got {x}")
+            if "maximum" in rules and x > rules["maximum"]:
+                raise ConfigError(f"{sub}: must be <= {rules['maximum']}, got {x}")
+
+
+def _check_semantics(scenario):
+    names = [v.name for v in scenario.vehicles]
+    if not names:
+        raise ConfigError("vehicles: at least one vehicle is needed")
+    if len(set(names)) != len(names):
+        raise ConfigError(f"vehicles: names must be unique, got {names}")
+    for i, v in enumerate(scenario.vehicles):
+        p = v.physics
+        if p.min_motor_thrust >= p.max_motor_thrust:
+            raise ConfigError(f"vehicles.{i}.physics: min_motor_thrust must be < max_motor_thrust")
+        if v.trajectory.kind == "file":
+            resolve_trajectory_file(v.trajectory.file, f"vehicles.{i}.trajectory.file")
+        if not v.use_ideal_estimator and not (v.sensors.imu and v.sensors.gps and v.sensors.mag):
+            raise ConfigError(f"vehicles.{i}.use_ideal_estimator: false needs imu, gps and mag sensors")
+    for i, c in enumerate(scenario.criteria):
+        if not c.signal:
+            raise ConfigError(f"criteria.{i}.signal: must name a signal")
+        if c.kind == "sigma" and c.min_percent >= c.max_percent:
+            raise ConfigError(f"criteria.{i}: min_percent must be < max_percent")
+
+
+def resolve_trajectory_file(name, where="trajectory.file"):
+    """Path of a trajectory file: a packaged name (e.g. ``Square.txt``) or a path."""
+    if not name:
+        raise ConfigError(f"{where}: kind 'file' needs a file name")
+    for candidate in (Path(name), TRAJECTORY_DIR / name):
+        if candidate.is_file():
+            return candidate
+    raise ConfigError(f"{where}: no such trajectory file {name!r}")
+
+
+def parse_override(text):
+    """Split ``dotted.key=value`` into (['dotted', 'key'], value parsed as YAML)."""
+    from pydrake.common.yaml import yaml_load
+    key, sep, raw = text.partition("=")
+    if not sep or not key.strip() or any(not part for part in key.strip().split(".")):
+        raise ConfigError(f"--set {text!r}: expected dotted.key=value")
+    try:
+        value = yaml_load(data=f"value: {raw}")["value"] if raw.strip() else None
+    except RuntimeError as e:
+        raise ConfigError(f"--set {text!r}: value is not valid YAML ({e})") from None
+    return key.strip().split("."), value
+
+
+def apply_override(raw, keys, value, text):
+    """Set raw[k0][k1]... = value in a nested dict/list; list indices are integers."""
+    node = raw
+    for depth, key in enumerate(keys):
+        last = depth == len(keys) - 1
+        if isinstance(node, list):
+            if not key.isdigit() or int(key) >= len(node):
+                raise ConfigError(f"--set {text!r}: {key!r} is not an index of a list of {len(node)}")
+            key = int(key)
+        elif not isinstance(node, dict):
+            raise ConfigError(f"--set {text!r}: {'.'.join(keys[:depth])} is not a mapping")
+        if last:
+            node[key] = value
+        else:
+            if isinstance(node, dict) and key not in node:
+                node[key] = {}
+            node = node[key]
+
+
+def load_scenario(path, overrides=()):
+    """ScenarioConfig from a YAML file plus ``dotted.key=value`` overrides; validated.
+
+    Raises ConfigError with one line naming the file and the field.
+    """
+    from pydrake.common.yaml import yaml_dump, yaml_load
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"{path}: no such scenario file")
+    try:
+        raw = yaml_load(filename=str(path))
+    except RuntimeError as e:
+        raise ConfigError(f"{path}: not valid YAML: {str(e).splitlines()[0]}") from None
+    raw = raw or {}
+    try:
+        for text in overrides:
+            keys, value = parse_override(text)
+            apply_override(raw, keys, value, text)
+        message = _check_node(raw, ScenarioConfig, "")
+        if message:
+            raise ConfigError(message)
+        scenario = yaml_load_typed(schema=ScenarioConfig, data=yaml_dump(raw))
+        if not scenario.name:
+            scenario.name = path.stem
+        validate(scenario)
+        _check_semantics(scenario)
+    except ConfigError as e:
+        raise ConfigError(f"{path}: {e}") from None
+    except (RuntimeError, ValueError, TypeError) as e:
+        raise ConfigError(f"{path}: {str(e).splitlines()[0]}") from None
+    return scenario
+
+
+def dump_scenario(scenario):
+    """The resolved scenario as YAML text (loads back to an equal ScenarioConfig)."""
+    return yaml_dump_typed(scenario)

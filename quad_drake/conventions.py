@@ -1,0 +1,57 @@
+"""Shared constants: gravity, rates, signal layouts and the within-tick order."""
+
+import math
+
+GRAVITY = 9.81
+"""Magnitude of gravity, m/s^2. In NED, ``g_N = (0, 0, +GRAVITY)``."""
+
+PHYSICS_PERIOD = 0.001
+"""Plant integration step, s (1 kHz)."""
+
+ONBOARD_PERIOD = 0.002
+"""Tick of IMU, attitude filter, EKF and controller, s (500 Hz)."""
+
+LOG_PERIOD = 0.005
+"""Logger sampling period, s, as the reference's 5 ms analyzer frames."""
+
+# Within one onboard tick at t_k every system fires at t_k + offset, so each one
+# reads what the previous one wrote in the same tick: sensors -> attitude filter
+# -> EKF -> controller -> plant. The plant's step at t_k + PLANT_OFFSET
+# integrates the physical state from t_k to t_k + PHYSICS_PERIOD.
+TICK_EPSILON = 1e-6
+SENSOR_OFFSET = 1 * TICK_EPSILON
+ATTITUDE_FILTER_OFFSET = 2 * TICK_EPSILON
+EKF_OFFSET = 3 * TICK_EPSILON
+CONTROLLER_OFFSET = 4 * TICK_EPSILON
+PLANT_OFFSET = 5 * TICK_EPSILON
+
+# ----- signal layouts ---------------------------------------------------------
+# `state` (13): p_NB (3, m), q_NB (4, wxyz), v_NB (3, m/s), w_NB_B (3, rad/s)
+STATE_SIZE = 13
+P_SLICE = slice(0, 3)
+Q_SLICE = slice(3, 7)
+V_SLICE = slice(7, 10)
+W_SLICE = slice(10, 13)
+
+# `reference` (10): p (3, m), v (3, m/s), a (3, m/s^2) feed-forward, yaw (rad)
+REFERENCE_SIZE = 10
+REF_P_SLICE = slice(0, 3)
+REF_V_SLICE = slice(3, 6)
+REF_A_SLICE = slice(6, 9)
+REF_YAW_INDEX = 9
+
+# `imu` (6): f_B specific force (3, m/s^2), w_NB_B gyro (3, rad/s)
+IMU_SIZE = 6
+# `gps` (7): p_NB (3, m), v_NB (3, m/s), stamp (s, time of the sample, -1 = none yet)
+GPS_SIZE = 7
+# `mag` (2): yaw (rad, wrapped to [-pi, pi]), stamp (s, -1 = none yet)
+MAG_SIZE = 2
+NO_SAMPLE_STAMP = -1.0
+# `attitude` (3): roll, pitch, yaw (rad) from the complementary filter
+ATTITUDE_SIZE = 3
+# `ekf_state` (7): x, y, z (m), vx, vy, vz (m/s), yaw (rad); NED
+EKF_STATE_SIZE = 7
+# `motor_thrusts` (4, N): motors 0..3 = front-left, front-right, rear-left, rear-right
+NUM_MOTORS = 4
+
+SQRT2 = math.sqrt(2.0)

@@ -1,0 +1,109 @@
+"""Pure rotation helpers: quaternions (wxyz, Hamilton, body-to-world), ZYX Euler
+angles (R_NB = Rz(yaw) Ry(pitch) Rx(roll)), yaw wrapping.
+
+Scalar trigonometry uses ``math`` (these run inside 500 Hz handlers); every
+function takes and returns plain floats or small numpy arrays.
+"""
+
+import math
+
+import numpy as np
+
+TWO_PI = 2.0 * math.pi
+
+
+def wrap_to_pi(angle):
+    """Angle wrapped into [-pi, pi), rad. The one place yaw differences are wrapped."""
+    return (angle + math.pi) % TWO_PI - math.pi
+
+
+def quat_from_euler(roll, pitch, yaw):
+    """Quaternion wxyz of R = Rz(yaw) Ry(pitch) Rx(roll); angles in rad."""
+    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
+    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
+    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
+    return np.array([
+        cr * cp * cy + sr * sp * sy,
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+    ])
+
+
+def euler_from_quat(q):
+    """(roll, pitch, yaw) in rad of a wxyz quaternion (need not be unit)."""
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    n2 = w * w + x * x + y * y + z * z
+    roll = math.atan2(2.0 * (y * z + w * x), w * w - x * x - y * y + z * z)
+    sin_pitch = max(-1.0, min(1.0, -2.0 * (x * z - w * y) / n2))
+    pitch = math.asin(sin_pitch)
+    yaw = math.atan2(2.0 * (x * y + w * z), w * w + x * x - y * y - z * z)
+    return roll, pitch, yaw
+
+
+def rotation_from_quat(q):
+    """R_NB (3x3) of a unit wxyz quaternion q_NB."""
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def rotation_from_euler(roll, pitch, yaw):
+    """R_NB = Rz(yaw) Ry(pitch) Rx(roll) (3x3); angles in rad."""
+    cr, sr = math.cos(roll), math.sin(roll)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    return np.array([
+        [cp * cy, sr * sp * cy - cr * sy, cr * sp * cy + sr * sy],
+        [cp * sy, sr * sp * sy + cr * cy, cr * sp * sy - sr * cy],
+        [-sp, sr * cp, cr * cp],
+    ])
+
+
+def rotation_yaw_derivative(roll, pitch, yaw):
+    """dR_NB/dyaw (3x3) of R = Rz(yaw) Ry(pitch) Rx(roll); the EKF's R'."""
+    cr, sr = math.cos(roll), math.sin(roll)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    return np.array([
+        [-cp * sy, -sr * sp * sy - cr * cy, -cr * sp * sy + sr * cy],
+        [cp * cy, sr * sp * cy - cr * sy, cr * sp * cy + sr * sy],
+        [0.0, 0.0, 0.0],
+    ])
+
+
+def quat_multiply(a, b):
+    """Hamilton product a * b of wxyz quaternions."""
+    aw, ax, ay, az = a[0], a[1], a[2], a[3]
+    bw, bx, by, bz = b[0], b[1], b[2], b[3]
+    return np.array([
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    ])
+
+
+def quat_integrate_body_rate(q, w_B, dt):
+    """q_NB after rotating for dt s at constant body rate w_B (rad/s): q * exp(w dt / 2).
+
+    Exact for constant w_B; the result is normalised.
+    """
+    wx, wy, wz = w_B[0], w_B[1], w_B[2]
+    rate = math.sqrt(wx * wx + wy * wy + wz * wz)
+    half_angle = 0.5 * rate * dt
+    if rate > 1e-12:
+        s = math.sin(half_angle) / rate
+        dq = (math.cos(half_angle), wx * s, wy * s, wz * s)
+    else:
+        dq = (1.0, 0.5 * dt * wx, 0.5 * dt * wy, 0.5 * dt * wz)
+    out = quat_multiply(q, dq)
+    return out / math.sqrt(out @ out)
+
+
+def skew(v):
+    """Cross-product matrix [v]x with [v]x u = v x u."""
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
