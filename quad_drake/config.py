@@ -13,7 +13,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import List, Optional
 
-from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
+import yaml
+from pydrake.common.yaml import yaml_dump, yaml_dump_typed, yaml_load, yaml_load_typed
 
 PACKAGE_DIR = Path(__file__).resolve().parent
 TRAJECTORY_DIR = PACKAGE_DIR / "data" / "traj"
@@ -310,16 +311,19 @@ def resolve_trajectory_file(name, where="trajectory.file"):
     raise ConfigError(f"{where}: no such trajectory file {name!r}")
 
 
+def _first_line(error):
+    return " ".join(str(error).split("\n")[:2]).strip()
+
+
 def parse_override(text):
     """Split ``dotted.key=value`` into (['dotted', 'key'], value parsed as YAML)."""
-    from pydrake.common.yaml import yaml_load
     key, sep, raw = text.partition("=")
     if not sep or not key.strip() or any(not part for part in key.strip().split(".")):
         raise ConfigError(f"--set {text!r}: expected dotted.key=value")
     try:
         value = yaml_load(data=f"value: {raw}")["value"] if raw.strip() else None
-    except RuntimeError as e:
-        raise ConfigError(f"--set {text!r}: value is not valid YAML ({e})") from None
+    except yaml.YAMLError as e:
+        raise ConfigError(f"--set {text!r}: value is not valid YAML ({_first_line(e)})") from None
     return key.strip().split("."), value
 
 
@@ -347,14 +351,13 @@ def load_scenario(path, overrides=()):
 
     Raises ConfigError with one line naming the file and the field.
     """
-    from pydrake.common.yaml import yaml_dump, yaml_load
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"{path}: no such scenario file")
     try:
         raw = yaml_load(filename=str(path))
-    except RuntimeError as e:
-        raise ConfigError(f"{path}: not valid YAML: {str(e).splitlines()[0]}") from None
+    except yaml.YAMLError as e:
+        raise ConfigError(f"{path}: not valid YAML: {_first_line(e)}") from None
     raw = raw or {}
     try:
         for text in overrides:
@@ -371,7 +374,7 @@ def load_scenario(path, overrides=()):
     except ConfigError as e:
         raise ConfigError(f"{path}: {e}") from None
     except (RuntimeError, ValueError, TypeError) as e:
-        raise ConfigError(f"{path}: {str(e).splitlines()[0]}") from None
+        raise ConfigError(f"{path}: {_first_line(e)}") from None
     return scenario
 
 

@@ -1,0 +1,29 @@
+# Two commands do all the set-up: `make run` (every scenario + result table), `make test`.
+# The virtual environment uses the newest Python that drake supports here (3.13, 3.12,
+# else python3); override with `make test PYTHON=python3 VENV=.venv-311`.
+PYTHON ?= $(shell for v in 3.13 3.12; do \
+	p=$$(ls -d $$(pyenv root 2>/dev/null)/versions/$$v*/bin/python 2>/dev/null | tail -n 1); [ -n "$$p" ] || p=$$(command -v python$$v 2>/dev/null); \
+	if [ -n "$$p" ] && $$p -c 'import venv' 2>/dev/null; then echo $$p; exit 0; fi; done; echo python3)
+VENV ?= .venv
+BIN := $(VENV)/bin
+
+.PHONY: run test lint bench clean
+
+$(VENV)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e '.[test]'
+	touch $@
+
+run: $(VENV)/.installed
+	$(BIN)/quad-drake run --all
+
+test: $(VENV)/.installed
+	$(BIN)/python -m ruff check .
+	$(BIN)/python -m pytest
+
+bench: $(VENV)/.installed
+	$(BIN)/python benchmarks/bench_closed_loop.py
+
+clean:
+	rm -rf $(VENV) out

@@ -1,0 +1,138 @@
+"""Command line: ``quad-drake list | run | noise-std``.
+
+Exit codes: 0 every criterion passed, 1 a criterion failed, 2 bad input
+(one line on stderr, no traceback).
+"""
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+
+from .config import ConfigError, load_scenario
+
+SCENARIO_DIR = Path(os.environ.get("QUAD_DRAKE_SCENARIOS",
+                                   Path(__file__).resolve().parent.parent / "scenarios"))
+
+
+def scenario_paths():
+    """{name: path} of the bundled scenarios, in order."""
+    return {p.stem: p for p in sorted(SCENARIO_DIR.glob("*.yaml"))}
+
+
+def resolve_scenario(name):
+    """Path of a scenario given by bundled name or by a YAML file path."""
+    known = scenario_paths()
+    if name in known:
+        return known[name]
+    path = Path(name)
+    if path.suffix in (".yaml", ".yml") or path.exists():
+        if not path.is_file():
+            raise ConfigError(f"{name}: no such scenario file")
+        return path
+    raise ConfigError(f"unknown scenario {name!r} (known: {', '.join(known)})")
+
+
+def load_named(name, seed=None, overrides=()):
+    """ScenarioConfig for a bundled name or path, with --set overrides and --seed."""
+    scenario = load_scenario(resolve_scenario(name), overrides)
+    if seed is not None:
+        scenario.seed = seed
+    return scenario
+
+
+def cmd_list(args):
+    for name, path in scenario_paths().items():
+        try:
+            description = load_scenario(path).description
+        except ConfigError as e:
+            description = f"(invalid: {e})"
+        print(f"{name:28s} {description}")
+    return 0
+
+
+def _table(rows):
+    header = f"{'scenario':28s} {'seed':>5s} {'criteria':>9s} {'result':>7s} {'wall[s]':>8s} {'x real':>7s}"
+    lines = [header, "-" * len(header)]
+    for s in rows:
+        passed = sum(c["passed"] for c in s["criteria"])
+        verdict = "PASS" if s["passed"] else "FAIL"
+        if not s["criteria"]:
+            verdict = "-"
+        lines.append(f"{s['scenario']:28s} {s['seed']:5d} {passed:4d}/{len(s['criteria']):<4d} "
+                     f"{verdict:>7s} {s['wall_time_s']:8.2f} {s['real_time_factor']:7.1f}")
+    return "\n".join(lines)
+
+
+def cmd_run(args):
+    from .simulation import run
+    names = list(scenario_paths()) if args.all else args.names
+    if not names:
+        raise ConfigError("run: name at least one scenario, or --all")
+    scenarios = [load_named(n, args.seed, args.set) for n in names]   # all input checked first
+    out = Path(args.out)
+    summaries = []
+    for scenario in scenarios:
+        print(f"== {scenario.name} (seed {scenario.seed}, {scenario.end_time:g} s)", flush=True)
+        result = run(scenario)
+        for criterion in result.criteria:
+            print(criterion.line)
+        run_dir = result.save(out / scenario.name)
+        if not args.no_plots:
+            from .plots import write_run_artifacts
+            write_run_artifacts(result, run_dir)
+        summaries.append(result.summary())
+        (out / "summary.json").write_text(json.dumps(summaries, indent=2) + "\n")
+    print()
+    print(_table(summaries))
+    return 0 if all(s["passed"] for s in summaries) else 1
+
+
+def cmd_noise_std(args):
+    from .simulation import load_logs, signals_from_logs
+    from .noise_stats import measured_noise_std
+    _, logs = load_logs(args.run_dir)
+    for name, std in measured_noise_std(signals_from_logs(logs)).items():
+        print(f"{name}: {std:.4f}")
+    return 0
+
+
+def build_parser():
+    parser = argparse.ArgumentParser(prog="quad-drake", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    sub.add_parser("list", help="bundled scenarios with a one-line description").set_defaults(
+        func=cmd_list)
+    run_parser = sub.add_parser("run", help="run scenarios, print PASS/FAIL and a summary table")
+    run_parser.add_argument("names", nargs="*", metavar="NAME", help="scenario name or YAML path")
+    run_parser.add_argument("--all", action="store_true", help="every bundled scenario")
+    run_parser.add_argument("--seed", type=int, help="override the scenarios' seed")
+    run_parser.add_argument("--out", default="out", help="output folder (default: out)")
+    run_parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                            help="override a config field, e.g. vehicles.0.physics.mass=0.8")
+    run_parser.add_argument("--no-plots", action="store_true", help="skip plots and reports")
+    run_parser.set_defaults(func=cmd_run)
+    noise = sub.add_parser("noise-std", help="step 1: GPS-x and accel-x std devs from a run's logs")
+    noise.add_argument("run_dir")
+    noise.set_defaults(func=cmd_noise_std)
+    return parser
+
+
+def main(argv=None):
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if getattr(args, "seed", None) is not None and args.seed < 0:
+        print("quad-drake: --seed must be >= 0", file=sys.stderr)
+        return 2
+    try:
+        return args.func(args)
+    except ConfigError as e:
+        print(f"quad-drake: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("quad-drake: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

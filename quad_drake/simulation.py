@@ -1,0 +1,262 @@
+"""Wire scenarios into Drake Diagrams and run them.
+
+A vehicle (plant, sensors, attitude filter, EKF, controller, trajectory) is a
+sub-Diagram with its signals exported, so a scenario instantiates it N times.
+Loggers (``LogVectorOutput``, 5 ms) sit in the top-level Diagram; the scenario
+seed reaches every noise source through ``SetRandomContext``.
+"""
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from pydrake.common import RandomGenerator
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput, RandomSource
+from pydrake.common import RandomDistribution
+
+from . import conventions as c
+from .config import ConfigError, dump_scenario
+from .evaluation import sigma_threshold, window_threshold
+from .rotations import quat_from_euler
+from .signals import empty_logs, vehicle_signals
+from .systems.controller import CascadeController
+from .systems.estimators import ComplementaryFilter, Ekf, EstimatedStateAssembler
+from .systems.plant import QuadrotorPlant
+from .systems.sensors import Gps, Imu, Magnetometer
+from .systems.trajectory import TrajectorySource
+from .trajectories import trajectory_from_config
+
+
+def initial_state(vehicle):
+    """13-vector (p, q wxyz, v, w) of a VehicleConfig's initial conditions."""
+    yaw, pitch, roll = vehicle.initial_ypr
+    return np.concatenate([vehicle.initial_position, quat_from_euler(roll, pitch, yaw),
+                           vehicle.initial_velocity, vehicle.initial_omega])
+
+
+def vehicle_log_names(vehicle):
+    """Names of the signals a vehicle exports (and the top level logs)."""
+    names = ["state", "reference", "motor_forces"]
+    sensors = vehicle.sensors
+    names += [s for s in ("imu", "gps", "mag") if getattr(sensors, s) is not None]
+    if sensors.imu is not None:
+        names += ["attitude", "ekf_state", "covariance", "diagnostics"]
+    return names
+
+
+def _add_noisy(builder, sensor, distribution=RandomDistribution.kGaussian):
+    builder.AddSystem(sensor)
+    noise = builder.AddSystem(RandomSource(distribution, sensor.noise_size, sensor.noise_period))
+    builder.Connect(noise.get_output_port(0), sensor.GetInputPort("noise"))
+    return sensor
+
+
+def _never_sampled(builder, size):
+    """A sensor output that never carries a sample (stamp = NO_SAMPLE_STAMP)."""
+    value = np.zeros(size)
+    value[-1] = c.NO_SAMPLE_STAMP
+    return builder.AddSystem(ConstantVectorSource(value)).get_output_port(0)
+
+
+def build_vehicle(vehicle):
+    """The sub-Diagram of one VehicleConfig; its outputs are named as `vehicle_log_names`."""
+    builder = DiagramBuilder()
+    plant = builder.AddSystem(QuadrotorPlant(vehicle.physics, initial_state(vehicle)))
+    plant.set_name("plant")
+    motor_noise = builder.AddSystem(RandomSource(RandomDistribution.kUniform, c.NUM_MOTORS,
+                                                 c.PHYSICS_PERIOD))
+    builder.Connect(motor_noise.get_output_port(0), plant.GetInputPort("motor_noise"))
+    controller = builder.AddSystem(CascadeController(vehicle.controller))
+    controller.set_name("controller")
+    trajectory = builder.AddSystem(TrajectorySource(trajectory_from_config(vehicle.trajectory)))
+    trajectory.set_name("trajectory")
+    builder.Connect(controller.GetOutputPort("motor_thrusts"), plant.GetInputPort("motor_thrusts"))
+    builder.Connect(trajectory.GetOutputPort("reference"), controller.GetInputPort("reference"))
+    outputs = {"state": plant.GetOutputPort("state"),
+               "reference": trajectory.GetOutputPort("reference"),
+               "motor_forces": plant.GetOutputPort("motor_forces")}
+    state_for_control = plant.GetOutputPort("state")
+
+    sensors = vehicle.sensors
+    if sensors.imu is not None:
+        imu = _add_noisy(builder, Imu(sensors.imu))
+        builder.Connect(plant.GetOutputPort("state"), imu.GetInputPort("state"))
+        builder.Connect(plant.GetOutputPort("acceleration"), imu.GetInputPort("acceleration"))
+        outputs["imu"] = imu.GetOutputPort("imu")
+    for kind, sensor_class in (("gps", Gps), ("mag", Magnetometer)):
+        params = getattr(sensors, kind)
+        if params is not None:
+            sensor = _add_noisy(builder, sensor_class(params))
+            builder.Connect(plant.GetOutputPort("state"), sensor.GetInputPort("state"))
+            outputs[kind] = sensor.GetOutputPort(kind)
+
+    if sensors.imu is not None:
+        ekf = builder.AddSystem(Ekf(vehicle.ekf))
+        attitude_filter = builder.AddSystem(ComplementaryFilter(
+            vehicle.attitude_filter, initial_attitude=(0.0, 0.0, vehicle.ekf.init_state[6])))
+        builder.Connect(outputs["imu"], attitude_filter.GetInputPort("imu"))
+        builder.Connect(ekf.GetOutputPort("ekf_state"), attitude_filter.GetInputPort("ekf_state"))
+        builder.Connect(outputs["imu"], ekf.GetInputPort("imu"))
+        builder.Connect(attitude_filter.GetOutputPort("attitude"), ekf.GetInputPort("attitude"))
+        builder.Connect(outputs.get("gps") or _never_sampled(builder, c.GPS_SIZE), ekf.GetInputPort("gps"))
+        builder.Connect(outputs.get("mag") or _never_sampled(builder, c.MAG_SIZE), ekf.GetInputPort("mag"))
+        outputs["attitude"] = attitude_filter.GetOutputPort("attitude")
+        for name in ("ekf_state", "covariance", "diagnostics"):
+            outputs[name] = ekf.GetOutputPort(name)
+        if not vehicle.use_ideal_estimator:
+            assembler = builder.AddSystem(EstimatedStateAssembler())
+            for name in ("attitude", "ekf_state", "imu"):
+                builder.Connect(outputs[name], assembler.GetInputPort(name))
+            state_for_control = assembler.GetOutputPort("estimated_state")
+    builder.Connect(state_for_control, controller.GetInputPort("state"))
+
+    for name in vehicle_log_names(vehicle):
+        builder.ExportOutput(outputs[name], name)
+    diagram = builder.Build()
+    diagram.set_name(vehicle.name)
+    return diagram
+
+
+def build_diagram(scenario):
+    """(Diagram, {vehicle name: {log name: VectorLogSink}}) for a ScenarioConfig."""
+    builder = DiagramBuilder()
+    loggers = {}
+    for vehicle in scenario.vehicles:
+        sub = builder.AddSystem(build_vehicle(vehicle))
+        loggers[vehicle.name] = {
+            name: LogVectorOutput(sub.GetOutputPort(name), builder, publish_period=c.LOG_PERIOD)
+            for name in vehicle_log_names(vehicle)}
+    diagram = builder.Build()
+    diagram.set_name(scenario.name)
+    return diagram, loggers
+
+
+def available_signals(scenario):
+    """Names of every signal the scenario's criteria may refer to."""
+    names = set()
+    for vehicle in scenario.vehicles:
+        names |= set(vehicle_signals(vehicle.name, empty_logs(vehicle_log_names(vehicle))))
+    return names
+
+
+def check_criteria(scenario):
+    """Raise ConfigError when a criterion names a signal the scenario does not produce."""
+    known = available_signals(scenario)
+    for i, criterion in enumerate(scenario.criteria):
+        for key in ("signal", "ref_signal", "sigma_signal"):
+            name = getattr(criterion, key)
+            if name and name not in known:
+                raise ConfigError(f"criteria.{i}.{key}: unknown signal {name!r} "
+                                  f"(e.g. {', '.join(sorted(known)[:6])}, ...)")
+
+
+def evaluate_criteria(scenario, times, signals):
+    """CriterionResult per scenario criterion, on the logged 5 ms samples."""
+    results = []
+    for criterion in scenario.criteria:
+        signal = signals[criterion.signal]
+        if criterion.kind == "window":
+            results.append(window_threshold(times, signal.values, criterion.threshold,
+                                            criterion.window, name=criterion.signal))
+            continue
+        ref = (signals[criterion.ref_signal].values if criterion.ref_signal
+               else np.full(times.shape, criterion.ref))
+        sigma = (signals[criterion.sigma_signal].values if criterion.sigma_signal
+                 else np.full(times.shape, criterion.sigma))
+        results.append(sigma_threshold(
+            times, signal.values, signal.fresh, ref, sigma, criterion.min_percent,
+            criterion.max_percent, criterion.window, name=criterion.signal,
+            ref_name=criterion.ref_signal or f"{criterion.ref:f}",
+            sigma_name=criterion.sigma_signal or f"{criterion.sigma:f}"))
+    return results
+
+
+@dataclass
+class SimulationResult:
+    """Logs, derived signals and criterion verdicts of one scenario run."""
+    scenario: object
+    times: np.ndarray                         # (n,) s, log sample times 0.005 k, k >= 1
+    logs: dict                                # vehicle -> log name -> (n, width)
+    signals: dict                             # signal name -> Signal
+    criteria: list                            # CriterionResult per scenario criterion
+    wall_time: float                          # s, simulation only
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def passed(self):
+        return all(r.passed for r in self.criteria)
+
+    def summary(self):
+        """JSON-ready summary: scenario, seed, verdicts, wall time."""
+        return {"scenario": self.scenario.name, "seed": self.scenario.seed,
+                "end_time": self.scenario.end_time, "passed": self.passed,
+                "wall_time_s": round(self.wall_time, 3),
+                "real_time_factor": round(self.scenario.end_time / self.wall_time, 2),
+                "criteria": [r.as_dict() for r in self.criteria]}
+
+    def save(self, out_dir):
+        """Write logs.npz, config.yaml (resolved) and summary.json into out_dir."""
+        out_dir = Path(out_dir)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        arrays = {"times": self.times}
+        for vehicle, logs in self.logs.items():
+            for name, data in logs.items():
+                arrays[f"{vehicle}/{name}"] = data
+        np.savez_compressed(out_dir / "logs.npz", **arrays)
+        (out_dir / "config.yaml").write_text(dump_scenario(self.scenario))
+        (out_dir / "summary.json").write_text(json.dumps(self.summary(), indent=2) + "\n")
+        return out_dir
+
+
+def load_logs(run_dir):
+    """(times, {vehicle: {log name: array}}) from a run folder's logs.npz."""
+    path = Path(run_dir) / "logs.npz"
+    if not path.is_file():
+        raise ConfigError(f"{run_dir}: no logs.npz (is this a run folder?)")
+    data = np.load(path)
+    logs = {}
+    for key in data.files:
+        if key != "times":
+            vehicle, name = key.split("/", 1)
+            logs.setdefault(vehicle, {})[name] = data[key]
+    return data["times"], logs
+
+
+def signals_from_logs(logs):
+    """All vehicles' named signals from {vehicle: {log name: array}}."""
+    signals = {}
+    for vehicle, vehicle_logs in logs.items():
+        signals.update(vehicle_signals(vehicle, vehicle_logs))
+    return signals
+
+
+def run(scenario):
+    """Simulate a ScenarioConfig for end_time s with its seed; evaluate its criteria."""
+    check_criteria(scenario)
+    diagram, loggers = build_diagram(scenario)
+    simulator = Simulator(diagram)
+    context = simulator.get_mutable_context()
+    diagram.SetRandomContext(context, RandomGenerator(scenario.seed))
+    start = time.perf_counter()
+    simulator.Initialize()
+    simulator.AdvanceTo(scenario.end_time)
+    wall_time = time.perf_counter() - start
+
+    n_samples = int(round(scenario.end_time / c.LOG_PERIOD))
+    times = None
+    logs = {}
+    for vehicle, vehicle_loggers in loggers.items():
+        logs[vehicle] = {}
+        for name, logger in vehicle_loggers.items():
+            log = logger.FindLog(context)
+            # Keep samples at 0.005 k, k = 1..n (the reference's analyzer frames).
+            keep = slice(1, n_samples + 1)
+            times = log.sample_times()[keep] if times is None else times
+            logs[vehicle][name] = log.data().T[keep].copy()
+    signals = signals_from_logs(logs)
+    return SimulationResult(scenario, times, logs, signals,
+                            evaluate_criteria(scenario, times, signals), wall_time)
