@@ -90,8 +90,8 @@ def cmd_run(args):
 
 
 def cmd_noise_std(args):
-    from .simulation import load_logs, signals_from_logs
     from .noise_stats import measured_noise_std
+    from .simulation import load_logs, signals_from_logs
     _, logs = load_logs(args.run_dir)
     for name, std in measured_noise_std(signals_from_logs(logs)).items():
         print(f"{name}: {std:.4f}")

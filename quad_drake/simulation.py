@@ -6,21 +6,21 @@ Loggers (``LogVectorOutput``, 5 ms) sit in the top-level Diagram; the scenario
 seed reaches every noise source through ``SetRandomContext``.
 """
 
+import dataclasses
 import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from pydrake.common import RandomGenerator
+from pydrake.common import RandomDistribution, RandomGenerator
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput, RandomSource
-from pydrake.common import RandomDistribution
 
 from . import conventions as c
 from .config import ConfigError, dump_scenario
-from .evaluation import sigma_threshold, window_threshold
+from .evaluation import evaluate_criterion
 from .rotations import quat_from_euler
 from .signals import empty_logs, vehicle_signals
 from .systems.controller import CascadeController
@@ -156,23 +156,9 @@ def check_criteria(scenario):
 
 def evaluate_criteria(scenario, times, signals):
     """CriterionResult per scenario criterion, on the logged 5 ms samples."""
-    results = []
-    for criterion in scenario.criteria:
-        signal = signals[criterion.signal]
-        if criterion.kind == "window":
-            results.append(window_threshold(times, signal.values, criterion.threshold,
-                                            criterion.window, name=criterion.signal))
-            continue
-        ref = (signals[criterion.ref_signal].values if criterion.ref_signal
-               else np.full(times.shape, criterion.ref))
-        sigma = (signals[criterion.sigma_signal].values if criterion.sigma_signal
-                 else np.full(times.shape, criterion.sigma))
-        results.append(sigma_threshold(
-            times, signal.values, signal.fresh, ref, sigma, criterion.min_percent,
-            criterion.max_percent, criterion.window, name=criterion.signal,
-            ref_name=criterion.ref_signal or f"{criterion.ref:f}",
-            sigma_name=criterion.sigma_signal or f"{criterion.sigma:f}"))
-    return results
+    def lookup(name):
+        return signals[name].values, signals[name].fresh
+    return [evaluate_criterion(criterion, times, lookup) for criterion in scenario.criteria]
 
 
 @dataclass
@@ -196,7 +182,7 @@ class SimulationResult:
                 "end_time": self.scenario.end_time, "passed": self.passed,
                 "wall_time_s": round(self.wall_time, 3),
                 "real_time_factor": round(self.scenario.end_time / self.wall_time, 2),
-                "criteria": [r.as_dict() for r in self.criteria]}
+                "criteria": [dataclasses.asdict(r) for r in self.criteria]}
 
     def save(self, out_dir):
         """Write logs.npz, config.yaml (resolved) and summary.json into out_dir."""

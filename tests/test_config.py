@@ -3,10 +3,10 @@
 import textwrap
 
 import pytest
+from pydrake.common.yaml import yaml_load_typed
 
 from quad_drake.cli import scenario_paths
 from quad_drake.config import ConfigError, ScenarioConfig, dump_scenario, load_scenario
-from pydrake.common.yaml import yaml_load_typed
 
 
 def write(tmp_path, text, name="s.yaml"):

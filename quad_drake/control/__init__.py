@@ -1,0 +1,1 @@
+"""Pure control laws: the FCND cascade controller (SPEC §5)."""

@@ -1,0 +1,200 @@
+"""Pure quadrotor physics: motor lag, X-layout mixer, rigid body in NED/FRD, room limits.
+
+State layout (13, see ``conventions``): p_NB (m, NED), q_NB (wxyz, body to world),
+v_NB (m/s, NED), w_NB_B (rad/s, FRD body). Thrust acts along body -z, gravity is
+``(0, 0, +GRAVITY)`` in N. All functions take and return plain floats / lists (the
+plant steps at 1 kHz, so the hot path avoids small numpy arrays).
+
+Motor layout (X configuration, arm length L from the centre, moment arm L/sqrt(2)):
+
+======  ===========  ===================  ================  =========================
+index   name         position (x, y)      spin seen from    reaction yaw moment
+                     in body FRD          above             on the body (about +z)
+======  ===========  ===================  ================  =========================
+0       front-left   (+L/√2, -L/√2)       clockwise         -kappa F0
+1       front-right  (+L/√2, +L/√2)       counter-clockw.   +kappa F1
+2       rear-left    (-L/√2, -L/√2)       counter-clockw.   +kappa F2
+3       rear-right   (-L/√2, +L/√2)       clockwise         -kappa F3
+======  ===========  ===================  ================  =========================
+
+Body +z points down, so a positive Mz yaws the nose to the right (towards +y).
+"""
+
+import math
+
+from quad_drake.conventions import GRAVITY, SQRT2
+
+
+def clamped_noisy_commands(commands, noise_unit, min_thrust, max_thrust, noise_half_width):
+    """Per-motor target force, N: clamp(cmd, min, max) + half_width (2u - 1), u in [0, 1].
+
+    The noise is added after the clamp, so the target may slightly exceed the limits
+    (SPEC §3 step 1).
+    """
+    return [(min_thrust if c < min_thrust else max_thrust if c > max_thrust else c)
+            + noise_half_width * (2.0 * u - 1.0) for c, u in zip(commands, noise_unit, strict=True)]
+
+
+def motor_lag_step(forces_old, forces_cmd, dt, tau_up, tau_down):
+    """Motor forces (N) after one backward-Euler first-order lag step of dt s.
+
+    F = Fcmd dt/(dt + tau) + Fold tau/(dt + tau), with tau = tau_up when Fcmd >= Fold
+    (spinning up) and tau_down otherwise.
+    """
+    out = []
+    for old, cmd in zip(forces_old, forces_cmd, strict=True):
+        tau = tau_up if cmd >= old else tau_down
+        out.append((cmd * dt + old * tau) / (dt + tau))
+    return out
+
+
+def wrench_from_thrusts(forces, arm_length, kappa, com_offset=(0.0, 0.0)):
+    """(T, Mx, My, Mz): total thrust (N, along body -z) and moments about the CoM (N m, FRD).
+
+    forces: the four motor forces (N) in the order of the module table. com_offset: the
+    centre of mass (cx, cy) in body x, y (m); it adds cy T to Mx and -cx T to My.
+    """
+    f0, f1, f2, f3 = forces
+    arm = arm_length / SQRT2
+    thrust = f0 + f1 + f2 + f3
+    return (thrust,
+            arm * (f0 - f1 + f2 - f3) + com_offset[1] * thrust,
+            arm * (f0 + f1 - f2 - f3) - com_offset[0] * thrust,
+            kappa * (-f0 + f1 + f2 - f3))
+
+
+def thrusts_from_wrench(thrust, mx, my, mz, arm_length, kappa):
+    """Motor forces (F0, F1, F2, F3), N, realising (T, Mx, My, Mz); the exact inverse of
+    :func:`wrench_from_thrusts` for a centred CoM (SPEC §5 step 8). Not clamped."""
+    dx = mx / (2.0 * SQRT2 * arm_length)
+    dy = my / (2.0 * SQRT2 * arm_length)
+    dz = mz / (4.0 * kappa)
+    t4 = 0.25 * thrust
+    return (t4 - dz + dy + dx,
+            t4 + dz + dy - dx,
+            t4 + dz - dy + dx,
+            t4 - dz - dy - dx)
+
+
+def _rates(qw, qx, qy, qz, wx, wy, wz, c, mx, my, mz, kx, ky, kz):
+    """(q_dot (4), w_dot (3), a_NB (3)) at attitude q and body rate w.
+
+    c = -2 T / m; (mx, my, mz) = M / I; (kx, ky, kz) = ((Iyy - Izz)/Ixx, (Izz - Ixx)/Iyy,
+    (Ixx - Iyy)/Izz). a_NB = R(q) (0, 0, -T/m) + g_N uses only R's third column.
+    """
+    return (0.5 * (-qx * wx - qy * wy - qz * wz),
+            0.5 * (qw * wx + qy * wz - qz * wy),
+            0.5 * (qw * wy - qx * wz + qz * wx),
+            0.5 * (qw * wz + qx * wy - qy * wx),
+            mx + kx * wy * wz,
+            my + ky * wz * wx,
+            mz + kz * wx * wy,
+            c * (qx * qz + qw * qy),
+            c * (qy * qz - qw * qx),
+            GRAVITY + 0.5 * c - c * (qx * qx + qy * qy))
+
+
+def _coefficients(thrust, moment, mass, inertia):
+    ixx, iyy, izz = inertia
+    return (-2.0 * thrust / mass,
+            moment[0] / ixx, moment[1] / iyy, moment[2] / izz,
+            (iyy - izz) / ixx, (izz - ixx) / iyy, (ixx - iyy) / izz)
+
+
+def rigid_body_derivatives(state, thrust, moment, mass, inertia):
+    """Time derivative (13-tuple) of the state under thrust T (N) and body moment M (N m).
+
+    p_dot = v; q_dot = q (x) (0, w) / 2; v_dot = R(q) (0, 0, -T)/m + g_N (the NED
+    acceleration a_NB, entries 7:10); w_dot = I^-1 (M - w x I w) with I = diag(inertia).
+    """
+    qw, qx, qy, qz, vx, vy, vz, wx, wy, wz = (float(s) for s in state[3:13])
+    qdw, qdx, qdy, qdz, wdx, wdy, wdz, ax, ay, az = _rates(
+        qw, qx, qy, qz, wx, wy, wz, *_coefficients(thrust, moment, mass, inertia))
+    return (vx, vy, vz, qdw, qdx, qdy, qdz, ax, ay, az, wdx, wdy, wdz)
+
+
+def rigid_body_step(state, thrust, moment, mass, inertia, dt):
+    """One classical RK4 step of dt s with the wrench held constant; q renormalised.
+
+    Returns (state_new: list of 13 floats, a_NB: (3,) mean NED acceleration over the
+    step, (v_new - v_old)/dt, m/s^2). RK4 costs about the same as RK3 here and is
+    1e-11 m accurate over 2 s of tumbling flight (explicit Euler: cm).
+    """
+    px, py, pz, qw, qx, qy, qz, vx, vy, vz, wx, wy, wz = state
+    c, mx, my, mz, kx, ky, kz = _coefficients(thrust, moment, mass, inertia)
+    h = 0.5 * dt
+    qw1, qx1, qy1, qz1, wx1, wy1, wz1, ax1, ay1, az1 = _rates(
+        qw, qx, qy, qz, wx, wy, wz, c, mx, my, mz, kx, ky, kz)
+    qw2, qx2, qy2, qz2, wx2, wy2, wz2, ax2, ay2, az2 = _rates(
+        qw + h * qw1, qx + h * qx1, qy + h * qy1, qz + h * qz1,
+        wx + h * wx1, wy + h * wy1, wz + h * wz1, c, mx, my, mz, kx, ky, kz)
+    qw3, qx3, qy3, qz3, wx3, wy3, wz3, ax3, ay3, az3 = _rates(
+        qw + h * qw2, qx + h * qx2, qy + h * qy2, qz + h * qz2,
+        wx + h * wx2, wy + h * wy2, wz + h * wz2, c, mx, my, mz, kx, ky, kz)
+    qw4, qx4, qy4, qz4, wx4, wy4, wz4, ax4, ay4, az4 = _rates(
+        qw + dt * qw3, qx + dt * qx3, qy + dt * qy3, qz + dt * qz3,
+        wx + dt * wx3, wy + dt * wy3, wz + dt * wz3, c, mx, my, mz, kx, ky, kz)
+    d6 = dt / 6.0
+    qw += d6 * (qw1 + 2.0 * (qw2 + qw3) + qw4)
+    qx += d6 * (qx1 + 2.0 * (qx2 + qx3) + qx4)
+    qy += d6 * (qy1 + 2.0 * (qy2 + qy3) + qy4)
+    qz += d6 * (qz1 + 2.0 * (qz2 + qz3) + qz4)
+    n = 1.0 / math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+    ax = (ax1 + 2.0 * (ax2 + ax3) + ax4) / 6.0
+    ay = (ay1 + 2.0 * (ay2 + ay3) + ay4) / 6.0
+    az = (az1 + 2.0 * (az2 + az3) + az4) / 6.0
+    # p(dt) = p + v dt + integral of (dt - s) a(s) ds; RK4's stage velocities give this:
+    p2 = dt * d6
+    new = [px + dt * vx + p2 * (ax1 + ax2 + ax3),
+           py + dt * vy + p2 * (ay1 + ay2 + ay3),
+           pz + dt * vz + p2 * (az1 + az2 + az3),
+           qw * n, qx * n, qy * n, qz * n,
+           vx + dt * ax, vy + dt * ay, vz + dt * az,
+           wx + d6 * (wx1 + 2.0 * (wx2 + wx3) + wx4),
+           wy + d6 * (wy1 + 2.0 * (wy2 + wy3) + wy4),
+           wz + d6 * (wz1 + 2.0 * (wz2 + wz3) + wz4)]
+    return new, (ax, ay, az)
+
+
+def apply_room_constraints(state_new, state_old, params):
+    """State (list of 13) after the room limits of SPEC §3 step 7; inputs are not modified.
+
+    params: PhysicsParams (x_bounds, y_bounds, z_bounds in m, NED). Sticky floor: when
+    z >= z_max, p reverts to p_old with z = z_max, vx = vy = 0, vz = min(0, vz), w = 0.
+    Then x or y outside its bounds reverts to its old value with zero velocity, and
+    z < z_min reverts z with vz = 0.
+    """
+    s = list(state_new)
+    z_min, z_max = params.z_bounds
+    if s[2] >= z_max:
+        s[0], s[1], s[2] = state_old[0], state_old[1], z_max
+        s[7] = s[8] = 0.0
+        s[9] = min(0.0, s[9])
+        s[10] = s[11] = s[12] = 0.0
+    x_min, x_max = params.x_bounds
+    if s[0] < x_min or s[0] > x_max:
+        s[0], s[7] = state_old[0], 0.0
+    y_min, y_max = params.y_bounds
+    if s[1] < y_min or s[1] > y_max:
+        s[1], s[8] = state_old[1], 0.0
+    if s[2] < z_min:
+        s[2], s[9] = state_old[2], 0.0
+    return s
+
+
+def plant_step(state, forces_old, commands, noise_unit, params, dt):
+    """One physics step of SPEC §3 (steps 1-8) with an RK4 rigid body.
+
+    state: 13 floats; forces_old: lagged motor forces (4, N); commands: commanded motor
+    forces (4, N); noise_unit: four uniforms in [0, 1]; params: PhysicsParams.
+    Returns (state_new, a_NB, forces): a_NB = (v_new - v_old)/dt (3, m/s^2, NED) after
+    the room limits, i.e. the kinematic acceleration the IMU senses (zero on the floor).
+    """
+    targets = clamped_noisy_commands(commands, noise_unit, params.min_motor_thrust,
+                                     params.max_motor_thrust, params.motor_noise)
+    forces = motor_lag_step(forces_old, targets, dt, params.motor_tau_up, params.motor_tau_down)
+    thrust, mx, my, mz = wrench_from_thrusts(forces, params.arm_length, params.kappa, params.com_offset)
+    new, _ = rigid_body_step(state, thrust, (mx, my, mz), params.mass, params.inertia, dt)
+    new = apply_room_constraints(new, state, params)
+    accel = ((new[7] - state[7]) / dt, (new[8] - state[8]) / dt, (new[9] - state[9]) / dt)
+    return new, accel, forces

@@ -1,0 +1,176 @@
+"""7-state EKF of SPEC §4: x = (p_N (m), v_N (m/s), yaw (rad)), NED; roll and pitch come from
+the complementary filter. Written for the physical accelerometer: a_N = R_NB f_B + g_N.
+
+Noise matrices follow the reference: Q = diag(q_std^2) * dt_imu is applied once per predict
+step, R_gps = diag(gps_std^2), R_mag = [mag_yaw_std^2]. Updates use the Joseph form and
+return the normalised innovation squared (NIS); a non-finite measurement is skipped (the
+state and covariance are returned unchanged and the NIS is NaN).
+"""
+
+import math
+
+import numpy as np
+
+from quad_drake.conventions import EKF_STATE_SIZE, GRAVITY
+from quad_drake.rotations import wrap_to_pi
+
+YAW_INDEX = 6
+
+
+def _constant(array):
+    array.flags.writeable = False
+    return array
+
+
+IDENTITY = _constant(np.eye(EKF_STATE_SIZE))
+H_GPS = _constant(np.eye(6, EKF_STATE_SIZE))
+"""GPS measurement matrix [I6 | 0]: position and velocity."""
+H_MAG = _constant(np.eye(1, EKF_STATE_SIZE, YAW_INDEX))
+"""Magnetometer measurement matrix [0 ... 0 1]: yaw."""
+
+
+def initial_state(params):
+    """x0 (7) from EkfParams.init_state."""
+    return np.array(params.init_state, dtype=float)
+
+
+def initial_covariance(params):
+    """P0 = diag(init_std^2) (7x7)."""
+    return np.diag(np.square(np.asarray(params.init_std, dtype=float)))
+
+
+def process_noise(params):
+    """Q (7x7) per predict step = diag(q_pos_xy^2 x2, q_pos_z^2, q_vel_xy^2 x2, q_vel_z^2, q_yaw^2) dt_imu."""
+    p = params
+    std = [p.q_pos_xy_std, p.q_pos_xy_std, p.q_pos_z_std,
+           p.q_vel_xy_std, p.q_vel_xy_std, p.q_vel_z_std, p.q_yaw_std]
+    return np.diag(np.square(std)) * p.dt_imu
+
+
+def gps_noise(params):
+    """R_gps (6x6) = diag(pos_xy^2 x2, pos_z^2, vel_xy^2 x2, vel_z^2), m^2 and (m/s)^2."""
+    p = params
+    std = [p.gps_pos_xy_std, p.gps_pos_xy_std, p.gps_pos_z_std,
+           p.gps_vel_xy_std, p.gps_vel_xy_std, p.gps_vel_z_std]
+    return np.diag(np.square(std))
+
+
+def mag_noise(params):
+    """R_mag (1x1) = [mag_yaw_std^2], rad^2."""
+    return np.array([[params.mag_yaw_std ** 2]])
+
+
+def _rotate_specific_force(roll, pitch, yaw, f_B):
+    """(R_NB f_B, dR_NB/dyaw f_B) as two 3-tuples of floats; R_NB = Rz(yaw) Ry(pitch) Rx(roll)."""
+    fx, fy, fz = float(f_B[0]), float(f_B[1]), float(f_B[2])
+    cr, sr = math.cos(roll), math.sin(roll)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    rolled_z = sr * fy + cr * fz             # Rx(roll) f, z component
+    ux = cp * fx + sp * rolled_z             # u = Ry(pitch) Rx(roll) f (the yaw-free part)
+    uy = cr * fy - sr * fz
+    uz = -sp * fx + cp * rolled_z
+    return (cy * ux - sy * uy, sy * ux + cy * uy, uz), (-sy * ux - cy * uy, cy * ux - sy * uy, 0.0)
+
+
+def _state_after(x, a_N, dt):
+    """x (7) after p += v dt, v += a_N dt; yaw unchanged."""
+    px, py, pz, vx, vy, vz, yaw = x.tolist()
+    return np.array([px + vx * dt, py + vy * dt, pz + vz * dt,
+                     vx + a_N[0] * dt, vy + a_N[1] * dt, vz + a_N[2] * dt, yaw])
+
+
+def _fill_jacobian(G, rf_yaw, dt):
+    G[0, 3] = G[1, 4] = G[2, 5] = dt
+    G[3, 6] = rf_yaw[0] * dt
+    G[4, 6] = rf_yaw[1] * dt
+    G[5, 6] = rf_yaw[2] * dt
+    return G
+
+
+def predict_state(x, roll, pitch, f_B, dt):
+    """x (7) after dt s: p += v dt; v += (R(roll, pitch, x[6]) f_B + g_N) dt; yaw unchanged.
+
+    roll, pitch: rad (complementary filter). f_B: specific force, m/s^2 (FRD). dt: s.
+    """
+    rf, _ = _rotate_specific_force(roll, pitch, x[YAW_INDEX], f_B)
+    return _state_after(np.asarray(x, dtype=float), (rf[0], rf[1], rf[2] + GRAVITY), dt)
+
+
+def predict_jacobian(x, roll, pitch, f_B, dt):
+    """G = d predict_state / dx (7x7): I7, G[0,3] = G[1,4] = G[2,5] = dt, G[3:6, 6] = R' f_B dt."""
+    _, rf_yaw = _rotate_specific_force(roll, pitch, x[YAW_INDEX], f_B)
+    return _fill_jacobian(np.eye(EKF_STATE_SIZE), rf_yaw, dt)
+
+
+def _symmetrised(P):
+    S = P + P.T
+    S *= 0.5
+    return S
+
+
+def predict_covariance(P, G, Q):
+    """G P G^T + Q (7x7), symmetrised."""
+    GPGt = G @ P @ G.T
+    GPGt += Q
+    return _symmetrised(GPGt)
+
+
+def predict(x, P, roll, pitch, f_B, dt, Q, G=None):
+    """(x, P) after one IMU step: predict_state, and P <- G P G^T + Q with G = predict_jacobian.
+
+    The 500 Hz path: the rotation is evaluated once. G is an optional 7x7 work buffer from
+    an earlier predict_jacobian call; its Jacobian entries are overwritten in place.
+    """
+    rf, rf_yaw = _rotate_specific_force(roll, pitch, x[YAW_INDEX], f_B)
+    G = _fill_jacobian(np.eye(EKF_STATE_SIZE) if G is None else G, rf_yaw, dt)
+    return _state_after(x, (rf[0], rf[1], rf[2] + GRAVITY), dt), predict_covariance(P, G, Q)
+
+
+def kalman_update(x, P, z, H, R, z_hat):
+    """(x, P, nis) after the measurement z (m) of model z_hat (m) with Jacobian H (m x 7), noise R.
+
+    K = P H^T S^-1 with S = H P H^T + R; P <- (I - K H) P (I - K H)^T + K R K^T (Joseph form,
+    symmetrised); nis = nu^T S^-1 nu with nu = z - z_hat.
+    """
+    nu = np.asarray(z, dtype=float) - z_hat
+    PHt = P @ H.T
+    S = H @ PHt + R
+    solved = np.linalg.solve(S, np.column_stack((PHt.T, nu)))   # S^-1 [H P | nu]
+    K = solved[:, :-1].T
+    I_KH = IDENTITY - K @ H
+    P_new = I_KH @ P @ I_KH.T + K @ R @ K.T
+    return x + K @ nu, _symmetrised(P_new), float(nu @ solved[:, -1])
+
+
+def gps_update(x, P, gps_pv, R_gps):
+    """Update with a GPS sample gps_pv = (p_N (m), v_N (m/s)); returns (x, P, nis).
+
+    A non-finite sample is skipped: (x, P, nan).
+    """
+    z = np.asarray(gps_pv, dtype=float)
+    if not np.isfinite(z).all():
+        return x, P, math.nan
+    return kalman_update(x, P, z, H_GPS, R_gps, x[:6])
+
+
+def mag_update(x, P, yaw_meas, R_mag):
+    """Update with a magnetometer yaw (rad); returns (x, P, nis).
+
+    The residual goes the short way round (the reference shifts the predicted yaw by 2 pi),
+    the posterior yaw is wrapped to [-pi, pi). Same result as kalman_update with H_MAG,
+    in scalar form: with h = e6^T, S = P66 + r and K = P[:, 6] / S the Joseph form is
+    P - K P[6, :] - P[:, 6] K^T + S K K^T. A non-finite yaw gives (x, P, nan).
+    """
+    yaw_meas = float(yaw_meas)
+    if not math.isfinite(yaw_meas):
+        return x, P, math.nan
+    nu = wrap_to_pi(yaw_meas - float(x[YAW_INDEX]))
+    p6 = P[:, YAW_INDEX]
+    S = float(p6[YAW_INDEX]) + float(R_mag[0, 0])
+    K = p6 / S
+    KhP = np.outer(K, p6)
+    P_new = P - (KhP + KhP.T) + S * np.outer(K, K)
+    x_new = x + K * nu
+    x_new[YAW_INDEX] = wrap_to_pi(x_new[YAW_INDEX])
+    return x_new, P_new, nu * nu / S

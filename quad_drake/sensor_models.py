@@ -1,0 +1,77 @@
+"""Pure sensor models (SPEC §2): noise-free measurements and the application of noise.
+
+Noise enters as unit-normal draws passed in by the caller; nothing here holds an RNG.
+Conventions: NED world N, FRD body B, wxyz quaternion q_NB (body to world).
+
+The accelerometer measures the physical specific force ``f_B = R_NB^T (a_NB - g_N)``
+with ``g_N = (0, 0, +9.81)``, i.e. (0, 0, -9.81) when level at rest. This deliberately
+differs from the reference simulator's ``R^T (a + g)`` (see DESIGN §4).
+
+The IMU functions work on Python scalars (they run at 500 Hz): pass sequences such as
+lists, tuples or ``ndarray.tolist()`` results, and get lists back.
+"""
+
+from quad_drake.conventions import GRAVITY
+from quad_drake.rotations import euler_from_quat, wrap_to_pi
+
+
+def specific_force(q_NB, a_NB):
+    """Specific force f_B = R_NB^T (a_NB - g_N), m/s^2, body FRD, as a list of 3.
+
+    q_NB: wxyz quaternion (need not be exactly unit); a_NB: kinematic acceleration of B
+    in N, expressed in N (NED), m/s^2.
+    """
+    w, x, y, z = q_NB[0], q_NB[1], q_NB[2], q_NB[3]
+    dx, dy, dz = a_NB[0], a_NB[1], a_NB[2] - GRAVITY
+    s = 2.0 / (w * w + x * x + y * y + z * z)
+    # f = R^T d, with R the rotation matrix of the normalised quaternion.
+    return [
+        (1.0 - s * (y * y + z * z)) * dx + s * (x * y + w * z) * dy + s * (x * z - w * y) * dz,
+        s * (x * y - w * z) * dx + (1.0 - s * (x * x + z * z)) * dy + s * (y * z + w * x) * dz,
+        s * (x * z + w * y) * dx + s * (y * z - w * x) * dy + (1.0 - s * (x * x + y * y)) * dz,
+    ]
+
+
+def _clamp(value, limit):
+    return -limit if value < -limit else (limit if value > limit else value)
+
+
+def imu_measurement(q_NB, w_NB_B, a_NB, noise, params):
+    """Noisy IMU sample [f_B (3, m/s^2), gyro (3, rad/s)] as a list of 6.
+
+    noise: 6 unit-normal draws, 3 accelerometer then 3 gyro (SPEC §0.3 order).
+    params: ImuParams; f_B is saturated per axis to +-accel_limit after the noise.
+    """
+    f = specific_force(q_NB, a_NB)
+    sa, sg, limit = params.accel_std, params.gyro_std, params.accel_limit
+    return [
+        _clamp(f[0] + sa[0] * noise[0], limit),
+        _clamp(f[1] + sa[1] * noise[1], limit),
+        _clamp(f[2] + sa[2] * noise[2], limit),
+        w_NB_B[0] + sg[0] * noise[3],
+        w_NB_B[1] + sg[1] * noise[4],
+        w_NB_B[2] + sg[2] * noise[5],
+    ]
+
+
+def gps_measurement(p_NB, v_NB, random_walk, noise, params):
+    """Noisy GPS sample: (position (3, m), velocity (3, m/s), new random-walk bias (3, m)), NED.
+
+    The bias first takes its step, rw += pos_random_walk_std * n_rw, then
+    position = p + rw + pos_std * n_p and velocity = v + vel_std * n_v.
+    noise: 9 unit-normal draws, 3 random walk, 3 position, 3 velocity (SPEC §0.3 order).
+    params: GpsParams. Returns three lists of 3.
+    """
+    rw_std, pos_std, vel_std = params.pos_random_walk_std, params.pos_std, params.vel_std
+    rw = [random_walk[i] + rw_std[i] * noise[i] for i in range(3)]
+    position = [p_NB[i] + rw[i] + pos_std[i] * noise[3 + i] for i in range(3)]
+    velocity = [v_NB[i] + vel_std[i] * noise[6 + i] for i in range(3)]
+    return position, velocity, rw
+
+
+def magnetometer_yaw(q_NB, noise, params):
+    """Noisy yaw sample, rad, wrapped to [-pi, pi): yaw(q_NB) + yaw_std * noise.
+
+    noise: one unit-normal draw; params: MagParams.
+    """
+    return wrap_to_pi(euler_from_quat(q_NB)[2] + params.yaw_std * noise)

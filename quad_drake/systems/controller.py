@@ -1,0 +1,55 @@
+"""Drake glue for the cascade controller (SPEC §5): :class:`CascadeController`."""
+
+import copy
+
+import numpy as np
+from pydrake.systems.framework import LeafSystem
+
+from quad_drake.control.cascade import cascade_step
+from quad_drake.conventions import (
+    CONTROLLER_OFFSET,
+    GRAVITY,
+    NUM_MOTORS,
+    ONBOARD_PERIOD,
+    REFERENCE_SIZE,
+    STATE_SIZE,
+)
+
+
+class CascadeController(LeafSystem):
+    """The FCND cascade controller, ticking at ONBOARD_PERIOD (offset CONTROLLER_OFFSET).
+
+    Inputs:
+      state (13): p_NB (m, NED), q_NB (wxyz), v_NB (m/s, NED), w_NB_B (rad/s, FRD),
+        true or estimated (the controller does not know which).
+      reference (10): p (m), v (m/s), a feed-forward (m/s^2), yaw (rad).
+    Output:
+      motor_thrusts (4, N): motors 0..3 = FL, FR, RL, RR; unclamped commands, a state
+        output port (no direct feedthrough); mass g / 4 each before the first tick.
+    Discrete state: the altitude-error integral (1, m s) and the last motor command (4, N).
+    """
+
+    def __init__(self, params):
+        super().__init__()
+        self._params = copy.deepcopy(params)
+        self._state_port = self.DeclareVectorInputPort("state", STATE_SIZE)
+        self._reference_port = self.DeclareVectorInputPort("reference", REFERENCE_SIZE)
+        self._integral_index = self.DeclareDiscreteState(1)
+        hover = params.mass * GRAVITY / NUM_MOTORS
+        self._thrusts_index = self.DeclareDiscreteState(np.full(NUM_MOTORS, hover))
+        self.DeclareStateOutputPort("motor_thrusts", self._thrusts_index)
+        self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, CONTROLLER_OFFSET, self._update)
+
+    def integral_index(self):
+        """Discrete-state group index of the altitude-error integral (m s)."""
+        return self._integral_index
+
+    def DoCalcTimeDerivatives(self, context, derivatives):
+        """No-op: avoids the default per-derivative overhead of Python systems (DESIGN §9)."""
+
+    def _update(self, context, discrete_state):
+        integral = discrete_state.get_mutable_value(self._integral_index)
+        forces, integral[0] = cascade_step(self._state_port.Eval(context).tolist(),
+                                           self._reference_port.Eval(context).tolist(),
+                                           float(integral[0]), ONBOARD_PERIOD, self._params)
+        discrete_state.get_mutable_value(self._thrusts_index)[:] = forces

@@ -1,0 +1,26 @@
+"""TrajectorySource: publishes a reference trajectory (SPEC §6) as a Drake output port."""
+
+from pydrake.systems.framework import LeafSystem
+
+from quad_drake.conventions import REFERENCE_SIZE
+
+
+class TrajectorySource(LeafSystem):
+    """No inputs; output ``reference`` (10) = trajectory.sample(t) at the context time t (s).
+
+    Layout: p (3, m, NED), v (3, m/s), a feed-forward (3, m/s^2), yaw (rad). ``trajectory``
+    is any object with ``sample(t) -> (10,)`` (see :mod:`quad_drake.trajectories`). The
+    output depends on time only (cached per time step), so it cannot close a loop.
+    """
+
+    def __init__(self, trajectory):
+        super().__init__()
+        self._trajectory = trajectory
+        self.DeclareVectorOutputPort("reference", REFERENCE_SIZE, self._calc_reference,
+                                     prerequisites_of_calc={self.time_ticket()})
+
+    def _calc_reference(self, context, output):
+        output.SetFromVector(self._trajectory.sample(context.get_time()))
+
+    def DoCalcTimeDerivatives(self, context, derivatives):
+        """No-op: avoids the default per-derivative overhead of Python systems (DESIGN §9)."""

@@ -1,0 +1,278 @@
+"""Estimator systems: tick timing, freshness by stamp, NaN rejection, the CF/EKF yaw hand-off."""
+
+import math
+
+import numpy as np
+import pytest
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import ConstantVectorSource
+
+from quad_drake.config import AttitudeFilterParams, EkfParams
+from quad_drake.conventions import GRAVITY, NO_SAMPLE_STAMP, ONBOARD_PERIOD
+from quad_drake.estimation import ekf
+from quad_drake.estimation.complementary import complementary_update
+from quad_drake.rotations import quat_from_euler
+from quad_drake.systems.estimators import ComplementaryFilter, Ekf, EstimatedStateAssembler
+
+DT = ONBOARD_PERIOD
+LEVEL_IMU = [0.0, 0.0, -GRAVITY, 0.0, 0.0, 0.0]
+NO_GPS = [0.0] * 6 + [NO_SAMPLE_STAMP]
+NO_MAG = [0.0, NO_SAMPLE_STAMP]
+
+
+def ticks_end(n):
+    """A time after the n-th onboard tick (ticks at k DT + offsets < 1e-5 s) and before the next."""
+    return (n - 1) * DT + 0.5 * DT
+
+
+class EkfFixture:
+    def __init__(self, params=None, imu=LEVEL_IMU, attitude=(0.0, 0.0, 0.0), gps=NO_GPS, mag=NO_MAG):
+        self.params = params or EkfParams()
+        self.dut = Ekf(self.params)
+        self.context = self.dut.CreateDefaultContext()
+        self.ports = {name: self.dut.GetInputPort(name) for name in ("imu", "attitude", "gps", "mag")}
+        self.fix(imu=imu, attitude=attitude, gps=gps, mag=mag)
+        self.simulator = Simulator(self.dut, self.context)
+        self.ticks = 0
+
+    def fix(self, **values):
+        for name, value in values.items():
+            self.ports[name].FixValue(self.context, np.asarray(value, dtype=float))
+
+    def tick(self, n=1):
+        self.ticks += n
+        self.simulator.AdvanceTo(ticks_end(self.ticks))
+
+    def output(self, name):
+        return self.dut.GetOutputPort(name).Eval(self.context).copy()
+
+
+class Replay:
+    """The pure-function sequence the EKF system should perform."""
+
+    def __init__(self, params, imu=LEVEL_IMU, attitude=(0.0, 0.0, 0.0)):
+        self.Q, self.R_gps = ekf.process_noise(params), ekf.gps_noise(params)
+        self.R_mag = ekf.mag_noise(params)
+        self.x, self.P = ekf.initial_state(params), ekf.initial_covariance(params)
+        self.imu, self.attitude = np.asarray(imu, dtype=float), attitude
+
+    def predict(self, n=1):
+        for _ in range(n):
+            self.x[6] = self.attitude[2]
+            roll, pitch = self.attitude[0], self.attitude[1]
+            self.x, self.P = ekf.predict(self.x, self.P, roll, pitch, self.imu[:3], DT, self.Q)
+
+    def gps(self, z):
+        self.x, self.P, nis = ekf.gps_update(self.x, self.P, z, self.R_gps)
+        return nis
+
+    def mag(self, yaw):
+        self.x, self.P, nis = ekf.mag_update(self.x, self.P, yaw, self.R_mag)
+        return nis
+
+
+def assert_matches(fixture, replay):
+    np.testing.assert_allclose(fixture.output("ekf_state"), replay.x, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(fixture.output("covariance"), replay.P.ravel(), rtol=0, atol=1e-15)
+
+
+# ----- ComplementaryFilter -----------------------------------------------------
+
+def make_cf(imu, ekf_yaw, params=None, initial_attitude=(0.0, 0.0, 0.0)):
+    dut = ComplementaryFilter(params or AttitudeFilterParams(), initial_attitude)
+    context = dut.CreateDefaultContext()
+    dut.GetInputPort("imu").FixValue(context, np.asarray(imu, dtype=float))
+    dut.GetInputPort("ekf_state").FixValue(context, np.array([9.0] * 6 + [ekf_yaw]))
+    return dut, context, Simulator(dut, context)
+
+
+def test_cf_ticks_at_its_offset_and_integrates_from_the_ekf_yaw():
+    imu = [0.5, -1.0, -9.7, 0.3, -0.2, 0.8]
+    params = AttitudeFilterParams(variant="nonlinear", tau=0.5)
+    dut, context, simulator = make_cf(imu, ekf_yaw=0.4, params=params, initial_attitude=(0.1, -0.05, 2.0))
+    simulator.AdvanceTo(1.5e-6)        # before ATTITUDE_FILTER_OFFSET = 2e-6
+    np.testing.assert_array_equal(dut.GetOutputPort("attitude").Eval(context), [0.1, -0.05, 2.0])
+    simulator.AdvanceTo(2.5e-6)
+    expected = complementary_update(0.1, -0.05, 0.4, imu[:3], imu[3:], DT, 0.5, "nonlinear")
+    np.testing.assert_allclose(dut.GetOutputPort("attitude").Eval(context), expected, rtol=0, atol=1e-15)
+    simulator.AdvanceTo(ticks_end(2))
+    expected = complementary_update(*expected[:2], 0.4, imu[:3], imu[3:], DT, 0.5, "nonlinear")
+    np.testing.assert_allclose(dut.GetOutputPort("attitude").Eval(context), expected, rtol=0, atol=1e-15)
+
+
+def test_cf_small_angle_variant_is_selected_by_params():
+    imu = [0.0, 0.0, -GRAVITY, 0.0, 0.0, 1.0]
+    dut, context, simulator = make_cf(imu, 0.0, AttitudeFilterParams(variant="small_angle"), (0.5, 0.0, 0.0))
+    simulator.AdvanceTo(ticks_end(1))
+    roll, pitch, yaw = dut.GetOutputPort("attitude").Eval(context)
+    assert pitch == pytest.approx(0.0, abs=1e-15)      # the nonlinear variant would give -r sin(roll) dt
+    assert yaw == pytest.approx(DT, abs=1e-15)
+    assert roll == pytest.approx(0.5 * 100.0 / (100.0 + DT), abs=1e-15)
+
+
+def test_cf_holds_its_attitude_on_a_non_finite_imu_sample():
+    dut, context, simulator = make_cf([0.0, math.nan, -GRAVITY, 0.0, 0.0, 1.0], ekf_yaw=-0.3,
+                                      initial_attitude=(0.1, 0.2, 0.0))
+    simulator.AdvanceTo(ticks_end(3))
+    np.testing.assert_array_equal(dut.GetOutputPort("attitude").Eval(context), [0.1, 0.2, -0.3])
+
+
+def test_cf_rejects_an_unknown_variant():
+    with pytest.raises(ValueError, match="variant"):
+        ComplementaryFilter(AttitudeFilterParams(variant="linear"))
+
+
+# ----- Ekf ---------------------------------------------------------------------
+
+def test_ekf_port_sizes():
+    dut = Ekf(EkfParams())
+    assert [dut.GetInputPort(n).size() for n in ("imu", "gps", "mag", "attitude")] == [6, 7, 2, 3]
+    assert [dut.GetOutputPort(n).size() for n in ("ekf_state", "covariance", "diagnostics")] == [7, 49, 5]
+
+
+def test_ekf_stationary_ticks_grow_covariance_by_q():
+    f = EkfFixture()
+    p = f.params
+    P0, Q = ekf.initial_covariance(p), ekf.process_noise(p)
+    G = ekf.predict_jacobian(ekf.initial_state(p), 0.0, 0.0, LEVEL_IMU[:3], DT)
+    P = P0
+    for k in range(1, 6):
+        f.tick()
+        P = G @ P @ G.T + Q
+        got = f.output("covariance").reshape(7, 7)
+        # velocity and yaw do not depend on the other states: P = P0 + k Q exactly
+        np.testing.assert_allclose(got[3:7, 3:7], P0[3:7, 3:7] + k * Q[3:7, 3:7], rtol=1e-14, atol=0)
+        np.testing.assert_allclose(got, P, rtol=1e-14, atol=1e-18)
+        assert got[0, 3] == pytest.approx(k * DT * P0[3, 3] + DT * Q[3, 3] * k * (k - 1) / 2, rel=1e-12)
+        np.testing.assert_array_equal(f.output("ekf_state"), p.init_state)
+    diagnostics = f.output("diagnostics")
+    assert math.isnan(diagnostics[0]) and math.isnan(diagnostics[2])
+    np.testing.assert_array_equal(diagnostics[[1, 3, 4]], [NO_SAMPLE_STAMP, NO_SAMPLE_STAMP, 0.0])
+
+
+def test_ekf_takes_the_attitude_yaw_and_predicts_with_its_tilt():
+    imu = [0.3, -0.2, -9.9, 0.0, 0.0, 0.0]
+    attitude = (0.1, -0.2, 0.7)
+    f, r = EkfFixture(imu=imu, attitude=attitude), Replay(EkfParams(), imu, attitude)
+    f.tick(3)
+    r.predict(3)
+    assert_matches(f, r)
+    assert f.output("ekf_state")[6] == 0.7
+    assert abs(f.output("ekf_state")[3:6]).max() > 1e-3
+
+
+def test_ekf_fuses_a_fresh_gps_stamp_exactly_once():
+    z = [0.5, -0.3, -1.4, 0.2, 0.1, -0.1]
+    f, r = EkfFixture(gps=z + [0.1]), Replay(EkfParams())
+    f.tick()
+    r.predict()
+    nis = r.gps(z)
+    assert_matches(f, r)
+    np.testing.assert_allclose(f.output("diagnostics")[[0, 1, 4]], [nis, 0.1, 0.0], rtol=1e-12)
+    f.tick(4)                            # same stamp: no further update
+    r.predict(4)
+    assert_matches(f, r)
+    f.fix(gps=z + [0.2])                 # fresh stamp: one more update
+    f.tick(2)
+    r.predict()
+    nis = r.gps(z)
+    r.predict()
+    assert_matches(f, r)
+    np.testing.assert_allclose(f.output("diagnostics")[[0, 1]], [nis, 0.2], rtol=1e-12)
+
+
+def test_ekf_fuses_mag_and_gps_samples_of_one_tick():
+    # A horizontal specific force correlates yaw with velocity, so both updates move all states.
+    # (Two linear updates of independent measurements commute; the mag-then-GPS order only
+    # matters through the yaw wrap.)
+    z, yaw = [0.5, -0.3, -1.4, 0.2, 0.1, -0.1], 0.3
+    imu, attitude = [2.0, -1.0, -9.6, 0.0, 0.0, 0.0], (0.1, 0.05, 0.2)
+    f, r = EkfFixture(imu=imu, attitude=attitude), Replay(EkfParams(), imu, attitude)
+    f.tick(10)
+    r.predict(10)
+    f.fix(gps=z + [0.1], mag=[yaw, 0.008])
+    f.tick()
+    r.predict()
+    mag_nis = r.mag(yaw)
+    gps_nis = r.gps(z)
+    assert_matches(f, r)
+    np.testing.assert_allclose(f.output("diagnostics"), [gps_nis, 0.1, mag_nis, 0.008, 0.0], rtol=1e-12)
+    assert abs(r.P[3, 6]) > 1e-6
+
+
+def test_ekf_skips_and_counts_non_finite_samples():
+    z = [0.5, -0.3, -1.4, 0.2, 0.1, -0.1]
+    f, r = EkfFixture(gps=[math.nan] + z[1:] + [0.1], mag=[math.inf, 0.008]), Replay(EkfParams())
+    f.tick(3)                                              # each stamp counted once
+    r.predict(3)
+    assert_matches(f, r)
+    assert f.output("diagnostics")[4] == 2.0
+    assert math.isnan(f.output("diagnostics")[0]) and math.isnan(f.output("diagnostics")[2])
+    f.fix(gps=z + [math.nan])                              # a NaN stamp is rejected too
+    f.tick()
+    r.predict()
+    assert_matches(f, r)
+    assert f.output("diagnostics")[4] == 3.0
+    f.fix(gps=NO_GPS, imu=[0.0, 0.0, math.nan, 0.0, 0.0, 0.0])   # a bad IMU sample: no predict
+    f.tick(2)
+    assert_matches(f, r)
+    assert f.output("diagnostics")[4] == 5.0
+    f.fix(imu=LEVEL_IMU, attitude=(0.0, math.inf, 0.0))
+    f.tick()
+    assert_matches(f, r)
+    assert f.output("diagnostics")[4] == 6.0
+
+
+def test_ekf_mag_update_wraps_the_posterior_yaw():
+    f = EkfFixture(attitude=(0.0, 0.0, -3.1), mag=[3.1, 0.008])
+    f.tick()
+    r = Replay(EkfParams(), attitude=(0.0, 0.0, -3.1))
+    r.predict()
+    r.mag(3.1)
+    assert_matches(f, r)
+    assert -math.pi <= f.output("ekf_state")[6] < -3.1
+
+
+# ----- EstimatedStateAssembler and the closed estimator loop ------------------
+
+def test_assembler_layout_uses_the_ekf_yaw_and_the_gyro():
+    dut = EstimatedStateAssembler()
+    context = dut.CreateDefaultContext()
+    dut.GetInputPort("attitude").FixValue(context, [0.1, -0.2, 9.0])
+    dut.GetInputPort("ekf_state").FixValue(context, [1.0, 2.0, -3.0, 0.4, 0.5, 0.6, 0.7])
+    dut.GetInputPort("imu").FixValue(context, [7.0, 8.0, 9.0, -0.1, 0.2, -0.3])
+    got = dut.GetOutputPort("estimated_state").Eval(context)
+    expected = np.concatenate([[1.0, 2.0, -3.0], quat_from_euler(0.1, -0.2, 0.7), [0.4, 0.5, 0.6],
+                               [-0.1, 0.2, -0.3]])
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-15)
+
+
+def build_estimators(imu, gps=NO_GPS, mag=NO_MAG):
+    builder = DiagramBuilder()
+    cf = builder.AddSystem(ComplementaryFilter(AttitudeFilterParams()))
+    dut = builder.AddSystem(Ekf(EkfParams()))
+    assembler = builder.AddSystem(EstimatedStateAssembler())
+    sources = {name: builder.AddSystem(ConstantVectorSource(np.asarray(v, dtype=float)))
+               for name, v in (("imu", imu), ("gps", gps), ("mag", mag))}
+    for name in ("imu", "gps", "mag"):
+        builder.Connect(sources[name].get_output_port(), dut.GetInputPort(name))
+    builder.Connect(sources["imu"].get_output_port(), cf.GetInputPort("imu"))
+    builder.Connect(sources["imu"].get_output_port(), assembler.GetInputPort("imu"))
+    builder.Connect(cf.GetOutputPort("attitude"), dut.GetInputPort("attitude"))
+    builder.Connect(cf.GetOutputPort("attitude"), assembler.GetInputPort("attitude"))
+    builder.Connect(dut.GetOutputPort("ekf_state"), cf.GetInputPort("ekf_state"))
+    builder.Connect(dut.GetOutputPort("ekf_state"), assembler.GetInputPort("ekf_state"))
+    builder.ExportOutput(assembler.GetOutputPort("estimated_state"), "estimated_state")
+    builder.ExportOutput(dut.GetOutputPort("ekf_state"), "ekf_state")
+    return builder.Build()
+
+
+def test_yaw_hand_off_between_filter_and_ekf_integrates_the_gyro_once_per_tick():
+    diagram = build_estimators(imu=[0.0, 0.0, -GRAVITY, 0.0, 0.0, 0.5])
+    context = diagram.CreateDefaultContext()
+    Simulator(diagram, context).AdvanceTo(ticks_end(500))
+    assert diagram.GetOutputPort("ekf_state").Eval(context)[6] == pytest.approx(500 * DT * 0.5, abs=1e-12)
+    estimated = diagram.GetOutputPort("estimated_state").Eval(context)
+    np.testing.assert_allclose(estimated[3:7], quat_from_euler(0.0, 0.0, 0.5), atol=1e-12)
+    np.testing.assert_array_equal(estimated[10:13], [0.0, 0.0, 0.5])

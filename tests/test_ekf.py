@@ -1,0 +1,236 @@
+"""7-state EKF: noise matrices, prediction and its Jacobian, Joseph-form updates, consistency (NEES)."""
+
+import math
+from statistics import NormalDist
+
+import numpy as np
+import pytest
+
+from quad_drake.config import EkfParams
+from quad_drake.conventions import GRAVITY
+from quad_drake.estimation import ekf
+from quad_drake.rotations import wrap_to_pi
+
+DT = 0.002
+HOVER_F_B = np.array([0.0, 0.0, -GRAVITY])
+
+
+def random_spd(rng, n, scale=1.0):
+    A = rng.normal(size=(n, n))
+    return scale * (A @ A.T / n + 0.1 * np.eye(n))
+
+
+def random_inputs(rng):
+    x = rng.normal(size=7)
+    x[6] = rng.uniform(-math.pi, math.pi)
+    return x, rng.uniform(-0.6, 0.6), rng.uniform(-0.6, 0.6), rng.normal([0.0, 0.0, -GRAVITY], 3.0)
+
+
+def test_noise_matrices_and_initial_covariance_from_spec_defaults():
+    p = EkfParams()
+    np.testing.assert_allclose(ekf.process_noise(p), np.diag([5e-6] * 5 + [2e-5, 5e-6]), rtol=1e-12, atol=0)
+    np.testing.assert_allclose(ekf.gps_noise(p), np.diag([1.0, 1.0, 9.0, 0.01, 0.01, 0.09]),
+                               rtol=1e-12, atol=0)
+    np.testing.assert_allclose(ekf.mag_noise(p), [[0.01]], rtol=1e-12)
+    np.testing.assert_allclose(ekf.initial_covariance(p),
+                               np.diag([0.01, 0.01, 0.09, 0.01, 0.01, 0.09, 0.0025]), rtol=1e-12, atol=0)
+    np.testing.assert_array_equal(ekf.initial_state(p), [0, 0, -1, 0, 0, 0, 0])
+    q = ekf.process_noise(EkfParams(q_yaw_std=0.2, dt_imu=0.01))
+    assert q[6, 6] == pytest.approx(0.04 * 0.01, rel=1e-12)
+
+
+def test_level_hover_keeps_velocity_and_integrates_position():
+    for yaw in (0.0, 1.0, -2.5):
+        x = np.array([1.0, 2.0, -3.0, 0.5, -0.25, 0.1, yaw])
+        got = ekf.predict_state(x, 0.0, 0.0, HOVER_F_B, DT)
+        np.testing.assert_allclose(got, [1.001, 1.9995, -2.9998, 0.5, -0.25, 0.1, yaw], atol=1e-14)
+
+
+def test_tilted_hover_accelerates_the_physical_way():
+    # Rolled right by 0.2 rad with thrust/mass = g / cos(roll): a_N = (0, g tan(roll), 0) when
+    # heading north, (-g tan(roll), 0, 0) when heading east (right wing points south).
+    roll = 0.2
+    f_B = np.array([0.0, 0.0, -GRAVITY / math.cos(roll)])
+    for yaw, a_expected in ((0.0, (0.0, GRAVITY * math.tan(roll), 0.0)),
+                            (math.pi / 2, (-GRAVITY * math.tan(roll), 0.0, 0.0))):
+        got = ekf.predict_state(np.array([0, 0, 0, 0, 0, 0, yaw], dtype=float), roll, 0.0, f_B, 1.0)
+        np.testing.assert_allclose(got[3:6], a_expected, atol=1e-12)
+        np.testing.assert_allclose(got[0:3], 0.0, atol=0)
+
+
+@pytest.mark.parametrize("dt", [DT, 0.1])
+def test_predict_jacobian_equals_central_differences(dt):
+    rng = np.random.default_rng(3)
+    h = 1e-6
+    for _ in range(20):
+        x, roll, pitch, f_B = random_inputs(rng)
+        G = ekf.predict_jacobian(x, roll, pitch, f_B, dt)
+        numeric = np.empty((7, 7))
+        for j in range(7):
+            e = np.zeros(7)
+            e[j] = h
+            numeric[:, j] = (ekf.predict_state(x + e, roll, pitch, f_B, dt)
+                             - ekf.predict_state(x - e, roll, pitch, f_B, dt)) / (2 * h)
+        np.testing.assert_allclose(G, numeric, atol=1e-8 * max(1.0, dt * 10), rtol=0)
+        assert abs(G[3:5, 6]).max() > 1e-4 * dt    # the yaw column is exercised
+
+
+def test_predict_equals_its_parts_and_reuses_the_work_buffer():
+    rng = np.random.default_rng(4)
+    Q = ekf.process_noise(EkfParams())
+    G_work = ekf.predict_jacobian(np.zeros(7), 0.0, 0.0, HOVER_F_B, DT)
+    for _ in range(20):
+        x, roll, pitch, f_B = random_inputs(rng)
+        P = random_spd(rng, 7, 0.1)
+        x_new, P_new = ekf.predict(x, P, roll, pitch, f_B, DT, Q, G_work)
+        G = ekf.predict_jacobian(x, roll, pitch, f_B, DT)
+        np.testing.assert_allclose(x_new, ekf.predict_state(x, roll, pitch, f_B, DT), atol=1e-15)
+        np.testing.assert_allclose(P_new, G @ P @ G.T + Q, rtol=1e-13, atol=1e-16)
+        np.testing.assert_array_equal(G_work, G)
+        np.testing.assert_array_equal(P_new, P_new.T)
+        x_alloc, P_alloc = ekf.predict(x, P, roll, pitch, f_B, DT, Q)
+        np.testing.assert_array_equal(x_alloc, x_new)
+        np.testing.assert_array_equal(P_alloc, P_new)
+
+
+def test_joseph_update_equals_standard_form_for_optimal_gain():
+    rng = np.random.default_rng(5)
+    for m in (1, 3, 6):
+        x, P = rng.normal(size=7), random_spd(rng, 7)
+        H, R = rng.normal(size=(m, 7)), random_spd(rng, m, 0.5)
+        z, z_hat = rng.normal(size=m), rng.normal(size=m)
+        x_new, P_new, nis = ekf.kalman_update(x, P, z, H, R, z_hat)
+        S = H @ P @ H.T + R
+        K = P @ H.T @ np.linalg.inv(S)
+        nu = z - z_hat
+        np.testing.assert_allclose(x_new, x + K @ nu, rtol=1e-11, atol=1e-12)
+        np.testing.assert_allclose(P_new, (np.eye(7) - K @ H) @ P, rtol=1e-10, atol=1e-12)
+        assert nis == pytest.approx(nu @ np.linalg.inv(S) @ nu, rel=1e-11)
+
+
+def test_updates_keep_covariance_symmetric_and_positive_definite():
+    rng = np.random.default_rng(6)
+    p = EkfParams()
+    Q, R_gps, R_mag = ekf.process_noise(p), ekf.gps_noise(p), ekf.mag_noise(p)
+    x, P = ekf.initial_state(p), ekf.initial_covariance(p)
+    for k in range(3000):
+        _, roll, pitch, f_B = random_inputs(rng)
+        x, P = ekf.predict(x, P, roll, pitch, f_B, DT, Q)
+        if k % 5 == 0:
+            x, P, _ = ekf.mag_update(x, P, rng.uniform(-math.pi, math.pi), R_mag)
+        if k % 50 == 0:
+            x, P, _ = ekf.gps_update(x, P, rng.normal(size=6) * 10.0, R_gps)
+        np.testing.assert_array_equal(P, P.T)
+        assert np.linalg.eigvalsh(P).min() > 0.0
+    assert -math.pi <= x[6] < math.pi
+
+
+def test_gps_update_is_kalman_update_with_position_velocity_rows():
+    rng = np.random.default_rng(7)
+    x, P = rng.normal(size=7), random_spd(rng, 7)
+    z, R = rng.normal(size=6), ekf.gps_noise(EkfParams())
+    H = np.hstack([np.eye(6), np.zeros((6, 1))])
+    got = ekf.gps_update(x, P, z, R)
+    want = ekf.kalman_update(x, P, z, H, R, H @ x)
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[1])
+    assert got[2] == want[2]
+    assert abs(got[0][6] - x[6]) > 1e-3    # yaw moves through its correlation with p, v
+
+
+def test_mag_update_scalar_form_equals_kalman_update():
+    rng = np.random.default_rng(8)
+    R = ekf.mag_noise(EkfParams())
+    for _ in range(50):
+        x, P = rng.normal(size=7), random_spd(rng, 7)
+        x[6] = rng.uniform(-1.0, 1.0)
+        z = x[6] + rng.normal(0.0, 0.5)
+        x_new, P_new, nis = ekf.mag_update(x, P, z, R)
+        x_ref, P_ref, nis_ref = ekf.kalman_update(x, P, [z], ekf.H_MAG, R, x[6:7])
+        x_ref[6] = wrap_to_pi(x_ref[6])
+        np.testing.assert_allclose(x_new, x_ref, rtol=1e-12, atol=1e-13)
+        np.testing.assert_allclose(P_new, P_ref, rtol=1e-11, atol=1e-13)
+        np.testing.assert_array_equal(P_new, P_new.T)
+        assert nis == pytest.approx(nis_ref, rel=1e-12)
+
+
+def test_mag_residual_goes_the_short_way_across_pi():
+    p = EkfParams()
+    x, P = ekf.initial_state(p), ekf.initial_covariance(p)    # P66 = 0.0025, R = 0.01
+    x[6] = -3.1
+    x_new, _, nis = ekf.mag_update(x, P, 3.1, ekf.mag_noise(p))
+    nu = 6.2 - 2 * math.pi                                   # -0.0832: go down through -pi
+    assert x_new[6] == pytest.approx(-3.1 + 0.2 * nu, abs=1e-12)
+    assert nis == pytest.approx(nu * nu / 0.0125, rel=1e-12)
+    # A confident magnetometer pulls the estimate across -pi; the result is wrapped.
+    P[6, 6] = 1.0
+    x_new, P_new, _ = ekf.mag_update(x, P, 3.1, np.array([[1e-6]]))
+    assert x_new[6] == pytest.approx(3.1, abs=1e-5)
+    assert P_new[6, 6] == pytest.approx(1e-6, rel=1e-5)
+
+
+def test_non_finite_measurements_are_skipped():
+    p = EkfParams()
+    x, P = ekf.initial_state(p), ekf.initial_covariance(p)
+    for z in ([math.nan, 0, 0, 0, 0, 0], [0, 0, 0, 0, 0, math.inf]):
+        x_new, P_new, nis = ekf.gps_update(x, P, z, ekf.gps_noise(p))
+        assert x_new is x and P_new is P and math.isnan(nis)
+    for yaw in (math.nan, -math.inf):
+        x_new, P_new, nis = ekf.mag_update(x, P, yaw, ekf.mag_noise(p))
+        assert x_new is x and P_new is P and math.isnan(nis)
+
+
+def chi2_quantile(dof, probability):
+    """Wilson-Hilferty approximation (relative error < 1e-3 for dof > 100)."""
+    z = NormalDist().inv_cdf(probability)
+    return dof * (1.0 - 2.0 / (9 * dof) + z * math.sqrt(2.0 / (9 * dof))) ** 3
+
+
+def average_nees(params_truth, params_filter, seed, runs=40, steps=1000, check_every=25):
+    """Run-averaged NEES at every `check_every`-th step of a seeded Monte Carlo simulation.
+
+    The truth follows the EKF's own model with process noise Q_truth; GPS every 50 steps and
+    the magnetometer every 5 steps measure it with the truth noise; the filter assumes params_filter.
+    """
+    rng = np.random.default_rng(seed)
+    roll, pitch, f_B = 0.05, -0.03, np.array([1.0, -0.5, -GRAVITY])
+    Q_std = np.sqrt(np.diag(ekf.process_noise(params_truth)))
+    gps_std = np.sqrt(np.diag(ekf.gps_noise(params_truth)))
+    mag_std = math.sqrt(ekf.mag_noise(params_truth)[0, 0])
+    P0_std = np.sqrt(np.diag(ekf.initial_covariance(params_truth)))
+    Q, R_gps = ekf.process_noise(params_filter), ekf.gps_noise(params_filter)
+    R_mag = ekf.mag_noise(params_filter)
+    nees = np.zeros((runs, steps // check_every))
+    for run in range(runs):
+        x_hat, P = ekf.initial_state(params_filter), ekf.initial_covariance(params_filter)
+        x = x_hat + P0_std * rng.normal(size=7)
+        for k in range(steps):
+            x = ekf.predict_state(x, roll, pitch, f_B, DT) + Q_std * rng.normal(size=7)
+            x_hat, P = ekf.predict(x_hat, P, roll, pitch, f_B, DT, Q)
+            if k % 5 == 4:
+                x_hat, P, _ = ekf.mag_update(x_hat, P, wrap_to_pi(x[6] + mag_std * rng.normal()), R_mag)
+            if k % 50 == 49:
+                x_hat, P, _ = ekf.gps_update(x_hat, P, x[:6] + gps_std * rng.normal(size=6), R_gps)
+            if k % check_every == check_every - 1:
+                e = x - x_hat
+                e[6] = wrap_to_pi(e[6])
+                nees[run, k // check_every] = e @ np.linalg.solve(P, e)
+    return nees.mean(axis=0), runs
+
+
+def test_nees_of_a_matched_filter_lies_in_the_chi2_band():
+    p = EkfParams()
+    mean_nees, runs = average_nees(p, p, seed=11)
+    low, high = chi2_quantile(7 * runs, 0.005) / runs, chi2_quantile(7 * runs, 0.995) / runs
+    assert 5.3 < low < 5.6 and 8.6 < high < 8.9
+    assert np.all((mean_nees > low) & (mean_nees < high)), mean_nees
+    assert 6.6 < mean_nees.mean() < 7.4
+
+
+def test_nees_of_an_overconfident_filter_leaves_the_band():
+    truth = EkfParams()
+    overconfident = EkfParams(q_pos_xy_std=0.005, q_pos_z_std=0.005, q_vel_xy_std=0.005, q_vel_z_std=0.01,
+                              q_yaw_std=0.005, gps_pos_xy_std=0.1, gps_pos_z_std=0.3, gps_vel_xy_std=0.01,
+                              gps_vel_z_std=0.03, mag_yaw_std=0.01)
+    mean_nees, _ = average_nees(truth, overconfident, seed=12, runs=10)
+    assert mean_nees[-10:].min() > 20.0
