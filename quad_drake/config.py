@@ -171,7 +171,7 @@ class VehicleConfig:
     ekf: EkfParams = field(default_factory=EkfParams)
 
 
-CRITERION_KINDS = ("window", "sigma")
+CRITERION_KINDS = ("window", "sigma", "fleet_sigma")
 
 
 @dataclass
@@ -183,6 +183,10 @@ class CriterionConfig:
             strictly inside (min_percent, max_percent) for the final ``window`` s.
             ``ref`` and ``sigma`` are numbers, or signal names when the
             ``*_signal`` field is given.
+    fleet_sigma: over every vehicle V, the share of samples with
+            |V.<signal>| <= sigma_multiple * V.<sigma_signal> lies in
+            [min_percent, max_percent]; ``signal`` and ``sigma_signal`` are suffixes
+            such as ``Est.E.X`` and ``Est.S.X``.
     """
     kind: str = field(default="window", metadata={"choices": CRITERION_KINDS})
     signal: str = ""
@@ -192,6 +196,7 @@ class CriterionConfig:
     ref_signal: str = ""
     sigma: float = _num(0.0, nonnegative=True)
     sigma_signal: str = ""
+    sigma_multiple: float = _num(1.0, positive=True)
     min_percent: float = _num(0.0, minimum=0.0, maximum=100.0)
     max_percent: float = _num(100.0, minimum=0.0, maximum=100.0)
 
@@ -297,7 +302,9 @@ def _check_semantics(scenario):
     for i, c in enumerate(scenario.criteria):
         if not c.signal:
             raise ConfigError(f"criteria.{i}.signal: must name a signal")
-        if c.kind == "sigma" and c.min_percent >= c.max_percent:
+        if c.kind == "fleet_sigma" and not c.sigma_signal:
+            raise ConfigError(f"criteria.{i}.sigma_signal: fleet_sigma needs a sigma signal suffix")
+        if c.kind != "window" and c.min_percent >= c.max_percent:
             raise ConfigError(f"criteria.{i}: min_percent must be < max_percent")
 
 

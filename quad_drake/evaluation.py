@@ -11,6 +11,7 @@ sample times. A non-finite sample counts as a violation (the reference's
 ``fabs(NaN) > thr`` is false; a diverged run must not pass).
 """
 
+import math
 from dataclasses import dataclass
 from typing import Optional
 
@@ -157,6 +158,20 @@ def evaluate_criterion(criterion, times, signal):
     return sigma_threshold(times, values, fresh, ref, sigma, criterion.min_percent,
                            criterion.max_percent, criterion.window, name=criterion.signal,
                            ref_label=criterion.ref_signal, sigma_label=criterion.sigma_signal)
+
+
+def fleet_sigma_threshold(fraction, samples, name, sigma_name, multiple, min_percent, max_percent):
+    """Verdict on the share `fraction` (0..1) of a fleet's samples inside +-multiple sigma.
+
+    Passes iff min_percent <= 100 fraction <= max_percent (a consistent Gaussian
+    estimate gives 68.3 % at 1 sigma, 95.4 % at 2 sigma).
+    """
+    percent = 100.0 * fraction
+    passed = bool(min_percent <= percent <= max_percent)
+    line = (f"{'PASS' if passed else 'FAIL'}: {percent:.0f}% of fleet {name} samples within "
+            f"{multiple:g} x {sigma_name} (required {min_percent:g}% to {max_percent:g}%)")
+    return CriterionResult(kind="fleet_sigma", name=name, passed=passed, line=line, measured=percent,
+                           required=min_percent, trailing=math.nan, percent=percent, samples=samples)
 
 
 def rms(values):

@@ -20,7 +20,8 @@ from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput, Ra
 
 from . import conventions as c
 from .config import ConfigError, dump_scenario
-from .evaluation import evaluate_criterion
+from .consistency import fleet_sigma_fraction
+from .evaluation import evaluate_criterion, fleet_sigma_threshold
 from .rotations import quat_from_euler
 from .signals import empty_logs, vehicle_signals
 from .systems.controller import CascadeController
@@ -48,9 +49,10 @@ def vehicle_log_names(vehicle):
     return names
 
 
-def _add_noisy(builder, sensor, distribution=RandomDistribution.kGaussian):
-    builder.AddSystem(sensor)
-    noise = builder.AddSystem(RandomSource(distribution, sensor.noise_size, sensor.noise_period))
+def _add_noisy(builder, sensor, name):
+    builder.AddNamedSystem(name, sensor)
+    noise = builder.AddNamedSystem(f"{name}_noise", RandomSource(
+        RandomDistribution.kGaussian, sensor.noise_size, sensor.noise_period))
     builder.Connect(noise.get_output_port(0), sensor.GetInputPort("noise"))
     return sensor
 
@@ -65,15 +67,13 @@ def _never_sampled(builder, size):
 def build_vehicle(vehicle):
     """The sub-Diagram of one VehicleConfig; its outputs are named as `vehicle_log_names`."""
     builder = DiagramBuilder()
-    plant = builder.AddSystem(QuadrotorPlant(vehicle.physics, initial_state(vehicle)))
-    plant.set_name("plant")
-    motor_noise = builder.AddSystem(RandomSource(RandomDistribution.kUniform, c.NUM_MOTORS,
-                                                 c.PHYSICS_PERIOD))
+    plant = builder.AddNamedSystem("plant", QuadrotorPlant(vehicle.physics, initial_state(vehicle)))
+    motor_noise = builder.AddNamedSystem("motor_noise", RandomSource(
+        RandomDistribution.kUniform, c.NUM_MOTORS, c.PHYSICS_PERIOD))
     builder.Connect(motor_noise.get_output_port(0), plant.GetInputPort("motor_noise"))
-    controller = builder.AddSystem(CascadeController(vehicle.controller))
-    controller.set_name("controller")
-    trajectory = builder.AddSystem(TrajectorySource(trajectory_from_config(vehicle.trajectory)))
-    trajectory.set_name("trajectory")
+    controller = builder.AddNamedSystem("controller", CascadeController(vehicle.controller))
+    trajectory = builder.AddNamedSystem("trajectory", TrajectorySource(
+        trajectory_from_config(vehicle.trajectory)))
     builder.Connect(controller.GetOutputPort("motor_thrusts"), plant.GetInputPort("motor_thrusts"))
     builder.Connect(trajectory.GetOutputPort("reference"), controller.GetInputPort("reference"))
     outputs = {"state": plant.GetOutputPort("state"),
@@ -83,20 +83,20 @@ def build_vehicle(vehicle):
 
     sensors = vehicle.sensors
     if sensors.imu is not None:
-        imu = _add_noisy(builder, Imu(sensors.imu))
+        imu = _add_noisy(builder, Imu(sensors.imu), "imu")
         builder.Connect(plant.GetOutputPort("state"), imu.GetInputPort("state"))
         builder.Connect(plant.GetOutputPort("acceleration"), imu.GetInputPort("acceleration"))
         outputs["imu"] = imu.GetOutputPort("imu")
     for kind, sensor_class in (("gps", Gps), ("mag", Magnetometer)):
         params = getattr(sensors, kind)
         if params is not None:
-            sensor = _add_noisy(builder, sensor_class(params))
+            sensor = _add_noisy(builder, sensor_class(params), kind)
             builder.Connect(plant.GetOutputPort("state"), sensor.GetInputPort("state"))
             outputs[kind] = sensor.GetOutputPort(kind)
 
     if sensors.imu is not None:
-        ekf = builder.AddSystem(Ekf(vehicle.ekf))
-        attitude_filter = builder.AddSystem(ComplementaryFilter(
+        ekf = builder.AddNamedSystem("ekf", Ekf(vehicle.ekf))
+        attitude_filter = builder.AddNamedSystem("attitude_filter", ComplementaryFilter(
             vehicle.attitude_filter, initial_attitude=(0.0, 0.0, vehicle.ekf.init_state[6])))
         builder.Connect(outputs["imu"], attitude_filter.GetInputPort("imu"))
         builder.Connect(ekf.GetOutputPort("ekf_state"), attitude_filter.GetInputPort("ekf_state"))
@@ -108,7 +108,7 @@ def build_vehicle(vehicle):
         for name in ("ekf_state", "covariance", "diagnostics"):
             outputs[name] = ekf.GetOutputPort(name)
         if not vehicle.use_ideal_estimator:
-            assembler = builder.AddSystem(EstimatedStateAssembler())
+            assembler = builder.AddNamedSystem("estimated_state", EstimatedStateAssembler())
             for name in ("attitude", "ekf_state", "imu"):
                 builder.Connect(outputs[name], assembler.GetInputPort(name))
             state_for_control = assembler.GetOutputPort("estimated_state")
@@ -149,7 +149,9 @@ def check_criteria(scenario):
     for i, criterion in enumerate(scenario.criteria):
         for key in ("signal", "ref_signal", "sigma_signal"):
             name = getattr(criterion, key)
-            if name and name not in known:
+            names = ([f"{v.name}.{name}" for v in scenario.vehicles]
+                     if criterion.kind == "fleet_sigma" else [name])
+            if name and any(n not in known for n in names):
                 raise ConfigError(f"criteria.{i}.{key}: unknown signal {name!r} "
                                   f"(e.g. {', '.join(sorted(known)[:6])}, ...)")
 
@@ -158,7 +160,17 @@ def evaluate_criteria(scenario, times, signals):
     """CriterionResult per scenario criterion, on the logged 5 ms samples."""
     def lookup(name):
         return signals[name].values, signals[name].fresh
-    return [evaluate_criterion(criterion, times, lookup) for criterion in scenario.criteria]
+
+    results = []
+    for c in scenario.criteria:
+        if c.kind == "fleet_sigma":
+            fraction = fleet_sigma_fraction(signals, c.signal, c.sigma_signal, c.sigma_multiple)
+            results.append(fleet_sigma_threshold(fraction, len(scenario.vehicles) * times.size, c.signal,
+                                                 c.sigma_signal, c.sigma_multiple, c.min_percent,
+                                                 c.max_percent))
+        else:
+            results.append(evaluate_criterion(c, times, lookup))
+    return results
 
 
 @dataclass

@@ -14,6 +14,7 @@ class QuadrotorPlant(LeafSystem):
     The step at t_k + PLANT_OFFSET integrates from t_k to t_k + PHYSICS_PERIOD (RK4,
     wrench held constant), so systems ticking earlier within t_k see the pre-step state.
 
+    Constructor: params (PhysicsParams), initial_state (13, the default context's state).
     Inputs:
       ``motor_thrusts`` (4, N): commanded force per motor 0..3 = front-left, front-right,
         rear-left, rear-right; clamped to [min_motor_thrust, max_motor_thrust].
@@ -25,8 +26,9 @@ class QuadrotorPlant(LeafSystem):
       ``acceleration`` (3, m/s^2): a_NB, NED kinematic acceleration (v_new - v_old)/dt of
         the last step, after the room limits (zero while resting on the floor).
       ``motor_forces`` (4, N): the lagged motor forces of the last step.
-    At the first step the motor lag starts from the first command (pre-clamp, no noise),
-    as the reference does at t = 0; a flag in discrete state records that it happened.
+    ``acceleration`` and ``motor_forces`` are zero before the first step. At the first
+    step the motor lag starts from the first command (pre-clamp, no noise), as the
+    reference does at t = 0; a flag in discrete state records that it happened.
     """
 
     def __init__(self, params, initial_state):
@@ -65,9 +67,10 @@ class QuadrotorPlant(LeafSystem):
             forces_old = discrete_state.get_value(self._forces_group).tolist()
         else:
             forces_old = commands
-            discrete_state.set_value(self._started_group, [1.0])
+            discrete_state.get_mutable_value(self._started_group)[0] = 1.0
         state, accel, forces = plant_step(discrete_state.get_value(self._state_group).tolist(),
                                           forces_old, commands, noise, self._params, PHYSICS_PERIOD)
-        discrete_state.set_value(self._state_group, state)
-        discrete_state.set_value(self._acceleration_group, accel)
-        discrete_state.set_value(self._forces_group, forces)
+        # Writing lists through the numpy views: set_value(list) costs ~6 us on drake 1.58.
+        discrete_state.get_mutable_value(self._state_group)[:] = state
+        discrete_state.get_mutable_value(self._acceleration_group)[:] = accel
+        discrete_state.get_mutable_value(self._forces_group)[:] = forces

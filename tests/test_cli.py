@@ -1,0 +1,88 @@
+"""The command-line contract, run as a user runs it: a subprocess."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+
+def cli(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "quad_drake.cli", *args], capture_output=True,
+                          text=True, cwd=cwd, timeout=600)
+
+
+def test_list_names_every_scenario_with_a_description():
+    result = cli("list")
+    assert result.returncode == 0
+    lines = result.stdout.strip().splitlines()
+    assert len(lines) == 11
+    assert lines[0].startswith("01_intro") and "hover" in lines[0].lower()
+
+
+def test_run_prints_reference_lines_and_writes_results(tmp_path):
+    result = cli("run", "01_intro", "02_attitude_control", "--out", str(tmp_path), "--no-plots")
+    assert result.returncode == 0, result.stderr
+    assert "PASS: ABS(Quad.PosFollowErr) was less than 0.500000 for at least 0.800000 seconds" in result.stdout
+    assert "PASS: ABS(Quad.Omega.X) was less than 2.500000" in result.stdout
+    assert "02_attitude_control" in result.stdout.splitlines()[-1]
+    for name in ("01_intro", "02_attitude_control"):
+        run_dir = tmp_path / name
+        assert (run_dir / "logs.npz").is_file() and (run_dir / "config.yaml").is_file()
+        assert json.loads((run_dir / "summary.json").read_text())["passed"] is True
+    summaries = json.loads((tmp_path / "summary.json").read_text())
+    assert [s["scenario"] for s in summaries] == ["01_intro", "02_attitude_control"]
+
+
+def test_run_accepts_a_yaml_path_seed_and_overrides(tmp_path):
+    from quad_drake.cli import scenario_paths
+    path = scenario_paths()["01_intro"]
+    result = cli("run", str(path), "--seed", "9", "--set", "end_time=0.5", "--out", str(tmp_path),
+                 "--no-plots")
+    summary = json.loads((tmp_path / "01_intro" / "summary.json").read_text())
+    assert summary["seed"] == 9 and summary["end_time"] == 0.5
+    assert "end_time: 0.5" in (tmp_path / "01_intro" / "config.yaml").read_text()
+    assert result.returncode == 1          # a 0.8 s window cannot pass in a 0.5 s run
+    assert "FAIL: ABS(Quad.PosFollowErr)" in result.stdout
+
+
+def test_noise_std_measures_the_configured_noise(tmp_path):
+    assert cli("run", "06_sensor_noise", "--out", str(tmp_path), "--no-plots").returncode == 0
+    result = cli("noise-std", str(tmp_path / "06_sensor_noise"))
+    assert result.returncode == 0, result.stderr
+    values = dict(line.split(": ") for line in result.stdout.strip().splitlines())
+    assert abs(float(values["Quad.GPS.X"]) - 0.7) < 0.15      # ~100 samples: 4 standard errors
+    assert abs(float(values["Quad.IMU.AX"]) - 0.5) < 0.03     # 2000 samples
+
+
+@pytest.mark.parametrize("args, message", [
+    (["run", "no_such_scenario"], "unknown scenario 'no_such_scenario'"),
+    (["run", "missing.yaml"], "missing.yaml: no such scenario file"),
+    (["run", "01_intro", "--set", "end_time"], "expected dotted.key=value"),
+    (["run", "01_intro", "--set", "vehicles.0.physics.mas=1"], "vehicles.0.physics.mas: unknown key"),
+    (["run", "01_intro", "--set", "end_time=soon"], "end_time: expected float, got 'soon'"),
+    (["run", "01_intro", "--set", "vehicles.0.initial_position=[0, 1]"], "expected 3 values, got 2"),
+    (["run", "01_intro", "--set", "vehicles.0.sensors.gps={period: -1}"], "gps.period: must be > 0"),
+    (["run", "01_intro", "--set", "vehicles.0.sensors.imu={gyro_std: [0, -1, 0]}"], "must be >= 0"),
+    (["run", "01_intro", "--set", "vehicles.0.physics.mass=-0.5"], "physics.mass: must be > 0"),
+    (["run", "01_intro", "--set", "vehicles.0.trajectory={kind: file, file: nope.txt}"],
+     "no such trajectory file 'nope.txt'"),
+    (["run", "01_intro", "--seed", "-1"], "--seed must be >= 0"),
+    (["run"], "name at least one scenario"),
+    (["noise-std", "/nonexistent/run"], "no logs.npz"),
+])
+def test_bad_input_is_one_line_on_stderr_with_exit_2(args, message):
+    result = cli(*args)
+    assert result.returncode == 2
+    assert message in result.stderr
+    assert "Traceback" not in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1
+    assert result.stdout == ""
+
+
+def test_malformed_trajectory_file_names_file_and_line(tmp_path):
+    bad = tmp_path / "bad.txt"
+    bad.write_text("0, 0, 0, -1\n1, 0, zero, -1\n")
+    result = cli("run", "01_intro", "--set", f"vehicles.0.trajectory={{kind: file, file: {bad}}}")
+    assert result.returncode == 2
+    assert f"{bad}:2" in result.stderr and "Traceback" not in result.stderr
