@@ -162,14 +162,15 @@ def evaluate_criteria(scenario, times, signals):
         return signals[name].values, signals[name].fresh
 
     results = []
-    for c in scenario.criteria:
-        if c.kind == "fleet_sigma":
-            fraction = fleet_sigma_fraction(signals, c.signal, c.sigma_signal, c.sigma_multiple)
-            results.append(fleet_sigma_threshold(fraction, len(scenario.vehicles) * times.size, c.signal,
-                                                 c.sigma_signal, c.sigma_multiple, c.min_percent,
-                                                 c.max_percent))
+    for criterion in scenario.criteria:
+        if criterion.kind == "fleet_sigma":
+            fraction = fleet_sigma_fraction(signals, criterion.signal, criterion.sigma_signal,
+                                            criterion.sigma_multiple)
+            results.append(fleet_sigma_threshold(
+                fraction, len(scenario.vehicles) * times.size, criterion.signal, criterion.sigma_signal,
+                criterion.sigma_multiple, criterion.min_percent, criterion.max_percent))
         else:
-            results.append(evaluate_criterion(c, times, lookup))
+            results.append(evaluate_criterion(criterion, times, lookup))
     return results
 
 

@@ -23,7 +23,8 @@ def test_list_names_every_scenario_with_a_description():
 def test_run_prints_reference_lines_and_writes_results(tmp_path):
     result = cli("run", "01_intro", "02_attitude_control", "--out", str(tmp_path), "--no-plots")
     assert result.returncode == 0, result.stderr
-    assert "PASS: ABS(Quad.PosFollowErr) was less than 0.500000 for at least 0.800000 seconds" in result.stdout
+    expected = "PASS: ABS(Quad.PosFollowErr) was less than 0.500000 for at least 0.800000 seconds"
+    assert expected in result.stdout
     assert "PASS: ABS(Quad.Omega.X) was less than 2.500000" in result.stdout
     assert "02_attitude_control" in result.stdout.splitlines()[-1]
     for name in ("01_intro", "02_attitude_control"):
