@@ -1,4 +1,4 @@
-"""Command line: ``quad-drake list | run | noise-std``.
+"""Command line: ``quad-drake list | run | montecarlo | diagram | noise-std``.
 
 Exit codes: 0 every criterion passed, 1 a criterion failed, 2 bad input
 (one line on stderr, no traceback).
@@ -72,18 +72,25 @@ def cmd_run(args):
         raise ConfigError("run: name at least one scenario, or --all")
     scenarios = [load_named(n, args.seed, args.set) for n in names]   # all input checked first
     out = Path(args.out)
-    summaries = []
+    summaries, run_dirs = [], []
     for scenario in scenarios:
         print(f"== {scenario.name} (seed {scenario.seed}, {scenario.end_time:g} s)", flush=True)
         result = run(scenario)
         for criterion in result.criteria:
             print(criterion.line)
-        run_dir = result.save(out / scenario.name)
+        run_dir = result.save(out / scenario.name)   # logs first: nothing is lost if a plot fails
         if not args.no_plots:
             from .plots import write_run_artifacts
             write_run_artifacts(result, run_dir)
+        if args.meshcat:
+            from .replay import show_live
+            show_live(result)
         summaries.append(result.summary())
+        run_dirs.append(run_dir)
         (out / "summary.json").write_text(json.dumps(summaries, indent=2) + "\n")
+    if not args.no_plots:
+        from .report import write_index
+        write_index(list(zip(summaries, run_dirs, strict=True)), out)
     print()
     print(_table(summaries))
     return 0 if all(s["passed"] for s in summaries) else 1
@@ -98,6 +105,21 @@ def cmd_noise_std(args):
     return 0
 
 
+def cmd_diagram(args):
+    from .diagram_svg import write_diagram_svg
+    scenario = load_named(args.name, None, args.set)
+    path = Path(args.output or f"{scenario.name}_diagram.svg")
+    print(write_diagram_svg(scenario, path, max_depth=args.depth))
+    return 0
+
+
+def cmd_montecarlo(args):
+    from .montecarlo import main_montecarlo
+    if args.runs < 1 or args.jobs < 1:
+        raise ConfigError("montecarlo: --runs and --jobs must be >= 1")
+    return main_montecarlo(args)
+
+
 def build_parser():
     parser = argparse.ArgumentParser(prog="quad-drake", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -110,8 +132,20 @@ def build_parser():
     run_parser.add_argument("--out", default="out", help="output folder (default: out)")
     run_parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                             help="override a config field, e.g. vehicles.0.physics.mass=0.8")
-    run_parser.add_argument("--no-plots", action="store_true", help="skip plots and reports")
+    run_parser.add_argument("--no-plots", action="store_true",
+                            help="skip plots, report.html, replay.html and index.html")
+    run_parser.add_argument("--meshcat", action="store_true",
+                            help="also replay each flight live in Meshcat (opens a local URL)")
     run_parser.set_defaults(func=cmd_run)
+    from .montecarlo import add_arguments
+    add_arguments(sub.add_parser("montecarlo", help="seeded runs in parallel: pass rates, NEES/NIS, "
+                                 "accuracy bound")).set_defaults(func=cmd_montecarlo)
+    diagram = sub.add_parser("diagram", help="write the scenario's Drake diagram as SVG (Graphviz)")
+    diagram.add_argument("name", metavar="NAME")
+    diagram.add_argument("-o", "--output", help="SVG path (default: NAME_diagram.svg)")
+    diagram.add_argument("--depth", type=int, help="sub-diagram depth to expand (default: all)")
+    diagram.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
+    diagram.set_defaults(func=cmd_diagram)
     noise = sub.add_parser("noise-std", help="step 1: GPS-x and accel-x std devs from a run's logs")
     noise.add_argument("run_dir")
     noise.set_defaults(func=cmd_noise_std)
@@ -132,6 +166,9 @@ def main(argv=None):
     except KeyboardInterrupt:
         print("quad-drake: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:   # output piped into e.g. `head`: stop quietly
+        sys.stdout = open(os.devnull, "w")  # noqa: SIM115 (flushed at exit)
+        return 0
 
 
 if __name__ == "__main__":
