@@ -10,6 +10,10 @@ BIN := $(VENV)/bin
 .PHONY: run test lint bench clean
 
 $(VENV)/.installed: pyproject.toml
+	@# Graphviz draws `quad-drake diagram`; installed where missing and we may (root + apt).
+	@command -v dot >/dev/null || { [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null && \
+		apt-get update -qq && apt-get install -y -qq graphviz >/dev/null; } || \
+		echo "note: Graphviz 'dot' missing; 'quad-drake diagram' needs it"
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q -e '.[test]'
