@@ -1,0 +1,57 @@
+"""The reference's named signals derived from logged arrays (pure)."""
+
+import math
+
+import numpy as np
+
+from quad_drake.rotations import euler_from_quat, quat_from_euler
+from quad_drake.signals import empty_logs, euler_from_quats, stamp_fresh, vehicle_signals, wrap_angles
+
+
+def test_stamp_fresh_marks_only_new_samples():
+    stamps = np.array([-1.0, -1.0, 0.1, 0.1, 0.1, 0.2, 0.2, 0.3])
+    np.testing.assert_array_equal(stamp_fresh(stamps), [0, 0, 1, 0, 0, 1, 0, 1])
+
+
+def test_euler_from_quats_matches_the_scalar_version():
+    rng = np.random.default_rng(4)
+    angles = rng.uniform([-3, -1.5, -3], [3, 1.5, 3], size=(50, 3))
+    quats = np.array([quat_from_euler(*a) for a in angles])
+    roll, pitch, yaw = euler_from_quats(quats)
+    expected = np.array([euler_from_quat(q) for q in quats])
+    np.testing.assert_allclose(np.column_stack([roll, pitch, yaw]), expected, atol=1e-12)
+
+
+def test_wrap_angles_into_minus_pi_pi():
+    np.testing.assert_allclose(wrap_angles(np.array([3.5, -3.5, 0.2, 2 * math.pi])),
+                               [3.5 - 2 * math.pi, 2 * math.pi - 3.5, 0.2, 0.0], atol=1e-12)
+
+
+def test_names_follow_the_logs_present():
+    truth_only = vehicle_signals("Q", empty_logs(["state", "reference", "motor_forces"]))
+    assert {"Q.Pos.X", "Q.Roll", "Q.Omega.Z", "Q.PosFollowErr", "Q.Thrust.D"} <= set(truth_only)
+    assert not any(".Est." in n or ".GPS." in n for n in truth_only)
+    full = vehicle_signals("Q", empty_logs(["state", "reference", "imu", "gps", "mag", "attitude",
+                                            "ekf_state", "covariance", "diagnostics"]))
+    assert {"Q.IMU.AX", "Q.GPS.VZ", "Q.MagYaw", "Q.Est.E.MaxEuler", "Q.Est.S.Yaw", "Q.Est.E.Pos"} <= set(full)
+
+
+def test_estimation_errors_sigmas_and_freshness():
+    yaw_true, yaw_est = 3.1, -3.1
+    state = np.zeros((2, 13))
+    state[:, 3:7] = quat_from_euler(0.0, 0.0, yaw_true)
+    state[:, 0:3] = [1.0, 2.0, -1.0]
+    ekf_state = np.zeros((2, 7))
+    ekf_state[:, 0:3] = [1.3, 2.4, -1.0]
+    ekf_state[:, 6] = yaw_est
+    covariance = np.tile(np.diag([0.01, 0.04, 0.09, 1, 1, 1, 0.25]).ravel(), (2, 1))
+    attitude = np.array([[0.02, -0.01, yaw_est]] * 2)
+    gps = np.array([[0, 0, 0, 0, 0, 0, -1.0], [1, 2, -1, 0, 0, 0, 0.1]])
+    signals = vehicle_signals("Q", {"state": state, "ekf_state": ekf_state, "covariance": covariance,
+                                    "attitude": attitude, "gps": gps})
+    np.testing.assert_allclose(signals["Q.Est.E.Yaw"].values, 2 * math.pi - 6.2, atol=1e-9)  # short way
+    np.testing.assert_allclose(signals["Q.Est.S.Y"].values, 0.2)
+    np.testing.assert_allclose(signals["Q.Est.E.Pos"].values, 0.5)
+    np.testing.assert_allclose(signals["Q.Est.E.MaxEuler"].values, 2 * math.pi - 6.2, atol=1e-9)
+    np.testing.assert_array_equal(signals["Q.GPS.X"].fresh, [False, True])
+    assert signals["Q.Pos.X"].fresh.all()
