@@ -1,0 +1,144 @@
+"""Pure: estimator consistency statistics over logged arrays.
+
+NEES_k = e_k^T P_k^-1 e_k of the 7-state EKF, with e = x_hat - x_true (yaw error wrapped);
+NIS = nu^T S^-1 nu of each fresh GPS (6 dof) or magnetometer (1 dof) update, as the EKF
+reports it in its ``diagnostics`` log. For a consistent filter each is chi^2(dof); the mean
+over M independent runs, times M, is chi^2(dof M), which gives the 95 % band of
+:func:`chi2_band`. Also: the fleet sigma fraction of one multi-vehicle run and a binomial
+confidence interval for pass rates.
+"""
+
+import math
+
+import numpy as np
+from scipy.stats import beta, chi2
+
+from .signals import euler_from_quats, stamp_fresh, wrap_angles
+
+STATE_NAMES = ("X", "Y", "Z", "VX", "VY", "VZ", "Yaw")
+NIS_DOF = {"gps": 6, "mag": 1}
+_NIS_COLUMNS = {"gps": (0, 1), "mag": (2, 3)}   # diagnostics: (NIS, stamp) columns
+
+
+def state_errors(ekf_state, state):
+    """(n, 7) errors x_hat - x_true of the EKF states (m, m/s, rad; yaw wrapped to [-pi, pi)).
+
+    ekf_state: (n, 7) logged estimate; state: (n, 13) logged truth (p, q wxyz, v, w).
+    """
+    ekf_state = np.asarray(ekf_state, dtype=float)
+    state = np.asarray(state, dtype=float)
+    _, _, yaw = euler_from_quats(state[:, 3:7])
+    truth = np.column_stack([state[:, 0:3], state[:, 7:10], yaw])
+    errors = ekf_state - truth
+    errors[:, 6] = wrap_angles(errors[:, 6])
+    return errors
+
+
+def covariance_matrices(covariance_log):
+    """(n, k, k) covariances from an (n, k*k) row-major log."""
+    covariance_log = np.asarray(covariance_log, dtype=float)
+    k = math.isqrt(covariance_log.shape[1])
+    return covariance_log.reshape(-1, k, k)
+
+
+def nees(errors, covariances):
+    """(n,) e_k^T P_k^-1 e_k; NaN where e or P is not finite or P is singular."""
+    errors = np.asarray(errors, dtype=float)
+    covariances = np.asarray(covariances, dtype=float)
+    result = np.full(errors.shape[0], np.nan)
+    ok = np.isfinite(errors).all(axis=1) & np.isfinite(covariances).all(axis=(1, 2))
+    ok[ok] &= np.linalg.det(covariances[ok]) > 0.0
+    if ok.any():
+        solved = np.linalg.solve(covariances[ok], errors[ok][:, :, None])[:, :, 0]
+        result[ok] = np.einsum("ij,ij->i", errors[ok], solved)
+    return result
+
+
+def normalized_squared_errors(errors, covariances):
+    """(n, k) e_i^2 / P_ii per state: 1 on average for a consistent filter (1 dof each)."""
+    variances = np.diagonal(np.asarray(covariances, dtype=float), axis1=1, axis2=2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.square(np.asarray(errors, dtype=float)) / variances
+
+
+def fresh_nis(diagnostics, sensor):
+    """(stamps (s), nis) of the fresh updates of ``sensor`` ("gps" or "mag") in a diagnostics log.
+
+    diagnostics: (n, 5) = (GPS NIS, its stamp, mag NIS, its stamp, rejected count). An
+    update is fresh on the first logged sample that shows its stamp (SPEC §0.2); updates
+    faster than the log period are seen only once per log sample.
+    """
+    nis_column, stamp_column = _NIS_COLUMNS[sensor]
+    diagnostics = np.asarray(diagnostics, dtype=float)
+    fresh = stamp_fresh(diagnostics[:, stamp_column])
+    return diagnostics[fresh, stamp_column], diagnostics[fresh, nis_column]
+
+
+def stack_by_stamp(series):
+    """(stamps, (m, k) values) from m (stamps, values) pairs, keeping the stamps all share.
+
+    Stamps are nominal sample times computed the same way in every run, so they compare
+    exactly. Raises ValueError when there are no series.
+    """
+    if not series:
+        raise ValueError("stack_by_stamp: no series")
+    common = series[0][0]
+    for stamps, _ in series[1:]:
+        common = np.intersect1d(common, stamps)
+    rows = [np.asarray(values)[np.isin(stamps, common)] for stamps, values in series]
+    return np.asarray(common, dtype=float), np.vstack(rows)
+
+
+def chi2_band(dof, count, probability=0.95):
+    """(low, high): central `probability` interval of the mean of `count` chi^2(dof) variables."""
+    if dof < 1 or count < 1:
+        raise ValueError(f"chi2_band: dof and count must be >= 1, got {dof}, {count}")
+    tail = (1.0 - probability) / 2.0
+    low, high = chi2.ppf([tail, 1.0 - tail], dof * count) / count
+    return float(low), float(high)
+
+
+def in_band_fraction(values, band):
+    """Share of samples with low <= value <= high (a non-finite sample counts as outside)."""
+    values = np.asarray(values, dtype=float)
+    if values.size == 0:
+        return math.nan
+    low, high = band
+    return float(np.mean((values >= low) & (values <= high)))
+
+
+def binomial_interval(successes, trials, confidence=0.95):
+    """(low, high) Clopper-Pearson ("exact") interval of a success probability; fractions."""
+    if trials < 1 or not 0 <= successes <= trials:
+        raise ValueError(f"binomial_interval: need 0 <= successes <= trials, trials >= 1; "
+                         f"got {successes}/{trials}")
+    tail = (1.0 - confidence) / 2.0
+    low = 0.0 if successes == 0 else float(beta.ppf(tail, successes, trials - successes + 1))
+    high = 1.0 if successes == trials else float(beta.ppf(1.0 - tail, successes + 1, trials - successes))
+    return low, high
+
+
+def fleet_sigma_fraction(signals, error_suffix, sigma_suffix, multiple):
+    """Share of (vehicle, sample) pairs with |error| <= multiple * sigma, in [0, 1].
+
+    signals: {name: Signal}; every vehicle V with a ``V.<error_suffix>`` signal (e.g.
+    ``Est.E.X``) is compared with its own ``V.<sigma_suffix>`` (e.g. ``Est.S.X``). Only
+    fresh samples of the error signal count; a non-finite sample counts as outside. For a
+    consistent Gaussian estimate the share is 0.683 at 1 sigma and 0.954 at 2 sigma.
+    Raises ValueError when no vehicle has the error signal or a sigma signal is missing.
+    """
+    tail = "." + error_suffix
+    vehicles = sorted(name[:-len(tail)] for name in signals if name.endswith(tail))
+    if not vehicles:
+        raise ValueError(f"fleet_sigma_fraction: no signal ends with {tail!r}")
+    inside = total = 0
+    for vehicle in vehicles:
+        error = signals[vehicle + tail]
+        sigma_name = f"{vehicle}.{sigma_suffix}"
+        if sigma_name not in signals:
+            raise ValueError(f"fleet_sigma_fraction: no signal {sigma_name!r}")
+        values = error.values[error.fresh]
+        sigma = signals[sigma_name].values[error.fresh]
+        inside += int(np.count_nonzero(np.abs(values) <= multiple * sigma))
+        total += values.size
+    return inside / total if total else math.nan

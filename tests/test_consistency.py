@@ -1,0 +1,220 @@
+"""Consistency statistics: NEES, NIS, chi^2 bands, pass-rate intervals, fleet sigma fraction."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.stats import binom
+
+from quad_drake import consistency as cons
+from quad_drake.montecarlo import MIN_IN_BAND
+from quad_drake.rotations import quat_from_euler
+from quad_drake.signals import Signal
+
+
+def random_spd(rng, n, count):
+    A = rng.normal(size=(count, n, n))
+    return A @ np.transpose(A, (0, 2, 1)) + 0.1 * np.eye(n)
+
+
+# ----- errors and NEES ------------------------------------------------------------
+
+def test_state_errors_take_truth_from_the_state_log_and_wrap_yaw():
+    state = np.zeros((2, 13))
+    state[:, 0:3] = [1.0, 2.0, -3.0]
+    state[:, 7:10] = [0.5, -0.5, 0.1]
+    state[0, 3:7] = quat_from_euler(0.1, -0.2, 3.1)
+    state[1, 3:7] = quat_from_euler(0.0, 0.0, -0.4)
+    ekf = np.array([[1.5, 2.0, -3.25, 0.5, -0.25, 0.1, -3.1],
+                    [1.0, 1.0, -3.0, 0.0, -0.5, 0.3, -0.3]])
+    e = cons.state_errors(ekf, state)
+    np.testing.assert_allclose(e[0], [0.5, 0.0, -0.25, 0.0, 0.25, 0.0, 2 * math.pi - 6.2], atol=1e-12)
+    np.testing.assert_allclose(e[1], [0.0, -1.0, 0.0, -0.5, 0.0, 0.2, 0.1], atol=1e-12)
+
+
+def test_nees_equals_the_explicit_quadratic_form():
+    rng = np.random.default_rng(1)
+    P = random_spd(rng, 7, 50)
+    e = rng.normal(size=(50, 7))
+    expected = [ei @ np.linalg.inv(Pi) @ ei for ei, Pi in zip(e, P, strict=True)]
+    np.testing.assert_allclose(cons.nees(e, P), expected, rtol=1e-9)
+
+
+def test_nees_is_nan_for_a_singular_or_non_finite_sample():
+    P = np.broadcast_to(np.eye(3), (4, 3, 3)).copy()
+    e = np.ones((4, 3))
+    P[1] = np.diag([1.0, 0.0, 1.0])
+    e[2, 0] = np.nan
+    P[3, 0, 0] = np.inf
+    np.testing.assert_array_equal(np.isnan(cons.nees(e, P)), [False, True, True, True])
+    assert cons.nees(e, P)[0] == pytest.approx(3.0)
+
+
+def test_nees_of_draws_from_the_covariance_is_chi2_with_7_dof():
+    rng = np.random.default_rng(7)
+    P = random_spd(rng, 7, 20000)
+    e = np.einsum("nij,nj->ni", np.linalg.cholesky(P), rng.normal(size=(20000, 7)))
+    values = cons.nees(e, P)
+    assert values.mean() == pytest.approx(7.0, abs=0.1)       # std of the mean: 0.026
+    assert cons.in_band_fraction(values, cons.chi2_band(7, 1)) == pytest.approx(0.95, abs=0.01)
+    nse = cons.normalized_squared_errors(e, P).mean(axis=0)
+    np.testing.assert_allclose(nse, 1.0, atol=0.05)
+
+
+def test_covariance_matrices_unpack_row_major():
+    log = np.arange(2 * 49, dtype=float).reshape(2, 49)
+    P = cons.covariance_matrices(log)
+    assert P.shape == (2, 7, 7)
+    assert P[1, 2, 3] == log[1, 2 * 7 + 3]
+
+
+# ----- NIS series -------------------------------------------------------------------
+
+def test_fresh_nis_keeps_the_first_sample_of_each_stamp():
+    diagnostics = np.array([
+        # gps nis, stamp, mag nis, stamp, rejected
+        [0.0, -1.0, 0.0, -1.0, 0],
+        [0.0, -1.0, 0.5, 0.008, 0],
+        [4.0, 0.1, 0.5, 0.008, 0],
+        [4.0, 0.1, 1.5, 0.018, 0],
+        [7.0, 0.2, 2.5, 0.028, 0],
+    ])
+    stamps, nis = cons.fresh_nis(diagnostics, "gps")
+    np.testing.assert_array_equal(stamps, [0.1, 0.2])
+    np.testing.assert_array_equal(nis, [4.0, 7.0])
+    stamps, nis = cons.fresh_nis(diagnostics, "mag")
+    np.testing.assert_array_equal(stamps, [0.008, 0.018, 0.028])
+    np.testing.assert_array_equal(nis, [0.5, 1.5, 2.5])
+
+
+def test_stack_by_stamp_keeps_common_stamps_in_order():
+    stamps, values = cons.stack_by_stamp([
+        (np.array([0.1, 0.2, 0.3]), np.array([1.0, 2.0, 3.0])),
+        (np.array([0.2, 0.3, 0.4]), np.array([20.0, 30.0, 40.0]))])
+    np.testing.assert_array_equal(stamps, [0.2, 0.3])
+    np.testing.assert_array_equal(values, [[2.0, 3.0], [20.0, 30.0]])
+    with pytest.raises(ValueError):
+        cons.stack_by_stamp([])
+
+
+# ----- bands and intervals -------------------------------------------------------------
+
+def test_chi2_band_of_one_sample_is_the_chi2_quantiles():
+    assert cons.chi2_band(7, 1) == pytest.approx((1.6899, 16.0128), abs=1e-4)
+    assert cons.chi2_band(1, 1) == pytest.approx((0.000982, 5.0239), abs=1e-4)
+
+
+def test_chi2_band_of_a_mean_narrows_like_one_over_sqrt_count():
+    low, high = cons.chi2_band(7, 100)
+    # mean of 100 chi2(7): mean 7, std sqrt(14 / 100); the exact band is slightly skewed up
+    assert low == pytest.approx(7 - 1.96 * math.sqrt(0.14), abs=0.05)
+    assert high == pytest.approx(7 + 1.96 * math.sqrt(0.14), abs=0.05)
+    assert high - 7 > 7 - low
+    with pytest.raises(ValueError):
+        cons.chi2_band(0, 10)
+
+
+def test_in_band_fraction_counts_nan_as_outside():
+    assert cons.in_band_fraction([1.0, 2.0, 3.0, np.nan, 5.0], (2.0, 3.0)) == pytest.approx(0.4)
+    assert math.isnan(cons.in_band_fraction([], (0.0, 1.0)))
+
+
+@pytest.mark.parametrize("k, n", [(72, 100), (5, 20), (199, 200)])
+def test_binomial_interval_is_clopper_pearson(k, n):
+    low, high = cons.binomial_interval(k, n)
+    assert low < k / n < high
+    assert binom.sf(k - 1, n, low) == pytest.approx(0.025, abs=1e-9)    # P(X >= k | low)
+    assert binom.cdf(k, n, high) == pytest.approx(0.025, abs=1e-9)      # P(X <= k | high)
+
+
+def test_binomial_interval_edges():
+    assert cons.binomial_interval(0, 10) == pytest.approx((0.0, 1 - 0.025 ** 0.1))
+    assert cons.binomial_interval(10, 10) == pytest.approx((0.025 ** 0.1, 1.0))
+    assert cons.binomial_interval(72, 100) == pytest.approx((0.6213, 0.8052), abs=1e-4)
+    with pytest.raises(ValueError):
+        cons.binomial_interval(3, 2)
+
+
+# ----- fleet sigma fraction -------------------------------------------------------------
+
+def signals_of(errors, sigmas, fresh=None):
+    signals = {}
+    for i, (e, s) in enumerate(zip(errors, sigmas, strict=True), start=1):
+        e, s = np.asarray(e, dtype=float), np.asarray(s, dtype=float)
+        mask = np.ones(e.shape, dtype=bool) if fresh is None else np.asarray(fresh[i - 1])
+        signals[f"Quad{i}.Est.E.X"] = Signal(e, mask)
+        signals[f"Quad{i}.Est.S.X"] = Signal(s, np.ones(e.shape, dtype=bool))
+        signals[f"Quad{i}.Pos.X"] = Signal(np.zeros_like(e), np.ones(e.shape, dtype=bool))
+    return signals
+
+
+def test_fleet_sigma_fraction_counts_vehicle_sample_pairs_against_their_own_sigma():
+    signals = signals_of([[0.1, -0.3, 0.5, np.nan], [1.0, 2.0, -2.5, 0.0]],
+                         [[0.2, 0.2, 0.2, 0.2], [1.0, 1.0, 1.0, 1.0]])
+    # inside 1 sigma: 0.1 | 1.0, 0.0 ; 2 sigma adds -0.3 | 2.0 ; NaN never counts
+    assert cons.fleet_sigma_fraction(signals, "Est.E.X", "Est.S.X", 1.0) == pytest.approx(3 / 8)
+    assert cons.fleet_sigma_fraction(signals, "Est.E.X", "Est.S.X", 2.0) == pytest.approx(5 / 8)
+    assert cons.fleet_sigma_fraction(signals, "Est.E.X", "Est.S.X", 3.0) == pytest.approx(7 / 8)
+
+
+def test_fleet_sigma_fraction_only_counts_fresh_samples():
+    signals = signals_of([[0.1, 5.0, 5.0]], [[1.0, 1.0, 1.0]], fresh=[[True, False, True]])
+    assert cons.fleet_sigma_fraction(signals, "Est.E.X", "Est.S.X", 1.0) == pytest.approx(0.5)
+
+
+def test_fleet_sigma_fraction_of_gaussian_errors():
+    rng = np.random.default_rng(3)
+    sigmas = rng.uniform(0.1, 2.0, size=(10, 1)) * np.ones((10, 2000))
+    errors = sigmas * rng.normal(size=(10, 2000))
+    signals = signals_of(errors, sigmas)
+    assert cons.fleet_sigma_fraction(signals, "Est.E.X", "Est.S.X", 1.0) == pytest.approx(0.683, abs=0.01)
+    assert cons.fleet_sigma_fraction(signals, "Est.E.X", "Est.S.X", 2.0) == pytest.approx(0.954, abs=0.006)
+
+
+def test_fleet_sigma_fraction_names_what_is_missing():
+    signals = signals_of([[0.1]], [[1.0]])
+    with pytest.raises(ValueError, match="Est.E.VX"):
+        cons.fleet_sigma_fraction(signals, "Est.E.VX", "Est.S.VX", 1.0)
+    del signals["Quad1.Est.S.X"]
+    with pytest.raises(ValueError, match="Quad1.Est.S.X"):
+        cons.fleet_sigma_fraction(signals, "Est.E.X", "Est.S.X", 1.0)
+
+
+# ----- the campaign criterion on a linear Kalman filter with known consistency ---------------
+
+def kalman_nees(rng, runs, steps, covariance_scale, dt=0.005, period=20):
+    """(runs, steps) NEES and (runs, updates) NIS of a 1-axis position/velocity Kalman filter
+    with GPS p, v every `period` steps; the filter reports its covariance times `covariance_scale`."""
+    F = np.array([[1.0, dt], [0.0, 1.0]])
+    G = np.array([0.5 * dt * dt, dt])
+    q = 0.02                                   # m/s^2 per step
+    R = np.diag([0.49, 0.01])
+    P = np.diag([0.01, 0.01])
+    e = rng.normal(size=(runs, 2)) * 0.1
+    nees, nis = np.empty((runs, steps)), []
+    for k in range(steps):
+        e = e @ F.T + q * rng.normal(size=(runs, 1)) * G
+        P = F @ P @ F.T + q * q * np.outer(G, G)
+        if (k + 1) % period == 0:
+            S = (P + R) * covariance_scale
+            K = P @ np.linalg.inv(P + R)
+            nu = rng.normal(size=(runs, 2)) * np.sqrt(np.diag(R)) - e
+            nis.append(np.einsum("ij,ij->i", nu, np.linalg.solve(S, nu.T).T))
+            e = e + nu @ K.T
+            P = (np.eye(2) - K) @ P
+        nees[:, k] = cons.nees(e, np.broadcast_to(P * covariance_scale, (runs, 2, 2)))
+    return nees, np.array(nis).T
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_consistent_filter_meets_the_campaign_criterion(seed):
+    nees, nis = kalman_nees(np.random.default_rng(seed), runs=100, steps=2000, covariance_scale=1.0)
+    assert cons.in_band_fraction(nees.mean(axis=0), cons.chi2_band(2, 100)) >= MIN_IN_BAND
+    assert cons.in_band_fraction(nis.mean(axis=0), cons.chi2_band(2, 100)) >= MIN_IN_BAND
+
+
+@pytest.mark.parametrize("scale", [0.6, 1.6])
+def test_a_filter_off_by_60_percent_in_covariance_fails_it(scale):
+    nees, nis = kalman_nees(np.random.default_rng(5), runs=100, steps=2000, covariance_scale=scale)
+    assert cons.in_band_fraction(nees.mean(axis=0), cons.chi2_band(2, 100)) < 0.3
+    assert cons.in_band_fraction(nis.mean(axis=0), cons.chi2_band(2, 100)) < 0.3
