@@ -17,17 +17,20 @@ def wrap_to_pi(angle):
     return (angle + math.pi) % TWO_PI - math.pi
 
 
-def quat_from_euler(roll, pitch, yaw):
-    """Quaternion wxyz of R = Rz(yaw) Ry(pitch) Rx(roll); angles in rad."""
+def quat_from_euler_tuple(roll, pitch, yaw):
+    """Quaternion (w, x, y, z) of R = Rz(yaw) Ry(pitch) Rx(roll) as a tuple of floats; angles in rad."""
     cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
     cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
     cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
-    return np.array([
-        cr * cp * cy + sr * sp * sy,
-        sr * cp * cy - cr * sp * sy,
-        cr * sp * cy + sr * cp * sy,
-        cr * cp * sy - sr * sp * cy,
-    ])
+    return (cr * cp * cy + sr * sp * sy,
+            sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy)
+
+
+def quat_from_euler(roll, pitch, yaw):
+    """Quaternion wxyz (4,) of R = Rz(yaw) Ry(pitch) Rx(roll); angles in rad."""
+    return np.array(quat_from_euler_tuple(roll, pitch, yaw))
 
 
 def euler_from_quat(q):

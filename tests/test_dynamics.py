@@ -263,3 +263,7 @@ def test_room_bounds_revert_only_the_offending_coordinate():
     np.testing.assert_allclose(new[8:10], [0.5, 0.5], atol=1e-12)
     # inputs are not modified
     assert old[7] == -0.5
+
+
+NARROW_ROOM = dataclasses.replace(PARAMS, com_offset=[0.02, -0.03], motor_noise=0.4, x_bounds=[-1.0, 1.0],
+                                  y_bounds=[-1.0, 1.0], z_bounds=[-3.0, 0.0])

@@ -93,6 +93,24 @@ def test_predict_equals_its_parts_and_reuses_the_work_buffer():
         np.testing.assert_array_equal(P_alloc, P_new)
 
 
+def test_predict_with_yaw_is_predict_after_taking_the_attitude_yaw():
+    rng = np.random.default_rng(5)
+    Q = ekf.process_noise(EkfParams())
+    G_work = ekf.predict_jacobian(np.zeros(7), 0.0, 0.0, HOVER_F_B, DT)
+    for _ in range(20):
+        x, roll, pitch, f_B = random_inputs(rng)
+        yaw = rng.uniform(-math.pi, math.pi)
+        P = random_spd(rng, 7, 0.1)
+        x_new, P_new = ekf.predict_with_yaw(x.tolist(), P, (roll, pitch, yaw), f_B.tolist(), DT, Q, G_work)
+        assert isinstance(x_new, list)
+        x_yaw = x.copy()
+        x_yaw[6] = yaw
+        x_ref, P_ref = ekf.predict(x_yaw, P, roll, pitch, f_B, DT, Q)
+        np.testing.assert_array_equal(x_new, x_ref)
+        np.testing.assert_array_equal(P_new, P_ref)
+        np.testing.assert_array_equal(G_work, ekf.predict_jacobian(x_yaw, roll, pitch, f_B, DT))
+
+
 def test_joseph_update_equals_standard_form_for_optimal_gain():
     rng = np.random.default_rng(5)
     for m in (1, 3, 6):

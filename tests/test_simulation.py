@@ -9,7 +9,7 @@ from quad_drake import conventions as c
 from quad_drake.cli import load_named
 from quad_drake.control.cascade import cascade_step
 from quad_drake.dynamics import motor_lag_step
-from quad_drake.simulation import build_diagram, build_vehicle, load_logs, run, vehicle_log_names
+from quad_drake.simulation import build_diagram, build_vehicle, load_logs, read_logs, run, vehicle_log_names
 
 
 def short(name, end_time, *overrides, seed=None):
@@ -106,3 +106,40 @@ def test_unknown_signal_in_a_criterion_is_a_config_error():
     scenario = short("01_intro", 0.1, "criteria.0.signal=Quad.Est.E.Pos")
     with pytest.raises(ConfigError, match="criteria.0.signal: unknown signal 'Quad.Est.E.Pos'"):
         run(scenario)
+
+
+def test_log_samples_show_the_values_held_before_the_events_at_their_time():
+    """The IMU samples at t_k itself; a 5 ms log sample at t = t_k still shows the previous sample."""
+    diagram, loggers = build_diagram(short("11_gps_update", 0.02))
+    simulator = Simulator(diagram)
+    context = simulator.get_mutable_context()
+    diagram.SetRandomContext(context, RandomGenerator(1))
+    quad = diagram.GetSubsystemByName("Quad")
+
+    def out(name):
+        return quad.GetOutputPort(name).Eval(quad.GetMyContextFromRoot(context)).copy()
+
+    simulator.AdvanceTo(0.010 - 1e-7)
+    held = {name: out(name) for name in ("imu", "state", "ekf_state")}
+    simulator.AdvanceTo(0.010 + c.PLANT_OFFSET + 1e-7)
+    times, logs = read_logs(loggers, context, 2)
+    assert times[1] == 0.010
+    for name, value in held.items():
+        np.testing.assert_array_equal(logs["Quad"][name][1], value, err_msg=name)
+        log = loggers["Quad"][name].FindLog(context)     # the VectorLogSink look-alike agrees
+        assert log.sample_times()[2] == 0.010 and loggers["Quad"][name].get_input_port().size() == value.size
+        np.testing.assert_array_equal(log.data()[:, 2], value)
+        assert not np.array_equal(out(name), value), name   # every one of them changed at t = 0.010
+
+
+def test_onboard_ticks_coincide_exactly_with_log_times():
+    """Drake times periodic events as offset + k period: the IMU (offset 0) fires at exactly the
+    even-millisecond log times (so a log sample never sees a sample taken at its own time), and
+    every other system fires at least a microsecond away from any log time (checked for 1 h)."""
+    j = np.arange(0, int(3600 / c.LOG_PERIOD) + 1, 2)
+    np.testing.assert_array_equal((j * 5 // 2) * c.ONBOARD_PERIOD, j * c.LOG_PERIOD)
+    assert c.SENSOR_OFFSET == 0.0
+    offsets = [c.SLOW_SENSOR_OFFSET, c.ATTITUDE_FILTER_OFFSET, c.EKF_OFFSET, c.CONTROLLER_OFFSET,
+               c.PLANT_OFFSET]
+    assert min(offsets) >= 1e-6 and max(offsets) + 1e-6 <= c.PHYSICS_PERIOD / 2
+    assert sorted(offsets[1:]) == offsets[1:] and len(set(offsets[1:])) == 4

@@ -8,7 +8,7 @@ are exact at rest for |pitch| < pi/2 (the reference's atan2(-a_x, 9.81) is atan(
 
 import math
 
-from quad_drake.rotations import euler_from_quat, quat_from_euler, wrap_to_pi
+from quad_drake.rotations import euler_from_quat, quat_from_euler_tuple, wrap_to_pi
 
 VARIANTS = ("nonlinear", "small_angle")
 
@@ -26,7 +26,7 @@ def integrate_euler_exact(roll, pitch, yaw, w_B, dt):
     ``rotations.quat_integrate_body_rate`` in scalar arithmetic (it runs at 500 Hz).
     """
     wx, wy, wz = float(w_B[0]), float(w_B[1]), float(w_B[2])
-    qw, qx, qy, qz = quat_from_euler(roll, pitch, yaw).tolist()
+    qw, qx, qy, qz = quat_from_euler_tuple(roll, pitch, yaw)
     rate = math.sqrt(wx * wx + wy * wy + wz * wz)
     s = math.sin(0.5 * rate * dt) / rate if rate > 1e-12 else 0.5 * dt
     c = math.cos(0.5 * rate * dt)

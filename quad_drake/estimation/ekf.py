@@ -110,21 +110,37 @@ def _symmetrised(P):
 
 
 def predict_covariance(P, G, Q):
-    """G P G^T + Q (7x7), symmetrised."""
-    GPGt = G @ P @ G.T
-    GPGt += Q
-    return _symmetrised(GPGt)
+    """(G P G^T + (G P G^T)^T) / 2 + Q (7x7): G P G^T + Q, symmetrised (Q is diagonal)."""
+    S = _symmetrised((G @ P) @ G.T)
+    S += Q
+    return S
 
 
 def predict(x, P, roll, pitch, f_B, dt, Q, G=None):
     """(x, P) after one IMU step: predict_state, and P <- G P G^T + Q with G = predict_jacobian.
 
-    The 500 Hz path: the rotation is evaluated once. G is an optional 7x7 work buffer from
-    an earlier predict_jacobian call; its Jacobian entries are overwritten in place.
+    The rotation is evaluated once. G is an optional 7x7 work buffer from an earlier
+    predict_jacobian call; its Jacobian entries are overwritten in place.
     """
     rf, rf_yaw = _rotate_specific_force(roll, pitch, x[YAW_INDEX], f_B)
     G = _fill_jacobian(np.eye(EKF_STATE_SIZE) if G is None else G, rf_yaw, dt)
     return _state_after(x, (rf[0], rf[1], rf[2] + GRAVITY), dt), predict_covariance(P, G, Q)
+
+
+def predict_with_yaw(x, P, attitude, f_B, dt, Q, G):
+    """The EKF's 500 Hz step: (x (list of 7), P) after x[6] <- attitude yaw, then :func:`predict`.
+
+    x: prior state (7 floats); attitude: (roll, pitch, yaw) rad from the attitude filter;
+    G: a 7x7 work buffer from :func:`predict_jacobian`, its Jacobian entries overwritten.
+    Scalar state arithmetic, as in :func:`predict_state`.
+    """
+    roll, pitch, yaw = attitude
+    rf, rf_yaw = _rotate_specific_force(roll, pitch, yaw, f_B)
+    _fill_jacobian(G, rf_yaw, dt)
+    px, py, pz, vx, vy, vz = x[0], x[1], x[2], x[3], x[4], x[5]
+    return ([px + vx * dt, py + vy * dt, pz + vz * dt,
+             vx + rf[0] * dt, vy + rf[1] * dt, vz + (rf[2] + GRAVITY) * dt, yaw],
+            predict_covariance(P, G, Q))
 
 
 def kalman_update(x, P, z, H, R, z_hat):

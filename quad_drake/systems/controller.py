@@ -14,6 +14,7 @@ from quad_drake.conventions import (
     REFERENCE_SIZE,
     STATE_SIZE,
 )
+from quad_drake.systems._io import vector_reader
 
 
 class CascadeController(LeafSystem):
@@ -32,24 +33,22 @@ class CascadeController(LeafSystem):
     def __init__(self, params):
         super().__init__()
         self._params = copy.deepcopy(params)
-        self._state_port = self.DeclareVectorInputPort("state", STATE_SIZE)
-        self._reference_port = self.DeclareVectorInputPort("reference", REFERENCE_SIZE)
+        self._read_state = vector_reader(self.DeclareVectorInputPort("state", STATE_SIZE))
+        self._read_reference = vector_reader(self.DeclareVectorInputPort("reference", REFERENCE_SIZE))
         self._integral_index = self.DeclareDiscreteState(1)
         hover = params.mass * GRAVITY / NUM_MOTORS
         self._thrusts_index = self.DeclareDiscreteState(np.full(NUM_MOTORS, hover))
         self.DeclareStateOutputPort("motor_thrusts", self._thrusts_index)
+        self._integral_group, self._thrusts_group = int(self._integral_index), int(self._thrusts_index)
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, CONTROLLER_OFFSET, self._update)
 
     def integral_index(self):
         """Discrete-state group index of the altitude-error integral (m s)."""
         return self._integral_index
 
-    def DoCalcTimeDerivatives(self, context, derivatives):
-        """No-op: avoids the default per-derivative overhead of Python systems (DESIGN §9)."""
-
     def _update(self, context, discrete_state):
-        integral = discrete_state.get_mutable_value(self._integral_index)
-        forces, integral[0] = cascade_step(self._state_port.Eval(context).tolist(),
-                                           self._reference_port.Eval(context).tolist(),
-                                           float(integral[0]), ONBOARD_PERIOD, self._params)
-        discrete_state.get_mutable_value(self._thrusts_index)[:] = forces
+        forces, integral = cascade_step(self._read_state(context), self._read_reference(context),
+                                        discrete_state.value(self._integral_group).tolist()[0],
+                                        ONBOARD_PERIOD, self._params)
+        discrete_state.set_value(self._integral_group, np.array((integral,)))
+        discrete_state.set_value(self._thrusts_group, np.array(forces))

@@ -25,7 +25,8 @@ from quad_drake.conventions import (
 )
 from quad_drake.estimation import ekf
 from quad_drake.estimation.complementary import VARIANTS, complementary_update
-from quad_drake.rotations import quat_from_euler
+from quad_drake.rotations import quat_from_euler_tuple
+from quad_drake.systems._io import vector_reader
 
 DIAGNOSTICS_SIZE = 5
 """`diagnostics` layout: GPS NIS, its sample stamp (s), mag NIS, its stamp (s), rejected count."""
@@ -53,21 +54,20 @@ class ComplementaryFilter(LeafSystem):
             raise ValueError(f"attitude filter variant {params.variant!r} is not one of {VARIANTS}")
         self._tau = float(params.tau)
         self._variant = params.variant
-        self._imu = self.DeclareVectorInputPort("imu", IMU_SIZE)
-        self._ekf_state = self.DeclareVectorInputPort("ekf_state", EKF_STATE_SIZE)
+        self._read_imu = vector_reader(self.DeclareVectorInputPort("imu", IMU_SIZE))
+        self._read_ekf_state = vector_reader(self.DeclareVectorInputPort("ekf_state", EKF_STATE_SIZE))
         state = self.DeclareDiscreteState(np.array(initial_attitude, dtype=float))
         self.DeclareStateOutputPort("attitude", state)
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, ATTITUDE_FILTER_OFFSET, self._update)
 
     def _update(self, context, discrete_state):
-        imu = self._imu.Eval(context).tolist()
-        yaw = float(self._ekf_state.Eval(context)[6])
-        attitude = discrete_state.get_mutable_value(0)
-        roll, pitch = float(attitude[0]), float(attitude[1])
+        imu = self._read_imu(context)
+        yaw = self._read_ekf_state(context)[6]
+        roll, pitch, _ = discrete_state.value(0).tolist()
         if _finite(imu):
             roll, pitch, yaw = complementary_update(roll, pitch, yaw, imu[0:3], imu[3:6],
                                                     ONBOARD_PERIOD, self._tau, self._variant)
-        attitude[:] = (roll, pitch, yaw)
+        discrete_state.set_value(0, np.array((roll, pitch, yaw)))
 
 
 class Ekf(LeafSystem):
@@ -91,10 +91,10 @@ class Ekf(LeafSystem):
         self._R_gps = ekf.gps_noise(params)
         self._R_mag = ekf.mag_noise(params)
         self._G = ekf.predict_jacobian(np.zeros(EKF_STATE_SIZE), 0.0, 0.0, (0.0, 0.0, 0.0), ONBOARD_PERIOD)
-        self._imu = self.DeclareVectorInputPort("imu", IMU_SIZE)
-        self._gps = self.DeclareVectorInputPort("gps", GPS_SIZE)
-        self._mag = self.DeclareVectorInputPort("mag", MAG_SIZE)
-        self._attitude = self.DeclareVectorInputPort("attitude", ATTITUDE_SIZE)
+        self._read_imu = vector_reader(self.DeclareVectorInputPort("imu", IMU_SIZE))
+        self._read_gps = vector_reader(self.DeclareVectorInputPort("gps", GPS_SIZE))
+        self._read_mag = vector_reader(self.DeclareVectorInputPort("mag", MAG_SIZE))
+        self._read_attitude = vector_reader(self.DeclareVectorInputPort("attitude", ATTITUDE_SIZE))
         x = self.DeclareDiscreteState(ekf.initial_state(params))
         P = self.DeclareDiscreteState(ekf.initial_covariance(params).ravel())
         diagnostics = self.DeclareDiscreteState(
@@ -106,35 +106,37 @@ class Ekf(LeafSystem):
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, EKF_OFFSET, self._update)
 
     def _update(self, context, discrete_state):
-        imu = self._imu.Eval(context).tolist()
-        roll, pitch, yaw = self._attitude.Eval(context).tolist()
-        x = np.array(discrete_state.get_value(0))
-        P = discrete_state.get_value(1).reshape(EKF_STATE_SIZE, EKF_STATE_SIZE)
-        diagnostics = discrete_state.get_mutable_value(2)
-        seen = discrete_state.get_mutable_value(3)
-        if _finite(imu + [roll, pitch, yaw]):
-            x[ekf.YAW_INDEX] = yaw
-            x, P = ekf.predict(x, P, roll, pitch, imu, ONBOARD_PERIOD, self._Q, self._G)
+        imu = self._read_imu(context)
+        attitude = self._read_attitude(context)
+        mag = self._read_mag(context)
+        gps = self._read_gps(context)
+        x = discrete_state.value(0)
+        P = discrete_state.value(1).reshape(EKF_STATE_SIZE, EKF_STATE_SIZE)
+        if _finite(imu + attitude):
+            x, P = ekf.predict_with_yaw(x.tolist(), P, attitude, imu, ONBOARD_PERIOD, self._Q, self._G)
         else:
-            diagnostics[REJECTED_INDEX] += 1.0
-        mag = self._mag.Eval(context)
-        x, P = self._fuse(MAG_SLOT, mag[1], ekf.mag_update, mag[0], self._R_mag, x, P, seen, diagnostics)
-        gps = self._gps.Eval(context)
-        x, P = self._fuse(GPS_SLOT, gps[6], ekf.gps_update, gps[0:6], self._R_gps, x, P, seen, diagnostics)
-        discrete_state.set_value(0, x)
+            self._book_rejection(discrete_state)
+        seen = discrete_state.value(3).tolist()
+        if mag[1] != seen[MAG_SLOT] and mag[1] != NO_SAMPLE_STAMP:
+            x, P = self._fuse(MAG_SLOT, mag[1], ekf.mag_update, mag[0], self._R_mag, x, P, discrete_state)
+        if gps[6] != seen[GPS_SLOT] and gps[6] != NO_SAMPLE_STAMP:
+            x, P = self._fuse(GPS_SLOT, gps[6], ekf.gps_update, gps[0:6], self._R_gps, x, P, discrete_state)
+        discrete_state.set_value(0, np.asarray(x, dtype=float))
         discrete_state.set_value(1, P.ravel())
 
     @staticmethod
-    def _fuse(slot, stamp, update, z, R, x, P, seen, diagnostics):
-        """(x, P) after fusing the sample z if its stamp is fresh; books the NIS or a rejection."""
-        stamp = float(stamp)
-        if stamp == seen[slot] or stamp == NO_SAMPLE_STAMP:
-            return x, P
-        seen[slot] = stamp
+    def _book_rejection(discrete_state):
+        discrete_state.get_mutable_value(2)[REJECTED_INDEX] += 1.0
+
+    def _fuse(self, slot, stamp, update, z, R, x, P, discrete_state):
+        """(x, P) after fusing the fresh sample z (stamp s); books the stamp, the NIS or a rejection."""
+        discrete_state.get_mutable_value(3)[slot] = stamp
+        x = np.asarray(x, dtype=float)
         x_new, P_new, nis = update(x, P, z, R) if math.isfinite(stamp) else (x, P, math.nan)
         if math.isnan(nis):
-            diagnostics[REJECTED_INDEX] += 1.0
+            self._book_rejection(discrete_state)
             return x, P
+        diagnostics = discrete_state.get_mutable_value(2)
         diagnostics[2 * slot] = nis
         diagnostics[2 * slot + 1] = stamp
         return x_new, P_new
@@ -150,15 +152,15 @@ class EstimatedStateAssembler(LeafSystem):
 
     def __init__(self):
         super().__init__()
-        self._attitude = self.DeclareVectorInputPort("attitude", ATTITUDE_SIZE)
-        self._ekf_state = self.DeclareVectorInputPort("ekf_state", EKF_STATE_SIZE)
-        self._imu = self.DeclareVectorInputPort("imu", IMU_SIZE)
+        self._read_attitude = vector_reader(self.DeclareVectorInputPort("attitude", ATTITUDE_SIZE))
+        self._read_ekf_state = vector_reader(self.DeclareVectorInputPort("ekf_state", EKF_STATE_SIZE))
+        self._read_imu = vector_reader(self.DeclareVectorInputPort("imu", IMU_SIZE))
         self.DeclareVectorOutputPort("estimated_state", STATE_SIZE, self._calc,
                                      prerequisites_of_calc={self.all_input_ports_ticket()})
 
     def _calc(self, context, output):
-        roll, pitch, _ = self._attitude.Eval(context).tolist()
-        x = self._ekf_state.Eval(context).tolist()
-        gyro = self._imu.Eval(context).tolist()[3:6]
-        q = quat_from_euler(roll, pitch, x[6]).tolist()
-        output.SetFromVector(x[0:3] + q + x[3:6] + gyro)
+        roll, pitch, _ = self._read_attitude(context)
+        x = self._read_ekf_state(context)
+        gyro = self._read_imu(context)[3:6]
+        q = list(quat_from_euler_tuple(roll, pitch, x[6]))
+        output.SetFromVector(np.array(x[0:3] + q + x[3:6] + gyro))

@@ -21,6 +21,3 @@ class TrajectorySource(LeafSystem):
 
     def _calc_reference(self, context, output):
         output.SetFromVector(self._trajectory.sample(context.get_time()))
-
-    def DoCalcTimeDerivatives(self, context, derivatives):
-        """No-op: avoids the default per-derivative overhead of Python systems (DESIGN §9)."""

@@ -9,7 +9,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
 from quad_drake.config import AttitudeFilterParams, EkfParams
-from quad_drake.conventions import GRAVITY, NO_SAMPLE_STAMP, ONBOARD_PERIOD
+from quad_drake.conventions import ATTITUDE_FILTER_OFFSET, GRAVITY, NO_SAMPLE_STAMP, ONBOARD_PERIOD
 from quad_drake.estimation import ekf
 from quad_drake.estimation.complementary import complementary_update
 from quad_drake.rotations import quat_from_euler
@@ -91,9 +91,9 @@ def test_cf_ticks_at_its_offset_and_integrates_from_the_ekf_yaw():
     imu = [0.5, -1.0, -9.7, 0.3, -0.2, 0.8]
     params = AttitudeFilterParams(variant="nonlinear", tau=0.5)
     dut, context, simulator = make_cf(imu, ekf_yaw=0.4, params=params, initial_attitude=(0.1, -0.05, 2.0))
-    simulator.AdvanceTo(1.5e-6)        # before ATTITUDE_FILTER_OFFSET = 2e-6
+    simulator.AdvanceTo(ATTITUDE_FILTER_OFFSET - 0.5e-6)
     np.testing.assert_array_equal(dut.GetOutputPort("attitude").Eval(context), [0.1, -0.05, 2.0])
-    simulator.AdvanceTo(2.5e-6)
+    simulator.AdvanceTo(ATTITUDE_FILTER_OFFSET + 0.5e-6)
     expected = complementary_update(0.1, -0.05, 0.4, imu[:3], imu[3:], DT, 0.5, "nonlinear")
     np.testing.assert_allclose(dut.GetOutputPort("attitude").Eval(context), expected, rtol=0, atol=1e-15)
     simulator.AdvanceTo(ticks_end(2))

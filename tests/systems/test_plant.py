@@ -15,7 +15,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import AddRandomInputs, ConstantVectorSource, RandomSource
 
 from quad_drake.config import PhysicsParams
-from quad_drake.conventions import GRAVITY, PHYSICS_PERIOD, PLANT_OFFSET
+from quad_drake.conventions import GRAVITY, ONBOARD_PERIOD, PHYSICS_PERIOD, PLANT_OFFSET
 from quad_drake.dynamics import plant_step, rigid_body_derivatives
 from quad_drake.rotations import quat_from_euler, rotation_from_quat
 from quad_drake.systems.plant import QuadrotorPlant
@@ -29,7 +29,7 @@ def make_state(p=(0.0, 0.0, -1.0), ypr=(0.0, 0.0, 0.0), v=(0.0, 0.0, 0.0), w=(0.
     return np.concatenate([p, quat_from_euler(ypr[2], ypr[1], ypr[0]), v, w]).astype(float)
 
 
-def fixed_plant(commands, noise=(0.5,) * 4, x0=None, params=PARAMS):
+def fixed_plant(commands, noise=(0.5,) * 8, x0=None, params=PARAMS):
     dut = QuadrotorPlant(params, make_state() if x0 is None else x0)
     context = dut.CreateDefaultContext()
     dut.GetInputPort("motor_thrusts").FixValue(context, np.asarray(commands, dtype=float))
@@ -45,7 +45,8 @@ def outputs(dut, context):
 def test_ports_are_declared_with_sizes_and_noise_type():
     dut = QuadrotorPlant(PARAMS, make_state())
     assert dut.GetInputPort("motor_thrusts").size() == 4
-    assert dut.GetInputPort("motor_noise").size() == 4
+    assert dut.GetInputPort("motor_noise").size() == 8
+    assert (dut.noise_size, dut.noise_period) == (8, ONBOARD_PERIOD)
     sizes = {name: dut.GetOutputPort(name).size() for name in ("state", "acceleration", "motor_forces")}
     assert sizes == {"state": 13, "acceleration": 3, "motor_forces": 4}
     for i in range(dut.num_input_ports()):
@@ -91,6 +92,22 @@ def test_default_context_holds_the_initial_state_and_nothing_moves_before_the_fi
     assert out["state"][0] == pytest.approx(1.0 + DT, abs=1e-6)
 
 
+def test_each_tick_steps_twice_with_its_own_half_of_the_noise():
+    noise = [0.0] * 4 + [1.0] * 4  # first step: -0.25 N per motor, second step: +0.25 N
+    dut, context, sim = fixed_plant([HOVER] * 4, noise=noise)
+    x = make_state()
+    sim.AdvanceTo(PHYSICS_PERIOD + PLANT_OFFSET - 1e-9)
+    x1, _, f1 = plant_step(x.tolist(), [HOVER] * 4, [HOVER] * 4, [0.0] * 4, PARAMS, DT)
+    np.testing.assert_array_equal(outputs(dut, context)["state"], x1)  # held until t_k + 1 ms + offset
+    sim.AdvanceTo(PHYSICS_PERIOD + PLANT_OFFSET + 1e-9)
+    x2, _, f2 = plant_step(x1, f1, [HOVER] * 4, [1.0] * 4, PARAMS, DT)
+    np.testing.assert_array_equal(outputs(dut, context)["state"], x2)
+    np.testing.assert_array_equal(outputs(dut, context)["motor_forces"], f2)
+    assert f1[0] < HOVER < f2[0]
+    sim.AdvanceTo(ONBOARD_PERIOD + PLANT_OFFSET - 1e-9)
+    np.testing.assert_array_equal(outputs(dut, context)["state"], x2)
+
+
 def test_hover_is_an_equilibrium_for_two_seconds():
     x0 = make_state(p=(0.5, -1.0, -2.0), ypr=(1.0, 0.0, 0.0))
     dut, context, sim = fixed_plant([HOVER] * 4, x0=x0)
@@ -105,7 +122,7 @@ def test_free_fall_steps_at_the_physics_rate_and_matches_the_closed_form():
     x0 = make_state(p=(0.0, 0.0, -20.0))
     dut, context, sim = fixed_plant([PARAMS.min_motor_thrust] * 4, x0=x0)
     accel_z = GRAVITY - 4 * PARAMS.min_motor_thrust / PARAMS.mass
-    sim.AdvanceTo(0.0101)  # steps at 5e-6, 1.005e-3, ..., 10.005e-3: 11 of them
+    sim.AdvanceTo(0.0101)  # steps at 4e-6, 1.004e-3, ..., 10.004e-3: 11 of them
     t = 11 * DT
     state = dut.GetOutputPort("state").Eval(context)
     assert state[2] == pytest.approx(-20.0 + 0.5 * accel_z * t * t, abs=1e-12)
@@ -136,7 +153,7 @@ def test_first_step_starts_the_motor_lag_from_the_raw_command():
 
 def test_unit_noise_one_adds_a_quarter_newton_after_the_clamp():
     commands = [1.0, 3.0, 6.0, -1.0]
-    dut, context, sim = fixed_plant(commands, noise=[1.0] * 4, x0=make_state(p=(0, 0, -35.0)))
+    dut, context, sim = fixed_plant(commands, noise=[1.0] * 8, x0=make_state(p=(0, 0, -35.0)))
     sim.AdvanceTo(DT)
     # lag from the raw command: up for motors 0, 1, 3 (tau_up), down for motor 2 (6 -> 4.75)
     w = np.array([DT / (DT + tau) for tau in [PARAMS.motor_tau_up] * 2 + [PARAMS.motor_tau_down]
@@ -144,7 +161,7 @@ def test_unit_noise_one_adds_a_quarter_newton_after_the_clamp():
     target = np.array([1.25, 3.25, 4.75, 0.35])
     np.testing.assert_allclose(dut.GetOutputPort("motor_forces").Eval(context),
                                w * target + (1 - w) * np.array(commands), rtol=1e-12)
-    dut.GetInputPort("motor_noise").FixValue(context, [0.0] * 4)
+    dut.GetInputPort("motor_noise").FixValue(context, [0.0] * 8)
     sim.AdvanceTo(1.0)  # 50 time constants: forces settle at clamp(cmd) - 0.25
     np.testing.assert_allclose(dut.GetOutputPort("motor_forces").Eval(context),
                                [0.75, 2.75, 4.25, -0.15], rtol=1e-9)
@@ -175,7 +192,8 @@ def test_random_source_wiring_is_seeded_and_bounded():
         builder = DiagramBuilder()
         plant = builder.AddSystem(QuadrotorPlant(PARAMS, make_state()))
         source = builder.AddSystem(ConstantVectorSource(np.full(4, HOVER)))
-        noise = builder.AddSystem(RandomSource(RandomDistribution.kUniform, 4, PHYSICS_PERIOD))
+        noise = builder.AddSystem(RandomSource(RandomDistribution.kUniform, plant.noise_size,
+                                               plant.noise_period))
         builder.Connect(source.get_output_port(), plant.GetInputPort("motor_thrusts"))
         builder.Connect(noise.get_output_port(), plant.GetInputPort("motor_noise"))
         diagram = builder.Build()

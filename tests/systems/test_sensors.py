@@ -11,7 +11,7 @@ from pydrake.systems.primitives import AddRandomInputs, LogVectorOutput, RandomS
 
 from quad_drake import sensor_models
 from quad_drake.config import GpsParams, ImuParams, MagParams
-from quad_drake.conventions import NO_SAMPLE_STAMP, ONBOARD_PERIOD
+from quad_drake.conventions import NO_SAMPLE_STAMP, ONBOARD_PERIOD, SENSOR_OFFSET, SLOW_SENSOR_OFFSET
 from quad_drake.rotations import quat_from_euler
 from quad_drake.systems.sensors import Gps, Imu, Magnetometer
 
@@ -127,19 +127,19 @@ def test_imu_samples_every_tick_from_zero_with_fresh_noise():
     params = ImuParams()
     dut = Imu(params)
     simulator, _, source, _ = _build(dut, seed=7)
-    assert np.all(_output(simulator, dut, 0.5e-6) == 0.0)  # nothing sampled yet
-    previous = None
+    assert SENSOR_OFFSET == 0.0  # samples at t_k itself, with the noise redrawn at t_k
+    previous = dut.get_output_port(0).Eval(dut.GetMyContextFromRoot(simulator.get_context())).copy()
+    assert np.all(previous == 0.0)  # nothing sampled before the first step
     for k in range(4):
         t = k * ONBOARD_PERIOD
-        before = _output(simulator, dut, t + 0.5e-6)
-        if previous is not None:
-            np.testing.assert_array_equal(before, previous)  # held between ticks
-        after = _output(simulator, dut, t + 1.5e-6)
+        if k > 0:
+            np.testing.assert_array_equal(_output(simulator, dut, t - 0.5e-6), previous)  # held
+        after = _output(simulator, dut, t + 0.5e-6)
         expected = sensor_models.imu_measurement(STATE[3:7].tolist(), STATE[10:13].tolist(),
                                                  ACCELERATION.tolist(), _noise(simulator, source),
                                                  params)
         np.testing.assert_array_equal(after, expected)
-        assert np.all(after != before)
+        assert np.all(after != previous)
         previous = after
 
 
@@ -180,16 +180,19 @@ def test_gps_ports_and_stamps():
     assert dut.GetOutputPort("gps").size() == 7
     assert (dut.noise_size, dut.noise_period) == (9, 0.1)
     assert not dut.HasAnyDirectFeedthrough()
-    simulator, _, _, _ = _build(dut, seed=3)
+    simulator, _, source, _ = _build(dut, seed=3)
     initial = _output(simulator, dut, 0.1 - 1e-4)
     np.testing.assert_array_equal(initial, [0, 0, 0, 0, 0, 0, NO_SAMPLE_STAMP])
     for k in range(1, 5):
         t = k * 0.1
-        held = _output(simulator, dut, t + 0.5e-6)
+        held = _output(simulator, dut, t + SLOW_SENSOR_OFFSET - 0.5e-6)
         assert held[6] == (NO_SAMPLE_STAMP if k == 1 else (k - 1) * 0.1)
-        sample = _output(simulator, dut, t + 1.5e-6)
+        sample = _output(simulator, dut, t + SLOW_SENSOR_OFFSET + 0.5e-6)
         assert sample[6] == k * 0.1  # exact: the stamp is counter * period
         assert np.all(sample[:6] != held[:6])
+        position, velocity, _ = sensor_models.gps_measurement(  # the draw made at t = k period
+            STATE[0:3].tolist(), STATE[7:10].tolist(), [0.0] * 3, _noise(simulator, source), params)
+        np.testing.assert_array_equal(sample[:6], position + velocity)
 
 
 def test_gps_zero_noise_is_exact_truth():
@@ -240,11 +243,12 @@ def test_magnetometer_ports_and_stamps():
     assert (dut.noise_size, dut.noise_period) == (1, 0.01)
     assert not dut.HasAnyDirectFeedthrough()
     simulator, _, _, _ = _build(dut, seed=4)
-    np.testing.assert_array_equal(_output(simulator, dut, 0.008 + 0.5e-6), [0.0, NO_SAMPLE_STAMP])
+    np.testing.assert_array_equal(_output(simulator, dut, 0.008 + SLOW_SENSOR_OFFSET - 0.5e-6),
+                                  [0.0, NO_SAMPLE_STAMP])
     for k in range(4):
         t = 0.008 + k * 0.01
-        held = _output(simulator, dut, t + 0.5e-6)
-        sample = _output(simulator, dut, t + 1.5e-6)
+        held = _output(simulator, dut, t + SLOW_SENSOR_OFFSET - 0.5e-6)
+        sample = _output(simulator, dut, t + SLOW_SENSOR_OFFSET + 0.5e-6)
         assert sample[1] == 0.008 + k * 0.01
         assert sample[1] == pytest.approx(t, abs=1e-15)
         assert sample[0] != held[0]
