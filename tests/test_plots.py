@@ -1,0 +1,249 @@
+"""Plots, report.html and index.html on hand-made runs, plus one real run."""
+
+import math
+import re
+import time
+
+import numpy as np
+import pytest
+
+from quad_drake import plots
+from quad_drake.config import CriterionConfig, GpsParams, ImuParams, MagParams, ScenarioConfig, VehicleConfig
+from quad_drake.evaluation import evaluate_criterion
+from quad_drake.report import criterion_row, ekf_consistency, key_metrics, write_index
+from quad_drake.rotations import quat_from_euler
+from quad_drake.signals import vehicle_signals
+from quad_drake.simulation import SimulationResult
+
+LOG_PERIOD = 0.005
+
+
+def _vehicle_logs(times, rng, estimator, offset=0.0):
+    """Logs of a vehicle circling at 1 m altitude; estimate = truth + noise with a known sigma."""
+    n = times.size
+    omega = 0.5
+    p = np.column_stack([np.cos(omega * times), np.sin(omega * times) + offset, np.full(n, -1.0)])
+    v = np.column_stack([-omega * np.sin(omega * times), omega * np.cos(omega * times), np.zeros(n)])
+    yaw = 0.2 * np.sin(times)
+    q = np.array([quat_from_euler(0.05, -0.02, y) for y in yaw])
+    state = np.column_stack([p, q, v, np.zeros((n, 3))])
+    reference = np.column_stack([p + 0.05, v, np.zeros((n, 3)), np.zeros(n)])
+    logs = {"state": state, "reference": reference, "motor_forces": np.full((n, 4), 1.23)}
+    if not estimator:
+        return logs
+    sigma = np.array([0.1, 0.1, 0.3, 0.1, 0.1, 0.3, 0.05])
+    truth = np.column_stack([p, v, yaw])
+    logs["ekf_state"] = truth + rng.normal(size=(n, 7)) * sigma
+    covariance = np.zeros((n, 49))
+    covariance[:, ::8] = sigma**2
+    logs["covariance"] = covariance
+    logs["attitude"] = np.column_stack([np.full(n, 0.05), np.full(n, -0.02), yaw]) + 0.01
+    logs["diagnostics"] = np.zeros((n, 5))
+    logs["imu"] = np.column_stack([rng.normal(0, 0.5, n), np.zeros((n, 4)), np.zeros(n)])
+    stamps = np.floor(times / 0.1 + 1e-9) * 0.1
+    stamps[stamps == 0] = -1.0                                 # the first GPS sample arrives at 0.1 s
+    logs["gps"] = np.column_stack([p + rng.normal(0, 0.7, (n, 3)), v, stamps])
+    logs["mag"] = np.column_stack([yaw, np.floor(times / 0.01 + 1e-9) * 0.01])
+    return logs
+
+
+def make_result(names=("Quad",), estimator=True, end_time=4.0, criteria=None, seed=3):
+    """A SimulationResult of hand-made logs, with the criteria evaluated as a run would."""
+    rng = np.random.default_rng(seed)
+    times = LOG_PERIOD * np.arange(1, int(round(end_time / LOG_PERIOD)) + 1)
+    sensors = {"imu": ImuParams(), "gps": GpsParams(), "mag": MagParams()} if estimator else {}
+    vehicles = []
+    for name in names:
+        vehicle = VehicleConfig(name=name)
+        for kind, params in sensors.items():
+            setattr(vehicle.sensors, kind, params)
+        vehicles.append(vehicle)
+    if criteria is None:
+        criteria = [CriterionConfig(kind="window", signal=f"{names[0]}.PosFollowErr", threshold=0.1,
+                                    window=1.0)]
+        if estimator:
+            criteria.append(CriterionConfig(kind="sigma", signal=f"{names[0]}.GPS.X",
+                                            ref_signal=f"{names[0]}.Pos.X", sigma=0.7, min_percent=60,
+                                            max_percent=76, window=1.0))
+    scenario = ScenarioConfig(name="synthetic", description="hand-made logs", end_time=end_time, seed=seed,
+                              vehicles=vehicles, criteria=criteria)
+    logs = {name: _vehicle_logs(times, rng, estimator, offset=i) for i, name in enumerate(names)}
+    signals = {}
+    for name, vehicle_logs in logs.items():
+        signals.update(vehicle_signals(name, vehicle_logs))
+    verdicts = [evaluate_criterion(c, times, lambda n: (signals[n].values, signals[n].fresh))
+                for c in criteria]
+    return SimulationResult(scenario, times, logs, signals, verdicts, wall_time=0.5)
+
+
+def _close(a, b, tol=1e-12):
+    return abs(a - b) <= tol
+
+
+@pytest.mark.parametrize("name, unit", [
+    ("Quad.Pos.X", "m"), ("Quad.Vel.Z", "m/s"), ("Quad.Omega.X", "rad/s"), ("Quad.Roll", "rad"),
+    ("Quad.Ref.Yaw", "rad"), ("Quad.PosFollowErr", "m"), ("Quad.GPS.X", "m"), ("Quad.GPS.VX", "m/s"),
+    ("Quad.IMU.AX", "m/s²"), ("Quad.IMU.GZ", "rad/s"), ("Quad.MagYaw", "rad"), ("Quad.Thrust.B", "N"),
+    ("Quad2.Est.E.Yaw", "rad"), ("Quad.Est.S.Z", "m"), ("Quad.Est.E.VX", "m/s"), ("Quad.Est.E.Pos", "m"),
+    ("Quad.Est.E.Vel", "m/s"), ("Quad.Est.E.MaxEuler", "rad"), ("Quad.Est.Roll", "rad"), ("Quad.Unknown", ""),
+])
+def test_signal_unit(name, unit):
+    assert plots.signal_unit(name) == unit
+
+
+def test_longest_good_stretch_matches_the_window_analyzer():
+    times = LOG_PERIOD * np.arange(1, 401)                     # 0.005 .. 2.0 s
+    values = np.zeros(400)
+    values[[39, 199]] = 1.0                                    # violations at t = 0.2 and 1.0 s
+    start, end = plots.longest_good_stretch(times, values, 0.5)
+    assert _close(start, 1.0) and _close(end, 2.0)              # 1.0 s after the last violation
+    values[359] = 1.0                                          # and at 1.8 s: 0.2 -> 1.0 (0.8 s) wins
+    start, end = plots.longest_good_stretch(times, values, 0.5)
+    assert _close(start, 0.2) and math.isclose(end, 0.995, abs_tol=1e-12)
+
+
+def test_figure_set_of_one_estimating_vehicle():
+    result = make_result()
+    assert list(plots.make_figures(result)) == [
+        "criterion_1", "criterion_2", "estimate_errors_Quad", "attitude_estimate_Quad", "state_estimate_Quad",
+        "position", "top_view", "attitude", "thrust"]
+
+
+def test_figure_set_without_estimator_and_of_a_fleet():
+    assert list(plots.make_figures(make_result(("A", "B"), estimator=False))) == [
+        "criterion_1", "position", "top_view", "attitude", "thrust"]
+    fleet = plots.make_figures(make_result(("Q1", "Q2", "Q3"), criteria=[]))
+    assert list(fleet) == ["fleet_errors", "position", "top_view", "attitude", "thrust"]
+
+
+def test_window_figure_draws_threshold_and_credited_stretch():
+    result = make_result(estimator=False)
+    verdict = result.criteria[0]
+    assert verdict.passed                                     # |p_ref - p| = 0.087 m < 0.1 m
+    fig = plots.make_figures(result)["criterion_1"][1]
+    ax = fig.axes[0]
+    threshold_lines = [line for line in ax.lines if np.allclose(line.get_ydata(), 0.1)]
+    assert len(threshold_lines) == 1
+    span = ax.patches[0]                                       # axvspan: Rectangle or Polygon by version
+    x = span.get_patch_transform().transform(span.get_path().vertices)[:, 0]
+    assert math.isclose(x.max() - x.min(), verdict.measured, abs_tol=1e-9)
+    assert "PASS" in fig._suptitle.get_text()
+    assert ax.get_ylabel() == "PosFollowErr [m]"
+
+
+def test_sigma_figure_band_and_cumulative_share():
+    result = make_result()
+    verdict = result.criteria[1]
+    fig = plots.make_figures(result)["criterion_2"][1]
+    top, bottom = fig.axes
+    pos_x = result.signals["Quad.Pos.X"].values
+    edges = [line.get_ydata() for line in top.lines if line.get_color() == "tab:green"]
+    assert len(edges) == 2
+    assert np.allclose(edges[0], pos_x - 0.7) and np.allclose(edges[1], pos_x + 0.7)
+    samples = top.lines[1].get_xdata()                         # fresh GPS samples only: 10 Hz
+    assert samples.size == result.signals["Quad.GPS.X"].fresh.sum() == 40
+    share = bottom.lines[0].get_ydata()
+    assert math.isclose(share[-1], verdict.percent, abs_tol=1e-9)
+    assert f"{verdict.percent:.0f} %" in fig._suptitle.get_text()
+    assert bottom.get_ylim() == (0.0, 100.0)
+
+
+def test_every_axis_is_labelled_with_a_unit():
+    for result in (make_result(), make_result(("Q1", "Q2", "Q3"), criteria=[])):
+        for stem, (caption, fig) in plots.make_figures(result).items():
+            assert caption and (fig._suptitle or fig.axes[0].get_title()), stem
+            for ax in fig.axes:
+                assert re.search(r"\[.+\]$", ax.get_ylabel()), (stem, ax.get_ylabel())
+            assert re.search(r"\[.+\]$", fig.axes[-1].get_xlabel()), stem
+
+
+def test_fleet_share_counts_every_vehicle_against_the_first_sigma():
+    result = make_result(("Q1", "Q2", "Q3"), criteria=[])
+    sigma = result.signals["Q1.Est.S.X"].values
+    inside = sum(np.sum(np.abs(result.signals[f"{v}.Est.E.X"].values) <= sigma) for v in ("Q1", "Q2", "Q3"))
+    share = plots.fleet_inside_share(result, ["Q1", "Q2", "Q3"], "X")
+    assert math.isclose(share, 100.0 * inside / (3 * result.times.size), rel_tol=1e-12)
+    assert 60.0 < share < 76.0                                 # Gaussian errors: ~68 % within one sigma
+
+
+def test_metrics_and_consistency_tables():
+    result = make_result()
+    metrics = {(v, what): (rms, peak) for v, what, _, rms, peak in key_metrics(result)}
+    follow = metrics[("Quad", "position tracking error |p_ref - p|")]
+    assert math.isclose(follow[0], 0.05 * math.sqrt(3), rel_tol=1e-9)
+    assert math.isclose(follow[1], 0.05 * math.sqrt(3), rel_tol=1e-9)
+    rows = {row[1]: row for row in ekf_consistency(result)}
+    assert list(rows) == ["X", "Y", "Z", "VX", "VY", "VZ", "Yaw"]
+    _, _, unit, rms, _, one, two = rows["Z"]
+    assert unit == "m" and math.isclose(rms, 0.3, rel_tol=0.05)
+    assert 64 < one < 72 and 93 < two < 97
+
+
+def test_criterion_rows_state_measured_and_required():
+    result = make_result()
+    window, sigma = (criterion_row(c, v) for c, v in zip(result.scenario.criteria, result.criteria,
+                                                        strict=True))
+    assert window[2] == ("PASS", "PASS")
+    assert f"{result.criteria[0].measured:.4g} s" in window[3] and window[4] == "&gt; 1 s"
+    assert f"{result.criteria[1].percent:.3g} %" in sigma[3] and "(60 %, 76 %)" in sigma[4]
+
+
+def test_run_artifacts_are_self_contained(tmp_path):
+    result = make_result(end_time=25.0)
+    start = time.process_time()
+    written = plots.write_plots(result, tmp_path)
+    plot_seconds = time.process_time() - start
+    assert plot_seconds < 5.0                                  # ~1 s on 2 cores; catches a 5x regression
+    artifacts = plots.write_run_artifacts(result, tmp_path)
+    assert [p.name for p in artifacts["plots"]] == [p.name for _, p in written]
+    assert all(p.stat().st_size > 10_000 for p in artifacts["plots"])
+    report = artifacts["report"].read_text()
+    assert report.count("data:image/png;base64,") == len(written)
+    assert not re.search(r"(src|href)=\"(https?:)?//", report)  # nothing fetched from the network
+    assert "href=\"replay.html\"" in report
+    for verdict in result.criteria:
+        assert verdict.line in report
+    assert "vehicles:" in report and "Quad.GPS.X" in report    # the resolved config
+    assert artifacts["replay"].name == "replay.html" and artifacts["replay"].stat().st_size > 100_000
+
+
+def test_diverged_run_still_gets_plots_and_report(tmp_path):
+    result = make_result()
+    for name in ("Quad.PosFollowErr", "Quad.Est.E.Pos"):
+        result.signals[name].values[100:] = np.nan
+    result.signals["Quad.Pos.X"].values[200:] = 1e9
+    written = plots.write_plots(result, tmp_path)
+    assert len(written) == 9
+    report = plots.write_report(result, tmp_path / "report.html", written).read_text()
+    assert ">nan<" in report
+
+
+def test_write_index_links_every_run(tmp_path):
+    summaries = []
+    for name, passed, n in (("01_a", True, 1), ("02_b", False, 2), ("09_c", True, 0)):
+        run_dir = tmp_path / "runs" / name
+        run_dir.mkdir(parents=True)
+        (run_dir / "report.html").write_text("x")
+        criteria = [{"passed": passed, "line": f"{'PASS' if passed else 'FAIL'}: {name} <{i}>"}
+                    for i in range(n)]
+        summaries.append(({"scenario": name, "seed": 0, "passed": passed, "criteria": criteria,
+                           "wall_time_s": 0.5, "real_time_factor": 20.0}, run_dir))
+    index = write_index(summaries, tmp_path / "runs").read_text()
+    assert index.count("href=\"01_a/report.html\"") == 1 and "href=\"09_c/report.html\"" in index
+    assert "replay.html" not in index                          # only files that exist are linked
+    assert "1 of 2 graded scenarios passed" in index
+    assert "FAIL: 02_b &lt;1&gt;" in index                     # escaped analyzer lines
+    assert re.findall(r"class=\"(PASS|FAIL|NONE)\"", index) == ["PASS", "FAIL", "NONE"]
+
+
+def test_real_run_artifacts(tmp_path):
+    from quad_drake.cli import load_named
+    from quad_drake.simulation import run
+
+    result = run(load_named("01_intro"))
+    artifacts = plots.write_run_artifacts(result, tmp_path)
+    assert [p.name for p in artifacts["plots"]] == [
+        "criterion_1.png", "position.png", "top_view.png", "attitude.png", "thrust.png"]
+    report = artifacts["report"].read_text()
+    assert result.criteria[0].line in report
+    assert ("class=\"PASS\"" in report) == result.passed
