@@ -21,6 +21,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
+from .consistency import fleet_sigma_fraction
 from .report import write_index, write_report
 
 __all__ = ["make_figures", "signal_unit", "write_index", "write_plots", "write_run_artifacts"]
@@ -330,16 +331,9 @@ def _estimate_errors_figure(result, vehicle):
     return fig
 
 
-def fleet_inside_share(result, vehicles, key):
-    """% of all vehicles' samples with |Est.E.key| <= the first vehicle's Est.S.key."""
-    sigma = _values(result, f"{vehicles[0]}.Est.S.{key}")
-    errors = np.array([_values(result, f"{v}.Est.E.{key}") for v in vehicles])
-    return float(np.mean(np.abs(errors) <= sigma) * 100) if errors.size else float("nan")
-
-
 def _fleet_figure(result, vehicles):
     fig, axes = _figure(2, 2, width=10.0, height_per_row=2.6, title=(
-        f"Fleet of {len(vehicles)}: estimation errors inside {vehicles[0]}'s ±σ (dotted)"))
+        f"Fleet of {len(vehicles)}: estimation errors and {vehicles[0]}'s ±σ (dotted)"))
     t = result.times
     for key, ax in zip(("X", "Y", "VX", "VY"), axes.T.flat, strict=True):
         for i, vehicle in enumerate(vehicles):
@@ -347,7 +341,8 @@ def _fleet_figure(result, vehicles):
         sigma = _values(result, f"{vehicles[0]}.Est.S.{key}")
         for sign, style in ((1, ":"), (-1, ":"), (2, "--"), (-2, "--")):
             ax.plot(t, sign * sigma, color="k", ls=style, lw=1.0)
-        ax.set_title(f"{key} error: {fleet_inside_share(result, vehicles, key):.0f} % within ±σ "
+        share = 100.0 * fleet_sigma_fraction(result.signals, f"Est.E.{key}", f"Est.S.{key}", 1.0)
+        ax.set_title(f"{key} error: {share:.0f} % within ±σ "
                      "(±2σ dashed)", fontsize=9, y=1.0)
         ax.set_ylabel(_label(f"{key} error", signal_unit(f"x.Est.E.{key}")))
     axes[0, 0].legend(loc="upper left", fontsize=6, ncol=2)
@@ -358,6 +353,8 @@ def make_figures(result):
     """Ordered {file stem: (caption, Figure)} for a SimulationResult (see the module doc)."""
     figures = {}
     for i, criterion in enumerate(result.scenario.criteria):
+        if criterion.kind == "fleet_sigma":    # drawn once for the whole fleet below
+            continue
         figures[f"criterion_{i + 1}"] = (f"Criterion {i + 1}: {criterion.kind} on {criterion.signal}",
                                          _criterion_figure(result, i))
     estimating = _estimating(result)

@@ -87,3 +87,15 @@ def test_malformed_trajectory_file_names_file_and_line(tmp_path):
     result = cli("run", "01_intro", "--set", f"vehicles.0.trajectory={{kind: file, file: {bad}}}")
     assert result.returncode == 2
     assert f"{bad}:2" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_run_writes_plots_report_replay_and_index(tmp_path):
+    result = cli("run", "09_predict_covariance", "01_intro", "--set", "end_time=0.3", "--out", str(tmp_path))
+    assert result.returncode in (0, 1), result.stderr            # short runs may fail a criterion
+    assert "Traceback" not in result.stderr
+    fleet = tmp_path / "09_predict_covariance"
+    for name in ("fleet_errors.png", "report.html", "replay.html", "logs.npz"):
+        assert (fleet / name).is_file(), name
+    assert (tmp_path / "01_intro" / "criterion_1.png").is_file()
+    index = (tmp_path / "index.html").read_text()
+    assert "09_predict_covariance/report.html" in index and "01_intro/report.html" in index

@@ -9,11 +9,10 @@ import pytest
 
 from quad_drake import plots
 from quad_drake.config import CriterionConfig, GpsParams, ImuParams, MagParams, ScenarioConfig, VehicleConfig
-from quad_drake.evaluation import evaluate_criterion
 from quad_drake.report import criterion_row, ekf_consistency, key_metrics, write_index
 from quad_drake.rotations import quat_from_euler
 from quad_drake.signals import vehicle_signals
-from quad_drake.simulation import SimulationResult
+from quad_drake.simulation import SimulationResult, evaluate_criteria
 
 LOG_PERIOD = 0.005
 
@@ -71,8 +70,7 @@ def make_result(names=("Quad",), estimator=True, end_time=4.0, criteria=None, se
     signals = {}
     for name, vehicle_logs in logs.items():
         signals.update(vehicle_signals(name, vehicle_logs))
-    verdicts = [evaluate_criterion(c, times, lambda n: (signals[n].values, signals[n].fresh))
-                for c in criteria]
+    verdicts = evaluate_criteria(scenario, times, signals)
     return SimulationResult(scenario, times, logs, signals, verdicts, wall_time=0.5)
 
 
@@ -157,12 +155,14 @@ def test_every_axis_is_labelled_with_a_unit():
             assert re.search(r"\[.+\]$", fig.axes[-1].get_xlabel()), stem
 
 
-def test_fleet_share_counts_every_vehicle_against_the_first_sigma():
-    result = make_result(("Q1", "Q2", "Q3"), criteria=[])
-    sigma = result.signals["Q1.Est.S.X"].values
-    inside = sum(np.sum(np.abs(result.signals[f"{v}.Est.E.X"].values) <= sigma) for v in ("Q1", "Q2", "Q3"))
-    share = plots.fleet_inside_share(result, ["Q1", "Q2", "Q3"], "X")
-    assert math.isclose(share, 100.0 * inside / (3 * result.times.size), rel_tol=1e-12)
+def test_fleet_sigma_criteria_are_drawn_once_in_the_fleet_figure():
+    from quad_drake.config import CriterionConfig
+    criteria = [CriterionConfig(kind="fleet_sigma", signal="Est.E.X", sigma_signal="Est.S.X")]
+    result = make_result(("Q1", "Q2", "Q3"), criteria=criteria)
+    figures = plots.make_figures(result)
+    assert "fleet_errors" in figures and not any(stem.startswith("criterion_") for stem in figures)
+    title = figures["fleet_errors"][1].axes[0].get_title()
+    share = float(re.match(r"X error: (\d+) % within", title).group(1))
     assert 60.0 < share < 76.0                                 # Gaussian errors: ~68 % within one sigma
 
 
