@@ -74,6 +74,12 @@ def _verdict(passed):
 
 def criterion_row(criterion, verdict):
     """[criterion, kind, verdict, measured, required] cells (HTML-escaped) of one criterion."""
+    if criterion.kind == "fleet_sigma":
+        what = (f"|V.{criterion.signal}| ≤ {criterion.sigma_multiple:g} × V.{criterion.sigma_signal} "
+                "over every vehicle V")
+        measured = f"{_num(verdict.percent, 3)} % of {verdict.samples} samples within"
+        required = f"share in [{criterion.min_percent:g} %, {criterion.max_percent:g} %]"
+        return [_esc(what), "fleet_sigma", _verdict(verdict.passed), _esc(measured), _esc(required)]
     if criterion.kind == "sigma":
         ref = criterion.ref_signal or f"{criterion.ref:g}"
         sigma = criterion.sigma_signal or f"{criterion.sigma:g}"

@@ -247,3 +247,16 @@ def test_real_run_artifacts(tmp_path):
     report = artifacts["report"].read_text()
     assert result.criteria[0].line in report
     assert ("class=\"PASS\"" in report) == result.passed
+
+
+def test_fleet_sigma_criterion_row_reports_the_share():
+    criteria = [CriterionConfig(kind="fleet_sigma", signal="Est.E.X", sigma_signal="Est.S.X",
+                                sigma_multiple=2, min_percent=90, max_percent=100)]
+    result = make_result(("Q1", "Q2", "Q3"), criteria=criteria)
+    verdict = result.criteria[0]
+    row = criterion_row(criteria[0], verdict)
+    assert row[0] == "|V.Est.E.X| ≤ 2 × V.Est.S.X over every vehicle V" and row[1] == "fleet_sigma"
+    assert row[2] == (("PASS", "PASS") if verdict.passed else ("FAIL", "FAIL"))
+    assert row[3] == f"{verdict.percent:.3g} % of {3 * result.times.size} samples within"
+    assert row[4] == "share in [90 %, 100 %]"
+    assert 93 < verdict.percent < 97                           # Gaussian errors: ~95 % within two sigma
