@@ -61,10 +61,14 @@ def time_cpp_baseline(end_time):
     LogVectorOutput(plant.get_output_port(0), builder, publish_period=c.LOG_PERIOD)
     diagram = builder.Build()
     simulator = Simulator(diagram)
-    ApplySimulatorConfig(SimulatorConfig(integration_scheme="runge_kutta2", max_step_size=c.PHYSICS_PERIOD,
-                                         use_error_control=False), simulator)
+    ApplySimulatorConfig(
+        SimulatorConfig(
+            integration_scheme="runge_kutta2", max_step_size=c.PHYSICS_PERIOD, use_error_control=False
+        ),
+        simulator,
+    )
     x0 = np.zeros(12)
-    x0[0:6] = [0.5, -0.3, 1.5, 0.1, -0.1, 0.2]   # displaced and tilted: the LQR flies back to (0, 0, 1)
+    x0[0:6] = [0.5, -0.3, 1.5, 0.1, -0.1, 0.2]  # displaced and tilted: the LQR flies back to (0, 0, 1)
     plant.GetMyContextFromRoot(simulator.get_mutable_context()).SetContinuousState(x0)
     wall, cpu = _timed_advance(simulator, end_time)
     return wall, cpu, simulator.get_num_steps_taken()
@@ -76,8 +80,12 @@ def _medians(samples):
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("scenarios", nargs="*", default=["11_gps_update"],
-                        help="bundled scenario names (default: 11_gps_update)")
+    parser.add_argument(
+        "scenarios",
+        nargs="*",
+        default=["11_gps_update"],
+        help="bundled scenario names (default: 11_gps_update)",
+    )
     parser.add_argument("--runs", type=int, default=5, help="runs per scenario, >= 1 (default 5)")
     args = parser.parse_args(argv)
     if args.runs < 1:
@@ -86,25 +94,31 @@ def main(argv=None):
     rows = []
     for name in args.scenarios:
         scenario = load_scenario(SCENARIO_DIR / f"{name}.yaml")
-        time_scenario(scenario)   # warm-up: imports, first-call caches
+        time_scenario(scenario)  # warm-up: imports, first-call caches
         wall, cpu, steps = _medians([time_scenario(scenario) for _ in range(args.runs)])
         base_wall, base_cpu, _ = _medians([time_cpp_baseline(scenario.end_time) for _ in range(args.runs)])
         rows.append((name, scenario.end_time, wall, cpu, steps, base_wall, base_cpu))
 
     print(f"median of {args.runs} runs; wall = Initialize + AdvanceTo; ratio = scenario wall / C++ wall")
-    header = (f"{'scenario':<24}{'sim s':>7}{'wall s':>9}{'x real':>8}{'CPU s':>8}{'steps/ms':>10}"
-              f"{'C++ wall s':>12}{'C++ x real':>12}{'ratio':>8}")
+    header = (
+        f"{'scenario':<24}{'sim s':>7}{'wall s':>9}{'x real':>8}{'CPU s':>8}{'steps/ms':>10}"
+        f"{'C++ wall s':>12}{'C++ x real':>12}{'ratio':>8}"
+    )
     print(header)
     print("-" * len(header))
     for name, end_time, wall, cpu, steps, base_wall, _ in rows:
-        print(f"{name:<24}{end_time:>7.1f}{wall:>9.3f}{end_time / wall:>8.1f}{cpu:>8.3f}"
-              f"{steps / (end_time * 1000.0):>10.2f}{base_wall:>12.4f}{end_time / base_wall:>12.0f}"
-              f"{wall / base_wall:>8.1f}")
+        print(
+            f"{name:<24}{end_time:>7.1f}{wall:>9.3f}{end_time / wall:>8.1f}{cpu:>8.3f}"
+            f"{steps / (end_time * 1000.0):>10.2f}{base_wall:>12.4f}{end_time / base_wall:>12.0f}"
+            f"{wall / base_wall:>8.1f}"
+        )
     for name, end_time, wall, *_ in rows:
         if name == "11_gps_update":
             verdict = "met" if end_time / wall >= TARGET_REAL_TIME_FACTOR else "NOT met"
-            print(f"target {TARGET_REAL_TIME_FACTOR:g}x real time for {name}: {verdict} "
-                  f"({end_time / wall:.1f}x)")
+            print(
+                f"target {TARGET_REAL_TIME_FACTOR:g}x real time for {name}: {verdict} "
+                f"({end_time / wall:.1f}x)"
+            )
     return 0
 
 

@@ -28,8 +28,10 @@ def main():
         t = campaign.timing()
         reference = reference or campaign.table()
         assert campaign.table() == reference, "the table must not depend on the number of jobs"
-        print(f"{jobs:4d} {t['wall_time_s']:9.1f} {t['runs_per_minute']:9.1f} {t['simulation_s_mean']:10.2f} "
-              f"{args.runs * scenario.end_time / t['wall_time_s']:18.1f}")
+        print(
+            f"{jobs:4d} {t['wall_time_s']:9.1f} {t['runs_per_minute']:9.1f} {t['simulation_s_mean']:10.2f} "
+            f"{args.runs * scenario.end_time / t['wall_time_s']:18.1f}"
+        )
 
 
 if __name__ == "__main__":

@@ -39,9 +39,10 @@ AXES = ("X", "Y", "Z")
 @dataclass(frozen=True)
 class StateBound:
     """Steady-state standard deviations of one estimated state (m, m/s or rad)."""
-    posterior_std: float   # just after a measurement update
-    prior_std: float       # just before the next update
-    mean_std: float        # sqrt of the variance averaged over the update period
+
+    posterior_std: float  # just after a measurement update
+    prior_std: float  # just before the next update
+    mean_std: float  # sqrt of the variance averaged over the update period
 
 
 def _steps(period, dt):
@@ -73,11 +74,13 @@ def steady_state_kalman(F, Q, H, R, steps):
     """
     F, Q, H, R = (np.atleast_2d(np.asarray(a, dtype=float)) for a in (F, Q, H, R))
     if not np.all(np.linalg.eigvalsh(R) > 0.0):
-        raise ValueError("steady_state_kalman: measurement noise R must be positive definite "
-                         "(a sensor std of 0 makes the bound trivially 0)")
+        raise ValueError(
+            "steady_state_kalman: measurement noise R must be positive definite "
+            "(a sensor std of 0 makes the bound trivially 0)"
+        )
     transition, accumulated, history = _propagation(F, Q, steps)
     n = F.shape[0]
-    if not accumulated.any():                          # noiseless: perfect in steady state
+    if not accumulated.any():  # noiseless: perfect in steady state
         zero = np.zeros((n, n))
         return zero, zero, zero
     prior = solve_discrete_are(transition.T, H.T, accumulated, R)
@@ -89,24 +92,29 @@ def steady_state_kalman(F, Q, H, R, steps):
 
 
 def _bounds(posterior, prior, mean):
-    return [StateBound(float(np.sqrt(posterior[i, i])), float(np.sqrt(prior[i, i])),
-                       float(np.sqrt(mean[i, i]))) for i in range(posterior.shape[0])]
+    return [
+        StateBound(float(np.sqrt(posterior[i, i])), float(np.sqrt(prior[i, i])), float(np.sqrt(mean[i, i])))
+        for i in range(posterior.shape[0])
+    ]
 
 
 def position_velocity_bound(accel_std, pos_std, vel_std, gps_period, dt=ONBOARD_PERIOD):
     """(position, velocity) StateBound of one axis: double integrator, GPS p and v."""
     F = np.array([[1.0, dt], [0.0, 1.0]])
     G = np.array([[0.5 * dt * dt], [dt]])
-    Q = G @ G.T * accel_std ** 2
-    R = np.diag([pos_std ** 2, vel_std ** 2])
+    Q = G @ G.T * accel_std**2
+    R = np.diag([pos_std**2, vel_std**2])
     position, velocity = _bounds(*steady_state_kalman(F, Q, np.eye(2), R, _steps(gps_period, dt)))
     return position, velocity
 
 
 def yaw_bound(gyro_std, yaw_std, mag_period, dt=ONBOARD_PERIOD):
     """StateBound of yaw: gyro random walk, direct magnetometer measurement."""
-    (bound,) = _bounds(*steady_state_kalman(
-        [[1.0]], [[(gyro_std * dt) ** 2]], [[1.0]], [[yaw_std ** 2]], _steps(mag_period, dt)))
+    (bound,) = _bounds(
+        *steady_state_kalman(
+            [[1.0]], [[(gyro_std * dt) ** 2]], [[1.0]], [[yaw_std**2]], _steps(mag_period, dt)
+        )
+    )
     return bound
 
 
@@ -122,8 +130,10 @@ def accuracy_bound(vehicle):
         return bounds
     if sensors.gps is not None:
         gps = sensors.gps
-        pairs = [position_velocity_bound(sensors.imu.accel_std[i], gps.pos_std[i], gps.vel_std[i],
-                                         gps.period) for i in range(3)]
+        pairs = [
+            position_velocity_bound(sensors.imu.accel_std[i], gps.pos_std[i], gps.vel_std[i], gps.period)
+            for i in range(3)
+        ]
         bounds.update({axis: pair[0] for axis, pair in zip(AXES, pairs, strict=True)})
         bounds.update({"V" + axis: pair[1] for axis, pair in zip(AXES, pairs, strict=True)})
     if sensors.mag is not None:

@@ -12,8 +12,9 @@ from pathlib import Path
 
 from .config import ConfigError, load_scenario
 
-SCENARIO_DIR = Path(os.environ.get("QUAD_DRAKE_SCENARIOS",
-                                   Path(__file__).resolve().parent.parent / "scenarios"))
+SCENARIO_DIR = Path(
+    os.environ.get("QUAD_DRAKE_SCENARIOS", Path(__file__).resolve().parent.parent / "scenarios")
+)
 
 
 def scenario_paths():
@@ -60,17 +61,20 @@ def _table(rows):
         verdict = "PASS" if s["passed"] else "FAIL"
         if not s["criteria"]:
             verdict = "-"
-        lines.append(f"{s['scenario']:28s} {s['seed']:5d} {passed:4d}/{len(s['criteria']):<4d} "
-                     f"{verdict:>7s} {s['wall_time_s']:8.2f} {s['real_time_factor']:7.1f}")
+        lines.append(
+            f"{s['scenario']:28s} {s['seed']:5d} {passed:4d}/{len(s['criteria']):<4d} "
+            f"{verdict:>7s} {s['wall_time_s']:8.2f} {s['real_time_factor']:7.1f}"
+        )
     return "\n".join(lines)
 
 
 def cmd_run(args):
     from .simulation import run
+
     names = list(scenario_paths()) if args.all else args.names
     if not names:
         raise ConfigError("run: name at least one scenario, or --all")
-    scenarios = [load_named(n, args.seed, args.set) for n in names]   # all input checked first
+    scenarios = [load_named(n, args.seed, args.set) for n in names]  # all input checked first
     out = Path(args.out)
     summaries, run_dirs = [], []
     for scenario in scenarios:
@@ -78,18 +82,21 @@ def cmd_run(args):
         result = run(scenario)
         for criterion in result.criteria:
             print(criterion.line)
-        run_dir = result.save(out / scenario.name)   # logs first: nothing is lost if a plot fails
+        run_dir = result.save(out / scenario.name)  # logs first: nothing is lost if a plot fails
         if not args.no_plots:
             from .plots import write_run_artifacts
+
             write_run_artifacts(result, run_dir)
         if args.meshcat:
             from .replay import show_live
+
             show_live(result)
         summaries.append(result.summary())
         run_dirs.append(run_dir)
         (out / "summary.json").write_text(json.dumps(summaries, indent=2) + "\n")
     if not args.no_plots:
         from .report import write_index
+
         write_index(list(zip(summaries, run_dirs, strict=True)), out)
     print()
     print(_table(summaries))
@@ -99,6 +106,7 @@ def cmd_run(args):
 def cmd_noise_std(args):
     from .noise_stats import measured_noise_std
     from .simulation import load_logs, signals_from_logs
+
     _, logs = load_logs(args.run_dir)
     for name, std in measured_noise_std(signals_from_logs(logs)).items():
         print(f"{name}: {std:.4f}")
@@ -107,6 +115,7 @@ def cmd_noise_std(args):
 
 def cmd_diagram(args):
     from .diagram_svg import write_diagram_svg
+
     scenario = load_named(args.name, None, args.set)
     path = Path(args.output or f"{scenario.name}_diagram.svg")
     print(write_diagram_svg(scenario, path, max_depth=args.depth))
@@ -115,6 +124,7 @@ def cmd_diagram(args):
 
 def cmd_montecarlo(args):
     from .montecarlo import main_montecarlo
+
     if args.runs < 1 or args.jobs < 1:
         raise ConfigError("montecarlo: --runs and --jobs must be >= 1")
     return main_montecarlo(args)
@@ -123,23 +133,31 @@ def cmd_montecarlo(args):
 def build_parser():
     parser = argparse.ArgumentParser(prog="quad-drake", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
-    sub.add_parser("list", help="bundled scenarios with a one-line description").set_defaults(
-        func=cmd_list)
+    sub.add_parser("list", help="bundled scenarios with a one-line description").set_defaults(func=cmd_list)
     run_parser = sub.add_parser("run", help="run scenarios, print PASS/FAIL and a summary table")
     run_parser.add_argument("names", nargs="*", metavar="NAME", help="scenario name or YAML path")
     run_parser.add_argument("--all", action="store_true", help="every bundled scenario")
     run_parser.add_argument("--seed", type=int, help="override the scenarios' seed")
     run_parser.add_argument("--out", default="out", help="output folder (default: out)")
-    run_parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                            help="override a config field, e.g. vehicles.0.physics.mass=0.8")
-    run_parser.add_argument("--no-plots", action="store_true",
-                            help="skip plots, report.html, replay.html and index.html")
-    run_parser.add_argument("--meshcat", action="store_true",
-                            help="also replay each flight live in Meshcat (opens a local URL)")
+    run_parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a config field, e.g. vehicles.0.physics.mass=0.8",
+    )
+    run_parser.add_argument(
+        "--no-plots", action="store_true", help="skip plots, report.html, replay.html and index.html"
+    )
+    run_parser.add_argument(
+        "--meshcat", action="store_true", help="also replay each flight live in Meshcat (opens a local URL)"
+    )
     run_parser.set_defaults(func=cmd_run)
     from .montecarlo import add_arguments
-    add_arguments(sub.add_parser("montecarlo", help="seeded runs in parallel: pass rates, NEES/NIS, "
-                                 "accuracy bound")).set_defaults(func=cmd_montecarlo)
+
+    add_arguments(
+        sub.add_parser("montecarlo", help="seeded runs in parallel: pass rates, NEES/NIS, accuracy bound")
+    ).set_defaults(func=cmd_montecarlo)
     diagram = sub.add_parser("diagram", help="write the scenario's Drake diagram as SVG (Graphviz)")
     diagram.add_argument("name", metavar="NAME")
     diagram.add_argument("-o", "--output", help="SVG path (default: NAME_diagram.svg)")
@@ -166,7 +184,7 @@ def main(argv=None):
     except KeyboardInterrupt:
         print("quad-drake: interrupted", file=sys.stderr)
         return 130
-    except BrokenPipeError:   # output piped into e.g. `head`: stop quietly
+    except BrokenPipeError:  # output piped into e.g. `head`: stop quietly
         sys.stdout = open(os.devnull, "w")  # noqa: SIM115 (flushed at exit)
         return 0
 

@@ -34,80 +34,85 @@ def _num(default, **rules):
 
 
 def _std(*values):
-    return field(default_factory=lambda: list(values),
-                 metadata={"length": len(values), "nonnegative": True})
+    return field(default_factory=lambda: list(values), metadata={"length": len(values), "nonnegative": True})
 
 
 @dataclass
 class PhysicsParams:
     """Truth parameters of the vehicle (what the simulator flies)."""
-    mass: float = _num(0.5, positive=True)                 # kg
-    arm_length: float = _num(0.17, positive=True)          # m, centre to motor (X layout)
-    inertia: List[float] = field(default_factory=lambda: [0.0023, 0.0023, 0.0046],
-                                 metadata={"length": 3, "positive": True})  # kg m^2, Ixx Iyy Izz
-    kappa: float = _num(0.016, positive=True)              # m, yaw torque per newton of thrust
+
+    mass: float = _num(0.5, positive=True)  # kg
+    arm_length: float = _num(0.17, positive=True)  # m, centre to motor (X layout)
+    inertia: List[float] = field(
+        default_factory=lambda: [0.0023, 0.0023, 0.0046], metadata={"length": 3, "positive": True}
+    )  # kg m^2, Ixx Iyy Izz
+    kappa: float = _num(0.016, positive=True)  # m, yaw torque per newton of thrust
     min_motor_thrust: float = _num(0.1, nonnegative=True)  # N
-    max_motor_thrust: float = _num(4.5, positive=True)     # N
-    motor_tau_up: float = _num(0.01, positive=True)        # s, lag time constant, rising thrust
-    motor_tau_down: float = _num(0.02, positive=True)      # s, lag time constant, falling thrust
-    motor_noise: float = _num(0.25, nonnegative=True)      # N, half-width of uniform force noise
-    com_offset: List[float] = _vec(0.0, 0.0)               # m, centre of mass (cx, cy) in body x, y
-    x_bounds: List[float] = _vec(-30.0, 30.0)              # m, room limits in N
-    y_bounds: List[float] = _vec(-30.0, 30.0)              # m
-    z_bounds: List[float] = _vec(-40.0, 0.0)               # m, z = 0 is the (sticky) floor
+    max_motor_thrust: float = _num(4.5, positive=True)  # N
+    motor_tau_up: float = _num(0.01, positive=True)  # s, lag time constant, rising thrust
+    motor_tau_down: float = _num(0.02, positive=True)  # s, lag time constant, falling thrust
+    motor_noise: float = _num(0.25, nonnegative=True)  # N, half-width of uniform force noise
+    com_offset: List[float] = _vec(0.0, 0.0)  # m, centre of mass (cx, cy) in body x, y
+    x_bounds: List[float] = _vec(-30.0, 30.0)  # m, room limits in N
+    y_bounds: List[float] = _vec(-30.0, 30.0)  # m
+    z_bounds: List[float] = _vec(-40.0, 0.0)  # m, z = 0 is the (sticky) floor
 
 
 @dataclass
 class ControllerParams:
     """Cascade controller: its vehicle model, gains and limits (SPEC §5)."""
-    mass: float = _num(0.5, positive=True)                 # kg, assumed
-    arm_length: float = _num(0.17, positive=True)          # m
-    inertia: List[float] = field(default_factory=lambda: [0.0023, 0.0023, 0.0046],
-                                 metadata={"length": 3, "positive": True})  # kg m^2
-    kappa: float = _num(0.016, positive=True)              # m
+
+    mass: float = _num(0.5, positive=True)  # kg, assumed
+    arm_length: float = _num(0.17, positive=True)  # m
+    inertia: List[float] = field(
+        default_factory=lambda: [0.0023, 0.0023, 0.0046], metadata={"length": 3, "positive": True}
+    )  # kg m^2
+    kappa: float = _num(0.016, positive=True)  # m
     min_motor_thrust: float = _num(0.1, nonnegative=True)  # N
-    max_motor_thrust: float = _num(4.5, positive=True)     # N
-    kp_pos_xy: float = _num(2.0, nonnegative=True)         # 1/s
-    kp_pos_z: float = _num(2.0, nonnegative=True)          # 1/s
-    ki_pos_z: float = _num(50.0, nonnegative=True)         # 1/s^2
-    kp_vel_xy: float = _num(8.0, nonnegative=True)         # 1/s
-    kp_vel_z: float = _num(8.0, nonnegative=True)          # 1/s
-    kp_bank: float = _num(12.0, nonnegative=True)          # 1/s
-    kp_yaw: float = _num(3.0, nonnegative=True)            # 1/s
-    kp_pqr: List[float] = field(default_factory=lambda: [70.0, 70.0, 15.0],
-                                metadata={"length": 3, "nonnegative": True})  # 1/s
-    max_ascent_rate: float = _num(5.0, positive=True)      # m/s
-    max_descent_rate: float = _num(2.0, positive=True)     # m/s
-    max_speed_xy: float = _num(5.0, positive=True)         # m/s
-    max_horiz_accel: float = _num(12.0, positive=True)     # m/s^2
-    max_tilt: float = _num(0.7, positive=True)             # dimensionless limit on R02, R12
+    max_motor_thrust: float = _num(4.5, positive=True)  # N
+    kp_pos_xy: float = _num(2.0, nonnegative=True)  # 1/s
+    kp_pos_z: float = _num(2.0, nonnegative=True)  # 1/s
+    ki_pos_z: float = _num(50.0, nonnegative=True)  # 1/s^2
+    kp_vel_xy: float = _num(8.0, nonnegative=True)  # 1/s
+    kp_vel_z: float = _num(8.0, nonnegative=True)  # 1/s
+    kp_bank: float = _num(12.0, nonnegative=True)  # 1/s
+    kp_yaw: float = _num(3.0, nonnegative=True)  # 1/s
+    kp_pqr: List[float] = field(
+        default_factory=lambda: [70.0, 70.0, 15.0], metadata={"length": 3, "nonnegative": True}
+    )  # 1/s
+    max_ascent_rate: float = _num(5.0, positive=True)  # m/s
+    max_descent_rate: float = _num(2.0, positive=True)  # m/s
+    max_speed_xy: float = _num(5.0, positive=True)  # m/s
+    max_horiz_accel: float = _num(12.0, positive=True)  # m/s^2
+    max_tilt: float = _num(0.7, positive=True)  # dimensionless limit on R02, R12
 
 
 @dataclass
 class ImuParams:
-    accel_std: List[float] = _std(0.5, 0.5, 1.5)           # m/s^2 per sample, body x y z
-    gyro_std: List[float] = _std(0.5, 0.5, 0.5)            # rad/s per sample
-    accel_limit: float = _num(6 * 9.81, positive=True)     # m/s^2, per-axis saturation
+    accel_std: List[float] = _std(0.5, 0.5, 1.5)  # m/s^2 per sample, body x y z
+    gyro_std: List[float] = _std(0.5, 0.5, 0.5)  # rad/s per sample
+    accel_limit: float = _num(6 * 9.81, positive=True)  # m/s^2, per-axis saturation
 
 
 @dataclass
 class GpsParams:
-    pos_std: List[float] = _std(0.7, 0.7, 2.0)             # m per sample, N x y z
-    vel_std: List[float] = _std(0.1, 0.1, 0.3)             # m/s per sample
+    pos_std: List[float] = _std(0.7, 0.7, 2.0)  # m per sample, N x y z
+    vel_std: List[float] = _std(0.1, 0.1, 0.3)  # m/s per sample
     pos_random_walk_std: List[float] = _std(0.0, 0.0, 0.0)  # m per sample, bias increment
-    period: float = _num(0.1, positive=True)               # s; first sample at t = period
+    period: float = _num(0.1, positive=True)  # s; first sample at t = period
 
 
 @dataclass
 class MagParams:
-    yaw_std: float = _num(0.1, nonnegative=True)           # rad per sample
-    period: float = _num(0.01, positive=True)              # s
+    yaw_std: float = _num(0.1, nonnegative=True)  # rad per sample
+    period: float = _num(0.01, positive=True)  # s
     first_sample_time: float = _num(0.008, nonnegative=True)  # s (reference: tick 4)
 
 
 @dataclass
 class SensorsConfig:
     """Which sensors the vehicle carries; a missing entry means no such sensor."""
+
     imu: Optional[ImuParams] = None
     gps: Optional[GpsParams] = None
     mag: Optional[MagParams] = None
@@ -119,26 +124,28 @@ ATTITUDE_FILTER_VARIANTS = ("nonlinear", "small_angle")
 @dataclass
 class AttitudeFilterParams:
     """Complementary filter (SPEC §4 UpdateFromIMU)."""
+
     variant: str = field(default="nonlinear", metadata={"choices": ATTITUDE_FILTER_VARIANTS})
-    tau: float = _num(100.0, positive=True)                # s, accelerometer blend time constant
+    tau: float = _num(100.0, positive=True)  # s, accelerometer blend time constant
 
 
 @dataclass
 class EkfParams:
     """What the 7-state EKF assumes (SPEC §4); independent of the sensor truth."""
+
     init_state: List[float] = _vec(0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0)  # m, m/s, rad
     init_std: List[float] = _std(0.1, 0.1, 0.3, 0.1, 0.1, 0.3, 0.05)
-    q_pos_xy_std: float = _num(0.05, nonnegative=True)     # m/sqrt(s): Q = diag(std^2) * dt_imu
+    q_pos_xy_std: float = _num(0.05, nonnegative=True)  # m/sqrt(s): Q = diag(std^2) * dt_imu
     q_pos_z_std: float = _num(0.05, nonnegative=True)
-    q_vel_xy_std: float = _num(0.05, nonnegative=True)     # m/s/sqrt(s)
+    q_vel_xy_std: float = _num(0.05, nonnegative=True)  # m/s/sqrt(s)
     q_vel_z_std: float = _num(0.1, nonnegative=True)
-    q_yaw_std: float = _num(0.05, nonnegative=True)        # rad/sqrt(s)
-    gps_pos_xy_std: float = _num(1.0, positive=True)       # m
-    gps_pos_z_std: float = _num(3.0, positive=True)        # m
-    gps_vel_xy_std: float = _num(0.1, positive=True)       # m/s
-    gps_vel_z_std: float = _num(0.3, positive=True)        # m/s
-    mag_yaw_std: float = _num(0.1, positive=True)          # rad
-    dt_imu: float = _num(0.002, positive=True)             # s, scales Q
+    q_yaw_std: float = _num(0.05, nonnegative=True)  # rad/sqrt(s)
+    gps_pos_xy_std: float = _num(1.0, positive=True)  # m
+    gps_pos_z_std: float = _num(3.0, positive=True)  # m
+    gps_vel_xy_std: float = _num(0.1, positive=True)  # m/s
+    gps_vel_z_std: float = _num(0.3, positive=True)  # m/s
+    mag_yaw_std: float = _num(0.1, positive=True)  # rad
+    dt_imu: float = _num(0.002, positive=True)  # s, scales Q
 
 
 TRAJECTORY_KINDS = ("point", "file", "figure_eight")
@@ -147,22 +154,23 @@ TRAJECTORY_KINDS = ("point", "file", "figure_eight")
 @dataclass
 class TrajectoryConfig:
     """Reference to fly (SPEC §6). ``file`` is a name in the package data or a path."""
+
     kind: str = field(default="point", metadata={"choices": TRAJECTORY_KINDS})
-    point: List[float] = _vec(0.0, 0.0, -1.0)              # m, NED, for kind = point
-    yaw: float = 0.0                                       # rad, for kind = point
-    file: str = ""                                         # for kind = file
-    position_offset: List[float] = _vec(0.0, 0.0, 0.0)     # m, added to every point
-    time_offset: float = 0.0                               # s, added to the lookup time
+    point: List[float] = _vec(0.0, 0.0, -1.0)  # m, NED, for kind = point
+    yaw: float = 0.0  # rad, for kind = point
+    file: str = ""  # for kind = file
+    position_offset: List[float] = _vec(0.0, 0.0, 0.0)  # m, added to every point
+    time_offset: float = 0.0  # s, added to the lookup time
 
 
 @dataclass
 class VehicleConfig:
     name: str = "Quad"
-    initial_position: List[float] = _vec(0.0, 0.0, -1.0)   # m, NED
-    initial_velocity: List[float] = _vec(0.0, 0.0, 0.0)    # m/s, NED
-    initial_ypr: List[float] = _vec(0.0, 0.0, 0.0)         # rad, yaw pitch roll
-    initial_omega: List[float] = _vec(0.0, 0.0, 0.0)       # rad/s, body FRD
-    use_ideal_estimator: bool = True   # true: controller flies on truth; false: on the estimate
+    initial_position: List[float] = _vec(0.0, 0.0, -1.0)  # m, NED
+    initial_velocity: List[float] = _vec(0.0, 0.0, 0.0)  # m/s, NED
+    initial_ypr: List[float] = _vec(0.0, 0.0, 0.0)  # rad, yaw pitch roll
+    initial_omega: List[float] = _vec(0.0, 0.0, 0.0)  # rad/s, body FRD
+    use_ideal_estimator: bool = True  # true: controller flies on truth; false: on the estimate
     physics: PhysicsParams = field(default_factory=PhysicsParams)
     controller: ControllerParams = field(default_factory=ControllerParams)
     trajectory: TrajectoryConfig = field(default_factory=TrajectoryConfig)
@@ -188,10 +196,11 @@ class CriterionConfig:
             [min_percent, max_percent]; ``signal`` and ``sigma_signal`` are suffixes
             such as ``Est.E.X`` and ``Est.S.X``.
     """
+
     kind: str = field(default="window", metadata={"choices": CRITERION_KINDS})
     signal: str = ""
     threshold: float = _num(0.0, nonnegative=True)
-    window: float = _num(1.0, nonnegative=True)            # s
+    window: float = _num(1.0, nonnegative=True)  # s
     ref: float = 0.0
     ref_signal: str = ""
     sigma: float = _num(0.0, nonnegative=True)
@@ -205,13 +214,14 @@ class CriterionConfig:
 class ScenarioConfig:
     name: str = ""
     description: str = ""
-    end_time: float = _num(1.0, positive=True)             # s
+    end_time: float = _num(1.0, positive=True)  # s
     seed: int = _num(0, nonnegative=True)
     vehicles: List[VehicleConfig] = field(default_factory=lambda: [VehicleConfig()])
     criteria: List[CriterionConfig] = field(default_factory=list)
 
 
 # ----- loading and validation -------------------------------------------------
+
 
 def _type_name(tp):
     return getattr(tp, "__name__", str(tp))

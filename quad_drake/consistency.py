@@ -17,7 +17,7 @@ from .signals import euler_from_quats, stamp_fresh, wrap_angles
 
 STATE_NAMES = ("X", "Y", "Z", "VX", "VY", "VZ", "Yaw")
 NIS_DOF = {"gps": 6, "mag": 1}
-_NIS_COLUMNS = {"gps": (0, 1), "mag": (2, 3)}   # diagnostics: (NIS, stamp) columns
+_NIS_COLUMNS = {"gps": (0, 1), "mag": (2, 3)}  # diagnostics: (NIS, stamp) columns
 
 
 def state_errors(ekf_state, state):
@@ -110,8 +110,9 @@ def in_band_fraction(values, band):
 def binomial_interval(successes, trials, confidence=0.95):
     """(low, high) Clopper-Pearson ("exact") interval of a success probability; fractions."""
     if trials < 1 or not 0 <= successes <= trials:
-        raise ValueError(f"binomial_interval: need 0 <= successes <= trials, trials >= 1; "
-                         f"got {successes}/{trials}")
+        raise ValueError(
+            f"binomial_interval: need 0 <= successes <= trials, trials >= 1; got {successes}/{trials}"
+        )
     tail = (1.0 - confidence) / 2.0
     low = 0.0 if successes == 0 else float(beta.ppf(tail, successes, trials - successes + 1))
     high = 1.0 if successes == trials else float(beta.ppf(1.0 - tail, successes + 1, trials - successes))
@@ -128,7 +129,7 @@ def fleet_sigma_fraction(signals, error_suffix, sigma_suffix, multiple):
     Raises ValueError when no vehicle has the error signal or a sigma signal is missing.
     """
     tail = "." + error_suffix
-    vehicles = sorted(name[:-len(tail)] for name in signals if name.endswith(tail))
+    vehicles = sorted(name[: -len(tail)] for name in signals if name.endswith(tail))
     if not vehicles:
         raise ValueError(f"fleet_sigma_fraction: no signal ends with {tail!r}")
     inside = total = 0

@@ -24,11 +24,13 @@ def write_diagram_svg(scenario, path, max_depth=None, dot=None):
     """
     dot = dot or shutil.which("dot")
     if dot is None:
-        raise ConfigError("diagram: Graphviz 'dot' not found on PATH (install graphviz, "
-                          "e.g. apt-get install graphviz)")
+        raise ConfigError(
+            "diagram: Graphviz 'dot' not found on PATH (install graphviz, e.g. apt-get install graphviz)"
+        )
     path = Path(path)
-    process = subprocess.run([dot, "-Tsvg"], input=diagram_dot(scenario, max_depth), capture_output=True,
-                             text=True, check=False)
+    process = subprocess.run(
+        [dot, "-Tsvg"], input=diagram_dot(scenario, max_depth), capture_output=True, text=True, check=False
+    )
     if process.returncode != 0:
         message = (process.stderr.strip().splitlines() or ["no message"])[0]
         raise ConfigError(f"diagram: dot failed with exit code {process.returncode}: {message}")

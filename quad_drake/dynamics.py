@@ -31,8 +31,11 @@ def clamped_noisy_commands(commands, noise_unit, min_thrust, max_thrust, noise_h
     The noise is added after the clamp, so the target may slightly exceed the limits
     (SPEC §3 step 1).
     """
-    return [(min_thrust if c < min_thrust else max_thrust if c > max_thrust else c)
-            + noise_half_width * (2.0 * u - 1.0) for c, u in zip(commands, noise_unit, strict=True)]
+    return [
+        (min_thrust if c < min_thrust else max_thrust if c > max_thrust else c)
+        + noise_half_width * (2.0 * u - 1.0)
+        for c, u in zip(commands, noise_unit, strict=True)
+    ]
 
 
 def motor_lag_step(forces_old, forces_cmd, dt, tau_up, tau_down):
@@ -57,10 +60,12 @@ def wrench_from_thrusts(forces, arm_length, kappa, com_offset=(0.0, 0.0)):
     f0, f1, f2, f3 = forces
     arm = arm_length / SQRT2
     thrust = f0 + f1 + f2 + f3
-    return (thrust,
-            arm * (f0 - f1 + f2 - f3) + com_offset[1] * thrust,
-            arm * (f0 + f1 - f2 - f3) - com_offset[0] * thrust,
-            kappa * (-f0 + f1 + f2 - f3))
+    return (
+        thrust,
+        arm * (f0 - f1 + f2 - f3) + com_offset[1] * thrust,
+        arm * (f0 + f1 - f2 - f3) - com_offset[0] * thrust,
+        kappa * (-f0 + f1 + f2 - f3),
+    )
 
 
 def thrusts_from_wrench(thrust, mx, my, mz, arm_length, kappa):
@@ -70,10 +75,7 @@ def thrusts_from_wrench(thrust, mx, my, mz, arm_length, kappa):
     dy = my / (2.0 * SQRT2 * arm_length)
     dz = mz / (4.0 * kappa)
     t4 = 0.25 * thrust
-    return (t4 - dz + dy + dx,
-            t4 + dz + dy - dx,
-            t4 + dz - dy + dx,
-            t4 - dz - dy - dx)
+    return (t4 - dz + dy + dx, t4 + dz + dy - dx, t4 + dz - dy + dx, t4 - dz - dy - dx)
 
 
 def _rates(qw, qx, qy, qz, wx, wy, wz, c, mx, my, mz, kx, ky, kz):
@@ -82,23 +84,31 @@ def _rates(qw, qx, qy, qz, wx, wy, wz, c, mx, my, mz, kx, ky, kz):
     c = -2 T / m; (mx, my, mz) = M / I; (kx, ky, kz) = ((Iyy - Izz)/Ixx, (Izz - Ixx)/Iyy,
     (Ixx - Iyy)/Izz). a_NB = R(q) (0, 0, -T/m) + g_N uses only R's third column.
     """
-    return (0.5 * (-qx * wx - qy * wy - qz * wz),
-            0.5 * (qw * wx + qy * wz - qz * wy),
-            0.5 * (qw * wy - qx * wz + qz * wx),
-            0.5 * (qw * wz + qx * wy - qy * wx),
-            mx + kx * wy * wz,
-            my + ky * wz * wx,
-            mz + kz * wx * wy,
-            c * (qx * qz + qw * qy),
-            c * (qy * qz - qw * qx),
-            GRAVITY + 0.5 * c - c * (qx * qx + qy * qy))
+    return (
+        0.5 * (-qx * wx - qy * wy - qz * wz),
+        0.5 * (qw * wx + qy * wz - qz * wy),
+        0.5 * (qw * wy - qx * wz + qz * wx),
+        0.5 * (qw * wz + qx * wy - qy * wx),
+        mx + kx * wy * wz,
+        my + ky * wz * wx,
+        mz + kz * wx * wy,
+        c * (qx * qz + qw * qy),
+        c * (qy * qz - qw * qx),
+        GRAVITY + 0.5 * c - c * (qx * qx + qy * qy),
+    )
 
 
 def _coefficients(thrust, moment, mass, inertia):
     ixx, iyy, izz = inertia
-    return (-2.0 * thrust / mass,
-            moment[0] / ixx, moment[1] / iyy, moment[2] / izz,
-            (iyy - izz) / ixx, (izz - ixx) / iyy, (ixx - iyy) / izz)
+    return (
+        -2.0 * thrust / mass,
+        moment[0] / ixx,
+        moment[1] / iyy,
+        moment[2] / izz,
+        (iyy - izz) / ixx,
+        (izz - ixx) / iyy,
+        (ixx - iyy) / izz,
+    )
 
 
 def rigid_body_derivatives(state, thrust, moment, mass, inertia):
@@ -109,7 +119,8 @@ def rigid_body_derivatives(state, thrust, moment, mass, inertia):
     """
     qw, qx, qy, qz, vx, vy, vz, wx, wy, wz = (float(s) for s in state[3:13])
     qdw, qdx, qdy, qdz, wdx, wdy, wdz, ax, ay, az = _rates(
-        qw, qx, qy, qz, wx, wy, wz, *_coefficients(thrust, moment, mass, inertia))
+        qw, qx, qy, qz, wx, wy, wz, *_coefficients(thrust, moment, mass, inertia)
+    )
     return (vx, vy, vz, qdw, qdx, qdy, qdz, ax, ay, az, wdx, wdy, wdz)
 
 
@@ -124,16 +135,56 @@ def rigid_body_step(state, thrust, moment, mass, inertia, dt):
     c, mx, my, mz, kx, ky, kz = _coefficients(thrust, moment, mass, inertia)
     h = 0.5 * dt
     qw1, qx1, qy1, qz1, wx1, wy1, wz1, ax1, ay1, az1 = _rates(
-        qw, qx, qy, qz, wx, wy, wz, c, mx, my, mz, kx, ky, kz)
+        qw, qx, qy, qz, wx, wy, wz, c, mx, my, mz, kx, ky, kz
+    )
     qw2, qx2, qy2, qz2, wx2, wy2, wz2, ax2, ay2, az2 = _rates(
-        qw + h * qw1, qx + h * qx1, qy + h * qy1, qz + h * qz1,
-        wx + h * wx1, wy + h * wy1, wz + h * wz1, c, mx, my, mz, kx, ky, kz)
+        qw + h * qw1,
+        qx + h * qx1,
+        qy + h * qy1,
+        qz + h * qz1,
+        wx + h * wx1,
+        wy + h * wy1,
+        wz + h * wz1,
+        c,
+        mx,
+        my,
+        mz,
+        kx,
+        ky,
+        kz,
+    )
     qw3, qx3, qy3, qz3, wx3, wy3, wz3, ax3, ay3, az3 = _rates(
-        qw + h * qw2, qx + h * qx2, qy + h * qy2, qz + h * qz2,
-        wx + h * wx2, wy + h * wy2, wz + h * wz2, c, mx, my, mz, kx, ky, kz)
+        qw + h * qw2,
+        qx + h * qx2,
+        qy + h * qy2,
+        qz + h * qz2,
+        wx + h * wx2,
+        wy + h * wy2,
+        wz + h * wz2,
+        c,
+        mx,
+        my,
+        mz,
+        kx,
+        ky,
+        kz,
+    )
     qw4, qx4, qy4, qz4, wx4, wy4, wz4, ax4, ay4, az4 = _rates(
-        qw + dt * qw3, qx + dt * qx3, qy + dt * qy3, qz + dt * qz3,
-        wx + dt * wx3, wy + dt * wy3, wz + dt * wz3, c, mx, my, mz, kx, ky, kz)
+        qw + dt * qw3,
+        qx + dt * qx3,
+        qy + dt * qy3,
+        qz + dt * qz3,
+        wx + dt * wx3,
+        wy + dt * wy3,
+        wz + dt * wz3,
+        c,
+        mx,
+        my,
+        mz,
+        kx,
+        ky,
+        kz,
+    )
     d6 = dt / 6.0
     qw += d6 * (qw1 + 2.0 * (qw2 + qw3) + qw4)
     qx += d6 * (qx1 + 2.0 * (qx2 + qx3) + qx4)
@@ -145,14 +196,21 @@ def rigid_body_step(state, thrust, moment, mass, inertia, dt):
     az = (az1 + 2.0 * (az2 + az3) + az4) / 6.0
     # p(dt) = p + v dt + integral of (dt - s) a(s) ds; RK4's stage velocities give this:
     p2 = dt * d6
-    new = [px + dt * vx + p2 * (ax1 + ax2 + ax3),
-           py + dt * vy + p2 * (ay1 + ay2 + ay3),
-           pz + dt * vz + p2 * (az1 + az2 + az3),
-           qw * n, qx * n, qy * n, qz * n,
-           vx + dt * ax, vy + dt * ay, vz + dt * az,
-           wx + d6 * (wx1 + 2.0 * (wx2 + wx3) + wx4),
-           wy + d6 * (wy1 + 2.0 * (wy2 + wy3) + wy4),
-           wz + d6 * (wz1 + 2.0 * (wz2 + wz3) + wz4)]
+    new = [
+        px + dt * vx + p2 * (ax1 + ax2 + ax3),
+        py + dt * vy + p2 * (ay1 + ay2 + ay3),
+        pz + dt * vz + p2 * (az1 + az2 + az3),
+        qw * n,
+        qx * n,
+        qy * n,
+        qz * n,
+        vx + dt * ax,
+        vy + dt * ay,
+        vz + dt * az,
+        wx + d6 * (wx1 + 2.0 * (wx2 + wx3) + wx4),
+        wy + d6 * (wy1 + 2.0 * (wy2 + wy3) + wy4),
+        wz + d6 * (wz1 + 2.0 * (wz2 + wz3) + wz4),
+    ]
     return new, (ax, ay, az)
 
 
@@ -190,8 +248,9 @@ def plant_step(state, forces_old, commands, noise_unit, params, dt):
     Returns (state_new, a_NB, forces): a_NB = (v_new - v_old)/dt (3, m/s^2, NED) after
     the room limits, i.e. the kinematic acceleration the IMU senses (zero on the floor).
     """
-    targets = clamped_noisy_commands(commands, noise_unit, params.min_motor_thrust,
-                                     params.max_motor_thrust, params.motor_noise)
+    targets = clamped_noisy_commands(
+        commands, noise_unit, params.min_motor_thrust, params.max_motor_thrust, params.motor_noise
+    )
     forces = motor_lag_step(forces_old, targets, dt, params.motor_tau_up, params.motor_tau_down)
     thrust, mx, my, mz = wrench_from_thrusts(forces, params.arm_length, params.kappa, params.com_offset)
     new, _ = rigid_body_step(state, thrust, (mx, my, mz), params.mass, params.inertia, dt)

@@ -35,6 +35,7 @@ class CriterionResult:
     percent: sigma only: final cumulative share of fresh samples in the band, %.
     samples: number of samples the analyzer saw (fresh ones for sigma).
     """
+
     kind: str
     name: str
     passed: bool
@@ -79,8 +80,9 @@ def window_threshold(times, values, threshold, window, name="x", fresh_mask=None
     """
     times, values, _ = _select(times, values, fresh_mask)
     if times.size == 0:
-        return CriterionResult("window", name, False, f"FAIL: ABS({name}) had no samples",
-                               0.0, float(window), 0.0, samples=0)
+        return CriterionResult(
+            "window", name, False, f"FAIL: ABS({name}) had no samples", 0.0, float(window), 0.0, samples=0
+        )
     above = ~(np.abs(values) <= threshold)  # NaN counts as above
     last_above = np.maximum.accumulate(np.where(above, times, times[0]))
     stretches = times - last_above
@@ -90,10 +92,13 @@ def window_threshold(times, values, threshold, window, name="x", fresh_mask=None
     if passed:
         line = f"PASS: ABS({name}) was less than {threshold:f} for at least {window:f} seconds"
     else:
-        line = (f"FAIL: ABS({name}) was less than {threshold:f} for {trailing:f} seconds, "
-                f"which was less than {window:f} seconds")
-    return CriterionResult("window", name, bool(passed), line, longest, float(window), trailing,
-                           samples=int(times.size))
+        line = (
+            f"FAIL: ABS({name}) was less than {threshold:f} for {trailing:f} seconds, "
+            f"which was less than {window:f} seconds"
+        )
+    return CriterionResult(
+        "window", name, bool(passed), line, longest, float(window), trailing, samples=int(times.size)
+    )
 
 
 def _label(label, value):
@@ -104,8 +109,19 @@ def _label(label, value):
     return f"{float(value):f}"
 
 
-def sigma_threshold(times, values, fresh_mask, ref_values, sigma_values, min_percent, max_percent,
-                    window, name="x", ref_label="", sigma_label=""):
+def sigma_threshold(
+    times,
+    values,
+    fresh_mask,
+    ref_values,
+    sigma_values,
+    min_percent,
+    max_percent,
+    window,
+    name="x",
+    ref_label="",
+    sigma_label="",
+):
     """SigmaThreshold(name, ref, sigma, minP, maxP, W) (SPEC §0.5).
 
     Only fresh samples count (``fresh_mask`` None: all). ``ref_values`` and
@@ -129,8 +145,9 @@ def sigma_threshold(times, values, fresh_mask, ref_values, sigma_values, min_per
         ref, sigma = ref[mask], sigma[mask]
     head = f"ABS({name}-{_label(ref_label, ref_values)}) was less than {_label(sigma_label, sigma_values)}"
     if times.size == 0:
-        return CriterionResult("sigma", name, False, f"FAIL: {head}: no fresh samples",
-                               0.0, float(window), 0.0, samples=0)
+        return CriterionResult(
+            "sigma", name, False, f"FAIL: {head}: no fresh samples", 0.0, float(window), 0.0, samples=0
+        )
     inside = (values >= ref - sigma) & (values <= ref + sigma)
     percent = 100.0 * np.cumsum(inside) / np.arange(1, times.size + 1)
     violation = (percent <= min_percent) | (percent >= max_percent)
@@ -139,8 +156,17 @@ def sigma_threshold(times, values, fresh_mask, ref_values, sigma_values, min_per
     passed = stretch >= window - TIME_TOLERANCE
     final = float(percent[-1])
     line = f"{'PASS' if passed else 'FAIL'}: {head} for {final:.0f}% of the time"
-    return CriterionResult("sigma", name, bool(passed), line, stretch, float(window), stretch,
-                           percent=final, samples=int(times.size))
+    return CriterionResult(
+        "sigma",
+        name,
+        bool(passed),
+        line,
+        stretch,
+        float(window),
+        stretch,
+        percent=final,
+        samples=int(times.size),
+    )
 
 
 def evaluate_criterion(criterion, times, signal):
@@ -151,13 +177,24 @@ def evaluate_criterion(criterion, times, signal):
     """
     values, fresh = signal(criterion.signal)
     if criterion.kind == "window":
-        return window_threshold(times, values, criterion.threshold, criterion.window,
-                                name=criterion.signal, fresh_mask=fresh)
+        return window_threshold(
+            times, values, criterion.threshold, criterion.window, name=criterion.signal, fresh_mask=fresh
+        )
     ref = signal(criterion.ref_signal)[0] if criterion.ref_signal else criterion.ref
     sigma = signal(criterion.sigma_signal)[0] if criterion.sigma_signal else criterion.sigma
-    return sigma_threshold(times, values, fresh, ref, sigma, criterion.min_percent,
-                           criterion.max_percent, criterion.window, name=criterion.signal,
-                           ref_label=criterion.ref_signal, sigma_label=criterion.sigma_signal)
+    return sigma_threshold(
+        times,
+        values,
+        fresh,
+        ref,
+        sigma,
+        criterion.min_percent,
+        criterion.max_percent,
+        criterion.window,
+        name=criterion.signal,
+        ref_label=criterion.ref_signal,
+        sigma_label=criterion.sigma_signal,
+    )
 
 
 def fleet_sigma_threshold(fraction, samples, name, sigma_name, multiple, min_percent, max_percent):
@@ -168,10 +205,21 @@ def fleet_sigma_threshold(fraction, samples, name, sigma_name, multiple, min_per
     """
     percent = 100.0 * fraction
     passed = bool(min_percent <= percent <= max_percent)
-    line = (f"{'PASS' if passed else 'FAIL'}: {percent:.0f}% of fleet {name} samples within "
-            f"{multiple:g} x {sigma_name} (required {min_percent:g}% to {max_percent:g}%)")
-    return CriterionResult(kind="fleet_sigma", name=name, passed=passed, line=line, measured=percent,
-                           required=min_percent, trailing=math.nan, percent=percent, samples=samples)
+    line = (
+        f"{'PASS' if passed else 'FAIL'}: {percent:.0f}% of fleet {name} samples within "
+        f"{multiple:g} x {sigma_name} (required {min_percent:g}% to {max_percent:g}%)"
+    )
+    return CriterionResult(
+        kind="fleet_sigma",
+        name=name,
+        passed=passed,
+        line=line,
+        measured=percent,
+        required=min_percent,
+        trailing=math.nan,
+        percent=percent,
+        samples=samples,
+    )
 
 
 def rms(values):

@@ -48,28 +48,40 @@ error of the first seconds is smaller than in steady state."""
 METRIC_STATS = ("rms", "max", "rms_settled")
 
 ERROR_KEYS = ("X", "Y", "Z", "VX", "VY", "VZ", "Yaw", "Pos", "Vel")
-UNITS = {"X": "m", "Y": "m", "Z": "m", "VX": "m/s", "VY": "m/s", "VZ": "m/s", "Yaw": "rad",
-         "Pos": "m", "Vel": "m/s", "PosFollowErr": "m"}
+UNITS = {
+    "X": "m",
+    "Y": "m",
+    "Z": "m",
+    "VX": "m/s",
+    "VY": "m/s",
+    "VZ": "m/s",
+    "Yaw": "rad",
+    "Pos": "m",
+    "Vel": "m/s",
+    "PosFollowErr": "m",
+}
 
 
 @dataclass
 class RunRecord:
     """What one run sends back: verdicts, metrics and the per-sample consistency series."""
+
     index: int
     seed: int
     passed: bool
-    criteria: list          # per scenario criterion: {"passed", "measured", "percent"}
-    metrics: dict           # "<vehicle>.<signal>" -> {"rms", "max", "rms_settled"} (METRIC_STATS)
-    nees: dict              # vehicle -> (n,) NEES at the log samples
-    nse: dict               # vehicle -> (7,) time mean of e_i^2 / P_ii per EKF state
-    nis: dict               # (vehicle, "gps" | "mag") -> (stamps, NIS) of the fresh updates
-    wall_time: float        # s, simulation only
-    times: np.ndarray = field(repr=False, default=None)   # (n,) s, log sample times
+    criteria: list  # per scenario criterion: {"passed", "measured", "percent"}
+    metrics: dict  # "<vehicle>.<signal>" -> {"rms", "max", "rms_settled"} (METRIC_STATS)
+    nees: dict  # vehicle -> (n,) NEES at the log samples
+    nse: dict  # vehicle -> (7,) time mean of e_i^2 / P_ii per EKF state
+    nis: dict  # (vehicle, "gps" | "mag") -> (stamps, NIS) of the fresh updates
+    wall_time: float  # s, simulation only
+    times: np.ndarray = field(repr=False, default=None)  # (n,) s, log sample times
 
 
 def summarize_run(result, index):
     """RunRecord of a SimulationResult (pure: reads its logs, signals and verdicts)."""
     from .evaluation import max_abs, rms
+
     metrics, nees, nse, nis = {}, {}, {}, {}
     settled = result.times >= min(SETTLE_TIME, result.scenario.end_time / 2) - 1e-9
     for vehicle, logs in result.logs.items():
@@ -86,21 +98,42 @@ def summarize_run(result, index):
             keys = ["PosFollowErr"] if "reference" in logs else []
         for key in keys:
             values = result.signals[f"{vehicle}.{key}"].values
-            metrics[f"{vehicle}.{key}"] = {"rms": rms(values), "max": max_abs(values),
-                                           "rms_settled": rms(values[settled])}
-    criteria = [{"passed": bool(c.passed), "measured": float(c.measured),
-                 "percent": None if c.percent is None else float(c.percent)} for c in result.criteria]
-    return RunRecord(index, int(result.scenario.seed), bool(result.passed), criteria, metrics,
-                     nees, nse, nis, float(result.wall_time), np.asarray(result.times))
+            metrics[f"{vehicle}.{key}"] = {
+                "rms": rms(values),
+                "max": max_abs(values),
+                "rms_settled": rms(values[settled]),
+            }
+    criteria = [
+        {
+            "passed": bool(c.passed),
+            "measured": float(c.measured),
+            "percent": None if c.percent is None else float(c.percent),
+        }
+        for c in result.criteria
+    ]
+    return RunRecord(
+        index,
+        int(result.scenario.seed),
+        bool(result.passed),
+        criteria,
+        metrics,
+        nees,
+        nse,
+        nis,
+        float(result.wall_time),
+        np.asarray(result.times),
+    )
 
 
 def simulate_run(scenario, index, seed):
     """Worker entry point: run `scenario` with `seed`, return its RunRecord."""
     from .simulation import run
+
     return summarize_run(run(dataclasses.replace(scenario, seed=seed)), index)
 
 
 # ----- running ----------------------------------------------------------------
+
 
 class _Progress:
     """One stderr line, rewritten in place: done/total, a bar, elapsed time and ETA."""
@@ -117,16 +150,20 @@ class _Progress:
         elapsed = time.perf_counter() - self.start
         eta = elapsed / done * (self.total - done)
         filled = int(round(30 * done / self.total))
-        sys.stderr.write(f"\r{self.label}: [{'#' * filled}{'.' * (30 - filled)}] {done}/{self.total} runs, "
-                         f"{self.failed} failed, {elapsed:.0f} s, ETA {eta:.0f} s ")
+        sys.stderr.write(
+            f"\r{self.label}: [{'#' * filled}{'.' * (30 - filled)}] {done}/{self.total} runs, "
+            f"{self.failed} failed, {elapsed:.0f} s, ETA {eta:.0f} s "
+        )
         if done == self.total:
             sys.stderr.write("\n")
         sys.stderr.flush()
 
 
 def _failure(scenario, index, seed, error):
-    return RuntimeError(f"run {index} (seed {seed}) failed: {error!r}; reproduce with "
-                        f"quad-drake run {scenario.name} --seed {seed}")
+    return RuntimeError(
+        f"run {index} (seed {seed}) failed: {error!r}; reproduce with "
+        f"quad-drake run {scenario.name} --seed {seed}"
+    )
 
 
 def _run_local(scenario, seeds, jobs, progress):
@@ -139,15 +176,16 @@ def _run_local(scenario, seeds, jobs, progress):
                 raise _failure(scenario, i, seed, e) from e
             progress.update(i + 1, records[i])
         return records
-    executor = ProcessPoolExecutor(max_workers=min(jobs, len(seeds)),
-                                   mp_context=multiprocessing.get_context("spawn"))
+    executor = ProcessPoolExecutor(
+        max_workers=min(jobs, len(seeds)), mp_context=multiprocessing.get_context("spawn")
+    )
     try:
         futures = {executor.submit(simulate_run, scenario, i, seed): i for i, seed in enumerate(seeds)}
         for done, future in enumerate(as_completed(futures), start=1):
             i = futures[future]
             try:
                 records[i] = future.result()
-            except BrokenProcessPool:       # a worker died (e.g. a script without a main guard)
+            except BrokenProcessPool:  # a worker died (e.g. a script without a main guard)
                 raise
             except Exception as e:
                 raise _failure(scenario, i, seeds[i], e) from e
@@ -200,6 +238,7 @@ def run_campaign(scenario, runs, jobs=1, seed=None, scheduler=None, progress=Tru
     if first < 0:
         raise ConfigError(f"montecarlo: --seed must be >= 0, got {first}")
     from .simulation import check_criteria
+
     check_criteria(scenario)
     seeds = [first + i for i in range(runs)]
     bar = _Progress(scenario.name, runs, progress)
@@ -208,11 +247,16 @@ def run_campaign(scenario, runs, jobs=1, seed=None, scheduler=None, progress=Tru
         records = _run_dask(scenario, seeds, scheduler, bar)
     else:
         records = _run_local(scenario, seeds, jobs, bar)
-    return CampaignResult(dataclasses.replace(scenario, seed=first), records,
-                          time.perf_counter() - start, "dask" if scheduler else jobs)
+    return CampaignResult(
+        dataclasses.replace(scenario, seed=first),
+        records,
+        time.perf_counter() - start,
+        "dask" if scheduler else jobs,
+    )
 
 
 # ----- statistics -------------------------------------------------------------
+
 
 def criterion_label(criterion):
     """Short description of a CriterionConfig for tables."""
@@ -222,11 +266,15 @@ def criterion_label(criterion):
     if kind == "sigma":
         ref = criterion.ref_signal or f"{criterion.ref:g}"
         sigma = criterion.sigma_signal or f"{criterion.sigma:g}"
-        return (f"|{signal} - {ref}| <= {sigma}: {criterion.min_percent:g}-{criterion.max_percent:g} % "
-                f"(last {criterion.window:g} s)")
+        return (
+            f"|{signal} - {ref}| <= {sigma}: {criterion.min_percent:g}-{criterion.max_percent:g} % "
+            f"(last {criterion.window:g} s)"
+        )
     if kind == "fleet_sigma":
-        return (f"fleet |{signal}| <= {criterion.sigma_multiple:g} {criterion.sigma_signal}: "
-                f"{criterion.min_percent:g}-{criterion.max_percent:g} %")
+        return (
+            f"fleet |{signal}| <= {criterion.sigma_multiple:g} {criterion.sigma_signal}: "
+            f"{criterion.min_percent:g}-{criterion.max_percent:g} %"
+        )
     return f"{kind} {signal}"
 
 
@@ -234,8 +282,11 @@ def _distribution(values):
     """median, 95th percentile, max; a NaN (diverged run) counts as +inf."""
     values = np.asarray(values, dtype=float)
     values = np.where(np.isnan(values), np.inf, values)
-    return {"median": float(np.median(values)), "p95": float(np.percentile(values, 95)),
-            "max": float(np.max(values))}
+    return {
+        "median": float(np.median(values)),
+        "p95": float(np.percentile(values, 95)),
+        "max": float(np.max(values)),
+    }
 
 
 def _json_ready(value):
@@ -256,10 +307,11 @@ def _json_ready(value):
 @dataclass
 class CampaignResult:
     """Records of a campaign (ordered by run index) and the statistics derived from them."""
-    scenario: object            # ScenarioConfig; its seed is the campaign's first seed S
-    records: list               # RunRecord per run, run i has seed S + i
-    wall_time: float            # s, whole campaign
-    jobs: object                # worker processes, or "dask"
+
+    scenario: object  # ScenarioConfig; its seed is the campaign's first seed S
+    records: list  # RunRecord per run, run i has seed S + i
+    wall_time: float  # s, whole campaign
+    jobs: object  # worker processes, or "dask"
     min_in_band: float = MIN_IN_BAND
 
     @property
@@ -277,8 +329,15 @@ class CampaignResult:
         rows = []
         for label, passed in zip(labels, verdicts, strict=True):
             k = int(sum(passed))
-            rows.append({"criterion": label, "passes": k, "runs": self.runs, "rate": k / self.runs,
-                         "ci95": list(cons.binomial_interval(k, self.runs))})
+            rows.append(
+                {
+                    "criterion": label,
+                    "passes": k,
+                    "runs": self.runs,
+                    "rate": k / self.runs,
+                    "ci95": list(cons.binomial_interval(k, self.runs)),
+                }
+            )
         return rows
 
     @cached_property
@@ -292,8 +351,14 @@ class CampaignResult:
             for record in self.records:
                 entry["rms"].append(record.metrics[name]["rms"])
                 entry["max"].append(record.metrics[name]["max"])
-        return {key: {"rms": _distribution(e["rms"]), "max": _distribution(e["max"]),
-                      "vehicles": len(e["vehicles"])} for key, e in pooled.items()}
+        return {
+            key: {
+                "rms": _distribution(e["rms"]),
+                "max": _distribution(e["max"]),
+                "vehicles": len(e["vehicles"]),
+            }
+            for key, e in pooled.items()
+        }
 
     @cached_property
     def consistency(self):
@@ -315,10 +380,19 @@ class CampaignResult:
         band = cons.chi2_band(dof, count)
         mean = values.mean(axis=0)
         fraction = cons.in_band_fraction(mean, band)
-        return {"statistic": name, "dof": dof, "realisations": count, "band": list(band),
-                "time_mean": float(np.mean(mean)), "in_band": fraction,
-                "below": float(np.mean(mean < band[0])), "above": float(np.mean(mean > band[1])),
-                "passed": bool(fraction >= self.min_in_band), "times": np.asarray(times), "mean": mean}
+        return {
+            "statistic": name,
+            "dof": dof,
+            "realisations": count,
+            "band": list(band),
+            "time_mean": float(np.mean(mean)),
+            "in_band": fraction,
+            "below": float(np.mean(mean < band[0])),
+            "above": float(np.mean(mean > band[1])),
+            "passed": bool(fraction >= self.min_in_band),
+            "times": np.asarray(times),
+            "mean": mean,
+        }
 
     @cached_property
     def state_consistency(self):
@@ -335,16 +409,23 @@ class CampaignResult:
         for vehicle in self.scenario.vehicles:
             try:
                 bounds = accuracy_bound(vehicle)
-            except ValueError:              # a noiseless GPS or magnetometer: no finite ratio
+            except ValueError:  # a noiseless GPS or magnetometer: no finite ratio
                 continue
             for state, bound in bounds.items():
                 name = f"{vehicle.name}.Est.E.{state}"
                 if name not in self.records[0].metrics:
                     continue
                 rmse = math.sqrt(np.mean([r.metrics[name]["rms_settled"] ** 2 for r in self.records]))
-                rows.append({"vehicle": vehicle.name, "state": state, "bound_std": bound.mean_std,
-                             "posterior_std": bound.posterior_std, "rmse": rmse,
-                             "efficiency": rmse / bound.mean_std if bound.mean_std > 0 else math.inf})
+                rows.append(
+                    {
+                        "vehicle": vehicle.name,
+                        "state": state,
+                        "bound_std": bound.mean_std,
+                        "posterior_std": bound.posterior_std,
+                        "rmse": rmse,
+                        "efficiency": rmse / bound.mean_std if bound.mean_std > 0 else math.inf,
+                    }
+                )
         return rows
 
     @property
@@ -355,43 +436,64 @@ class CampaignResult:
     def table(self):
         """The campaign's statistics as text; identical for the same scenario, runs and seed."""
         s = self.scenario
-        lines = [f"Monte Carlo {s.name}: {self.runs} runs of {s.end_time:g} s, "
-                 f"seeds {s.seed}..{s.seed + self.runs - 1}", ""]
+        lines = [
+            f"Monte Carlo {s.name}: {self.runs} runs of {s.end_time:g} s, "
+            f"seeds {s.seed}..{s.seed + self.runs - 1}",
+            "",
+        ]
         if self.criteria:
             lines.append(f"{'criterion':58s} {'passes':>9s} {'rate':>7s}  95% CI")
             for row in self.criteria:
                 low, high = row["ci95"]
-                lines.append(f"{row['criterion'][:58]:58s} {row['passes']:4d}/{row['runs']:<4d} "
-                             f"{100 * row['rate']:6.1f}%  [{100 * low:5.1f}, {100 * high:5.1f}]")
+                lines.append(
+                    f"{row['criterion'][:58]:58s} {row['passes']:4d}/{row['runs']:<4d} "
+                    f"{100 * row['rate']:6.1f}%  [{100 * low:5.1f}, {100 * high:5.1f}]"
+                )
             lines.append("")
         if self.metrics:
-            lines.append(f"{'error signal':24s} {'RMS: median':>12s} {'p95':>8s} {'max':>8s}   "
-                         f"{'MAX: median':>11s} {'p95':>8s} {'max':>8s}")
+            lines.append(
+                f"{'error signal':24s} {'RMS: median':>12s} {'p95':>8s} {'max':>8s}   "
+                f"{'MAX: median':>11s} {'p95':>8s} {'max':>8s}"
+            )
             for key, m in self.metrics.items():
                 label = f"{key} [{UNITS.get(key.rsplit('.', 1)[-1], '')}]"
                 label += f" x{m['vehicles']}" if m["vehicles"] > 1 else ""
                 r, x = m["rms"], m["max"]
-                lines.append(f"{label:24s} {r['median']:12.4f} {r['p95']:8.4f} {r['max']:8.4f}   "
-                             f"{x['median']:11.4f} {x['p95']:8.4f} {x['max']:8.4f}")
+                lines.append(
+                    f"{label:24s} {r['median']:12.4f} {r['p95']:8.4f} {r['max']:8.4f}   "
+                    f"{x['median']:11.4f} {x['p95']:8.4f} {x['max']:8.4f}"
+                )
             lines.append("")
         if self.consistency:
-            lines.append("consistency: mean over M realisations (runs x vehicles) vs its chi2 95% band; "
-                         f"criterion: in band >= {100 * self.min_in_band:.0f}% of the samples")
-            lines.append(f"{'statistic':10s} {'dof':>3s} {'M':>5s} {'band':>17s} {'time mean':>10s} "
-                         f"{'in band':>8s} {'below':>6s} {'above':>6s}  result")
+            lines.append(
+                "consistency: mean over M realisations (runs x vehicles) vs its chi2 95% band; "
+                f"criterion: in band >= {100 * self.min_in_band:.0f}% of the samples"
+            )
+            lines.append(
+                f"{'statistic':10s} {'dof':>3s} {'M':>5s} {'band':>17s} {'time mean':>10s} "
+                f"{'in band':>8s} {'below':>6s} {'above':>6s}  result"
+            )
             for c in self.consistency:
                 band = f"[{c['band'][0]:.3g}, {c['band'][1]:.3g}]"
-                lines.append(f"{c['statistic']:10s} {c['dof']:3d} {c['realisations']:5d} {band:>17s} "
-                             f"{c['time_mean']:10.3f} {100 * c['in_band']:7.1f}% {100 * c['below']:5.1f}% "
-                             f"{100 * c['above']:5.1f}%  {'PASS' if c['passed'] else 'FAIL'}")
+                lines.append(
+                    f"{c['statistic']:10s} {c['dof']:3d} {c['realisations']:5d} {band:>17s} "
+                    f"{c['time_mean']:10.3f} {100 * c['in_band']:7.1f}% {100 * c['below']:5.1f}% "
+                    f"{100 * c['above']:5.1f}%  {'PASS' if c['passed'] else 'FAIL'}"
+                )
             if self.state_consistency is not None:
-                lines.append("per state, mean e^2/P (1 = consistent): " + "  ".join(
-                    f"{n} {v:.3g}" for n, v in zip(cons.STATE_NAMES, self.state_consistency, strict=True)))
+                lines.append(
+                    "per state, mean e^2/P (1 = consistent): "
+                    + "  ".join(
+                        f"{n} {v:.3g}" for n, v in zip(cons.STATE_NAMES, self.state_consistency, strict=True)
+                    )
+                )
             lines.append("")
         if self.efficiency:
-            lines.append("accuracy bound: steady-state Kalman sigma with the true sensor noise "
-                         f"(time-averaged); RMSE from t >= {min(SETTLE_TIME, s.end_time / 2):g} s; "
-                         "efficiency = RMSE / bound")
+            lines.append(
+                "accuracy bound: steady-state Kalman sigma with the true sensor noise "
+                f"(time-averaged); RMSE from t >= {min(SETTLE_TIME, s.end_time / 2):g} s; "
+                "efficiency = RMSE / bound"
+            )
             lines.append(f"{'state':18s} {'bound':>9s} {'RMSE':>9s} {'efficiency':>11s}")
             for e in self.efficiency:
                 label = f"{e['vehicle']}.{e['state']} [{UNITS[e['state']]}]"
@@ -400,25 +502,41 @@ class CampaignResult:
 
     def timing(self):
         """Wall time, runs per minute, jobs and mean simulation time per run (not in the table)."""
-        return {"wall_time_s": self.wall_time, "runs_per_minute": 60.0 * self.runs / self.wall_time,
-                "jobs": self.jobs, "simulation_s_mean": float(np.mean([r.wall_time for r in self.records]))}
+        return {
+            "wall_time_s": self.wall_time,
+            "runs_per_minute": 60.0 * self.runs / self.wall_time,
+            "jobs": self.jobs,
+            "simulation_s_mean": float(np.mean([r.wall_time for r in self.records])),
+        }
 
     def timing_line(self):
         t = self.timing()
-        return (f"{self.runs} runs in {t['wall_time_s']:.1f} s with {t['jobs']} job(s): "
-                f"{t['runs_per_minute']:.1f} runs/min ({t['simulation_s_mean']:.2f} s simulation per run)")
+        return (
+            f"{self.runs} runs in {t['wall_time_s']:.1f} s with {t['jobs']} job(s): "
+            f"{t['runs_per_minute']:.1f} runs/min ({t['simulation_s_mean']:.2f} s simulation per run)"
+        )
 
     def summary(self):
         """JSON-ready dict of every statistic (without the consistency series) and the timing."""
         consistency = [{k: v for k, v in c.items() if k not in ("times", "mean")} for c in self.consistency]
         state = self.state_consistency
         state = None if state is None else dict(zip(cons.STATE_NAMES, state.tolist(), strict=True))
-        return _json_ready({
-            "scenario": self.scenario.name, "runs": self.runs, "first_seed": self.scenario.seed,
-            "end_time": self.scenario.end_time, "criteria": self.criteria, "metrics": self.metrics,
-            "consistency": consistency, "min_in_band": self.min_in_band,
-            "state_consistency": state,
-            "efficiency": self.efficiency, "consistency_passed": self.passed, "timing": self.timing()})
+        return _json_ready(
+            {
+                "scenario": self.scenario.name,
+                "runs": self.runs,
+                "first_seed": self.scenario.seed,
+                "end_time": self.scenario.end_time,
+                "criteria": self.criteria,
+                "metrics": self.metrics,
+                "consistency": consistency,
+                "min_in_band": self.min_in_band,
+                "state_consistency": state,
+                "efficiency": self.efficiency,
+                "consistency_passed": self.passed,
+                "timing": self.timing(),
+            }
+        )
 
     def rows(self):
         """(header, rows) of the per-run CSV: seed, verdicts, metrics, NEES/NIS time means."""
@@ -467,8 +585,10 @@ class CampaignResult:
 
 # ----- plots -------------------------------------------------------------------
 
+
 def _plot_consistency(campaign, path):
     from matplotlib.figure import Figure
+
     stats = campaign.consistency
     fig = Figure(figsize=(9, 2.6 * len(stats)), layout="constrained")
     for ax, c in zip(fig.subplots(len(stats), 1, squeeze=False)[:, 0], stats, strict=True):
@@ -486,6 +606,7 @@ def _plot_consistency(campaign, path):
 
 def _plot_errors(campaign, path):
     from matplotlib.figure import Figure
+
     keys = list(campaign.metrics)
     unit_of = {key: UNITS.get(key.rsplit(".", 1)[-1], "") for key in keys}
     groups = [g for g in ([k for k in keys if unit_of[k] == u] for u in ("m", "m/s", "rad")) if g]
@@ -493,8 +614,15 @@ def _plot_errors(campaign, path):
     fig = Figure(figsize=(3 + 0.9 * len(keys), 3.6), layout="constrained")
     axes = fig.subplots(1, len(groups), squeeze=False, width_ratios=[len(g) for g in groups])[0]
     for ax, group in zip(axes, groups, strict=True):
-        data = [[r.metrics[name]["rms_settled"] for r in campaign.records for name in r.metrics
-                 if name.split(".", 1)[1] == key] for key in group]
+        data = [
+            [
+                r.metrics[name]["rms_settled"]
+                for r in campaign.records
+                for name in r.metrics
+                if name.split(".", 1)[1] == key
+            ]
+            for key in group
+        ]
         ax.boxplot(data, whis=(0, 100))
         short = [key.rsplit(".", 1)[-1] for key in group]
         ax.set_xticks(range(1, len(group) + 1), short)
@@ -503,8 +631,11 @@ def _plot_errors(campaign, path):
             if state in bounds:
                 ax.plot([i - 0.35, i + 0.35], [bounds[state]] * 2, color="tab:red", lw=1.5)
     settle = min(SETTLE_TIME, campaign.scenario.end_time / 2)
-    fig.suptitle(f"{campaign.scenario.name}: RMS errors from t = {settle:g} s of {campaign.runs} runs "
-                 "(whiskers: min-max; red: Kalman bound)", fontsize=10)
+    fig.suptitle(
+        f"{campaign.scenario.name}: RMS errors from t = {settle:g} s of {campaign.runs} runs "
+        "(whiskers: min-max; red: Kalman bound)",
+        fontsize=10,
+    )
     fig.savefig(path, dpi=110)
 
 
@@ -519,18 +650,28 @@ def write_plots(campaign, out_dir):
 
 # ----- command line --------------------------------------------------------------
 
+
 def add_arguments(parser):
     """Arguments of ``quad-drake montecarlo`` on an argparse (sub)parser; returns it."""
     parser.add_argument("name", metavar="NAME", help="scenario name or YAML path")
     parser.add_argument("--runs", type=int, default=100, help="number of runs (default: 100)")
-    parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
-                        help="worker processes (default: all cores)")
+    parser.add_argument(
+        "--jobs", type=int, default=os.cpu_count() or 1, help="worker processes (default: all cores)"
+    )
     parser.add_argument("--seed", type=int, help="first seed S; run i uses S+i (default: the scenario's)")
-    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                        help="override a config field, e.g. vehicles.0.ekf.q_yaw_std=0.1")
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a config field, e.g. vehicles.0.ekf.q_yaw_std=0.1",
+    )
     parser.add_argument("--out", default="out", help="output folder (default: out)")
-    parser.add_argument("--scheduler", metavar="ADDRESS",
-                        help="run on a Dask cluster, e.g. tcp://host:8786 (the 'cluster' extra)")
+    parser.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="run on a Dask cluster, e.g. tcp://host:8786 (the 'cluster' extra)",
+    )
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     parser.add_argument("--quiet", action="store_true", help="no progress line")
     return parser
@@ -543,13 +684,15 @@ def main_montecarlo(args):
     bad input raises ConfigError.
     """
     from .cli import load_named
+
     scenario = load_named(args.name, args.seed, args.set)
-    campaign = run_campaign(scenario, args.runs, args.jobs, scheduler=args.scheduler,
-                            progress=not args.quiet)
+    campaign = run_campaign(scenario, args.runs, args.jobs, scheduler=args.scheduler, progress=not args.quiet)
     print(campaign.table())
     print(campaign.timing_line())
     out_dir = campaign.save(Path(args.out) / f"{scenario.name}_montecarlo", plots=not args.no_plots)
-    print(f"saved {out_dir}/: runs.csv, summary.json, table.txt"
-          + (", consistency.npz" if campaign.consistency else "")
-          + (", plots" if not args.no_plots else ""))
+    print(
+        f"saved {out_dir}/: runs.csv, summary.json, table.txt"
+        + (", consistency.npz" if campaign.consistency else "")
+        + (", plots" if not args.no_plots else "")
+    )
     return 0 if campaign.passed else 1

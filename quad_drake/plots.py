@@ -27,8 +27,18 @@ from .report import write_index, write_report
 __all__ = ["make_figures", "signal_unit", "write_index", "write_plots", "write_run_artifacts"]
 
 DPI = 80
-COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple",
-          "tab:brown", "tab:pink", "tab:gray", "tab:olive", "tab:cyan")
+COLORS = (
+    "tab:blue",
+    "tab:orange",
+    "tab:green",
+    "tab:red",
+    "tab:purple",
+    "tab:brown",
+    "tab:pink",
+    "tab:gray",
+    "tab:olive",
+    "tab:cyan",
+)
 FLEET_SIZE = 3
 """Three or more vehicles with an estimator get the fleet plot instead of per-vehicle ones."""
 EST_KEYS = ("X", "Y", "Z", "VX", "VY", "VZ", "Yaw")
@@ -62,8 +72,14 @@ def _figure(rows, cols, width=8.0, height_per_row=2.0, title=""):
     fig = Figure(figsize=(width, 0.8 + height_per_row * rows), dpi=DPI)
     FigureCanvasAgg(fig)
     axes = fig.subplots(rows, cols, squeeze=False, sharex=True)
-    fig.subplots_adjust(left=1.0 / width, right=0.98, bottom=0.1 if rows < 3 else 0.07,
-                        top=1.0 - 0.55 / (0.8 + height_per_row * rows), hspace=0.35, wspace=0.45)
+    fig.subplots_adjust(
+        left=1.0 / width,
+        right=0.98,
+        bottom=0.1 if rows < 3 else 0.07,
+        top=1.0 - 0.55 / (0.8 + height_per_row * rows),
+        hspace=0.35,
+        wspace=0.45,
+    )
     fig.suptitle(title, fontsize=11)
     for ax in axes[-1]:
         ax.set_xlabel("time [s]")
@@ -111,24 +127,42 @@ def _window_figure(result, criterion, verdict):
     times = result.times
     signal = result.signals[criterion.signal]
     unit = signal_unit(criterion.signal)
-    fig, axes = _figure(1, 1, height_per_row=3.0, title=(
-        f"{criterion.signal}: |x| ≤ {criterion.threshold:g} {unit} for > {criterion.window:g} s  —  "
-        f"{'PASS' if verdict.passed else 'FAIL'} (longest {verdict.measured:.3f} s)"))
+    fig, axes = _figure(
+        1,
+        1,
+        height_per_row=3.0,
+        title=(
+            f"{criterion.signal}: |x| ≤ {criterion.threshold:g} {unit} for > {criterion.window:g} s  —  "
+            f"{'PASS' if verdict.passed else 'FAIL'} (longest {verdict.measured:.3f} s)"
+        ),
+    )
     ax = axes[0, 0]
     values = signal.values
     if signal.fresh.all():
         ax.plot(times, values, lw=1.0, color="tab:blue", label=criterion.signal)
     else:
-        ax.plot(times[signal.fresh], values[signal.fresh], ".", ms=3, color="tab:blue",
-                label=f"{criterion.signal} (fresh samples)")
-    ax.axhline(criterion.threshold, color="tab:red", ls="--", lw=1.0,
-               label=f"± threshold {criterion.threshold:g}")
+        ax.plot(
+            times[signal.fresh],
+            values[signal.fresh],
+            ".",
+            ms=3,
+            color="tab:blue",
+            label=f"{criterion.signal} (fresh samples)",
+        )
+    ax.axhline(
+        criterion.threshold, color="tab:red", ls="--", lw=1.0, label=f"± threshold {criterion.threshold:g}"
+    )
     if np.nanmin(values) < 0:
         ax.axhline(-criterion.threshold, color="tab:red", ls="--", lw=1.0)
     if times.size:
         start, end = longest_good_stretch(times, values, criterion.threshold)
-        ax.axvspan(start, end, color="tab:green" if verdict.passed else "tab:orange", alpha=0.15,
-                   label=f"longest stretch within ({end - start:.2f} s, needs > {criterion.window:g} s)")
+        ax.axvspan(
+            start,
+            end,
+            color="tab:green" if verdict.passed else "tab:orange",
+            alpha=0.15,
+            label=f"longest stretch within ({end - start:.2f} s, needs > {criterion.window:g} s)",
+        )
     _robust_ylim(ax, values, criterion.threshold)
     ax.set_ylabel(_label(criterion.signal.split(".", 1)[-1], unit))
     ax.legend(loc="upper right", fontsize=8)
@@ -137,9 +171,8 @@ def _window_figure(result, criterion, verdict):
 
 def _sigma_inputs(result, criterion):
     n = result.times.size
-    ref = (_values(result, criterion.ref_signal) if criterion.ref_signal else np.full(n, criterion.ref))
-    sigma = (_values(result, criterion.sigma_signal) if criterion.sigma_signal
-             else np.full(n, criterion.sigma))
+    ref = _values(result, criterion.ref_signal) if criterion.ref_signal else np.full(n, criterion.ref)
+    sigma = _values(result, criterion.sigma_signal) if criterion.sigma_signal else np.full(n, criterion.sigma)
     return ref, sigma
 
 
@@ -149,18 +182,37 @@ def _sigma_figure(result, criterion, verdict):
     unit = signal_unit(criterion.signal)
     ref, sigma = _sigma_inputs(result, criterion)
     percent = getattr(verdict, "percent", None)
-    fig, axes = _figure(2, 1, height_per_row=2.4, title=(
-        f"{criterion.signal}: {percent if percent is not None else float('nan'):.0f} % of samples within "
-        f"ref ± σ (needs {criterion.min_percent:g}–{criterion.max_percent:g} % over the last "
-        f"{criterion.window:g} s)  —  {'PASS' if verdict.passed else 'FAIL'}"))
+    fig, axes = _figure(
+        2,
+        1,
+        height_per_row=2.4,
+        title=(
+            f"{criterion.signal}: {percent if percent is not None else float('nan'):.0f} % of samples within "
+            f"ref ± σ (needs {criterion.min_percent:g}–{criterion.max_percent:g} % over the last "
+            f"{criterion.window:g} s)  —  {'PASS' if verdict.passed else 'FAIL'}"
+        ),
+    )
     ax = axes[0, 0]
     sigma_label = criterion.sigma_signal or f"{criterion.sigma:g} {unit}"
-    ax.fill_between(times, ref - sigma, ref + sigma, color="tab:green", alpha=0.2, lw=0,
-                    label=f"ref ± σ (σ = {sigma_label})")
+    ax.fill_between(
+        times,
+        ref - sigma,
+        ref + sigma,
+        color="tab:green",
+        alpha=0.2,
+        lw=0,
+        label=f"ref ± σ (σ = {sigma_label})",
+    )
     ax.plot(times, ref, color="k", lw=0.8, label=f"ref ({criterion.ref_signal or f'{criterion.ref:g}'})")
     fresh = signal.fresh
-    ax.plot(times[fresh], signal.values[fresh], ".", ms=3 if fresh.sum() < 0.5 * fresh.size else 1.5,
-            color="tab:blue", label=f"{criterion.signal} samples")
+    ax.plot(
+        times[fresh],
+        signal.values[fresh],
+        ".",
+        ms=3 if fresh.sum() < 0.5 * fresh.size else 1.5,
+        color="tab:blue",
+        label=f"{criterion.signal} samples",
+    )
     for edge in (ref - sigma, ref + sigma):
         ax.plot(times, edge, color="tab:green", lw=1.0, zorder=3)
     ax.set_ylabel(_label(criterion.signal.split(".", 1)[-1], unit))
@@ -171,11 +223,21 @@ def _sigma_figure(result, criterion, verdict):
     inside = (x >= ref[fresh] - sigma[fresh]) & (x <= ref[fresh] + sigma[fresh])
     cumulative = 100.0 * np.cumsum(inside) / np.arange(1, t.size + 1)
     ax.plot(t, cumulative, color="tab:blue", lw=1.0, label="cumulative share within ±σ")
-    ax.axhspan(criterion.min_percent, criterion.max_percent, color="tab:green", alpha=0.15,
-               label=f"({criterion.min_percent:g}, {criterion.max_percent:g}) %")
+    ax.axhspan(
+        criterion.min_percent,
+        criterion.max_percent,
+        color="tab:green",
+        alpha=0.15,
+        label=f"({criterion.min_percent:g}, {criterion.max_percent:g}) %",
+    )
     if t.size:
-        ax.axvspan(t[-1] - criterion.window, t[-1], color="tab:gray", alpha=0.2,
-                   label=f"last {criterion.window:g} s (must stay inside)")
+        ax.axvspan(
+            t[-1] - criterion.window,
+            t[-1],
+            color="tab:gray",
+            alpha=0.2,
+            label=f"last {criterion.window:g} s (must stay inside)",
+        )
     ax.set_ylim(0, 100)
     ax.set_ylabel("within ±σ [%]")
     ax.legend(loc="lower right", fontsize=8)
@@ -198,8 +260,14 @@ def _traces_figure(result, title, rows, ref_of=None):
             ax.plot(result.times, _values(result, f"{vehicle}.{key}"), color=_color(i), lw=1.0, label=vehicle)
             ref_key = f"{vehicle}.{ref_of[key]}" if ref_of and key in ref_of else None
             if ref_key in result.signals:
-                ax.plot(result.times, _values(result, ref_key), color=_color(i), lw=1.0, ls="--",
-                        label=f"{vehicle} reference")
+                ax.plot(
+                    result.times,
+                    _values(result, ref_key),
+                    color=_color(i),
+                    lw=1.0,
+                    ls="--",
+                    label=f"{vehicle} reference",
+                )
         ax.set_ylabel(_label(label, unit))
     axes[0, 0].legend(loc="upper right", fontsize=7, ncol=2)
     return fig
@@ -207,8 +275,9 @@ def _traces_figure(result, title, rows, ref_of=None):
 
 def _position_figure(result):
     rows = [(f"{a.lower()} (NED)", f"Pos.{a}", "m") for a in "XYZ"]
-    return _traces_figure(result, "Position vs reference (dashed); NED, z down",
-                          rows, {f"Pos.{a}": f"Ref.{a}" for a in "XYZ"})
+    return _traces_figure(
+        result, "Position vs reference (dashed); NED, z down", rows, {f"Pos.{a}": f"Ref.{a}" for a in "XYZ"}
+    )
 
 
 def _attitude_figure(result):
@@ -229,12 +298,18 @@ def _thrust_figure(result):
         ax.set_ylabel("thrust [N]")
         ax.legend(loc="upper right", fontsize=7, ncol=2)
         return fig
-    fig, axes = _figure(len(vehicles), 1, height_per_row=2.2,
-                        title="Motor thrusts (dotted: the motors' limits)")
+    fig, axes = _figure(
+        len(vehicles), 1, height_per_row=2.2, title="Motor thrusts (dotted: the motors' limits)"
+    )
     for vehicle, ax in zip(vehicles, axes[:, 0], strict=True):
         for i, (motor, name) in enumerate(zip("ABCD", MOTOR_NAMES, strict=True)):
-            ax.plot(result.times, _values(result, f"{vehicle}.Thrust.{motor}"), color=_color(i), lw=0.8,
-                    label=f"{motor} ({name})")
+            ax.plot(
+                result.times,
+                _values(result, f"{vehicle}.Thrust.{motor}"),
+                color=_color(i),
+                lw=0.8,
+                label=f"{motor} ({name})",
+            )
         for limit in (physics.min_motor_thrust, physics.max_motor_thrust):
             ax.axhline(limit, color="k", ls=":", lw=0.8)
         ax.set_ylabel(_label(f"{vehicle} thrust", "N"))
@@ -251,17 +326,40 @@ def _top_view_figure(result):
     for i, vehicle in enumerate(_vehicles(result)):
         color = _color(i)
         if f"{vehicle}.Ref.X" in result.signals:
-            ax.plot(_values(result, f"{vehicle}.Ref.Y"), _values(result, f"{vehicle}.Ref.X"),
-                    color="k" if single else color, ls="--", lw=1.0, label=f"{vehicle} reference")
-        ax.plot(_values(result, f"{vehicle}.Pos.Y"), _values(result, f"{vehicle}.Pos.X"), color=color, lw=1.4,
-                label=f"{vehicle} true")
+            ax.plot(
+                _values(result, f"{vehicle}.Ref.Y"),
+                _values(result, f"{vehicle}.Ref.X"),
+                color="k" if single else color,
+                ls="--",
+                lw=1.0,
+                label=f"{vehicle} reference",
+            )
+        ax.plot(
+            _values(result, f"{vehicle}.Pos.Y"),
+            _values(result, f"{vehicle}.Pos.X"),
+            color=color,
+            lw=1.4,
+            label=f"{vehicle} true",
+        )
         if f"{vehicle}.Est.X" in result.signals:
-            ax.plot(_values(result, f"{vehicle}.Est.Y"), _values(result, f"{vehicle}.Est.X"),
-                    color="tab:pink" if single else color, lw=0.8, ls="-.", label=f"{vehicle} estimated")
+            ax.plot(
+                _values(result, f"{vehicle}.Est.Y"),
+                _values(result, f"{vehicle}.Est.X"),
+                color="tab:pink" if single else color,
+                lw=0.8,
+                ls="-.",
+                label=f"{vehicle} estimated",
+            )
         gps = result.signals.get(f"{vehicle}.GPS.X")
         if gps is not None and single:
-            ax.plot(_values(result, f"{vehicle}.GPS.Y")[gps.fresh], gps.values[gps.fresh], ".", ms=2,
-                    color="tab:gray", label=f"{vehicle} GPS")
+            ax.plot(
+                _values(result, f"{vehicle}.GPS.Y")[gps.fresh],
+                gps.values[gps.fresh],
+                ".",
+                ms=2,
+                color="tab:gray",
+                label=f"{vehicle} GPS",
+            )
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("y (east) [m]")
     ax.set_ylabel("x (north) [m]")
@@ -272,16 +370,36 @@ def _top_view_figure(result):
 
 
 def _attitude_estimate_figure(result, vehicle):
-    fig, axes = _figure(2, 1, height_per_row=2.6,
-                        title=f"{vehicle}: attitude estimation errors; true (solid) vs estimated (dashed)")
+    fig, axes = _figure(
+        2,
+        1,
+        height_per_row=2.6,
+        title=f"{vehicle}: attitude estimation errors; true (solid) vs estimated (dashed)",
+    )
     for j, angle in enumerate(("Roll", "Pitch", "Yaw")):
         color = _color(j)
-        axes[0, 0].plot(result.times, _values(result, f"{vehicle}.Est.E.{angle}"), color=color, lw=1.0,
-                        label=f"{angle.lower()} error")
-        axes[1, 0].plot(result.times, _values(result, f"{vehicle}.{angle}"), color=color, lw=1.0,
-                        label=f"{angle.lower()} true")
-        axes[1, 0].plot(result.times, _values(result, f"{vehicle}.Est.{angle}"), color=color, lw=1.0, ls="--",
-                        label=f"{angle.lower()} estimated")
+        axes[0, 0].plot(
+            result.times,
+            _values(result, f"{vehicle}.Est.E.{angle}"),
+            color=color,
+            lw=1.0,
+            label=f"{angle.lower()} error",
+        )
+        axes[1, 0].plot(
+            result.times,
+            _values(result, f"{vehicle}.{angle}"),
+            color=color,
+            lw=1.0,
+            label=f"{angle.lower()} true",
+        )
+        axes[1, 0].plot(
+            result.times,
+            _values(result, f"{vehicle}.Est.{angle}"),
+            color=color,
+            lw=1.0,
+            ls="--",
+            label=f"{angle.lower()} estimated",
+        )
     axes[0, 0].set_ylabel(_label("estimate - true", "rad"))
     axes[1, 0].set_ylabel(_label("angle", "rad"))
     axes[0, 0].legend(loc="upper right", fontsize=7, ncol=3)
@@ -290,28 +408,44 @@ def _attitude_estimate_figure(result, vehicle):
 
 
 def _state_estimate_figure(result, vehicle):
-    fig, axes = _figure(2, 3, width=10.0, height_per_row=2.4,
-                        title=f"{vehicle}: true vs estimated position and velocity (NED)")
+    fig, axes = _figure(
+        2,
+        3,
+        width=10.0,
+        height_per_row=2.4,
+        title=f"{vehicle}: true vs estimated position and velocity (NED)",
+    )
     for j, axis in enumerate("XYZ"):
         for row, (true_key, est_key, gps_key, unit) in enumerate(
-                ((f"Pos.{axis}", f"Est.{axis}", f"GPS.{axis}", "m"),
-                 (f"Vel.{axis}", f"Est.V{axis}", f"GPS.V{axis}", "m/s"))):
+            (
+                (f"Pos.{axis}", f"Est.{axis}", f"GPS.{axis}", "m"),
+                (f"Vel.{axis}", f"Est.V{axis}", f"GPS.V{axis}", "m/s"),
+            )
+        ):
             ax = axes[row, j]
             gps = result.signals.get(f"{vehicle}.{gps_key}")
             if gps is not None:
-                ax.plot(result.times[gps.fresh], gps.values[gps.fresh], ".", ms=2, color="tab:gray",
-                        label="GPS")
+                ax.plot(
+                    result.times[gps.fresh], gps.values[gps.fresh], ".", ms=2, color="tab:gray", label="GPS"
+                )
             ax.plot(result.times, _values(result, f"{vehicle}.{true_key}"), color="k", lw=1.0, label="true")
-            ax.plot(result.times, _values(result, f"{vehicle}.{est_key}"), color="tab:blue", lw=1.0, ls="--",
-                    label="estimated")
+            ax.plot(
+                result.times,
+                _values(result, f"{vehicle}.{est_key}"),
+                color="tab:blue",
+                lw=1.0,
+                ls="--",
+                label="estimated",
+            )
             ax.set_ylabel(_label(("" if row == 0 else "v") + axis.lower(), unit))
     axes[0, 0].legend(loc="upper right", fontsize=7)
     return fig
 
 
 def _estimate_errors_figure(result, vehicle):
-    fig, axes = _figure(2, 4, width=12.0, height_per_row=2.4,
-                        title=f"{vehicle}: EKF errors (est - true) and their ±σ")
+    fig, axes = _figure(
+        2, 4, width=12.0, height_per_row=2.4, title=f"{vehicle}: EKF errors (est - true) and their ±σ"
+    )
     t = result.times
     for key, ax in zip(EST_KEYS, axes.flat, strict=False):
         error = _values(result, f"{vehicle}.Est.E.{key}")
@@ -332,8 +466,13 @@ def _estimate_errors_figure(result, vehicle):
 
 
 def _fleet_figure(result, vehicles):
-    fig, axes = _figure(2, 2, width=10.0, height_per_row=2.6, title=(
-        f"Fleet of {len(vehicles)}: estimation errors and {vehicles[0]}'s ±σ (dotted)"))
+    fig, axes = _figure(
+        2,
+        2,
+        width=10.0,
+        height_per_row=2.6,
+        title=(f"Fleet of {len(vehicles)}: estimation errors and {vehicles[0]}'s ±σ (dotted)"),
+    )
     t = result.times
     for key, ax in zip(("X", "Y", "VX", "VY"), axes.T.flat, strict=True):
         for i, vehicle in enumerate(vehicles):
@@ -342,8 +481,7 @@ def _fleet_figure(result, vehicles):
         for sign, style in ((1, ":"), (-1, ":"), (2, "--"), (-2, "--")):
             ax.plot(t, sign * sigma, color="k", ls=style, lw=1.0)
         share = 100.0 * fleet_sigma_fraction(result.signals, f"Est.E.{key}", f"Est.S.{key}", 1.0)
-        ax.set_title(f"{key} error: {share:.0f} % within ±σ "
-                     "(±2σ dashed)", fontsize=9, y=1.0)
+        ax.set_title(f"{key} error: {share:.0f} % within ±σ (±2σ dashed)", fontsize=9, y=1.0)
         ax.set_ylabel(_label(f"{key} error", signal_unit(f"x.Est.E.{key}")))
     axes[0, 0].legend(loc="upper left", fontsize=6, ncol=2)
     return fig
@@ -353,22 +491,32 @@ def make_figures(result):
     """Ordered {file stem: (caption, Figure)} for a SimulationResult (see the module doc)."""
     figures = {}
     for i, criterion in enumerate(result.scenario.criteria):
-        if criterion.kind == "fleet_sigma":    # drawn once for the whole fleet below
+        if criterion.kind == "fleet_sigma":  # drawn once for the whole fleet below
             continue
-        figures[f"criterion_{i + 1}"] = (f"Criterion {i + 1}: {criterion.kind} on {criterion.signal}",
-                                         _criterion_figure(result, i))
+        figures[f"criterion_{i + 1}"] = (
+            f"Criterion {i + 1}: {criterion.kind} on {criterion.signal}",
+            _criterion_figure(result, i),
+        )
     estimating = _estimating(result)
     if len(estimating) >= FLEET_SIZE:
-        figures["fleet_errors"] = ("Fleet estimation errors against the predicted σ",
-                                   _fleet_figure(result, estimating))
+        figures["fleet_errors"] = (
+            "Fleet estimation errors against the predicted σ",
+            _fleet_figure(result, estimating),
+        )
     else:
         for vehicle in estimating:
-            figures[f"estimate_errors_{vehicle}"] = (f"{vehicle}: EKF errors against ±σ",
-                                                     _estimate_errors_figure(result, vehicle))
-            figures[f"attitude_estimate_{vehicle}"] = (f"{vehicle}: true vs estimated attitude",
-                                                       _attitude_estimate_figure(result, vehicle))
-            figures[f"state_estimate_{vehicle}"] = (f"{vehicle}: true vs estimated states",
-                                                    _state_estimate_figure(result, vehicle))
+            figures[f"estimate_errors_{vehicle}"] = (
+                f"{vehicle}: EKF errors against ±σ",
+                _estimate_errors_figure(result, vehicle),
+            )
+            figures[f"attitude_estimate_{vehicle}"] = (
+                f"{vehicle}: true vs estimated attitude",
+                _attitude_estimate_figure(result, vehicle),
+            )
+            figures[f"state_estimate_{vehicle}"] = (
+                f"{vehicle}: true vs estimated states",
+                _state_estimate_figure(result, vehicle),
+            )
     figures["position"] = ("Position vs reference", _position_figure(result))
     figures["top_view"] = ("Top view of the paths", _top_view_figure(result))
     figures["attitude"] = ("Attitude and body rates", _attitude_figure(result))

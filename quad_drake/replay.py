@@ -24,9 +24,18 @@ ROOT = "/quad_drake"
 FPS = 30.0
 """Recording frame rate, frames per s of simulated time."""
 MAX_PATH_POINTS = 2000
-VEHICLE_COLORS = ((0.12, 0.47, 0.71), (1.0, 0.5, 0.05), (0.17, 0.63, 0.17), (0.84, 0.15, 0.16),
-                  (0.58, 0.4, 0.74), (0.55, 0.34, 0.29), (0.89, 0.47, 0.76), (0.5, 0.5, 0.5),
-                  (0.74, 0.74, 0.13), (0.09, 0.75, 0.81))
+VEHICLE_COLORS = (
+    (0.12, 0.47, 0.71),
+    (1.0, 0.5, 0.05),
+    (0.17, 0.63, 0.17),
+    (0.84, 0.15, 0.16),
+    (0.58, 0.4, 0.74),
+    (0.55, 0.34, 0.29),
+    (0.89, 0.47, 0.76),
+    (0.5, 0.5, 0.5),
+    (0.74, 0.74, 0.13),
+    (0.09, 0.75, 0.81),
+)
 REFERENCE_COLOR = Rgba(0.1, 0.1, 0.1, 1.0)
 ESTIMATE_COLOR = Rgba(0.85, 0.1, 0.6, 1.0)
 
@@ -72,8 +81,11 @@ def add_quadrotor(meshcat, path, arm_length, color):
         front = x > 0
         meshcat.SetObject(f"{path}/motor_{i}", Cylinder(0.014, 0.03), Rgba(0.15, 0.15, 0.15, 1.0))
         meshcat.SetTransform(f"{path}/motor_{i}", RigidTransform([x, y, 0.015]))
-        meshcat.SetObject(f"{path}/rotor_{i}", Cylinder(0.4 * arm_length, 0.004),
-                          Rgba(0.9, 0.2, 0.15, 0.55) if front else Rgba(0.3, 0.3, 0.35, 0.45))
+        meshcat.SetObject(
+            f"{path}/rotor_{i}",
+            Cylinder(0.4 * arm_length, 0.004),
+            Rgba(0.9, 0.2, 0.15, 0.55) if front else Rgba(0.3, 0.3, 0.35, 0.45),
+        )
         meshcat.SetTransform(f"{path}/rotor_{i}", RigidTransform([x, y, 0.035]))
     meshcat.SetObject(f"{path}/nose", Sphere(0.018), Rgba(0.9, 0.1, 0.1, 1.0))
     meshcat.SetTransform(f"{path}/nose", RigidTransform([0.35 * a, 0.0, 0.03]))
@@ -104,8 +116,9 @@ class _Track:
         pose = RigidTransform(Quaternion(self.q[k]), self.p[k])
         meshcat.SetTransform(f"{ROOT}/{self.name}/quad", pose, time_in_recording)
         if self.estimate_zup is not None:
-            meshcat.SetTransform(f"{ROOT}/{self.name}/estimate", RigidTransform(self.estimate_zup[k]),
-                                 time_in_recording)
+            meshcat.SetTransform(
+                f"{ROOT}/{self.name}/estimate", RigidTransform(self.estimate_zup[k]), time_in_recording
+            )
 
 
 def _tracks(result):

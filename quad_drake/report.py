@@ -50,8 +50,10 @@ def _num(value, digits=4):
 
 
 def _page(title, body):
-    return (f"<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
-            f"<title>{_esc(title)}</title>\n<style>{STYLE}</style>\n</head>\n<body>\n{body}\n</body>\n</html>\n")
+    return (
+        f'<!DOCTYPE html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n'
+        f"<title>{_esc(title)}</title>\n<style>{STYLE}</style>\n</head>\n<body>\n{body}\n</body>\n</html>\n"
+    )
 
 
 def _table(header, rows):
@@ -62,7 +64,7 @@ def _table(header, rows):
         cells = []
         for cell in row:
             text, css = cell if isinstance(cell, tuple) else (cell, "")
-            cells.append(f"<td class=\"{css}\">{text}</td>" if css else f"<td>{text}</td>")
+            cells.append(f'<td class="{css}">{text}</td>' if css else f"<td>{text}</td>")
         lines.append(f"<tr>{''.join(cells)}</tr>")
     return "\n".join(lines) + "\n</table>"
 
@@ -75,8 +77,10 @@ def _verdict(passed):
 def criterion_row(criterion, verdict):
     """[criterion, kind, verdict, measured, required] cells (HTML-escaped) of one criterion."""
     if criterion.kind == "fleet_sigma":
-        what = (f"|V.{criterion.signal}| ≤ {criterion.sigma_multiple:g} × V.{criterion.sigma_signal} "
-                "over every vehicle V")
+        what = (
+            f"|V.{criterion.signal}| ≤ {criterion.sigma_multiple:g} × V.{criterion.sigma_signal} "
+            "over every vehicle V"
+        )
         measured = f"{_num(verdict.percent, 3)} % of {verdict.samples} samples within"
         required = f"share in [{criterion.min_percent:g} %, {criterion.max_percent:g} %]"
         return [_esc(what), "fleet_sigma", _verdict(verdict.passed), _esc(measured), _esc(required)]
@@ -85,10 +89,14 @@ def criterion_row(criterion, verdict):
         sigma = criterion.sigma_signal or f"{criterion.sigma:g}"
         what = f"|{criterion.signal} − {ref}| ≤ {sigma}"
         percent = getattr(verdict, "percent", None)
-        measured = (f"{_num(percent, 3)} % of {verdict.samples} samples within; "
-                    f"share inside the band for the last {_num(verdict.measured)} s")
-        required = (f"share in ({criterion.min_percent:g} %, {criterion.max_percent:g} %) "
-                    f"for the last ≥ {criterion.window:g} s")
+        measured = (
+            f"{_num(percent, 3)} % of {verdict.samples} samples within; "
+            f"share inside the band for the last {_num(verdict.measured)} s"
+        )
+        required = (
+            f"share in ({criterion.min_percent:g} %, {criterion.max_percent:g} %) "
+            f"for the last ≥ {criterion.window:g} s"
+        )
     else:
         what = f"|{criterion.signal}| ≤ {criterion.threshold:g}"
         measured = f"longest stretch within: {_num(verdict.measured)} s"
@@ -124,15 +132,16 @@ def ekf_consistency(result):
         for key in EST_KEYS:
             error = np.abs(result.signals[f"{vehicle}.Est.E.{key}"].values)
             sigma = result.signals[f"{vehicle}.Est.S.{key}"].values
-            within = [float(np.mean(error <= k * sigma) * 100) if error.size else float("nan")
-                      for k in (1, 2)]
+            within = [
+                float(np.mean(error <= k * sigma) * 100) if error.size else float("nan") for k in (1, 2)
+            ]
             rows.append((vehicle, key, EST_UNITS[key], *_stats(error), *within))
     return rows
 
 
 def _image(path):
     data = base64.b64encode(Path(path).read_bytes()).decode("ascii")
-    return f"<img alt=\"{_esc(Path(path).stem)}\" src=\"data:image/png;base64,{data}\">"
+    return f'<img alt="{_esc(Path(path).stem)}" src="data:image/png;base64,{data}">'
 
 
 def write_report(result, path, plots=(), replay=None):
@@ -143,43 +152,82 @@ def write_report(result, path, plots=(), replay=None):
     overall = ("–", "NONE") if not criteria else _verdict(all(v.passed for _, v in criteria))
     rate = scenario.end_time / result.wall_time if result.wall_time > 0 else float("inf")
     parts = [
-        f"<h1>{_esc(scenario.name)} <span class=\"{overall[1]}\">&nbsp;{overall[0]}&nbsp;</span></h1>",
+        f'<h1>{_esc(scenario.name)} <span class="{overall[1]}">&nbsp;{overall[0]}&nbsp;</span></h1>',
         f"<p>{_esc(scenario.description)}</p>",
-        _table(["seed", "simulated [s]", "wall time [s]", "× real time", "vehicles"],
-               [[str(scenario.seed), _num(scenario.end_time), _num(result.wall_time, 3), _num(rate, 3),
-                 _esc(", ".join(v.name for v in scenario.vehicles))]]),
+        _table(
+            ["seed", "simulated [s]", "wall time [s]", "× real time", "vehicles"],
+            [
+                [
+                    str(scenario.seed),
+                    _num(scenario.end_time),
+                    _num(result.wall_time, 3),
+                    _num(rate, 3),
+                    _esc(", ".join(v.name for v in scenario.vehicles)),
+                ]
+            ],
+        ),
     ]
     if replay is not None:
-        parts.append(f"<p>3D replay: <a href=\"{_esc(os.path.relpath(replay, path.parent))}\">"
-                     "replay.html</a> (Meshcat; opens offline).</p>")
+        parts.append(
+            f'<p>3D replay: <a href="{_esc(os.path.relpath(replay, path.parent))}">'
+            "replay.html</a> (Meshcat; opens offline).</p>"
+        )
     parts.append("<h2>Criteria</h2>")
     if criteria:
-        parts.append(_table(["criterion", "kind", "result", "measured", "required"],
-                            [criterion_row(c, v) for c, v in criteria]))
+        parts.append(
+            _table(
+                ["criterion", "kind", "result", "measured", "required"],
+                [criterion_row(c, v) for c, v in criteria],
+            )
+        )
         parts.append("<pre>" + _esc("\n".join(v.line for _, v in criteria)) + "</pre>")
     else:
         parts.append("<p>This scenario has no pass/fail criteria; judge it from the plots.</p>")
     metrics = key_metrics(result)
     if metrics:
         parts.append("<h2>Key metrics</h2>")
-        parts.append(_table(["vehicle", "quantity", "unit", "RMS", "max |·|"],
-                            [[_esc(v), _esc(w), _esc(u), (_num(r), "num"), (_num(m), "num")]
-                             for v, w, u, r, m in metrics]))
+        parts.append(
+            _table(
+                ["vehicle", "quantity", "unit", "RMS", "max |·|"],
+                [
+                    [_esc(v), _esc(w), _esc(u), (_num(r), "num"), (_num(m), "num")]
+                    for v, w, u, r, m in metrics
+                ],
+            )
+        )
     consistency = ekf_consistency(result)
     if consistency:
-        parts.append("<h2>EKF errors against the predicted σ</h2>"
-                     "<p>A consistent filter has about 68 % of its errors within ±σ and 95 % within ±2σ.</p>")
-        parts.append(_table(["vehicle", "state", "unit", "RMS error", "max |error|", "within ±σ [%]",
-                             "within ±2σ [%]"],
-                            [[_esc(v), _esc(k), _esc(u), (_num(r), "num"), (_num(m), "num"),
-                              (_num(a, 3), "num"), (_num(b, 3), "num")]
-                             for v, k, u, r, m, a, b in consistency]))
+        parts.append(
+            "<h2>EKF errors against the predicted σ</h2>"
+            "<p>A consistent filter has about 68 % of its errors within ±σ and 95 % within ±2σ.</p>"
+        )
+        parts.append(
+            _table(
+                ["vehicle", "state", "unit", "RMS error", "max |error|", "within ±σ [%]", "within ±2σ [%]"],
+                [
+                    [
+                        _esc(v),
+                        _esc(k),
+                        _esc(u),
+                        (_num(r), "num"),
+                        (_num(m), "num"),
+                        (_num(a, 3), "num"),
+                        (_num(b, 3), "num"),
+                    ]
+                    for v, k, u, r, m, a, b in consistency
+                ],
+            )
+        )
     if plots:
         parts.append("<h2>Plots</h2>")
-        parts.extend(f"<figure><figcaption>{_esc(caption)}</figcaption>{_image(png)}</figure>"
-                     for caption, png in plots)
-    parts.append("<h2>Resolved configuration</h2>"
-                 "<p>Reproduce with <code>quad-drake run config.yaml</code> in this folder.</p>")
+        parts.extend(
+            f"<figure><figcaption>{_esc(caption)}</figcaption>{_image(png)}</figure>"
+            for caption, png in plots
+        )
+    parts.append(
+        "<h2>Resolved configuration</h2>"
+        "<p>Reproduce with <code>quad-drake run config.yaml</code> in this folder.</p>"
+    )
     parts.append(f"<pre>{_esc(dump_scenario(scenario))}</pre>")
     path.write_text(_page(f"quad_drake: {scenario.name}", "\n".join(parts)), encoding="utf-8")
     return path
@@ -194,19 +242,29 @@ def write_index(summaries_with_dirs, out_dir):
         run_dir = Path(run_dir)
         criteria = summary["criteria"]
         verdict = ("–", "NONE") if not criteria else _verdict(summary["passed"])
-        links = [f"<a href=\"{_esc(os.path.relpath(run_dir / name, out_dir))}\">{label}</a>"
-                 for name, label in (("report.html", "report"), ("replay.html", "3D replay"))
-                 if (run_dir / name).is_file()]
+        links = [
+            f'<a href="{_esc(os.path.relpath(run_dir / name, out_dir))}">{label}</a>'
+            for name, label in (("report.html", "report"), ("replay.html", "3D replay"))
+            if (run_dir / name).is_file()
+        ]
         lines = "<br>".join(_esc(c["line"]) for c in criteria if "line" in c)
-        rows.append([_esc(summary["scenario"]), str(summary["seed"]), verdict,
-                     f"{sum(bool(c['passed']) for c in criteria)}/{len(criteria)}",
-                     (_num(summary["wall_time_s"], 3), "num"), (_num(summary["real_time_factor"], 3), "num"),
-                     " · ".join(links) or "–", lines])
+        rows.append(
+            [
+                _esc(summary["scenario"]),
+                str(summary["seed"]),
+                verdict,
+                f"{sum(bool(c['passed']) for c in criteria)}/{len(criteria)}",
+                (_num(summary["wall_time_s"], 3), "num"),
+                (_num(summary["real_time_factor"], 3), "num"),
+                " · ".join(links) or "–",
+                lines,
+            ]
+        )
     passed = sum(1 for summary, _ in summaries_with_dirs if summary["passed"] and summary["criteria"])
     graded = sum(1 for summary, _ in summaries_with_dirs if summary["criteria"])
-    body = (f"<h1>quad_drake runs</h1><p>{passed} of {graded} graded scenarios passed.</p>"
-            + _table(["scenario", "seed", "result", "criteria", "wall [s]", "× real time", "open",
-                      "analyzer lines"], rows))
+    body = f"<h1>quad_drake runs</h1><p>{passed} of {graded} graded scenarios passed.</p>" + _table(
+        ["scenario", "seed", "result", "criteria", "wall [s]", "× real time", "open", "analyzer lines"], rows
+    )
     path = out_dir / "index.html"
     path.write_text(_page("quad_drake runs", body), encoding="utf-8")
     return path

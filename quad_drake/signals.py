@@ -17,14 +17,22 @@ from .conventions import P_SLICE, Q_SLICE, REF_P_SLICE, REF_YAW_INDEX, V_SLICE, 
 
 @dataclass(frozen=True)
 class Signal:
-    values: np.ndarray   # (n,) one value per logged sample
-    fresh: np.ndarray    # (n,) bool: sample carries a new measurement
+    values: np.ndarray  # (n,) one value per logged sample
+    fresh: np.ndarray  # (n,) bool: sample carries a new measurement
 
 
 AXES = ("X", "Y", "Z")
 LOG_WIDTHS = {
-    "state": 13, "reference": 10, "motor_forces": 4, "imu": 6, "gps": 7, "mag": 2,
-    "attitude": 3, "ekf_state": 7, "covariance": 49, "diagnostics": 5,
+    "state": 13,
+    "reference": 10,
+    "motor_forces": 4,
+    "imu": 6,
+    "gps": 7,
+    "mag": 2,
+    "attitude": 3,
+    "ekf_state": 7,
+    "covariance": 49,
+    "diagnostics": 5,
 }
 
 

@@ -37,8 +37,14 @@ from .trajectories import trajectory_from_config
 def initial_state(vehicle):
     """13-vector (p, q wxyz, v, w) of a VehicleConfig's initial conditions."""
     yaw, pitch, roll = vehicle.initial_ypr
-    return np.concatenate([vehicle.initial_position, quat_from_euler(roll, pitch, yaw),
-                           vehicle.initial_velocity, vehicle.initial_omega])
+    return np.concatenate(
+        [
+            vehicle.initial_position,
+            quat_from_euler(roll, pitch, yaw),
+            vehicle.initial_velocity,
+            vehicle.initial_omega,
+        ]
+    )
 
 
 def vehicle_log_names(vehicle):
@@ -54,8 +60,10 @@ def vehicle_log_names(vehicle):
 def _add_noisy(builder, system, name, port="noise", distribution=RandomDistribution.kGaussian):
     """Add `system` and a RandomSource (system.noise_size, system.noise_period) feeding `port`."""
     builder.AddNamedSystem(name, system)
-    noise = builder.AddNamedSystem(f"{name}_noise" if port == "noise" else port, RandomSource(
-        distribution, system.noise_size, system.noise_period))
+    noise = builder.AddNamedSystem(
+        f"{name}_noise" if port == "noise" else port,
+        RandomSource(distribution, system.noise_size, system.noise_period),
+    )
     builder.Connect(noise.get_output_port(0), system.GetInputPort(port))
     return system
 
@@ -70,16 +78,24 @@ def _never_sampled(builder, size):
 def build_vehicle(vehicle):
     """The sub-Diagram of one VehicleConfig; its outputs are named as `vehicle_log_names`."""
     builder = DiagramBuilder()
-    plant = _add_noisy(builder, QuadrotorPlant(vehicle.physics, initial_state(vehicle)), "plant",
-                       "motor_noise", RandomDistribution.kUniform)
+    plant = _add_noisy(
+        builder,
+        QuadrotorPlant(vehicle.physics, initial_state(vehicle)),
+        "plant",
+        "motor_noise",
+        RandomDistribution.kUniform,
+    )
     controller = builder.AddNamedSystem("controller", CascadeController(vehicle.controller))
-    trajectory = builder.AddNamedSystem("trajectory", TrajectorySource(
-        trajectory_from_config(vehicle.trajectory)))
+    trajectory = builder.AddNamedSystem(
+        "trajectory", TrajectorySource(trajectory_from_config(vehicle.trajectory))
+    )
     builder.Connect(controller.GetOutputPort("motor_thrusts"), plant.GetInputPort("motor_thrusts"))
     builder.Connect(trajectory.GetOutputPort("reference"), controller.GetInputPort("reference"))
-    outputs = {"state": plant.GetOutputPort("state"),
-               "reference": trajectory.GetOutputPort("reference"),
-               "motor_forces": plant.GetOutputPort("motor_forces")}
+    outputs = {
+        "state": plant.GetOutputPort("state"),
+        "reference": trajectory.GetOutputPort("reference"),
+        "motor_forces": plant.GetOutputPort("motor_forces"),
+    }
     state_for_control = plant.GetOutputPort("state")
 
     sensors = vehicle.sensors
@@ -97,8 +113,12 @@ def build_vehicle(vehicle):
 
     if sensors.imu is not None:
         ekf = builder.AddNamedSystem("ekf", Ekf(vehicle.ekf))
-        attitude_filter = builder.AddNamedSystem("attitude_filter", ComplementaryFilter(
-            vehicle.attitude_filter, initial_attitude=(0.0, 0.0, vehicle.ekf.init_state[6])))
+        attitude_filter = builder.AddNamedSystem(
+            "attitude_filter",
+            ComplementaryFilter(
+                vehicle.attitude_filter, initial_attitude=(0.0, 0.0, vehicle.ekf.init_state[6])
+            ),
+        )
         builder.Connect(outputs["imu"], attitude_filter.GetInputPort("imu"))
         builder.Connect(ekf.GetOutputPort("ekf_state"), attitude_filter.GetInputPort("ekf_state"))
         builder.Connect(outputs["imu"], ekf.GetInputPort("imu"))
@@ -184,12 +204,14 @@ def build_diagram(scenario):
 def read_logs(loggers, context, n_samples):
     """(times (n,), {vehicle: {log name: (n, width)}}) of the samples at LOG_PERIOD k, k = 1..n,
     from the loggers of :func:`build_diagram` (they share one VectorLogSink)."""
-    keep = slice(1, n_samples + 1)   # the reference's analyzer frames: t = 0 is not one
+    keep = slice(1, n_samples + 1)  # the reference's analyzer frames: t = 0 is not one
     sink = next(iter(next(iter(loggers.values())).values())).sink
     log = sink.FindLog(context)
     data = log.data()[:, keep].T
-    logs = {vehicle: {name: data[:, logger.rows].copy() for name, logger in vehicle_loggers.items()}
-            for vehicle, vehicle_loggers in loggers.items()}
+    logs = {
+        vehicle: {name: data[:, logger.rows].copy() for name, logger in vehicle_loggers.items()}
+        for vehicle, vehicle_loggers in loggers.items()
+    }
     return log.sample_times()[keep].copy(), logs
 
 
@@ -207,26 +229,38 @@ def check_criteria(scenario):
     for i, criterion in enumerate(scenario.criteria):
         for key in ("signal", "ref_signal", "sigma_signal"):
             name = getattr(criterion, key)
-            names = ([f"{v.name}.{name}" for v in scenario.vehicles]
-                     if criterion.kind == "fleet_sigma" else [name])
+            names = (
+                [f"{v.name}.{name}" for v in scenario.vehicles] if criterion.kind == "fleet_sigma" else [name]
+            )
             if name and any(n not in known for n in names):
-                raise ConfigError(f"criteria.{i}.{key}: unknown signal {name!r} "
-                                  f"(e.g. {', '.join(sorted(known)[:6])}, ...)")
+                raise ConfigError(
+                    f"criteria.{i}.{key}: unknown signal {name!r} (e.g. {', '.join(sorted(known)[:6])}, ...)"
+                )
 
 
 def evaluate_criteria(scenario, times, signals):
     """CriterionResult per scenario criterion, on the logged 5 ms samples."""
+
     def lookup(name):
         return signals[name].values, signals[name].fresh
 
     results = []
     for criterion in scenario.criteria:
         if criterion.kind == "fleet_sigma":
-            fraction = fleet_sigma_fraction(signals, criterion.signal, criterion.sigma_signal,
-                                            criterion.sigma_multiple)
-            results.append(fleet_sigma_threshold(
-                fraction, len(scenario.vehicles) * times.size, criterion.signal, criterion.sigma_signal,
-                criterion.sigma_multiple, criterion.min_percent, criterion.max_percent))
+            fraction = fleet_sigma_fraction(
+                signals, criterion.signal, criterion.sigma_signal, criterion.sigma_multiple
+            )
+            results.append(
+                fleet_sigma_threshold(
+                    fraction,
+                    len(scenario.vehicles) * times.size,
+                    criterion.signal,
+                    criterion.sigma_signal,
+                    criterion.sigma_multiple,
+                    criterion.min_percent,
+                    criterion.max_percent,
+                )
+            )
         else:
             results.append(evaluate_criterion(criterion, times, lookup))
     return results
@@ -235,12 +269,13 @@ def evaluate_criteria(scenario, times, signals):
 @dataclass
 class SimulationResult:
     """Logs, derived signals and criterion verdicts of one scenario run."""
+
     scenario: object
-    times: np.ndarray                         # (n,) s, log sample times 0.005 k, k >= 1
-    logs: dict                                # vehicle -> log name -> (n, width)
-    signals: dict                             # signal name -> Signal
-    criteria: list                            # CriterionResult per scenario criterion
-    wall_time: float                          # s, simulation only
+    times: np.ndarray  # (n,) s, log sample times 0.005 k, k >= 1
+    logs: dict  # vehicle -> log name -> (n, width)
+    signals: dict  # signal name -> Signal
+    criteria: list  # CriterionResult per scenario criterion
+    wall_time: float  # s, simulation only
     extra: dict = field(default_factory=dict)
 
     @property
@@ -249,11 +284,15 @@ class SimulationResult:
 
     def summary(self):
         """JSON-ready summary: scenario, seed, verdicts, wall time."""
-        return {"scenario": self.scenario.name, "seed": self.scenario.seed,
-                "end_time": self.scenario.end_time, "passed": self.passed,
-                "wall_time_s": round(self.wall_time, 3),
-                "real_time_factor": round(self.scenario.end_time / self.wall_time, 2),
-                "criteria": [dataclasses.asdict(r) for r in self.criteria]}
+        return {
+            "scenario": self.scenario.name,
+            "seed": self.scenario.seed,
+            "end_time": self.scenario.end_time,
+            "passed": self.passed,
+            "wall_time_s": round(self.wall_time, 3),
+            "real_time_factor": round(self.scenario.end_time / self.wall_time, 2),
+            "criteria": [dataclasses.asdict(r) for r in self.criteria],
+        }
 
     def save(self, out_dir):
         """Write logs.npz, config.yaml (resolved) and summary.json into out_dir."""
@@ -305,5 +344,6 @@ def run(scenario):
 
     times, logs = read_logs(loggers, context, int(round(scenario.end_time / c.LOG_PERIOD)))
     signals = signals_from_logs(logs)
-    return SimulationResult(scenario, times, logs, signals,
-                            evaluate_criteria(scenario, times, signals), wall_time)
+    return SimulationResult(
+        scenario, times, logs, signals, evaluate_criteria(scenario, times, signals), wall_time
+    )

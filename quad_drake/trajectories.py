@@ -64,13 +64,15 @@ def _interpolated_yaw(att, alpha):
         return att[1]
     if mode == _LERP:
         q0, dq = att[1], att[2]
-        return _yaw_of(q0[0] + alpha * dq[0], q0[1] + alpha * dq[1],
-                       q0[2] + alpha * dq[2], q0[3] + alpha * dq[3])
+        return _yaw_of(
+            q0[0] + alpha * dq[0], q0[1] + alpha * dq[1], q0[2] + alpha * dq[2], q0[3] + alpha * dq[3]
+        )
     q0, b1, theta, inv_sin = att[1], att[2], att[3], att[4]
     w0 = math.sin((1.0 - alpha) * theta) * inv_sin
     w1 = math.sin(alpha * theta) * inv_sin
-    return _yaw_of(w0 * q0[0] + w1 * b1[0], w0 * q0[1] + w1 * b1[1],
-                   w0 * q0[2] + w1 * b1[2], w0 * q0[3] + w1 * b1[3])
+    return _yaw_of(
+        w0 * q0[0] + w1 * b1[0], w0 * q0[1] + w1 * b1[1], w0 * q0[2] + w1 * b1[2], w0 * q0[3] + w1 * b1[3]
+    )
 
 
 class Trajectory:
@@ -85,8 +87,18 @@ class Trajectory:
         time_offset: s added to the lookup time.
     """
 
-    def __init__(self, times, positions, velocities=None, yaws=None, pitches=None, rolls=None,
-                 body_rates=None, position_offset=(0.0, 0.0, 0.0), time_offset=0.0):
+    def __init__(
+        self,
+        times,
+        positions,
+        velocities=None,
+        yaws=None,
+        pitches=None,
+        rolls=None,
+        body_rates=None,
+        position_offset=(0.0, 0.0, 0.0),
+        time_offset=0.0,
+    ):
         self.times = np.array(times, dtype=float).reshape(-1)
         n = len(self.times)
         if n == 0:
@@ -109,22 +121,32 @@ class Trajectory:
         self.position_offset = column(position_offset, (3,))
         self.time_offset = float(time_offset)
 
-        quats = [tuple(float(c) for c in quat_from_euler(r, p, y))
-                 for r, p, y in zip(self.rolls, self.pitches, self.yaws, strict=True)]
+        quats = [
+            tuple(float(c) for c in quat_from_euler(r, p, y))
+            for r, p, y in zip(self.rolls, self.pitches, self.yaws, strict=True)
+        ]
         shifted = self.positions + self.position_offset
         self._times = self.times.tolist()
         # Per point: (p + offset, v, yaw of the point's quaternion) for holds.
-        self._points = [(*shifted[i].tolist(), *self.velocities[i].tolist(), _yaw_of(*quats[i]))
-                        for i in range(n)]
+        self._points = [
+            (*shifted[i].tolist(), *self.velocities[i].tolist(), _yaw_of(*quats[i])) for i in range(n)
+        ]
         # Per segment i -> i+1: t_i, 1/dt, p_i, dp, v_i, dv, attitude interpolation data.
         self._last = n - 1
         self._segments = []
         for i in range(n - 1):
             dp = (shifted[i + 1] - shifted[i]).tolist()
             dv = (self.velocities[i + 1] - self.velocities[i]).tolist()
-            self._segments.append((self._times[i], 1.0 / (self._times[i + 1] - self._times[i]),
-                                   *self._points[i][:6], *dp, *dv,
-                                   _segment_attitude(quats[i], quats[i + 1])))
+            self._segments.append(
+                (
+                    self._times[i],
+                    1.0 / (self._times[i + 1] - self._times[i]),
+                    *self._points[i][:6],
+                    *dp,
+                    *dv,
+                    _segment_attitude(quats[i], quats[i + 1]),
+                )
+            )
 
     def __len__(self):
         return len(self._times)
@@ -138,9 +160,20 @@ class Trajectory:
             return np.array((px, py, pz, vx, vy, vz, 0.0, 0.0, 0.0, yaw))
         (t0, inv_dt, px, py, pz, vx, vy, vz, dpx, dpy, dpz, dvx, dvy, dvz, att) = self._segments[i]
         a = (t - t0) * inv_dt
-        return np.array((px + a * dpx, py + a * dpy, pz + a * dpz,
-                         vx + a * dvx, vy + a * dvy, vz + a * dvz,
-                         0.0, 0.0, 0.0, _interpolated_yaw(att, a)))
+        return np.array(
+            (
+                px + a * dpx,
+                py + a * dpy,
+                pz + a * dpz,
+                vx + a * dvx,
+                vy + a * dvy,
+                vz + a * dvz,
+                0.0,
+                0.0,
+                0.0,
+                _interpolated_yaw(att, a),
+            )
+        )
 
 
 class ConstantTrajectory:
@@ -173,8 +206,14 @@ class FigureEight:
     z = -2 + 0.75 sin(2 pi t/4) (m). Defined for all t (no hold at the ends).
     """
 
-    def __init__(self, amplitude=(1.5, 0.6, 0.75), period=(4.0, 2.0, 4.0), center=(0.0, 0.0, -2.0),
-                 position_offset=(0.0, 0.0, 0.0), time_offset=0.0):
+    def __init__(
+        self,
+        amplitude=(1.5, 0.6, 0.75),
+        period=(4.0, 2.0, 4.0),
+        center=(0.0, 0.0, -2.0),
+        position_offset=(0.0, 0.0, 0.0),
+        time_offset=0.0,
+    ):
         self.amplitude = tuple(float(a) for a in amplitude)
         self.omega = tuple(2.0 * math.pi / float(T) for T in period)
         self.center = tuple(float(c) + float(o) for c, o in zip(center, position_offset, strict=True))
@@ -203,8 +242,9 @@ def _parse_line(text, where):
     """Floats of one data line; raises ConfigError naming ``where`` (file:line)."""
     fields = text.split(",")
     if len(fields) > len(FILE_COLUMNS):
-        raise ConfigError(f"{where}: {len(fields)} columns, at most {len(FILE_COLUMNS)} allowed "
-                          f"({', '.join(FILE_COLUMNS)})")
+        raise ConfigError(
+            f"{where}: {len(fields)} columns, at most {len(FILE_COLUMNS)} allowed ({', '.join(FILE_COLUMNS)})"
+        )
     if len(fields) < 4:
         raise ConfigError(f"{where}: {len(fields)} column(s), at least 4 needed (t, x, y, z)")
     values = []
@@ -242,15 +282,25 @@ def load_trajectory_file(path, position_offset=(0.0, 0.0, 0.0), time_offset=0.0)
             continue
         row = _parse_line(text, f"{path}:{number}")
         if rows and row[0] <= rows[-1][0]:
-            raise ConfigError(f"{path}:{number}: time {row[0]:g} s is not after the previous "
-                              f"point's {rows[-1][0]:g} s (times must increase)")
+            raise ConfigError(
+                f"{path}:{number}: time {row[0]:g} s is not after the previous "
+                f"point's {rows[-1][0]:g} s (times must increase)"
+            )
         rows.append(row)
     if not rows:
         raise ConfigError(f"{path}: no trajectory points (only blank or comment lines)")
     data = np.array(rows)
-    return Trajectory(times=data[:, 0], positions=data[:, 1:4], velocities=data[:, 4:7],
-                      yaws=data[:, 7], pitches=data[:, 8], rolls=data[:, 9], body_rates=data[:, 10:13],
-                      position_offset=position_offset, time_offset=time_offset)
+    return Trajectory(
+        times=data[:, 0],
+        positions=data[:, 1:4],
+        velocities=data[:, 4:7],
+        yaws=data[:, 7],
+        pitches=data[:, 8],
+        rolls=data[:, 9],
+        body_rates=data[:, 10:13],
+        position_offset=position_offset,
+        time_offset=time_offset,
+    )
 
 
 def trajectory_from_config(cfg, where="trajectory"):

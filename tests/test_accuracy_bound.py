@@ -19,14 +19,14 @@ DT = 0.002
 def test_yaw_bound_matches_the_scalar_riccati_closed_form():
     gyro_std, yaw_std, steps = 0.5, 0.1, 5
     q_step = (gyro_std * DT) ** 2
-    q, r = steps * q_step, yaw_std ** 2
-    prior = (q + math.sqrt(q * q + 4 * q * r)) / 2       # P- = P+ + q, P+ = P- r / (P- + r)
+    q, r = steps * q_step, yaw_std**2
+    prior = (q + math.sqrt(q * q + 4 * q * r)) / 2  # P- = P+ + q, P+ = P- r / (P- + r)
     posterior = prior * r / (prior + r)
     bound = yaw_bound(gyro_std, yaw_std, steps * DT)
     assert bound.prior_std == pytest.approx(math.sqrt(prior), rel=1e-9)
     assert bound.posterior_std == pytest.approx(math.sqrt(posterior), rel=1e-9)
     assert bound.mean_std == pytest.approx(math.sqrt(posterior + q_step * (steps - 1) / 2), rel=1e-9)
-    assert bound.posterior_std == pytest.approx(0.01487, abs=1e-5)   # the reference's sensors
+    assert bound.posterior_std == pytest.approx(0.01487, abs=1e-5)  # the reference's sensors
 
 
 def brute_force(F, Q, H, R, steps, periods=5000):
@@ -42,12 +42,13 @@ def brute_force(F, Q, H, R, steps, periods=5000):
     return P, prior
 
 
-@pytest.mark.parametrize("accel_std, pos_std, vel_std, steps", [(0.5, 0.7, 0.1, 50), (1.5, 2.0, 0.3, 50),
-                                                                (0.2, 0.3, 1.0, 10)])
+@pytest.mark.parametrize(
+    "accel_std, pos_std, vel_std, steps", [(0.5, 0.7, 0.1, 50), (1.5, 2.0, 0.3, 50), (0.2, 0.3, 1.0, 10)]
+)
 def test_position_velocity_bound_matches_iterated_riccati(accel_std, pos_std, vel_std, steps):
     F = np.array([[1.0, DT], [0.0, 1.0]])
     G = np.array([[0.5 * DT * DT], [DT]])
-    Q, R = G @ G.T * accel_std ** 2, np.diag([pos_std ** 2, vel_std ** 2])
+    Q, R = G @ G.T * accel_std**2, np.diag([pos_std**2, vel_std**2])
     posterior, prior = brute_force(F, Q, np.eye(2), R, steps)
     p, v = position_velocity_bound(accel_std, pos_std, vel_std, steps * DT)
     assert (p.posterior_std, v.posterior_std) == pytest.approx(np.sqrt(np.diag(posterior)), rel=1e-6)
@@ -61,16 +62,16 @@ def test_time_averaged_sigma_is_the_rms_error_of_a_simulated_kalman_filter():
     F = np.array([[1.0, DT], [0.0, 1.0]])
     G = np.array([0.5 * DT * DT, DT])
     R = np.diag([0.49, 0.01])
-    posterior, prior, _ = steady_state_kalman(F, np.outer(G, G) * accel_std ** 2, np.eye(2), R, steps)
+    posterior, prior, _ = steady_state_kalman(F, np.outer(G, G) * accel_std**2, np.eye(2), R, steps)
     K = prior @ np.linalg.inv(prior + R)
     rng = np.random.default_rng(11)
-    runs, periods = 4000, 50                          # from the steady state: no transient
+    runs, periods = 4000, 50  # from the steady state: no transient
     e = rng.multivariate_normal([0.0, 0.0], posterior, size=runs)
     squares = np.zeros(2)
     for k in range(periods * steps):
         squares += np.sum(e * e, axis=0)
         e = e @ F.T + accel_std * rng.normal(size=(runs, 1)) * G
-        if (k + 1) % steps == 0:                         # e+ = e + K (v - e)
+        if (k + 1) % steps == 0:  # e+ = e + K (v - e)
             e = e + (rng.normal(size=(runs, 2)) * np.sqrt(np.diag(R)) - e) @ K.T
     rms = np.sqrt(squares / (runs * periods * steps))
     p, v = position_velocity_bound(accel_std, 0.7, 0.1, steps * DT)
@@ -78,9 +79,13 @@ def test_time_averaged_sigma_is_the_rms_error_of_a_simulated_kalman_filter():
 
 
 def vehicle(imu=True, gps=True, mag=True, **imu_fields):
-    return VehicleConfig(sensors=SensorsConfig(imu=ImuParams(**imu_fields) if imu else None,
-                                               gps=GpsParams() if gps else None,
-                                               mag=MagParams() if mag else None))
+    return VehicleConfig(
+        sensors=SensorsConfig(
+            imu=ImuParams(**imu_fields) if imu else None,
+            gps=GpsParams() if gps else None,
+            mag=MagParams() if mag else None,
+        )
+    )
 
 
 def test_accuracy_bound_covers_the_states_the_sensors_observe():
@@ -95,7 +100,7 @@ def test_accuracy_bound_of_the_default_sensors():
     assert bounds["X"].mean_std == pytest.approx(0.0831, abs=2e-4)
     assert bounds["Y"] == bounds["X"]
     assert bounds["VX"].mean_std == pytest.approx(0.0264, abs=2e-4)
-    assert bounds["Z"].mean_std == pytest.approx(0.2431, abs=2e-4)    # accel 1.5, GPS 2.0 / 0.3
+    assert bounds["Z"].mean_std == pytest.approx(0.2431, abs=2e-4)  # accel 1.5, GPS 2.0 / 0.3
     assert bounds["Yaw"].mean_std == pytest.approx(0.01494, abs=2e-5)
 
 

@@ -32,6 +32,7 @@ TOL = 1e-12
 
 # ----- altitude -----------------------------------------------------------------
 
+
 def test_altitude_hover_level_gives_weight():
     thrust, integral = altitude_control(-1.0, 0.0, 0.0, -1.0, 0.0, 1.0, 0.0, 0.002, P)
     assert thrust == pytest.approx(4.905, abs=TOL)
@@ -78,6 +79,7 @@ def test_altitude_descent_rate_clamp():
 
 # ----- collective-thrust clamp ----------------------------------------------------
 
+
 def test_collective_thrust_limits_defaults():
     low, high = collective_thrust_limits(P)
     assert low == pytest.approx(2.16, abs=1e-12)
@@ -90,6 +92,7 @@ def test_clamp_collective_thrust(thrust, expected):
 
 
 # ----- lateral position ---------------------------------------------------------
+
 
 def test_lateral_zero_error_returns_feedforward():
     a = lateral_position_control((1.0, 2.0), (0.5, -0.5), (0.3, -0.7), (1.0, 2.0), (0.5, -0.5), P)
@@ -116,6 +119,7 @@ def test_lateral_accel_limit_rescales_keeping_direction():
 
 
 # ----- roll / pitch ---------------------------------------------------------------
+
 
 def test_roll_pitch_level_zero_accel_gives_zero_rates():
     assert roll_pitch_control((0.0, 0.0), HOVER_THRUST, np.eye(3), P) == (0.0, 0.0)
@@ -161,6 +165,7 @@ def test_roll_pitch_drives_r02_r12_toward_targets(thrust):
 
 # ----- yaw and body rates -----------------------------------------------------------
 
+
 def test_yaw_control_plain_error():
     assert yaw_control(0.5, 0.2, P) == pytest.approx(0.9, abs=1e-12)
 
@@ -179,6 +184,7 @@ def test_body_rate_control():
 
 
 # ----- whole cascade ---------------------------------------------------------------
+
 
 def hover_state(yaw=0.0):
     return [0.0, 0.0, -1.0, *quat_from_euler(0.0, 0.0, yaw).tolist(), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
@@ -223,8 +229,9 @@ def test_cascade_matches_composition_of_loops():
         forces, new_integral = cascade_step(scaled.tolist(), ref.tolist(), integral, 0.002, P)
 
         R = rotation_from_quat(q)
-        thrust, expected_integral = altitude_control(ref[2], ref[5], ref[8], p[2], v[2], R[2, 2],
-                                                     integral, 0.002, P)
+        thrust, expected_integral = altitude_control(
+            ref[2], ref[5], ref[8], p[2], v[2], R[2, 2], integral, 0.002, P
+        )
         thrust = clamp_collective_thrust(thrust, P)
         a = lateral_position_control(ref[0:2], ref[3:5], ref[6:8], p[0:2], v[0:2], P)
         pq = roll_pitch_control(a, thrust, R, P)

@@ -8,8 +8,9 @@ import pytest
 
 
 def cli(*args, cwd=None):
-    return subprocess.run([sys.executable, "-m", "quad_drake.cli", *args], capture_output=True,
-                          text=True, cwd=cwd, timeout=600)
+    return subprocess.run(
+        [sys.executable, "-m", "quad_drake.cli", *args], capture_output=True, text=True, cwd=cwd, timeout=600
+    )
 
 
 def test_list_names_every_scenario_with_a_description():
@@ -37,13 +38,15 @@ def test_run_prints_reference_lines_and_writes_results(tmp_path):
 
 def test_run_accepts_a_yaml_path_seed_and_overrides(tmp_path):
     from quad_drake.cli import scenario_paths
+
     path = scenario_paths()["01_intro"]
-    result = cli("run", str(path), "--seed", "9", "--set", "end_time=0.5", "--out", str(tmp_path),
-                 "--no-plots")
+    result = cli(
+        "run", str(path), "--seed", "9", "--set", "end_time=0.5", "--out", str(tmp_path), "--no-plots"
+    )
     summary = json.loads((tmp_path / "01_intro" / "summary.json").read_text())
     assert summary["seed"] == 9 and summary["end_time"] == 0.5
     assert "end_time: 0.5" in (tmp_path / "01_intro" / "config.yaml").read_text()
-    assert result.returncode == 1          # a 0.8 s window cannot pass in a 0.5 s run
+    assert result.returncode == 1  # a 0.8 s window cannot pass in a 0.5 s run
     assert "FAIL: ABS(Quad.PosFollowErr)" in result.stdout
 
 
@@ -52,26 +55,31 @@ def test_noise_std_measures_the_configured_noise(tmp_path):
     result = cli("noise-std", str(tmp_path / "06_sensor_noise"))
     assert result.returncode == 0, result.stderr
     values = dict(line.split(": ") for line in result.stdout.strip().splitlines())
-    assert abs(float(values["Quad.GPS.X"]) - 0.7) < 0.15      # ~100 samples: 4 standard errors
-    assert abs(float(values["Quad.IMU.AX"]) - 0.5) < 0.03     # 2000 samples
+    assert abs(float(values["Quad.GPS.X"]) - 0.7) < 0.15  # ~100 samples: 4 standard errors
+    assert abs(float(values["Quad.IMU.AX"]) - 0.5) < 0.03  # 2000 samples
 
 
-@pytest.mark.parametrize("args, message", [
-    (["run", "no_such_scenario"], "unknown scenario 'no_such_scenario'"),
-    (["run", "missing.yaml"], "missing.yaml: no such scenario file"),
-    (["run", "01_intro", "--set", "end_time"], "expected dotted.key=value"),
-    (["run", "01_intro", "--set", "vehicles.0.physics.mas=1"], "vehicles.0.physics.mas: unknown key"),
-    (["run", "01_intro", "--set", "end_time=soon"], "end_time: expected float, got 'soon'"),
-    (["run", "01_intro", "--set", "vehicles.0.initial_position=[0, 1]"], "expected 3 values, got 2"),
-    (["run", "01_intro", "--set", "vehicles.0.sensors.gps={period: -1}"], "gps.period: must be > 0"),
-    (["run", "01_intro", "--set", "vehicles.0.sensors.imu={gyro_std: [0, -1, 0]}"], "must be >= 0"),
-    (["run", "01_intro", "--set", "vehicles.0.physics.mass=-0.5"], "physics.mass: must be > 0"),
-    (["run", "01_intro", "--set", "vehicles.0.trajectory={kind: file, file: nope.txt}"],
-     "no such trajectory file 'nope.txt'"),
-    (["run", "01_intro", "--seed", "-1"], "--seed must be >= 0"),
-    (["run"], "name at least one scenario"),
-    (["noise-std", "/nonexistent/run"], "no logs.npz"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["run", "no_such_scenario"], "unknown scenario 'no_such_scenario'"),
+        (["run", "missing.yaml"], "missing.yaml: no such scenario file"),
+        (["run", "01_intro", "--set", "end_time"], "expected dotted.key=value"),
+        (["run", "01_intro", "--set", "vehicles.0.physics.mas=1"], "vehicles.0.physics.mas: unknown key"),
+        (["run", "01_intro", "--set", "end_time=soon"], "end_time: expected float, got 'soon'"),
+        (["run", "01_intro", "--set", "vehicles.0.initial_position=[0, 1]"], "expected 3 values, got 2"),
+        (["run", "01_intro", "--set", "vehicles.0.sensors.gps={period: -1}"], "gps.period: must be > 0"),
+        (["run", "01_intro", "--set", "vehicles.0.sensors.imu={gyro_std: [0, -1, 0]}"], "must be >= 0"),
+        (["run", "01_intro", "--set", "vehicles.0.physics.mass=-0.5"], "physics.mass: must be > 0"),
+        (
+            ["run", "01_intro", "--set", "vehicles.0.trajectory={kind: file, file: nope.txt}"],
+            "no such trajectory file 'nope.txt'",
+        ),
+        (["run", "01_intro", "--seed", "-1"], "--seed must be >= 0"),
+        (["run"], "name at least one scenario"),
+        (["noise-std", "/nonexistent/run"], "no logs.npz"),
+    ],
+)
 def test_bad_input_is_one_line_on_stderr_with_exit_2(args, message):
     result = cli(*args)
     assert result.returncode == 2
@@ -91,7 +99,7 @@ def test_malformed_trajectory_file_names_file_and_line(tmp_path):
 
 def test_run_writes_plots_report_replay_and_index(tmp_path):
     result = cli("run", "09_predict_covariance", "01_intro", "--set", "end_time=0.3", "--out", str(tmp_path))
-    assert result.returncode in (0, 1), result.stderr            # short runs may fail a criterion
+    assert result.returncode in (0, 1), result.stderr  # short runs may fail a criterion
     assert "Traceback" not in result.stderr
     fleet = tmp_path / "09_predict_covariance"
     for name in ("fleet_errors.png", "report.html", "replay.html", "logs.npz"):

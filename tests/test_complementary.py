@@ -20,7 +20,7 @@ from quad_drake.rotations import (
 )
 
 DT = 0.002
-NO_ACCEL = 1e15   # tau, s: the accelerometer weight dt / (tau + dt) is ~1e-18
+NO_ACCEL = 1e15  # tau, s: the accelerometer weight dt / (tau + dt) is ~1e-18
 
 
 def specific_force_at_rest(roll, pitch, yaw=0.0):
@@ -73,7 +73,7 @@ def test_nonlinear_variant_matches_exact_integration_of_a_constant_rate():
     expected = euler_from_quat(q_exact)
     got = run("nonlinear", start, w_B, steps)
     np.testing.assert_allclose(got, expected, atol=1e-10)
-    assert np.abs(got - start).max() > 0.3    # it did move
+    assert np.abs(got - start).max() > 0.3  # it did move
 
 
 def test_small_angle_variant_is_wrong_for_yaw_rate_at_a_tilt():
@@ -91,8 +91,11 @@ def test_small_angle_variant_is_wrong_for_yaw_rate_at_a_tilt():
 
 def test_variants_agree_for_a_single_axis_rate_from_level():
     for w_B in ([0.7, 0.0, 0.0], [0.0, -0.4, 0.0], [0.0, 0.0, 1.3]):
-        np.testing.assert_allclose(run("nonlinear", (0.0, 0.0, 0.0), w_B, 250),
-                                   run("small_angle", (0.0, 0.0, 0.0), w_B, 250), atol=1e-10)
+        np.testing.assert_allclose(
+            run("nonlinear", (0.0, 0.0, 0.0), w_B, 250),
+            run("small_angle", (0.0, 0.0, 0.0), w_B, 250),
+            atol=1e-10,
+        )
 
 
 @pytest.mark.parametrize("variant", ["nonlinear", "small_angle"])
@@ -109,18 +112,20 @@ def test_one_step_blend_weights(variant):
     roll, pitch, yaw = complementary_update(0.0, 0.0, 0.2, f_B, (0.0, 0.0, 0.0), DT, tau, variant)
     assert roll == pytest.approx(DT / (tau + DT) * 0.4, abs=1e-15)
     assert pitch == pytest.approx(DT / (tau + DT) * 0.1, abs=1e-15)
-    assert yaw == pytest.approx(0.2, abs=1e-15)   # yaw is not blended
+    assert yaw == pytest.approx(0.2, abs=1e-15)  # yaw is not blended
 
 
 @pytest.mark.parametrize("variant", ["nonlinear", "small_angle"])
 def test_yaw_wraps_across_pi(variant):
-    yaw = complementary_update(0.0, 0.0, math.pi - 0.001, (0.0, 0.0, -GRAVITY), (0.0, 0.0, 1.0),
-                               DT, 100.0, variant)[2]
+    yaw = complementary_update(
+        0.0, 0.0, math.pi - 0.001, (0.0, 0.0, -GRAVITY), (0.0, 0.0, 1.0), DT, 100.0, variant
+    )[2]
     assert yaw == pytest.approx(-math.pi + 0.001, abs=1e-12)
-    yaw = complementary_update(0.0, 0.0, -math.pi + 0.001, (0.0, 0.0, -GRAVITY), (0.0, 0.0, -1.0),
-                               DT, 100.0, variant)[2]
+    yaw = complementary_update(
+        0.0, 0.0, -math.pi + 0.001, (0.0, 0.0, -GRAVITY), (0.0, 0.0, -1.0), DT, 100.0, variant
+    )[2]
     assert yaw == pytest.approx(math.pi - 0.001, abs=1e-12)
-    many = run(variant, (0.0, 0.0, 0.0), (0.0, 0.0, 5.0), 2000)[2]   # 20 rad of turning
+    many = run(variant, (0.0, 0.0, 0.0), (0.0, 0.0, 5.0), 2000)[2]  # 20 rad of turning
     assert -math.pi <= many < math.pi
     assert many == pytest.approx(wrap_to_pi(20.0), abs=1e-9)
 

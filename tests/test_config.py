@@ -44,34 +44,42 @@ def test_yaml_merge_keys_copy_a_vehicle(tmp_path):
 
 
 def test_overrides_reach_nested_fields(tmp_path):
-    scenario = load_scenario(write(tmp_path, GOOD), ["vehicles.1.physics.mass=0.8", "seed=7",
-                                                     "vehicles.0.ekf.q_yaw_std=0.2"])
+    scenario = load_scenario(
+        write(tmp_path, GOOD), ["vehicles.1.physics.mass=0.8", "seed=7", "vehicles.0.ekf.q_yaw_std=0.2"]
+    )
     assert scenario.vehicles[1].physics.mass == 0.8
     assert scenario.vehicles[0].physics.mass == 0.5
     assert scenario.seed == 7
     assert scenario.vehicles[0].ekf.q_yaw_std == 0.2
 
 
-@pytest.mark.parametrize("overrides, expected", [
-    (["vehicles.0.physics.mas=1"], "vehicles.0.physics.mas: unknown key"),
-    (["end_time=abc"], "end_time: expected float, got 'abc'"),
-    (["vehicles.0.initial_position=[1, 2]"], "vehicles.0.initial_position: expected 3 values, got 2"),
-    (["vehicles.0.physics.mass=-1"], "vehicles.0.physics.mass: must be > 0"),
-    (["vehicles.0.physics.mass=0"], "vehicles.0.physics.mass: must be > 0"),
-    (["vehicles.0.sensors.gps={period: 0}"], "vehicles.0.sensors.gps.period: must be > 0"),
-    (["vehicles.0.sensors.imu.accel_std=[0.5, -1, 0]"], "vehicles.0.sensors.imu.accel_std: must be >= 0"),
-    (["vehicles.0.ekf.q_yaw_std=.nan"], "vehicles.0.ekf.q_yaw_std: must be finite"),
-    (["vehicles.0.trajectory={kind: file, file: nowhere.txt}"],
-     "vehicles.0.trajectory.file: no such trajectory file 'nowhere.txt'"),
-    (["vehicles.0.attitude_filter.variant=quaternionish"],
-     "vehicles.0.attitude_filter.variant: 'quaternionish' is not one of nonlinear, small_angle"),
-    (["vehicles.1.name=Quad1"], "vehicles: names must be unique"),
-    (["vehicles.0.use_ideal_estimator=false"], "needs imu, gps and mag sensors"),
-    (["seed"], "--set 'seed': expected dotted.key=value"),
-    (["=3"], "expected dotted.key=value"),
-    (["vehicles.5.physics.mass=1"], "'5' is not an index of a list of 2"),
-    (["vehicles.0.physics.mass=[1"], "value is not valid YAML"),
-])
+@pytest.mark.parametrize(
+    "overrides, expected",
+    [
+        (["vehicles.0.physics.mas=1"], "vehicles.0.physics.mas: unknown key"),
+        (["end_time=abc"], "end_time: expected float, got 'abc'"),
+        (["vehicles.0.initial_position=[1, 2]"], "vehicles.0.initial_position: expected 3 values, got 2"),
+        (["vehicles.0.physics.mass=-1"], "vehicles.0.physics.mass: must be > 0"),
+        (["vehicles.0.physics.mass=0"], "vehicles.0.physics.mass: must be > 0"),
+        (["vehicles.0.sensors.gps={period: 0}"], "vehicles.0.sensors.gps.period: must be > 0"),
+        (["vehicles.0.sensors.imu.accel_std=[0.5, -1, 0]"], "vehicles.0.sensors.imu.accel_std: must be >= 0"),
+        (["vehicles.0.ekf.q_yaw_std=.nan"], "vehicles.0.ekf.q_yaw_std: must be finite"),
+        (
+            ["vehicles.0.trajectory={kind: file, file: nowhere.txt}"],
+            "vehicles.0.trajectory.file: no such trajectory file 'nowhere.txt'",
+        ),
+        (
+            ["vehicles.0.attitude_filter.variant=quaternionish"],
+            "vehicles.0.attitude_filter.variant: 'quaternionish' is not one of nonlinear, small_angle",
+        ),
+        (["vehicles.1.name=Quad1"], "vehicles: names must be unique"),
+        (["vehicles.0.use_ideal_estimator=false"], "needs imu, gps and mag sensors"),
+        (["seed"], "--set 'seed': expected dotted.key=value"),
+        (["=3"], "expected dotted.key=value"),
+        (["vehicles.5.physics.mass=1"], "'5' is not an index of a list of 2"),
+        (["vehicles.0.physics.mass=[1"], "value is not valid YAML"),
+    ],
+)
 def test_bad_input_is_one_line_naming_file_and_field(tmp_path, overrides, expected):
     path = write(tmp_path, GOOD)
     with pytest.raises(ConfigError) as info:

@@ -19,14 +19,14 @@ def random_spd(rng, n, count):
 
 # ----- errors and NEES ------------------------------------------------------------
 
+
 def test_state_errors_take_truth_from_the_state_log_and_wrap_yaw():
     state = np.zeros((2, 13))
     state[:, 0:3] = [1.0, 2.0, -3.0]
     state[:, 7:10] = [0.5, -0.5, 0.1]
     state[0, 3:7] = quat_from_euler(0.1, -0.2, 3.1)
     state[1, 3:7] = quat_from_euler(0.0, 0.0, -0.4)
-    ekf = np.array([[1.5, 2.0, -3.25, 0.5, -0.25, 0.1, -3.1],
-                    [1.0, 1.0, -3.0, 0.0, -0.5, 0.3, -0.3]])
+    ekf = np.array([[1.5, 2.0, -3.25, 0.5, -0.25, 0.1, -3.1], [1.0, 1.0, -3.0, 0.0, -0.5, 0.3, -0.3]])
     e = cons.state_errors(ekf, state)
     np.testing.assert_allclose(e[0], [0.5, 0.0, -0.25, 0.0, 0.25, 0.0, 2 * math.pi - 6.2], atol=1e-12)
     np.testing.assert_allclose(e[1], [0.0, -1.0, 0.0, -0.5, 0.0, 0.2, 0.1], atol=1e-12)
@@ -55,7 +55,7 @@ def test_nees_of_draws_from_the_covariance_is_chi2_with_7_dof():
     P = random_spd(rng, 7, 20000)
     e = np.einsum("nij,nj->ni", np.linalg.cholesky(P), rng.normal(size=(20000, 7)))
     values = cons.nees(e, P)
-    assert values.mean() == pytest.approx(7.0, abs=0.1)       # std of the mean: 0.026
+    assert values.mean() == pytest.approx(7.0, abs=0.1)  # std of the mean: 0.026
     assert cons.in_band_fraction(values, cons.chi2_band(7, 1)) == pytest.approx(0.95, abs=0.01)
     nse = cons.normalized_squared_errors(e, P).mean(axis=0)
     np.testing.assert_allclose(nse, 1.0, atol=0.05)
@@ -70,15 +70,18 @@ def test_covariance_matrices_unpack_row_major():
 
 # ----- NIS series -------------------------------------------------------------------
 
+
 def test_fresh_nis_keeps_the_first_sample_of_each_stamp():
-    diagnostics = np.array([
-        # gps nis, stamp, mag nis, stamp, rejected
-        [0.0, -1.0, 0.0, -1.0, 0],
-        [0.0, -1.0, 0.5, 0.008, 0],
-        [4.0, 0.1, 0.5, 0.008, 0],
-        [4.0, 0.1, 1.5, 0.018, 0],
-        [7.0, 0.2, 2.5, 0.028, 0],
-    ])
+    diagnostics = np.array(
+        [
+            # gps nis, stamp, mag nis, stamp, rejected
+            [0.0, -1.0, 0.0, -1.0, 0],
+            [0.0, -1.0, 0.5, 0.008, 0],
+            [4.0, 0.1, 0.5, 0.008, 0],
+            [4.0, 0.1, 1.5, 0.018, 0],
+            [7.0, 0.2, 2.5, 0.028, 0],
+        ]
+    )
     stamps, nis = cons.fresh_nis(diagnostics, "gps")
     np.testing.assert_array_equal(stamps, [0.1, 0.2])
     np.testing.assert_array_equal(nis, [4.0, 7.0])
@@ -88,9 +91,12 @@ def test_fresh_nis_keeps_the_first_sample_of_each_stamp():
 
 
 def test_stack_by_stamp_keeps_common_stamps_in_order():
-    stamps, values = cons.stack_by_stamp([
-        (np.array([0.1, 0.2, 0.3]), np.array([1.0, 2.0, 3.0])),
-        (np.array([0.2, 0.3, 0.4]), np.array([20.0, 30.0, 40.0]))])
+    stamps, values = cons.stack_by_stamp(
+        [
+            (np.array([0.1, 0.2, 0.3]), np.array([1.0, 2.0, 3.0])),
+            (np.array([0.2, 0.3, 0.4]), np.array([20.0, 30.0, 40.0])),
+        ]
+    )
     np.testing.assert_array_equal(stamps, [0.2, 0.3])
     np.testing.assert_array_equal(values, [[2.0, 3.0], [20.0, 30.0]])
     with pytest.raises(ValueError):
@@ -98,6 +104,7 @@ def test_stack_by_stamp_keeps_common_stamps_in_order():
 
 
 # ----- bands and intervals -------------------------------------------------------------
+
 
 def test_chi2_band_of_one_sample_is_the_chi2_quantiles():
     assert cons.chi2_band(7, 1) == pytest.approx((1.6899, 16.0128), abs=1e-4)
@@ -123,19 +130,20 @@ def test_in_band_fraction_counts_nan_as_outside():
 def test_binomial_interval_is_clopper_pearson(k, n):
     low, high = cons.binomial_interval(k, n)
     assert low < k / n < high
-    assert binom.sf(k - 1, n, low) == pytest.approx(0.025, abs=1e-9)    # P(X >= k | low)
-    assert binom.cdf(k, n, high) == pytest.approx(0.025, abs=1e-9)      # P(X <= k | high)
+    assert binom.sf(k - 1, n, low) == pytest.approx(0.025, abs=1e-9)  # P(X >= k | low)
+    assert binom.cdf(k, n, high) == pytest.approx(0.025, abs=1e-9)  # P(X <= k | high)
 
 
 def test_binomial_interval_edges():
-    assert cons.binomial_interval(0, 10) == pytest.approx((0.0, 1 - 0.025 ** 0.1))
-    assert cons.binomial_interval(10, 10) == pytest.approx((0.025 ** 0.1, 1.0))
+    assert cons.binomial_interval(0, 10) == pytest.approx((0.0, 1 - 0.025**0.1))
+    assert cons.binomial_interval(10, 10) == pytest.approx((0.025**0.1, 1.0))
     assert cons.binomial_interval(72, 100) == pytest.approx((0.6213, 0.8052), abs=1e-4)
     with pytest.raises(ValueError):
         cons.binomial_interval(3, 2)
 
 
 # ----- fleet sigma fraction -------------------------------------------------------------
+
 
 def signals_of(errors, sigmas, fresh=None):
     signals = {}
@@ -149,8 +157,9 @@ def signals_of(errors, sigmas, fresh=None):
 
 
 def test_fleet_sigma_fraction_counts_vehicle_sample_pairs_against_their_own_sigma():
-    signals = signals_of([[0.1, -0.3, 0.5, np.nan], [1.0, 2.0, -2.5, 0.0]],
-                         [[0.2, 0.2, 0.2, 0.2], [1.0, 1.0, 1.0, 1.0]])
+    signals = signals_of(
+        [[0.1, -0.3, 0.5, np.nan], [1.0, 2.0, -2.5, 0.0]], [[0.2, 0.2, 0.2, 0.2], [1.0, 1.0, 1.0, 1.0]]
+    )
     # inside 1 sigma: 0.1 | 1.0, 0.0 ; 2 sigma adds -0.3 | 2.0 ; NaN never counts
     assert cons.fleet_sigma_fraction(signals, "Est.E.X", "Est.S.X", 1.0) == pytest.approx(3 / 8)
     assert cons.fleet_sigma_fraction(signals, "Est.E.X", "Est.S.X", 2.0) == pytest.approx(5 / 8)
@@ -182,12 +191,13 @@ def test_fleet_sigma_fraction_names_what_is_missing():
 
 # ----- the campaign criterion on a linear Kalman filter with known consistency ---------------
 
+
 def kalman_nees(rng, runs, steps, covariance_scale, dt=0.005, period=20):
     """(runs, steps) NEES and (runs, updates) NIS of a 1-axis position/velocity Kalman filter
     with GPS p, v every `period` steps; the filter reports its covariance times `covariance_scale`."""
     F = np.array([[1.0, dt], [0.0, 1.0]])
     G = np.array([0.5 * dt * dt, dt])
-    q = 0.02                                   # m/s^2 per step
+    q = 0.02  # m/s^2 per step
     R = np.diag([0.49, 0.01])
     P = np.diag([0.01, 0.01])
     e = rng.normal(size=(runs, 2)) * 0.1

@@ -13,8 +13,14 @@ dask = pytest.importorskip("dask")
 def test_dask_campaign_equals_the_local_campaign():
     scenario = load_named("10_mag_update", None, ["end_time=1"])
     local = run_campaign(scenario, 3, jobs=1, seed=20, progress=False)
-    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, protocol="tcp",
-                                  host="127.0.0.1", dashboard_address=None) as cluster:
+    with distributed.LocalCluster(
+        n_workers=1,
+        threads_per_worker=1,
+        processes=False,
+        protocol="tcp",
+        host="127.0.0.1",
+        dashboard_address=None,
+    ) as cluster:
         assert cluster.scheduler_address.startswith("tcp://127.0.0.1:")
         remote = run_campaign(scenario, 3, seed=20, scheduler=cluster.scheduler_address, progress=False)
     assert remote.jobs == "dask"
@@ -25,6 +31,8 @@ def test_dask_campaign_equals_the_local_campaign():
 
 def test_an_unreachable_scheduler_is_a_config_error():
     scenario = load_named("10_mag_update", None, ["end_time=1"])
-    with dask.config.set({"distributed.comm.timeouts.connect": "2s"}), \
-            pytest.raises(ConfigError, match="tcp://127.0.0.1:9: cannot connect"):
+    with (
+        dask.config.set({"distributed.comm.timeouts.connect": "2s"}),
+        pytest.raises(ConfigError, match="tcp://127.0.0.1:9: cannot connect"),
+    ):
         run_campaign(scenario, 1, scheduler="tcp://127.0.0.1:9", progress=False)

@@ -9,8 +9,9 @@ from quad_drake.cli import load_named
 from quad_drake.config import ConfigError
 from quad_drake.diagram_svg import diagram_dot, write_diagram_svg
 
-needs_dot = pytest.mark.skipif(shutil.which("dot") is None,
-                               reason="Graphviz 'dot' not installed (apt-get install graphviz)")
+needs_dot = pytest.mark.skipif(
+    shutil.which("dot") is None, reason="Graphviz 'dot' not installed (apt-get install graphviz)"
+)
 
 
 def _texts(svg_path):
@@ -31,7 +32,7 @@ def test_full_depth_shows_every_system_of_every_vehicle(tmp_path):
 def test_depth_one_keeps_vehicles_closed(tmp_path):
     texts = _texts(write_diagram_svg(load_named("11_gps_update"), tmp_path / "d.svg", max_depth=1))
     assert "name=Quad" in texts and "name=plant" not in texts
-    assert {"state", "ekf_state", "covariance", "gps", "mag"} <= texts   # the vehicle's exported ports
+    assert {"state", "ekf_state", "covariance", "gps", "mag"} <= texts  # the vehicle's exported ports
 
 
 def test_missing_dot_is_a_one_line_config_error(tmp_path, monkeypatch):

@@ -50,6 +50,7 @@ def rk4_reference(state, thrust, moment, mass, inertia, dt, steps):
 
 # ----- motors -----------------------------------------------------------------
 
+
 def test_commands_are_clamped_then_noised():
     out = clamped_noisy_commands([-1.0, 1.0, 6.0, 2.0], [1.0, 1.0, 1.0, 0.0], 0.1, 4.5, 0.25)
     np.testing.assert_allclose(out, [0.35, 1.25, 4.75, 1.75], atol=1e-15)
@@ -84,14 +85,15 @@ def test_motor_lag_falling_uses_tau_down_per_motor():
 
 # ----- mixer ------------------------------------------------------------------
 
+
 def test_single_motor_moments_follow_the_x_layout():
     arm = PARAMS.arm_length / math.sqrt(2)
     k = PARAMS.kappa
     expected = {  # motor: (Mx, My, Mz) per newton
-        0: (arm, arm, -k),      # front-left: rolls right, pitches up, yaws left
-        1: (-arm, arm, k),      # front-right
-        2: (arm, -arm, k),      # rear-left
-        3: (-arm, -arm, -k),    # rear-right
+        0: (arm, arm, -k),  # front-left: rolls right, pitches up, yaws left
+        1: (-arm, arm, k),  # front-right
+        2: (arm, -arm, k),  # rear-left
+        3: (-arm, -arm, -k),  # rear-right
     }
     for i, moments in expected.items():
         forces = [0.0] * 4
@@ -106,11 +108,13 @@ def test_mixer_round_trip_is_identity():
     for _ in range(50):
         forces = rng.uniform(0.1, 4.5, 4)
         wrench = wrench_from_thrusts(forces, PARAMS.arm_length, PARAMS.kappa)
-        np.testing.assert_allclose(thrusts_from_wrench(*wrench, PARAMS.arm_length, PARAMS.kappa),
-                                   forces, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(
+            thrusts_from_wrench(*wrench, PARAMS.arm_length, PARAMS.kappa), forces, rtol=1e-12, atol=1e-12
+        )
         wrench = (rng.uniform(0, 18), *rng.uniform(-0.5, 0.5, 2), rng.uniform(-0.1, 0.1))
-        back = wrench_from_thrusts(thrusts_from_wrench(*wrench, PARAMS.arm_length, PARAMS.kappa),
-                                   PARAMS.arm_length, PARAMS.kappa)
+        back = wrench_from_thrusts(
+            thrusts_from_wrench(*wrench, PARAMS.arm_length, PARAMS.kappa), PARAMS.arm_length, PARAMS.kappa
+        )
         np.testing.assert_allclose(back, wrench, rtol=1e-12, atol=1e-12)
 
 
@@ -129,6 +133,7 @@ def test_com_offset_adds_moments_proportional_to_thrust():
 
 
 # ----- rigid body -------------------------------------------------------------
+
 
 def test_torque_gives_inverse_inertia_times_moment():
     inertia = [0.0023, 0.0031, 0.0046]
@@ -209,8 +214,10 @@ def test_integrator_accuracy_over_two_seconds_against_fine_rk4():
 def test_quaternion_norm_and_momentum_over_60_s_of_torque_free_tumbling():
     inertia = [0.0023, 0.0031, 0.0046]  # asymmetric: a genuinely tumbling body
     x = make_state(ypr=(0.5, -0.3, 0.2), w=(1.0, 6.0, 0.3))  # near the unstable middle axis
+
     def momentum(s):
         return rotation_from_quat(s[3:7]) @ (np.array(inertia) * s[10:13])
+
     h0 = momentum(x)
     worst = 0.0
     for _ in range(60000):
@@ -222,6 +229,7 @@ def test_quaternion_norm_and_momentum_over_60_s_of_torque_free_tumbling():
 
 
 # ----- room -------------------------------------------------------------------
+
 
 def test_sticky_floor_stops_a_falling_vehicle():
     old = make_state(p=(1.0, 2.0, -0.001), ypr=(0.3, 0.1, 0.0), v=(1.0, 1.0, 3.0), w=(1.0, 2.0, 3.0))
@@ -239,8 +247,9 @@ def test_sticky_floor_stops_a_falling_vehicle():
 
 def test_floor_keeps_upward_velocity_and_allows_take_off():
     on_floor = make_state(p=(0.0, 0.0, 0.0))
-    constrained = apply_room_constraints(make_state(p=(0.5, 0.5, 0.01), v=(1, 1, -2), w=(1, 1, 1)),
-                                         on_floor, PARAMS)
+    constrained = apply_room_constraints(
+        make_state(p=(0.5, 0.5, 0.01), v=(1, 1, -2), w=(1, 1, 1)), on_floor, PARAMS
+    )
     assert constrained[0:3] == [0.0, 0.0, 0.0]
     assert constrained[7:13] == [0.0, 0.0, -2.0, 0.0, 0.0, 0.0]
     x, forces = on_floor, [3.0] * 4
@@ -265,5 +274,11 @@ def test_room_bounds_revert_only_the_offending_coordinate():
     assert old[7] == -0.5
 
 
-NARROW_ROOM = dataclasses.replace(PARAMS, com_offset=[0.02, -0.03], motor_noise=0.4, x_bounds=[-1.0, 1.0],
-                                  y_bounds=[-1.0, 1.0], z_bounds=[-3.0, 0.0])
+NARROW_ROOM = dataclasses.replace(
+    PARAMS,
+    com_offset=[0.02, -0.03],
+    motor_noise=0.4,
+    x_bounds=[-1.0, 1.0],
+    y_bounds=[-1.0, 1.0],
+    z_bounds=[-3.0, 0.0],
+)

@@ -29,11 +29,13 @@ def random_inputs(rng):
 def test_noise_matrices_and_initial_covariance_from_spec_defaults():
     p = EkfParams()
     np.testing.assert_allclose(ekf.process_noise(p), np.diag([5e-6] * 5 + [2e-5, 5e-6]), rtol=1e-12, atol=0)
-    np.testing.assert_allclose(ekf.gps_noise(p), np.diag([1.0, 1.0, 9.0, 0.01, 0.01, 0.09]),
-                               rtol=1e-12, atol=0)
+    np.testing.assert_allclose(
+        ekf.gps_noise(p), np.diag([1.0, 1.0, 9.0, 0.01, 0.01, 0.09]), rtol=1e-12, atol=0
+    )
     np.testing.assert_allclose(ekf.mag_noise(p), [[0.01]], rtol=1e-12)
-    np.testing.assert_allclose(ekf.initial_covariance(p),
-                               np.diag([0.01, 0.01, 0.09, 0.01, 0.01, 0.09, 0.0025]), rtol=1e-12, atol=0)
+    np.testing.assert_allclose(
+        ekf.initial_covariance(p), np.diag([0.01, 0.01, 0.09, 0.01, 0.01, 0.09, 0.0025]), rtol=1e-12, atol=0
+    )
     np.testing.assert_array_equal(ekf.initial_state(p), [0, 0, -1, 0, 0, 0, 0])
     q = ekf.process_noise(EkfParams(q_yaw_std=0.2, dt_imu=0.01))
     assert q[6, 6] == pytest.approx(0.04 * 0.01, rel=1e-12)
@@ -51,8 +53,10 @@ def test_tilted_hover_accelerates_the_physical_way():
     # heading north, (-g tan(roll), 0, 0) when heading east (right wing points south).
     roll = 0.2
     f_B = np.array([0.0, 0.0, -GRAVITY / math.cos(roll)])
-    for yaw, a_expected in ((0.0, (0.0, GRAVITY * math.tan(roll), 0.0)),
-                            (math.pi / 2, (-GRAVITY * math.tan(roll), 0.0, 0.0))):
+    for yaw, a_expected in (
+        (0.0, (0.0, GRAVITY * math.tan(roll), 0.0)),
+        (math.pi / 2, (-GRAVITY * math.tan(roll), 0.0, 0.0)),
+    ):
         got = ekf.predict_state(np.array([0, 0, 0, 0, 0, 0, yaw], dtype=float), roll, 0.0, f_B, 1.0)
         np.testing.assert_allclose(got[3:6], a_expected, atol=1e-12)
         np.testing.assert_allclose(got[0:3], 0.0, atol=0)
@@ -69,10 +73,12 @@ def test_predict_jacobian_equals_central_differences(dt):
         for j in range(7):
             e = np.zeros(7)
             e[j] = h
-            numeric[:, j] = (ekf.predict_state(x + e, roll, pitch, f_B, dt)
-                             - ekf.predict_state(x - e, roll, pitch, f_B, dt)) / (2 * h)
+            numeric[:, j] = (
+                ekf.predict_state(x + e, roll, pitch, f_B, dt)
+                - ekf.predict_state(x - e, roll, pitch, f_B, dt)
+            ) / (2 * h)
         np.testing.assert_allclose(G, numeric, atol=1e-8 * max(1.0, dt * 10), rtol=0)
-        assert abs(G[3:5, 6]).max() > 1e-4 * dt    # the yaw column is exercised
+        assert abs(G[3:5, 6]).max() > 1e-4 * dt  # the yaw column is exercised
 
 
 def test_predict_equals_its_parts_and_reuses_the_work_buffer():
@@ -153,7 +159,7 @@ def test_gps_update_is_kalman_update_with_position_velocity_rows():
     np.testing.assert_array_equal(got[0], want[0])
     np.testing.assert_array_equal(got[1], want[1])
     assert got[2] == want[2]
-    assert abs(got[0][6] - x[6]) > 1e-3    # yaw moves through its correlation with p, v
+    assert abs(got[0][6] - x[6]) > 1e-3  # yaw moves through its correlation with p, v
 
 
 def test_mag_update_scalar_form_equals_kalman_update():
@@ -174,10 +180,10 @@ def test_mag_update_scalar_form_equals_kalman_update():
 
 def test_mag_residual_goes_the_short_way_across_pi():
     p = EkfParams()
-    x, P = ekf.initial_state(p), ekf.initial_covariance(p)    # P66 = 0.0025, R = 0.01
+    x, P = ekf.initial_state(p), ekf.initial_covariance(p)  # P66 = 0.0025, R = 0.01
     x[6] = -3.1
     x_new, _, nis = ekf.mag_update(x, P, 3.1, ekf.mag_noise(p))
-    nu = 6.2 - 2 * math.pi                                   # -0.0832: go down through -pi
+    nu = 6.2 - 2 * math.pi  # -0.0832: go down through -pi
     assert x_new[6] == pytest.approx(-3.1 + 0.2 * nu, abs=1e-12)
     assert nis == pytest.approx(nu * nu / 0.0125, rel=1e-12)
     # A confident magnetometer pulls the estimate across -pi; the result is wrapped.
@@ -247,8 +253,17 @@ def test_nees_of_a_matched_filter_lies_in_the_chi2_band():
 
 def test_nees_of_an_overconfident_filter_leaves_the_band():
     truth = EkfParams()
-    overconfident = EkfParams(q_pos_xy_std=0.005, q_pos_z_std=0.005, q_vel_xy_std=0.005, q_vel_z_std=0.01,
-                              q_yaw_std=0.005, gps_pos_xy_std=0.1, gps_pos_z_std=0.3, gps_vel_xy_std=0.01,
-                              gps_vel_z_std=0.03, mag_yaw_std=0.01)
+    overconfident = EkfParams(
+        q_pos_xy_std=0.005,
+        q_pos_z_std=0.005,
+        q_vel_xy_std=0.005,
+        q_vel_z_std=0.01,
+        q_yaw_std=0.005,
+        gps_pos_xy_std=0.1,
+        gps_pos_z_std=0.3,
+        gps_vel_xy_std=0.01,
+        gps_vel_z_std=0.03,
+        mag_yaw_std=0.01,
+    )
     mean_nees, _ = average_nees(truth, overconfident, seed=12, runs=10)
     assert mean_nees[-10:].min() > 20.0

@@ -14,6 +14,7 @@ def frames(end_time):
 
 # ----- WindowThreshold --------------------------------------------------------------
 
+
 def test_window_latches_on_a_stretch_in_the_middle():
     t = frames(1.0)
     x = np.where((t > 0.1 + 1e-9) & (t < 0.8 - 1e-9), 0.0, 1.0)  # in band for 0.1 < t < 0.8 only
@@ -63,8 +64,10 @@ def test_window_fail_line_prints_the_trailing_stretch():
     assert not r.passed
     assert r.measured == pytest.approx(0.595)
     assert r.trailing == pytest.approx(0.125)
-    assert r.line == ("FAIL: ABS(Quad.PosFollowErr) was less than 0.500000 for 0.125000 seconds, "
-                      "which was less than 0.800000 seconds")
+    assert r.line == (
+        "FAIL: ABS(Quad.PosFollowErr) was less than 0.500000 for 0.125000 seconds, "
+        "which was less than 0.800000 seconds"
+    )
     assert str(r) == r.line and r.required == 0.8 and r.samples == 400
 
 
@@ -142,8 +145,19 @@ def test_sigma_with_signal_reference_and_sigma():
     truth = np.array([1.0, 2.0, 3.0, 4.0])
     sigma = np.array([0.1, 0.1, 0.5, 0.5])
     measured = truth + np.array([0.05, -0.2, 0.4, -0.5])  # in, out, in, in (boundary)
-    r = sigma_threshold(t, measured, None, truth, sigma, 50.0, 80.0, 0.0, name="Quad.GPS.X",
-                        ref_label="Quad.Pos.X", sigma_label="Quad.Est.S.X")
+    r = sigma_threshold(
+        t,
+        measured,
+        None,
+        truth,
+        sigma,
+        50.0,
+        80.0,
+        0.0,
+        name="Quad.GPS.X",
+        ref_label="Quad.Pos.X",
+        sigma_label="Quad.Est.S.X",
+    )
     assert r.percent == pytest.approx(75.0)
     assert r.line == "PASS: ABS(Quad.GPS.X-Quad.Pos.X) was less than Quad.Est.S.X for 75% of the time"
     with pytest.raises(ValueError, match="label"):
@@ -157,18 +171,32 @@ def test_sigma_without_fresh_samples_fails():
 
 # ----- from config, metrics ------------------------------------------------------------
 
+
 def test_evaluate_criterion_dispatches_on_kind():
     t = frames(1.0)
     fresh = np.zeros_like(t, dtype=bool)
     fresh[::20] = True
-    signals = {"Quad.Pos.Z": (np.zeros_like(t), None), "Quad.GPS.Z": (np.full_like(t, 0.3), fresh),
-               "Quad.Est.S.Z": (np.full_like(t, 0.5), None)}
-    window = evaluate_criterion(CriterionConfig(kind="window", signal="Quad.Pos.Z", threshold=0.1,
-                                                window=0.5), t, signals.__getitem__)
+    signals = {
+        "Quad.Pos.Z": (np.zeros_like(t), None),
+        "Quad.GPS.Z": (np.full_like(t, 0.3), fresh),
+        "Quad.Est.S.Z": (np.full_like(t, 0.5), None),
+    }
+    window = evaluate_criterion(
+        CriterionConfig(kind="window", signal="Quad.Pos.Z", threshold=0.1, window=0.5), t, signals.__getitem__
+    )
     assert window.passed and window.kind == "window"
-    sigma = evaluate_criterion(CriterionConfig(kind="sigma", signal="Quad.GPS.Z", sigma_signal="Quad.Est.S.Z",
-                                               min_percent=50.0, max_percent=100.0, window=0.1),
-                               t, signals.__getitem__)
+    sigma = evaluate_criterion(
+        CriterionConfig(
+            kind="sigma",
+            signal="Quad.GPS.Z",
+            sigma_signal="Quad.Est.S.Z",
+            min_percent=50.0,
+            max_percent=100.0,
+            window=0.1,
+        ),
+        t,
+        signals.__getitem__,
+    )
     assert sigma.samples == 10 and sigma.percent == 100.0 and not sigma.passed  # 100 >= maxP at the end
     assert sigma.line == "FAIL: ABS(Quad.GPS.Z-0.000000) was less than Quad.Est.S.Z for 100% of the time"
 

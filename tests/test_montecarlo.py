@@ -47,6 +47,7 @@ def test_same_table_and_rows_whatever_the_number_of_jobs(scenario, serial):
 
 def test_run_i_is_the_single_run_with_seed_s_plus_i(scenario, serial):
     from quad_drake.simulation import run
+
     single = run(dataclasses.replace(scenario, seed=7))
     record = serial.records[2]
     assert (record.index, record.seed) == (2, 7)
@@ -54,22 +55,23 @@ def test_run_i_is_the_single_run_with_seed_s_plus_i(scenario, serial):
     assert record.metrics["Quad.Est.E.Yaw"]["rms"] == rms(yaw_error)
     assert record.metrics["Quad.Est.E.Yaw"]["rms_settled"] == rms(yaw_error[single.times >= 0.75 - 1e-9])
     logs = single.logs["Quad"]
-    expected = cons.nees(cons.state_errors(logs["ekf_state"], logs["state"]),
-                         cons.covariance_matrices(logs["covariance"]))
+    expected = cons.nees(
+        cons.state_errors(logs["ekf_state"], logs["state"]), cons.covariance_matrices(logs["covariance"])
+    )
     np.testing.assert_array_equal(record.nees["Quad"], expected)
     assert serial.records[0].metrics["Quad.Est.E.Yaw"]["rms"] != record.metrics["Quad.Est.E.Yaw"]["rms"]
 
 
 def test_records_hold_the_consistency_series_of_a_run(serial):
     record = serial.records[0]
-    assert record.nees["Quad"].shape == (300,)                  # 1.5 s of 5 ms samples
+    assert record.nees["Quad"].shape == (300,)  # 1.5 s of 5 ms samples
     assert np.isfinite(record.nees["Quad"]).all()
     stamps, nis = record.nis[("Quad", "mag")]
-    assert stamps.size == nis.size == 150                       # 0.008 + 0.01 k <= 1.5 s
+    assert stamps.size == nis.size == 150  # 0.008 + 0.01 k <= 1.5 s
     np.testing.assert_allclose(np.diff(stamps), 0.01, atol=1e-12)
-    assert set(record.nis) == {("Quad", "mag")}                  # no GPS on this vehicle
+    assert set(record.nis) == {("Quad", "mag")}  # no GPS on this vehicle
     assert record.nse["Quad"].shape == (7,)
-    assert len(record.criteria) == 2 and not record.passed     # a 10 s window cannot pass in 1.5 s
+    assert len(record.criteria) == 2 and not record.passed  # a 10 s window cannot pass in 1.5 s
 
 
 def test_saved_files(serial, tmp_path):
@@ -93,19 +95,36 @@ def test_saved_files(serial, tmp_path):
 
 # ----- statistics on hand-made records (no simulation) ------------------------------------------
 
+
 def hand_made_campaign(nees_level):
     vehicle = VehicleConfig(name="Quad", sensors=SensorsConfig(imu=ImuParams(), mag=MagParams()))
-    scenario = ScenarioConfig(name="t", end_time=1.0, seed=100, vehicles=[vehicle], criteria=[
-        CriterionConfig(kind="window", signal="Quad.Est.E.Yaw", threshold=0.1, window=0.5)])
+    scenario = ScenarioConfig(
+        name="t",
+        end_time=1.0,
+        seed=100,
+        vehicles=[vehicle],
+        criteria=[CriterionConfig(kind="window", signal="Quad.Est.E.Yaw", threshold=0.1, window=0.5)],
+    )
     records = []
     for i in range(20):
         yaw_rms = math.nan if i == 19 else 0.01 * (i + 1)
         metrics = {"Quad.Est.E.Yaw": {"rms": yaw_rms, "max": 3 * (i + 1), "rms_settled": 0.02 * (i + 1)}}
         stamps = 0.008 + 0.01 * np.arange(10)
         nis = {("Quad", "mag"): (stamps, np.full(10, 1.0))}
-        records.append(RunRecord(i, 100 + i, i < 15, [{"passed": i < 15, "measured": 0.6, "percent": None}],
-                                 metrics, {"Quad": np.full(50, nees_level)}, {"Quad": np.ones(7)}, nis,
-                                 0.1, 0.005 * np.arange(1, 51)))
+        records.append(
+            RunRecord(
+                i,
+                100 + i,
+                i < 15,
+                [{"passed": i < 15, "measured": 0.6, "percent": None}],
+                metrics,
+                {"Quad": np.full(50, nees_level)},
+                {"Quad": np.ones(7)},
+                nis,
+                0.1,
+                0.005 * np.arange(1, 51),
+            )
+        )
     return CampaignResult(scenario, records, wall_time=2.0, jobs=1)
 
 
@@ -136,7 +155,7 @@ def test_consistency_criterion_passes_inside_the_band_and_fails_outside():
 
 def test_efficiency_is_pooled_rmse_over_the_bound():
     campaign = hand_made_campaign(7.0)
-    (row,) = campaign.efficiency                                # uses rms_settled, not rms
+    (row,) = campaign.efficiency  # uses rms_settled, not rms
     bound = accuracy_bound(campaign.scenario.vehicles[0])["Yaw"].mean_std
     rmse = math.sqrt(np.mean(np.square(0.02 * np.arange(1, 21))))
     assert row["rmse"] == pytest.approx(rmse)
@@ -145,9 +164,11 @@ def test_efficiency_is_pooled_rmse_over_the_bound():
 
 # ----- errors and the command line ---------------------------------------------------------------
 
+
 def test_a_failing_run_names_its_seed(monkeypatch, scenario):
     def diverge(scenario, index, seed):
         raise FloatingPointError("diverged")
+
     monkeypatch.setattr(montecarlo, "simulate_run", diverge)
     with pytest.raises(RuntimeError, match=r"\(seed 10\).*quad-drake run 10_mag_update --seed 10"):
         run_campaign(scenario, 3, jobs=1, seed=10, progress=False)
@@ -161,8 +182,21 @@ def test_bad_counts_are_config_errors(scenario, runs, jobs, seed):
 
 def test_main_montecarlo_prints_the_table_and_saves(tmp_path, capsys):
     args = add_arguments(argparse.ArgumentParser()).parse_args(
-        ["10_mag_update", "--runs", "2", "--jobs", "1", "--seed", "3", "--set", "end_time=0.5",
-         "--out", str(tmp_path), "--no-plots"])
+        [
+            "10_mag_update",
+            "--runs",
+            "2",
+            "--jobs",
+            "1",
+            "--seed",
+            "3",
+            "--set",
+            "end_time=0.5",
+            "--out",
+            str(tmp_path),
+            "--no-plots",
+        ]
+    )
     code = main_montecarlo(args)
     out, err = capsys.readouterr()
     assert "Monte Carlo 10_mag_update: 2 runs of 0.5 s, seeds 3..4" in out
@@ -173,11 +207,36 @@ def test_main_montecarlo_prints_the_table_and_saves(tmp_path, capsys):
 
 
 def test_criterion_labels():
-    assert montecarlo.criterion_label(CriterionConfig(
-        kind="window", signal="Quad.Est.E.Pos", threshold=1, window=20)) == "|Quad.Est.E.Pos| < 1 for > 20 s"
-    assert montecarlo.criterion_label(CriterionConfig(
-        kind="sigma", signal="Quad.GPS.X", ref_signal="Quad.Pos.X", sigma=0.7, min_percent=64, max_percent=73,
-        window=2)) == "|Quad.GPS.X - Quad.Pos.X| <= 0.7: 64-73 % (last 2 s)"
-    assert montecarlo.criterion_label(CriterionConfig(
-        kind="fleet_sigma", signal="Est.E.X", sigma_signal="Est.S.X", sigma_multiple=2, min_percent=90,
-        max_percent=100)) == "fleet |Est.E.X| <= 2 Est.S.X: 90-100 %"
+    assert (
+        montecarlo.criterion_label(
+            CriterionConfig(kind="window", signal="Quad.Est.E.Pos", threshold=1, window=20)
+        )
+        == "|Quad.Est.E.Pos| < 1 for > 20 s"
+    )
+    assert (
+        montecarlo.criterion_label(
+            CriterionConfig(
+                kind="sigma",
+                signal="Quad.GPS.X",
+                ref_signal="Quad.Pos.X",
+                sigma=0.7,
+                min_percent=64,
+                max_percent=73,
+                window=2,
+            )
+        )
+        == "|Quad.GPS.X - Quad.Pos.X| <= 0.7: 64-73 % (last 2 s)"
+    )
+    assert (
+        montecarlo.criterion_label(
+            CriterionConfig(
+                kind="fleet_sigma",
+                signal="Est.E.X",
+                sigma_signal="Est.S.X",
+                sigma_multiple=2,
+                min_percent=90,
+                max_percent=100,
+            )
+        )
+        == "fleet |Est.E.X| <= 2 Est.S.X: 90-100 %"
+    )

@@ -40,7 +40,7 @@ def _vehicle_logs(times, rng, estimator, offset=0.0):
     logs["diagnostics"] = np.zeros((n, 5))
     logs["imu"] = np.column_stack([rng.normal(0, 0.5, n), np.zeros((n, 4)), np.zeros(n)])
     stamps = np.floor(times / 0.1 + 1e-9) * 0.1
-    stamps[stamps == 0] = -1.0                                 # the first GPS sample arrives at 0.1 s
+    stamps[stamps == 0] = -1.0  # the first GPS sample arrives at 0.1 s
     logs["gps"] = np.column_stack([p + rng.normal(0, 0.7, (n, 3)), v, stamps])
     logs["mag"] = np.column_stack([yaw, np.floor(times / 0.01 + 1e-9) * 0.01])
     return logs
@@ -58,14 +58,29 @@ def make_result(names=("Quad",), estimator=True, end_time=4.0, criteria=None, se
             setattr(vehicle.sensors, kind, params)
         vehicles.append(vehicle)
     if criteria is None:
-        criteria = [CriterionConfig(kind="window", signal=f"{names[0]}.PosFollowErr", threshold=0.1,
-                                    window=1.0)]
+        criteria = [
+            CriterionConfig(kind="window", signal=f"{names[0]}.PosFollowErr", threshold=0.1, window=1.0)
+        ]
         if estimator:
-            criteria.append(CriterionConfig(kind="sigma", signal=f"{names[0]}.GPS.X",
-                                            ref_signal=f"{names[0]}.Pos.X", sigma=0.7, min_percent=60,
-                                            max_percent=76, window=1.0))
-    scenario = ScenarioConfig(name="synthetic", description="hand-made logs", end_time=end_time, seed=seed,
-                              vehicles=vehicles, criteria=criteria)
+            criteria.append(
+                CriterionConfig(
+                    kind="sigma",
+                    signal=f"{names[0]}.GPS.X",
+                    ref_signal=f"{names[0]}.Pos.X",
+                    sigma=0.7,
+                    min_percent=60,
+                    max_percent=76,
+                    window=1.0,
+                )
+            )
+    scenario = ScenarioConfig(
+        name="synthetic",
+        description="hand-made logs",
+        end_time=end_time,
+        seed=seed,
+        vehicles=vehicles,
+        criteria=criteria,
+    )
     logs = {name: _vehicle_logs(times, rng, estimator, offset=i) for i, name in enumerate(names)}
     signals = {}
     for name, vehicle_logs in logs.items():
@@ -78,24 +93,42 @@ def _close(a, b, tol=1e-12):
     return abs(a - b) <= tol
 
 
-@pytest.mark.parametrize("name, unit", [
-    ("Quad.Pos.X", "m"), ("Quad.Vel.Z", "m/s"), ("Quad.Omega.X", "rad/s"), ("Quad.Roll", "rad"),
-    ("Quad.Ref.Yaw", "rad"), ("Quad.PosFollowErr", "m"), ("Quad.GPS.X", "m"), ("Quad.GPS.VX", "m/s"),
-    ("Quad.IMU.AX", "m/s²"), ("Quad.IMU.GZ", "rad/s"), ("Quad.MagYaw", "rad"), ("Quad.Thrust.B", "N"),
-    ("Quad2.Est.E.Yaw", "rad"), ("Quad.Est.S.Z", "m"), ("Quad.Est.E.VX", "m/s"), ("Quad.Est.E.Pos", "m"),
-    ("Quad.Est.E.Vel", "m/s"), ("Quad.Est.E.MaxEuler", "rad"), ("Quad.Est.Roll", "rad"), ("Quad.Unknown", ""),
-])
+@pytest.mark.parametrize(
+    "name, unit",
+    [
+        ("Quad.Pos.X", "m"),
+        ("Quad.Vel.Z", "m/s"),
+        ("Quad.Omega.X", "rad/s"),
+        ("Quad.Roll", "rad"),
+        ("Quad.Ref.Yaw", "rad"),
+        ("Quad.PosFollowErr", "m"),
+        ("Quad.GPS.X", "m"),
+        ("Quad.GPS.VX", "m/s"),
+        ("Quad.IMU.AX", "m/s²"),
+        ("Quad.IMU.GZ", "rad/s"),
+        ("Quad.MagYaw", "rad"),
+        ("Quad.Thrust.B", "N"),
+        ("Quad2.Est.E.Yaw", "rad"),
+        ("Quad.Est.S.Z", "m"),
+        ("Quad.Est.E.VX", "m/s"),
+        ("Quad.Est.E.Pos", "m"),
+        ("Quad.Est.E.Vel", "m/s"),
+        ("Quad.Est.E.MaxEuler", "rad"),
+        ("Quad.Est.Roll", "rad"),
+        ("Quad.Unknown", ""),
+    ],
+)
 def test_signal_unit(name, unit):
     assert plots.signal_unit(name) == unit
 
 
 def test_longest_good_stretch_matches_the_window_analyzer():
-    times = LOG_PERIOD * np.arange(1, 401)                     # 0.005 .. 2.0 s
+    times = LOG_PERIOD * np.arange(1, 401)  # 0.005 .. 2.0 s
     values = np.zeros(400)
-    values[[39, 199]] = 1.0                                    # violations at t = 0.2 and 1.0 s
+    values[[39, 199]] = 1.0  # violations at t = 0.2 and 1.0 s
     start, end = plots.longest_good_stretch(times, values, 0.5)
-    assert _close(start, 1.0) and _close(end, 2.0)              # 1.0 s after the last violation
-    values[359] = 1.0                                          # and at 1.8 s: 0.2 -> 1.0 (0.8 s) wins
+    assert _close(start, 1.0) and _close(end, 2.0)  # 1.0 s after the last violation
+    values[359] = 1.0  # and at 1.8 s: 0.2 -> 1.0 (0.8 s) wins
     start, end = plots.longest_good_stretch(times, values, 0.5)
     assert _close(start, 0.2) and math.isclose(end, 0.995, abs_tol=1e-12)
 
@@ -103,13 +136,26 @@ def test_longest_good_stretch_matches_the_window_analyzer():
 def test_figure_set_of_one_estimating_vehicle():
     result = make_result()
     assert list(plots.make_figures(result)) == [
-        "criterion_1", "criterion_2", "estimate_errors_Quad", "attitude_estimate_Quad", "state_estimate_Quad",
-        "position", "top_view", "attitude", "thrust"]
+        "criterion_1",
+        "criterion_2",
+        "estimate_errors_Quad",
+        "attitude_estimate_Quad",
+        "state_estimate_Quad",
+        "position",
+        "top_view",
+        "attitude",
+        "thrust",
+    ]
 
 
 def test_figure_set_without_estimator_and_of_a_fleet():
     assert list(plots.make_figures(make_result(("A", "B"), estimator=False))) == [
-        "criterion_1", "position", "top_view", "attitude", "thrust"]
+        "criterion_1",
+        "position",
+        "top_view",
+        "attitude",
+        "thrust",
+    ]
     fleet = plots.make_figures(make_result(("Q1", "Q2", "Q3"), criteria=[]))
     assert list(fleet) == ["fleet_errors", "position", "top_view", "attitude", "thrust"]
 
@@ -117,12 +163,12 @@ def test_figure_set_without_estimator_and_of_a_fleet():
 def test_window_figure_draws_threshold_and_credited_stretch():
     result = make_result(estimator=False)
     verdict = result.criteria[0]
-    assert verdict.passed                                     # |p_ref - p| = 0.087 m < 0.1 m
+    assert verdict.passed  # |p_ref - p| = 0.087 m < 0.1 m
     fig = plots.make_figures(result)["criterion_1"][1]
     ax = fig.axes[0]
     threshold_lines = [line for line in ax.lines if np.allclose(line.get_ydata(), 0.1)]
     assert len(threshold_lines) == 1
-    span = ax.patches[0]                                       # axvspan: Rectangle or Polygon by version
+    span = ax.patches[0]  # axvspan: Rectangle or Polygon by version
     x = span.get_patch_transform().transform(span.get_path().vertices)[:, 0]
     assert math.isclose(x.max() - x.min(), verdict.measured, abs_tol=1e-9)
     assert "PASS" in fig._suptitle.get_text()
@@ -138,7 +184,7 @@ def test_sigma_figure_band_and_cumulative_share():
     edges = [line.get_ydata() for line in top.lines if line.get_color() == "tab:green"]
     assert len(edges) == 2
     assert np.allclose(edges[0], pos_x - 0.7) and np.allclose(edges[1], pos_x + 0.7)
-    samples = top.lines[1].get_xdata()                         # fresh GPS samples only: 10 Hz
+    samples = top.lines[1].get_xdata()  # fresh GPS samples only: 10 Hz
     assert samples.size == result.signals["Quad.GPS.X"].fresh.sum() == 40
     share = bottom.lines[0].get_ydata()
     assert math.isclose(share[-1], verdict.percent, abs_tol=1e-9)
@@ -157,13 +203,14 @@ def test_every_axis_is_labelled_with_a_unit():
 
 def test_fleet_sigma_criteria_are_drawn_once_in_the_fleet_figure():
     from quad_drake.config import CriterionConfig
+
     criteria = [CriterionConfig(kind="fleet_sigma", signal="Est.E.X", sigma_signal="Est.S.X")]
     result = make_result(("Q1", "Q2", "Q3"), criteria=criteria)
     figures = plots.make_figures(result)
     assert "fleet_errors" in figures and not any(stem.startswith("criterion_") for stem in figures)
     title = figures["fleet_errors"][1].axes[0].get_title()
     share = float(re.match(r"X error: (\d+) % within", title).group(1))
-    assert 60.0 < share < 76.0                                 # Gaussian errors: ~68 % within one sigma
+    assert 60.0 < share < 76.0  # Gaussian errors: ~68 % within one sigma
 
 
 def test_metrics_and_consistency_tables():
@@ -181,8 +228,9 @@ def test_metrics_and_consistency_tables():
 
 def test_criterion_rows_state_measured_and_required():
     result = make_result()
-    window, sigma = (criterion_row(c, v) for c, v in zip(result.scenario.criteria, result.criteria,
-                                                        strict=True))
+    window, sigma = (
+        criterion_row(c, v) for c, v in zip(result.scenario.criteria, result.criteria, strict=True)
+    )
     assert window[2] == ("PASS", "PASS")
     assert f"{result.criteria[0].measured:.4g} s" in window[3] and window[4] == "&gt; 1 s"
     assert f"{result.criteria[1].percent:.3g} %" in sigma[3] and "(60 %, 76 %)" in sigma[4]
@@ -193,17 +241,17 @@ def test_run_artifacts_are_self_contained(tmp_path):
     start = time.process_time()
     written = plots.write_plots(result, tmp_path)
     plot_seconds = time.process_time() - start
-    assert plot_seconds < 5.0                                  # ~1 s on 2 cores; catches a 5x regression
+    assert plot_seconds < 5.0  # ~1 s on 2 cores; catches a 5x regression
     artifacts = plots.write_run_artifacts(result, tmp_path)
     assert [p.name for p in artifacts["plots"]] == [p.name for _, p in written]
     assert all(p.stat().st_size > 10_000 for p in artifacts["plots"])
     report = artifacts["report"].read_text()
     assert report.count("data:image/png;base64,") == len(written)
     assert not re.search(r"(src|href)=\"(https?:)?//", report)  # nothing fetched from the network
-    assert "href=\"replay.html\"" in report
+    assert 'href="replay.html"' in report
     for verdict in result.criteria:
         assert verdict.line in report
-    assert "vehicles:" in report and "Quad.GPS.X" in report    # the resolved config
+    assert "vehicles:" in report and "Quad.GPS.X" in report  # the resolved config
     assert artifacts["replay"].name == "replay.html" and artifacts["replay"].stat().st_size > 100_000
 
 
@@ -224,15 +272,27 @@ def test_write_index_links_every_run(tmp_path):
         run_dir = tmp_path / "runs" / name
         run_dir.mkdir(parents=True)
         (run_dir / "report.html").write_text("x")
-        criteria = [{"passed": passed, "line": f"{'PASS' if passed else 'FAIL'}: {name} <{i}>"}
-                    for i in range(n)]
-        summaries.append(({"scenario": name, "seed": 0, "passed": passed, "criteria": criteria,
-                           "wall_time_s": 0.5, "real_time_factor": 20.0}, run_dir))
+        criteria = [
+            {"passed": passed, "line": f"{'PASS' if passed else 'FAIL'}: {name} <{i}>"} for i in range(n)
+        ]
+        summaries.append(
+            (
+                {
+                    "scenario": name,
+                    "seed": 0,
+                    "passed": passed,
+                    "criteria": criteria,
+                    "wall_time_s": 0.5,
+                    "real_time_factor": 20.0,
+                },
+                run_dir,
+            )
+        )
     index = write_index(summaries, tmp_path / "runs").read_text()
-    assert index.count("href=\"01_a/report.html\"") == 1 and "href=\"09_c/report.html\"" in index
-    assert "replay.html" not in index                          # only files that exist are linked
+    assert index.count('href="01_a/report.html"') == 1 and 'href="09_c/report.html"' in index
+    assert "replay.html" not in index  # only files that exist are linked
     assert "1 of 2 graded scenarios passed" in index
-    assert "FAIL: 02_b &lt;1&gt;" in index                     # escaped analyzer lines
+    assert "FAIL: 02_b &lt;1&gt;" in index  # escaped analyzer lines
     assert re.findall(r"class=\"(PASS|FAIL|NONE)\"", index) == ["PASS", "FAIL", "NONE"]
 
 
@@ -243,15 +303,28 @@ def test_real_run_artifacts(tmp_path):
     result = run(load_named("01_intro"))
     artifacts = plots.write_run_artifacts(result, tmp_path)
     assert [p.name for p in artifacts["plots"]] == [
-        "criterion_1.png", "position.png", "top_view.png", "attitude.png", "thrust.png"]
+        "criterion_1.png",
+        "position.png",
+        "top_view.png",
+        "attitude.png",
+        "thrust.png",
+    ]
     report = artifacts["report"].read_text()
     assert result.criteria[0].line in report
-    assert ("class=\"PASS\"" in report) == result.passed
+    assert ('class="PASS"' in report) == result.passed
 
 
 def test_fleet_sigma_criterion_row_reports_the_share():
-    criteria = [CriterionConfig(kind="fleet_sigma", signal="Est.E.X", sigma_signal="Est.S.X",
-                                sigma_multiple=2, min_percent=90, max_percent=100)]
+    criteria = [
+        CriterionConfig(
+            kind="fleet_sigma",
+            signal="Est.E.X",
+            sigma_signal="Est.S.X",
+            sigma_multiple=2,
+            min_percent=90,
+            max_percent=100,
+        )
+    ]
     result = make_result(("Q1", "Q2", "Q3"), criteria=criteria)
     verdict = result.criteria[0]
     row = criterion_row(criteria[0], verdict)
@@ -259,4 +332,4 @@ def test_fleet_sigma_criterion_row_reports_the_share():
     assert row[2] == (("PASS", "PASS") if verdict.passed else ("FAIL", "FAIL"))
     assert row[3] == f"{verdict.percent:.3g} % of {3 * result.times.size} samples within"
     assert row[4] == "share in [90 %, 100 %]"
-    assert 93 < verdict.percent < 97                           # Gaussian errors: ~95 % within two sigma
+    assert 93 < verdict.percent < 97  # Gaussian errors: ~95 % within two sigma

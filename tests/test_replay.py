@@ -22,7 +22,7 @@ C = np.diag([1.0, -1.0, -1.0])
 
 def test_ned_to_zup_positions():
     p = ned_to_zup([[1.0, 2.0, -3.0], [0.0, 0.0, 0.0]])
-    assert np.array_equal(p, [[1.0, -2.0, 3.0], [0.0, 0.0, 0.0]])    # 3 m altitude -> z = +3
+    assert np.array_equal(p, [[1.0, -2.0, 3.0], [0.0, 0.0, 0.0]])  # 3 m altitude -> z = +3
     assert ned_to_zup(np.array([0.5, 0.25, -1.0])).shape == (3,)
 
 
@@ -37,21 +37,21 @@ def test_ned_to_zup_maps_body_vectors_consistently():
         seen_in_n = ned_to_zup(rotation_from_quat(q[k]) @ v_body[k])
         assert np.allclose(rotation_from_quat(q_zup[k]) @ ned_to_zup(v_body[k]), seen_in_n, atol=1e-12)
         assert math.isclose(np.linalg.norm(q_zup[k]), 1.0, abs_tol=1e-12)
-    assert np.linalg.det(C) == 1.0                                   # a rotation, not a mirror
+    assert np.linalg.det(C) == 1.0  # a rotation, not a mirror
 
 
 def test_ned_to_zup_physical_directions():
     nose_east = ned_to_zup(rotation_from_quat(quat_from_euler(0, 0, math.pi / 2)) @ [1.0, 0, 0])
-    assert np.allclose(nose_east, [0, -1, 0], atol=1e-12)            # east is -y in (north, west, up)
+    assert np.allclose(nose_east, [0, -1, 0], atol=1e-12)  # east is -y in (north, west, up)
     _, q = ned_to_zup(np.zeros(3), quat_from_euler(0.3, 0.0, 0.0))  # roll right
-    right_wing = rotation_from_quat(q) @ [0.0, -1.0, 0.0]             # FLU right = -y
+    right_wing = rotation_from_quat(q) @ [0.0, -1.0, 0.0]  # FLU right = -y
     assert math.isclose(right_wing[2], -math.sin(0.3), abs_tol=1e-12)  # the right side goes down
     _, q = ned_to_zup(np.zeros(3), quat_from_euler(0.0, 0.2, 0.0))  # pitch up
     assert math.isclose((rotation_from_quat(q) @ [1.0, 0, 0])[2], math.sin(0.2), abs_tol=1e-12)
 
 
 def test_frame_indices_pick_the_log_sample_at_or_after_each_frame():
-    times = 0.005 * np.arange(1, 201)                                 # 0.005 .. 1.0 s
+    times = 0.005 * np.arange(1, 201)  # 0.005 .. 1.0 s
     frame_times, indices = frame_indices(times, fps=10)
     assert np.allclose(frame_times, 0.1 * np.arange(11))
     assert list(indices) == [0, 19, 39, 59, 79, 99, 119, 139, 159, 179, 199]
@@ -73,7 +73,7 @@ def flight(tmp_path_factory):
 def test_replay_html_is_self_contained(flight):
     _, path = flight
     page = path.read_text()
-    assert page.startswith("<!DOCTYPE html>") and len(page) > 1_000_000   # three.js inlined
+    assert page.startswith("<!DOCTYPE html>") and len(page) > 1_000_000  # three.js inlined
     assert "<script src" not in page.replace(" ", "") and "<link" not in page
     assert "MeshCat.Viewer" in page
 
@@ -90,12 +90,26 @@ class DevTools:
     """Chromium's DevTools protocol over --remote-debugging-pipe (fd 3 in, fd 4 out, NUL-framed JSON)."""
 
     def __init__(self, chromium, user_data_dir):
-        argv = [chromium, "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-                "--disable-component-update", "--disable-sync", "--no-first-run", "--window-size=900,650",
-                f"--user-data-dir={user_data_dir}", "--remote-debugging-pipe", "about:blank"]
+        argv = [
+            chromium,
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--no-first-run",
+            "--window-size=900,650",
+            f"--user-data-dir={user_data_dir}",
+            "--remote-debugging-pipe",
+            "about:blank",
+        ]
         self.process = subprocess.Popen(
             ["bash", "-c", 'exec "$@" 3<&0 4>&1 0</dev/null 1>/dev/null', "_", *argv],
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.DEVNULL,
+        )
         self.inbox = queue.Queue()
         self.events = []
         self.last_id = 0
@@ -163,33 +177,38 @@ def test_replay_loads_offline_and_draws_in_headless_chromium(flight, tmp_path):
     try:
         targets = browser.call("Target.getTargets")["targetInfos"]
         page = next(t for t in targets if t["type"] == "page")
-        session = browser.call("Target.attachToTarget",
-                               {"targetId": page["targetId"], "flatten": True})["sessionId"]
+        session = browser.call("Target.attachToTarget", {"targetId": page["targetId"], "flatten": True})[
+            "sessionId"
+        ]
         for domain in ("Network", "Page", "Runtime"):
             browser.call(f"{domain}.enable", session=session)
         browser.call("Page.navigate", {"url": path.as_uri()}, session=session)
         browser.wait_for("Page.loadEventFired")
-        time.sleep(1.5)                                                   # let three.js render frames
-        scene = browser.call("Runtime.evaluate", {"expression": SCENE_PROBE, "returnByValue": True},
-                             session=session)["result"]["value"]
+        time.sleep(1.5)  # let three.js render frames
+        scene = browser.call(
+            "Runtime.evaluate", {"expression": SCENE_PROBE, "returnByValue": True}, session=session
+        )["result"]["value"]
         shot = browser.call("Page.captureScreenshot", {"format": "png"}, session=session)["data"]
     finally:
         browser.close()
 
-    urls = [e["params"]["request"]["url"] for e in browser.events
-            if e.get("method") == "Network.requestWillBeSent"]
-    assert path.as_uri() in urls                                          # the log does see requests
+    urls = [
+        e["params"]["request"]["url"]
+        for e in browser.events
+        if e.get("method") == "Network.requestWillBeSent"
+    ]
+    assert path.as_uri() in urls  # the log does see requests
     assert [u[:60] for u in urls if not u.startswith(("file:", "data:", "blob:"))] == []
     errors = [e["params"] for e in browser.events if e.get("method") == "Runtime.exceptionThrown"]
     assert errors == []
-    assert scene["meshes"] >= 13                                          # quad (12 parts) + estimate
-    assert scene["lines"] >= 3                                            # flown, reference, estimated
+    assert scene["meshes"] >= 13  # quad (12 parts) + estimate
+    assert scene["lines"] >= 3  # flown, reference, estimated
     assert math.isclose(scene["duration"], result.times[-1], abs_tol=0.05)
 
     import matplotlib.image
 
     image = matplotlib.image.imread(io.BytesIO(base64.b64decode(shot)), format="png")[..., :3]
     r, g, b = image[..., 0], image[..., 1], image[..., 2]
-    estimated_path = (r > 0.6) & (g < 0.35) & (b > 0.4)                   # magenta line
-    flown_path = (r < 0.3) & (g > 0.3) & (g < 0.65) & (b > 0.55)          # the vehicle's blue
+    estimated_path = (r > 0.6) & (g < 0.35) & (b > 0.4)  # magenta line
+    flown_path = (r < 0.3) & (g > 0.3) & (g < 0.65) & (b > 0.55)  # the vehicle's blue
     assert estimated_path.sum() > 50 and flown_path.sum() > 50, (estimated_path.sum(), flown_path.sum())

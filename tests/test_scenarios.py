@@ -14,15 +14,18 @@ def test_scenario_passes_every_criterion(name):
     assert not failed, failed
 
 
-@pytest.mark.parametrize("name, seed", [("03_position_control", 5), ("04_nonidealities", 11),
-                                        ("05_trajectory_follow", 7), ("11_gps_update", 3)])
+@pytest.mark.parametrize(
+    "name, seed",
+    [("03_position_control", 5), ("04_nonidealities", 11), ("05_trajectory_follow", 7), ("11_gps_update", 3)],
+)
 def test_control_scenarios_pass_with_other_seeds(name, seed):
     assert run(load_named(name, seed)).passed
 
 
 def test_small_angle_filter_fails_07_as_in_the_reference():
-    result = run(load_named("07_attitude_estimation",
-                            overrides=["vehicles.0.attitude_filter.variant=small_angle"]))
+    result = run(
+        load_named("07_attitude_estimation", overrides=["vehicles.0.attitude_filter.variant=small_angle"])
+    )
     assert not result.passed
     # The nonlinear filter's error stays far below the threshold over the same manoeuvres.
     nonlinear = run(load_named("07_attitude_estimation"))

@@ -23,12 +23,14 @@ def test_specific_force_free_fall_reads_zero():
     np.testing.assert_allclose(f, [0.0, 0.0, 0.0], atol=1e-14)
 
 
-@pytest.mark.parametrize("roll, pitch, yaw", [(0.4, 0.0, 0.0), (0.0, -0.3, 0.0), (0.5, 0.25, 2.0),
-                                              (-1.2, 0.7, -3.0)])
+@pytest.mark.parametrize(
+    "roll, pitch, yaw", [(0.4, 0.0, 0.0), (0.0, -0.3, 0.0), (0.5, 0.25, 2.0), (-1.2, 0.7, -3.0)]
+)
 def test_specific_force_tilted_at_rest(roll, pitch, yaw):
     f = sensor_models.specific_force(quat_from_euler(roll, pitch, yaw), [0.0, 0.0, 0.0])
-    expected = -GRAVITY * np.array([-math.sin(pitch), math.sin(roll) * math.cos(pitch),
-                                    math.cos(roll) * math.cos(pitch)])
+    expected = -GRAVITY * np.array(
+        [-math.sin(pitch), math.sin(roll) * math.cos(pitch), math.cos(roll) * math.cos(pitch)]
+    )
     np.testing.assert_allclose(f, expected, atol=1e-13)
 
 
@@ -39,10 +41,10 @@ def test_specific_force_matches_rotation_matrix_and_ignores_quaternion_scale():
         q /= np.linalg.norm(q)
         a = rng.normal(scale=5.0, size=3)
         expected = rotation_from_quat(q).T @ (a - G_N)
-        np.testing.assert_allclose(sensor_models.specific_force(q.tolist(), a.tolist()), expected,
-                                   atol=1e-12)
-        np.testing.assert_allclose(sensor_models.specific_force((1.01 * q).tolist(), a.tolist()),
-                                   expected, atol=1e-12)
+        np.testing.assert_allclose(sensor_models.specific_force(q.tolist(), a.tolist()), expected, atol=1e-12)
+        np.testing.assert_allclose(
+            sensor_models.specific_force((1.01 * q).tolist(), a.tolist()), expected, atol=1e-12
+        )
 
 
 def test_imu_measurement_adds_scaled_noise_per_axis():
@@ -51,8 +53,7 @@ def test_imu_measurement_adds_scaled_noise_per_axis():
     w, a, n = [0.3, -0.2, 0.1], [1.0, -2.0, 0.5], [1.0, -2.0, 3.0, -1.5, 0.5, 7.0]
     out = sensor_models.imu_measurement(q, w, a, n, params)
     f = sensor_models.specific_force(q, a)
-    np.testing.assert_allclose(out, [f[0] + 0.5, f[1], f[2] + 4.5, 0.3 - 0.15, -0.2 + 0.1, 0.1],
-                               atol=1e-14)
+    np.testing.assert_allclose(out, [f[0] + 0.5, f[1], f[2] + 4.5, 0.3 - 0.15, -0.2 + 0.1, 0.1], atol=1e-14)
 
 
 def test_imu_zero_std_is_exact_truth():
@@ -65,8 +66,9 @@ def test_imu_zero_std_is_exact_truth():
 
 def test_imu_saturates_each_axis_after_noise():
     params = ImuParams(accel_std=[1.0, 1.0, 1.0], accel_limit=20.0)
-    out = sensor_models.imu_measurement(LEVEL, [0.0] * 3, [25.0, -19.5, 0.0], [0.0, -1.0, 0.0, 0, 0, 0],
-                                        params)
+    out = sensor_models.imu_measurement(
+        LEVEL, [0.0] * 3, [25.0, -19.5, 0.0], [0.0, -1.0, 0.0, 0, 0, 0], params
+    )
     assert out[:3] == [20.0, -20.0, -9.81]
 
 
@@ -74,7 +76,8 @@ def test_gps_measurement_applies_random_walk_first():
     params = GpsParams(pos_std=[0.7, 0.0, 2.0], vel_std=[0.1, 0.1, 0.0], pos_random_walk_std=[0.5, 0.0, 1.0])
     noise = [1.0, 2.0, -1.0, 1.0, 3.0, -0.5, 2.0, -1.0, 4.0]
     position, velocity, rw = sensor_models.gps_measurement(
-        [1.0, 2.0, -3.0], [0.5, -0.5, 0.1], [0.1, 0.2, 0.3], noise, params)
+        [1.0, 2.0, -3.0], [0.5, -0.5, 0.1], [0.1, 0.2, 0.3], noise, params
+    )
     np.testing.assert_allclose(rw, [0.6, 0.2, -0.7], atol=1e-15)
     np.testing.assert_allclose(position, [1.0 + 0.6 + 0.7, 2.0 + 0.2, -3.0 - 0.7 - 1.0], atol=1e-15)
     np.testing.assert_allclose(velocity, [0.5 + 0.2, -0.5 - 0.1, 0.1], atol=1e-15)
@@ -111,7 +114,9 @@ def test_magnetometer_yaw_truth_noise_and_wrap():
     assert sensor_models.magnetometer_yaw(q, -2.0, MagParams(yaw_std=0.1)) == pytest.approx(0.8, abs=1e-14)
     near_pi = quat_from_euler(0.0, 0.0, math.pi - 0.05)
     assert sensor_models.magnetometer_yaw(near_pi, 1.0, MagParams(yaw_std=0.1)) == pytest.approx(
-        -math.pi + 0.05, abs=1e-12)
+        -math.pi + 0.05, abs=1e-12
+    )
     near_minus_pi = quat_from_euler(0.0, 0.0, -math.pi + 0.05)
     assert sensor_models.magnetometer_yaw(near_minus_pi, -1.0, MagParams(yaw_std=0.1)) == pytest.approx(
-        math.pi - 0.05, abs=1e-12)
+        math.pi - 0.05, abs=1e-12
+    )

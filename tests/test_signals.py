@@ -23,16 +23,23 @@ def test_euler_from_quats_matches_the_scalar_version():
 
 
 def test_wrap_angles_into_minus_pi_pi():
-    np.testing.assert_allclose(wrap_angles(np.array([3.5, -3.5, 0.2, 2 * math.pi])),
-                               [3.5 - 2 * math.pi, 2 * math.pi - 3.5, 0.2, 0.0], atol=1e-12)
+    np.testing.assert_allclose(
+        wrap_angles(np.array([3.5, -3.5, 0.2, 2 * math.pi])),
+        [3.5 - 2 * math.pi, 2 * math.pi - 3.5, 0.2, 0.0],
+        atol=1e-12,
+    )
 
 
 def test_names_follow_the_logs_present():
     truth_only = vehicle_signals("Q", empty_logs(["state", "reference", "motor_forces"]))
     assert {"Q.Pos.X", "Q.Roll", "Q.Omega.Z", "Q.PosFollowErr", "Q.Thrust.D"} <= set(truth_only)
     assert not any(".Est." in n or ".GPS." in n for n in truth_only)
-    full = vehicle_signals("Q", empty_logs(["state", "reference", "imu", "gps", "mag", "attitude",
-                                            "ekf_state", "covariance", "diagnostics"]))
+    full = vehicle_signals(
+        "Q",
+        empty_logs(
+            ["state", "reference", "imu", "gps", "mag", "attitude", "ekf_state", "covariance", "diagnostics"]
+        ),
+    )
     assert {"Q.IMU.AX", "Q.GPS.VZ", "Q.MagYaw", "Q.Est.E.MaxEuler", "Q.Est.S.Yaw", "Q.Est.E.Pos"} <= set(full)
 
 
@@ -47,8 +54,10 @@ def test_estimation_errors_sigmas_and_freshness():
     covariance = np.tile(np.diag([0.01, 0.04, 0.09, 1, 1, 1, 0.25]).ravel(), (2, 1))
     attitude = np.array([[0.02, -0.01, yaw_est]] * 2)
     gps = np.array([[0, 0, 0, 0, 0, 0, -1.0], [1, 2, -1, 0, 0, 0, 0.1]])
-    signals = vehicle_signals("Q", {"state": state, "ekf_state": ekf_state, "covariance": covariance,
-                                    "attitude": attitude, "gps": gps})
+    signals = vehicle_signals(
+        "Q",
+        {"state": state, "ekf_state": ekf_state, "covariance": covariance, "attitude": attitude, "gps": gps},
+    )
     np.testing.assert_allclose(signals["Q.Est.E.Yaw"].values, 2 * math.pi - 6.2, atol=1e-9)  # short way
     np.testing.assert_allclose(signals["Q.Est.S.Y"].values, 0.2)
     np.testing.assert_allclose(signals["Q.Est.E.Pos"].values, 0.5)

@@ -41,8 +41,12 @@ def test_multi_vehicle_scenarios_get_independent_noise():
 
 def test_within_tick_order_sensors_filter_ekf_controller_plant():
     """At tick t_k every system reads what the previous one wrote in the same tick."""
-    vehicle = short("11_gps_update", 1.0, "vehicles.0.physics.motor_noise=0",
-                    "vehicles.0.sensors.imu={accel_std: [0, 0, 0], gyro_std: [0, 0, 0]}").vehicles[0]
+    vehicle = short(
+        "11_gps_update",
+        1.0,
+        "vehicles.0.physics.motor_noise=0",
+        "vehicles.0.sensors.imu={accel_std: [0, 0, 0], gyro_std: [0, 0, 0]}",
+    ).vehicles[0]
     diagram = build_vehicle(vehicle)
     simulator = Simulator(diagram)
     context = simulator.get_mutable_context()
@@ -50,30 +54,36 @@ def test_within_tick_order_sensors_filter_ekf_controller_plant():
     controller = diagram.GetSubsystemByName("controller")
     t_k = 0.040  # no GPS or magnetometer sample at this tick
     simulator.AdvanceTo(t_k - 0.0015)
-    integral_before = controller.GetMyContextFromRoot(context).get_discrete_state(
-        controller.integral_index()).GetAtIndex(0)
+    integral_before = (
+        controller.GetMyContextFromRoot(context).get_discrete_state(controller.integral_index()).GetAtIndex(0)
+    )
     simulator.AdvanceTo(t_k + 0.5 * (c.CONTROLLER_OFFSET + c.PLANT_OFFSET))
 
     def out(name):
         return diagram.GetOutputPort(name).Eval(context).copy()
 
     state, imu, attitude, ekf_state = out("state"), out("imu"), out("attitude"), out("ekf_state")
-    np.testing.assert_array_equal(imu[3:], state[c.W_SLICE])        # IMU sampled the state at t_k
-    assert ekf_state[6] == attitude[2]                               # EKF took this tick's CF yaw
+    np.testing.assert_array_equal(imu[3:], state[c.W_SLICE])  # IMU sampled the state at t_k
+    assert ekf_state[6] == attitude[2]  # EKF took this tick's CF yaw
     assembler = diagram.GetSubsystemByName("estimated_state")
     estimate = assembler.GetOutputPort("estimated_state").Eval(assembler.GetMyContextFromRoot(context))
     reference = out("reference")
-    forces, _ = cascade_step(estimate.tolist(), reference.tolist(), integral_before, c.ONBOARD_PERIOD,
-                             vehicle.controller)
+    forces, _ = cascade_step(
+        estimate.tolist(), reference.tolist(), integral_before, c.ONBOARD_PERIOD, vehicle.controller
+    )
     commands = controller.GetOutputPort("motor_thrusts").Eval(controller.GetMyContextFromRoot(context))
-    np.testing.assert_allclose(commands, forces, rtol=1e-12)          # controller used this tick's EKF
+    np.testing.assert_allclose(commands, forces, rtol=1e-12)  # controller used this tick's EKF
 
     forces_before = out("motor_forces")
     simulator.AdvanceTo(t_k + c.PLANT_OFFSET + 1e-7)
     physics = vehicle.physics
-    expected = motor_lag_step(forces_before.tolist(),
-                              np.clip(commands, physics.min_motor_thrust, physics.max_motor_thrust).tolist(),
-                              c.PHYSICS_PERIOD, physics.motor_tau_up, physics.motor_tau_down)
+    expected = motor_lag_step(
+        forces_before.tolist(),
+        np.clip(commands, physics.min_motor_thrust, physics.max_motor_thrust).tolist(),
+        c.PHYSICS_PERIOD,
+        physics.motor_tau_up,
+        physics.motor_tau_down,
+    )
     np.testing.assert_allclose(out("motor_forces"), expected, rtol=1e-12)  # plant used it next
 
 
@@ -103,6 +113,7 @@ def test_results_save_and_reload(tmp_path):
 
 def test_unknown_signal_in_a_criterion_is_a_config_error():
     from quad_drake.config import ConfigError
+
     scenario = short("01_intro", 0.1, "criteria.0.signal=Quad.Est.E.Pos")
     with pytest.raises(ConfigError, match="criteria.0.signal: unknown signal 'Quad.Est.E.Pos'"):
         run(scenario)
@@ -126,10 +137,10 @@ def test_log_samples_show_the_values_held_before_the_events_at_their_time():
     assert times[1] == 0.010
     for name, value in held.items():
         np.testing.assert_array_equal(logs["Quad"][name][1], value, err_msg=name)
-        log = loggers["Quad"][name].FindLog(context)     # the VectorLogSink look-alike agrees
+        log = loggers["Quad"][name].FindLog(context)  # the VectorLogSink look-alike agrees
         assert log.sample_times()[2] == 0.010 and loggers["Quad"][name].get_input_port().size() == value.size
         np.testing.assert_array_equal(log.data()[:, 2], value)
-        assert not np.array_equal(out(name), value), name   # every one of them changed at t = 0.010
+        assert not np.array_equal(out(name), value), name  # every one of them changed at t = 0.010
 
 
 def test_onboard_ticks_coincide_exactly_with_log_times():
@@ -139,7 +150,12 @@ def test_onboard_ticks_coincide_exactly_with_log_times():
     j = np.arange(0, int(3600 / c.LOG_PERIOD) + 1, 2)
     np.testing.assert_array_equal((j * 5 // 2) * c.ONBOARD_PERIOD, j * c.LOG_PERIOD)
     assert c.SENSOR_OFFSET == 0.0
-    offsets = [c.SLOW_SENSOR_OFFSET, c.ATTITUDE_FILTER_OFFSET, c.EKF_OFFSET, c.CONTROLLER_OFFSET,
-               c.PLANT_OFFSET]
+    offsets = [
+        c.SLOW_SENSOR_OFFSET,
+        c.ATTITUDE_FILTER_OFFSET,
+        c.EKF_OFFSET,
+        c.CONTROLLER_OFFSET,
+        c.PLANT_OFFSET,
+    ]
     assert min(offsets) >= 1e-6 and max(offsets) + 1e-6 <= c.PHYSICS_PERIOD / 2
     assert sorted(offsets[1:]) == offsets[1:] and len(set(offsets[1:])) == 4

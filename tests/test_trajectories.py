@@ -23,8 +23,11 @@ def packaged(name):
 
 # ----- parsing of the packaged files -------------------------------------------
 
-@pytest.mark.parametrize("name, rows", [("AttitudeTest.txt", 14), ("Square.txt", 19),
-                                        ("FigureEight.txt", 601), ("FigureEightFF.txt", 601)])
+
+@pytest.mark.parametrize(
+    "name, rows",
+    [("AttitudeTest.txt", 14), ("Square.txt", 19), ("FigureEight.txt", 601), ("FigureEightFF.txt", 601)],
+)
 def test_packaged_file_row_counts(name, rows):
     traj = packaged(name)
     assert len(traj) == rows
@@ -35,7 +38,7 @@ def test_packaged_file_row_counts(name, rows):
 
 def test_attitude_test_columns():
     traj = packaged("AttitudeTest.txt")
-    np.testing.assert_allclose(traj.times, [0, .1, .2, .9, 1, 1.1, 1.8, 1.9, 2, 2.7, 3, 3.2, 3.6, 3.9])
+    np.testing.assert_allclose(traj.times, [0, 0.1, 0.2, 0.9, 1, 1.1, 1.8, 1.9, 2, 2.7, 3, 3.2, 3.6, 3.9])
     np.testing.assert_allclose(traj.positions[1], [1, 0, -1])
     np.testing.assert_allclose(traj.positions[4], [0, -1, -1])
     np.testing.assert_allclose(traj.positions[7], [-0.7, -0.7, -1])
@@ -61,6 +64,7 @@ def test_figure_eight_file_columns():
 
 # ----- lookup -----------------------------------------------------------------
 
+
 def test_sample_layout_and_zero_feedforward():
     ref = packaged("Square.txt").sample(2.5)  # leg (0,0) -> (3,0) over [2, 3]
     assert ref.shape == (REFERENCE_SIZE,)
@@ -74,10 +78,12 @@ def test_interpolation_midpoints():
     np.testing.assert_allclose(att.sample(1.85)[REF_P_SLICE], [-0.35, -0.35, -1], atol=1e-12)
     np.testing.assert_allclose(att.sample(1.075)[REF_P_SLICE], [0, -0.25, -1], atol=1e-12)
     ff = packaged("FigureEightFF.txt")
-    np.testing.assert_allclose(ff.sample(0.03)[REF_V_SLICE], (ff.velocities[1] + ff.velocities[2]) / 2,
-                               atol=1e-12)
-    np.testing.assert_allclose(ff.sample(0.025)[REF_P_SLICE],
-                               0.75 * ff.positions[1] + 0.25 * ff.positions[2], atol=1e-12)
+    np.testing.assert_allclose(
+        ff.sample(0.03)[REF_V_SLICE], (ff.velocities[1] + ff.velocities[2]) / 2, atol=1e-12
+    )
+    np.testing.assert_allclose(
+        ff.sample(0.025)[REF_P_SLICE], 0.75 * ff.positions[1] + 0.25 * ff.positions[2], atol=1e-12
+    )
 
 
 def test_knot_times_return_the_knot():
@@ -175,6 +181,7 @@ def test_trajectory_rejects_bad_arrays():
 
 # ----- constant and analytic -----------------------------------------------------
 
+
 def test_constant_trajectory():
     traj = constant_trajectory([1.0, 2.0, -3.0], yaw=0.5)
     for t in (0.0, 7.0):
@@ -188,10 +195,18 @@ def test_figure_eight_formula():
     traj = figure_eight()
     t = 0.7
     w4, w2 = 2 * math.pi / 4, 2 * math.pi / 2
-    expected = [1.5 * math.sin(w4 * t), 0.6 * math.sin(w2 * t), -2 + 0.75 * math.sin(w4 * t),
-                1.5 * w4 * math.cos(w4 * t), 0.6 * w2 * math.cos(w2 * t), 0.75 * w4 * math.cos(w4 * t),
-                -1.5 * w4**2 * math.sin(w4 * t), -0.6 * w2**2 * math.sin(w2 * t),
-                -0.75 * w4**2 * math.sin(w4 * t), 0.0]
+    expected = [
+        1.5 * math.sin(w4 * t),
+        0.6 * math.sin(w2 * t),
+        -2 + 0.75 * math.sin(w4 * t),
+        1.5 * w4 * math.cos(w4 * t),
+        0.6 * w2 * math.cos(w2 * t),
+        0.75 * w4 * math.cos(w4 * t),
+        -1.5 * w4**2 * math.sin(w4 * t),
+        -0.6 * w2**2 * math.sin(w2 * t),
+        -0.75 * w4**2 * math.sin(w4 * t),
+        0.0,
+    ]
     np.testing.assert_allclose(traj.sample(t), expected, atol=1e-12)
 
 
@@ -219,6 +234,7 @@ def test_packaged_figure_eight_files_match_the_formula_to_3_decimals():
 
 # ----- from config, offsets -------------------------------------------------------
 
+
 def test_offsets_from_config():
     base = packaged("Square.txt")
     cfg = TrajectoryConfig(kind="file", file="Square.txt", position_offset=[1.0, -2.0, 0.5], time_offset=0.5)
@@ -230,11 +246,13 @@ def test_offsets_from_config():
 
 
 def test_point_and_figure_eight_from_config():
-    point = trajectory_from_config(TrajectoryConfig(kind="point", point=[1.0, 0.0, -2.0], yaw=0.3,
-                                                    position_offset=[0.0, 1.0, 0.0]))
+    point = trajectory_from_config(
+        TrajectoryConfig(kind="point", point=[1.0, 0.0, -2.0], yaw=0.3, position_offset=[0.0, 1.0, 0.0])
+    )
     np.testing.assert_allclose(point.sample(4.0), [1, 1, -2, 0, 0, 0, 0, 0, 0, 0.3])
-    eight = trajectory_from_config(TrajectoryConfig(kind="figure_eight", position_offset=[0.0, 0.0, 1.0],
-                                                    time_offset=1.0))
+    eight = trajectory_from_config(
+        TrajectoryConfig(kind="figure_eight", position_offset=[0.0, 0.0, 1.0], time_offset=1.0)
+    )
     expected = figure_eight().sample(1.5)
     expected[2] += 1.0
     np.testing.assert_allclose(eight.sample(0.5), expected, atol=1e-12)
@@ -249,15 +267,19 @@ def test_config_errors_name_the_field():
 
 # ----- malformed files --------------------------------------------------------------
 
-@pytest.mark.parametrize("text, line, message", [
-    ("0, 0, 0, -1\n1, 0, abc, -1\n", 2, "'abc' is not a number"),
-    ("# header\n\n0, 0, 0, -1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 9\n", 3, "14 columns, at most 13"),
-    ("0, 0, 0, -1\n1, 0, 0\n", 2, "3 column(s), at least 4 needed"),
-    ("0, 0, 0, -1\n2, 0, 0, -1\n1, 0, 0, -1\n", 3, "time 1 s is not after the previous point's 2 s"),
-    ("0, 0, 0, -1\n0, 1, 0, -1\n", 2, "time 0 s is not after"),
-    ("0, 0, 0, -1\n1, 0, 0, -1,\n", 2, "'' is not a number"),
-    ("0, 0, 0, nan\n", 1, "'nan' is not a finite number"),
-])
+
+@pytest.mark.parametrize(
+    "text, line, message",
+    [
+        ("0, 0, 0, -1\n1, 0, abc, -1\n", 2, "'abc' is not a number"),
+        ("# header\n\n0, 0, 0, -1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 9\n", 3, "14 columns, at most 13"),
+        ("0, 0, 0, -1\n1, 0, 0\n", 2, "3 column(s), at least 4 needed"),
+        ("0, 0, 0, -1\n2, 0, 0, -1\n1, 0, 0, -1\n", 3, "time 1 s is not after the previous point's 2 s"),
+        ("0, 0, 0, -1\n0, 1, 0, -1\n", 2, "time 0 s is not after"),
+        ("0, 0, 0, -1\n1, 0, 0, -1,\n", 2, "'' is not a number"),
+        ("0, 0, 0, nan\n", 1, "'nan' is not a finite number"),
+    ],
+)
 def test_malformed_file_errors_name_file_and_line(tmp_path, text, line, message):
     path = tmp_path / "bad.txt"
     path.write_text(text)
@@ -285,8 +307,9 @@ def test_missing_file_is_an_error(tmp_path):
 
 def test_parsing_tolerates_whitespace_crlf_and_fills_trailing_columns(tmp_path):
     path = tmp_path / "ok.txt"
-    path.write_bytes(b"  # comment\r\n0,\t1 , 2,\t-3\r\n\r\n"
-                     b"  1.5 ,1,2,-3, 0.1, 0.2, 0.3, 0.4, 0, 0, 1, 2, 3\r\n")
+    path.write_bytes(
+        b"  # comment\r\n0,\t1 , 2,\t-3\r\n\r\n  1.5 ,1,2,-3, 0.1, 0.2, 0.3, 0.4, 0, 0, 1, 2, 3\r\n"
+    )
     traj = load_trajectory_file(path)
     np.testing.assert_array_equal(traj.times, [0.0, 1.5])
     np.testing.assert_array_equal(traj.velocities, [[0, 0, 0], [0.1, 0.2, 0.3]])

@@ -88,8 +88,19 @@ def roll_pitch_control(a_cmd_xy, thrust, R, params):
     The targets for R02, R12 are -a/(thrust/mass) clamped to +-max_tilt (dimensionless),
     and 0 when thrust <= 0; they are reached with gain kp_bank.
     """
-    return _roll_pitch(a_cmd_xy[0], a_cmd_xy[1], thrust, R[0][0], R[0][1], R[0][2],
-                       R[1][0], R[1][1], R[1][2], R[2][2], params)
+    return _roll_pitch(
+        a_cmd_xy[0],
+        a_cmd_xy[1],
+        thrust,
+        R[0][0],
+        R[0][1],
+        R[0][2],
+        R[1][0],
+        R[1][1],
+        R[1][2],
+        R[2][2],
+        params,
+    )
 
 
 def yaw_control(yaw_ref, yaw, params):
@@ -100,9 +111,11 @@ def yaw_control(yaw_ref, yaw, params):
 def body_rate_control(pqr_cmd, pqr, params):
     """Body moment command (Mx, My, Mz), N m in B: I * kp_pqr * (pqr_cmd - pqr), elementwise."""
     inertia, gain = params.inertia, params.kp_pqr
-    return (inertia[0] * gain[0] * (pqr_cmd[0] - pqr[0]),
-            inertia[1] * gain[1] * (pqr_cmd[1] - pqr[1]),
-            inertia[2] * gain[2] * (pqr_cmd[2] - pqr[2]))
+    return (
+        inertia[0] * gain[0] * (pqr_cmd[0] - pqr[0]),
+        inertia[1] * gain[1] * (pqr_cmd[1] - pqr[1]),
+        inertia[2] * gain[2] * (pqr_cmd[2] - pqr[2]),
+    )
 
 
 def cascade_step(state13, reference10, integral, dt, params):

@@ -31,10 +31,14 @@ def integrate_euler_exact(roll, pitch, yaw, w_B, dt):
     s = math.sin(0.5 * rate * dt) / rate if rate > 1e-12 else 0.5 * dt
     c = math.cos(0.5 * rate * dt)
     dx, dy, dz = wx * s, wy * s, wz * s
-    return euler_from_quat((qw * c - qx * dx - qy * dy - qz * dz,
-                            qw * dx + qx * c + qy * dz - qz * dy,
-                            qw * dy - qx * dz + qy * c + qz * dx,
-                            qw * dz + qx * dy - qy * dx + qz * c))
+    return euler_from_quat(
+        (
+            qw * c - qx * dx - qy * dy - qz * dz,
+            qw * dx + qx * c + qy * dz - qz * dy,
+            qw * dy - qx * dz + qy * c + qz * dx,
+            qw * dz + qx * dy - qy * dx + qz * c,
+        )
+    )
 
 
 def complementary_update(roll, pitch, yaw, f_B, w_B, dt, tau, variant):
@@ -57,6 +61,8 @@ def complementary_update(roll, pitch, yaw, f_B, w_B, dt, tau, variant):
     roll_acc, pitch_acc = accel_roll_pitch(f_B)
     gyro_weight = tau / (tau + dt)
     accel_weight = dt / (tau + dt)
-    return (gyro_weight * roll_pred + accel_weight * roll_acc,
-            gyro_weight * pitch_pred + accel_weight * pitch_acc,
-            wrap_to_pi(yaw_pred))
+    return (
+        gyro_weight * roll_pred + accel_weight * roll_acc,
+        gyro_weight * pitch_pred + accel_weight * pitch_acc,
+        wrap_to_pi(yaw_pred),
+    )

@@ -42,22 +42,35 @@ def initial_covariance(params):
 def process_noise(params):
     """Q (7x7) per predict step = diag(q_pos_xy^2 x2, q_pos_z^2, q_vel_xy^2 x2, q_vel_z^2, q_yaw^2) dt_imu."""
     p = params
-    std = [p.q_pos_xy_std, p.q_pos_xy_std, p.q_pos_z_std,
-           p.q_vel_xy_std, p.q_vel_xy_std, p.q_vel_z_std, p.q_yaw_std]
+    std = [
+        p.q_pos_xy_std,
+        p.q_pos_xy_std,
+        p.q_pos_z_std,
+        p.q_vel_xy_std,
+        p.q_vel_xy_std,
+        p.q_vel_z_std,
+        p.q_yaw_std,
+    ]
     return np.diag(np.square(std)) * p.dt_imu
 
 
 def gps_noise(params):
     """R_gps (6x6) = diag(pos_xy^2 x2, pos_z^2, vel_xy^2 x2, vel_z^2), m^2 and (m/s)^2."""
     p = params
-    std = [p.gps_pos_xy_std, p.gps_pos_xy_std, p.gps_pos_z_std,
-           p.gps_vel_xy_std, p.gps_vel_xy_std, p.gps_vel_z_std]
+    std = [
+        p.gps_pos_xy_std,
+        p.gps_pos_xy_std,
+        p.gps_pos_z_std,
+        p.gps_vel_xy_std,
+        p.gps_vel_xy_std,
+        p.gps_vel_z_std,
+    ]
     return np.diag(np.square(std))
 
 
 def mag_noise(params):
     """R_mag (1x1) = [mag_yaw_std^2], rad^2."""
-    return np.array([[params.mag_yaw_std ** 2]])
+    return np.array([[params.mag_yaw_std**2]])
 
 
 def _rotate_specific_force(roll, pitch, yaw, f_B):
@@ -66,8 +79,8 @@ def _rotate_specific_force(roll, pitch, yaw, f_B):
     cr, sr = math.cos(roll), math.sin(roll)
     cp, sp = math.cos(pitch), math.sin(pitch)
     cy, sy = math.cos(yaw), math.sin(yaw)
-    rolled_z = sr * fy + cr * fz             # Rx(roll) f, z component
-    ux = cp * fx + sp * rolled_z             # u = Ry(pitch) Rx(roll) f (the yaw-free part)
+    rolled_z = sr * fy + cr * fz  # Rx(roll) f, z component
+    ux = cp * fx + sp * rolled_z  # u = Ry(pitch) Rx(roll) f (the yaw-free part)
     uy = cr * fy - sr * fz
     uz = -sp * fx + cp * rolled_z
     return (cy * ux - sy * uy, sy * ux + cy * uy, uz), (-sy * ux - cy * uy, cy * ux - sy * uy, 0.0)
@@ -76,8 +89,9 @@ def _rotate_specific_force(roll, pitch, yaw, f_B):
 def _state_after(x, a_N, dt):
     """x (7) after p += v dt, v += a_N dt; yaw unchanged."""
     px, py, pz, vx, vy, vz, yaw = x.tolist()
-    return np.array([px + vx * dt, py + vy * dt, pz + vz * dt,
-                     vx + a_N[0] * dt, vy + a_N[1] * dt, vz + a_N[2] * dt, yaw])
+    return np.array(
+        [px + vx * dt, py + vy * dt, pz + vz * dt, vx + a_N[0] * dt, vy + a_N[1] * dt, vz + a_N[2] * dt, yaw]
+    )
 
 
 def _fill_jacobian(G, rf_yaw, dt):
@@ -138,9 +152,18 @@ def predict_with_yaw(x, P, attitude, f_B, dt, Q, G):
     rf, rf_yaw = _rotate_specific_force(roll, pitch, yaw, f_B)
     _fill_jacobian(G, rf_yaw, dt)
     px, py, pz, vx, vy, vz = x[0], x[1], x[2], x[3], x[4], x[5]
-    return ([px + vx * dt, py + vy * dt, pz + vz * dt,
-             vx + rf[0] * dt, vy + rf[1] * dt, vz + (rf[2] + GRAVITY) * dt, yaw],
-            predict_covariance(P, G, Q))
+    return (
+        [
+            px + vx * dt,
+            py + vy * dt,
+            pz + vz * dt,
+            vx + rf[0] * dt,
+            vy + rf[1] * dt,
+            vz + (rf[2] + GRAVITY) * dt,
+            yaw,
+        ],
+        predict_covariance(P, G, Q),
+    )
 
 
 def kalman_update(x, P, z, H, R, z_hat):
@@ -152,7 +175,7 @@ def kalman_update(x, P, z, H, R, z_hat):
     nu = np.asarray(z, dtype=float) - z_hat
     PHt = P @ H.T
     S = H @ PHt + R
-    solved = np.linalg.solve(S, np.column_stack((PHt.T, nu)))   # S^-1 [H P | nu]
+    solved = np.linalg.solve(S, np.column_stack((PHt.T, nu)))  # S^-1 [H P | nu]
     K = solved[:, :-1].T
     I_KH = IDENTITY - K @ H
     P_new = I_KH @ P @ I_KH.T + K @ R @ K.T

@@ -47,8 +47,12 @@ class CascadeController(LeafSystem):
         return self._integral_index
 
     def _update(self, context, discrete_state):
-        forces, integral = cascade_step(self._read_state(context), self._read_reference(context),
-                                        discrete_state.value(self._integral_group).tolist()[0],
-                                        ONBOARD_PERIOD, self._params)
+        forces, integral = cascade_step(
+            self._read_state(context),
+            self._read_reference(context),
+            discrete_state.value(self._integral_group).tolist()[0],
+            ONBOARD_PERIOD,
+            self._params,
+        )
         discrete_state.set_value(self._integral_group, np.array((integral,)))
         discrete_state.set_value(self._thrusts_group, np.array(forces))

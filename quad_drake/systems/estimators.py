@@ -65,8 +65,9 @@ class ComplementaryFilter(LeafSystem):
         yaw = self._read_ekf_state(context)[6]
         roll, pitch, _ = discrete_state.value(0).tolist()
         if _finite(imu):
-            roll, pitch, yaw = complementary_update(roll, pitch, yaw, imu[0:3], imu[3:6],
-                                                    ONBOARD_PERIOD, self._tau, self._variant)
+            roll, pitch, yaw = complementary_update(
+                roll, pitch, yaw, imu[0:3], imu[3:6], ONBOARD_PERIOD, self._tau, self._variant
+            )
         discrete_state.set_value(0, np.array((roll, pitch, yaw)))
 
 
@@ -98,8 +99,9 @@ class Ekf(LeafSystem):
         x = self.DeclareDiscreteState(ekf.initial_state(params))
         P = self.DeclareDiscreteState(ekf.initial_covariance(params).ravel())
         diagnostics = self.DeclareDiscreteState(
-            np.array([math.nan, NO_SAMPLE_STAMP, math.nan, NO_SAMPLE_STAMP, 0.0]))
-        self.DeclareDiscreteState(np.full(2, NO_SAMPLE_STAMP))   # last stamps seen: GPS, mag
+            np.array([math.nan, NO_SAMPLE_STAMP, math.nan, NO_SAMPLE_STAMP, 0.0])
+        )
+        self.DeclareDiscreteState(np.full(2, NO_SAMPLE_STAMP))  # last stamps seen: GPS, mag
         self.DeclareStateOutputPort("ekf_state", x)
         self.DeclareStateOutputPort("covariance", P)
         self.DeclareStateOutputPort("diagnostics", diagnostics)
@@ -155,8 +157,9 @@ class EstimatedStateAssembler(LeafSystem):
         self._read_attitude = vector_reader(self.DeclareVectorInputPort("attitude", ATTITUDE_SIZE))
         self._read_ekf_state = vector_reader(self.DeclareVectorInputPort("ekf_state", EKF_STATE_SIZE))
         self._read_imu = vector_reader(self.DeclareVectorInputPort("imu", IMU_SIZE))
-        self.DeclareVectorOutputPort("estimated_state", STATE_SIZE, self._calc,
-                                     prerequisites_of_calc={self.all_input_ports_ticket()})
+        self.DeclareVectorOutputPort(
+            "estimated_state", STATE_SIZE, self._calc, prerequisites_of_calc={self.all_input_ports_ticket()}
+        )
 
     def _calc(self, context, output):
         roll, pitch, _ = self._read_attitude(context)

@@ -48,8 +48,11 @@ class QuadrotorPlant(LeafSystem):
             raise ValueError(f"initial_state: expected {STATE_SIZE} values, got shape {initial_state.shape}")
         self._params = copy.deepcopy(params)
         self._read_commands = vector_reader(self.DeclareVectorInputPort("motor_thrusts", NUM_MOTORS))
-        self._read_noise = vector_reader(self.DeclareVectorInputPort(
-            "motor_noise", self.noise_size, random_type=RandomDistribution.kUniform))
+        self._read_noise = vector_reader(
+            self.DeclareVectorInputPort(
+                "motor_noise", self.noise_size, random_type=RandomDistribution.kUniform
+            )
+        )
         state = self.DeclareDiscreteState(initial_state)
         acceleration = self.DeclareDiscreteState(3)
         forces = self.DeclareDiscreteState(NUM_MOTORS)
@@ -62,7 +65,8 @@ class QuadrotorPlant(LeafSystem):
         self._forces_group, self._started_group = int(forces), int(started)
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, PLANT_OFFSET, self._first_step)
         self.DeclarePeriodicDiscreteUpdateEvent(
-            ONBOARD_PERIOD, PHYSICS_PERIOD + PLANT_OFFSET, self._second_step)
+            ONBOARD_PERIOD, PHYSICS_PERIOD + PLANT_OFFSET, self._second_step
+        )
 
     def set_initial_state(self, context, state):
         """Set the 13-vector state in `context` and re-arm the motor-lag initialisation."""
@@ -82,8 +86,14 @@ class QuadrotorPlant(LeafSystem):
         else:
             forces_old = commands
             discrete_state.set_value(self._started_group, np.ones(1))
-        state, accel, forces = plant_step(discrete_state.value(self._state_group).tolist(),
-                                          forces_old, commands, noise, self._params, PHYSICS_PERIOD)
+        state, accel, forces = plant_step(
+            discrete_state.value(self._state_group).tolist(),
+            forces_old,
+            commands,
+            noise,
+            self._params,
+            PHYSICS_PERIOD,
+        )
         # numpy arrays: set_value(i, list) costs ~5 us on drake 1.58, set_value(i, ndarray) < 0.5 us.
         discrete_state.set_value(self._state_group, np.array(state))
         discrete_state.set_value(self._acceleration_group, np.array(accel))

@@ -35,8 +35,9 @@ class _Sensor(LeafSystem):
     def __init__(self, noise_size):
         super().__init__()
         self._read_state = vector_reader(self.DeclareVectorInputPort("state", STATE_SIZE))
-        self._read_noise = vector_reader(self.DeclareVectorInputPort(
-            "noise", noise_size, random_type=RandomDistribution.kGaussian))
+        self._read_noise = vector_reader(
+            self.DeclareVectorInputPort("noise", noise_size, random_type=RandomDistribution.kGaussian)
+        )
 
 
 class Imu(_Sensor):
@@ -63,8 +64,9 @@ class Imu(_Sensor):
         x = self._read_state(context)
         a = self._read_acceleration(context)
         noise = self._read_noise(context)
-        discrete_state.set_value(0, np.array(
-            sensor_models.imu_measurement(x[3:7], x[10:13], a, noise, self._params)))
+        discrete_state.set_value(
+            0, np.array(sensor_models.imu_measurement(x[3:7], x[10:13], a, noise, self._params))
+        )
 
 
 class Gps(_Sensor):
@@ -88,18 +90,19 @@ class Gps(_Sensor):
         self._bias_group = self.DeclareDiscreteState(3)
         self._count_group = self.DeclareDiscreteState(1)
         self.DeclareStateOutputPort("gps", self._output_group)
-        self.DeclarePeriodicDiscreteUpdateEvent(params.period, params.period + SLOW_SENSOR_OFFSET,
-                                                self._sample)
+        self.DeclarePeriodicDiscreteUpdateEvent(
+            params.period, params.period + SLOW_SENSOR_OFFSET, self._sample
+        )
 
     def _sample(self, context, discrete_state):
         x = self._read_state(context)
         noise = self._read_noise(context)
         bias = discrete_state.value(self._bias_group).tolist()
         count = float(discrete_state.value(self._count_group)[0]) + 1.0
-        position, velocity, bias = sensor_models.gps_measurement(
-            x[0:3], x[7:10], bias, noise, self._params)
-        discrete_state.set_value(self._output_group,
-                                 np.array(position + velocity + [count * self._params.period]))
+        position, velocity, bias = sensor_models.gps_measurement(x[0:3], x[7:10], bias, noise, self._params)
+        discrete_state.set_value(
+            self._output_group, np.array(position + velocity + [count * self._params.period])
+        )
         discrete_state.set_value(self._bias_group, np.array(bias))
         discrete_state.set_value(self._count_group, np.array([count]))
 
@@ -122,7 +125,8 @@ class Magnetometer(_Sensor):
         self._count_group = self.DeclareDiscreteState(1)
         self.DeclareStateOutputPort("mag", self._output_group)
         self.DeclarePeriodicDiscreteUpdateEvent(
-            params.period, params.first_sample_time + SLOW_SENSOR_OFFSET, self._sample)
+            params.period, params.first_sample_time + SLOW_SENSOR_OFFSET, self._sample
+        )
 
     def _sample(self, context, discrete_state):
         x = self._read_state(context)

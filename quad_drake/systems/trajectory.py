@@ -16,8 +16,9 @@ class TrajectorySource(LeafSystem):
     def __init__(self, trajectory):
         super().__init__()
         self._trajectory = trajectory
-        self.DeclareVectorOutputPort("reference", REFERENCE_SIZE, self._calc_reference,
-                                     prerequisites_of_calc={self.time_ticket()})
+        self.DeclareVectorOutputPort(
+            "reference", REFERENCE_SIZE, self._calc_reference, prerequisites_of_calc={self.time_ticket()}
+        )
 
     def _calc_reference(self, context, output):
         output.SetFromVector(self._trajectory.sample(context.get_time()))

@@ -79,6 +79,7 @@ def assert_matches(fixture, replay):
 
 # ----- ComplementaryFilter -----------------------------------------------------
 
+
 def make_cf(imu, ekf_yaw, params=None, initial_attitude=(0.0, 0.0, 0.0)):
     dut = ComplementaryFilter(params or AttitudeFilterParams(), initial_attitude)
     context = dut.CreateDefaultContext()
@@ -106,14 +107,15 @@ def test_cf_small_angle_variant_is_selected_by_params():
     dut, context, simulator = make_cf(imu, 0.0, AttitudeFilterParams(variant="small_angle"), (0.5, 0.0, 0.0))
     simulator.AdvanceTo(ticks_end(1))
     roll, pitch, yaw = dut.GetOutputPort("attitude").Eval(context)
-    assert pitch == pytest.approx(0.0, abs=1e-15)      # the nonlinear variant would give -r sin(roll) dt
+    assert pitch == pytest.approx(0.0, abs=1e-15)  # the nonlinear variant would give -r sin(roll) dt
     assert yaw == pytest.approx(DT, abs=1e-15)
     assert roll == pytest.approx(0.5 * 100.0 / (100.0 + DT), abs=1e-15)
 
 
 def test_cf_holds_its_attitude_on_a_non_finite_imu_sample():
-    dut, context, simulator = make_cf([0.0, math.nan, -GRAVITY, 0.0, 0.0, 1.0], ekf_yaw=-0.3,
-                                      initial_attitude=(0.1, 0.2, 0.0))
+    dut, context, simulator = make_cf(
+        [0.0, math.nan, -GRAVITY, 0.0, 0.0, 1.0], ekf_yaw=-0.3, initial_attitude=(0.1, 0.2, 0.0)
+    )
     simulator.AdvanceTo(ticks_end(3))
     np.testing.assert_array_equal(dut.GetOutputPort("attitude").Eval(context), [0.1, 0.2, -0.3])
 
@@ -124,6 +126,7 @@ def test_cf_rejects_an_unknown_variant():
 
 
 # ----- Ekf ---------------------------------------------------------------------
+
 
 def test_ekf_port_sizes():
     dut = Ekf(EkfParams())
@@ -170,10 +173,10 @@ def test_ekf_fuses_a_fresh_gps_stamp_exactly_once():
     nis = r.gps(z)
     assert_matches(f, r)
     np.testing.assert_allclose(f.output("diagnostics")[[0, 1, 4]], [nis, 0.1, 0.0], rtol=1e-12)
-    f.tick(4)                            # same stamp: no further update
+    f.tick(4)  # same stamp: no further update
     r.predict(4)
     assert_matches(f, r)
-    f.fix(gps=z + [0.2])                 # fresh stamp: one more update
+    f.fix(gps=z + [0.2])  # fresh stamp: one more update
     f.tick(2)
     r.predict()
     nis = r.gps(z)
@@ -204,17 +207,17 @@ def test_ekf_fuses_mag_and_gps_samples_of_one_tick():
 def test_ekf_skips_and_counts_non_finite_samples():
     z = [0.5, -0.3, -1.4, 0.2, 0.1, -0.1]
     f, r = EkfFixture(gps=[math.nan] + z[1:] + [0.1], mag=[math.inf, 0.008]), Replay(EkfParams())
-    f.tick(3)                                              # each stamp counted once
+    f.tick(3)  # each stamp counted once
     r.predict(3)
     assert_matches(f, r)
     assert f.output("diagnostics")[4] == 2.0
     assert math.isnan(f.output("diagnostics")[0]) and math.isnan(f.output("diagnostics")[2])
-    f.fix(gps=z + [math.nan])                              # a NaN stamp is rejected too
+    f.fix(gps=z + [math.nan])  # a NaN stamp is rejected too
     f.tick()
     r.predict()
     assert_matches(f, r)
     assert f.output("diagnostics")[4] == 3.0
-    f.fix(gps=NO_GPS, imu=[0.0, 0.0, math.nan, 0.0, 0.0, 0.0])   # a bad IMU sample: no predict
+    f.fix(gps=NO_GPS, imu=[0.0, 0.0, math.nan, 0.0, 0.0, 0.0])  # a bad IMU sample: no predict
     f.tick(2)
     assert_matches(f, r)
     assert f.output("diagnostics")[4] == 5.0
@@ -236,6 +239,7 @@ def test_ekf_mag_update_wraps_the_posterior_yaw():
 
 # ----- EstimatedStateAssembler and the closed estimator loop ------------------
 
+
 def test_assembler_layout_uses_the_ekf_yaw_and_the_gyro():
     dut = EstimatedStateAssembler()
     context = dut.CreateDefaultContext()
@@ -243,8 +247,9 @@ def test_assembler_layout_uses_the_ekf_yaw_and_the_gyro():
     dut.GetInputPort("ekf_state").FixValue(context, [1.0, 2.0, -3.0, 0.4, 0.5, 0.6, 0.7])
     dut.GetInputPort("imu").FixValue(context, [7.0, 8.0, 9.0, -0.1, 0.2, -0.3])
     got = dut.GetOutputPort("estimated_state").Eval(context)
-    expected = np.concatenate([[1.0, 2.0, -3.0], quat_from_euler(0.1, -0.2, 0.7), [0.4, 0.5, 0.6],
-                               [-0.1, 0.2, -0.3]])
+    expected = np.concatenate(
+        [[1.0, 2.0, -3.0], quat_from_euler(0.1, -0.2, 0.7), [0.4, 0.5, 0.6], [-0.1, 0.2, -0.3]]
+    )
     np.testing.assert_allclose(got, expected, rtol=0, atol=1e-15)
 
 
@@ -253,8 +258,10 @@ def build_estimators(imu, gps=NO_GPS, mag=NO_MAG):
     cf = builder.AddSystem(ComplementaryFilter(AttitudeFilterParams()))
     dut = builder.AddSystem(Ekf(EkfParams()))
     assembler = builder.AddSystem(EstimatedStateAssembler())
-    sources = {name: builder.AddSystem(ConstantVectorSource(np.asarray(v, dtype=float)))
-               for name, v in (("imu", imu), ("gps", gps), ("mag", mag))}
+    sources = {
+        name: builder.AddSystem(ConstantVectorSource(np.asarray(v, dtype=float)))
+        for name, v in (("imu", imu), ("gps", gps), ("mag", mag))
+    }
     for name in ("imu", "gps", "mag"):
         builder.Connect(sources[name].get_output_port(), dut.GetInputPort(name))
     builder.Connect(sources["imu"].get_output_port(), cf.GetInputPort("imu"))

@@ -38,8 +38,10 @@ def fixed_plant(commands, noise=(0.5,) * 8, x0=None, params=PARAMS):
 
 
 def outputs(dut, context):
-    return {name: dut.GetOutputPort(name).Eval(context).copy()
-            for name in ("state", "acceleration", "motor_forces")}
+    return {
+        name: dut.GetOutputPort(name).Eval(context).copy()
+        for name in ("state", "acceleration", "motor_forces")
+    }
 
 
 def test_ports_are_declared_with_sizes_and_noise_type():
@@ -156,15 +158,21 @@ def test_unit_noise_one_adds_a_quarter_newton_after_the_clamp():
     dut, context, sim = fixed_plant(commands, noise=[1.0] * 8, x0=make_state(p=(0, 0, -35.0)))
     sim.AdvanceTo(DT)
     # lag from the raw command: up for motors 0, 1, 3 (tau_up), down for motor 2 (6 -> 4.75)
-    w = np.array([DT / (DT + tau) for tau in [PARAMS.motor_tau_up] * 2 + [PARAMS.motor_tau_down]
-                  + [PARAMS.motor_tau_up]])
+    w = np.array(
+        [
+            DT / (DT + tau)
+            for tau in [PARAMS.motor_tau_up] * 2 + [PARAMS.motor_tau_down] + [PARAMS.motor_tau_up]
+        ]
+    )
     target = np.array([1.25, 3.25, 4.75, 0.35])
-    np.testing.assert_allclose(dut.GetOutputPort("motor_forces").Eval(context),
-                               w * target + (1 - w) * np.array(commands), rtol=1e-12)
+    np.testing.assert_allclose(
+        dut.GetOutputPort("motor_forces").Eval(context), w * target + (1 - w) * np.array(commands), rtol=1e-12
+    )
     dut.GetInputPort("motor_noise").FixValue(context, [0.0] * 8)
     sim.AdvanceTo(1.0)  # 50 time constants: forces settle at clamp(cmd) - 0.25
-    np.testing.assert_allclose(dut.GetOutputPort("motor_forces").Eval(context),
-                               [0.75, 2.75, 4.25, -0.15], rtol=1e-9)
+    np.testing.assert_allclose(
+        dut.GetOutputPort("motor_forces").Eval(context), [0.75, 2.75, 4.25, -0.15], rtol=1e-9
+    )
 
 
 def test_com_offset_rolls_the_vehicle():
@@ -177,8 +185,9 @@ def test_com_offset_rolls_the_vehicle():
 
 
 def test_sticky_floor_in_the_simulator():
-    dut, context, sim = fixed_plant([PARAMS.min_motor_thrust] * 4,
-                                    x0=make_state(p=(1.0, 1.0, -0.02), v=(2.0, 0.0, 0.0)))
+    dut, context, sim = fixed_plant(
+        [PARAMS.min_motor_thrust] * 4, x0=make_state(p=(1.0, 1.0, -0.02), v=(2.0, 0.0, 0.0))
+    )
     sim.AdvanceTo(0.5)
     out = outputs(dut, context)
     assert out["state"][2] == 0.0
@@ -192,8 +201,9 @@ def test_random_source_wiring_is_seeded_and_bounded():
         builder = DiagramBuilder()
         plant = builder.AddSystem(QuadrotorPlant(PARAMS, make_state()))
         source = builder.AddSystem(ConstantVectorSource(np.full(4, HOVER)))
-        noise = builder.AddSystem(RandomSource(RandomDistribution.kUniform, plant.noise_size,
-                                               plant.noise_period))
+        noise = builder.AddSystem(
+            RandomSource(RandomDistribution.kUniform, plant.noise_size, plant.noise_period)
+        )
         builder.Connect(source.get_output_port(), plant.GetInputPort("motor_thrusts"))
         builder.Connect(noise.get_output_port(), plant.GetInputPort("motor_noise"))
         diagram = builder.Build()
@@ -224,8 +234,9 @@ R_BD = np.diag([1.0, -1.0, -1.0])  # FRD body -> FLU body frame D of the Drake b
 def drake_accelerations(x, thrust, moment, mass, inertia):
     """(a_NB in N, w_dot_B in B) of a MultibodyPlant free body with the same wrench."""
     mbp = MultibodyPlant(0.0)
-    body = mbp.AddRigidBody("quad", SpatialInertia.MakeFromCentralInertia(
-        mass, np.zeros(3), RotationalInertia(*inertia)))  # diagonal: same in FRD and FLU
+    body = mbp.AddRigidBody(
+        "quad", SpatialInertia.MakeFromCentralInertia(mass, np.zeros(3), RotationalInertia(*inertia))
+    )  # diagonal: same in FRD and FLU
     mbp.mutable_gravity_field().set_gravity_vector([0.0, 0.0, -GRAVITY])
     mbp.Finalize()
     context = mbp.CreateDefaultContext()

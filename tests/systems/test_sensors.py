@@ -16,8 +16,9 @@ from quad_drake.rotations import quat_from_euler
 from quad_drake.systems.sensors import Gps, Imu, Magnetometer
 
 ROLL, PITCH, YAW = 0.3, -0.2, 1.1
-STATE = np.concatenate(([1.0, -2.0, -3.0], quat_from_euler(ROLL, PITCH, YAW), [0.5, -0.25, 0.1],
-                        [0.2, -0.1, 0.05]))
+STATE = np.concatenate(
+    ([1.0, -2.0, -3.0], quat_from_euler(ROLL, PITCH, YAW), [0.5, -0.25, 0.1], [0.2, -0.1, 0.05])
+)
 ACCELERATION = np.array([0.4, -0.3, 0.2])
 
 
@@ -31,7 +32,8 @@ def _build(dut, seed=None, noise=None, log_period=None):
     source = None
     if noise is None:
         source = builder.AddSystem(
-            RandomSource(RandomDistribution.kGaussian, dut.noise_size, dut.noise_period))
+            RandomSource(RandomDistribution.kGaussian, dut.noise_size, dut.noise_period)
+        )
         builder.Connect(source.get_output_port(0), dut.GetInputPort("noise"))
     else:
         builder.ExportInput(dut.GetInputPort("noise"), "noise")
@@ -85,11 +87,15 @@ def _check_statistics(samples, truth, std, what):
 
 # ----- IMU ---------------------------------------------------------------------
 
+
 def test_imu_ports_and_noise_wiring_attributes():
     assert _random_input_count(Imu(ImuParams())) == 1
     dut = Imu(ImuParams())
     assert [dut.get_input_port(i).get_name() for i in range(dut.num_input_ports())] == [
-        "state", "noise", "acceleration"]
+        "state",
+        "noise",
+        "acceleration",
+    ]
     assert dut.GetInputPort("state").size() == 13
     assert dut.GetInputPort("acceleration").size() == 3
     assert dut.GetInputPort("noise").size() == 6
@@ -135,9 +141,13 @@ def test_imu_samples_every_tick_from_zero_with_fresh_noise():
         if k > 0:
             np.testing.assert_array_equal(_output(simulator, dut, t - 0.5e-6), previous)  # held
         after = _output(simulator, dut, t + 0.5e-6)
-        expected = sensor_models.imu_measurement(STATE[3:7].tolist(), STATE[10:13].tolist(),
-                                                 ACCELERATION.tolist(), _noise(simulator, source),
-                                                 params)
+        expected = sensor_models.imu_measurement(
+            STATE[3:7].tolist(),
+            STATE[10:13].tolist(),
+            ACCELERATION.tolist(),
+            _noise(simulator, source),
+            params,
+        )
         np.testing.assert_array_equal(after, expected)
         assert np.all(after != previous)
         previous = after
@@ -172,6 +182,7 @@ def test_imu_same_seed_is_bit_identical():
 
 # ----- GPS ---------------------------------------------------------------------
 
+
 def test_gps_ports_and_stamps():
     params = GpsParams()
     dut = Gps(params)
@@ -191,7 +202,8 @@ def test_gps_ports_and_stamps():
         assert sample[6] == k * 0.1  # exact: the stamp is counter * period
         assert np.all(sample[:6] != held[:6])
         position, velocity, _ = sensor_models.gps_measurement(  # the draw made at t = k period
-            STATE[0:3].tolist(), STATE[7:10].tolist(), [0.0] * 3, _noise(simulator, source), params)
+            STATE[0:3].tolist(), STATE[7:10].tolist(), [0.0] * 3, _noise(simulator, source), params
+        )
         np.testing.assert_array_equal(sample[:6], position + velocity)
 
 
@@ -234,6 +246,7 @@ def test_gps_random_walk_accumulates_in_state():
 
 # ----- magnetometer ------------------------------------------------------------
 
+
 def test_magnetometer_ports_and_stamps():
     params = MagParams()
     dut = Magnetometer(params)
@@ -243,8 +256,9 @@ def test_magnetometer_ports_and_stamps():
     assert (dut.noise_size, dut.noise_period) == (1, 0.01)
     assert not dut.HasAnyDirectFeedthrough()
     simulator, _, _, _ = _build(dut, seed=4)
-    np.testing.assert_array_equal(_output(simulator, dut, 0.008 + SLOW_SENSOR_OFFSET - 0.5e-6),
-                                  [0.0, NO_SAMPLE_STAMP])
+    np.testing.assert_array_equal(
+        _output(simulator, dut, 0.008 + SLOW_SENSOR_OFFSET - 0.5e-6), [0.0, NO_SAMPLE_STAMP]
+    )
     for k in range(4):
         t = 0.008 + k * 0.01
         held = _output(simulator, dut, t + SLOW_SENSOR_OFFSET - 0.5e-6)

@@ -17,8 +17,12 @@ def test_output_is_the_trajectory_at_context_time():
     port = dut.GetOutputPort("reference")
     assert port.size() == REFERENCE_SIZE
     context = dut.CreateDefaultContext()
-    for t, p, yaw in [(0.0, [0, 0, -1], 0.0), (2.5, [1.5, 0, -1], 0.0), (3.5, [3, 0, -1], 0.785),
-                      (30.0, [3, -3, -1], 1.57)]:
+    for t, p, yaw in [
+        (0.0, [0, 0, -1], 0.0),
+        (2.5, [1.5, 0, -1], 0.0),
+        (3.5, [3, 0, -1], 0.785),
+        (30.0, [3, -3, -1], 1.57),
+    ]:
         context.SetTime(t)
         out = port.Eval(context)
         np.testing.assert_allclose(out[0:3], p, atol=1e-12)
