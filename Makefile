@@ -1,4 +1,5 @@
-# Two commands do all the set-up: `make run` (every scenario + result table), `make test`.
+# Two commands do all the set-up: `make run` (every scenario + result table), `make test`
+# (lint, then every test: slow, browser and notebook ones included).
 # The virtual environment uses the newest Python that drake supports here (3.13, 3.12,
 # else python3); override with `make test PYTHON=python3 VENV=.venv-311`.
 PYTHON ?= $(shell for v in 3.13 3.12; do \
@@ -22,12 +23,15 @@ $(VENV)/.installed: pyproject.toml
 run: $(VENV)/.installed
 	$(BIN)/quad-drake run --all
 
-test: $(VENV)/.installed
+lint: $(VENV)/.installed
 	$(BIN)/python -m ruff check .
+	$(BIN)/python -m ruff format --check .
+
+test: lint
 	$(BIN)/python -m pytest
 
 bench: $(VENV)/.installed
 	$(BIN)/python benchmarks/bench_closed_loop.py
 
 clean:
-	rm -rf $(VENV) out
+	rm -rf $(VENV) out build dist *.egg-info

@@ -25,11 +25,10 @@ from pydrake.systems.primitives import LogVectorOutput
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from quad_drake import catalog  # noqa: E402
 from quad_drake import conventions as c  # noqa: E402
-from quad_drake.config import load_scenario  # noqa: E402
 from quad_drake.simulation import build_diagram  # noqa: E402
 
-SCENARIO_DIR = Path(__file__).resolve().parent.parent / "scenarios"
 TARGET_REAL_TIME_FACTOR = 25.0
 """Issue target for 11_gps_update on the 2-core reference machine."""
 
@@ -93,7 +92,7 @@ def main(argv=None):
 
     rows = []
     for name in args.scenarios:
-        scenario = load_scenario(SCENARIO_DIR / f"{name}.yaml")
+        scenario = catalog.load(name)
         time_scenario(scenario)  # warm-up: imports, first-call caches
         wall, cpu, steps = _medians([time_scenario(scenario) for _ in range(args.runs)])
         base_wall, base_cpu, _ = _medians([time_cpp_baseline(scenario.end_time) for _ in range(args.runs)])

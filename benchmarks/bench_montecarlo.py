@@ -9,7 +9,7 @@ included; the speed-up of J jobs is bounded by the number of physical cores.
 import argparse
 import os
 
-from quad_drake.cli import load_named
+from quad_drake import catalog
 from quad_drake.montecarlo import run_campaign
 
 
@@ -19,7 +19,7 @@ def main():
     parser.add_argument("--runs", type=int, default=8)
     parser.add_argument("--jobs", type=int, nargs="+", default=[1, 2])
     args = parser.parse_args()
-    scenario = load_named(args.scenario)
+    scenario = catalog.load(args.scenario)
     print(f"{args.scenario}: {args.runs} runs of {scenario.end_time:g} s, {os.cpu_count()} CPUs")
     print(f"{'jobs':>4s} {'wall [s]':>9s} {'runs/min':>9s} {'sim s/run':>10s} {'x real (all runs)':>18s}")
     reference = None

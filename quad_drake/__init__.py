@@ -21,7 +21,8 @@ Conventions (stated once, used everywhere):
 
 Architecture: pure math modules (``rotations``, ``dynamics``, ``sensor_models``,
 ``estimation``, ``control``, ``trajectories``, ``evaluation``) under thin Drake
-glue in ``systems``; ``simulation`` wires the Diagram, ``cli`` is the front end.
+glue in ``systems``; ``simulation`` wires the Diagram, ``catalog`` finds and loads
+scenarios, ``cli`` is the front end (nothing in the package imports it).
 """
 
-__version__ = "0.1.0"
+__version__ = "0.2.0.dev0"

@@ -10,41 +10,12 @@ import os
 import sys
 from pathlib import Path
 
+from . import __version__, catalog
 from .config import ConfigError, load_scenario
-
-SCENARIO_DIR = Path(
-    os.environ.get("QUAD_DRAKE_SCENARIOS", Path(__file__).resolve().parent.parent / "scenarios")
-)
-
-
-def scenario_paths():
-    """{name: path} of the bundled scenarios, in order."""
-    return {p.stem: p for p in sorted(SCENARIO_DIR.glob("*.yaml"))}
-
-
-def resolve_scenario(name):
-    """Path of a scenario given by bundled name or by a YAML file path."""
-    known = scenario_paths()
-    if name in known:
-        return known[name]
-    path = Path(name)
-    if path.suffix in (".yaml", ".yml") or path.exists():
-        if not path.is_file():
-            raise ConfigError(f"{name}: no such scenario file")
-        return path
-    raise ConfigError(f"unknown scenario {name!r} (known: {', '.join(known)})")
-
-
-def load_named(name, seed=None, overrides=()):
-    """ScenarioConfig for a bundled name or path, with --set overrides and --seed."""
-    scenario = load_scenario(resolve_scenario(name), overrides)
-    if seed is not None:
-        scenario.seed = seed
-    return scenario
 
 
 def cmd_list(args):
-    for name, path in scenario_paths().items():
+    for name, path in catalog.bundled_scenarios().items():
         try:
             description = load_scenario(path).description
         except ConfigError as e:
@@ -71,10 +42,10 @@ def _table(rows):
 def cmd_run(args):
     from .simulation import run
 
-    names = list(scenario_paths()) if args.all else args.names
+    names = list(catalog.bundled_scenarios()) if args.all else args.names
     if not names:
         raise ConfigError("run: name at least one scenario, or --all")
-    scenarios = [load_named(n, args.seed, args.set) for n in names]  # all input checked first
+    scenarios = [catalog.load(n, args.seed, args.set) for n in names]  # all input checked first
     out = Path(args.out)
     summaries, run_dirs = [], []
     for scenario in scenarios:
@@ -116,7 +87,7 @@ def cmd_noise_std(args):
 def cmd_diagram(args):
     from .diagram_svg import write_diagram_svg
 
-    scenario = load_named(args.name, None, args.set)
+    scenario = catalog.load(args.name, None, args.set)
     path = Path(args.output or f"{scenario.name}_diagram.svg")
     print(write_diagram_svg(scenario, path, max_depth=args.depth))
     return 0
@@ -132,6 +103,7 @@ def cmd_montecarlo(args):
 
 def build_parser():
     parser = argparse.ArgumentParser(prog="quad-drake", description=__doc__.splitlines()[0])
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("list", help="bundled scenarios with a one-line description").set_defaults(func=cmd_list)
     run_parser = sub.add_parser("run", help="run scenarios, print PASS/FAIL and a summary table")
@@ -173,9 +145,6 @@ def build_parser():
 def main(argv=None):
     parser = build_parser()
     args = parser.parse_args(argv)
-    if getattr(args, "seed", None) is not None and args.seed < 0:
-        print("quad-drake: --seed must be >= 0", file=sys.stderr)
-        return 2
     try:
         return args.func(args)
     except ConfigError as e:

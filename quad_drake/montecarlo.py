@@ -683,9 +683,9 @@ def main_montecarlo(args):
     Returns 0 when every campaign consistency criterion passed (or there is none), else 1;
     bad input raises ConfigError.
     """
-    from .cli import load_named
+    from . import catalog
 
-    scenario = load_named(args.name, args.seed, args.set)
+    scenario = catalog.load(args.name, args.seed, args.set)
     campaign = run_campaign(scenario, args.runs, args.jobs, scheduler=args.scheduler, progress=not args.quiet)
     print(campaign.table())
     print(campaign.timing_line())

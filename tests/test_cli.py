@@ -37,9 +37,9 @@ def test_run_prints_reference_lines_and_writes_results(tmp_path):
 
 
 def test_run_accepts_a_yaml_path_seed_and_overrides(tmp_path):
-    from quad_drake.cli import scenario_paths
+    from quad_drake import catalog
 
-    path = scenario_paths()["01_intro"]
+    path = catalog.bundled_scenarios()["01_intro"]
     result = cli(
         "run", str(path), "--seed", "9", "--set", "end_time=0.5", "--out", str(tmp_path), "--no-plots"
     )
@@ -75,7 +75,7 @@ def test_noise_std_measures_the_configured_noise(tmp_path):
             ["run", "01_intro", "--set", "vehicles.0.trajectory={kind: file, file: nope.txt}"],
             "no such trajectory file 'nope.txt'",
         ),
-        (["run", "01_intro", "--seed", "-1"], "--seed must be >= 0"),
+        (["run", "01_intro", "--seed", "-1"], "01_intro.yaml: seed: must be >= 0, got -1"),
         (["run"], "name at least one scenario"),
         (["noise-std", "/nonexistent/run"], "no logs.npz"),
     ],

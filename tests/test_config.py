@@ -5,7 +5,7 @@ import textwrap
 import pytest
 from pydrake.common.yaml import yaml_load_typed
 
-from quad_drake.cli import scenario_paths
+from quad_drake import catalog
 from quad_drake.config import ConfigError, ScenarioConfig, dump_scenario, load_scenario
 
 
@@ -27,7 +27,7 @@ GOOD = """
 
 
 def test_every_bundled_scenario_loads_and_round_trips():
-    paths = scenario_paths()
+    paths = catalog.bundled_scenarios()
     assert [n[:2] for n in paths] == [f"{i:02d}" for i in range(1, 12)]
     for name, path in paths.items():
         scenario = load_scenario(path)

@@ -2,7 +2,7 @@
 
 import pytest
 
-from quad_drake.cli import load_named
+from quad_drake import catalog
 from quad_drake.config import ConfigError
 from quad_drake.montecarlo import run_campaign
 
@@ -11,7 +11,7 @@ dask = pytest.importorskip("dask")
 
 
 def test_dask_campaign_equals_the_local_campaign():
-    scenario = load_named("10_mag_update", None, ["end_time=1"])
+    scenario = catalog.load("10_mag_update", None, ["end_time=1"])
     local = run_campaign(scenario, 3, jobs=1, seed=20, progress=False)
     with distributed.LocalCluster(
         n_workers=1,
@@ -30,7 +30,7 @@ def test_dask_campaign_equals_the_local_campaign():
 
 
 def test_an_unreachable_scheduler_is_a_config_error():
-    scenario = load_named("10_mag_update", None, ["end_time=1"])
+    scenario = catalog.load("10_mag_update", None, ["end_time=1"])
     with (
         dask.config.set({"distributed.comm.timeouts.connect": "2s"}),
         pytest.raises(ConfigError, match="tcp://127.0.0.1:9: cannot connect"),

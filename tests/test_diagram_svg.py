@@ -5,7 +5,7 @@ import xml.etree.ElementTree as ET
 
 import pytest
 
-from quad_drake.cli import load_named
+from quad_drake import catalog
 from quad_drake.config import ConfigError
 from quad_drake.diagram_svg import diagram_dot, write_diagram_svg
 
@@ -22,7 +22,7 @@ def _texts(svg_path):
 
 @needs_dot
 def test_full_depth_shows_every_system_of_every_vehicle(tmp_path):
-    path = write_diagram_svg(load_named("03_position_control"), tmp_path / "sub" / "diagram.svg")
+    path = write_diagram_svg(catalog.load("03_position_control"), tmp_path / "sub" / "diagram.svg")
     texts = _texts(path)
     assert {"name=Quad1", "name=Quad2", "name=plant", "name=controller", "name=trajectory"} <= texts
     assert "motor_thrusts" in texts and "reference" in texts
@@ -30,7 +30,7 @@ def test_full_depth_shows_every_system_of_every_vehicle(tmp_path):
 
 @needs_dot
 def test_depth_one_keeps_vehicles_closed(tmp_path):
-    texts = _texts(write_diagram_svg(load_named("11_gps_update"), tmp_path / "d.svg", max_depth=1))
+    texts = _texts(write_diagram_svg(catalog.load("11_gps_update"), tmp_path / "d.svg", max_depth=1))
     assert "name=Quad" in texts and "name=plant" not in texts
     assert {"state", "ekf_state", "covariance", "gps", "mag"} <= texts  # the vehicle's exported ports
 
@@ -38,13 +38,13 @@ def test_depth_one_keeps_vehicles_closed(tmp_path):
 def test_missing_dot_is_a_one_line_config_error(tmp_path, monkeypatch):
     monkeypatch.setattr("quad_drake.diagram_svg.shutil.which", lambda name: None)
     with pytest.raises(ConfigError, match=r"^diagram: Graphviz 'dot' not found .*graphviz") as error:
-        write_diagram_svg(load_named("01_intro"), tmp_path / "d.svg")
+        write_diagram_svg(catalog.load("01_intro"), tmp_path / "d.svg")
     assert "\n" not in str(error.value)
     assert not (tmp_path / "d.svg").exists()
 
 
 def test_failing_dot_and_bad_depth_are_config_errors(tmp_path):
     with pytest.raises(ConfigError, match=r"^diagram: dot failed with exit code 1"):
-        write_diagram_svg(load_named("01_intro"), tmp_path / "d.svg", dot=shutil.which("false"))
+        write_diagram_svg(catalog.load("01_intro"), tmp_path / "d.svg", dot=shutil.which("false"))
     with pytest.raises(ConfigError, match="depth must be >= 0"):
-        diagram_dot(load_named("01_intro"), max_depth=-1)
+        diagram_dot(catalog.load("01_intro"), max_depth=-1)

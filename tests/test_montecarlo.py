@@ -9,10 +9,9 @@ import math
 import numpy as np
 import pytest
 
+from quad_drake import catalog, montecarlo
 from quad_drake import consistency as cons
-from quad_drake import montecarlo
 from quad_drake.accuracy_bound import accuracy_bound
-from quad_drake.cli import load_named
 from quad_drake.config import (
     ConfigError,
     CriterionConfig,
@@ -28,7 +27,7 @@ from quad_drake.montecarlo import CampaignResult, RunRecord, add_arguments, main
 
 @pytest.fixture(scope="module")
 def scenario():
-    return load_named("10_mag_update", None, ["end_time=1.5"])
+    return catalog.load("10_mag_update", None, ["end_time=1.5"])
 
 
 @pytest.fixture(scope="module")

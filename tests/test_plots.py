@@ -297,10 +297,10 @@ def test_write_index_links_every_run(tmp_path):
 
 
 def test_real_run_artifacts(tmp_path):
-    from quad_drake.cli import load_named
+    from quad_drake import catalog
     from quad_drake.simulation import run
 
-    result = run(load_named("01_intro"))
+    result = run(catalog.load("01_intro"))
     artifacts = plots.write_run_artifacts(result, tmp_path)
     assert [p.name for p in artifacts["plots"]] == [
         "criterion_1.png",

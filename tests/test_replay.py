@@ -62,10 +62,10 @@ def test_frame_indices_pick_the_log_sample_at_or_after_each_frame():
 @pytest.fixture(scope="module")
 def flight(tmp_path_factory):
     """A 3 s closed-loop flight on the estimate (11_gps_update) and its replay.html."""
-    from quad_drake.cli import load_named
+    from quad_drake import catalog
     from quad_drake.simulation import run
 
-    result = run(load_named("11_gps_update", None, ["end_time=3"]))
+    result = run(catalog.load("11_gps_update", None, ["end_time=3"]))
     path = write_replay(result, tmp_path_factory.mktemp("replay") / "replay.html")
     return result, path
 

@@ -2,13 +2,13 @@
 
 import pytest
 
-from quad_drake.cli import load_named, scenario_paths
+from quad_drake import catalog
 from quad_drake.simulation import run
 
 
-@pytest.mark.parametrize("name", list(scenario_paths()))
+@pytest.mark.parametrize("name", list(catalog.bundled_scenarios()))
 def test_scenario_passes_every_criterion(name):
-    result = run(load_named(name))
+    result = run(catalog.load(name))
     assert result.criteria, f"{name} has no criterion"
     failed = [r.line for r in result.criteria if not r.passed]
     assert not failed, failed
@@ -19,15 +19,15 @@ def test_scenario_passes_every_criterion(name):
     [("03_position_control", 5), ("04_nonidealities", 11), ("05_trajectory_follow", 7), ("11_gps_update", 3)],
 )
 def test_control_scenarios_pass_with_other_seeds(name, seed):
-    assert run(load_named(name, seed)).passed
+    assert run(catalog.load(name, seed)).passed
 
 
 def test_small_angle_filter_fails_07_as_in_the_reference():
     result = run(
-        load_named("07_attitude_estimation", overrides=["vehicles.0.attitude_filter.variant=small_angle"])
+        catalog.load("07_attitude_estimation", overrides=["vehicles.0.attitude_filter.variant=small_angle"])
     )
     assert not result.passed
     # The nonlinear filter's error stays far below the threshold over the same manoeuvres.
-    nonlinear = run(load_named("07_attitude_estimation"))
+    nonlinear = run(catalog.load("07_attitude_estimation"))
     assert nonlinear.signals["Quad.Est.E.MaxEuler"].values.max() < 0.02
     assert result.signals["Quad.Est.E.MaxEuler"].values.max() > 0.1

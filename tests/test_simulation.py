@@ -5,15 +5,15 @@ import pytest
 from pydrake.common import RandomGenerator
 from pydrake.systems.analysis import Simulator
 
+from quad_drake import catalog
 from quad_drake import conventions as c
-from quad_drake.cli import load_named
 from quad_drake.control.cascade import cascade_step
 from quad_drake.dynamics import motor_lag_step
 from quad_drake.simulation import build_diagram, build_vehicle, load_logs, read_logs, run, vehicle_log_names
 
 
 def short(name, end_time, *overrides, seed=None):
-    return load_named(name, seed, [f"end_time={end_time}", *overrides])
+    return catalog.load(name, seed, [f"end_time={end_time}", *overrides])
 
 
 def test_same_seed_gives_identical_logs_and_another_seed_differs():

@@ -1,0 +1,43 @@
+"""The bundled scenarios (package data in ``quad_drake/scenarios/``) and how to load one.
+
+A scenario is named either by its bundled name (``01_intro``) or by the path of a YAML file.
+This is the library's entry point for loading; the CLI, the notebooks, the benchmarks and the
+campaigns all go through it.
+"""
+
+from pathlib import Path
+
+from .config import ConfigError, load_scenario
+
+SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios"
+
+
+def bundled_scenarios():
+    """{name: path} of the bundled scenarios, ordered by name (01_intro first)."""
+    return {p.stem: p for p in sorted(SCENARIO_DIR.glob("*.yaml"))}
+
+
+def resolve(name_or_path):
+    """Path of a scenario given by bundled name or by a YAML file path; ConfigError if neither."""
+    name = str(name_or_path)
+    known = bundled_scenarios()
+    if name in known:
+        return known[name]
+    path = Path(name)
+    if path.suffix in (".yaml", ".yml") or path.exists():
+        if not path.is_file():
+            raise ConfigError(f"{name}: no such scenario file")
+        return path
+    raise ConfigError(f"unknown scenario {name!r} (known: {', '.join(known)})")
+
+
+def load(name_or_path, seed=None, overrides=()):
+    """Validated ScenarioConfig for a bundled name or a path, with ``dotted.key=value`` overrides.
+
+    ``seed`` (when given) is applied as the override ``seed=<seed>`` after the others, so the
+    same rule as in a file (an int >= 0) validates it.
+    """
+    overrides = list(overrides)
+    if seed is not None:
+        overrides.append(f"seed={seed}")
+    return load_scenario(resolve(name_or_path), overrides)

@@ -1,0 +1,124 @@
+"""The package as a user gets it: import direction, version, ``python -m``, and a wheel installed
+outside the repository."""
+
+import ast
+import os
+import shutil
+import subprocess
+import sys
+import sysconfig
+from pathlib import Path
+
+import pytest
+
+import quad_drake
+from quad_drake import catalog
+
+REPO = Path(__file__).resolve().parent.parent
+PACKAGE = Path(quad_drake.__file__).resolve().parent
+
+
+def _imported_modules(path):
+    """Absolute names of the modules `path` imports (relative imports resolved)."""
+    module = ".".join(path.relative_to(PACKAGE.parent).with_suffix("").parts)
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.rsplit(".", node.level - 1)[0] if node.level > 1 else package
+                stem = f"{base}.{node.module}" if node.module else base
+            else:
+                stem = node.module
+            names.add(stem)
+            names.update(f"{stem}.{alias.name}" for alias in node.names)
+    return names
+
+
+def test_no_module_of_the_package_imports_the_cli():
+    offenders = [
+        str(path.relative_to(PACKAGE.parent))
+        for path in sorted(PACKAGE.rglob("*.py"))
+        if path.name not in ("cli.py", "__main__.py") and "quad_drake.cli" in _imported_modules(path)
+    ]
+    assert offenders == []
+
+
+def test_the_import_scan_sees_relative_imports_of_the_cli():
+    # The scan above must be able to fail: __main__ imports the CLI with a relative import.
+    assert "quad_drake.cli" in _imported_modules(PACKAGE / "__main__.py")
+
+
+def test_catalog_lists_eleven_bundled_scenarios_inside_the_package():
+    scenarios = catalog.bundled_scenarios()
+    assert list(scenarios)[:2] == ["01_intro", "02_attitude_control"] and len(scenarios) == 11
+    assert all(path.parent == PACKAGE / "scenarios" for path in scenarios.values())
+    assert not (REPO / "scenarios").exists()
+
+
+def _run(*args, **kwargs):
+    return subprocess.run(args, capture_output=True, text=True, timeout=600, **kwargs)
+
+
+def test_version_comes_from_one_place():
+    for command in (["-m", "quad_drake", "--version"], ["-m", "quad_drake.cli", "--version"]):
+        result = _run(sys.executable, *command)
+        assert result.returncode == 0, result.stderr
+        assert result.stdout.strip() == f"quad-drake {quad_drake.__version__}"
+
+
+@pytest.mark.slow
+def test_wheel_installed_outside_the_repo_lists_and_runs_the_bundled_scenarios(tmp_path):
+    # Build from a copy of what the sdist holds: no stale build/ or egg-info of the checkout leaks in.
+    source = tmp_path / "source"
+    shutil.copytree(PACKAGE, source / "quad_drake", ignore=shutil.ignore_patterns("__pycache__"))
+    for name in ("pyproject.toml", "README.md", "LICENSE"):
+        shutil.copy(REPO / name, source)
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"} | {"MPLBACKEND": "Agg"}
+    wheels = tmp_path / "wheels"
+    built = _run(
+        sys.executable, "-m", "pip", "wheel", str(source), "--no-deps", "-q", "-w", str(wheels), env=env
+    )
+    assert built.returncode == 0, built.stderr
+    (wheel,) = wheels.glob("quad_drake-*.whl")
+
+    # A fresh venv that sees this interpreter's site-packages (drake, numpy...) through a .pth
+    # line, after its own: the wheel's copy of quad_drake wins, the editable install never loads.
+    venv = tmp_path / "venv"
+    assert _run(sys.executable, "-m", "venv", str(venv), env=env).returncode == 0
+    python = venv / "bin" / "python"
+    purelib = "import sysconfig; print(sysconfig.get_paths()['purelib'])"
+    site = _run(str(python), "-c", purelib, env=env).stdout.strip()
+    Path(site, "parent_site.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
+    installed = _run(str(python), "-m", "pip", "install", "--no-deps", "-q", str(wheel), env=env)
+    assert installed.returncode == 0, installed.stderr
+
+    cwd = tmp_path / "elsewhere"
+    cwd.mkdir()
+    quad_drake_exe = str(venv / "bin" / "quad-drake")
+
+    where = _run(str(python), "-c", "import quad_drake; print(quad_drake.__file__)", cwd=cwd, env=env)
+    assert Path(where.stdout.strip()).is_relative_to(venv), where.stdout + where.stderr
+
+    listed = _run(quad_drake_exe, "list", cwd=cwd, env=env)
+    assert listed.returncode == 0, listed.stderr
+    assert len(listed.stdout.strip().splitlines()) == 11
+
+    out = tmp_path / "out"
+    ran = _run(quad_drake_exe, "run", "01_intro", "--no-plots", "--out", str(out), cwd=cwd, env=env)
+    assert ran.returncode == 0, ran.stderr
+    assert "PASS: ABS(Quad.PosFollowErr)" in ran.stdout
+    assert (out / "01_intro" / "logs.npz").is_file()
+
+    # A scenario flying a packaged trajectory file (data/traj) resolves it from the wheel too.
+    traj = _run(
+        quad_drake_exe, "run", "05_trajectory_follow", "--set", "end_time=0.2", "--no-plots",
+        "--out", str(out), cwd=cwd, env=env,
+    )  # fmt: skip
+    assert traj.returncode in (0, 1) and "Traceback" not in traj.stderr, traj.stderr
+
+    for command in ([quad_drake_exe], [str(python), "-m", "quad_drake"]):
+        version = _run(*command, "--version", cwd=cwd, env=env)
+        assert version.stdout.strip() == f"quad-drake {quad_drake.__version__}", version.stderr
