@@ -35,9 +35,19 @@ def load(name_or_path, seed=None, overrides=()):
     """Validated ScenarioConfig for a bundled name or a path, with ``dotted.key=value`` overrides.
 
     ``seed`` (when given) is applied as the override ``seed=<seed>`` after the others, so the
-    same rule as in a file (an int >= 0) validates it.
+    same rule as in a file (an int >= 0) validates it. The criteria's signal names are checked
+    against what the scenario logs, so a misspelt name is reported (with the file) at load
+    time, before anything flies.
     """
+    from .simulation import check_criteria
+
+    path = resolve(name_or_path)
     overrides = list(overrides)
     if seed is not None:
         overrides.append(f"seed={seed}")
-    return load_scenario(resolve(name_or_path), overrides)
+    scenario = load_scenario(path, overrides)
+    try:
+        check_criteria(scenario)
+    except ConfigError as e:
+        raise ConfigError(f"{path}: {e}") from None
+    return scenario

@@ -1,7 +1,7 @@
-"""Command line: ``quad-drake list | run | montecarlo | diagram | noise-std``.
+"""Command line: ``quad-drake list | run | montecarlo | diagram | noise-std | export``.
 
 Exit codes: 0 every criterion passed, 1 a criterion failed, 2 bad input
-(one line on stderr, no traceback).
+(one line on stderr, no traceback), 130 interrupted (Ctrl-C; finished runs are kept).
 """
 
 import argparse
@@ -12,6 +12,7 @@ from pathlib import Path
 
 from . import __version__, catalog
 from .config import ConfigError, load_scenario
+from .outdir import check_output_dir
 
 
 def cmd_list(args):
@@ -39,39 +40,65 @@ def _table(rows):
     return "\n".join(lines)
 
 
-def cmd_run(args):
+def _fly(scenario):
+    """SimulationResult of one scenario; a numerical breakdown of the flight is one line."""
     from .simulation import run
 
+    try:
+        return run(scenario)
+    except ArithmeticError as e:  # e.g. a filter whose covariance stopped being usable
+        raise ConfigError(
+            f"{scenario.name}: the simulation broke down numerically ({type(e).__name__}: {e}); "
+            "check the noise and covariance settings"
+        ) from None
+
+
+def cmd_run(args):
     names = list(catalog.bundled_scenarios()) if args.all else args.names
     if not names:
         raise ConfigError("run: name at least one scenario, or --all")
     scenarios = [catalog.load(n, args.seed, args.set) for n in names]  # all input checked first
-    out = Path(args.out)
+    out = check_output_dir(args.out)
     summaries, run_dirs = [], []
-    for scenario in scenarios:
-        print(f"== {scenario.name} (seed {scenario.seed}, {scenario.end_time:g} s)", flush=True)
-        result = run(scenario)
-        for criterion in result.criteria:
-            print(criterion.line)
-        run_dir = result.save(out / scenario.name)  # logs first: nothing is lost if a plot fails
-        if not args.no_plots:
-            from .plots import write_run_artifacts
+    try:
+        for scenario in scenarios:
+            print(f"== {scenario.name} (seed {scenario.seed}, {scenario.end_time:g} s)", flush=True)
+            result = _fly(scenario)
+            for criterion in result.criteria:
+                print(criterion.line)
+            run_dir = result.save(out / scenario.name)  # logs first: nothing is lost if a plot fails
+            if not args.no_plots:
+                from .plots import write_run_artifacts
 
-            write_run_artifacts(result, run_dir)
-        if args.meshcat:
-            from .replay import show_live
+                write_run_artifacts(result, run_dir)
+            if args.meshcat:
+                from .replay import show_live
 
-            show_live(result)
-        summaries.append(result.summary())
-        run_dirs.append(run_dir)
-        (out / "summary.json").write_text(json.dumps(summaries, indent=2) + "\n")
-    if not args.no_plots:
-        from .report import write_index
-
-        write_index(list(zip(summaries, run_dirs, strict=True)), out)
+                show_live(result)
+            summaries.append(result.summary())
+            run_dirs.append(run_dir)
+            (out / "summary.json").write_text(json.dumps(summaries, indent=2) + "\n")
+    except KeyboardInterrupt:
+        index = _write_index(args, summaries, run_dirs, out)
+        kept = f"kept the {len(summaries)} finished run(s) in {out}/" if summaries else "no run had finished"
+        print(f"quad-drake: interrupted; {kept}" + (f", {index}" if index else ""), file=sys.stderr)
+        return 130
+    index = _write_index(args, summaries, run_dirs, out)
     print()
     print(_table(summaries))
+    if index:
+        print(f"open {index}")
     return 0 if all(s["passed"] for s in summaries) else 1
+
+
+def _write_index(args, summaries, run_dirs, out):
+    """Path of the index.html linking the finished runs, or None (none finished, --no-plots)."""
+    if args.no_plots or not summaries:
+        return None
+    from .report import write_index
+
+    write_index(list(zip(summaries, run_dirs, strict=True)), out)
+    return out / "index.html"
 
 
 def cmd_noise_std(args):
@@ -81,6 +108,18 @@ def cmd_noise_std(args):
     _, logs = load_logs(args.run_dir)
     for name, std in measured_noise_std(signals_from_logs(logs)).items():
         print(f"{name}: {std:.4f}")
+    return 0
+
+
+def cmd_export(args):
+    from .export import export_csv
+    from .simulation import load_logs
+
+    load_logs(args.run_dir)  # a folder without logs is refused before anything is written
+    if args.out is not None:
+        check_output_dir(args.out)
+    for path in export_csv(args.run_dir, args.out):
+        print(path)
     return 0
 
 
@@ -94,11 +133,30 @@ def cmd_diagram(args):
 
 
 def cmd_montecarlo(args):
-    from .montecarlo import main_montecarlo
+    """Run the campaign, print its table, save OUT/NAME_montecarlo/; the last line says why the
+    exit code is what it is (0: every campaign consistency test passed or there is none)."""
+    from .montecarlo import run_campaign
 
     if args.runs < 1 or args.jobs < 1:
         raise ConfigError("montecarlo: --runs and --jobs must be >= 1")
-    return main_montecarlo(args)
+    scenario = catalog.load(args.name, args.seed, args.set)
+    out = check_output_dir(args.out)
+    campaign = run_campaign(scenario, args.runs, args.jobs, scheduler=args.scheduler, progress=not args.quiet)
+    print(campaign.table())
+    print(campaign.timing_line())
+    out_dir = campaign.save(out / f"{scenario.name}_montecarlo", plots=not args.no_plots)
+    print(
+        f"saved {out_dir}/: runs.csv, summary.json, table.txt"
+        + (", consistency.npz" if campaign.consistency else "")
+        + (", plots" if not args.no_plots else "")
+    )
+    reasons = campaign.failure_reasons()
+    if reasons:
+        print(f"FAIL (exit 1): {'; '.join(reasons)}")
+        return 1
+    tested = len(campaign.consistency)
+    print(f"PASS (exit 0): {tested} consistency test(s) passed" if tested else "exit 0: no consistency test")
+    return 0
 
 
 def build_parser():
@@ -139,6 +197,10 @@ def build_parser():
     noise = sub.add_parser("noise-std", help="step 1: GPS-x and accel-x std devs from a run's logs")
     noise.add_argument("run_dir")
     noise.set_defaults(func=cmd_noise_std)
+    export = sub.add_parser("export", help="a run's logs as CSV: one file per vehicle, signals as columns")
+    export.add_argument("run_dir", metavar="RUN_DIR")
+    export.add_argument("--out", help="folder for the CSV files (default: RUN_DIR/csv)")
+    export.set_defaults(func=cmd_export)
     return parser
 
 

@@ -8,13 +8,16 @@ metadata and are enforced by :func:`validate`; any problem becomes one
 
 import dataclasses
 import math
+import re
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import List, Optional
 
 import yaml
-from pydrake.common.yaml import yaml_dump, yaml_dump_typed, yaml_load, yaml_load_typed
+from pydrake.common.yaml import yaml_dump, yaml_dump_typed, yaml_load_typed
+
+from .conventions import ONBOARD_PERIOD
 
 PACKAGE_DIR = Path(__file__).resolve().parent
 TRAJECTORY_DIR = PACKAGE_DIR / "data" / "traj"
@@ -29,12 +32,29 @@ def _vec(*values):
 
 
 def _num(default, **rules):
-    """A scalar field; rules: positive=True, nonnegative=True, minimum=, maximum=."""
+    """A scalar field; rules: positive=True, nonnegative=True, minimum=, maximum=, noise_std=True,
+    tick_multiple=N (a whole number >= N of onboard ticks)."""
     return field(default=default, metadata=rules)
 
 
 def _std(*values):
-    return field(default_factory=lambda: list(values), metadata={"length": len(values), "nonnegative": True})
+    """A vector of noise standard deviations (>= 0, see NOISE_STD_RANGE)."""
+    return field(
+        default_factory=lambda: list(values),
+        metadata={"length": len(values), "nonnegative": True, "noise_std": True},
+    )
+
+
+NOISE_STD_RANGE = (1e-100, 1e100)
+"""Allowed magnitudes of a nonzero noise standard deviation (units of its field).
+
+Filters square a std into a covariance (P0, Q, R) and then sum, multiply and invert such
+entries: with |std| in this range every square lies in [1e-200, 1e200], so a covariance never
+underflows to zero (a singular innovation S = H P H^T + R) nor overflows to inf, with a factor
+of 1e100 to spare for P summed over up to 1e8 predict steps and for gains and NIS products.
+Outside it no physical quantity of a quadrotor lives. Zero stays allowed where a field is
+merely >= 0 (a perfect sensor, a zero Q or P0): R, whose fields are > 0, keeps S invertible.
+"""
 
 
 @dataclass
@@ -99,14 +119,14 @@ class GpsParams:
     pos_std: List[float] = _std(0.7, 0.7, 2.0)  # m per sample, N x y z
     vel_std: List[float] = _std(0.1, 0.1, 0.3)  # m/s per sample
     pos_random_walk_std: List[float] = _std(0.0, 0.0, 0.0)  # m per sample, bias increment
-    period: float = _num(0.1, positive=True)  # s; first sample at t = period
+    period: float = _num(0.1, tick_multiple=1)  # s, a multiple of the 2 ms tick; first sample at t = period
 
 
 @dataclass
 class MagParams:
-    yaw_std: float = _num(0.1, nonnegative=True)  # rad per sample
-    period: float = _num(0.01, positive=True)  # s
-    first_sample_time: float = _num(0.008, nonnegative=True)  # s (reference: tick 4)
+    yaw_std: float = _num(0.1, nonnegative=True, noise_std=True)  # rad per sample
+    period: float = _num(0.01, tick_multiple=1)  # s, a multiple of the 2 ms onboard tick
+    first_sample_time: float = _num(0.008, tick_multiple=0)  # s (reference: tick 4)
 
 
 @dataclass
@@ -135,17 +155,17 @@ class EkfParams:
 
     init_state: List[float] = _vec(0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0)  # m, m/s, rad
     init_std: List[float] = _std(0.1, 0.1, 0.3, 0.1, 0.1, 0.3, 0.05)
-    q_pos_xy_std: float = _num(0.05, nonnegative=True)  # m/sqrt(s): Q = diag(std^2) * dt_imu
-    q_pos_z_std: float = _num(0.05, nonnegative=True)
-    q_vel_xy_std: float = _num(0.05, nonnegative=True)  # m/s/sqrt(s)
-    q_vel_z_std: float = _num(0.1, nonnegative=True)
-    q_yaw_std: float = _num(0.05, nonnegative=True)  # rad/sqrt(s)
-    gps_pos_xy_std: float = _num(1.0, positive=True)  # m
-    gps_pos_z_std: float = _num(3.0, positive=True)  # m
-    gps_vel_xy_std: float = _num(0.1, positive=True)  # m/s
-    gps_vel_z_std: float = _num(0.3, positive=True)  # m/s
-    mag_yaw_std: float = _num(0.1, positive=True)  # rad
-    dt_imu: float = _num(0.002, positive=True)  # s, scales Q
+    q_pos_xy_std: float = _num(0.05, nonnegative=True, noise_std=True)  # m/sqrt(s): Q = diag(std^2) * dt_imu
+    q_pos_z_std: float = _num(0.05, nonnegative=True, noise_std=True)
+    q_vel_xy_std: float = _num(0.05, nonnegative=True, noise_std=True)  # m/s/sqrt(s)
+    q_vel_z_std: float = _num(0.1, nonnegative=True, noise_std=True)
+    q_yaw_std: float = _num(0.05, nonnegative=True, noise_std=True)  # rad/sqrt(s)
+    gps_pos_xy_std: float = _num(1.0, positive=True, noise_std=True)  # m
+    gps_pos_z_std: float = _num(3.0, positive=True, noise_std=True)  # m
+    gps_vel_xy_std: float = _num(0.1, positive=True, noise_std=True)  # m/s
+    gps_vel_z_std: float = _num(0.3, positive=True, noise_std=True)  # m/s
+    mag_yaw_std: float = _num(0.1, positive=True, noise_std=True)  # rad
+    dt_imu: float = _num(0.002, positive=True, maximum=1.0)  # s, scales Q (a step, not a flight)
 
 
 TRAJECTORY_KINDS = ("point", "file", "figure_eight")
@@ -293,6 +313,26 @@ def validate(config, path=""):
                 raise ConfigError(f"{sub}: must be >= {rules['minimum']}, got {x}")
             if "maximum" in rules and x > rules["maximum"]:
                 raise ConfigError(f"{sub}: must be <= {rules['maximum']}, got {x}")
+            if rules.get("noise_std") and x and not NOISE_STD_RANGE[0] <= abs(x) <= NOISE_STD_RANGE[1]:
+                low, high = NOISE_STD_RANGE
+                raise ConfigError(
+                    f"{sub}: a noise std must be 0 or within [{low:g}, {high:g}] so that its square "
+                    f"is a usable covariance, got {x:g}"
+                )
+            if "tick_multiple" in rules:
+                _check_tick_multiple(x, rules["tick_multiple"], sub)
+
+
+def _check_tick_multiple(seconds, min_ticks, where):
+    """ConfigError unless `seconds` is a whole number >= min_ticks of 2 ms onboard ticks
+    (to 1e-9 of a tick: what a decimal such as 0.1 s rounds to)."""
+    ticks = seconds / ONBOARD_PERIOD
+    if round(ticks) < min_ticks or abs(ticks - round(ticks)) > 1e-9 * max(1.0, ticks):
+        tick_ms = f"{ONBOARD_PERIOD * 1e3:g} ms"
+        least = f", at least {min_ticks * ONBOARD_PERIOD:g} s" if min_ticks else ""
+        raise ConfigError(
+            f"{where}: must be a whole multiple of the {tick_ms} onboard tick{least}, got {seconds:g}"
+        )
 
 
 def _check_semantics(scenario):
@@ -332,13 +372,39 @@ def _first_line(error):
     return " ".join(str(error).split("\n")[:2]).strip()
 
 
+class _Loader(yaml.SafeLoader):
+    """PyYAML's safe loader reading numbers as people write them.
+
+    PyYAML implements YAML 1.1, where a float needs a dot and a signed exponent: ``1e9``,
+    ``-3e2`` or ``1.e3`` load as strings. YAML 1.2 (and Drake's C++ parser) read them as
+    numbers; this loader adds the 1.2 exponent forms to the float resolver.
+    """
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+    list("-+0123456789."),
+)
+
+
+def load_yaml(text):
+    """Raw YAML data of `text` (merge keys and anchors resolved; 1.2 number forms read as
+    numbers); top-level keys starting with ``_`` are dropped (templates for anchors), as
+    Drake's ``yaml_load`` does."""
+    data = yaml.load(text, Loader=_Loader)  # noqa: S506 (a SafeLoader subclass)
+    if isinstance(data, dict):
+        data = {k: v for k, v in data.items() if not (isinstance(k, str) and k.startswith("_"))}
+    return data
+
+
 def parse_override(text):
     """Split ``dotted.key=value`` into (['dotted', 'key'], value parsed as YAML)."""
     key, sep, raw = text.partition("=")
     if not sep or not key.strip() or any(not part for part in key.strip().split(".")):
         raise ConfigError(f"--set {text!r}: expected dotted.key=value")
     try:
-        value = yaml_load(data=f"value: {raw}")["value"] if raw.strip() else None
+        value = load_yaml(f"value: {raw}")["value"] if raw.strip() else None
     except yaml.YAMLError as e:
         raise ConfigError(f"--set {text!r}: value is not valid YAML ({_first_line(e)})") from None
     return key.strip().split("."), value
@@ -372,10 +438,15 @@ def load_scenario(path, overrides=()):
     if not path.is_file():
         raise ConfigError(f"{path}: no such scenario file")
     try:
-        raw = yaml_load(filename=str(path))
+        raw = load_yaml(path.read_text())
     except yaml.YAMLError as e:
         raise ConfigError(f"{path}: not valid YAML: {_first_line(e)}") from None
-    raw = raw or {}
+    except (OSError, UnicodeDecodeError) as e:
+        raise ConfigError(f"{path}: cannot read: {e}") from None
+    if raw is None:
+        raise ConfigError(f"{path}: the file is empty (a scenario is a mapping of fields)")
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{path}: expected a mapping of fields at the top level, got {type(raw).__name__}")
     try:
         for text in overrides:
             keys, value = parse_override(text)

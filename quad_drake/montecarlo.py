@@ -433,6 +433,15 @@ class CampaignResult:
         """True when every campaign consistency criterion passed (or there is none)."""
         return all(s["passed"] for s in self.consistency)
 
+    def failure_reasons(self):
+        """One phrase per failed campaign consistency test (empty when :attr:`passed`)."""
+        return [
+            f"{s['statistic']} mean inside its chi2 95% band {100 * s['in_band']:.1f}% of the time, "
+            f"needs >= {100 * self.min_in_band:.0f}%"
+            for s in self.consistency
+            if not s["passed"]
+        ]
+
     def table(self):
         """The campaign's statistics as text; identical for the same scenario, runs and seed."""
         s = self.scenario
@@ -675,24 +684,3 @@ def add_arguments(parser):
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     parser.add_argument("--quiet", action="store_true", help="no progress line")
     return parser
-
-
-def main_montecarlo(args):
-    """``quad-drake montecarlo``: run, print the table, save to OUT/NAME_montecarlo/.
-
-    Returns 0 when every campaign consistency criterion passed (or there is none), else 1;
-    bad input raises ConfigError.
-    """
-    from . import catalog
-
-    scenario = catalog.load(args.name, args.seed, args.set)
-    campaign = run_campaign(scenario, args.runs, args.jobs, scheduler=args.scheduler, progress=not args.quiet)
-    print(campaign.table())
-    print(campaign.timing_line())
-    out_dir = campaign.save(Path(args.out) / f"{scenario.name}_montecarlo", plots=not args.no_plots)
-    print(
-        f"saved {out_dir}/: runs.csv, summary.json, table.txt"
-        + (", consistency.npz" if campaign.consistency else "")
-        + (", plots" if not args.no_plots else "")
-    )
-    return 0 if campaign.passed else 1

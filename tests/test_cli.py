@@ -50,6 +50,7 @@ def test_run_accepts_a_yaml_path_seed_and_overrides(tmp_path):
     assert "FAIL: ABS(Quad.PosFollowErr)" in result.stdout
 
 
+@pytest.mark.slow
 def test_noise_std_measures_the_configured_noise(tmp_path):
     assert cli("run", "06_sensor_noise", "--out", str(tmp_path), "--no-plots").returncode == 0
     result = cli("noise-std", str(tmp_path / "06_sensor_noise"))
@@ -68,7 +69,7 @@ def test_noise_std_measures_the_configured_noise(tmp_path):
         (["run", "01_intro", "--set", "vehicles.0.physics.mas=1"], "vehicles.0.physics.mas: unknown key"),
         (["run", "01_intro", "--set", "end_time=soon"], "end_time: expected float, got 'soon'"),
         (["run", "01_intro", "--set", "vehicles.0.initial_position=[0, 1]"], "expected 3 values, got 2"),
-        (["run", "01_intro", "--set", "vehicles.0.sensors.gps={period: -1}"], "gps.period: must be > 0"),
+        (["run", "01_intro", "--set", "vehicles.0.sensors.gps={period: -1}"], "gps.period: must be a whole"),
         (["run", "01_intro", "--set", "vehicles.0.sensors.imu={gyro_std: [0, -1, 0]}"], "must be >= 0"),
         (["run", "01_intro", "--set", "vehicles.0.physics.mass=-0.5"], "physics.mass: must be > 0"),
         (
@@ -78,15 +79,23 @@ def test_noise_std_measures_the_configured_noise(tmp_path):
         (["run", "01_intro", "--seed", "-1"], "01_intro.yaml: seed: must be >= 0, got -1"),
         (["run"], "name at least one scenario"),
         (["noise-std", "/nonexistent/run"], "no logs.npz"),
+        (["export", "/nonexistent/run"], "/nonexistent/run: no logs.npz"),
     ],
 )
-def test_bad_input_is_one_line_on_stderr_with_exit_2(args, message):
-    result = cli(*args)
+def test_bad_input_is_one_line_on_stderr_with_exit_2(quad_drake_cli, args, message):
+    result = quad_drake_cli(*args)  # in this process: the same main() as the console script
     assert result.returncode == 2
     assert message in result.stderr
     assert "Traceback" not in result.stderr
     assert len(result.stderr.strip().splitlines()) == 1
     assert result.stdout == ""
+
+
+def test_bad_input_in_a_new_process_exits_2_with_one_line():
+    result = cli("run", "no_such_scenario")
+    assert result.returncode == 2 and result.stdout == ""
+    assert result.stderr.startswith("quad-drake: unknown scenario 'no_such_scenario' (known: 01_intro, ")
+    assert len(result.stderr.strip().splitlines()) == 1
 
 
 def test_malformed_trajectory_file_names_file_and_line(tmp_path):
@@ -97,6 +106,7 @@ def test_malformed_trajectory_file_names_file_and_line(tmp_path):
     assert f"{bad}:2" in result.stderr and "Traceback" not in result.stderr
 
 
+@pytest.mark.slow
 def test_run_writes_plots_report_replay_and_index(tmp_path):
     result = cli("run", "09_predict_covariance", "01_intro", "--set", "end_time=0.3", "--out", str(tmp_path))
     assert result.returncode in (0, 1), result.stderr  # short runs may fail a criterion

@@ -61,7 +61,10 @@ def test_overrides_reach_nested_fields(tmp_path):
         (["vehicles.0.initial_position=[1, 2]"], "vehicles.0.initial_position: expected 3 values, got 2"),
         (["vehicles.0.physics.mass=-1"], "vehicles.0.physics.mass: must be > 0"),
         (["vehicles.0.physics.mass=0"], "vehicles.0.physics.mass: must be > 0"),
-        (["vehicles.0.sensors.gps={period: 0}"], "vehicles.0.sensors.gps.period: must be > 0"),
+        (
+            ["vehicles.0.sensors.gps={period: 0}"],
+            "vehicles.0.sensors.gps.period: must be a whole multiple of",
+        ),
         (["vehicles.0.sensors.imu.accel_std=[0.5, -1, 0]"], "vehicles.0.sensors.imu.accel_std: must be >= 0"),
         (["vehicles.0.ekf.q_yaw_std=.nan"], "vehicles.0.ekf.q_yaw_std: must be finite"),
         (
@@ -95,5 +98,100 @@ def test_missing_and_malformed_files(tmp_path):
         load_scenario(tmp_path / "absent.yaml")
     with pytest.raises(ConfigError, match="not valid YAML"):
         load_scenario(write(tmp_path, "vehicles: [\n"))
-    with pytest.raises(ConfigError, match="the file: expected a mapping"):
+    with pytest.raises(ConfigError, match="expected a mapping of fields at the top level, got list"):
         load_scenario(write(tmp_path, "- 1\n- 2\n"))
+    with pytest.raises(ConfigError, match="expected a mapping of fields at the top level, got str"):
+        load_scenario(write(tmp_path, "just words\n"))
+    for empty in ("", "# only a comment\n", "---\n"):
+        with pytest.raises(ConfigError, match=r"s.yaml: the file is empty"):
+            load_scenario(write(tmp_path, empty))
+
+
+@pytest.mark.parametrize(
+    "text, value",
+    [("1e9", 1e9), ("2.5e-1", 0.25), ("-3e2", -300.0), ("1E3", 1000.0), ("+1e3", 1000.0), ("1.e3", 1000.0)],
+)
+def test_numbers_as_people_write_them_are_numbers_in_files_and_overrides(tmp_path, text, value):
+    vehicle = f"{{initial_position: [{text}, 0, -1], trajectory: {{yaw: {text}}}}}"
+    from_file = load_scenario(write(tmp_path, f"vehicles: [{vehicle}]\n"))
+    assert (
+        from_file.vehicles[0].initial_position[0] == value and from_file.vehicles[0].trajectory.yaw == value
+    )
+    overrides = [f"vehicles.0.initial_position=[{text}, 0, -1]", f"vehicles.0.trajectory.yaw={text}"]
+    from_set = load_scenario(write(tmp_path, GOOD), overrides)
+    assert from_set.vehicles[0].initial_position[0] == value and from_set.vehicles[0].trajectory.yaw == value
+    assert load_scenario(write(tmp_path, GOOD), ["end_time=2e1"]).end_time == 20.0
+
+
+def test_quoted_numbers_and_words_stay_strings(tmp_path):
+    assert load_scenario(write(tmp_path, GOOD), ["description='1e9'"]).description == "1e9"
+    with pytest.raises(ConfigError, match="end_time: expected float, got '1e9x'"):
+        load_scenario(write(tmp_path, GOOD), ["end_time=1e9x"])
+    with pytest.raises(ConfigError, match="end_time: expected float, got '1e9'"):
+        load_scenario(write(tmp_path, GOOD), ["end_time='1e9'"])
+
+
+TICK = "whole multiple of the 2 ms onboard tick"
+
+
+@pytest.mark.parametrize(
+    "override, expected",
+    [
+        (
+            "vehicles.0.sensors.mag={period: 1.0e-7}",
+            f"vehicles.0.sensors.mag.period: must be a {TICK}, at least",
+        ),
+        (
+            "vehicles.0.sensors.mag={period: 0.001}",
+            f"mag.period: must be a {TICK}, at least 0.002 s, got 0.001",
+        ),
+        ("vehicles.0.sensors.mag={period: 0.005}", f"mag.period: must be a {TICK}"),
+        ("vehicles.0.sensors.mag={period: 0}", f"mag.period: must be a {TICK}"),
+        ("vehicles.0.sensors.mag={period: -0.01}", f"mag.period: must be a {TICK}"),
+        ("vehicles.0.sensors.gps={period: 0.003}", f"vehicles.0.sensors.gps.period: must be a {TICK}"),
+        ("vehicles.0.sensors.mag={first_sample_time: 0.001}", f"first_sample_time: must be a {TICK}, got"),
+        ("vehicles.0.sensors.mag={first_sample_time: -0.002}", f"first_sample_time: must be a {TICK}, got"),
+    ],
+)
+def test_sensor_periods_off_the_onboard_tick_are_rejected(tmp_path, override, expected):
+    with pytest.raises(ConfigError, match=expected.replace(".", r"\.")):
+        load_scenario(write(tmp_path, GOOD), [override])
+
+
+def test_sensor_periods_on_the_tick_are_accepted(tmp_path):
+    scenario = load_scenario(
+        write(tmp_path, GOOD),
+        [
+            "vehicles.0.sensors.mag={period: 0.002, first_sample_time: 0}",
+            "vehicles.0.sensors.gps={period: 0.1}",
+        ],
+    )
+    assert scenario.vehicles[0].sensors.mag.period == 0.002
+    assert scenario.vehicles[0].sensors.gps.period == 0.1  # 50.000000000000004 ticks in binary
+
+
+@pytest.mark.parametrize(
+    "override",
+    [
+        "vehicles.0.ekf.q_vel_xy_std=1.0e+200",  # Q = std^2 dt overflows: P turns inf, then NaN
+        "vehicles.0.ekf.gps_pos_xy_std=1e-200",  # R underflows to 0: S = H P H^T + R singular with P0 = 0
+        "vehicles.0.ekf.mag_yaw_std=1e-101",
+        "vehicles.0.ekf.init_std=[0, 0, 0, 0, 0, 0, 1e101]",
+        "vehicles.0.sensors.imu={accel_std: [0.5, 1e300, 1]}",
+    ],
+)
+def test_noise_stds_whose_square_is_no_usable_covariance_are_rejected(tmp_path, override):
+    with pytest.raises(ConfigError, match=r"a noise std must be 0 or within \[1e-100, 1e\+100\]"):
+        load_scenario(write(tmp_path, GOOD), [override])
+
+
+def test_zero_noise_and_the_edges_of_the_noise_range_are_accepted(tmp_path):
+    edges = [
+        "vehicles.0.ekf.q_yaw_std=0",
+        "vehicles.0.ekf.gps_pos_xy_std=1e-100",
+        "vehicles.0.ekf.q_vel_xy_std=1e100",
+    ]
+    ekf = load_scenario(write(tmp_path, GOOD), edges).vehicles[0].ekf
+    assert (ekf.q_yaw_std, ekf.gps_pos_xy_std, ekf.q_vel_xy_std) == (0, 1e-100, 1e100)
+    with pytest.raises(ConfigError, match="dt_imu: must be <= 1.0"):
+        load_scenario(write(tmp_path, GOOD), ["vehicles.0.ekf.dt_imu=10"])

@@ -1,6 +1,5 @@
 """Monte Carlo campaigns: determinism across job counts, seeds, statistics, saved files, CLI."""
 
-import argparse
 import csv
 import dataclasses
 import json
@@ -22,7 +21,7 @@ from quad_drake.config import (
     VehicleConfig,
 )
 from quad_drake.evaluation import rms
-from quad_drake.montecarlo import CampaignResult, RunRecord, add_arguments, main_montecarlo, run_campaign
+from quad_drake.montecarlo import CampaignResult, RunRecord, run_campaign
 
 
 @pytest.fixture(scope="module")
@@ -35,6 +34,7 @@ def serial(scenario):
     return run_campaign(scenario, 3, jobs=1, seed=5, progress=False)
 
 
+@pytest.mark.slow
 def test_same_table_and_rows_whatever_the_number_of_jobs(scenario, serial):
     parallel = run_campaign(scenario, 3, jobs=2, seed=5, progress=False)
     assert parallel.jobs == 2
@@ -179,30 +179,33 @@ def test_bad_counts_are_config_errors(scenario, runs, jobs, seed):
         run_campaign(scenario, runs, jobs, seed=seed, progress=False)
 
 
-def test_main_montecarlo_prints_the_table_and_saves(tmp_path, capsys):
-    args = add_arguments(argparse.ArgumentParser()).parse_args(
-        [
-            "10_mag_update",
-            "--runs",
-            "2",
-            "--jobs",
-            "1",
-            "--seed",
-            "3",
-            "--set",
-            "end_time=0.5",
-            "--out",
-            str(tmp_path),
-            "--no-plots",
-        ]
-    )
-    code = main_montecarlo(args)
+def test_montecarlo_command_prints_the_table_saves_and_explains_its_exit_code(tmp_path, capsys):
+    from quad_drake.cli import main
+
+    args = ["10_mag_update", "--runs", "2", "--jobs", "1", "--seed", "3", "--set", "end_time=0.5"]
+    code = main(["montecarlo", *args, "--out", str(tmp_path), "--no-plots"])
     out, err = capsys.readouterr()
     assert "Monte Carlo 10_mag_update: 2 runs of 0.5 s, seeds 3..4" in out
     assert "runs/min" in out and "2/2 runs" in err
     summary = json.loads((tmp_path / "10_mag_update_montecarlo" / "summary.json").read_text())
     assert code == (0 if summary["consistency_passed"] else 1)
+    last = out.strip().splitlines()[-1]
+    assert last.startswith("PASS (exit 0): " if code == 0 else "FAIL (exit 1): "), last
     assert not (tmp_path / "10_mag_update_montecarlo" / "errors.png").exists()
+
+
+def test_a_failing_campaign_names_the_consistency_test_that_failed(tmp_path, capsys):
+    from quad_drake.cli import main
+
+    # The EKF believes the magnetometer 10x better than it is: its NIS is ~100x its dof.
+    overconfident = ["--set", "end_time=1", "--set", "vehicles.0.ekf.mag_yaw_std=0.01"]
+    code = main(
+        ["montecarlo", "10_mag_update", "--runs", "2", *overconfident, "--out", str(tmp_path), "--no-plots"]
+    )
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    assert code == 1
+    assert last.startswith("FAIL (exit 1): NEES mean inside its chi2 95% band"), last
+    assert "; NIS mag mean inside its chi2 95% band" in last and last.endswith("needs >= 80%")
 
 
 def test_criterion_labels():

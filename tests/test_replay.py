@@ -60,14 +60,10 @@ def test_frame_indices_pick_the_log_sample_at_or_after_each_frame():
 
 
 @pytest.fixture(scope="module")
-def flight(tmp_path_factory):
+def flight(gps_flight, tmp_path_factory):
     """A 3 s closed-loop flight on the estimate (11_gps_update) and its replay.html."""
-    from quad_drake import catalog
-    from quad_drake.simulation import run
-
-    result = run(catalog.load("11_gps_update", None, ["end_time=3"]))
-    path = write_replay(result, tmp_path_factory.mktemp("replay") / "replay.html")
-    return result, path
+    path = write_replay(gps_flight, tmp_path_factory.mktemp("replay") / "replay.html")
+    return gps_flight, path
 
 
 def test_replay_html_is_self_contained(flight):
@@ -168,6 +164,8 @@ SCENE_PROBE = """(() => {
 })()"""
 
 
+@pytest.mark.browser
+@pytest.mark.slow
 def test_replay_loads_offline_and_draws_in_headless_chromium(flight, tmp_path):
     chromium = shutil.which("chromium") or shutil.which("chromium-browser")
     if chromium is None:

@@ -5,6 +5,8 @@ import pytest
 from quad_drake import catalog
 from quad_drake.simulation import run
 
+pytestmark = pytest.mark.slow  # whole scenarios: up to 40 s of simulated flight each
+
 
 @pytest.mark.parametrize("name", list(catalog.bundled_scenarios()))
 def test_scenario_passes_every_criterion(name):
