@@ -154,3 +154,21 @@ def test_ctrl_c_in_a_batch_keeps_the_finished_runs_and_exits_130(tmp_path):
     assert (out / "01_intro" / "logs.npz").is_file() and not (out / "08_predict_state").exists()
     assert [s["scenario"] for s in json.loads((out / "summary.json").read_text())] == ["01_intro"]
     assert "01_intro/report.html" in (out / "index.html").read_text()
+
+
+def test_a_numerical_breakdown_during_a_flight_is_one_line_with_exit_2(quad_drake_cli, monkeypatch, tmp_path):
+    # What validation lets through but a filter cannot carry (the EKF raises FloatingPointError
+    # on a non-finite covariance; plain float code raises ZeroDivisionError or OverflowError).
+    from quad_drake import simulation
+
+    def breaks_down(scenario):
+        raise FloatingPointError("covariance P is not finite at t = 1.234 s")
+
+    monkeypatch.setattr(simulation, "run", breaks_down)
+    result = quad_drake_cli("run", "11_gps_update", "--no-plots", "--out", tmp_path / "out")
+    assert result.returncode == 2
+    assert result.stderr.strip() == (
+        "quad-drake: 11_gps_update: the simulation broke down numerically (FloatingPointError: "
+        "covariance P is not finite at t = 1.234 s); check the noise and covariance settings"
+    )
+    assert not (tmp_path / "out" / "11_gps_update").exists()
