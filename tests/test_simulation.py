@@ -112,9 +112,14 @@ def test_results_save_and_reload(tmp_path):
 
 
 def test_unknown_signal_in_a_criterion_is_a_config_error():
-    from quad_drake.config import ConfigError
+    from quad_drake.config import ConfigError, load_scenario
 
-    scenario = short("01_intro", 0.1, "criteria.0.signal=Quad.Est.E.Pos")
+    # Loading through the catalog reports it with the file; run() checks a scenario built otherwise.
+    with pytest.raises(
+        ConfigError, match=r"01_intro.yaml: criteria.0.signal: unknown signal 'Quad.Est.E.Pos'"
+    ):
+        short("01_intro", 0.1, "criteria.0.signal=Quad.Est.E.Pos")
+    scenario = load_scenario(catalog.resolve("01_intro"), ["criteria.0.signal=Quad.Est.E.Pos"])
     with pytest.raises(ConfigError, match="criteria.0.signal: unknown signal 'Quad.Est.E.Pos'"):
         run(scenario)
 
