@@ -113,9 +113,7 @@ def cmd_noise_std(args):
 
 def cmd_export(args):
     from .export import export_csv
-    from .simulation import load_logs
 
-    load_logs(args.run_dir)  # a folder without logs is refused before anything is written
     if args.out is not None:
         check_output_dir(args.out)
     for path in export_csv(args.run_dir, args.out):
