@@ -39,7 +39,8 @@ def load(name_or_path, seed=None, overrides=()):
     against what the scenario logs, so a misspelt name is reported (with the file) at load
     time, before anything flies.
     """
-    from .simulation import check_criteria
+    from .simulation import available_signals
+    from .verdicts import check_criteria
 
     path = resolve(name_or_path)
     overrides = list(overrides)
@@ -47,7 +48,7 @@ def load(name_or_path, seed=None, overrides=()):
         overrides.append(f"seed={seed}")
     scenario = load_scenario(path, overrides)
     try:
-        check_criteria(scenario)
+        check_criteria(scenario, available_signals(scenario))
     except ConfigError as e:
         raise ConfigError(f"{path}: {e}") from None
     return scenario

@@ -5,7 +5,6 @@ Exit codes: 0 every criterion passed, 1 a criterion failed, 2 bad input
 """
 
 import argparse
-import json
 import os
 import sys
 from pathlib import Path
@@ -54,19 +53,22 @@ def _fly(scenario):
 
 
 def cmd_run(args):
+    from .jsonio import dump_json
+    from .results import save_run
+
     names = list(catalog.bundled_scenarios()) if args.all else args.names
     if not names:
         raise ConfigError("run: name at least one scenario, or --all")
     scenarios = [catalog.load(n, args.seed, args.set) for n in names]  # all input checked first
     out = check_output_dir(args.out)
-    summaries, run_dirs = [], []
+    summaries = []
     try:
         for scenario in scenarios:
             print(f"== {scenario.name} (seed {scenario.seed}, {scenario.end_time:g} s)", flush=True)
             result = _fly(scenario)
             for criterion in result.criteria:
                 print(criterion.line)
-            run_dir = result.save(out / scenario.name)  # logs first: nothing is lost if a plot fails
+            run_dir = save_run(result, out / scenario.name)  # logs first: nothing is lost if a plot fails
             if not args.no_plots:
                 from .plots import write_run_artifacts
 
@@ -76,14 +78,13 @@ def cmd_run(args):
 
                 show_live(result)
             summaries.append(result.summary())
-            run_dirs.append(run_dir)
-            (out / "summary.json").write_text(json.dumps(summaries, indent=2) + "\n")
+            dump_json(out / "summary.json", summaries)
     except KeyboardInterrupt:
-        index = _write_index(args, summaries, run_dirs, out)
+        index = _write_index(args, summaries, out)
         kept = f"kept the {len(summaries)} finished run(s) in {out}/" if summaries else "no run had finished"
         print(f"quad-drake: interrupted; {kept}" + (f", {index}" if index else ""), file=sys.stderr)
         return 130
-    index = _write_index(args, summaries, run_dirs, out)
+    index = _write_index(args, summaries, out)
     print()
     print(_table(summaries))
     if index:
@@ -91,19 +92,19 @@ def cmd_run(args):
     return 0 if all(s["passed"] for s in summaries) else 1
 
 
-def _write_index(args, summaries, run_dirs, out):
-    """Path of the index.html linking the finished runs, or None (none finished, --no-plots)."""
+def _write_index(args, summaries, out):
+    """Path of out/index.html (every run and campaign folder under out), or None (none
+    finished, --no-plots)."""
     if args.no_plots or not summaries:
         return None
     from .report import write_index
 
-    write_index(list(zip(summaries, run_dirs, strict=True)), out)
-    return out / "index.html"
+    return write_index(out)
 
 
 def cmd_noise_std(args):
     from .noise_stats import measured_noise_std
-    from .simulation import load_logs, signals_from_logs
+    from .results import load_logs, signals_from_logs
 
     _, logs = load_logs(args.run_dir)
     for name, std in measured_noise_std(signals_from_logs(logs)).items():

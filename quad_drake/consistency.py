@@ -13,9 +13,13 @@ import math
 import numpy as np
 from scipy.stats import beta, chi2
 
+from .evaluation import sigma_share
 from .signals import euler_from_quats, stamp_fresh, wrap_angles
 
 STATE_NAMES = ("X", "Y", "Z", "VX", "VY", "VZ", "Yaw")
+"""The 7-state EKF's states, in its state order (``Quad.Est.<name>``, ``Quad.Est.E.<name>``)."""
+STATE_UNITS = {"X": "m", "Y": "m", "Z": "m", "VX": "m/s", "VY": "m/s", "VZ": "m/s", "Yaw": "rad"}
+NEES_DOF = len(STATE_NAMES)
 NIS_DOF = {"gps": 6, "mag": 1}
 _NIS_COLUMNS = {"gps": (0, 1), "mag": (2, 3)}  # diagnostics: (NIS, stamp) columns
 
@@ -119,27 +123,33 @@ def binomial_interval(successes, trials, confidence=0.95):
     return low, high
 
 
-def fleet_sigma_fraction(signals, error_suffix, sigma_suffix, multiple):
-    """Share of (vehicle, sample) pairs with |error| <= multiple * sigma, in [0, 1].
+def fleet_samples(signals, error_suffix, sigma_suffix):
+    """(errors, sigmas): per vehicle V with a ``V.<error_suffix>`` signal (e.g. ``Est.E.X``), the
+    fresh samples of that error and of its own ``V.<sigma_suffix>`` (e.g. ``Est.S.X``).
 
-    signals: {name: Signal}; every vehicle V with a ``V.<error_suffix>`` signal (e.g.
-    ``Est.E.X``) is compared with its own ``V.<sigma_suffix>`` (e.g. ``Est.S.X``). Only
-    fresh samples of the error signal count; a non-finite sample counts as outside. For a
-    consistent Gaussian estimate the share is 0.683 at 1 sigma and 0.954 at 2 sigma.
-    Raises ValueError when no vehicle has the error signal or a sigma signal is missing.
+    signals: {name: Signal}. Raises ValueError when no vehicle has the error signal or a
+    sigma signal is missing.
     """
     tail = "." + error_suffix
     vehicles = sorted(name[: -len(tail)] for name in signals if name.endswith(tail))
     if not vehicles:
-        raise ValueError(f"fleet_sigma_fraction: no signal ends with {tail!r}")
-    inside = total = 0
+        raise ValueError(f"fleet_samples: no signal ends with {tail!r}")
+    errors, sigmas = [], []
     for vehicle in vehicles:
         error = signals[vehicle + tail]
         sigma_name = f"{vehicle}.{sigma_suffix}"
         if sigma_name not in signals:
-            raise ValueError(f"fleet_sigma_fraction: no signal {sigma_name!r}")
-        values = error.values[error.fresh]
-        sigma = signals[sigma_name].values[error.fresh]
-        inside += int(np.count_nonzero(np.abs(values) <= multiple * sigma))
-        total += values.size
+            raise ValueError(f"fleet_samples: no signal {sigma_name!r}")
+        errors.append(error.values[error.fresh])
+        sigmas.append(signals[sigma_name].values[error.fresh])
+    return errors, sigmas
+
+
+def fleet_sigma_fraction(signals, error_suffix, sigma_suffix, multiple):
+    """Share of (vehicle, fresh sample) pairs with |error| <= multiple * sigma, in [0, 1]
+    (NaN without samples), over the vehicles of :func:`fleet_samples`.
+
+    For a consistent Gaussian estimate the share is 0.683 at 1 sigma and 0.954 at 2 sigma.
+    """
+    inside, total = sigma_share(*fleet_samples(signals, error_suffix, sigma_suffix), multiple)
     return inside / total if total else math.nan

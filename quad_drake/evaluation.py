@@ -12,7 +12,7 @@ sample times. A non-finite sample counts as a violation (the reference's
 """
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field, fields
 from typing import Optional
 
 import numpy as np
@@ -23,17 +23,26 @@ TIME_TOLERANCE = 1e-9
 
 @dataclass(frozen=True)
 class CriterionResult:
-    """Verdict of one analyzer.
+    """Verdict of one analyzer, with the text every reader (console, report, campaign) prints.
 
-    kind: "window" or "sigma".
+    kind: "window", "sigma" or "fleet_sigma".
     line: the reference-style PASS/FAIL line.
-    measured: s. window: the longest stretch, ending at a sample, with every
-        sample |x| <= threshold (passed iff measured > required);
-        sigma: the final stretch lastSampleTime - lastViolation (passed iff >= required).
-    required: s, the window W.
-    trailing: s, lastSampleTime - (last violation); what the window FAIL line prints.
-    percent: sigma only: final cumulative share of fresh samples in the band, %.
-    samples: number of samples the analyzer saw (fresh ones for sigma).
+    measured: window: s, the longest stretch, ending at a sample, with every sample
+        |x| <= threshold (passed iff measured > required); sigma: s, the final stretch
+        lastSampleTime - lastViolation (passed iff >= required); fleet_sigma: %, the share
+        of the fleet's fresh samples inside the band.
+    required: window, sigma: s, the window W; fleet_sigma: %, the lowest share accepted.
+    trailing: window, sigma: s, lastSampleTime - (last violation), what the window FAIL
+        line prints; None for fleet_sigma.
+    percent: sigma: final cumulative share of fresh samples in the band, %; fleet_sigma: the
+        share, %; None for window.
+    samples: number of samples the analyzer counted (fresh ones for sigma and fleet_sigma).
+    description: what is judged, e.g. ``|Quad.Est.E.Pos| < 1 for > 20 s``.
+    measured_text, required_text: the measured value and the requirement, in words.
+    series: the arrays the verdict was computed from, for plots (not compared, not saved):
+        window: ``times`` (s, the samples judged), ``stretch`` (s since the last violation)
+        and ``span`` ((2,) s, start and end of the longest stretch); sigma: ``times`` (s, the
+        fresh samples) and ``percent`` (the cumulative share in the band, %).
     """
 
     kind: str
@@ -42,12 +51,25 @@ class CriterionResult:
     line: str
     measured: float
     required: float
-    trailing: float
+    trailing: Optional[float]
     percent: Optional[float] = None
     samples: int = 0
+    description: str = ""
+    measured_text: str = ""
+    required_text: str = ""
+    series: Optional[dict] = field(default=None, compare=False, repr=False)
 
     def __str__(self):
         return self.line
+
+    def to_dict(self):
+        """The verdict as a dict of plain values, without ``series`` (for summary.json)."""
+        return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "series"}
+
+
+def judged_criteria(scenario):
+    """The criteria a run of `scenario` is judged on and a campaign counts, in order."""
+    return list(scenario.criteria)
 
 
 def _select(times, values, fresh_mask):
@@ -79,14 +101,28 @@ def window_threshold(times, values, threshold, window, name="x", fresh_mask=None
     the reference prints (not the longest stretch; that is ``measured``).
     """
     times, values, _ = _select(times, values, fresh_mask)
+    text = {
+        "description": f"|{name}| < {threshold:g} for > {window:g} s",
+        "required_text": f"> {window:g} s",
+    }
     if times.size == 0:
         return CriterionResult(
-            "window", name, False, f"FAIL: ABS({name}) had no samples", 0.0, float(window), 0.0, samples=0
+            "window",
+            name,
+            False,
+            f"FAIL: ABS({name}) had no samples",
+            0.0,
+            float(window),
+            0.0,
+            samples=0,
+            measured_text="no samples",
+            **text,
         )
     above = ~(np.abs(values) <= threshold)  # NaN counts as above
     last_above = np.maximum.accumulate(np.where(above, times, times[0]))
     stretches = times - last_above
-    longest = float(stretches.max())
+    end = int(np.argmax(stretches))
+    longest = float(stretches[end])
     trailing = float(stretches[-1])
     passed = longest > window + TIME_TOLERANCE
     if passed:
@@ -97,7 +133,17 @@ def window_threshold(times, values, threshold, window, name="x", fresh_mask=None
             f"which was less than {window:f} seconds"
         )
     return CriterionResult(
-        "window", name, bool(passed), line, longest, float(window), trailing, samples=int(times.size)
+        "window",
+        name,
+        bool(passed),
+        line,
+        longest,
+        float(window),
+        trailing,
+        samples=int(times.size),
+        measured_text=f"longest stretch within: {longest:.4g} s",
+        series={"times": times, "stretch": stretches, "span": np.array([last_above[end], times[end]])},
+        **text,
     )
 
 
@@ -144,9 +190,26 @@ def sigma_threshold(
     if mask is not None:
         ref, sigma = ref[mask], sigma[mask]
     head = f"ABS({name}-{_label(ref_label, ref_values)}) was less than {_label(sigma_label, sigma_values)}"
+    short_ref = ref_label or f"{float(np.asarray(ref_values).flat[0]):g}"
+    short_sigma = sigma_label or f"{float(np.asarray(sigma_values).flat[0]):g}"
+    text = {
+        "description": (
+            f"|{name} - {short_ref}| <= {short_sigma}: {min_percent:g}-{max_percent:g} % (last {window:g} s)"
+        ),
+        "required_text": f"share in ({min_percent:g} %, {max_percent:g} %) for the last >= {window:g} s",
+    }
     if times.size == 0:
         return CriterionResult(
-            "sigma", name, False, f"FAIL: {head}: no fresh samples", 0.0, float(window), 0.0, samples=0
+            "sigma",
+            name,
+            False,
+            f"FAIL: {head}: no fresh samples",
+            0.0,
+            float(window),
+            0.0,
+            samples=0,
+            measured_text="no fresh samples",
+            **text,
         )
     inside = (values >= ref - sigma) & (values <= ref + sigma)
     percent = 100.0 * np.cumsum(inside) / np.arange(1, times.size + 1)
@@ -166,11 +229,17 @@ def sigma_threshold(
         stretch,
         percent=final,
         samples=int(times.size),
+        measured_text=(
+            f"{final:.3g} % of {times.size} samples within; "
+            f"share inside the limits for the last {stretch:.4g} s"
+        ),
+        series={"times": times, "percent": percent},
+        **text,
     )
 
 
 def evaluate_criterion(criterion, times, signal):
-    """Run one :class:`~quad_drake.config.CriterionConfig` on logged samples.
+    """Run one window or sigma :class:`~quad_drake.config.CriterionConfig` on logged samples.
 
     ``signal(name) -> (values, fresh_mask)`` returns a named signal over ``times``
     (``fresh_mask`` None when every sample is fresh).
@@ -197,13 +266,30 @@ def evaluate_criterion(criterion, times, signal):
     )
 
 
-def fleet_sigma_threshold(fraction, samples, name, sigma_name, multiple, min_percent, max_percent):
-    """Verdict on the share `fraction` (0..1) of a fleet's samples inside +-multiple sigma.
+def sigma_share(errors, sigmas, multiple=1.0):
+    """(inside, total): how many samples have |error| <= multiple * sigma, of how many.
 
-    Passes iff min_percent <= 100 fraction <= max_percent (a consistent Gaussian
-    estimate gives 68.3 % at 1 sigma, 95.4 % at 2 sigma).
+    errors, sigmas: arrays of one shape (or sequences of such arrays, e.g. one per vehicle);
+    a non-finite sample counts as outside. A consistent Gaussian estimate has a share
+    inside / total of 0.683 at 1 sigma and 0.954 at 2 sigma.
     """
-    percent = 100.0 * fraction
+    if isinstance(errors, (list, tuple)):
+        counts = [sigma_share(e, s, multiple) for e, s in zip(errors, sigmas, strict=True)]
+        return sum(c[0] for c in counts), sum(c[1] for c in counts)
+    errors = np.asarray(errors, dtype=float)
+    sigmas = np.asarray(sigmas, dtype=float)
+    return int(np.count_nonzero(np.abs(errors) <= multiple * sigmas)), int(errors.size)
+
+
+def fleet_sigma_threshold(errors, sigmas, name, sigma_name, multiple, min_percent, max_percent):
+    """Verdict on the share of a fleet's fresh samples with |error| <= multiple * sigma.
+
+    errors, sigmas: one array per vehicle of its fresh samples of ``V.<name>`` and the
+    matching ``V.<sigma_name>``. Passes iff min_percent <= share <= max_percent (%);
+    ``samples`` is the number of (vehicle, fresh sample) pairs counted.
+    """
+    inside, total = sigma_share(list(errors), list(sigmas), multiple)
+    percent = 100.0 * inside / total if total else math.nan
     passed = bool(min_percent <= percent <= max_percent)
     line = (
         f"{'PASS' if passed else 'FAIL'}: {percent:.0f}% of fleet {name} samples within "
@@ -215,10 +301,16 @@ def fleet_sigma_threshold(fraction, samples, name, sigma_name, multiple, min_per
         passed=passed,
         line=line,
         measured=percent,
-        required=min_percent,
-        trailing=math.nan,
+        required=float(min_percent),
+        trailing=None,
         percent=percent,
-        samples=samples,
+        samples=total,
+        description=(
+            f"fleet |V.{name}| <= {multiple:g} V.{sigma_name}: {min_percent:g}-{max_percent:g} % "
+            f"({len(errors)} vehicles V)"
+        ),
+        measured_text=f"{percent:.3g} % of {total} samples within" if total else "no samples",
+        required_text=f"share in [{min_percent:g} %, {max_percent:g} %]",
     )
 
 

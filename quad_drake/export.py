@@ -11,7 +11,8 @@ a value does not exist yet).
 import csv
 from pathlib import Path
 
-from .simulation import load_logs, vehicle_signals
+from .results import load_logs
+from .signals import vehicle_signals
 
 
 def export_csv(run_dir, out_dir=None):

@@ -21,10 +21,11 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
-from .consistency import fleet_sigma_fraction
-from .report import write_index, write_report
+from .consistency import STATE_NAMES, STATE_UNITS, fleet_sigma_fraction
+from .evaluation import judged_criteria, sigma_share
+from .report import write_report
 
-__all__ = ["make_figures", "signal_unit", "write_index", "write_plots", "write_run_artifacts"]
+__all__ = ["make_figures", "signal_unit", "write_plots", "write_report", "write_run_artifacts"]
 
 DPI = 80
 COLORS = (
@@ -41,7 +42,6 @@ COLORS = (
 )
 FLEET_SIZE = 3
 """Three or more vehicles with an estimator get the fleet plot instead of per-vehicle ones."""
-EST_KEYS = ("X", "Y", "Z", "VX", "VY", "VZ", "Yaw")
 MOTOR_NAMES = ("front left", "front right", "rear left", "rear right")
 
 
@@ -55,6 +55,8 @@ def signal_unit(name):
         return "m/s²"
     if key.startswith("Thrust."):
         return "N"
+    if key.startswith("Est.") and last in STATE_UNITS:
+        return STATE_UNITS[last]
     if last in ("Roll", "Pitch", "Yaw", "MagYaw", "MaxEuler"):
         return "rad"
     if key.startswith("Vel.") or last in ("VX", "VY", "VZ", "Vel"):
@@ -115,14 +117,6 @@ def _robust_ylim(ax, values, threshold):
     return False
 
 
-def longest_good_stretch(times, values, threshold):
-    """(start, end) s of the longest stretch the window analyzer credits (SPEC §0.5)."""
-    above = ~(np.abs(values) <= threshold)
-    last_above = np.maximum.accumulate(np.where(above, times, times[0]))
-    end = int(np.argmax(times - last_above))
-    return float(last_above[end]), float(times[end])
-
-
 def _window_figure(result, criterion, verdict):
     times = result.times
     signal = result.signals[criterion.signal]
@@ -154,8 +148,8 @@ def _window_figure(result, criterion, verdict):
     )
     if np.nanmin(values) < 0:
         ax.axhline(-criterion.threshold, color="tab:red", ls="--", lw=1.0)
-    if times.size:
-        start, end = longest_good_stretch(times, values, criterion.threshold)
+    if verdict.series is not None:
+        start, end = verdict.series["span"]
         ax.axvspan(
             start,
             end,
@@ -219,10 +213,9 @@ def _sigma_figure(result, criterion, verdict):
     ax.legend(loc="upper right", fontsize=8)
 
     ax = axes[1, 0]
-    t, x = times[fresh], signal.values[fresh]
-    inside = (x >= ref[fresh] - sigma[fresh]) & (x <= ref[fresh] + sigma[fresh])
-    cumulative = 100.0 * np.cumsum(inside) / np.arange(1, t.size + 1)
-    ax.plot(t, cumulative, color="tab:blue", lw=1.0, label="cumulative share within ±σ")
+    series = verdict.series or {"times": np.zeros(0), "percent": np.zeros(0)}
+    t = series["times"]
+    ax.plot(t, series["percent"], color="tab:blue", lw=1.0, label="cumulative share within ±σ")
     ax.axhspan(
         criterion.min_percent,
         criterion.max_percent,
@@ -244,12 +237,8 @@ def _sigma_figure(result, criterion, verdict):
     return fig
 
 
-def _criterion_figure(result, index):
-    criterion = result.scenario.criteria[index]
-    verdict = result.criteria[index]
-    if criterion.kind == "sigma":
-        return _sigma_figure(result, criterion, verdict)
-    return _window_figure(result, criterion, verdict)
+CRITERION_FIGURES = {"window": _window_figure, "sigma": _sigma_figure}
+"""Criterion kinds drawn one figure each; fleet_sigma is drawn once in the fleet figure."""
 
 
 def _traces_figure(result, title, rows, ref_of=None):
@@ -447,12 +436,13 @@ def _estimate_errors_figure(result, vehicle):
         2, 4, width=12.0, height_per_row=2.4, title=f"{vehicle}: EKF errors (est - true) and their ±σ"
     )
     t = result.times
-    for key, ax in zip(EST_KEYS, axes.flat, strict=False):
+    for key, ax in zip(STATE_NAMES, axes.flat, strict=False):
         error = _values(result, f"{vehicle}.Est.E.{key}")
         sigma = _values(result, f"{vehicle}.Est.S.{key}")
         ax.fill_between(t, -sigma, sigma, color="tab:green", alpha=0.2, lw=0, label="±σ")
         ax.plot(t, error, color="tab:red", lw=0.8, label="error")
-        inside = np.mean(np.abs(error) <= sigma) * 100 if t.size else float("nan")
+        within, total = sigma_share(error, sigma)
+        inside = 100.0 * within / total if total else float("nan")
         ax.set_title(f"{key}: {inside:.0f} % within ±σ", fontsize=9, y=1.0)
         ax.set_ylabel(_label(f"{key} error", signal_unit(f"{vehicle}.Est.E.{key}")))
     ax = axes[1, 3]
@@ -490,13 +480,14 @@ def _fleet_figure(result, vehicles):
 def make_figures(result):
     """Ordered {file stem: (caption, Figure)} for a SimulationResult (see the module doc)."""
     figures = {}
-    for i, criterion in enumerate(result.scenario.criteria):
-        if criterion.kind == "fleet_sigma":  # drawn once for the whole fleet below
-            continue
-        figures[f"criterion_{i + 1}"] = (
-            f"Criterion {i + 1}: {criterion.kind} on {criterion.signal}",
-            _criterion_figure(result, i),
-        )
+    judged = zip(judged_criteria(result.scenario), result.criteria, strict=True)
+    for i, (criterion, verdict) in enumerate(judged, start=1):
+        draw = CRITERION_FIGURES.get(criterion.kind)
+        if draw is not None:
+            figures[f"criterion_{i}"] = (
+                f"Criterion {i}: {verdict.description}",
+                draw(result, criterion, verdict),
+            )
     estimating = _estimating(result)
     if len(estimating) >= FLEET_SIZE:
         figures["fleet_errors"] = (

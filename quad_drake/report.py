@@ -1,7 +1,9 @@
-"""Self-contained HTML: a run's report.html and the index.html of a batch of runs.
+"""Self-contained HTML: a run's report.html and out/index.html of every run and campaign.
 
-Both open from disk with no network: plots are embedded as base64 PNG data URIs,
+Pages open from disk with no network: plots are embedded as base64 PNG data URIs,
 the style is inline, links to sibling files (replay.html, reports) are relative.
+A criterion is rendered from the text its analyzer wrote (``CriterionResult.description``,
+``measured_text``, ``required_text``); nothing here re-derives a verdict.
 """
 
 import base64
@@ -12,10 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import dump_scenario
+from .config import ConfigError, dump_scenario
+from .consistency import STATE_NAMES, STATE_UNITS
+from .evaluation import sigma_share
+from .results import read_summary
 
-EST_KEYS = ("X", "Y", "Z", "VX", "VY", "VZ", "Yaw")
-EST_UNITS = {"X": "m", "Y": "m", "Z": "m", "VX": "m/s", "VY": "m/s", "VZ": "m/s", "Yaw": "rad"}
 METRICS = (  # (signal key, what it is, unit)
     ("PosFollowErr", "position tracking error |p_ref - p|", "m"),
     ("Est.E.Pos", "position estimate error |p̂ - p|", "m"),
@@ -38,27 +41,30 @@ code { background: #f2f2f2; padding: 0 3px; }
 """
 
 
-def _esc(value):
+def esc(value):
+    """HTML-escaped str(value)."""
     return html.escape(str(value))
 
 
-def _num(value, digits=4):
+def num(value, digits=4):
+    """A number with `digits` significant digits; "–" for None, "nan"/"inf" as such."""
     if value is None:
         return "–"
     value = float(value)
     return f"{value:.{digits}g}" if math.isfinite(value) else str(value)
 
 
-def _page(title, body):
+def html_page(title, body):
+    """A complete HTML document with the shared inline style."""
     return (
         f'<!DOCTYPE html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n'
-        f"<title>{_esc(title)}</title>\n<style>{STYLE}</style>\n</head>\n<body>\n{body}\n</body>\n</html>\n"
+        f"<title>{esc(title)}</title>\n<style>{STYLE}</style>\n</head>\n<body>\n{body}\n</body>\n</html>\n"
     )
 
 
-def _table(header, rows):
-    """HTML table; a row cell is text, or (text, css class)."""
-    head = "".join(f"<th>{_esc(h)}</th>" for h in header)
+def html_table(header, rows):
+    """HTML table; a row cell is HTML text, or (HTML text, css class)."""
+    head = "".join(f"<th>{esc(h)}</th>" for h in header)
     lines = [f"<table>\n<tr>{head}</tr>"]
     for row in rows:
         cells = []
@@ -69,40 +75,36 @@ def _table(header, rows):
     return "\n".join(lines) + "\n</table>"
 
 
-def _verdict(passed):
+def verdict_cell(passed):
+    """("PASS" | "FAIL", css class) of a verdict; ("–", "NONE") for None (nothing judged)."""
+    if passed is None:
+        return ("–", "NONE")
     word = "PASS" if passed else "FAIL"
     return (word, word)
 
 
-def criterion_row(criterion, verdict):
-    """[criterion, kind, verdict, measured, required] cells (HTML-escaped) of one criterion."""
-    if criterion.kind == "fleet_sigma":
-        what = (
-            f"|V.{criterion.signal}| ≤ {criterion.sigma_multiple:g} × V.{criterion.sigma_signal} "
-            "over every vehicle V"
-        )
-        measured = f"{_num(verdict.percent, 3)} % of {verdict.samples} samples within"
-        required = f"share in [{criterion.min_percent:g} %, {criterion.max_percent:g} %]"
-        return [_esc(what), "fleet_sigma", _verdict(verdict.passed), _esc(measured), _esc(required)]
-    if criterion.kind == "sigma":
-        ref = criterion.ref_signal or f"{criterion.ref:g}"
-        sigma = criterion.sigma_signal or f"{criterion.sigma:g}"
-        what = f"|{criterion.signal} − {ref}| ≤ {sigma}"
-        percent = getattr(verdict, "percent", None)
-        measured = (
-            f"{_num(percent, 3)} % of {verdict.samples} samples within; "
-            f"share inside the band for the last {_num(verdict.measured)} s"
-        )
-        required = (
-            f"share in ({criterion.min_percent:g} %, {criterion.max_percent:g} %) "
-            f"for the last ≥ {criterion.window:g} s"
-        )
-    else:
-        what = f"|{criterion.signal}| ≤ {criterion.threshold:g}"
-        measured = f"longest stretch within: {_num(verdict.measured)} s"
-        required = f"&gt; {criterion.window:g} s"
-        return [_esc(what), "window", _verdict(verdict.passed), _esc(measured), required]
-    return [_esc(what), "sigma", _verdict(verdict.passed), _esc(measured), _esc(required)]
+def criterion_row(verdict):
+    """[criterion, kind, verdict, measured, required] cells (HTML-escaped) of a CriterionResult."""
+    return [
+        esc(verdict.description),
+        esc(verdict.kind),
+        verdict_cell(verdict.passed),
+        esc(verdict.measured_text),
+        esc(verdict.required_text),
+    ]
+
+
+def image_tag(path):
+    """<img> of a PNG file, embedded as a data URI."""
+    data = base64.b64encode(Path(path).read_bytes()).decode("ascii")
+    return f'<img alt="{esc(Path(path).stem)}" src="data:image/png;base64,{data}">'
+
+
+def figures_html(plots):
+    """<figure>s of [(caption, png path)]."""
+    return [
+        f"<figure><figcaption>{esc(caption)}</figcaption>{image_tag(png)}</figure>" for caption, png in plots
+    ]
 
 
 def _stats(values):
@@ -123,76 +125,70 @@ def key_metrics(result):
     return rows
 
 
+def _percent_within(error, sigma, multiple):
+    inside, total = sigma_share(error, sigma, multiple)
+    return 100.0 * inside / total if total else float("nan")
+
+
 def ekf_consistency(result):
     """[(vehicle, state, unit, rms error, max |error|, % within ±σ, % within ±2σ)] per EKF state."""
     rows = []
     for vehicle in (v.name for v in result.scenario.vehicles):
         if f"{vehicle}.Est.E.X" not in result.signals:
             continue
-        for key in EST_KEYS:
-            error = np.abs(result.signals[f"{vehicle}.Est.E.{key}"].values)
+        for key in STATE_NAMES:
+            error = result.signals[f"{vehicle}.Est.E.{key}"].values
             sigma = result.signals[f"{vehicle}.Est.S.{key}"].values
-            within = [
-                float(np.mean(error <= k * sigma) * 100) if error.size else float("nan") for k in (1, 2)
-            ]
-            rows.append((vehicle, key, EST_UNITS[key], *_stats(error), *within))
+            within = [_percent_within(error, sigma, k) for k in (1, 2)]
+            rows.append((vehicle, key, STATE_UNITS[key], *_stats(error), *within))
     return rows
-
-
-def _image(path):
-    data = base64.b64encode(Path(path).read_bytes()).decode("ascii")
-    return f'<img alt="{_esc(Path(path).stem)}" src="data:image/png;base64,{data}">'
 
 
 def write_report(result, path, plots=(), replay=None):
     """report.html for a SimulationResult: verdicts, metrics, plots [(caption, png)], config."""
     path = Path(path)
     scenario = result.scenario
-    criteria = list(zip(scenario.criteria, result.criteria, strict=True))
-    overall = ("–", "NONE") if not criteria else _verdict(all(v.passed for _, v in criteria))
+    verdicts = result.criteria
+    overall = verdict_cell(result.passed if verdicts else None)
     rate = scenario.end_time / result.wall_time if result.wall_time > 0 else float("inf")
     parts = [
-        f'<h1>{_esc(scenario.name)} <span class="{overall[1]}">&nbsp;{overall[0]}&nbsp;</span></h1>',
-        f"<p>{_esc(scenario.description)}</p>",
-        _table(
+        f'<h1>{esc(scenario.name)} <span class="{overall[1]}">&nbsp;{overall[0]}&nbsp;</span></h1>',
+        f"<p>{esc(scenario.description)}</p>",
+        html_table(
             ["seed", "simulated [s]", "wall time [s]", "× real time", "vehicles"],
             [
                 [
                     str(scenario.seed),
-                    _num(scenario.end_time),
-                    _num(result.wall_time, 3),
-                    _num(rate, 3),
-                    _esc(", ".join(v.name for v in scenario.vehicles)),
+                    num(scenario.end_time),
+                    num(result.wall_time, 3),
+                    num(rate, 3),
+                    esc(", ".join(v.name for v in scenario.vehicles)),
                 ]
             ],
         ),
     ]
     if replay is not None:
         parts.append(
-            f'<p>3D replay: <a href="{_esc(os.path.relpath(replay, path.parent))}">'
+            f'<p>3D replay: <a href="{esc(os.path.relpath(replay, path.parent))}">'
             "replay.html</a> (Meshcat; opens offline).</p>"
         )
     parts.append("<h2>Criteria</h2>")
-    if criteria:
+    if verdicts:
         parts.append(
-            _table(
-                ["criterion", "kind", "result", "measured", "required"],
-                [criterion_row(c, v) for c, v in criteria],
+            html_table(
+                ["criterion", "kind", "result", "measured", "required"], [criterion_row(v) for v in verdicts]
             )
         )
-        parts.append("<pre>" + _esc("\n".join(v.line for _, v in criteria)) + "</pre>")
+        parts.append("<pre>" + esc("\n".join(v.line for v in verdicts)) + "</pre>")
     else:
         parts.append("<p>This scenario has no pass/fail criteria; judge it from the plots.</p>")
     metrics = key_metrics(result)
     if metrics:
         parts.append("<h2>Key metrics</h2>")
         parts.append(
-            _table(
+            html_table(
                 ["vehicle", "quantity", "unit", "RMS", "max |·|"],
-                [
-                    [_esc(v), _esc(w), _esc(u), (_num(r), "num"), (_num(m), "num")]
-                    for v, w, u, r, m in metrics
-                ],
+                [[esc(v), esc(w), esc(u), (num(r), "num"), (num(m), "num")] for v, w, u, r, m in metrics],
             )
         )
     consistency = ekf_consistency(result)
@@ -202,17 +198,17 @@ def write_report(result, path, plots=(), replay=None):
             "<p>A consistent filter has about 68 % of its errors within ±σ and 95 % within ±2σ.</p>"
         )
         parts.append(
-            _table(
+            html_table(
                 ["vehicle", "state", "unit", "RMS error", "max |error|", "within ±σ [%]", "within ±2σ [%]"],
                 [
                     [
-                        _esc(v),
-                        _esc(k),
-                        _esc(u),
-                        (_num(r), "num"),
-                        (_num(m), "num"),
-                        (_num(a, 3), "num"),
-                        (_num(b, 3), "num"),
+                        esc(v),
+                        esc(k),
+                        esc(u),
+                        (num(r), "num"),
+                        (num(m), "num"),
+                        (num(a, 3), "num"),
+                        (num(b, 3), "num"),
                     ]
                     for v, k, u, r, m, a, b in consistency
                 ],
@@ -220,51 +216,126 @@ def write_report(result, path, plots=(), replay=None):
         )
     if plots:
         parts.append("<h2>Plots</h2>")
-        parts.extend(
-            f"<figure><figcaption>{_esc(caption)}</figcaption>{_image(png)}</figure>"
-            for caption, png in plots
-        )
+        parts.extend(figures_html(plots))
     parts.append(
         "<h2>Resolved configuration</h2>"
         "<p>Reproduce with <code>quad-drake run config.yaml</code> in this folder.</p>"
     )
-    parts.append(f"<pre>{_esc(dump_scenario(scenario))}</pre>")
-    path.write_text(_page(f"quad_drake: {scenario.name}", "\n".join(parts)), encoding="utf-8")
+    parts.append(f"<pre>{esc(dump_scenario(scenario))}</pre>")
+    path.write_text(html_page(f"quad_drake: {scenario.name}", "\n".join(parts)), encoding="utf-8")
     return path
 
 
-def write_index(summaries_with_dirs, out_dir):
-    """index.html in out_dir linking every run's report: [(summary dict, run dir)] in order."""
+# ----- out/index.html ------------------------------------------------------------------------
+
+
+def find_summaries(out_dir):
+    """[(folder, summary dict)] of every run and campaign folder under out_dir (any depth)
+    whose summary.json has the supported format_version, sorted by folder."""
+    found = []
+    for path in sorted(Path(out_dir).rglob("summary.json")):
+        try:
+            summary = read_summary(path)
+        except ConfigError:  # a batch list, an older format, a foreign file: not linked
+            continue
+        if summary.get("kind") in ("run", "campaign"):
+            found.append((path.parent, summary))
+    return found
+
+
+def _links(folder, out_dir, names):
+    return " · ".join(
+        f'<a href="{esc(os.path.relpath(folder / name, out_dir))}">{label}</a>'
+        for name, label in names
+        if (folder / name).is_file()
+    )
+
+
+def _run_row(folder, summary, out_dir):
+    criteria = summary["criteria"]
+    return [
+        esc(os.path.relpath(folder, out_dir)),
+        esc(summary["scenario"]),
+        str(summary["seed"]),
+        verdict_cell(summary["passed"] if criteria else None),
+        f"{sum(bool(c['passed']) for c in criteria)}/{len(criteria)}",
+        (num(summary["wall_time_s"], 3), "num"),
+        (num(summary["real_time_factor"], 3), "num"),
+        _links(folder, out_dir, (("report.html", "report"), ("replay.html", "3D replay"))) or "–",
+        "<br>".join(esc(c["line"]) for c in criteria if "line" in c),
+    ]
+
+
+def _campaign_row(folder, summary, out_dir):
+    every = [c for c in summary["criteria"] if c["criterion"] == "all criteria"]
+    rate = "–"
+    if every:
+        low, high = every[0]["ci95"]
+        rate = f"{num(100 * every[0]['rate'], 3)} % [{num(100 * low, 3)}, {num(100 * high, 3)}]"
+    runs = f"{summary['runs']}" + (" (partial)" if summary.get("partial") else "")
+    judged = summary["consistency_passed"] if summary["consistency"] else None
+    return [
+        esc(os.path.relpath(folder, out_dir)),
+        esc(summary["scenario"]),
+        esc(runs),
+        str(summary["first_seed"]),
+        verdict_cell(judged),
+        (esc(rate), "num"),
+        (num(summary["timing"]["wall_time_s"], 3), "num"),
+        _links(folder, out_dir, (("report.html", "campaign page"), ("table.txt", "table"))) or "–",
+        "<br>".join(esc(line) for line in summary.get("failure_reasons", [])),
+    ]
+
+
+def write_index(out_dir):
+    """out_dir/index.html linking every run and campaign folder under out_dir (see find_summaries)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    rows = []
-    for summary, run_dir in summaries_with_dirs:
-        run_dir = Path(run_dir)
-        criteria = summary["criteria"]
-        verdict = ("–", "NONE") if not criteria else _verdict(summary["passed"])
-        links = [
-            f'<a href="{_esc(os.path.relpath(run_dir / name, out_dir))}">{label}</a>'
-            for name, label in (("report.html", "report"), ("replay.html", "3D replay"))
-            if (run_dir / name).is_file()
-        ]
-        lines = "<br>".join(_esc(c["line"]) for c in criteria if "line" in c)
-        rows.append(
-            [
-                _esc(summary["scenario"]),
-                str(summary["seed"]),
-                verdict,
-                f"{sum(bool(c['passed']) for c in criteria)}/{len(criteria)}",
-                (_num(summary["wall_time_s"], 3), "num"),
-                (_num(summary["real_time_factor"], 3), "num"),
-                " · ".join(links) or "–",
-                lines,
-            ]
+    found = find_summaries(out_dir)
+    runs = [(f, s) for f, s in found if s["kind"] == "run"]
+    campaigns = [(f, s) for f, s in found if s["kind"] == "campaign"]
+    graded = [s for _, s in runs if s["criteria"]]
+    parts = [
+        "<h1>quad_drake results</h1>",
+        f"<h2>Runs</h2><p>{sum(s['passed'] for s in graded)} of {len(graded)} graded runs passed.</p>",
+    ]
+    if runs:
+        parts.append(
+            html_table(
+                [
+                    "folder",
+                    "scenario",
+                    "seed",
+                    "result",
+                    "criteria",
+                    "wall [s]",
+                    "× real time",
+                    "open",
+                    "lines",
+                ],
+                [_run_row(f, s, out_dir) for f, s in runs],
+            )
         )
-    passed = sum(1 for summary, _ in summaries_with_dirs if summary["passed"] and summary["criteria"])
-    graded = sum(1 for summary, _ in summaries_with_dirs if summary["criteria"])
-    body = f"<h1>quad_drake runs</h1><p>{passed} of {graded} graded scenarios passed.</p>" + _table(
-        ["scenario", "seed", "result", "criteria", "wall [s]", "× real time", "open", "analyzer lines"], rows
-    )
+    parts.append("<h2>Monte Carlo campaigns</h2>")
+    if campaigns:
+        parts.append(
+            html_table(
+                [
+                    "folder",
+                    "scenario",
+                    "runs",
+                    "first seed",
+                    "consistency",
+                    "all criteria passed (95% CI)",
+                    "wall [s]",
+                    "open",
+                    "failed",
+                ],
+                [_campaign_row(f, s, out_dir) for f, s in campaigns],
+            )
+        )
+    else:
+        parts.append("<p>None yet: <code>quad-drake montecarlo NAME</code> writes one.</p>")
     path = out_dir / "index.html"
-    path.write_text(_page("quad_drake runs", body), encoding="utf-8")
+    path.write_text(html_page("quad_drake results", "\n".join(parts)), encoding="utf-8")
     return path

@@ -8,11 +8,7 @@ every Simulator step, so one logger instead of one per signal saves ~10 % (DESIG
 The scenario seed reaches every noise source through ``SetRandomContext``.
 """
 
-import dataclasses
-import json
 import time
-from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 from pydrake.common import RandomDistribution, RandomGenerator
@@ -21,9 +17,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput, Multiplexer, RandomSource
 
 from . import conventions as c
-from .config import ConfigError, dump_scenario
-from .consistency import fleet_sigma_fraction
-from .evaluation import evaluate_criterion, fleet_sigma_threshold
+from .results import result_from_logs
 from .rotations import quat_from_euler
 from .signals import empty_logs, vehicle_signals
 from .systems.controller import CascadeController
@@ -32,6 +26,7 @@ from .systems.plant import QuadrotorPlant
 from .systems.sensors import Gps, Imu, Magnetometer
 from .systems.trajectory import TrajectorySource
 from .trajectories import trajectory_from_config
+from .verdicts import check_criteria
 
 
 def initial_state(vehicle):
@@ -223,116 +218,10 @@ def available_signals(scenario):
     return names
 
 
-def check_criteria(scenario):
-    """Raise ConfigError when a criterion names a signal the scenario does not produce."""
-    known = available_signals(scenario)
-    for i, criterion in enumerate(scenario.criteria):
-        for key in ("signal", "ref_signal", "sigma_signal"):
-            name = getattr(criterion, key)
-            names = (
-                [f"{v.name}.{name}" for v in scenario.vehicles] if criterion.kind == "fleet_sigma" else [name]
-            )
-            if name and any(n not in known for n in names):
-                raise ConfigError(
-                    f"criteria.{i}.{key}: unknown signal {name!r} (e.g. {', '.join(sorted(known)[:6])}, ...)"
-                )
-
-
-def evaluate_criteria(scenario, times, signals):
-    """CriterionResult per scenario criterion, on the logged 5 ms samples."""
-
-    def lookup(name):
-        return signals[name].values, signals[name].fresh
-
-    results = []
-    for criterion in scenario.criteria:
-        if criterion.kind == "fleet_sigma":
-            fraction = fleet_sigma_fraction(
-                signals, criterion.signal, criterion.sigma_signal, criterion.sigma_multiple
-            )
-            results.append(
-                fleet_sigma_threshold(
-                    fraction,
-                    len(scenario.vehicles) * times.size,
-                    criterion.signal,
-                    criterion.sigma_signal,
-                    criterion.sigma_multiple,
-                    criterion.min_percent,
-                    criterion.max_percent,
-                )
-            )
-        else:
-            results.append(evaluate_criterion(criterion, times, lookup))
-    return results
-
-
-@dataclass
-class SimulationResult:
-    """Logs, derived signals and criterion verdicts of one scenario run."""
-
-    scenario: object
-    times: np.ndarray  # (n,) s, log sample times 0.005 k, k >= 1
-    logs: dict  # vehicle -> log name -> (n, width)
-    signals: dict  # signal name -> Signal
-    criteria: list  # CriterionResult per scenario criterion
-    wall_time: float  # s, simulation only
-    extra: dict = field(default_factory=dict)
-
-    @property
-    def passed(self):
-        return all(r.passed for r in self.criteria)
-
-    def summary(self):
-        """JSON-ready summary: scenario, seed, verdicts, wall time."""
-        return {
-            "scenario": self.scenario.name,
-            "seed": self.scenario.seed,
-            "end_time": self.scenario.end_time,
-            "passed": self.passed,
-            "wall_time_s": round(self.wall_time, 3),
-            "real_time_factor": round(self.scenario.end_time / self.wall_time, 2),
-            "criteria": [dataclasses.asdict(r) for r in self.criteria],
-        }
-
-    def save(self, out_dir):
-        """Write logs.npz, config.yaml (resolved) and summary.json into out_dir."""
-        out_dir = Path(out_dir)
-        out_dir.mkdir(parents=True, exist_ok=True)
-        arrays = {"times": self.times}
-        for vehicle, logs in self.logs.items():
-            for name, data in logs.items():
-                arrays[f"{vehicle}/{name}"] = data
-        np.savez_compressed(out_dir / "logs.npz", **arrays)
-        (out_dir / "config.yaml").write_text(dump_scenario(self.scenario))
-        (out_dir / "summary.json").write_text(json.dumps(self.summary(), indent=2) + "\n")
-        return out_dir
-
-
-def load_logs(run_dir):
-    """(times, {vehicle: {log name: array}}) from a run folder's logs.npz."""
-    path = Path(run_dir) / "logs.npz"
-    if not path.is_file():
-        raise ConfigError(f"{run_dir}: no logs.npz (is this a run folder?)")
-    data = np.load(path)
-    logs = {}
-    for key in data.files:
-        if key != "times":
-            vehicle, name = key.split("/", 1)
-            logs.setdefault(vehicle, {})[name] = data[key]
-    return data["times"], logs
-
-
-def signals_from_logs(logs):
-    """All vehicles' named signals from {vehicle: {log name: array}}."""
-    signals = {}
-    for vehicle, vehicle_logs in logs.items():
-        signals.update(vehicle_signals(vehicle, vehicle_logs))
-    return signals
-
-
 def run(scenario):
-    """Simulate a ScenarioConfig for end_time s with its seed; evaluate its criteria."""
-    check_criteria(scenario)
+    """SimulationResult of a ScenarioConfig simulated for end_time s with its seed, its criteria
+    evaluated (:mod:`quad_drake.results`)."""
+    check_criteria(scenario, available_signals(scenario))
     diagram, loggers = build_diagram(scenario)
     simulator = Simulator(diagram)
     context = simulator.get_mutable_context()
@@ -343,7 +232,4 @@ def run(scenario):
     wall_time = time.perf_counter() - start
 
     times, logs = read_logs(loggers, context, int(round(scenario.end_time / c.LOG_PERIOD)))
-    signals = signals_from_logs(logs)
-    return SimulationResult(
-        scenario, times, logs, signals, evaluate_criteria(scenario, times, signals), wall_time
-    )
+    return result_from_logs(scenario, times, logs, wall_time)

@@ -50,4 +50,6 @@ def gps_flight():
 @pytest.fixture(scope="session")
 def gps_run_dir(gps_flight, tmp_path_factory):
     """The run folder (logs.npz, config.yaml, summary.json) of :func:`gps_flight`."""
-    return gps_flight.save(tmp_path_factory.mktemp("gps_run") / "11_gps_update")
+    from quad_drake.results import save_run
+
+    return save_run(gps_flight, tmp_path_factory.mktemp("gps_run") / "11_gps_update")

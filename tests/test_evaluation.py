@@ -2,7 +2,14 @@ import numpy as np
 import pytest
 
 from quad_drake.config import CriterionConfig
-from quad_drake.evaluation import evaluate_criterion, max_abs, rms, sigma_threshold, window_threshold
+from quad_drake.evaluation import (
+    evaluate_criterion,
+    fleet_sigma_threshold,
+    max_abs,
+    rms,
+    sigma_threshold,
+    window_threshold,
+)
 
 DT = 0.005
 
@@ -204,3 +211,43 @@ def test_evaluate_criterion_dispatches_on_kind():
 def test_metrics():
     assert rms([3.0, -4.0]) == pytest.approx(np.sqrt(12.5))
     assert max_abs([1.0, -7.5, 2.0]) == 7.5
+
+
+# ----- what the plots and the report draw ------------------------------------------------------
+
+
+def test_window_series_locate_the_longest_credited_stretch():
+    t = frames(2.0)  # 0.005 .. 2.0 s
+    x = np.zeros_like(t)
+    x[[39, 199]] = 1.0  # violations at t = 0.2 and 1.0 s
+    r = window_threshold(t, x, 0.5, 0.9, name="Quad.Pos.Z")
+    assert r.series["span"] == pytest.approx([1.0, 2.0], abs=1e-12)  # 1.0 s after the last violation
+    assert r.measured == pytest.approx(1.0, abs=1e-12) and r.passed
+    x[359] = 1.0  # and at 1.8 s: 0.2 -> 1.0 (0.8 s) wins
+    r = window_threshold(t, x, 0.5, 0.9, name="Quad.Pos.Z")
+    assert r.series["span"] == pytest.approx([0.2, 0.995], abs=1e-12)
+    np.testing.assert_allclose(r.series["stretch"][-1], r.trailing)
+    assert (r.description, r.required_text) == ("|Quad.Pos.Z| < 0.5 for > 0.9 s", "> 0.9 s")
+    assert r.measured_text == "longest stretch within: 0.795 s" and not r.passed
+
+
+def test_sigma_series_is_the_cumulative_share_of_fresh_samples():
+    t = frames(0.1)  # 20 samples, every other one fresh
+    fresh = np.arange(t.size) % 2 == 0
+    x = np.where(np.arange(t.size) % 4 == 0, 0.0, 5.0)  # fresh: in, out, in, out, ...
+    r = sigma_threshold(t, x, fresh, 0.0, 1.0, 40.0, 60.0, 0.05, name="Quad.GPS.X")
+    np.testing.assert_array_equal(r.series["times"], t[fresh])
+    np.testing.assert_allclose(r.series["percent"][:4], [100.0, 50.0, 100 * 2 / 3, 50.0])
+    assert r.series["percent"][-1] == r.percent == 50.0 and r.samples == 10
+    assert r.description == "|Quad.GPS.X - 0| <= 1: 40-60 % (last 0.05 s)"
+    assert r.measured_text.startswith("50 % of 10 samples within")
+
+
+def test_fleet_sigma_counts_what_it_judged_and_writes_no_nan():
+    errors = [np.array([0.1, 0.5, np.nan]), np.array([2.0])]
+    sigmas = [np.array([1.0, 1.0, 1.0]), np.array([1.0])]
+    r = fleet_sigma_threshold(errors, sigmas, "Est.E.X", "Est.S.X", 1.0, 40.0, 60.0)
+    assert (r.samples, r.percent, r.passed, r.trailing) == (4, 50.0, True, None)
+    assert r.description == "fleet |V.Est.E.X| <= 1 V.Est.S.X: 40-60 % (2 vehicles V)"
+    assert (r.measured_text, r.required_text) == ("50 % of 4 samples within", "share in [40 %, 60 %]")
+    assert "series" not in r.to_dict() and r.to_dict()["samples"] == 4

@@ -6,7 +6,7 @@ import math
 import numpy as np
 
 from quad_drake.export import export_csv
-from quad_drake.simulation import load_logs, signals_from_logs
+from quad_drake.results import load_logs, signals_from_logs
 
 
 def read_csv(path):

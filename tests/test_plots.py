@@ -9,10 +9,9 @@ import pytest
 
 from quad_drake import plots
 from quad_drake.config import CriterionConfig, GpsParams, ImuParams, MagParams, ScenarioConfig, VehicleConfig
-from quad_drake.report import criterion_row, ekf_consistency, key_metrics, write_index
+from quad_drake.report import criterion_row, ekf_consistency, key_metrics
+from quad_drake.results import result_from_logs
 from quad_drake.rotations import quat_from_euler
-from quad_drake.signals import vehicle_signals
-from quad_drake.simulation import SimulationResult, evaluate_criteria
 
 LOG_PERIOD = 0.005
 
@@ -82,11 +81,7 @@ def make_result(names=("Quad",), estimator=True, end_time=4.0, criteria=None, se
         criteria=criteria,
     )
     logs = {name: _vehicle_logs(times, rng, estimator, offset=i) for i, name in enumerate(names)}
-    signals = {}
-    for name, vehicle_logs in logs.items():
-        signals.update(vehicle_signals(name, vehicle_logs))
-    verdicts = evaluate_criteria(scenario, times, signals)
-    return SimulationResult(scenario, times, logs, signals, verdicts, wall_time=0.5)
+    return result_from_logs(scenario, times, logs, wall_time=0.5)
 
 
 def _close(a, b, tol=1e-12):
@@ -120,17 +115,6 @@ def _close(a, b, tol=1e-12):
 )
 def test_signal_unit(name, unit):
     assert plots.signal_unit(name) == unit
-
-
-def test_longest_good_stretch_matches_the_window_analyzer():
-    times = LOG_PERIOD * np.arange(1, 401)  # 0.005 .. 2.0 s
-    values = np.zeros(400)
-    values[[39, 199]] = 1.0  # violations at t = 0.2 and 1.0 s
-    start, end = plots.longest_good_stretch(times, values, 0.5)
-    assert _close(start, 1.0) and _close(end, 2.0)  # 1.0 s after the last violation
-    values[359] = 1.0  # and at 1.8 s: 0.2 -> 1.0 (0.8 s) wins
-    start, end = plots.longest_good_stretch(times, values, 0.5)
-    assert _close(start, 0.2) and math.isclose(end, 0.995, abs_tol=1e-12)
 
 
 def test_figure_set_of_one_estimating_vehicle():
@@ -226,14 +210,15 @@ def test_metrics_and_consistency_tables():
     assert 64 < one < 72 and 93 < two < 97
 
 
-def test_criterion_rows_state_measured_and_required():
+def test_criterion_rows_of_window_and_sigma_criteria():
     result = make_result()
-    window, sigma = (
-        criterion_row(c, v) for c, v in zip(result.scenario.criteria, result.criteria, strict=True)
-    )
-    assert window[2] == ("PASS", "PASS")
-    assert f"{result.criteria[0].measured:.4g} s" in window[3] and window[4] == "&gt; 1 s"
-    assert f"{result.criteria[1].percent:.3g} %" in sigma[3] and "(60 %, 76 %)" in sigma[4]
+    window, sigma = (criterion_row(v) for v in result.criteria)
+    assert window[:3] == ["|Quad.PosFollowErr| &lt; 0.1 for &gt; 1 s", "window", ("PASS", "PASS")]
+    assert window[3] == f"longest stretch within: {result.criteria[0].measured:.4g} s"
+    assert window[4] == "&gt; 1 s"
+    assert sigma[0] == "|Quad.GPS.X - Quad.Pos.X| &lt;= 0.7: 60-76 % (last 1 s)" and sigma[1] == "sigma"
+    assert sigma[3].startswith(f"{result.criteria[1].percent:.3g} % of 40 samples within")
+    assert sigma[4] == "share in (60 %, 76 %) for the last &gt;= 1 s"
 
 
 def test_run_artifacts_are_self_contained(tmp_path):
@@ -266,36 +251,6 @@ def test_diverged_run_still_gets_plots_and_report(tmp_path):
     assert ">nan<" in report
 
 
-def test_write_index_links_every_run(tmp_path):
-    summaries = []
-    for name, passed, n in (("01_a", True, 1), ("02_b", False, 2), ("09_c", True, 0)):
-        run_dir = tmp_path / "runs" / name
-        run_dir.mkdir(parents=True)
-        (run_dir / "report.html").write_text("x")
-        criteria = [
-            {"passed": passed, "line": f"{'PASS' if passed else 'FAIL'}: {name} <{i}>"} for i in range(n)
-        ]
-        summaries.append(
-            (
-                {
-                    "scenario": name,
-                    "seed": 0,
-                    "passed": passed,
-                    "criteria": criteria,
-                    "wall_time_s": 0.5,
-                    "real_time_factor": 20.0,
-                },
-                run_dir,
-            )
-        )
-    index = write_index(summaries, tmp_path / "runs").read_text()
-    assert index.count('href="01_a/report.html"') == 1 and 'href="09_c/report.html"' in index
-    assert "replay.html" not in index  # only files that exist are linked
-    assert "1 of 2 graded scenarios passed" in index
-    assert "FAIL: 02_b &lt;1&gt;" in index  # escaped analyzer lines
-    assert re.findall(r"class=\"(PASS|FAIL|NONE)\"", index) == ["PASS", "FAIL", "NONE"]
-
-
 def test_real_run_artifacts(tmp_path):
     from quad_drake import catalog
     from quad_drake.simulation import run
@@ -314,7 +269,7 @@ def test_real_run_artifacts(tmp_path):
     assert ('class="PASS"' in report) == result.passed
 
 
-def test_fleet_sigma_criterion_row_reports_the_share():
+def test_fleet_sigma_criterion_row_reports_the_share_over_the_fleet():
     criteria = [
         CriterionConfig(
             kind="fleet_sigma",
@@ -327,9 +282,18 @@ def test_fleet_sigma_criterion_row_reports_the_share():
     ]
     result = make_result(("Q1", "Q2", "Q3"), criteria=criteria)
     verdict = result.criteria[0]
-    row = criterion_row(criteria[0], verdict)
-    assert row[0] == "|V.Est.E.X| ≤ 2 × V.Est.S.X over every vehicle V" and row[1] == "fleet_sigma"
-    assert row[2] == (("PASS", "PASS") if verdict.passed else ("FAIL", "FAIL"))
+    row = criterion_row(verdict)
+    assert row[0] == "fleet |V.Est.E.X| &lt;= 2 V.Est.S.X: 90-100 % (3 vehicles V)"
+    assert row[1] == "fleet_sigma" and row[2] == (("PASS", "PASS") if verdict.passed else ("FAIL", "FAIL"))
     assert row[3] == f"{verdict.percent:.3g} % of {3 * result.times.size} samples within"
     assert row[4] == "share in [90 %, 100 %]"
+    text = " ".join((row[0], row[3], row[4]))
+    assert "stretch" not in text and "≤ 0" not in text
     assert 93 < verdict.percent < 97  # Gaussian errors: ~95 % within two sigma
+
+
+def test_fleet_sigma_counts_only_fresh_samples():
+    criteria = [CriterionConfig(kind="fleet_sigma", signal="GPS.X", sigma_signal="Est.S.X", sigma_multiple=1)]
+    result = make_result(("Q1", "Q2", "Q3"), criteria=criteria)
+    fresh = sum(int(result.signals[f"{v}.GPS.X"].fresh.sum()) for v in ("Q1", "Q2", "Q3"))
+    assert fresh == 3 * 40 and result.criteria[0].samples == fresh

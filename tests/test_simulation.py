@@ -9,7 +9,8 @@ from quad_drake import catalog
 from quad_drake import conventions as c
 from quad_drake.control.cascade import cascade_step
 from quad_drake.dynamics import motor_lag_step
-from quad_drake.simulation import build_diagram, build_vehicle, load_logs, read_logs, run, vehicle_log_names
+from quad_drake.results import load_logs, save_run
+from quad_drake.simulation import build_diagram, build_vehicle, read_logs, run, vehicle_log_names
 
 
 def short(name, end_time, *overrides, seed=None):
@@ -103,7 +104,7 @@ def test_vehicle_without_sensors_exports_only_truth_signals():
 
 def test_results_save_and_reload(tmp_path):
     result = run(short("10_mag_update", 0.3))
-    result.save(tmp_path)
+    save_run(result, tmp_path)
     times, logs = load_logs(tmp_path)
     np.testing.assert_array_equal(times, result.times)
     np.testing.assert_array_equal(logs["Quad"]["covariance"], result.logs["Quad"]["covariance"])

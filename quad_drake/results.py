@@ -1,0 +1,147 @@
+"""A run's results in memory (:class:`SimulationResult`) and on disk (the run folder).
+
+The run folder is a versioned on-disk contract (``FORMAT_VERSION``):
+
+- ``logs.npz``: ``times`` ((n,) s, the 5 ms log samples) and ``<vehicle>/<log name>``
+  ((n, width) arrays, as :func:`quad_drake.simulation.read_logs` returns them);
+- ``config.yaml``: the resolved scenario (seed included), so the folder reproduces itself;
+- ``summary.json``: strict JSON with ``format_version``, ``kind: "run"``, the runner,
+  scenario, seed, verdicts (with their text fields) and timing.
+
+:func:`load_run` re-derives the signals from the logs and re-evaluates the verdicts from
+the saved configuration, without simulating again.
+"""
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .config import ConfigError, dump_scenario, load_scenario
+from .jsonio import dump_json
+from .signals import vehicle_signals
+from .verdicts import evaluate_criteria
+
+FORMAT_VERSION = 1
+"""Version of the run folder layout and of summary.json; readers refuse other versions."""
+RUNNER = "drake-diagram"
+"""What produced a run: the Drake Diagram of :mod:`quad_drake.simulation`."""
+
+
+@dataclass
+class SimulationResult:
+    """Logs, derived signals and criterion verdicts of one scenario run."""
+
+    scenario: object  # ScenarioConfig
+    times: np.ndarray  # (n,) s, log sample times 0.005 k, k >= 1
+    logs: dict  # vehicle -> log name -> (n, width)
+    signals: dict  # signal name -> Signal
+    criteria: list  # CriterionResult per judged criterion (evaluation.judged_criteria)
+    wall_time: float  # s, simulation only
+    runner: str = RUNNER
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def passed(self):
+        return all(r.passed for r in self.criteria)
+
+    def summary(self):
+        """The summary.json dict: format, scenario, seed, verdicts with their text, timing."""
+        return {
+            "format_version": FORMAT_VERSION,
+            "kind": "run",
+            "runner": self.runner,
+            "scenario": self.scenario.name,
+            "description": self.scenario.description,
+            "seed": self.scenario.seed,
+            "end_time": self.scenario.end_time,
+            "passed": self.passed,
+            "wall_time_s": round(self.wall_time, 3),
+            "real_time_factor": round(self.scenario.end_time / self.wall_time, 2)
+            if self.wall_time > 0
+            else None,
+            "criteria": [r.to_dict() for r in self.criteria],
+        }
+
+
+def signals_from_logs(logs):
+    """All vehicles' named signals from {vehicle: {log name: array}}."""
+    signals = {}
+    for vehicle, vehicle_logs in logs.items():
+        signals.update(vehicle_signals(vehicle, vehicle_logs))
+    return signals
+
+
+def result_from_logs(scenario, times, logs, wall_time, runner=RUNNER):
+    """SimulationResult of logged arrays: the signals derived, every judged criterion evaluated."""
+    signals = signals_from_logs(logs)
+    return SimulationResult(
+        scenario, times, logs, signals, evaluate_criteria(scenario, times, signals), wall_time, runner
+    )
+
+
+def save_run(result, out_dir):
+    """Write logs.npz, config.yaml (resolved) and summary.json into out_dir; returns out_dir."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    arrays = {"times": result.times}
+    for vehicle, logs in result.logs.items():
+        for name, data in logs.items():
+            arrays[f"{vehicle}/{name}"] = data
+    np.savez_compressed(out_dir / "logs.npz", **arrays)
+    (out_dir / "config.yaml").write_text(dump_scenario(result.scenario))
+    dump_json(out_dir / "summary.json", result.summary())
+    return out_dir
+
+
+def load_logs(run_dir):
+    """(times, {vehicle: {log name: array}}) from a run folder's logs.npz."""
+    path = Path(run_dir) / "logs.npz"
+    if not path.is_file():
+        raise ConfigError(f"{run_dir}: no logs.npz (is this a run folder?)")
+    with np.load(path) as data:
+        logs = {}
+        for key in data.files:
+            if key != "times":
+                vehicle, name = key.split("/", 1)
+                logs.setdefault(vehicle, {})[name] = data[key]
+        return data["times"], logs
+
+
+def read_summary(path, kind=None):
+    """The dict of a summary.json of a supported format_version (and `kind`, when given).
+
+    Raises ConfigError (one line) for a missing or unreadable file, an unknown format
+    version or another kind of summary.
+    """
+    path = Path(path)
+    try:
+        summary = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError(f"{path.parent}: no summary.json (is this a run folder?)") from None
+    except (OSError, UnicodeDecodeError, ValueError) as e:
+        raise ConfigError(f"{path}: not readable JSON ({e})") from None
+    version = summary.get("format_version") if isinstance(summary, dict) else None
+    if version != FORMAT_VERSION:
+        raise ConfigError(
+            f"{path}: format_version {version!r} is not supported (this quad_drake reads {FORMAT_VERSION})"
+        )
+    if kind is not None and summary.get("kind") != kind:
+        raise ConfigError(f"{path}: a {summary.get('kind')!r} summary, not a {kind!r} one")
+    return summary
+
+
+def load_run(run_dir):
+    """SimulationResult of a run folder: logs loaded, signals re-derived and verdicts
+    re-evaluated from its config.yaml (nothing is simulated); wall time from summary.json.
+
+    Raises ConfigError for a folder without logs, config or a supported summary.
+    """
+    run_dir = Path(run_dir)
+    summary = read_summary(run_dir / "summary.json", kind="run")
+    times, logs = load_logs(run_dir)
+    scenario = load_scenario(run_dir / "config.yaml")
+    return result_from_logs(
+        scenario, times, logs, float(summary["wall_time_s"]), summary.get("runner", RUNNER)
+    )
