@@ -10,7 +10,7 @@ import argparse
 import os
 
 from quad_drake import catalog
-from quad_drake.montecarlo import run_campaign
+from quad_drake.campaigns import InProcessRunner, ProcessPoolRunner, run_campaign, table
 
 
 def main():
@@ -24,10 +24,11 @@ def main():
     print(f"{'jobs':>4s} {'wall [s]':>9s} {'runs/min':>9s} {'sim s/run':>10s} {'x real (all runs)':>18s}")
     reference = None
     for jobs in args.jobs:
-        campaign = run_campaign(scenario, args.runs, jobs, progress=False)
+        runner = InProcessRunner() if jobs == 1 else ProcessPoolRunner(jobs)
+        campaign = run_campaign(scenario, args.runs, runner=runner, progress=False)
         t = campaign.timing()
-        reference = reference or campaign.table()
-        assert campaign.table() == reference, "the table must not depend on the number of jobs"
+        reference = reference or table(campaign)
+        assert table(campaign) == reference, "the table must not depend on the runner"
         print(
             f"{jobs:4d} {t['wall_time_s']:9.1f} {t['runs_per_minute']:9.1f} {t['simulation_s_mean']:10.2f} "
             f"{args.runs * scenario.end_time / t['wall_time_s']:18.1f}"

@@ -131,31 +131,79 @@ def cmd_diagram(args):
     return 0
 
 
+def _add_montecarlo_arguments(parser):
+    """Arguments of ``quad-drake montecarlo``."""
+    parser.add_argument("name", metavar="NAME", help="scenario name or YAML path")
+    parser.add_argument("--runs", type=int, default=100, help="number of runs (default: 100)")
+    parser.add_argument(
+        "--jobs", type=int, default=os.cpu_count() or 1, help="worker processes (default: all cores)"
+    )
+    parser.add_argument("--seed", type=int, help="first seed S; run i uses S+i (default: the scenario's)")
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a config field, e.g. vehicles.0.ekf.q_yaw_std=0.1",
+    )
+    parser.add_argument("--out", default="out", help="output folder (default: out)")
+    parser.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="run on a Dask cluster, e.g. tcp://host:8786 (the 'cluster' extra)",
+    )
+    parser.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    parser.add_argument("--quiet", action="store_true", help="no progress output")
+    return parser
+
+
+def _campaign_runner(args):
+    from .campaigns import DaskRunner, InProcessRunner, ProcessPoolRunner
+
+    if args.scheduler:
+        return DaskRunner(args.scheduler)
+    return InProcessRunner() if args.jobs == 1 else ProcessPoolRunner(args.jobs)
+
+
 def cmd_montecarlo(args):
-    """Run the campaign, print its table, save OUT/NAME_montecarlo/; the last line says why the
-    exit code is what it is (0: every campaign consistency test passed or there is none)."""
-    from .montecarlo import run_campaign
+    """Run a campaign, print its table, save OUT/NAME_montecarlo/ and refresh OUT/index.html.
+
+    The last line explains the exit code: 0 every campaign consistency criterion passed (or
+    there is none), 1 one failed; Ctrl-C keeps the finished runs (partial summary) and exits 130.
+    """
+    from . import campaigns
+    from .report import write_index
 
     if args.runs < 1 or args.jobs < 1:
         raise ConfigError("montecarlo: --runs and --jobs must be >= 1")
     scenario = catalog.load(args.name, args.seed, args.set)
-    out = check_output_dir(args.out)
-    campaign = run_campaign(scenario, args.runs, args.jobs, scheduler=args.scheduler, progress=not args.quiet)
-    print(campaign.table())
-    print(campaign.timing_line())
-    out_dir = campaign.save(out / f"{scenario.name}_montecarlo", plots=not args.no_plots)
+    out_dir = check_output_dir(args.out) / f"{scenario.name}_montecarlo"
+    try:
+        campaign = campaigns.run_campaign(
+            scenario, args.runs, runner=_campaign_runner(args), progress=not args.quiet
+        )
+    except campaigns.CampaignInterrupted as interrupted:
+        partial = interrupted.campaign
+        campaigns.save(partial, out_dir, plots=False)
+        write_index(args.out)
+        print(
+            f"quad-drake: interrupted after {partial.runs} of {partial.planned} runs; "
+            f"the finished ones are in {out_dir}/ (runs.csv, summary.json marked partial)",
+            file=sys.stderr,
+        )
+        return 130
+    print(campaigns.table(campaign))
+    print(campaigns.timing_line(campaign))
+    campaigns.save(campaign, out_dir, plots=not args.no_plots)
+    index = write_index(args.out)
     print(
-        f"saved {out_dir}/: runs.csv, summary.json, table.txt"
+        f"saved {out_dir}/: runs.csv, summary.json, table.txt, report.html"
         + (", consistency.npz" if campaign.consistency else "")
         + (", plots" if not args.no_plots else "")
+        + f"; index: {index}"
     )
-    reasons = campaign.failure_reasons()
-    if reasons:
-        print(f"FAIL (exit 1): {'; '.join(reasons)}")
-        return 1
-    tested = len(campaign.consistency)
-    print(f"PASS (exit 0): {tested} consistency test(s) passed" if tested else "exit 0: no consistency test")
-    return 0
+    print(campaign.verdict())
+    return 0 if campaign.passed else 1
 
 
 def build_parser():
@@ -182,9 +230,7 @@ def build_parser():
         "--meshcat", action="store_true", help="also replay each flight live in Meshcat (opens a local URL)"
     )
     run_parser.set_defaults(func=cmd_run)
-    from .montecarlo import add_arguments
-
-    add_arguments(
+    _add_montecarlo_arguments(
         sub.add_parser("montecarlo", help="seeded runs in parallel: pass rates, NEES/NIS, accuracy bound")
     ).set_defaults(func=cmd_montecarlo)
     diagram = sub.add_parser("diagram", help="write the scenario's Drake diagram as SVG (Graphviz)")

@@ -7,7 +7,7 @@ import pytest
 from scipy.stats import binom
 
 from quad_drake import consistency as cons
-from quad_drake.montecarlo import MIN_IN_BAND
+from quad_drake.campaigns.statistics import MIN_IN_BAND
 from quad_drake.rotations import quat_from_euler
 from quad_drake.signals import Signal
 

@@ -3,8 +3,9 @@
 import pytest
 
 from quad_drake import catalog
+from quad_drake.campaigns import DaskRunner, run_campaign, table
+from quad_drake.campaigns.output import rows
 from quad_drake.config import ConfigError
-from quad_drake.montecarlo import run_campaign
 
 distributed = pytest.importorskip("distributed")
 dask = pytest.importorskip("dask")
@@ -12,7 +13,7 @@ dask = pytest.importorskip("dask")
 
 def test_dask_campaign_equals_the_local_campaign():
     scenario = catalog.load("10_mag_update", None, ["end_time=1"])
-    local = run_campaign(scenario, 3, jobs=1, seed=20, progress=False)
+    local = run_campaign(scenario, 3, seed=20, progress=False)
     with distributed.LocalCluster(
         n_workers=1,
         threads_per_worker=1,
@@ -22,11 +23,12 @@ def test_dask_campaign_equals_the_local_campaign():
         dashboard_address=None,
     ) as cluster:
         assert cluster.scheduler_address.startswith("tcp://127.0.0.1:")
-        remote = run_campaign(scenario, 3, seed=20, scheduler=cluster.scheduler_address, progress=False)
-    assert remote.jobs == "dask"
+        runner = DaskRunner(cluster.scheduler_address)
+        remote = run_campaign(scenario, 3, runner=runner, seed=20, progress=False)
+    assert remote.runner == f"dask {cluster.scheduler_address}"
     assert [r.seed for r in remote.records] == [20, 21, 22]
-    assert remote.table() == local.table()
-    assert remote.rows() == local.rows()
+    assert table(remote) == table(local)
+    assert rows(remote) == rows(local)
 
 
 def test_an_unreachable_scheduler_is_a_config_error():
@@ -35,4 +37,4 @@ def test_an_unreachable_scheduler_is_a_config_error():
         dask.config.set({"distributed.comm.timeouts.connect": "2s"}),
         pytest.raises(ConfigError, match="tcp://127.0.0.1:9: cannot connect"),
     ):
-        run_campaign(scenario, 1, scheduler="tcp://127.0.0.1:9", progress=False)
+        run_campaign(scenario, 1, runner=DaskRunner("tcp://127.0.0.1:9"), progress=False)

@@ -1,0 +1,175 @@
+"""A campaign's files and text: the table, runs.csv, summary.json, table.txt, consistency.npz,
+plus the plots and the campaign page (:mod:`.plots`, :mod:`.page`)."""
+
+import csv
+from pathlib import Path
+
+import numpy as np
+
+from ..consistency import STATE_NAMES
+from ..jsonio import dump_json
+from ..plots import signal_unit
+from ..results import FORMAT_VERSION
+from .page import write_page
+from .plots import write_plots
+from .records import METRIC_STATS, settle_time
+
+
+def _header(campaign):
+    s = campaign.scenario
+    if campaign.partial:
+        runs = f"{campaign.runs} of {campaign.planned} runs (interrupted)"
+    else:
+        runs = f"{campaign.runs} runs"
+    first, last = campaign.seeds
+    return f"Monte Carlo {s.name}: {runs} of {s.end_time:g} s, seeds {first}..{last}"
+
+
+def table(campaign):
+    """The campaign's statistics as text; identical for the same scenario, runs and seed."""
+    lines = [_header(campaign), ""]
+    if campaign.criteria:
+        lines.append(f"{'criterion':58s} {'passes':>9s} {'rate':>7s}  95% CI")
+        for row in campaign.criteria:
+            low, high = row["ci95"]
+            lines.append(
+                f"{row['criterion'][:58]:58s} {row['passes']:4d}/{row['runs']:<4d} "
+                f"{100 * row['rate']:6.1f}%  [{100 * low:5.1f}, {100 * high:5.1f}]"
+            )
+        lines.append("")
+    if campaign.metrics:
+        lines.append(
+            f"{'error signal':24s} {'RMS: median':>12s} {'p95':>8s} {'max':>8s}   "
+            f"{'MAX: median':>11s} {'p95':>8s} {'max':>8s}"
+        )
+        for key, m in campaign.metrics.items():
+            label = f"{key} [{signal_unit(key)}]"
+            label += f" x{m['vehicles']}" if m["vehicles"] > 1 else ""
+            r, x = m["rms"], m["max"]
+            lines.append(
+                f"{label:24s} {r['median']:12.4f} {r['p95']:8.4f} {r['max']:8.4f}   "
+                f"{x['median']:11.4f} {x['p95']:8.4f} {x['max']:8.4f}"
+            )
+        lines.append("")
+    if campaign.consistency:
+        lines.append(
+            "consistency: mean over M realisations (runs x vehicles) vs its chi2 95% band; "
+            f"criterion: in band >= {100 * campaign.min_in_band:.0f}% of the samples"
+        )
+        lines.append(
+            f"{'statistic':10s} {'dof':>3s} {'M':>5s} {'band':>17s} {'time mean':>10s} "
+            f"{'in band':>8s} {'below':>6s} {'above':>6s}  result"
+        )
+        for c in campaign.consistency:
+            band = f"[{c['band'][0]:.3g}, {c['band'][1]:.3g}]"
+            lines.append(
+                f"{c['statistic']:10s} {c['dof']:3d} {c['realisations']:5d} {band:>17s} "
+                f"{c['time_mean']:10.3f} {100 * c['in_band']:7.1f}% {100 * c['below']:5.1f}% "
+                f"{100 * c['above']:5.1f}%  {'PASS' if c['passed'] else 'FAIL'}"
+            )
+        if campaign.state_consistency is not None:
+            lines.append(
+                "per state, mean e^2/P (1 = consistent): "
+                + "  ".join(
+                    f"{n} {v:.3g}" for n, v in zip(STATE_NAMES, campaign.state_consistency, strict=True)
+                )
+            )
+        lines.append("")
+    if campaign.efficiency:
+        lines.append(
+            "accuracy bound: steady-state Kalman sigma with the true sensor noise "
+            f"(time-averaged); RMSE from t >= {settle_time(campaign.scenario.end_time):g} s; "
+            "efficiency = RMSE / bound"
+        )
+        lines.append(f"{'state':18s} {'bound':>9s} {'RMSE':>9s} {'efficiency':>11s}")
+        for e in campaign.efficiency:
+            label = f"{e['vehicle']}.{e['state']} [{signal_unit('Est.E.' + e['state'])}]"
+            lines.append(f"{label:18s} {e['bound_std']:9.4f} {e['rmse']:9.4f} {e['efficiency']:11.2f}")
+    return "\n".join(lines).rstrip() + "\n"
+
+
+def timing_line(campaign):
+    t = campaign.timing()
+    return (
+        f"{campaign.runs} runs in {t['wall_time_s']:.1f} s on {t['runner']}: "
+        f"{t['runs_per_minute']:.1f} runs/min ({t['simulation_s_mean']:.2f} s simulation per run)"
+    )
+
+
+def summary(campaign):
+    """The summary.json dict: every statistic (without the consistency series) and the timing."""
+    consistency = [{k: v for k, v in c.items() if k not in ("times", "mean")} for c in campaign.consistency]
+    state = campaign.state_consistency
+    s = campaign.scenario
+    return {
+        "format_version": FORMAT_VERSION,
+        "kind": "campaign",
+        "runner": campaign.runner,
+        "scenario": s.name,
+        "description": s.description,
+        "runs": campaign.runs,
+        "runs_planned": campaign.planned or campaign.runs,
+        "partial": campaign.partial,
+        "completed": campaign.completed,
+        "first_seed": s.seed,
+        "end_time": s.end_time,
+        "criteria": campaign.criteria,
+        "metrics": campaign.metrics,
+        "consistency": consistency,
+        "min_in_band": campaign.min_in_band,
+        "state_consistency": None if state is None else dict(zip(STATE_NAMES, state.tolist(), strict=True)),
+        "efficiency": campaign.efficiency,
+        "consistency_passed": campaign.passed,
+        "failure_reasons": campaign.failure_reasons(),
+        "verdict": campaign.verdict(),
+        "timing": campaign.timing(),
+    }
+
+
+def rows(campaign):
+    """(header, rows) of the per-run CSV: seed, verdicts, metrics, NEES/NIS time means."""
+    header = ["run", "seed", "passed"]
+    if not campaign.records:
+        return header, []
+    first = campaign.records[0]
+    for j, verdict in enumerate(first.criteria, start=1):
+        header += [f"c{j}.passed", f"c{j}.measured"]
+        header += [f"c{j}.percent"] if verdict["percent"] is not None else []
+    header += [f"{name}.{stat}" for name in first.metrics for stat in METRIC_STATS]
+    header += [f"{v}.NEES.mean" for v in first.nees]
+    header += [f"{v}.NIS.{sensor}.mean" for v, sensor in first.nis]
+    lines = []
+    for r in campaign.records:
+        row = [r.index, r.seed, int(r.passed)]
+        for shape, verdict in zip(first.criteria, r.criteria, strict=True):
+            row += [int(verdict["passed"]), verdict["measured"]]
+            row += [verdict["percent"]] if shape["percent"] is not None else []
+        row += [r.metrics[name][stat] for name in first.metrics for stat in METRIC_STATS]
+        row += [float(np.mean(r.nees[v])) for v in first.nees]
+        row += [float(np.mean(r.nis[key][1])) for key in first.nis]
+        lines.append([repr(float(x)) if isinstance(x, float) else x for x in row])
+    return header, lines
+
+
+def save(campaign, out_dir, plots=True):
+    """Write runs.csv, summary.json, table.txt, consistency.npz, (plots) PNGs and report.html
+    (the campaign page) into out_dir; returns out_dir."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    header, lines = rows(campaign)
+    with open(out_dir / "runs.csv", "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(header)
+        writer.writerows(lines)
+    dump_json(out_dir / "summary.json", summary(campaign))
+    (out_dir / "table.txt").write_text(table(campaign))
+    arrays = {}
+    for c in campaign.consistency:
+        key = c["statistic"].replace(" ", "_")
+        arrays[f"{key}_times"], arrays[f"{key}_mean"] = c["times"], c["mean"]
+        arrays[f"{key}_band"] = np.array(c["band"])
+    if arrays:
+        np.savez_compressed(out_dir / "consistency.npz", **arrays)
+    figures = write_plots(campaign, out_dir) if plots else []
+    write_page(campaign, out_dir / "report.html", figures)
+    return out_dir

@@ -1,0 +1,138 @@
+"""The campaign page (report.html in the campaign folder): criteria pass rates with their
+confidence intervals, error distributions, consistency with its plots, efficiency.
+Self-contained like a run's report (:mod:`quad_drake.report`)."""
+
+from pathlib import Path
+
+from ..config import dump_scenario
+from ..consistency import STATE_NAMES
+from ..plots import signal_unit
+from ..report import esc, figures_html, html_page, html_table, num, verdict_cell
+from .records import settle_time
+
+
+def _percent(fraction):
+    return (num(100 * fraction, 3), "num")
+
+
+def _criteria(campaign):
+    rows = []
+    for row in campaign.criteria:
+        low, high = row["ci95"]
+        rows.append(
+            [
+                esc(row["criterion"]),
+                (f"{row['passes']}/{row['runs']}", "num"),
+                _percent(row["rate"]),
+                (f"[{num(100 * low, 3)}, {num(100 * high, 3)}]", "num"),
+            ]
+        )
+    return html_table(["criterion", "passes", "rate [%]", "95% CI (Clopper-Pearson) [%]"], rows)
+
+
+def _metrics(campaign):
+    rows = []
+    for key, m in campaign.metrics.items():
+        cells = [esc(key), esc(signal_unit(key)), (str(m["vehicles"]), "num")]
+        cells += [(num(m[stat][q]), "num") for stat in ("rms", "max") for q in ("median", "p95", "max")]
+        rows.append(cells)
+    header = ["error signal", "unit", "vehicles"]
+    header += [f"{stat}: {q}" for stat in ("RMS", "max |·|") for q in ("median", "p95", "max")]
+    return html_table(header, rows)
+
+
+def _consistency(campaign):
+    rows = [
+        [
+            esc(c["statistic"]),
+            (str(c["dof"]), "num"),
+            (str(c["realisations"]), "num"),
+            (f"[{num(c['band'][0], 3)}, {num(c['band'][1], 3)}]", "num"),
+            (num(c["time_mean"], 4), "num"),
+            _percent(c["in_band"]),
+            _percent(c["below"]),
+            _percent(c["above"]),
+            verdict_cell(c["passed"]),
+        ]
+        for c in campaign.consistency
+    ]
+    parts = [
+        f"<p>Mean over M realisations (runs × vehicles) against its χ² 95 % band; a statistic passes "
+        f"when it lies in the band for at least {100 * campaign.min_in_band:.0f} % of the samples.</p>",
+        html_table(
+            ["statistic", "dof", "M", "band", "time mean", "in band [%]", "below [%]", "above [%]", "result"],
+            rows,
+        ),
+    ]
+    if campaign.state_consistency is not None:
+        parts.append("<p>Per state, mean e²/P (1 = consistent):</p>")
+        parts.append(
+            html_table(list(STATE_NAMES), [[(num(v, 3), "num") for v in campaign.state_consistency]])
+        )
+    return parts
+
+
+def _efficiency(campaign):
+    rows = [
+        [
+            esc(f"{e['vehicle']}.{e['state']}"),
+            esc(signal_unit("Est.E." + e["state"])),
+            (num(e["bound_std"]), "num"),
+            (num(e["rmse"]), "num"),
+            (num(e["efficiency"], 3), "num"),
+        ]
+        for e in campaign.efficiency
+    ]
+    return html_table(["state", "unit", "bound σ", "RMSE", "efficiency"], rows)
+
+
+def write_page(campaign, path, plots=()):
+    """report.html of a CampaignResult at `path`; plots: [(caption, png path)] to embed."""
+    path = Path(path)
+    s = campaign.scenario
+    timing = campaign.timing()
+    judged = campaign.passed if campaign.consistency else None
+    word, css = verdict_cell(judged)
+    runs = f"{campaign.runs} of {campaign.planned} (interrupted)" if campaign.partial else str(campaign.runs)
+    parts = [
+        f'<h1>Monte Carlo {esc(s.name)} <span class="{css}">&nbsp;{word}&nbsp;</span></h1>',
+        f"<p>{esc(s.description)}</p>",
+        f"<p><b>{esc(campaign.verdict())}</b></p>",
+        html_table(
+            ["runs", "seeds", "simulated per run [s]", "runner", "wall time [s]", "runs/min"],
+            [
+                [
+                    esc(runs),
+                    esc("{}..{}".format(*campaign.seeds)),
+                    num(s.end_time),
+                    esc(timing["runner"]),
+                    num(timing["wall_time_s"], 4),
+                    num(timing["runs_per_minute"], 3),
+                ]
+            ],
+        ),
+        "<p>Run <i>i</i> has seed <i>S + i</i>; reproduce one with "
+        f"<code>quad-drake run {esc(s.name)} --seed SEED</code>. Per-run values: "
+        '<a href="runs.csv">runs.csv</a>; all statistics: <a href="summary.json">summary.json</a>.</p>',
+    ]
+    if campaign.criteria:
+        parts += ["<h2>Criteria: pass rates</h2>", _criteria(campaign)]
+    if campaign.metrics:
+        parts += [
+            f"<h2>Error metrics over runs</h2><p>Settled RMS from t = {settle_time(s.end_time):g} s "
+            "in the plot; the table is over the whole run. A diverged run counts as infinite.</p>",
+            _metrics(campaign),
+        ]
+    if campaign.consistency:
+        parts += ["<h2>Consistency</h2>", *_consistency(campaign)]
+    if campaign.efficiency:
+        parts += [
+            "<h2>Efficiency against the steady-state Kalman bound</h2>"
+            "<p>efficiency = RMSE / bound σ (≥ 1 up to sampling error).</p>",
+            _efficiency(campaign),
+        ]
+    if plots:
+        parts += ["<h2>Plots</h2>", *figures_html(plots)]
+    parts += ["<h2>Scenario (first seed)</h2>", f"<pre>{esc(dump_scenario(s))}</pre>"]
+    path.write_text(html_page(f"quad_drake: Monte Carlo {s.name}", "\n".join(parts)), encoding="utf-8")
+    return path

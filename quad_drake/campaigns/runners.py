@@ -1,0 +1,119 @@
+"""Where a campaign's runs execute: one interface, several back ends.
+
+A :class:`Runner` maps a picklable function over a list of tasks and yields
+``(index, result)`` pairs as the tasks complete (in any order); the caller orders the
+results by index, so nothing a campaign reports depends on the runner. A task that raises
+ends the map with :class:`TaskFailed` naming its index; closing the iterator, or a
+KeyboardInterrupt, cancels the tasks not yet started. ``name`` goes into summaries.
+
+Drake's Python systems cannot run in parallel in one process, so the parallel runners use
+processes (``spawn``) or Dask workers started with one thread each.
+"""
+
+import multiprocessing
+from abc import ABC, abstractmethod
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
+
+from ..config import ConfigError
+
+
+class TaskFailed(Exception):
+    """Task `index` raised `error` (the exception's __cause__ as well)."""
+
+    def __init__(self, index, error):
+        super().__init__(f"task {index} failed: {error!r}")
+        self.index, self.error = index, error
+
+
+class Runner(ABC):
+    """Runs ``fn(task)`` for every task; see the module docstring for the contract."""
+
+    name = "runner"
+
+    @abstractmethod
+    def map(self, fn, tasks):
+        """Iterator of (index into tasks, fn(tasks[index])) in completion order."""
+
+
+class InProcessRunner(Runner):
+    """One task after the other in this process (no start-up cost, easy to debug)."""
+
+    name = "in-process"
+
+    def map(self, fn, tasks):
+        for index, task in enumerate(tasks):
+            try:
+                result = fn(task)
+            except Exception as e:
+                raise TaskFailed(index, e) from e
+            yield index, result
+
+
+class ProcessPoolRunner(Runner):
+    """`jobs` worker processes (``spawn``: a fresh interpreter each, one simulation at a time).
+
+    Scripts that use it need the ``if __name__ == "__main__":`` guard (spawn re-imports them).
+    """
+
+    def __init__(self, jobs):
+        if jobs < 1:
+            raise ConfigError(f"montecarlo: --jobs must be >= 1, got {jobs}")
+        self.jobs = int(jobs)
+        self.name = f"process-pool x{self.jobs}"
+
+    def map(self, fn, tasks):
+        if not tasks:
+            return
+        executor = ProcessPoolExecutor(
+            max_workers=min(self.jobs, len(tasks)), mp_context=multiprocessing.get_context("spawn")
+        )
+        finished = False
+        try:
+            futures = {executor.submit(fn, task): index for index, task in enumerate(tasks)}
+            for future in as_completed(futures):
+                index = futures[future]
+                try:
+                    result = future.result()
+                except BrokenProcessPool:  # a worker died (e.g. a script without a main guard)
+                    raise
+                except Exception as e:
+                    raise TaskFailed(index, e) from e
+                yield index, result
+            finished = True
+        finally:  # interrupted or failed: do not wait for the runs in flight
+            executor.shutdown(wait=finished, cancel_futures=True)
+
+
+class DaskRunner(Runner):
+    """The workers of a Dask cluster at `scheduler` (e.g. ``tcp://host:8786``; the ``cluster``
+    extra). Start the workers with one thread each (``--nthreads 1``)."""
+
+    def __init__(self, scheduler):
+        try:
+            import distributed  # noqa: F401 (checked before any run)
+        except ImportError:
+            raise ConfigError("--scheduler needs dask: pip install 'quad_drake[cluster]'") from None
+        self.scheduler = scheduler
+        self.name = f"dask {scheduler}"
+
+    def map(self, fn, tasks):
+        from distributed import Client, as_completed
+
+        try:
+            client = Client(self.scheduler, set_as_default=False)
+        except (OSError, ValueError, TypeError) as e:
+            raise ConfigError(f"--scheduler {self.scheduler}: cannot connect ({e})") from None
+        with client:
+            futures = client.map(fn, tasks, pure=False)
+            index_of = {future.key: index for index, future in enumerate(futures)}
+            try:
+                for future in as_completed(futures, loop=client.loop):
+                    index = index_of[future.key]
+                    try:
+                        result = future.result()
+                    except Exception as e:
+                        raise TaskFailed(index, e) from e
+                    yield index, result
+            finally:
+                client.cancel([f for f in futures if not f.done()])

@@ -1,0 +1,220 @@
+"""A campaign's statistics from its run records: pass rates with Clopper-Pearson intervals,
+error distributions, NEES/NIS consistency against chi^2 bands, efficiency against the
+steady-state Kalman bound (:mod:`quad_drake.accuracy_bound`)."""
+
+import math
+from dataclasses import dataclass
+from functools import cached_property
+from typing import Optional
+
+import numpy as np
+
+from .. import consistency as cons
+from ..accuracy_bound import accuracy_bound
+
+MIN_IN_BAND = 0.8
+"""Campaign criterion: share of samples whose run-averaged NEES/NIS lies inside its 95 %
+chi^2 band. A consistent filter sits inside 95 % of the time on average; 0.8 leaves room
+for the strong time correlation of the averaged statistic (see tests/test_consistency.py)."""
+
+
+def distribution(values):
+    """median, 95th percentile, max; a NaN (diverged run) counts as +inf."""
+    values = np.asarray(values, dtype=float)
+    values = np.where(np.isnan(values), np.inf, values)
+    return {
+        "median": float(np.median(values)),
+        "p95": float(np.percentile(values, 95)),
+        "max": float(np.max(values)),
+    }
+
+
+@dataclass
+class CampaignResult:
+    """Records of a campaign (ordered by run index) and the statistics derived from them.
+
+    A campaign stopped early (Ctrl-C) is ``partial``: its statistics are those of the
+    finished runs, ``completed`` lists their indices.
+    """
+
+    scenario: object  # ScenarioConfig; its seed is the campaign's first seed S
+    records: list  # RunRecord per finished run, by index; run i has seed S + i
+    wall_time: float  # s, whole campaign
+    runner: str  # Runner.name
+    planned: Optional[int] = None  # runs asked for (None: as many as records)
+    min_in_band: float = MIN_IN_BAND
+
+    @property
+    def runs(self):
+        """Number of finished runs."""
+        return len(self.records)
+
+    @property
+    def partial(self):
+        return self.planned is not None and self.runs < self.planned
+
+    @property
+    def seeds(self):
+        """(first, last) seed of the runs asked for."""
+        return self.scenario.seed, self.scenario.seed + (self.planned or self.runs) - 1
+
+    @property
+    def completed(self):
+        """Indices of the finished runs."""
+        return [r.index for r in self.records]
+
+    @cached_property
+    def criteria(self):
+        """Per judged criterion (then 'all criteria'): passes, runs, rate and 95 % interval."""
+        if not self.records or not self.records[0].criteria:
+            return []
+        labels = [c["description"] for c in self.records[0].criteria] + ["all criteria"]
+        verdicts = [[r.criteria[j]["passed"] for r in self.records] for j in range(len(labels) - 1)]
+        verdicts.append([r.passed for r in self.records])
+        rows = []
+        for label, passed in zip(labels, verdicts, strict=True):
+            k = int(sum(passed))
+            rows.append(
+                {
+                    "criterion": label,
+                    "passes": k,
+                    "runs": self.runs,
+                    "rate": k / self.runs,
+                    "ci95": list(cons.binomial_interval(k, self.runs)),
+                }
+            )
+        return rows
+
+    @cached_property
+    def metrics(self):
+        """{signal without vehicle: {"rms": dist, "max": dist, "vehicles": n}}, pooled over vehicles."""
+        pooled = {}
+        for name in self.records[0].metrics if self.records else ():
+            vehicle, key = name.split(".", 1)
+            entry = pooled.setdefault(key, {"rms": [], "max": [], "vehicles": []})
+            entry["vehicles"].append(vehicle)
+            for record in self.records:
+                entry["rms"].append(record.metrics[name]["rms"])
+                entry["max"].append(record.metrics[name]["max"])
+        return {
+            key: {
+                "rms": distribution(e["rms"]),
+                "max": distribution(e["max"]),
+                "vehicles": len(e["vehicles"]),
+            }
+            for key, e in pooled.items()
+        }
+
+    def settled_rms(self, key):
+        """Per (run, vehicle) settled RMS of the pooled metric `key` (e.g. ``Est.E.X``)."""
+        return [
+            r.metrics[name]["rms_settled"]
+            for r in self.records
+            for name in r.metrics
+            if name.split(".", 1)[1] == key
+        ]
+
+    @cached_property
+    def consistency(self):
+        """Mean NEES / NIS over all (run, vehicle) realisations against the chi^2 95 % band."""
+        if not self.records:
+            return []
+        stats = []
+        first = self.records[0]
+        if first.nees:
+            series = np.vstack([r.nees[v] for r in self.records for v in r.nees])
+            stats.append(self._statistic("NEES", cons.NEES_DOF, first.times, series))
+        for sensor, dof in cons.NIS_DOF.items():
+            series = [r.nis[key] for r in self.records for key in r.nis if key[1] == sensor]
+            if series:
+                stamps, values = cons.stack_by_stamp(series)
+                stats.append(self._statistic(f"NIS {sensor}", dof, stamps, values))
+        return stats
+
+    def _statistic(self, name, dof, times, values):
+        count = values.shape[0]
+        band = cons.chi2_band(dof, count)
+        mean = values.mean(axis=0)
+        fraction = cons.in_band_fraction(mean, band)
+        return {
+            "statistic": name,
+            "dof": dof,
+            "realisations": count,
+            "band": list(band),
+            "time_mean": float(np.mean(mean)),
+            "in_band": fraction,
+            "below": float(np.mean(mean < band[0])),
+            "above": float(np.mean(mean > band[1])),
+            "passed": bool(fraction >= self.min_in_band),
+            "times": np.asarray(times),
+            "mean": mean,
+        }
+
+    @cached_property
+    def state_consistency(self):
+        """(7,) mean over runs, vehicles and time of e_i^2 / P_ii (1 = consistent), or None."""
+        rows = [r.nse[v] for r in self.records for v in r.nse]
+        return np.mean(rows, axis=0) if rows else None
+
+    @cached_property
+    def efficiency(self):
+        """Per vehicle and bounded state: bound sigma, RMSE pooled over runs after the settling
+        time, and efficiency = RMSE / bound (>= 1 up to sampling error and the bound's
+        simplifications)."""
+        rows = []
+        for vehicle in self.scenario.vehicles if self.records else ():
+            try:
+                bounds = accuracy_bound(vehicle)
+            except ValueError:  # a noiseless GPS or magnetometer: no finite ratio
+                continue
+            for state, bound in bounds.items():
+                name = f"{vehicle.name}.Est.E.{state}"
+                if name not in self.records[0].metrics:
+                    continue
+                rmse = math.sqrt(np.mean([r.metrics[name]["rms_settled"] ** 2 for r in self.records]))
+                rows.append(
+                    {
+                        "vehicle": vehicle.name,
+                        "state": state,
+                        "bound_std": bound.mean_std,
+                        "posterior_std": bound.posterior_std,
+                        "rmse": rmse,
+                        "efficiency": rmse / bound.mean_std if bound.mean_std > 0 else math.inf,
+                    }
+                )
+        return rows
+
+    @property
+    def passed(self):
+        """True when every campaign consistency criterion passed (or there is none)."""
+        return all(s["passed"] for s in self.consistency)
+
+    def failure_reasons(self):
+        """One line per failed consistency criterion, e.g. ``NEES in band 27 % < 80 %``."""
+        return [
+            f"{s['statistic']} in band {100 * s['in_band']:.0f} % < {100 * self.min_in_band:.0f} %"
+            for s in self.consistency
+            if not s["passed"]
+        ]
+
+    def verdict(self):
+        """The one line that explains the exit code: which consistency criterion failed, or PASS."""
+        reasons = self.failure_reasons()
+        if reasons:
+            return "FAIL: " + "; ".join(reasons)
+        every = [row for row in self.criteria if row["criterion"] == "all criteria"]
+        rates = f" (all criteria passed in {every[0]['passes']} of {every[0]['runs']} runs)" if every else ""
+        if not self.consistency:
+            return f"PASS: no consistency criterion (no estimator){rates}"
+        return f"PASS: every consistency criterion passed{rates}"
+
+    def timing(self):
+        """Wall time, runs per minute, runner and mean simulation time per run (not in the table)."""
+        return {
+            "wall_time_s": self.wall_time,
+            "runs_per_minute": 60.0 * self.runs / self.wall_time if self.wall_time > 0 else math.nan,
+            "runner": self.runner,
+            "simulation_s_mean": float(np.mean([r.wall_time for r in self.records]))
+            if self.records
+            else math.nan,
+        }

@@ -1,0 +1,373 @@
+"""Monte Carlo campaigns: same statistics whatever the runner, seeds, statistics, saved files,
+the campaign page, progress output, Ctrl-C keeping the finished runs, the CLI's last line."""
+
+import csv
+import dataclasses
+import io
+import json
+import math
+import re
+import signal
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from quad_drake import catalog, cli
+from quad_drake import consistency as cons
+from quad_drake.accuracy_bound import accuracy_bound
+from quad_drake.campaigns import (
+    CampaignInterrupted,
+    CampaignResult,
+    InProcessRunner,
+    ProcessPoolRunner,
+    Runner,
+    RunRecord,
+    campaign,
+    run_campaign,
+    save,
+    table,
+)
+from quad_drake.campaigns.output import rows
+from quad_drake.config import (
+    ConfigError,
+    CriterionConfig,
+    ImuParams,
+    MagParams,
+    ScenarioConfig,
+    SensorsConfig,
+    VehicleConfig,
+)
+from quad_drake.evaluation import rms
+from quad_drake.report import write_index
+
+
+def strict_loads(text):
+    def refuse(name):
+        raise ValueError(f"non-standard JSON constant {name}")
+
+    return json.loads(text, parse_constant=refuse)
+
+
+@pytest.fixture(scope="module")
+def scenario():
+    return catalog.load("10_mag_update", None, ["end_time=1.5"])
+
+
+@pytest.fixture(scope="module")
+def serial(scenario):
+    return run_campaign(scenario, 3, seed=5, progress=False)
+
+
+@pytest.mark.slow
+def test_same_table_and_rows_whatever_the_runner(scenario, serial):
+    parallel = run_campaign(scenario, 3, runner=ProcessPoolRunner(2), seed=5, progress=False)
+    assert (serial.runner, parallel.runner) == ("in-process", "process-pool x2")
+    assert table(parallel) == table(serial)
+    assert rows(parallel) == rows(serial)
+    for a, b in zip(serial.records, parallel.records, strict=True):
+        np.testing.assert_array_equal(a.nees["Quad"], b.nees["Quad"])
+
+
+def test_run_i_is_the_single_run_with_seed_s_plus_i(scenario, serial):
+    from quad_drake.simulation import run
+
+    single = run(dataclasses.replace(scenario, seed=7))
+    record = serial.records[2]
+    assert (record.index, record.seed) == (2, 7)
+    yaw_error = single.signals["Quad.Est.E.Yaw"].values
+    assert record.metrics["Quad.Est.E.Yaw"]["rms"] == rms(yaw_error)
+    assert record.metrics["Quad.Est.E.Yaw"]["rms_settled"] == rms(yaw_error[single.times >= 0.75 - 1e-9])
+    logs = single.logs["Quad"]
+    expected = cons.nees(
+        cons.state_errors(logs["ekf_state"], logs["state"]), cons.covariance_matrices(logs["covariance"])
+    )
+    np.testing.assert_array_equal(record.nees["Quad"], expected)
+    assert [c["description"] for c in record.criteria] == [c.description for c in single.criteria]
+    assert serial.records[0].metrics["Quad.Est.E.Yaw"]["rms"] != record.metrics["Quad.Est.E.Yaw"]["rms"]
+
+
+def test_records_hold_the_consistency_series_of_a_run(serial):
+    record = serial.records[0]
+    assert record.nees["Quad"].shape == (300,)  # 1.5 s of 5 ms samples
+    assert np.isfinite(record.nees["Quad"]).all()
+    stamps, nis = record.nis[("Quad", "mag")]
+    assert stamps.size == nis.size == 150  # 0.008 + 0.01 k <= 1.5 s
+    np.testing.assert_allclose(np.diff(stamps), 0.01, atol=1e-12)
+    assert set(record.nis) == {("Quad", "mag")}  # no GPS on this vehicle
+    assert record.nse["Quad"].shape == (7,)
+    assert len(record.criteria) == 2 and not record.passed  # a 10 s window cannot pass in 1.5 s
+
+
+def test_saved_files_and_the_campaign_page(serial, tmp_path):
+    out = save(serial, tmp_path / "mc")
+    with open(out / "runs.csv") as f:
+        csv_rows = list(csv.DictReader(f))
+    assert [r["seed"] for r in csv_rows] == ["5", "6", "7"]
+    assert float(csv_rows[1]["Quad.Est.E.Yaw.rms"]) == serial.records[1].metrics["Quad.Est.E.Yaw"]["rms"]
+    assert "Quad.Est.E.Yaw.rms_settled" in csv_rows[0]
+    assert {"c1.passed", "c2.percent", "Quad.NEES.mean", "Quad.NIS.mag.mean"} <= set(csv_rows[0])
+    summary = strict_loads((out / "summary.json").read_text())
+    assert (summary["format_version"], summary["kind"], summary["partial"]) == (1, "campaign", False)
+    assert summary["runs"] == 3 and summary["first_seed"] == 5 and summary["completed"] == [0, 1, 2]
+    assert [c["statistic"] for c in summary["consistency"]] == ["NEES", "NIS mag"]
+    assert summary["consistency"][0]["band"] == pytest.approx(cons.chi2_band(7, 3))
+    assert [e["state"] for e in summary["efficiency"]] == ["Yaw"]
+    assert summary["verdict"] == serial.verdict()
+    assert (out / "table.txt").read_text() == table(serial)
+    assert np.load(out / "consistency.npz")["NEES_mean"].shape == (300,)
+    for name in ("consistency.png", "errors.png"):
+        assert (out / name).stat().st_size > 10_000
+    page = (out / "report.html").read_text()
+    assert page.count("data:image/png;base64,") == 2
+    low, high = serial.criteria[0]["ci95"]
+    assert f"[{100 * low:.3g}, {100 * high:.3g}]" in page  # pass rates with their interval
+    assert "|Quad.Est.E.Yaw| &lt; 0.12 for &gt; 10 s" in page
+    assert ">NIS mag<" in page and ">Quad.Yaw<" in page  # consistency and efficiency tables
+    index = write_index(tmp_path).read_text()
+    assert 'href="mc/report.html"' in index and "Monte Carlo campaigns" in index
+
+
+# ----- statistics on hand-made records (no simulation) ------------------------------------------
+
+
+def hand_made_campaign(nees_level):
+    vehicle = VehicleConfig(name="Quad", sensors=SensorsConfig(imu=ImuParams(), mag=MagParams()))
+    scenario = ScenarioConfig(
+        name="t",
+        end_time=1.0,
+        seed=100,
+        vehicles=[vehicle],
+        criteria=[CriterionConfig(kind="window", signal="Quad.Est.E.Yaw", threshold=0.1, window=0.5)],
+    )
+    records = []
+    for i in range(20):
+        yaw_rms = math.nan if i == 19 else 0.01 * (i + 1)
+        metrics = {"Quad.Est.E.Yaw": {"rms": yaw_rms, "max": 3 * (i + 1), "rms_settled": 0.02 * (i + 1)}}
+        stamps = 0.008 + 0.01 * np.arange(10)
+        nis = {("Quad", "mag"): (stamps, np.full(10, 1.0))}
+        verdict = {"kind": "window", "description": "d", "passed": i < 15, "measured": 0.6, "percent": None}
+        records.append(
+            RunRecord(
+                i,
+                100 + i,
+                i < 15,
+                [verdict],
+                metrics,
+                {"Quad": np.full(50, nees_level)},
+                {"Quad": np.ones(7)},
+                nis,
+                0.1,
+                0.005 * np.arange(1, 51),
+            )
+        )
+    return CampaignResult(scenario, records, wall_time=2.0, runner="in-process")
+
+
+def test_pass_rates_come_with_clopper_pearson_intervals():
+    campaign_result = hand_made_campaign(7.0)
+    criteria = campaign_result.criteria
+    assert [r["passes"] for r in criteria] == [15, 15]
+    assert criteria[0]["rate"] == 0.75
+    assert criteria[0]["ci95"] == pytest.approx(cons.binomial_interval(15, 20))
+    assert "75.0%" in table(campaign_result)
+
+
+def test_metric_distributions_count_a_diverged_run_as_infinite():
+    metrics = hand_made_campaign(7.0).metrics["Est.E.Yaw"]
+    assert metrics["rms"]["median"] == pytest.approx(0.105)
+    assert metrics["rms"]["max"] == math.inf
+    assert metrics["max"] == {"median": 31.5, "p95": pytest.approx(57.15), "max": 60.0}
+
+
+def test_consistency_criterion_passes_inside_the_band_and_fails_outside():
+    good, bad = hand_made_campaign(7.0), hand_made_campaign(12.0)
+    nees = good.consistency[0]
+    assert (nees["statistic"], nees["realisations"], nees["in_band"]) == ("NEES", 20, 1.0)
+    assert good.consistency[1]["statistic"] == "NIS mag" and good.passed
+    assert bad.consistency[0]["in_band"] == 0.0 and bad.consistency[0]["above"] == 1.0
+    assert not bad.passed and "FAIL" in table(bad)
+
+
+def test_failure_reasons_explain_the_verdict():
+    good, bad = hand_made_campaign(7.0), hand_made_campaign(12.0)
+    assert good.failure_reasons() == []
+    assert good.verdict() == "PASS: every consistency criterion passed (all criteria passed in 15 of 20 runs)"
+    assert bad.failure_reasons() == ["NEES in band 0 % < 80 %"]
+    assert bad.verdict() == "FAIL: NEES in band 0 % < 80 %"
+
+
+def test_efficiency_is_pooled_rmse_over_the_bound():
+    campaign_result = hand_made_campaign(7.0)
+    (row,) = campaign_result.efficiency  # uses rms_settled, not rms
+    bound = accuracy_bound(campaign_result.scenario.vehicles[0])["Yaw"].mean_std
+    rmse = math.sqrt(np.mean(np.square(0.02 * np.arange(1, 21))))
+    assert row["rmse"] == pytest.approx(rmse)
+    assert row["efficiency"] == pytest.approx(rmse / bound)
+
+
+def test_progress_is_a_tqdm_bar_on_a_terminal_and_plain_lines_elsewhere():
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    record = hand_made_campaign(7.0).records[0]
+    for stream, carriage_return in ((Terminal(), True), (io.StringIO(), False)):
+        progress = campaign.Progress("t", 20, stream=stream)
+        for _ in range(20):
+            progress.update(record)
+        progress.close()
+        text = stream.getvalue()
+        assert ("\r" in text) is carriage_return and "20/20" in text
+    lines = io.StringIO()
+    progress = campaign.Progress("t", 20, stream=lines)
+    for _ in range(20):
+        progress.update(record)
+    assert len(lines.getvalue().splitlines()) == 10  # about every tenth of the runs
+
+
+# ----- errors, Ctrl-C and the command line ---------------------------------------------------------
+
+
+def test_a_failing_run_names_its_seed(monkeypatch, scenario):
+    def diverge(task):
+        raise FloatingPointError("diverged")
+
+    monkeypatch.setattr(campaign, "simulate_run", diverge)
+    with pytest.raises(RuntimeError, match=r"\(seed 10\).*quad-drake run 10_mag_update --seed 10"):
+        run_campaign(scenario, 3, seed=10, progress=False)
+
+
+def test_bad_counts_are_config_errors(scenario):
+    with pytest.raises(ConfigError, match="--runs must be >= 1"):
+        run_campaign(scenario, 0, progress=False)
+    with pytest.raises(ConfigError, match="--seed must be >= 0"):
+        run_campaign(scenario, 2, seed=-1, progress=False)
+    with pytest.raises(ConfigError, match="--jobs must be >= 1"):
+        ProcessPoolRunner(0)
+
+
+class InterruptedRunner(Runner):
+    """Gives back `k` finished records (out of order, as a pool would), then Ctrl-C."""
+
+    name = "interrupted"
+
+    def __init__(self, records, k):
+        self.records, self.k = records, k
+
+    def map(self, fn, tasks):
+        for record in reversed(self.records[: self.k]):
+            yield record.index, record
+        raise KeyboardInterrupt
+
+
+@pytest.mark.parametrize("k", [0, 2])
+def test_ctrl_c_keeps_the_finished_runs(scenario, serial, tmp_path, k):
+    with pytest.raises(CampaignInterrupted) as caught:
+        run_campaign(scenario, 3, runner=InterruptedRunner(serial.records, k), seed=5, progress=False)
+    partial = caught.value.campaign
+    assert isinstance(caught.value, KeyboardInterrupt)
+    assert (partial.partial, partial.runs, partial.planned, partial.completed) == (True, k, 3, list(range(k)))
+    finished = CampaignResult(serial.scenario, serial.records[:k], 1.0, "in-process")
+    assert partial.criteria == finished.criteria and partial.metrics == finished.metrics
+    out = save(partial, tmp_path / "mc", plots=False)
+    summary = strict_loads((out / "summary.json").read_text())
+    assert (summary["partial"], summary["runs"], summary["runs_planned"]) == (True, k, 3)
+    assert summary["completed"] == list(range(k))
+    with open(out / "runs.csv") as f:
+        assert [r["seed"] for r in csv.DictReader(f)] == [str(5 + i) for i in range(k)]
+    assert table(partial).startswith(f"Monte Carlo 10_mag_update: {k} of 3 runs (interrupted) of 1.5 s")
+
+
+def test_ctrl_c_in_the_cli_saves_a_partial_campaign_and_exits_130(monkeypatch, tmp_path, capsys):
+    real_map = InProcessRunner.map
+
+    def interrupted_after_two(self, fn, tasks):
+        for n, item in enumerate(real_map(self, fn, tasks)):
+            if n == 2:
+                raise KeyboardInterrupt
+            yield item
+
+    monkeypatch.setattr(InProcessRunner, "map", interrupted_after_two)
+    argv = ["montecarlo", "10_mag_update", "--runs", "4", "--jobs", "1", "--set", "end_time=0.3"]
+    code = cli.main([*argv, "--seed", "3", "--out", str(tmp_path), "--quiet"])
+    out, err = capsys.readouterr()
+    assert code == 130 and out == ""
+    assert err.strip().splitlines() == [
+        f"quad-drake: interrupted after 2 of 4 runs; the finished ones are in "
+        f"{tmp_path / '10_mag_update_montecarlo'}/ (runs.csv, summary.json marked partial)"
+    ]
+    folder = tmp_path / "10_mag_update_montecarlo"
+    summary = strict_loads((folder / "summary.json").read_text())
+    assert (summary["partial"], summary["completed"], summary["first_seed"]) == (True, [0, 1], 3)
+    with open(folder / "runs.csv") as f:
+        assert [r["seed"] for r in csv.DictReader(f)] == ["3", "4"]
+    assert "10_mag_update_montecarlo/report.html" in (tmp_path / "index.html").read_text()
+
+
+def test_montecarlo_cli_prints_table_and_explains_its_exit_code(tmp_path, capsys):
+    argv = ["montecarlo", "10_mag_update", "--runs", "2", "--jobs", "1", "--seed", "3"]
+    code = cli.main([*argv, "--set", "end_time=0.5", "--out", str(tmp_path), "--no-plots"])
+    out, err = capsys.readouterr()
+    assert "Monte Carlo 10_mag_update: 2 runs of 0.5 s, seeds 3..4" in out
+    assert "runs/min" in out and "2/2 runs" in err
+    folder = tmp_path / "10_mag_update_montecarlo"
+    summary = strict_loads((folder / "summary.json").read_text())
+    assert code == (0 if summary["consistency_passed"] else 1)
+    last = out.strip().splitlines()[-1]
+    assert last == summary["verdict"]
+    assert last.startswith("PASS: every consistency" if code == 0 else "FAIL: ")
+    assert not (folder / "errors.png").exists() and (folder / "report.html").is_file()
+
+
+@pytest.mark.slow
+def test_a_failing_campaign_names_the_consistency_test_that_failed(tmp_path, capsys):
+    # The EKF believes the magnetometer 10x better than it is: its NIS is ~100x its dof.
+    overconfident = ["--set", "end_time=1", "--set", "vehicles.0.ekf.mag_yaw_std=0.01"]
+    argv = ["montecarlo", "10_mag_update", "--runs", "2", "--jobs", "1", *overconfident]
+    code = cli.main([*argv, "--out", str(tmp_path), "--no-plots", "--quiet"])
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    assert code == 1
+    assert re.fullmatch(r"FAIL: NEES in band \d+ % < 80 %; NIS mag in band \d+ % < 80 %", last), last
+
+
+@pytest.mark.slow
+def test_progress_writes_no_carriage_return_into_a_log_file(tmp_path):
+    log = tmp_path / "stderr.log"
+    with open(log, "w") as stderr:
+        result = subprocess.run(
+            [sys.executable, "-m", "quad_drake.cli", "montecarlo", "10_mag_update", "--runs", "2"]
+            + ["--jobs", "1", "--set", "end_time=0.3", "--out", str(tmp_path), "--no-plots"],
+            stdout=subprocess.PIPE,
+            stderr=stderr,
+            text=True,
+            timeout=600,
+        )
+    text = log.read_bytes()
+    assert b"\r" not in text and b"10_mag_update: 2/2 runs" in text, text
+    last = result.stdout.strip().splitlines()[-1]
+    assert result.returncode == (0 if last.startswith("PASS") else 1) and last.startswith(("PASS", "FAIL"))
+
+
+@pytest.mark.slow
+def test_a_real_ctrl_c_keeps_the_finished_runs(tmp_path):
+    """SIGINT to the CLI process while it flies (in-process runner): partial files, exit 130."""
+    command = [sys.executable, "-m", "quad_drake.cli", "montecarlo", "10_mag_update", "--runs", "200"]
+    command += ["--jobs", "1", "--set", "end_time=0.3", "--out", str(tmp_path), "--no-plots"]
+    process = subprocess.Popen(
+        command,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # not ignored if we are
+    )
+    first = process.stderr.readline()  # the first progress line: 20 runs finished
+    assert "20/200 runs" in first, first
+    process.send_signal(signal.SIGINT)
+    out, err = process.communicate(timeout=120)
+    assert process.returncode == 130 and "Traceback" not in err and out == ""
+    assert err.strip().splitlines()[-1].startswith("quad-drake: interrupted after ")
+    summary = strict_loads((tmp_path / "10_mag_update_montecarlo" / "summary.json").read_text())
+    assert summary["partial"] and 20 <= summary["runs"] < 200
+    assert summary["completed"] == list(range(summary["runs"]))  # one after the other in-process
