@@ -297,3 +297,25 @@ def test_fleet_sigma_counts_only_fresh_samples():
     result = make_result(("Q1", "Q2", "Q3"), criteria=criteria)
     fresh = sum(int(result.signals[f"{v}.GPS.X"].fresh.sum()) for v in ("Q1", "Q2", "Q3"))
     assert fresh == 3 * 40 and result.criteria[0].samples == fresh
+
+
+@pytest.mark.parametrize(
+    "criteria, expected",
+    [
+        (None, ["|Quad.PosFollowErr| &lt; 0.1 for &gt; 1 s", "longest stretch within: "]),
+        (
+            [CriterionConfig(kind="fleet_sigma", signal="Est.E.VX", sigma_signal="Est.S.VX", min_percent=60)],
+            ["fleet |V.Est.E.VX| &lt;= 1 V.Est.S.VX: 60-100 % (3 vehicles V)", "share in [60 %, 100 %]"],
+        ),
+    ],
+)
+def test_report_html_renders_each_criterion_from_its_text(tmp_path, criteria, expected):
+    names = ("Quad",) if criteria is None else ("Q1", "Q2", "Q3")
+    result = make_result(names, criteria=criteria)
+    report = plots.write_report(result, tmp_path / "report.html").read_text()
+    for text in expected:
+        assert text in report
+    for verdict in result.criteria:
+        assert f"<td>{verdict.kind}</td>" in report and verdict.measured_text.split(";")[0] in report
+    if criteria is not None:
+        assert "stretch" not in report and "≤ 0" not in report
