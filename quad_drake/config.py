@@ -19,6 +19,8 @@ from pydrake.common.yaml import yaml_dump, yaml_dump_typed, yaml_load_typed
 
 from .conventions import ONBOARD_PERIOD
 
+from quad_drake.fidelity import FIDELITY_MODES
+
 PACKAGE_DIR = Path(__file__).resolve().parent
 TRAJECTORY_DIR = PACKAGE_DIR / "data" / "traj"
 
@@ -238,6 +240,9 @@ class ScenarioConfig:
     seed: int = _num(0, nonnegative=True)
     vehicles: List[VehicleConfig] = field(default_factory=lambda: [VehicleConfig()])
     criteria: List[CriterionConfig] = field(default_factory=list)
+    # physical: RK4, physical accelerometer, horizontal accel limit, exact clock;
+    # reference: the FCND binary's numerics (quad_drake.fidelity, README "Fidelity").
+    fidelity: str = field(default="physical", metadata={"choices": FIDELITY_MODES})
 
 
 # ----- loading and validation -------------------------------------------------

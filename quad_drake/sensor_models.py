@@ -5,13 +5,15 @@ Conventions: NED world N, FRD body B, wxyz quaternion q_NB (body to world).
 
 The accelerometer measures the physical specific force ``f_B = R_NB^T (a_NB - g_N)``
 with ``g_N = (0, 0, +9.81)``, i.e. (0, 0, -9.81) when level at rest. This deliberately
-differs from the reference simulator's ``R^T (a + g)`` (see DESIGN §4).
+differs from the reference simulator's ``R^T (a + g)`` (see DESIGN §4), which
+``fidelity: reference`` switches on (:func:`reference_accelerometer`, SPEC §2).
 
 The IMU functions work on Python scalars (they run at 500 Hz): pass sequences such as
 lists, tuples or ``ndarray.tolist()`` results, and get lists back.
 """
 
 from quad_drake.conventions import GRAVITY
+from quad_drake.fidelity import PHYSICAL
 from quad_drake.rotations import euler_from_quat, wrap_to_pi
 
 
@@ -21,8 +23,21 @@ def specific_force(q_NB, a_NB):
     q_NB: wxyz quaternion (need not be exactly unit); a_NB: kinematic acceleration of B
     in N, expressed in N (NED), m/s^2.
     """
+    return _rotate_to_body(q_NB, a_NB[0], a_NB[1], a_NB[2] - GRAVITY)
+
+
+def reference_accelerometer(q_NB, a_NB):
+    """The reference simulator's accelerometer R_NB^T (a_NB + g_N), m/s^2, FRD (SPEC §2).
+
+    (0, 0, +9.81) when level at rest; not the specific force once the body accelerates or
+    tilts (at constant altitude with pitch 0.2 rad it reads ax = -3.90 m/s^2).
+    """
+    return _rotate_to_body(q_NB, a_NB[0], a_NB[1], a_NB[2] + GRAVITY)
+
+
+def _rotate_to_body(q_NB, dx, dy, dz):
+    """R_NB^T d (list of 3) for a wxyz quaternion of any non-zero norm."""
     w, x, y, z = q_NB[0], q_NB[1], q_NB[2], q_NB[3]
-    dx, dy, dz = a_NB[0], a_NB[1], a_NB[2] - GRAVITY
     s = 2.0 / (w * w + x * x + y * y + z * z)
     # f = R^T d, with R the rotation matrix of the normalised quaternion.
     return [
@@ -36,13 +51,15 @@ def _clamp(value, limit):
     return -limit if value < -limit else (limit if value > limit else value)
 
 
-def imu_measurement(q_NB, w_NB_B, a_NB, noise, params):
+def imu_measurement(q_NB, w_NB_B, a_NB, noise, params, fidelity=PHYSICAL):
     """Noisy IMU sample [f_B (3, m/s^2), gyro (3, rad/s)] as a list of 6.
 
     noise: 6 unit-normal draws, 3 accelerometer then 3 gyro (SPEC §0.3 order).
     params: ImuParams; f_B is saturated per axis to +-accel_limit after the noise.
+    fidelity: with ``reference_accelerometer`` the accelerometer part is
+    :func:`reference_accelerometer` instead of :func:`specific_force`.
     """
-    f = specific_force(q_NB, a_NB)
+    f = (reference_accelerometer if fidelity.reference_accelerometer else specific_force)(q_NB, a_NB)
     sa, sg, limit = params.accel_std, params.gyro_std, params.accel_limit
     return [
         _clamp(f[0] + sa[0] * noise[0], limit),

@@ -17,6 +17,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput, Multiplexer, RandomSource
 
 from . import conventions as c
+from .fidelity import PHYSICAL, fidelity_from_mode
 from .results import result_from_logs
 from .rotations import quat_from_euler
 from .signals import empty_logs, vehicle_signals
@@ -70,19 +71,22 @@ def _never_sampled(builder, size):
     return builder.AddSystem(ConstantVectorSource(value)).get_output_port(0)
 
 
-def build_vehicle(vehicle):
-    """The sub-Diagram of one VehicleConfig; its outputs are named as `vehicle_log_names`."""
+def build_vehicle(vehicle, fidelity=PHYSICAL):
+    """The sub-Diagram of one VehicleConfig; its outputs are named as `vehicle_log_names`.
+
+    fidelity: the scenario's :class:`~quad_drake.fidelity.Fidelity`, given to every system.
+    """
     builder = DiagramBuilder()
     plant = _add_noisy(
         builder,
-        QuadrotorPlant(vehicle.physics, initial_state(vehicle)),
+        QuadrotorPlant(vehicle.physics, initial_state(vehicle), fidelity),
         "plant",
         "motor_noise",
         RandomDistribution.kUniform,
     )
-    controller = builder.AddNamedSystem("controller", CascadeController(vehicle.controller))
+    controller = builder.AddNamedSystem("controller", CascadeController(vehicle.controller, fidelity))
     trajectory = builder.AddNamedSystem(
-        "trajectory", TrajectorySource(trajectory_from_config(vehicle.trajectory))
+        "trajectory", TrajectorySource(trajectory_from_config(vehicle.trajectory), fidelity)
     )
     builder.Connect(controller.GetOutputPort("motor_thrusts"), plant.GetInputPort("motor_thrusts"))
     builder.Connect(trajectory.GetOutputPort("reference"), controller.GetInputPort("reference"))
@@ -95,7 +99,7 @@ def build_vehicle(vehicle):
 
     sensors = vehicle.sensors
     if sensors.imu is not None:
-        imu = _add_noisy(builder, Imu(sensors.imu), "imu")
+        imu = _add_noisy(builder, Imu(sensors.imu, fidelity), "imu")
         builder.Connect(plant.GetOutputPort("state"), imu.GetInputPort("state"))
         builder.Connect(plant.GetOutputPort("acceleration"), imu.GetInputPort("acceleration"))
         outputs["imu"] = imu.GetOutputPort("imu")
@@ -107,11 +111,13 @@ def build_vehicle(vehicle):
             outputs[kind] = sensor.GetOutputPort(kind)
 
     if sensors.imu is not None:
-        ekf = builder.AddNamedSystem("ekf", Ekf(vehicle.ekf))
+        ekf = builder.AddNamedSystem("ekf", Ekf(vehicle.ekf, fidelity))
         attitude_filter = builder.AddNamedSystem(
             "attitude_filter",
             ComplementaryFilter(
-                vehicle.attitude_filter, initial_attitude=(0.0, 0.0, vehicle.ekf.init_state[6])
+                vehicle.attitude_filter,
+                initial_attitude=(0.0, 0.0, vehicle.ekf.init_state[6]),
+                fidelity=fidelity,
             ),
         )
         builder.Connect(outputs["imu"], attitude_filter.GetInputPort("imu"))
@@ -177,7 +183,7 @@ def build_diagram(scenario):
     builder = DiagramBuilder()
     ports, rows, start = [], [], 0
     for vehicle in scenario.vehicles:
-        sub = builder.AddSystem(build_vehicle(vehicle))
+        sub = builder.AddSystem(build_vehicle(vehicle, fidelity_from_mode(scenario.fidelity)))
         for name in vehicle_log_names(vehicle):
             port = sub.GetOutputPort(name)
             ports.append(port)

@@ -11,6 +11,9 @@ i = the largest index with t_i < t; past the last point it is held; before or at
 t_0 point 0 is returned; otherwise position and velocity are interpolated linearly
 and the attitude by the reference's ``Quaternion::Interpolate_SLERP``, whose yaw
 is the reference yaw. Files carry no acceleration, so a = 0.
+
+:func:`lookup_time` maps the simulation time to the time a trajectory is looked up at:
+the exact time, or with ``fidelity.float32_clock`` the reference's float32 clock.
 """
 
 import bisect
@@ -20,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from quad_drake.config import ConfigError, resolve_trajectory_file
-from quad_drake.conventions import REFERENCE_SIZE
+from quad_drake.conventions import PHYSICS_PERIOD, REFERENCE_SIZE
 from quad_drake.rotations import quat_from_euler
 
 FILE_COLUMNS = ("t", "x", "y", "z", "vx", "vy", "vz", "yaw", "pitch", "roll", "p", "q", "r")
@@ -31,6 +34,35 @@ SLERP_DOT_THRESHOLD = 0.9995
 
 _HOLD, _LERP, _SLERP = 0, 1, 2
 
+_clock_table = np.zeros(1, dtype=np.float32)  # float32 clock after n physics steps, n = index
+
+
+def float32_clock(steps):
+    """The reference's ``simulationTime`` (s) after `steps` physics steps (SPEC §0.2).
+
+    A float32 that starts at 0 and adds 0.001f once per step, rounding every sum to float32:
+    it drifts from steps * 0.001 by -0.40 ms at 8 s and +0.41 ms at 10 s. Sequential float32
+    sums are tabulated once (numpy's ``cumsum`` accumulates in order).
+    """
+    global _clock_table
+    if steps >= _clock_table.size:
+        size = max(2 * _clock_table.size, steps + 1)
+        _clock_table = np.concatenate(
+            ([np.float32(0.0)], np.cumsum(np.full(size - 1, np.float32(0.001)), dtype=np.float32))
+        )
+    return float(_clock_table[steps])
+
+
+def lookup_time(t, fidelity):
+    """Time (s) at which a trajectory is looked up at simulation time t (s).
+
+    t itself, or with ``fidelity.float32_clock`` the reference's float32 clock after the
+    round(t / PHYSICS_PERIOD) physics steps that precede t.
+    """
+    if fidelity.float32_clock:
+        return float32_clock(round(t / PHYSICS_PERIOD))
+    return t
+
 
 def _yaw_of(w, x, y, z):
     """Yaw (rad) of a wxyz quaternion of any norm, as the reference's ``Quaternion::Yaw``."""
@@ -40,17 +72,18 @@ def _yaw_of(w, x, y, z):
 def _segment_attitude(q0, q1):
     """Precomputed data of the reference SLERP from q0 to q1 (wxyz tuples).
 
-    Reproduces ``Quaternion::Interpolate_SLERP`` of the E-sim: q1 is sign-aligned
-    with q0 by the dot product of the vector parts only, while the angle theta comes
-    from the full dot product of the *unaligned* quaternions. For pure-yaw segments
-    whose alignment flips q1 (e.g. yaw 3.14 -> -1.57) the interpolated yaw still
-    goes the short way but not at a uniform rate.
+    Reproduces ``Quaternion::Interpolate_SLERP`` of the E-sim as the reference binary
+    runs it (SPEC §6, measured on ``golden/08_PredictState``): q1 is first sign-aligned
+    with q0 (negated when the dot product of the vector parts is negative), and the
+    angle theta comes from the full dot product of the *aligned* pair. The result is
+    the short-path SLERP at a uniform rate, also on pure-yaw segments that cross +-pi
+    (e.g. yaw 3.14 -> -1.57, whose alignment flips q1).
     """
     if q0 == q1:
         return (_HOLD, _yaw_of(*q0))
     sign = -1.0 if q0[1] * q1[1] + q0[2] * q1[2] + q0[3] * q1[3] < 0.0 else 1.0
     b1 = tuple(sign * c for c in q1)
-    dot = max(-1.0, min(1.0, sum(a * b for a, b in zip(q0, q1, strict=True))))
+    dot = max(-1.0, min(1.0, sum(a * b for a, b in zip(q0, b1, strict=True))))
     if dot > SLERP_DOT_THRESHOLD:
         return (_LERP, q0, tuple(b - a for a, b in zip(q0, b1, strict=True)))
     theta = math.acos(dot)

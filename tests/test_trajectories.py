@@ -1,4 +1,3 @@
-import cmath
 import math
 
 import numpy as np
@@ -118,40 +117,23 @@ def test_yaw_interpolation_uniform_when_no_sign_flip():
     assert att.sample(3.825)[REF_YAW_INDEX] == pytest.approx(-0.3925, abs=1e-9)
 
 
-def reference_slerp_yaw(yaw0, yaw1, alpha):
-    """The reference's Interpolate_SLERP for pure-yaw quaternions, written with complex numbers.
-
-    A yaw quaternion (cos h, 0, 0, sin h), h = yaw / 2, is the unit complex number e^{ih}.
-    q1 is negated when sin h0 sin h1 < 0; the angle comes from the unaligned dot cos(h1 - h0).
-    """
-    h0, h1 = yaw0 / 2, yaw1 / 2
-    b1 = -cmath.exp(1j * h1) if math.sin(h0) * math.sin(h1) < 0 else cmath.exp(1j * h1)
-    theta = math.acos(math.cos(h1 - h0))
-    res = math.sin((1 - alpha) * theta) * cmath.exp(1j * h0) + math.sin(alpha * theta) * b1
-    return wrap_to_pi(2 * cmath.phase(res))
-
-
-def test_yaw_crossing_pi_goes_the_short_way():
-    att = packaged("AttitudeTest.txt")  # yaw 3.14 at t = 3.2 -> -1.57 at t = 3.6
-    span = wrap_to_pi(-1.57 - 3.14)  # +1.5732 rad the short way (through +-pi)
-    previous = 0.0
-    for t in np.linspace(3.2, 3.6, 41)[1:]:
-        progress = wrap_to_pi(att.sample(t)[REF_YAW_INDEX] - 3.14)
-        assert previous < progress <= span + 1e-9  # monotonic, never the long way round
-        previous = progress
-    assert att.sample(3.4)[REF_YAW_INDEX] == pytest.approx(3.14 + span / 2 - 2 * math.pi, abs=1e-9)
-
-
-def test_yaw_sign_flip_segment_matches_the_reference_slerp_rate():
-    # The reference aligns signs by the vector part but takes theta from the unaligned dot:
-    # on the flipping segment the yaw leads the uniform short-path interpolation.
-    att = packaged("AttitudeTest.txt")
-    for alpha in (0.1, 0.25, 0.5, 0.75, 0.9):
-        yaw = att.sample(3.2 + 0.4 * alpha)[REF_YAW_INDEX]
-        assert yaw == pytest.approx(reference_slerp_yaw(3.14, -1.57, alpha), abs=1e-9)
-    assert att.sample(3.3)[REF_YAW_INDEX] == pytest.approx(-2.58550, abs=1e-5)
-    uniform = wrap_to_pi(3.14 + 0.25 * wrap_to_pi(-1.57 - 3.14))
-    assert abs(att.sample(3.3)[REF_YAW_INDEX] - uniform) > 0.15
+@pytest.mark.parametrize(
+    ("name", "t0", "t1", "yaw0", "yaw1"),
+    [
+        ("AttitudeTest.txt", 3.2, 3.6, 3.14, -1.57),
+        ("Square.txt", 7.0, 8.0, 3.14, -1.57),
+        ("Square.txt", 15.0, 16.0, 3.14, -1.57),
+    ],
+)
+def test_yaw_crossing_pi_turns_at_a_uniform_rate(name, t0, t1, yaw0, yaw1):
+    # SPEC §6: the angle of the SLERP comes from the sign-aligned pair, so a pure-yaw leg
+    # through +-pi turns the short way (+1.5732 rad) at a constant rate.
+    traj = packaged(name)
+    span = wrap_to_pi(yaw1 - yaw0)
+    assert span == pytest.approx(2 * math.pi - 4.71, abs=1e-12)
+    for alpha in np.linspace(0.0, 1.0, 21)[1:-1]:
+        yaw = traj.sample(t0 + alpha * (t1 - t0))[REF_YAW_INDEX]
+        assert wrap_to_pi(yaw - (yaw0 + alpha * span)) == pytest.approx(0.0, abs=1e-9)
 
 
 def test_small_yaw_steps_use_the_lerp_branch():

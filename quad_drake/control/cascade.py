@@ -11,6 +11,7 @@ import math
 
 from quad_drake.conventions import GRAVITY
 from quad_drake.dynamics import thrusts_from_wrench
+from quad_drake.fidelity import PHYSICAL
 from quad_drake.rotations import wrap_to_pi
 
 
@@ -44,11 +45,14 @@ def clamp_collective_thrust(thrust, params):
     return min(max(thrust, low), high)
 
 
-def lateral_position_control(p_ref_xy, v_ref_xy, a_ff_xy, p_xy, v_xy, params):
+def lateral_position_control(p_ref_xy, v_ref_xy, a_ff_xy, p_xy, v_xy, params, vz=0.0, fidelity=PHYSICAL):
     """Horizontal acceleration command (ax, ay), m/s^2 in N, from xy position/velocity errors.
 
     The velocity command is rescaled to norm max_speed_xy and the acceleration command
-    to norm max_horiz_accel when they exceed them (direction kept).
+    to norm max_horiz_accel when they exceed them (direction kept). The norm is that of
+    (ax, ay); with ``fidelity.lateral_limit_3d`` it is the reference's 3-D norm of
+    (ax, ay, -kp_vel_xy vz), vz the vehicle's vertical speed in m/s (SPEC §5 step 4),
+    so a climbing or sinking vehicle gets a smaller lateral command.
     """
     vx = v_ref_xy[0] + params.kp_pos_xy * (p_ref_xy[0] - p_xy[0])
     vy = v_ref_xy[1] + params.kp_pos_xy * (p_ref_xy[1] - p_xy[1])
@@ -59,7 +63,10 @@ def lateral_position_control(p_ref_xy, v_ref_xy, a_ff_xy, p_xy, v_xy, params):
         vy *= scale
     ax = a_ff_xy[0] + params.kp_vel_xy * (vx - v_xy[0])
     ay = a_ff_xy[1] + params.kp_vel_xy * (vy - v_xy[1])
-    accel = math.hypot(ax, ay)
+    if fidelity.lateral_limit_3d:
+        accel = math.sqrt(ax * ax + ay * ay + (params.kp_vel_xy * vz) ** 2)
+    else:
+        accel = math.hypot(ax, ay)
     if accel > params.max_horiz_accel:
         scale = params.max_horiz_accel / accel
         ax *= scale
@@ -118,12 +125,13 @@ def body_rate_control(pqr_cmd, pqr, params):
     )
 
 
-def cascade_step(state13, reference10, integral, dt, params):
+def cascade_step(state13, reference10, integral, dt, params, fidelity=PHYSICAL):
     """One controller tick (the reference's ``RunControl``): motor forces and new integral.
 
     state13: p_NB (m), q_NB (wxyz, normalised here), v_NB (m/s), w_NB_B (rad/s);
     reference10: p (m), v (m/s), a feed-forward (m/s^2), yaw (rad); integral: the
-    altitude-error integral (m s); dt in s. Returns (F0..F3 motor forces in N, not
+    altitude-error integral (m s); dt in s; fidelity: a :class:`~quad_drake.fidelity.Fidelity`
+    (its ``lateral_limit_3d`` picks the lateral acceleration limit). Returns (F0..F3 motor forces in N, not
     clamped: the plant clamps) and the updated integral.
     """
     px, py, pz, qw, qx, qy, qz, vx, vy, vz, wx, wy, wz = state13
@@ -140,7 +148,9 @@ def cascade_step(state13, reference10, integral, dt, params):
 
     thrust, integral = altitude_control(rz, rvz, raz, pz, vz, R22, integral, dt, params)
     thrust = clamp_collective_thrust(thrust, params)
-    ax, ay = lateral_position_control((rx, ry), (rvx, rvy), (rax, ray), (px, py), (vx, vy), params)
+    ax, ay = lateral_position_control(
+        (rx, ry), (rvx, rvy), (rax, ray), (px, py), (vx, vy), params, vz, fidelity
+    )
     p_cmd, q_cmd = _roll_pitch(ax, ay, thrust, R00, R01, R02, R10, R11, R12, R22, params)
     r_cmd = yaw_control(yaw_ref, yaw, params)
     mx, my, mz = body_rate_control((p_cmd, q_cmd, r_cmd), (wx, wy, wz), params)

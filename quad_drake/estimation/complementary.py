@@ -4,18 +4,27 @@ The accelerometer reads the specific force f_B = R_NB^T (a_NB - g_N), i.e.
 9.81 (sin(pitch), -sin(roll) cos(pitch), -cos(roll) cos(pitch)) at rest, so the tilt
 seen by gravity is roll = atan2(-f_y, -f_z), pitch = atan2(f_x, hypot(f_y, f_z)); both
 are exact at rest for |pitch| < pi/2 (the reference's atan2(-a_x, 9.81) is atan(sin(pitch))).
+With ``reference_accelerometer`` (``fidelity: reference``) the reading is the reference's
+R_NB^T (a_NB + g_N) and the tilt is the reference's roll = atan2(f_y, f_z),
+pitch = atan2(-f_x, 9.81) (SPEC §4).
 """
 
 import math
 
+from quad_drake.conventions import GRAVITY
 from quad_drake.rotations import euler_from_quat, quat_from_euler_tuple, wrap_to_pi
 
 VARIANTS = ("nonlinear", "small_angle")
 
 
-def accel_roll_pitch(f_B):
-    """(roll, pitch) in rad that gravity alone would produce from the specific force f_B (m/s^2, FRD)."""
+def accel_roll_pitch(f_B, reference_accelerometer=False):
+    """(roll, pitch) in rad that gravity alone would produce from the specific force f_B (m/s^2, FRD).
+
+    With ``reference_accelerometer`` f_B is the reference's reading and the formulas are its own.
+    """
     fx, fy, fz = float(f_B[0]), float(f_B[1]), float(f_B[2])
+    if reference_accelerometer:
+        return math.atan2(fy, fz), math.atan2(-fx, GRAVITY)
     return math.atan2(-fy, -fz), math.atan2(fx, math.hypot(fy, fz))
 
 
@@ -41,14 +50,15 @@ def integrate_euler_exact(roll, pitch, yaw, w_B, dt):
     )
 
 
-def complementary_update(roll, pitch, yaw, f_B, w_B, dt, tau, variant):
+def complementary_update(roll, pitch, yaw, f_B, w_B, dt, tau, variant, reference_accelerometer=False):
     """One filter step: integrate the gyro over dt, then blend roll/pitch with the accelerometer.
 
     roll, pitch, yaw: prior ZYX angles, rad. f_B: specific force, m/s^2 (FRD). w_B: gyro
     w_NB_B, rad/s. dt: step, s. tau: blend time constant, s. variant: ``"small_angle"``
     (angles += dt * body rates, as shipped by the reference) or ``"nonlinear"`` (exact
     quaternion integration of the constant body rate). Returns (roll, pitch, yaw) in rad;
-    yaw is integrated only (not blended) and wrapped to [-pi, pi).
+    yaw is integrated only (not blended) and wrapped to [-pi, pi). reference_accelerometer:
+    f_B is the reference's reading (see :func:`accel_roll_pitch`).
     """
     if variant == "nonlinear":
         roll_pred, pitch_pred, yaw_pred = integrate_euler_exact(roll, pitch, yaw, w_B, dt)
@@ -58,7 +68,7 @@ def complementary_update(roll, pitch, yaw, f_B, w_B, dt, tau, variant):
         yaw_pred = yaw + dt * float(w_B[2])
     else:
         raise ValueError(f"unknown attitude filter variant {variant!r}; expected one of {VARIANTS}")
-    roll_acc, pitch_acc = accel_roll_pitch(f_B)
+    roll_acc, pitch_acc = accel_roll_pitch(f_B, reference_accelerometer)
     gyro_weight = tau / (tau + dt)
     accel_weight = dt / (tau + dt)
     return (

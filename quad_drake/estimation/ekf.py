@@ -141,13 +141,15 @@ def predict(x, P, roll, pitch, f_B, dt, Q, G=None):
     return _state_after(x, (rf[0], rf[1], rf[2] + GRAVITY), dt), predict_covariance(P, G, Q)
 
 
-def predict_with_yaw(x, P, attitude, f_B, dt, Q, G):
+def predict_with_yaw(x, P, attitude, f_B, dt, Q, G, reference_accelerometer=False):
     """The EKF's 500 Hz step: (x (list of 7), P) after x[6] <- attitude yaw, then :func:`predict`.
 
     x: prior state (7 floats); attitude: (roll, pitch, yaw) rad from the attitude filter;
     G: a 7x7 work buffer from :func:`predict_jacobian`, its Jacobian entries overwritten.
-    Scalar state arithmetic, as in :func:`predict_state`.
+    Scalar state arithmetic, as in :func:`predict_state`. reference_accelerometer: f_B is
+    the reference's reading R_NB^T (a_NB + g_N), so a_N = R f_B - g_N (SPEC §4 PredictState).
     """
+    gravity_z = -GRAVITY if reference_accelerometer else GRAVITY
     roll, pitch, yaw = attitude
     rf, rf_yaw = _rotate_specific_force(roll, pitch, yaw, f_B)
     _fill_jacobian(G, rf_yaw, dt)
@@ -159,7 +161,7 @@ def predict_with_yaw(x, P, attitude, f_B, dt, Q, G):
             pz + vz * dt,
             vx + rf[0] * dt,
             vy + rf[1] * dt,
-            vz + (rf[2] + GRAVITY) * dt,
+            vz + (rf[2] + gravity_z) * dt,
             yaw,
         ],
         predict_covariance(P, G, Q),

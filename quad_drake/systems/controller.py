@@ -14,6 +14,7 @@ from quad_drake.conventions import (
     REFERENCE_SIZE,
     STATE_SIZE,
 )
+from quad_drake.fidelity import PHYSICAL
 from quad_drake.systems._io import vector_reader
 
 
@@ -28,11 +29,14 @@ class CascadeController(LeafSystem):
       motor_thrusts (4, N): motors 0..3 = FL, FR, RL, RR; unclamped commands, a state
         output port (no direct feedthrough); mass g / 4 each before the first tick.
     Discrete state: the altitude-error integral (1, m s) and the last motor command (4, N).
+    ``fidelity`` (:class:`~quad_drake.fidelity.Fidelity`) picks the lateral acceleration
+    limit (horizontal norm, or the reference's 3-D norm).
     """
 
-    def __init__(self, params):
+    def __init__(self, params, fidelity=PHYSICAL):
         super().__init__()
         self._params = copy.deepcopy(params)
+        self._fidelity = fidelity
         self._read_state = vector_reader(self.DeclareVectorInputPort("state", STATE_SIZE))
         self._read_reference = vector_reader(self.DeclareVectorInputPort("reference", REFERENCE_SIZE))
         self._integral_index = self.DeclareDiscreteState(1)
@@ -53,6 +57,7 @@ class CascadeController(LeafSystem):
             discrete_state.value(self._integral_group).tolist()[0],
             ONBOARD_PERIOD,
             self._params,
+            self._fidelity,
         )
         discrete_state.set_value(self._integral_group, np.array((integral,)))
         discrete_state.set_value(self._thrusts_group, np.array(forces))

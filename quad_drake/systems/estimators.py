@@ -25,6 +25,7 @@ from quad_drake.conventions import (
 )
 from quad_drake.estimation import ekf
 from quad_drake.estimation.complementary import VARIANTS, complementary_update
+from quad_drake.fidelity import PHYSICAL
 from quad_drake.rotations import quat_from_euler_tuple
 from quad_drake.systems._io import vector_reader
 
@@ -46,10 +47,13 @@ class ComplementaryFilter(LeafSystem):
     is the EKF posterior yaw, rad, used as the prior yaw). Output: ``attitude`` (3: roll, pitch,
     yaw, rad; state port). Ticks every ONBOARD_PERIOD at ATTITUDE_FILTER_OFFSET with
     dt = ONBOARD_PERIOD. A non-finite IMU sample is skipped (roll, pitch held, yaw = prior).
+    With ``fidelity.reference_accelerometer`` the IMU carries the reference's reading and the
+    tilt comes from the reference's formulas.
     """
 
-    def __init__(self, params, initial_attitude=(0.0, 0.0, 0.0)):
+    def __init__(self, params, initial_attitude=(0.0, 0.0, 0.0), fidelity=PHYSICAL):
         super().__init__()
+        self._reference_accelerometer = fidelity.reference_accelerometer
         if params.variant not in VARIANTS:
             raise ValueError(f"attitude filter variant {params.variant!r} is not one of {VARIANTS}")
         self._tau = float(params.tau)
@@ -66,7 +70,15 @@ class ComplementaryFilter(LeafSystem):
         roll, pitch, _ = discrete_state.value(0).tolist()
         if _finite(imu):
             roll, pitch, yaw = complementary_update(
-                roll, pitch, yaw, imu[0:3], imu[3:6], ONBOARD_PERIOD, self._tau, self._variant
+                roll,
+                pitch,
+                yaw,
+                imu[0:3],
+                imu[3:6],
+                ONBOARD_PERIOD,
+                self._tau,
+                self._variant,
+                self._reference_accelerometer,
             )
         discrete_state.set_value(0, np.array((roll, pitch, yaw)))
 
@@ -84,10 +96,13 @@ class Ekf(LeafSystem):
     Each tick (ONBOARD_PERIOD, offset EKF_OFFSET): yaw <- attitude yaw, predict with dt =
     ONBOARD_PERIOD; then a fresh mag sample, then a fresh GPS sample, is fused. A sample is
     fresh when its stamp differs from the last stamp seen and is not NO_SAMPLE_STAMP.
+    With ``fidelity.reference_accelerometer`` the prediction reads the IMU as the reference's
+    R_NB^T (a_NB + g_N): a_N = R f - g_N.
     """
 
-    def __init__(self, params):
+    def __init__(self, params, fidelity=PHYSICAL):
         super().__init__()
+        self._reference_accelerometer = fidelity.reference_accelerometer
         self._Q = ekf.process_noise(params)
         self._R_gps = ekf.gps_noise(params)
         self._R_mag = ekf.mag_noise(params)
@@ -115,7 +130,9 @@ class Ekf(LeafSystem):
         x = discrete_state.value(0)
         P = discrete_state.value(1).reshape(EKF_STATE_SIZE, EKF_STATE_SIZE)
         if _finite(imu + attitude):
-            x, P = ekf.predict_with_yaw(x.tolist(), P, attitude, imu, ONBOARD_PERIOD, self._Q, self._G)
+            x, P = ekf.predict_with_yaw(
+                x.tolist(), P, attitude, imu, ONBOARD_PERIOD, self._Q, self._G, self._reference_accelerometer
+            )
         else:
             self._book_rejection(discrete_state)
         seen = discrete_state.value(3).tolist()

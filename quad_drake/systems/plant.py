@@ -8,6 +8,7 @@ from pydrake.systems.framework import LeafSystem
 
 from quad_drake.conventions import NUM_MOTORS, ONBOARD_PERIOD, PHYSICS_PERIOD, PLANT_OFFSET, STATE_SIZE
 from quad_drake.dynamics import plant_step
+from quad_drake.fidelity import PHYSICAL
 from quad_drake.systems._io import vector_reader
 
 
@@ -17,9 +18,11 @@ class QuadrotorPlant(LeafSystem):
     Within each onboard tick t_k = k ONBOARD_PERIOD the plant steps twice: at
     t_k + PLANT_OFFSET (integrating t_k -> t_k + PHYSICS_PERIOD) and at
     t_k + PHYSICS_PERIOD + PLANT_OFFSET (the next millisecond); RK4, wrench held
-    constant. Systems ticking earlier within t_k see the state at t_k.
+    constant (or, with ``fidelity.semi_implicit_euler``, the reference's semi-implicit
+    Euler step). Systems ticking earlier within t_k see the state at t_k.
 
-    Constructor: params (PhysicsParams), initial_state (13, the default context's state).
+    Constructor: params (PhysicsParams), initial_state (13, the default context's state),
+    fidelity (:class:`~quad_drake.fidelity.Fidelity`, default physical).
     Inputs:
       ``motor_thrusts`` (4, N): commanded force per motor 0..3 = front-left, front-right,
         rear-left, rear-right; clamped to [min_motor_thrust, max_motor_thrust].
@@ -41,8 +44,9 @@ class QuadrotorPlant(LeafSystem):
     noise_size = 2 * NUM_MOTORS
     noise_period = ONBOARD_PERIOD
 
-    def __init__(self, params, initial_state):
+    def __init__(self, params, initial_state, fidelity=PHYSICAL):
         super().__init__()
+        self._fidelity = fidelity
         initial_state = np.asarray(initial_state, dtype=float)
         if initial_state.shape != (STATE_SIZE,):
             raise ValueError(f"initial_state: expected {STATE_SIZE} values, got shape {initial_state.shape}")
@@ -93,6 +97,7 @@ class QuadrotorPlant(LeafSystem):
             noise,
             self._params,
             PHYSICS_PERIOD,
+            self._fidelity,
         )
         # numpy arrays: set_value(i, list) costs ~5 us on drake 1.58, set_value(i, ndarray) < 0.5 us.
         discrete_state.set_value(self._state_group, np.array(state))

@@ -26,6 +26,7 @@ from quad_drake.conventions import (
     SLOW_SENSOR_OFFSET,
     STATE_SIZE,
 )
+from quad_drake.fidelity import PHYSICAL
 from quad_drake.systems._io import vector_reader
 
 
@@ -47,14 +48,17 @@ class Imu(_Sensor):
     ``noise`` (6, unit Gaussian): 3 accelerometer then 3 gyro.
     Output ``imu`` (6): specific force f_B = R_NB^T (a_NB - g_N) (m/s^2, FRD, saturated
     per axis to +-accel_limit) and gyro w_NB_B (rad/s). Zero before the first sample.
+    With ``fidelity.reference_accelerometer`` the first three entries are the reference's
+    R_NB^T (a_NB + g_N) instead (``sensor_models.reference_accelerometer``).
     """
 
     noise_size = 6
     noise_period = ONBOARD_PERIOD
 
-    def __init__(self, params):
+    def __init__(self, params, fidelity=PHYSICAL):
         super().__init__(self.noise_size)
         self._params = params
+        self._fidelity = fidelity
         self._read_acceleration = vector_reader(self.DeclareVectorInputPort("acceleration", 3))
         group = self.DeclareDiscreteState(IMU_SIZE)
         self.DeclareStateOutputPort("imu", group)
@@ -64,9 +68,8 @@ class Imu(_Sensor):
         x = self._read_state(context)
         a = self._read_acceleration(context)
         noise = self._read_noise(context)
-        discrete_state.set_value(
-            0, np.array(sensor_models.imu_measurement(x[3:7], x[10:13], a, noise, self._params))
-        )
+        sample = sensor_models.imu_measurement(x[3:7], x[10:13], a, noise, self._params, self._fidelity)
+        discrete_state.set_value(0, np.array(sample))
 
 
 class Gps(_Sensor):

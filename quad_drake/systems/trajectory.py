@@ -3,22 +3,27 @@
 from pydrake.systems.framework import LeafSystem
 
 from quad_drake.conventions import REFERENCE_SIZE
+from quad_drake.fidelity import PHYSICAL
+from quad_drake.trajectories import lookup_time
 
 
 class TrajectorySource(LeafSystem):
-    """No inputs; output ``reference`` (10) = trajectory.sample(t) at the context time t (s).
+    """No inputs; output ``reference`` (10) = trajectory.sample(lookup_time(t)) at context time t (s).
 
     Layout: p (3, m, NED), v (3, m/s), a feed-forward (3, m/s^2), yaw (rad). ``trajectory``
-    is any object with ``sample(t) -> (10,)`` (see :mod:`quad_drake.trajectories`). The
-    output depends on time only (cached per time step), so it cannot close a loop.
+    is any object with ``sample(t) -> (10,)`` (see :mod:`quad_drake.trajectories`);
+    ``fidelity`` (:class:`~quad_drake.fidelity.Fidelity`) picks the lookup clock: exact time,
+    or the reference's float32 clock. The output depends on time only (cached per time
+    step), so it cannot close a loop.
     """
 
-    def __init__(self, trajectory):
+    def __init__(self, trajectory, fidelity=PHYSICAL):
         super().__init__()
         self._trajectory = trajectory
+        self._fidelity = fidelity
         self.DeclareVectorOutputPort(
             "reference", REFERENCE_SIZE, self._calc_reference, prerequisites_of_calc={self.time_ticket()}
         )
 
     def _calc_reference(self, context, output):
-        output.SetFromVector(self._trajectory.sample(context.get_time()))
+        output.SetFromVector(self._trajectory.sample(lookup_time(context.get_time(), self._fidelity)))
