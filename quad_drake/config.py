@@ -17,9 +17,9 @@ from typing import List, Optional
 import yaml
 from pydrake.common.yaml import yaml_dump, yaml_dump_typed, yaml_load_typed
 
-from .conventions import ONBOARD_PERIOD
-
 from quad_drake.fidelity import FIDELITY_MODES
+
+from .conventions import ONBOARD_PERIOD
 
 PACKAGE_DIR = Path(__file__).resolve().parent
 TRAJECTORY_DIR = PACKAGE_DIR / "data" / "traj"
@@ -201,7 +201,9 @@ class VehicleConfig:
     ekf: EkfParams = field(default_factory=EkfParams)
 
 
-CRITERION_KINDS = ("window", "sigma", "fleet_sigma")
+SAFETY_KINDS = ("floor", "room", "finite", "tracking")
+"""Flight-safety criterion kinds (``quad_drake.safety`` adds them to every scenario)."""
+CRITERION_KINDS = ("window", "sigma", "fleet_sigma", *SAFETY_KINDS)
 
 
 @dataclass
@@ -217,6 +219,12 @@ class CriterionConfig:
             |V.<signal>| <= sigma_multiple * V.<sigma_signal> lies in
             [min_percent, max_percent]; ``signal`` and ``sigma_signal`` are suffixes
             such as ``Est.E.X`` and ``Est.S.X``.
+    Flight safety (derived by ``quad_drake.safety``; ``signal`` is a vehicle's signal):
+    floor:  ``V.FloorTouchdowns`` stays 0 (no touchdown after take-off) until
+            ``landing_time`` s (None: the whole run), and V leaves the floor at all.
+    room:   ``V.WallContactSteps`` stays 0 (never stopped by a wall or the ceiling).
+    finite: ``V.StateFinite`` stays 1 (every true state entry finite).
+    tracking: |``V.PosFollowErr``| <= ``threshold`` m at every sample.
     """
 
     kind: str = field(default="window", metadata={"choices": CRITERION_KINDS})
@@ -230,6 +238,24 @@ class CriterionConfig:
     sigma_multiple: float = _num(1.0, positive=True)
     min_percent: float = _num(0.0, minimum=0.0, maximum=100.0)
     max_percent: float = _num(100.0, minimum=0.0, maximum=100.0)
+    landing_time: Optional[float] = None  # s, floor: touchdowns from then on are a landing
+
+
+@dataclass
+class SafetyConfig:
+    """Flight-safety criteria judged on every vehicle's true flight (``quad_drake.safety``).
+
+    ``enabled: false`` switches them all off; each check can be switched off alone.
+    tracking applies to vehicles whose position loops are closed (kp_pos_xy, kp_pos_z > 0).
+    """
+
+    enabled: bool = True
+    floor: bool = True  # no touchdown after take-off (before landing_time)
+    room: bool = True  # never stopped by a wall or the ceiling
+    finite: bool = True  # the true state stays finite
+    tracking: bool = True  # |Vehicle.PosFollowErr| <= tracking_bound
+    tracking_bound: float = _num(6.0, positive=True)  # m (quad_drake.safety: why 6)
+    landing_time: Optional[float] = None  # s, a documented landing: touchdowns from then on pass
 
 
 @dataclass
@@ -240,6 +266,7 @@ class ScenarioConfig:
     seed: int = _num(0, nonnegative=True)
     vehicles: List[VehicleConfig] = field(default_factory=lambda: [VehicleConfig()])
     criteria: List[CriterionConfig] = field(default_factory=list)
+    safety: SafetyConfig = field(default_factory=SafetyConfig)
     # physical: RK4, physical accelerometer, horizontal accel limit, exact clock;
     # reference: the FCND binary's numerics (quad_drake.fidelity, README "Fidelity").
     fidelity: str = field(default="physical", metadata={"choices": FIDELITY_MODES})
@@ -359,8 +386,13 @@ def _check_semantics(scenario):
             raise ConfigError(f"criteria.{i}.signal: must name a signal")
         if c.kind == "fleet_sigma" and not c.sigma_signal:
             raise ConfigError(f"criteria.{i}.sigma_signal: fleet_sigma needs a sigma signal suffix")
-        if c.kind != "window" and c.min_percent >= c.max_percent:
+        if c.kind in ("sigma", "fleet_sigma") and c.min_percent >= c.max_percent:
             raise ConfigError(f"criteria.{i}: min_percent must be < max_percent")
+        if c.landing_time is not None and not c.landing_time >= 0:
+            raise ConfigError(f"criteria.{i}.landing_time: must be >= 0, got {c.landing_time}")
+    landing = scenario.safety.landing_time
+    if landing is not None and not landing >= 0:
+        raise ConfigError(f"safety.landing_time: must be >= 0, got {landing}")
 
 
 def resolve_trajectory_file(name, where="trajectory.file"):

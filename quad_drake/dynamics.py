@@ -276,6 +276,20 @@ def apply_room_constraints(state_new, state_old, params):
     return s
 
 
+def on_floor(state, params):
+    """True when the vehicle rests on the (sticky) floor: z >= z_max (m, NED; the constraint
+    sets z = z_max exactly). False for a non-finite z."""
+    return state[2] >= params.z_bounds[1]
+
+
+def outside_room(state, params):
+    """True when x or y is outside its bounds or z is above the ceiling (z < z_min), m, NED;
+    :func:`apply_room_constraints` then stops the vehicle at that wall or the ceiling."""
+    x_min, x_max = params.x_bounds
+    y_min, y_max = params.y_bounds
+    return not (x_min <= state[0] <= x_max and y_min <= state[1] <= y_max) or state[2] < params.z_bounds[0]
+
+
 def plant_step(state, forces_old, commands, noise_unit, params, dt, fidelity=PHYSICAL):
     """One physics step of SPEC §3 (steps 1-8).
 
@@ -284,8 +298,10 @@ def plant_step(state, forces_old, commands, noise_unit, params, dt, fidelity=PHY
     :class:`~quad_drake.fidelity.Fidelity`, whose ``semi_implicit_euler`` picks the
     reference's body step over RK4 and whose ``float32_state`` rounds the new state to
     float32 (after a_NB is taken from the unrounded velocities).
-    Returns (state_new, a_NB, forces): a_NB = (v_new - v_old)/dt (3, m/s^2, NED) after
-    the room limits, i.e. the kinematic acceleration the IMU senses (zero on the floor).
+    Returns (state_new, a_NB, forces, hit_wall): a_NB = (v_new - v_old)/dt (3, m/s^2, NED)
+    after the room limits, i.e. the kinematic acceleration the IMU senses (zero on the
+    floor); hit_wall: the step ended outside the room (a wall or the ceiling) and was
+    stopped there (:func:`outside_room`; the floor is :func:`on_floor` of state_new).
     """
     targets = clamped_noisy_commands(
         commands, noise_unit, params.min_motor_thrust, params.max_motor_thrust, params.motor_noise
@@ -294,8 +310,9 @@ def plant_step(state, forces_old, commands, noise_unit, params, dt, fidelity=PHY
     thrust, mx, my, mz = wrench_from_thrusts(forces, params.arm_length, params.kappa, params.com_offset)
     body_step = rigid_body_step_semi_implicit if fidelity.semi_implicit_euler else rigid_body_step
     new, _ = body_step(state, thrust, (mx, my, mz), params.mass, params.inertia, dt)
+    hit_wall = outside_room(new, params)
     new = apply_room_constraints(new, state, params)
     accel = ((new[7] - state[7]) / dt, (new[8] - state[8]) / dt, (new[9] - state[9]) / dt)
     if fidelity.float32_state:
         new = np.array(new, dtype=np.float32).tolist()
-    return new, accel, forces
+    return new, accel, forces, hit_wall

@@ -17,6 +17,9 @@ from typing import Optional
 
 import numpy as np
 
+from .conventions import PHYSICS_PERIOD
+from .safety import safety_criteria
+
 TIME_TOLERANCE = 1e-9
 """s; stretches within this of the window W count as exactly W."""
 
@@ -25,7 +28,8 @@ TIME_TOLERANCE = 1e-9
 class CriterionResult:
     """Verdict of one analyzer, with the text every reader (console, report, campaign) prints.
 
-    kind: "window", "sigma" or "fleet_sigma".
+    kind: "window", "sigma", "fleet_sigma" or a safety kind ("floor", "room", "finite",
+        "tracking"; see the safety analyzers below for their measured/required).
     line: the reference-style PASS/FAIL line.
     measured: window: s, the longest stretch, ending at a sample, with every sample
         |x| <= threshold (passed iff measured > required); sigma: s, the final stretch
@@ -68,8 +72,9 @@ class CriterionResult:
 
 
 def judged_criteria(scenario):
-    """The criteria a run of `scenario` is judged on and a campaign counts, in order."""
-    return list(scenario.criteria)
+    """The criteria a run of `scenario` is judged on and a campaign counts, in order: its
+    own, then the flight-safety ones of :func:`quad_drake.safety.safety_criteria`."""
+    return list(scenario.criteria) + safety_criteria(scenario)
 
 
 def _select(times, values, fresh_mask):
@@ -239,12 +244,22 @@ def sigma_threshold(
 
 
 def evaluate_criterion(criterion, times, signal):
-    """Run one window or sigma :class:`~quad_drake.config.CriterionConfig` on logged samples.
+    """Run one window, sigma or safety :class:`~quad_drake.config.CriterionConfig` on logged samples.
 
     ``signal(name) -> (values, fresh_mask)`` returns a named signal over ``times``
     (``fresh_mask`` None when every sample is fresh).
     """
     values, fresh = signal(criterion.signal)
+    vehicle = criterion.signal.split(".", 1)[0]
+    if criterion.kind == "floor":
+        contact = signal(f"{vehicle}.FloorContact")[0]
+        return floor_touchdowns(times, values, contact, vehicle, criterion.landing_time, criterion.signal)
+    if criterion.kind == "room":
+        return room_contacts(times, values, vehicle, criterion.signal)
+    if criterion.kind == "finite":
+        return state_finite(times, values, vehicle, criterion.signal)
+    if criterion.kind == "tracking":
+        return tracking_bound(times, values, criterion.threshold, criterion.signal)
     if criterion.kind == "window":
         return window_threshold(
             times, values, criterion.threshold, criterion.window, name=criterion.signal, fresh_mask=fresh
@@ -311,6 +326,152 @@ def fleet_sigma_threshold(errors, sigmas, name, sigma_name, multiple, min_percen
         ),
         measured_text=f"{percent:.3g} % of {total} samples within" if total else "no samples",
         required_text=f"share in [{min_percent:g} %, {max_percent:g} %]",
+    )
+
+
+def _first_time(times, mask):
+    """Time (s) of the first sample where mask is true, or None."""
+    hits = np.flatnonzero(mask)
+    return float(times[hits[0]]) if hits.size else None
+
+
+def _times_word(n):
+    return "1 time" if n == 1 else f"{n} times"
+
+
+def floor_touchdowns(times, touchdowns, contact, vehicle, landing_time=None, name=""):
+    """Safety verdict "never touched the floor after take-off" (``floor``).
+
+    touchdowns: the cumulative touchdown count per sample (``V.FloorTouchdowns``, counted by
+    the plant every 1 ms step); contact: 1 while on the floor (``V.FloorContact``).
+    landing_time (s) or None: touchdowns counted at samples from then on are a documented
+    landing and pass. A vehicle on the floor at every sample never took off and fails.
+    measured: the number of touchdowns before the landing time; required: 0.
+    Lines: ``PASS: Quad never touched the floor after take-off``,
+    ``FAIL: Quad touched the floor 3 times (first at 2.345 s)``,
+    ``FAIL: Quad never took off (on the floor at every sample)``.
+    """
+    times = np.asarray(times, dtype=float)
+    touchdowns = np.asarray(touchdowns, dtype=float)
+    judged = times < landing_time if landing_time is not None else np.ones(times.shape, dtype=bool)
+    count = int(touchdowns[judged].max()) if judged.any() else 0
+    grounded = times.size > 0 and bool(np.all(np.asarray(contact) >= 1.0))
+    landing = f" before its landing at {landing_time:g} s" if landing_time is not None else ""
+    if grounded:
+        passed, line = False, f"FAIL: {vehicle} never took off (on the floor at every sample)"
+    elif count == 0:
+        passed, line = True, f"PASS: {vehicle} never touched the floor after take-off{landing}"
+    else:
+        first = _first_time(times, touchdowns > 0)
+        passed = False
+        line = f"FAIL: {vehicle} touched the floor {_times_word(count)}{landing} (first at {first:.3f} s)"
+    return CriterionResult(
+        "floor",
+        name or f"{vehicle}.FloorTouchdowns",
+        passed,
+        line,
+        float(count),
+        0.0,
+        math.nan,
+        samples=int(times.size),
+    )
+
+
+def room_contacts(times, wall_steps, vehicle, name=""):
+    """Safety verdict "stayed inside the room" (``room``): never stopped at a wall or the ceiling.
+
+    wall_steps: the cumulative count of 1 ms physics steps stopped at a room bound per sample
+    (``V.WallContactSteps``). measured: the time at a bound, s (steps x PHYSICS_PERIOD);
+    required: 0. Lines: ``PASS: Quad stayed inside the room``,
+    ``FAIL: Quad was stopped by a wall or the ceiling for 0.350 s (first at 12.345 s)``.
+    """
+    times = np.asarray(times, dtype=float)
+    wall_steps = np.asarray(wall_steps, dtype=float)
+    steps = int(wall_steps.max()) if wall_steps.size else 0
+    seconds = steps * PHYSICS_PERIOD
+    if steps == 0:
+        passed, line = True, f"PASS: {vehicle} stayed inside the room"
+    else:
+        first = _first_time(times, wall_steps > 0)
+        passed = False
+        line = (
+            f"FAIL: {vehicle} was stopped by a wall or the ceiling for {seconds:.3f} s "
+            f"(first at {first:.3f} s)"
+        )
+    return CriterionResult(
+        "room",
+        name or f"{vehicle}.WallContactSteps",
+        passed,
+        line,
+        seconds,
+        0.0,
+        math.nan,
+        samples=int(times.size),
+    )
+
+
+def state_finite(times, finite, vehicle, name=""):
+    """Safety verdict "the true state stayed finite" (``finite``).
+
+    finite: 1 at samples where every true state entry is finite (``V.StateFinite``).
+    measured: the number of non-finite samples; required: 0. Lines:
+    ``PASS: the true state of Quad stayed finite``,
+    ``FAIL: the true state of Quad became non-finite at 3.210 s``.
+    """
+    times = np.asarray(times, dtype=float)
+    bad = ~(np.asarray(finite, dtype=float) >= 1.0)
+    if not bad.any():
+        passed, line = True, f"PASS: the true state of {vehicle} stayed finite"
+    else:
+        passed = False
+        line = f"FAIL: the true state of {vehicle} became non-finite at {_first_time(times, bad):.3f} s"
+    return CriterionResult(
+        "finite",
+        name or f"{vehicle}.StateFinite",
+        passed,
+        line,
+        float(bad.sum()),
+        0.0,
+        math.nan,
+        samples=int(times.size),
+    )
+
+
+def tracking_bound(times, error, bound, name="x"):
+    """Safety verdict "the true tracking error stayed bounded" (``tracking``): |x| <= bound at
+    every sample (a non-finite sample violates).
+
+    measured: max |x| (inf when a sample is non-finite); required: the bound. Lines (``%lf``):
+    ``PASS: ABS(name) stayed below <bound> (max 3.580 at 13.000 s)``,
+    ``FAIL: ABS(name) reached 7.123 at 3.450 s, above <bound>`` (the first violating sample).
+    """
+    times = np.asarray(times, dtype=float)
+    magnitude = np.abs(np.asarray(error, dtype=float))
+    magnitude = np.where(np.isfinite(magnitude), magnitude, math.inf)
+    if magnitude.size == 0:
+        return CriterionResult(
+            "tracking", name, False, f"FAIL: ABS({name}) had no samples", 0.0, bound, math.nan
+        )
+    worst = int(np.argmax(magnitude))
+    above = magnitude > bound
+    if not above.any():
+        passed = True
+        line = (
+            f"PASS: ABS({name}) stayed below {bound:f} (max {magnitude[worst]:.3f} at {times[worst]:.3f} s)"
+        )
+    else:
+        first = int(np.flatnonzero(above)[0])
+        passed = False
+        line = f"FAIL: ABS({name}) reached {magnitude[first]:.3f} at {times[first]:.3f} s, above {bound:f}"
+    return CriterionResult(
+        "tracking",
+        name,
+        passed,
+        line,
+        float(magnitude[worst]),
+        float(bound),
+        math.nan,
+        samples=int(times.size),
     )
 
 

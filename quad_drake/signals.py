@@ -1,6 +1,11 @@
 """Pure: the reference simulator's named signals (``Quad.Pos.X``, ``Quad.Est.E.Yaw`` …)
 derived from one vehicle's logged arrays.
 
+Besides the reference's names, the truth of the flight (safety criteria, ``quad_drake.safety``):
+``StateFinite`` (1 while all 13 state entries are finite), ``FloorContact`` (1 while on the
+floor), ``FloorTouchdowns`` (touchdowns so far, after take-off) and ``WallContactSteps``
+(1 ms steps so far stopped at a wall or the ceiling).
+
 Logs are sampled every LOG_PERIOD at t = 0.005 k (k >= 1), each value as it was
 just before the systems' updates at t. Sensor signals carry a ``fresh`` mask:
 true on samples where a new measurement arrived since the previous sample
@@ -26,6 +31,7 @@ LOG_WIDTHS = {
     "state": 13,
     "reference": 10,
     "motor_forces": 4,
+    "contacts": 3,
     "imu": 6,
     "gps": 7,
     "mag": 2,
@@ -78,6 +84,12 @@ def vehicle_signals(name, logs):
     put("Roll", roll)
     put("Pitch", pitch)
     put("Yaw", yaw)
+    put("StateFinite", np.isfinite(state).all(axis=1).astype(float))
+    if "contacts" in logs:
+        contacts = logs["contacts"]
+        put("FloorContact", contacts[:, 0])
+        put("FloorTouchdowns", contacts[:, 1])
+        put("WallContactSteps", contacts[:, 2])
     if "reference" in logs:
         ref = logs["reference"]
         for i, axis in enumerate(AXES):

@@ -45,7 +45,7 @@ def initial_state(vehicle):
 
 def vehicle_log_names(vehicle):
     """Names of the signals a vehicle exports (and the top level logs)."""
-    names = ["state", "reference", "motor_forces"]
+    names = ["state", "reference", "motor_forces", "contacts"]
     sensors = vehicle.sensors
     names += [s for s in ("imu", "gps", "mag") if getattr(sensors, s) is not None]
     if sensors.imu is not None:
@@ -94,6 +94,7 @@ def build_vehicle(vehicle, fidelity=PHYSICAL):
         "state": plant.GetOutputPort("state"),
         "reference": trajectory.GetOutputPort("reference"),
         "motor_forces": plant.GetOutputPort("motor_forces"),
+        "contacts": plant.GetOutputPort("contacts"),
     }
     state_for_control = plant.GetOutputPort("state")
 

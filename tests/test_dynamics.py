@@ -128,7 +128,7 @@ def test_com_offset_adds_moments_proportional_to_thrust():
     assert my == pytest.approx(-0.03 * 4 * HOVER, rel=1e-14)
     # through the full step: equal forces with cy = -0.05 give w_dot_x = cy T / Ixx
     params = dataclasses.replace(PARAMS, com_offset=[0.0, -0.05])
-    new, _, _ = plant_step(make_state(), [HOVER] * 4, [HOVER] * 4, NO_NOISE, params, DT)
+    new, _, _, _ = plant_step(make_state(), [HOVER] * 4, [HOVER] * 4, NO_NOISE, params, DT)
     assert new[10] / DT == pytest.approx(-0.05 * 4 * HOVER / PARAMS.inertia[0], rel=1e-9)
 
 
@@ -169,7 +169,7 @@ def test_hover_equilibrium_holds_still_for_two_seconds():
     x0 = make_state(p=(1.0, -2.0, -3.0), ypr=(0.7, 0.0, 0.0))
     x, forces = x0, [HOVER] * 4
     for _ in range(2000):
-        x, accel, forces = plant_step(x, forces, [HOVER] * 4, NO_NOISE, PARAMS, DT)
+        x, accel, forces, _ = plant_step(x, forces, [HOVER] * 4, NO_NOISE, PARAMS, DT)
     np.testing.assert_allclose(x, x0, atol=1e-12)
     np.testing.assert_allclose(accel, 0.0, atol=1e-9)
     np.testing.assert_allclose(forces, HOVER, rtol=1e-15)
@@ -180,7 +180,7 @@ def test_free_fall_at_min_thrust_matches_closed_form():
     x, forces = x0, [PARAMS.min_motor_thrust] * 4
     accel_z = GRAVITY - 4 * PARAMS.min_motor_thrust / PARAMS.mass
     for _ in range(2000):
-        x, accel, forces = plant_step(x, forces, [0.0] * 4, NO_NOISE, PARAMS, DT)
+        x, accel, forces, _ = plant_step(x, forces, [0.0] * 4, NO_NOISE, PARAMS, DT)
     t = 2.0
     np.testing.assert_allclose(x[0:3], [0.5 * t, -0.25 * t, -30.0 + 0.5 * accel_z * t * t], atol=1e-9)
     np.testing.assert_allclose(x[7:10], [0.5, -0.25, accel_z * t], atol=1e-9)
@@ -233,14 +233,14 @@ def test_quaternion_norm_and_momentum_over_60_s_of_torque_free_tumbling():
 
 def test_sticky_floor_stops_a_falling_vehicle():
     old = make_state(p=(1.0, 2.0, -0.001), ypr=(0.3, 0.1, 0.0), v=(1.0, 1.0, 3.0), w=(1.0, 2.0, 3.0))
-    new, accel, _ = plant_step(old, [0.1] * 4, [0.1] * 4, NO_NOISE, PARAMS, DT)
+    new, accel, _, _ = plant_step(old, [0.1] * 4, [0.1] * 4, NO_NOISE, PARAMS, DT)
     assert new[0:3] == [1.0, 2.0, 0.0]
     assert new[7:13] == [0.0] * 6
     np.testing.assert_allclose(accel, np.array([-1.0, -1.0, -3.0]) / DT)
     # resting on the floor at low thrust: no motion, zero kinematic acceleration
     x = new
     for _ in range(100):
-        x, accel, _ = plant_step(x, [0.1] * 4, [0.1] * 4, NO_NOISE, PARAMS, DT)
+        x, accel, _, _ = plant_step(x, [0.1] * 4, [0.1] * 4, NO_NOISE, PARAMS, DT)
     assert x[0:3] == [1.0, 2.0, 0.0]
     assert accel == (0.0, 0.0, 0.0)
 
@@ -254,19 +254,19 @@ def test_floor_keeps_upward_velocity_and_allows_take_off():
     assert constrained[7:13] == [0.0, 0.0, -2.0, 0.0, 0.0, 0.0]
     x, forces = on_floor, [3.0] * 4
     for _ in range(100):
-        x, _, forces = plant_step(x, forces, [3.0] * 4, NO_NOISE, PARAMS, DT)
+        x, _, forces, _ = plant_step(x, forces, [3.0] * 4, NO_NOISE, PARAMS, DT)
     assert x[2] < -0.05 and x[9] < -1.0
 
 
 def test_room_bounds_revert_only_the_offending_coordinate():
     old = make_state(p=(29.9999, -29.9999, -39.9999), v=(0.5, -0.5, -0.5))
-    new, accel, _ = plant_step(old, [HOVER] * 4, [HOVER] * 4, NO_NOISE, PARAMS, DT)
+    new, accel, _, _ = plant_step(old, [HOVER] * 4, [HOVER] * 4, NO_NOISE, PARAMS, DT)
     assert new[0:3] == old[0:3]
     assert new[7:10] == [0.0, 0.0, 0.0]
     np.testing.assert_allclose(accel, [-500.0, 500.0, 500.0])
     # x out of bounds only: y and z keep integrating
     old = make_state(p=(-29.9999, 1.0, -5.0), v=(-0.5, 0.5, 0.5))
-    new, _, _ = plant_step(old, [HOVER] * 4, [HOVER] * 4, NO_NOISE, PARAMS, DT)
+    new, _, _, _ = plant_step(old, [HOVER] * 4, [HOVER] * 4, NO_NOISE, PARAMS, DT)
     assert (new[0], new[7]) == (old[0], 0.0)
     np.testing.assert_allclose(new[1:3], [1.0005, -4.9995], atol=1e-12)
     np.testing.assert_allclose(new[8:10], [0.5, 0.5], atol=1e-12)

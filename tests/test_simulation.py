@@ -99,7 +99,7 @@ def test_controller_flies_on_truth_or_estimate_as_configured():
 
 def test_vehicle_without_sensors_exports_only_truth_signals():
     scenario = short("01_intro", 0.1)
-    assert vehicle_log_names(scenario.vehicles[0]) == ["state", "reference", "motor_forces"]
+    assert vehicle_log_names(scenario.vehicles[0]) == ["state", "reference", "motor_forces", "contacts"]
 
 
 def test_results_save_and_reload(tmp_path):

@@ -7,7 +7,7 @@ from pydrake.common import RandomDistribution
 from pydrake.systems.framework import LeafSystem
 
 from quad_drake.conventions import NUM_MOTORS, ONBOARD_PERIOD, PHYSICS_PERIOD, PLANT_OFFSET, STATE_SIZE
-from quad_drake.dynamics import plant_step
+from quad_drake.dynamics import on_floor, plant_step
 from quad_drake.fidelity import PHYSICAL
 from quad_drake.systems._io import vector_reader
 
@@ -36,6 +36,9 @@ class QuadrotorPlant(LeafSystem):
       ``acceleration`` (3, m/s^2): a_NB, NED kinematic acceleration (v_new - v_old)/dt of
         the last step, after the room limits (zero while resting on the floor).
       ``motor_forces`` (4, N): the lagged motor forces of the last step.
+      ``contacts`` (3): on the floor now (1/0); touchdowns so far (steps that ended on the
+        floor after one that did not; a vehicle that starts on the floor has not touched
+        down); steps so far that ended at a wall or the ceiling (``dynamics.outside_room``).
     ``acceleration`` and ``motor_forces`` are zero before the first step. At the first
     step the motor lag starts from the first command (pre-clamp, no noise), as the
     reference does at t = 0; a flag in discrete state records that it happened.
@@ -61,9 +64,12 @@ class QuadrotorPlant(LeafSystem):
         acceleration = self.DeclareDiscreteState(3)
         forces = self.DeclareDiscreteState(NUM_MOTORS)
         started = self.DeclareDiscreteState(1)  # 0 until the first step
+        contacts = self.DeclareDiscreteState(self._initial_contacts(initial_state))
         self.DeclareStateOutputPort("state", state)
         self.DeclareStateOutputPort("acceleration", acceleration)
         self.DeclareStateOutputPort("motor_forces", forces)
+        self.DeclareStateOutputPort("contacts", contacts)
+        self._contacts_group = int(contacts)
         # Plain int group indices: faster than DiscreteStateIndex in the 1 kHz handler.
         self._state_group, self._acceleration_group = int(state), int(acceleration)
         self._forces_group, self._started_group = int(forces), int(started)
@@ -72,10 +78,15 @@ class QuadrotorPlant(LeafSystem):
             ONBOARD_PERIOD, PHYSICS_PERIOD + PLANT_OFFSET, self._second_step
         )
 
+    def _initial_contacts(self, state):
+        return np.array([1.0 if on_floor(state, self._params) else 0.0, 0.0, 0.0])
+
     def set_initial_state(self, context, state):
-        """Set the 13-vector state in `context` and re-arm the motor-lag initialisation."""
+        """Set the 13-vector state in `context`, re-arm the motor-lag initialisation and
+        reset the contact counts."""
         context.SetDiscreteState(self._state_group, np.asarray(state, dtype=float))
         context.SetDiscreteState(self._started_group, [0.0])
+        context.SetDiscreteState(self._contacts_group, self._initial_contacts(state))
 
     def _first_step(self, context, discrete_state):
         self._step(context, discrete_state, self._read_noise(context)[:NUM_MOTORS])
@@ -90,7 +101,7 @@ class QuadrotorPlant(LeafSystem):
         else:
             forces_old = commands
             discrete_state.set_value(self._started_group, np.ones(1))
-        state, accel, forces = plant_step(
+        state, accel, forces, hit_wall = plant_step(
             discrete_state.value(self._state_group).tolist(),
             forces_old,
             commands,
@@ -103,3 +114,10 @@ class QuadrotorPlant(LeafSystem):
         discrete_state.set_value(self._state_group, np.array(state))
         discrete_state.set_value(self._acceleration_group, np.array(accel))
         discrete_state.set_value(self._forces_group, np.array(forces))
+        floor = on_floor(state, self._params)
+        contacts = discrete_state.get_mutable_value(self._contacts_group)
+        if floor and not contacts[0]:
+            contacts[1] += 1.0
+        contacts[0] = 1.0 if floor else 0.0
+        if hit_wall:
+            contacts[2] += 1.0

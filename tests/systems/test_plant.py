@@ -86,7 +86,7 @@ def test_default_context_holds_the_initial_state_and_nothing_moves_before_the_fi
     sim.AdvanceTo(PLANT_OFFSET - 1e-9)
     np.testing.assert_array_equal(dut.GetOutputPort("state").Eval(context), x0)
     sim.AdvanceTo(PLANT_OFFSET + 1e-9)  # the first step fires at t = PLANT_OFFSET
-    expected, accel, forces = plant_step(x0.tolist(), [HOVER] * 4, [HOVER] * 4, [0.5] * 4, PARAMS, DT)
+    expected, accel, forces, _ = plant_step(x0.tolist(), [HOVER] * 4, [HOVER] * 4, [0.5] * 4, PARAMS, DT)
     out = outputs(dut, context)
     np.testing.assert_array_equal(out["state"], expected)
     np.testing.assert_array_equal(out["acceleration"], accel)
@@ -99,10 +99,10 @@ def test_each_tick_steps_twice_with_its_own_half_of_the_noise():
     dut, context, sim = fixed_plant([HOVER] * 4, noise=noise)
     x = make_state()
     sim.AdvanceTo(PHYSICS_PERIOD + PLANT_OFFSET - 1e-9)
-    x1, _, f1 = plant_step(x.tolist(), [HOVER] * 4, [HOVER] * 4, [0.0] * 4, PARAMS, DT)
+    x1, _, f1, _ = plant_step(x.tolist(), [HOVER] * 4, [HOVER] * 4, [0.0] * 4, PARAMS, DT)
     np.testing.assert_array_equal(outputs(dut, context)["state"], x1)  # held until t_k + 1 ms + offset
     sim.AdvanceTo(PHYSICS_PERIOD + PLANT_OFFSET + 1e-9)
-    x2, _, f2 = plant_step(x1, f1, [HOVER] * 4, [1.0] * 4, PARAMS, DT)
+    x2, _, f2, _ = plant_step(x1, f1, [HOVER] * 4, [1.0] * 4, PARAMS, DT)
     np.testing.assert_array_equal(outputs(dut, context)["state"], x2)
     np.testing.assert_array_equal(outputs(dut, context)["motor_forces"], f2)
     assert f1[0] < HOVER < f2[0]

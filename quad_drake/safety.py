@@ -1,0 +1,57 @@
+"""Flight-safety criteria every scenario is judged on by default (CONTRACTS §2).
+
+The reference judges only what its analyzers name, so a vehicle that sits on the floor can
+pass (11 with a 2 kg vehicle: 97 % of the run on the floor, PASS). From a
+:class:`~quad_drake.config.ScenarioConfig` this module derives, per vehicle, criteria on the
+*true* flight, evaluated like the others (``evaluation.evaluate_criterion``):
+
+- ``floor``: no touchdown after take-off (``V.FloorTouchdowns`` stays 0), unless the scenario
+  documents a landing (``safety.landing_time``: touchdowns from then on pass), and the vehicle
+  leaves the floor at all;
+- ``room``: never stopped by a wall or the ceiling (``V.WallContactSteps`` stays 0);
+- ``finite``: the true state stays finite (``V.StateFinite``);
+- ``tracking``, for closed-loop flights (position loops closed: kp_pos_xy > 0 and
+  kp_pos_z > 0): the true tracking error |``V.PosFollowErr``| stays <= ``safety.tracking_bound``.
+
+The default bound, 6 m, is 1.45 times the largest tracking error measured on the bundled
+scenarios (11 over seeds 0-19: at most 4.13 m, seed 12; 3.58 m at its default seed; 2.98 m
+in 08 and 10 on truth): Square.txt asks for 6 m legs in 1 s while the controller caps the
+speed at 5 m/s, so a healthy vehicle lags its reference by 3-4 m at every corner. 6 m, one
+full leg, is what a vehicle that has lost its reference exceeds.
+A scenario switches all of them off with ``safety: {enabled: false}`` or one by one
+(``safety: {tracking: false}``); pure: config in, CriterionConfig list out.
+"""
+
+from quad_drake.config import CriterionConfig
+
+
+def is_closed_loop(vehicle):
+    """True when the vehicle's controller tracks its trajectory's position (both position gains > 0)."""
+    return vehicle.controller.kp_pos_xy > 0.0 and vehicle.controller.kp_pos_z > 0.0
+
+
+def safety_criteria(scenario):
+    """The flight-safety CriterionConfigs of `scenario`, vehicle by vehicle ([] when disabled)."""
+    safety = scenario.safety
+    if not safety.enabled:
+        return []
+    criteria = []
+    for vehicle in scenario.vehicles:
+        name = vehicle.name
+        if safety.floor:
+            criteria.append(
+                CriterionConfig(
+                    kind="floor", signal=f"{name}.FloorTouchdowns", landing_time=safety.landing_time
+                )
+            )
+        if safety.room:
+            criteria.append(CriterionConfig(kind="room", signal=f"{name}.WallContactSteps"))
+        if safety.finite:
+            criteria.append(CriterionConfig(kind="finite", signal=f"{name}.StateFinite"))
+        if safety.tracking and is_closed_loop(vehicle):
+            criteria.append(
+                CriterionConfig(
+                    kind="tracking", signal=f"{name}.PosFollowErr", threshold=safety.tracking_bound
+                )
+            )
+    return criteria

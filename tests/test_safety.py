@@ -1,0 +1,206 @@
+"""Flight-safety criteria: derivation from a scenario, the analyzers, the plant's contact
+counts, and verdicts of whole runs (a crash must fail)."""
+
+import dataclasses
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pydrake.systems.analysis import Simulator
+
+from quad_drake.config import ConfigError, PhysicsParams, ScenarioConfig, VehicleConfig, load_scenario
+from quad_drake.conventions import GRAVITY
+from quad_drake.evaluation import (
+    evaluate_criterion,
+    floor_touchdowns,
+    judged_criteria,
+    room_contacts,
+    state_finite,
+    tracking_bound,
+)
+from quad_drake.rotations import quat_from_euler
+from quad_drake.safety import is_closed_loop, safety_criteria
+from quad_drake.systems.plant import QuadrotorPlant
+
+ROOT = Path(__file__).resolve().parents[1]
+TIMES = 0.005 * np.arange(1, 201)  # 1 s of 5 ms samples
+
+
+def scenario(**safety):
+    open_loop = VehicleConfig(name="Open")
+    open_loop.controller.kp_pos_xy = 0.0
+    s = ScenarioConfig(vehicles=[VehicleConfig(name="Quad"), open_loop])
+    s.safety = dataclasses.replace(s.safety, **safety)
+    return s
+
+
+def test_every_vehicle_gets_floor_room_finite_and_closed_loop_ones_tracking():
+    criteria = safety_criteria(scenario())
+    assert [(c.kind, c.signal) for c in criteria] == [
+        ("floor", "Quad.FloorTouchdowns"),
+        ("room", "Quad.WallContactSteps"),
+        ("finite", "Quad.StateFinite"),
+        ("tracking", "Quad.PosFollowErr"),
+        ("floor", "Open.FloorTouchdowns"),
+        ("room", "Open.WallContactSteps"),
+        ("finite", "Open.StateFinite"),
+    ]
+    assert criteria[3].threshold == 6.0
+    assert is_closed_loop(VehicleConfig()) and not is_closed_loop(scenario().vehicles[1])
+    s = scenario()
+    assert judged_criteria(s) == list(s.criteria) + criteria
+
+
+def test_safety_switches_off_as_a_whole_or_check_by_check():
+    assert safety_criteria(scenario(enabled=False)) == []
+    kinds = {c.kind for c in safety_criteria(scenario(tracking=False, room=False))}
+    assert kinds == {"floor", "finite"}
+    bounded = safety_criteria(scenario(tracking_bound=2.5, landing_time=12.0))
+    assert [c.threshold for c in bounded if c.kind == "tracking"] == [2.5]
+    assert {c.landing_time for c in bounded if c.kind == "floor"} == {12.0}
+
+
+def test_safety_config_from_yaml_and_its_errors(tmp_path):
+    path = tmp_path / "s.yaml"
+    path.write_text("end_time: 1.0\nsafety: {tracking_bound: 3.0, floor: false}\n")
+    loaded = load_scenario(path)
+    assert (loaded.safety.tracking_bound, loaded.safety.floor, loaded.safety.enabled) == (3.0, False, True)
+    assert load_scenario(path, ["safety.enabled=false"]).safety.enabled is False
+    with pytest.raises(ConfigError, match=r"s\.yaml: safety\.tracking_bound: must be > 0, got -1"):
+        load_scenario(path, ["safety.tracking_bound=-1"])
+    with pytest.raises(ConfigError, match=r"s\.yaml: safety\.landing_time: must be >= 0, got -2"):
+        load_scenario(path, ["safety.landing_time=-2.0"])
+    with pytest.raises(ConfigError, match=r"safety\.ceiling: unknown key"):
+        load_scenario(path, ["safety.ceiling=true"])
+
+
+def test_floor_verdicts():
+    airborne = np.zeros(TIMES.size)
+    clean = floor_touchdowns(TIMES, np.zeros(TIMES.size), airborne, "Quad")
+    assert clean.passed and clean.line == "PASS: Quad never touched the floor after take-off"
+    counts = np.zeros(TIMES.size)
+    counts[TIMES >= 0.345] = 1
+    counts[TIMES >= 0.5] = 2
+    counts[TIMES >= 0.9] = 3
+    crash = floor_touchdowns(TIMES, counts, airborne, "Quad")
+    assert not crash.passed and crash.measured == 3.0
+    assert crash.line == "FAIL: Quad touched the floor 3 times (first at 0.345 s)"
+    once = floor_touchdowns(TIMES, np.minimum(counts, 1), airborne, "Quad")
+    assert once.line == "FAIL: Quad touched the floor 1 time (first at 0.345 s)"
+    # A documented landing: touchdowns counted from landing_time on pass.
+    landed = np.where(TIMES >= 0.8, 1.0, 0.0)
+    assert floor_touchdowns(TIMES, landed, airborne, "Quad", landing_time=0.8).passed
+    early = floor_touchdowns(TIMES, counts, airborne, "Quad", landing_time=0.8)
+    assert not early.passed and early.measured == 2.0
+    assert early.line == "FAIL: Quad touched the floor 2 times before its landing at 0.8 s (first at 0.345 s)"
+    grounded = floor_touchdowns(TIMES, np.zeros(TIMES.size), np.ones(TIMES.size), "Quad")
+    assert not grounded.passed
+    assert grounded.line == "FAIL: Quad never took off (on the floor at every sample)"
+
+
+def test_room_finite_and_tracking_verdicts():
+    assert room_contacts(TIMES, np.zeros(TIMES.size), "Quad").line == "PASS: Quad stayed inside the room"
+    steps = np.where(TIMES >= 0.25, 350.0, 0.0)
+    wall = room_contacts(TIMES, steps, "Quad")
+    assert not wall.passed and wall.measured == pytest.approx(0.35)
+    assert wall.line == "FAIL: Quad was stopped by a wall or the ceiling for 0.350 s (first at 0.250 s)"
+
+    finite = np.ones(TIMES.size)
+    assert state_finite(TIMES, finite, "Quad").line == "PASS: the true state of Quad stayed finite"
+    finite[TIMES >= 0.5] = 0.0
+    broken = state_finite(TIMES, finite, "Quad")
+    assert not broken.passed and broken.line == "FAIL: the true state of Quad became non-finite at 0.500 s"
+
+    error = 2.0 * np.sin(np.pi * TIMES)  # max 2 at 0.5 s
+    ok = tracking_bound(TIMES, error, 2.5, "Quad.PosFollowErr")
+    assert ok.passed and ok.measured == pytest.approx(2.0)
+    assert ok.line == "PASS: ABS(Quad.PosFollowErr) stayed below 2.500000 (max 2.000 at 0.500 s)"
+    lost = tracking_bound(TIMES, error, 1.5, "Quad.PosFollowErr")
+    assert not lost.passed
+    assert lost.line.startswith("FAIL: ABS(Quad.PosFollowErr) reached 1.5")
+    assert lost.line.endswith("above 1.500000")
+    error[50] = math.nan
+    diverged = tracking_bound(TIMES, error, 2.5, "Quad.PosFollowErr")
+    assert not diverged.passed and diverged.measured == math.inf
+
+
+def test_evaluate_criterion_dispatches_the_safety_kinds():
+    signals = {
+        "Quad.FloorTouchdowns": np.where(TIMES >= 0.6, 1.0, 0.0),
+        "Quad.FloorContact": np.zeros(TIMES.size),
+        "Quad.WallContactSteps": np.zeros(TIMES.size),
+        "Quad.StateFinite": np.ones(TIMES.size),
+        "Quad.PosFollowErr": np.full(TIMES.size, 6.0),
+    }
+    verdicts = {
+        c.kind: evaluate_criterion(c, TIMES, lambda name: (signals[name], None))
+        for c in safety_criteria(scenario())
+        if c.signal.startswith("Quad.")
+    }
+    assert {k: v.passed for k, v in verdicts.items()} == {
+        "floor": False,
+        "room": True,
+        "finite": True,
+        "tracking": False,
+    }
+    assert verdicts["floor"].line == "FAIL: Quad touched the floor 1 time (first at 0.600 s)"
+
+
+QUIET = PhysicsParams(motor_noise=0.0)
+
+
+def _plant(x0, commands, params=QUIET):
+    dut = QuadrotorPlant(params, np.asarray(x0, dtype=float))
+    context = dut.CreateDefaultContext()
+    dut.GetInputPort("motor_thrusts").FixValue(context, np.asarray(commands, dtype=float))
+    dut.GetInputPort("motor_noise").FixValue(context, np.full(8, 0.5))
+    return dut, context, Simulator(dut, context)
+
+
+def _state(p, v=(0.0, 0.0, 0.0)):
+    return np.concatenate([p, quat_from_euler(0.0, 0.0, 0.0), v, np.zeros(3)])
+
+
+def test_plant_counts_a_touchdown_after_a_fall_but_not_a_take_off():
+    dut, context, simulator = _plant(_state((0.0, 0.0, -0.05)), [0.1] * 4)  # falls 5 cm
+    assert dut.GetOutputPort("contacts").Eval(context).tolist() == [0.0, 0.0, 0.0]
+    simulator.AdvanceTo(0.5)
+    assert dut.GetOutputPort("contacts").Eval(context).tolist() == [1.0, 1.0, 0.0]
+    lift = 0.5 * PhysicsParams().mass * GRAVITY  # 2 g thrust: leaves the floor at once
+    dut, context, simulator = _plant(_state((0.0, 0.0, 0.0)), [lift] * 4)
+    assert dut.GetOutputPort("contacts").Eval(context).tolist() == [1.0, 0.0, 0.0]
+    simulator.AdvanceTo(0.2)
+    assert dut.GetOutputPort("contacts").Eval(context).tolist() == [0.0, 0.0, 0.0]
+
+
+def test_plant_counts_the_steps_stopped_at_a_wall():
+    room = PhysicsParams(motor_noise=0.0, x_bounds=[-1.0, 1.0])
+    hover = room.mass * GRAVITY / 4
+    dut, context, simulator = _plant(_state((0.99, 0.0, -1.0), v=(1.0, 0.0, 0.0)), [hover] * 4, room)
+    simulator.AdvanceTo(0.1)
+    floor, touchdowns, wall_steps = dut.GetOutputPort("contacts").Eval(context).tolist()
+    assert (floor, touchdowns) == (0.0, 0.0)
+    assert wall_steps == 1.0  # 0.99 + 0.011 m leaves the room once; the velocity is then 0
+
+
+@pytest.mark.slow
+def test_a_vehicle_that_cannot_lift_off_fails_11():
+    # README "Safety": 11 with a 2 kg vehicle sits on the floor; its estimate still passes.
+    env = dict(os.environ, PYTHONPATH=str(ROOT), MPLBACKEND="Agg")
+    command = [sys.executable, "-m", "quad_drake.cli", "run", "11_gps_update"]
+    done = subprocess.run(
+        [*command, "--set", "vehicles.0.physics.mass=2.0"], capture_output=True, text=True, env=env
+    )
+    assert done.returncode == 1, done.stderr
+    assert "PASS: ABS(Quad.Est.E.Pos) was less than 1.000000 for at least 20.000000 seconds" in done.stdout
+    assert "FAIL: Quad touched the floor 1 time (first at 0.720 s)" in done.stdout
+    assert (
+        "FAIL: Quad touched the floor"
+        not in subprocess.run(
+            [*command, "--set", "end_time=2"], capture_output=True, text=True, env=env
+        ).stdout
+    )
