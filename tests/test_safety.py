@@ -134,7 +134,7 @@ def test_evaluate_criterion_dispatches_the_safety_kinds():
         "Quad.FloorContact": np.zeros(TIMES.size),
         "Quad.WallContactSteps": np.zeros(TIMES.size),
         "Quad.StateFinite": np.ones(TIMES.size),
-        "Quad.PosFollowErr": np.full(TIMES.size, 6.0),
+        "Quad.PosFollowErr": np.full(TIMES.size, 6.5),
     }
     verdicts = {
         c.kind: evaluate_criterion(c, TIMES, lambda name: (signals[name], None))
