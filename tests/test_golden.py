@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from quad_drake.config import TRAJECTORY_DIR, load_scenario
+from quad_drake.evaluation import window_threshold
 from quad_drake.simulation import run
 from quad_drake.trajectories import float32_clock, load_trajectory_file
 
@@ -123,3 +124,22 @@ def test_trajectory_lookup_at_the_float32_clock_matches_the_binary(case, vehicle
     for i, key in enumerate(("X", "Y", "Z", "VX", "VY", "VZ")):
         assert np.max(np.abs(ref[:, i] - golden[f"{vehicle}.Ref.{key}"][:n])) < 5e-6, key
     assert angle_error(ref[:, 9], golden[f"{vehicle}.Ref.Yaw"][:n]).max() < 2e-6
+
+
+@pytest.mark.parametrize(
+    ("case", "criteria", "passes"),
+    [
+        ("04_nonidealities", [(f"Quad{i}.PosFollowErr", 0.1, 1.5) for i in (1, 2, 3)], [False, True, False]),
+        ("05_trajectory_follow", [("Quad2.PosFollowErr", 0.25, 3.0)], [False]),
+    ],
+)
+def test_the_esim_gains_fail_04_and_05_in_the_binary_as_here(case, criteria, passes, reference_runs):
+    # The bundled 04/05 criteria on the binary's own PosFollowErr and on ours, E-sim gains.
+    golden = load_golden(CASES[case])
+    result = reference_runs[case]
+    n = result.times.size
+    for (name, threshold, window), expected in zip(criteria, passes, strict=True):
+        theirs = window_threshold(result.times, golden[name][:n], threshold, window, name)
+        ours = window_threshold(result.times, result.signals[name].values, threshold, window, name)
+        assert theirs.passed == ours.passed == expected, name
+        assert ours.measured == pytest.approx(theirs.measured, abs=0.0051)  # one 5 ms sample
