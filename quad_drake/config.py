@@ -17,9 +17,8 @@ from typing import List, Optional
 import yaml
 from pydrake.common.yaml import yaml_dump, yaml_dump_typed, yaml_load_typed
 
-from quad_drake.fidelity import FIDELITY_MODES
-
 from .conventions import ONBOARD_PERIOD
+from .fidelity import FIDELITY_MODES
 
 PACKAGE_DIR = Path(__file__).resolve().parent
 TRAJECTORY_DIR = PACKAGE_DIR / "data" / "traj"

@@ -284,10 +284,12 @@ def on_floor(state, params):
 
 def outside_room(state, params):
     """True when x or y is outside its bounds or z is above the ceiling (z < z_min), m, NED;
-    :func:`apply_room_constraints` then stops the vehicle at that wall or the ceiling."""
+    :func:`apply_room_constraints` then stops the vehicle at that wall or the ceiling. False
+    for non-finite coordinates, which the constraints leave alone too."""
     x_min, x_max = params.x_bounds
     y_min, y_max = params.y_bounds
-    return not (x_min <= state[0] <= x_max and y_min <= state[1] <= y_max) or state[2] < params.z_bounds[0]
+    x, y = state[0], state[1]
+    return x < x_min or x > x_max or y < y_min or y > y_max or state[2] < params.z_bounds[0]
 
 
 def plant_step(state, forces_old, commands, noise_unit, params, dt, fidelity=PHYSICAL):

@@ -14,6 +14,7 @@ from pydrake.systems.analysis import Simulator
 
 from quad_drake.config import ConfigError, PhysicsParams, ScenarioConfig, VehicleConfig, load_scenario
 from quad_drake.conventions import GRAVITY
+from quad_drake.dynamics import on_floor, outside_room
 from quad_drake.evaluation import (
     evaluate_criterion,
     floor_touchdowns,
@@ -204,3 +205,13 @@ def test_a_vehicle_that_cannot_lift_off_fails_11():
             [*command, "--set", "end_time=2"], capture_output=True, text=True, env=env
         ).stdout
     )
+
+
+def test_room_predicates_on_the_floor_at_a_wall_and_for_a_non_finite_state():
+    params = PhysicsParams()
+    assert on_floor(_state((0.0, 0.0, 0.0)), params) and not on_floor(_state((0.0, 0.0, -1e-9)), params)
+    assert outside_room(_state((30.01, 0.0, -1.0)), params)
+    assert outside_room(_state((0.0, 0.0, -40.1)), params)
+    assert not outside_room(_state((29.99, -29.99, -39.99)), params)
+    nan = _state((math.nan, math.nan, math.nan))
+    assert not on_floor(nan, params) and not outside_room(nan, params)
