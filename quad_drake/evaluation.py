@@ -29,7 +29,8 @@ class CriterionResult:
     """Verdict of one analyzer, with the text every reader (console, report, campaign) prints.
 
     kind: "window", "sigma", "fleet_sigma" or a safety kind ("floor", "room", "finite",
-        "tracking"; see the safety analyzers below for their measured/required).
+        "tracking"; see the safety analyzers below for their measured/required; their
+        ``trailing`` and ``percent`` are None).
     line: the reference-style PASS/FAIL line.
     measured: window: s, the longest stretch, ending at a sample, with every sample
         |x| <= threshold (passed iff measured > required); sigma: s, the final stretch
@@ -372,8 +373,11 @@ def floor_touchdowns(times, touchdowns, contact, vehicle, landing_time=None, nam
         line,
         float(count),
         0.0,
-        math.nan,
+        None,
         samples=int(times.size),
+        description=f"{vehicle}: no floor touchdown after take-off{landing}",
+        measured_text="on the floor at every sample" if grounded else f"{count} touchdown(s)",
+        required_text="0 touchdowns, off the floor at some sample",
     )
 
 
@@ -405,8 +409,11 @@ def room_contacts(times, wall_steps, vehicle, name=""):
         line,
         seconds,
         0.0,
-        math.nan,
+        None,
         samples=int(times.size),
+        description=f"{vehicle}: never stopped by a wall or the ceiling",
+        measured_text=f"{seconds:.3f} s at a wall or the ceiling",
+        required_text="0 s",
     )
 
 
@@ -432,8 +439,11 @@ def state_finite(times, finite, vehicle, name=""):
         line,
         float(bad.sum()),
         0.0,
-        math.nan,
+        None,
         samples=int(times.size),
+        description=f"{vehicle}: true state finite at every sample",
+        measured_text=f"{int(bad.sum())} non-finite sample(s) of {times.size}",
+        required_text="0 non-finite samples",
     )
 
 
@@ -448,9 +458,18 @@ def tracking_bound(times, error, bound, name="x"):
     times = np.asarray(times, dtype=float)
     magnitude = np.abs(np.asarray(error, dtype=float))
     magnitude = np.where(np.isfinite(magnitude), magnitude, math.inf)
+    text = {"description": f"|{name}| <= {bound:g} at every sample", "required_text": f"max <= {bound:g}"}
     if magnitude.size == 0:
         return CriterionResult(
-            "tracking", name, False, f"FAIL: ABS({name}) had no samples", 0.0, bound, math.nan
+            "tracking",
+            name,
+            False,
+            f"FAIL: ABS({name}) had no samples",
+            0.0,
+            float(bound),
+            None,
+            measured_text="no samples",
+            **text,
         )
     worst = int(np.argmax(magnitude))
     above = magnitude > bound
@@ -470,8 +489,10 @@ def tracking_bound(times, error, bound, name="x"):
         line,
         float(magnitude[worst]),
         float(bound),
-        math.nan,
+        None,
         samples=int(times.size),
+        measured_text=f"max {magnitude[worst]:.4g} at {times[worst]:.3f} s",
+        **text,
     )
 
 

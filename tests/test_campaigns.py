@@ -97,7 +97,7 @@ def test_records_hold_the_consistency_series_of_a_run(serial):
     np.testing.assert_allclose(np.diff(stamps), 0.01, atol=1e-12)
     assert set(record.nis) == {("Quad", "mag")}  # no GPS on this vehicle
     assert record.nse["Quad"].shape == (7,)
-    assert len(record.criteria) == 2 and not record.passed  # a 10 s window cannot pass in 1.5 s
+    assert len(record.criteria) == 2 + 4 and not record.passed  # 2 own, 4 safety; 10 s window in 1.5 s
 
 
 def test_saved_files_and_the_campaign_page(serial, tmp_path):

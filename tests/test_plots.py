@@ -26,7 +26,12 @@ def _vehicle_logs(times, rng, estimator, offset=0.0):
     q = np.array([quat_from_euler(0.05, -0.02, y) for y in yaw])
     state = np.column_stack([p, q, v, np.zeros((n, 3))])
     reference = np.column_stack([p + 0.05, v, np.zeros((n, 3)), np.zeros(n)])
-    logs = {"state": state, "reference": reference, "motor_forces": np.full((n, 4), 1.23)}
+    logs = {
+        "state": state,
+        "reference": reference,
+        "motor_forces": np.full((n, 4), 1.23),
+        "contacts": np.zeros((n, 3)),  # airborne: no floor or wall contact
+    }
     if not estimator:
         return logs
     sigma = np.array([0.1, 0.1, 0.3, 0.1, 0.1, 0.3, 0.05])
@@ -212,7 +217,7 @@ def test_metrics_and_consistency_tables():
 
 def test_criterion_rows_of_window_and_sigma_criteria():
     result = make_result()
-    window, sigma = (criterion_row(v) for v in result.criteria)
+    window, sigma = (criterion_row(v) for v in result.criteria[:2])  # then the safety ones
     assert window[:3] == ["|Quad.PosFollowErr| &lt; 0.1 for &gt; 1 s", "window", ("PASS", "PASS")]
     assert window[3] == f"longest stretch within: {result.criteria[0].measured:.4g} s"
     assert window[4] == "&gt; 1 s"
@@ -319,3 +324,26 @@ def test_report_html_renders_each_criterion_from_its_text(tmp_path, criteria, ex
         assert f"<td>{verdict.kind}</td>" in report and verdict.measured_text.split(";")[0] in report
     if criteria is not None:
         assert "stretch" not in report and "≤ 0" not in report
+
+
+def test_report_html_renders_the_safety_criteria_from_their_text(tmp_path):
+    # A vehicle that touched the floor twice (from 1.5 s) and hit a wall for 0.25 s (from 2 s).
+    result = make_result(estimator=False)
+    logs = result.logs["Quad"]
+    logs["contacts"][:, 1] = np.where(result.times >= 1.5, 1.0, 0.0) + np.where(result.times >= 3.0, 1.0, 0.0)
+    logs["contacts"][:, 2] = np.where(result.times >= 2.0, 250.0, 0.0)
+    result = result_from_logs(result.scenario, result.times, result.logs, wall_time=0.5)
+    verdicts = {v.kind: v for v in result.criteria}
+    assert set(verdicts) == {"window", "floor", "room", "finite", "tracking"}
+    assert not verdicts["floor"].passed and not verdicts["room"].passed and not result.passed
+    report = plots.write_report(result, tmp_path / "report.html").read_text()
+    for line in (
+        "FAIL: Quad touched the floor 2 times (first at 1.500 s)",
+        "FAIL: Quad was stopped by a wall or the ceiling for 0.250 s (first at 2.000 s)",
+        "PASS: the true state of Quad stayed finite",
+    ):
+        assert line in report
+    for verdict in result.criteria:
+        assert f"<td>{verdict.kind}</td>" in report
+        for text in (verdict.description, verdict.measured_text, verdict.required_text):
+            assert text and text.replace("<", "&lt;").replace(">", "&gt;") in report

@@ -57,9 +57,11 @@ def test_summary_is_strict_json_with_format_and_verdict_texts(fleet_run):
     summary = strict_loads((run_dir / "summary.json").read_text())
     assert summary["format_version"] == FORMAT_VERSION and summary["kind"] == "run"
     assert (summary["runner"], summary["scenario"], summary["seed"]) == (RUNNER, "09_predict_covariance", 0)
-    assert len(summary["criteria"]) == 4
+    assert len(summary["criteria"]) == 4 + 10 * 4  # 4 fleet criteria, then 4 safety ones per vehicle
     for saved, verdict in zip(summary["criteria"], result.criteria, strict=True):
-        assert saved["kind"] == "fleet_sigma" and saved["trailing"] is None
+        assert saved["description"] == verdict.description and saved["trailing"] is None
+    for saved, verdict in zip(summary["criteria"][:4], result.criteria[:4], strict=True):
+        assert saved["kind"] == "fleet_sigma"
         assert saved["description"] == verdict.description and saved["measured_text"] == verdict.measured_text
         assert saved["samples"] == 10 * result.times.size  # every vehicle's every (fresh) sample
         assert "series" not in saved
