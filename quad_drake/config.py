@@ -12,7 +12,7 @@ import re
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import List, Optional
+from typing import List, Optional, Union
 
 import yaml
 from pydrake.common.yaml import yaml_dump, yaml_dump_typed, yaml_load_typed
@@ -167,6 +167,51 @@ class EkfParams:
     gps_vel_z_std: float = _num(0.3, positive=True, noise_std=True)  # m/s
     mag_yaw_std: float = _num(0.1, positive=True, noise_std=True)  # rad
     dt_imu: float = _num(0.002, positive=True, maximum=1.0)  # s, scales Q (a step, not a flight)
+    gps_gate_sigma: float = _num(5.0, nonnegative=True)  # sigma; chi^2 innovation gate, 0 = off
+    mag_gate_sigma: float = _num(5.0, nonnegative=True)  # sigma
+    gps_reset_timeout: float = _num(5.0, nonnegative=True)  # s of continuous GPS rejection, 0 = never
+
+
+@dataclass
+class Ekf7EstimatorConfig:
+    """The reference's estimator: complementary filter + 7-state EKF.
+
+    Its parameters are the vehicle's ``attitude_filter:`` and ``ekf:`` blocks (kept there so
+    the reference's scenarios read as before).
+    """
+
+    kind: str = field(default="ekf7", metadata={"choices": ("ekf7",)})
+
+
+@dataclass
+class EskfEstimatorConfig:
+    """Error-state EKF (``estimation/eskf.py``): what it assumes, independent of the sensor truth."""
+
+    kind: str = field(default="eskf", metadata={"choices": ("eskf",)})
+    init_position: List[float] = _vec(0.0, 0.0, -1.0)  # m, NED
+    init_velocity: List[float] = _vec(0.0, 0.0, 0.0)  # m/s
+    init_ypr: List[float] = _vec(0.0, 0.0, 0.0)  # rad, yaw pitch roll
+    init_pos_std: List[float] = _std(0.1, 0.1, 0.3)  # m
+    init_vel_std: List[float] = _std(0.1, 0.1, 0.3)  # m/s
+    init_att_std: List[float] = _std(0.05, 0.05, 0.05)  # rad, about N, E, D
+    estimate_biases: bool = True  # false: 9 error states, biases fixed at zero
+    init_accel_bias_std: List[float] = _std(0.05, 0.05, 0.05)  # m/s^2
+    init_gyro_bias_std: List[float] = _std(0.01, 0.01, 0.01)  # rad/s
+    accel_std: List[float] = _std(0.5, 0.5, 1.5)  # m/s^2 per IMU sample, body x y z
+    gyro_std: List[float] = _std(0.5, 0.5, 0.5)  # rad/s per IMU sample
+    accel_bias_rw_std: float = _num(0.001, nonnegative=True, noise_std=True)  # m/s^2/sqrt(s)
+    gyro_bias_rw_std: float = _num(0.0001, nonnegative=True, noise_std=True)  # rad/s/sqrt(s)
+    gps_pos_std: List[float] = _std(0.7, 0.7, 2.0)  # m
+    gps_vel_std: List[float] = _std(0.1, 0.1, 0.3)  # m/s
+    mag_yaw_std: float = _num(0.1, positive=True, noise_std=True)  # rad
+    gps_gate_sigma: float = _num(5.0, nonnegative=True)  # sigma; chi^2 innovation gate, 0 = off
+    mag_gate_sigma: float = _num(5.0, nonnegative=True)  # sigma
+    gps_reset_timeout: float = _num(5.0, nonnegative=True)  # s of continuous GPS rejection, 0 = never
+
+
+EstimatorConfig = Union[Ekf7EstimatorConfig, EskfEstimatorConfig]
+"""A vehicle's estimator, chosen by ``kind`` (``estimator: {kind: eskf, ...}``); default ekf7."""
+ESTIMATOR_KINDS = ("ekf7", "eskf")
 
 
 TRAJECTORY_KINDS = ("point", "file", "figure_eight")
@@ -198,6 +243,7 @@ class VehicleConfig:
     sensors: SensorsConfig = field(default_factory=SensorsConfig)
     attitude_filter: AttitudeFilterParams = field(default_factory=AttitudeFilterParams)
     ekf: EkfParams = field(default_factory=EkfParams)
+    estimator: EstimatorConfig = field(default_factory=Ekf7EstimatorConfig)
 
 
 SAFETY_KINDS = ("floor", "room", "finite", "tracking")
@@ -282,13 +328,19 @@ def _check_node(node, tp, path):
     """Shape check of raw YAML `node` against annotation `tp`; returns a message or None."""
     origin = typing.get_origin(tp)
     if origin is typing.Union:
-        inner = [a for a in typing.get_args(tp) if a is not type(None)][0]
-        return None if node is None else _check_node(node, inner, path)
+        members = [a for a in typing.get_args(tp) if a is not type(None)]
+        if node is None:
+            return None
+        if len(members) > 1:
+            return _check_kind_choice(node, members, path)
+        return _check_node(node, members[0], path)
     if dataclasses.is_dataclass(tp):
         if not isinstance(node, dict):
             return f"{path or 'the file'}: expected a mapping, got {node!r}"
         names = {f.name: f for f in dataclasses.fields(tp)}
         for key, value in node.items():
+            if key == "_tag":  # set by _check_kind_choice, or read from a dumped config
+                continue
             sub = f"{path}.{key}" if path else str(key)
             if key not in names:
                 return f"{sub}: unknown key (known: {', '.join(names)})"
@@ -314,6 +366,32 @@ def _check_node(node, tp, path):
     else:
         ok = isinstance(node, tp)
     return None if ok else f"{path}: expected {_type_name(tp)}, got {node!r}"
+
+
+def _kind_of(member):
+    return next(f.default for f in dataclasses.fields(member) if f.name == "kind")
+
+
+def _check_kind_choice(node, members, path):
+    """Check a mapping against the Union member its ``kind`` names; tag it for yaml_load_typed.
+
+    Every member is a dataclass whose ``kind`` field defaults to its own name. A config
+    written by :func:`dump_scenario` carries a YAML tag instead of (or besides) the kind.
+    """
+    if not isinstance(node, dict):
+        return f"{path}: expected a mapping, got {node!r}"
+    by_kind = {_kind_of(m): m for m in members}
+    by_tag = {f"!{m.__name__}": m for m in members}
+    if "kind" in node:
+        member = by_kind.get(node["kind"])
+        if member is None:
+            return f"{path}.kind: {node['kind']!r} is not one of {', '.join(by_kind)}"
+    elif node.get("_tag") in by_tag:
+        member = by_tag[node["_tag"]]
+    else:
+        return f"{path}.kind: missing; one of {', '.join(by_kind)}"
+    node["_tag"] = f"!{member.__name__}"
+    return _check_node(node, member, path)
 
 
 def validate(config, path=""):

@@ -1,0 +1,336 @@
+"""Error-state EKF (ESKF): nominal p, v, q, accelerometer and gyro biases; 15-state error covariance.
+
+Frames and conventions: NED world N, FRD body B, q = q_NB wxyz; the accelerometer measures
+the physical specific force f_B = R_NB^T (a_NB - g_N) (DESIGN §4).
+
+Nominal state ``x`` (16 floats): p_N (m), v_N (m/s), q_NB (wxyz), b_a (m/s^2, body),
+b_g (rad/s, body). Error state (truth = nominal (+) error):
+``dx = (dp (3, m), dv (3, m/s), dtheta (3, rad), db_a (3), db_g (3))`` with
+p = p_hat + dp, v = v_hat + dv, R_NB = Exp(dtheta) R_hat (a small rotation about the world
+axes: dtheta[2] is the heading error, dtheta[0:2] the tilt), b = b_hat + db. With bias
+estimation off the error state is the first 9 entries and the biases stay at their initial
+values (``n = 9``); every function takes the error dimension from P.
+
+Prediction over one IMU period dt with the sample (f_B, w_B) held over it:
+a = R_hat (f_B - b_a) + g_N;  p += v dt + a dt^2 / 2;  v += a dt;  q = q (x) Exp((w_B - b_g) dt).
+Error dynamics (first order; tested against central differences of this nominal model):
+F = I + [[0, I dt, -[u]x dt^2/2, -R dt^2/2, 0], [0, 0, -[u]x dt, -R dt, 0],
+[0, 0, 0, 0, -R' dt], [0 ...], [0 ...]] with u = R_hat (f_B - b_a) and R' = R_hat after the
+step. Process noise per step: accelerometer white noise of ``accel_std`` per sample (body)
+gives Q_vv = R diag(accel_std^2) R^T dt^2 (and its dt^3/2, dt^4/4 position terms), the
+gyro's gives Q_thth = R diag(gyro_std^2) R^T dt^2, bias random walks give
+Q_b = bias_rw_std^2 dt I.
+
+Measurements, fused in Joseph form with the error state, then injected
+(p += dp, v += dv, q = Exp(dtheta) (x) q, b += db) and the covariance reset by
+G = diag(I, I, I + [dtheta]x / 2, I, I) (first-order change of the attitude error's
+reference; tested numerically):
+- GPS: z = (p_N, v_N), H = [I6 0];
+- magnetometer: z = yaw of R_NB, h = atan2(R10, R00), H_theta = (-R00 R20 / d, -R10 R20 / d, 1)
+  with d = R00^2 + R10^2; the residual is wrapped to [-pi, pi).
+
+Updates return the NIS nu^T S^-1 nu and leave the gating decision to the caller
+(:mod:`quad_drake.estimation.gating`): a gated sample keeps the prior.
+"""
+
+import math
+
+import numpy as np
+
+from quad_drake.conventions import GRAVITY
+from quad_drake.rotations import wrap_to_pi
+
+NOMINAL_SIZE = 16
+P_IDX, V_IDX, Q_IDX, BA_IDX, BG_IDX = slice(0, 3), slice(3, 6), slice(6, 10), slice(10, 13), slice(13, 16)
+ERROR_SIZE_WITH_BIASES, ERROR_SIZE_NAVIGATION = 15, 9
+GPS_STATES = tuple(range(6))
+"""Error-state indices the GPS measures (dp, dv)."""
+
+
+def _constant(array):
+    array.flags.writeable = False
+    return array
+
+
+H_GPS_15 = _constant(np.eye(6, 15))
+H_GPS_9 = _constant(np.eye(6, 9))
+
+
+def rotation(q):
+    """R_NB (3x3) of a unit wxyz quaternion (sequence of 4 floats)."""
+    w, x, y, z = float(q[0]), float(q[1]), float(q[2]), float(q[3])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def quat_exp(theta):
+    """Unit wxyz quaternion of the rotation vector theta (rad) as a 4-tuple."""
+    tx, ty, tz = float(theta[0]), float(theta[1]), float(theta[2])
+    angle = math.sqrt(tx * tx + ty * ty + tz * tz)
+    if angle < 1e-12:
+        return (1.0, 0.5 * tx, 0.5 * ty, 0.5 * tz)
+    s = math.sin(0.5 * angle) / angle
+    return (math.cos(0.5 * angle), tx * s, ty * s, tz * s)
+
+
+def quat_mul(a, b):
+    """Hamilton product a (x) b of two wxyz 4-sequences, as a 4-tuple."""
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return (
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    )
+
+
+def rotation_log(R):
+    """Rotation vector (3, rad) of a rotation matrix, |angle| < pi (the inverse of Exp)."""
+    cos_angle = max(-1.0, min(1.0, 0.5 * (float(np.trace(R)) - 1.0)))
+    angle = math.acos(cos_angle)
+    axis = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    if angle < 1e-6:
+        return 0.5 * axis
+    return axis * (angle / (2.0 * math.sin(angle)))
+
+
+def attitude_errors(q_hat, q_true):
+    """(n, 3) dtheta with R_hat = Exp(dtheta) R_true per row (estimate minus truth, world axes, rad).
+
+    q_hat, q_true: (n, 4) wxyz quaternions. Vectorised: dtheta = 2 sign(w) vec(q_hat (x) q_true^*)
+    mapped through the exact angle, valid for |angle| < pi.
+    """
+    q_hat = np.asarray(q_hat, dtype=float)
+    q_true = np.asarray(q_true, dtype=float)
+    aw, ax, ay, az = q_hat.T
+    bw, bx, by, bz = q_true.T * np.array([[1.0], [-1.0], [-1.0], [-1.0]])
+    w = aw * bw - ax * bx - ay * by - az * bz
+    v = np.column_stack(
+        [
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ]
+    )
+    sign = np.where(w < 0.0, -1.0, 1.0)
+    w, v = w * sign, v * sign[:, None]
+    norm_v = np.linalg.norm(v, axis=1)
+    angle = 2.0 * np.arctan2(norm_v, w)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        scale = np.where(norm_v > 1e-12, angle / norm_v, 2.0)
+    return v * scale[:, None]
+
+
+def _skew(v0, v1, v2):
+    return np.array([[0.0, -v2, v1], [v2, 0.0, -v0], [-v1, v0, 0.0]])
+
+
+def initial_nominal(position, velocity, q_NB, accel_bias=(0.0, 0.0, 0.0), gyro_bias=(0.0, 0.0, 0.0)):
+    """Nominal state (16,) from its parts (m, m/s, wxyz, m/s^2, rad/s)."""
+    return np.concatenate([position, velocity, q_NB, accel_bias, gyro_bias]).astype(float)
+
+
+def predict_nominal(x, f_B, w_B, dt):
+    """(x', R_hat, R_hat', u_N): nominal after one IMU step (list of 16), rotations before and after,
+    and u_N = R_hat (f_B - b_a) (m/s^2, the specific force in N).
+
+    x: nominal (16); f_B: specific force (m/s^2, FRD); w_B: gyro (rad/s); dt: s.
+    """
+    px, py, pz, vx, vy, vz, qw, qx, qy, qz, bax, bay, baz, bgx, bgy, bgz = (
+        x.tolist() if isinstance(x, np.ndarray) else list(x)
+    )
+    R = rotation((qw, qx, qy, qz))
+    fx, fy, fz = float(f_B[0]) - bax, float(f_B[1]) - bay, float(f_B[2]) - baz
+    ax = R[0, 0] * fx + R[0, 1] * fy + R[0, 2] * fz
+    ay = R[1, 0] * fx + R[1, 1] * fy + R[1, 2] * fz
+    az = R[2, 0] * fx + R[2, 1] * fy + R[2, 2] * fz + GRAVITY
+    h = 0.5 * dt * dt
+    dq = quat_exp(((float(w_B[0]) - bgx) * dt, (float(w_B[1]) - bgy) * dt, (float(w_B[2]) - bgz) * dt))
+    qw, qx, qy, qz = quat_mul((qw, qx, qy, qz), dq)
+    n = 1.0 / math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+    q_new = (qw * n, qx * n, qy * n, qz * n)
+    x_new = [
+        px + vx * dt + ax * h,
+        py + vy * dt + ay * h,
+        pz + vz * dt + az * h,
+        vx + ax * dt,
+        vy + ay * dt,
+        vz + az * dt,
+        *q_new,
+        bax,
+        bay,
+        baz,
+        bgx,
+        bgy,
+        bgz,
+    ]
+    return x_new, R, rotation(q_new), (ax, ay, az - GRAVITY)
+
+
+def transition(R, R_next, u_N, dt, n):
+    """Error transition F (n x n, n = 15 or 9) of one IMU step; u_N = R (f_B - b_a) (m/s^2)."""
+    F = np.eye(n)
+    fill_transition(F, R, R_next, u_N, dt)
+    return F
+
+
+def fill_transition(F, R, R_next, u_N, dt):
+    """Write the time-varying blocks of the transition into F (an n x n identity-based buffer)."""
+    n = F.shape[0]
+    U = _skew(u_N[0], u_N[1], u_N[2])
+    h = 0.5 * dt * dt
+    F[0:3, 3:6] = np.eye(3) * dt
+    F[0:3, 6:9] = U * -h
+    F[3:6, 6:9] = U * -dt
+    if n == ERROR_SIZE_WITH_BIASES:
+        F[0:3, 9:12] = R * -h
+        F[3:6, 9:12] = R * -dt
+        F[6:9, 12:15] = R_next * -dt
+    return F
+
+
+def process_noise(R, params, dt, n):
+    """Q (n x n) of one IMU step at attitude R (see the module docstring); params: EskfParams."""
+    Q = np.zeros((n, n))
+    fill_process_noise(Q, R, params, dt)
+    return Q
+
+
+def fill_process_noise(Q, R, params, dt):
+    """Write the attitude-dependent noise blocks into Q (n x n); bias blocks are constant."""
+    n = Q.shape[0]
+    Ma = (R * np.square(params.accel_std)) @ R.T
+    Mg = (R * np.square(params.gyro_std)) @ R.T
+    dt2 = dt * dt
+    Q[3:6, 3:6] = Ma * dt2
+    Q[0:3, 3:6] = Ma * (0.5 * dt2 * dt)
+    Q[3:6, 0:3] = Q[0:3, 3:6]
+    Q[0:3, 0:3] = Ma * (0.25 * dt2 * dt2)
+    Q[6:9, 6:9] = Mg * dt2
+    if n == ERROR_SIZE_WITH_BIASES:
+        Q[9:12, 9:12] = np.eye(3) * (params.accel_bias_rw_std**2 * dt)
+        Q[12:15, 12:15] = np.eye(3) * (params.gyro_bias_rw_std**2 * dt)
+    return Q
+
+
+def predict(x, P, f_B, w_B, dt, params, F=None, Q=None):
+    """(x', P') after one IMU step: nominal propagation and P' = F P F^T + Q (symmetrised).
+
+    F, Q: optional n x n work buffers (identity-based / zero-based), overwritten in place.
+    """
+    n = P.shape[0]
+    x_new, R, R_next, u_N = predict_nominal(x, f_B, w_B, dt)
+    F = fill_transition(np.eye(n) if F is None else F, R, R_next, u_N, dt)
+    Q = fill_process_noise(np.zeros((n, n)) if Q is None else Q, R, params, dt)
+    FP = F @ P
+    P_new = FP @ F.T
+    P_new += P_new.T
+    P_new *= 0.5
+    P_new += Q
+    return x_new, P_new
+
+
+def joseph_update(P, H, R_meas, nu):
+    """(dx, P', nis): the error-state correction of innovation nu (m) with Jacobian H (m x n).
+
+    S = H P H^T + R; K = P H^T S^-1; P' = (I - K H) P (I - K H)^T + K R K^T (symmetrised);
+    nis = nu^T S^-1 nu. Returns NaN nis (and dx = 0, P unchanged) when S is singular.
+    """
+    PHt = P @ H.T
+    S = H @ PHt + R_meas
+    try:
+        solved = np.linalg.solve(S, np.column_stack((PHt.T, nu)))
+    except np.linalg.LinAlgError:
+        return np.zeros(P.shape[0]), P, math.nan
+    K = solved[:, :-1].T
+    I_KH = np.eye(P.shape[0]) - K @ H
+    P_new = I_KH @ P @ I_KH.T + K @ R_meas @ K.T
+    return K @ nu, 0.5 * (P_new + P_new.T), float(nu @ solved[:, -1])
+
+
+def inject(x, P, dx):
+    """(x', P'): the error dx (n) injected into the nominal x (16) and P reset by G (module docstring)."""
+    x = np.array(x, dtype=float)
+    n = dx.shape[0]
+    x[0:6] += dx[0:6]
+    q = quat_mul(quat_exp(dx[6:9]), tuple(x[Q_IDX]))
+    norm = math.sqrt(sum(c * c for c in q))
+    x[Q_IDX] = [c / norm for c in q]
+    if n == ERROR_SIZE_WITH_BIASES:
+        x[BA_IDX] += dx[9:12]
+        x[BG_IDX] += dx[12:15]
+    G = reset_jacobian(dx[6:9], n)
+    return x, G @ P @ G.T
+
+
+def reset_jacobian(dtheta, n):
+    """G (n x n): identity with the attitude block I + [dtheta]x / 2."""
+    G = np.eye(n)
+    G[6:9, 6:9] += 0.5 * _skew(dtheta[0], dtheta[1], dtheta[2])
+    return G
+
+
+def gps_update(x, P, gps_pv, R_gps):
+    """(x', P', nis) after fusing a GPS sample (p_N m, v_N m/s); R_gps (6x6).
+
+    A non-finite sample gives (x, P, nan). The caller decides the gate on nis (a gated
+    sample must keep (x, P)).
+    """
+    z = np.asarray(gps_pv, dtype=float)
+    if not np.isfinite(z).all():
+        return x, P, math.nan
+    x = np.asarray(x, dtype=float)
+    H = H_GPS_15 if P.shape[0] == ERROR_SIZE_WITH_BIASES else H_GPS_9
+    dx, P_new, nis = joseph_update(P, H, R_gps, z - x[0:6])
+    if math.isnan(nis):
+        return x, P, nis
+    x_new, P_new = inject(x, P_new, dx)
+    return x_new, P_new, nis
+
+
+def yaw_and_jacobian(q):
+    """(yaw (rad), dyaw/dtheta (3,)) of the nominal attitude q, for R = Exp(dtheta) R_hat."""
+    R = rotation(q)
+    r00, r10, r20 = R[0, 0], R[1, 0], R[2, 0]
+    d = r00 * r00 + r10 * r10
+    return math.atan2(r10, r00), np.array([-r00 * r20 / d, -r10 * r20 / d, 1.0])
+
+
+def mag_update(x, P, yaw_meas, R_mag):
+    """(x', P', nis) after fusing a magnetometer yaw (rad) with variance R_mag (1x1); NaN sample skipped."""
+    yaw_meas = float(yaw_meas)
+    if not math.isfinite(yaw_meas):
+        return x, P, math.nan
+    x = np.asarray(x, dtype=float)
+    yaw, h_theta = yaw_and_jacobian(x[Q_IDX])
+    H = np.zeros((1, P.shape[0]))
+    H[0, 6:9] = h_theta
+    dx, P_new, nis = joseph_update(P, H, R_mag, np.array([wrap_to_pi(yaw_meas - yaw)]))
+    if math.isnan(nis):
+        return x, P, nis
+    x_new, P_new = inject(x, P_new, dx)
+    return x_new, P_new, nis
+
+
+def gps_noise(params):
+    """R_gps (6x6) = diag(gps_pos_std^2, gps_vel_std^2), m^2 and (m/s)^2."""
+    return np.diag(np.square(list(params.gps_pos_std) + list(params.gps_vel_std)))
+
+
+def mag_noise(params):
+    """R_mag (1x1) = [mag_yaw_std^2], rad^2."""
+    return np.array([[params.mag_yaw_std**2]])
+
+
+def initial_covariance(params):
+    """P0 (15 or 9 square) = diag(init_std^2) of (p, v, theta[, b_a, b_g])."""
+    std = list(params.init_pos_std) + list(params.init_vel_std) + list(params.init_att_std)
+    if params.estimate_biases:
+        std += list(params.init_accel_bias_std) + list(params.init_gyro_bias_std)
+    return np.diag(np.square(std))
