@@ -1,13 +1,19 @@
-"""Pure: the steady-state Kalman (Riccati) accuracy bound of a vehicle's sensors.
+"""Pure: accuracy bounds of a vehicle's sensors — the hover Riccati bound and the posterior CRB.
 
-The best accuracy any estimator could reach with the scenario's TRUE sensor noise
-(``sensors`` config, not the EKF's assumed Q and R), from a linear time-invariant model
-at hover:
+**Hover (steady-state Riccati) bound.** The best accuracy any estimator could reach with the
+scenario's TRUE sensor noise (``sensors`` config, not the filter's assumed Q and R), from a
+linear time-invariant model at hover:
 
-- position/velocity, per NED axis i: a double integrator [p, v] driven by the
-  accelerometer noise, ``accel_std[i]`` per IMU sample held over the IMU period dt
-  (state increment G n with G = [dt^2/2, dt]); the GPS measures p and v of that axis
-  every GPS period with ``pos_std[i]`` and ``vel_std[i]``;
+- horizontal position/velocity/tilt, per axis N (tilt = pitch) and E (tilt = roll): the
+  state [p, v, theta] with v' = g theta + accelerometer noise and theta a random walk of
+  the gyro noise: x_{k+1} = F x_k + G n_k, F = [[1, dt, g dt^2/2], [0, 1, g dt], [0, 0, 1]],
+  G = [[dt^2/2, 0], [dt, 0], [0, dt]], n = (``accel_std[i]``, gyro std of the tilt axis) per
+  IMU sample held over the IMU period dt; the GPS measures p and v every GPS period with
+  ``pos_std[i]`` and ``vel_std[i]``. With 11's sensors this gives sigma_v = 0.062 m/s and
+  sigma_theta = 0.0166 rad (time-averaged): the tilt a noisy gyro leaves is what limits the
+  horizontal velocity, not the accelerometer;
+- vertical: a double integrator [p, v] driven by ``accel_std[2]`` (tilt enters only at
+  second order);
 - yaw: a random walk driven by the gyro noise (``gyro_std[2] * dt`` per IMU sample),
   measured directly by the magnetometer every mag period with ``yaw_std``.
 
@@ -20,18 +26,36 @@ one to compare with an RMS error sampled uniformly in time.
 
 Assumptions (all make the bound optimistic, i.e. a lower bound on the RMS error):
 body axes aligned with NED (level flight; x and y are exact for any yaw when
-accel_std x = y); roll and pitch errors coupling gravity into the velocity error are
-ignored; yaw rate = body z rate; the GPS position random walk (``pos_random_walk_std``)
-and accelerometer saturation are ignored; the trajectory's own accelerations do not
-matter (the model is linear in the noise).
+accel_std x = y and the gyro's x = y); yaw rate = body z rate; the GPS position random walk
+(``pos_random_walk_std``) and accelerometer saturation are ignored; the trajectory's own
+accelerations are ignored (at hover only gravity couples tilt into velocity).
+
+**Posterior Cramér–Rao bound (PCRB)** along a run's logged TRUE trajectory
+(:func:`posterior_crb`): the information-filter recursion (Tichavský et al., 1998) of the
+navigation error model of ``estimation/eskf.py`` (error state dp, dv, dtheta, 9 states; the
+simulated IMU has no bias, so the bias states of the 15-state model carry no information
+and are left out) linearised about the truth, with the true sensor noise:
+
+    J_{k+1} = (F_k J_k^-1 F_k^T + Q_k)^-1 + H^T R^-1 H  (H, R of the sensors fused at k+1),
+
+F_k = I + A_k T + A_k^2 T^2 / 2 with A = [[0, I, 0], [0, 0, -[u]x], [0, 0, 0]], u = the true
+specific force in N (a_N - g_N, from the logged true velocity), T = the log period (5 ms);
+Q_k = the accelerometer and gyro white noise (``std^2 * dt_imu`` per second, rotated to N)
+integrated over T. GPS (p, v) is fused at each fresh GPS stamp, the magnetometer yaw
+(Jacobian at the true attitude) at each fresh magnetometer stamp seen in the log.
+J_0 = P_0^-1 with PCRB_PRIOR_STD (the estimators' default initial sigmas). The bound's
+Euler-angle variances come from the dtheta block through d(roll, pitch, yaw)/dtheta =
+W(roll, pitch) R^T. Over-optimistic where the log misses magnetometer samples (the log
+sees each 10 ms sample, the 5 ms log period is finer).
 """
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg import solve_discrete_are
 
-from .conventions import ONBOARD_PERIOD
+from .conventions import GRAVITY, LOG_PERIOD, ONBOARD_PERIOD
 
 AXES = ("X", "Y", "Z")
 
@@ -98,8 +122,21 @@ def _bounds(posterior, prior, mean):
     ]
 
 
+def position_velocity_tilt_bound(accel_std, gyro_std, pos_std, vel_std, gps_period, dt=ONBOARD_PERIOD):
+    """(position, velocity, tilt) StateBound of one horizontal axis: [p, v, theta], v' = g theta.
+
+    gyro_std: rad/s per IMU sample of the tilt axis (pitch for N, roll for E).
+    """
+    F = np.array([[1.0, dt, 0.5 * GRAVITY * dt * dt], [0.0, 1.0, GRAVITY * dt], [0.0, 0.0, 1.0]])
+    G = np.array([[0.5 * dt * dt, 0.0], [dt, 0.0], [0.0, dt]])
+    Q = G @ np.diag([accel_std**2, gyro_std**2]) @ G.T
+    R = np.diag([pos_std**2, vel_std**2])
+    position, velocity, tilt = _bounds(*steady_state_kalman(F, Q, np.eye(2, 3), R, _steps(gps_period, dt)))
+    return position, velocity, tilt
+
+
 def position_velocity_bound(accel_std, pos_std, vel_std, gps_period, dt=ONBOARD_PERIOD):
-    """(position, velocity) StateBound of one axis: double integrator, GPS p and v."""
+    """(position, velocity) StateBound of one axis: double integrator, GPS p and v (vertical axis)."""
     F = np.array([[1.0, dt], [0.0, 1.0]])
     G = np.array([[0.5 * dt * dt], [dt]])
     Q = G @ G.T * accel_std**2
@@ -119,23 +156,123 @@ def yaw_bound(gyro_std, yaw_std, mag_period, dt=ONBOARD_PERIOD):
 
 
 def accuracy_bound(vehicle):
-    """{state name: StateBound} for the EKF states a VehicleConfig's sensors make observable.
+    """{state name: StateBound} for the states a VehicleConfig's sensors make observable.
 
-    Names as the ``Est.E.*`` signals: X, Y, Z, VX, VY, VZ (needs imu and gps) and Yaw
-    (needs imu and mag). Empty without an IMU.
+    Names as the ``Est.E.*`` signals: X, Y, Z, VX, VY, VZ, Pitch (the N axis's tilt), Roll
+    (the E axis's) (need imu and gps) and Yaw (needs imu and mag). Empty without an IMU.
     """
     sensors = vehicle.sensors
     bounds = {}
     if sensors.imu is None:
         return bounds
     if sensors.gps is not None:
-        gps = sensors.gps
-        pairs = [
-            position_velocity_bound(sensors.imu.accel_std[i], gps.pos_std[i], gps.vel_std[i], gps.period)
-            for i in range(3)
+        gps, imu = sensors.gps, sensors.imu
+        tilt_gyro = (imu.gyro_std[1], imu.gyro_std[0])  # N axis: pitch (body y), E axis: roll (body x)
+        triples = [
+            position_velocity_tilt_bound(
+                imu.accel_std[i], tilt_gyro[i], gps.pos_std[i], gps.vel_std[i], gps.period
+            )
+            for i in range(2)
         ]
-        bounds.update({axis: pair[0] for axis, pair in zip(AXES, pairs, strict=True)})
-        bounds.update({"V" + axis: pair[1] for axis, pair in zip(AXES, pairs, strict=True)})
+        triples.append(
+            position_velocity_bound(imu.accel_std[2], gps.pos_std[2], gps.vel_std[2], gps.period) + (None,)
+        )
+        bounds.update({axis: t[0] for axis, t in zip(AXES, triples, strict=True)})
+        bounds.update({"V" + axis: t[1] for axis, t in zip(AXES, triples, strict=True)})
+        bounds.update({"Pitch": triples[0][2], "Roll": triples[1][2]})
     if sensors.mag is not None:
         bounds["Yaw"] = yaw_bound(sensors.imu.gyro_std[2], sensors.mag.yaw_std, sensors.mag.period)
     return bounds
+
+
+# ----- posterior Cramér-Rao bound along a logged true trajectory ---------------------------
+
+PCRB_STATES = ("X", "Y", "Z", "VX", "VY", "VZ", "AttN", "AttE", "AttD")
+"""Error-state entries of the PCRB (the ESKF's navigation states); plus Roll, Pitch, Yaw derived."""
+PCRB_PRIOR_STD = (0.1, 0.1, 0.3, 0.1, 0.1, 0.3, 0.05, 0.05, 0.05)
+"""sigma of J_0^-1 (m, m/s, rad): the estimators' default initial uncertainty."""
+
+
+def _skew(v):
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def _rotations(q):
+    """(n, 3, 3) R_NB of (n, 4) wxyz quaternions."""
+    w, x, y, z = q.T
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], axis=-1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], axis=-1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1),
+        ],
+        axis=1,
+    )
+
+
+def posterior_crb(state, gps_fresh, mag_fresh, sensors, period=LOG_PERIOD, dt_imu=ONBOARD_PERIOD):
+    """{name: (n,) variance} of the PCRB at every log sample (after that sample's fusions).
+
+    state: (n, 13) logged truth (p, q wxyz, v, w) at the log period; gps_fresh, mag_fresh: (n,)
+    bool, a fresh sample of the sensor at that log sample; sensors: the vehicle's
+    SensorsConfig (true noise; imu and gps needed, mag optional). Names: PCRB_STATES and
+    Roll, Pitch, Yaw. See the module docstring for the model.
+    """
+    state = np.asarray(state, dtype=float)
+    n = state.shape[0]
+    imu, gps, mag = sensors.imu, sensors.gps, sensors.mag
+    R_all = _rotations(state[:, 3:7])
+    velocity = state[:, 7:10]
+    accel = np.gradient(velocity, period, axis=0) if n > 1 else np.zeros((n, 3))
+    u_N = accel - np.array([0.0, 0.0, GRAVITY])
+    accel_psd = np.square(imu.accel_std) * dt_imu  # (m/s^2)^2 s
+    gyro_psd = np.square(imu.gyro_std) * dt_imu
+    H_gps = np.eye(6, 9)
+    info_gps = H_gps.T @ np.diag(1.0 / np.square(list(gps.pos_std) + list(gps.vel_std))) @ H_gps
+    J = np.diag(1.0 / np.square(PCRB_PRIOR_STD))
+    variances = np.zeros((n, 9))
+    euler_variances = np.zeros((n, 3))
+    T = period
+    for k in range(n):
+        R = R_all[k]
+        A = np.zeros((9, 9))
+        A[0:3, 3:6] = np.eye(3)
+        A[3:6, 6:9] = -_skew(u_N[k])
+        F = np.eye(9) + A * T + (A @ A) * (0.5 * T * T)
+        Ma = (R * accel_psd) @ R.T
+        Mg = (R * gyro_psd) @ R.T
+        Q = np.zeros((9, 9))
+        Q[0:3, 0:3] = Ma * (T**3 / 3.0)
+        Q[0:3, 3:6] = Q[3:6, 0:3] = Ma * (T * T / 2.0)
+        Q[3:6, 3:6] = Ma * T
+        Q[6:9, 6:9] = Mg * T
+        if k > 0:
+            J = np.linalg.inv(F @ np.linalg.inv(J) @ F.T + Q)
+        if gps_fresh[k]:
+            J = J + info_gps
+        if mag is not None and mag_fresh[k] and mag.yaw_std > 0:
+            r00, r10, r20 = R[0, 0], R[1, 0], R[2, 0]
+            d = r00 * r00 + r10 * r10
+            h = np.zeros(9)
+            h[6:9] = (-r00 * r20 / d, -r10 * r20 / d, 1.0)
+            J = J + np.outer(h, h) / mag.yaw_std**2
+        P = np.linalg.inv(J)
+        P = 0.5 * (P + P.T)
+        variances[k] = np.diag(P)
+        roll, pitch = _roll_pitch(R)
+        W = _euler_rate_matrix(roll, pitch) @ R.T
+        euler_variances[k] = np.diag(W @ P[6:9, 6:9] @ W.T)
+    result = {name: variances[:, i] for i, name in enumerate(PCRB_STATES)}
+    result.update({name: euler_variances[:, i] for i, name in enumerate(("Roll", "Pitch", "Yaw"))})
+    return result
+
+
+def _roll_pitch(R):
+    return math.atan2(R[2, 1], R[2, 2]), math.asin(max(-1.0, min(1.0, -R[2, 0])))
+
+
+def _euler_rate_matrix(roll, pitch):
+    """W with d(roll, pitch, yaw)/dt = W w_B (ZYX angles)."""
+    sr, cr = math.sin(roll), math.cos(roll)
+    cp, tp = math.cos(pitch), math.tan(pitch)
+    return np.array([[1.0, sr * tp, cr * tp], [0.0, cr, -sr], [0.0, sr / cp, cr / cp]])

@@ -1,9 +1,11 @@
 """Pure: estimator consistency statistics over logged arrays.
 
-NEES_k = e_k^T P_k^-1 e_k of the 7-state EKF, with e = x_hat - x_true (yaw error wrapped);
-NIS = nu^T S^-1 nu of each fresh GPS (6 dof) or magnetometer (1 dof) update, as the EKF
-reports it in its ``diagnostics`` log. For a consistent filter each is chi^2(dof); the mean
-over M independent runs, times M, is chi^2(dof M), which gives the 95 % band of
+NEES_k = e_k^T P_k^-1 e_k over the states an estimator's vocabulary puts in its NEES, with
+e = estimate - truth as the vocabulary computes it (``estimation/vocabulary.py``: EKF7 7 dof,
+ESKF 9 navigation states); NIS = nu^T S^-1 nu of each fresh GPS (6 dof) or magnetometer
+(1 dof) update, as the estimator reports it in its ``diagnostics`` log. For a consistent filter
+each is chi^2(dof); the mean over M independent runs, times M, is chi^2(dof M), which gives the
+95 % band of
 :func:`chi2_band`. Also: the fleet sigma fraction of one multi-vehicle run and a binomial
 confidence interval for pass rates.
 """
@@ -13,29 +15,17 @@ import math
 import numpy as np
 from scipy.stats import beta, chi2
 
+from .estimation.vocabulary import NIS_COLUMNS, NIS_DOF  # noqa: F401 (NIS_DOF re-exported)
 from .evaluation import sigma_share
-from .signals import euler_from_quats, stamp_fresh, wrap_angles
-
-STATE_NAMES = ("X", "Y", "Z", "VX", "VY", "VZ", "Yaw")
-"""The 7-state EKF's states, in its state order (``Quad.Est.<name>``, ``Quad.Est.E.<name>``)."""
-STATE_UNITS = {"X": "m", "Y": "m", "Z": "m", "VX": "m/s", "VY": "m/s", "VZ": "m/s", "Yaw": "rad"}
-NEES_DOF = len(STATE_NAMES)
-NIS_DOF = {"gps": 6, "mag": 1}
-_NIS_COLUMNS = {"gps": (0, 1), "mag": (2, 3)}  # diagnostics: (NIS, stamp) columns
+from .signals import stamp_fresh
 
 
-def state_errors(ekf_state, state):
-    """(n, 7) errors x_hat - x_true of the EKF states (m, m/s, rad; yaw wrapped to [-pi, pi)).
-
-    ekf_state: (n, 7) logged estimate; state: (n, 13) logged truth (p, q wxyz, v, w).
-    """
-    ekf_state = np.asarray(ekf_state, dtype=float)
-    state = np.asarray(state, dtype=float)
-    _, _, yaw = euler_from_quats(state[:, 3:7])
-    truth = np.column_stack([state[:, 0:3], state[:, 7:10], yaw])
-    errors = ekf_state - truth
-    errors[:, 6] = wrap_angles(errors[:, 6])
-    return errors
+def nees_of(vocabulary, logs):
+    """(n,) NEES of one vehicle's logged run over the vocabulary's ``nees_states``."""
+    states = np.asarray(vocabulary.nees_states)
+    errors = vocabulary.errors(logs)[:, states]
+    covariances = covariance_matrices(logs["covariance"])[:, states[:, None], states[None, :]]
+    return nees(errors, covariances)
 
 
 def covariance_matrices(covariance_log):
@@ -68,11 +58,11 @@ def normalized_squared_errors(errors, covariances):
 def fresh_nis(diagnostics, sensor):
     """(stamps (s), nis) of the fresh updates of ``sensor`` ("gps" or "mag") in a diagnostics log.
 
-    diagnostics: (n, 5) = (GPS NIS, its stamp, mag NIS, its stamp, rejected count). An
-    update is fresh on the first logged sample that shows its stamp (SPEC §0.2); updates
+    diagnostics: (n, DIAGNOSTICS_SIZE), layout ``vocabulary.DIAGNOSTICS``. An update is fresh
+    on the first logged sample that shows its stamp (SPEC §0.2); updates
     faster than the log period are seen only once per log sample.
     """
-    nis_column, stamp_column = _NIS_COLUMNS[sensor]
+    nis_column, stamp_column = NIS_COLUMNS[sensor]
     diagnostics = np.asarray(diagnostics, dtype=float)
     fresh = stamp_fresh(diagnostics[:, stamp_column])
     return diagnostics[fresh, stamp_column], diagnostics[fresh, nis_column]

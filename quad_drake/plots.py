@@ -21,7 +21,8 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
-from .consistency import STATE_NAMES, STATE_UNITS, fleet_sigma_fraction
+from .consistency import fleet_sigma_fraction
+from .estimation.vocabulary import STATE_UNITS, vehicle_vocabulary
 from .evaluation import judged_criteria, sigma_share
 from .report import write_report
 
@@ -432,11 +433,13 @@ def _state_estimate_figure(result, vehicle):
 
 
 def _estimate_errors_figure(result, vehicle):
+    config = next(v for v in result.scenario.vehicles if v.name == vehicle)
+    keys = vehicle_vocabulary(config).state_names[:7]  # 7 panels: the first (navigation) entries
     fig, axes = _figure(
-        2, 4, width=12.0, height_per_row=2.4, title=f"{vehicle}: EKF errors (est - true) and their ±σ"
+        2, 4, width=12.0, height_per_row=2.4, title=f"{vehicle}: estimate errors (est - true) and their ±σ"
     )
     t = result.times
-    for key, ax in zip(STATE_NAMES, axes.flat, strict=False):
+    for key, ax in zip(keys, axes.flat, strict=False):
         error = _values(result, f"{vehicle}.Est.E.{key}")
         sigma = _values(result, f"{vehicle}.Est.S.{key}")
         ax.fill_between(t, -sigma, sigma, color="tab:green", alpha=0.2, lw=0, label="±σ")

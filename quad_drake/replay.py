@@ -108,7 +108,7 @@ class _Track:
         self.p, self.q = ned_to_zup(logs["state"][:, P_SLICE], logs["state"][:, Q_SLICE])
         self.q /= np.linalg.norm(self.q, axis=1, keepdims=True)
         self.reference = logs["reference"][:, REF_P_SLICE] if "reference" in logs else None
-        self.estimate = logs["ekf_state"][:, 0:3] if "ekf_state" in logs else None
+        self.estimate = logs["estimated_state"][:, 0:3] if "estimated_state" in logs else None
         self.true_path = logs["state"][:, P_SLICE]
         self.estimate_zup = None if self.estimate is None else ned_to_zup(self.estimate)
 

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from .config import ConfigError, dump_scenario
-from .consistency import STATE_NAMES, STATE_UNITS
+from .estimation.vocabulary import vehicle_vocabulary
 from .evaluation import sigma_share
 from .results import read_summary
 
@@ -131,16 +131,18 @@ def _percent_within(error, sigma, multiple):
 
 
 def ekf_consistency(result):
-    """[(vehicle, state, unit, rms error, max |error|, % within ±σ, % within ±2σ)] per EKF state."""
+    """[(vehicle, state, unit, rms error, max |error|, % within ±σ, % within ±2σ)] per error state
+    of each vehicle's estimator vocabulary."""
     rows = []
-    for vehicle in (v.name for v in result.scenario.vehicles):
-        if f"{vehicle}.Est.E.X" not in result.signals:
+    for config in result.scenario.vehicles:
+        vehicle, vocabulary = config.name, vehicle_vocabulary(config)
+        if vocabulary is None or f"{vehicle}.Est.E.X" not in result.signals:
             continue
-        for key in STATE_NAMES:
+        for key, unit in zip(vocabulary.state_names, vocabulary.units, strict=True):
             error = result.signals[f"{vehicle}.Est.E.{key}"].values
             sigma = result.signals[f"{vehicle}.Est.S.{key}"].values
             within = [_percent_within(error, sigma, k) for k in (1, 2)]
-            rows.append((vehicle, key, STATE_UNITS[key], *_stats(error), *within))
+            rows.append((vehicle, key, unit, *_stats(error), *within))
     return rows
 
 

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from .config import ConfigError, dump_scenario, load_scenario
+from .estimation.vocabulary import vehicle_vocabulary
 from .jsonio import dump_json
 from .signals import vehicle_signals
 from .verdicts import evaluate_criteria
@@ -65,17 +66,21 @@ class SimulationResult:
         }
 
 
-def signals_from_logs(logs):
-    """All vehicles' named signals from {vehicle: {log name: array}}."""
+def signals_from_logs(logs, scenario=None):
+    """All vehicles' named signals from {vehicle: {log name: array}}.
+
+    Estimator signals need the scenario (its vehicles' estimator vocabularies).
+    """
+    vocabularies = {} if scenario is None else {v.name: vehicle_vocabulary(v) for v in scenario.vehicles}
     signals = {}
     for vehicle, vehicle_logs in logs.items():
-        signals.update(vehicle_signals(vehicle, vehicle_logs))
+        signals.update(vehicle_signals(vehicle, vehicle_logs, vocabularies.get(vehicle)))
     return signals
 
 
 def result_from_logs(scenario, times, logs, wall_time, runner=RUNNER):
     """SimulationResult of logged arrays: the signals derived, every judged criterion evaluated."""
-    signals = signals_from_logs(logs)
+    signals = signals_from_logs(logs, scenario)
     return SimulationResult(
         scenario, times, logs, signals, evaluate_criteria(scenario, times, signals), wall_time, runner
     )

@@ -17,6 +17,20 @@ def wrap_to_pi(angle):
     return (angle + math.pi) % TWO_PI - math.pi
 
 
+def wrap_angles(a):
+    """Array version of :func:`wrap_to_pi`: into [-pi, pi)."""
+    return (a + math.pi) % TWO_PI - math.pi
+
+
+def euler_from_quats(q):
+    """(roll, pitch, yaw) arrays of an (n, 4) array of wxyz quaternions (SPEC §0.1)."""
+    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    roll = np.arctan2(2 * (y * z + w * x), w * w - x * x - y * y + z * z)
+    pitch = np.arcsin(np.clip(-2 * (x * z - w * y), -1.0, 1.0))
+    yaw = np.arctan2(2 * (x * y + w * z), w * w + x * x - y * y - z * z)
+    return roll, pitch, yaw
+
+
 def quat_from_euler_tuple(roll, pitch, yaw):
     """Quaternion (w, x, y, z) of R = Rz(yaw) Ry(pitch) Rx(roll) as a tuple of floats; angles in rad."""
     cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)

@@ -10,14 +10,31 @@ Logs are sampled every LOG_PERIOD at t = 0.005 k (k >= 1), each value as it was
 just before the systems' updates at t. Sensor signals carry a ``fresh`` mask:
 true on samples where a new measurement arrived since the previous sample
 (SPEC §0.2), judged by a changed stamp, never by comparing float times.
+
+Estimator signals come from the logs every estimator exports (``estimated_state``,
+``covariance``, ``diagnostics``), read through its :class:`EstimatorVocabulary`
+(``quad_drake.estimation.vocabulary``):
+
+- ``Est.X, Est.Y, Est.Z, Est.VX, Est.VY, Est.VZ, Est.Roll, Est.Pitch, Est.Yaw``: the
+  estimate (m, m/s, rad), and ``Est.E.Roll, Est.E.Pitch, Est.E.Yaw`` its Euler-angle errors
+  (wrapped), ``Est.E.MaxEuler`` the largest of them, ``Est.E.Pos``, ``Est.E.Vel`` the norms
+  of the position and velocity errors, for every estimator;
+- ``Est.E.<name>`` (estimate minus truth) and ``Est.S.<name>`` (sqrt of the covariance
+  diagonal) for every error-state entry the vocabulary names (EKF7: X Y Z VX VY VZ Yaw;
+  ESKF: X Y Z VX VY VZ AttN AttE AttD [BAX BAY BAZ BGX BGY BGZ]); ``Est.<name>`` for its
+  extra values (ESKF: the bias estimates BAX ... BGZ);
+- ``Est.GpsNIS`` (fresh on each GPS sample) and ``Est.MagNIS``, and the counters
+  ``Est.NonFinite``, ``Est.GpsGated``, ``Est.MagGated``, ``Est.GpsResets``,
+  ``Est.CovRepairs`` (cumulative counts).
 """
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from .conventions import P_SLICE, Q_SLICE, REF_P_SLICE, REF_YAW_INDEX, V_SLICE, W_SLICE
+from .estimation.vocabulary import DIAG, NIS_COLUMNS
+from .rotations import euler_from_quats, wrap_angles  # noqa: F401 (re-exported for the analyzers)
 
 
 @dataclass(frozen=True)
@@ -27,33 +44,15 @@ class Signal:
 
 
 AXES = ("X", "Y", "Z")
-LOG_WIDTHS = {
-    "state": 13,
-    "reference": 10,
-    "motor_forces": 4,
-    "contacts": 3,
-    "imu": 6,
-    "gps": 7,
-    "mag": 2,
-    "attitude": 3,
-    "ekf_state": 7,
-    "covariance": 49,
-    "diagnostics": 5,
+LOG_WIDTHS = {"state": 13, "reference": 10, "motor_forces": 4, "contacts": 3, "imu": 6, "gps": 7, "mag": 2}
+"""Widths of the logs every vehicle may have; an estimator's come from its vocabulary."""
+COUNTER_SIGNALS = {
+    "nonfinite_samples": "NonFinite",
+    "gps_gated": "GpsGated",
+    "mag_gated": "MagGated",
+    "gps_resets": "GpsResets",
+    "covariance_repairs": "CovRepairs",
 }
-
-
-def euler_from_quats(q):
-    """(roll, pitch, yaw) arrays of an (n, 4) array of wxyz quaternions (SPEC §0.1)."""
-    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-    roll = np.arctan2(2 * (y * z + w * x), w * w - x * x - y * y + z * z)
-    pitch = np.arcsin(np.clip(-2 * (x * z - w * y), -1.0, 1.0))
-    yaw = np.arctan2(2 * (x * y + w * z), w * w + x * x - y * y - z * z)
-    return roll, pitch, yaw
-
-
-def wrap_angles(a):
-    """Array version of rotations.wrap_to_pi: into [-pi, pi)."""
-    return (a + math.pi) % (2 * math.pi) - math.pi
 
 
 def stamp_fresh(stamps):
@@ -62,11 +61,12 @@ def stamp_fresh(stamps):
     return (stamps != previous) & (stamps >= 0)
 
 
-def vehicle_signals(name, logs):
+def vehicle_signals(name, logs, vocabulary=None):
     """{signal name: Signal} for vehicle `name` from its logs {log name: (n, width) array}.
 
-    Only the logs present produce signals (no IMU log, no ``Name.IMU.*``). Works for
-    n = 0, which gives the names a scenario can refer to before it is run.
+    Only the logs present produce signals (no IMU log, no ``Name.IMU.*``); estimator
+    signals need the vehicle's EstimatorVocabulary. Works for n = 0, which gives the names
+    a scenario can refer to before it is run.
     """
     signals = {}
     state = logs["state"]
@@ -109,34 +109,45 @@ def vehicle_signals(name, logs):
             put(f"GPS.{key}", gps[:, i], fresh)
     if "mag" in logs:
         put("MagYaw", logs["mag"][:, 0], stamp_fresh(logs["mag"][:, 1]))
-    if "ekf_state" in logs:
-        _estimator_signals(put, logs, p, v, roll, pitch, yaw)
+    if vocabulary is not None and "estimated_state" in logs:
+        _estimator_signals(put, logs, vocabulary, p, v, (roll, pitch, yaw))
     return signals
 
 
-def _estimator_signals(put, logs, p, v, roll, pitch, yaw):
-    x_hat = logs["ekf_state"]
-    attitude = logs["attitude"]
-    sigma = np.sqrt(np.maximum(logs["covariance"][:, ::8], 0.0))  # diagonal of the row-major 7x7
-    names = ("X", "Y", "Z", "VX", "VY", "VZ", "Yaw")
-    truth = np.column_stack([p, v, yaw])
-    for i, key in enumerate(names):
-        put(f"Est.{key}", x_hat[:, i])
+def _estimator_signals(put, logs, vocabulary, p, v, euler):
+    estimate = logs["estimated_state"]
+    p_hat, v_hat = estimate[:, P_SLICE], estimate[:, V_SLICE]
+    euler_hat = euler_from_quats(estimate[:, Q_SLICE])
+    for i, axis in enumerate(AXES):
+        put(f"Est.{axis}", p_hat[:, i])
+        put(f"Est.V{axis}", v_hat[:, i])
+    euler_errors = []
+    for key, value, truth in zip(("Roll", "Pitch", "Yaw"), euler_hat, euler, strict=True):
+        put(f"Est.{key}", value)
+        euler_errors.append(wrap_angles(value - truth))
+        put(f"Est.E.{key}", euler_errors[-1])
+    put("Est.E.MaxEuler", np.max(np.abs(euler_errors), axis=0))
+    put("Est.E.Pos", np.linalg.norm(p_hat - p, axis=1))
+    put("Est.E.Vel", np.linalg.norm(v_hat - v, axis=1))
+    errors = vocabulary.errors(logs)
+    k = vocabulary.size
+    sigma = np.sqrt(np.maximum(logs["covariance"][:, :: k + 1], 0.0))  # diagonal of the row-major P
+    for i, key in enumerate(vocabulary.state_names):
+        put(f"Est.E.{key}", errors[:, i])
         put(f"Est.S.{key}", sigma[:, i])
-        error = x_hat[:, i] - truth[:, i]
-        put(f"Est.E.{key}", wrap_angles(error) if key == "Yaw" else error)
-    put("Est.Roll", attitude[:, 0])
-    put("Est.Pitch", attitude[:, 1])
-    roll_error = attitude[:, 0] - roll
-    pitch_error = attitude[:, 1] - pitch
-    yaw_error = wrap_angles(x_hat[:, 6] - yaw)
-    put("Est.E.Roll", roll_error)
-    put("Est.E.Pitch", pitch_error)
-    put("Est.E.MaxEuler", np.max(np.abs([roll_error, pitch_error, yaw_error]), axis=0))
-    put("Est.E.Pos", np.linalg.norm(x_hat[:, 0:3] - p, axis=1))
-    put("Est.E.Vel", np.linalg.norm(x_hat[:, 3:6] - v, axis=1))
+    for key, values in vocabulary.extra_values(logs).items():
+        put(f"Est.{key}", values)
+    diagnostics = logs["diagnostics"]
+    for sensor, (nis_column, stamp_column) in NIS_COLUMNS.items():
+        put(
+            f"Est.{sensor.capitalize()}NIS",
+            diagnostics[:, nis_column],
+            stamp_fresh(diagnostics[:, stamp_column]),
+        )
+    for counter, key in COUNTER_SIGNALS.items():
+        put(f"Est.{key}", diagnostics[:, DIAG[counter]])
 
 
-def empty_logs(log_names):
-    """Zero-sample logs of the given names: ``vehicle_signals`` on them lists the signal names."""
-    return {log: np.zeros((0, LOG_WIDTHS[log])) for log in log_names}
+def empty_logs(log_widths):
+    """Zero-sample logs of the given {name: width}: ``vehicle_signals`` on them lists the signal names."""
+    return {log: np.zeros((0, width)) for log, width in log_widths.items()}

@@ -1,7 +1,8 @@
 """Wire scenarios into Drake Diagrams and run them.
 
-A vehicle (plant, sensors, attitude filter, EKF, controller, trajectory) is a
-sub-Diagram with its signals exported, so a scenario instantiates it N times.
+A vehicle (plant, sensors, estimator, controller, trajectory) is a sub-Diagram with its
+signals exported; its estimator is itself a sub-Diagram, chosen by the vehicle's
+``estimator.kind`` (``systems/estimators.build_estimator``), so a scenario instantiates it N times.
 The top-level Diagram logs every exported signal of every vehicle every 5 ms through
 one Multiplexer and one ``LogVectorOutput``: every leaf system costs ~0.3-0.6 us in
 every Simulator step, so one logger instead of one per signal saves ~10 % (DESIGN §9).
@@ -17,12 +18,13 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput, Multiplexer, RandomSource
 
 from . import conventions as c
+from .estimation.vocabulary import vehicle_vocabulary
 from .fidelity import PHYSICAL, fidelity_from_mode
 from .results import result_from_logs
 from .rotations import quat_from_euler
-from .signals import empty_logs, vehicle_signals
+from .signals import LOG_WIDTHS, empty_logs, vehicle_signals
 from .systems.controller import CascadeController
-from .systems.estimators import ComplementaryFilter, Ekf, EstimatedStateAssembler
+from .systems.estimators import build_estimator
 from .systems.plant import QuadrotorPlant
 from .systems.sensors import Gps, Imu, Magnetometer
 from .systems.trajectory import TrajectorySource
@@ -43,14 +45,20 @@ def initial_state(vehicle):
     )
 
 
+def vehicle_log_widths(vehicle):
+    """{name: width} of the signals a vehicle exports (and the top level logs)."""
+    widths = {name: LOG_WIDTHS[name] for name in ("state", "reference", "motor_forces", "contacts")}
+    sensors = vehicle.sensors
+    widths.update({s: LOG_WIDTHS[s] for s in ("imu", "gps", "mag") if getattr(sensors, s) is not None})
+    vocabulary = vehicle_vocabulary(vehicle)
+    if vocabulary is not None:
+        widths.update(vocabulary.log_widths())
+    return widths
+
+
 def vehicle_log_names(vehicle):
     """Names of the signals a vehicle exports (and the top level logs)."""
-    names = ["state", "reference", "motor_forces", "contacts"]
-    sensors = vehicle.sensors
-    names += [s for s in ("imu", "gps", "mag") if getattr(sensors, s) is not None]
-    if sensors.imu is not None:
-        names += ["attitude", "ekf_state", "covariance", "diagnostics"]
-    return names
+    return list(vehicle_log_widths(vehicle))
 
 
 def _add_noisy(builder, system, name, port="noise", distribution=RandomDistribution.kGaussian):
@@ -112,29 +120,13 @@ def build_vehicle(vehicle, fidelity=PHYSICAL):
             outputs[kind] = sensor.GetOutputPort(kind)
 
     if sensors.imu is not None:
-        ekf = builder.AddNamedSystem("ekf", Ekf(vehicle.ekf, fidelity))
-        attitude_filter = builder.AddNamedSystem(
-            "attitude_filter",
-            ComplementaryFilter(
-                vehicle.attitude_filter,
-                initial_attitude=(0.0, 0.0, vehicle.ekf.init_state[6]),
-                fidelity=fidelity,
-            ),
-        )
-        builder.Connect(outputs["imu"], attitude_filter.GetInputPort("imu"))
-        builder.Connect(ekf.GetOutputPort("ekf_state"), attitude_filter.GetInputPort("ekf_state"))
-        builder.Connect(outputs["imu"], ekf.GetInputPort("imu"))
-        builder.Connect(attitude_filter.GetOutputPort("attitude"), ekf.GetInputPort("attitude"))
-        builder.Connect(outputs.get("gps") or _never_sampled(builder, c.GPS_SIZE), ekf.GetInputPort("gps"))
-        builder.Connect(outputs.get("mag") or _never_sampled(builder, c.MAG_SIZE), ekf.GetInputPort("mag"))
-        outputs["attitude"] = attitude_filter.GetOutputPort("attitude")
-        for name in ("ekf_state", "covariance", "diagnostics"):
-            outputs[name] = ekf.GetOutputPort(name)
+        estimator = builder.AddSystem(build_estimator(vehicle, fidelity))
+        for kind, size in (("imu", c.IMU_SIZE), ("gps", c.GPS_SIZE), ("mag", c.MAG_SIZE)):
+            builder.Connect(outputs.get(kind) or _never_sampled(builder, size), estimator.GetInputPort(kind))
+        for name in vehicle_vocabulary(vehicle).log_widths():
+            outputs[name] = estimator.GetOutputPort(name)
         if not vehicle.use_ideal_estimator:
-            assembler = builder.AddNamedSystem("estimated_state", EstimatedStateAssembler())
-            for name in ("attitude", "ekf_state", "imu"):
-                builder.Connect(outputs[name], assembler.GetInputPort(name))
-            state_for_control = assembler.GetOutputPort("estimated_state")
+            state_for_control = outputs["estimated_state"]
     builder.Connect(state_for_control, controller.GetInputPort("state"))
 
     for name in vehicle_log_names(vehicle):
@@ -221,7 +213,8 @@ def available_signals(scenario):
     """Names of every signal the scenario's criteria may refer to."""
     names = set()
     for vehicle in scenario.vehicles:
-        names |= set(vehicle_signals(vehicle.name, empty_logs(vehicle_log_names(vehicle))))
+        logs = empty_logs(vehicle_log_widths(vehicle))
+        names |= set(vehicle_signals(vehicle.name, logs, vehicle_vocabulary(vehicle)))
     return names
 
 

@@ -39,6 +39,7 @@ from quad_drake.config import (
     SensorsConfig,
     VehicleConfig,
 )
+from quad_drake.estimation.vocabulary import EKF7
 from quad_drake.evaluation import rms
 from quad_drake.report import write_index
 
@@ -80,9 +81,7 @@ def test_run_i_is_the_single_run_with_seed_s_plus_i(scenario, serial):
     assert record.metrics["Quad.Est.E.Yaw"]["rms"] == rms(yaw_error)
     assert record.metrics["Quad.Est.E.Yaw"]["rms_settled"] == rms(yaw_error[single.times >= 0.75 - 1e-9])
     logs = single.logs["Quad"]
-    expected = cons.nees(
-        cons.state_errors(logs["ekf_state"], logs["state"]), cons.covariance_matrices(logs["covariance"])
-    )
+    expected = cons.nees(EKF7.errors(logs), cons.covariance_matrices(logs["covariance"]))
     np.testing.assert_array_equal(record.nees["Quad"], expected)
     assert [c["description"] for c in record.criteria] == [c.description for c in single.criteria]
     assert serial.records[0].metrics["Quad.Est.E.Yaw"]["rms"] != record.metrics["Quad.Est.E.Yaw"]["rms"]

@@ -8,6 +8,8 @@ from scipy.stats import binom
 
 from quad_drake import consistency as cons
 from quad_drake.campaigns.statistics import MIN_IN_BAND
+from quad_drake.estimation.eskf import quat_exp, quat_mul
+from quad_drake.estimation.vocabulary import DIAGNOSTICS_SIZE, EKF7, ESKF15
 from quad_drake.rotations import quat_from_euler
 from quad_drake.signals import Signal
 
@@ -27,9 +29,28 @@ def test_state_errors_take_truth_from_the_state_log_and_wrap_yaw():
     state[0, 3:7] = quat_from_euler(0.1, -0.2, 3.1)
     state[1, 3:7] = quat_from_euler(0.0, 0.0, -0.4)
     ekf = np.array([[1.5, 2.0, -3.25, 0.5, -0.25, 0.1, -3.1], [1.0, 1.0, -3.0, 0.0, -0.5, 0.3, -0.3]])
-    e = cons.state_errors(ekf, state)
+    e = EKF7.errors({"ekf_state": ekf, "state": state})
     np.testing.assert_allclose(e[0], [0.5, 0.0, -0.25, 0.0, 0.25, 0.0, 2 * math.pi - 6.2], atol=1e-12)
     np.testing.assert_allclose(e[1], [0.0, -1.0, 0.0, -0.5, 0.0, 0.2, 0.1], atol=1e-12)
+
+
+def test_eskf_errors_and_nees_over_the_navigation_states():
+    state = np.zeros((1, 13))
+    state[0, 3:7] = quat_from_euler(0.1, -0.2, 3.1)
+    estimate = state.copy()
+    estimate[0, 0:3] = [0.5, 0.0, 0.0]
+    estimate[0, 3:7] = quat_mul(quat_exp((0.0, 0.0, 0.2)), tuple(state[0, 3:7]))  # 0.2 rad about D
+    logs = {
+        "state": state,
+        "estimated_state": estimate,
+        "imu_bias": np.full((1, 6), 0.01),
+        "covariance": np.diag(np.full(15, 0.25)).reshape(1, -1),
+    }
+    e = ESKF15.errors(logs)
+    np.testing.assert_allclose(e[0], [0.5, 0, 0, 0, 0, 0, 0, 0, 0.2] + [0.01] * 6, atol=1e-12)
+    # NEES over the 9 navigation states only: (0.25 + 0.04) / 0.25.
+    np.testing.assert_allclose(cons.nees_of(ESKF15, logs), [0.29 / 0.25], rtol=1e-12)
+    assert ESKF15.nees_dof == 9 and EKF7.nees_dof == 7
 
 
 def test_nees_equals_the_explicit_quadratic_form():
@@ -72,16 +93,17 @@ def test_covariance_matrices_unpack_row_major():
 
 
 def test_fresh_nis_keeps_the_first_sample_of_each_stamp():
-    diagnostics = np.array(
+    head = np.array(
         [
-            # gps nis, stamp, mag nis, stamp, rejected
-            [0.0, -1.0, 0.0, -1.0, 0],
-            [0.0, -1.0, 0.5, 0.008, 0],
-            [4.0, 0.1, 0.5, 0.008, 0],
-            [4.0, 0.1, 1.5, 0.018, 0],
-            [7.0, 0.2, 2.5, 0.028, 0],
+            # gps nis, stamp, mag nis, stamp (then the counters)
+            [0.0, -1.0, 0.0, -1.0],
+            [0.0, -1.0, 0.5, 0.008],
+            [4.0, 0.1, 0.5, 0.008],
+            [4.0, 0.1, 1.5, 0.018],
+            [7.0, 0.2, 2.5, 0.028],
         ]
     )
+    diagnostics = np.column_stack([head, np.zeros((5, DIAGNOSTICS_SIZE - 4))])
     stamps, nis = cons.fresh_nis(diagnostics, "gps")
     np.testing.assert_array_equal(stamps, [0.1, 0.2])
     np.testing.assert_array_equal(nis, [4.0, 7.0])

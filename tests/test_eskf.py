@@ -127,6 +127,7 @@ def simulate(seed, params, seconds, truth_std=None, P0_scale=1.0):
     P = eskf.initial_covariance(params) * P0_scale
     n = P.shape[0]
     R_gps, R_mag = eskf.gps_noise(params), eskf.mag_noise(params)
+    noise = eskf.NoiseModel.from_params(params)
     gps_std = np.sqrt(np.diag(R_gps))
     nees, min_eig = [], math.inf
     for k in range(int(seconds / DT)):
@@ -136,7 +137,7 @@ def simulate(seed, params, seconds, truth_std=None, P0_scale=1.0):
         f_meas = f_true + accel_std * rng.normal(size=3)
         w_meas = w_true + gyro_std * rng.normal(size=3)
         x_true = np.array(eskf.predict_nominal(x_true, f_true, w_true, DT)[0])
-        x, P = eskf.predict(x, P, f_meas, w_meas, DT, params)
+        x, P = eskf.predict(x, P, f_meas, w_meas, DT, noise)
         if (k + 1) % 5 == 0:
             yaw_true = eskf.yaw_and_jacobian(x_true[6:10])[0]
             x, P, _ = eskf.mag_update(x, P, yaw_true + params.mag_yaw_std * rng.normal(), R_mag)

@@ -9,6 +9,7 @@ import pytest
 
 from quad_drake import plots
 from quad_drake.config import CriterionConfig, GpsParams, ImuParams, MagParams, ScenarioConfig, VehicleConfig
+from quad_drake.estimation.vocabulary import DIAGNOSTICS_SIZE
 from quad_drake.report import criterion_row, ekf_consistency, key_metrics
 from quad_drake.results import result_from_logs
 from quad_drake.rotations import quat_from_euler
@@ -41,7 +42,12 @@ def _vehicle_logs(times, rng, estimator, offset=0.0):
     covariance[:, ::8] = sigma**2
     logs["covariance"] = covariance
     logs["attitude"] = np.column_stack([np.full(n, 0.05), np.full(n, -0.02), yaw]) + 0.01
-    logs["diagnostics"] = np.zeros((n, 5))
+    logs["diagnostics"] = np.zeros((n, DIAGNOSTICS_SIZE))
+    ekf_state = logs["ekf_state"]
+    estimated = np.column_stack([ekf_state[:, 0:3], np.zeros((n, 4)), ekf_state[:, 3:6], np.zeros((n, 3))])
+    euler = np.column_stack([logs["attitude"][:, 0:2], ekf_state[:, 6]])
+    estimated[:, 3:7] = [quat_from_euler(*a) for a in euler]
+    logs["estimated_state"] = estimated
     logs["imu"] = np.column_stack([rng.normal(0, 0.5, n), np.zeros((n, 4)), np.zeros(n)])
     stamps = np.floor(times / 0.1 + 1e-9) * 0.1
     stamps[stamps == 0] = -1.0  # the first GPS sample arrives at 0.1 s

@@ -4,8 +4,16 @@ import math
 
 import numpy as np
 
+from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, EKF7, ESKF15
 from quad_drake.rotations import euler_from_quat, quat_from_euler
-from quad_drake.signals import empty_logs, euler_from_quats, stamp_fresh, vehicle_signals, wrap_angles
+from quad_drake.signals import (
+    LOG_WIDTHS,
+    empty_logs,
+    euler_from_quats,
+    stamp_fresh,
+    vehicle_signals,
+    wrap_angles,
+)
 
 
 def test_stamp_fresh_marks_only_new_samples():
@@ -31,16 +39,18 @@ def test_wrap_angles_into_minus_pi_pi():
 
 
 def test_names_follow_the_logs_present():
-    truth_only = vehicle_signals("Q", empty_logs(["state", "reference", "motor_forces"]))
+    truth_only = vehicle_signals(
+        "Q", empty_logs({k: LOG_WIDTHS[k] for k in ("state", "reference", "motor_forces")})
+    )
     assert {"Q.Pos.X", "Q.Roll", "Q.Omega.Z", "Q.PosFollowErr", "Q.Thrust.D"} <= set(truth_only)
     assert not any(".Est." in n or ".GPS." in n for n in truth_only)
-    full = vehicle_signals(
-        "Q",
-        empty_logs(
-            ["state", "reference", "imu", "gps", "mag", "attitude", "ekf_state", "covariance", "diagnostics"]
-        ),
-    )
-    assert {"Q.IMU.AX", "Q.GPS.VZ", "Q.MagYaw", "Q.Est.E.MaxEuler", "Q.Est.S.Yaw", "Q.Est.E.Pos"} <= set(full)
+    for vocabulary, own in ((EKF7, {"Q.Est.S.Yaw"}), (ESKF15, {"Q.Est.S.AttD", "Q.Est.E.BGZ", "Q.Est.BAX"})):
+        widths = dict(LOG_WIDTHS, **vocabulary.log_widths())
+        full = vehicle_signals("Q", empty_logs(widths), vocabulary)
+        common = {"Q.IMU.AX", "Q.GPS.VZ", "Q.MagYaw", "Q.Est.E.MaxEuler", "Q.Est.E.Roll", "Q.Est.E.Pos"}
+        counters = {"Q.Est.GpsGated", "Q.Est.CovRepairs", "Q.Est.GpsNIS"}
+        assert common | own | counters <= set(full)
+        assert {f"Q.Est.S.{name}" for name in vocabulary.state_names} <= set(full)
 
 
 def test_estimation_errors_sigmas_and_freshness():
@@ -54,10 +64,23 @@ def test_estimation_errors_sigmas_and_freshness():
     covariance = np.tile(np.diag([0.01, 0.04, 0.09, 1, 1, 1, 0.25]).ravel(), (2, 1))
     attitude = np.array([[0.02, -0.01, yaw_est]] * 2)
     gps = np.array([[0, 0, 0, 0, 0, 0, -1.0], [1, 2, -1, 0, 0, 0, 0.1]])
-    signals = vehicle_signals(
-        "Q",
-        {"state": state, "ekf_state": ekf_state, "covariance": covariance, "attitude": attitude, "gps": gps},
-    )
+    estimated_state = np.zeros((2, 13))
+    estimated_state[:, 0:3] = ekf_state[:, 0:3]
+    estimated_state[:, 3:7] = quat_from_euler(0.02, -0.01, yaw_est)
+    diagnostics = np.zeros((2, DIAGNOSTICS_SIZE))
+    diagnostics[:, DIAG["gps_gated"]] = [0, 1]
+    logs = {
+        "state": state,
+        "estimated_state": estimated_state,
+        "ekf_state": ekf_state,
+        "covariance": covariance,
+        "attitude": attitude,
+        "diagnostics": diagnostics,
+        "gps": gps,
+    }
+    signals = vehicle_signals("Q", logs, EKF7)
+    np.testing.assert_allclose(signals["Q.Est.E.Roll"].values, 0.02, atol=1e-12)
+    np.testing.assert_array_equal(signals["Q.Est.GpsGated"].values, [0, 1])
     np.testing.assert_allclose(signals["Q.Est.E.Yaw"].values, 2 * math.pi - 6.2, atol=1e-9)  # short way
     np.testing.assert_allclose(signals["Q.Est.S.Y"].values, 0.2)
     np.testing.assert_allclose(signals["Q.Est.E.Pos"].values, 0.5)

@@ -6,7 +6,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ..consistency import STATE_NAMES
 from ..jsonio import dump_json
 from ..plots import signal_unit
 from ..results import FORMAT_VERSION
@@ -43,7 +42,7 @@ def table(campaign):
             f"{'MAX: median':>11s} {'p95':>8s} {'max':>8s}"
         )
         for key, m in campaign.metrics.items():
-            label = f"{key} [{signal_unit(key)}]"
+            label = f"{key} [{campaign.units.get(key.rsplit('.', 1)[-1], signal_unit(key))}]"
             label += f" x{m['vehicles']}" if m["vehicles"] > 1 else ""
             r, x = m["rms"], m["max"]
             lines.append(
@@ -71,20 +70,36 @@ def table(campaign):
             lines.append(
                 "per state, mean e^2/P (1 = consistent): "
                 + "  ".join(
-                    f"{n} {v:.3g}" for n, v in zip(STATE_NAMES, campaign.state_consistency, strict=True)
+                    f"{n} {v:.3g}"
+                    for n, v in zip(campaign.state_names, campaign.state_consistency, strict=True)
                 )
+            )
+        if campaign.counters:
+            lines.append(
+                "estimator counters (total over runs): "
+                + ", ".join(f"{name} {count}" for name, count in campaign.counters.items())
             )
         lines.append("")
     if campaign.efficiency:
         lines.append(
-            "accuracy bound: steady-state Kalman sigma with the true sensor noise "
-            f"(time-averaged); RMSE from t >= {settle_time(campaign.scenario.end_time):g} s; "
+            "accuracy bounds with the true sensor noise: hover = steady-state Kalman sigma of the "
+            "tilt-aware hover model (time-averaged), PCRB = posterior Cramer-Rao bound along each "
+            f"run's true trajectory; RMSE from t >= {settle_time(campaign.scenario.end_time):g} s; "
             "efficiency = RMSE / bound"
         )
-        lines.append(f"{'state':18s} {'bound':>9s} {'RMSE':>9s} {'efficiency':>11s}")
+        lines.append(
+            f"{'state':20s} {'hover':>9s} {'PCRB':>9s} {'RMSE':>9s} {'eff hover':>10s} {'eff PCRB':>9s}"
+        )
+
+        def cell(value, width, digits):
+            return f"{value:{width}.{digits}f}" if value is not None else f"{'-':>{width}s}"
+
         for e in campaign.efficiency:
-            label = f"{e['vehicle']}.{e['state']} [{signal_unit('Est.E.' + e['state'])}]"
-            lines.append(f"{label:18s} {e['bound_std']:9.4f} {e['rmse']:9.4f} {e['efficiency']:11.2f}")
+            label = f"{e['vehicle']}.{e['state']} [{campaign.units[e['state']]}]"
+            lines.append(
+                f"{label:20s} {cell(e['bound_std'], 9, 4)} {cell(e['pcrb_std'], 9, 4)} {e['rmse']:9.4f} "
+                f"{cell(e['efficiency'], 10, 2)} {cell(e['pcrb_efficiency'], 9, 2)}"
+            )
     return "\n".join(lines).rstrip() + "\n"
 
 
@@ -117,8 +132,11 @@ def summary(campaign):
         "metrics": campaign.metrics,
         "consistency": consistency,
         "min_in_band": campaign.min_in_band,
-        "state_consistency": None if state is None else dict(zip(STATE_NAMES, state.tolist(), strict=True)),
+        "state_consistency": None
+        if state is None
+        else dict(zip(campaign.state_names, state.tolist(), strict=True)),
         "efficiency": campaign.efficiency,
+        "counters": campaign.counters,
         "consistency_passed": campaign.passed,
         "failure_reasons": campaign.failure_reasons(),
         "verdict": campaign.verdict(),

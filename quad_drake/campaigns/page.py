@@ -5,7 +5,6 @@ Self-contained like a run's report (:mod:`quad_drake.report`)."""
 from pathlib import Path
 
 from ..config import dump_scenario
-from ..consistency import STATE_NAMES
 from ..plots import signal_unit
 from ..report import esc, figures_html, html_page, html_table, num, verdict_cell
 from .records import settle_time
@@ -67,7 +66,7 @@ def _consistency(campaign):
     if campaign.state_consistency is not None:
         parts.append("<p>Per state, mean e²/P (1 = consistent):</p>")
         parts.append(
-            html_table(list(STATE_NAMES), [[(num(v, 3), "num") for v in campaign.state_consistency]])
+            html_table(list(campaign.state_names), [[(num(v, 3), "num") for v in campaign.state_consistency]])
         )
     return parts
 
@@ -76,14 +75,17 @@ def _efficiency(campaign):
     rows = [
         [
             esc(f"{e['vehicle']}.{e['state']}"),
-            esc(signal_unit("Est.E." + e["state"])),
-            (num(e["bound_std"]), "num"),
+            esc(campaign.units[e["state"]]),
+            (num(e["bound_std"]), "num") if e["bound_std"] is not None else "-",
+            (num(e["pcrb_std"]), "num") if e["pcrb_std"] is not None else "-",
             (num(e["rmse"]), "num"),
-            (num(e["efficiency"], 3), "num"),
+            (num(e["efficiency"], 3), "num") if e["efficiency"] is not None else "-",
+            (num(e["pcrb_efficiency"], 3), "num") if e["pcrb_efficiency"] is not None else "-",
         ]
         for e in campaign.efficiency
     ]
-    return html_table(["state", "unit", "bound σ", "RMSE", "efficiency"], rows)
+    header = ["state", "unit", "hover bound σ", "PCRB σ", "RMSE", "efficiency (hover)", "efficiency (PCRB)"]
+    return html_table(header, rows)
 
 
 def write_page(campaign, path, plots=()):

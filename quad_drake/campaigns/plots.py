@@ -33,7 +33,7 @@ def errors_figure(campaign):
     keys = list(campaign.metrics)
     unit_of = {key: signal_unit(key) for key in keys}
     groups = [g for g in ([k for k in keys if unit_of[k] == u] for u in ("m", "m/s", "rad")) if g]
-    bounds = {e["state"]: e["bound_std"] for e in campaign.efficiency}
+    bounds = {e["state"]: e["bound_std"] for e in campaign.efficiency if e["bound_std"] is not None}
     fig = Figure(figsize=(3 + 0.9 * len(keys), 3.6), layout="constrained")
     axes = fig.subplots(1, len(groups), squeeze=False, width_ratios=[len(g) for g in groups])[0]
     for ax, group in zip(axes, groups, strict=True):

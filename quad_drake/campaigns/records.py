@@ -6,7 +6,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import consistency as cons
+from ..accuracy_bound import posterior_crb
+from ..estimation.vocabulary import health_counts, vehicle_vocabulary
 from ..evaluation import max_abs, rms
+from ..signals import stamp_fresh
 from ..simulation import run
 
 SETTLE_TIME = 5.0
@@ -15,8 +18,33 @@ from min(SETTLE_TIME, end_time / 2) on: the truth starts at the EKF's initial st
 error of the first seconds is smaller than in steady state."""
 
 METRIC_STATS = ("rms", "max", "rms_settled")
-ERROR_SIGNALS = tuple(f"Est.E.{name}" for name in cons.STATE_NAMES) + ("Est.E.Pos", "Est.E.Vel")
-"""Per-vehicle error signals summarised for a vehicle with an estimator (PosFollowErr without)."""
+COMMON_ERROR_UNITS = {
+    "X": "m",
+    "Y": "m",
+    "Z": "m",
+    "VX": "m/s",
+    "VY": "m/s",
+    "VZ": "m/s",
+    "Roll": "rad",
+    "Pitch": "rad",
+    "Yaw": "rad",
+    "Pos": "m",
+    "Vel": "m/s",
+}
+"""Error signals every estimator has (``Est.E.<key>``), besides its vocabulary's."""
+
+
+def error_units(vocabulary):
+    """{key: unit} of the ``Est.E.<key>`` signals a campaign summarises for this estimator
+    (PosFollowErr for a vehicle without one)."""
+    units = dict(COMMON_ERROR_UNITS)
+    units.update(zip(vocabulary.state_names, vocabulary.units, strict=True))
+    return units
+
+
+def campaign_vocabulary(scenario):
+    """The estimator vocabulary of the scenario's first vehicle with an estimator, or None."""
+    return next((v for v in map(vehicle_vocabulary, scenario.vehicles) if v is not None), None)
 
 
 def settle_time(end_time):
@@ -34,10 +62,12 @@ class RunRecord:
     criteria: list  # per judged criterion: {"kind", "description", "passed", "measured", "percent"}
     metrics: dict  # "<vehicle>.<signal>" -> {"rms", "max", "rms_settled"} (METRIC_STATS)
     nees: dict  # vehicle -> (n,) NEES at the log samples
-    nse: dict  # vehicle -> (7,) time mean of e_i^2 / P_ii per EKF state
+    nse: dict  # vehicle -> (k,) time mean of e_i^2 / P_ii per error state of its vocabulary
     nis: dict  # (vehicle, "gps" | "mag") -> (stamps, NIS) of the fresh updates
     wall_time: float  # s, simulation only
     times: np.ndarray = field(repr=False, default=None)  # (n,) s, log sample times
+    counters: dict = field(default_factory=dict)  # vehicle -> {diagnostics counter: final count}
+    pcrb: dict = field(default_factory=dict)  # vehicle -> {state: PCRB variance averaged after settling}
 
 
 @dataclass(frozen=True)
@@ -51,18 +81,28 @@ class RunTask:
 
 def summarize_run(result, index):
     """RunRecord of a SimulationResult (pure: reads its logs, signals and verdicts)."""
-    metrics, nees, nse, nis = {}, {}, {}, {}
+    metrics, nees, nse, nis, counters, pcrb = {}, {}, {}, {}, {}, {}
     settled = result.times >= settle_time(result.scenario.end_time) - 1e-9
+    configs = {v.name: v for v in result.scenario.vehicles}
     for vehicle, logs in result.logs.items():
-        if "ekf_state" in logs:
-            keys = ERROR_SIGNALS
-            errors = cons.state_errors(logs["ekf_state"], logs["state"])
+        vocabulary = vehicle_vocabulary(configs[vehicle])
+        if vocabulary is not None:
+            keys = [f"Est.E.{key}" for key in error_units(vocabulary)]
+            errors = vocabulary.errors(logs)
             covariances = cons.covariance_matrices(logs["covariance"])
-            nees[vehicle] = cons.nees(errors, covariances)
+            nees[vehicle] = cons.nees_of(vocabulary, logs)
             nse[vehicle] = np.mean(cons.normalized_squared_errors(errors, covariances), axis=0)
             for sensor in cons.NIS_DOF:
                 if sensor in logs:
                     nis[(vehicle, sensor)] = cons.fresh_nis(logs["diagnostics"], sensor)
+            counters[vehicle] = health_counts(logs["diagnostics"])
+            if "gps" in logs and settled.any():
+                no_mag = np.zeros(settled.size, dtype=bool)
+                mag_fresh = stamp_fresh(logs["mag"][:, -1]) if "mag" in logs else no_mag
+                bound = posterior_crb(
+                    logs["state"], stamp_fresh(logs["gps"][:, -1]), mag_fresh, configs[vehicle].sensors
+                )
+                pcrb[vehicle] = {name: float(np.mean(v[settled])) for name, v in bound.items()}
         else:
             keys = ["PosFollowErr"] if "reference" in logs else []
         for key in keys:
@@ -92,7 +132,9 @@ def summarize_run(result, index):
         nse,
         nis,
         float(result.wall_time),
-        np.asarray(result.times),
+        times=np.asarray(result.times),
+        counters=counters,
+        pcrb=pcrb,
     )
 
 

@@ -1,6 +1,6 @@
 """A campaign's statistics from its run records: pass rates with Clopper-Pearson intervals,
 error distributions, NEES/NIS consistency against chi^2 bands, efficiency against the
-steady-state Kalman bound (:mod:`quad_drake.accuracy_bound`)."""
+tilt-aware hover Riccati bound and the posterior CRB (:mod:`quad_drake.accuracy_bound`)."""
 
 import math
 from dataclasses import dataclass
@@ -11,11 +11,18 @@ import numpy as np
 
 from .. import consistency as cons
 from ..accuracy_bound import accuracy_bound
+from .records import campaign_vocabulary, error_units
 
 MIN_IN_BAND = 0.8
 """Campaign criterion: share of samples whose run-averaged NEES/NIS lies inside its 95 %
 chi^2 band. A consistent filter sits inside 95 % of the time on average; 0.8 leaves room
 for the strong time correlation of the averaged statistic (see tests/test_consistency.py)."""
+
+
+def _ratio(rmse, bound):
+    if bound is None:
+        return None
+    return rmse / bound if bound > 0 else math.inf
 
 
 def distribution(values):
@@ -123,7 +130,8 @@ class CampaignResult:
         first = self.records[0]
         if first.nees:
             series = np.vstack([r.nees[v] for r in self.records for v in r.nees])
-            stats.append(self._statistic("NEES", cons.NEES_DOF, first.times, series))
+            dof = campaign_vocabulary(self.scenario).nees_dof
+            stats.append(self._statistic("NEES", dof, first.times, series))
         for sensor, dof in cons.NIS_DOF.items():
             series = [r.nis[key] for r in self.records for key in r.nis if key[1] == sensor]
             if series:
@@ -152,34 +160,63 @@ class CampaignResult:
 
     @cached_property
     def state_consistency(self):
-        """(7,) mean over runs, vehicles and time of e_i^2 / P_ii (1 = consistent), or None."""
+        """(k,) mean over runs, vehicles and time of e_i^2 / P_ii (1 = consistent), or None."""
         rows = [r.nse[v] for r in self.records for v in r.nse]
         return np.mean(rows, axis=0) if rows else None
 
     @cached_property
+    def state_names(self):
+        """Error-state names of the campaign's estimator (the order of ``state_consistency``)."""
+        vocabulary = campaign_vocabulary(self.scenario)
+        return () if vocabulary is None else vocabulary.state_names
+
+    @cached_property
+    def units(self):
+        """{error signal key: unit}: ``Est.E.*`` of the estimator's vocabulary, PosFollowErr."""
+        vocabulary = campaign_vocabulary(self.scenario)
+        return {"PosFollowErr": "m", **({} if vocabulary is None else error_units(vocabulary))}
+
+    @cached_property
+    def counters(self):
+        """{diagnostics counter: total over runs and vehicles} (gated samples, resets, repairs)."""
+        totals = {}
+        for record in self.records:
+            for vehicle_counters in record.counters.values():
+                for name, count in vehicle_counters.items():
+                    totals[name] = totals.get(name, 0) + count
+        return totals
+
+    @cached_property
     def efficiency(self):
-        """Per vehicle and bounded state: bound sigma, RMSE pooled over runs after the settling
-        time, and efficiency = RMSE / bound (>= 1 up to sampling error and the bound's
-        simplifications)."""
+        """Per vehicle and bounded state: the hover Riccati bound sigma, the posterior CRB sigma
+        (sqrt of its variance averaged over runs after the settling time), the RMSE pooled over
+        runs after the settling time, and the efficiencies RMSE / bound (>= 1 up to sampling
+        error and the bounds' simplifications; None where a bound does not cover the state)."""
         rows = []
         for vehicle in self.scenario.vehicles if self.records else ():
             try:
                 bounds = accuracy_bound(vehicle)
             except ValueError:  # a noiseless GPS or magnetometer: no finite ratio
-                continue
-            for state, bound in bounds.items():
+                bounds = {}
+            pcrb = [r.pcrb[vehicle.name] for r in self.records if vehicle.name in r.pcrb]
+            states = list(bounds) + [s for s in (pcrb[0] if pcrb else {}) if s not in bounds]
+            for state in states:
                 name = f"{vehicle.name}.Est.E.{state}"
                 if name not in self.records[0].metrics:
                     continue
                 rmse = math.sqrt(np.mean([r.metrics[name]["rms_settled"] ** 2 for r in self.records]))
+                hover = bounds[state].mean_std if state in bounds else None
+                crb = math.sqrt(np.mean([p[state] for p in pcrb])) if pcrb and state in pcrb[0] else None
                 rows.append(
                     {
                         "vehicle": vehicle.name,
                         "state": state,
-                        "bound_std": bound.mean_std,
-                        "posterior_std": bound.posterior_std,
+                        "bound_std": hover,
+                        "posterior_std": bounds[state].posterior_std if state in bounds else None,
+                        "pcrb_std": crb,
                         "rmse": rmse,
-                        "efficiency": rmse / bound.mean_std if bound.mean_std > 0 else math.inf,
+                        "efficiency": _ratio(rmse, hover),
+                        "pcrb_efficiency": _ratio(rmse, crb),
                     }
                 )
         return rows

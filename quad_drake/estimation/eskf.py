@@ -34,6 +34,7 @@ Updates return the NIS nu^T S^-1 nu and leave the gating decision to the caller
 """
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -54,18 +55,6 @@ def _constant(array):
 
 H_GPS_15 = _constant(np.eye(6, 15))
 H_GPS_9 = _constant(np.eye(6, 9))
-
-
-def rotation(q):
-    """R_NB (3x3) of a unit wxyz quaternion (sequence of 4 floats)."""
-    w, x, y, z = float(q[0]), float(q[1]), float(q[2]), float(q[3])
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
 
 
 def quat_exp(theta):
@@ -136,33 +125,52 @@ def initial_nominal(position, velocity, q_NB, accel_bias=(0.0, 0.0, 0.0), gyro_b
     return np.concatenate([position, velocity, q_NB, accel_bias, gyro_bias]).astype(float)
 
 
-def predict_nominal(x, f_B, w_B, dt):
-    """(x', R_hat, R_hat', u_N): nominal after one IMU step (list of 16), rotations before and after,
-    and u_N = R_hat (f_B - b_a) (m/s^2, the specific force in N).
+def _rotation_entries(qw, qx, qy, qz):
+    """The 9 entries of R_NB (row-major floats) of a unit wxyz quaternion."""
+    return (
+        1 - 2 * (qy * qy + qz * qz),
+        2 * (qx * qy - qw * qz),
+        2 * (qx * qz + qw * qy),
+        2 * (qx * qy + qw * qz),
+        1 - 2 * (qx * qx + qz * qz),
+        2 * (qy * qz - qw * qx),
+        2 * (qx * qz - qw * qy),
+        2 * (qy * qz + qw * qx),
+        1 - 2 * (qx * qx + qy * qy),
+    )
 
-    x: nominal (16); f_B: specific force (m/s^2, FRD); w_B: gyro (rad/s); dt: s.
+
+def predict_nominal(x, f_B, w_B, dt):
+    """(x', R_hat, R_hat', u_N): nominal after one IMU step (list of 16), rotations before and after
+    (3x3 arrays), and u_N = R_hat (f_B - b_a) (m/s^2, the specific force in N, a 3-tuple).
+
+    x: nominal (16); f_B: specific force (m/s^2, FRD); w_B: gyro (rad/s); dt: s. Scalar math.
     """
     px, py, pz, vx, vy, vz, qw, qx, qy, qz, bax, bay, baz, bgx, bgy, bgz = (
         x.tolist() if isinstance(x, np.ndarray) else list(x)
     )
-    R = rotation((qw, qx, qy, qz))
+    r = _rotation_entries(qw, qx, qy, qz)
     fx, fy, fz = float(f_B[0]) - bax, float(f_B[1]) - bay, float(f_B[2]) - baz
-    ax = R[0, 0] * fx + R[0, 1] * fy + R[0, 2] * fz
-    ay = R[1, 0] * fx + R[1, 1] * fy + R[1, 2] * fz
-    az = R[2, 0] * fx + R[2, 1] * fy + R[2, 2] * fz + GRAVITY
+    ux = r[0] * fx + r[1] * fy + r[2] * fz
+    uy = r[3] * fx + r[4] * fy + r[5] * fz
+    uz = r[6] * fx + r[7] * fy + r[8] * fz
+    az = uz + GRAVITY
     h = 0.5 * dt * dt
     dq = quat_exp(((float(w_B[0]) - bgx) * dt, (float(w_B[1]) - bgy) * dt, (float(w_B[2]) - bgz) * dt))
     qw, qx, qy, qz = quat_mul((qw, qx, qy, qz), dq)
     n = 1.0 / math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
-    q_new = (qw * n, qx * n, qy * n, qz * n)
+    qw, qx, qy, qz = qw * n, qx * n, qy * n, qz * n
     x_new = [
-        px + vx * dt + ax * h,
-        py + vy * dt + ay * h,
+        px + vx * dt + ux * h,
+        py + vy * dt + uy * h,
         pz + vz * dt + az * h,
-        vx + ax * dt,
-        vy + ay * dt,
+        vx + ux * dt,
+        vy + uy * dt,
         vz + az * dt,
-        *q_new,
+        qw,
+        qx,
+        qy,
+        qz,
         bax,
         bay,
         baz,
@@ -170,66 +178,109 @@ def predict_nominal(x, f_B, w_B, dt):
         bgy,
         bgz,
     ]
-    return x_new, R, rotation(q_new), (ax, ay, az - GRAVITY)
+    R = np.array(r).reshape(3, 3)
+    R_next = np.array(_rotation_entries(qw, qx, qy, qz)).reshape(3, 3)
+    return x_new, R, R_next, (ux, uy, uz)
 
 
-def transition(R, R_next, u_N, dt, n):
-    """Error transition F (n x n, n = 15 or 9) of one IMU step; u_N = R (f_B - b_a) (m/s^2)."""
+@dataclass(frozen=True)
+class NoiseModel:
+    """What the filter assumes, prepared once from EskfEstimatorConfig (per-step arithmetic only)."""
+
+    accel_var: np.ndarray  # (3,) (m/s^2)^2 per IMU sample, body axes
+    gyro_var: np.ndarray  # (3,) (rad/s)^2 per IMU sample
+    accel_bias_rate: float  # (m/s^2)^2 / s, bias random walk
+    gyro_bias_rate: float  # (rad/s)^2 / s
+
+    @classmethod
+    def from_params(cls, params):
+        return cls(
+            _constant(np.square(np.asarray(params.accel_std, dtype=float))),
+            _constant(np.square(np.asarray(params.gyro_std, dtype=float))),
+            float(params.accel_bias_rw_std) ** 2,
+            float(params.gyro_bias_rw_std) ** 2,
+        )
+
+
+def transition_buffer(n, dt):
+    """An n x n identity with the constant dp/dv block I dt, for :func:`fill_transition`."""
     F = np.eye(n)
-    fill_transition(F, R, R_next, u_N, dt)
+    F[0, 3] = F[1, 4] = F[2, 5] = dt
     return F
 
 
 def fill_transition(F, R, R_next, u_N, dt):
-    """Write the time-varying blocks of the transition into F (an n x n identity-based buffer)."""
-    n = F.shape[0]
-    U = _skew(u_N[0], u_N[1], u_N[2])
+    """Write the attitude-dependent blocks of the error transition into F (from transition_buffer).
+
+    R, R_next: R_hat before and after the step; u_N = R (f_B - b_a) (m/s^2). Scalar writes of
+    -[u]x dt and -[u]x dt^2/2 (12 entries), numpy writes of the bias blocks when n = 15.
+    """
+    u0, u1, u2 = u_N
     h = 0.5 * dt * dt
-    F[0:3, 3:6] = np.eye(3) * dt
-    F[0:3, 6:9] = U * -h
-    F[3:6, 6:9] = U * -dt
-    if n == ERROR_SIZE_WITH_BIASES:
-        F[0:3, 9:12] = R * -h
-        F[3:6, 9:12] = R * -dt
-        F[6:9, 12:15] = R_next * -dt
+    for row, scale in ((0, h), (3, dt)):  # -[u]x * scale into rows row..row+2, columns 6..8
+        F[row, 7] = u2 * scale
+        F[row, 8] = -u1 * scale
+        F[row + 1, 6] = -u2 * scale
+        F[row + 1, 8] = u0 * scale
+        F[row + 2, 6] = u1 * scale
+        F[row + 2, 7] = -u0 * scale
+    if F.shape[0] == ERROR_SIZE_WITH_BIASES:
+        np.multiply(R, -h, out=F[0:3, 9:12])
+        np.multiply(R, -dt, out=F[3:6, 9:12])
+        np.multiply(R_next, -dt, out=F[6:9, 12:15])
     return F
 
 
-def process_noise(R, params, dt, n):
-    """Q (n x n) of one IMU step at attitude R (see the module docstring); params: EskfParams."""
+def transition(R, R_next, u_N, dt, n):
+    """Error transition F (n x n, n = 15 or 9) of one IMU step (see the module docstring)."""
+    return fill_transition(transition_buffer(n, dt), R, R_next, u_N, dt)
+
+
+def noise_buffer(n, noise, dt):
+    """An n x n Q with the attitude-independent blocks filled: bias random walks, and the gyro's
+    when its noise is the same on every axis (then R diag R^T = var I)."""
     Q = np.zeros((n, n))
-    fill_process_noise(Q, R, params, dt)
-    return Q
-
-
-def fill_process_noise(Q, R, params, dt):
-    """Write the attitude-dependent noise blocks into Q (n x n); bias blocks are constant."""
-    n = Q.shape[0]
-    Ma = (R * np.square(params.accel_std)) @ R.T
-    Mg = (R * np.square(params.gyro_std)) @ R.T
-    dt2 = dt * dt
-    Q[3:6, 3:6] = Ma * dt2
-    Q[0:3, 3:6] = Ma * (0.5 * dt2 * dt)
-    Q[3:6, 0:3] = Q[0:3, 3:6]
-    Q[0:3, 0:3] = Ma * (0.25 * dt2 * dt2)
-    Q[6:9, 6:9] = Mg * dt2
+    if noise.gyro_var[0] == noise.gyro_var[1] == noise.gyro_var[2]:
+        Q[6:9, 6:9] = np.eye(3) * (noise.gyro_var[0] * dt * dt)
     if n == ERROR_SIZE_WITH_BIASES:
-        Q[9:12, 9:12] = np.eye(3) * (params.accel_bias_rw_std**2 * dt)
-        Q[12:15, 12:15] = np.eye(3) * (params.gyro_bias_rw_std**2 * dt)
+        Q[9:12, 9:12] = np.eye(3) * (noise.accel_bias_rate * dt)
+        Q[12:15, 12:15] = np.eye(3) * (noise.gyro_bias_rate * dt)
     return Q
 
 
-def predict(x, P, f_B, w_B, dt, params, F=None, Q=None):
+def fill_process_noise(Q, R, noise, dt):
+    """Write the attitude-dependent process-noise blocks into Q (from noise_buffer).
+
+    Accelerometer: Q[0:6, 0:6] = G M G^T with M = R diag(accel_var) R^T and G = [dt^2/2 I; dt I];
+    gyro (unless isotropic): Q[6:9, 6:9] = R diag(gyro_var) R^T dt^2.
+    """
+    h = 0.5 * dt * dt
+    G = np.array(
+        ((h, 0.0, 0.0), (0.0, h, 0.0), (0.0, 0.0, h), (dt, 0.0, 0.0), (0.0, dt, 0.0), (0.0, 0.0, dt))
+    )
+    GR = G @ R
+    Q[0:6, 0:6] = (GR * noise.accel_var) @ GR.T
+    if not noise.gyro_var[0] == noise.gyro_var[1] == noise.gyro_var[2]:
+        Q[6:9, 6:9] = (R * (noise.gyro_var * (dt * dt))) @ R.T
+    return Q
+
+
+def process_noise(R, noise, dt, n):
+    """Q (n x n) of one IMU step at attitude R (see the module docstring); noise: NoiseModel."""
+    return fill_process_noise(noise_buffer(n, noise, dt), R, noise, dt)
+
+
+def predict(x, P, f_B, w_B, dt, noise, F=None, Q=None):
     """(x', P') after one IMU step: nominal propagation and P' = F P F^T + Q (symmetrised).
 
-    F, Q: optional n x n work buffers (identity-based / zero-based), overwritten in place.
+    noise: NoiseModel. F, Q: optional work buffers from transition_buffer / noise_buffer
+    (same n and dt), overwritten in place.
     """
     n = P.shape[0]
     x_new, R, R_next, u_N = predict_nominal(x, f_B, w_B, dt)
-    F = fill_transition(np.eye(n) if F is None else F, R, R_next, u_N, dt)
-    Q = fill_process_noise(np.zeros((n, n)) if Q is None else Q, R, params, dt)
-    FP = F @ P
-    P_new = FP @ F.T
+    F = fill_transition(transition_buffer(n, dt) if F is None else F, R, R_next, u_N, dt)
+    Q = fill_process_noise(noise_buffer(n, noise, dt) if Q is None else Q, R, noise, dt)
+    P_new = (F @ P) @ F.T
     P_new += P_new.T
     P_new *= 0.5
     P_new += Q
@@ -255,18 +306,24 @@ def joseph_update(P, H, R_meas, nu):
 
 
 def inject(x, P, dx):
-    """(x', P'): the error dx (n) injected into the nominal x (16) and P reset by G (module docstring)."""
+    """(x', P'): the error dx (n) injected into the nominal x (16) and P reset by G (module docstring).
+
+    G differs from I only in its attitude block A = I + [dtheta]x / 2, so G P G^T is formed as
+    rows 6:9 <- A P[6:9, :], then columns 6:9 <- P[:, 6:9] A^T.
+    """
     x = np.array(x, dtype=float)
-    n = dx.shape[0]
     x[0:6] += dx[0:6]
-    q = quat_mul(quat_exp(dx[6:9]), tuple(x[Q_IDX]))
-    norm = math.sqrt(sum(c * c for c in q))
-    x[Q_IDX] = [c / norm for c in q]
-    if n == ERROR_SIZE_WITH_BIASES:
-        x[BA_IDX] += dx[9:12]
-        x[BG_IDX] += dx[12:15]
-    G = reset_jacobian(dx[6:9], n)
-    return x, G @ P @ G.T
+    t0, t1, t2 = (0.5 * float(c) for c in dx[6:9])
+    q = quat_mul(quat_exp(dx[6:9]), tuple(x[Q_IDX].tolist()))
+    norm = 1.0 / math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    x[Q_IDX] = (q[0] * norm, q[1] * norm, q[2] * norm, q[3] * norm)
+    if dx.shape[0] == ERROR_SIZE_WITH_BIASES:
+        x[10:16] += dx[9:15]
+    A = np.array(((1.0, -t2, t1), (t2, 1.0, -t0), (-t1, t0, 1.0)))
+    P = np.array(P, dtype=float)
+    P[6:9, :] = A @ P[6:9, :]
+    P[:, 6:9] = P[:, 6:9] @ A.T
+    return x, P
 
 
 def reset_jacobian(dtheta, n):
@@ -295,27 +352,36 @@ def gps_update(x, P, gps_pv, R_gps):
 
 
 def yaw_and_jacobian(q):
-    """(yaw (rad), dyaw/dtheta (3,)) of the nominal attitude q, for R = Exp(dtheta) R_hat."""
-    R = rotation(q)
-    r00, r10, r20 = R[0, 0], R[1, 0], R[2, 0]
+    """(yaw (rad), dyaw/dtheta (3,)) of the nominal attitude q (wxyz), for R = Exp(dtheta) R_hat."""
+    qw, qx, qy, qz = (float(c) for c in q)
+    r00 = 1.0 - 2.0 * (qy * qy + qz * qz)
+    r10 = 2.0 * (qx * qy + qw * qz)
+    r20 = 2.0 * (qx * qz - qw * qy)
     d = r00 * r00 + r10 * r10
-    return math.atan2(r10, r00), np.array([-r00 * r20 / d, -r10 * r20 / d, 1.0])
+    return math.atan2(r10, r00), np.array((-r00 * r20 / d, -r10 * r20 / d, 1.0))
 
 
 def mag_update(x, P, yaw_meas, R_mag):
-    """(x', P', nis) after fusing a magnetometer yaw (rad) with variance R_mag (1x1); NaN sample skipped."""
+    """(x', P', nis) after fusing a magnetometer yaw (rad) with variance R_mag (1x1); NaN sample skipped.
+
+    Scalar Joseph form: with b = P H^T, S = H b + r and K = b / S,
+    P' = P - K b^T - b K^T + S K K^T (the same as (I - KH) P (I - KH)^T + K r K^T).
+    """
     yaw_meas = float(yaw_meas)
     if not math.isfinite(yaw_meas):
         return x, P, math.nan
     x = np.asarray(x, dtype=float)
     yaw, h_theta = yaw_and_jacobian(x[Q_IDX])
-    H = np.zeros((1, P.shape[0]))
-    H[0, 6:9] = h_theta
-    dx, P_new, nis = joseph_update(P, H, R_mag, np.array([wrap_to_pi(yaw_meas - yaw)]))
-    if math.isnan(nis):
-        return x, P, nis
-    x_new, P_new = inject(x, P_new, dx)
-    return x_new, P_new, nis
+    b = P[:, 6:9] @ h_theta
+    S = float(b[6:9] @ h_theta) + float(R_mag[0, 0])
+    nu = wrap_to_pi(yaw_meas - yaw)
+    K = b / S
+    Kb = np.outer(K, b)
+    P_new = P - Kb
+    P_new -= Kb.T
+    P_new += S * np.outer(K, K)
+    x_new, P_new = inject(x, P_new, K * nu)
+    return x_new, P_new, nu * nu / S
 
 
 def gps_noise(params):

@@ -1,15 +1,27 @@
-"""Estimator LeafSystems: complementary attitude filter, 7-state EKF, estimated-state assembly.
+"""Estimator LeafSystems and the estimator sub-Diagrams a vehicle's config chooses.
 
-Within a tick the attitude filter (offset ATTITUDE_FILTER_OFFSET) integrates the gyro from
-the EKF's posterior yaw of the previous tick, then the EKF (offset EKF_OFFSET) takes the
-filter's roll, pitch and integrated yaw, predicts, and fuses a fresh magnetometer and then a
-fresh GPS sample (the reference's IMU, Mag, GPS order). Fresh means a changed ``stamp``.
+Every estimator is a sub-Diagram (:func:`build_estimator`) with inputs ``imu``, ``gps``,
+``mag`` and the outputs its vocabulary lists (``estimation/vocabulary.py``):
+``estimated_state`` (13, the true ``state`` layout), ``covariance``, ``diagnostics`` and its
+own logs.
+
+- ``ekf7``: complementary attitude filter, 7-state EKF, estimated-state assembly. Within a
+  tick the attitude filter (offset ATTITUDE_FILTER_OFFSET) integrates the gyro from the EKF's
+  posterior yaw of the previous tick, then the EKF (offset EKF_OFFSET) takes the filter's
+  roll, pitch and integrated yaw, predicts, and fuses a fresh magnetometer and then a fresh
+  GPS sample (the reference's IMU, Mag, GPS order).
+- ``eskf``: the error-state EKF, one system at EKF_OFFSET (predict, mag, GPS).
+
+Fresh means a changed ``stamp``. Both gate each update (chi^2, ``estimation/gating.py``),
+reset to the GPS after continuous GPS rejection, repair an unhealthy covariance and count
+all of it in ``diagnostics``. A non-finite IMU sample never reaches the controller: the
+body rate in ``estimated_state`` holds the last finite one.
 """
 
 import math
 
 import numpy as np
-from pydrake.systems.framework import LeafSystem
+from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
 from quad_drake.conventions import (
     ATTITUDE_FILTER_OFFSET,
@@ -23,16 +35,87 @@ from quad_drake.conventions import (
     ONBOARD_PERIOD,
     STATE_SIZE,
 )
-from quad_drake.estimation import ekf
+from quad_drake.estimation import ekf, eskf, gating
 from quad_drake.estimation.complementary import VARIANTS, complementary_update
+from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, NIS_DOF, vocabulary_for
 from quad_drake.fidelity import PHYSICAL
 from quad_drake.rotations import quat_from_euler_tuple
 from quad_drake.systems._io import vector_reader
 
-DIAGNOSTICS_SIZE = 5
-"""`diagnostics` layout: GPS NIS, its sample stamp (s), mag NIS, its stamp (s), rejected count."""
-GPS_SLOT, MAG_SLOT = 0, 1
-REJECTED_INDEX = 4
+GPS_SLOT, MAG_SLOT, GPS_REJECTION_START = 0, 1, 2
+"""Book-keeping state: last GPS stamp seen, last mag stamp seen, start of the GPS rejection run."""
+_NIS_INDEX = {GPS_SLOT: DIAG["gps_nis"], MAG_SLOT: DIAG["mag_nis"]}
+_GATED_INDEX = {GPS_SLOT: DIAG["gps_gated"], MAG_SLOT: DIAG["mag_gated"]}
+
+
+def _initial_diagnostics():
+    values = np.zeros(DIAGNOSTICS_SIZE)
+    values[[DIAG["gps_nis"], DIAG["mag_nis"]]] = math.nan
+    values[[DIAG["gps_stamp"], DIAG["mag_stamp"]]] = NO_SAMPLE_STAMP
+    return values
+
+
+def _initial_book():
+    return np.array([NO_SAMPLE_STAMP, NO_SAMPLE_STAMP, math.nan])
+
+
+def _fresh(stamp, seen):
+    return stamp != seen and stamp != NO_SAMPLE_STAMP
+
+
+class _GatedFusion:
+    """Shared update logic of the estimators: freshness, gate, GPS reset and covariance health.
+
+    ``fuse(slot, stamp, update, z, R, x, P, discrete_state)`` with ``update(x, P, z, R) ->
+    (x, P, nis)``; the diagnostics group is DIAGNOSTICS_GROUP, the book BOOK_GROUP.
+    """
+
+    DIAGNOSTICS_GROUP, BOOK_GROUP = 2, 3
+
+    def _declare_gating(self, gps_gate_sigma, mag_gate_sigma, gps_reset_timeout, P0, gps_indices):
+        self._threshold = {
+            GPS_SLOT: gating.gate_threshold(NIS_DOF["gps"], gps_gate_sigma),
+            MAG_SLOT: gating.gate_threshold(NIS_DOF["mag"], mag_gate_sigma),
+        }
+        self._reset_timeout = float(gps_reset_timeout)
+        self._P0 = P0
+        self._gps_indices = gps_indices
+
+    @classmethod
+    def _count(cls, discrete_state, name):
+        discrete_state.get_mutable_value(cls.DIAGNOSTICS_GROUP)[DIAG[name]] += 1.0
+
+    def _fuse(self, slot, stamp, update, z, R, x, P, discrete_state):
+        """(x, P) after the fresh sample z (stamp s): fused, gated (prior kept) or reset to it."""
+        book = discrete_state.get_mutable_value(self.BOOK_GROUP)
+        book[slot] = stamp
+        x_new, P_new, nis = update(x, P, z, R) if math.isfinite(stamp) else (x, P, math.nan)
+        if math.isnan(nis):
+            self._count(discrete_state, "nonfinite_samples")
+            return x, P
+        diagnostics = discrete_state.get_mutable_value(self.DIAGNOSTICS_GROUP)
+        diagnostics[_NIS_INDEX[slot]] = nis
+        diagnostics[_NIS_INDEX[slot] + 1] = stamp
+        accepted = gating.gate_accepts(nis, self._threshold[slot])
+        if slot == GPS_SLOT:
+            book[GPS_REJECTION_START] = gating.rejection_start(book[GPS_REJECTION_START], accepted, stamp)
+        if accepted:
+            return x_new, P_new
+        diagnostics[_GATED_INDEX[slot]] += 1.0
+        if slot == GPS_SLOT and gating.reset_due(book[GPS_REJECTION_START], stamp, self._reset_timeout):
+            diagnostics[DIAG["gps_resets"]] += 1.0
+            book[GPS_REJECTION_START] = math.nan
+            return gating.reset_states(x, P, self._gps_indices, z, R)
+        return x, P
+
+    def _healthy(self, P, discrete_state, full_check):
+        """P, repaired (and counted) when the cheap per-tick check, or the full one, finds it unhealthy."""
+        if gating.covariance_looks_healthy(P) and not full_check:
+            return P
+        P_new, outcome = gating.repaired_covariance(P, self._P0)
+        if outcome != gating.COVARIANCE_OK:
+            self._count(discrete_state, "covariance_repairs")
+        return P_new
 
 
 def _finite(values):
@@ -44,9 +127,10 @@ class ComplementaryFilter(LeafSystem):
     """Complementary roll/pitch filter with gyro-integrated yaw (SPEC §4 UpdateFromIMU).
 
     Inputs: ``imu`` (6: f_B specific force m/s^2, w_NB_B rad/s; FRD), ``ekf_state`` (7; index 6
-    is the EKF posterior yaw, rad, used as the prior yaw). Output: ``attitude`` (3: roll, pitch,
-    yaw, rad; state port). Ticks every ONBOARD_PERIOD at ATTITUDE_FILTER_OFFSET with
-    dt = ONBOARD_PERIOD. A non-finite IMU sample is skipped (roll, pitch held, yaw = prior).
+    is the EKF posterior yaw, rad, used as the prior yaw). Outputs (state ports): ``attitude``
+    (3: roll, pitch, yaw, rad), ``body_rate`` (3: the last finite gyro sample, rad/s). Ticks
+    every ONBOARD_PERIOD at ATTITUDE_FILTER_OFFSET with dt = ONBOARD_PERIOD. A non-finite IMU
+    sample is skipped (roll, pitch and body rate held, yaw = prior).
     With ``fidelity.reference_accelerometer`` the IMU carries the reference's reading and the
     tilt comes from the reference's formulas.
     """
@@ -61,7 +145,9 @@ class ComplementaryFilter(LeafSystem):
         self._read_imu = vector_reader(self.DeclareVectorInputPort("imu", IMU_SIZE))
         self._read_ekf_state = vector_reader(self.DeclareVectorInputPort("ekf_state", EKF_STATE_SIZE))
         state = self.DeclareDiscreteState(np.array(initial_attitude, dtype=float))
+        rate = self.DeclareDiscreteState(3)
         self.DeclareStateOutputPort("attitude", state)
+        self.DeclareStateOutputPort("body_rate", rate)
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, ATTITUDE_FILTER_OFFSET, self._update)
 
     def _update(self, context, discrete_state):
@@ -80,22 +166,25 @@ class ComplementaryFilter(LeafSystem):
                 self._variant,
                 self._reference_accelerometer,
             )
+            discrete_state.set_value(1, np.array(imu[3:6]))
         discrete_state.set_value(0, np.array((roll, pitch, yaw)))
 
 
-class Ekf(LeafSystem):
+class Ekf(_GatedFusion, LeafSystem):
     """7-state EKF (SPEC §4): x = (p_N m, v_N m/s, yaw rad), NED; roll/pitch from the attitude filter.
 
     Inputs: ``imu`` (6: f_B m/s^2, w_NB_B rad/s), ``gps`` (7: p_N m, v_N m/s, stamp s),
     ``mag`` (2: yaw rad, stamp s), ``attitude`` (3: roll, pitch, yaw rad, this tick's filter
     output). A sensor the vehicle lacks must be wired to a constant with stamp NO_SAMPLE_STAMP.
     Outputs (state ports): ``ekf_state`` (7), ``covariance`` (49, P row-major),
-    ``diagnostics`` (5: last GPS NIS, stamp of its sample, last mag NIS, its stamp, number of
-    rejected non-finite IMU/GPS/mag samples; NIS is NaN before the first update).
+    ``diagnostics`` (``vocabulary.DIAGNOSTICS``; NIS is NaN before the first update).
 
     Each tick (ONBOARD_PERIOD, offset EKF_OFFSET): yaw <- attitude yaw, predict with dt =
-    ONBOARD_PERIOD; then a fresh mag sample, then a fresh GPS sample, is fused. A sample is
-    fresh when its stamp differs from the last stamp seen and is not NO_SAMPLE_STAMP.
+    ONBOARD_PERIOD; then a fresh mag sample, then a fresh GPS sample, is fused unless its
+    chi^2 gate rejects it (``gps_gate_sigma``, ``mag_gate_sigma``); after ``gps_reset_timeout``
+    s of rejected GPS samples p and v are reset to the GPS. A sample is fresh when its stamp
+    differs from the last stamp seen and is not NO_SAMPLE_STAMP. P is checked every tick
+    (finite, variances >= 0) and fully (PSD) at every GPS sample, and repaired or reset to P0.
     With ``fidelity.reference_accelerometer`` the prediction reads the IMU as the reference's
     R_NB^T (a_NB + g_N): a_N = R f - g_N.
     """
@@ -106,6 +195,13 @@ class Ekf(LeafSystem):
         self._Q = ekf.process_noise(params)
         self._R_gps = ekf.gps_noise(params)
         self._R_mag = ekf.mag_noise(params)
+        self._declare_gating(
+            params.gps_gate_sigma,
+            params.mag_gate_sigma,
+            params.gps_reset_timeout,
+            ekf.initial_covariance(params),
+            list(range(6)),
+        )
         self._G = ekf.predict_jacobian(np.zeros(EKF_STATE_SIZE), 0.0, 0.0, (0.0, 0.0, 0.0), ONBOARD_PERIOD)
         self._read_imu = vector_reader(self.DeclareVectorInputPort("imu", IMU_SIZE))
         self._read_gps = vector_reader(self.DeclareVectorInputPort("gps", GPS_SIZE))
@@ -113,10 +209,8 @@ class Ekf(LeafSystem):
         self._read_attitude = vector_reader(self.DeclareVectorInputPort("attitude", ATTITUDE_SIZE))
         x = self.DeclareDiscreteState(ekf.initial_state(params))
         P = self.DeclareDiscreteState(ekf.initial_covariance(params).ravel())
-        diagnostics = self.DeclareDiscreteState(
-            np.array([math.nan, NO_SAMPLE_STAMP, math.nan, NO_SAMPLE_STAMP, 0.0])
-        )
-        self.DeclareDiscreteState(np.full(2, NO_SAMPLE_STAMP))  # last stamps seen: GPS, mag
+        diagnostics = self.DeclareDiscreteState(_initial_diagnostics())
+        self.DeclareDiscreteState(_initial_book())
         self.DeclareStateOutputPort("ekf_state", x)
         self.DeclareStateOutputPort("covariance", P)
         self.DeclareStateOutputPort("diagnostics", diagnostics)
@@ -134,46 +228,33 @@ class Ekf(LeafSystem):
                 x.tolist(), P, attitude, imu, ONBOARD_PERIOD, self._Q, self._G, self._reference_accelerometer
             )
         else:
-            self._book_rejection(discrete_state)
-        seen = discrete_state.value(3).tolist()
-        if mag[1] != seen[MAG_SLOT] and mag[1] != NO_SAMPLE_STAMP:
-            x, P = self._fuse(MAG_SLOT, mag[1], ekf.mag_update, mag[0], self._R_mag, x, P, discrete_state)
-        if gps[6] != seen[GPS_SLOT] and gps[6] != NO_SAMPLE_STAMP:
-            x, P = self._fuse(GPS_SLOT, gps[6], ekf.gps_update, gps[0:6], self._R_gps, x, P, discrete_state)
-        discrete_state.set_value(0, np.asarray(x, dtype=float))
-        discrete_state.set_value(1, P.ravel())
-
-    @staticmethod
-    def _book_rejection(discrete_state):
-        discrete_state.get_mutable_value(2)[REJECTED_INDEX] += 1.0
-
-    def _fuse(self, slot, stamp, update, z, R, x, P, discrete_state):
-        """(x, P) after fusing the fresh sample z (stamp s); books the stamp, the NIS or a rejection."""
-        discrete_state.get_mutable_value(3)[slot] = stamp
+            self._count(discrete_state, "nonfinite_samples")
+        seen = discrete_state.value(self.BOOK_GROUP).tolist()
+        gps_fresh = _fresh(gps[6], seen[GPS_SLOT])
+        P = self._healthy(P, discrete_state, gps_fresh)
         x = np.asarray(x, dtype=float)
-        x_new, P_new, nis = update(x, P, z, R) if math.isfinite(stamp) else (x, P, math.nan)
-        if math.isnan(nis):
-            self._book_rejection(discrete_state)
-            return x, P
-        diagnostics = discrete_state.get_mutable_value(2)
-        diagnostics[2 * slot] = nis
-        diagnostics[2 * slot + 1] = stamp
-        return x_new, P_new
+        if _fresh(mag[1], seen[MAG_SLOT]):
+            x, P = self._fuse(MAG_SLOT, mag[1], ekf.mag_update, mag[0], self._R_mag, x, P, discrete_state)
+        if gps_fresh:
+            x, P = self._fuse(GPS_SLOT, gps[6], ekf.gps_update, gps[0:6], self._R_gps, x, P, discrete_state)
+        discrete_state.set_value(0, x)
+        discrete_state.set_value(1, P.ravel())
 
 
 class EstimatedStateAssembler(LeafSystem):
-    """The estimate in the true ``state`` layout, for the controller and the evaluators.
+    """The EKF7's estimate in the true ``state`` layout, for the controller and the evaluators.
 
-    Inputs: ``attitude`` (3: roll, pitch, yaw rad), ``ekf_state`` (7), ``imu`` (6). Output:
-    ``estimated_state`` (13: p = x[0:3] m, q_NB = quat(roll, pitch, x[6]) wxyz,
-    v = x[3:6] m/s, w_NB_B = gyro rad/s); a feedthrough output (its inputs are state ports).
+    Inputs: ``attitude`` (3: roll, pitch, yaw rad), ``ekf_state`` (7), ``body_rate`` (3, rad/s,
+    the filter's last finite gyro sample). Output: ``estimated_state`` (13: p = x[0:3] m,
+    q_NB = quat(roll, pitch, x[6]) wxyz, v = x[3:6] m/s, w_NB_B = body rate); a feedthrough
+    output (its inputs are state ports).
     """
 
     def __init__(self):
         super().__init__()
         self._read_attitude = vector_reader(self.DeclareVectorInputPort("attitude", ATTITUDE_SIZE))
         self._read_ekf_state = vector_reader(self.DeclareVectorInputPort("ekf_state", EKF_STATE_SIZE))
-        self._read_imu = vector_reader(self.DeclareVectorInputPort("imu", IMU_SIZE))
+        self._read_rate = vector_reader(self.DeclareVectorInputPort("body_rate", 3))
         self.DeclareVectorOutputPort(
             "estimated_state", STATE_SIZE, self._calc, prerequisites_of_calc={self.all_input_ports_ticket()}
         )
@@ -181,6 +262,147 @@ class EstimatedStateAssembler(LeafSystem):
     def _calc(self, context, output):
         roll, pitch, _ = self._read_attitude(context)
         x = self._read_ekf_state(context)
-        gyro = self._read_imu(context)[3:6]
         q = list(quat_from_euler_tuple(roll, pitch, x[6]))
-        output.SetFromVector(np.array(x[0:3] + q + x[3:6] + gyro))
+        output.SetFromVector(np.array(x[0:3] + q + x[3:6] + self._read_rate(context)))
+
+
+class Eskf(_GatedFusion, LeafSystem):
+    """Error-state EKF (``estimation/eskf.py``) on the IMU, GPS and magnetometer.
+
+    Inputs: ``imu`` (6: f_B m/s^2, w_NB_B rad/s), ``gps`` (7: p_N m, v_N m/s, stamp s),
+    ``mag`` (2: yaw rad, stamp s); a missing sensor is wired to a constant with stamp
+    NO_SAMPLE_STAMP. Outputs (state ports): ``estimated_state`` (13: p, q_NB, v, body rate =
+    gyro - gyro bias of the last finite sample), ``covariance`` (n*n, n = 15 with bias
+    estimation, 9 without; error state dp, dv, dtheta[, db_a, db_g]), ``diagnostics``
+    (``vocabulary.DIAGNOSTICS``), ``imu_bias`` (6: b_a m/s^2, b_g rad/s).
+
+    Each tick (ONBOARD_PERIOD, offset EKF_OFFSET): predict with the IMU sample (skipped and
+    counted when non-finite), then fuse a fresh mag and a fresh GPS sample through the chi^2
+    gates, resetting p, v to the GPS after ``gps_reset_timeout`` s of rejection; P is
+    checked as in :class:`Ekf`.
+    """
+
+    def __init__(self, params):
+        super().__init__()
+        self._noise = eskf.NoiseModel.from_params(params)
+        P0 = eskf.initial_covariance(params)
+        n = P0.shape[0]
+        self._n = n
+        self._R_gps = eskf.gps_noise(params)
+        self._R_mag = eskf.mag_noise(params)
+        self._declare_gating(
+            params.gps_gate_sigma, params.mag_gate_sigma, params.gps_reset_timeout, P0, list(eskf.GPS_STATES)
+        )
+        self._F = eskf.transition_buffer(n, ONBOARD_PERIOD)
+        self._Qbuf = eskf.noise_buffer(n, self._noise, ONBOARD_PERIOD)
+        yaw, pitch, roll = params.init_ypr
+        q0 = quat_from_euler_tuple(roll, pitch, yaw)
+        x0 = eskf.initial_nominal(params.init_position, params.init_velocity, q0)
+        self._read_imu = vector_reader(self.DeclareVectorInputPort("imu", IMU_SIZE))
+        self._read_gps = vector_reader(self.DeclareVectorInputPort("gps", GPS_SIZE))
+        self._read_mag = vector_reader(self.DeclareVectorInputPort("mag", MAG_SIZE))
+        self.DeclareDiscreteState(x0)
+        P = self.DeclareDiscreteState(P0.ravel())
+        diagnostics = self.DeclareDiscreteState(_initial_diagnostics())
+        self.DeclareDiscreteState(_initial_book())
+        estimate = self.DeclareDiscreteState(self._estimated_state(x0, (0.0, 0.0, 0.0)))
+        bias = self.DeclareDiscreteState(6)
+        self.DeclareStateOutputPort("estimated_state", estimate)
+        self.DeclareStateOutputPort("covariance", P)
+        self.DeclareStateOutputPort("diagnostics", diagnostics)
+        self.DeclareStateOutputPort("imu_bias", bias)
+        self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, EKF_OFFSET, self._update)
+
+    @staticmethod
+    def _estimated_state(x, rate):
+        """13-vector p, q, v, w of the nominal state x (16) and a body rate (3)."""
+        return np.concatenate([x[0:3], x[6:10], x[3:6], rate])
+
+    def _update(self, context, discrete_state):
+        imu = self._read_imu(context)
+        mag = self._read_mag(context)
+        gps = self._read_gps(context)
+        x = discrete_state.value(0)
+        P = discrete_state.value(1).reshape(self._n, self._n)
+        rate = discrete_state.value(4)[10:13]
+        if _finite(imu):
+            x, P = eskf.predict(x, P, imu[0:3], imu[3:6], ONBOARD_PERIOD, self._noise, self._F, self._Qbuf)
+            rate = (imu[3] - x[13], imu[4] - x[14], imu[5] - x[15])
+        else:
+            self._count(discrete_state, "nonfinite_samples")
+        seen = discrete_state.value(self.BOOK_GROUP).tolist()
+        gps_fresh = _fresh(gps[6], seen[GPS_SLOT])
+        P = self._healthy(P, discrete_state, gps_fresh)
+        x = np.asarray(x, dtype=float)
+        if _fresh(mag[1], seen[MAG_SLOT]):
+            x, P = self._fuse(MAG_SLOT, mag[1], eskf.mag_update, mag[0], self._R_mag, x, P, discrete_state)
+        if gps_fresh:
+            x, P = self._fuse(GPS_SLOT, gps[6], eskf.gps_update, gps[0:6], self._R_gps, x, P, discrete_state)
+        discrete_state.set_value(0, x)
+        discrete_state.set_value(5, x[10:16])
+        discrete_state.set_value(1, P.ravel())
+        discrete_state.set_value(4, self._estimated_state(x, rate))
+
+
+def _build_ekf7(builder, vehicle, fidelity):
+    """CF + EKF7 + assembler in `builder`; returns (input ports by name, output ports by name)."""
+    ekf_system = builder.AddNamedSystem("ekf", Ekf(vehicle.ekf, fidelity))
+    attitude_filter = builder.AddNamedSystem(
+        "attitude_filter",
+        ComplementaryFilter(
+            vehicle.attitude_filter, initial_attitude=(0.0, 0.0, vehicle.ekf.init_state[6]), fidelity=fidelity
+        ),
+    )
+    assembler = builder.AddNamedSystem("estimated_state", EstimatedStateAssembler())
+    builder.Connect(ekf_system.GetOutputPort("ekf_state"), attitude_filter.GetInputPort("ekf_state"))
+    builder.Connect(attitude_filter.GetOutputPort("attitude"), ekf_system.GetInputPort("attitude"))
+    builder.Connect(attitude_filter.GetOutputPort("attitude"), assembler.GetInputPort("attitude"))
+    builder.Connect(attitude_filter.GetOutputPort("body_rate"), assembler.GetInputPort("body_rate"))
+    builder.Connect(ekf_system.GetOutputPort("ekf_state"), assembler.GetInputPort("ekf_state"))
+    inputs = {
+        "imu": [ekf_system.GetInputPort("imu"), attitude_filter.GetInputPort("imu")],
+        "gps": [ekf_system.GetInputPort("gps")],
+        "mag": [ekf_system.GetInputPort("mag")],
+    }
+    outputs = {
+        "estimated_state": assembler.GetOutputPort("estimated_state"),
+        "attitude": attitude_filter.GetOutputPort("attitude"),
+    }
+    for name in ("ekf_state", "covariance", "diagnostics"):
+        outputs[name] = ekf_system.GetOutputPort(name)
+    return inputs, outputs
+
+
+def _build_eskf(builder, vehicle, fidelity):
+    if fidelity.reference_accelerometer:
+        raise ValueError("the error-state EKF is written for the physical accelerometer (fidelity: physical)")
+    system = builder.AddNamedSystem("eskf", Eskf(vehicle.estimator))
+    inputs = {name: [system.GetInputPort(name)] for name in ("imu", "gps", "mag")}
+    names = ("estimated_state", "covariance", "diagnostics", "imu_bias")
+    outputs = {name: system.GetOutputPort(name) for name in names}
+    return inputs, outputs
+
+
+_BUILDERS = {"ekf7": _build_ekf7, "eskf": _build_eskf}
+
+
+def build_estimator(vehicle, fidelity=PHYSICAL):
+    """The estimator sub-Diagram a VehicleConfig chooses (``estimator.kind``), named ``estimator``.
+
+    fidelity: the scenario's Fidelity (the EKF7 follows the reference's accelerometer reading;
+    the ESKF supports the physical one only).
+
+    Inputs ``imu``, ``gps``, ``mag`` (exported; connect a never-sampled constant for a missing
+    sensor); outputs as ``vocabulary_for(vehicle.estimator).log_widths()``.
+    """
+    builder = DiagramBuilder()
+    inputs, outputs = _BUILDERS[vehicle.estimator.kind](builder, vehicle, fidelity)
+    for name, ports in inputs.items():
+        exported = builder.ExportInput(ports[0], name)
+        for port in ports[1:]:
+            builder.ConnectInput(exported, port)
+    for name in vocabulary_for(vehicle.estimator).log_widths():
+        builder.ExportOutput(outputs[name], name)
+    diagram = builder.Build()
+    diagram.set_name("estimator")
+    return diagram

@@ -8,12 +8,25 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
-from quad_drake.config import AttitudeFilterParams, EkfParams
+from quad_drake.config import (
+    AttitudeFilterParams,
+    Ekf7EstimatorConfig,
+    EkfParams,
+    EskfEstimatorConfig,
+    VehicleConfig,
+)
 from quad_drake.conventions import ATTITUDE_FILTER_OFFSET, GRAVITY, NO_SAMPLE_STAMP, ONBOARD_PERIOD
-from quad_drake.estimation import ekf
+from quad_drake.estimation import ekf, eskf, gating
 from quad_drake.estimation.complementary import complementary_update
+from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, vocabulary_for
 from quad_drake.rotations import quat_from_euler
-from quad_drake.systems.estimators import ComplementaryFilter, Ekf, EstimatedStateAssembler
+from quad_drake.systems.estimators import (
+    ComplementaryFilter,
+    Ekf,
+    Eskf,
+    EstimatedStateAssembler,
+    build_estimator,
+)
 
 DT = ONBOARD_PERIOD
 LEVEL_IMU = [0.0, 0.0, -GRAVITY, 0.0, 0.0, 0.0]
@@ -131,7 +144,8 @@ def test_cf_rejects_an_unknown_variant():
 def test_ekf_port_sizes():
     dut = Ekf(EkfParams())
     assert [dut.GetInputPort(n).size() for n in ("imu", "gps", "mag", "attitude")] == [6, 7, 2, 3]
-    assert [dut.GetOutputPort(n).size() for n in ("ekf_state", "covariance", "diagnostics")] == [7, 49, 5]
+    sizes = [dut.GetOutputPort(n).size() for n in ("ekf_state", "covariance", "diagnostics")]
+    assert sizes == [7, 49, DIAGNOSTICS_SIZE]
 
 
 def test_ekf_stationary_ticks_grow_covariance_by_q():
@@ -200,7 +214,8 @@ def test_ekf_fuses_mag_and_gps_samples_of_one_tick():
     mag_nis = r.mag(yaw)
     gps_nis = r.gps(z)
     assert_matches(f, r)
-    np.testing.assert_allclose(f.output("diagnostics"), [gps_nis, 0.1, mag_nis, 0.008, 0.0], rtol=1e-12)
+    expected = [gps_nis, 0.1, mag_nis, 0.008] + [0.0] * (DIAGNOSTICS_SIZE - 4)
+    np.testing.assert_allclose(f.output("diagnostics"), expected, rtol=1e-12)
     assert abs(r.P[3, 6]) > 1e-6
 
 
@@ -240,12 +255,12 @@ def test_ekf_mag_update_wraps_the_posterior_yaw():
 # ----- EstimatedStateAssembler and the closed estimator loop ------------------
 
 
-def test_assembler_layout_uses_the_ekf_yaw_and_the_gyro():
+def test_assembler_layout_uses_the_ekf_yaw_and_the_held_body_rate():
     dut = EstimatedStateAssembler()
     context = dut.CreateDefaultContext()
     dut.GetInputPort("attitude").FixValue(context, [0.1, -0.2, 9.0])
     dut.GetInputPort("ekf_state").FixValue(context, [1.0, 2.0, -3.0, 0.4, 0.5, 0.6, 0.7])
-    dut.GetInputPort("imu").FixValue(context, [7.0, 8.0, 9.0, -0.1, 0.2, -0.3])
+    dut.GetInputPort("body_rate").FixValue(context, [-0.1, 0.2, -0.3])
     got = dut.GetOutputPort("estimated_state").Eval(context)
     expected = np.concatenate(
         [[1.0, 2.0, -3.0], quat_from_euler(0.1, -0.2, 0.7), [0.4, 0.5, 0.6], [-0.1, 0.2, -0.3]]
@@ -253,33 +268,126 @@ def test_assembler_layout_uses_the_ekf_yaw_and_the_gyro():
     np.testing.assert_allclose(got, expected, rtol=0, atol=1e-15)
 
 
-def build_estimators(imu, gps=NO_GPS, mag=NO_MAG):
+def build_estimators(imu, gps=NO_GPS, mag=NO_MAG, estimator=None):
+    """The estimator sub-Diagram of a vehicle (default: ekf7) fed by constant sensor samples.
+
+    Returns (diagram, {sensor: ConstantVectorSource}) so a test can change the samples.
+    """
+    vehicle = VehicleConfig(estimator=estimator or Ekf7EstimatorConfig())
     builder = DiagramBuilder()
-    cf = builder.AddSystem(ComplementaryFilter(AttitudeFilterParams()))
-    dut = builder.AddSystem(Ekf(EkfParams()))
-    assembler = builder.AddSystem(EstimatedStateAssembler())
+    dut = builder.AddSystem(build_estimator(vehicle))
     sources = {
         name: builder.AddSystem(ConstantVectorSource(np.asarray(v, dtype=float)))
         for name, v in (("imu", imu), ("gps", gps), ("mag", mag))
     }
     for name in ("imu", "gps", "mag"):
         builder.Connect(sources[name].get_output_port(), dut.GetInputPort(name))
-    builder.Connect(sources["imu"].get_output_port(), cf.GetInputPort("imu"))
-    builder.Connect(sources["imu"].get_output_port(), assembler.GetInputPort("imu"))
-    builder.Connect(cf.GetOutputPort("attitude"), dut.GetInputPort("attitude"))
-    builder.Connect(cf.GetOutputPort("attitude"), assembler.GetInputPort("attitude"))
-    builder.Connect(dut.GetOutputPort("ekf_state"), cf.GetInputPort("ekf_state"))
-    builder.Connect(dut.GetOutputPort("ekf_state"), assembler.GetInputPort("ekf_state"))
-    builder.ExportOutput(assembler.GetOutputPort("estimated_state"), "estimated_state")
-    builder.ExportOutput(dut.GetOutputPort("ekf_state"), "ekf_state")
-    return builder.Build()
+    for name in vocabulary_for(vehicle.estimator).log_widths():
+        builder.ExportOutput(dut.GetOutputPort(name), name)
+    return builder.Build(), sources
 
 
 def test_yaw_hand_off_between_filter_and_ekf_integrates_the_gyro_once_per_tick():
-    diagram = build_estimators(imu=[0.0, 0.0, -GRAVITY, 0.0, 0.0, 0.5])
+    diagram, _ = build_estimators(imu=[0.0, 0.0, -GRAVITY, 0.0, 0.0, 0.5])
     context = diagram.CreateDefaultContext()
     Simulator(diagram, context).AdvanceTo(ticks_end(500))
     assert diagram.GetOutputPort("ekf_state").Eval(context)[6] == pytest.approx(500 * DT * 0.5, abs=1e-12)
     estimated = diagram.GetOutputPort("estimated_state").Eval(context)
     np.testing.assert_allclose(estimated[3:7], quat_from_euler(0.0, 0.0, 0.5), atol=1e-12)
     np.testing.assert_array_equal(estimated[10:13], [0.0, 0.0, 0.5])
+
+
+# ----- non-finite IMU samples, gating, GPS reset, covariance health -------------
+
+BURST_IMU = [0.0, 0.0, -GRAVITY, 0.1, -0.2, 0.3]
+
+
+@pytest.mark.parametrize("estimator", [Ekf7EstimatorConfig(), EskfEstimatorConfig()], ids=["ekf7", "eskf"])
+def test_a_non_finite_imu_burst_never_reaches_the_estimated_state(estimator):
+    # 0.2 s of NaN IMU samples (100 ticks): the estimate stays finite, the body rate holds the
+    # last finite gyro sample, and every skipped sample is counted.
+    diagram, sources = build_estimators(imu=BURST_IMU, estimator=estimator)
+    context = diagram.CreateDefaultContext()
+    simulator = Simulator(diagram, context)
+    simulator.AdvanceTo(ticks_end(10))
+    source_context = sources["imu"].GetMyContextFromRoot(context)
+    sources["imu"].get_mutable_source_value(source_context).set_value(np.full(6, math.nan))
+    simulator.AdvanceTo(ticks_end(110))
+    estimated = diagram.GetOutputPort("estimated_state").Eval(context)
+    assert np.isfinite(estimated).all()
+    np.testing.assert_allclose(estimated[10:13], BURST_IMU[3:6], atol=1e-3)  # ESKF: minus the gyro bias
+    diagnostics = diagram.GetOutputPort("diagnostics").Eval(context)
+    assert diagnostics[DIAG["nonfinite_samples"]] == 100.0
+    sources["imu"].get_mutable_source_value(source_context).set_value(np.array(BURST_IMU))
+    simulator.AdvanceTo(ticks_end(120))
+    assert np.isfinite(diagram.GetOutputPort("estimated_state").Eval(context)).all()
+    assert diagram.GetOutputPort("diagnostics").Eval(context)[DIAG["nonfinite_samples"]] == 100.0
+
+
+def test_ekf_gates_a_50_m_outlier_and_resets_to_the_gps_after_the_timeout():
+    params = EkfParams(gps_reset_timeout=0.25)
+    z = [50.0, 0.0, -1.0, 0.0, 0.0, 0.0]
+    f = EkfFixture(params=params, gps=z + [0.1])
+    f.tick()
+    diagnostics = f.output("diagnostics")
+    assert diagnostics[DIAG["gps_gated"]] == 1.0
+    assert diagnostics[DIAG["gps_nis"]] > gating.gate_threshold(6, 5.0)  # the NIS of the gated sample
+    np.testing.assert_allclose(f.output("ekf_state")[0:3], [0.0, 0.0, -1.0], atol=1e-6)  # prior kept
+    for k, stamp in enumerate((0.2, 0.3), start=2):
+        f.fix(gps=z + [stamp])
+        f.tick()
+        assert f.output("diagnostics")[DIAG["gps_gated"]] == k
+    assert f.output("diagnostics")[DIAG["gps_resets"]] == 0.0
+    f.fix(gps=z + [0.4])  # >= 0.25 s of continuous rejection: reset p, v to this sample
+    f.tick()
+    assert f.output("diagnostics")[DIAG["gps_resets"]] == 1.0
+    np.testing.assert_allclose(f.output("ekf_state")[0:6], z, atol=1e-12)
+    P = f.output("covariance").reshape(7, 7)
+    np.testing.assert_allclose(P[0:6, 0:6], ekf.gps_noise(params), atol=1e-15)
+    np.testing.assert_array_equal(P[0:6, 6], 0.0)
+    f.fix(gps=z + [0.5])  # consistent with the new estimate: fused
+    f.tick()
+    assert f.output("diagnostics")[DIAG["gps_gated"]] == 4.0
+
+
+@pytest.mark.filterwarnings("ignore:invalid value encountered")
+def test_ekf_repairs_a_non_finite_covariance_and_counts_it():
+    f = EkfFixture()
+    f.context.get_mutable_discrete_state(1).SetFromVector(np.full(49, math.inf))
+    f.tick()
+    P = f.output("covariance").reshape(7, 7)
+    assert np.isfinite(P).all()
+    np.testing.assert_allclose(P, ekf.initial_covariance(f.params), rtol=1e-12)
+    assert f.output("diagnostics")[DIAG["covariance_repairs"]] == 1.0
+    f.tick(3)
+    assert f.output("diagnostics")[DIAG["covariance_repairs"]] == 1.0
+
+
+def test_eskf_matches_its_pure_functions_tick_by_tick():
+    params = EskfEstimatorConfig()
+    imu = [0.3, -0.2, -9.7, 0.05, -0.02, 0.1]
+    z = [0.2, -0.1, -1.1, 0.05, 0.0, 0.02]
+    dut = Eskf(params)
+    context = dut.CreateDefaultContext()
+    for name, value in (("imu", imu), ("gps", z + [0.006]), ("mag", [0.02, 0.004])):
+        dut.GetInputPort(name).FixValue(context, np.asarray(value, dtype=float))
+    Simulator(dut, context).AdvanceTo(ticks_end(3))
+    noise = eskf.NoiseModel.from_params(params)
+    x = eskf.initial_nominal(params.init_position, params.init_velocity, [1.0, 0.0, 0.0, 0.0])
+    P = eskf.initial_covariance(params)
+    x, P = eskf.predict(x, P, imu[0:3], imu[3:6], DT, noise)
+    x, P, mag_nis = eskf.mag_update(x, P, 0.02, eskf.mag_noise(params))
+    x, P, gps_nis = eskf.gps_update(x, P, z, eskf.gps_noise(params))
+    for _ in range(2):
+        x, P = eskf.predict(x, P, imu[0:3], imu[3:6], DT, noise)
+    estimated = dut.GetOutputPort("estimated_state").Eval(context)
+    np.testing.assert_allclose(estimated[0:3], x[0:3], atol=1e-13)
+    np.testing.assert_allclose(estimated[3:7], x[6:10], atol=1e-13)
+    np.testing.assert_allclose(estimated[7:10], x[3:6], atol=1e-13)
+    np.testing.assert_allclose(estimated[10:13], np.array(imu[3:6]) - x[13:16], atol=1e-13)
+    np.testing.assert_allclose(dut.GetOutputPort("covariance").Eval(context), P.ravel(), atol=1e-15)
+    np.testing.assert_allclose(dut.GetOutputPort("imu_bias").Eval(context), x[10:16], atol=1e-15)
+    diagnostics = dut.GetOutputPort("diagnostics").Eval(context)
+    np.testing.assert_allclose(diagnostics[0:4], [gps_nis, 0.006, mag_nis, 0.004], rtol=1e-10)
+    assert dut.GetOutputPort("covariance").size() == 225
+    assert Eskf(EskfEstimatorConfig(estimate_biases=False)).GetOutputPort("covariance").size() == 81

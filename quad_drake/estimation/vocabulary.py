@@ -1,0 +1,200 @@
+"""Pure: what each estimator's logs mean — its state vocabulary, the one place for it.
+
+Every estimator is a sub-Diagram with the same inputs (``imu``, ``gps``, ``mag``) and the same
+exported outputs:
+
+- ``estimated_state`` (13): the estimate in the true ``state`` layout (p_N m, q_NB wxyz,
+  v_N m/s, w_NB_B rad/s), what the controller flies on;
+- ``covariance`` (n*n, row-major): the covariance of the estimator's error state, whose
+  entries are named by ``state_names``;
+- ``diagnostics`` (DIAGNOSTICS_SIZE, layout :data:`DIAGNOSTICS`): NIS of the last GPS and
+  magnetometer updates and their sample stamps, and counters;
+
+plus the logs the vocabulary lists in ``logs`` (e.g. the EKF7's ``ekf_state``). An
+:class:`EstimatorVocabulary` says, for one estimator: the error-state names, their units,
+which are angles (wrapped), how its error against the 13-state truth is computed (in the
+covariance's coordinates, estimate minus truth), and which states enter the NEES.
+
+Consumers (signals, consistency, plots, report, campaigns) read the vocabulary; none of
+them knows an estimator's layout.
+"""
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from quad_drake.estimation.eskf import attitude_errors
+from quad_drake.rotations import euler_from_quats, wrap_angles
+
+DIAGNOSTICS = (
+    "gps_nis",  # NIS of the last fresh GPS sample (fused or gated), NaN before the first
+    "gps_stamp",  # s, its sample stamp (-1 before the first)
+    "mag_nis",  # NIS of the last fresh magnetometer sample
+    "mag_stamp",  # s
+    "nonfinite_samples",  # count of non-finite IMU, GPS or magnetometer samples skipped
+    "gps_gated",  # count of GPS samples rejected by the innovation gate
+    "mag_gated",  # count of magnetometer samples rejected by the innovation gate
+    "gps_resets",  # count of resets to the GPS after continuous rejection
+    "covariance_repairs",  # count of covariance repairs (indefinite) or resets (non-finite)
+)
+"""Names of the ``diagnostics`` entries, common to every estimator."""
+DIAGNOSTICS_SIZE = len(DIAGNOSTICS)
+DIAG = {name: i for i, name in enumerate(DIAGNOSTICS)}
+COUNTERS = ("nonfinite_samples", "gps_gated", "mag_gated", "gps_resets", "covariance_repairs")
+NIS_DOF = {"gps": 6, "mag": 1}
+"""Degrees of freedom of each sensor's NIS (GPS p and v, magnetometer yaw)."""
+NIS_COLUMNS = {"gps": (DIAG["gps_nis"], DIAG["gps_stamp"]), "mag": (DIAG["mag_nis"], DIAG["mag_stamp"])}
+
+STATE_LOG_SIZE = 13
+ESTIMATED_VALUES = ("X", "Y", "Z", "VX", "VY", "VZ", "Roll", "Pitch", "Yaw")
+"""Values every estimator has (``Est.<name>``), read from ``estimated_state``."""
+
+
+@dataclass(frozen=True)
+class EstimatorVocabulary:
+    """One estimator's state vocabulary (see the module docstring)."""
+
+    kind: str
+    state_names: tuple  # error-state entries, in covariance order (``Est.E.<name>``, ``Est.S.<name>``)
+    units: tuple  # unit of each entry
+    angles: tuple  # True where the entry is an angle (its error is wrapped to [-pi, pi))
+    nees_states: tuple  # indices of the entries the NEES is taken over
+    logs: dict  # estimator-specific log name -> width, besides the three common outputs
+    errors: Callable  # (logs {name: (n, w)}) -> (n, len(state_names)) estimate minus truth
+    extra_values: Callable  # (logs) -> {name: (n,)} estimated values beyond ESTIMATED_VALUES
+
+    @property
+    def size(self):
+        return len(self.state_names)
+
+    @property
+    def nees_dof(self):
+        return len(self.nees_states)
+
+    def log_widths(self):
+        """{log name: width} of every log this estimator exports."""
+        widths = {
+            "estimated_state": STATE_LOG_SIZE,
+            "covariance": self.size**2,
+            "diagnostics": DIAGNOSTICS_SIZE,
+        }
+        widths.update(self.logs)
+        return widths
+
+    def unit(self, name):
+        return self.units[self.state_names.index(name)]
+
+
+def _truth_pv_euler(state):
+    state = np.asarray(state, dtype=float)
+    roll, pitch, yaw = euler_from_quats(state[:, 3:7])
+    return state[:, 0:3], state[:, 7:10], roll, pitch, yaw
+
+
+def ekf7_errors(logs):
+    """(n, 7) x_hat - x_true of the EKF7 (m, m/s, rad; yaw wrapped) from ``ekf_state`` and ``state``."""
+    p, v, _, _, yaw = _truth_pv_euler(logs["state"])
+    errors = np.asarray(logs["ekf_state"], dtype=float) - np.column_stack([p, v, yaw])
+    errors[:, 6] = wrap_angles(errors[:, 6])
+    return errors
+
+
+def eskf_errors(logs):
+    """(n, 9 or 15) estimate minus truth of the ESKF's error state.
+
+    p, v from ``estimated_state``; the attitude error dtheta with R_hat = Exp(dtheta) R_true
+    (world axes); the IMU biases from ``imu_bias`` against a true bias of zero (the simulated
+    IMU has none), only when the covariance has 15 states.
+    """
+    state = np.asarray(logs["state"], dtype=float)
+    estimate = np.asarray(logs["estimated_state"], dtype=float)
+    parts = [estimate[:, 0:3] - state[:, 0:3], estimate[:, 7:10] - state[:, 7:10]]
+    parts.append(attitude_errors(estimate[:, 3:7], state[:, 3:7]))
+    if np.shape(logs["covariance"])[1] == 15 * 15:
+        parts.append(np.asarray(logs["imu_bias"], dtype=float))
+    return np.column_stack(parts)
+
+
+def _no_extra_values(logs):
+    return {}
+
+
+def _bias_values(logs):
+    bias = np.asarray(logs["imu_bias"], dtype=float)
+    return {name: bias[:, i] for i, name in enumerate(("BAX", "BAY", "BAZ", "BGX", "BGY", "BGZ"))}
+
+
+EKF7 = EstimatorVocabulary(
+    kind="ekf7",
+    state_names=("X", "Y", "Z", "VX", "VY", "VZ", "Yaw"),
+    units=("m", "m", "m", "m/s", "m/s", "m/s", "rad"),
+    angles=(False,) * 6 + (True,),
+    nees_states=tuple(range(7)),
+    logs={"attitude": 3, "ekf_state": 7},
+    errors=ekf7_errors,
+    extra_values=_no_extra_values,
+)
+"""Complementary filter + 7-state EKF: x = (p_N, v_N, yaw); roll/pitch (no covariance) from the filter."""
+
+_ESKF_NAV = ("X", "Y", "Z", "VX", "VY", "VZ", "AttN", "AttE", "AttD")
+_ESKF_NAV_UNITS = ("m", "m", "m", "m/s", "m/s", "m/s", "rad", "rad", "rad")
+ESKF9 = EstimatorVocabulary(
+    kind="eskf",
+    state_names=_ESKF_NAV,
+    units=_ESKF_NAV_UNITS,
+    angles=(False,) * 6 + (True,) * 3,
+    nees_states=tuple(range(9)),
+    logs={"imu_bias": 6},
+    errors=eskf_errors,
+    extra_values=_bias_values,
+)
+"""Error-state EKF without bias estimation: dp, dv, dtheta (rotation about N, E, D)."""
+ESKF15 = EstimatorVocabulary(
+    kind="eskf",
+    state_names=_ESKF_NAV + ("BAX", "BAY", "BAZ", "BGX", "BGY", "BGZ"),
+    units=_ESKF_NAV_UNITS + ("m/s^2",) * 3 + ("rad/s",) * 3,
+    angles=(False,) * 6 + (True,) * 3 + (False,) * 6,
+    nees_states=tuple(range(9)),  # navigation states: the simulated IMU has no bias to compare with
+    logs={"imu_bias": 6},
+    errors=eskf_errors,
+    extra_values=_bias_values,
+)
+"""Error-state EKF with accelerometer and gyro bias states (15); NEES over the 9 navigation states."""
+
+
+STATE_UNITS = {name: unit for v in (EKF7, ESKF15) for name, unit in zip(v.state_names, v.units, strict=True)}
+"""Unit of every error-state name any estimator uses (the names mean the same in each)."""
+
+
+def vocabulary_for(estimator):
+    """The EstimatorVocabulary of a vehicle's ``estimator`` config (Ekf7/EskfEstimatorConfig)."""
+    if estimator.kind == "ekf7":
+        return EKF7
+    if estimator.kind == "eskf":
+        return ESKF15 if estimator.estimate_biases else ESKF9
+    raise ValueError(f"no vocabulary for estimator kind {estimator.kind!r}")
+
+
+def vehicle_vocabulary(vehicle):
+    """The EstimatorVocabulary of a VehicleConfig's estimator; None without an IMU (no estimator)."""
+    return vocabulary_for(vehicle.estimator) if vehicle.sensors.imu is not None else None
+
+
+def health_counts(diagnostics):
+    """{counter: final count} of a ``diagnostics`` log (n, DIAGNOSTICS_SIZE); zeros when empty."""
+    diagnostics = np.asarray(diagnostics, dtype=float)
+    last = diagnostics[-1] if diagnostics.shape[0] else np.zeros(DIAGNOSTICS_SIZE)
+    return {name: int(last[DIAG[name]]) for name in COUNTERS}
+
+
+def health_line(vehicle, kind, counts):
+    """One console/report line of an estimator's counters; starts with WARNING when the covariance
+    was repaired or reset, or the filter reset itself to the GPS."""
+    text = (
+        f"{vehicle} estimator {kind}: {counts['gps_gated']} GPS and {counts['mag_gated']} mag samples "
+        f"gated, {counts['gps_resets']} GPS resets, {counts['covariance_repairs']} covariance repairs, "
+        f"{counts['nonfinite_samples']} non-finite samples skipped"
+    )
+    alarm = counts["covariance_repairs"] > 0 or counts["gps_resets"] > 0
+    return ("WARNING: " if alarm else "") + text
