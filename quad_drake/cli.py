@@ -54,6 +54,7 @@ def _fly(scenario):
 
 def cmd_run(args):
     from .jsonio import dump_json
+    from .report import estimator_health
     from .results import save_run
 
     names = list(catalog.bundled_scenarios()) if args.all else args.names
@@ -68,6 +69,8 @@ def cmd_run(args):
             result = _fly(scenario)
             for criterion in result.criteria:
                 print(criterion.line)
+            for line in estimator_health(result):
+                print(line)
             run_dir = save_run(result, out / scenario.name)  # logs first: nothing is lost if a plot fails
             if not args.no_plots:
                 from .plots import write_run_artifacts

@@ -495,6 +495,13 @@ class _Loader(yaml.SafeLoader):
     """
 
 
+def _tagged_mapping(loader, tag, node):
+    """A ``!Name {...}`` mapping (how ``yaml_dump_typed`` writes a Union member) as a dict with
+    ``_tag``, as Drake's ``yaml_load`` reads it; :func:`_check_kind_choice` picks the member."""
+    return {**loader.construct_mapping(node, deep=True), "_tag": tag}
+
+
+_Loader.add_multi_constructor("!", _tagged_mapping)
 _Loader.add_implicit_resolver(
     "tag:yaml.org,2002:float",
     re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),

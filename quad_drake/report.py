@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from .config import ConfigError, dump_scenario
-from .estimation.vocabulary import vehicle_vocabulary
+from .estimation.vocabulary import health_counts, health_line, vehicle_vocabulary
 from .evaluation import sigma_share
 from .results import read_summary
 
@@ -146,6 +146,16 @@ def ekf_consistency(result):
     return rows
 
 
+def estimator_health(result):
+    """[health line] per vehicle with an estimator: gated samples, resets, covariance repairs."""
+    lines = []
+    for config in result.scenario.vehicles:
+        logs = result.logs.get(config.name, {})
+        if vehicle_vocabulary(config) is not None and "diagnostics" in logs:
+            lines.append(health_line(config.name, config.estimator.kind, health_counts(logs["diagnostics"])))
+    return lines
+
+
 def write_report(result, path, plots=(), replay=None):
     """report.html for a SimulationResult: verdicts, metrics, plots [(caption, png)], config."""
     path = Path(path)
@@ -193,10 +203,14 @@ def write_report(result, path, plots=(), replay=None):
                 [[esc(v), esc(w), esc(u), (num(r), "num"), (num(m), "num")] for v, w, u, r, m in metrics],
             )
         )
+    health = estimator_health(result)
+    if health:
+        parts.append("<h2>Estimator health</h2>")
+        parts.append("<pre>" + _esc("\n".join(health)) + "</pre>")
     consistency = ekf_consistency(result)
     if consistency:
         parts.append(
-            "<h2>EKF errors against the predicted σ</h2>"
+            "<h2>Estimator errors against the predicted σ</h2>"
             "<p>A consistent filter has about 68 % of its errors within ±σ and 95 % within ±2σ.</p>"
         )
         parts.append(

@@ -8,10 +8,13 @@ import pytest
 from quad_drake.accuracy_bound import (
     accuracy_bound,
     position_velocity_bound,
+    position_velocity_tilt_bound,
+    posterior_crb,
     steady_state_kalman,
     yaw_bound,
 )
 from quad_drake.config import GpsParams, ImuParams, MagParams, SensorsConfig, VehicleConfig
+from quad_drake.signals import stamp_fresh
 
 DT = 0.002
 
@@ -89,19 +92,62 @@ def vehicle(imu=True, gps=True, mag=True, **imu_fields):
 
 
 def test_accuracy_bound_covers_the_states_the_sensors_observe():
-    assert list(accuracy_bound(vehicle())) == ["X", "Y", "Z", "VX", "VY", "VZ", "Yaw"]
+    full = ["X", "Y", "Z", "VX", "VY", "VZ", "Pitch", "Roll", "Yaw"]
+    assert list(accuracy_bound(vehicle())) == full
     assert list(accuracy_bound(vehicle(gps=False))) == ["Yaw"]
-    assert list(accuracy_bound(vehicle(mag=False))) == ["X", "Y", "Z", "VX", "VY", "VZ"]
+    assert list(accuracy_bound(vehicle(mag=False))) == full[:-1]
     assert accuracy_bound(vehicle(imu=False)) == {}
 
 
-def test_accuracy_bound_of_the_default_sensors():
+def test_accuracy_bound_of_the_default_sensors_includes_the_tilt_random_walk():
     bounds = accuracy_bound(vehicle())
-    assert bounds["X"].mean_std == pytest.approx(0.0831, abs=2e-4)
-    assert bounds["Y"] == bounds["X"]
-    assert bounds["VX"].mean_std == pytest.approx(0.0264, abs=2e-4)
-    assert bounds["Z"].mean_std == pytest.approx(0.2431, abs=2e-4)  # accel 1.5, GPS 2.0 / 0.3
+    # Issue 10: with the tilt driven by 11's gyro noise, sigma_v = 0.062 m/s, sigma_theta = 0.0166 rad.
+    assert bounds["VX"].mean_std == pytest.approx(0.062, abs=5e-4)
+    assert bounds["Pitch"].mean_std == pytest.approx(0.0166, abs=5e-5)
+    assert bounds["Y"] == bounds["X"] and bounds["Roll"] == bounds["Pitch"]
+    assert bounds["X"].mean_std == pytest.approx(0.0837, abs=2e-4)
+    assert bounds["Z"].mean_std == pytest.approx(0.2431, abs=2e-4)  # accel 1.5, GPS 2.0 / 0.3, no tilt
     assert bounds["Yaw"].mean_std == pytest.approx(0.01494, abs=2e-5)
+    # Without gyro noise the tilt stays known and the double-integrator bound comes back.
+    _, v_no_tilt = position_velocity_bound(0.5, 0.7, 0.1, 0.1)
+    _, v_quiet_gyro, _ = position_velocity_tilt_bound(0.5, 0.0, 0.7, 0.1, 0.1)
+    assert v_quiet_gyro.mean_std == pytest.approx(v_no_tilt.mean_std, rel=1e-6)
+    assert v_no_tilt.mean_std == pytest.approx(0.0264, abs=2e-4)
+
+
+def hover_samples(n=4000, period=0.005):
+    """A truth log at rest (level, z = -1) with the GPS (10 Hz) and mag (100 Hz) freshness masks."""
+    state = np.zeros((n, 13))
+    state[:, 2], state[:, 3] = -1.0, 1.0
+    t = np.arange(1, n + 1) * period
+    gps = stamp_fresh(np.where(t >= 0.1 - 1e-9, np.floor(t / 0.1 + 1e-9) * 0.1, -1.0))
+    mag = stamp_fresh(np.floor((t - 0.008) / 0.01 + 1e-9) * 0.01 + 0.008)
+    return state, gps, mag
+
+
+def test_posterior_crb_at_hover_converges_to_the_hover_riccati_bound():
+    state, gps, mag = hover_samples()
+    sensors = vehicle().sensors
+    pcrb = posterior_crb(state, gps, mag, sensors)
+    bounds = accuracy_bound(vehicle())
+    steady = slice(1000, None)  # after 5 s
+    pairs = [("X", "X"), ("VX", "VX"), ("Z", "Z"), ("VZ", "VZ"), ("AttE", "Pitch"), ("AttN", "Roll")]
+    pairs += [("AttD", "Yaw"), ("Pitch", "Pitch"), ("Yaw", "Yaw")]
+    for crb_name, bound_name in pairs:
+        # The PCRB steps at the 5 ms log period, the Riccati bound at the 2 ms IMU period.
+        assert math.sqrt(np.mean(pcrb[crb_name][steady])) == pytest.approx(
+            bounds[bound_name].mean_std, rel=0.02
+        )
+    assert (np.diff(pcrb["X"][:200]) < 1e-9).sum() > 0  # GPS updates lower the variance
+
+
+def test_posterior_crb_grows_without_measurements_and_needs_the_true_noise():
+    state, gps, mag = hover_samples(n=400)
+    sensors = vehicle().sensors
+    blind = posterior_crb(state, np.zeros(400, bool), np.zeros(400, bool), sensors)
+    assert np.all(np.diff(blind["VX"]) > 0)  # dead reckoning: velocity variance only grows
+    loud = posterior_crb(state, gps, mag, vehicle(accel_std=[2.0, 2.0, 2.0]).sensors)
+    assert np.mean(loud["VX"][200:]) > np.mean(posterior_crb(state, gps, mag, sensors)["VX"][200:])
 
 
 def test_accuracy_bound_grows_with_the_imu_noise_and_vanishes_without_it():

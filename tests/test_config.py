@@ -1,5 +1,6 @@
 """Scenario loading: every bundled scenario loads; every bad input is one clear line."""
 
+import re
 import textwrap
 
 import pytest
@@ -28,7 +29,8 @@ GOOD = """
 
 def test_every_bundled_scenario_loads_and_round_trips():
     paths = catalog.bundled_scenarios()
-    assert [n[:2] for n in paths] == [f"{i:02d}" for i in range(1, 12)]
+    assert [n[:2] for n in paths if not n.endswith("_eskf")] == [f"{i:02d}" for i in range(1, 12)]
+    assert "11_gps_update_eskf" in paths
     for name, path in paths.items():
         scenario = load_scenario(path)
         assert scenario.name == name
@@ -195,3 +197,39 @@ def test_zero_noise_and_the_edges_of_the_noise_range_are_accepted(tmp_path):
     assert (ekf.q_yaw_std, ekf.gps_pos_xy_std, ekf.q_vel_xy_std) == (0, 1e-100, 1e100)
     with pytest.raises(ConfigError, match="dt_imu: must be <= 1.0"):
         load_scenario(write(tmp_path, GOOD), ["vehicles.0.ekf.dt_imu=10"])
+
+
+def test_estimator_choice_loads_by_kind_with_one_line_errors(tmp_path):
+    from quad_drake.config import EskfEstimatorConfig
+
+    def load(text, *overrides):
+        path = tmp_path / "s.yaml"
+        path.write_text("vehicles:\n  - name: Q\n    " + text + "\n")
+        return load_scenario(path, overrides)
+
+    scenario = load("estimator: {kind: eskf, gps_gate_sigma: 4, estimate_biases: false}")
+    estimator = scenario.vehicles[0].estimator
+    assert isinstance(estimator, EskfEstimatorConfig)
+    assert (estimator.gps_gate_sigma, estimator.estimate_biases) == (4.0, False)
+    (tmp_path / "dumped.yaml").write_text(dump_scenario(scenario))
+    assert load_scenario(tmp_path / "dumped.yaml") == scenario
+    assert load("sensors: {imu: {}}").vehicles[0].estimator.kind == "ekf7"  # the default
+    assert load("sensors: {}", "vehicles.0.estimator.kind=eskf").vehicles[0].estimator.kind == "eskf"
+    for text, message in (
+        ("estimator: {kind: ukf}", "vehicles.0.estimator.kind: 'ukf' is not one of ekf7, eskf"),
+        ("estimator: {gps_gate_sigma: 3}", "vehicles.0.estimator.kind: missing; one of ekf7, eskf"),
+        ("estimator: {kind: ekf7, gps_gate_sigma: 3}", "vehicles.0.estimator.gps_gate_sigma: unknown key"),
+        ("estimator: {kind: eskf, init_pos_std: [1, 1]}", "vehicles.0.estimator.init_pos_std: expected 3"),
+        ("estimator: {kind: eskf, gyro_std: [1, -1, 1]}", "vehicles.0.estimator.gyro_std: must be >= 0"),
+        ("estimator: eskf", "vehicles.0.estimator: expected a mapping"),
+        ("ekf: {q_vel_xy_std: 1.0e+200}", "vehicles.0.ekf.q_vel_xy_std: a noise std must be 0 or within"),
+        (
+            "estimator: {kind: eskf, accel_bias_rw_std: 1e200}",
+            "vehicles.0.estimator.accel_bias_rw_std: a noise",
+        ),
+    ):
+        with pytest.raises(
+            ConfigError, match="^" + re.escape(str(tmp_path / "s.yaml") + ": " + message)
+        ) as e:
+            load(text)
+        assert "\n" not in str(e.value)
