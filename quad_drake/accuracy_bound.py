@@ -117,7 +117,7 @@ def steady_state_kalman(F, Q, H, R, steps):
 
 def _bounds(posterior, prior, mean):
     return [
-        StateBound(float(np.sqrt(posterior[i, i])), float(np.sqrt(prior[i, i])), float(np.sqrt(mean[i, i])))
+        StateBound(*(math.sqrt(max(float(m[i, i]), 0.0)) for m in (posterior, prior, mean)))
         for i in range(posterior.shape[0])
     ]
 

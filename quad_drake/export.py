@@ -11,6 +11,8 @@ a value does not exist yet).
 import csv
 from pathlib import Path
 
+from .config import load_scenario
+from .estimation.vocabulary import vehicle_vocabulary
 from .results import load_logs
 from .signals import vehicle_signals
 
@@ -19,12 +21,15 @@ def export_csv(run_dir, out_dir=None):
     """Write ``<vehicle>.csv`` per vehicle of the run folder `run_dir` (which holds logs.npz)
     into `out_dir` (default: ``run_dir/csv``); returns the paths written."""
     times, logs = load_logs(run_dir)
+    config = Path(run_dir) / "config.yaml"
+    vehicles = {v.name: v for v in load_scenario(config).vehicles} if config.is_file() else {}
     out_dir = Path(run_dir) / "csv" if out_dir is None else Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
     for vehicle, vehicle_logs in logs.items():
         header, columns = ["time"], [times]
-        for name, signal in vehicle_signals(vehicle, vehicle_logs).items():
+        vocabulary = vehicle_vocabulary(vehicles[vehicle]) if vehicle in vehicles else None
+        for name, signal in vehicle_signals(vehicle, vehicle_logs, vocabulary).items():
             header.append(name)
             columns.append(signal.values)
             if not signal.fresh.all():

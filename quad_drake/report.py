@@ -206,7 +206,7 @@ def write_report(result, path, plots=(), replay=None):
     health = estimator_health(result)
     if health:
         parts.append("<h2>Estimator health</h2>")
-        parts.append("<pre>" + _esc("\n".join(health)) + "</pre>")
+        parts.append("<pre>" + esc("\n".join(health)) + "</pre>")
     consistency = ekf_consistency(result)
     if consistency:
         parts.append(

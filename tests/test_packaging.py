@@ -51,9 +51,9 @@ def test_the_import_scan_sees_relative_imports_of_the_cli():
     assert "quad_drake.cli" in _imported_modules(PACKAGE / "__main__.py")
 
 
-def test_catalog_lists_eleven_bundled_scenarios_inside_the_package():
+def test_catalog_lists_the_bundled_scenarios_inside_the_package():
     scenarios = catalog.bundled_scenarios()
-    assert list(scenarios)[:2] == ["01_intro", "02_attitude_control"] and len(scenarios) == 11
+    assert list(scenarios)[:2] == ["01_intro", "02_attitude_control"] and len(scenarios) == 12  # 01-11, 11 eskf
     assert all(path.parent == PACKAGE / "scenarios" for path in scenarios.values())
     assert not (REPO / "scenarios").exists()
 
@@ -104,7 +104,7 @@ def test_wheel_installed_outside_the_repo_lists_and_runs_the_bundled_scenarios(t
 
     listed = _run(quad_drake_exe, "list", cwd=cwd, env=env)
     assert listed.returncode == 0, listed.stderr
-    assert len(listed.stdout.strip().splitlines()) == 11
+    assert len(listed.stdout.strip().splitlines()) == 12
 
     out = tmp_path / "out"
     ran = _run(quad_drake_exe, "run", "01_intro", "--no-plots", "--out", str(out), cwd=cwd, env=env)
