@@ -72,7 +72,8 @@ def test_reset_jacobian_and_mag_jacobian_match_central_differences():
     h = 1e-6
 
     def new_error(d):  # Log(Exp(d) Exp(-d_hat))
-        return eskf.rotation_log(rotation_from_quat(eskf.quat_exp(d)) @ rotation_from_quat(eskf.quat_exp(-d_hat)))
+        left, right = rotation_from_quat(eskf.quat_exp(d)), rotation_from_quat(eskf.quat_exp(-d_hat))
+        return eskf.rotation_log(left @ right)
 
     numeric = np.column_stack(
         [(new_error(d_hat + h * e) - new_error(d_hat - h * e)) / (2 * h) for e in np.eye(3)]
