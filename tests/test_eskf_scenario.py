@@ -3,15 +3,15 @@
 import numpy as np
 import pytest
 
+from quad_drake import catalog
 from quad_drake import consistency as cons
-from quad_drake.cli import load_named
 from quad_drake.estimation.vocabulary import ESKF15, health_counts, health_line
 from quad_drake.simulation import run
 
 
 @pytest.mark.slow
 def test_eskf_closed_loop_run_is_consistent_and_healthy():
-    result = run(load_named("11_gps_update_eskf", 3, ["end_time=15"]))
+    result = run(catalog.load("11_gps_update_eskf", 3, ["end_time=15"]))
     assert result.passed
     logs = result.logs["Quad"]
     settled = result.times >= 5.0
