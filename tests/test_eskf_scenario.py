@@ -11,7 +11,7 @@ from quad_drake.simulation import run
 
 @pytest.mark.slow
 def test_eskf_closed_loop_run_is_consistent_and_healthy():
-    result = run(catalog.load("11_gps_update_eskf", 3, ["end_time=15"]))
+    result = run(catalog.load("11_gps_update_eskf", 3, ["end_time=15", "criteria.0.window=10"]))
     assert result.passed
     logs = result.logs["Quad"]
     settled = result.times >= 5.0
