@@ -113,6 +113,10 @@ class ImuParams:
     accel_std: List[float] = _std(0.5, 0.5, 1.5)  # m/s^2 per sample, body x y z
     gyro_std: List[float] = _std(0.5, 0.5, 0.5)  # rad/s per sample
     accel_limit: float = _num(6 * 9.81, positive=True)  # m/s^2, per-axis saturation
+    accel_bias: List[float] = _vec(0.0, 0.0, 0.0)  # m/s^2, initial accelerometer bias, body x y z
+    gyro_bias: List[float] = _vec(0.0, 0.0, 0.0)  # rad/s, initial gyro bias
+    accel_bias_walk_std: List[float] = _std(0.0, 0.0, 0.0)  # m/s^2 per sample, bias increment
+    gyro_bias_walk_std: List[float] = _std(0.0, 0.0, 0.0)  # rad/s per sample, bias increment
 
 
 @dataclass
@@ -214,6 +218,30 @@ EstimatorConfig = Union[Ekf7EstimatorConfig, EskfEstimatorConfig]
 ESTIMATOR_KINDS = ("ekf7", "eskf")
 
 
+FAULT_KINDS = ("gps_outage", "gps_outlier", "gps_step", "gps_delay", "mag_bias", "mag_outage", "imu_dropout")
+
+
+@dataclass
+class FaultConfig:
+    """A sensor fault injected between a sensor and the estimators (``quad_drake.faults``).
+
+    Windows are [start, end) s on the sample's measurement time (its stamp):
+    gps_outage, mag_outage: no samples in [start, end).
+    gps_outlier: the first GPS sample at or after ``time`` is shifted by ``offset`` (3, m, NED).
+    gps_step: every GPS position sample in [start, end) is shifted by ``offset`` (3, m, NED).
+    gps_delay: every GPS sample reaches the estimators ``delay`` s late, keeping its stamp.
+    mag_bias: ``offset`` (1, rad) added to every magnetometer yaw in [start, end).
+    imu_dropout: every IMU sample in [start, end) is non-finite (NaN).
+    """
+
+    kind: str = field(default="gps_outage", metadata={"choices": FAULT_KINDS})
+    start: float = _num(0.0, nonnegative=True)  # s
+    end: float = _num(0.0, nonnegative=True)  # s
+    time: float = _num(0.0, nonnegative=True)  # s, gps_outlier
+    offset: List[float] = field(default_factory=list)  # m (gps_outlier, gps_step: 3) or rad (mag_bias: 1)
+    delay: float = _num(0.0, nonnegative=True)  # s, gps_delay
+
+
 TRAJECTORY_KINDS = ("point", "file", "figure_eight")
 
 
@@ -244,6 +272,7 @@ class VehicleConfig:
     attitude_filter: AttitudeFilterParams = field(default_factory=AttitudeFilterParams)
     ekf: EkfParams = field(default_factory=EkfParams)
     estimator: EstimatorConfig = field(default_factory=Ekf7EstimatorConfig)
+    faults: List[FaultConfig] = field(default_factory=list)  # applied in order, see FaultConfig
 
 
 SAFETY_KINDS = ("floor", "room", "finite", "tracking")
@@ -458,6 +487,10 @@ def _check_semantics(scenario):
             resolve_trajectory_file(v.trajectory.file, f"vehicles.{i}.trajectory.file")
         if not v.use_ideal_estimator and not (v.sensors.imu and v.sensors.gps and v.sensors.mag):
             raise ConfigError(f"vehicles.{i}.use_ideal_estimator: false needs imu, gps and mag sensors")
+        for j, fault in enumerate(v.faults):
+            _check_fault(fault, v.sensors, f"vehicles.{i}.faults.{j}")
+        if sum(f.kind == "gps_delay" for f in v.faults) > 1:
+            raise ConfigError(f"vehicles.{i}.faults: at most one gps_delay per vehicle")
     for i, c in enumerate(scenario.criteria):
         if not c.signal:
             raise ConfigError(f"criteria.{i}.signal: must name a signal")
@@ -470,6 +503,29 @@ def _check_semantics(scenario):
     landing = scenario.safety.landing_time
     if landing is not None and not landing >= 0:
         raise ConfigError(f"safety.landing_time: must be >= 0, got {landing}")
+
+
+FAULT_OFFSET_LENGTHS = {"gps_outlier": 3, "gps_step": 3, "mag_bias": 1}
+"""Number of ``offset`` values each fault kind takes (the others take none)."""
+WINDOW_FAULT_KINDS = ("gps_outage", "gps_step", "mag_bias", "mag_outage", "imu_dropout")
+
+
+def _check_fault(fault, sensors, where):
+    """One-line ConfigError for a fault the vehicle cannot have or whose fields do not fit its kind."""
+    sensor = fault.kind.split("_")[0]
+    if getattr(sensors, sensor) is None:
+        raise ConfigError(f"{where}.kind: {fault.kind} needs a {sensor} sensor on the vehicle")
+    if fault.kind in WINDOW_FAULT_KINDS and not fault.end > fault.start:
+        raise ConfigError(f"{where}.end: must be > start ({fault.start}), got {fault.end}")
+    expected = FAULT_OFFSET_LENGTHS.get(fault.kind, 0)
+    if len(fault.offset) != expected:
+        raise ConfigError(f"{where}.offset: {fault.kind} takes {expected} values, got {len(fault.offset)}")
+    if fault.kind == "gps_delay":
+        ticks = fault.delay / ONBOARD_PERIOD
+        if not fault.delay > 0 or abs(ticks - round(ticks)) > 1e-6:
+            raise ConfigError(
+                f"{where}.delay: must be a positive multiple of {ONBOARD_PERIOD} s, got {fault.delay}"
+            )
 
 
 def resolve_trajectory_file(name, where="trajectory.file"):

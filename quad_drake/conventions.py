@@ -28,6 +28,9 @@ LOG_PERIOD = 0.005
 #   the EKF; their times coincide with the attitude filter's only up to rounding.
 # - the plant steps twice per tick: at t_k + PLANT_OFFSET (t_k -> t_k + PHYSICS_PERIOD)
 #   and at t_k + PHYSICS_PERIOD + PLANT_OFFSET, using two draws of one 500 Hz source.
+# - a sensor fault system (systems/faults.py, only on vehicles with faults) fires FAULT_LAG
+#   after its sensor, before the sensor's first consumer: the IMU's between the IMU and the
+#   attitude filter, the GPS's and magnetometer's between them and the EKF.
 TICK_EPSILON = 1e-6
 SENSOR_OFFSET = 0.0
 SLOW_SENSOR_OFFSET = 1 * TICK_EPSILON
@@ -35,6 +38,7 @@ ATTITUDE_FILTER_OFFSET = 1 * TICK_EPSILON
 EKF_OFFSET = 2 * TICK_EPSILON
 CONTROLLER_OFFSET = 3 * TICK_EPSILON
 PLANT_OFFSET = 4 * TICK_EPSILON
+FAULT_LAG = 0.5 * TICK_EPSILON
 
 # ----- signal layouts ---------------------------------------------------------
 # `state` (13): p_NB (3, m), q_NB (4, wxyz), v_NB (3, m/s), w_NB_B (3, rad/s)

@@ -51,10 +51,14 @@ def _clamp(value, limit):
     return -limit if value < -limit else (limit if value > limit else value)
 
 
-def imu_measurement(q_NB, w_NB_B, a_NB, noise, params, fidelity=PHYSICAL):
+NO_IMU_BIAS = (0.0,) * 6
+
+
+def imu_measurement(q_NB, w_NB_B, a_NB, noise, params, fidelity=PHYSICAL, bias=NO_IMU_BIAS):
     """Noisy IMU sample [f_B (3, m/s^2), gyro (3, rad/s)] as a list of 6.
 
     noise: 6 unit-normal draws, 3 accelerometer then 3 gyro (SPEC §0.3 order).
+    bias: 6, accelerometer (m/s^2) then gyro (rad/s) bias, added with the noise.
     params: ImuParams; f_B is saturated per axis to +-accel_limit after the noise.
     fidelity: with ``reference_accelerometer`` the accelerometer part is
     :func:`reference_accelerometer` instead of :func:`specific_force`.
@@ -62,13 +66,33 @@ def imu_measurement(q_NB, w_NB_B, a_NB, noise, params, fidelity=PHYSICAL):
     f = (reference_accelerometer if fidelity.reference_accelerometer else specific_force)(q_NB, a_NB)
     sa, sg, limit = params.accel_std, params.gyro_std, params.accel_limit
     return [
-        _clamp(f[0] + sa[0] * noise[0], limit),
-        _clamp(f[1] + sa[1] * noise[1], limit),
-        _clamp(f[2] + sa[2] * noise[2], limit),
-        w_NB_B[0] + sg[0] * noise[3],
-        w_NB_B[1] + sg[1] * noise[4],
-        w_NB_B[2] + sg[2] * noise[5],
+        _clamp(f[0] + bias[0] + sa[0] * noise[0], limit),
+        _clamp(f[1] + bias[1] + sa[1] * noise[1], limit),
+        _clamp(f[2] + bias[2] + sa[2] * noise[2], limit),
+        w_NB_B[0] + bias[3] + sg[0] * noise[3],
+        w_NB_B[1] + bias[4] + sg[1] * noise[4],
+        w_NB_B[2] + bias[5] + sg[2] * noise[5],
     ]
+
+
+def imu_initial_bias(params):
+    """The IMU bias at t = 0 (6: accelerometer m/s^2, gyro rad/s) from ImuParams."""
+    return list(params.accel_bias) + list(params.gyro_bias)
+
+
+def imu_has_bias_walk(params):
+    """True iff ImuParams has a non-zero bias random walk (the IMU then needs a bias noise input)."""
+    return any(s > 0 for s in list(params.accel_bias_walk_std) + list(params.gyro_bias_walk_std))
+
+
+def imu_bias_step(bias, noise, params):
+    """The IMU bias (6) after one sample's random-walk step: bias + walk_std * noise.
+
+    noise: 6 unit-normal draws, 3 accelerometer then 3 gyro; params: ImuParams (the
+    ``*_bias_walk_std`` are per sample).
+    """
+    walk = list(params.accel_bias_walk_std) + list(params.gyro_bias_walk_std)
+    return [b + s * n for b, s, n in zip(bias, walk, noise, strict=True)]
 
 
 def gps_measurement(p_NB, v_NB, random_walk, noise, params):

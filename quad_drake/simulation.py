@@ -19,12 +19,14 @@ from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput, Mu
 
 from . import conventions as c
 from .estimation.vocabulary import vehicle_vocabulary
+from .faults import sensor_of
 from .fidelity import PHYSICAL, fidelity_from_mode
 from .results import result_from_logs
 from .rotations import quat_from_euler
 from .signals import LOG_WIDTHS, empty_logs, vehicle_signals
 from .systems.controller import CascadeController
 from .systems.estimators import build_estimator
+from .systems.faults import SensorFaults
 from .systems.plant import QuadrotorPlant
 from .systems.sensors import Gps, Imu, Magnetometer
 from .systems.trajectory import TrajectorySource
@@ -79,6 +81,28 @@ def _never_sampled(builder, size):
     return builder.AddSystem(ConstantVectorSource(value)).get_output_port(0)
 
 
+def sensor_schedule(vehicle, sensor):
+    """(period, event time of the first sample) of a vehicle's sensor, s (see systems/sensors)."""
+    if sensor == "imu":
+        return c.ONBOARD_PERIOD, c.SENSOR_OFFSET
+    params = getattr(vehicle.sensors, sensor)
+    first = params.period if sensor == "gps" else params.first_sample_time
+    return params.period, first + c.SLOW_SENSOR_OFFSET
+
+
+def _add_faults(builder, vehicle, outputs):
+    """Put a SensorFaults between each faulted sensor and its consumers: ``outputs[sensor]``
+    (the sensor's output port) is replaced by the fault system's, which is what gets logged."""
+    for sensor in sorted({sensor_of(f.kind) for f in vehicle.faults}):
+        period, first_sample = sensor_schedule(vehicle, sensor)
+        size = outputs[sensor].size()
+        system = builder.AddNamedSystem(
+            f"{sensor}_faults", SensorFaults(sensor, size, vehicle.faults, period, first_sample)
+        )
+        builder.Connect(outputs[sensor], system.GetInputPort(sensor))
+        outputs[sensor] = system.GetOutputPort(sensor)
+
+
 def build_vehicle(vehicle, fidelity=PHYSICAL):
     """The sub-Diagram of one VehicleConfig; its outputs are named as `vehicle_log_names`.
 
@@ -109,6 +133,12 @@ def build_vehicle(vehicle, fidelity=PHYSICAL):
     sensors = vehicle.sensors
     if sensors.imu is not None:
         imu = _add_noisy(builder, Imu(sensors.imu, fidelity), "imu")
+        if imu.HasInputPort("bias_noise"):
+            bias_noise = RandomSource(RandomDistribution.kGaussian, imu.noise_size, imu.noise_period)
+            builder.Connect(
+                builder.AddNamedSystem("imu_bias_noise", bias_noise).get_output_port(0),
+                imu.GetInputPort("bias_noise"),
+            )
         builder.Connect(plant.GetOutputPort("state"), imu.GetInputPort("state"))
         builder.Connect(plant.GetOutputPort("acceleration"), imu.GetInputPort("acceleration"))
         outputs["imu"] = imu.GetOutputPort("imu")
@@ -118,6 +148,7 @@ def build_vehicle(vehicle, fidelity=PHYSICAL):
             sensor = _add_noisy(builder, sensor_class(params), kind)
             builder.Connect(plant.GetOutputPort("state"), sensor.GetInputPort("state"))
             outputs[kind] = sensor.GetOutputPort(kind)
+    _add_faults(builder, vehicle, outputs)
 
     if sensors.imu is not None:
         estimator = builder.AddSystem(build_estimator(vehicle, fidelity))

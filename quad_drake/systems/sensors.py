@@ -45,9 +45,12 @@ class Imu(_Sensor):
     """Accelerometer + gyro sampled every ONBOARD_PERIOD from t = SENSOR_OFFSET = 0.
 
     Inputs: ``state`` (13); ``acceleration`` (3): a_NB, kinematic NED acceleration, m/s^2;
-    ``noise`` (6, unit Gaussian): 3 accelerometer then 3 gyro.
+    ``noise`` (6, unit Gaussian): 3 accelerometer then 3 gyro; ``bias_noise`` (6, unit
+    Gaussian, only when ImuParams has a bias random walk): the walk's draws, same order.
     Output ``imu`` (6): specific force f_B = R_NB^T (a_NB - g_N) (m/s^2, FRD, saturated
-    per axis to +-accel_limit) and gyro w_NB_B (rad/s). Zero before the first sample.
+    per axis to +-accel_limit) and gyro w_NB_B (rad/s), each plus its bias (discrete state,
+    from ImuParams.accel_bias / gyro_bias; with a walk it first steps, then is applied).
+    Zero before the first sample.
     With ``fidelity.reference_accelerometer`` the first three entries are the reference's
     R_NB^T (a_NB + g_N) instead (``sensor_models.reference_accelerometer``).
     """
@@ -60,7 +63,15 @@ class Imu(_Sensor):
         self._params = params
         self._fidelity = fidelity
         self._read_acceleration = vector_reader(self.DeclareVectorInputPort("acceleration", 3))
+        self._read_bias_noise = None
+        if sensor_models.imu_has_bias_walk(params):
+            self._read_bias_noise = vector_reader(
+                self.DeclareVectorInputPort(
+                    "bias_noise", self.noise_size, random_type=RandomDistribution.kGaussian
+                )
+            )
         group = self.DeclareDiscreteState(IMU_SIZE)
+        self._bias_group = self.DeclareDiscreteState(np.array(sensor_models.imu_initial_bias(params)))
         self.DeclareStateOutputPort("imu", group)
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, SENSOR_OFFSET, self._sample)
 
@@ -68,8 +79,18 @@ class Imu(_Sensor):
         x = self._read_state(context)
         a = self._read_acceleration(context)
         noise = self._read_noise(context)
-        sample = sensor_models.imu_measurement(x[3:7], x[10:13], a, noise, self._params, self._fidelity)
-        discrete_state.set_value(0, np.array(sample))
+        bias = discrete_state.value(self._bias_group).tolist()
+        if self._read_bias_noise is not None:
+            bias = sensor_models.imu_bias_step(bias, self._read_bias_noise(context), self._params)
+            discrete_state.set_value(self._bias_group, np.array(bias))
+        discrete_state.set_value(
+            0,
+            np.array(
+                sensor_models.imu_measurement(
+                    x[3:7], x[10:13], a, noise, self._params, self._fidelity, bias=bias
+                )
+            ),
+        )
 
 
 class Gps(_Sensor):
