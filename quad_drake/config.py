@@ -273,11 +273,14 @@ class VehicleConfig:
     ekf: EkfParams = field(default_factory=EkfParams)
     estimator: EstimatorConfig = field(default_factory=Ekf7EstimatorConfig)
     faults: List[FaultConfig] = field(default_factory=list)  # applied in order, see FaultConfig
+    # s, the longest GPS lag the estimator compensates (0 = off): a late GPS sample is moved by
+    # the estimate's own motion since its stamp (quad_drake.delay_compensation)
+    gps_delay_compensation: float = _num(0.0, nonnegative=True)
 
 
 SAFETY_KINDS = ("floor", "room", "finite", "tracking")
 """Flight-safety criterion kinds (``quad_drake.safety`` adds them to every scenario)."""
-CRITERION_KINDS = ("window", "sigma", "fleet_sigma", *SAFETY_KINDS)
+CRITERION_KINDS = ("window", "sigma", "fleet_sigma", "bound", "recovery", *SAFETY_KINDS)
 
 
 @dataclass
@@ -293,6 +296,10 @@ class CriterionConfig:
             |V.<signal>| <= sigma_multiple * V.<sigma_signal> lies in
             [min_percent, max_percent]; ``signal`` and ``sigma_signal`` are suffixes
             such as ``Est.E.X`` and ``Est.S.X``.
+    bound:  ABS(signal) < threshold on every sample in [start, end) s (e.g. during a fault).
+    recovery: ABS(signal) < threshold on every sample from start + window s to the end of
+            the run: back under the threshold within ``window`` s after ``start`` (e.g. the
+            end of a fault) and staying there.
     Flight safety (derived by ``quad_drake.safety``; ``signal`` is a vehicle's signal):
     floor:  ``V.FloorTouchdowns`` stays 0 (no touchdown after take-off) until
             ``landing_time`` s (None: the whole run), and V leaves the floor at all.
@@ -313,6 +320,8 @@ class CriterionConfig:
     min_percent: float = _num(0.0, minimum=0.0, maximum=100.0)
     max_percent: float = _num(100.0, minimum=0.0, maximum=100.0)
     landing_time: Optional[float] = None  # s, floor: touchdowns from then on are a landing
+    start: float = _num(0.0, nonnegative=True)  # s, bound and recovery
+    end: float = _num(0.0, nonnegative=True)  # s, bound
 
 
 @dataclass
@@ -487,6 +496,8 @@ def _check_semantics(scenario):
             resolve_trajectory_file(v.trajectory.file, f"vehicles.{i}.trajectory.file")
         if not v.use_ideal_estimator and not (v.sensors.imu and v.sensors.gps and v.sensors.mag):
             raise ConfigError(f"vehicles.{i}.use_ideal_estimator: false needs imu, gps and mag sensors")
+        if v.gps_delay_compensation > 0 and not (v.sensors.imu and v.sensors.gps):
+            raise ConfigError(f"vehicles.{i}.gps_delay_compensation: needs imu and gps sensors")
         for j, fault in enumerate(v.faults):
             _check_fault(fault, v.sensors, f"vehicles.{i}.faults.{j}")
         if sum(f.kind == "gps_delay" for f in v.faults) > 1:
@@ -496,6 +507,8 @@ def _check_semantics(scenario):
             raise ConfigError(f"criteria.{i}.signal: must name a signal")
         if c.kind == "fleet_sigma" and not c.sigma_signal:
             raise ConfigError(f"criteria.{i}.sigma_signal: fleet_sigma needs a sigma signal suffix")
+        if c.kind == "bound" and not c.end > c.start:
+            raise ConfigError(f"criteria.{i}.end: must be > start ({c.start}), got {c.end}")
         if c.kind in ("sigma", "fleet_sigma") and c.min_percent >= c.max_percent:
             raise ConfigError(f"criteria.{i}: min_percent must be < max_percent")
         if c.landing_time is not None and not c.landing_time >= 0:

@@ -251,6 +251,14 @@ def evaluate_criterion(criterion, times, signal):
     (``fresh_mask`` None when every sample is fresh).
     """
     values, fresh = signal(criterion.signal)
+    if criterion.kind == "bound":
+        return bound_threshold(
+            times, values, criterion.threshold, criterion.start, criterion.end, criterion.signal
+        )
+    if criterion.kind == "recovery":
+        return recovery_threshold(
+            times, values, criterion.threshold, criterion.start, criterion.window, criterion.signal
+        )
     vehicle = criterion.signal.split(".", 1)[0]
     if criterion.kind == "floor":
         contact = signal(f"{vehicle}.FloorContact")[0]
@@ -505,3 +513,82 @@ def rms(values):
 def max_abs(values):
     """Largest |value| (NaN propagates)."""
     return float(np.max(np.abs(np.asarray(values, dtype=float))))
+
+
+def _violations(values, threshold):
+    """True where |x| > threshold or x is not finite (as the window analyzer counts a violation)."""
+    return ~(np.abs(np.asarray(values, dtype=float)) <= threshold)
+
+
+def bound_threshold(times, values, threshold, start, end, name="x"):
+    """ "ABS(x) < threshold in [start, end) s": every sample in the interval within the threshold.
+
+    A non-finite sample counts as a violation. measured: the largest |x| in the interval
+    (inf if a sample is not finite); required: the threshold; trailing: s, time of the first
+    violating sample (NaN if none). Lines:
+      ``PASS: ABS(name) was less than <thr> from <start> to <end> seconds (max <m>)``
+      ``FAIL: ABS(name) was <m> at <t> seconds, not less than <thr> from <start> to <end> seconds``
+    """
+    times = np.asarray(times, dtype=float).reshape(-1)
+    values = np.asarray(values, dtype=float).reshape(-1)
+    inside = (times >= start - TIME_TOLERANCE) & (times < end - TIME_TOLERANCE)
+    span = f"from {start:f} to {end:f} seconds"
+    if not inside.any():
+        line = f"FAIL: ABS({name}) had no samples {span}"
+        return CriterionResult("bound", name, False, line, math.nan, float(threshold), math.nan, samples=0)
+    t, x = times[inside], np.abs(values[inside])
+    bad = _violations(x, threshold)
+    worst = float(np.max(np.where(np.isfinite(x), x, math.inf)))
+    if bad.any():
+        first = int(np.flatnonzero(bad)[0])
+        first_time = float(t[first])
+        line = (
+            f"FAIL: ABS({name}) was {x[first]:f} at {first_time:f} seconds, "
+            f"not less than {threshold:f} {span}"
+        )
+    else:
+        first_time = math.nan
+        line = f"PASS: ABS({name}) was less than {threshold:f} {span} (max {worst:f})"
+    return CriterionResult(
+        "bound", name, not bad.any(), line, worst, float(threshold), first_time, samples=int(t.size)
+    )
+
+
+def recovery_threshold(times, values, threshold, start, within, name="x"):
+    """ "ABS(x) < threshold within W s after start": from start + W to the end every sample within.
+
+    The recovery time is (first sample after the last violation at or after `start`) - start,
+    0 if no sample from `start` on violates, inf if the last sample violates; the run passes
+    iff it is <= W and the run has samples at or after start + W. measured: the recovery time
+    (s); required: W (s); trailing: s, time of the last violation (NaN if none). Lines:
+      ``PASS: ABS(name) was less than <thr> <r> seconds after <start> seconds (allowed <W>)``
+      ``FAIL: ABS(name) was not less than <thr> within <W> seconds after <start> seconds (<r>)``
+    """
+    times = np.asarray(times, dtype=float).reshape(-1)
+    values = np.asarray(values, dtype=float).reshape(-1)
+    after = times >= start - TIME_TOLERANCE
+    t, bad = times[after], _violations(values[after], threshold)
+    if t.size == 0 or t[-1] < start + within - TIME_TOLERANCE:
+        line = f"FAIL: ABS({name}) had no samples {within:f} seconds after {start:f} seconds"
+        return CriterionResult("recovery", name, False, line, math.inf, float(within), math.nan, samples=0)
+    last_bad = math.nan
+    recovery = 0.0
+    if bad.any():
+        last = int(np.flatnonzero(bad)[-1])
+        last_bad = float(t[last])
+        recovery = float(t[last + 1] - start) if last + 1 < t.size else math.inf
+    passed = recovery <= within + TIME_TOLERANCE
+    if passed:
+        line = (
+            f"PASS: ABS({name}) was less than {threshold:f} {recovery:f} seconds after {start:f} seconds "
+            f"(allowed {within:f})"
+        )
+    else:
+        shown = "never" if math.isinf(recovery) else f"after {recovery:f} seconds"
+        line = (
+            f"FAIL: ABS({name}) was not less than {threshold:f} within {within:f} seconds after "
+            f"{start:f} seconds ({shown})"
+        )
+    return CriterionResult(
+        "recovery", name, bool(passed), line, recovery, float(within), last_bad, samples=int(t.size)
+    )

@@ -26,7 +26,7 @@ from .rotations import quat_from_euler
 from .signals import LOG_WIDTHS, empty_logs, vehicle_signals
 from .systems.controller import CascadeController
 from .systems.estimators import build_estimator
-from .systems.faults import SensorFaults
+from .systems.faults import GpsDelayCompensator, SensorFaults
 from .systems.plant import QuadrotorPlant
 from .systems.sensors import Gps, Imu, Magnetometer
 from .systems.trajectory import TrajectorySource
@@ -152,10 +152,21 @@ def build_vehicle(vehicle, fidelity=PHYSICAL):
 
     if sensors.imu is not None:
         estimator = builder.AddSystem(build_estimator(vehicle, fidelity))
-        for kind, size in (("imu", c.IMU_SIZE), ("gps", c.GPS_SIZE), ("mag", c.MAG_SIZE)):
-            builder.Connect(outputs.get(kind) or _never_sampled(builder, size), estimator.GetInputPort(kind))
         for name in vehicle_vocabulary(vehicle).log_widths():
             outputs[name] = estimator.GetOutputPort(name)
+        inputs = {
+            kind: outputs.get(kind) or _never_sampled(builder, size)
+            for kind, size in (("imu", c.IMU_SIZE), ("gps", c.GPS_SIZE), ("mag", c.MAG_SIZE))
+        }
+        if vehicle.gps_delay_compensation > 0:
+            compensator = builder.AddNamedSystem(
+                "gps_delay_compensation", GpsDelayCompensator(vehicle.gps_delay_compensation)
+            )
+            builder.Connect(inputs["gps"], compensator.GetInputPort("gps"))
+            builder.Connect(outputs["estimated_state"], compensator.GetInputPort("estimated_state"))
+            inputs["gps"] = compensator.GetOutputPort("gps")
+        for kind, port in inputs.items():
+            builder.Connect(port, estimator.GetInputPort(kind))
         if not vehicle.use_ideal_estimator:
             state_for_control = outputs["estimated_state"]
     builder.Connect(state_for_control, controller.GetInputPort("state"))

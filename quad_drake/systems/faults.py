@@ -1,5 +1,6 @@
-"""Sensor fault LeafSystem: one sensor's samples after its configured faults, on the wire between
-the sensor and the estimators; thin glue over the pure ``quad_drake.faults``.
+"""Sensor fault LeafSystems: one sensor's samples after its configured faults, on the wire between
+the sensor and the estimators (thin glue over the pure ``quad_drake.faults``), and the
+estimator-side compensation of late GPS samples (``quad_drake.delay_compensation``).
 
 The sensors stay truth + white noise; a vehicle with faults gets one ``SensorFaults`` per
 faulted sensor. It fires FAULT_LAG after each sample of its sensor (conventions), so the
@@ -12,8 +13,18 @@ import math
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
-from quad_drake import faults
-from quad_drake.conventions import FAULT_LAG, NO_SAMPLE_STAMP, ONBOARD_PERIOD
+from quad_drake import delay_compensation, faults
+from quad_drake.conventions import (
+    EKF_OFFSET,
+    FAULT_LAG,
+    GPS_SIZE,
+    NO_SAMPLE_STAMP,
+    ONBOARD_PERIOD,
+    P_SLICE,
+    SLOW_SENSOR_OFFSET,
+    STATE_SIZE,
+    V_SLICE,
+)
 from quad_drake.systems._io import vector_reader
 
 
@@ -28,9 +39,9 @@ class SensorFaults(LeafSystem):
     Without a gps_delay it fires at first_sample + FAULT_LAG + k period and publishes the
     current sample after the single-sample faults (``faults.apply_faults``), measured at its
     stamp (GPS, magnetometer) or at its nominal sampling time (IMU). With a gps_delay of D s
-    it fires every ONBOARD_PERIOD (same lag), queues each new sample (after the other faults)
-    and publishes it at the first tick at or after stamp + D, stamp unchanged; the queue is
-    discrete state of ceil(D / period) + 2 samples.
+    it fires every ONBOARD_PERIOD (at SLOW_SENSOR_OFFSET + FAULT_LAG), queues each new
+    sample (after the other faults) and publishes it at the first tick at or after
+    stamp + D, stamp unchanged; the queue is discrete state of ceil(D / period) + 2 samples.
     """
 
     def __init__(self, sensor, size, fault_list, period, first_sample):
@@ -51,7 +62,7 @@ class SensorFaults(LeafSystem):
             self._capacity = math.ceil(self._delay / self._period) + 2
             self._pending = self.DeclareDiscreteState(np.full(self._capacity * size, math.nan))
             self._last_stamp = self.DeclareDiscreteState([NO_SAMPLE_STAMP])
-            self._tick_offset = (first_sample % ONBOARD_PERIOD) + FAULT_LAG
+            self._tick_offset = SLOW_SENSOR_OFFSET + FAULT_LAG  # the GPS's offset in every tick
             self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, self._tick_offset, self._delayed)
         else:
             self.DeclarePeriodicDiscreteUpdateEvent(self._period, first_sample + FAULT_LAG, self._sample)
@@ -88,3 +99,78 @@ class SensorFaults(LeafSystem):
         if pending:
             queue[: len(pending)] = pending
         discrete_state.set_value(self._pending, queue.ravel())
+
+
+class GpsDelayCompensator(LeafSystem):
+    """Late GPS samples moved to the present by the estimator's predicted motion since their
+    stamp (``quad_drake.delay_compensation``): the estimator side of a ``gps_delay``.
+
+    Inputs ``gps`` (7: p m, v m/s, stamp s; e.g. from a SensorFaults with a gps_delay) and
+    ``estimated_state`` (13, the truth layout: p m, q wxyz, v m/s, w rad/s). Output ``gps``
+    (7): the sample with p and v shifted by the odometry since its stamp, stamp kept; a
+    feedthrough output (its inputs come from state ports) that the estimator reads in the
+    same tick; the odometry "now" is the last tick's carried one tick forward, as the
+    estimator predicts before it fuses.
+
+    Every ONBOARD_PERIOD at EKF_OFFSET + FAULT_LAG (after the estimator, before the
+    controller) it books the tick: the estimate's increment (the kinematic one where the GPS
+    sample it just read had a new stamp, i.e. was fused) into the odometry, and the odometry
+    into a ring of ``history_capacity(max_lag)`` rows (discrete state); a sample more than
+    ``max_lag`` s late passes unchanged.
+    """
+
+    def __init__(self, max_lag):
+        super().__init__()
+        self._capacity = delay_compensation.history_capacity(max_lag, ONBOARD_PERIOD)
+        self._read_gps = vector_reader(self.DeclareVectorInputPort("gps", GPS_SIZE))
+        self._read_estimate = vector_reader(self.DeclareVectorInputPort("estimated_state", STATE_SIZE))
+        width = delay_compensation.HISTORY_WIDTH
+        self._history = self.DeclareDiscreteState(np.full(self._capacity * width, math.nan))
+        # previous p_hat, v_hat (6; NaN before the first tick), velocity step (3), odometry (6),
+        # last GPS stamp read (1)
+        self._memory = self.DeclareDiscreteState(
+            np.array([math.nan] * 6 + [0.0] * 9 + [NO_SAMPLE_STAMP], dtype=float)
+        )
+        self.DeclareVectorOutputPort(
+            "gps",
+            GPS_SIZE,
+            self._calc,
+            prerequisites_of_calc={self.all_input_ports_ticket(), self.xd_ticket()},
+        )
+        self._offset = EKF_OFFSET + FAULT_LAG
+        self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, self._offset, self._book)
+
+    @staticmethod
+    def _estimate(context_reader, context):
+        x = context_reader(context)
+        return x[P_SLICE] + x[V_SLICE]
+
+    def _book(self, context, discrete_state):
+        estimate = self._estimate(self._read_estimate, context)
+        stamp = self._read_gps(context)[6]
+        memory = discrete_state.value(self._memory).tolist()
+        previous, velocity_step, odometry = memory[0:6], memory[6:9], memory[9:15]
+        if math.isnan(previous[0]):
+            previous = estimate
+        fused = stamp != memory[15] and stamp != NO_SAMPLE_STAMP
+        odometry, velocity_step = delay_compensation.odometry_step(
+            odometry, estimate, previous, velocity_step, fused, ONBOARD_PERIOD
+        )
+        discrete_state.set_value(self._memory, np.array(estimate + velocity_step + odometry + [stamp]))
+        tick = round((context.get_time() - self._offset) / ONBOARD_PERIOD) * ONBOARD_PERIOD
+        slot = delay_compensation.history_slot(tick, ONBOARD_PERIOD, self._capacity)
+        width = delay_compensation.HISTORY_WIDTH
+        discrete_state.get_mutable_value(self._history)[slot * width : (slot + 1) * width] = [tick] + odometry
+
+    def _calc(self, context, output):
+        sample = self._read_gps(context)
+        stamp = sample[6]
+        if stamp == NO_SAMPLE_STAMP:
+            output.SetFromVector(np.array(sample))
+            return
+        memory = context.get_discrete_state(self._memory).value().tolist()
+        now = delay_compensation.predicted_odometry(memory[9:15], memory[3:6], memory[6:9], ONBOARD_PERIOD)
+        width = delay_compensation.HISTORY_WIDTH
+        slot = delay_compensation.history_slot(stamp, ONBOARD_PERIOD, self._capacity)
+        row = context.get_discrete_state(self._history).value()[slot * width : (slot + 1) * width]
+        output.SetFromVector(np.array(delay_compensation.compensated_gps(sample, row.tolist(), now)))
