@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
 
+from quad_drake import catalog
 from quad_drake import conventions as c
-from quad_drake.cli import load_named
 from quad_drake.config import FaultConfig
 from quad_drake.simulation import run
 from quad_drake.systems.faults import SensorFaults
@@ -106,7 +106,7 @@ NEVER = 100.0  # s, a fault window after the end of the run
 
 
 def _run(*overrides, end_time=2.0):
-    return run(load_named("11_gps_update", 0, [f"end_time={end_time}", *overrides]))
+    return run(catalog.load("11_gps_update", 0, [f"end_time={end_time}", *overrides]))
 
 
 def test_fault_systems_that_do_nothing_leave_every_log_bit_identical():
