@@ -525,7 +525,7 @@ def bound_threshold(times, values, threshold, start, end, name="x"):
 
     A non-finite sample counts as a violation. measured: the largest |x| in the interval
     (inf if a sample is not finite); required: the threshold; trailing: s, time of the first
-    violating sample (NaN if none). Lines:
+    violating sample (None if none). Lines:
       ``PASS: ABS(name) was less than <thr> from <start> to <end> seconds (max <m>)``
       ``FAIL: ABS(name) was <m> at <t> seconds, not less than <thr> from <start> to <end> seconds``
     """
@@ -533,12 +533,19 @@ def bound_threshold(times, values, threshold, start, end, name="x"):
     values = np.asarray(values, dtype=float).reshape(-1)
     inside = (times >= start - TIME_TOLERANCE) & (times < end - TIME_TOLERANCE)
     span = f"from {start:f} to {end:f} seconds"
+    text = {
+        "description": f"|{name}| < {threshold:g} in [{start:g}, {end:g}) s",
+        "required_text": f"< {threshold:g} on every sample",
+    }
     if not inside.any():
         line = f"FAIL: ABS({name}) had no samples {span}"
-        return CriterionResult("bound", name, False, line, math.nan, float(threshold), math.nan, samples=0)
+        return CriterionResult(
+            "bound", name, False, line, math.nan, float(threshold), None, measured_text="no samples", **text
+        )
     t, x = times[inside], np.abs(values[inside])
     bad = _violations(x, threshold)
     worst = float(np.max(np.where(np.isfinite(x), x, math.inf)))
+    first_time = None
     if bad.any():
         first = int(np.flatnonzero(bad)[0])
         first_time = float(t[first])
@@ -546,11 +553,22 @@ def bound_threshold(times, values, threshold, start, end, name="x"):
             f"FAIL: ABS({name}) was {x[first]:f} at {first_time:f} seconds, "
             f"not less than {threshold:f} {span}"
         )
+        measured_text = f"max {worst:.4g}; first above at {first_time:.4g} s"
     else:
-        first_time = math.nan
         line = f"PASS: ABS({name}) was less than {threshold:f} {span} (max {worst:f})"
+        measured_text = f"max {worst:.4g}"
     return CriterionResult(
-        "bound", name, not bad.any(), line, worst, float(threshold), first_time, samples=int(t.size)
+        "bound",
+        name,
+        not bad.any(),
+        line,
+        worst,
+        float(threshold),
+        first_time,
+        samples=int(t.size),
+        measured_text=measured_text,
+        series={"times": t, "values": x},
+        **text,
     )
 
 
@@ -560,7 +578,7 @@ def recovery_threshold(times, values, threshold, start, within, name="x"):
     The recovery time is (first sample after the last violation at or after `start`) - start,
     0 if no sample from `start` on violates, inf if the last sample violates; the run passes
     iff it is <= W and the run has samples at or after start + W. measured: the recovery time
-    (s); required: W (s); trailing: s, time of the last violation (NaN if none). Lines:
+    (s); required: W (s); trailing: s, time of the last violation (None if none). Lines:
       ``PASS: ABS(name) was less than <thr> <r> seconds after <start> seconds (allowed <W>)``
       ``FAIL: ABS(name) was not less than <thr> within <W> seconds after <start> seconds (<r>)``
     """
@@ -568,10 +586,16 @@ def recovery_threshold(times, values, threshold, start, within, name="x"):
     values = np.asarray(values, dtype=float).reshape(-1)
     after = times >= start - TIME_TOLERANCE
     t, bad = times[after], _violations(values[after], threshold)
+    text = {
+        "description": f"|{name}| < {threshold:g} within {within:g} s after {start:g} s",
+        "required_text": f"back under within {within:g} s, and staying",
+    }
     if t.size == 0 or t[-1] < start + within - TIME_TOLERANCE:
         line = f"FAIL: ABS({name}) had no samples {within:f} seconds after {start:f} seconds"
-        return CriterionResult("recovery", name, False, line, math.inf, float(within), math.nan, samples=0)
-    last_bad = math.nan
+        return CriterionResult(
+            "recovery", name, False, line, math.inf, float(within), None, measured_text="no samples", **text
+        )
+    last_bad = None
     recovery = 0.0
     if bad.any():
         last = int(np.flatnonzero(bad)[-1])
@@ -589,6 +613,17 @@ def recovery_threshold(times, values, threshold, start, within, name="x"):
             f"FAIL: ABS({name}) was not less than {threshold:f} within {within:f} seconds after "
             f"{start:f} seconds ({shown})"
         )
+    measured_text = "never back under" if math.isinf(recovery) else f"back under {recovery:.4g} s after"
     return CriterionResult(
-        "recovery", name, bool(passed), line, recovery, float(within), last_bad, samples=int(t.size)
+        "recovery",
+        name,
+        bool(passed),
+        line,
+        recovery,
+        float(within),
+        last_bad,
+        samples=int(t.size),
+        measured_text=measured_text,
+        series={"times": t, "values": np.abs(values[after])},
+        **text,
     )

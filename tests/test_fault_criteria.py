@@ -22,7 +22,7 @@ def test_bound_judges_only_its_interval():
     inside = bound_threshold(TIMES, values, 1.0, 4.0, 6.0, "Quad.X")
     assert inside.passed and inside.kind == "bound"
     assert inside.measured == pytest.approx(0.2) and inside.required == 1.0
-    assert inside.samples == 400 and math.isnan(inside.trailing)
+    assert inside.samples == 400 and inside.trailing is None
     assert (
         inside.line
         == "PASS: ABS(Quad.X) was less than 1.000000 from 4.000000 to 6.000000 seconds (max 0.200000)"
@@ -40,6 +40,19 @@ def test_bound_counts_non_finite_samples_and_an_empty_interval_as_failures():
     assert not result.passed and math.isinf(result.measured) and result.trailing == pytest.approx(5.0)
     empty = bound_threshold(TIMES, values, 1.0, 20.0, 30.0)
     assert not empty.passed and empty.samples == 0 and "had no samples" in empty.line
+    assert empty.measured_text == "no samples"
+
+
+def test_bound_and_recovery_fill_the_criterion_texts():
+    values = bump(2.0, 4.0, 6.5)
+    bound = bound_threshold(TIMES, values, 1.0, 4.0, 6.0, "Quad.Est.E.Pos")
+    assert bound.description == "|Quad.Est.E.Pos| < 1 in [4, 6) s"
+    assert bound.required_text == "< 1 on every sample"
+    assert bound.measured_text == "max 2; first above at 4 s"
+    recovery = recovery_threshold(TIMES, values, 1.0, 6.0, 1.0, "Quad.Est.E.Pos")
+    assert recovery.description == "|Quad.Est.E.Pos| < 1 within 1 s after 6 s"
+    assert recovery.required_text == "back under within 1 s, and staying"
+    assert recovery.measured_text == "back under 0.5 s after"
 
 
 def test_recovery_time_is_measured_from_start_to_the_first_sample_after_the_last_violation():

@@ -318,17 +318,26 @@ def test_fleet_sigma_counts_only_fresh_samples():
             [CriterionConfig(kind="fleet_sigma", signal="Est.E.VX", sigma_signal="Est.S.VX", min_percent=60)],
             ["fleet |V.Est.E.VX| &lt;= 1 V.Est.S.VX: 60-100 % (3 vehicles V)", "share in [60 %, 100 %]"],
         ),
+        (
+            [CriterionConfig(kind="bound", signal="Quad.Est.E.Pos", threshold=2.0, start=1.0, end=3.0)],
+            ["|Quad.Est.E.Pos| &lt; 2 in [1, 3) s", "&lt; 2 on every sample", "max "],
+        ),
+        (
+            [CriterionConfig(kind="recovery", signal="Quad.Est.E.Pos", threshold=2.0, start=1.0, window=1.0)],
+            ["|Quad.Est.E.Pos| &lt; 2 within 1 s after 1 s", "back under within 1 s, and staying"],
+        ),
     ],
 )
 def test_report_html_renders_each_criterion_from_its_text(tmp_path, criteria, expected):
-    names = ("Quad",) if criteria is None else ("Q1", "Q2", "Q3")
+    fleet = criteria is not None and criteria[0].kind == "fleet_sigma"
+    names = ("Q1", "Q2", "Q3") if fleet else ("Quad",)
     result = make_result(names, criteria=criteria)
     report = plots.write_report(result, tmp_path / "report.html").read_text()
     for text in expected:
         assert text in report
     for verdict in result.criteria:
         assert f"<td>{verdict.kind}</td>" in report and verdict.measured_text.split(";")[0] in report
-    if criteria is not None:
+    if fleet:
         assert "stretch" not in report and "≤ 0" not in report
 
 

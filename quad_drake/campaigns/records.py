@@ -88,6 +88,7 @@ def summarize_run(result, index):
         vocabulary = vehicle_vocabulary(configs[vehicle])
         if vocabulary is not None:
             keys = [f"Est.E.{key}" for key in error_units(vocabulary)]
+            keys += ["PosFollowErr"] if "reference" in logs else []  # the true flight, too
             errors = vocabulary.errors(logs)
             covariances = cons.covariance_matrices(logs["covariance"])
             nees[vehicle] = cons.nees_of(vocabulary, logs)
