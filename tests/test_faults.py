@@ -60,6 +60,12 @@ def test_mag_bias_wraps_and_keeps_the_stamp():
     assert faults.mag_bias([3.0, 2.0], 2.0, fault, 0.01) == [3.0, 2.0]
 
 
+def test_mag_outage_removes_magnetometer_samples_in_its_window():
+    fault = FaultConfig(kind="mag_outage", start=1.0, end=2.0)
+    assert is_removed(faults.mag_outage([0.3, 1.0], 1.0, fault, 0.01))
+    assert faults.mag_outage([0.3, 2.0], 2.0, fault, 0.01) == [0.3, 2.0]
+
+
 def test_imu_dropout_gives_non_finite_samples_in_its_window():
     fault = FaultConfig(kind="imu_dropout", start=1.0, end=1.2)
     sample = [0.1, 0.2, -9.8, 0.01, 0.02, 0.03]
