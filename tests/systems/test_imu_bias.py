@@ -25,7 +25,7 @@ def test_pure_bias_is_added_before_saturation_and_walk_steps_by_std_times_noise(
     params = ImuParams(**QUIET, accel_limit=10.0)
     bias = [0.1, -0.2, -5.0, 0.01, 0.02, -0.03]
     truth = sensor_models.imu_measurement(STATE[3:7], STATE[10:13], ACCELERATION, [0.0] * 6, params)
-    out = sensor_models.imu_measurement(STATE[3:7], STATE[10:13], ACCELERATION, [0.0] * 6, params, bias)
+    out = sensor_models.imu_measurement(STATE[3:7], STATE[10:13], ACCELERATION, [0.0] * 6, params, bias=bias)
     np.testing.assert_allclose(out[:2], np.array(truth[:2]) + bias[:2], atol=1e-12)
     assert out[2] == -10.0  # f_z = -9.7 - 5 saturates at the limit
     np.testing.assert_allclose(out[3:], np.array(truth[3:]) + bias[3:], atol=1e-12)
