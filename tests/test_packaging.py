@@ -53,7 +53,7 @@ def test_the_import_scan_sees_relative_imports_of_the_cli():
 
 def test_catalog_lists_the_bundled_scenarios_inside_the_package():
     scenarios = catalog.bundled_scenarios()
-    assert list(scenarios)[:2] == ["01_intro", "02_attitude_control"] and len(scenarios) == 12  # + 11 eskf
+    assert list(scenarios)[:2] == ["01_intro", "02_attitude_control"] and len(scenarios) == 19  # + 11 eskf, 12-18
     assert all(path.parent == PACKAGE / "scenarios" for path in scenarios.values())
     assert not (REPO / "scenarios").exists()
 
@@ -104,7 +104,7 @@ def test_wheel_installed_outside_the_repo_lists_and_runs_the_bundled_scenarios(t
 
     listed = _run(quad_drake_exe, "list", cwd=cwd, env=env)
     assert listed.returncode == 0, listed.stderr
-    assert len(listed.stdout.strip().splitlines()) == 12
+    assert len(listed.stdout.strip().splitlines()) == 19
 
     out = tmp_path / "out"
     ran = _run(quad_drake_exe, "run", "01_intro", "--no-plots", "--out", str(out), cwd=cwd, env=env)
