@@ -53,7 +53,7 @@ def test_the_import_scan_sees_relative_imports_of_the_cli():
 
 def test_catalog_lists_the_bundled_scenarios_inside_the_package():
     scenarios = catalog.bundled_scenarios()
-    assert list(scenarios)[:2] == ["01_intro", "02_attitude_control"] and len(scenarios) == 19  # + 11 eskf, 12-18
+    assert list(scenarios)[:2] == ["01_intro", "02_attitude_control"] and len(scenarios) == 19  # +eskf, 12-18
     assert all(path.parent == PACKAGE / "scenarios" for path in scenarios.values())
     assert not (REPO / "scenarios").exists()
 
