@@ -141,6 +141,9 @@ def test_ctrl_c_in_a_batch_keeps_the_finished_runs_and_exits_130(tmp_path):
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        # a job started in the background inherits SIGINT ignored, and Python then installs no
+        # KeyboardInterrupt handler: restore the default so the test sends what Ctrl-C sends
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     for line in process.stdout:  # 08 flies 40 s of simulated time: several seconds of wall time
         if line.startswith("== 08_predict_state"):
