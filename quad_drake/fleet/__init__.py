@@ -1,0 +1,1 @@
+"""Fleet mode: Drake systems that advance N vehicles at once (ports carry N per-vehicle vectors)."""

@@ -1,0 +1,265 @@
+"""Fleet estimators: the batched kernels against the scalar functions, row by row, on seeded random
+inputs; the fleet estimator Diagrams against N scalar estimator sub-Diagrams fed the same samples.
+
+Tolerance: |batched - scalar| <= 1e-12 + 1e-12 |scalar| per entry (absolute for small entries,
+relative for large ones), TOL below.
+"""
+
+import math
+
+import numpy as np
+import pytest
+
+from quad_drake import delay_compensation
+from quad_drake.config import EkfParams, EskfEstimatorConfig
+from quad_drake.conventions import GRAVITY
+from quad_drake.estimation import ekf, eskf, gating
+from quad_drake.estimation.complementary import complementary_update
+from quad_drake.fleet import estimation_kernels as kernels
+from quad_drake.rotations import quat_from_euler_tuple
+
+TOL = {"rtol": 1e-12, "atol": 1e-12}
+DT = 0.002
+N = 64
+
+
+def random_covariances(rng, n, count=N, scale=1.0):
+    A = rng.normal(size=(count, n, n)) * scale
+    return A @ A.transpose(0, 2, 1) + 1e-3 * np.eye(n)
+
+
+def random_attitudes(rng, count=N):
+    return np.column_stack(
+        [rng.uniform(-1.0, 1.0, count), rng.uniform(-1.0, 1.0, count), rng.uniform(-math.pi, math.pi, count)]
+    )
+
+
+def specific_forces(rng, count=N):
+    return np.array([0.0, 0.0, -GRAVITY]) + rng.normal(scale=2.0, size=(count, 3))
+
+
+def gyro_samples(rng, count=N):
+    w = rng.normal(scale=1.0, size=(count, 3))
+    w[:4] = 0.0  # the rate < 1e-12 branch
+    return w
+
+
+def assert_rows(batched, scalar_rows):
+    np.testing.assert_allclose(batched, np.array(scalar_rows, dtype=float), **TOL)
+
+
+# ----- complementary filter ------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("variant", ["nonlinear", "small_angle"])
+@pytest.mark.parametrize("reference_accelerometer", [False, True])
+def test_complementary_update_matches_the_scalar_filter(variant, reference_accelerometer):
+    rng = np.random.default_rng(11)
+    attitude, f, w = random_attitudes(rng), specific_forces(rng), gyro_samples(rng)
+    batched = kernels.complementary_update(attitude, f, w, DT, 0.5, variant, reference_accelerometer)
+    scalar = [
+        complementary_update(*attitude[i], f[i], w[i], DT, 0.5, variant, reference_accelerometer)
+        for i in range(N)
+    ]
+    assert_rows(batched, scalar)
+    with pytest.raises(ValueError):
+        kernels.complementary_update(attitude, f, w, DT, 0.5, "euler")
+
+
+# ----- 7-state EKF ---------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("reference_accelerometer", [False, True])
+def test_ekf7_predict_matches_the_scalar_step(reference_accelerometer):
+    rng = np.random.default_rng(12)
+    params = EkfParams()
+    Q = ekf.process_noise(params)
+    x, P = rng.normal(size=(N, 7)), random_covariances(rng, 7)
+    attitude, f = random_attitudes(rng), specific_forces(rng)
+    x_new, P_new = kernels.ekf7_predict_with_yaw(x, P, attitude, f, DT, Q, reference_accelerometer)
+    G = ekf.predict_jacobian(np.zeros(7), 0.0, 0.0, (0.0, 0.0, 0.0), DT)
+    for i in range(N):
+        x_ref, P_ref = ekf.predict_with_yaw(
+            x[i].tolist(), P[i], attitude[i], f[i], DT, Q, G, reference_accelerometer
+        )
+        np.testing.assert_allclose(x_new[i], x_ref, **TOL)
+        np.testing.assert_allclose(P_new[i], P_ref, **TOL)
+
+
+def _check_update(batched, scalar, x, P, z, R):
+    x_new, P_new, nis = batched(x, P, z, R)
+    for i in range(x.shape[0]):
+        x_ref, P_ref, nis_ref = scalar(x[i].copy(), P[i].copy(), z[i], R)
+        np.testing.assert_allclose(x_new[i], x_ref, **TOL)
+        np.testing.assert_allclose(P_new[i], P_ref, **TOL)
+        if math.isnan(nis_ref):
+            assert math.isnan(nis[i])
+        else:
+            np.testing.assert_allclose(nis[i], nis_ref, **TOL)
+
+
+def test_ekf7_gps_and_mag_updates_match_the_scalar_updates():
+    rng = np.random.default_rng(13)
+    params = EkfParams()
+    x, P = rng.normal(size=(N, 7)), random_covariances(rng, 7, scale=0.5)
+    x[:, 6] = rng.uniform(-math.pi, math.pi, N)
+    gps = x[:, 0:6] + rng.normal(size=(N, 6))
+    gps[5, 2] = math.nan
+    gps[6, 0] = math.inf
+    _check_update(kernels.ekf7_gps_update, ekf.gps_update, x, P, gps, ekf.gps_noise(params))
+    yaw = rng.uniform(-math.pi, math.pi, N)
+    yaw[7] = math.nan
+    _check_update(kernels.ekf7_mag_update, ekf.mag_update, x, P, yaw, ekf.mag_noise(params))
+
+
+# ----- gating and covariance health ----------------------------------------------------------------
+
+
+def test_gating_book_keeping_matches_the_scalar_functions():
+    rng = np.random.default_rng(14)
+    previous = np.where(rng.uniform(size=N) < 0.5, math.nan, rng.uniform(0.0, 5.0, N))
+    accepted = rng.uniform(size=N) < 0.5
+    stamp = rng.uniform(5.0, 12.0, N)
+    start = kernels.rejection_start(previous, accepted, stamp)
+    assert_rows(start, [gating.rejection_start(previous[i], accepted[i], stamp[i]) for i in range(N)])
+    for timeout in (0.0, 3.0):
+        due = kernels.reset_due(start, stamp, timeout)
+        assert due.tolist() == [gating.reset_due(start[i], stamp[i], timeout) for i in range(N)]
+    x, P = rng.normal(size=(N, 15)), random_covariances(rng, 15)
+    values, R = rng.normal(size=(N, 6)), np.diag(rng.uniform(0.1, 1.0, 6))
+    x_new, P_new = kernels.reset_states(x, P, range(6), values, R)
+    for i in range(N):
+        x_ref, P_ref = gating.reset_states(x[i], P[i], list(range(6)), values[i], R)
+        np.testing.assert_array_equal(x_new[i], x_ref)
+        np.testing.assert_array_equal(P_new[i], P_ref)
+
+
+@pytest.mark.parametrize("n", [7, 15])
+def test_covariance_health_matches_the_scalar_checks(n):
+    rng = np.random.default_rng(15)
+    P = random_covariances(rng, n)
+    P[1, 2, 2] = -0.5  # negative variance
+    P[2, 0, 3] = math.nan
+    P[3, 4, 4] = math.inf
+    vectors = np.linalg.qr(rng.normal(size=(n, n)))[0]
+    P[4] = (vectors * np.r_[-1e-3, np.ones(n - 1)]) @ vectors.T  # indefinite, positive diagonal
+    P[5] = (vectors * np.r_[0.0, np.ones(n - 1)]) @ vectors.T  # singular PSD
+    P[6] = P[4] + 1e-9 * rng.normal(size=(n, n))  # indefinite and asymmetric
+    healthy = kernels.covariance_looks_healthy(P)
+    assert healthy.tolist() == [gating.covariance_looks_healthy(P[i]) for i in range(N)]
+    assert not healthy[1:4].any() and healthy[4:].all()
+    fallback = np.diag(rng.uniform(0.1, 1.0, n))
+    P_new, outcomes = kernels.repaired_covariance(P, fallback)
+    for i in range(N):
+        P_ref, outcome = gating.repaired_covariance(P[i], fallback)
+        assert outcomes[i] == outcome
+        np.testing.assert_allclose(P_new[i], P_ref, **TOL)
+    assert outcomes[[2, 3, 4, 6]].tolist() == [gating.COVARIANCE_RESET] * 2 + [gating.COVARIANCE_REPAIRED] * 2
+
+
+# ----- error-state EKF -----------------------------------------------------------------------------
+
+
+def random_nominal(rng, count=N):
+    q = rng.normal(size=(count, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    x = np.column_stack([rng.normal(size=(count, 6)), q, rng.normal(scale=0.05, size=(count, 6))])
+    return x
+
+
+def eskf_params(estimate_biases, isotropic_gyro=True):
+    gyro = [0.5, 0.5, 0.5] if isotropic_gyro else [0.3, 0.5, 0.7]
+    return EskfEstimatorConfig(estimate_biases=estimate_biases, gyro_std=gyro)
+
+
+@pytest.mark.parametrize(
+    "estimate_biases, isotropic_gyro",
+    [(True, True), (False, True), (True, False)],
+    ids=["15", "9", "15-aniso"],
+)
+def test_eskf_predict_matches_the_scalar_step(estimate_biases, isotropic_gyro):
+    rng = np.random.default_rng(16)
+    params = eskf_params(estimate_biases, isotropic_gyro)
+    noise = eskf.NoiseModel.from_params(params)
+    n = eskf.initial_covariance(params).shape[0]
+    x, P = random_nominal(rng), random_covariances(rng, n, scale=0.3)
+    f, w = specific_forces(rng), gyro_samples(rng)
+    x_new, P_new = kernels.eskf_predict(x, P, f, w, DT, noise, eskf.noise_buffer(n, noise, DT))
+    for i in range(N):
+        x_ref, P_ref = eskf.predict(x[i], P[i], f[i], w[i], DT, noise)
+        np.testing.assert_allclose(x_new[i], x_ref, **TOL)
+        np.testing.assert_allclose(P_new[i], P_ref, **TOL)
+
+
+@pytest.mark.parametrize("estimate_biases", [True, False], ids=["15", "9"])
+def test_eskf_updates_and_injection_match_the_scalar_functions(estimate_biases):
+    rng = np.random.default_rng(17)
+    params = eskf_params(estimate_biases)
+    n = eskf.initial_covariance(params).shape[0]
+    x, P = random_nominal(rng), random_covariances(rng, n, scale=0.2)
+    dx = rng.normal(scale=0.1, size=(N, n))
+    dx[:3, 6:9] = 1e-14  # the small-angle branch of quat_exp
+    x_new, P_new = kernels.eskf_inject(x, P, dx)
+    for i in range(N):
+        x_ref, P_ref = eskf.inject(x[i], P[i], dx[i])
+        np.testing.assert_allclose(x_new[i], x_ref, **TOL)
+        np.testing.assert_allclose(P_new[i], P_ref, **TOL)
+    gps = x[:, 0:6] + rng.normal(size=(N, 6))
+    gps[8, 4] = math.nan
+    _check_update(kernels.eskf_gps_update, eskf.gps_update, x, P, gps, eskf.gps_noise(params))
+    yaw = rng.uniform(-math.pi, math.pi, N)
+    yaw[9] = math.nan
+    _check_update(kernels.eskf_mag_update, eskf.mag_update, x, P, yaw, eskf.mag_noise(params))
+
+
+def test_eskf_gps_update_falls_back_to_the_scalar_path_on_a_singular_innovation():
+    rng = np.random.default_rng(18)
+    x, P = random_nominal(rng, 3), random_covariances(rng, 9, count=3)
+    R = np.zeros((6, 6))
+    P[1, 0:6, :] = 0.0
+    P[1, :, 0:6] = 0.0
+    gps = x[:, 0:6] + 0.1
+    _check_update(kernels.eskf_gps_update, eskf.gps_update, x, P, gps, R)
+    assert math.isnan(kernels.eskf_gps_update(x, P, gps, R)[2][1])
+
+
+# ----- GPS delay compensation ----------------------------------------------------------------------
+
+
+def test_delay_compensation_matches_the_scalar_functions():
+    rng = np.random.default_rng(19)
+    odometry, estimate, previous = rng.normal(size=(3, N, 6))
+    step, fused = rng.normal(size=(N, 3)), rng.uniform(size=N) < 0.3
+    new, dv = kernels.odometry_step(odometry, estimate, previous, step, fused, DT)
+    for i in range(N):
+        ref, ref_dv = delay_compensation.odometry_step(
+            odometry[i].tolist(), estimate[i].tolist(), previous[i].tolist(), step[i].tolist(), fused[i], DT
+        )
+        np.testing.assert_allclose(new[i], ref, **TOL)
+        np.testing.assert_allclose(dv[i], ref_dv, **TOL)
+    velocity = rng.normal(size=(N, 3))
+    ahead = kernels.predicted_odometry(odometry, velocity, step, DT)
+    for i in range(N):
+        ref = delay_compensation.predicted_odometry(
+            odometry[i].tolist(), velocity[i].tolist(), step[i].tolist(), DT
+        )
+        np.testing.assert_allclose(ahead[i], ref, **TOL)
+    sample = np.column_stack([rng.normal(size=(N, 6)), rng.uniform(0.0, 10.0, N)])
+    rows = np.column_stack([sample[:, 6] + rng.choice([0.0, 1e-10, 0.002], N), rng.normal(size=(N, 6))])
+    rows[:5, 0] = math.nan
+    shifted = kernels.compensated_gps(sample, rows, ahead)
+    for i in range(N):
+        ref = delay_compensation.compensated_gps(sample[i].tolist(), rows[i].tolist(), ahead[i].tolist())
+        np.testing.assert_allclose(shifted[i], ref, **TOL)
+    assert (shifted[:5] == sample[:5]).all()
+
+
+def test_quaternion_helpers_match_the_scalar_ones():
+    rng = np.random.default_rng(20)
+    attitude = random_attitudes(rng)
+    q = np.column_stack(kernels.quat_from_euler(*attitude.T))
+    assert_rows(q, [quat_from_euler_tuple(*row) for row in attitude])
+    yaw, h = kernels.eskf_yaw_and_jacobian(q)
+    for i in range(N):
+        yaw_ref, h_ref = eskf.yaw_and_jacobian(q[i])
+        np.testing.assert_allclose([yaw[i], *h[i]], [yaw_ref, *h_ref], **TOL)
