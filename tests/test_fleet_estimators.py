@@ -9,14 +9,26 @@ import math
 
 import numpy as np
 import pytest
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
 
 from quad_drake import delay_compensation
-from quad_drake.config import EkfParams, EskfEstimatorConfig
-from quad_drake.conventions import GRAVITY
+from quad_drake.config import (
+    AttitudeFilterParams,
+    Ekf7EstimatorConfig,
+    EkfParams,
+    EskfEstimatorConfig,
+    VehicleConfig,
+)
+from quad_drake.conventions import GRAVITY, NO_SAMPLE_STAMP
 from quad_drake.estimation import ekf, eskf, gating
 from quad_drake.estimation.complementary import complementary_update
+from quad_drake.estimation.vocabulary import DIAG, vocabulary_for
+from quad_drake.fidelity import PHYSICAL, REFERENCE
 from quad_drake.fleet import estimation_kernels as kernels
+from quad_drake.fleet.estimators import build_fleet_estimator
 from quad_drake.rotations import quat_from_euler_tuple
+from quad_drake.systems.estimators import build_estimator
 
 TOL = {"rtol": 1e-12, "atol": 1e-12}
 DT = 0.002
@@ -263,3 +275,120 @@ def test_quaternion_helpers_match_the_scalar_ones():
     for i in range(N):
         yaw_ref, h_ref = eskf.yaw_and_jacobian(q[i])
         np.testing.assert_allclose([yaw[i], *h[i]], [yaw_ref, *h_ref], **TOL)
+
+
+# ----- fleet estimator Diagrams against the scalar ones --------------------------------------------
+
+TICKS = 300
+GPS_EVERY, MAG_EVERY = 25, 5
+RESET_TIMEOUT = 0.09  # s: the third of three rejected samples 0.05 s apart resets to the GPS
+SENSORS = {"imu": 6, "gps": 7, "mag": 2}
+
+
+def sensor_sequences(vehicle, reference_accelerometer):
+    """{sensor: (TICKS, size)} samples of one vehicle (seed = vehicle index), with its faults.
+
+    Vehicle 0: a 10-tick NaN IMU burst and a NaN GPS position; 1: a 50 m GPS outlier and a NaN
+    mag yaw; 2: a 40 m GPS step to the end (rejected, then reset to); 3: its GPS 10 ticks later
+    than the others' and one NaN GPS stamp.
+    """
+    rng = np.random.default_rng(100 + vehicle)
+    level = [0.0, 0.0, GRAVITY if reference_accelerometer else -GRAVITY, 0.0, 0.0, 0.0]
+    imu = level + rng.normal(scale=[0.3, 0.3, 0.3, 0.05, 0.05, 0.05], size=(TICKS, 6))
+    gps = np.tile([0.0] * 6 + [NO_SAMPLE_STAMP], (TICKS, 1))
+    mag = np.tile([0.0, NO_SAMPLE_STAMP], (TICKS, 1))
+    shift = 10 if vehicle == 3 else 0
+    for k in range(1, TICKS):
+        gps[k], mag[k] = gps[k - 1], mag[k - 1]
+        if (k - shift) % GPS_EVERY == 0 and k > shift:
+            p = [0.0, 0.0, -1.0] + rng.normal(scale=[0.7, 0.7, 2.0])
+            gps[k] = np.r_[p, rng.normal(scale=[0.1, 0.1, 0.3]), k * DT]
+        if k % MAG_EVERY == 0:
+            mag[k] = [rng.normal(scale=0.1), k * DT]
+    if vehicle == 0:
+        imu[120:130] = math.nan
+        gps[200:225, 0] = math.nan
+    elif vehicle == 1:
+        gps[100:125, 0] += 50.0
+        mag[150:155, 0] = math.nan
+    elif vehicle == 2:
+        gps[175:, 0:3] += 40.0
+    else:
+        gps[260:285, 6] = math.nan
+    return {"imu": imu, "gps": gps, "mag": mag}
+
+
+def fleet_and_scalar_estimators(vehicle, n, fidelity):
+    """One Diagram holding the fleet estimator and n scalar ones, every input and output exported."""
+    builder = DiagramBuilder()
+    systems = {"fleet": build_fleet_estimator(vehicle, n, fidelity)}
+    systems.update({f"scalar{i}": build_estimator(vehicle, fidelity) for i in range(n)})
+    for tag, system in systems.items():
+        system.set_name(tag)
+        builder.AddSystem(system)
+        for name in SENSORS:
+            builder.ExportInput(system.GetInputPort(name), f"{tag}.{name}")
+        for name in vocabulary_for(vehicle.estimator).log_widths():
+            builder.ExportOutput(system.GetOutputPort(name), f"{tag}.{name}")
+    return builder.Build()
+
+
+VEHICLES = {
+    "ekf7": (VehicleConfig(ekf=EkfParams(gps_reset_timeout=RESET_TIMEOUT)), PHYSICAL),
+    "ekf7-reference-small-angle": (
+        VehicleConfig(
+            ekf=EkfParams(gps_reset_timeout=RESET_TIMEOUT),
+            attitude_filter=AttitudeFilterParams(variant="small_angle", tau=0.5),
+        ),
+        REFERENCE,
+    ),
+    "eskf15": (VehicleConfig(estimator=EskfEstimatorConfig(gps_reset_timeout=RESET_TIMEOUT)), PHYSICAL),
+    "eskf9": (
+        VehicleConfig(estimator=EskfEstimatorConfig(gps_reset_timeout=RESET_TIMEOUT, estimate_biases=False)),
+        PHYSICAL,
+    ),
+}
+
+
+@pytest.mark.parametrize("case", list(VEHICLES))
+def test_fleet_estimator_matches_the_scalar_estimators_tick_by_tick(case):
+    vehicle, fidelity = VEHICLES[case]
+    n = 4
+    diagram = fleet_and_scalar_estimators(vehicle, n, fidelity)
+    context = diagram.CreateDefaultContext()
+    simulator = Simulator(diagram, context)
+    sequences = [sensor_sequences(i, fidelity.reference_accelerometer) for i in range(n)]
+    widths = vocabulary_for(vehicle.estimator).log_widths()
+    for k in range(TICKS):
+        for name in SENSORS:
+            samples = [sequences[i][name][k] for i in range(n)]
+            diagram.GetInputPort(f"fleet.{name}").FixValue(context, np.concatenate(samples))
+            for i in range(n):
+                diagram.GetInputPort(f"scalar{i}.{name}").FixValue(context, samples[i])
+        simulator.AdvanceTo((k + 0.5) * DT)
+        for name, width in widths.items():
+            fleet = diagram.GetOutputPort(f"fleet.{name}").Eval(context).reshape(n, width)
+            for i in range(n):
+                scalar = diagram.GetOutputPort(f"scalar{i}.{name}").Eval(context)
+                np.testing.assert_allclose(fleet[i], scalar, **TOL, err_msg=f"tick {k}, vehicle {i}, {name}")
+    diagnostics = diagram.GetOutputPort("fleet.diagnostics").Eval(context).reshape(n, -1)
+    assert diagnostics[0, DIAG["nonfinite_samples"]] >= 11  # the IMU burst and the NaN GPS sample
+    assert diagnostics[1, DIAG["gps_gated"]] >= 1
+    assert diagnostics[1, DIAG["nonfinite_samples"]] >= 1
+    assert diagnostics[2, DIAG["gps_resets"]] == 1
+    assert diagnostics[3, DIAG["nonfinite_samples"]] >= 25  # a NaN stamp is fresh on every tick
+
+
+def test_fleet_estimator_port_sizes_follow_the_vocabulary():
+    for estimator in (Ekf7EstimatorConfig(), EskfEstimatorConfig()):
+        vehicle = VehicleConfig(estimator=estimator)
+        diagram = build_fleet_estimator(vehicle, 5)
+        assert diagram.get_name() == "estimator"
+        for name, size in SENSORS.items():
+            assert diagram.GetInputPort(name).size() == 5 * size
+        for name, width in vocabulary_for(estimator).log_widths().items():
+            assert diagram.GetOutputPort(name).size() == 5 * width
+    with pytest.raises(ValueError, match="physical accelerometer"):
+        build_fleet_estimator(VehicleConfig(estimator=EskfEstimatorConfig()), 2, REFERENCE)
+    with pytest.raises(ValueError, match="at least one vehicle"):
+        build_fleet_estimator(VehicleConfig(), 0)

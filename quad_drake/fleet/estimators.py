@@ -1,0 +1,391 @@
+"""Fleet estimator LeafSystems: N vehicles' estimators advanced at once, and the sub-Diagram a
+vehicle's config chooses (:func:`build_fleet_estimator`).
+
+Each system mirrors its per-vehicle twin in ``systems/estimators.py``: the same ports, periods,
+within-tick offsets, freshness rule, gates, resets, covariance health, diagnostics and counters,
+and the non-finite IMU skip with the held gyro rate. Every vector port carries the N per-vehicle
+vectors vehicle-major (size N k, vehicle i at [i k, (i + 1) k)), each in the scalar system's
+layout (CONTRACTS 1). The maths is ``fleet/estimation_kernels.py``, the scalar functions' array
+form; the handlers only reshape the ports and the discrete state (updated in place) and pick the
+vehicles each step applies to. All N vehicles share one VehicleConfig.
+"""
+
+import numpy as np
+from pydrake.systems.framework import DiagramBuilder, LeafSystem
+
+from quad_drake.conventions import (
+    ATTITUDE_FILTER_OFFSET,
+    ATTITUDE_SIZE,
+    EKF_OFFSET,
+    EKF_STATE_SIZE,
+    GPS_SIZE,
+    IMU_SIZE,
+    MAG_SIZE,
+    ONBOARD_PERIOD,
+    STATE_SIZE,
+)
+from quad_drake.estimation import ekf, eskf, gating
+from quad_drake.estimation.complementary import VARIANTS
+from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, NIS_DOF, vocabulary_for
+from quad_drake.fidelity import PHYSICAL
+from quad_drake.fleet import estimation_kernels as kernels
+from quad_drake.rotations import quat_from_euler_tuple
+from quad_drake.systems.estimators import _initial_book, _initial_diagnostics
+
+BOOK_SIZE = 3
+"""Book-keeping columns per vehicle (kernels.GPS_SLOT, MAG_SLOT, GPS_REJECTION_START)."""
+
+
+def _rows(mask):
+    """The vehicles of a flag array as an index: a full slice when all are set (no copies)."""
+    return slice(None) if mask.all() else np.flatnonzero(mask)
+
+
+def _tiled(vector, n):
+    return np.tile(np.asarray(vector, dtype=float), n)
+
+
+class _FleetGatedFusion:
+    """Shared update logic of the fleet estimators (the fleet form of ``_GatedFusion``).
+
+    Discrete state groups: x (0), P (1), diagnostics (2), book (3); ``_fuse_fresh`` runs the
+    covariance health check and the mag then GPS fusion of one tick on views of them.
+    """
+
+    DIAGNOSTICS_GROUP, BOOK_GROUP = 2, 3
+
+    def _declare_fleet(self, n, x0, P0, gps_gate_sigma, mag_gate_sigma, gps_reset_timeout, gps_indices):
+        self._n = n
+        self._k = P0.shape[0]
+        self._P0 = P0
+        self._gps_threshold = gating.gate_threshold(NIS_DOF["gps"], gps_gate_sigma)
+        self._mag_threshold = gating.gate_threshold(NIS_DOF["mag"], mag_gate_sigma)
+        self._reset_timeout = float(gps_reset_timeout)
+        self._gps_indices = np.asarray(gps_indices)
+        self._read_imu = self.DeclareVectorInputPort("imu", n * IMU_SIZE).Eval
+        self._read_gps = self.DeclareVectorInputPort("gps", n * GPS_SIZE).Eval
+        self._read_mag = self.DeclareVectorInputPort("mag", n * MAG_SIZE).Eval
+        x = self.DeclareDiscreteState(_tiled(x0, n))
+        P = self.DeclareDiscreteState(_tiled(P0.ravel(), n))
+        diagnostics = self.DeclareDiscreteState(_tiled(_initial_diagnostics(), n))
+        self.DeclareDiscreteState(_tiled(_initial_book(), n))
+        return x, P, diagnostics
+
+    def _views(self, discrete_state, width):
+        """Writable (N, ...) views of x, P, diagnostics and the book."""
+        n, k = self._n, self._k
+        return (
+            discrete_state.get_mutable_value(0).reshape(n, width),
+            discrete_state.get_mutable_value(1).reshape(n, k, k),
+            discrete_state.get_mutable_value(self.DIAGNOSTICS_GROUP).reshape(n, DIAGNOSTICS_SIZE),
+            discrete_state.get_mutable_value(self.BOOK_GROUP).reshape(n, BOOK_SIZE),
+        )
+
+    def _fuse_fresh(self, x, P, diagnostics, book, gps, mag, gps_update, mag_update):
+        """Health check (full at a fresh GPS sample), then fuse the fresh mag and GPS samples, in place."""
+        gps_fresh = kernels.fresh(gps[:, 6], book[:, kernels.GPS_SLOT])
+        mag_fresh = kernels.fresh(mag[:, 1], book[:, kernels.MAG_SLOT])
+        check = gps_fresh | ~kernels.covariance_looks_healthy(P)
+        if check.any():
+            rows = np.flatnonzero(check)
+            P[rows], outcomes = kernels.repaired_covariance(P[rows], self._P0)
+            diagnostics[rows[outcomes != gating.COVARIANCE_OK], DIAG["covariance_repairs"]] += 1.0
+        if mag_fresh.any():
+            kernels.fuse(
+                kernels.MAG_SLOT,
+                _rows(mag_fresh),
+                mag[:, 1],
+                mag[:, 0],
+                x,
+                P,
+                diagnostics,
+                book,
+                mag_update,
+                self._R_mag,
+                self._mag_threshold,
+            )
+        if gps_fresh.any():
+            kernels.fuse(
+                kernels.GPS_SLOT,
+                _rows(gps_fresh),
+                gps[:, 6],
+                gps[:, 0:6],
+                x,
+                P,
+                diagnostics,
+                book,
+                gps_update,
+                self._R_gps,
+                self._gps_threshold,
+                self._reset_timeout,
+                self._gps_indices,
+            )
+
+
+class FleetComplementaryFilter(LeafSystem):
+    """N complementary attitude filters (``systems.estimators.ComplementaryFilter`` per vehicle).
+
+    Inputs: ``imu`` (N*6), ``ekf_state`` (N*7). Outputs (state ports): ``attitude`` (N*3: roll,
+    pitch, yaw rad), ``body_rate`` (N*3: each vehicle's last finite gyro sample, rad/s). Ticks
+    every ONBOARD_PERIOD at ATTITUDE_FILTER_OFFSET; a vehicle's non-finite IMU sample is skipped
+    (roll, pitch and body rate held, yaw = its EKF's posterior yaw).
+    """
+
+    def __init__(self, params, n, initial_attitude=(0.0, 0.0, 0.0), fidelity=PHYSICAL):
+        super().__init__()
+        if params.variant not in VARIANTS:
+            raise ValueError(f"attitude filter variant {params.variant!r} is not one of {VARIANTS}")
+        self._n = n
+        self._tau = float(params.tau)
+        self._variant = params.variant
+        self._reference_accelerometer = fidelity.reference_accelerometer
+        self._read_imu = self.DeclareVectorInputPort("imu", n * IMU_SIZE).Eval
+        self._read_ekf_state = self.DeclareVectorInputPort("ekf_state", n * EKF_STATE_SIZE).Eval
+        attitude = self.DeclareDiscreteState(_tiled(initial_attitude, n))
+        rate = self.DeclareDiscreteState(n * 3)
+        self.DeclareStateOutputPort("attitude", attitude)
+        self.DeclareStateOutputPort("body_rate", rate)
+        self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, ATTITUDE_FILTER_OFFSET, self._update)
+
+    def _update(self, context, discrete_state):
+        n = self._n
+        imu = self._read_imu(context).reshape(n, IMU_SIZE)
+        attitude = discrete_state.get_mutable_value(0).reshape(n, ATTITUDE_SIZE)
+        rate = discrete_state.get_mutable_value(1).reshape(n, 3)
+        attitude[:, 2] = self._read_ekf_state(context).reshape(n, EKF_STATE_SIZE)[:, 6]
+        rows = _rows(np.isfinite(imu).all(axis=1))
+        attitude[rows] = kernels.complementary_update(
+            attitude[rows],
+            imu[rows, 0:3],
+            imu[rows, 3:6],
+            ONBOARD_PERIOD,
+            self._tau,
+            self._variant,
+            self._reference_accelerometer,
+        )
+        rate[rows] = imu[rows, 3:6]
+
+
+class FleetEkf(_FleetGatedFusion, LeafSystem):
+    """N 7-state EKFs (``systems.estimators.Ekf`` per vehicle; same tick, gates, resets and health).
+
+    Inputs: ``imu`` (N*6), ``gps`` (N*7), ``mag`` (N*2), ``attitude`` (N*3). Outputs (state ports):
+    ``ekf_state`` (N*7), ``covariance`` (N*49, each P row-major), ``diagnostics``
+    (N*DIAGNOSTICS_SIZE).
+    """
+
+    def __init__(self, params, n, fidelity=PHYSICAL):
+        super().__init__()
+        self._reference_accelerometer = fidelity.reference_accelerometer
+        self._Q = ekf.process_noise(params)
+        self._R_gps = ekf.gps_noise(params)
+        self._R_mag = ekf.mag_noise(params)
+        x, P, diagnostics = self._declare_fleet(
+            n,
+            ekf.initial_state(params),
+            ekf.initial_covariance(params),
+            params.gps_gate_sigma,
+            params.mag_gate_sigma,
+            params.gps_reset_timeout,
+            range(6),
+        )
+        self._read_attitude = self.DeclareVectorInputPort("attitude", n * ATTITUDE_SIZE).Eval
+        self.DeclareStateOutputPort("ekf_state", x)
+        self.DeclareStateOutputPort("covariance", P)
+        self.DeclareStateOutputPort("diagnostics", diagnostics)
+        self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, EKF_OFFSET, self._update)
+
+    def _update(self, context, discrete_state):
+        n = self._n
+        imu = self._read_imu(context).reshape(n, IMU_SIZE)
+        attitude = self._read_attitude(context).reshape(n, ATTITUDE_SIZE)
+        x, P, diagnostics, book = self._views(discrete_state, EKF_STATE_SIZE)
+        finite = np.isfinite(imu).all(axis=1) & np.isfinite(attitude).all(axis=1)
+        rows = _rows(finite)
+        x[rows], P[rows] = kernels.ekf7_predict_with_yaw(
+            x[rows],
+            P[rows],
+            attitude[rows],
+            imu[rows, 0:3],
+            ONBOARD_PERIOD,
+            self._Q,
+            self._reference_accelerometer,
+        )
+        diagnostics[~finite, DIAG["nonfinite_samples"]] += 1.0
+        self._fuse_fresh(
+            x,
+            P,
+            diagnostics,
+            book,
+            self._read_gps(context).reshape(n, GPS_SIZE),
+            self._read_mag(context).reshape(n, MAG_SIZE),
+            kernels.ekf7_gps_update,
+            kernels.ekf7_mag_update,
+        )
+
+
+class FleetEstimatedStateAssembler(LeafSystem):
+    """N EKF7 estimates in the true ``state`` layout (``systems.estimators.EstimatedStateAssembler``).
+
+    Inputs: ``attitude`` (N*3), ``ekf_state`` (N*7), ``body_rate`` (N*3). Output:
+    ``estimated_state`` (N*13: p, q_NB(roll, pitch, ekf yaw) wxyz, v, body rate); feedthrough.
+    """
+
+    def __init__(self, n):
+        super().__init__()
+        self._n = n
+        self._read_attitude = self.DeclareVectorInputPort("attitude", n * ATTITUDE_SIZE).Eval
+        self._read_ekf_state = self.DeclareVectorInputPort("ekf_state", n * EKF_STATE_SIZE).Eval
+        self._read_rate = self.DeclareVectorInputPort("body_rate", n * 3).Eval
+        self.DeclareVectorOutputPort(
+            "estimated_state",
+            n * STATE_SIZE,
+            self._calc,
+            prerequisites_of_calc={self.all_input_ports_ticket()},
+        )
+
+    def _calc(self, context, output):
+        n = self._n
+        attitude = self._read_attitude(context).reshape(n, ATTITUDE_SIZE)
+        x = self._read_ekf_state(context).reshape(n, EKF_STATE_SIZE)
+        estimate = output.get_mutable_value().reshape(n, STATE_SIZE)
+        estimate[:, 0:3] = x[:, 0:3]
+        for i, component in enumerate(kernels.quat_from_euler(attitude[:, 0], attitude[:, 1], x[:, 6])):
+            estimate[:, 3 + i] = component
+        estimate[:, 7:10] = x[:, 3:6]
+        estimate[:, 10:13] = self._read_rate(context).reshape(n, 3)
+
+
+class FleetEskf(_FleetGatedFusion, LeafSystem):
+    """N error-state EKFs (``systems.estimators.Eskf`` per vehicle; same tick, gates, resets, health).
+
+    Inputs: ``imu`` (N*6), ``gps`` (N*7), ``mag`` (N*2). Outputs (state ports): ``estimated_state``
+    (N*13: p, q_NB, v, gyro - gyro bias of the last finite sample), ``covariance`` (N*k*k, k = 15
+    with bias estimation, 9 without), ``diagnostics`` (N*DIAGNOSTICS_SIZE), ``imu_bias`` (N*6).
+    """
+
+    ESTIMATE_GROUP, BIAS_GROUP = 4, 5
+
+    def __init__(self, params, n):
+        super().__init__()
+        self._noise = eskf.NoiseModel.from_params(params)
+        P0 = eskf.initial_covariance(params)
+        self._Q_constant = eskf.noise_buffer(P0.shape[0], self._noise, ONBOARD_PERIOD)
+        self._R_gps = eskf.gps_noise(params)
+        self._R_mag = eskf.mag_noise(params)
+        yaw, pitch, roll = params.init_ypr
+        x0 = eskf.initial_nominal(
+            params.init_position, params.init_velocity, quat_from_euler_tuple(roll, pitch, yaw)
+        )
+        _, P, diagnostics = self._declare_fleet(
+            n,
+            x0,
+            P0,
+            params.gps_gate_sigma,
+            params.mag_gate_sigma,
+            params.gps_reset_timeout,
+            eskf.GPS_STATES,
+        )
+        estimate = self.DeclareDiscreteState(
+            _tiled(np.concatenate([x0[0:3], x0[6:10], x0[3:6], np.zeros(3)]), n)
+        )
+        bias = self.DeclareDiscreteState(n * 6)
+        self.DeclareStateOutputPort("estimated_state", estimate)
+        self.DeclareStateOutputPort("covariance", P)
+        self.DeclareStateOutputPort("diagnostics", diagnostics)
+        self.DeclareStateOutputPort("imu_bias", bias)
+        self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, EKF_OFFSET, self._update)
+
+    def _update(self, context, discrete_state):
+        n = self._n
+        imu = self._read_imu(context).reshape(n, IMU_SIZE)
+        x, P, diagnostics, book = self._views(discrete_state, eskf.NOMINAL_SIZE)
+        estimate = discrete_state.get_mutable_value(self.ESTIMATE_GROUP).reshape(n, STATE_SIZE)
+        finite = np.isfinite(imu).all(axis=1)
+        rows = _rows(finite)
+        x[rows], P[rows] = kernels.eskf_predict(
+            x[rows], P[rows], imu[rows, 0:3], imu[rows, 3:6], ONBOARD_PERIOD, self._noise, self._Q_constant
+        )
+        estimate[rows, 10:13] = imu[rows, 3:6] - x[rows, 13:16]
+        diagnostics[~finite, DIAG["nonfinite_samples"]] += 1.0
+        self._fuse_fresh(
+            x,
+            P,
+            diagnostics,
+            book,
+            self._read_gps(context).reshape(n, GPS_SIZE),
+            self._read_mag(context).reshape(n, MAG_SIZE),
+            kernels.eskf_gps_update,
+            kernels.eskf_mag_update,
+        )
+        estimate[:, 0:3] = x[:, 0:3]
+        estimate[:, 3:7] = x[:, 6:10]
+        estimate[:, 7:10] = x[:, 3:6]
+        discrete_state.get_mutable_value(self.BIAS_GROUP)[:] = x[:, 10:16].ravel()
+
+
+def _build_ekf7(builder, vehicle, n, fidelity):
+    """Fleet CF + EKF7 + assembler in `builder`; returns (input ports by name, output ports by name)."""
+    ekf_system = builder.AddNamedSystem("ekf", FleetEkf(vehicle.ekf, n, fidelity))
+    attitude_filter = builder.AddNamedSystem(
+        "attitude_filter",
+        FleetComplementaryFilter(
+            vehicle.attitude_filter,
+            n,
+            initial_attitude=(0.0, 0.0, vehicle.ekf.init_state[6]),
+            fidelity=fidelity,
+        ),
+    )
+    assembler = builder.AddNamedSystem("estimated_state", FleetEstimatedStateAssembler(n))
+    builder.Connect(ekf_system.GetOutputPort("ekf_state"), attitude_filter.GetInputPort("ekf_state"))
+    builder.Connect(attitude_filter.GetOutputPort("attitude"), ekf_system.GetInputPort("attitude"))
+    builder.Connect(attitude_filter.GetOutputPort("attitude"), assembler.GetInputPort("attitude"))
+    builder.Connect(attitude_filter.GetOutputPort("body_rate"), assembler.GetInputPort("body_rate"))
+    builder.Connect(ekf_system.GetOutputPort("ekf_state"), assembler.GetInputPort("ekf_state"))
+    inputs = {
+        "imu": [ekf_system.GetInputPort("imu"), attitude_filter.GetInputPort("imu")],
+        "gps": [ekf_system.GetInputPort("gps")],
+        "mag": [ekf_system.GetInputPort("mag")],
+    }
+    outputs = {
+        "estimated_state": assembler.GetOutputPort("estimated_state"),
+        "attitude": attitude_filter.GetOutputPort("attitude"),
+    }
+    for name in ("ekf_state", "covariance", "diagnostics"):
+        outputs[name] = ekf_system.GetOutputPort(name)
+    return inputs, outputs
+
+
+def _build_eskf(builder, vehicle, n, fidelity):
+    if fidelity.reference_accelerometer:
+        raise ValueError("the error-state EKF is written for the physical accelerometer (fidelity: physical)")
+    system = builder.AddNamedSystem("eskf", FleetEskf(vehicle.estimator, n))
+    inputs = {name: [system.GetInputPort(name)] for name in ("imu", "gps", "mag")}
+    names = ("estimated_state", "covariance", "diagnostics", "imu_bias")
+    return inputs, {name: system.GetOutputPort(name) for name in names}
+
+
+_BUILDERS = {"ekf7": _build_ekf7, "eskf": _build_eskf}
+
+
+def build_fleet_estimator(vehicle, n, fidelity=PHYSICAL):
+    """The estimator sub-Diagram of N vehicles flying one VehicleConfig, named ``estimator``.
+
+    The fleet form of ``systems.estimators.build_estimator``: inputs ``imu`` (N*6), ``gps``
+    (N*7), ``mag`` (N*2) (a never-sampled constant for a missing sensor); outputs named as
+    ``vocabulary_for(vehicle.estimator).log_widths()``, each of width N times the scalar one,
+    vehicle-major.
+    """
+    if n < 1:
+        raise ValueError(f"a fleet needs at least one vehicle, got n = {n}")
+    builder = DiagramBuilder()
+    inputs, outputs = _BUILDERS[vehicle.estimator.kind](builder, vehicle, n, fidelity)
+    for name, ports in inputs.items():
+        exported = builder.ExportInput(ports[0], name)
+        for port in ports[1:]:
+            builder.ConnectInput(exported, port)
+    for name in vocabulary_for(vehicle.estimator).log_widths():
+        builder.ExportOutput(outputs[name], name)
+    diagram = builder.Build()
+    diagram.set_name("estimator")
+    return diagram
