@@ -266,15 +266,13 @@ def test_delay_compensation_matches_the_scalar_functions():
     assert (shifted[:5] == sample[:5]).all()
 
 
-def test_quaternion_helpers_match_the_scalar_ones():
+def test_ekf7_estimated_state_matches_the_scalar_assembly():
     rng = np.random.default_rng(20)
-    attitude = random_attitudes(rng)
-    q = np.column_stack(kernels.quat_from_euler(*attitude.T))
-    assert_rows(q, [quat_from_euler_tuple(*row) for row in attitude])
-    yaw, h = kernels.eskf_yaw_and_jacobian(q)
+    attitude, x, rate = random_attitudes(rng), rng.normal(size=(N, 7)), rng.normal(size=(N, 3))
+    estimate = kernels.ekf7_estimated_state(attitude, x, rate)
     for i in range(N):
-        yaw_ref, h_ref = eskf.yaw_and_jacobian(q[i])
-        np.testing.assert_allclose([yaw[i], *h[i]], [yaw_ref, *h_ref], **TOL)
+        q = quat_from_euler_tuple(attitude[i, 0], attitude[i, 1], x[i, 6])
+        np.testing.assert_allclose(estimate[i], np.r_[x[i, 0:3], q, x[i, 3:6], rate[i]], **TOL)
 
 
 # ----- fleet estimator Diagrams against the scalar ones --------------------------------------------

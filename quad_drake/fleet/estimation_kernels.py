@@ -1,20 +1,28 @@
 """Pure: the estimators' scalar functions in batched array form, for fleets of N vehicles.
 
 Every function here is the array form of one scalar function (named in its docstring) with a
-leading vehicle axis: the same arithmetic, vectorised with numpy, and tested against the scalar
-function on seeded random inputs to 1e-12 (``tests/test_fleet_estimators.py``). The scalar
-functions (``estimation/complementary.py``, ``ekf.py``, ``eskf.py``, ``gating.py`` and
-``delay_compensation.py``) stay the reference implementation; their docstrings give the
-units, frames and conventions, which are the same here.
+leading vehicle axis, tested against the scalar function row by row on seeded random inputs to
+1e-12 (``tests/test_fleet_estimators.py``). The scalar functions (``estimation/complementary.py``,
+``ekf.py``, ``eskf.py``, ``gating.py``, ``delay_compensation.py``) stay the reference
+implementation; their docstrings give the units, frames and conventions, which are the same here.
+
+Two ways of batching, chosen by measurement (``benchmarks/bench_fleet_estimators.py``): the
+per-tick steps (attitude filter, predictions, the cheap covariance check, magnetometer updates,
+error injection, estimate assembly) are numba-compiled loops over the vehicles that repeat the
+scalar arithmetic, operation for operation, with the sparsity of the transition matrices used
+as the scalar code uses it; the 10 Hz GPS updates (a 6x6 solve each), the PSD check and the
+gating book-keeping are numpy over the whole batch. numba compiles on first use and caches the
+machine code next to this module (``cache=True``).
 
 Shapes: a state x is (N, n), a covariance P (N, n, n), a specific force f_B or gyro sample w_B
 (N, 3) (m/s^2, rad/s, FRD), an angle, stamp or NIS (N,), a per-vehicle flag (N,) bool. Inputs
 are not modified unless a docstring says so. A non-finite measurement leaves its vehicle's
-(x, P) unchanged and gives NaN NIS, as the scalar updates do; the arithmetic never touches it.
+(x, P) unchanged and gives NaN NIS, as the scalar updates do.
 """
 
 import math
 
+import numba
 import numpy as np
 
 from quad_drake.conventions import GRAVITY, NO_SAMPLE_STAMP
@@ -22,23 +30,33 @@ from quad_drake.delay_compensation import TIME_TOLERANCE
 from quad_drake.estimation import eskf, gating
 from quad_drake.estimation.complementary import VARIANTS
 from quad_drake.estimation.vocabulary import DIAG
-from quad_drake.rotations import wrap_angles
 
 GPS_SLOT, MAG_SLOT, GPS_REJECTION_START = 0, 1, 2
 """Columns of an estimator's book (N, 3): last GPS stamp seen, last mag stamp seen, start of the
 GPS rejection run (as ``systems/estimators.py``)."""
 _NIS_COLUMN = {GPS_SLOT: DIAG["gps_nis"], MAG_SLOT: DIAG["mag_nis"]}
 _GATED_COLUMN = {GPS_SLOT: DIAG["gps_gated"], MAG_SLOT: DIAG["mag_gated"]}
+_TWO_PI = 2.0 * math.pi
+_ESKF_BIASES = eskf.ERROR_SIZE_WITH_BIASES
+
+_jit = numba.njit(cache=True)
 
 
-# ----- rotations -----------------------------------------------------------------------------------
+# ----- scalar helpers of the compiled loops (the scalar modules' own formulas) ---------------------
 
 
-def quat_from_euler(roll, pitch, yaw):
-    """(w, x, y, z) arrays of R = Rz(yaw) Ry(pitch) Rx(roll) (``rotations.quat_from_euler_tuple``)."""
-    cr, sr = np.cos(0.5 * roll), np.sin(0.5 * roll)
-    cp, sp = np.cos(0.5 * pitch), np.sin(0.5 * pitch)
-    cy, sy = np.cos(0.5 * yaw), np.sin(0.5 * yaw)
+@_jit
+def _wrap(angle):
+    """rotations.wrap_to_pi."""
+    return (angle + math.pi) % _TWO_PI - math.pi
+
+
+@_jit
+def _quat_from_euler(roll, pitch, yaw):
+    """rotations.quat_from_euler_tuple."""
+    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
+    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
+    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
     return (
         cr * cp * cy + sr * sp * sy,
         sr * cp * cy - cr * sp * sy,
@@ -47,33 +65,29 @@ def quat_from_euler(roll, pitch, yaw):
     )
 
 
-def euler_from_quat(w, x, y, z):
-    """(roll, pitch, yaw) arrays, rad, of wxyz quaternions, any norm (``rotations.euler_from_quat``)."""
+@_jit
+def _euler_from_quat(w, x, y, z):
+    """rotations.euler_from_quat."""
     n2 = w * w + x * x + y * y + z * z
-    roll = np.arctan2(2.0 * (y * z + w * x), w * w - x * x - y * y + z * z)
-    pitch = np.arcsin(np.minimum(np.maximum(-2.0 * (x * z - w * y) / n2, -1.0), 1.0))
-    yaw = np.arctan2(2.0 * (x * y + w * z), w * w + x * x - y * y - z * z)
+    roll = math.atan2(2.0 * (y * z + w * x), w * w - x * x - y * y + z * z)
+    pitch = math.asin(max(-1.0, min(1.0, -2.0 * (x * z - w * y) / n2)))
+    yaw = math.atan2(2.0 * (x * y + w * z), w * w + x * x - y * y - z * z)
     return roll, pitch, yaw
 
 
-def quat_exp(tx, ty, tz):
-    """(w, x, y, z) arrays of unit quaternions of rotation vectors (tx, ty, tz) rad (``eskf.quat_exp``)."""
-    angle = np.sqrt(tx * tx + ty * ty + tz * tz)
-    small = angle < 1e-12
-    safe = np.where(small, 1.0, angle)
-    s = np.sin(0.5 * safe) / safe
-    return (
-        np.where(small, 1.0, np.cos(0.5 * safe)),
-        np.where(small, 0.5 * tx, tx * s),
-        np.where(small, 0.5 * ty, ty * s),
-        np.where(small, 0.5 * tz, tz * s),
-    )
+@_jit
+def _quat_exp(tx, ty, tz):
+    """eskf.quat_exp."""
+    angle = math.sqrt(tx * tx + ty * ty + tz * tz)
+    if angle < 1e-12:
+        return (1.0, 0.5 * tx, 0.5 * ty, 0.5 * tz)
+    s = math.sin(0.5 * angle) / angle
+    return (math.cos(0.5 * angle), tx * s, ty * s, tz * s)
 
 
-def quat_mul(a, b):
-    """Hamilton products a (x) b of two (w, x, y, z) tuples of arrays (``eskf.quat_mul``)."""
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
+@_jit
+def _quat_mul(aw, ax, ay, az, bw, bx, by, bz):
+    """eskf.quat_mul."""
     return (
         aw * bw - ax * bx - ay * by - az * bz,
         aw * bx + ax * bw + ay * bz - az * by,
@@ -82,33 +96,100 @@ def quat_mul(a, b):
     )
 
 
+@_jit
+def _rotation(qw, qx, qy, qz, R):
+    """Writes R_NB of a unit wxyz quaternion into R (3, 3) (eskf._rotation_entries)."""
+    R[0, 0] = 1 - 2 * (qy * qy + qz * qz)
+    R[0, 1] = 2 * (qx * qy - qw * qz)
+    R[0, 2] = 2 * (qx * qz + qw * qy)
+    R[1, 0] = 2 * (qx * qy + qw * qz)
+    R[1, 1] = 1 - 2 * (qx * qx + qz * qz)
+    R[1, 2] = 2 * (qy * qz - qw * qx)
+    R[2, 0] = 2 * (qx * qz - qw * qy)
+    R[2, 1] = 2 * (qy * qz + qw * qx)
+    R[2, 2] = 1 - 2 * (qx * qx + qy * qy)
+
+
 # ----- complementary filter ------------------------------------------------------------------------
 
 
-def accel_roll_pitch(f_B, reference_accelerometer=False):
-    """(roll, pitch) arrays, rad, of gravity alone in f_B (N, 3) (``complementary.accel_roll_pitch``)."""
-    fx, fy, fz = f_B[:, 0], f_B[:, 1], f_B[:, 2]
+@_jit
+def _row_sum(values, i):
+    """The sum of row i of a 2-D array, from 0.0 in column order (Python's ``sum``)."""
+    total = 0.0
+    for k in range(values.shape[1]):
+        total += values[i, k]
+    return total
+
+
+@_jit
+def _row_finite(values, i, total=0.0):
+    """True if the sum of `total` and row i is finite (``systems.estimators._finite``'s rule)."""
+    for k in range(values.shape[1]):
+        total += values[i, k]
+    return math.isfinite(total)
+
+
+@_jit
+def _complementary_row(roll, pitch, yaw, fx, fy, fz, wx, wy, wz, dt, tau, nonlinear, reference_accelerometer):
+    """complementary.complementary_update of one vehicle, (roll, pitch, yaw)."""
+    if nonlinear:
+        qw, qx, qy, qz = _quat_from_euler(roll, pitch, yaw)
+        rate = math.sqrt(wx * wx + wy * wy + wz * wz)
+        s = math.sin(0.5 * rate * dt) / rate if rate > 1e-12 else 0.5 * dt
+        c = math.cos(0.5 * rate * dt)
+        dx, dy, dz = wx * s, wy * s, wz * s
+        roll_pred, pitch_pred, yaw_pred = _euler_from_quat(
+            qw * c - qx * dx - qy * dy - qz * dz,
+            qw * dx + qx * c + qy * dz - qz * dy,
+            qw * dy - qx * dz + qy * c + qz * dx,
+            qw * dz + qx * dy - qy * dx + qz * c,
+        )
+    else:
+        roll_pred, pitch_pred, yaw_pred = roll + dt * wx, pitch + dt * wy, yaw + dt * wz
     if reference_accelerometer:
-        return np.arctan2(fy, fz), np.arctan2(-fx, GRAVITY)
-    return np.arctan2(-fy, -fz), np.arctan2(fx, np.hypot(fy, fz))
-
-
-def integrate_euler_exact(roll, pitch, yaw, w_B, dt):
-    """ZYX angles after dt s at constant body rates w_B (N, 3) (``complementary.integrate_euler_exact``)."""
-    wx, wy, wz = w_B[:, 0], w_B[:, 1], w_B[:, 2]
-    qw, qx, qy, qz = quat_from_euler(roll, pitch, yaw)
-    rate = np.sqrt(wx * wx + wy * wy + wz * wz)
-    turning = rate > 1e-12
-    safe = np.where(turning, rate, 1.0)
-    s = np.where(turning, np.sin(0.5 * safe * dt) / safe, 0.5 * dt)
-    c = np.cos(0.5 * rate * dt)
-    dx, dy, dz = wx * s, wy * s, wz * s
-    return euler_from_quat(
-        qw * c - qx * dx - qy * dy - qz * dz,
-        qw * dx + qx * c + qy * dz - qz * dy,
-        qw * dy - qx * dz + qy * c + qz * dx,
-        qw * dz + qx * dy - qy * dx + qz * c,
+        roll_acc, pitch_acc = math.atan2(fy, fz), math.atan2(-fx, GRAVITY)
+    else:
+        roll_acc, pitch_acc = math.atan2(-fy, -fz), math.atan2(fx, math.hypot(fy, fz))
+    gyro_weight = tau / (tau + dt)
+    accel_weight = dt / (tau + dt)
+    return (
+        gyro_weight * roll_pred + accel_weight * roll_acc,
+        gyro_weight * pitch_pred + accel_weight * pitch_acc,
+        _wrap(yaw_pred),
     )
+
+
+@_jit
+def _complementary_rows(attitude, f_B, w_B, dt, tau, nonlinear, reference_accelerometer):
+    out = np.empty((attitude.shape[0], 3))
+    for i in range(attitude.shape[0]):
+        out[i, 0], out[i, 1], out[i, 2] = _complementary_row(
+            attitude[i, 0], attitude[i, 1], attitude[i, 2], f_B[i, 0], f_B[i, 1], f_B[i, 2],
+            w_B[i, 0], w_B[i, 1], w_B[i, 2], dt, tau, nonlinear, reference_accelerometer,
+        )  # fmt: skip
+    return out
+
+
+@_jit
+def _complementary_tick(attitude, rate, imu, ekf_state, dt, tau, nonlinear, reference_accelerometer):
+    for i in range(attitude.shape[0]):
+        yaw = ekf_state[i, 6]
+        if not _row_finite(imu, i):
+            attitude[i, 2] = yaw
+            continue
+        attitude[i, 0], attitude[i, 1], attitude[i, 2] = _complementary_row(
+            attitude[i, 0], attitude[i, 1], yaw, imu[i, 0], imu[i, 1], imu[i, 2],
+            imu[i, 3], imu[i, 4], imu[i, 5], dt, tau, nonlinear, reference_accelerometer,
+        )  # fmt: skip
+        for k in range(3):
+            rate[i, k] = imu[i, 3 + k]
+
+
+def _check_variant(variant):
+    if variant not in VARIANTS:
+        raise ValueError(f"unknown attitude filter variant {variant!r}; expected one of {VARIANTS}")
+    return variant == "nonlinear"
 
 
 def complementary_update(attitude, f_B, w_B, dt, tau, variant, reference_accelerometer=False):
@@ -117,68 +198,140 @@ def complementary_update(attitude, f_B, w_B, dt, tau, variant, reference_acceler
     ``complementary.complementary_update`` per row; f_B, w_B (N, 3); dt, tau s; variant
     ``"nonlinear"`` or ``"small_angle"``.
     """
-    roll, pitch, yaw = attitude[:, 0], attitude[:, 1], attitude[:, 2]
-    if variant == "nonlinear":
-        roll_pred, pitch_pred, yaw_pred = integrate_euler_exact(roll, pitch, yaw, w_B, dt)
-    elif variant == "small_angle":
-        roll_pred = roll + dt * w_B[:, 0]
-        pitch_pred = pitch + dt * w_B[:, 1]
-        yaw_pred = yaw + dt * w_B[:, 2]
-    else:
-        raise ValueError(f"unknown attitude filter variant {variant!r}; expected one of {VARIANTS}")
-    roll_acc, pitch_acc = accel_roll_pitch(f_B, reference_accelerometer)
-    gyro_weight = tau / (tau + dt)
-    accel_weight = dt / (tau + dt)
-    out = np.empty_like(attitude)
-    out[:, 0] = gyro_weight * roll_pred + accel_weight * roll_acc
-    out[:, 1] = gyro_weight * pitch_pred + accel_weight * pitch_acc
-    out[:, 2] = wrap_angles(yaw_pred)
+    nonlinear = _check_variant(variant)
+    return _complementary_rows(
+        attitude, f_B, w_B, float(dt), float(tau), nonlinear, bool(reference_accelerometer)
+    )
+
+
+def complementary_tick(attitude, rate, imu, ekf_state, dt, tau, variant, reference_accelerometer=False):
+    """One tick of N attitude filters IN PLACE (``systems.estimators.ComplementaryFilter`` per vehicle).
+
+    attitude (N, 3) rad and rate (N, 3) rad/s: the filters' state, updated; imu (N, 6); ekf_state
+    (N, 7), whose yaw is the prior yaw. A vehicle with a non-finite IMU sample keeps its roll,
+    pitch and rate and takes the prior yaw; the others take :func:`complementary_update` and
+    their gyro sample as rate.
+    """
+    nonlinear = _check_variant(variant)
+    _complementary_tick(
+        attitude, rate, imu, ekf_state, float(dt), float(tau), nonlinear, bool(reference_accelerometer)
+    )
+
+
+@_jit
+def _assembled_rows(attitude, ekf_state, body_rate):
+    out = np.empty((attitude.shape[0], 13))
+    for i in range(attitude.shape[0]):
+        q = _quat_from_euler(attitude[i, 0], attitude[i, 1], ekf_state[i, 6])
+        out[i, 0:3] = ekf_state[i, 0:3]
+        for k in range(4):
+            out[i, 3 + k] = q[k]
+        out[i, 7:10] = ekf_state[i, 3:6]
+        out[i, 10:13] = body_rate[i]
     return out
+
+
+def ekf7_estimated_state(attitude, ekf_state, body_rate):
+    """(N, 13) EKF7 estimates in the ``state`` layout (``systems.estimators.EstimatedStateAssembler``).
+
+    p = x[0:3], q_NB = quat(roll, pitch, x[6]) wxyz, v = x[3:6], w = body rate; attitude (N, 3),
+    ekf_state (N, 7), body_rate (N, 3).
+    """
+    return _assembled_rows(attitude, ekf_state, body_rate)
 
 
 # ----- 7-state EKF ---------------------------------------------------------------------------------
 
 
-def _rotate_specific_force(roll, pitch, yaw, f_B):
-    """(R_NB f_B, dR_NB/dyaw f_B) as tuples of 3 and 2 arrays (the derivative's z entry is 0)."""
-    fx, fy, fz = f_B[:, 0], f_B[:, 1], f_B[:, 2]
-    cr, sr = np.cos(roll), np.sin(roll)
-    cp, sp = np.cos(pitch), np.sin(pitch)
-    cy, sy = np.cos(yaw), np.sin(yaw)
+@_jit
+def _ekf7_predict_row(x, P, x_out, P_out, i, attitude, f_B, dt, Q, gravity_z, GP, M):
+    """ekf.predict_with_yaw of vehicle i from (x, P) into (x_out, P_out) (may be the same arrays)."""
+    roll, pitch, yaw = attitude[i, 0], attitude[i, 1], attitude[i, 2]
+    fx, fy, fz = f_B[i, 0], f_B[i, 1], f_B[i, 2]
+    cr, sr = math.cos(roll), math.sin(roll)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(yaw), math.sin(yaw)
     rolled_z = sr * fy + cr * fz
     ux = cp * fx + sp * rolled_z
     uy = cr * fy - sr * fz
     uz = -sp * fx + cp * rolled_z
-    return (cy * ux - sy * uy, sy * ux + cy * uy, uz), (-sy * ux - cy * uy, cy * ux - sy * uy)
+    g3 = (-sy * ux - cy * uy) * dt
+    g4 = (cy * ux - sy * uy) * dt
+    for k in range(3):
+        x_out[i, k] = x[i, k] + x[i, 3 + k] * dt
+    x_out[i, 3] = x[i, 3] + (cy * ux - sy * uy) * dt
+    x_out[i, 4] = x[i, 4] + (sy * ux + cy * uy) * dt
+    x_out[i, 5] = x[i, 5] + (uz + gravity_z) * dt
+    x_out[i, 6] = yaw
+    # G = I7 + dt at (0..2, 3..5) + (g3, g4) at (3, 6), (4, 6): G P, then (G P) G^T
+    for c in range(7):
+        for r in range(3):
+            GP[r, c] = P[i, r, c] + dt * P[i, r + 3, c]
+        GP[3, c] = P[i, 3, c] + g3 * P[i, 6, c]
+        GP[4, c] = P[i, 4, c] + g4 * P[i, 6, c]
+        GP[5, c] = P[i, 5, c]
+        GP[6, c] = P[i, 6, c]
+    for r in range(7):
+        for c in range(3):
+            M[r, c] = GP[r, c] + GP[r, c + 3] * dt
+        M[r, 3] = GP[r, 3] + GP[r, 6] * g3
+        M[r, 4] = GP[r, 4] + GP[r, 6] * g4
+        M[r, 5] = GP[r, 5]
+        M[r, 6] = GP[r, 6]
+    for r in range(7):
+        for c in range(7):
+            P_out[i, r, c] = (M[r, c] + M[c, r]) * 0.5 + Q[r, c]
+
+
+@_jit
+def _ekf7_predict_rows(x, P, attitude, f_B, dt, Q, gravity_z):
+    x_new, P_new = np.empty_like(x), np.empty_like(P)
+    GP, M = np.empty((7, 7)), np.empty((7, 7))
+    for i in range(x.shape[0]):
+        _ekf7_predict_row(x, P, x_new, P_new, i, attitude, f_B, dt, Q, gravity_z, GP, M)
+    return x_new, P_new
+
+
+@_jit
+def _ekf7_tick(x, P, attitude, imu, diagnostics, dt, Q, gravity_z, nonfinite_column):
+    GP, M = np.empty((7, 7)), np.empty((7, 7))
+    for i in range(x.shape[0]):
+        if _row_finite(attitude, i, _row_sum(imu, i)):
+            _ekf7_predict_row(x, P, x, P, i, attitude, imu, dt, Q, gravity_z, GP, M)
+        else:
+            diagnostics[i, nonfinite_column] += 1.0
 
 
 def ekf7_predict_with_yaw(x, P, attitude, f_B, dt, Q, reference_accelerometer=False):
-    """(x', P') of the EKF7's 500 Hz step (``ekf.predict_with_yaw``): yaw <- attitude yaw, then predict.
+    """(x', P') of the EKF7's 500 Hz step (``ekf.predict_with_yaw`` per row): yaw <- attitude yaw, predict.
 
-    x (N, 7); P (N, 7, 7); attitude (N, 3) roll, pitch, yaw rad; f_B (N, 3); Q (7, 7). P' = G P G^T
-    symmetrised + Q, formed from G's sparsity (I7 plus dt at (0..2, 3..5) and R' f dt at (3..5, 6)).
+    x (N, 7); P (N, 7, 7); attitude (N, 3) roll, pitch, yaw rad; f_B (N, 3); Q (7, 7).
     """
-    gravity_z = -GRAVITY if reference_accelerometer else GRAVITY
-    rf, rf_yaw = _rotate_specific_force(attitude[:, 0], attitude[:, 1], attitude[:, 2], f_B)
-    x_new = np.empty_like(x)
-    x_new[:, 0:3] = x[:, 0:3] + x[:, 3:6] * dt
-    x_new[:, 3] = x[:, 3] + rf[0] * dt
-    x_new[:, 4] = x[:, 4] + rf[1] * dt
-    x_new[:, 5] = x[:, 5] + (rf[2] + gravity_z) * dt
-    x_new[:, 6] = attitude[:, 2]
-    g3, g4 = (rf_yaw[0] * dt)[:, None], (rf_yaw[1] * dt)[:, None]
-    GP = P.copy()
-    GP[:, 0:3, :] += P[:, 3:6, :] * dt
-    GP[:, 3, :] += g3 * P[:, 6, :]
-    GP[:, 4, :] += g4 * P[:, 6, :]
-    S = GP.copy()
-    S[:, :, 0:3] += GP[:, :, 3:6] * dt
-    S[:, :, 3] += g3 * GP[:, :, 6]
-    S[:, :, 4] += g4 * GP[:, :, 6]
-    P_new = S + S.transpose(0, 2, 1)
-    P_new *= 0.5
-    P_new += Q
-    return x_new, P_new
+    return _ekf7_predict_rows(x, P, attitude, f_B, float(dt), Q, _gravity_z(reference_accelerometer))
+
+
+def ekf7_predict_tick(x, P, attitude, imu, diagnostics, dt, Q, reference_accelerometer=False):
+    """The prediction of one EKF7 tick IN PLACE on x (N, 7) and P (N, 7, 7) (``systems.estimators.Ekf``).
+
+    A vehicle whose IMU sample (N, 6) or attitude (N, 3) has a non-finite entry is not predicted
+    and counts a non-finite sample in diagnostics (N, DIAGNOSTICS_SIZE); the others take
+    :func:`ekf7_predict_with_yaw` with f_B = imu[:, 0:3].
+    """
+    _ekf7_tick(
+        x,
+        P,
+        attitude,
+        imu,
+        diagnostics,
+        float(dt),
+        Q,
+        _gravity_z(reference_accelerometer),
+        DIAG["nonfinite_samples"],
+    )
+
+
+def _gravity_z(reference_accelerometer):
+    return -GRAVITY if reference_accelerometer else GRAVITY
 
 
 def _finite_rows(z):
@@ -230,18 +383,31 @@ def ekf7_gps_update(x, P, gps_pv, R_gps):
     return _skip_nonfinite(finite, x, P, x_new, P_new, nis)
 
 
+@_jit
+def _ekf7_mag_rows(x, P, yaw_meas, r):
+    x_new = x.copy()
+    P_new = P.copy()
+    nis = np.full(x.shape[0], np.nan)
+    K = np.empty(7)
+    for i in range(x.shape[0]):
+        if not math.isfinite(yaw_meas[i]):
+            continue
+        nu = _wrap(yaw_meas[i] - x[i, 6])
+        S = P[i, 6, 6] + r
+        for a in range(7):
+            K[a] = P[i, a, 6] / S
+        for a in range(7):
+            for b in range(7):
+                P_new[i, a, b] = P[i, a, b] - (K[a] * P[i, b, 6] + K[b] * P[i, a, 6]) + S * (K[a] * K[b])
+            x_new[i, a] = x[i, a] + K[a] * nu
+        x_new[i, 6] = _wrap(x_new[i, 6])
+        nis[i] = nu * nu / S
+    return x_new, P_new, nis
+
+
 def ekf7_mag_update(x, P, yaw_meas, R_mag):
-    """(x', P', nis) after magnetometer yaws (N,) rad with R_mag (1, 1) (``ekf.mag_update``)."""
-    finite, yaw_meas = _finite_rows(yaw_meas)
-    nu = wrap_angles(yaw_meas - x[:, 6])
-    p6 = P[:, :, 6]
-    S = p6[:, 6] + R_mag[0, 0]
-    K = p6 / S[:, None]
-    KhP = K[:, :, None] * p6[:, None, :]
-    P_new = P - (KhP + KhP.transpose(0, 2, 1)) + S[:, None, None] * (K[:, :, None] * K[:, None, :])
-    x_new = x + K * nu[:, None]
-    x_new[:, 6] = wrap_angles(x_new[:, 6])
-    return _skip_nonfinite(finite, x, P, x_new, P_new, nu * nu / S)
+    """(x', P', nis) after magnetometer yaws (N,) rad with R_mag (1, 1) (``ekf.mag_update`` per row)."""
+    return _ekf7_mag_rows(x, P, np.asarray(yaw_meas, dtype=float), float(R_mag[0, 0]))
 
 
 # ----- gating and covariance health ----------------------------------------------------------------
@@ -274,9 +440,23 @@ def reset_states(x, P, indices, values, covariance):
     return x, P
 
 
+@_jit
+def _looks_healthy_rows(P):
+    healthy = np.empty(P.shape[0], dtype=np.bool_)
+    for i in range(P.shape[0]):
+        total = 0.0
+        variances_ok = True
+        for a in range(P.shape[1]):
+            variances_ok = variances_ok and P[i, a, a] >= 0.0
+            for b in range(P.shape[2]):
+                total += P[i, a, b]
+        healthy[i] = math.isfinite(total) and variances_ok
+    return healthy
+
+
 def covariance_looks_healthy(P):
     """(N,) cheap per-tick check: all entries finite, variances >= 0 (``gating.covariance_looks_healthy``)."""
-    return np.isfinite(P.sum(axis=(1, 2))) & (np.diagonal(P, axis1=1, axis2=2).min(axis=1) >= 0.0)
+    return _looks_healthy_rows(P)
 
 
 def _positive_definite(S):
@@ -370,137 +550,192 @@ def fresh(stamps, seen):
 # ----- error-state EKF -----------------------------------------------------------------------------
 
 
-def _rotation_entries(qw, qx, qy, qz):
-    """(N, 3, 3) R_NB of unit wxyz quaternion arrays (``eskf._rotation_entries``)."""
-    R = np.empty((qw.shape[0], 3, 3))
-    R[:, 0, 0] = 1 - 2 * (qy * qy + qz * qz)
-    R[:, 0, 1] = 2 * (qx * qy - qw * qz)
-    R[:, 0, 2] = 2 * (qx * qz + qw * qy)
-    R[:, 1, 0] = 2 * (qx * qy + qw * qz)
-    R[:, 1, 1] = 1 - 2 * (qx * qx + qz * qz)
-    R[:, 1, 2] = 2 * (qy * qz - qw * qx)
-    R[:, 2, 0] = 2 * (qx * qz - qw * qy)
-    R[:, 2, 1] = 2 * (qy * qz + qw * qx)
-    R[:, 2, 2] = 1 - 2 * (qx * qx + qy * qy)
-    return R
+@_jit
+def _eskf_predict_row(
+    x, P, x_out, P_out, i, f_B, w_B, dt, accel_var, gyro_var, isotropic_gyro, Q_constant, work
+):
+    """eskf.predict of vehicle i from (x, P) into (x_out, P_out) (may be the same arrays).
 
-
-def eskf_predict_nominal(x, f_B, w_B, dt):
-    """(x', R_hat, R_hat', u_N) of one IMU step (``eskf.predict_nominal`` per row).
-
-    x (N, 16) nominal; f_B, w_B (N, 3); returns x' (N, 16), R and R' (N, 3, 3), u_N (N, 3).
+    work: (R, R_next, F, FP, M) buffers, 3x3, 3x3 and three n x n.
     """
-    qw, qx, qy, qz = x[:, 6], x[:, 7], x[:, 8], x[:, 9]
-    R = _rotation_entries(qw, qx, qy, qz)
-    f = f_B - x[:, 10:13]
-    u = np.empty_like(f)
-    for i in range(3):
-        u[:, i] = R[:, i, 0] * f[:, 0] + R[:, i, 1] * f[:, 1] + R[:, i, 2] * f[:, 2]
-    a = u.copy()
-    a[:, 2] += GRAVITY
+    R, R_next, F, FP, M = work
+    n = P.shape[1]
     h = 0.5 * dt * dt
-    w = (w_B - x[:, 13:16]) * dt
-    q = quat_mul((qw, qx, qy, qz), quat_exp(w[:, 0], w[:, 1], w[:, 2]))
-    n = 1.0 / np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    x_new = np.empty_like(x)
-    x_new[:, 0:3] = x[:, 0:3] + x[:, 3:6] * dt + a * h
-    x_new[:, 3:6] = x[:, 3:6] + a * dt
-    for i in range(4):
-        x_new[:, 6 + i] = q[i] * n
-    x_new[:, 10:16] = x[:, 10:16]
-    return x_new, R, _rotation_entries(x_new[:, 6], x_new[:, 7], x_new[:, 8], x_new[:, 9]), u
+    # nominal step (eskf.predict_nominal)
+    qw, qx, qy, qz = x[i, 6], x[i, 7], x[i, 8], x[i, 9]
+    _rotation(qw, qx, qy, qz, R)
+    fx, fy, fz = f_B[i, 0] - x[i, 10], f_B[i, 1] - x[i, 11], f_B[i, 2] - x[i, 12]
+    ux = R[0, 0] * fx + R[0, 1] * fy + R[0, 2] * fz
+    uy = R[1, 0] * fx + R[1, 1] * fy + R[1, 2] * fz
+    uz = R[2, 0] * fx + R[2, 1] * fy + R[2, 2] * fz
+    az = uz + GRAVITY
+    dq = _quat_exp((w_B[i, 0] - x[i, 13]) * dt, (w_B[i, 1] - x[i, 14]) * dt, (w_B[i, 2] - x[i, 15]) * dt)
+    qw, qx, qy, qz = _quat_mul(qw, qx, qy, qz, dq[0], dq[1], dq[2], dq[3])
+    norm = 1.0 / math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+    qw, qx, qy, qz = qw * norm, qx * norm, qy * norm, qz * norm
+    x_out[i, 0] = x[i, 0] + x[i, 3] * dt + ux * h
+    x_out[i, 1] = x[i, 1] + x[i, 4] * dt + uy * h
+    x_out[i, 2] = x[i, 2] + x[i, 5] * dt + az * h
+    x_out[i, 3] = x[i, 3] + ux * dt
+    x_out[i, 4] = x[i, 4] + uy * dt
+    x_out[i, 5] = x[i, 5] + az * dt
+    x_out[i, 6], x_out[i, 7], x_out[i, 8], x_out[i, 9] = qw, qx, qy, qz
+    for k in range(10, 16):
+        x_out[i, k] = x[i, k]
+    _rotation(qw, qx, qy, qz, R_next)
+    # error transition (eskf.transition_buffer + fill_transition)
+    F[:, :] = 0.0
+    for k in range(n):
+        F[k, k] = 1.0
+    F[0, 3] = F[1, 4] = F[2, 5] = dt
+    for row, scale in ((0, h), (3, dt)):
+        F[row, 7] = uz * scale
+        F[row, 8] = -uy * scale
+        F[row + 1, 6] = -uz * scale
+        F[row + 1, 8] = ux * scale
+        F[row + 2, 6] = uy * scale
+        F[row + 2, 7] = -ux * scale
+    if n == _ESKF_BIASES:
+        for a in range(3):
+            for b in range(3):
+                F[a, 9 + b] = R[a, b] * -h
+                F[3 + a, 9 + b] = R[a, b] * -dt
+                F[6 + a, 12 + b] = R_next[a, b] * -dt
+    # F P F^T over F's non-zero entries
+    FP[:, :] = 0.0
+    for r in range(n):
+        for k in range(n):
+            f = F[r, k]
+            if f != 0.0:
+                for c in range(n):
+                    FP[r, c] += f * P[i, k, c]
+    M[:, :] = 0.0
+    for c in range(n):
+        for k in range(n):
+            f = F[c, k]
+            if f != 0.0:
+                for r in range(n):
+                    M[r, c] += FP[r, k] * f
+    for r in range(n):
+        for c in range(n):
+            P_out[i, r, c] = (M[r, c] + M[c, r]) * 0.5 + Q_constant[r, c]
+    # attitude-dependent process noise (eskf.fill_process_noise)
+    for a in range(6):
+        ga = h if a < 3 else dt
+        for b in range(6):
+            gb = h if b < 3 else dt
+            q = 0.0
+            for k in range(3):
+                q += (ga * R[a % 3, k]) * accel_var[k] * (gb * R[b % 3, k])
+            P_out[i, a, b] = (M[a, b] + M[b, a]) * 0.5 + q
+    if not isotropic_gyro:
+        for a in range(3):
+            for b in range(3):
+                q = 0.0
+                for k in range(3):
+                    q += R[a, k] * (gyro_var[k] * (dt * dt)) * R[b, k]
+                P_out[i, 6 + a, 6 + b] = (M[6 + a, 6 + b] + M[6 + b, 6 + a]) * 0.5 + q
 
 
-def _add_product(Y, rows, A, X, cols):
-    """Y[:, rows:rows+3] += A @ X[:, cols:cols+3] for A (N, 3, 3), X (N, n, m), written out."""
-    X0, X1, X2 = X[:, cols], X[:, cols + 1], X[:, cols + 2]
-    for i in range(3):
-        Y[:, rows + i] += A[:, i, 0, None] * X0 + A[:, i, 1, None] * X1 + A[:, i, 2, None] * X2
+@_jit
+def _eskf_work(n):
+    return np.empty((3, 3)), np.empty((3, 3)), np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
 
 
-def _apply_transition(X, minus_skew_u, R, R_next, dt):
-    """F X for the error transition F (``eskf.fill_transition``) and X (N, n, m), from F's blocks.
-
-    minus_skew_u: -[u_N]x (N, 3, 3); R, R_next: R_hat before and after the step.
-    """
-    n = X.shape[1]
-    h = 0.5 * dt * dt
-    W = np.zeros((X.shape[0], 3, X.shape[2]))
-    _add_product(W, 0, minus_skew_u, X, 6)
-    if n == eskf.ERROR_SIZE_WITH_BIASES:
-        _add_product(W, 0, -R, X, 9)
-    Y = X.copy()
-    Y[:, 0:3] += X[:, 3:6] * dt + W * h
-    Y[:, 3:6] += W * dt
-    if n == eskf.ERROR_SIZE_WITH_BIASES:
-        _add_product(Y, 6, R_next * -dt, X, 12)
-    return Y
+@_jit
+def _eskf_predict_rows(x, P, f_B, w_B, dt, accel_var, gyro_var, isotropic_gyro, Q_constant):
+    x_new, P_new = np.empty_like(x), np.empty_like(P)
+    work = _eskf_work(P.shape[1])
+    for i in range(x.shape[0]):
+        _eskf_predict_row(
+            x, P, x_new, P_new, i, f_B, w_B, dt, accel_var, gyro_var, isotropic_gyro, Q_constant, work
+        )
+    return x_new, P_new
 
 
-def _minus_skew(u):
-    """(N, 3, 3) -[u]x of u (N, 3)."""
-    S = np.zeros((u.shape[0], 3, 3))
-    S[:, 0, 1], S[:, 0, 2] = u[:, 2], -u[:, 1]
-    S[:, 1, 0], S[:, 1, 2] = -u[:, 2], u[:, 0]
-    S[:, 2, 0], S[:, 2, 1] = u[:, 1], -u[:, 0]
-    return S
+@_jit
+def _eskf_tick(x, P, imu, estimate, diagnostics, dt, accel_var, gyro_var, isotropic_gyro, Q_constant, column):
+    work = _eskf_work(P.shape[1])
+    for i in range(x.shape[0]):
+        if not _row_finite(imu, i):
+            diagnostics[i, column] += 1.0
+            continue
+        _eskf_predict_row(
+            x, P, x, P, i, imu[:, 0:3], imu[:, 3:6], dt, accel_var, gyro_var, isotropic_gyro, Q_constant, work
+        )
+        for k in range(3):
+            estimate[i, 10 + k] = imu[i, 3 + k] - x[i, 13 + k]
 
 
-def _rotated_diagonal(R, variances):
-    """(N, 3, 3) R diag(variances) R^T."""
-    Rv = R * variances
-    return (
-        Rv[:, :, 0, None] * R[:, None, :, 0]
-        + Rv[:, :, 1, None] * R[:, None, :, 1]
-        + Rv[:, :, 2, None] * R[:, None, :, 2]
-    )
+def _noise_arguments(noise, Q_constant):
+    gyro = noise.gyro_var
+    return noise.accel_var, gyro, bool(gyro[0] == gyro[1] == gyro[2]), np.asarray(Q_constant, dtype=float)
 
 
 def eskf_predict(x, P, f_B, w_B, dt, noise, Q_constant):
     """(x', P') after one IMU step (``eskf.predict`` per row): nominal step, P' = F P F^T symmetrised + Q.
 
     x (N, 16); P (N, n, n), n = 15 or 9; noise: eskf.NoiseModel; Q_constant: ``eskf.noise_buffer(n,
-    noise, dt)`` (the attitude-independent blocks). F P F^T is formed from F's blocks.
+    noise, dt)`` (the attitude-independent blocks).
     """
-    x_new, R, R_next, u = eskf_predict_nominal(x, f_B, w_B, dt)
-    minus_skew_u = _minus_skew(u)
-    FP = _apply_transition(P, minus_skew_u, R, R_next, dt)
-    FPF = _apply_transition(np.ascontiguousarray(FP.transpose(0, 2, 1)), minus_skew_u, R, R_next, dt)
-    P_new = FPF + FPF.transpose(0, 2, 1)
-    P_new *= 0.5
-    P_new += Q_constant
-    M = _rotated_diagonal(R, noise.accel_var)
-    h = 0.5 * dt * dt
-    P_new[:, 0:3, 0:3] += M * (h * h)
-    P_new[:, 0:3, 3:6] += M * (h * dt)
-    P_new[:, 3:6, 0:3] += M * (dt * h)
-    P_new[:, 3:6, 3:6] += M * (dt * dt)
-    if not noise.gyro_var[0] == noise.gyro_var[1] == noise.gyro_var[2]:
-        P_new[:, 6:9, 6:9] += _rotated_diagonal(R, noise.gyro_var * (dt * dt))
-    return x_new, P_new
+    return _eskf_predict_rows(x, P, f_B, w_B, float(dt), *_noise_arguments(noise, Q_constant))
+
+
+def eskf_predict_tick(x, P, imu, estimate, diagnostics, dt, noise, Q_constant):
+    """The prediction of one ESKF tick IN PLACE on x (N, 16), P (N, n, n) (``systems.estimators.Eskf``).
+
+    A vehicle with a non-finite IMU sample (N, 6) is not predicted and counts a non-finite sample
+    in diagnostics; the others take :func:`eskf_predict` and their body rate estimate[:, 10:13]
+    (N, 13) becomes gyro - gyro bias.
+    """
+    _eskf_tick(
+        x,
+        P,
+        imu,
+        estimate,
+        diagnostics,
+        float(dt),
+        *_noise_arguments(noise, Q_constant),
+        DIAG["nonfinite_samples"],
+    )
+
+
+@_jit
+def _inject_rows(x, P, dx):
+    x = x.copy()
+    P = P.copy()
+    n = P.shape[1]
+    rows = np.empty((3, n))
+    for i in range(x.shape[0]):
+        for k in range(6):
+            x[i, k] += dx[i, k]
+        t0, t1, t2 = 0.5 * dx[i, 6], 0.5 * dx[i, 7], 0.5 * dx[i, 8]
+        e = _quat_exp(dx[i, 6], dx[i, 7], dx[i, 8])
+        q = _quat_mul(e[0], e[1], e[2], e[3], x[i, 6], x[i, 7], x[i, 8], x[i, 9])
+        norm = 1.0 / math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+        for k in range(4):
+            x[i, 6 + k] = q[k] * norm
+        if n == _ESKF_BIASES:
+            for k in range(6):
+                x[i, 10 + k] += dx[i, 9 + k]
+        # rows 6:9 <- A P[6:9, :], then columns 6:9 <- P[:, 6:9] A^T, A = I + [dtheta]x / 2
+        for c in range(n):
+            r6, r7, r8 = P[i, 6, c], P[i, 7, c], P[i, 8, c]
+            rows[0, c] = r6 - t2 * r7 + t1 * r8
+            rows[1, c] = t2 * r6 + r7 - t0 * r8
+            rows[2, c] = -t1 * r6 + t0 * r7 + r8
+        P[i, 6:9, :] = rows
+        for r in range(n):
+            c6, c7, c8 = P[i, r, 6], P[i, r, 7], P[i, r, 8]
+            P[i, r, 6] = c6 - c7 * t2 + c8 * t1
+            P[i, r, 7] = c6 * t2 + c7 - c8 * t0
+            P[i, r, 8] = -c6 * t1 + c7 * t0 + c8
+    return x, P
 
 
 def eskf_inject(x, P, dx):
     """(x', P'): errors dx (N, n) injected into the nominal x (N, 16), P reset by G (``eskf.inject``)."""
-    x = np.array(x, dtype=float)
-    x[:, 0:6] += dx[:, 0:6]
-    t0, t1, t2 = 0.5 * dx[:, 6, None], 0.5 * dx[:, 7, None], 0.5 * dx[:, 8, None]
-    q = quat_mul(quat_exp(dx[:, 6], dx[:, 7], dx[:, 8]), (x[:, 6], x[:, 7], x[:, 8], x[:, 9]))
-    norm = 1.0 / np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    for i in range(4):
-        x[:, 6 + i] = q[i] * norm
-    if dx.shape[1] == eskf.ERROR_SIZE_WITH_BIASES:
-        x[:, 10:16] += dx[:, 9:15]
-    P = np.array(P, dtype=float)
-    r6, r7, r8 = P[:, 6].copy(), P[:, 7].copy(), P[:, 8].copy()
-    P[:, 6] = r6 - t2 * r7 + t1 * r8
-    P[:, 7] = t2 * r6 + r7 - t0 * r8
-    P[:, 8] = -t1 * r6 + t0 * r7 + r8
-    c6, c7, c8 = P[:, :, 6].copy(), P[:, :, 7].copy(), P[:, :, 8].copy()
-    P[:, :, 6] = c6 - c7 * t2 + c8 * t1
-    P[:, :, 7] = c6 * t2 + c7 - c8 * t0
-    P[:, :, 8] = -c6 * t1 + c7 * t0 + c8
-    return x, P
+    return _inject_rows(x, P, dx)
 
 
 def eskf_gps_update(x, P, gps_pv, R_gps):
@@ -520,34 +755,47 @@ def eskf_gps_update(x, P, gps_pv, R_gps):
     return _skip_nonfinite(finite, x, P, x_new, P_new, nis)
 
 
-def eskf_yaw_and_jacobian(q):
-    """(yaw (N,), dyaw/dtheta (N, 3)) of nominal attitudes q (N, 4) wxyz (``eskf.yaw_and_jacobian``)."""
-    qw, qx, qy, qz = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-    r00 = 1.0 - 2.0 * (qy * qy + qz * qz)
-    r10 = 2.0 * (qx * qy + qw * qz)
-    r20 = 2.0 * (qx * qz - qw * qy)
-    d = r00 * r00 + r10 * r10
-    h = np.empty((q.shape[0], 3))
-    h[:, 0] = -r00 * r20 / d
-    h[:, 1] = -r10 * r20 / d
-    h[:, 2] = 1.0
-    return np.arctan2(r10, r00), h
+@_jit
+def _eskf_mag_rows(x, P, yaw_meas, r):
+    count, n = P.shape[0], P.shape[1]
+    P_new = P.copy()
+    nis = np.full(count, np.nan)
+    dx = np.zeros((count, n))
+    b = np.empty(n)
+    K = np.empty(n)
+    for i in range(count):
+        if not math.isfinite(yaw_meas[i]):
+            continue
+        # eskf.yaw_and_jacobian
+        qw, qx, qy, qz = x[i, 6], x[i, 7], x[i, 8], x[i, 9]
+        r00 = 1.0 - 2.0 * (qy * qy + qz * qz)
+        r10 = 2.0 * (qx * qy + qw * qz)
+        r20 = 2.0 * (qx * qz - qw * qy)
+        d = r00 * r00 + r10 * r10
+        h0, h1 = -r00 * r20 / d, -r10 * r20 / d
+        for a in range(n):
+            b[a] = P[i, a, 6] * h0 + P[i, a, 7] * h1 + P[i, a, 8]
+        S = b[6] * h0 + b[7] * h1 + b[8] + r
+        nu = _wrap(yaw_meas[i] - math.atan2(r10, r00))
+        for a in range(n):
+            K[a] = b[a] / S
+        for a in range(n):
+            for c in range(n):
+                P_new[i, a, c] = P[i, a, c] - K[a] * b[c] - K[c] * b[a] + S * (K[a] * K[c])
+            dx[i, a] = K[a] * nu
+        nis[i] = nu * nu / S
+    return dx, P_new, nis
 
 
 def eskf_mag_update(x, P, yaw_meas, R_mag):
     """(x', P', nis) after magnetometer yaws (N,) rad with R_mag (1, 1) (``eskf.mag_update`` per row)."""
-    finite, yaw_meas = _finite_rows(yaw_meas)
-    yaw, h = eskf_yaw_and_jacobian(x[:, 6:10])
-    b = P[:, :, 6] * h[:, 0, None] + P[:, :, 7] * h[:, 1, None] + P[:, :, 8] * h[:, 2, None]
-    S = b[:, 6] * h[:, 0] + b[:, 7] * h[:, 1] + b[:, 8] * h[:, 2] + R_mag[0, 0]
-    nu = wrap_angles(yaw_meas - yaw)
-    K = b / S[:, None]
-    Kb = K[:, :, None] * b[:, None, :]
-    P_new = P - Kb
-    P_new -= Kb.transpose(0, 2, 1)
-    P_new += S[:, None, None] * (K[:, :, None] * K[:, None, :])
-    x_new, P_new = eskf_inject(x, P_new, K * nu[:, None])
-    return _skip_nonfinite(finite, x, P, x_new, P_new, nu * nu / S)
+    yaw_meas = np.asarray(yaw_meas, dtype=float)
+    dx, P_new, nis = _eskf_mag_rows(x, P, yaw_meas, float(R_mag[0, 0]))
+    fused = ~np.isnan(nis)
+    x_new, P_injected = _inject_rows(x, P_new, dx)
+    x_new[~fused] = x[~fused]
+    P_injected[~fused] = P[~fused]
+    return x_new, P_injected, nis
 
 
 # ----- GPS delay compensation ----------------------------------------------------------------------

@@ -149,21 +149,16 @@ class FleetComplementaryFilter(LeafSystem):
 
     def _update(self, context, discrete_state):
         n = self._n
-        imu = self._read_imu(context).reshape(n, IMU_SIZE)
-        attitude = discrete_state.get_mutable_value(0).reshape(n, ATTITUDE_SIZE)
-        rate = discrete_state.get_mutable_value(1).reshape(n, 3)
-        attitude[:, 2] = self._read_ekf_state(context).reshape(n, EKF_STATE_SIZE)[:, 6]
-        rows = _rows(np.isfinite(imu).all(axis=1))
-        attitude[rows] = kernels.complementary_update(
-            attitude[rows],
-            imu[rows, 0:3],
-            imu[rows, 3:6],
+        kernels.complementary_tick(
+            discrete_state.get_mutable_value(0).reshape(n, ATTITUDE_SIZE),
+            discrete_state.get_mutable_value(1).reshape(n, 3),
+            self._read_imu(context).reshape(n, IMU_SIZE),
+            self._read_ekf_state(context).reshape(n, EKF_STATE_SIZE),
             ONBOARD_PERIOD,
             self._tau,
             self._variant,
             self._reference_accelerometer,
         )
-        rate[rows] = imu[rows, 3:6]
 
 
 class FleetEkf(_FleetGatedFusion, LeafSystem):
@@ -200,18 +195,9 @@ class FleetEkf(_FleetGatedFusion, LeafSystem):
         imu = self._read_imu(context).reshape(n, IMU_SIZE)
         attitude = self._read_attitude(context).reshape(n, ATTITUDE_SIZE)
         x, P, diagnostics, book = self._views(discrete_state, EKF_STATE_SIZE)
-        finite = np.isfinite(imu).all(axis=1) & np.isfinite(attitude).all(axis=1)
-        rows = _rows(finite)
-        x[rows], P[rows] = kernels.ekf7_predict_with_yaw(
-            x[rows],
-            P[rows],
-            attitude[rows],
-            imu[rows, 0:3],
-            ONBOARD_PERIOD,
-            self._Q,
-            self._reference_accelerometer,
+        kernels.ekf7_predict_tick(
+            x, P, attitude, imu, diagnostics, ONBOARD_PERIOD, self._Q, self._reference_accelerometer
         )
-        diagnostics[~finite, DIAG["nonfinite_samples"]] += 1.0
         self._fuse_fresh(
             x,
             P,
@@ -248,12 +234,8 @@ class FleetEstimatedStateAssembler(LeafSystem):
         n = self._n
         attitude = self._read_attitude(context).reshape(n, ATTITUDE_SIZE)
         x = self._read_ekf_state(context).reshape(n, EKF_STATE_SIZE)
-        estimate = output.get_mutable_value().reshape(n, STATE_SIZE)
-        estimate[:, 0:3] = x[:, 0:3]
-        for i, component in enumerate(kernels.quat_from_euler(attitude[:, 0], attitude[:, 1], x[:, 6])):
-            estimate[:, 3 + i] = component
-        estimate[:, 7:10] = x[:, 3:6]
-        estimate[:, 10:13] = self._read_rate(context).reshape(n, 3)
+        rate = self._read_rate(context).reshape(n, 3)
+        output.get_mutable_value()[:] = kernels.ekf7_estimated_state(attitude, x, rate).ravel()
 
 
 class FleetEskf(_FleetGatedFusion, LeafSystem):
@@ -301,13 +283,9 @@ class FleetEskf(_FleetGatedFusion, LeafSystem):
         imu = self._read_imu(context).reshape(n, IMU_SIZE)
         x, P, diagnostics, book = self._views(discrete_state, eskf.NOMINAL_SIZE)
         estimate = discrete_state.get_mutable_value(self.ESTIMATE_GROUP).reshape(n, STATE_SIZE)
-        finite = np.isfinite(imu).all(axis=1)
-        rows = _rows(finite)
-        x[rows], P[rows] = kernels.eskf_predict(
-            x[rows], P[rows], imu[rows, 0:3], imu[rows, 3:6], ONBOARD_PERIOD, self._noise, self._Q_constant
+        kernels.eskf_predict_tick(
+            x, P, imu, estimate, diagnostics, ONBOARD_PERIOD, self._noise, self._Q_constant
         )
-        estimate[rows, 10:13] = imu[rows, 3:6] - x[rows, 13:16]
-        diagnostics[~finite, DIAG["nonfinite_samples"]] += 1.0
         self._fuse_fresh(
             x,
             P,
