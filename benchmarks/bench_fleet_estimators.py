@@ -4,7 +4,9 @@ A source system publishes N vehicles' IMU samples every tick (from a bank of see
 samples), a fresh magnetometer sample every 5 ticks and a fresh GPS sample every 50 (100 Hz and
 10 Hz, as the scenarios), so the figure includes the gated updates and the PSD check at each
 GPS sample. The source alone is timed too and subtracted: ``estimator`` is what the estimator
-Diagram costs (its handlers, port reads and Drake's event dispatch). The issue's budget for the
+Diagram costs (its handlers, port reads and Drake's event dispatch); ``vs scalar`` is the
+per-vehicle estimator of ``systems/estimators.py`` (one vehicle) over the fleet's cost per
+vehicle, measured in the same run (a ratio that survives machine load). The issue's budget for the
 whole fleet vehicle (11_gps_update at >= 5,000 runs/min on 2 cores) is about 1 us per
 vehicle-tick for the estimator.
 
@@ -25,6 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from quad_drake.config import EskfEstimatorConfig, VehicleConfig  # noqa: E402
 from quad_drake.conventions import GRAVITY, NO_SAMPLE_STAMP, ONBOARD_PERIOD  # noqa: E402
 from quad_drake.fleet.estimators import build_fleet_estimator  # noqa: E402
+from quad_drake.systems.estimators import build_estimator  # noqa: E402
 
 BANK = 16
 """Distinct random IMU samples the source cycles through."""
@@ -64,13 +67,15 @@ class SensorSource(LeafSystem):
             gps[:, 6] = tick * ONBOARD_PERIOD
 
 
-def cpu_seconds(n, kind, seconds):
-    """CPU s of simulating `seconds` of the source (kind None) or the source + a fleet estimator."""
+def cpu_seconds(n, kind, seconds, scalar=False):
+    """CPU s of simulating `seconds` of the source (kind None) or the source + a fleet estimator
+    (or, with `scalar`, the per-vehicle estimator of ``systems/estimators.py``; n = 1)."""
     builder = DiagramBuilder()
     source = builder.AddSystem(SensorSource(n))
     if kind is not None:
         vehicle = VehicleConfig(estimator=EskfEstimatorConfig()) if kind == "eskf" else VehicleConfig()
-        estimator = builder.AddSystem(build_fleet_estimator(vehicle, n))
+        diagram = build_estimator(vehicle) if scalar else build_fleet_estimator(vehicle, n)
+        estimator = builder.AddSystem(diagram)
         for name in ("imu", "gps", "mag"):
             builder.Connect(source.GetOutputPort(name), estimator.GetInputPort(name))
     simulator = Simulator(builder.Build())
@@ -88,13 +93,18 @@ def main(argv=None):
     parser.add_argument("--kinds", nargs="+", default=["ekf7", "eskf"], choices=["ekf7", "eskf"])
     args = parser.parse_args(argv)
     ticks = round(args.seconds / ONBOARD_PERIOD)
-    header = f"{'estimator':>9} {'N':>5} {'us/vehicle-tick':>16} {'us/tick':>9}"
+    header = f"{'estimator':>9} {'N':>6} {'us/vehicle-tick':>16} {'us/tick':>9} {'vs scalar':>10}"
     print(f"{header}  ({ticks} ticks, source subtracted)")
+    source = cpu_seconds(1, None, args.seconds)
+    scalar = {kind: (cpu_seconds(1, kind, args.seconds, scalar=True) - source) / ticks for kind in args.kinds}
+    for kind in args.kinds:
+        print(f"{kind:>9} {'scalar':>6} {scalar[kind] * 1e6:>16.3f} {scalar[kind] * 1e6:>9.1f} {1.0:>9.1f}x")
     for n in args.sizes:
         source = cpu_seconds(n, None, args.seconds)
         for kind in args.kinds:
-            cost = cpu_seconds(n, kind, args.seconds) - source
-            print(f"{kind:>9} {n:>5} {cost / ticks / n * 1e6:>16.3f} {cost / ticks * 1e6:>9.1f}")
+            cost = (cpu_seconds(n, kind, args.seconds) - source) / ticks
+            speedup = scalar[kind] * n / cost
+            print(f"{kind:>9} {n:>6} {cost / n * 1e6:>16.3f} {cost * 1e6:>9.1f} {speedup:>9.1f}x")
 
 
 if __name__ == "__main__":

@@ -41,6 +41,12 @@ def _rows(mask):
     return slice(None) if mask.all() else np.flatnonzero(mask)
 
 
+def _reader(port):
+    """``read(context)``: the value of the vector input `port` as a read-only numpy view (no copy)."""
+    evaluate = port.EvalBasicVector
+    return lambda context: evaluate(context).get_value()
+
+
 def _tiled(vector, n):
     return np.tile(np.asarray(vector, dtype=float), n)
 
@@ -62,9 +68,9 @@ class _FleetGatedFusion:
         self._mag_threshold = gating.gate_threshold(NIS_DOF["mag"], mag_gate_sigma)
         self._reset_timeout = float(gps_reset_timeout)
         self._gps_indices = np.asarray(gps_indices)
-        self._read_imu = self.DeclareVectorInputPort("imu", n * IMU_SIZE).Eval
-        self._read_gps = self.DeclareVectorInputPort("gps", n * GPS_SIZE).Eval
-        self._read_mag = self.DeclareVectorInputPort("mag", n * MAG_SIZE).Eval
+        self._read_imu = _reader(self.DeclareVectorInputPort("imu", n * IMU_SIZE))
+        self._read_gps = _reader(self.DeclareVectorInputPort("gps", n * GPS_SIZE))
+        self._read_mag = _reader(self.DeclareVectorInputPort("mag", n * MAG_SIZE))
         x = self.DeclareDiscreteState(_tiled(x0, n))
         P = self.DeclareDiscreteState(_tiled(P0.ravel(), n))
         diagnostics = self.DeclareDiscreteState(_tiled(_initial_diagnostics(), n))
@@ -139,8 +145,8 @@ class FleetComplementaryFilter(LeafSystem):
         self._tau = float(params.tau)
         self._variant = params.variant
         self._reference_accelerometer = fidelity.reference_accelerometer
-        self._read_imu = self.DeclareVectorInputPort("imu", n * IMU_SIZE).Eval
-        self._read_ekf_state = self.DeclareVectorInputPort("ekf_state", n * EKF_STATE_SIZE).Eval
+        self._read_imu = _reader(self.DeclareVectorInputPort("imu", n * IMU_SIZE))
+        self._read_ekf_state = _reader(self.DeclareVectorInputPort("ekf_state", n * EKF_STATE_SIZE))
         attitude = self.DeclareDiscreteState(_tiled(initial_attitude, n))
         rate = self.DeclareDiscreteState(n * 3)
         self.DeclareStateOutputPort("attitude", attitude)
@@ -184,7 +190,7 @@ class FleetEkf(_FleetGatedFusion, LeafSystem):
             params.gps_reset_timeout,
             range(6),
         )
-        self._read_attitude = self.DeclareVectorInputPort("attitude", n * ATTITUDE_SIZE).Eval
+        self._read_attitude = _reader(self.DeclareVectorInputPort("attitude", n * ATTITUDE_SIZE))
         self.DeclareStateOutputPort("ekf_state", x)
         self.DeclareStateOutputPort("covariance", P)
         self.DeclareStateOutputPort("diagnostics", diagnostics)
@@ -220,9 +226,9 @@ class FleetEstimatedStateAssembler(LeafSystem):
     def __init__(self, n):
         super().__init__()
         self._n = n
-        self._read_attitude = self.DeclareVectorInputPort("attitude", n * ATTITUDE_SIZE).Eval
-        self._read_ekf_state = self.DeclareVectorInputPort("ekf_state", n * EKF_STATE_SIZE).Eval
-        self._read_rate = self.DeclareVectorInputPort("body_rate", n * 3).Eval
+        self._read_attitude = _reader(self.DeclareVectorInputPort("attitude", n * ATTITUDE_SIZE))
+        self._read_ekf_state = _reader(self.DeclareVectorInputPort("ekf_state", n * EKF_STATE_SIZE))
+        self._read_rate = _reader(self.DeclareVectorInputPort("body_rate", n * 3))
         self.DeclareVectorOutputPort(
             "estimated_state",
             n * STATE_SIZE,
