@@ -287,8 +287,8 @@ def sensor_sequences(vehicle, reference_accelerometer):
     """{sensor: (TICKS, size)} samples of one vehicle (seed = vehicle index), with its faults.
 
     Vehicle 0: a 10-tick NaN IMU burst and a NaN GPS position; 1: a 50 m GPS outlier and a NaN
-    mag yaw; 2: a 40 m GPS step to the end (rejected, then reset to); 3: its GPS 10 ticks later
-    than the others' and one NaN GPS stamp.
+    mag yaw; 2: a 40 m GPS step to the end (rejected, then reset to) and a 2 rad mag outlier;
+    3: its GPS 10 ticks later than the others' and one NaN GPS stamp.
     """
     rng = np.random.default_rng(100 + vehicle)
     level = [0.0, 0.0, GRAVITY if reference_accelerometer else -GRAVITY, 0.0, 0.0, 0.0]
@@ -311,6 +311,7 @@ def sensor_sequences(vehicle, reference_accelerometer):
         mag[150:155, 0] = math.nan
     elif vehicle == 2:
         gps[175:, 0:3] += 40.0
+        mag[100:105, 0] += 2.0
     else:
         gps[260:285, 6] = math.nan
     return {"imu": imu, "gps": gps, "mag": mag}
@@ -374,6 +375,7 @@ def test_fleet_estimator_matches_the_scalar_estimators_tick_by_tick(case):
     assert diagnostics[1, DIAG["gps_gated"]] >= 1
     assert diagnostics[1, DIAG["nonfinite_samples"]] >= 1
     assert diagnostics[2, DIAG["gps_resets"]] == 1
+    assert diagnostics[2, DIAG["mag_gated"]] == 1
     assert diagnostics[3, DIAG["nonfinite_samples"]] >= 25  # a NaN stamp is fresh on every tick
 
 

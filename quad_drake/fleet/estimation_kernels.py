@@ -34,9 +34,8 @@ from quad_drake.estimation.vocabulary import DIAG
 GPS_SLOT, MAG_SLOT, GPS_REJECTION_START = 0, 1, 2
 """Columns of an estimator's book (N, 3): last GPS stamp seen, last mag stamp seen, start of the
 GPS rejection run (as ``systems/estimators.py``)."""
-_NIS_COLUMN = {GPS_SLOT: DIAG["gps_nis"], MAG_SLOT: DIAG["mag_nis"]}
-_GATED_COLUMN = {GPS_SLOT: DIAG["gps_gated"], MAG_SLOT: DIAG["mag_gated"]}
 _TWO_PI = 2.0 * math.pi
+_NONFINITE, _MAG_NIS, _MAG_GATED = DIAG["nonfinite_samples"], DIAG["mag_nis"], DIAG["mag_gated"]
 _ESKF_BIASES = eskf.ERROR_SIZE_WITH_BIASES
 
 _jit = numba.njit(cache=True)
@@ -293,13 +292,16 @@ def _ekf7_predict_rows(x, P, attitude, f_B, dt, Q, gravity_z):
 
 
 @_jit
-def _ekf7_tick(x, P, attitude, imu, diagnostics, dt, Q, gravity_z, nonfinite_column):
+def _ekf7_tick(x, P, attitude, imu, diagnostics, dt, Q, gravity_z):
     GP, M = np.empty((7, 7)), np.empty((7, 7))
+    healthy = np.empty(x.shape[0], dtype=np.bool_)
     for i in range(x.shape[0]):
         if _row_finite(attitude, i, _row_sum(imu, i)):
             _ekf7_predict_row(x, P, x, P, i, attitude, imu, dt, Q, gravity_z, GP, M)
         else:
-            diagnostics[i, nonfinite_column] += 1.0
+            diagnostics[i, _NONFINITE] += 1.0
+        healthy[i] = _row_healthy(P, i)
+    return healthy
 
 
 def ekf7_predict_with_yaw(x, P, attitude, f_B, dt, Q, reference_accelerometer=False):
@@ -315,19 +317,10 @@ def ekf7_predict_tick(x, P, attitude, imu, diagnostics, dt, Q, reference_acceler
 
     A vehicle whose IMU sample (N, 6) or attitude (N, 3) has a non-finite entry is not predicted
     and counts a non-finite sample in diagnostics (N, DIAGNOSTICS_SIZE); the others take
-    :func:`ekf7_predict_with_yaw` with f_B = imu[:, 0:3].
+    :func:`ekf7_predict_with_yaw` with f_B = imu[:, 0:3]. Returns :func:`covariance_looks_healthy`
+    of the new P.
     """
-    _ekf7_tick(
-        x,
-        P,
-        attitude,
-        imu,
-        diagnostics,
-        float(dt),
-        Q,
-        _gravity_z(reference_accelerometer),
-        DIAG["nonfinite_samples"],
-    )
+    return _ekf7_tick(x, P, attitude, imu, diagnostics, float(dt), Q, _gravity_z(reference_accelerometer))
 
 
 def _gravity_z(reference_accelerometer):
@@ -384,30 +377,88 @@ def ekf7_gps_update(x, P, gps_pv, R_gps):
 
 
 @_jit
+def _ekf7_mag_innovation(x, P, i, yaw_meas, r):
+    """(nu rad, S rad^2) of vehicle i's magnetometer yaw (ekf.mag_update)."""
+    return _wrap(yaw_meas - x[i, 6]), P[i, 6, 6] + r
+
+
+@_jit
+def _ekf7_mag_apply(x, P, x_out, P_out, i, nu, S, p6):
+    """ekf.mag_update's posterior of vehicle i into (x_out, P_out) (may alias); p6: a 7-buffer."""
+    for a in range(7):
+        p6[a] = P[i, a, 6]
+    for a in range(7):
+        Ka = p6[a] / S
+        for b in range(7):
+            Kb = p6[b] / S
+            P_out[i, a, b] = P[i, a, b] - (Ka * p6[b] + Kb * p6[a]) + S * (Ka * Kb)
+        x_out[i, a] = x[i, a] + Ka * nu
+    x_out[i, 6] = _wrap(x_out[i, 6])
+
+
+@_jit
 def _ekf7_mag_rows(x, P, yaw_meas, r):
-    x_new = x.copy()
-    P_new = P.copy()
+    x_new, P_new = x.copy(), P.copy()
     nis = np.full(x.shape[0], np.nan)
-    K = np.empty(7)
+    p6 = np.empty(7)
     for i in range(x.shape[0]):
-        if not math.isfinite(yaw_meas[i]):
-            continue
-        nu = _wrap(yaw_meas[i] - x[i, 6])
-        S = P[i, 6, 6] + r
-        for a in range(7):
-            K[a] = P[i, a, 6] / S
-        for a in range(7):
-            for b in range(7):
-                P_new[i, a, b] = P[i, a, b] - (K[a] * P[i, b, 6] + K[b] * P[i, a, 6]) + S * (K[a] * K[b])
-            x_new[i, a] = x[i, a] + K[a] * nu
-        x_new[i, 6] = _wrap(x_new[i, 6])
-        nis[i] = nu * nu / S
+        if math.isfinite(yaw_meas[i]):
+            nu, S = _ekf7_mag_innovation(x, P, i, yaw_meas[i], r)
+            _ekf7_mag_apply(x, P, x_new, P_new, i, nu, S, p6)
+            nis[i] = nu * nu / S
     return x_new, P_new, nis
 
 
 def ekf7_mag_update(x, P, yaw_meas, R_mag):
     """(x', P', nis) after magnetometer yaws (N,) rad with R_mag (1, 1) (``ekf.mag_update`` per row)."""
     return _ekf7_mag_rows(x, P, np.asarray(yaw_meas, dtype=float), float(R_mag[0, 0]))
+
+
+@_jit
+def _fresh_mag(mag, book, diagnostics, i):
+    """True when vehicle i has a fresh finite mag sample to fuse; books its stamp, counts a non-finite one."""
+    stamp = mag[i, 1]
+    if stamp == book[i, MAG_SLOT] or stamp == NO_SAMPLE_STAMP:
+        return False
+    book[i, MAG_SLOT] = stamp
+    if not (math.isfinite(stamp) and math.isfinite(mag[i, 0])):
+        diagnostics[i, _NONFINITE] += 1.0
+        return False
+    return True
+
+
+@_jit
+def _mag_gate(diagnostics, i, nis, stamp, threshold):
+    """True when the gate accepts vehicle i's mag NIS; logs it and counts the gated and NaN ones."""
+    if math.isnan(nis):
+        diagnostics[i, _NONFINITE] += 1.0
+        return False
+    diagnostics[i, _MAG_NIS] = nis
+    diagnostics[i, _MAG_NIS + 1] = stamp
+    if nis <= threshold:
+        return True
+    diagnostics[i, _MAG_GATED] += 1.0
+    return False
+
+
+@_jit
+def _ekf7_mag_tick(x, P, mag, diagnostics, book, r, threshold):
+    p6 = np.empty(7)
+    for i in range(x.shape[0]):
+        if _fresh_mag(mag, book, diagnostics, i):
+            nu, S = _ekf7_mag_innovation(x, P, i, mag[i, 0], r)
+            if _mag_gate(diagnostics, i, nu * nu / S, mag[i, 1], threshold):
+                _ekf7_mag_apply(x, P, x, P, i, nu, S, p6)
+
+
+def ekf7_mag_tick(x, P, mag, diagnostics, book, R_mag, threshold):
+    """The magnetometer step of one EKF7 tick IN PLACE (``_GatedFusion._fuse`` for the mag slot).
+
+    mag (N, 2: yaw rad, stamp s); x, P, diagnostics, book as in :func:`fuse_gps`. Fresh (changed stamp)
+    samples are booked; non-finite ones counted; the others fused when the gate (NIS threshold)
+    accepts them, else counted as gated.
+    """
+    _ekf7_mag_tick(x, P, mag, diagnostics, book, float(R_mag[0, 0]), float(threshold))
 
 
 # ----- gating and covariance health ----------------------------------------------------------------
@@ -441,16 +492,22 @@ def reset_states(x, P, indices, values, covariance):
 
 
 @_jit
+def _row_healthy(P, i):
+    """gating.covariance_looks_healthy of P[i]."""
+    total = 0.0
+    variances_ok = True
+    for a in range(P.shape[1]):
+        variances_ok = variances_ok and P[i, a, a] >= 0.0
+        for b in range(P.shape[2]):
+            total += P[i, a, b]
+    return math.isfinite(total) and variances_ok
+
+
+@_jit
 def _looks_healthy_rows(P):
     healthy = np.empty(P.shape[0], dtype=np.bool_)
     for i in range(P.shape[0]):
-        total = 0.0
-        variances_ok = True
-        for a in range(P.shape[1]):
-            variances_ok = variances_ok and P[i, a, a] >= 0.0
-            for b in range(P.shape[2]):
-                total += P[i, a, b]
-        healthy[i] = math.isfinite(total) and variances_ok
+        healthy[i] = _row_healthy(P, i)
     return healthy
 
 
@@ -496,48 +553,46 @@ def repaired_covariance(P, fallback):
     return P_new, outcomes
 
 
-def fuse(slot, rows, stamps, z, x, P, diagnostics, book, update, R, threshold, reset_timeout=0.0, reset=()):
-    """Fuse the fresh samples of the vehicles ``rows`` (the fleet form of ``_GatedFusion._fuse``).
+def fuse_gps(rows, stamps, z, x, P, diagnostics, book, update, R, threshold, reset_timeout, reset):
+    """Fuse the fresh GPS samples of the vehicles ``rows`` (``_GatedFusion._fuse`` for the GPS slot).
 
-    slot: GPS_SLOT or MAG_SLOT; rows: int indices (or a full slice) of the vehicles whose sample
-    is fresh; stamps (N,) s; z (N, m) or (N,) the samples; x (N, n), P (N, n, n), diagnostics
-    (N, DIAGNOSTICS_SIZE), book (N, 3): updated IN PLACE for those rows; update(x, P, z, R) ->
-    (x', P', nis) a batched update; threshold: the gate's NIS threshold; reset_timeout (s) and
-    reset (the state indices the GPS measures): the reset to the GPS after continuous rejection.
+    rows: int indices (or a full slice) of the vehicles whose sample is fresh; stamps (N,) s; z
+    (N, 6) the samples (p m, v m/s); x (N, n), P (N, n, n), diagnostics (N, DIAGNOSTICS_SIZE),
+    book (N, 3): updated IN PLACE for those rows; update(x, P, z, R) -> (x', P', nis) a batched
+    update; threshold: the gate's NIS threshold; reset_timeout (s) and reset (the state indices
+    the GPS measures): the reset to the GPS after continuous rejection.
 
     Per vehicle, as the scalar path: the stamp is booked; a non-finite stamp or sample counts a
     non-finite sample and keeps (x, P); otherwise the NIS and stamp are logged and the gate
     accepts the update, or keeps the prior and counts it gated, and after ``reset_timeout`` s
-    of GPS rejection resets the GPS states to the sample (counted).
+    of rejection resets the GPS states to the sample (counted).
     """
     s = stamps[rows]
-    book[rows, slot] = s
+    book[rows, GPS_SLOT] = s
     x_prior, P_prior, z_rows = x[rows], P[rows], z[rows]
     finite_stamp = np.isfinite(s)
     if not finite_stamp.all():
-        z_rows = np.where(finite_stamp[:, None] if z_rows.ndim == 2 else finite_stamp, z_rows, math.nan)
+        z_rows = np.where(finite_stamp[:, None], z_rows, math.nan)
     x_new, P_new, nis = update(x_prior, P_prior, z_rows, R)
     index = np.arange(x.shape[0])[rows]
     valid = ~np.isnan(nis)
     diagnostics[index[~valid], DIAG["nonfinite_samples"]] += 1.0
-    diagnostics[index[valid], _NIS_COLUMN[slot]] = nis[valid]
-    diagnostics[index[valid], _NIS_COLUMN[slot] + 1] = s[valid]
+    diagnostics[index[valid], DIAG["gps_nis"]] = nis[valid]
+    diagnostics[index[valid], DIAG["gps_stamp"]] = s[valid]
     accepted = valid & (nis <= threshold)
     rejected = valid & ~accepted
-    if slot == GPS_SLOT:
-        start = book[index, GPS_REJECTION_START]
-        start[valid] = rejection_start(start[valid], accepted[valid], s[valid])
-        book[index, GPS_REJECTION_START] = start
-    diagnostics[index[rejected], _GATED_COLUMN[slot]] += 1.0
+    start = book[index, GPS_REJECTION_START]
+    start[valid] = rejection_start(start[valid], accepted[valid], s[valid])
+    book[index, GPS_REJECTION_START] = start
+    diagnostics[index[rejected], DIAG["gps_gated"]] += 1.0
     keep = ~accepted
     x_new[keep] = x_prior[keep]
     P_new[keep] = P_prior[keep]
-    if slot == GPS_SLOT:
-        due = rejected & reset_due(book[index, GPS_REJECTION_START], s, reset_timeout)
-        if due.any():
-            diagnostics[index[due], DIAG["gps_resets"]] += 1.0
-            book[index[due], GPS_REJECTION_START] = math.nan
-            x_new[due], P_new[due] = reset_states(x_prior[due], P_prior[due], reset, z_rows[due], R)
+    due = rejected & reset_due(start, s, reset_timeout)
+    if due.any():
+        diagnostics[index[due], DIAG["gps_resets"]] += 1.0
+        book[index[due], GPS_REJECTION_START] = math.nan
+        x_new[due], P_new[due] = reset_states(x_prior[due], P_prior[due], reset, z_rows[due], R)
     x[rows] = x_new
     P[rows] = P_new
 
@@ -654,17 +709,21 @@ def _eskf_predict_rows(x, P, f_B, w_B, dt, accel_var, gyro_var, isotropic_gyro, 
 
 
 @_jit
-def _eskf_tick(x, P, imu, estimate, diagnostics, dt, accel_var, gyro_var, isotropic_gyro, Q_constant, column):
+def _eskf_tick(x, P, imu, estimate, diagnostics, dt, accel_var, gyro_var, isotropic_gyro, Q_constant):
     work = _eskf_work(P.shape[1])
+    healthy = np.empty(x.shape[0], dtype=np.bool_)
+    f_B, w_B = imu[:, 0:3], imu[:, 3:6]
     for i in range(x.shape[0]):
-        if not _row_finite(imu, i):
-            diagnostics[i, column] += 1.0
-            continue
-        _eskf_predict_row(
-            x, P, x, P, i, imu[:, 0:3], imu[:, 3:6], dt, accel_var, gyro_var, isotropic_gyro, Q_constant, work
-        )
-        for k in range(3):
-            estimate[i, 10 + k] = imu[i, 3 + k] - x[i, 13 + k]
+        if _row_finite(imu, i):
+            _eskf_predict_row(
+                x, P, x, P, i, f_B, w_B, dt, accel_var, gyro_var, isotropic_gyro, Q_constant, work
+            )
+            for k in range(3):
+                estimate[i, 10 + k] = imu[i, 3 + k] - x[i, 13 + k]
+        else:
+            diagnostics[i, _NONFINITE] += 1.0
+        healthy[i] = _row_healthy(P, i)
+    return healthy
 
 
 def _noise_arguments(noise, Q_constant):
@@ -686,50 +745,44 @@ def eskf_predict_tick(x, P, imu, estimate, diagnostics, dt, noise, Q_constant):
 
     A vehicle with a non-finite IMU sample (N, 6) is not predicted and counts a non-finite sample
     in diagnostics; the others take :func:`eskf_predict` and their body rate estimate[:, 10:13]
-    (N, 13) becomes gyro - gyro bias.
+    (N, 13) becomes gyro - gyro bias. Returns :func:`covariance_looks_healthy` of the new P.
     """
-    _eskf_tick(
-        x,
-        P,
-        imu,
-        estimate,
-        diagnostics,
-        float(dt),
-        *_noise_arguments(noise, Q_constant),
-        DIAG["nonfinite_samples"],
-    )
+    return _eskf_tick(x, P, imu, estimate, diagnostics, float(dt), *_noise_arguments(noise, Q_constant))
+
+
+@_jit
+def _inject_row(x, P, i, dx):
+    """eskf.inject of the error dx (n,) into vehicle i, IN PLACE on x and P."""
+    n = P.shape[1]
+    for k in range(6):
+        x[i, k] += dx[k]
+    t0, t1, t2 = 0.5 * dx[6], 0.5 * dx[7], 0.5 * dx[8]
+    e = _quat_exp(dx[6], dx[7], dx[8])
+    q = _quat_mul(e[0], e[1], e[2], e[3], x[i, 6], x[i, 7], x[i, 8], x[i, 9])
+    norm = 1.0 / math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    for k in range(4):
+        x[i, 6 + k] = q[k] * norm
+    if n == _ESKF_BIASES:
+        for k in range(6):
+            x[i, 10 + k] += dx[9 + k]
+    # rows 6:9 <- A P[6:9, :], then columns 6:9 <- P[:, 6:9] A^T, A = I + [dtheta]x / 2
+    for c in range(n):
+        r6, r7, r8 = P[i, 6, c], P[i, 7, c], P[i, 8, c]
+        P[i, 6, c] = r6 - t2 * r7 + t1 * r8
+        P[i, 7, c] = t2 * r6 + r7 - t0 * r8
+        P[i, 8, c] = -t1 * r6 + t0 * r7 + r8
+    for r in range(n):
+        c6, c7, c8 = P[i, r, 6], P[i, r, 7], P[i, r, 8]
+        P[i, r, 6] = c6 - c7 * t2 + c8 * t1
+        P[i, r, 7] = c6 * t2 + c7 - c8 * t0
+        P[i, r, 8] = -c6 * t1 + c7 * t0 + c8
 
 
 @_jit
 def _inject_rows(x, P, dx):
-    x = x.copy()
-    P = P.copy()
-    n = P.shape[1]
-    rows = np.empty((3, n))
+    x, P = x.copy(), P.copy()
     for i in range(x.shape[0]):
-        for k in range(6):
-            x[i, k] += dx[i, k]
-        t0, t1, t2 = 0.5 * dx[i, 6], 0.5 * dx[i, 7], 0.5 * dx[i, 8]
-        e = _quat_exp(dx[i, 6], dx[i, 7], dx[i, 8])
-        q = _quat_mul(e[0], e[1], e[2], e[3], x[i, 6], x[i, 7], x[i, 8], x[i, 9])
-        norm = 1.0 / math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-        for k in range(4):
-            x[i, 6 + k] = q[k] * norm
-        if n == _ESKF_BIASES:
-            for k in range(6):
-                x[i, 10 + k] += dx[i, 9 + k]
-        # rows 6:9 <- A P[6:9, :], then columns 6:9 <- P[:, 6:9] A^T, A = I + [dtheta]x / 2
-        for c in range(n):
-            r6, r7, r8 = P[i, 6, c], P[i, 7, c], P[i, 8, c]
-            rows[0, c] = r6 - t2 * r7 + t1 * r8
-            rows[1, c] = t2 * r6 + r7 - t0 * r8
-            rows[2, c] = -t1 * r6 + t0 * r7 + r8
-        P[i, 6:9, :] = rows
-        for r in range(n):
-            c6, c7, c8 = P[i, r, 6], P[i, r, 7], P[i, r, 8]
-            P[i, r, 6] = c6 - c7 * t2 + c8 * t1
-            P[i, r, 7] = c6 * t2 + c7 - c8 * t0
-            P[i, r, 8] = -c6 * t1 + c7 * t0 + c8
+        _inject_row(x, P, i, dx[i])
     return x, P
 
 
@@ -756,46 +809,64 @@ def eskf_gps_update(x, P, gps_pv, R_gps):
 
 
 @_jit
+def _eskf_mag_innovation(x, P, i, yaw_meas, r, b):
+    """(nu rad, S rad^2) of vehicle i's magnetometer yaw, b = P H^T into the n-buffer b (eskf.mag_update)."""
+    qw, qx, qy, qz = x[i, 6], x[i, 7], x[i, 8], x[i, 9]
+    r00 = 1.0 - 2.0 * (qy * qy + qz * qz)
+    r10 = 2.0 * (qx * qy + qw * qz)
+    r20 = 2.0 * (qx * qz - qw * qy)
+    d = r00 * r00 + r10 * r10
+    h0, h1 = -r00 * r20 / d, -r10 * r20 / d
+    for a in range(P.shape[1]):
+        b[a] = P[i, a, 6] * h0 + P[i, a, 7] * h1 + P[i, a, 8]
+    return _wrap(yaw_meas - math.atan2(r10, r00)), b[6] * h0 + b[7] * h1 + b[8] + r
+
+
+@_jit
+def _eskf_mag_apply(x_out, P_out, i, nu, S, b, K):
+    """eskf.mag_update's posterior of vehicle i IN PLACE on (x_out, P_out), which hold the prior."""
+    n = P_out.shape[1]
+    for a in range(n):
+        K[a] = b[a] / S
+    for a in range(n):
+        for c in range(n):
+            P_out[i, a, c] = P_out[i, a, c] - K[a] * b[c] - K[c] * b[a] + S * (K[a] * K[c])
+    for a in range(n):
+        K[a] *= nu
+    _inject_row(x_out, P_out, i, K)
+
+
+@_jit
 def _eskf_mag_rows(x, P, yaw_meas, r):
-    count, n = P.shape[0], P.shape[1]
-    P_new = P.copy()
-    nis = np.full(count, np.nan)
-    dx = np.zeros((count, n))
-    b = np.empty(n)
-    K = np.empty(n)
-    for i in range(count):
-        if not math.isfinite(yaw_meas[i]):
-            continue
-        # eskf.yaw_and_jacobian
-        qw, qx, qy, qz = x[i, 6], x[i, 7], x[i, 8], x[i, 9]
-        r00 = 1.0 - 2.0 * (qy * qy + qz * qz)
-        r10 = 2.0 * (qx * qy + qw * qz)
-        r20 = 2.0 * (qx * qz - qw * qy)
-        d = r00 * r00 + r10 * r10
-        h0, h1 = -r00 * r20 / d, -r10 * r20 / d
-        for a in range(n):
-            b[a] = P[i, a, 6] * h0 + P[i, a, 7] * h1 + P[i, a, 8]
-        S = b[6] * h0 + b[7] * h1 + b[8] + r
-        nu = _wrap(yaw_meas[i] - math.atan2(r10, r00))
-        for a in range(n):
-            K[a] = b[a] / S
-        for a in range(n):
-            for c in range(n):
-                P_new[i, a, c] = P[i, a, c] - K[a] * b[c] - K[c] * b[a] + S * (K[a] * K[c])
-            dx[i, a] = K[a] * nu
-        nis[i] = nu * nu / S
-    return dx, P_new, nis
+    x_new, P_new = x.copy(), P.copy()
+    nis = np.full(x.shape[0], np.nan)
+    b, K = np.empty(P.shape[1]), np.empty(P.shape[1])
+    for i in range(x.shape[0]):
+        if math.isfinite(yaw_meas[i]):
+            nu, S = _eskf_mag_innovation(x, P, i, yaw_meas[i], r, b)
+            _eskf_mag_apply(x_new, P_new, i, nu, S, b, K)
+            nis[i] = nu * nu / S
+    return x_new, P_new, nis
 
 
 def eskf_mag_update(x, P, yaw_meas, R_mag):
     """(x', P', nis) after magnetometer yaws (N,) rad with R_mag (1, 1) (``eskf.mag_update`` per row)."""
-    yaw_meas = np.asarray(yaw_meas, dtype=float)
-    dx, P_new, nis = _eskf_mag_rows(x, P, yaw_meas, float(R_mag[0, 0]))
-    fused = ~np.isnan(nis)
-    x_new, P_injected = _inject_rows(x, P_new, dx)
-    x_new[~fused] = x[~fused]
-    P_injected[~fused] = P[~fused]
-    return x_new, P_injected, nis
+    return _eskf_mag_rows(x, P, np.asarray(yaw_meas, dtype=float), float(R_mag[0, 0]))
+
+
+@_jit
+def _eskf_mag_tick(x, P, mag, diagnostics, book, r, threshold):
+    b, K = np.empty(P.shape[1]), np.empty(P.shape[1])
+    for i in range(x.shape[0]):
+        if _fresh_mag(mag, book, diagnostics, i):
+            nu, S = _eskf_mag_innovation(x, P, i, mag[i, 0], r, b)
+            if _mag_gate(diagnostics, i, nu * nu / S, mag[i, 1], threshold):
+                _eskf_mag_apply(x, P, i, nu, S, b, K)
+
+
+def eskf_mag_tick(x, P, mag, diagnostics, book, R_mag, threshold):
+    """The magnetometer step of one ESKF tick IN PLACE: :func:`ekf7_mag_tick` with :func:`eskf_mag_update`."""
+    _eskf_mag_tick(x, P, mag, diagnostics, book, float(R_mag[0, 0]), float(threshold))
 
 
 # ----- GPS delay compensation ----------------------------------------------------------------------

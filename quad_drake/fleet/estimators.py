@@ -87,32 +87,18 @@ class _FleetGatedFusion:
             discrete_state.get_mutable_value(self.BOOK_GROUP).reshape(n, BOOK_SIZE),
         )
 
-    def _fuse_fresh(self, x, P, diagnostics, book, gps, mag, gps_update, mag_update):
-        """Health check (full at a fresh GPS sample), then fuse the fresh mag and GPS samples, in place."""
+    def _fuse_fresh(self, x, P, diagnostics, book, gps, mag, healthy, gps_update, mag_tick):
+        """Repair P where the per-tick check (``healthy``) or, at a fresh GPS sample, the full check
+        finds it unhealthy; then fuse the fresh mag and GPS samples. In place."""
         gps_fresh = kernels.fresh(gps[:, 6], book[:, kernels.GPS_SLOT])
-        mag_fresh = kernels.fresh(mag[:, 1], book[:, kernels.MAG_SLOT])
-        check = gps_fresh | ~kernels.covariance_looks_healthy(P)
+        check = gps_fresh | ~healthy
         if check.any():
             rows = np.flatnonzero(check)
             P[rows], outcomes = kernels.repaired_covariance(P[rows], self._P0)
             diagnostics[rows[outcomes != gating.COVARIANCE_OK], DIAG["covariance_repairs"]] += 1.0
-        if mag_fresh.any():
-            kernels.fuse(
-                kernels.MAG_SLOT,
-                _rows(mag_fresh),
-                mag[:, 1],
-                mag[:, 0],
-                x,
-                P,
-                diagnostics,
-                book,
-                mag_update,
-                self._R_mag,
-                self._mag_threshold,
-            )
+        mag_tick(x, P, mag, diagnostics, book, self._R_mag, self._mag_threshold)
         if gps_fresh.any():
-            kernels.fuse(
-                kernels.GPS_SLOT,
+            kernels.fuse_gps(
                 _rows(gps_fresh),
                 gps[:, 6],
                 gps[:, 0:6],
@@ -201,7 +187,7 @@ class FleetEkf(_FleetGatedFusion, LeafSystem):
         imu = self._read_imu(context).reshape(n, IMU_SIZE)
         attitude = self._read_attitude(context).reshape(n, ATTITUDE_SIZE)
         x, P, diagnostics, book = self._views(discrete_state, EKF_STATE_SIZE)
-        kernels.ekf7_predict_tick(
+        healthy = kernels.ekf7_predict_tick(
             x, P, attitude, imu, diagnostics, ONBOARD_PERIOD, self._Q, self._reference_accelerometer
         )
         self._fuse_fresh(
@@ -211,8 +197,9 @@ class FleetEkf(_FleetGatedFusion, LeafSystem):
             book,
             self._read_gps(context).reshape(n, GPS_SIZE),
             self._read_mag(context).reshape(n, MAG_SIZE),
+            healthy,
             kernels.ekf7_gps_update,
-            kernels.ekf7_mag_update,
+            kernels.ekf7_mag_tick,
         )
 
 
@@ -289,7 +276,7 @@ class FleetEskf(_FleetGatedFusion, LeafSystem):
         imu = self._read_imu(context).reshape(n, IMU_SIZE)
         x, P, diagnostics, book = self._views(discrete_state, eskf.NOMINAL_SIZE)
         estimate = discrete_state.get_mutable_value(self.ESTIMATE_GROUP).reshape(n, STATE_SIZE)
-        kernels.eskf_predict_tick(
+        healthy = kernels.eskf_predict_tick(
             x, P, imu, estimate, diagnostics, ONBOARD_PERIOD, self._noise, self._Q_constant
         )
         self._fuse_fresh(
@@ -299,8 +286,9 @@ class FleetEskf(_FleetGatedFusion, LeafSystem):
             book,
             self._read_gps(context).reshape(n, GPS_SIZE),
             self._read_mag(context).reshape(n, MAG_SIZE),
+            healthy,
             kernels.eskf_gps_update,
-            kernels.eskf_mag_update,
+            kernels.eskf_mag_tick,
         )
         estimate[:, 0:3] = x[:, 0:3]
         estimate[:, 3:7] = x[:, 6:10]
