@@ -26,9 +26,10 @@ from quad_drake.estimation.complementary import complementary_update
 from quad_drake.estimation.vocabulary import DIAG, vocabulary_for
 from quad_drake.fidelity import PHYSICAL, REFERENCE
 from quad_drake.fleet import estimation_kernels as kernels
-from quad_drake.fleet.estimators import build_fleet_estimator
+from quad_drake.fleet.estimators import FleetGpsDelayCompensator, build_fleet_estimator
 from quad_drake.rotations import quat_from_euler_tuple
 from quad_drake.systems.estimators import build_estimator
+from quad_drake.systems.faults import GpsDelayCompensator
 
 TOL = {"rtol": 1e-12, "atol": 1e-12}
 DT = 0.002
@@ -392,3 +393,42 @@ def test_fleet_estimator_port_sizes_follow_the_vocabulary():
         build_fleet_estimator(VehicleConfig(estimator=EskfEstimatorConfig()), 2, REFERENCE)
     with pytest.raises(ValueError, match="at least one vehicle"):
         build_fleet_estimator(VehicleConfig(), 0)
+
+
+def test_fleet_gps_delay_compensator_matches_the_scalar_one_tick_by_tick():
+    """Late GPS samples (0.1 s, one vehicle 0.3 s: past the 0.2 s history) on random-walk estimates."""
+    n, max_lag, ticks = 3, 0.2, 250
+    builder = DiagramBuilder()
+    systems = {"fleet": FleetGpsDelayCompensator(max_lag, n)}
+    systems.update({f"scalar{i}": GpsDelayCompensator(max_lag) for i in range(n)})
+    for tag, system in systems.items():
+        system.set_name(tag)
+        builder.AddSystem(system)
+        for name in ("gps", "estimated_state"):
+            builder.ExportInput(system.GetInputPort(name), f"{tag}.{name}")
+        builder.ExportOutput(system.GetOutputPort("gps"), f"{tag}.gps")
+    diagram = builder.Build()
+    context = diagram.CreateDefaultContext()
+    simulator = Simulator(diagram, context)
+    rng = np.random.default_rng(7)
+    estimates = np.cumsum(rng.normal(scale=0.01, size=(n, ticks, 13)), axis=1)
+    gps = np.tile([0.0] * 6 + [NO_SAMPLE_STAMP], (n, 1))
+    lag = [50, 50, 150]  # ticks
+    for k in range(ticks):
+        for i in range(n):
+            measured = k - lag[i]
+            if measured >= 0 and measured % 25 == 0:
+                gps[i] = np.r_[rng.normal(size=6), measured * DT]
+        diagram.GetInputPort("fleet.gps").FixValue(context, gps.ravel())
+        diagram.GetInputPort("fleet.estimated_state").FixValue(context, estimates[:, k].ravel())
+        for i in range(n):
+            diagram.GetInputPort(f"scalar{i}.gps").FixValue(context, gps[i])
+            diagram.GetInputPort(f"scalar{i}.estimated_state").FixValue(context, estimates[i, k])
+        simulator.AdvanceTo((k + 0.5) * DT)
+        fleet = diagram.GetOutputPort("fleet.gps").Eval(context).reshape(n, 7)
+        for i in range(n):
+            scalar = diagram.GetOutputPort(f"scalar{i}.gps").Eval(context)
+            np.testing.assert_allclose(fleet[i], scalar, **TOL, err_msg=f"tick {k}, vehicle {i}")
+    shifted = diagram.GetOutputPort("fleet.gps").Eval(context).reshape(n, 7)
+    assert not np.array_equal(shifted[0], gps[0])  # compensated
+    assert np.array_equal(shifted[2], gps[2])  # older than the history: unchanged
