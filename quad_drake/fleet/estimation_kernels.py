@@ -611,9 +611,9 @@ def _eskf_predict_row(
 ):
     """eskf.predict of vehicle i from (x, P) into (x_out, P_out) (may be the same arrays).
 
-    work: (R, R_next, F, FP, M) buffers, 3x3, 3x3 and three n x n.
+    work: (R, R_next, A, FP, M) buffers, 3x3, 3x3, 5x3x3 (the transition's blocks) and two n x n.
     """
-    R, R_next, F, FP, M = work
+    R, R_next, A, FP, M = work
     n = P.shape[1]
     h = 0.5 * dt * dt
     # nominal step (eskf.predict_nominal)
@@ -638,39 +638,22 @@ def _eskf_predict_row(
     for k in range(10, 16):
         x_out[i, k] = x[i, k]
     _rotation(qw, qx, qy, qz, R_next)
-    # error transition (eskf.transition_buffer + fill_transition)
-    F[:, :] = 0.0
-    for k in range(n):
-        F[k, k] = 1.0
-    F[0, 3] = F[1, 4] = F[2, 5] = dt
-    for row, scale in ((0, h), (3, dt)):
-        F[row, 7] = uz * scale
-        F[row, 8] = -uy * scale
-        F[row + 1, 6] = -uz * scale
-        F[row + 1, 8] = ux * scale
-        F[row + 2, 6] = uy * scale
-        F[row + 2, 7] = -ux * scale
-    if n == _ESKF_BIASES:
-        for a in range(3):
-            for b in range(3):
-                F[a, 9 + b] = R[a, b] * -h
-                F[3 + a, 9 + b] = R[a, b] * -dt
-                F[6 + a, 12 + b] = R_next[a, b] * -dt
-    # F P F^T over F's non-zero entries
-    FP[:, :] = 0.0
-    for r in range(n):
-        for k in range(n):
-            f = F[r, k]
-            if f != 0.0:
-                for c in range(n):
-                    FP[r, c] += f * P[i, k, c]
-    M[:, :] = 0.0
+    # error transition F = I + E (eskf.fill_transition): E's blocks, A[0] = -[u]x h, A[1] = -[u]x dt,
+    # A[2] = -R h, A[3] = -R dt, A[4] = -R' dt (3x3 each); F P F^T = (F (F P)^T)^T from them
+    for k, scale in enumerate((h, dt)):
+        A[k, 0, 0], A[k, 0, 1], A[k, 0, 2] = 0.0, uz * scale, -uy * scale
+        A[k, 1, 0], A[k, 1, 1], A[k, 1, 2] = -uz * scale, 0.0, ux * scale
+        A[k, 2, 0], A[k, 2, 1], A[k, 2, 2] = uy * scale, -ux * scale, 0.0
+    for a in range(3):
+        for b in range(3):
+            A[2, a, b] = R[a, b] * -h
+            A[3, a, b] = R[a, b] * -dt
+            A[4, a, b] = R_next[a, b] * -dt
+    biases = n == _ESKF_BIASES
     for c in range(n):
-        for k in range(n):
-            f = F[c, k]
-            if f != 0.0:
-                for r in range(n):
-                    M[r, c] += FP[r, k] * f
+        _transition_column(P[i, :, c], FP[:, c], A, dt, biases)
+    for r in range(n):
+        _transition_column(FP[r, :], M[r, :], A, dt, biases)
     for r in range(n):
         for c in range(n):
             P_out[i, r, c] = (M[r, c] + M[c, r]) * 0.5 + Q_constant[r, c]
@@ -693,8 +676,28 @@ def _eskf_predict_row(
 
 
 @_jit
+def _transition_column(v, out, A, dt, biases):
+    """out = F v for one column v (n,) of the error transition F = I + E (blocks A, see _eskf_predict_row)."""
+    for r in range(3):
+        p = v[r] + dt * v[3 + r]
+        w = v[3 + r]
+        t = v[6 + r]
+        for k in range(3):
+            p += A[0, r, k] * v[6 + k]
+            w += A[1, r, k] * v[6 + k]
+        if biases:
+            for k in range(3):
+                p += A[2, r, k] * v[9 + k]
+                w += A[3, r, k] * v[9 + k]
+                t += A[4, r, k] * v[12 + k]
+        out[r], out[3 + r], out[6 + r] = p, w, t
+    for r in range(9, v.shape[0]):
+        out[r] = v[r]
+
+
+@_jit
 def _eskf_work(n):
-    return np.empty((3, 3)), np.empty((3, 3)), np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
+    return np.empty((3, 3)), np.empty((3, 3)), np.empty((5, 3, 3)), np.empty((n, n)), np.empty((n, n))
 
 
 @_jit
