@@ -1,5 +1,6 @@
-"""Fleet estimator LeafSystems: N vehicles' estimators advanced at once, and the sub-Diagram a
-vehicle's config chooses (:func:`build_fleet_estimator`).
+"""Fleet estimator LeafSystems: N vehicles' estimators advanced at once, the sub-Diagram a
+vehicle's config chooses (:func:`build_fleet_estimator`), and the estimator side of a GPS delay
+(:class:`FleetGpsDelayCompensator`, the fleet form of ``systems.faults.GpsDelayCompensator``).
 
 Each system mirrors its per-vehicle twin in ``systems/estimators.py``: the same ports, periods,
 within-tick offsets, freshness rule, gates, resets, covariance health, diagnostics and counters,
