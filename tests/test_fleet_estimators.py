@@ -168,6 +168,11 @@ def test_covariance_health_matches_the_scalar_checks(n):
         assert outcomes[i] == outcome
         np.testing.assert_allclose(P_new[i], P_ref, **TOL)
     assert outcomes[[2, 3, 4, 6]].tolist() == [gating.COVARIANCE_RESET] * 2 + [gating.COVARIANCE_REPAIRED] * 2
+    in_place, check = P.copy(), np.arange(N) % 2 == 0
+    outcomes = kernels.repair_covariances(in_place, check, fallback)
+    np.testing.assert_array_equal(in_place[check], P_new[check])
+    np.testing.assert_array_equal(in_place[~check], P[~check])
+    assert (outcomes[~check] == gating.COVARIANCE_OK).all()
 
 
 # ----- error-state EKF -----------------------------------------------------------------------------

@@ -516,41 +516,67 @@ def covariance_looks_healthy(P):
     return _looks_healthy_rows(P)
 
 
-def _positive_definite(S):
-    """(M,) True where the symmetric S (M, n, n) has a Cholesky factor in floating point (all pivots > 0).
+@_jit
+def _symmetrise_checked(P, check):
+    """For each checked vehicle with a finite P[i]: P[i] <- (P[i] + P[i]^T) / 2 IN PLACE. Returns (N,)
+    True where the full check stays undecided: a non-finite P[i] (left as it is), or a symmetrised
+    one without a Cholesky factor in floating point (a pivot <= 0).
 
     A successful factorisation bounds the smallest eigenvalue below by about -n^2 eps max(diag S),
-    far inside ``gating.repaired_covariance``'s -1e-12 |largest| tolerance, so those matrices need
-    no eigendecomposition: they are COVARIANCE_OK.
+    far inside ``gating.repaired_covariance``'s -1e-12 |largest| tolerance, so those matrices are
+    COVARIANCE_OK without an eigendecomposition.
     """
-    A = S.copy()
-    ok = np.ones(S.shape[0], dtype=bool)
-    n = S.shape[1]
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+    count, n = P.shape[0], P.shape[1]
+    undecided = np.zeros(count, dtype=np.bool_)
+    L = np.empty((n, n))
+    for i in range(count):
+        if not check[i]:
+            continue
+        finite = True
+        for a in range(n):
+            for b in range(n):
+                finite = finite and math.isfinite(P[i, a, b])
+        if not finite:
+            undecided[i] = True
+            continue
+        for a in range(n):
+            for b in range(a + 1):
+                value = 0.5 * (P[i, a, b] + P[i, b, a])
+                P[i, a, b] = P[i, b, a] = L[a, b] = value
         for k in range(n):
-            pivot = A[:, k, k]
-            ok &= pivot > 0.0
-            if k + 1 < n:
-                column = A[:, k + 1 :, k] / np.sqrt(np.where(ok, pivot, 1.0))[:, None]
-                A[:, k + 1 :, k + 1 :] -= column[:, :, None] * column[:, None, :]
-    return ok
+            pivot = L[k, k]
+            for j in range(k):
+                pivot -= L[k, j] * L[k, j]
+            if not pivot > 0.0:
+                undecided[i] = True
+                break
+            root = math.sqrt(pivot)
+            L[k, k] = root
+            for r in range(k + 1, n):
+                value = L[r, k]
+                for j in range(k):
+                    value -= L[r, j] * L[k, j]
+                L[r, k] = value / root
+    return undecided
+
+
+def repair_covariances(P, check, fallback):
+    """``gating.repaired_covariance`` IN PLACE on the vehicles flagged in check (N,); returns (N,) outcomes.
+
+    P (N, n, n); fallback (n, n). The positive-definite ones (most) are only symmetrised (a
+    compiled Cholesky test decides them); the others go through the scalar function itself
+    (eigendecomposition), one by one. Unchecked vehicles: COVARIANCE_OK, P untouched.
+    """
+    outcomes = np.full(P.shape[0], gating.COVARIANCE_OK)
+    for i in np.flatnonzero(_symmetrise_checked(P, np.asarray(check, dtype=bool))):
+        P[i], outcomes[i] = gating.repaired_covariance(P[i], fallback)
+    return outcomes
 
 
 def repaired_covariance(P, fallback):
-    """(P', outcomes (M,)) of ``gating.repaired_covariance`` per row: symmetrised, clipped or reset.
-
-    The positive-definite rows (most) are decided by a batched Cholesky test; the others go
-    through the scalar function itself (eigendecomposition), one by one.
-    """
-    P = np.asarray(P, dtype=float)
-    P_new = P + P.transpose(0, 2, 1)
-    P_new *= 0.5
-    outcomes = np.full(P.shape[0], gating.COVARIANCE_OK)
-    finite = np.isfinite(P).all(axis=(1, 2))
-    unclear = np.flatnonzero(finite)[~_positive_definite(P_new[finite])]
-    for i in np.concatenate((np.flatnonzero(~finite), unclear)):
-        P_new[i], outcomes[i] = gating.repaired_covariance(P[i], fallback)
-    return P_new, outcomes
+    """(P', outcomes (M,)) of ``gating.repaired_covariance`` per row: symmetrised, clipped or reset."""
+    P = np.array(P, dtype=float)
+    return P, repair_covariances(P, np.ones(P.shape[0], dtype=bool), fallback)
 
 
 def fuse_gps(rows, stamps, z, x, P, diagnostics, book, update, R, threshold, reset_timeout, reset):

@@ -99,9 +99,8 @@ class _FleetGatedFusion:
         gps_fresh = kernels.fresh(gps[:, 6], book[:, kernels.GPS_SLOT])
         check = gps_fresh | ~healthy
         if check.any():
-            rows = np.flatnonzero(check)
-            P[rows], outcomes = kernels.repaired_covariance(P[rows], self._P0)
-            diagnostics[rows[outcomes != gating.COVARIANCE_OK], DIAG["covariance_repairs"]] += 1.0
+            outcomes = kernels.repair_covariances(P, check, self._P0)
+            diagnostics[outcomes != gating.COVARIANCE_OK, DIAG["covariance_repairs"]] += 1.0
         mag_tick(x, P, mag, diagnostics, book, self._R_mag, self._mag_threshold)
         if gps_fresh.any():
             kernels.fuse_gps(
