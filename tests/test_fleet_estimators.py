@@ -230,7 +230,7 @@ def test_eskf_updates_and_injection_match_the_scalar_functions(estimate_biases):
     _check_update(kernels.eskf_mag_update, eskf.mag_update, x, P, yaw, eskf.mag_noise(params))
 
 
-def test_eskf_gps_update_falls_back_to_the_scalar_path_on_a_singular_innovation():
+def test_gps_updates_on_a_singular_innovation_covariance_behave_as_the_scalar_ones():
     rng = np.random.default_rng(18)
     x, P = random_nominal(rng, 3), random_covariances(rng, 9, count=3)
     R = np.zeros((6, 6))
@@ -239,6 +239,11 @@ def test_eskf_gps_update_falls_back_to_the_scalar_path_on_a_singular_innovation(
     gps = x[:, 0:6] + 0.1
     _check_update(kernels.eskf_gps_update, eskf.gps_update, x, P, gps, R)
     assert math.isnan(kernels.eskf_gps_update(x, P, gps, R)[2][1])
+    x7, P7 = rng.normal(size=(3, 7)), P[:, 0:7, 0:7].copy()  # the EKF7's update raises, as its scalar one
+    with pytest.raises(np.linalg.LinAlgError):
+        ekf.gps_update(x7[1], P7[1], gps[1], R)
+    with pytest.raises(np.linalg.LinAlgError):
+        kernels.ekf7_gps_update(x7, P7, gps, R)
 
 
 # ----- GPS delay compensation ----------------------------------------------------------------------

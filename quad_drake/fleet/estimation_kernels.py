@@ -327,53 +327,111 @@ def _gravity_z(reference_accelerometer):
     return -GRAVITY if reference_accelerometer else GRAVITY
 
 
-def _finite_rows(z):
-    """(finite (M,), z with non-finite rows zeroed): the rows an update may use."""
-    finite = np.isfinite(z).all(axis=1) if z.ndim == 2 else np.isfinite(z)
-    if finite.all():
-        return finite, z
-    safe = np.where(finite[:, None] if z.ndim == 2 else finite, z, 0.0)
-    return finite, safe
+@_jit
+def _gps_joseph_row(x, P, z, R, i, x_out, P_out, inject, work):
+    """The GPS update of vehicle i (H = [I6 0], ``ekf.kalman_update`` / ``eskf.joseph_update``) into
+    (x_out, P_out), which hold the prior; returns (nis, singular). A singular S leaves them as they are.
 
-
-def _skip_nonfinite(finite, x, P, x_new, P_new, nis):
-    """x_new, P_new, nis with the rows of non-finite samples back to (x, P, NaN)."""
-    if finite.all():
-        return x_new, P_new, nis
-    keep = ~finite
-    x_new[keep] = x[keep]
-    P_new[keep] = P[keep]
-    nis[keep] = math.nan
-    return x_new, P_new, nis
-
-
-def _position_velocity_update(P, R, nu):
-    """(K (M, n, 6), P' (M, n, n), nis) of a Joseph update with H = [I6 0] (``ekf.kalman_update``).
-
-    S = P[:6, :6] + R; [K^T | S^-1 nu] = S^-1 [H P | nu]; P' = (I - K H) P (I - K H)^T + K R K^T,
-    symmetrised. Raises LinAlgError when an S is singular.
+    [K^T | S^-1 nu] = S^-1 [H P | nu] by Gaussian elimination with partial pivoting (LAPACK's
+    gesv, singular on an exactly zero pivot); P' = (I - K H) P (I - K H)^T + K R K^T symmetrised;
+    then x' = x + K nu (EKF7) or the injection of K nu (ESKF, ``inject``).
     """
+    S, X, nu, K, T, KR, dx = work
     n = P.shape[1]
-    S = P[:, 0:6, 0:6] + R
-    rhs = np.concatenate((P[:, 0:6, :], nu[:, :, None]), axis=2)
-    solved = np.linalg.solve(S, rhs)
-    K = solved[:, :, :n].transpose(0, 2, 1)
-    I_KH = np.broadcast_to(np.eye(n), P.shape).copy()
-    I_KH[:, :, 0:6] -= K
-    P_new = np.matmul(np.matmul(I_KH, P), I_KH.transpose(0, 2, 1))
-    P_new += np.matmul(np.matmul(K, R), K.transpose(0, 2, 1))
-    P_new += P_new.transpose(0, 2, 1).copy()
-    P_new *= 0.5
-    return K, P_new, np.einsum("ij,ij->i", nu, solved[:, :, n])
+    for a in range(6):
+        nu[a] = z[i, a] - x[i, a]
+        for b in range(6):
+            S[a, b] = P[i, a, b] + R[a, b]
+        for c in range(n):
+            X[a, c] = P[i, a, c]
+        X[a, n] = nu[a]
+    for k in range(6):
+        pivot, best = k, abs(S[k, k])
+        for r in range(k + 1, 6):
+            if abs(S[r, k]) > best:
+                pivot, best = r, abs(S[r, k])
+        if best == 0.0:
+            return math.nan, True
+        if pivot != k:
+            for c in range(6):
+                S[k, c], S[pivot, c] = S[pivot, c], S[k, c]
+            for c in range(n + 1):
+                X[k, c], X[pivot, c] = X[pivot, c], X[k, c]
+        for r in range(k + 1, 6):
+            f = S[r, k] / S[k, k]
+            for c in range(k, 6):
+                S[r, c] -= f * S[k, c]
+            for c in range(n + 1):
+                X[r, c] -= f * X[k, c]
+    for k in range(5, -1, -1):
+        for c in range(n + 1):
+            value = X[k, c]
+            for j in range(k + 1, 6):
+                value -= S[k, j] * X[j, c]
+            X[k, c] = value / S[k, k]
+    nis = 0.0
+    for a in range(6):
+        nis += nu[a] * X[a, n]
+    for r in range(n):
+        dx[r] = 0.0
+        for k in range(6):
+            K[r, k] = X[k, r]
+            dx[r] += K[r, k] * nu[k]
+    for r in range(n):
+        for c in range(n):
+            value = P[i, r, c]
+            for k in range(6):
+                value -= K[r, k] * P[i, k, c]
+            T[r, c] = value
+        for j in range(6):
+            value = 0.0
+            for k in range(6):
+                value += K[r, k] * R[k, j]
+            KR[r, j] = value
+    for r in range(n):
+        for c in range(n):
+            value = T[r, c]
+            for k in range(6):
+                value += KR[r, k] * K[c, k] - T[r, k] * K[c, k]
+            P_out[i, r, c] = value
+    for r in range(n):
+        for c in range(r):
+            value = (P_out[i, r, c] + P_out[i, c, r]) * 0.5
+            P_out[i, r, c] = P_out[i, c, r] = value
+    if inject:
+        _inject_row(x_out, P_out, i, dx)
+    else:
+        for r in range(n):
+            x_out[i, r] += dx[r]
+    return nis, False
+
+
+@_jit
+def _gps_rows(x, P, z, R, inject):
+    n = P.shape[1]
+    x_new, P_new = x.copy(), P.copy()
+    nis = np.full(x.shape[0], np.nan)
+    work = (
+        np.empty((6, 6)), np.empty((6, n + 1)), np.empty(6), np.empty((n, 6)),
+        np.empty((n, n)), np.empty((n, 6)), np.empty(n),
+    )  # fmt: skip
+    singular = False
+    for i in range(x.shape[0]):
+        if np.isfinite(z[i]).all():
+            nis[i], skipped = _gps_joseph_row(x, P, z, R, i, x_new, P_new, inject, work)
+            singular = singular or skipped
+    return x_new, P_new, nis, singular
 
 
 def ekf7_gps_update(x, P, gps_pv, R_gps):
-    """(x', P', nis) after GPS samples gps_pv (N, 6: p m, v m/s) with R_gps (6, 6) (``ekf.gps_update``)."""
-    finite, z = _finite_rows(gps_pv)
-    nu = z - x[:, 0:6]
-    K, P_new, nis = _position_velocity_update(P, R_gps, nu)
-    x_new = x + np.einsum("nij,nj->ni", K, nu)
-    return _skip_nonfinite(finite, x, P, x_new, P_new, nis)
+    """(x', P', nis) after GPS samples gps_pv (N, 6: p m, v m/s) with R_gps (6, 6) (``ekf.gps_update``).
+
+    A singular innovation covariance raises LinAlgError, as the scalar update does.
+    """
+    x_new, P_new, nis, singular = _gps_rows(x, P, np.asarray(gps_pv, dtype=float), R_gps, False)
+    if singular:
+        raise np.linalg.LinAlgError("Singular matrix")
+    return x_new, P_new, nis
 
 
 @_jit
@@ -823,18 +881,10 @@ def eskf_inject(x, P, dx):
 def eskf_gps_update(x, P, gps_pv, R_gps):
     """(x', P', nis) after GPS samples gps_pv (N, 6) with R_gps (6, 6) (``eskf.gps_update`` per row).
 
-    A singular innovation covariance (never seen in practice) sends the batch through the
-    scalar function row by row, which returns NaN NIS for that row.
+    A vehicle whose innovation covariance is singular keeps (x, P) with NaN NIS, as the scalar one.
     """
-    finite, z = _finite_rows(gps_pv)
-    nu = z - x[:, 0:6]
-    try:
-        K, P_new, nis = _position_velocity_update(P, R_gps, nu)
-    except np.linalg.LinAlgError:
-        rows = [eskf.gps_update(x[i], P[i], gps_pv[i], R_gps) for i in range(x.shape[0])]
-        return tuple(np.array([row[k] for row in rows]) for k in range(3))
-    x_new, P_new = eskf_inject(x, P_new, np.einsum("nij,nj->ni", K, nu))
-    return _skip_nonfinite(finite, x, P, x_new, P_new, nis)
+    x_new, P_new, nis, _ = _gps_rows(x, P, np.asarray(gps_pv, dtype=float), R_gps, True)
+    return x_new, P_new, nis
 
 
 @_jit
