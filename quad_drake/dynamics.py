@@ -29,29 +29,43 @@ from quad_drake.fidelity import PHYSICAL
 
 
 def clamped_noisy_commands(commands, noise_unit, min_thrust, max_thrust, noise_half_width):
-    """Per-motor target force, N: clamp(cmd, min, max) + half_width (2u - 1), u in [0, 1].
+    """Target force of each of the four motors, N: clamp(cmd, min, max) + half_width (2u - 1), u in [0, 1].
 
     The noise is added after the clamp, so the target may slightly exceed the limits
     (SPEC §3 step 1).
     """
+    c0, c1, c2, c3 = commands  # unrolled: a zip over four motors costs as much as the maths
+    u0, u1, u2, u3 = noise_unit
     return [
-        (min_thrust if c < min_thrust else max_thrust if c > max_thrust else c)
-        + noise_half_width * (2.0 * u - 1.0)
-        for c, u in zip(commands, noise_unit, strict=True)
+        (min_thrust if c0 < min_thrust else max_thrust if c0 > max_thrust else c0)
+        + noise_half_width * (2.0 * u0 - 1.0),
+        (min_thrust if c1 < min_thrust else max_thrust if c1 > max_thrust else c1)
+        + noise_half_width * (2.0 * u1 - 1.0),
+        (min_thrust if c2 < min_thrust else max_thrust if c2 > max_thrust else c2)
+        + noise_half_width * (2.0 * u2 - 1.0),
+        (min_thrust if c3 < min_thrust else max_thrust if c3 > max_thrust else c3)
+        + noise_half_width * (2.0 * u3 - 1.0),
     ]
 
 
 def motor_lag_step(forces_old, forces_cmd, dt, tau_up, tau_down):
-    """Motor forces (N) after one backward-Euler first-order lag step of dt s.
+    """The four motor forces (N) after one backward-Euler first-order lag step of dt s.
 
     F = Fcmd dt/(dt + tau) + Fold tau/(dt + tau), with tau = tau_up when Fcmd >= Fold
     (spinning up) and tau_down otherwise.
     """
-    out = []
-    for old, cmd in zip(forces_old, forces_cmd, strict=True):
-        tau = tau_up if cmd >= old else tau_down
-        out.append((cmd * dt + old * tau) / (dt + tau))
-    return out
+    o0, o1, o2, o3 = forces_old
+    c0, c1, c2, c3 = forces_cmd
+    t0 = tau_up if c0 >= o0 else tau_down
+    t1 = tau_up if c1 >= o1 else tau_down
+    t2 = tau_up if c2 >= o2 else tau_down
+    t3 = tau_up if c3 >= o3 else tau_down
+    return [
+        (c0 * dt + o0 * t0) / (dt + t0),
+        (c1 * dt + o1 * t1) / (dt + t1),
+        (c2 * dt + o2 * t2) / (dt + t2),
+        (c3 * dt + o3 * t3) / (dt + t3),
+    ]
 
 
 def wrench_from_thrusts(forces, arm_length, kappa, com_offset=(0.0, 0.0)):

@@ -6,7 +6,6 @@ they read, and one :class:`~quad_drake.evaluation.CriterionResult` per criterion
 """
 
 from .config import ConfigError
-from .consistency import fleet_samples
 from .evaluation import evaluate_criterion, fleet_sigma_threshold, judged_criteria
 
 
@@ -44,6 +43,8 @@ def evaluate_criteria(scenario, times, signals):
     results = []
     for criterion in judged_criteria(scenario):
         if criterion.kind == "fleet_sigma":
+            from .consistency import fleet_samples  # lazily: it imports scipy.stats (~1 s)
+
             errors, sigmas = fleet_samples(signals, criterion.signal, criterion.sigma_signal)
             results.append(
                 fleet_sigma_threshold(

@@ -79,7 +79,7 @@ def test_motor_lag_falling_uses_tau_down_per_motor():
     np.testing.assert_allclose(out, [tau_down / (tau_down + DT), DT / (tau_up + DT)] * 2, rtol=1e-14)
     drop = [1.0]
     while drop[-1] > math.exp(-1):
-        drop.append(motor_lag_step([drop[-1]], [0.0], DT, tau_up, tau_down)[0])
+        drop.append(motor_lag_step([drop[-1]] * 4, [0.0] * 4, DT, tau_up, tau_down)[0])
     assert len(drop) - 1 == 21  # 63.2 % of the fall after 21 ms, tau_down = 20 ms
 
 

@@ -15,7 +15,7 @@ from quad_drake.conventions import (
     STATE_SIZE,
 )
 from quad_drake.fidelity import PHYSICAL
-from quad_drake.systems._io import vector_reader
+from quad_drake.systems._io import scalar, set_scalar, vector_reader
 
 
 class CascadeController(LeafSystem):
@@ -54,10 +54,10 @@ class CascadeController(LeafSystem):
         forces, integral = cascade_step(
             self._read_state(context),
             self._read_reference(context),
-            discrete_state.value(self._integral_group).tolist()[0],
+            scalar(discrete_state, self._integral_group),
             ONBOARD_PERIOD,
             self._params,
             self._fidelity,
         )
-        discrete_state.set_value(self._integral_group, np.array((integral,)))
+        set_scalar(discrete_state, self._integral_group, integral)
         discrete_state.set_value(self._thrusts_group, np.array(forces))

@@ -40,7 +40,7 @@ from quad_drake.estimation.complementary import VARIANTS, complementary_update
 from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, NIS_DOF, vocabulary_for
 from quad_drake.fidelity import PHYSICAL
 from quad_drake.rotations import quat_from_euler_tuple
-from quad_drake.systems._io import vector_reader
+from quad_drake.systems._io import entries_reader, entry_reader, vector_reader
 
 GPS_SLOT, MAG_SLOT, GPS_REJECTION_START = 0, 1, 2
 """Book-keeping state: last GPS stamp seen, last mag stamp seen, start of the GPS rejection run."""
@@ -66,20 +66,49 @@ def _fresh(stamp, seen):
 class _GatedFusion:
     """Shared update logic of the estimators: freshness, gate, GPS reset and covariance health.
 
-    ``fuse(slot, stamp, update, z, R, x, P, discrete_state)`` with ``update(x, P, z, R) ->
-    (x, P, nis)``; the diagnostics group is DIAGNOSTICS_GROUP, the book BOOK_GROUP.
+    :meth:`_fuse_fresh_samples` runs the per-tick sequence after the prediction: the covariance
+    health check, then a fresh magnetometer and a fresh GPS sample through :meth:`_fuse`, with
+    the measurement functions, noise matrices and ``mag`` / ``gps`` input ports given to
+    :meth:`_declare_gating`; the diagnostics group is DIAGNOSTICS_GROUP, the book BOOK_GROUP.
     """
 
     DIAGNOSTICS_GROUP, BOOK_GROUP = 2, 3
 
-    def _declare_gating(self, gps_gate_sigma, mag_gate_sigma, gps_reset_timeout, P0, gps_indices):
+    def _declare_gating(self, params, P0, gps_indices, updates, noises):
+        """Gates and reset from params (``gps_gate_sigma``, ``mag_gate_sigma``,
+        ``gps_reset_timeout``), the fallback covariance P0, the states a GPS reset sets;
+        updates = (mag_update, gps_update) with ``update(x, P, z, R) -> (x, P, nis)`` and
+        noises = (R_mag, R_gps). Declares the ``gps`` and ``mag`` inputs."""
         self._threshold = {
-            GPS_SLOT: gating.gate_threshold(NIS_DOF["gps"], gps_gate_sigma),
-            MAG_SLOT: gating.gate_threshold(NIS_DOF["mag"], mag_gate_sigma),
+            GPS_SLOT: gating.gate_threshold(NIS_DOF["gps"], params.gps_gate_sigma),
+            MAG_SLOT: gating.gate_threshold(NIS_DOF["mag"], params.mag_gate_sigma),
         }
-        self._reset_timeout = float(gps_reset_timeout)
+        self._reset_timeout = float(params.gps_reset_timeout)
         self._P0 = P0
         self._gps_indices = gps_indices
+        self._mag_update, self._gps_update = updates
+        self._R_mag, self._R_gps = noises
+        gps = self.DeclareVectorInputPort("gps", GPS_SIZE)
+        self._read_gps = vector_reader(gps)
+        self._read_gps_stamp = entry_reader(gps, GPS_SIZE - 1)
+        self._read_mag = entries_reader(self.DeclareVectorInputPort("mag", MAG_SIZE), 0, MAG_SIZE)
+
+    def _fuse_fresh_samples(self, context, discrete_state, x, P):
+        """(x as an array, P) after the covariance health check (full at a fresh GPS sample)
+        and the fusion of this tick's fresh magnetometer, then GPS, sample."""
+        book = discrete_state.get_vector(self.BOOK_GROUP)
+        gps_seen, mag_seen = book.GetAtIndex(GPS_SLOT), book.GetAtIndex(MAG_SLOT)
+        gps_stamp = self._read_gps_stamp(context)
+        gps_fresh = _fresh(gps_stamp, gps_seen)
+        P = self._healthy(P, discrete_state, gps_fresh)
+        x = np.asarray(x, dtype=float)
+        yaw, mag_stamp = self._read_mag(context)
+        if _fresh(mag_stamp, mag_seen):
+            x, P = self._fuse(MAG_SLOT, mag_stamp, self._mag_update, yaw, self._R_mag, x, P, discrete_state)
+        if gps_fresh:
+            z = self._read_gps(context)[0:6]
+            x, P = self._fuse(GPS_SLOT, gps_stamp, self._gps_update, z, self._R_gps, x, P, discrete_state)
+        return x, P
 
     @classmethod
     def _count(cls, discrete_state, name):
@@ -143,7 +172,7 @@ class ComplementaryFilter(LeafSystem):
         self._tau = float(params.tau)
         self._variant = params.variant
         self._read_imu = vector_reader(self.DeclareVectorInputPort("imu", IMU_SIZE))
-        self._read_ekf_state = vector_reader(self.DeclareVectorInputPort("ekf_state", EKF_STATE_SIZE))
+        self._read_prior_yaw = entry_reader(self.DeclareVectorInputPort("ekf_state", EKF_STATE_SIZE), 6)
         state = self.DeclareDiscreteState(np.array(initial_attitude, dtype=float))
         rate = self.DeclareDiscreteState(3)
         self.DeclareStateOutputPort("attitude", state)
@@ -152,8 +181,9 @@ class ComplementaryFilter(LeafSystem):
 
     def _update(self, context, discrete_state):
         imu = self._read_imu(context)
-        yaw = self._read_ekf_state(context)[6]
-        roll, pitch, _ = discrete_state.value(0).tolist()
+        yaw = self._read_prior_yaw(context)
+        attitude = discrete_state.get_vector(0)
+        roll, pitch = attitude.GetAtIndex(0), attitude.GetAtIndex(1)
         if _finite(imu):
             roll, pitch, yaw = complementary_update(
                 roll,
@@ -193,20 +223,18 @@ class Ekf(_GatedFusion, LeafSystem):
         super().__init__()
         self._reference_accelerometer = fidelity.reference_accelerometer
         self._Q = ekf.process_noise(params)
-        self._R_gps = ekf.gps_noise(params)
-        self._R_mag = ekf.mag_noise(params)
-        self._declare_gating(
-            params.gps_gate_sigma,
-            params.mag_gate_sigma,
-            params.gps_reset_timeout,
-            ekf.initial_covariance(params),
-            list(range(6)),
-        )
         self._G = ekf.predict_jacobian(np.zeros(EKF_STATE_SIZE), 0.0, 0.0, (0.0, 0.0, 0.0), ONBOARD_PERIOD)
         self._read_imu = vector_reader(self.DeclareVectorInputPort("imu", IMU_SIZE))
-        self._read_gps = vector_reader(self.DeclareVectorInputPort("gps", GPS_SIZE))
-        self._read_mag = vector_reader(self.DeclareVectorInputPort("mag", MAG_SIZE))
-        self._read_attitude = vector_reader(self.DeclareVectorInputPort("attitude", ATTITUDE_SIZE))
+        self._declare_gating(
+            params,
+            ekf.initial_covariance(params),
+            list(range(6)),
+            (ekf.mag_update, ekf.gps_update),
+            (ekf.mag_noise(params), ekf.gps_noise(params)),
+        )
+        self._read_attitude = entries_reader(
+            self.DeclareVectorInputPort("attitude", ATTITUDE_SIZE), 0, ATTITUDE_SIZE
+        )
         x = self.DeclareDiscreteState(ekf.initial_state(params))
         P = self.DeclareDiscreteState(ekf.initial_covariance(params).ravel())
         diagnostics = self.DeclareDiscreteState(_initial_diagnostics())
@@ -219,8 +247,6 @@ class Ekf(_GatedFusion, LeafSystem):
     def _update(self, context, discrete_state):
         imu = self._read_imu(context)
         attitude = self._read_attitude(context)
-        mag = self._read_mag(context)
-        gps = self._read_gps(context)
         x = discrete_state.value(0)
         P = discrete_state.value(1).reshape(EKF_STATE_SIZE, EKF_STATE_SIZE)
         if _finite(imu + attitude):
@@ -229,14 +255,7 @@ class Ekf(_GatedFusion, LeafSystem):
             )
         else:
             self._count(discrete_state, "nonfinite_samples")
-        seen = discrete_state.value(self.BOOK_GROUP).tolist()
-        gps_fresh = _fresh(gps[6], seen[GPS_SLOT])
-        P = self._healthy(P, discrete_state, gps_fresh)
-        x = np.asarray(x, dtype=float)
-        if _fresh(mag[1], seen[MAG_SLOT]):
-            x, P = self._fuse(MAG_SLOT, mag[1], ekf.mag_update, mag[0], self._R_mag, x, P, discrete_state)
-        if gps_fresh:
-            x, P = self._fuse(GPS_SLOT, gps[6], ekf.gps_update, gps[0:6], self._R_gps, x, P, discrete_state)
+        x, P = self._fuse_fresh_samples(context, discrete_state, x, P)
         discrete_state.set_value(0, x)
         discrete_state.set_value(1, P.ravel())
 
@@ -252,15 +271,15 @@ class EstimatedStateAssembler(LeafSystem):
 
     def __init__(self):
         super().__init__()
-        self._read_attitude = vector_reader(self.DeclareVectorInputPort("attitude", ATTITUDE_SIZE))
+        self._read_roll_pitch = entries_reader(self.DeclareVectorInputPort("attitude", ATTITUDE_SIZE), 0, 2)
         self._read_ekf_state = vector_reader(self.DeclareVectorInputPort("ekf_state", EKF_STATE_SIZE))
-        self._read_rate = vector_reader(self.DeclareVectorInputPort("body_rate", 3))
+        self._read_rate = entries_reader(self.DeclareVectorInputPort("body_rate", 3), 0, 3)
         self.DeclareVectorOutputPort(
             "estimated_state", STATE_SIZE, self._calc, prerequisites_of_calc={self.all_input_ports_ticket()}
         )
 
     def _calc(self, context, output):
-        roll, pitch, _ = self._read_attitude(context)
+        roll, pitch = self._read_roll_pitch(context)
         x = self._read_ekf_state(context)
         q = list(quat_from_euler_tuple(roll, pitch, x[6]))
         output.SetFromVector(np.array(x[0:3] + q + x[3:6] + self._read_rate(context)))
@@ -288,19 +307,19 @@ class Eskf(_GatedFusion, LeafSystem):
         P0 = eskf.initial_covariance(params)
         n = P0.shape[0]
         self._n = n
-        self._R_gps = eskf.gps_noise(params)
-        self._R_mag = eskf.mag_noise(params)
-        self._declare_gating(
-            params.gps_gate_sigma, params.mag_gate_sigma, params.gps_reset_timeout, P0, list(eskf.GPS_STATES)
-        )
         self._F = eskf.transition_buffer(n, ONBOARD_PERIOD)
         self._Qbuf = eskf.noise_buffer(n, self._noise, ONBOARD_PERIOD)
         yaw, pitch, roll = params.init_ypr
         q0 = quat_from_euler_tuple(roll, pitch, yaw)
         x0 = eskf.initial_nominal(params.init_position, params.init_velocity, q0)
         self._read_imu = vector_reader(self.DeclareVectorInputPort("imu", IMU_SIZE))
-        self._read_gps = vector_reader(self.DeclareVectorInputPort("gps", GPS_SIZE))
-        self._read_mag = vector_reader(self.DeclareVectorInputPort("mag", MAG_SIZE))
+        self._declare_gating(
+            params,
+            P0,
+            list(eskf.GPS_STATES),
+            (eskf.mag_update, eskf.gps_update),
+            (eskf.mag_noise(params), eskf.gps_noise(params)),
+        )
         self.DeclareDiscreteState(x0)
         P = self.DeclareDiscreteState(P0.ravel())
         diagnostics = self.DeclareDiscreteState(_initial_diagnostics())
@@ -320,8 +339,6 @@ class Eskf(_GatedFusion, LeafSystem):
 
     def _update(self, context, discrete_state):
         imu = self._read_imu(context)
-        mag = self._read_mag(context)
-        gps = self._read_gps(context)
         x = discrete_state.value(0)
         P = discrete_state.value(1).reshape(self._n, self._n)
         rate = discrete_state.value(4)[10:13]
@@ -330,14 +347,7 @@ class Eskf(_GatedFusion, LeafSystem):
             rate = (imu[3] - x[13], imu[4] - x[14], imu[5] - x[15])
         else:
             self._count(discrete_state, "nonfinite_samples")
-        seen = discrete_state.value(self.BOOK_GROUP).tolist()
-        gps_fresh = _fresh(gps[6], seen[GPS_SLOT])
-        P = self._healthy(P, discrete_state, gps_fresh)
-        x = np.asarray(x, dtype=float)
-        if _fresh(mag[1], seen[MAG_SLOT]):
-            x, P = self._fuse(MAG_SLOT, mag[1], eskf.mag_update, mag[0], self._R_mag, x, P, discrete_state)
-        if gps_fresh:
-            x, P = self._fuse(GPS_SLOT, gps[6], eskf.gps_update, gps[0:6], self._R_gps, x, P, discrete_state)
+        x, P = self._fuse_fresh_samples(context, discrete_state, x, P)
         discrete_state.set_value(0, x)
         discrete_state.set_value(5, x[10:16])
         discrete_state.set_value(1, P.ravel())

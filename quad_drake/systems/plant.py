@@ -9,7 +9,7 @@ from pydrake.systems.framework import LeafSystem
 from quad_drake.conventions import NUM_MOTORS, ONBOARD_PERIOD, PHYSICS_PERIOD, PLANT_OFFSET, STATE_SIZE
 from quad_drake.dynamics import on_floor, plant_step
 from quad_drake.fidelity import PHYSICAL
-from quad_drake.systems._io import vector_reader
+from quad_drake.systems._io import entries_reader, scalar, set_scalar, vector_reader
 
 
 class QuadrotorPlant(LeafSystem):
@@ -55,11 +55,11 @@ class QuadrotorPlant(LeafSystem):
             raise ValueError(f"initial_state: expected {STATE_SIZE} values, got shape {initial_state.shape}")
         self._params = copy.deepcopy(params)
         self._read_commands = vector_reader(self.DeclareVectorInputPort("motor_thrusts", NUM_MOTORS))
-        self._read_noise = vector_reader(
-            self.DeclareVectorInputPort(
-                "motor_noise", self.noise_size, random_type=RandomDistribution.kUniform
-            )
+        noise = self.DeclareVectorInputPort(
+            "motor_noise", self.noise_size, random_type=RandomDistribution.kUniform
         )
+        self._read_first_noise = entries_reader(noise, 0, NUM_MOTORS)
+        self._read_second_noise = entries_reader(noise, NUM_MOTORS, 2 * NUM_MOTORS)
         state = self.DeclareDiscreteState(initial_state)
         acceleration = self.DeclareDiscreteState(3)
         forces = self.DeclareDiscreteState(NUM_MOTORS)
@@ -89,18 +89,18 @@ class QuadrotorPlant(LeafSystem):
         context.SetDiscreteState(self._contacts_group, self._initial_contacts(state))
 
     def _first_step(self, context, discrete_state):
-        self._step(context, discrete_state, self._read_noise(context)[:NUM_MOTORS])
+        self._step(context, discrete_state, self._read_first_noise(context))
 
     def _second_step(self, context, discrete_state):
-        self._step(context, discrete_state, self._read_noise(context)[NUM_MOTORS:])
+        self._step(context, discrete_state, self._read_second_noise(context))
 
     def _step(self, context, discrete_state, noise):
         commands = self._read_commands(context)
-        if discrete_state.value(self._started_group)[0]:
+        if scalar(discrete_state, self._started_group):
             forces_old = discrete_state.value(self._forces_group).tolist()
         else:
             forces_old = commands
-            discrete_state.set_value(self._started_group, np.ones(1))
+            set_scalar(discrete_state, self._started_group, 1.0)
         state, accel, forces, hit_wall = plant_step(
             discrete_state.value(self._state_group).tolist(),
             forces_old,
@@ -115,9 +115,10 @@ class QuadrotorPlant(LeafSystem):
         discrete_state.set_value(self._acceleration_group, np.array(accel))
         discrete_state.set_value(self._forces_group, np.array(forces))
         floor = on_floor(state, self._params)
-        contacts = discrete_state.get_mutable_value(self._contacts_group)
-        if floor and not contacts[0]:
-            contacts[1] += 1.0
-        contacts[0] = 1.0 if floor else 0.0
-        if hit_wall:
-            contacts[2] += 1.0
+        if hit_wall or floor != bool(scalar(discrete_state, self._contacts_group)):  # else: unchanged
+            contacts = discrete_state.get_mutable_value(self._contacts_group)
+            if floor and not contacts[0]:
+                contacts[1] += 1.0
+            contacts[0] = 1.0 if floor else 0.0
+            if hit_wall:
+                contacts[2] += 1.0

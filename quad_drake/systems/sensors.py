@@ -27,18 +27,21 @@ from quad_drake.conventions import (
     STATE_SIZE,
 )
 from quad_drake.fidelity import PHYSICAL
-from quad_drake.systems._io import vector_reader
+from quad_drake.systems._io import entries_reader, entry_reader, scalar, set_scalar, vector_reader
 
 
 class _Sensor(LeafSystem):
-    """Shared declarations: ``state`` and ``noise`` inputs."""
+    """Shared declarations: ``state`` and ``noise`` inputs (``_state_port``, ``_noise_port``) and
+    readers of their whole values (``_read_state``, ``_read_noise``)."""
 
     def __init__(self, noise_size):
         super().__init__()
-        self._read_state = vector_reader(self.DeclareVectorInputPort("state", STATE_SIZE))
-        self._read_noise = vector_reader(
-            self.DeclareVectorInputPort("noise", noise_size, random_type=RandomDistribution.kGaussian)
+        self._state_port = self.DeclareVectorInputPort("state", STATE_SIZE)
+        self._noise_port = self.DeclareVectorInputPort(
+            "noise", noise_size, random_type=RandomDistribution.kGaussian
         )
+        self._read_state = vector_reader(self._state_port)
+        self._read_noise = vector_reader(self._noise_port)
 
 
 class Imu(_Sensor):
@@ -62,7 +65,11 @@ class Imu(_Sensor):
         super().__init__(self.noise_size)
         self._params = params
         self._fidelity = fidelity
-        self._read_acceleration = vector_reader(self.DeclareVectorInputPort("acceleration", 3))
+        self._read_acceleration = entries_reader(self.DeclareVectorInputPort("acceleration", 3), 0, 3)
+        group = self.DeclareDiscreteState(IMU_SIZE)
+        self.DeclareStateOutputPort("imu", group)
+        self._output_group = int(group)
+        self._bias = sensor_models.imu_initial_bias(params)  # constant without a random walk
         self._read_bias_noise = None
         if sensor_models.imu_has_bias_walk(params):
             self._read_bias_noise = vector_reader(
@@ -70,27 +77,27 @@ class Imu(_Sensor):
                     "bias_noise", self.noise_size, random_type=RandomDistribution.kGaussian
                 )
             )
-        group = self.DeclareDiscreteState(IMU_SIZE)
-        self._bias_group = self.DeclareDiscreteState(np.array(sensor_models.imu_initial_bias(params)))
-        self.DeclareStateOutputPort("imu", group)
+            self._bias_group = int(self.DeclareDiscreteState(np.array(self._bias)))
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, SENSOR_OFFSET, self._sample)
 
     def _sample(self, context, discrete_state):
         x = self._read_state(context)
-        a = self._read_acceleration(context)
-        noise = self._read_noise(context)
-        bias = discrete_state.value(self._bias_group).tolist()
+        bias = self._bias
         if self._read_bias_noise is not None:
-            bias = sensor_models.imu_bias_step(bias, self._read_bias_noise(context), self._params)
+            bias = sensor_models.imu_bias_step(
+                discrete_state.value(self._bias_group).tolist(), self._read_bias_noise(context), self._params
+            )
             discrete_state.set_value(self._bias_group, np.array(bias))
-        discrete_state.set_value(
-            0,
-            np.array(
-                sensor_models.imu_measurement(
-                    x[3:7], x[10:13], a, noise, self._params, self._fidelity, bias=bias
-                )
-            ),
+        sample = sensor_models.imu_measurement(
+            x[3:7],
+            x[10:13],
+            self._read_acceleration(context),
+            self._read_noise(context),
+            self._params,
+            self._fidelity,
+            bias=bias,
         )
+        discrete_state.set_value(self._output_group, np.array(sample))
 
 
 class Gps(_Sensor):
@@ -110,10 +117,11 @@ class Gps(_Sensor):
         self._params = params
         self.noise_period = params.period
         initial = [0.0] * (GPS_SIZE - 1) + [NO_SAMPLE_STAMP]
-        self._output_group = self.DeclareDiscreteState(initial)
-        self._bias_group = self.DeclareDiscreteState(3)
-        self._count_group = self.DeclareDiscreteState(1)
-        self.DeclareStateOutputPort("gps", self._output_group)
+        output = self.DeclareDiscreteState(initial)
+        self._bias_group = int(self.DeclareDiscreteState(3))
+        self._count_group = int(self.DeclareDiscreteState(1))
+        self.DeclareStateOutputPort("gps", output)
+        self._output_group = int(output)
         self.DeclarePeriodicDiscreteUpdateEvent(
             params.period, params.period + SLOW_SENSOR_OFFSET, self._sample
         )
@@ -122,13 +130,13 @@ class Gps(_Sensor):
         x = self._read_state(context)
         noise = self._read_noise(context)
         bias = discrete_state.value(self._bias_group).tolist()
-        count = float(discrete_state.value(self._count_group)[0]) + 1.0
+        count = scalar(discrete_state, self._count_group) + 1.0
         position, velocity, bias = sensor_models.gps_measurement(x[0:3], x[7:10], bias, noise, self._params)
         discrete_state.set_value(
             self._output_group, np.array(position + velocity + [count * self._params.period])
         )
         discrete_state.set_value(self._bias_group, np.array(bias))
-        discrete_state.set_value(self._count_group, np.array([count]))
+        set_scalar(discrete_state, self._count_group, count)
 
 
 class Magnetometer(_Sensor):
@@ -145,18 +153,21 @@ class Magnetometer(_Sensor):
         super().__init__(self.noise_size)
         self._params = params
         self.noise_period = params.period
-        self._output_group = self.DeclareDiscreteState([0.0, NO_SAMPLE_STAMP])
-        self._count_group = self.DeclareDiscreteState(1)
-        self.DeclareStateOutputPort("mag", self._output_group)
+        output = self.DeclareDiscreteState([0.0, NO_SAMPLE_STAMP])
+        self._count_group = int(self.DeclareDiscreteState(1))
+        self.DeclareStateOutputPort("mag", output)
+        self._output_group = int(output)
+        self._read_quaternion = entries_reader(self._state_port, 3, 7)
+        self._read_noise = entry_reader(self._noise_port, 0)
         self.DeclarePeriodicDiscreteUpdateEvent(
             params.period, params.first_sample_time + SLOW_SENSOR_OFFSET, self._sample
         )
 
     def _sample(self, context, discrete_state):
-        x = self._read_state(context)
-        noise = self._read_noise(context)[0]
-        count = float(discrete_state.value(self._count_group)[0])
-        yaw = sensor_models.magnetometer_yaw(x[3:7], noise, self._params)
+        count = scalar(discrete_state, self._count_group)
+        yaw = sensor_models.magnetometer_yaw(
+            self._read_quaternion(context), self._read_noise(context), self._params
+        )
         stamp = self._params.first_sample_time + count * self._params.period
         discrete_state.set_value(self._output_group, np.array([yaw, stamp]))
-        discrete_state.set_value(self._count_group, np.array([count + 1.0]))
+        set_scalar(discrete_state, self._count_group, count + 1.0)
