@@ -23,7 +23,6 @@ and replaces a non-finite P by a fallback (the initial covariance); it says what
 import math
 
 import numpy as np
-from scipy.stats import chi2
 
 COVARIANCE_OK, COVARIANCE_REPAIRED, COVARIANCE_RESET = 0, 1, 2
 """Outcomes of :func:`repaired_covariance`: untouched, eigenvalues clipped, replaced by the fallback."""
@@ -42,7 +41,9 @@ def gate_threshold(dof, gate_sigma):
         raise ValueError(f"gate_threshold: dof must be >= 1, got {dof}")
     if gate_sigma <= 0.0:
         return math.inf
-    return float(chi2.isf(false_alarm_probability(gate_sigma), dof))
+    from scipy.special import chdtri  # = scipy.stats.chi2.isf; imported here: scipy.stats costs ~1 s
+
+    return float(chdtri(dof, false_alarm_probability(gate_sigma)))
 
 
 def gate_ratio(nis, threshold):
