@@ -18,7 +18,7 @@ from typing import Optional
 import numpy as np
 
 from .conventions import PHYSICS_PERIOD
-from .safety import safety_criteria
+from .safety import SAFETY_SIGNALS, safety_criteria
 
 TIME_TOLERANCE = 1e-9
 """s; stretches within this of the window W count as exactly W."""
@@ -348,6 +348,19 @@ def _times_word(n):
     return "1 time" if n == 1 else f"{n} times"
 
 
+def _safety_verdict(kind, name, passed, line, measured, required, samples, **text):
+    """CriterionResult of a safety analyzer (no ``trailing`` or ``percent``); text: the
+    ``description``, ``measured_text`` and ``required_text``."""
+    return CriterionResult(
+        kind, name, passed, line, float(measured), float(required), None, samples=samples, **text
+    )
+
+
+def _safety_name(kind, vehicle, name):
+    """The signal name a safety verdict reports: `name`, else ``vehicle.<its safety signal>``."""
+    return name or f"{vehicle}.{SAFETY_SIGNALS[kind]}"
+
+
 def floor_touchdowns(times, touchdowns, contact, vehicle, landing_time=None, name=""):
     """Safety verdict "never touched the floor after take-off" (``floor``).
 
@@ -374,15 +387,14 @@ def floor_touchdowns(times, touchdowns, contact, vehicle, landing_time=None, nam
         first = _first_time(times, touchdowns > 0)
         passed = False
         line = f"FAIL: {vehicle} touched the floor {_times_word(count)}{landing} (first at {first:.3f} s)"
-    return CriterionResult(
+    return _safety_verdict(
         "floor",
-        name or f"{vehicle}.FloorTouchdowns",
+        _safety_name("floor", vehicle, name),
         passed,
         line,
-        float(count),
+        count,
         0.0,
-        None,
-        samples=int(times.size),
+        int(times.size),
         description=f"{vehicle}: no floor touchdown after take-off{landing}",
         measured_text="on the floor at every sample" if grounded else f"{count} touchdown(s)",
         required_text="0 touchdowns, off the floor at some sample",
@@ -410,15 +422,14 @@ def room_contacts(times, wall_steps, vehicle, name=""):
             f"FAIL: {vehicle} was stopped by a wall or the ceiling for {seconds:.3f} s "
             f"(first at {first:.3f} s)"
         )
-    return CriterionResult(
+    return _safety_verdict(
         "room",
-        name or f"{vehicle}.WallContactSteps",
+        _safety_name("room", vehicle, name),
         passed,
         line,
         seconds,
         0.0,
-        None,
-        samples=int(times.size),
+        int(times.size),
         description=f"{vehicle}: never stopped by a wall or the ceiling",
         measured_text=f"{seconds:.3f} s at a wall or the ceiling",
         required_text="0 s",
@@ -440,15 +451,14 @@ def state_finite(times, finite, vehicle, name=""):
     else:
         passed = False
         line = f"FAIL: the true state of {vehicle} became non-finite at {_first_time(times, bad):.3f} s"
-    return CriterionResult(
+    return _safety_verdict(
         "finite",
-        name or f"{vehicle}.StateFinite",
+        _safety_name("finite", vehicle, name),
         passed,
         line,
-        float(bad.sum()),
+        bad.sum(),
         0.0,
-        None,
-        samples=int(times.size),
+        int(times.size),
         description=f"{vehicle}: true state finite at every sample",
         measured_text=f"{int(bad.sum())} non-finite sample(s) of {times.size}",
         required_text="0 non-finite samples",
@@ -468,14 +478,14 @@ def tracking_bound(times, error, bound, name="x"):
     magnitude = np.where(np.isfinite(magnitude), magnitude, math.inf)
     text = {"description": f"|{name}| <= {bound:g} at every sample", "required_text": f"max <= {bound:g}"}
     if magnitude.size == 0:
-        return CriterionResult(
+        return _safety_verdict(
             "tracking",
             name,
             False,
             f"FAIL: ABS({name}) had no samples",
             0.0,
-            float(bound),
-            None,
+            bound,
+            0,
             measured_text="no samples",
             **text,
         )
@@ -490,15 +500,14 @@ def tracking_bound(times, error, bound, name="x"):
         first = int(np.flatnonzero(above)[0])
         passed = False
         line = f"FAIL: ABS({name}) reached {magnitude[first]:.3f} at {times[first]:.3f} s, above {bound:f}"
-    return CriterionResult(
+    return _safety_verdict(
         "tracking",
         name,
         passed,
         line,
-        float(magnitude[worst]),
-        float(bound),
-        None,
-        samples=int(times.size),
+        magnitude[worst],
+        bound,
+        int(times.size),
         measured_text=f"max {magnitude[worst]:.4g} at {times[worst]:.3f} s",
         **text,
     )

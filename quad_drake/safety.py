@@ -30,6 +30,15 @@ def is_closed_loop(vehicle):
     return vehicle.controller.kp_pos_xy > 0.0 and vehicle.controller.kp_pos_z > 0.0
 
 
+SAFETY_SIGNALS = {
+    "floor": "FloorTouchdowns",
+    "room": "WallContactSteps",
+    "finite": "StateFinite",
+    "tracking": "PosFollowErr",
+}
+"""The per-vehicle signal (``V.<name>``) each safety criterion judges."""
+
+
 def safety_criteria(scenario):
     """The flight-safety CriterionConfigs of `scenario`, vehicle by vehicle ([] when disabled)."""
     safety = scenario.safety
@@ -37,21 +46,15 @@ def safety_criteria(scenario):
         return []
     criteria = []
     for vehicle in scenario.vehicles:
-        name = vehicle.name
-        if safety.floor:
-            criteria.append(
-                CriterionConfig(
-                    kind="floor", signal=f"{name}.FloorTouchdowns", landing_time=safety.landing_time
-                )
-            )
-        if safety.room:
-            criteria.append(CriterionConfig(kind="room", signal=f"{name}.WallContactSteps"))
-        if safety.finite:
-            criteria.append(CriterionConfig(kind="finite", signal=f"{name}.StateFinite"))
-        if safety.tracking and is_closed_loop(vehicle):
-            criteria.append(
-                CriterionConfig(
-                    kind="tracking", signal=f"{name}.PosFollowErr", threshold=safety.tracking_bound
-                )
-            )
+        wanted = (
+            ("floor", safety.floor, {"landing_time": safety.landing_time}),
+            ("room", safety.room, {}),
+            ("finite", safety.finite, {}),
+            ("tracking", safety.tracking and is_closed_loop(vehicle), {"threshold": safety.tracking_bound}),
+        )
+        criteria += [
+            CriterionConfig(kind=kind, signal=f"{vehicle.name}.{SAFETY_SIGNALS[kind]}", **fields)
+            for kind, enabled, fields in wanted
+            if enabled
+        ]
     return criteria
