@@ -1,4 +1,4 @@
-"""Command line: ``quad-drake list | run | montecarlo | diagram | noise-std | export``.
+"""Command line: ``quad-drake list | run | montecarlo | tune | diagram | noise-std | export``.
 
 Exit codes: 0 every criterion passed, 1 a criterion failed, 2 bad input
 (one line on stderr, no traceback), 130 interrupted (Ctrl-C; finished runs are kept).
@@ -160,6 +160,57 @@ def _add_montecarlo_arguments(parser):
     return parser
 
 
+def _add_tune_arguments(parser):
+    """Arguments of ``quad-drake tune``."""
+    from .tuning import OBJECTIVES, TuneSettings
+
+    d = TuneSettings()
+    parser.add_argument("name", metavar="NAME", help="scenario name or YAML path")
+    parser.add_argument(
+        "--params",
+        nargs="+",
+        metavar="KEY",
+        help="dotted config keys to search, e.g. ekf.q_vel_xy_std vehicles.0.ekf.q_yaw_std "
+        "(default: the estimator's process- and measurement-noise fields)",
+    )
+    parser.add_argument(
+        "--objective", choices=OBJECTIVES, default=d.objective, help=f"(default: {d.objective})"
+    )
+    parser.add_argument(
+        "--budget",
+        type=int,
+        default=d.budget,
+        help=f"candidates to score, the start included (default: {d.budget})",
+    )
+    parser.add_argument(
+        "--seeds",
+        type=int,
+        default=d.train_runs,
+        help=f"training runs per candidate (default: {d.train_runs})",
+    )
+    parser.add_argument(
+        "--seed", type=int, default=d.train_seed, help=f"first training seed (default: {d.train_seed})"
+    )
+    parser.add_argument(
+        "--holdout", type=int, default=d.holdout_runs, help=f"held-out runs (default: {d.holdout_runs})"
+    )
+    parser.add_argument(
+        "--holdout-seed",
+        type=int,
+        default=d.holdout_seed,
+        help=f"first held-out seed (default: {d.holdout_seed})",
+    )
+    parser.add_argument("--no-holdout", action="store_true", help="skip the before/after campaigns")
+    parser.add_argument("--search-seed", type=int, default=d.search_seed, help="seed of the CMA-ES sampler")
+    parser.add_argument("--jobs", type=int, default=d.jobs, help=f"worker processes (default: {d.jobs})")
+    parser.add_argument(
+        "--set", action="append", default=[], metavar="KEY=VALUE", help="override a config field first"
+    )
+    parser.add_argument("--out", help="output folder (default: out/NAME_tune)")
+    parser.add_argument("--quiet", action="store_true", help="no progress output")
+    return parser
+
+
 def _campaign_runner(args):
     from .campaigns import DaskRunner, InProcessRunner, ProcessPoolRunner
 
@@ -209,6 +260,71 @@ def cmd_montecarlo(args):
     return 0 if campaign.passed else 1
 
 
+def cmd_tune(args):
+    """Search the estimator's noise parameters (``quad_drake.tuning``); write OUT (tuned.yaml,
+    history.csv, objective.png, tune.json, before_after.txt). Exit 0 when the tuned scenario
+    passes every criterion in every held-out run and its held-out loss is not above the start's,
+    1 otherwise; Ctrl-C keeps the best so far and exits 130."""
+    from .tuning import TuneSettings, prepare, tune
+    from .tuning.output import before_after
+
+    settings = TuneSettings(
+        objective=args.objective,
+        budget=args.budget,
+        train_seed=args.seed,
+        train_runs=args.seeds,
+        holdout_seed=args.holdout_seed,
+        holdout_runs=args.holdout,
+        jobs=args.jobs,
+        search_seed=args.search_seed,
+        holdout=not args.no_holdout,
+    )
+    problem = prepare(catalog.load(args.name, None, args.set), args.params, settings)
+    if args.out is None:  # out/NAME_tune, made with its parent
+        out = check_output_dir("out") / f"{problem.scenario.name}_tune"
+    else:
+        out = check_output_dir(args.out)
+    result = tune(problem, out, progress=not args.quiet)
+    if result.interrupted:
+        kept = "no candidate had finished"
+        if result.search.best is not None:
+            kept = f"kept the best of {len(result.search.history)} candidates in {out}/tuned.yaml"
+        print(f"quad-drake: interrupted; {kept} (held-out comparison skipped)", file=sys.stderr)
+        return 130
+    best = result.search.best
+    print(
+        f"{len(result.search.history)} candidates in {result.search_time:.1f} s; best loss "
+        f"{best.score.loss:.4g} at candidate {best.index} (start {result.search.history[0].score.loss:.4g})"
+    )
+    print(f"saved {out}/: " + ", ".join(Path(f).name for f in result.files))
+    if result.after is None:
+        print("tuned (no held-out comparison)")
+        return 0
+    print(before_after(result), end="")
+    print(f"held-out campaigns in {result.holdout_time:.1f} s")
+    stats = [_every_run_passed(result.after), _holdout_loss(result)]
+    if all(ok for ok, _ in stats):
+        print("PASS: " + "; ".join(text for _, text in stats))
+        return 0
+    print("FAIL: " + "; ".join(text for ok, text in stats if not ok))
+    return 1
+
+
+def _every_run_passed(campaign):
+    every = [r for r in campaign.criteria if r["criterion"] == "all criteria"]
+    passes, runs = (every[0]["passes"], every[0]["runs"]) if every else (campaign.runs, campaign.runs)
+    return passes == runs, f"tuned: every criterion passed in {passes} of {runs} held-out runs"
+
+
+def _holdout_loss(result):
+    from .tuning import score
+
+    objective = result.problem.settings.objective
+    before = score(result.before, objective, result.before.runs).loss
+    after = score(result.after, objective, result.after.runs).loss
+    return after <= before, f"held-out loss {after:.4g} (start {before:.4g})"
+
+
 def build_parser():
     parser = argparse.ArgumentParser(prog="quad-drake", description=__doc__.splitlines()[0])
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
@@ -236,6 +352,9 @@ def build_parser():
     _add_montecarlo_arguments(
         sub.add_parser("montecarlo", help="seeded runs in parallel: pass rates, NEES/NIS, accuracy bound")
     ).set_defaults(func=cmd_montecarlo)
+    _add_tune_arguments(
+        sub.add_parser("tune", help="search the estimator's noise parameters on seeded campaigns")
+    ).set_defaults(func=cmd_tune)
     diagram = sub.add_parser("diagram", help="write the scenario's Drake diagram as SVG (Graphviz)")
     diagram.add_argument("name", metavar="NAME")
     diagram.add_argument("-o", "--output", help="SVG path (default: NAME_diagram.svg)")

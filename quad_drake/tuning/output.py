@@ -1,0 +1,201 @@
+"""The files of ``quad-drake tune`` in its output folder.
+
+- ``tuned.yaml``: the scenario with the tuned values (runnable: ``quad-drake run DIR/tuned.yaml``);
+- ``history.csv``: one row per candidate (loss, its parts, multipliers and values);
+- ``objective.png``: the loss per candidate and the best so far;
+- ``tune.json``: settings, start and tuned values, timing, and (after the held-out campaigns)
+  the before/after statistics;
+- ``before_after.txt`` and ``holdout_before/``, ``holdout_after/`` (campaign folders): the start
+  and the tuned scenario on the held-out seeds.
+"""
+
+import csv
+import dataclasses
+from pathlib import Path
+
+from .. import campaigns
+from ..config import dump_scenario
+from ..jsonio import dump_json
+from .objective import score
+
+TUNED_SUFFIX = "_tuned"
+
+
+def tuned_scenario(scenario):
+    """The tuned ScenarioConfig under its own name (``<name>_tuned``: its outputs do not
+    overwrite the original's)."""
+    name = scenario.name if scenario.name.endswith(TUNED_SUFFIX) else scenario.name + TUNED_SUFFIX
+    return dataclasses.replace(scenario, name=name)
+
+
+def _changes(result):
+    """[(key, start text, tuned text)] of every searched parameter."""
+    best = result.search.best
+    return [(p.key, p.label(0.0), p.label(x)) for p, x in zip(result.problem.space, best.x, strict=True)]
+
+
+def _header(result):
+    s = result.problem.settings
+    best = result.search.best
+    lines = [
+        f"quad-drake tune {result.problem.scenario.name}: objective {s.objective}, "
+        f"{len(result.search.history)} of {s.budget} candidates"
+        + (" (interrupted: best so far)" if result.search.interrupted else ""),
+        f"training seeds {s.train_seed}..{s.train_seed + s.train_runs - 1}; "
+        f"best loss {best.score.loss:.4g} at candidate {best.index} "
+        f"(start {result.search.history[0].score.loss:.4g})",
+    ]
+    lines += [f"{key}: {start} -> {tuned}" for key, start, tuned in _changes(result)]
+    return lines
+
+
+def write_search(result, out_dir):
+    """tuned.yaml (when a candidate finished), history.csv, objective.png, tune.json; the paths."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = [_write_history(result, out_dir / "history.csv")]
+    if result.search.best is None:
+        return written
+    tuned = out_dir / "tuned.yaml"
+    tuned.write_text("".join(f"# {line}\n" for line in _header(result)) + dump_scenario(result.tuned))
+    written += [tuned, _write_plot(result, out_dir / "objective.png")]
+    dump_json(out_dir / "tune.json", summary(result))
+    return written + [out_dir / "tune.json"]
+
+
+def _write_history(result, path):
+    space = result.problem.space
+    history = result.search.history
+    statistics = sorted({name for e in history for name in e.score.in_band})
+    header = ["candidate", "generation", "loss", "consistency", "accuracy", "pass_rate"]
+    header += [f"in_band.{name}" for name in statistics]
+    header += [f"log10_multiplier.{p.key}" for p in space] + [f"value.{p.key}" for p in space]
+    header += ["best_loss"]
+    best = float("inf")
+    with open(path, "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(header)
+        for e in history:
+            best = min(best, e.score.loss)
+            row = [
+                e.index,
+                e.generation,
+                e.score.loss,
+                e.score.consistency,
+                e.score.accuracy,
+                e.score.pass_rate,
+            ]
+            row += [e.score.in_band.get(name, "") for name in statistics]
+            row += list(e.x) + [p.label(x) for p, x in zip(space, e.x, strict=True)] + [best]
+            writer.writerow([repr(v) if isinstance(v, float) else v for v in row])
+    return path
+
+
+def _write_plot(result, path):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    history = result.search.history
+    losses = [e.score.loss for e in history]
+    best = [min(losses[: i + 1]) for i in range(len(losses))]
+    fig = Figure(figsize=(7, 3.6), layout="constrained")
+    ax = fig.subplots()
+    ax.plot(range(len(losses)), losses, "o", ms=4, color="tab:blue", label="candidate")
+    ax.step(range(len(best)), best, where="post", color="tab:red", label="best so far")
+    ax.set_yscale("symlog", linthresh=0.1)
+    ax.set_xlabel("candidate (0 = the start)")
+    ax.set_ylabel(f"loss ({result.problem.settings.objective}) [-]")
+    ax.set_title(f"tune {result.problem.scenario.name}: loss over the training seeds", fontsize=10)
+    ax.legend(fontsize=8)
+    FigureCanvasAgg(fig).print_png(str(path))
+    return path
+
+
+def _campaign_stats(campaign, objective):
+    every = [r for r in campaign.criteria if r["criterion"] == "all criteria"]
+    return {
+        "runs": campaign.runs,
+        "passes": every[0]["passes"] if every else campaign.runs,
+        "pass_ci95": every[0]["ci95"] if every else None,
+        "consistency": {
+            c["statistic"]: {"dof": c["dof"], "in_band": c["in_band"], "time_mean": c["time_mean"]}
+            for c in campaign.consistency
+        },
+        "efficiency": [
+            {k: e[k] for k in ("vehicle", "state", "rmse", "efficiency", "pcrb_efficiency")}
+            for e in campaign.efficiency
+        ],
+        "loss": score(campaign, objective, campaign.runs).loss,
+    }
+
+
+def summary(result):
+    """The tune.json dict."""
+    s = result.problem.settings
+    best = result.search.best
+    data = {
+        "scenario": result.problem.scenario.name,
+        "settings": dataclasses.asdict(s),
+        "candidates": len(result.search.history),
+        "interrupted": result.interrupted,
+        "search_time_s": result.search_time,
+        "start_loss": result.search.history[0].score.loss,
+        "best_loss": best.score.loss,
+        "best_candidate": best.index,
+        "parameters": [{"key": k, "start": a, "tuned": b} for k, a, b in _changes(result)],
+    }
+    if result.before is not None:
+        data["holdout_time_s"] = result.holdout_time
+        data["holdout"] = {
+            "seeds": [s.holdout_seed, s.holdout_seed + s.holdout_runs - 1],
+            "before": _campaign_stats(result.before, s.objective),
+            "after": _campaign_stats(result.after, s.objective),
+        }
+    return data
+
+
+def before_after(result):
+    """The before/after table on the held-out seeds, as text."""
+    s = result.problem.settings
+    before, after = result.before, result.after
+    b, a = _campaign_stats(before, s.objective), _campaign_stats(after, s.objective)
+    lines = _header(result) + [
+        "",
+        f"held-out seeds {s.holdout_seed}..{s.holdout_seed + s.holdout_runs - 1} "
+        f"({before.scenario.end_time:g} s each): start vs tuned",
+        f"{'':34s} {'before':>24s} {'after':>24s}",
+    ]
+
+    def passes(stats):
+        low, high = stats["pass_ci95"] or (1.0, 1.0)
+        return f"{stats['passes']}/{stats['runs']} [{100 * low:.1f}, {100 * high:.1f}] %"
+
+    lines.append(f"{'every criterion passed (95% CI)':34s} {passes(b):>24s} {passes(a):>24s}")
+    for name, cb in b["consistency"].items():
+        ca = a["consistency"][name]
+        label = f"{name} in band ({cb['dof']} dof), mean"
+        cells = [f"{100 * c['in_band']:.1f} %, {c['time_mean']:.3g}" for c in (cb, ca)]
+        lines.append(f"{label:34s} {cells[0]:>24s} {cells[1]:>24s}")
+
+    def efficiency(row):
+        cells = [row["efficiency"], row["pcrb_efficiency"]]
+        return " / ".join("-" if v is None else f"{v:.2f}" for v in cells) + f" ({row['rmse']:.4g})"
+
+    for eb, ea in zip(b["efficiency"], a["efficiency"], strict=True):
+        label = f"eff hover / PCRB (RMSE) {eb['vehicle']}.{eb['state']}"
+        lines.append(f"{label:34s} {efficiency(eb):>24s} {efficiency(ea):>24s}")
+    lines.append(f"{'loss (' + s.objective + ', held-out bands)':34s} {b['loss']:24.4g} {a['loss']:24.4g}")
+    return "\n".join(lines) + "\n"
+
+
+def write_holdout(result, out_dir):
+    """before_after.txt, the two held-out campaign folders, tune.json updated; the paths."""
+    out_dir = Path(out_dir)
+    table = out_dir / "before_after.txt"
+    table.write_text(before_after(result))
+    folders = [
+        campaigns.save(result.before, out_dir / "holdout_before", plots=False),
+        campaigns.save(result.after, out_dir / "holdout_after", plots=False),
+    ]
+    dump_json(out_dir / "tune.json", summary(result))
+    return [table, *folders]

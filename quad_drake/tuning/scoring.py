@@ -1,0 +1,22 @@
+"""Glue: the one function that flies a candidate's campaign, and the runner it flies on.
+
+Every campaign of ``quad-drake tune`` (each candidate on the training seeds, the before/after
+comparison on the held-out seeds) goes through :func:`fly_campaign`, so the runner is chosen
+in one place (:func:`campaign_runner`).
+"""
+
+from ..campaigns import InProcessRunner, ProcessPoolRunner, run_campaign
+
+
+def campaign_runner(scenario, jobs):
+    """The runner of the tuning campaigns: in this process for one job, else a process pool."""
+    return InProcessRunner() if jobs == 1 else ProcessPoolRunner(jobs)
+
+
+def fly_campaign(scenario, first_seed, runs, runner, progress=False):
+    """CampaignResult of `runs` runs of `scenario` with seeds first_seed.. on `runner`.
+
+    The same seeds for every candidate (common random numbers): the loss is a deterministic
+    function of the parameters, and differences between candidates are not seed noise.
+    """
+    return run_campaign(scenario, runs, runner=runner, seed=first_seed, progress=progress)

@@ -1,0 +1,96 @@
+"""The search of ``quad-drake tune``: CMA-ES (the ``cma`` package) over log10 multipliers.
+
+Why CMA-ES: the loss is a black box (a Monte Carlo campaign per candidate) with step-like parts
+(shares of samples inside a band), so gradients are unavailable and finite differences would
+see the steps; CMA-ES uses only the ranking of the losses (the infeasibility penalty's size does
+not distort it), adapts the search's scale and correlations (noise fields trade off against each
+other: Q against R), handles box bounds, and its ask/tell interface lets the caller spend an
+exact budget of campaigns, show progress per candidate and stop on Ctrl-C with the best so far.
+Its sampler draws from a ``numpy.random.Generator`` seeded here (no global RNG), so for the
+same seed, budget and (deterministic) loss the whole search is identical.
+
+Evaluation 0 is the start (x = 0, the scenario as given); CMA-ES then proposes the others.
+"""
+
+import math
+from dataclasses import dataclass, field
+
+import cma
+import numpy as np
+
+SIGMA0 = 0.3
+"""Initial CMA-ES step in log10 multipliers (a factor of 2 per parameter)."""
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """One scored candidate."""
+
+    index: int  # 0 = the start
+    generation: int  # 0 = the start; CMA-ES generations from 1
+    x: tuple  # log10 multipliers, one per parameter
+    score: object  # objective.Score (anything with .loss)
+
+
+@dataclass
+class SearchResult:
+    history: list = field(default_factory=list)  # [Evaluation] in order
+    interrupted: bool = False  # Ctrl-C stopped the search; history holds what finished
+
+    @property
+    def best(self):
+        """The Evaluation with the lowest loss (the earliest among equals), or None."""
+        return min(self.history, key=lambda e: e.score.loss) if self.history else None
+
+
+def population_size(dims, budget):
+    """CMA-ES's default population 4 + 3 ln(n), made smaller on a small budget so that at
+    least three generations fit (never below 4, or the budget left after the start)."""
+    default = 4 + int(3 * math.log(dims))
+    return max(2, min(default, max(4, (budget - 1) // 3), budget - 1))
+
+
+def search(evaluate, dims, budget, bound, seed=0, on_evaluation=None):
+    """SearchResult of up to `budget` calls ``evaluate(x) -> Score`` over x in [-bound, bound]^dims.
+
+    on_evaluation(Evaluation, best Evaluation) is called after each one (progress). A
+    KeyboardInterrupt (Ctrl-C) ends the search early: ``interrupted`` and the finished history.
+    """
+    if budget < 1 or dims < 1:
+        raise ValueError(f"search: budget and dims must be >= 1, got {budget}, {dims}")
+    result = SearchResult()
+
+    def record(x, generation):
+        evaluation = Evaluation(len(result.history), generation, tuple(float(v) for v in x), evaluate(x))
+        result.history.append(evaluation)
+        if on_evaluation is not None:
+            on_evaluation(evaluation, result.best)
+        return evaluation.score.loss
+
+    try:
+        record(np.zeros(dims), 0)
+        if budget == 1:
+            return result
+        rng = np.random.default_rng(seed)
+        options = {
+            "bounds": [-bound, bound],
+            "popsize": population_size(dims, budget),
+            "seed": math.nan,  # "do nothing" to numpy's global RNG; the sampler below is seeded
+            "randn": lambda lam, n: rng.standard_normal((lam, n)),
+            "verbose": -9,
+            "verb_log": 0,
+            "verb_disp": 0,
+        }
+        strategy = cma.CMAEvolutionStrategy(np.zeros(dims), SIGMA0, options)
+        generation = 0
+        while len(result.history) < budget:
+            generation += 1
+            candidates = strategy.ask()
+            room = budget - len(result.history)
+            losses = [record(x, generation) for x in candidates[:room]]
+            if len(losses) < len(candidates):
+                break  # the budget ended inside a generation: nothing left to tell
+            strategy.tell(candidates, losses)
+    except KeyboardInterrupt:
+        result.interrupted = True
+    return result

@@ -1,0 +1,174 @@
+"""``tune``: search an estimator's noise parameters on training seeds, judge on held-out seeds.
+
+:func:`prepare` checks everything (keys, counts, seeds, objective) before any run flies;
+:func:`tune` runs the search (CMA-ES, :mod:`.search`), each candidate scored by one campaign
+on the training seeds (:func:`.scoring.fly_campaign`), then flies the start and the best
+candidate on the held-out seeds, and writes the outputs (:mod:`.output`). Ctrl-C keeps the
+best so far: its tuned.yaml, the history and the plot are written, the held-out comparison is
+skipped, and the result says it was interrupted.
+"""
+
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+
+from tqdm import tqdm
+
+from ..accuracy_bound import accuracy_bound
+from ..config import ConfigError
+from ..simulation import available_signals
+from ..verdicts import check_criteria
+from . import output
+from .objective import INFEASIBLE, OBJECTIVES, Score, score
+from .scoring import campaign_runner, fly_campaign
+from .search import search
+from .space import SEARCH_DECADES, apply, search_space
+
+
+@dataclass(frozen=True)
+class TuneSettings:
+    """What ``quad-drake tune`` was asked for (CLI defaults)."""
+
+    objective: str = "both"
+    budget: int = 20  # candidates scored, the start included
+    train_seed: int = 1000  # first training seed; candidate campaigns use train_seed..+train_runs-1
+    train_runs: int = 10
+    holdout_seed: int = 0  # first held-out seed
+    holdout_runs: int = 50
+    jobs: int = 1
+    search_seed: int = 0  # seeds CMA-ES's sampler
+    holdout: bool = True  # fly the before/after comparison
+
+
+@dataclass
+class TuneProblem:
+    scenario: object  # ScenarioConfig as given (the start)
+    space: list  # [space.Parameter]
+    settings: TuneSettings
+
+
+@dataclass
+class TuneResult:
+    problem: TuneProblem
+    search: object  # search.SearchResult
+    tuned: object  # ScenarioConfig at the best candidate
+    search_time: float  # s
+    before: object = None  # CampaignResult on the held-out seeds (None: skipped or interrupted)
+    after: object = None
+    holdout_time: float = math.nan  # s
+    interrupted: bool = False
+    files: list = field(default_factory=list)
+
+
+def _check_count(value, option, minimum=1):
+    if value < minimum:
+        raise ConfigError(f"tune: {option} must be >= {minimum}, got {value}")
+
+
+def prepare(scenario, keys, settings):
+    """TuneProblem; ConfigError (one line) for any bad input, before any run flies."""
+    if settings.objective not in OBJECTIVES:
+        raise ConfigError(
+            f"tune: --objective must be one of {', '.join(OBJECTIVES)}, got {settings.objective!r}"
+        )
+    _check_count(settings.budget, "--budget")
+    _check_count(settings.train_runs, "--seeds")
+    _check_count(settings.holdout_runs, "--holdout")
+    _check_count(settings.jobs, "--jobs")
+    _check_count(settings.train_seed, "--seed", 0)
+    _check_count(settings.holdout_seed, "--holdout-seed", 0)
+    train = range(settings.train_seed, settings.train_seed + settings.train_runs)
+    held = range(settings.holdout_seed, settings.holdout_seed + settings.holdout_runs)
+    if settings.holdout and set(train) & set(held):
+        raise ConfigError(
+            f"tune: the held-out seeds {held.start}..{held.stop - 1} overlap the training seeds "
+            f"{train.start}..{train.stop - 1}; move --holdout-seed or --seed"
+        )
+    space = search_space(scenario, keys)
+    check_criteria(scenario, available_signals(scenario))
+    if settings.objective != "consistency":
+        try:
+            bounded = [accuracy_bound(scenario.vehicles[i]) for p in space for i, _ in p.targets]
+        except ValueError as e:
+            raise ConfigError(
+                f"tune: --objective {settings.objective} needs an accuracy bound ({e})"
+            ) from None
+        if not any(bounded):
+            raise ConfigError(f"tune: --objective {settings.objective} needs an accuracy bound (no GPS)")
+    return TuneProblem(scenario, space, settings)
+
+
+class _Progress:
+    """One tick per candidate: a tqdm bar on a terminal, else one plain line per candidate."""
+
+    def __init__(self, name, total, enabled, stream=None):
+        self.stream = stream or sys.stderr
+        self.name, self.total, self.start = name, total, time.perf_counter()
+        terminal = enabled and hasattr(self.stream, "isatty") and self.stream.isatty()
+        self.bar = (
+            tqdm(total=total, desc=f"tune {name}", unit="candidate", file=self.stream) if terminal else None
+        )
+        self.lines = enabled and not terminal
+
+    def update(self, evaluation, best):
+        text = f"loss {evaluation.score.loss:.4g}, best {best.score.loss:.4g}"
+        if self.bar is not None:
+            self.bar.set_postfix_str(text, refresh=False)
+            self.bar.update(1)
+        elif self.lines:
+            elapsed = time.perf_counter() - self.start
+            self.stream.write(
+                f"tune {self.name}: candidate {evaluation.index + 1}/{self.total}, {text}, {elapsed:.0f} s\n"
+            )
+            self.stream.flush()
+
+    def close(self):
+        if self.bar is not None:
+            self.bar.close()
+
+
+def _broken(error):
+    """Score of a candidate whose campaign broke down numerically (worse than any failing run)."""
+    return Score(2 * INFEASIBLE + 1.0, math.nan, math.nan, 0.0, {"broken": repr(error)})
+
+
+def tune(problem, out_dir, progress=True):
+    """TuneResult; writes the outputs into out_dir (:func:`.output.write`)."""
+    s, scenario, space = problem.settings, problem.scenario, problem.space
+    runner = campaign_runner(scenario, s.jobs)
+    target_runs = s.holdout_runs
+
+    def evaluate(x):
+        candidate = apply(scenario, space, x)
+        try:
+            campaign = fly_campaign(candidate, s.train_seed, s.train_runs, runner)
+        except RuntimeError as e:  # a run failed; only a numerical breakdown is the candidate's fault
+            if isinstance(e.__cause__, ArithmeticError):
+                return _broken(e.__cause__)
+            raise
+        return score(campaign, s.objective, target_runs)
+
+    bar = _Progress(scenario.name, s.budget, progress)
+    start = time.perf_counter()
+    try:
+        found = search(evaluate, len(space), s.budget, SEARCH_DECADES, s.search_seed, bar.update)
+    finally:
+        bar.close()
+    result = TuneResult(problem, found, None, time.perf_counter() - start, interrupted=found.interrupted)
+    if found.best is not None:
+        result.tuned = output.tuned_scenario(apply(scenario, space, found.best.x))
+    result.files = output.write_search(result, out_dir)
+    if result.interrupted or not s.holdout or found.best is None:
+        return result
+    start = time.perf_counter()
+    try:
+        result.before = fly_campaign(scenario, s.holdout_seed, s.holdout_runs, runner, progress)
+        result.after = fly_campaign(result.tuned, s.holdout_seed, s.holdout_runs, runner, progress)
+    except KeyboardInterrupt:
+        result.interrupted = True
+        result.before = result.after = None
+        return result
+    result.holdout_time = time.perf_counter() - start
+    result.files += output.write_holdout(result, out_dir)
+    return result
