@@ -4,12 +4,12 @@
 - :mod:`.objective` (pure): the loss of a candidate from its campaign's statistics;
 - :mod:`.search`: CMA-ES over the multipliers, deterministic for a seed and a budget;
 - :mod:`.scoring`: the one function that flies a candidate's campaign (and its runner);
-- :mod:`.tune`: checks, search, held-out before/after; :mod:`.output`: the files.
+- :mod:`.session`: checks, search, held-out before/after; :mod:`.output`: the files.
 """
 
 from .objective import OBJECTIVES, Score, score
+from .session import TuneResult, TuneSettings, prepare, tune
 from .space import DEFAULT_KEYS, Parameter, apply, search_space
-from .tune import TuneResult, TuneSettings, prepare, tune
 
 __all__ = [
     "DEFAULT_KEYS",
