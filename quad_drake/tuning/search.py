@@ -18,8 +18,9 @@ from dataclasses import dataclass, field
 import cma
 import numpy as np
 
-SIGMA0 = 0.3
-"""Initial CMA-ES step in log10 multipliers (a factor of 2 per parameter)."""
+SIGMA0 = 0.5
+"""Initial CMA-ES step in log10 multipliers (a factor of 3 per parameter): a quarter of the
+box's width (2 decades), as the ``cma`` documentation advises for sigma0."""
 
 
 @dataclass(frozen=True)
