@@ -100,9 +100,13 @@ def _write_plot(result, path):
     best = [min(losses[: i + 1]) for i in range(len(losses))]
     fig = Figure(figsize=(7, 3.6), layout="constrained")
     ax = fig.subplots()
-    ax.plot(range(len(losses)), losses, "o", ms=4, color="tab:blue", label="candidate")
+    for feasible, marker, label in ((True, "o", "candidate"), (False, "x", "candidate with a failed run")):
+        points = [(e.index, e.score.loss) for e in history if e.score.feasible == feasible]
+        if points:
+            ax.plot(*zip(*points, strict=True), marker, ms=5, color="tab:blue", label=label)
     ax.step(range(len(best)), best, where="post", color="tab:red", label="best so far")
-    ax.set_yscale("symlog", linthresh=0.1)
+    if min(losses) > 0 and max(losses) / min(losses) > 30:
+        ax.set_yscale("log")
     ax.set_xlabel("candidate (0 = the start)")
     ax.set_ylabel(f"loss ({result.problem.settings.objective}) [-]")
     ax.set_title(f"tune {result.problem.scenario.name}: loss over the training seeds", fontsize=10)
