@@ -265,7 +265,7 @@ def cmd_tune(args):
     history.csv, objective.png, tune.json, before_after.txt). Exit 0 when the tuned scenario
     passes every criterion in every held-out run and its held-out loss is not above the start's,
     1 otherwise; Ctrl-C keeps the best so far and exits 130."""
-    from .tuning import TuneSettings, prepare, tune
+    from .tuning import TuneSettings, prepare, tune, verdict
     from .tuning.output import before_after
 
     settings = TuneSettings(
@@ -302,27 +302,9 @@ def cmd_tune(args):
         return 0
     print(before_after(result), end="")
     print(f"held-out campaigns in {result.holdout_time:.1f} s")
-    stats = [_every_run_passed(result.after), _holdout_loss(result)]
-    if all(ok for ok, _ in stats):
-        print("PASS: " + "; ".join(text for _, text in stats))
-        return 0
-    print("FAIL: " + "; ".join(text for ok, text in stats if not ok))
-    return 1
-
-
-def _every_run_passed(campaign):
-    every = [r for r in campaign.criteria if r["criterion"] == "all criteria"]
-    passes, runs = (every[0]["passes"], every[0]["runs"]) if every else (campaign.runs, campaign.runs)
-    return passes == runs, f"tuned: every criterion passed in {passes} of {runs} held-out runs"
-
-
-def _holdout_loss(result):
-    from .tuning import score
-
-    objective = result.problem.settings.objective
-    before = score(result.before, objective, result.before.runs).loss
-    after = score(result.after, objective, result.after.runs).loss
-    return after <= before, f"held-out loss {after:.4g} (start {before:.4g})"
+    passed, line = verdict(result)
+    print(line)
+    return 0 if passed else 1
 
 
 def build_parser():

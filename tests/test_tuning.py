@@ -156,6 +156,27 @@ def test_objectives_and_the_penalty_for_a_failed_run():
         objective.score(_campaign(1.0), "speed", 10)
 
 
+def test_the_verdict_asks_every_held_out_run_to_pass_and_the_loss_not_to_rise():
+    def result(after_rate, after_nees):
+        settings = SimpleNamespace(objective="consistency")
+        return SimpleNamespace(
+            problem=SimpleNamespace(settings=settings),
+            before=_campaign(1.0, nees_mean=12.0),
+            after=_campaign(after_rate, nees_mean=after_nees),
+        )
+
+    start = objective.score(_campaign(1.0, nees_mean=12.0), "consistency", 10).loss
+    assert start > 1.0  # 12 is outside the 10-run band of a 7-dof NEES
+    assert session.verdict(result(1.0, 7.0)) == (
+        True,
+        f"PASS: tuned: every criterion passed in 10 of 10 held-out runs; held-out loss 0 (start {start:.4g})",
+    )
+    passed, line = session.verdict(result(0.9, 7.0))
+    assert not passed and line.startswith("FAIL: tuned: every criterion passed in 9 of 10")
+    passed, line = session.verdict(result(1.0, 20.0))  # every run passes, but less consistent
+    assert not passed and line.startswith("FAIL: held-out loss")
+
+
 # ----- search -----------------------------------------------------------------------------------
 
 

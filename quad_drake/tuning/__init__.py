@@ -8,7 +8,7 @@
 """
 
 from .objective import OBJECTIVES, Score, score
-from .session import TuneResult, TuneSettings, prepare, tune
+from .session import TuneResult, TuneSettings, prepare, tune, verdict
 from .space import DEFAULT_KEYS, Parameter, apply, search_space
 
 __all__ = [
@@ -23,4 +23,5 @@ __all__ = [
     "score",
     "search_space",
     "tune",
+    "verdict",
 ]

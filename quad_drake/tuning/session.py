@@ -20,7 +20,7 @@ from ..config import ConfigError
 from ..simulation import available_signals
 from ..verdicts import check_criteria
 from . import output
-from .objective import INFEASIBLE, OBJECTIVES, Score, score
+from .objective import INFEASIBLE, OBJECTIVES, Score, pass_rate, score
 from .scoring import campaign_runner, fly_campaign
 from .search import search
 from .space import SEARCH_DECADES, apply, search_space
@@ -128,9 +128,9 @@ class _Progress:
             self.bar.close()
 
 
-def _broken(error):
+def _broken():
     """Score of a candidate whose campaign broke down numerically (worse than any failing run)."""
-    return Score(2 * INFEASIBLE + 1.0, math.nan, math.nan, 0.0, {"broken": repr(error)})
+    return Score(2 * INFEASIBLE + 1.0, math.nan, math.nan, 0.0, {})
 
 
 def tune(problem, out_dir, progress=True):
@@ -145,7 +145,7 @@ def tune(problem, out_dir, progress=True):
             campaign = fly_campaign(candidate, s.train_seed, s.train_runs, runner)
         except RuntimeError as e:  # a run failed; only a numerical breakdown is the candidate's fault
             if isinstance(e.__cause__, ArithmeticError):
-                return _broken(e.__cause__)
+                return _broken()
             raise
         return score(campaign, s.objective, target_runs)
 
@@ -172,3 +172,21 @@ def tune(problem, out_dir, progress=True):
     result.holdout_time = time.perf_counter() - start
     result.files += output.write_holdout(result, out_dir)
     return result
+
+
+def verdict(result):
+    """(passed, the line that explains the exit code) of a TuneResult with held-out campaigns:
+    passed when the tuned scenario passes every criterion in every held-out run and its
+    held-out loss is not above the start's."""
+    objective = result.problem.settings.objective
+    rate = pass_rate(result.after.criteria)
+    runs = result.after.runs
+    before = score(result.before, objective, result.before.runs).loss
+    after = score(result.after, objective, runs).loss
+    checks = [
+        (rate == 1.0, f"tuned: every criterion passed in {round(rate * runs)} of {runs} held-out runs"),
+        (after <= before, f"held-out loss {after:.4g} (start {before:.4g})"),
+    ]
+    if all(ok for ok, _ in checks):
+        return True, "PASS: " + "; ".join(text for _, text in checks)
+    return False, "FAIL: " + "; ".join(text for ok, text in checks if not ok)
