@@ -1,0 +1,155 @@
+"""The README fault table: each fault scenario 12-18 with its mitigation on and off, by campaign.
+
+For every row of ROWS it runs a Monte Carlo campaign through the project's campaign API
+(``quad_drake.campaigns.run_campaign``; run i flies seed S + i, exactly as
+``quad-drake montecarlo <scenario> --runs N --seed S [--set ...]``), and rewrites the table
+between the README's ``<!-- fault-table -->`` markers. Pass rates carry a 95 % Wilson score
+interval. Each finished row is cached as JSON in ``--cache`` (keyed by scenario, overrides,
+runs and seed), so an interrupted table resumes where it stopped; ``--fresh`` ignores the cache.
+
+    nice -n 10 python benchmarks/fault_table.py --runs 50 --seed 100 --jobs 1
+"""
+
+import argparse
+import json
+import re
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+from scipy.stats import binomtest
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from quad_drake import campaigns, catalog  # noqa: E402
+
+BEGIN, END = "<!-- fault-table -->", "<!-- /fault-table -->"
+EKF7 = "vehicles.0.estimator={kind: ekf7}"
+
+
+@dataclass(frozen=True)
+class Row:
+    """One table row: a bundled scenario flown with `overrides` (``--set`` values), labelled."""
+
+    scenario: str
+    label: str
+    overrides: tuple = ()
+
+    @property
+    def key(self):
+        return re.sub(r"[^A-Za-z0-9]+", "_", f"{self.scenario} {' '.join(self.overrides)}").strip("_")
+
+
+ROWS = (
+    Row("12_gps_outage", "ESKF (bundled, 2 s outage)"),
+    Row("12_gps_outage", "EKF7", (EKF7,)),
+    Row("13_gps_outlier", "EKF7, 5σ gate (bundled)"),
+    Row("13_gps_outlier", "EKF7, gate off", ("vehicles.0.ekf.gps_gate_sigma=0",)),
+    Row("14_gps_delay", "ESKF + delay compensation (bundled)"),
+    Row("14_gps_delay", "ESKF, no compensation", ("vehicles.0.gps_delay_compensation=0",)),
+    Row("15_gps_step", "ESKF, 5σ gate (bundled, 2 s step)"),
+    Row("15_gps_step", "ESKF, gate off", ("vehicles.0.estimator={kind: eskf, gps_gate_sigma: 0}",)),
+    Row("16_mag_disturbance", "ESKF, 5σ gate (bundled)"),
+    Row("16_mag_disturbance", "ESKF, mag gate off", ("vehicles.0.estimator={kind: eskf, mag_gate_sigma: 0}",)),
+    Row("17_imu_bias", "ESKF, biases estimated (bundled)"),
+    Row("17_imu_bias", "EKF7", (EKF7,)),
+    Row("18_imu_dropout", "ESKF (bundled)"),
+    Row("18_imu_dropout", "EKF7", (EKF7,)),
+)
+"""Mitigation on (the bundled scenario) then off, per fault scenario."""
+
+HEADER = (
+    "| scenario | configuration | runs (seeds) | all criteria [95 % Wilson CI] | floor strikes (runs) "
+    "| max \\|Est.E.Pos\\| [m] | max PosFollowErr [m] | `--set` |\n"
+    "|---|---|---|---|---|---|---|---|"
+)
+
+
+def wilson(passes, runs):
+    """(low, high) 95 % Wilson score interval of a pass rate, in percent."""
+    ci = binomtest(passes, runs).proportion_ci(confidence_level=0.95, method="wilson")
+    return 100.0 * ci.low, 100.0 * ci.high
+
+
+def summarize(campaign):
+    """The row's figures from a CampaignResult: passes, floor strikes, worst errors, seeds."""
+    records = campaign.records
+    floor = sum(any(c["kind"] == "floor" and not c["passed"] for c in r.criteria) for r in records)
+
+    def worst(key):
+        return max(value["max"] for r in records for name, value in r.metrics.items() if name.endswith(key))
+
+    return {
+        "runs": campaign.runs,
+        "seeds": list(campaign.seeds),
+        "passes": sum(r.passed for r in records),
+        "floor_strikes": int(floor),
+        "max_est_pos": worst(".Est.E.Pos"),
+        "max_follow": worst(".PosFollowErr"),
+        "failed_seeds": [r.seed for r in records if not r.passed],
+    }
+
+
+def row_line(row, figures):
+    runs, passes = figures["runs"], figures["passes"]
+    low, high = wilson(passes, runs)
+    first, last = figures["seeds"]
+    sets = " ".join(f"--set '{o}'" if " " in o else f"--set {o}" for o in row.overrides)
+    return (
+        f"| {row.scenario} | {row.label} | {runs} ({first}–{last}) "
+        f"| {passes}/{runs} = {100 * passes / runs:.0f} % [{low:.0f}, {high:.0f}] "
+        f"| {figures['floor_strikes']} | {figures['max_est_pos']:.2f} | {figures['max_follow']:.2f} "
+        f"| {f'`{sets}`' if sets else ''} |"
+    )
+
+
+def table(rows_and_figures):
+    """The Markdown table (header and one line per (Row, figures))."""
+    return "\n".join([HEADER] + [row_line(row, figures) for row, figures in rows_and_figures])
+
+
+def replace_table(text, new_table):
+    """`text` with everything between the fault-table markers replaced by `new_table`."""
+    start, end = text.find(BEGIN), text.find(END)
+    if start < 0 or end < start:
+        raise ValueError(f"no {BEGIN} ... {END} block")
+    return text[: start + len(BEGIN)] + "\n" + new_table + "\n" + text[end:]
+
+
+def measure(row, runs, seed, runner):
+    scenario = catalog.load(row.scenario, None, list(row.overrides))
+    return summarize(campaigns.run_campaign(scenario, runs, runner=runner, seed=seed))
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--runs", type=int, default=50)
+    parser.add_argument("--seed", type=int, default=100, help="first seed S; run i flies S + i")
+    parser.add_argument("--jobs", type=int, default=1)
+    parser.add_argument("--readme", type=Path, default=ROOT / "README.md")
+    parser.add_argument("--cache", type=Path, default=ROOT / "out" / "fault_table")
+    parser.add_argument("--fresh", action="store_true", help="re-measure rows already in the cache")
+    parser.add_argument("--only", nargs="*", default=None, help="scenario names to measure (default: all)")
+    args = parser.parse_args(argv)
+    runner = campaigns.InProcessRunner() if args.jobs == 1 else campaigns.ProcessPoolRunner(args.jobs)
+    args.cache.mkdir(parents=True, exist_ok=True)
+    measured = {}
+    selected = [row for row in ROWS if args.only is None or row.scenario in args.only]
+    for row in sorted(selected, key=lambda row: not row.overrides):  # the "off" rows first
+        path = args.cache / f"{row.key}_n{args.runs}_s{args.seed}.json"
+        if path.exists() and not args.fresh:
+            figures = json.loads(path.read_text())
+        else:
+            figures = measure(row, args.runs, args.seed, runner)
+            path.write_text(json.dumps(figures, indent=1))
+        print(row_line(row, figures), flush=True)
+        measured[row] = figures
+    if args.only is None:
+        rows = [(row, measured[row]) for row in ROWS]
+        args.readme.write_text(replace_table(args.readme.read_text(), table(rows)))
+        print(f"rewrote the fault table in {args.readme}")
+
+
+if __name__ == "__main__":
+    main()
