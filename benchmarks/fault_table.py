@@ -51,7 +51,11 @@ ROWS = (
     Row("15_gps_step", "ESKF, 5σ gate (bundled, 2 s step)"),
     Row("15_gps_step", "ESKF, gate off", ("vehicles.0.estimator={kind: eskf, gps_gate_sigma: 0}",)),
     Row("16_mag_disturbance", "ESKF, 5σ gate (bundled)"),
-    Row("16_mag_disturbance", "ESKF, mag gate off", ("vehicles.0.estimator={kind: eskf, mag_gate_sigma: 0}",)),
+    Row(
+        "16_mag_disturbance",
+        "ESKF, mag gate off",
+        ("vehicles.0.estimator={kind: eskf, mag_gate_sigma: 0}",),
+    ),
     Row("17_imu_bias", "ESKF, biases estimated (bundled)"),
     Row("17_imu_bias", "EKF7", (EKF7,)),
     Row("18_imu_dropout", "ESKF (bundled)"),
