@@ -8,6 +8,9 @@ interval. Each finished row is cached as JSON in ``--cache`` (keyed by scenario,
 runs and seed), so an interrupted table resumes where it stopped; ``--fresh`` ignores the cache.
 
     nice -n 10 python benchmarks/fault_table.py --runs 50 --seed 100 --jobs 1
+
+``--check-seeds A B`` instead flies every bundled fault scenario (12-18, mitigation on) with
+its default seed and with seeds A..B (issue 11: 0-19), prints the failures and exits 1 if any.
 """
 
 import argparse
@@ -126,6 +129,19 @@ def measure(row, runs, seed, runner):
     return summarize(campaigns.run_campaign(scenario, runs, runner=runner, seed=seed))
 
 
+def check_seeds(first, last, runner):
+    """Failed (scenario, seed) pairs of every bundled fault scenario at its default seed and first..last."""
+    failures = []
+    for name in dict.fromkeys(row.scenario for row in ROWS):
+        scenario = catalog.load(name)
+        default = campaigns.run_campaign(scenario, 1, runner=runner, progress=False)
+        seeds = campaigns.run_campaign(scenario, last - first + 1, runner=runner, seed=first)
+        failed = [r.seed for r in default.records + seeds.records if not r.passed]
+        print(f"{name}: seed {scenario.seed} and {first}-{last}: failed {failed or 'none'}", flush=True)
+        failures += [(name, seed) for seed in failed]
+    return failures
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=50)
@@ -135,8 +151,11 @@ def main(argv=None):
     parser.add_argument("--cache", type=Path, default=ROOT / "out" / "fault_table")
     parser.add_argument("--fresh", action="store_true", help="re-measure rows already in the cache")
     parser.add_argument("--only", nargs="*", default=None, help="scenario names to measure (default: all)")
+    parser.add_argument("--check-seeds", nargs=2, type=int, metavar=("A", "B"), help="see the docstring")
     args = parser.parse_args(argv)
     runner = campaigns.InProcessRunner() if args.jobs == 1 else campaigns.ProcessPoolRunner(args.jobs)
+    if args.check_seeds:
+        sys.exit(1 if check_seeds(*args.check_seeds, runner) else 0)
     args.cache.mkdir(parents=True, exist_ok=True)
     measured = {}
     selected = [row for row in ROWS if args.only is None or row.scenario in args.only]
