@@ -176,3 +176,22 @@ def test_cascade_step_matches_scalar(fidelity, spread):
     ]
     close(forces, [r[0] for r in rows])
     close(new_integral, [r[1] for r in rows])
+
+
+def test_posterior_crbs_match_the_scalar_bound():
+    from quad_drake.accuracy_bound import posterior_crb
+    from quad_drake.config import SensorsConfig
+    from quad_drake.fleet.bounds import posterior_crbs
+
+    rng = np.random.default_rng(1206)
+    n, runs = 300, 4
+    states = np.stack([random_states(rng, n) for _ in range(runs)], axis=1)
+    states[:, :, 7:10] = np.cumsum(rng.normal(size=(n, runs, 3)) * 0.05, axis=0)  # smooth velocities
+    gps = rng.random((n, runs)) < 0.05
+    mag = rng.random((n, runs)) < 0.2
+    sensors = SensorsConfig(imu=ImuParams(), gps=GpsParams(), mag=MagParams())
+    batched = posterior_crbs(states, gps, mag, sensors)
+    for j in range(runs):
+        scalar = posterior_crb(states[:, j], gps[:, j], mag[:, j], sensors)
+        for name, values in scalar.items():
+            np.testing.assert_allclose(batched[name][:, j], values, rtol=1e-12, atol=0)

@@ -13,9 +13,14 @@ import dataclasses
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 from quad_drake.campaigns.records import summarize_run
+from quad_drake.estimation.vocabulary import vehicle_vocabulary
+from quad_drake.fleet.bounds import posterior_crbs
 from quad_drake.fleet.simulation import batch_bytes, run_fleet
 from quad_drake.results import result_from_logs
+from quad_drake.signals import stamp_fresh
 
 RUNNER = "drake-fleet"
 """What produced a fleet run (a run summary's ``runner``), as ``results.RUNNER`` for the per-vehicle path."""
@@ -60,12 +65,33 @@ def batch_logs(logs, j):
     }
 
 
+def _fresh(stamps):
+    """(n, N) bool of ``signals.stamp_fresh`` of (n, N) stamps."""
+    return np.stack([stamp_fresh(stamps[:, j]) for j in range(stamps.shape[1])], axis=1)
+
+
+def batch_bounds(scenario, logs):
+    """{vehicle: {state: (n, N) PCRB variance}} of the batch's vehicles whose runs
+    ``summarize_run`` gives a PCRB (an estimator and a GPS), computed for the N runs at once."""
+    bounds = {}
+    for vehicle in scenario.vehicles:
+        vehicle_logs = logs[vehicle.name]
+        if vehicle_vocabulary(vehicle) is None or "gps" not in vehicle_logs:
+            continue
+        gps = _fresh(vehicle_logs["gps"][:, :, -1])
+        mag = _fresh(vehicle_logs["mag"][:, :, -1]) if "mag" in vehicle_logs else np.zeros_like(gps)
+        bounds[vehicle.name] = posterior_crbs(vehicle_logs["state"], gps, mag, vehicle.sensors)
+    return bounds
+
+
 def simulate_batch(task):
     """Worker entry point: fly a FleetBatch; the RunRecord of each of its runs, by index."""
     times, logs, wall_time = run_fleet(task.scenario, task.seeds)
+    bounds = batch_bounds(task.scenario, logs)
     records = []
     for j, seed in enumerate(task.seeds):
         scenario = dataclasses.replace(task.scenario, seed=seed)
         result = result_from_logs(scenario, times, batch_logs(logs, j), wall_time / len(task.seeds), RUNNER)
-        records.append(summarize_run(result, task.first_index + j))
+        run_bounds = {v: {k: b[:, j] for k, b in states.items()} for v, states in bounds.items()}
+        records.append(summarize_run(result, task.first_index + j, run_bounds))
     return records

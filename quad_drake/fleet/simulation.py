@@ -14,9 +14,11 @@ import time
 import numpy as np
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
+from pydrake.systems.primitives import ConstantVectorSource
 
 from quad_drake import conventions as c
 from quad_drake.config import ConfigError
+from quad_drake.estimation.vocabulary import vehicle_vocabulary
 from quad_drake.fidelity import fidelity_from_mode
 from quad_drake.fleet.streams import GAUSSIAN, UNIFORM
 from quad_drake.fleet.systems import (
@@ -33,16 +35,28 @@ from quad_drake.simulation import initial_state, vehicle_log_widths
 from quad_drake.trajectories import trajectory_from_config
 
 
+def _estimator_builder():
+    """``fleet.estimators.build_fleet_estimator`` (CONTRACTS.md contract 2), or None before it exists."""
+    try:
+        from quad_drake.fleet.estimators import build_fleet_estimator
+    except ImportError:
+        return None
+    return build_fleet_estimator
+
+
 def unsupported_reason(scenario):
     """Why the fleet cannot fly `scenario` (one line), or None when it can."""
     for vehicle in scenario.vehicles:
-        if vehicle.sensors.imu is not None:
+        if vehicle.sensors.imu is not None and _estimator_builder() is None:
             return (
                 f"fleet mode cannot fly {scenario.name} yet: vehicle {vehicle.name} has an IMU and "
                 "its estimator has no fleet form (quad_drake.fleet.estimators); run without --fleet"
             )
-        if vehicle.faults:
-            return f"fleet mode cannot fly {scenario.name} yet: vehicle {vehicle.name} has sensor faults"
+        if vehicle.faults or vehicle.gps_delay_compensation > 0:
+            return (
+                f"fleet mode cannot fly {scenario.name} yet: vehicle {vehicle.name} has sensor faults "
+                "or GPS delay compensation; run without --fleet"
+            )
     return None
 
 
@@ -59,6 +73,13 @@ def _add_noise(builder, system, port, seeds, name, distribution=GAUSSIAN):
         f"{name}_source", FleetNoiseSource(seeds, name, system.noise_size, system.noise_period, distribution)
     )
     builder.Connect(source.GetOutputPort("noise"), system.GetInputPort(port))
+
+
+def _never_sampled(builder, size, n):
+    """N sensor outputs that never carry a sample (stamp = NO_SAMPLE_STAMP)."""
+    value = np.zeros((n, size))
+    value[:, -1] = c.NO_SAMPLE_STAMP
+    return builder.AddSystem(ConstantVectorSource(value.ravel())).get_output_port(0)
 
 
 def build_fleet_vehicle(vehicle, seeds, fidelity):
@@ -96,7 +117,17 @@ def build_fleet_vehicle(vehicle, seeds, fidelity):
             _add_noise(builder, sensor, "noise", seeds, f"{vehicle.name}/{kind}")
             builder.Connect(plant.GetOutputPort("state"), sensor.GetInputPort("state"))
             outputs[kind] = sensor.GetOutputPort(kind)
-    builder.Connect(plant.GetOutputPort("state"), controller.GetInputPort("state"))
+    state_for_control = plant.GetOutputPort("state")
+    if sensors.imu is not None:
+        estimator = builder.AddSystem(_estimator_builder()(vehicle, n, fidelity))
+        for name in vehicle_vocabulary(vehicle).log_widths():
+            outputs[name] = estimator.GetOutputPort(name)
+        for kind, size in (("imu", c.IMU_SIZE), ("gps", c.GPS_SIZE), ("mag", c.MAG_SIZE)):
+            port = outputs.get(kind) or _never_sampled(builder, size, n)
+            builder.Connect(port, estimator.GetInputPort(kind))
+        if not vehicle.use_ideal_estimator:
+            state_for_control = outputs["estimated_state"]
+    builder.Connect(state_for_control, controller.GetInputPort("state"))
 
     for name in vehicle_log_widths(vehicle):
         builder.ExportOutput(outputs[name], name)
