@@ -3,20 +3,29 @@
 Each function here is the array form of the scalar function it names (``dynamics``,
 ``sensor_models``, ``control.cascade``), which stays the reference implementation;
 ``tests/test_fleet_kernels.py`` checks every one against it on seeded random inputs to
-1e-12. Where a scalar helper is plain arithmetic it is called as is on rows of the
-transposed arrays (one kernel per concept); only the parts written with ``math`` or with
-branches are re-written here with numpy (``np.sqrt``, ``np.where``, ``np.clip``).
+1e-12. One kernel per concept: where a scalar helper is plain arithmetic it is called as
+is on rows of the transposed arrays; the rigid-body steps, the plant's hot spot, are the
+scalar functions' own code compiled by numba (``cache=True``: the JIT cost, about 2 s, is
+paid once per machine) and run per vehicle; the parts written with branches are re-written
+here with numpy (``np.where``, ``np.clip``).
 
 Shapes: ``state`` (N, 13) in the ``conventions`` layout (p_NB m NED, q_NB wxyz, v_NB m/s,
 w_NB_B rad/s); motor forces (N, 4) N; IMU samples (N, 6); references (N, 10). Parameters
 are the scalar dataclasses (one set for the whole fleet). Pure: no RNG, no pydrake.
 """
 
+import collections
+import dataclasses
+import types
+
+import numba
 import numpy as np
 
-from quad_drake.conventions import GRAVITY, SQRT2
-from quad_drake.dynamics import _coefficients, _rates, thrusts_from_wrench
-from quad_drake.fidelity import PHYSICAL
+from quad_drake import dynamics, rotations
+from quad_drake.config import ControllerParams
+from quad_drake.control import cascade
+from quad_drake.conventions import SQRT2
+from quad_drake.fidelity import PHYSICAL, Fidelity
 from quad_drake.rotations import euler_from_quats, wrap_angles
 from quad_drake.sensor_models import gps_measurement, reference_accelerometer, specific_force
 
@@ -47,87 +56,70 @@ def wrench_from_thrusts(forces, arm_length, kappa, com_offset=(0.0, 0.0)):
     )
 
 
+def _compiled(function, **callees):
+    """The scalar `function`'s own code compiled by numba (nopython, cached on disk), with the
+    module globals it calls replaced by their compiled forms `callees`."""
+    namespace = dict(function.__globals__, **callees)
+    return numba.njit(types.FunctionType(function.__code__, namespace, function.__name__), cache=True)
+
+
+_rates_compiled = _compiled(dynamics._rates)
+_coefficients_compiled = _compiled(dynamics._coefficients)
+_rk4_compiled = _compiled(
+    dynamics.rigid_body_step, _rates=_rates_compiled, _coefficients=_coefficients_compiled
+)
+_semi_implicit_compiled = _compiled(
+    dynamics.rigid_body_step_semi_implicit, _rates=_rates_compiled, _coefficients=_coefficients_compiled
+)
+
+
+@numba.njit(cache=True)
+def _body_steps(semi_implicit, state, thrust, mx, my, mz, mass, inertia, dt, new, accel):
+    """Per vehicle i, the scalar body step of state[i] into new[i], accel[i]."""
+    for i in range(state.shape[0]):
+        s = state[i]
+        x = (s[0], s[1], s[2], s[3], s[4], s[5], s[6], s[7], s[8], s[9], s[10], s[11], s[12])
+        moment = (mx[i], my[i], mz[i])
+        if semi_implicit:
+            out, a = _semi_implicit_compiled(x, thrust[i], moment, mass, inertia, dt)
+        else:
+            out, a = _rk4_compiled(x, thrust[i], moment, mass, inertia, dt)
+        for k in range(13):
+            new[i, k] = out[k]
+        accel[i, 0], accel[i, 1], accel[i, 2] = a
+
+
+def _body_step(semi_implicit, state, thrust, moment, mass, inertia, dt):
+    state = np.ascontiguousarray(state, dtype=float)
+    new, accel = np.empty_like(state), np.empty((state.shape[0], 3))
+    mx, my, mz = (np.ascontiguousarray(np.broadcast_to(m, thrust.shape), dtype=float) for m in moment)
+    inertia = (float(inertia[0]), float(inertia[1]), float(inertia[2]))
+    _body_steps(
+        semi_implicit,
+        state,
+        np.ascontiguousarray(thrust, dtype=float),
+        mx,
+        my,
+        mz,
+        float(mass),
+        inertia,
+        dt,
+        new,
+        accel,
+    )
+    return new, accel
+
+
 def rigid_body_step(state, thrust, moment, mass, inertia, dt):
-    """((N, 13), a_NB (N, 3)) of :func:`quad_drake.dynamics.rigid_body_step` (RK4)."""
-    px, py, pz, qw, qx, qy, qz, vx, vy, vz, wx, wy, wz = state.T
-    k = _coefficients(thrust, moment, mass, inertia)
-    h = 0.5 * dt
-    qw1, qx1, qy1, qz1, wx1, wy1, wz1, ax1, ay1, az1 = _rates(qw, qx, qy, qz, wx, wy, wz, *k)
-    qw2, qx2, qy2, qz2, wx2, wy2, wz2, ax2, ay2, az2 = _rates(
-        qw + h * qw1, qx + h * qx1, qy + h * qy1, qz + h * qz1, wx + h * wx1, wy + h * wy1, wz + h * wz1, *k
-    )
-    qw3, qx3, qy3, qz3, wx3, wy3, wz3, ax3, ay3, az3 = _rates(
-        qw + h * qw2, qx + h * qx2, qy + h * qy2, qz + h * qz2, wx + h * wx2, wy + h * wy2, wz + h * wz2, *k
-    )
-    qw4, qx4, qy4, qz4, wx4, wy4, wz4, ax4, ay4, az4 = _rates(
-        qw + dt * qw3,
-        qx + dt * qx3,
-        qy + dt * qy3,
-        qz + dt * qz3,
-        wx + dt * wx3,
-        wy + dt * wy3,
-        wz + dt * wz3,
-        *k,
-    )
-    d6 = dt / 6.0
-    qw = qw + d6 * (qw1 + 2.0 * (qw2 + qw3) + qw4)
-    qx = qx + d6 * (qx1 + 2.0 * (qx2 + qx3) + qx4)
-    qy = qy + d6 * (qy1 + 2.0 * (qy2 + qy3) + qy4)
-    qz = qz + d6 * (qz1 + 2.0 * (qz2 + qz3) + qz4)
-    n = 1.0 / np.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
-    ax = (ax1 + 2.0 * (ax2 + ax3) + ax4) / 6.0
-    ay = (ay1 + 2.0 * (ay2 + ay3) + ay4) / 6.0
-    az = (az1 + 2.0 * (az2 + az3) + az4) / 6.0
-    p2 = dt * d6
-    new = np.stack(
-        [
-            px + dt * vx + p2 * (ax1 + ax2 + ax3),
-            py + dt * vy + p2 * (ay1 + ay2 + ay3),
-            pz + dt * vz + p2 * (az1 + az2 + az3),
-            qw * n,
-            qx * n,
-            qy * n,
-            qz * n,
-            vx + dt * ax,
-            vy + dt * ay,
-            vz + dt * az,
-            wx + d6 * (wx1 + 2.0 * (wx2 + wx3) + wx4),
-            wy + d6 * (wy1 + 2.0 * (wy2 + wy3) + wy4),
-            wz + d6 * (wz1 + 2.0 * (wz2 + wz3) + wz4),
-        ],
-        axis=1,
-    )
-    return new, np.stack([ax, ay, az], axis=1)
+    """((N, 13), a_NB (N, 3)) of :func:`quad_drake.dynamics.rigid_body_step` (RK4): the scalar
+    function's code compiled by numba, run per vehicle."""
+    return _body_step(False, state, thrust, moment, mass, inertia, dt)
 
 
 def rigid_body_step_semi_implicit(state, thrust, moment, mass, inertia, dt):
-    """((N, 13), a_NB (N, 3)) of :func:`quad_drake.dynamics.rigid_body_step_semi_implicit`."""
-    px, py, pz, qw, qx, qy, qz, vx, vy, vz, wx, wy, wz = state.T
-    qdw, qdx, qdy, qdz, wdx, wdy, wdz, ax, ay, az = _rates(
-        qw, qx, qy, qz, wx, wy, wz, *_coefficients(thrust, moment, mass, inertia)
-    )
-    vx, vy, vz = vx + dt * ax, vy + dt * ay, vz + dt * az
-    qw, qx, qy, qz = qw + dt * qdw, qx + dt * qdx, qy + dt * qdy, qz + dt * qdz
-    n = 1.0 / np.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
-    new = np.stack(
-        [
-            px + dt * vx,
-            py + dt * vy,
-            pz + dt * vz,
-            qw * n,
-            qx * n,
-            qy * n,
-            qz * n,
-            vx,
-            vy,
-            vz,
-            wx + dt * wdx,
-            wy + dt * wdy,
-            wz + dt * wdz,
-        ],
-        axis=1,
-    )
-    return new, np.stack([ax, ay, az], axis=1)
+    """((N, 13), a_NB (N, 3)) of :func:`quad_drake.dynamics.rigid_body_step_semi_implicit`
+    (compiled as :func:`rigid_body_step`)."""
+    return _body_step(True, state, thrust, moment, mass, inertia, dt)
 
 
 def apply_room_constraints(state_new, state_old, params):
@@ -220,66 +212,72 @@ def magnetometer_yaws(q_NB, noise, params):
 # ----- cascade controller -----------------------------------------------------
 
 
+_wrap_compiled = _compiled(rotations.wrap_to_pi)
+_thrusts_compiled = _compiled(dynamics.thrusts_from_wrench)
+_cascade_compiled = _compiled(
+    cascade.cascade_step,
+    altitude_control=_compiled(cascade.altitude_control),
+    clamp_collective_thrust=_compiled(
+        cascade.clamp_collective_thrust, collective_thrust_limits=_compiled(cascade.collective_thrust_limits)
+    ),
+    lateral_position_control=_compiled(cascade.lateral_position_control),
+    _roll_pitch=_compiled(cascade._roll_pitch),
+    yaw_control=_compiled(cascade.yaw_control, wrap_to_pi=_wrap_compiled),
+    body_rate_control=_compiled(cascade.body_rate_control),
+    thrusts_from_wrench=_thrusts_compiled,
+)
+
+
+@numba.njit(cache=True)
+def _cascade_steps(state, reference, integral, dt, params, fidelity, forces, new_integral):
+    """Per vehicle i, the scalar cascade step of state[i], reference[i], integral[i]."""
+    for i in range(state.shape[0]):
+        s, r = state[i], reference[i]
+        x = (s[0], s[1], s[2], s[3], s[4], s[5], s[6], s[7], s[8], s[9], s[10], s[11], s[12])
+        ref = (r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8], r[9])
+        out, new_integral[i] = _cascade_compiled(x, ref, integral[i], dt, params, fidelity)
+        forces[i, 0], forces[i, 1], forces[i, 2], forces[i, 3] = out
+
+
+ControllerTuple = collections.namedtuple(
+    "ControllerTuple", [f.name for f in dataclasses.fields(ControllerParams)]
+)
+FidelityTuple = collections.namedtuple("FidelityTuple", [f.name for f in dataclasses.fields(Fidelity)])
+_FROZEN = {ControllerParams: ControllerTuple, Fidelity: FidelityTuple}
+
+
+def _plain(value):
+    if isinstance(value, bool):
+        return value
+    if isinstance(value, (list, tuple)):
+        return tuple(float(v) for v in value)
+    return float(value)
+
+
+def frozen(params):
+    """The ControllerParams or Fidelity `params` as a module-level namedtuple (numbers as floats,
+    lists as tuples of floats): what the compiled scalar functions read, typed the same for
+    every config so that numba's on-disk cache is reused."""
+    return _FROZEN[type(params)](*(_plain(getattr(params, f.name)) for f in dataclasses.fields(params)))
+
+
 def cascade_step(state, reference, integral, dt, params, fidelity=PHYSICAL):
     """(forces (N, 4), integral (N,)) of :func:`quad_drake.control.cascade.cascade_step`;
-    state (N, 13), reference (N, 10), integral (N,) m s."""
-    px, py, pz, qw, qx, qy, qz, vx, vy, vz, wx, wy, wz = state.T
-    rx, ry, rz, rvx, rvy, rvz, rax, ray, raz, yaw_ref = reference.T
-    s = 2.0 / (qw * qw + qx * qx + qy * qy + qz * qz)
-    R00 = 1.0 - s * (qy * qy + qz * qz)
-    R01 = s * (qx * qy - qw * qz)
-    R02 = s * (qx * qz + qw * qy)
-    R10 = s * (qx * qy + qw * qz)
-    R11 = 1.0 - s * (qx * qx + qz * qz)
-    R12 = s * (qy * qz - qw * qx)
-    R22 = 1.0 - s * (qx * qx + qy * qy)
-    yaw = np.arctan2(R10, R00)
-
-    # altitude_control, then clamp_collective_thrust
-    error = rz - pz
-    integral = integral + error * dt
-    vz_cmd = np.minimum(
-        np.maximum(rvz + params.kp_pos_z * error, -params.max_ascent_rate), params.max_descent_rate
+    state (N, 13), reference (N, 10), integral (N,) m s: the scalar function's code compiled
+    by numba, run per vehicle. params, fidelity: ControllerParams and Fidelity, or their
+    :func:`frozen` forms (faster)."""
+    params = frozen(params) if dataclasses.is_dataclass(params) else params
+    fidelity = frozen(fidelity) if dataclasses.is_dataclass(fidelity) else fidelity
+    n = state.shape[0]
+    forces, new_integral = np.empty((n, 4)), np.empty(n)
+    _cascade_steps(
+        np.ascontiguousarray(state, dtype=float),
+        np.ascontiguousarray(reference, dtype=float),
+        np.ascontiguousarray(integral, dtype=float),
+        float(dt),
+        params,
+        fidelity,
+        forces,
+        new_integral,
     )
-    az = params.kp_vel_z * (vz_cmd - vz) + params.ki_pos_z * integral + raz - GRAVITY
-    thrust = -az * params.mass / R22
-    margin = 0.1 * (params.max_motor_thrust - params.min_motor_thrust)
-    low, high = 4.0 * (params.min_motor_thrust + margin), 4.0 * (params.max_motor_thrust - margin)
-    thrust = np.minimum(np.maximum(thrust, low), high)
-
-    # lateral_position_control
-    cvx = rvx + params.kp_pos_xy * (rx - px)
-    cvy = rvy + params.kp_pos_xy * (ry - py)
-    speed = np.hypot(cvx, cvy)
-    fast = speed > params.max_speed_xy
-    scale = np.where(fast, params.max_speed_xy / np.where(fast, speed, 1.0), 1.0)
-    cvx, cvy = np.where(fast, cvx * scale, cvx), np.where(fast, cvy * scale, cvy)
-    ax = rax + params.kp_vel_xy * (cvx - vx)
-    ay = ray + params.kp_vel_xy * (cvy - vy)
-    if fidelity.lateral_limit_3d:
-        accel = np.sqrt(ax * ax + ay * ay + (params.kp_vel_xy * vz) ** 2)
-    else:
-        accel = np.hypot(ax, ay)
-    limited = accel > params.max_horiz_accel
-    scale = np.where(limited, params.max_horiz_accel / np.where(limited, accel, 1.0), 1.0)
-    ax, ay = np.where(limited, ax * scale, ax), np.where(limited, ay * scale, ay)
-
-    # _roll_pitch
-    c = thrust / params.mass
-    tilt = params.max_tilt
-    positive = thrust > 0.0
-    bx = np.where(positive, -np.minimum(np.maximum(ax / c, -tilt), tilt), 0.0)
-    by = np.where(positive, -np.minimum(np.maximum(ay / c, -tilt), tilt), 0.0)
-    bx_dot = params.kp_bank * (bx - R02)
-    by_dot = params.kp_bank * (by - R12)
-    p_cmd = (R10 * bx_dot - R00 * by_dot) / R22
-    q_cmd = (R11 * bx_dot - R01 * by_dot) / R22
-    r_cmd = params.kp_yaw * wrap_angles(yaw_ref - yaw)
-
-    # body_rate_control
-    inertia, gain = params.inertia, params.kp_pqr
-    mx = inertia[0] * gain[0] * (p_cmd - wx)
-    my = inertia[1] * gain[1] * (q_cmd - wy)
-    mz = inertia[2] * gain[2] * (r_cmd - wz)
-    forces = thrusts_from_wrench(thrust, mx, my, mz, params.arm_length, params.kappa)
-    return np.stack(forces, axis=1), integral
+    return forces, new_integral

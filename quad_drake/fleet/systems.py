@@ -240,7 +240,7 @@ class FleetController(LeafSystem):
 
     def __init__(self, params, n, fidelity=PHYSICAL):
         super().__init__()
-        self._params, self._fidelity, self._n = copy.deepcopy(params), fidelity, n
+        self._params, self._fidelity, self._n = kernels.frozen(params), kernels.frozen(fidelity), n
         self._read_state = _reader(self.DeclareVectorInputPort("state", n * STATE_SIZE), n, STATE_SIZE)
         self._read_reference = _reader(
             self.DeclareVectorInputPort("reference", n * REFERENCE_SIZE), n, REFERENCE_SIZE
@@ -251,15 +251,14 @@ class FleetController(LeafSystem):
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, CONTROLLER_OFFSET, self._update)
 
     def _update(self, context, discrete_state):
-        with np.errstate(divide="ignore", invalid="ignore"):  # a diverged vehicle: NaN, as the scalar path
-            forces, integral = kernels.cascade_step(
-                self._read_state(context),
-                self._read_reference(context),
-                discrete_state.value(self._integral),
-                ONBOARD_PERIOD,
-                self._params,
-                self._fidelity,
-            )
+        forces, integral = kernels.cascade_step(
+            self._read_state(context),
+            self._read_reference(context),
+            discrete_state.value(self._integral),
+            ONBOARD_PERIOD,
+            self._params,
+            self._fidelity,
+        )
         discrete_state.set_value(self._integral, integral)
         discrete_state.set_value(self._thrusts, forces.ravel())
 
