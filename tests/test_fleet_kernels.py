@@ -15,6 +15,9 @@ from quad_drake.fleet import kernels
 
 N = 200
 TOL = 1e-12
+RTOL_BOUND = (
+    1e-12  # relative: the bound is propagated in covariance form (measured 1.4e-14 over 2000 samples)
+)
 FIDELITIES = pytest.mark.parametrize("fidelity", [PHYSICAL, REFERENCE], ids=["physical", "reference"])
 
 
@@ -184,7 +187,7 @@ def test_posterior_crbs_match_the_scalar_bound():
     from quad_drake.fleet.bounds import posterior_crbs
 
     rng = np.random.default_rng(1206)
-    n, runs = 300, 4
+    n, runs = 1000, 4
     states = np.stack([random_states(rng, n) for _ in range(runs)], axis=1)
     states[:, :, 7:10] = np.cumsum(rng.normal(size=(n, runs, 3)) * 0.05, axis=0)  # smooth velocities
     gps = rng.random((n, runs)) < 0.05
@@ -194,4 +197,4 @@ def test_posterior_crbs_match_the_scalar_bound():
     for j in range(runs):
         scalar = posterior_crb(states[:, j], gps[:, j], mag[:, j], sensors)
         for name, values in scalar.items():
-            np.testing.assert_allclose(batched[name][:, j], values, rtol=1e-12, atol=0)
+            np.testing.assert_allclose(batched[name][:, j], values, rtol=RTOL_BOUND, atol=0)
