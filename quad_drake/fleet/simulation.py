@@ -19,6 +19,7 @@ from pydrake.systems.primitives import ConstantVectorSource
 from quad_drake import conventions as c
 from quad_drake.config import ConfigError
 from quad_drake.estimation.vocabulary import vehicle_vocabulary
+from quad_drake.faults import gps_delay_of, sensor_of
 from quad_drake.fidelity import fidelity_from_mode
 from quad_drake.fleet.streams import GAUSSIAN, UNIFORM
 from quad_drake.fleet.systems import (
@@ -28,10 +29,11 @@ from quad_drake.fleet.systems import (
     FleetMagnetometer,
     FleetNoiseSource,
     FleetPlant,
+    FleetSensorFaults,
     FleetTrajectory,
 )
 from quad_drake.sensor_models import imu_has_bias_walk
-from quad_drake.simulation import initial_state, vehicle_log_widths
+from quad_drake.simulation import initial_state, sensor_schedule, vehicle_log_widths
 from quad_drake.trajectories import trajectory_from_config
 
 
@@ -52,10 +54,10 @@ def unsupported_reason(scenario):
                 f"fleet mode cannot fly {scenario.name} yet: vehicle {vehicle.name} has an IMU and "
                 "its estimator has no fleet form (quad_drake.fleet.estimators); run without --fleet"
             )
-        if vehicle.faults or vehicle.gps_delay_compensation > 0:
+        if gps_delay_of(vehicle.faults) > 0 or vehicle.gps_delay_compensation > 0:
             return (
-                f"fleet mode cannot fly {scenario.name} yet: vehicle {vehicle.name} has sensor faults "
-                "or GPS delay compensation; run without --fleet"
+                f"fleet mode cannot fly {scenario.name} yet: vehicle {vehicle.name} has a gps_delay "
+                "fault or GPS delay compensation; run without --fleet"
             )
     return None
 
@@ -80,6 +82,18 @@ def _never_sampled(builder, size, n):
     value = np.zeros((n, size))
     value[:, -1] = c.NO_SAMPLE_STAMP
     return builder.AddSystem(ConstantVectorSource(value.ravel())).get_output_port(0)
+
+
+def _add_faults(builder, vehicle, outputs, n):
+    """A FleetSensorFaults between each faulted sensor and its consumers (``simulation._add_faults``)."""
+    for sensor in sorted({sensor_of(f.kind) for f in vehicle.faults}):
+        period, first_sample = sensor_schedule(vehicle, sensor)
+        size = outputs[sensor].size() // n
+        system = builder.AddNamedSystem(
+            f"{sensor}_faults", FleetSensorFaults(sensor, size, vehicle.faults, period, first_sample, n)
+        )
+        builder.Connect(outputs[sensor], system.GetInputPort(sensor))
+        outputs[sensor] = system.GetOutputPort(sensor)
 
 
 def build_fleet_vehicle(vehicle, seeds, fidelity):
@@ -117,6 +131,7 @@ def build_fleet_vehicle(vehicle, seeds, fidelity):
             _add_noise(builder, sensor, "noise", seeds, f"{vehicle.name}/{kind}")
             builder.Connect(plant.GetOutputPort("state"), sensor.GetInputPort("state"))
             outputs[kind] = sensor.GetOutputPort(kind)
+    _add_faults(builder, vehicle, outputs, n)
     state_for_control = plant.GetOutputPort("state")
     if sensors.imu is not None:
         estimator = builder.AddSystem(_estimator_builder()(vehicle, n, fidelity))

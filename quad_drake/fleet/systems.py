@@ -14,9 +14,10 @@ import copy
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
-from quad_drake import sensor_models
+from quad_drake import faults, sensor_models
 from quad_drake.conventions import (
     CONTROLLER_OFFSET,
+    FAULT_LAG,
     GPS_SIZE,
     GRAVITY,
     IMU_SIZE,
@@ -277,3 +278,39 @@ class FleetTrajectory(LeafSystem):
     def _calc(self, context, output):
         sample = self._trajectory.sample(lookup_time(context.get_time(), self._fidelity))
         output.SetFromVector(np.tile(sample, self._n))
+
+
+class FleetSensorFaults(LeafSystem):
+    """N :class:`~quad_drake.systems.faults.SensorFaults` of one sensor without a gps_delay:
+    input and output ``<sensor>`` (N size), firing at first_sample + FAULT_LAG + k period.
+
+    The faults are the scalar ``faults.apply_faults`` run once on the sample's columns (each
+    entry an (N,) array, the stamp a float): a fault's decision depends only on the
+    measurement time, which every vehicle of a fleet shares (its sensors sample together).
+    """
+
+    def __init__(self, sensor, size, fault_list, period, first_sample, n):
+        super().__init__()
+        self._faults = faults.sample_faults(fault_list, sensor)
+        self._stamped = faults.STAMPED[sensor]
+        self._period, self._first_sample = float(period), float(first_sample)
+        self._n, self._size = n, size
+        self._read = _reader(self.DeclareVectorInputPort(sensor, n * size), n, size)
+        initial = np.zeros((n, size))
+        if self._stamped:
+            initial[:, -1] = NO_SAMPLE_STAMP
+        self._output = _discrete(self, initial.ravel(), sensor)
+        self.DeclarePeriodicDiscreteUpdateEvent(self._period, self._first_sample + FAULT_LAG, self._sample)
+
+    def _sample(self, context, discrete_state):
+        sample = self._read(context)
+        columns = list(sample.T)
+        if self._stamped:
+            time = columns[-1] = float(sample[0, -1])
+        else:
+            ticks = round((context.get_time() - FAULT_LAG - self._first_sample) / self._period)
+            time = self._first_sample + ticks * self._period
+        out = faults.apply_faults(self._faults, columns, time, self._period)
+        discrete_state.set_value(
+            self._output, np.column_stack([np.broadcast_to(c, (self._n,)) for c in out]).ravel()
+        )
