@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 from pydrake.systems.analysis import Simulator
-from pydrake.systems.framework import DiagramBuilder, LeafSystem
+from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import ConstantVectorSource
 
 from quad_drake import conventions as c
@@ -167,6 +167,11 @@ class FleetRecorder(LeafSystem):
         self._samples = samples
         self.DeclarePeriodicPublishEvent(c.LOG_PERIOD, 0.0, self._record)
 
+    def release_memory(self):
+        """Hand over the logs and drop every reference to them (see FleetNoiseSource.release_memory)."""
+        logs, self.logs, self._inputs = self.logs, None, []
+        return logs
+
     def _record(self, context):
         k = int(round(context.get_time() / c.LOG_PERIOD))
         if 1 <= k <= self._samples:
@@ -201,6 +206,17 @@ def batch_bytes(scenario, n):
     return samples * n * width * 8
 
 
+def _release_memory(diagram):
+    """Call ``release_memory()`` of every fleet system in `diagram` but the recorder: pydrake
+    never frees a Diagram of Python systems, so a batch's large arrays must be dropped by hand
+    (without it a campaign's workers grow by a batch's logs per batch)."""
+    for system in diagram.GetSystems():
+        if isinstance(system, Diagram):
+            _release_memory(system)
+        elif hasattr(system, "release_memory") and not isinstance(system, FleetRecorder):
+            system.release_memory()
+
+
 def run_fleet(scenario, seeds):
     """(times (samples,), {vehicle: {log name: (samples, N, width)}}, wall time s) of `scenario`
     flown by the runs with seeds `seeds` (N,) for end_time s."""
@@ -210,8 +226,10 @@ def run_fleet(scenario, seeds):
     simulator.Initialize()
     simulator.AdvanceTo(scenario.end_time)
     wall_time = time.perf_counter() - start
-    samples = next(iter(recorder.logs.values())).shape[0]
+    _release_memory(diagram)
+    recorded = recorder.release_memory()
+    samples = next(iter(recorded.values())).shape[0]
     logs = {vehicle.name: {} for vehicle in scenario.vehicles}
-    for (vehicle, name), data in recorder.logs.items():
+    for (vehicle, name), data in recorded.items():
         logs[vehicle][name] = data
     return c.LOG_PERIOD * np.arange(1, samples + 1), logs, wall_time

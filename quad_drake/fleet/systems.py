@@ -67,6 +67,11 @@ class FleetNoiseSource(LeafSystem):
         _discrete(self, self._n * self._size, "noise")
         self.DeclarePeriodicUnrestrictedUpdateEvent(self.period, 0.0, self._draw)
 
+    def release_memory(self):
+        """Drop the block in hand (a Python system in a Diagram is never garbage-collected:
+        pydrake's C++ side keeps it alive)."""
+        self._block, self._block_index = None, -1
+
     def _draw(self, context, state):
         k = int(round(context.get_time() / self.period))
         block, row = divmod(k, self._per_block)
