@@ -48,6 +48,7 @@ def test_fleet_and_per_vehicle_campaigns_agree(name, runs):
     single = run_campaign(scenario, runs, runner=ProcessPoolRunner(2), seed=SEED, progress=False)
     assert [row["criterion"] for row in fleet.criteria] == [row["criterion"] for row in single.criteria]
     for a, b in zip(fleet.criteria, single.criteria, strict=True):
+        print(f"{name} {a['criterion']}: fleet {a['passes']}/{runs}, per-vehicle {b['passes']}/{runs}")
         assert b["ci95"][0] <= a["rate"] <= b["ci95"][1], (a, b)
         assert a["ci95"][0] <= b["rate"] <= a["ci95"][1], (a, b)
     rng = np.random.default_rng(SEED)
@@ -56,4 +57,5 @@ def test_fleet_and_per_vehicle_campaigns_agree(name, runs):
         assert len(f) == len(s) == runs
         difference = statistic(np.asarray(f)) - statistic(np.asarray(s))
         se = bootstrap_se(f, s, statistic, rng)
+        print(f"{name} {key}: fleet {statistic(f):.4g}, per-vehicle {statistic(s):.4g}, SE {se:.2g}")
         assert abs(difference) <= MAX_STANDARD_ERRORS * se, (key, difference, se)
