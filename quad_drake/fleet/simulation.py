@@ -165,6 +165,7 @@ class FleetRecorder(LeafSystem):
             self.logs[key] = np.full((samples, n, width), np.nan)
             self._inputs.append((port.Eval, self.logs[key], n, width))
         self._samples = samples
+        self.recorded = 0  # samples kept so far (the last one falls past end_time when rounding says so)
         self.DeclarePeriodicPublishEvent(c.LOG_PERIOD, 0.0, self._record)
 
     def release_memory(self):
@@ -175,6 +176,7 @@ class FleetRecorder(LeafSystem):
     def _record(self, context):
         k = int(round(context.get_time() / c.LOG_PERIOD))
         if 1 <= k <= self._samples:
+            self.recorded = max(self.recorded, k)
             for evaluate, log, n, width in self._inputs:
                 log[k - 1] = evaluate(context).reshape(n, width)
 
@@ -228,8 +230,8 @@ def run_fleet(scenario, seeds):
     wall_time = time.perf_counter() - start
     _release_memory(diagram)
     recorded = recorder.release_memory()
-    samples = next(iter(recorded.values())).shape[0]
+    samples = recorder.recorded
     logs = {vehicle.name: {} for vehicle in scenario.vehicles}
     for (vehicle, name), data in recorded.items():
-        logs[vehicle][name] = data
+        logs[vehicle][name] = data[:samples]
     return c.LOG_PERIOD * np.arange(1, samples + 1), logs, wall_time
