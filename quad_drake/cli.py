@@ -155,6 +155,12 @@ def _add_montecarlo_arguments(parser):
         metavar="ADDRESS",
         help="run on a Dask cluster, e.g. tcp://host:8786 (the 'cluster' extra)",
     )
+    parser.add_argument(
+        "--fleet", action="store_true", help="fly the runs in fleet batches (README 'Fleet mode')"
+    )
+    parser.add_argument(
+        "--batch", type=int, metavar="B", help="with --fleet: runs per batch (default: by memory, <= 1000)"
+    )
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     parser.add_argument("--quiet", action="store_true", help="no progress output")
     return parser
@@ -219,6 +225,19 @@ def _campaign_runner(args):
     return InProcessRunner() if args.jobs == 1 else ProcessPoolRunner(args.jobs)
 
 
+def _fleet_batch(args, scenario):
+    """Runs per fleet batch of ``--fleet [--batch B]`` (None without --fleet)."""
+    if args.batch is not None and not args.fleet:
+        raise ConfigError("montecarlo: --batch needs --fleet")
+    if not args.fleet:
+        return None
+    if args.batch is not None:
+        return args.batch
+    from .fleet.runner import default_batch_size
+
+    return default_batch_size(scenario, args.runs, 1 if args.scheduler else args.jobs)
+
+
 def cmd_montecarlo(args):
     """Run a campaign, print its table, save OUT/NAME_montecarlo/ and refresh OUT/index.html.
 
@@ -234,7 +253,11 @@ def cmd_montecarlo(args):
     out_dir = check_output_dir(args.out) / f"{scenario.name}_montecarlo"
     try:
         campaign = campaigns.run_campaign(
-            scenario, args.runs, runner=_campaign_runner(args), progress=not args.quiet
+            scenario,
+            args.runs,
+            runner=_campaign_runner(args),
+            progress=not args.quiet,
+            fleet_batch=_fleet_batch(args, scenario),
         )
     except campaigns.CampaignInterrupted as interrupted:
         partial = interrupted.campaign

@@ -117,7 +117,7 @@ def apply_faults(faults, sample, time, period):
     the sensor's samples. A removed sample stays removed (later faults do not act on it).
     """
     for fault in faults:
-        if sample[-1] == NO_SAMPLE_STAMP and STAMPED[sensor_of(fault.kind)]:
+        if STAMPED[sensor_of(fault.kind)] and sample[-1] == NO_SAMPLE_STAMP:
             break
         sample = SAMPLE_FAULTS[fault.kind](sample, time, fault, period)
     return sample

@@ -2,6 +2,8 @@
 
 Run i uses seed S + i, so any run reproduces alone with ``quad-drake run NAME --seed S+i``.
 Records are ordered by run index, so the statistics do not depend on the runner.
+With ``fleet_batch`` the runner's tasks are fleet batches (``quad_drake.fleet.runner``):
+B runs flown at once, each sending back its B records.
 """
 
 import dataclasses
@@ -60,10 +62,22 @@ class Progress:
             self.bar.close()
 
 
-def run_campaign(scenario, runs, runner=None, seed=None, progress=True):
+def _fleet_tasks(scenario, runs, first, batch):
+    """(tasks, worker function, runner label) of a fleet campaign of `batch` runs per task."""
+    from ..fleet.runner import batches, simulate_batch
+    from ..fleet.simulation import check_supported
+
+    if batch < 1:
+        raise ConfigError(f"montecarlo: --batch must be >= 1, got {batch}")
+    check_supported(scenario)
+    return batches(scenario, runs, first, batch), simulate_batch, f"fleet (batch {batch})"
+
+
+def run_campaign(scenario, runs, runner=None, seed=None, progress=True, fleet_batch=None):
     """CampaignResult of `runs` runs of a ScenarioConfig, run i with seed (seed or scenario.seed) + i.
 
     runner: a :class:`~quad_drake.campaigns.runners.Runner` (default: in this process).
+    fleet_batch: None (one Drake Diagram per run) or B, the runs each fleet task flies at once.
     progress: report progress on stderr. A failing run raises RuntimeError naming its seed;
     Ctrl-C raises :class:`CampaignInterrupted` holding the finished runs.
     """
@@ -75,24 +89,31 @@ def run_campaign(scenario, runs, runner=None, seed=None, progress=True):
         raise ConfigError(f"montecarlo: --seed must be >= 0, got {first}")
     check_criteria(scenario, available_signals(scenario))
     scenario = dataclasses.replace(scenario, seed=first)
-    tasks = [RunTask(scenario, i, first + i) for i in range(runs)]
+    if fleet_batch is None:
+        tasks, worker, label = [RunTask(scenario, i, first + i) for i in range(runs)], simulate_run, None
+    else:
+        tasks, worker, label = _fleet_tasks(scenario, runs, first, fleet_batch)
+    runner_name = runner.name if label is None else f"{label} on {runner.name}"
     records = {}
     bar = Progress(scenario.name, runs, progress)
     start = time.perf_counter()
 
     def campaign():
         ordered = [records[i] for i in sorted(records)]
-        return CampaignResult(scenario, ordered, time.perf_counter() - start, runner.name, planned=runs)
+        return CampaignResult(scenario, ordered, time.perf_counter() - start, runner_name, planned=runs)
 
     try:
-        for index, record in runner.map(simulate_run, tasks):
-            records[index] = record
-            bar.update(record)
+        for _, result in runner.map(worker, tasks):
+            for record in result if label else [result]:
+                records[record.index] = record
+                bar.update(record)
     except TaskFailed as e:
-        seed_i = tasks[e.index].seed
+        task = tasks[e.index]
+        seeds = [task.seed] if label is None else task.seeds
+        span = f"seed {seeds[0]}" if len(seeds) == 1 else f"seeds {seeds[0]}..{seeds[-1]}"
         raise RuntimeError(
-            f"run {e.index} (seed {seed_i}) failed: {e.error!r}; reproduce with "
-            f"quad-drake run {scenario.name} --seed {seed_i}"
+            f"{'run' if label is None else 'fleet batch'} {e.index} ({span}) failed: {e.error!r}; "
+            f"reproduce with quad-drake run {scenario.name} --seed {seeds[0]}"
         ) from e.error
     except KeyboardInterrupt:
         raise CampaignInterrupted(campaign()) from None

@@ -79,8 +79,12 @@ class RunTask:
     seed: int
 
 
-def summarize_run(result, index):
-    """RunRecord of a SimulationResult (pure: reads its logs, signals and verdicts)."""
+def summarize_run(result, index, bounds=None):
+    """RunRecord of a SimulationResult (pure: reads its logs, signals and verdicts).
+
+    bounds: {vehicle: {state: (n,) PCRB variance}} already computed along the run's truth
+    (a fleet batch computes its runs' at once, ``fleet.bounds``); default: computed here.
+    """
     metrics, nees, nse, nis, counters, pcrb = {}, {}, {}, {}, {}, {}
     settled = result.times >= settle_time(result.scenario.end_time) - 1e-9
     configs = {v.name: v for v in result.scenario.vehicles}
@@ -100,7 +104,7 @@ def summarize_run(result, index):
             if "gps" in logs and settled.any():
                 no_mag = np.zeros(settled.size, dtype=bool)
                 mag_fresh = stamp_fresh(logs["mag"][:, -1]) if "mag" in logs else no_mag
-                bound = posterior_crb(
+                bound = (bounds or {}).get(vehicle) or posterior_crb(
                     logs["state"], stamp_fresh(logs["gps"][:, -1]), mag_fresh, configs[vehicle].sensors
                 )
                 pcrb[vehicle] = {name: float(np.mean(v[settled])) for name, v in bound.items()}

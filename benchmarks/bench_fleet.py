@@ -1,0 +1,88 @@
+"""Fleet vs process pool: runs per minute of one scenario's campaign, both from this one run.
+
+Usage: python benchmarks/bench_fleet.py [--scenario 11_gps_update] [--fleet-runs 1000]
+       [--batch B] [--pool-runs 20] [--jobs 2] [--no-jit]
+
+Both campaigns run on `jobs` worker processes (spawned: their Drake import and, for the
+fleet, numba's cache load are inside the wall time), seeds from the scenario's. The fleet's
+batch defaults to fleet-runs / jobs. Printed: wall time, runs per minute and CPU seconds per
+run of each (CPU time of the workers, from os.times, is the figure that does not depend on
+what else the machine runs), their ratio, and the numba JIT cost of a fleet on a cold cache
+against a warm one (a 1-vehicle, 0.01 s fleet in a fresh interpreter; --no-jit skips it).
+"""
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import time
+
+from quad_drake import catalog
+from quad_drake.campaigns import InProcessRunner, ProcessPoolRunner, run_campaign
+
+TINY_FLEET = (
+    "import time; t = time.perf_counter(); from quad_drake import catalog; "
+    "from quad_drake.fleet.simulation import run_fleet; "
+    "run_fleet(catalog.load({name!r}, None, ['end_time=0.01']), [0]); print(time.perf_counter() - t)"
+)
+
+
+def timed_campaign(scenario, runs, jobs, fleet_batch=None):
+    """(campaign, wall s, CPU s of this process and its finished children)."""
+    runner = InProcessRunner() if jobs == 1 else ProcessPoolRunner(jobs)
+    before, start = os.times(), time.perf_counter()
+    campaign = run_campaign(scenario, runs, runner=runner, progress=False, fleet_batch=fleet_batch)
+    wall, after = time.perf_counter() - start, os.times()
+    cpu = sum(after[i] - before[i] for i in range(4))
+    return campaign, wall, cpu
+
+
+def jit_seconds(name, cache_dir=None):
+    """Wall s of a tiny fleet of `name` in a fresh interpreter (NUMBA_CACHE_DIR = cache_dir)."""
+    env = dict(os.environ, **({"NUMBA_CACHE_DIR": cache_dir} if cache_dir else {}))
+    out = subprocess.run(
+        [sys.executable, "-c", TINY_FLEET.format(name=name)],
+        env=env,
+        check=True,
+        capture_output=True,
+        text=True,
+    )
+    return float(out.stdout.split()[-1])
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scenario", default="11_gps_update")
+    parser.add_argument("--fleet-runs", type=int, default=1000)
+    parser.add_argument("--batch", type=int)
+    parser.add_argument("--pool-runs", type=int, default=20)
+    parser.add_argument("--jobs", type=int, default=2)
+    parser.add_argument("--no-jit", action="store_true")
+    args = parser.parse_args()
+    scenario = catalog.load(args.scenario)
+    batch = args.batch or -(-args.fleet_runs // args.jobs)
+    cpus = os.cpu_count()
+    print(f"{args.scenario}: runs of {scenario.end_time:g} s, {args.jobs} worker processes, {cpus} CPUs")
+    rates = {}
+    for label, runs, fleet_batch in (
+        (f"fleet (batch {batch})", args.fleet_runs, batch),
+        ("process pool", args.pool_runs, None),
+    ):
+        campaign, wall, cpu = timed_campaign(scenario, runs, args.jobs, fleet_batch)
+        rates[label] = (60.0 * runs / wall, 60.0 * runs / cpu * args.jobs)
+        print(
+            f"{label:20s} {runs:6d} runs  wall {wall:8.1f} s  {rates[label][0]:9.1f} runs/min  "
+            f"CPU {cpu / runs:7.3f} s/run  ({rates[label][1]:9.1f} runs/min on {args.jobs} busy cores)"
+        )
+    (fleet_wall, fleet_cpu), (pool_wall, pool_cpu) = rates.values()
+    print(f"ratio fleet / pool: {fleet_wall / pool_wall:.1f}x wall, {fleet_cpu / pool_cpu:.1f}x CPU")
+    if not args.no_jit:
+        with tempfile.TemporaryDirectory() as empty:
+            cold = jit_seconds(args.scenario, empty)
+        warm = jit_seconds(args.scenario)
+        print(f"numba: a tiny fleet in a fresh interpreter: {cold:.1f} s on a cold cache, {warm:.1f} s warm")
+
+
+if __name__ == "__main__":
+    main()

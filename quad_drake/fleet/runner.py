@@ -1,0 +1,97 @@
+"""Fleet batches as campaign tasks: B runs flown at once, sent back as B RunRecords.
+
+A :class:`FleetBatch` is a task like ``campaigns.records.RunTask``, for any campaign
+Runner (in-process, process pool, Dask): its worker flies the batch's runs as one fleet
+(``fleet.simulation.run_fleet``) and summarises each run's slice of the batch's logs with
+the per-vehicle path's functions (``results.result_from_logs``: signals and the
+``evaluation`` analyzers; ``campaigns.records.summarize_run``: metrics, NEES/NIS), so
+every verdict and statistic follows the one rule of its kind. Only the records leave the
+worker; the batch's logs, its memory (``simulation.batch_bytes``), are freed with it.
+"""
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from quad_drake.campaigns.records import summarize_run
+from quad_drake.estimation.vocabulary import vehicle_vocabulary
+from quad_drake.fleet.bounds import posterior_crbs
+from quad_drake.fleet.simulation import batch_bytes, run_fleet
+from quad_drake.results import result_from_logs
+from quad_drake.signals import stamp_fresh
+
+RUNNER = "drake-fleet"
+"""What produced a fleet run (a run summary's ``runner``), as ``results.RUNNER`` for the per-vehicle path."""
+BATCH_MEMORY = 1 << 30
+"""Bytes of logs a default batch may hold (1 GiB): the batch size is chosen to stay below it."""
+MAX_BATCH = 1000
+"""Runs of a default batch at most (beyond it a tick's cost no longer falls per vehicle)."""
+
+
+@dataclass(frozen=True)
+class FleetBatch:
+    """Runs first_index .. first_index + len(seeds) - 1 of a campaign, run first_index + j with seeds[j]."""
+
+    scenario: object
+    first_index: int
+    seeds: tuple
+
+
+def default_batch_size(scenario, runs, jobs=1):
+    """Runs per batch: as many as BATCH_MEMORY and MAX_BATCH allow, split evenly over `jobs`
+    workers when the campaign is smaller than jobs full batches."""
+    per_run = max(1, batch_bytes(scenario, 1))
+    size = max(1, min(MAX_BATCH, BATCH_MEMORY // per_run))
+    return max(1, min(size, math.ceil(runs / jobs)))
+
+
+def batches(scenario, runs, first_seed, batch_size):
+    """The FleetBatch tasks of `runs` runs, run i with seed first_seed + i, `batch_size` per batch."""
+    return [
+        FleetBatch(
+            scenario, start, tuple(range(first_seed + start, first_seed + min(runs, start + batch_size)))
+        )
+        for start in range(0, runs, batch_size)
+    ]
+
+
+def batch_logs(logs, j):
+    """{vehicle: {log name: (samples, width)}} of run j of a batch's logs (samples, N, width)."""
+    return {
+        vehicle: {name: data[:, j, :] for name, data in vehicle_logs.items()}
+        for vehicle, vehicle_logs in logs.items()
+    }
+
+
+def _fresh(stamps):
+    """(n, N) bool of ``signals.stamp_fresh`` of (n, N) stamps."""
+    return np.stack([stamp_fresh(stamps[:, j]) for j in range(stamps.shape[1])], axis=1)
+
+
+def batch_bounds(scenario, logs):
+    """{vehicle: {state: (n, N) PCRB variance}} of the batch's vehicles whose runs
+    ``summarize_run`` gives a PCRB (an estimator and a GPS), computed for the N runs at once."""
+    bounds = {}
+    for vehicle in scenario.vehicles:
+        vehicle_logs = logs[vehicle.name]
+        if vehicle_vocabulary(vehicle) is None or "gps" not in vehicle_logs:
+            continue
+        gps = _fresh(vehicle_logs["gps"][:, :, -1])
+        mag = _fresh(vehicle_logs["mag"][:, :, -1]) if "mag" in vehicle_logs else np.zeros_like(gps)
+        bounds[vehicle.name] = posterior_crbs(vehicle_logs["state"], gps, mag, vehicle.sensors)
+    return bounds
+
+
+def simulate_batch(task):
+    """Worker entry point: fly a FleetBatch; the RunRecord of each of its runs, by index."""
+    times, logs, wall_time = run_fleet(task.scenario, task.seeds)
+    bounds = batch_bounds(task.scenario, logs)
+    records = []
+    for j, seed in enumerate(task.seeds):
+        scenario = dataclasses.replace(task.scenario, seed=seed)
+        result = result_from_logs(scenario, times, batch_logs(logs, j), wall_time / len(task.seeds), RUNNER)
+        run_bounds = {v: {k: b[:, j] for k, b in states.items()} for v, states in bounds.items()}
+        records.append(summarize_run(result, task.first_index + j, run_bounds))
+    return records

@@ -1,0 +1,237 @@
+"""Wire a scenario's fleet (N runs at once) into one Drake Diagram and fly it.
+
+A fleet of N runs of a scenario is one Diagram: per VehicleConfig one fleet sub-Diagram
+(:func:`build_fleet_vehicle`, the mirror of ``simulation.build_vehicle``) whose systems
+advance the N copies of that vehicle, vehicle j of every group flying run seed
+``seeds[j]``. A :class:`FleetRecorder` keeps every exported signal at the 5 ms log samples
+in preallocated arrays ((samples, N, width) per signal), so a batch costs
+samples x N x (sum of widths) x 8 bytes and a campaign's memory is bounded by its batch
+size, not by its number of runs (``fleet.runner``).
+"""
+
+import time
+
+import numpy as np
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
+from pydrake.systems.primitives import ConstantVectorSource
+
+from quad_drake import conventions as c
+from quad_drake.config import ConfigError
+from quad_drake.estimation.vocabulary import vehicle_vocabulary
+from quad_drake.faults import gps_delay_of, sensor_of
+from quad_drake.fidelity import fidelity_from_mode
+from quad_drake.fleet.streams import GAUSSIAN, UNIFORM
+from quad_drake.fleet.systems import (
+    FleetController,
+    FleetGps,
+    FleetImu,
+    FleetMagnetometer,
+    FleetNoiseSource,
+    FleetPlant,
+    FleetSensorFaults,
+    FleetTrajectory,
+)
+from quad_drake.sensor_models import imu_has_bias_walk
+from quad_drake.simulation import initial_state, sensor_schedule, vehicle_log_widths
+from quad_drake.trajectories import trajectory_from_config
+
+
+def _estimator_builder():
+    """``fleet.estimators.build_fleet_estimator`` (CONTRACTS.md contract 2), or None before it exists."""
+    try:
+        from quad_drake.fleet.estimators import build_fleet_estimator
+    except ImportError:
+        return None
+    return build_fleet_estimator
+
+
+def unsupported_reason(scenario):
+    """Why the fleet cannot fly `scenario` (one line), or None when it can."""
+    for vehicle in scenario.vehicles:
+        if vehicle.sensors.imu is not None and _estimator_builder() is None:
+            return (
+                f"fleet mode cannot fly {scenario.name} yet: vehicle {vehicle.name} has an IMU and "
+                "its estimator has no fleet form (quad_drake.fleet.estimators); run without --fleet"
+            )
+        if gps_delay_of(vehicle.faults) > 0 or vehicle.gps_delay_compensation > 0:
+            return (
+                f"fleet mode cannot fly {scenario.name} yet: vehicle {vehicle.name} has a gps_delay "
+                "fault or GPS delay compensation; run without --fleet"
+            )
+    return None
+
+
+def check_supported(scenario):
+    """Raise ConfigError (one line) when the fleet cannot fly `scenario`."""
+    reason = unsupported_reason(scenario)
+    if reason:
+        raise ConfigError(reason)
+
+
+def _add_noise(builder, system, port, seeds, name, distribution=GAUSSIAN):
+    """A FleetNoiseSource (system.noise_size, system.noise_period) of streams `name` into `port`."""
+    source = builder.AddNamedSystem(
+        f"{name}_source", FleetNoiseSource(seeds, name, system.noise_size, system.noise_period, distribution)
+    )
+    builder.Connect(source.GetOutputPort("noise"), system.GetInputPort(port))
+
+
+def _never_sampled(builder, size, n):
+    """N sensor outputs that never carry a sample (stamp = NO_SAMPLE_STAMP)."""
+    value = np.zeros((n, size))
+    value[:, -1] = c.NO_SAMPLE_STAMP
+    return builder.AddSystem(ConstantVectorSource(value.ravel())).get_output_port(0)
+
+
+def _add_faults(builder, vehicle, outputs, n):
+    """A FleetSensorFaults between each faulted sensor and its consumers (``simulation._add_faults``)."""
+    for sensor in sorted({sensor_of(f.kind) for f in vehicle.faults}):
+        period, first_sample = sensor_schedule(vehicle, sensor)
+        size = outputs[sensor].size() // n
+        system = builder.AddNamedSystem(
+            f"{sensor}_faults", FleetSensorFaults(sensor, size, vehicle.faults, period, first_sample, n)
+        )
+        builder.Connect(outputs[sensor], system.GetInputPort(sensor))
+        outputs[sensor] = system.GetOutputPort(sensor)
+
+
+def build_fleet_vehicle(vehicle, seeds, fidelity):
+    """The fleet sub-Diagram of one VehicleConfig flown with run seeds `seeds` (N,); its
+    outputs are named and ordered as ``simulation.vehicle_log_names(vehicle)``, each N x width.
+
+    Noise streams are named ``<vehicle name>/<noise input>`` (``fleet.streams``).
+    """
+    n = len(seeds)
+    builder = DiagramBuilder()
+    plant = builder.AddNamedSystem("plant", FleetPlant(vehicle.physics, initial_state(vehicle), n, fidelity))
+    _add_noise(builder, plant, "motor_noise", seeds, f"{vehicle.name}/motor_noise", UNIFORM)
+    controller = builder.AddNamedSystem("controller", FleetController(vehicle.controller, n, fidelity))
+    trajectory = builder.AddNamedSystem(
+        "trajectory", FleetTrajectory(trajectory_from_config(vehicle.trajectory), n, fidelity)
+    )
+    builder.Connect(controller.GetOutputPort("motor_thrusts"), plant.GetInputPort("motor_thrusts"))
+    builder.Connect(trajectory.GetOutputPort("reference"), controller.GetInputPort("reference"))
+    outputs = {name: plant.GetOutputPort(name) for name in ("state", "motor_forces", "contacts")}
+    outputs["reference"] = trajectory.GetOutputPort("reference")
+
+    sensors = vehicle.sensors
+    if sensors.imu is not None:
+        imu = builder.AddNamedSystem("imu", FleetImu(sensors.imu, n, fidelity))
+        _add_noise(builder, imu, "noise", seeds, f"{vehicle.name}/imu")
+        if imu_has_bias_walk(sensors.imu):
+            _add_noise(builder, imu, "bias_noise", seeds, f"{vehicle.name}/imu_bias")
+        builder.Connect(plant.GetOutputPort("state"), imu.GetInputPort("state"))
+        builder.Connect(plant.GetOutputPort("acceleration"), imu.GetInputPort("acceleration"))
+        outputs["imu"] = imu.GetOutputPort("imu")
+    for kind, sensor_class in (("gps", FleetGps), ("mag", FleetMagnetometer)):
+        params = getattr(sensors, kind)
+        if params is not None:
+            sensor = builder.AddNamedSystem(kind, sensor_class(params, n))
+            _add_noise(builder, sensor, "noise", seeds, f"{vehicle.name}/{kind}")
+            builder.Connect(plant.GetOutputPort("state"), sensor.GetInputPort("state"))
+            outputs[kind] = sensor.GetOutputPort(kind)
+    _add_faults(builder, vehicle, outputs, n)
+    state_for_control = plant.GetOutputPort("state")
+    if sensors.imu is not None:
+        estimator = builder.AddSystem(_estimator_builder()(vehicle, n, fidelity))
+        for name in vehicle_vocabulary(vehicle).log_widths():
+            outputs[name] = estimator.GetOutputPort(name)
+        for kind, size in (("imu", c.IMU_SIZE), ("gps", c.GPS_SIZE), ("mag", c.MAG_SIZE)):
+            port = outputs.get(kind) or _never_sampled(builder, size, n)
+            builder.Connect(port, estimator.GetInputPort(kind))
+        if not vehicle.use_ideal_estimator:
+            state_for_control = outputs["estimated_state"]
+    builder.Connect(state_for_control, controller.GetInputPort("state"))
+
+    for name in vehicle_log_widths(vehicle):
+        builder.ExportOutput(outputs[name], name)
+    diagram = builder.Build()
+    diagram.set_name(vehicle.name)
+    return diagram
+
+
+class FleetRecorder(LeafSystem):
+    """Keeps its inputs at the log samples t = k LOG_PERIOD, k = 1..samples, in preallocated
+    arrays: ``logs[(vehicle, name)]`` (samples, N, width). A periodic publish, as the
+    per-vehicle path's ``LogVectorOutput`` (it sees the values held before the updates at t);
+    the sample at t = 0 is not kept (``simulation.read_logs`` drops it too)."""
+
+    def __init__(self, signals, n, samples):
+        super().__init__()
+        self.logs, self._inputs = {}, []
+        for key, width in signals:
+            port = self.DeclareVectorInputPort(f"{key[0]}.{key[1]}", n * width)
+            self.logs[key] = np.full((samples, n, width), np.nan)
+            self._inputs.append((port.Eval, self.logs[key], n, width))
+        self._samples = samples
+        self.recorded = 0  # samples kept so far (the last one falls past end_time when rounding says so)
+        self.DeclarePeriodicPublishEvent(c.LOG_PERIOD, 0.0, self._record)
+
+    def release_memory(self):
+        """Hand over the logs and drop every reference to them (see FleetNoiseSource.release_memory)."""
+        logs, self.logs, self._inputs = self.logs, None, []
+        return logs
+
+    def _record(self, context):
+        k = int(round(context.get_time() / c.LOG_PERIOD))
+        if 1 <= k <= self._samples:
+            self.recorded = max(self.recorded, k)
+            for evaluate, log, n, width in self._inputs:
+                log[k - 1] = evaluate(context).reshape(n, width)
+
+
+def build_fleet_diagram(scenario, seeds):
+    """(Diagram, FleetRecorder) of `scenario` flown by N = len(seeds) runs."""
+    check_supported(scenario)
+    fidelity = fidelity_from_mode(scenario.fidelity)
+    samples = int(round(scenario.end_time / c.LOG_PERIOD))
+    builder = DiagramBuilder()
+    ports, signals = [], []
+    for vehicle in scenario.vehicles:
+        sub = builder.AddSystem(build_fleet_vehicle(vehicle, seeds, fidelity))
+        for name, width in vehicle_log_widths(vehicle).items():
+            ports.append(sub.GetOutputPort(name))
+            signals.append(((vehicle.name, name), width))
+    recorder = builder.AddNamedSystem("recorder", FleetRecorder(signals, len(seeds), samples))
+    for i, port in enumerate(ports):
+        builder.Connect(port, recorder.get_input_port(i))
+    diagram = builder.Build()
+    diagram.set_name(f"{scenario.name}_fleet")
+    return diagram, recorder
+
+
+def batch_bytes(scenario, n):
+    """Bytes the FleetRecorder of an N-run fleet of `scenario` holds."""
+    samples = int(round(scenario.end_time / c.LOG_PERIOD))
+    width = sum(sum(vehicle_log_widths(v).values()) for v in scenario.vehicles)
+    return samples * n * width * 8
+
+
+def _release_memory(diagram):
+    """Call ``release_memory()`` of every fleet system in `diagram` but the recorder: pydrake
+    never frees a Diagram of Python systems, so a batch's large arrays must be dropped by hand
+    (without it a campaign's workers grow by a batch's logs per batch)."""
+    for system in diagram.GetSystems():
+        if isinstance(system, Diagram):
+            _release_memory(system)
+        elif hasattr(system, "release_memory") and not isinstance(system, FleetRecorder):
+            system.release_memory()
+
+
+def run_fleet(scenario, seeds):
+    """(times (samples,), {vehicle: {log name: (samples, N, width)}}, wall time s) of `scenario`
+    flown by the runs with seeds `seeds` (N,) for end_time s."""
+    diagram, recorder = build_fleet_diagram(scenario, [int(s) for s in seeds])
+    simulator = Simulator(diagram)
+    start = time.perf_counter()
+    simulator.Initialize()
+    simulator.AdvanceTo(scenario.end_time)
+    wall_time = time.perf_counter() - start
+    _release_memory(diagram)
+    recorded = recorder.release_memory()
+    samples = recorder.recorded
+    logs = {vehicle.name: {} for vehicle in scenario.vehicles}
+    for (vehicle, name), data in recorded.items():
+        logs[vehicle][name] = data[:samples]
+    return c.LOG_PERIOD * np.arange(1, samples + 1), logs, wall_time

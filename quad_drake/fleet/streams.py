@@ -1,0 +1,79 @@
+"""Counter-based noise streams of a fleet: one Philox generator per (run seed, noise name).
+
+Vehicle j of a fleet flies run seed ``seeds[j]`` (a campaign's run i has seed S + i, as on
+the process pool). Each of its noise inputs, named ``"<vehicle name>/<input>"`` (e.g.
+``Quad/imu``), draws from its own Philox generator whose 128-bit key is derived by
+``numpy.random.SeedSequence(run seed, spawn_key=(crc32(name),))``. A stream depends on
+nothing else, so run i gives the same noise, and so the same result, whatever the batch
+it is flown in, its position there and the number of workers.
+
+The draws are taken in blocks of one simulated second (``samples_per_block`` samples of
+``size`` values), so the per-vehicle loop runs once per second, not per tick. Sample k of
+a stream (k = 0, 1, ... at t = k period) is row k % samples_per_block of block
+k // samples_per_block; every block is the next ``samples_per_block * size`` draws of the
+generator, in C order.
+
+These streams differ from Drake's ``RandomSource`` (which the per-vehicle Diagram uses):
+a fleet run and ``quad-drake run NAME --seed S`` see different noise and agree only
+statistically (README "Fleet mode").
+"""
+
+import zlib
+
+import numpy as np
+
+GAUSSIAN = "gaussian"
+UNIFORM = "uniform"
+DISTRIBUTIONS = (GAUSSIAN, UNIFORM)
+
+
+def stream_key(run_seed, name):
+    """(2,) uint64 Philox key of the noise named `name` of the run with seed `run_seed` (>= 0)."""
+    sequence = np.random.SeedSequence(int(run_seed), spawn_key=(zlib.crc32(name.encode()),))
+    return sequence.generate_state(2, np.uint64)
+
+
+def stream_generator(run_seed, name):
+    """A fresh numpy Generator at the start of the stream (run_seed, name)."""
+    return np.random.Generator(np.random.Philox(key=stream_key(run_seed, name)))
+
+
+class NoiseStreams:
+    """The noise of one input of N vehicles, drawn a block at a time.
+
+    seeds: (N,) run seeds; name: the noise name (same for every vehicle of the fleet);
+    size: values per sample; distribution: ``"gaussian"`` (unit normal) or ``"uniform"``
+    (in [0, 1)); samples_per_block: samples per block (one simulated second of the input).
+    """
+
+    def __init__(self, seeds, name, size, distribution, samples_per_block):
+        if distribution not in DISTRIBUTIONS:
+            raise ValueError(f"distribution {distribution!r} is not one of {DISTRIBUTIONS}")
+        self.seeds = [int(s) for s in seeds]
+        self.name, self.size, self.distribution = name, int(size), distribution
+        self.samples_per_block = int(samples_per_block)
+        self._generators = None
+        self._next_block = 0
+
+    @property
+    def n(self):
+        return len(self.seeds)
+
+    def block(self, index):
+        """(N, samples_per_block, size) draws of block `index`.
+
+        Blocks come in order (0, 1, 2, ...); asking for block 0 again restarts the streams
+        (a re-initialised simulation), any other order raises ValueError.
+        """
+        if index == 0:
+            self._generators = [stream_generator(s, self.name) for s in self.seeds]
+            self._next_block = 0
+        if index != self._next_block:
+            raise ValueError(f"{self.name}: block {index} asked for, block {self._next_block} is next")
+        self._next_block += 1
+        shape = (self.samples_per_block, self.size)
+        if self.distribution == GAUSSIAN:
+            draws = [g.standard_normal(shape) for g in self._generators]
+        else:
+            draws = [g.random(shape) for g in self._generators]
+        return np.stack(draws) if draws else np.zeros((0, *shape))

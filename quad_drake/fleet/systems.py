@@ -1,0 +1,321 @@
+"""Fleet LeafSystems: N vehicles of one VehicleConfig advanced at once over ``fleet.kernels``.
+
+Each system mirrors the per-vehicle system of the same name without ``Fleet``
+(``systems/plant.py``, ``sensors.py``, ``controller.py``, ``trajectory.py``): the same
+ports, periods and within-tick offsets (``conventions``), every vector port carrying the N
+per-vehicle vectors concatenated vehicle-major (size N k, vehicle j at [j k, (j + 1) k)),
+each in the per-vehicle layout (CONTRACTS.md, contract 1). The per-vehicle docstrings
+give units and frames. Noise comes from :class:`FleetNoiseSource` (``fleet.streams``), not
+from Drake's RandomSource, so the noise inputs are plain vector inputs.
+"""
+
+import copy
+
+import numpy as np
+from pydrake.systems.framework import LeafSystem
+
+from quad_drake import faults, sensor_models
+from quad_drake.conventions import (
+    CONTROLLER_OFFSET,
+    FAULT_LAG,
+    GPS_SIZE,
+    GRAVITY,
+    IMU_SIZE,
+    NO_SAMPLE_STAMP,
+    NUM_MOTORS,
+    ONBOARD_PERIOD,
+    PHYSICS_PERIOD,
+    PLANT_OFFSET,
+    REFERENCE_SIZE,
+    SENSOR_OFFSET,
+    SLOW_SENSOR_OFFSET,
+    STATE_SIZE,
+)
+from quad_drake.fidelity import PHYSICAL
+from quad_drake.fleet import kernels
+from quad_drake.fleet.streams import NoiseStreams
+from quad_drake.trajectories import lookup_time
+
+
+def _discrete(system, initial, output=None):
+    """Declare a discrete-state group (and the state output port `output` of it); its int index."""
+    index = system.DeclareDiscreteState(initial)
+    if output is not None:
+        system.DeclareStateOutputPort(output, index)
+    return int(index)
+
+
+def _reader(port, n, size):
+    """``read(context) -> (n, size) array`` of the vector input `port` (a copy)."""
+    evaluate = port.Eval
+    return lambda context: evaluate(context).reshape(n, size)
+
+
+class FleetNoiseSource(LeafSystem):
+    """Noise of N vehicles from :class:`~quad_drake.fleet.streams.NoiseStreams`, the fleet's
+    RandomSource: output ``noise`` (N size) redrawn at t = k period (an unrestricted update,
+    applied before the discrete updates at t, as RandomSource's) with sample k of every
+    vehicle's stream. A block of one simulated second is drawn when sample k opens it."""
+
+    def __init__(self, seeds, name, size, period, distribution):
+        super().__init__()
+        self.period = float(period)
+        self._per_block = max(1, int(round(1.0 / self.period)))
+        self._streams = NoiseStreams(seeds, name, size, distribution, self._per_block)
+        self._n, self._size = len(seeds), int(size)
+        self._block, self._block_index = None, -1
+        _discrete(self, self._n * self._size, "noise")
+        self.DeclarePeriodicUnrestrictedUpdateEvent(self.period, 0.0, self._draw)
+
+    def release_memory(self):
+        """Drop the block in hand (a Python system in a Diagram is never garbage-collected:
+        pydrake's C++ side keeps it alive)."""
+        self._block, self._block_index = None, -1
+
+    def _draw(self, context, state):
+        k = int(round(context.get_time() / self.period))
+        block, row = divmod(k, self._per_block)
+        if block != self._block_index:
+            self._block, self._block_index = self._streams.block(block), block
+        state.get_mutable_discrete_state().set_value(0, self._block[:, row, :].ravel())
+
+
+class FleetPlant(LeafSystem):
+    """N :class:`~quad_drake.systems.plant.QuadrotorPlant`: inputs ``motor_thrusts`` (N 4),
+    ``motor_noise`` (N 8, uniforms); outputs ``state`` (N 13), ``acceleration`` (N 3),
+    ``motor_forces`` (N 4), ``contacts`` (N 3). initial_state: (13,) for every vehicle."""
+
+    noise_size = 2 * NUM_MOTORS
+    noise_period = ONBOARD_PERIOD
+
+    def __init__(self, params, initial_state, n, fidelity=PHYSICAL):
+        super().__init__()
+        self._params, self._fidelity, self._n = copy.deepcopy(params), fidelity, n
+        initial = np.tile(np.asarray(initial_state, dtype=float), (n, 1))
+        self._read_commands = _reader(
+            self.DeclareVectorInputPort("motor_thrusts", n * NUM_MOTORS), n, NUM_MOTORS
+        )
+        self._read_noise = _reader(
+            self.DeclareVectorInputPort("motor_noise", n * self.noise_size), n, self.noise_size
+        )
+        floor = kernels.on_floor(initial, self._params).astype(float)
+        contacts = np.stack([floor, np.zeros(n), np.zeros(n)], axis=1)
+        self._state = _discrete(self, initial.ravel(), "state")
+        self._acceleration = _discrete(self, 3 * n, "acceleration")
+        self._forces = _discrete(self, NUM_MOTORS * n, "motor_forces")
+        self._started = _discrete(self, 1)
+        self._contacts = _discrete(self, contacts.ravel(), "contacts")
+        self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, PLANT_OFFSET, self._first_step)
+        self.DeclarePeriodicDiscreteUpdateEvent(
+            ONBOARD_PERIOD, PHYSICS_PERIOD + PLANT_OFFSET, self._second_step
+        )
+
+    def _first_step(self, context, discrete_state):
+        self._step(context, discrete_state, self._read_noise(context)[:, :NUM_MOTORS])
+
+    def _second_step(self, context, discrete_state):
+        self._step(context, discrete_state, self._read_noise(context)[:, NUM_MOTORS:])
+
+    def _step(self, context, discrete_state, noise):
+        n = self._n
+        commands = self._read_commands(context)
+        if discrete_state.value(self._started)[0]:
+            forces_old = discrete_state.value(self._forces).reshape(n, NUM_MOTORS)
+        else:
+            forces_old = commands
+            discrete_state.set_value(self._started, np.ones(1))
+        state = discrete_state.value(self._state).reshape(n, STATE_SIZE)
+        new, accel, forces, hit_wall = kernels.plant_step(
+            state, forces_old, commands, noise, self._params, PHYSICS_PERIOD, self._fidelity
+        )
+        discrete_state.set_value(self._state, new.ravel())
+        discrete_state.set_value(self._acceleration, accel.ravel())
+        discrete_state.set_value(self._forces, forces.ravel())
+        contacts = discrete_state.value(self._contacts).reshape(n, 3).copy()
+        floor = kernels.on_floor(new, self._params)
+        contacts[:, 1] += floor & (contacts[:, 0] == 0.0)
+        contacts[:, 0] = floor
+        contacts[:, 2] += hit_wall
+        discrete_state.set_value(self._contacts, contacts.ravel())
+
+
+class FleetImu(LeafSystem):
+    """N :class:`~quad_drake.systems.sensors.Imu`: inputs ``state`` (N 13), ``acceleration``
+    (N 3), ``noise`` (N 6) and, with a bias walk, ``bias_noise`` (N 6); output ``imu`` (N 6)."""
+
+    noise_size = 6
+    noise_period = ONBOARD_PERIOD
+
+    def __init__(self, params, n, fidelity=PHYSICAL):
+        super().__init__()
+        self._params, self._fidelity, self._n = params, fidelity, n
+        self._read_state = _reader(self.DeclareVectorInputPort("state", n * STATE_SIZE), n, STATE_SIZE)
+        self._read_acceleration = _reader(self.DeclareVectorInputPort("acceleration", n * 3), n, 3)
+        self._read_noise = _reader(
+            self.DeclareVectorInputPort("noise", n * self.noise_size), n, self.noise_size
+        )
+        self._read_bias_noise = None
+        if sensor_models.imu_has_bias_walk(params):
+            self._read_bias_noise = _reader(
+                self.DeclareVectorInputPort("bias_noise", n * self.noise_size), n, self.noise_size
+            )
+        self._output = _discrete(self, n * IMU_SIZE, "imu")
+        self._bias = _discrete(self, np.tile(sensor_models.imu_initial_bias(params), n))
+        self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, SENSOR_OFFSET, self._sample)
+
+    def _sample(self, context, discrete_state):
+        x = self._read_state(context)
+        bias = discrete_state.value(self._bias).reshape(self._n, 6)
+        if self._read_bias_noise is not None:
+            bias = kernels.imu_bias_step(bias, self._read_bias_noise(context), self._params)
+            discrete_state.set_value(self._bias, bias.ravel())
+        sample = kernels.imu_measurement(
+            x[:, 3:7], x[:, 10:13], self._read_acceleration(context), self._read_noise(context),
+            self._params, self._fidelity, bias,
+        )  # fmt: skip
+        discrete_state.set_value(self._output, sample.ravel())
+
+
+class FleetGps(LeafSystem):
+    """N :class:`~quad_drake.systems.sensors.Gps`: inputs ``state`` (N 13), ``noise`` (N 9);
+    output ``gps`` (N 7), every vehicle with the same stamp."""
+
+    noise_size = 9
+
+    def __init__(self, params, n):
+        super().__init__()
+        self._params, self._n = params, n
+        self.noise_period = params.period
+        self._read_state = _reader(self.DeclareVectorInputPort("state", n * STATE_SIZE), n, STATE_SIZE)
+        self._read_noise = _reader(
+            self.DeclareVectorInputPort("noise", n * self.noise_size), n, self.noise_size
+        )
+        initial = np.tile([0.0] * (GPS_SIZE - 1) + [NO_SAMPLE_STAMP], n)
+        self._output = _discrete(self, initial, "gps")
+        self._walk = _discrete(self, 3 * n)
+        self._count = _discrete(self, 1)
+        self.DeclarePeriodicDiscreteUpdateEvent(
+            params.period, params.period + SLOW_SENSOR_OFFSET, self._sample
+        )
+
+    def _sample(self, context, discrete_state):
+        x = self._read_state(context)
+        walk = discrete_state.value(self._walk).reshape(self._n, 3)
+        count = float(discrete_state.value(self._count)[0]) + 1.0
+        position, velocity, walk = kernels.gps_measurements(
+            x[:, 0:3], x[:, 7:10], walk, self._read_noise(context), self._params
+        )
+        stamps = np.full((self._n, 1), count * self._params.period)
+        discrete_state.set_value(self._output, np.concatenate([position, velocity, stamps], axis=1).ravel())
+        discrete_state.set_value(self._walk, walk.ravel())
+        discrete_state.set_value(self._count, np.array([count]))
+
+
+class FleetMagnetometer(LeafSystem):
+    """N :class:`~quad_drake.systems.sensors.Magnetometer`: inputs ``state`` (N 13), ``noise``
+    (N 1); output ``mag`` (N 2), every vehicle with the same stamp."""
+
+    noise_size = 1
+
+    def __init__(self, params, n):
+        super().__init__()
+        self._params, self._n = params, n
+        self.noise_period = params.period
+        self._read_state = _reader(self.DeclareVectorInputPort("state", n * STATE_SIZE), n, STATE_SIZE)
+        self._read_noise = self.DeclareVectorInputPort("noise", n).Eval
+        self._output = _discrete(self, np.tile([0.0, NO_SAMPLE_STAMP], n), "mag")
+        self._count = _discrete(self, 1)
+        self.DeclarePeriodicDiscreteUpdateEvent(
+            params.period, params.first_sample_time + SLOW_SENSOR_OFFSET, self._sample
+        )
+
+    def _sample(self, context, discrete_state):
+        yaw = kernels.magnetometer_yaws(
+            self._read_state(context)[:, 3:7], self._read_noise(context), self._params
+        )
+        count = float(discrete_state.value(self._count)[0])
+        stamp = self._params.first_sample_time + count * self._params.period
+        out = np.stack([yaw, np.full(self._n, stamp)], axis=1)
+        discrete_state.set_value(self._output, out.ravel())
+        discrete_state.set_value(self._count, np.array([count + 1.0]))
+
+
+class FleetController(LeafSystem):
+    """N :class:`~quad_drake.systems.controller.CascadeController`: inputs ``state`` (N 13),
+    ``reference`` (N 10); output ``motor_thrusts`` (N 4), mass g / 4 each before the first tick."""
+
+    def __init__(self, params, n, fidelity=PHYSICAL):
+        super().__init__()
+        self._params, self._fidelity, self._n = kernels.frozen(params), kernels.frozen(fidelity), n
+        self._read_state = _reader(self.DeclareVectorInputPort("state", n * STATE_SIZE), n, STATE_SIZE)
+        self._read_reference = _reader(
+            self.DeclareVectorInputPort("reference", n * REFERENCE_SIZE), n, REFERENCE_SIZE
+        )
+        self._integral = _discrete(self, n)
+        hover = params.mass * GRAVITY / NUM_MOTORS
+        self._thrusts = _discrete(self, np.full(n * NUM_MOTORS, hover), "motor_thrusts")
+        self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, CONTROLLER_OFFSET, self._update)
+
+    def _update(self, context, discrete_state):
+        forces, integral = kernels.cascade_step(
+            self._read_state(context),
+            self._read_reference(context),
+            discrete_state.value(self._integral),
+            ONBOARD_PERIOD,
+            self._params,
+            self._fidelity,
+        )
+        discrete_state.set_value(self._integral, integral)
+        discrete_state.set_value(self._thrusts, forces.ravel())
+
+
+class FleetTrajectory(LeafSystem):
+    """N :class:`~quad_drake.systems.trajectory.TrajectorySource` of one trajectory: output
+    ``reference`` (N 10), the same sample for every vehicle."""
+
+    def __init__(self, trajectory, n, fidelity=PHYSICAL):
+        super().__init__()
+        self._trajectory, self._fidelity, self._n = trajectory, fidelity, n
+        self.DeclareVectorOutputPort(
+            "reference", n * REFERENCE_SIZE, self._calc, prerequisites_of_calc={self.time_ticket()}
+        )
+
+    def _calc(self, context, output):
+        sample = self._trajectory.sample(lookup_time(context.get_time(), self._fidelity))
+        output.SetFromVector(np.tile(sample, self._n))
+
+
+class FleetSensorFaults(LeafSystem):
+    """N :class:`~quad_drake.systems.faults.SensorFaults` of one sensor without a gps_delay:
+    input and output ``<sensor>`` (N size), firing at first_sample + FAULT_LAG + k period.
+
+    The faults are the scalar ``faults.apply_faults`` run once on the sample's columns (each
+    entry an (N,) array, the stamp a float): a fault's decision depends only on the
+    measurement time, which every vehicle of a fleet shares (its sensors sample together).
+    """
+
+    def __init__(self, sensor, size, fault_list, period, first_sample, n):
+        super().__init__()
+        self._faults = faults.sample_faults(fault_list, sensor)
+        self._stamped = faults.STAMPED[sensor]
+        self._period, self._first_sample = float(period), float(first_sample)
+        self._n, self._size = n, size
+        self._read = _reader(self.DeclareVectorInputPort(sensor, n * size), n, size)
+        initial = np.zeros((n, size))
+        if self._stamped:
+            initial[:, -1] = NO_SAMPLE_STAMP
+        self._output = _discrete(self, initial.ravel(), sensor)
+        self.DeclarePeriodicDiscreteUpdateEvent(self._period, self._first_sample + FAULT_LAG, self._sample)
+
+    def _sample(self, context, discrete_state):
+        sample = self._read(context)
+        columns = list(sample.T)
+        if self._stamped:
+            time = columns[-1] = float(sample[0, -1])
+        else:
+            ticks = round((context.get_time() - FAULT_LAG - self._first_sample) / self._period)
+            time = self._first_sample + ticks * self._period
+        out = faults.apply_faults(self._faults, columns, time, self._period)
+        discrete_state.set_value(
+            self._output, np.column_stack([np.broadcast_to(c, (self._n,)) for c in out]).ravel()
+        )
