@@ -60,7 +60,6 @@ def test_noiseless_fleet_flies_every_vehicle_as_the_per_vehicle_diagram(name, ov
 def test_noiseless_fleet_with_estimators_and_faults_matches_the_per_vehicle_diagram(name, end_time):
     """The estimators (``fleet.estimators``) and the sensor faults too: 1e-12 on every log
     (the compiled ESKF kernels differ from the scalar maths by rounding, ~1e-13)."""
-    pytest.importorskip("quad_drake.fleet.estimators")
     scenario = noiseless(name, f"end_time={end_time}")
     single = run(scenario)
     _, logs, _ = run_fleet(scenario, [5, 6])

@@ -47,7 +47,6 @@ def per_run(campaign, key):
     [("06_sensor_noise", 40), ("10_mag_update", 30), ("11_gps_update", 30)],
 )
 def test_fleet_and_per_vehicle_campaigns_agree(name, runs):
-    pytest.importorskip("quad_drake.fleet.estimators")
     scenario = catalog.load(name, None, [])
     fleet = run_campaign(scenario, runs, seed=SEED, progress=False, fleet_batch=runs)
     single = run_campaign(scenario, runs, runner=ProcessPoolRunner(2), seed=SEED, progress=False)
