@@ -9,6 +9,11 @@ runs and seed), so an interrupted table resumes where it stopped; ``--fresh`` ig
 
     nice -n 10 python benchmarks/fault_table.py --runs 50 --seed 100 --jobs 1
 
+``--fleet B`` flies the rows whose scenario fleet mode supports (all but 14's GPS delay) on the
+fleet runner in batches of B runs (``quad-drake montecarlo ... --fleet --batch B``; its noise
+streams differ from the per-vehicle path's, README "Fleet mode"), the others on the process pool;
+the table's runner column says which.
+
 ``--check-seeds A B`` instead flies every bundled fault scenario (12-18, mitigation on) with
 its default seed and with seeds A..B (issue 11: 0-19), prints the failures and exits 1 if any.
 """
@@ -29,6 +34,7 @@ from quad_drake import campaigns, catalog  # noqa: E402
 
 BEGIN, END = "<!-- fault-table -->", "<!-- /fault-table -->"
 EKF7 = "vehicles.0.estimator={kind: ekf7}"
+ESKF = "vehicles.0.estimator={kind: eskf}"
 
 
 @dataclass(frozen=True)
@@ -49,27 +55,31 @@ ROWS = (
     Row("12_gps_outage", "EKF7", (EKF7,)),
     Row("13_gps_outlier", "EKF7, 5σ gate (bundled)"),
     Row("13_gps_outlier", "EKF7, gate off", ("vehicles.0.ekf.gps_gate_sigma=0",)),
+    Row("13_gps_outlier", "ESKF, 5σ gate", (ESKF,)),
     Row("14_gps_delay", "ESKF + delay compensation (bundled)"),
     Row("14_gps_delay", "ESKF, no compensation", ("vehicles.0.gps_delay_compensation=0",)),
     Row("15_gps_step", "ESKF, 5σ gate (bundled, 2 s step)"),
     Row("15_gps_step", "ESKF, gate off", ("vehicles.0.estimator={kind: eskf, gps_gate_sigma: 0}",)),
+    Row("15_gps_step", "EKF7, 5σ gate", (EKF7,)),
     Row("16_mag_disturbance", "ESKF, 5σ gate (bundled)"),
     Row(
         "16_mag_disturbance",
         "ESKF, mag gate off",
         ("vehicles.0.estimator={kind: eskf, mag_gate_sigma: 0}",),
     ),
+    Row("16_mag_disturbance", "EKF7, 5σ gate", (EKF7,)),
     Row("17_imu_bias", "ESKF, biases estimated (bundled)"),
     Row("17_imu_bias", "EKF7", (EKF7,)),
     Row("18_imu_dropout", "ESKF (bundled)"),
     Row("18_imu_dropout", "EKF7", (EKF7,)),
 )
-"""Mitigation on (the bundled scenario) then off, per fault scenario."""
+"""Per fault scenario: the bundled mitigation, then without it, then (where the bundled one
+is not the only estimator that copes) the other estimator with the same mitigation."""
 
 HEADER = (
     "| scenario | configuration | runs (seeds) | all criteria [95 % Wilson CI] | floor strikes (runs) "
-    "| max \\|Est.E.Pos\\| [m] | max PosFollowErr [m] | `--set` |\n"
-    "|---|---|---|---|---|---|---|---|"
+    "| max \\|Est.E.Pos\\| [m] | max PosFollowErr [m] | runner | `--set` |\n"
+    "|---|---|---|---|---|---|---|---|---|"
 )
 
 
@@ -95,6 +105,7 @@ def summarize(campaign):
         "max_est_pos": worst(".Est.E.Pos"),
         "max_follow": worst(".PosFollowErr"),
         "failed_seeds": [r.seed for r in records if not r.passed],
+        "runner": campaign.runner,
     }
 
 
@@ -107,7 +118,7 @@ def row_line(row, figures):
         f"| {row.scenario} | {row.label} | {runs} ({first}–{last}) "
         f"| {passes}/{runs} = {100 * passes / runs:.0f} % [{low:.0f}, {high:.0f}] "
         f"| {figures['floor_strikes']} | {figures['max_est_pos']:.2f} | {figures['max_follow']:.2f} "
-        f"| {f'`{sets}`' if sets else ''} |"
+        f"| {figures['runner']} | {f'`{sets}`' if sets else ''} |"
     )
 
 
@@ -124,9 +135,24 @@ def replace_table(text, new_table):
     return text[: start + len(BEGIN)] + "\n" + new_table + "\n" + text[end:]
 
 
-def measure(row, runs, seed, runner):
+def fleet_batch_for(scenario, batch):
+    """`batch` if fleet mode flies `scenario` (and batch is not None), else None (the pool)."""
+    if batch is None:
+        return None
+    from quad_drake.config import ConfigError
+    from quad_drake.fleet.simulation import check_supported
+
+    try:
+        check_supported(scenario)
+    except ConfigError:
+        return None
+    return batch
+
+
+def measure(row, runs, seed, runner, fleet_batch=None):
     scenario = catalog.load(row.scenario, None, list(row.overrides))
-    return summarize(campaigns.run_campaign(scenario, runs, runner=runner, seed=seed))
+    batch = fleet_batch_for(scenario, fleet_batch)
+    return summarize(campaigns.run_campaign(scenario, runs, runner=runner, seed=seed, fleet_batch=batch))
 
 
 def check_seeds(first, last, runner):
@@ -151,6 +177,7 @@ def main(argv=None):
     parser.add_argument("--cache", type=Path, default=ROOT / "out" / "fault_table")
     parser.add_argument("--fresh", action="store_true", help="re-measure rows already in the cache")
     parser.add_argument("--only", nargs="*", default=None, help="scenario names to measure (default: all)")
+    parser.add_argument("--fleet", type=int, metavar="B", help="fleet batch size (see the docstring)")
     parser.add_argument("--check-seeds", nargs=2, type=int, metavar=("A", "B"), help="see the docstring")
     args = parser.parse_args(argv)
     runner = campaigns.InProcessRunner() if args.jobs == 1 else campaigns.ProcessPoolRunner(args.jobs)
@@ -160,11 +187,12 @@ def main(argv=None):
     measured = {}
     selected = [row for row in ROWS if args.only is None or row.scenario in args.only]
     for row in sorted(selected, key=lambda row: not row.overrides):  # the "off" rows first
-        path = args.cache / f"{row.key}_n{args.runs}_s{args.seed}.json"
+        runner_key = f"_fleet{args.fleet}" if args.fleet else ""
+        path = args.cache / f"{row.key}_n{args.runs}_s{args.seed}{runner_key}.json"
         if path.exists() and not args.fresh:
             figures = json.loads(path.read_text())
         else:
-            figures = measure(row, args.runs, args.seed, runner)
+            figures = measure(row, args.runs, args.seed, runner, args.fleet)
             path.write_text(json.dumps(figures, indent=1))
         print(row_line(row, figures), flush=True)
         measured[row] = figures

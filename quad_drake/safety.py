@@ -1,4 +1,5 @@
-"""Flight-safety criteria every scenario is judged on by default (CONTRACTS §2).
+"""Flight-safety criteria every scenario is judged on by default
+(``evaluation.judged_criteria`` adds them).
 
 The reference judges only what its analyzers name, so a vehicle that sits on the floor can
 pass (11 with a 2 kg vehicle: 97 % of the run on the floor, PASS). From a

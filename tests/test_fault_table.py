@@ -19,6 +19,7 @@ FIGURES = {
     "max_est_pos": 44.913,
     "max_follow": 48.68,
     "failed_seeds": [110, 131],
+    "runner": "process pool (2 workers)",
 }
 
 
@@ -36,7 +37,7 @@ def test_row_line_shows_the_figures_and_the_set_to_reproduce_it():
     row = fault_table.Row("13_gps_outlier", "EKF7, gate off", ("vehicles.0.ekf.gps_gate_sigma=0",))
     line = fault_table.row_line(row, FIGURES)
     assert line.startswith("| 13_gps_outlier | EKF7, gate off | 50 (100–149) | 48/50 = 96 % [87, 99] | 2 |")
-    assert "| 44.91 | 48.68 | `--set vehicles.0.ekf.gps_gate_sigma=0` |" in line
+    assert "| 44.91 | 48.68 | process pool (2 workers) | `--set vehicles.0.ekf.gps_gate_sigma=0` |" in line
     quoted = fault_table.Row("12_gps_outage", "EKF7", (fault_table.EKF7,))
     assert "`--set 'vehicles.0.estimator={kind: ekf7}'`" in fault_table.row_line(quoted, FIGURES)
 
@@ -50,10 +51,20 @@ def test_replace_table_rewrites_only_between_the_markers():
 
 
 def test_every_row_names_a_bundled_scenario_and_each_has_an_off_row():
+    """The bundled configuration first (no --set), then at least one row without its mitigation."""
     from quad_drake import catalog
 
     bundled = catalog.bundled_scenarios()
     assert all(row.scenario in bundled for row in fault_table.ROWS)
     for name in {row.scenario for row in fault_table.ROWS}:
         rows = [row for row in fault_table.ROWS if row.scenario == name]
-        assert [bool(row.overrides) for row in rows] == [False, True], name
+        assert [bool(row.overrides) for row in rows][:2] == [False, True], name
+        assert all(row.overrides for row in rows[1:]), name
+
+
+def test_only_scenarios_fleet_mode_supports_go_to_the_fleet():
+    from quad_drake import catalog
+
+    assert fault_table.fleet_batch_for(catalog.load("13_gps_outlier"), 25) == 25
+    assert fault_table.fleet_batch_for(catalog.load("14_gps_delay"), 25) is None
+    assert fault_table.fleet_batch_for(catalog.load("13_gps_outlier"), None) is None

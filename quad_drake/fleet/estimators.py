@@ -6,7 +6,7 @@ Each system mirrors its per-vehicle twin in ``systems/estimators.py``: the same 
 within-tick offsets, freshness rule, gates, resets, covariance health, diagnostics and counters,
 and the non-finite IMU skip with the held gyro rate. Every vector port carries the N per-vehicle
 vectors vehicle-major (size N k, vehicle i at [i k, (i + 1) k)), each in the scalar system's
-layout (CONTRACTS 1). The maths is ``fleet/estimation_kernels.py``, the scalar functions' array
+layout. The maths is ``fleet/estimation_kernels.py``, the scalar functions' array
 form; the handlers only reshape the ports and the discrete state (updated in place) and pick the
 vehicles each step applies to. All N vehicles share one VehicleConfig.
 """

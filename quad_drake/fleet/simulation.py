@@ -21,6 +21,7 @@ from quad_drake.config import ConfigError
 from quad_drake.estimation.vocabulary import vehicle_vocabulary
 from quad_drake.faults import gps_delay_of, sensor_of
 from quad_drake.fidelity import fidelity_from_mode
+from quad_drake.fleet.estimators import build_fleet_estimator
 from quad_drake.fleet.streams import GAUSSIAN, UNIFORM
 from quad_drake.fleet.systems import (
     FleetController,
@@ -37,23 +38,9 @@ from quad_drake.simulation import initial_state, sensor_schedule, vehicle_log_wi
 from quad_drake.trajectories import trajectory_from_config
 
 
-def _estimator_builder():
-    """``fleet.estimators.build_fleet_estimator`` (CONTRACTS.md contract 2), or None before it exists."""
-    try:
-        from quad_drake.fleet.estimators import build_fleet_estimator
-    except ImportError:
-        return None
-    return build_fleet_estimator
-
-
 def unsupported_reason(scenario):
     """Why the fleet cannot fly `scenario` (one line), or None when it can."""
     for vehicle in scenario.vehicles:
-        if vehicle.sensors.imu is not None and _estimator_builder() is None:
-            return (
-                f"fleet mode cannot fly {scenario.name} yet: vehicle {vehicle.name} has an IMU and "
-                "its estimator has no fleet form (quad_drake.fleet.estimators); run without --fleet"
-            )
         if gps_delay_of(vehicle.faults) > 0 or vehicle.gps_delay_compensation > 0:
             return (
                 f"fleet mode cannot fly {scenario.name} yet: vehicle {vehicle.name} has a gps_delay "
@@ -134,7 +121,7 @@ def build_fleet_vehicle(vehicle, seeds, fidelity):
     _add_faults(builder, vehicle, outputs, n)
     state_for_control = plant.GetOutputPort("state")
     if sensors.imu is not None:
-        estimator = builder.AddSystem(_estimator_builder()(vehicle, n, fidelity))
+        estimator = builder.AddSystem(build_fleet_estimator(vehicle, n, fidelity))
         for name in vehicle_vocabulary(vehicle).log_widths():
             outputs[name] = estimator.GetOutputPort(name)
         for kind, size in (("imu", c.IMU_SIZE), ("gps", c.GPS_SIZE), ("mag", c.MAG_SIZE)):

@@ -4,7 +4,7 @@ Each system mirrors the per-vehicle system of the same name without ``Fleet``
 (``systems/plant.py``, ``sensors.py``, ``controller.py``, ``trajectory.py``): the same
 ports, periods and within-tick offsets (``conventions``), every vector port carrying the N
 per-vehicle vectors concatenated vehicle-major (size N k, vehicle j at [j k, (j + 1) k)),
-each in the per-vehicle layout (CONTRACTS.md, contract 1). The per-vehicle docstrings
+each in the per-vehicle layout. The per-vehicle docstrings
 give units and frames. Noise comes from :class:`FleetNoiseSource` (``fleet.streams``), not
 from Drake's RandomSource, so the noise inputs are plain vector inputs.
 """
