@@ -39,9 +39,9 @@ def test_default_space_is_the_estimators_noise_fields_that_are_switched_on(load_
     assert [p.key for p in space.search_space(reference)] == list(space.DEFAULT_KEYS["ekf7"])
     tuned_11 = space.search_space(load_scenario("11_gps_update"))  # q_pos_*_std = 0 there
     assert [p.key for p in tuned_11] == [k for k in space.DEFAULT_KEYS["ekf7"] if "q_pos" not in k]
-    eskf = load_scenario("11_gps_update_eskf")
-    assert [p.key for p in space.search_space(eskf)] == list(space.DEFAULT_KEYS["eskf"])
-    no_bias = load_scenario("11_gps_update_eskf", "vehicles.0.estimator.estimate_biases=false")
+    with_biases = load_scenario("11_gps_update_eskf", "vehicles.0.estimator.estimate_biases=true")
+    assert [p.key for p in space.search_space(with_biases)] == list(space.DEFAULT_KEYS["eskf"])
+    no_bias = load_scenario("11_gps_update_eskf")  # estimate_biases: false there (its IMU has none)
     assert [p.key for p in space.search_space(no_bias)] == [
         k for k in space.DEFAULT_KEYS["eskf"] if "_bias_" not in k
     ]
