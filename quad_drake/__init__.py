@@ -25,4 +25,4 @@ glue in ``systems``; ``simulation`` wires the Diagram, ``catalog`` finds and loa
 scenarios, ``cli`` is the front end (nothing in the package imports it).
 """
 
-__version__ = "0.2.0.dev0"
+__version__ = "0.3.0.dev0"
