@@ -36,7 +36,7 @@ def clamped_noisy_commands(commands, noise_unit, min_thrust, max_thrust, noise_h
     """
     c0, c1, c2, c3 = commands  # unrolled: a zip over four motors costs as much as the maths
     u0, u1, u2, u3 = noise_unit
-    return [
+    return (
         (min_thrust if c0 < min_thrust else max_thrust if c0 > max_thrust else c0)
         + noise_half_width * (2.0 * u0 - 1.0),
         (min_thrust if c1 < min_thrust else max_thrust if c1 > max_thrust else c1)
@@ -45,7 +45,7 @@ def clamped_noisy_commands(commands, noise_unit, min_thrust, max_thrust, noise_h
         + noise_half_width * (2.0 * u2 - 1.0),
         (min_thrust if c3 < min_thrust else max_thrust if c3 > max_thrust else c3)
         + noise_half_width * (2.0 * u3 - 1.0),
-    ]
+    )
 
 
 def motor_lag_step(forces_old, forces_cmd, dt, tau_up, tau_down):
@@ -60,12 +60,12 @@ def motor_lag_step(forces_old, forces_cmd, dt, tau_up, tau_down):
     t1 = tau_up if c1 >= o1 else tau_down
     t2 = tau_up if c2 >= o2 else tau_down
     t3 = tau_up if c3 >= o3 else tau_down
-    return [
+    return (
         (c0 * dt + o0 * t0) / (dt + t0),
         (c1 * dt + o1 * t1) / (dt + t1),
         (c2 * dt + o2 * t2) / (dt + t2),
         (c3 * dt + o3 * t3) / (dt + t3),
-    ]
+    )
 
 
 def wrench_from_thrusts(forces, arm_length, kappa, com_offset=(0.0, 0.0)):
@@ -144,7 +144,7 @@ def rigid_body_derivatives(state, thrust, moment, mass, inertia):
 def rigid_body_step(state, thrust, moment, mass, inertia, dt):
     """One classical RK4 step of dt s with the wrench held constant; q renormalised.
 
-    Returns (state_new: list of 13 floats, a_NB: (3,) mean NED acceleration over the
+    Returns (state_new: 13 floats, a_NB: (3,) mean NED acceleration over the
     step, (v_new - v_old)/dt, m/s^2). RK4 costs about the same as RK3 here and is
     1e-11 m accurate over 2 s of tumbling flight (explicit Euler: cm).
     """
@@ -213,7 +213,7 @@ def rigid_body_step(state, thrust, moment, mass, inertia, dt):
     az = (az1 + 2.0 * (az2 + az3) + az4) / 6.0
     # p(dt) = p + v dt + integral of (dt - s) a(s) ds; RK4's stage velocities give this:
     p2 = dt * d6
-    new = [
+    new = (
         px + dt * vx + p2 * (ax1 + ax2 + ax3),
         py + dt * vy + p2 * (ay1 + ay2 + ay3),
         pz + dt * vz + p2 * (az1 + az2 + az3),
@@ -227,7 +227,7 @@ def rigid_body_step(state, thrust, moment, mass, inertia, dt):
         wx + d6 * (wx1 + 2.0 * (wx2 + wx3) + wx4),
         wy + d6 * (wy1 + 2.0 * (wy2 + wy3) + wy4),
         wz + d6 * (wz1 + 2.0 * (wz2 + wz3) + wz4),
-    ]
+    )
     return new, (ax, ay, az)
 
 
@@ -236,7 +236,7 @@ def rigid_body_step_semi_implicit(state, thrust, moment, mass, inertia, dt):
 
     From the state at the start of the step: a = R(q) (0, 0, -T)/m + g_N; v += a dt;
     p += v_new dt; q = normalise(q + q (x) (0, w) dt / 2) with the body rate w of the start
-    of the step; w += I^-1 (M - w x I w) dt. Returns (state_new: list of 13 floats, a_NB:
+    of the step; w += I^-1 (M - w x I w) dt. Returns (state_new: 13 floats, a_NB:
     (3,) m/s^2, NED). First order: 02 moves ~2 cm / 0.02 rad from RK4 (README "Fidelity").
     """
     px, py, pz, qw, qx, qy, qz, vx, vy, vz, wx, wy, wz = state
@@ -246,7 +246,7 @@ def rigid_body_step_semi_implicit(state, thrust, moment, mass, inertia, dt):
     vx, vy, vz = vx + dt * ax, vy + dt * ay, vz + dt * az
     qw, qx, qy, qz = qw + dt * qdw, qx + dt * qdx, qy + dt * qdy, qz + dt * qdz
     n = 1.0 / math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
-    new = [
+    new = (
         px + dt * vx,
         py + dt * vy,
         pz + dt * vz,
@@ -260,34 +260,34 @@ def rigid_body_step_semi_implicit(state, thrust, moment, mass, inertia, dt):
         wx + dt * wdx,
         wy + dt * wdy,
         wz + dt * wdz,
-    ]
+    )
     return new, (ax, ay, az)
 
 
 def apply_room_constraints(state_new, state_old, params):
-    """State (list of 13) after the room limits of SPEC §3 step 7; inputs are not modified.
+    """State (13 floats) after the room limits of SPEC §3 step 7; inputs are not modified.
 
     params: PhysicsParams (x_bounds, y_bounds, z_bounds in m, NED). Sticky floor: when
     z >= z_max, p reverts to p_old with z = z_max, vx = vy = 0, vz = min(0, vz), w = 0.
     Then x or y outside its bounds reverts to its old value with zero velocity, and
     z < z_min reverts z with vz = 0.
     """
-    s = list(state_new)
+    px, py, pz, qw, qx, qy, qz, vx, vy, vz, wx, wy, wz = state_new
     z_min, z_max = params.z_bounds
-    if s[2] >= z_max:
-        s[0], s[1], s[2] = state_old[0], state_old[1], z_max
-        s[7] = s[8] = 0.0
-        s[9] = min(0.0, s[9])
-        s[10] = s[11] = s[12] = 0.0
+    if pz >= z_max:
+        px, py, pz = state_old[0], state_old[1], z_max
+        vx = vy = 0.0
+        vz = min(0.0, vz)
+        wx = wy = wz = 0.0
     x_min, x_max = params.x_bounds
-    if s[0] < x_min or s[0] > x_max:
-        s[0], s[7] = state_old[0], 0.0
+    if px < x_min or px > x_max:
+        px, vx = state_old[0], 0.0
     y_min, y_max = params.y_bounds
-    if s[1] < y_min or s[1] > y_max:
-        s[1], s[8] = state_old[1], 0.0
-    if s[2] < z_min:
-        s[2], s[9] = state_old[2], 0.0
-    return s
+    if py < y_min or py > y_max:
+        py, vy = state_old[1], 0.0
+    if pz < z_min:
+        pz, vz = state_old[2], 0.0
+    return (px, py, pz, qw, qx, qy, qz, vx, vy, vz, wx, wy, wz)
 
 
 def on_floor(state, params):
@@ -324,11 +324,39 @@ def plant_step(state, forces_old, commands, noise_unit, params, dt, fidelity=PHY
     )
     forces = motor_lag_step(forces_old, targets, dt, params.motor_tau_up, params.motor_tau_down)
     thrust, mx, my, mz = wrench_from_thrusts(forces, params.arm_length, params.kappa, params.com_offset)
-    body_step = rigid_body_step_semi_implicit if fidelity.semi_implicit_euler else rigid_body_step
-    new, _ = body_step(state, thrust, (mx, my, mz), params.mass, params.inertia, dt)
+    if fidelity.semi_implicit_euler:
+        new, _ = rigid_body_step_semi_implicit(state, thrust, (mx, my, mz), params.mass, params.inertia, dt)
+    else:
+        new, _ = rigid_body_step(state, thrust, (mx, my, mz), params.mass, params.inertia, dt)
     hit_wall = outside_room(new, params)
     new = apply_room_constraints(new, state, params)
     accel = ((new[7] - state[7]) / dt, (new[8] - state[8]) / dt, (new[9] - state[9]) / dt)
     if fidelity.float32_state:
-        new = np.array(new, dtype=np.float32).tolist()
+        new = float32_rounded(new)
     return new, accel, forces, hit_wall
+
+
+def float32_rounded(state):
+    """The 13 floats of `state` each rounded to the nearest float32 (a tuple of floats)."""
+    px, py, pz, qw, qx, qy, qz, vx, vy, vz, wx, wy, wz = state
+    return (
+        _float32(px),
+        _float32(py),
+        _float32(pz),
+        _float32(qw),
+        _float32(qx),
+        _float32(qy),
+        _float32(qz),
+        _float32(vx),
+        _float32(vy),
+        _float32(vz),
+        _float32(wx),
+        _float32(wy),
+        _float32(wz),
+    )
+
+
+def _float32(value):
+    """`value` rounded to the nearest float32, as a float (float64: the inner cast keeps numba's
+    compiled form, ``fleet.kernels``, from typing it float32)."""
+    return float(np.float64(np.float32(value)))

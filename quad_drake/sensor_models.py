@@ -9,7 +9,8 @@ differs from the reference simulator's ``R^T (a + g)`` (see DESIGN §4), which
 ``fidelity: reference`` switches on (:func:`reference_accelerometer`, SPEC §2).
 
 The IMU functions work on Python scalars (they run at 500 Hz): pass sequences such as
-lists, tuples or ``ndarray.tolist()`` results, and get lists back.
+lists, tuples or ``ndarray.tolist()`` results, and get tuples back (plain arithmetic, which
+``fleet.kernels`` compiles with numba and runs per vehicle).
 """
 
 from quad_drake.conventions import GRAVITY
@@ -18,7 +19,7 @@ from quad_drake.rotations import euler_from_quat, wrap_to_pi
 
 
 def specific_force(q_NB, a_NB):
-    """Specific force f_B = R_NB^T (a_NB - g_N), m/s^2, body FRD, as a list of 3.
+    """Specific force f_B = R_NB^T (a_NB - g_N), m/s^2, body FRD (3).
 
     q_NB: wxyz quaternion (need not be exactly unit); a_NB: kinematic acceleration of B
     in N, expressed in N (NED), m/s^2.
@@ -36,15 +37,15 @@ def reference_accelerometer(q_NB, a_NB):
 
 
 def _rotate_to_body(q_NB, dx, dy, dz):
-    """R_NB^T d (list of 3) for a wxyz quaternion of any non-zero norm."""
+    """R_NB^T d (3) for a wxyz quaternion of any non-zero norm."""
     w, x, y, z = q_NB[0], q_NB[1], q_NB[2], q_NB[3]
     s = 2.0 / (w * w + x * x + y * y + z * z)
     # f = R^T d, with R the rotation matrix of the normalised quaternion.
-    return [
+    return (
         (1.0 - s * (y * y + z * z)) * dx + s * (x * y + w * z) * dy + s * (x * z - w * y) * dz,
         s * (x * y - w * z) * dx + (1.0 - s * (x * x + z * z)) * dy + s * (y * z + w * x) * dz,
         s * (x * z + w * y) * dx + s * (y * z - w * x) * dy + (1.0 - s * (x * x + y * y)) * dz,
-    ]
+    )
 
 
 def _clamp(value, limit):
@@ -55,7 +56,7 @@ NO_IMU_BIAS = (0.0,) * 6
 
 
 def imu_measurement(q_NB, w_NB_B, a_NB, noise, params, fidelity=PHYSICAL, bias=NO_IMU_BIAS):
-    """Noisy IMU sample [f_B (3, m/s^2), gyro (3, rad/s)] as a list of 6.
+    """Noisy IMU sample (f_B (3, m/s^2), gyro (3, rad/s)): 6 floats.
 
     noise: 6 unit-normal draws, 3 accelerometer then 3 gyro (SPEC §0.3 order).
     bias: 6, accelerometer (m/s^2) then gyro (rad/s) bias, added with the noise.
@@ -63,16 +64,19 @@ def imu_measurement(q_NB, w_NB_B, a_NB, noise, params, fidelity=PHYSICAL, bias=N
     fidelity: with ``reference_accelerometer`` the accelerometer part is
     :func:`reference_accelerometer` instead of :func:`specific_force`.
     """
-    f = (reference_accelerometer if fidelity.reference_accelerometer else specific_force)(q_NB, a_NB)
+    if fidelity.reference_accelerometer:
+        f = reference_accelerometer(q_NB, a_NB)
+    else:
+        f = specific_force(q_NB, a_NB)
     sa, sg, limit = params.accel_std, params.gyro_std, params.accel_limit
-    return [
+    return (
         _clamp(f[0] + bias[0] + sa[0] * noise[0], limit),
         _clamp(f[1] + bias[1] + sa[1] * noise[1], limit),
         _clamp(f[2] + bias[2] + sa[2] * noise[2], limit),
         w_NB_B[0] + bias[3] + sg[0] * noise[3],
         w_NB_B[1] + bias[4] + sg[1] * noise[4],
         w_NB_B[2] + bias[5] + sg[2] * noise[5],
-    ]
+    )
 
 
 def imu_initial_bias(params):

@@ -234,14 +234,14 @@ def test_quaternion_norm_and_momentum_over_60_s_of_torque_free_tumbling():
 def test_sticky_floor_stops_a_falling_vehicle():
     old = make_state(p=(1.0, 2.0, -0.001), ypr=(0.3, 0.1, 0.0), v=(1.0, 1.0, 3.0), w=(1.0, 2.0, 3.0))
     new, accel, _, _ = plant_step(old, [0.1] * 4, [0.1] * 4, NO_NOISE, PARAMS, DT)
-    assert new[0:3] == [1.0, 2.0, 0.0]
-    assert new[7:13] == [0.0] * 6
+    assert new[0:3] == (1.0, 2.0, 0.0)
+    assert new[7:13] == tuple([0.0] * 6)
     np.testing.assert_allclose(accel, np.array([-1.0, -1.0, -3.0]) / DT)
     # resting on the floor at low thrust: no motion, zero kinematic acceleration
     x = new
     for _ in range(100):
         x, accel, _, _ = plant_step(x, [0.1] * 4, [0.1] * 4, NO_NOISE, PARAMS, DT)
-    assert x[0:3] == [1.0, 2.0, 0.0]
+    assert x[0:3] == (1.0, 2.0, 0.0)
     assert accel == (0.0, 0.0, 0.0)
 
 
@@ -250,8 +250,8 @@ def test_floor_keeps_upward_velocity_and_allows_take_off():
     constrained = apply_room_constraints(
         make_state(p=(0.5, 0.5, 0.01), v=(1, 1, -2), w=(1, 1, 1)), on_floor, PARAMS
     )
-    assert constrained[0:3] == [0.0, 0.0, 0.0]
-    assert constrained[7:13] == [0.0, 0.0, -2.0, 0.0, 0.0, 0.0]
+    assert constrained[0:3] == (0.0, 0.0, 0.0)
+    assert constrained[7:13] == (0.0, 0.0, -2.0, 0.0, 0.0, 0.0)
     x, forces = on_floor, [3.0] * 4
     for _ in range(100):
         x, _, forces, _ = plant_step(x, forces, [3.0] * 4, NO_NOISE, PARAMS, DT)
@@ -261,8 +261,8 @@ def test_floor_keeps_upward_velocity_and_allows_take_off():
 def test_room_bounds_revert_only_the_offending_coordinate():
     old = make_state(p=(29.9999, -29.9999, -39.9999), v=(0.5, -0.5, -0.5))
     new, accel, _, _ = plant_step(old, [HOVER] * 4, [HOVER] * 4, NO_NOISE, PARAMS, DT)
-    assert new[0:3] == old[0:3]
-    assert new[7:10] == [0.0, 0.0, 0.0]
+    assert new[0:3] == tuple(old[0:3])
+    assert new[7:10] == (0.0, 0.0, 0.0)
     np.testing.assert_allclose(accel, [-500.0, 500.0, 500.0])
     # x out of bounds only: y and z keep integrating
     old = make_state(p=(-29.9999, 1.0, -5.0), v=(-0.5, 0.5, 0.5))

@@ -76,7 +76,7 @@ def test_plant_step_picks_the_body_step_and_rounds_to_float32():
     )
     assert np.max(np.abs(np.subtract(physical, euler))) > 1e-9
     np.testing.assert_allclose(reference, euler, atol=3e-7)
-    assert reference == np.array(reference, dtype=np.float32).astype(float).tolist()
+    assert list(reference) == np.array(reference, dtype=np.float32).astype(float).tolist()
     # The float32 position cannot take a 6e-8 m step at 3 m (half an ULP is 1.2e-7 m): the
     # stagnation that holds the binary's 08 vehicle 3.1e-5 m off its set-point.
     assert reference[0] == 3.0 and euler[0] != 3.0
@@ -93,7 +93,7 @@ def test_reference_accelerometer_reads_plus_g_level_and_minus_2g_sin_pitch_in_le
     assert specific_force(pitched, a)[0] == pytest.approx(0.0, abs=1e-12)  # along body z only
     params = ImuParams(accel_std=[0.0] * 3, gyro_std=[0.0] * 3)
     sample = imu_measurement(pitched, (0.1, 0.2, 0.3), a, [0.0] * 6, params, REFERENCE)
-    assert sample == pytest.approx(reference_accelerometer(pitched, a) + [0.1, 0.2, 0.3])
+    assert sample == pytest.approx(list(reference_accelerometer(pitched, a)) + [0.1, 0.2, 0.3])
 
 
 def test_estimators_read_the_reference_accelerometer_with_the_reference_formulas():

@@ -80,22 +80,23 @@ def test_plant_step_matches_scalar(fidelity):
     assert 0 < floor.sum() < N
 
 
-def test_rigid_body_step_matches_scalar_over_many_steps():
+@FIDELITIES
+def test_plant_step_matches_scalar_over_many_steps(fidelity):
     rng = np.random.default_rng(1202)
     params = PhysicsParams()
     state = random_states(rng)
-    thrust = rng.uniform(0, 18, size=N)
-    moment = tuple(rng.normal(size=(3, N)) * 0.05)
-    batched, scalar = state, [s.tolist() for s in state]
+    commands = rng.uniform(0.5, 4.0, size=(N, 4))
+    batched, forces = state, rng.uniform(0, 5, size=(N, 4))
+    scalar = [(s.tolist(), f.tolist()) for s, f in zip(state, forces, strict=True)]
     for _ in range(50):
-        batched, _ = kernels.rigid_body_step(batched, thrust, moment, params.mass, params.inertia, 0.001)
+        noise = rng.uniform(size=(N, 4))
+        batched, _, forces, _ = kernels.plant_step(batched, forces, commands, noise, params, 0.001, fidelity)
         scalar = [
-            dynamics.rigid_body_step(
-                s, thrust[i], [m[i] for m in moment], params.mass, params.inertia, 0.001
-            )[0]
-            for i, s in enumerate(scalar)
+            dynamics.plant_step(s, f, commands[i].tolist(), noise[i].tolist(), params, 0.001, fidelity)[::2]
+            for i, (s, f) in enumerate(scalar)
         ]
-    close(batched, scalar)
+    close(batched, [s for s, _ in scalar])
+    close(forces, [f for _, f in scalar])
 
 
 @FIDELITIES

@@ -15,7 +15,7 @@ G_N = np.array([0.0, 0.0, GRAVITY])
 
 
 def test_specific_force_level_at_rest_reads_minus_g():
-    assert sensor_models.specific_force(LEVEL, [0.0, 0.0, 0.0]) == [0.0, 0.0, -9.81]
+    assert sensor_models.specific_force(LEVEL, [0.0, 0.0, 0.0]) == (0.0, 0.0, -9.81)
 
 
 def test_specific_force_free_fall_reads_zero():
@@ -61,7 +61,7 @@ def test_imu_zero_std_is_exact_truth():
     q = quat_from_euler(0.2, -0.1, 0.5)
     w, a = [0.3, -0.2, 0.1], [1.0, -2.0, 0.5]
     out = sensor_models.imu_measurement(q, w, a, [5.0, -4.0, 3.0, 2.0, -1.0, 9.0], params)
-    assert out == sensor_models.specific_force(q, a) + w
+    assert out == sensor_models.specific_force(q, a) + tuple(w)
 
 
 def test_imu_saturates_each_axis_after_noise():
@@ -69,7 +69,7 @@ def test_imu_saturates_each_axis_after_noise():
     out = sensor_models.imu_measurement(
         LEVEL, [0.0] * 3, [25.0, -19.5, 0.0], [0.0, -1.0, 0.0, 0, 0, 0], params
     )
-    assert out[:3] == [20.0, -20.0, -9.81]
+    assert out[:3] == (20.0, -20.0, -9.81)
 
 
 def test_gps_measurement_applies_random_walk_first():

@@ -21,39 +21,14 @@ import types
 import numba
 import numpy as np
 
-from quad_drake import dynamics, rotations
-from quad_drake.config import ControllerParams
+from quad_drake import dynamics, rotations, sensor_models
+from quad_drake.config import ControllerParams, ImuParams, PhysicsParams
 from quad_drake.control import cascade
-from quad_drake.conventions import SQRT2
 from quad_drake.fidelity import PHYSICAL, Fidelity
 from quad_drake.rotations import euler_from_quats, wrap_angles
-from quad_drake.sensor_models import gps_measurement, reference_accelerometer, specific_force
+from quad_drake.sensor_models import gps_measurement
 
 # ----- dynamics ---------------------------------------------------------------
-
-
-def clamped_noisy_commands(commands, noise_unit, min_thrust, max_thrust, noise_half_width):
-    """(N, 4) of :func:`quad_drake.dynamics.clamped_noisy_commands`."""
-    return np.clip(commands, min_thrust, max_thrust) + noise_half_width * (2.0 * noise_unit - 1.0)
-
-
-def motor_lag_step(forces_old, forces_cmd, dt, tau_up, tau_down):
-    """(N, 4) of :func:`quad_drake.dynamics.motor_lag_step`."""
-    tau = np.where(forces_cmd >= forces_old, tau_up, tau_down)
-    return (forces_cmd * dt + forces_old * tau) / (dt + tau)
-
-
-def wrench_from_thrusts(forces, arm_length, kappa, com_offset=(0.0, 0.0)):
-    """(T, Mx, My, Mz), each (N,), of :func:`quad_drake.dynamics.wrench_from_thrusts`."""
-    f0, f1, f2, f3 = forces.T
-    arm = arm_length / SQRT2
-    thrust = f0 + f1 + f2 + f3
-    return (
-        thrust,
-        arm * (f0 - f1 + f2 - f3) + com_offset[1] * thrust,
-        arm * (f0 + f1 - f2 - f3) - com_offset[0] * thrust,
-        kappa * (-f0 + f1 + f2 - f3),
-    )
 
 
 def _compiled(function, **callees):
@@ -65,83 +40,37 @@ def _compiled(function, **callees):
 
 _rates_compiled = _compiled(dynamics._rates)
 _coefficients_compiled = _compiled(dynamics._coefficients)
-_rk4_compiled = _compiled(
-    dynamics.rigid_body_step, _rates=_rates_compiled, _coefficients=_coefficients_compiled
-)
-_semi_implicit_compiled = _compiled(
-    dynamics.rigid_body_step_semi_implicit, _rates=_rates_compiled, _coefficients=_coefficients_compiled
+_plant_compiled = _compiled(
+    dynamics.plant_step,
+    clamped_noisy_commands=_compiled(dynamics.clamped_noisy_commands),
+    motor_lag_step=_compiled(dynamics.motor_lag_step),
+    wrench_from_thrusts=_compiled(dynamics.wrench_from_thrusts),
+    rigid_body_step=_compiled(
+        dynamics.rigid_body_step, _rates=_rates_compiled, _coefficients=_coefficients_compiled
+    ),
+    rigid_body_step_semi_implicit=_compiled(
+        dynamics.rigid_body_step_semi_implicit, _rates=_rates_compiled, _coefficients=_coefficients_compiled
+    ),
+    outside_room=_compiled(dynamics.outside_room),
+    apply_room_constraints=_compiled(dynamics.apply_room_constraints),
+    float32_rounded=_compiled(dynamics.float32_rounded, _float32=_compiled(dynamics._float32)),
 )
 
 
 @numba.njit(cache=True)
-def _body_steps(semi_implicit, state, thrust, mx, my, mz, mass, inertia, dt, new, accel):
-    """Per vehicle i, the scalar body step of state[i] into new[i], accel[i]."""
+def _plant_steps(state, forces_old, commands, noise_unit, params, dt, fidelity, new, accel, forces, hit_wall):
+    """Per vehicle i, the scalar plant step of row i of the inputs into row i of the outputs."""
     for i in range(state.shape[0]):
-        s = state[i]
+        s, f, u, m = state[i], forces_old[i], noise_unit[i], commands[i]
         x = (s[0], s[1], s[2], s[3], s[4], s[5], s[6], s[7], s[8], s[9], s[10], s[11], s[12])
-        moment = (mx[i], my[i], mz[i])
-        if semi_implicit:
-            out, a = _semi_implicit_compiled(x, thrust[i], moment, mass, inertia, dt)
-        else:
-            out, a = _rk4_compiled(x, thrust[i], moment, mass, inertia, dt)
+        lagged_before, command = (f[0], f[1], f[2], f[3]), (m[0], m[1], m[2], m[3])
+        noise = (u[0], u[1], u[2], u[3])
+        out, a, lagged, hit_wall[i] = _plant_compiled(x, lagged_before, command, noise, params, dt, fidelity)
         for k in range(13):
             new[i, k] = out[k]
         accel[i, 0], accel[i, 1], accel[i, 2] = a
-
-
-def _body_step(semi_implicit, state, thrust, moment, mass, inertia, dt):
-    state = np.ascontiguousarray(state, dtype=float)
-    new, accel = np.empty_like(state), np.empty((state.shape[0], 3))
-    mx, my, mz = (np.ascontiguousarray(np.broadcast_to(m, thrust.shape), dtype=float) for m in moment)
-    inertia = (float(inertia[0]), float(inertia[1]), float(inertia[2]))
-    _body_steps(
-        semi_implicit,
-        state,
-        np.ascontiguousarray(thrust, dtype=float),
-        mx,
-        my,
-        mz,
-        float(mass),
-        inertia,
-        dt,
-        new,
-        accel,
-    )
-    return new, accel
-
-
-def rigid_body_step(state, thrust, moment, mass, inertia, dt):
-    """((N, 13), a_NB (N, 3)) of :func:`quad_drake.dynamics.rigid_body_step` (RK4): the scalar
-    function's code compiled by numba, run per vehicle."""
-    return _body_step(False, state, thrust, moment, mass, inertia, dt)
-
-
-def rigid_body_step_semi_implicit(state, thrust, moment, mass, inertia, dt):
-    """((N, 13), a_NB (N, 3)) of :func:`quad_drake.dynamics.rigid_body_step_semi_implicit`
-    (compiled as :func:`rigid_body_step`)."""
-    return _body_step(True, state, thrust, moment, mass, inertia, dt)
-
-
-def apply_room_constraints(state_new, state_old, params):
-    """(N, 13) of :func:`quad_drake.dynamics.apply_room_constraints` (inputs not modified)."""
-    s = state_new.copy()
-    z_min, z_max = params.z_bounds
-    floor = s[:, 2] >= z_max
-    if floor.any():
-        s[floor, 0:2] = state_old[floor, 0:2]
-        s[floor, 2] = z_max
-        s[floor, 7:9] = 0.0
-        s[floor, 9] = np.minimum(0.0, s[floor, 9])
-        s[floor, 10:13] = 0.0
-    x_min, x_max = params.x_bounds
-    wall_x = (s[:, 0] < x_min) | (s[:, 0] > x_max)
-    s[wall_x, 0], s[wall_x, 7] = state_old[wall_x, 0], 0.0
-    y_min, y_max = params.y_bounds
-    wall_y = (s[:, 1] < y_min) | (s[:, 1] > y_max)
-    s[wall_y, 1], s[wall_y, 8] = state_old[wall_y, 1], 0.0
-    ceiling = s[:, 2] < z_min
-    s[ceiling, 2], s[ceiling, 9] = state_old[ceiling, 2], 0.0
-    return s
+        for k in range(4):
+            forces[i, k] = lagged[k]
 
 
 def on_floor(state, params):
@@ -149,46 +78,77 @@ def on_floor(state, params):
     return state[:, 2] >= params.z_bounds[1]
 
 
-def outside_room(state, params):
-    """(N,) bool of :func:`quad_drake.dynamics.outside_room`."""
-    x_min, x_max = params.x_bounds
-    y_min, y_max = params.y_bounds
-    x, y = state[:, 0], state[:, 1]
-    return (x < x_min) | (x > x_max) | (y < y_min) | (y > y_max) | (state[:, 2] < params.z_bounds[0])
-
-
 def plant_step(state, forces_old, commands, noise_unit, params, dt, fidelity=PHYSICAL):
     """(state_new (N, 13), a_NB (N, 3), forces (N, 4), hit_wall (N,) bool) of
-    :func:`quad_drake.dynamics.plant_step`; noise_unit (N, 4) uniforms in [0, 1]."""
-    targets = clamped_noisy_commands(
-        commands, noise_unit, params.min_motor_thrust, params.max_motor_thrust, params.motor_noise
+    :func:`quad_drake.dynamics.plant_step`, whose code numba compiles and runs per vehicle;
+    noise_unit (N, 4) uniforms in [0, 1]. params, fidelity: PhysicsParams and Fidelity, or
+    their :func:`frozen` forms (faster)."""
+    params = frozen(params) if dataclasses.is_dataclass(params) else params
+    fidelity = frozen(fidelity) if dataclasses.is_dataclass(fidelity) else fidelity
+    n = state.shape[0]
+    new, accel, forces, hit_wall = np.empty((n, 13)), np.empty((n, 3)), np.empty((n, 4)), np.empty(n, bool)
+    _plant_steps(
+        *(np.ascontiguousarray(a, dtype=float) for a in (state, forces_old, commands, noise_unit)),
+        params,
+        float(dt),
+        fidelity,
+        new,
+        accel,
+        forces,
+        hit_wall,
     )
-    forces = motor_lag_step(forces_old, targets, dt, params.motor_tau_up, params.motor_tau_down)
-    thrust, mx, my, mz = wrench_from_thrusts(forces, params.arm_length, params.kappa, params.com_offset)
-    body_step = rigid_body_step_semi_implicit if fidelity.semi_implicit_euler else rigid_body_step
-    new, _ = body_step(state, thrust, (mx, my, mz), params.mass, params.inertia, dt)
-    hit_wall = outside_room(new, params)
-    new = apply_room_constraints(new, state, params)
-    accel = (new[:, 7:10] - state[:, 7:10]) / dt
-    if fidelity.float32_state:
-        new = new.astype(np.float32).astype(float)
     return new, accel, forces, hit_wall
 
 
 # ----- sensors ----------------------------------------------------------------
 
 
+_rotate_to_body_compiled = _compiled(sensor_models._rotate_to_body)
+_imu_compiled = _compiled(
+    sensor_models.imu_measurement,
+    reference_accelerometer=_compiled(
+        sensor_models.reference_accelerometer, _rotate_to_body=_rotate_to_body_compiled
+    ),
+    specific_force=_compiled(sensor_models.specific_force, _rotate_to_body=_rotate_to_body_compiled),
+    _clamp=_compiled(sensor_models._clamp),
+)
+
+
+@numba.njit(cache=True)
+def _imu_samples(q_NB, w_NB_B, a_NB, noise, params, fidelity, bias, out):
+    """Per vehicle i, the scalar IMU sample of row i of the inputs into out[i]."""
+    for i in range(q_NB.shape[0]):
+        q, w, a, u, b = q_NB[i], w_NB_B[i], a_NB[i], noise[i], bias[i]
+        sample = _imu_compiled(
+            (q[0], q[1], q[2], q[3]),
+            (w[0], w[1], w[2]),
+            (a[0], a[1], a[2]),
+            (u[0], u[1], u[2], u[3], u[4], u[5]),
+            params,
+            fidelity,
+            (b[0], b[1], b[2], b[3], b[4], b[5]),
+        )
+        for k in range(6):
+            out[i, k] = sample[k]
+
+
 def imu_measurement(q_NB, w_NB_B, a_NB, noise, params, fidelity=PHYSICAL, bias=None):
-    """(N, 6) of :func:`quad_drake.sensor_models.imu_measurement`; q_NB (N, 4), w_NB_B (N, 3),
-    a_NB (N, 3), noise (N, 6), bias (N, 6) or None (zero)."""
-    accelerometer = reference_accelerometer if fidelity.reference_accelerometer else specific_force
-    f = np.stack(accelerometer(q_NB.T, a_NB.T), axis=1)
-    sa, sg = np.asarray(params.accel_std), np.asarray(params.gyro_std)
-    bias = np.zeros((q_NB.shape[0], 6)) if bias is None else bias
-    accel = f + bias[:, 0:3] + sa * noise[:, 0:3]
-    gyro = w_NB_B + bias[:, 3:6] + sg * noise[:, 3:6]
-    limit = params.accel_limit
-    return np.concatenate([np.clip(accel, -limit, limit), gyro], axis=1)
+    """(N, 6) of :func:`quad_drake.sensor_models.imu_measurement`, whose code numba compiles and
+    runs per vehicle; q_NB (N, 4), w_NB_B (N, 3), a_NB (N, 3), noise (N, 6), bias (N, 6) or
+    None (zero). params, fidelity: ImuParams and Fidelity, or their :func:`frozen` forms."""
+    params = frozen(params) if dataclasses.is_dataclass(params) else params
+    fidelity = frozen(fidelity) if dataclasses.is_dataclass(fidelity) else fidelity
+    n = q_NB.shape[0]
+    bias = np.zeros((n, 6)) if bias is None else bias
+    out = np.empty((n, 6))
+    _imu_samples(
+        *(np.ascontiguousarray(x, dtype=float) for x in (q_NB, w_NB_B, a_NB, noise)),
+        params,
+        fidelity,
+        np.ascontiguousarray(bias, dtype=float),
+        out,
+    )
+    return out
 
 
 def imu_bias_step(bias, noise, params):
@@ -242,8 +202,15 @@ def _cascade_steps(state, reference, integral, dt, params, fidelity, forces, new
 ControllerTuple = collections.namedtuple(
     "ControllerTuple", [f.name for f in dataclasses.fields(ControllerParams)]
 )
+PhysicsTuple = collections.namedtuple("PhysicsTuple", [f.name for f in dataclasses.fields(PhysicsParams)])
+ImuTuple = collections.namedtuple("ImuTuple", [f.name for f in dataclasses.fields(ImuParams)])
 FidelityTuple = collections.namedtuple("FidelityTuple", [f.name for f in dataclasses.fields(Fidelity)])
-_FROZEN = {ControllerParams: ControllerTuple, Fidelity: FidelityTuple}
+_FROZEN = {
+    ControllerParams: ControllerTuple,
+    PhysicsParams: PhysicsTuple,
+    ImuParams: ImuTuple,
+    Fidelity: FidelityTuple,
+}
 
 
 def _plain(value):
@@ -255,9 +222,9 @@ def _plain(value):
 
 
 def frozen(params):
-    """The ControllerParams or Fidelity `params` as a module-level namedtuple (numbers as floats,
-    lists as tuples of floats): what the compiled scalar functions read, typed the same for
-    every config so that numba's on-disk cache is reused."""
+    """The ControllerParams, PhysicsParams, ImuParams or Fidelity `params` as a module-level
+    namedtuple (numbers as floats, lists as tuples of floats): what the compiled scalar
+    functions read, typed the same for every config so that numba's on-disk cache is reused."""
     return _FROZEN[type(params)](*(_plain(getattr(params, f.name)) for f in dataclasses.fields(params)))
 
 

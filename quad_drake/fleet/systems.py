@@ -75,9 +75,10 @@ class FleetNoiseSource(LeafSystem):
     def _draw(self, context, state):
         k = int(round(context.get_time() / self.period))
         block, row = divmod(k, self._per_block)
-        if block != self._block_index:
-            self._block, self._block_index = self._streams.block(block), block
-        state.get_mutable_discrete_state().set_value(0, self._block[:, row, :].ravel())
+        if block != self._block_index:  # kept sample-major, so that a sample is one contiguous row
+            self._block = np.ascontiguousarray(self._streams.block(block).transpose(1, 0, 2))
+            self._block_index = block
+        state.get_mutable_discrete_state().set_value(0, self._block[row].ravel())
 
 
 class FleetPlant(LeafSystem):
@@ -90,7 +91,8 @@ class FleetPlant(LeafSystem):
 
     def __init__(self, params, initial_state, n, fidelity=PHYSICAL):
         super().__init__()
-        self._params, self._fidelity, self._n = copy.deepcopy(params), fidelity, n
+        self._params, self._n = copy.deepcopy(params), n
+        self._frozen_params, self._frozen_fidelity = kernels.frozen(self._params), kernels.frozen(fidelity)
         initial = np.tile(np.asarray(initial_state, dtype=float), (n, 1))
         self._read_commands = _reader(
             self.DeclareVectorInputPort("motor_thrusts", n * NUM_MOTORS), n, NUM_MOTORS
@@ -126,7 +128,7 @@ class FleetPlant(LeafSystem):
             discrete_state.set_value(self._started, np.ones(1))
         state = discrete_state.value(self._state).reshape(n, STATE_SIZE)
         new, accel, forces, hit_wall = kernels.plant_step(
-            state, forces_old, commands, noise, self._params, PHYSICS_PERIOD, self._fidelity
+            state, forces_old, commands, noise, self._frozen_params, PHYSICS_PERIOD, self._frozen_fidelity
         )
         discrete_state.set_value(self._state, new.ravel())
         discrete_state.set_value(self._acceleration, accel.ravel())
@@ -148,7 +150,8 @@ class FleetImu(LeafSystem):
 
     def __init__(self, params, n, fidelity=PHYSICAL):
         super().__init__()
-        self._params, self._fidelity, self._n = params, fidelity, n
+        self._params, self._n = params, n
+        self._frozen_params, self._frozen_fidelity = kernels.frozen(params), kernels.frozen(fidelity)
         self._read_state = _reader(self.DeclareVectorInputPort("state", n * STATE_SIZE), n, STATE_SIZE)
         self._read_acceleration = _reader(self.DeclareVectorInputPort("acceleration", n * 3), n, 3)
         self._read_noise = _reader(
@@ -171,7 +174,7 @@ class FleetImu(LeafSystem):
             discrete_state.set_value(self._bias, bias.ravel())
         sample = kernels.imu_measurement(
             x[:, 3:7], x[:, 10:13], self._read_acceleration(context), self._read_noise(context),
-            self._params, self._fidelity, bias,
+            self._frozen_params, self._frozen_fidelity, bias,
         )  # fmt: skip
         discrete_state.set_value(self._output, sample.ravel())
 

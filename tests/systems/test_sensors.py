@@ -120,7 +120,8 @@ def test_imu_zero_noise_is_exact_truth_tilted():
     simulator, diagram, _, _ = _build(dut, noise=np.array([1.0, -2.0, 3.0, -4.0, 5.0, -6.0]))
     out = _output(simulator, dut, 0.01)
     assert np.all(np.isfinite(out))
-    truth = sensor_models.specific_force(STATE[3:7].tolist(), ACCELERATION.tolist()) + STATE[10:13].tolist()
+    force = sensor_models.specific_force(STATE[3:7].tolist(), ACCELERATION.tolist())
+    truth = list(force) + STATE[10:13].tolist()
     np.testing.assert_array_equal(out, truth)
     # Independent check of the physical sign: f_B = R^T (a - g).
     s_p, c_p, s_r, c_r = math.sin(PITCH), math.cos(PITCH), math.sin(ROLL), math.cos(ROLL)
@@ -161,7 +162,8 @@ def test_imu_noise_statistics_20s_seeded():
     log = logger.FindLog(simulator.get_context())
     samples = log.data().T[1:]  # the row logged at t = 0 precedes the first sample
     assert len(samples) == 10000
-    truth = sensor_models.specific_force(STATE[3:7].tolist(), ACCELERATION.tolist()) + STATE[10:13].tolist()
+    force = sensor_models.specific_force(STATE[3:7].tolist(), ACCELERATION.tolist())
+    truth = list(force) + STATE[10:13].tolist()
     _check_statistics(samples, truth, params.accel_std + params.gyro_std, "imu")
     # Consecutive samples are independent draws.
     centered = samples[:, 0] - samples[:, 0].mean()
