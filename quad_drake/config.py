@@ -18,7 +18,7 @@ import yaml
 from pydrake.common.yaml import yaml_dump, yaml_dump_typed, yaml_load_typed
 
 from .conventions import ONBOARD_PERIOD
-from .fidelity import FIDELITY_MODES
+from .fidelity import FIDELITY_MODES, fidelity_from_mode
 
 PACKAGE_DIR = Path(__file__).resolve().parent
 TRAJECTORY_DIR = PACKAGE_DIR / "data" / "traj"
@@ -482,6 +482,14 @@ def _check_tick_multiple(seconds, min_ticks, where):
         )
 
 
+def estimator_fidelity_problem(estimator_kind, fidelity):
+    """Why an estimator of `estimator_kind` cannot run under the Fidelity `fidelity` (one
+    line), or None when it can."""
+    if estimator_kind == "eskf" and fidelity.reference_accelerometer:
+        return "the error-state EKF is written for the physical accelerometer (fidelity: physical)"
+    return None
+
+
 def _check_semantics(scenario):
     names = [v.name for v in scenario.vehicles]
     if not names:
@@ -496,6 +504,9 @@ def _check_semantics(scenario):
             resolve_trajectory_file(v.trajectory.file, f"vehicles.{i}.trajectory.file")
         if not v.use_ideal_estimator and not (v.sensors.imu and v.sensors.gps and v.sensors.mag):
             raise ConfigError(f"vehicles.{i}.use_ideal_estimator: false needs imu, gps and mag sensors")
+        problem = estimator_fidelity_problem(v.estimator.kind, fidelity_from_mode(scenario.fidelity))
+        if problem:
+            raise ConfigError(f"vehicles.{i}.estimator: {problem}")
         if v.gps_delay_compensation > 0 and not (v.sensors.imu and v.sensors.gps):
             raise ConfigError(f"vehicles.{i}.gps_delay_compensation: needs imu and gps sensors")
         for j, fault in enumerate(v.faults):

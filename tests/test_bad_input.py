@@ -117,6 +117,14 @@ def test_values_that_would_hang_or_break_the_filter_are_refused(quad_drake_cli, 
     assert_refused(quad_drake_cli("run", "11_gps_update", "--set", override, "--no-plots"), message)
 
 
+@pytest.mark.parametrize("command", ["run", "montecarlo"])
+def test_the_reference_fidelity_on_an_error_state_ekf_is_refused(quad_drake_cli, command):
+    result = quad_drake_cli(command, "11_gps_update_eskf", "--set", "fidelity=reference", "--no-plots")
+    assert_refused(
+        result, "vehicles.0.estimator: the error-state EKF is written for the physical accelerometer"
+    )
+
+
 @pytest.mark.slow
 def test_the_edges_of_the_accepted_noise_range_fly_without_a_traceback(quad_drake_cli, tmp_path):
     # Zero P0 and Q with the smallest accepted R, then the largest accepted Q: the filter's

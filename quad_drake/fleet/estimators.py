@@ -15,6 +15,7 @@ import numpy as np
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
 from quad_drake import delay_compensation
+from quad_drake.config import ConfigError, estimator_fidelity_problem
 from quad_drake.conventions import (
     ATTITUDE_FILTER_OFFSET,
     ATTITUDE_SIZE,
@@ -404,8 +405,9 @@ def _build_ekf7(builder, vehicle, n, fidelity):
 
 
 def _build_eskf(builder, vehicle, n, fidelity):
-    if fidelity.reference_accelerometer:
-        raise ValueError("the error-state EKF is written for the physical accelerometer (fidelity: physical)")
+    problem = estimator_fidelity_problem("eskf", fidelity)
+    if problem:
+        raise ConfigError(problem)
     system = builder.AddNamedSystem("eskf", FleetEskf(vehicle.estimator, n))
     inputs = {name: [system.GetInputPort(name)] for name in ("imu", "gps", "mag")}
     names = ("estimated_state", "covariance", "diagnostics", "imu_bias")

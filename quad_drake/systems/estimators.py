@@ -23,6 +23,7 @@ import math
 import numpy as np
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
+from quad_drake.config import ConfigError, estimator_fidelity_problem
 from quad_drake.conventions import (
     ATTITUDE_FILTER_OFFSET,
     ATTITUDE_SIZE,
@@ -384,8 +385,9 @@ def _build_ekf7(builder, vehicle, fidelity):
 
 
 def _build_eskf(builder, vehicle, fidelity):
-    if fidelity.reference_accelerometer:
-        raise ValueError("the error-state EKF is written for the physical accelerometer (fidelity: physical)")
+    problem = estimator_fidelity_problem("eskf", fidelity)
+    if problem:
+        raise ConfigError(problem)
     system = builder.AddNamedSystem("eskf", Eskf(vehicle.estimator))
     inputs = {name: [system.GetInputPort(name)] for name in ("imu", "gps", "mag")}
     names = ("estimated_state", "covariance", "diagnostics", "imu_bias")
