@@ -6,6 +6,7 @@ import dataclasses
 import io
 import json
 import math
+import os
 import re
 import signal
 import subprocess
@@ -245,6 +246,20 @@ def test_bad_counts_are_config_errors(scenario):
         run_campaign(scenario, 2, seed=-1, progress=False)
     with pytest.raises(ConfigError, match="--jobs must be >= 1"):
         ProcessPoolRunner(0)
+
+
+def _worker_pid(_):
+    return os.getpid()
+
+
+@pytest.mark.slow
+def test_a_process_pool_used_as_a_context_keeps_its_workers_from_one_map_to_the_next():
+    with ProcessPoolRunner(2) as runner:
+        first = {pid for _, pid in runner.map(_worker_pid, range(6))}
+        second = {pid for _, pid in runner.map(_worker_pid, range(6))}
+    assert 1 <= len(first) <= 2 and second <= first and os.getpid() not in first
+    fresh = {pid for _, pid in ProcessPoolRunner(2).map(_worker_pid, range(2))}
+    assert not fresh & first  # outside ``with`` every map starts its own workers
 
 
 class InterruptedRunner(Runner):

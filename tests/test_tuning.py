@@ -181,6 +181,10 @@ def test_the_verdict_asks_every_held_out_run_to_pass_and_the_loss_not_to_rise():
 
 
 def _quadratic(target):
+    return search.one_at_a_time(_quadratic_of_one(target))
+
+
+def _quadratic_of_one(target):
     def evaluate(x):
         return Score(float(np.sum((np.asarray(x) - target) ** 2)), 0.0, 0.0, 1.0, {})
 
@@ -214,11 +218,40 @@ def test_ctrl_c_ends_the_search_with_the_best_so_far():
         if len(calls) == 5:
             raise KeyboardInterrupt
         calls.append(x)
-        return _quadratic(np.array([0.5, 0.5]))(x)
+        return _quadratic_of_one(np.array([0.5, 0.5]))(x)
 
-    result = search.search(evaluate, 2, 50, 1.0)
+    result = search.search(search.one_at_a_time(evaluate), 2, 50, 1.0)
     assert result.interrupted and len(result.history) == 5
     assert result.best.score.loss == min(e.score.loss for e in result.history)
+
+
+def _last_first(evaluate, stop_after=None):
+    """A generation evaluator that scores a generation's candidates at once and gives them back
+    in reverse order (as a pool may), with Ctrl-C after `stop_after` scores."""
+    given = []
+
+    def generation(xs):
+        for i in reversed(range(len(xs))):
+            if len(given) == stop_after:
+                raise KeyboardInterrupt
+            given.append(i)
+            yield i, evaluate(xs[i])
+
+    return generation
+
+
+def test_a_generation_scored_at_once_in_any_order_gives_the_same_search():
+    target = np.array([0.4, -0.3, 0.2])
+    in_order = search.search(_quadratic(target), 3, 17, 1.0, seed=5)
+    shuffled = search.search(_last_first(_quadratic_of_one(target)), 3, 17, 1.0, seed=5)
+    assert [(e.index, e.generation, e.x, e.score.loss) for e in shuffled.history] == [
+        (e.index, e.generation, e.x, e.score.loss) for e in in_order.history
+    ]
+    stopped = search.search(_last_first(_quadratic_of_one(target), stop_after=3), 3, 17, 1.0, seed=5)
+    population = search.population_size(3, 17)
+    assert stopped.interrupted  # the start, then the last two candidates of generation 1, kept in order
+    assert [e.index for e in stopped.history] == [0, population - 1, population]
+    assert [e.x for e in stopped.history] == [in_order.history[i].x for i in (0, population - 1, population)]
 
 
 def test_population_fits_three_generations_into_a_small_budget():
@@ -236,6 +269,7 @@ def nothing_flies(monkeypatch):
         raise AssertionError("a campaign flew before the input was checked")
 
     monkeypatch.setattr(session, "fly_campaign", fly)
+    monkeypatch.setattr(session, "score_candidates", fly)
 
 
 @pytest.mark.parametrize(
@@ -302,8 +336,8 @@ def test_tune_writes_a_runnable_tuned_yaml_and_is_deterministic(quad_drake_cli, 
         float(best["value.ekf.q_vel_xy_std"]), rel=1e-3
     )
     assert "before" in (folder / "before_after.txt").read_text()
-    # the same seeds and budget: the same search
-    second = quad_drake_cli(*args, "--out", tmp_path / "b", "--no-holdout")
+    # the same seeds and budget: the same search, also with a generation's candidates on two workers
+    second = quad_drake_cli(*args, "--out", tmp_path / "b", "--no-holdout", "--jobs", "2")
     assert second.returncode == 0, second.stderr
     assert (tmp_path / "b" / "history.csv").read_text() == (folder / "history.csv").read_text()
     assert (tmp_path / "b" / "tuned.yaml").read_text() == (folder / "tuned.yaml").read_text()

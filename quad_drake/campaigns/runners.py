@@ -4,7 +4,9 @@ A :class:`Runner` maps a picklable function over a list of tasks and yields
 ``(index, result)`` pairs as the tasks complete (in any order); the caller orders the
 results by index, so nothing a campaign reports depends on the runner. A task that raises
 ends the map with :class:`TaskFailed` naming its index; closing the iterator, or a
-KeyboardInterrupt, cancels the tasks not yet started. ``name`` goes into summaries.
+KeyboardInterrupt, cancels the tasks not yet started. ``name`` goes into summaries. A runner
+is also a context manager: inside ``with runner:`` a process pool keeps its workers from one
+map to the next (a tuning session's many small campaigns pay the workers' start-up once).
 
 Drake's Python systems cannot run in parallel in one process, so the parallel runners use
 processes (``spawn``) or Dask workers started with one thread each.
@@ -35,6 +37,12 @@ class Runner(ABC):
     def map(self, fn, tasks):
         """Iterator of (index into tasks, fn(tasks[index])) in completion order."""
 
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc_info):
+        return False
+
 
 class InProcessRunner(Runner):
     """One task after the other in this process (no start-up cost, easy to debug)."""
@@ -61,14 +69,26 @@ class ProcessPoolRunner(Runner):
             raise ConfigError(f"montecarlo: --jobs must be >= 1, got {jobs}")
         self.jobs = int(jobs)
         self.name = f"process-pool x{self.jobs}"
+        self._kept = None  # the executor kept inside ``with``
+
+    def _executor(self, workers):
+        return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"))
+
+    def __enter__(self):
+        self._kept = self._executor(self.jobs)
+        return self
+
+    def __exit__(self, *exc_info):
+        kept, self._kept = self._kept, None
+        kept.shutdown(wait=exc_info[0] is None, cancel_futures=True)
+        return False
 
     def map(self, fn, tasks):
         if not tasks:
             return
-        executor = ProcessPoolExecutor(
-            max_workers=min(self.jobs, len(tasks)), mp_context=multiprocessing.get_context("spawn")
-        )
+        executor = self._kept or self._executor(min(self.jobs, len(tasks)))
         finished = False
+        futures = {}
         try:
             futures = {executor.submit(fn, task): index for index, task in enumerate(tasks)}
             for future in as_completed(futures):
@@ -82,7 +102,11 @@ class ProcessPoolRunner(Runner):
                 yield index, result
             finished = True
         finally:  # interrupted or failed: do not wait for the runs in flight
-            executor.shutdown(wait=finished, cancel_futures=True)
+            if executor is self._kept:
+                for future in futures:
+                    future.cancel()
+            else:
+                executor.shutdown(wait=finished, cancel_futures=True)
 
 
 class DaskRunner(Runner):

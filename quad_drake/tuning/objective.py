@@ -49,6 +49,11 @@ class Score:
         return self.pass_rate == 1.0
 
 
+def breakdown_score():
+    """Score of a candidate whose campaign broke down numerically (worse than any failing run)."""
+    return Score(2 * INFEASIBLE + 1.0, math.nan, math.nan, 0.0, {})
+
+
 def band_distance(values, band):
     """Mean over samples of max(0, ln(low / v), ln(v / high)): 0 inside the band."""
     values = np.asarray(values, dtype=float)

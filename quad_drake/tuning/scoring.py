@@ -1,20 +1,27 @@
 """Glue: the one function that flies a candidate's campaign, and the runner it flies on.
 
 Every campaign of ``quad-drake tune`` (each candidate on the training seeds, the before/after
-comparison on the held-out seeds) goes through :func:`fly_campaign`, so the runner is chosen
-in one place (:func:`campaign_runner`), and so is the choice of the fleet runner: a scenario
-that fleet mode flies (``quad_drake.fleet``) is flown as fleet batches, the others one Diagram
-per run.
+comparison on the held-out seeds) goes through :func:`fly_campaign`, so the choice of the
+fleet runner is made in one place: a scenario that fleet mode flies (``quad_drake.fleet``) is
+flown as fleet batches, the others one Diagram per run. The candidates of one CMA-ES
+generation are scored at once, one candidate per worker (:func:`score_candidates`): a
+candidate's runs fly as one fleet batch in its worker, so a worker's fixed cost per tick is
+shared by all of a candidate's runs, and the workers of the session's runner (a ``with``
+block) are started once.
 """
 
 import math
+from dataclasses import dataclass
 
 from ..campaigns import InProcessRunner, ProcessPoolRunner, run_campaign
+from ..campaigns.runners import TaskFailed
 from ..fleet.simulation import unsupported_reason
+from .objective import breakdown_score, score
 
 
 def campaign_runner(scenario, jobs):
-    """The runner of the tuning campaigns: in this process for one job, else a process pool."""
+    """The runner of the tuning campaigns: in this process for one job, else a process pool
+    (use it as a context manager to keep its workers for the whole session)."""
     return InProcessRunner() if jobs == 1 else ProcessPoolRunner(jobs)
 
 
@@ -40,3 +47,41 @@ def fleet_batch(scenario, runs, runner):
     if unsupported_reason(scenario) is not None:
         return None
     return math.ceil(runs / getattr(runner, "jobs", 1))
+
+
+@dataclass(frozen=True)
+class CandidateTask:
+    """One candidate's campaign: `scenario` (the candidate's values applied) on the training
+    seeds first_seed.., scored with `objective` against the χ² band of `target_runs` runs."""
+
+    scenario: object
+    first_seed: int
+    runs: int
+    objective: str
+    target_runs: int
+
+
+def score_candidate(task):
+    """Worker entry point: the Score of a CandidateTask, its campaign flown in this process. A
+    run that broke down numerically is the candidate's fault (:func:`.objective.breakdown_score`);
+    any other failure is raised."""
+    try:
+        campaign = fly_campaign(task.scenario, task.first_seed, task.runs, InProcessRunner())
+    except RuntimeError as e:
+        if isinstance(e.__cause__, ArithmeticError):
+            return breakdown_score()
+        raise
+    return score(campaign, task.objective, task.target_runs)
+
+
+def score_candidates(tasks, runner):
+    """Iterator of (index into tasks, Score) of CandidateTasks on `runner`, one candidate per
+    task, in completion order; a failed candidate raises RuntimeError naming its campaign."""
+    try:
+        yield from runner.map(score_candidate, tasks)
+    except TaskFailed as e:
+        task = tasks[e.index]
+        raise RuntimeError(
+            f"a candidate's campaign failed ({task.scenario.name}, seeds {task.first_seed}.."
+            f"{task.first_seed + task.runs - 1}): {e.error!r}"
+        ) from e.error

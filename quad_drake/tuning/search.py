@@ -9,7 +9,8 @@ exact budget of campaigns, show progress per candidate and stop on Ctrl-C with t
 Its sampler draws from a ``numpy.random.Generator`` seeded here (no global RNG), so for the
 same seed, budget and (deterministic) loss the whole search is identical.
 
-Evaluation 0 is the start (x = 0, the scenario as given); CMA-ES then proposes the others.
+Evaluation 0 is the start (x = 0, the scenario as given); CMA-ES then proposes the others, a
+generation at a time, which the caller may score at once (one candidate per worker).
 """
 
 import math
@@ -51,25 +52,40 @@ def population_size(dims, budget):
     return max(2, min(default, max(4, (budget - 1) // 3), budget - 1))
 
 
-def search(evaluate, dims, budget, bound, seed=0, on_evaluation=None):
-    """SearchResult of up to `budget` calls ``evaluate(x) -> Score`` over x in [-bound, bound]^dims.
+def one_at_a_time(evaluate):
+    """A generation evaluator for :func:`search` from a function of one x: the candidates
+    scored in order, ``evaluate(x) -> Score`` each."""
+    return lambda xs: ((i, evaluate(x)) for i, x in enumerate(xs))
 
-    on_evaluation(Evaluation, best Evaluation) is called after each one (progress). A
-    KeyboardInterrupt (Ctrl-C) ends the search early: ``interrupted`` and the finished history.
+
+def search(evaluate, dims, budget, bound, seed=0, on_evaluation=None):
+    """SearchResult of up to `budget` candidates x in [-bound, bound]^dims.
+
+    evaluate(xs) scores a generation: an iterator of (index into xs, Score), in any order (the
+    candidates of a generation may be scored at once; :func:`one_at_a_time` wraps a function
+    of one x). The history is in candidate order whatever the completion order, so the search
+    is the same for any evaluator that gives the same scores. on_evaluation(Evaluation, best
+    Evaluation) is called as each score arrives (progress). A KeyboardInterrupt (Ctrl-C) ends
+    the search early: ``interrupted``, and the history holds every candidate scored by then.
     """
     if budget < 1 or dims < 1:
         raise ValueError(f"search: budget and dims must be >= 1, got {budget}, {dims}")
     result = SearchResult()
 
-    def record(x, generation):
-        evaluation = Evaluation(len(result.history), generation, tuple(float(v) for v in x), evaluate(x))
-        result.history.append(evaluation)
-        if on_evaluation is not None:
-            on_evaluation(evaluation, result.best)
-        return evaluation.score.loss
+    def generation_losses(xs, generation):
+        first, scored = len(result.history), {}
+        try:
+            for i, score in evaluate(xs):
+                scored[i] = Evaluation(first + i, generation, tuple(float(v) for v in xs[i]), score)
+                if on_evaluation is not None:
+                    best = min([*result.history, *scored.values()], key=lambda e: (e.score.loss, e.index))
+                    on_evaluation(scored[i], best)
+        finally:  # interrupted or not: keep what finished, in candidate order
+            result.history.extend(scored[i] for i in sorted(scored))
+        return [scored[i].score.loss for i in range(len(xs))]
 
     try:
-        record(np.zeros(dims), 0)
+        generation_losses([np.zeros(dims)], 0)
         if budget == 1:
             return result
         rng = np.random.default_rng(seed)
@@ -88,7 +104,7 @@ def search(evaluate, dims, budget, bound, seed=0, on_evaluation=None):
             generation += 1
             candidates = strategy.ask()
             room = budget - len(result.history)
-            losses = [record(x, generation) for x in candidates[:room]]
+            losses = generation_losses(candidates[:room], generation)
             if len(losses) < len(candidates):
                 break  # the budget ended inside a generation: nothing left to tell
             strategy.tell(candidates, losses)

@@ -2,7 +2,8 @@
 
 :func:`prepare` checks everything (keys, counts, seeds, objective) before any run flies;
 :func:`tune` runs the search (CMA-ES, :mod:`.search`), each candidate scored by one campaign
-on the training seeds (:func:`.scoring.fly_campaign`), then flies the start and the best
+on the training seeds (:func:`.scoring.score_candidates`: a generation's candidates at once,
+one per worker of the session's runner), then flies the start and the best
 candidate on the held-out seeds, and writes the outputs (:mod:`.output`). Ctrl-C keeps the
 best so far: its tuned.yaml, the history and the plot are written, the held-out comparison is
 skipped, and the result says it was interrupted.
@@ -20,8 +21,8 @@ from ..config import ConfigError
 from ..simulation import available_signals
 from ..verdicts import check_criteria
 from . import output
-from .objective import INFEASIBLE, OBJECTIVES, Score, pass_rate, score
-from .scoring import campaign_runner, fly_campaign
+from .objective import OBJECTIVES, pass_rate, score
+from .scoring import CandidateTask, campaign_runner, fly_campaign, score_candidates
 from .search import search
 from .space import SEARCH_DECADES, apply, search_space
 
@@ -128,47 +129,40 @@ class _Progress:
             self.bar.close()
 
 
-def _broken():
-    """Score of a candidate whose campaign broke down numerically (worse than any failing run)."""
-    return Score(2 * INFEASIBLE + 1.0, math.nan, math.nan, 0.0, {})
-
-
 def tune(problem, out_dir, progress=True):
     """TuneResult; writes the outputs into out_dir (:func:`.output.write`)."""
     s, scenario, space = problem.settings, problem.scenario, problem.space
-    runner = campaign_runner(scenario, s.jobs)
-    target_runs = s.holdout_runs
+    with campaign_runner(scenario, s.jobs) as runner:
 
-    def evaluate(x):
-        candidate = apply(scenario, space, x)
+        def evaluate(xs):
+            tasks = [
+                CandidateTask(
+                    apply(scenario, space, x), s.train_seed, s.train_runs, s.objective, s.holdout_runs
+                )
+                for x in xs
+            ]
+            return score_candidates(tasks, runner)
+
+        bar = _Progress(scenario.name, s.budget, progress)
+        start = time.perf_counter()
         try:
-            campaign = fly_campaign(candidate, s.train_seed, s.train_runs, runner)
-        except RuntimeError as e:  # a run failed; only a numerical breakdown is the candidate's fault
-            if isinstance(e.__cause__, ArithmeticError):
-                return _broken()
-            raise
-        return score(campaign, s.objective, target_runs)
-
-    bar = _Progress(scenario.name, s.budget, progress)
-    start = time.perf_counter()
-    try:
-        found = search(evaluate, len(space), s.budget, SEARCH_DECADES, s.search_seed, bar.update)
-    finally:
-        bar.close()
-    result = TuneResult(problem, found, None, time.perf_counter() - start, interrupted=found.interrupted)
-    if found.best is not None:
-        result.tuned = output.tuned_scenario(apply(scenario, space, found.best.x))
-    result.files = output.write_search(result, out_dir)
-    if result.interrupted or not s.holdout or found.best is None:
-        return result
-    start = time.perf_counter()
-    try:
-        result.before = fly_campaign(scenario, s.holdout_seed, s.holdout_runs, runner, progress)
-        result.after = fly_campaign(result.tuned, s.holdout_seed, s.holdout_runs, runner, progress)
-    except KeyboardInterrupt:
-        result.interrupted = True
-        result.before = result.after = None
-        return result
+            found = search(evaluate, len(space), s.budget, SEARCH_DECADES, s.search_seed, bar.update)
+        finally:
+            bar.close()
+        result = TuneResult(problem, found, None, time.perf_counter() - start, interrupted=found.interrupted)
+        if found.best is not None:
+            result.tuned = output.tuned_scenario(apply(scenario, space, found.best.x))
+        result.files = output.write_search(result, out_dir)
+        if result.interrupted or not s.holdout or found.best is None:
+            return result
+        start = time.perf_counter()
+        try:
+            result.before = fly_campaign(scenario, s.holdout_seed, s.holdout_runs, runner, progress)
+            result.after = fly_campaign(result.tuned, s.holdout_seed, s.holdout_runs, runner, progress)
+        except KeyboardInterrupt:
+            result.interrupted = True
+            result.before = result.after = None
+            return result
     result.holdout_time = time.perf_counter() - start
     result.files += output.write_holdout(result, out_dir)
     return result
