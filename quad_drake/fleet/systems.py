@@ -46,9 +46,10 @@ def _discrete(system, initial, output=None):
 
 
 def _reader(port, n, size):
-    """``read(context) -> (n, size) array`` of the vector input `port` (a copy)."""
-    evaluate = port.Eval
-    return lambda context: evaluate(context).reshape(n, size)
+    """``read(context) -> (n, size) array`` of the vector input `port`: a read-only view of the
+    value (no copy; valid inside the event handler that reads it)."""
+    evaluate = port.EvalBasicVector
+    return lambda context: evaluate(context).get_value().reshape(n, size)
 
 
 class FleetNoiseSource(LeafSystem):
@@ -285,7 +286,7 @@ class FleetTrajectory(LeafSystem):
 
     def _calc(self, context, output):
         sample = self._trajectory.sample(lookup_time(context.get_time(), self._fidelity))
-        output.SetFromVector(np.tile(sample, self._n))
+        output.get_mutable_value().reshape(self._n, REFERENCE_SIZE)[:] = sample
 
 
 class FleetSensorFaults(LeafSystem):
