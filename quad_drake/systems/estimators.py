@@ -355,16 +355,9 @@ class Eskf(_GatedFusion, LeafSystem):
         discrete_state.set_value(4, self._estimated_state(x, rate))
 
 
-def _build_ekf7(builder, vehicle, fidelity):
-    """CF + EKF7 + assembler in `builder`; returns (input ports by name, output ports by name)."""
-    ekf_system = builder.AddNamedSystem("ekf", Ekf(vehicle.ekf, fidelity))
-    attitude_filter = builder.AddNamedSystem(
-        "attitude_filter",
-        ComplementaryFilter(
-            vehicle.attitude_filter, initial_attitude=(0.0, 0.0, vehicle.ekf.init_state[6]), fidelity=fidelity
-        ),
-    )
-    assembler = builder.AddNamedSystem("estimated_state", EstimatedStateAssembler())
+def wire_ekf7(builder, ekf_system, attitude_filter, assembler):
+    """Connect an EKF7, its complementary filter and its assembler (added to `builder`, per
+    vehicle or fleet forms: the same ports); (input ports by name, output ports by name)."""
     builder.Connect(ekf_system.GetOutputPort("ekf_state"), attitude_filter.GetInputPort("ekf_state"))
     builder.Connect(attitude_filter.GetOutputPort("attitude"), ekf_system.GetInputPort("attitude"))
     builder.Connect(attitude_filter.GetOutputPort("attitude"), assembler.GetInputPort("attitude"))
@@ -384,15 +377,50 @@ def _build_ekf7(builder, vehicle, fidelity):
     return inputs, outputs
 
 
-def _build_eskf(builder, vehicle, fidelity):
+def wire_eskf(system):
+    """(input ports by name, output ports by name) of an ESKF system (per vehicle or fleet)."""
+    inputs = {name: [system.GetInputPort(name)] for name in ("imu", "gps", "mag")}
+    names = ("estimated_state", "covariance", "diagnostics", "imu_bias")
+    return inputs, {name: system.GetOutputPort(name) for name in names}
+
+
+def check_eskf_fidelity(fidelity):
+    """Raise ConfigError (one line) when the ESKF cannot run under `fidelity`."""
     problem = estimator_fidelity_problem("eskf", fidelity)
     if problem:
         raise ConfigError(problem)
-    system = builder.AddNamedSystem("eskf", Eskf(vehicle.estimator))
-    inputs = {name: [system.GetInputPort(name)] for name in ("imu", "gps", "mag")}
-    names = ("estimated_state", "covariance", "diagnostics", "imu_bias")
-    outputs = {name: system.GetOutputPort(name) for name in names}
-    return inputs, outputs
+
+
+def estimator_diagram(builder, inputs, outputs, estimator):
+    """Export `inputs` (name -> ports fed by one exported input) and the outputs the vocabulary
+    of `estimator` (an estimator config) lists; the built Diagram, named ``estimator``."""
+    for name, ports in inputs.items():
+        exported = builder.ExportInput(ports[0], name)
+        for port in ports[1:]:
+            builder.ConnectInput(exported, port)
+    for name in vocabulary_for(estimator).log_widths():
+        builder.ExportOutput(outputs[name], name)
+    diagram = builder.Build()
+    diagram.set_name("estimator")
+    return diagram
+
+
+def _build_ekf7(builder, vehicle, fidelity):
+    """CF + EKF7 + assembler in `builder`; returns (input ports by name, output ports by name)."""
+    ekf_system = builder.AddNamedSystem("ekf", Ekf(vehicle.ekf, fidelity))
+    attitude_filter = builder.AddNamedSystem(
+        "attitude_filter",
+        ComplementaryFilter(
+            vehicle.attitude_filter, initial_attitude=(0.0, 0.0, vehicle.ekf.init_state[6]), fidelity=fidelity
+        ),
+    )
+    assembler = builder.AddNamedSystem("estimated_state", EstimatedStateAssembler())
+    return wire_ekf7(builder, ekf_system, attitude_filter, assembler)
+
+
+def _build_eskf(builder, vehicle, fidelity):
+    check_eskf_fidelity(fidelity)
+    return wire_eskf(builder.AddNamedSystem("eskf", Eskf(vehicle.estimator)))
 
 
 _BUILDERS = {"ekf7": _build_ekf7, "eskf": _build_eskf}
@@ -409,12 +437,4 @@ def build_estimator(vehicle, fidelity=PHYSICAL):
     """
     builder = DiagramBuilder()
     inputs, outputs = _BUILDERS[vehicle.estimator.kind](builder, vehicle, fidelity)
-    for name, ports in inputs.items():
-        exported = builder.ExportInput(ports[0], name)
-        for port in ports[1:]:
-            builder.ConnectInput(exported, port)
-    for name in vocabulary_for(vehicle.estimator).log_widths():
-        builder.ExportOutput(outputs[name], name)
-    diagram = builder.Build()
-    diagram.set_name("estimator")
-    return diagram
+    return estimator_diagram(builder, inputs, outputs, vehicle.estimator)
