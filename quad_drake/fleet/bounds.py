@@ -1,19 +1,20 @@
 """The posterior Cramér-Rao bound of N runs at once: the array form of
 :func:`quad_drake.accuracy_bound.posterior_crb` (leading axis N after time), so a fleet batch
-summarises its runs' efficiency without a per-run loop over the log samples. Pure."""
+summarises its runs' efficiency without a Python loop over the log samples. Pure.
 
+The recursion is a numba-compiled loop (``cache=True``) over the log samples and the runs, in
+covariance form with the sparsity of the transition used block by block (see
+:func:`posterior_crbs`); it agrees with the information form to rounding
+(``tests/test_fleet_kernels.py``).
+"""
+
+import math
+
+import numba
 import numpy as np
 
-from quad_drake.accuracy_bound import PCRB_PRIOR_STD, PCRB_STATES, _rotations
+from quad_drake.accuracy_bound import PCRB_PRIOR_STD, PCRB_STATES
 from quad_drake.conventions import GRAVITY, LOG_PERIOD, ONBOARD_PERIOD
-
-
-def _skews(v):
-    """(N, 3, 3) skew matrices of (N, 3) vectors."""
-    out = np.zeros((v.shape[0], 3, 3))
-    out[:, 0, 1], out[:, 0, 2], out[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
-    out[:, 1, 0], out[:, 2, 0], out[:, 2, 1] = v[:, 2], -v[:, 1], v[:, 0]
-    return out
 
 
 def posterior_crbs(states, gps_fresh, mag_fresh, sensors, period=LOG_PERIOD, dt_imu=ONBOARD_PERIOD):
@@ -23,72 +24,178 @@ def posterior_crbs(states, gps_fresh, mag_fresh, sensors, period=LOG_PERIOD, dt_
     vehicle's SensorsConfig (the same for the N runs). The same bound propagated in
     covariance form, P = J^-1: the prediction J <- (F J^-1 F^T + Q)^-1 becomes
     P <- F P F^T + Q and the fusions J <- J + H^T R^-1 H become Kalman updates, so only the
-    GPS samples need a (6 x 6) inverse instead of three 9 x 9 inverses per log sample; it
-    agrees with the information form to rounding (tests/test_fleet_kernels.py).
+    GPS samples need a (6 x 6) solve instead of three 9 x 9 inverses per log sample. With
+    F = [[I, T I, -T^2/2 [u]x], [0, I, -T [u]x], [0, 0, I]] the product F P F^T is formed
+    from 3 x 3 blocks and the skew matrix's entries, never as dense 9 x 9 products.
     """
     states = np.asarray(states, dtype=float)
     n, runs = states.shape[:2]
     imu, gps, mag = sensors.imu, sensors.gps, sensors.mag
-    R_all = _rotations(states[:, :, 3:7].reshape(-1, 4)).reshape(n, runs, 3, 3)
+    quaternions = np.ascontiguousarray(states[:, :, 3:7])
     velocity = states[:, :, 7:10]
     accel = np.gradient(velocity, period, axis=0) if n > 1 else np.zeros((n, runs, 3))
-    u_N = accel - np.array([0.0, 0.0, GRAVITY])
-    accel_psd = np.square(imu.accel_std) * dt_imu
-    gyro_psd = np.square(imu.gyro_std) * dt_imu
-    R_gps = np.diag(np.square(list(gps.pos_std) + list(gps.vel_std)))
-    P = np.broadcast_to(np.diag(np.square(PCRB_PRIOR_STD)), (runs, 9, 9)).copy()
-    variances = np.zeros((n, runs, 9))
-    euler_variances = np.zeros((n, runs, 3))
-    T = period
-    eye = np.eye(9)
+    u_N = np.ascontiguousarray(accel - np.array([0.0, 0.0, GRAVITY]))
     use_mag = mag is not None and mag.yaw_std > 0
-    for k in range(n):
-        R = R_all[k]
-        Rt = R.transpose(0, 2, 1)
-        if k > 0:
-            A = np.zeros((runs, 9, 9))
-            A[:, 0:3, 3:6] = np.eye(3)
-            A[:, 3:6, 6:9] = -_skews(u_N[k])
-            F = eye + A * T + (A @ A) * (0.5 * T * T)
-            Ma = (R * accel_psd) @ Rt
-            Q = np.zeros((runs, 9, 9))
-            Q[:, 0:3, 0:3] = Ma * (T**3 / 3.0)
-            Q[:, 0:3, 3:6] = Q[:, 3:6, 0:3] = Ma * (T * T / 2.0)
-            Q[:, 3:6, 3:6] = Ma * T
-            Q[:, 6:9, 6:9] = (R * gyro_psd) @ Rt * T
-            P = F @ P @ F.transpose(0, 2, 1) + Q
-        fresh = gps_fresh[k]
-        if fresh.any():
-            S = P[fresh, 0:6, 0:6] + R_gps
-            K = P[fresh, :, 0:6] @ np.linalg.inv(S)
-            P[fresh] = P[fresh] - K @ P[fresh, 0:6, :]
-        fresh = mag_fresh[k] if use_mag else np.zeros(runs, dtype=bool)
-        if fresh.any():
-            r00, r10, r20 = R[fresh, 0, 0], R[fresh, 1, 0], R[fresh, 2, 0]
-            d = r00 * r00 + r10 * r10
-            h = np.zeros((int(fresh.sum()), 9))
-            h[:, 6], h[:, 7], h[:, 8] = -r00 * r20 / d, -r10 * r20 / d, 1.0
-            Ph = np.einsum("nij,nj->ni", P[fresh], h)
-            s = np.einsum("ni,ni->n", h, Ph) + mag.yaw_std**2
-            P[fresh] = P[fresh] - Ph[:, :, None] * Ph[:, None, :] / s[:, None, None]
-        P = 0.5 * (P + P.transpose(0, 2, 1))
-        variances[k] = np.diagonal(P, axis1=1, axis2=2)
-        roll = np.arctan2(R[:, 2, 1], R[:, 2, 2])
-        pitch = np.arcsin(np.clip(-R[:, 2, 0], -1.0, 1.0))
-        W = _euler_rate_matrices(roll, pitch) @ Rt
-        euler_variances[k] = np.einsum("nij,njk,nik->ni", W, P[:, 6:9, 6:9], W)
+    variances, euler_variances = _pcrb_recursion(
+        quaternions,
+        u_N,
+        np.ascontiguousarray(gps_fresh, dtype=np.bool_),
+        np.ascontiguousarray(mag_fresh, dtype=np.bool_) if use_mag else np.zeros((n, runs), dtype=np.bool_),
+        np.square(imu.accel_std) * dt_imu,
+        np.square(imu.gyro_std) * dt_imu,
+        np.square(np.array(list(gps.pos_std) + list(gps.vel_std), dtype=float)),
+        mag.yaw_std**2 if use_mag else 1.0,
+        np.square(np.array(PCRB_PRIOR_STD, dtype=float)),
+        float(period),
+    )
     result = {name: variances[:, :, i] for i, name in enumerate(PCRB_STATES)}
     result.update({name: euler_variances[:, :, i] for i, name in enumerate(("Roll", "Pitch", "Yaw"))})
     return result
 
 
-def _euler_rate_matrices(roll, pitch):
-    """(N, 3, 3) of ``accuracy_bound._euler_rate_matrix``."""
-    sr, cr = np.sin(roll), np.cos(roll)
-    cp, tp = np.cos(pitch), np.tan(pitch)
-    out = np.zeros((roll.shape[0], 3, 3))
-    out[:, 0, 0] = 1.0
-    out[:, 0, 1], out[:, 0, 2] = sr * tp, cr * tp
-    out[:, 1, 1], out[:, 1, 2] = cr, -sr
-    out[:, 2, 1], out[:, 2, 2] = sr / cp, cr / cp
-    return out
+@numba.njit(cache=True)
+def _pcrb_recursion(
+    quaternions, u_N, gps_fresh, mag_fresh, accel_psd, gyro_psd, gps_var, yaw_var, prior_var, T
+):
+    """((n, N, 9) variances, (n, N, 3) Euler-angle variances) of the covariance-form PCRB.
+
+    quaternions: (n, N, 4) q_NB wxyz; u_N: (n, N, 3) specific force in N; gps_fresh, mag_fresh:
+    (n, N) bool (mag all false when it is not fused); accel_psd, gyro_psd: (3,) std^2 * dt_imu;
+    gps_var: (6,) GPS p, v variances; yaw_var: magnetometer yaw variance; prior_var: (9,) P_0
+    diagonal; T: the log period, s.
+    """
+    n, runs = u_N.shape[0], u_N.shape[1]
+    variances = np.zeros((n, runs, 9))
+    euler_variances = np.zeros((n, runs, 3))
+    P = np.zeros((runs, 9, 9))
+    for j in range(runs):
+        for i in range(9):
+            P[j, i, i] = prior_var[i]
+    a, b = T, 0.5 * T * T
+    q_pp, q_pv, q_vv = T**3 / 3.0, T * T / 2.0, T
+    M = np.empty((9, 9))
+    SX = np.empty((3, 9))
+    XS = np.empty((9, 3))
+    Ma = np.empty((3, 3))
+    Mg = np.empty((3, 3))
+    S6 = np.empty((6, 6))
+    G = np.empty((6, 9))
+    ph = np.empty(9)
+    W = np.empty((3, 3))
+    R = np.empty((3, 3))
+    for k in range(n):
+        for j in range(runs):
+            Pj = P[j]
+            _rotation(quaternions[k, j], R)
+            if k > 0:
+                u0, u1, u2 = u_N[k, j, 0], u_N[k, j, 1], u_N[k, j, 2]
+                # M = F P: rows of the attitude block times S = [u]x
+                for c in range(9):
+                    x0, x1, x2 = Pj[6, c], Pj[7, c], Pj[8, c]
+                    SX[0, c] = -u2 * x1 + u1 * x2
+                    SX[1, c] = u2 * x0 - u0 * x2
+                    SX[2, c] = -u1 * x0 + u0 * x1
+                for r in range(3):
+                    for c in range(9):
+                        M[r, c] = Pj[r, c] + a * Pj[r + 3, c] - b * SX[r, c]
+                        M[r + 3, c] = Pj[r + 3, c] - a * SX[r, c]
+                        M[r + 6, c] = Pj[r + 6, c]
+                # F P F^T = M F^T: columns of the attitude block times S^T = -S
+                for r in range(9):
+                    x0, x1, x2 = M[r, 6], M[r, 7], M[r, 8]
+                    XS[r, 0] = x1 * u2 - x2 * u1
+                    XS[r, 1] = -x0 * u2 + x2 * u0
+                    XS[r, 2] = x0 * u1 - x1 * u0
+                for r in range(9):
+                    for c in range(3):
+                        Pj[r, c] = M[r, c] + a * M[r, c + 3] + b * XS[r, c]
+                        Pj[r, c + 3] = M[r, c + 3] + a * XS[r, c]
+                        Pj[r, c + 6] = M[r, c + 6]
+                # + Q: R diag(psd) R^T integrated over T
+                for r in range(3):
+                    for c in range(3):
+                        sa, sg = 0.0, 0.0
+                        for m in range(3):
+                            sa += R[r, m] * accel_psd[m] * R[c, m]
+                            sg += R[r, m] * gyro_psd[m] * R[c, m]
+                        Ma[r, c], Mg[r, c] = sa, sg
+                for r in range(3):
+                    for c in range(3):
+                        Pj[r, c] += Ma[r, c] * q_pp
+                        Pj[r, c + 3] += Ma[r, c] * q_pv
+                        Pj[r + 3, c] += Ma[r, c] * q_pv
+                        Pj[r + 3, c + 3] += Ma[r, c] * q_vv
+                        Pj[r + 6, c + 6] += Mg[r, c] * q_vv
+            if gps_fresh[k, j]:
+                # P <- P - P[:, :6] S^-1 P[:6, :], S = P[:6, :6] + R_gps, by Cholesky S = L L^T
+                for r in range(6):
+                    for c in range(6):
+                        S6[r, c] = Pj[r, c]
+                    S6[r, r] += gps_var[r]
+                for c in range(6):
+                    s = S6[c, c]
+                    for m in range(c):
+                        s -= S6[c, m] * S6[c, m]
+                    S6[c, c] = math.sqrt(s)
+                    for r in range(c + 1, 6):
+                        s = S6[r, c]
+                        for m in range(c):
+                            s -= S6[r, m] * S6[c, m]
+                        S6[r, c] = s / S6[c, c]
+                for c in range(9):  # G = L^-1 P[:6, :]
+                    for r in range(6):
+                        s = Pj[r, c]
+                        for m in range(r):
+                            s -= S6[r, m] * G[m, c]
+                        G[r, c] = s / S6[r, r]
+                for r in range(9):  # P -= G^T G
+                    for c in range(9):
+                        s = 0.0
+                        for m in range(6):
+                            s += G[m, r] * G[m, c]
+                        M[r, c] = Pj[r, c] - s
+                for r in range(9):
+                    for c in range(9):
+                        Pj[r, c] = M[r, c]
+            if mag_fresh[k, j]:
+                r00, r10, r20 = R[0, 0], R[1, 0], R[2, 0]
+                d = r00 * r00 + r10 * r10
+                h6, h7 = -r00 * r20 / d, -r10 * r20 / d
+                for r in range(9):
+                    ph[r] = Pj[r, 6] * h6 + Pj[r, 7] * h7 + Pj[r, 8]
+                s = ph[6] * h6 + ph[7] * h7 + ph[8] + yaw_var
+                for r in range(9):
+                    for c in range(9):
+                        Pj[r, c] -= ph[r] * ph[c] / s
+            for r in range(9):
+                for c in range(r + 1, 9):
+                    mean = 0.5 * (Pj[r, c] + Pj[c, r])
+                    Pj[r, c] = mean
+                    Pj[c, r] = mean
+                variances[k, j, r] = Pj[r, r]
+            # Euler-angle variances: W = E(roll, pitch) R^T, diag(W P_att W^T)
+            roll = math.atan2(R[2, 1], R[2, 2])
+            pitch = math.asin(min(1.0, max(-1.0, -R[2, 0])))
+            sr, cr = math.sin(roll), math.cos(roll)
+            cp, tp = math.cos(pitch), math.tan(pitch)
+            e1, e2, e4, e5, e7, e8 = sr * tp, cr * tp, cr, -sr, sr / cp, cr / cp
+            for c in range(3):
+                W[0, c] = R[c, 0] + e1 * R[c, 1] + e2 * R[c, 2]
+                W[1, c] = e4 * R[c, 1] + e5 * R[c, 2]
+                W[2, c] = e7 * R[c, 1] + e8 * R[c, 2]
+            for r in range(3):
+                s = 0.0
+                for c in range(3):
+                    for m in range(3):
+                        s += W[r, c] * Pj[6 + c, 6 + m] * W[r, m]
+                euler_variances[k, j, r] = s
+    return variances, euler_variances
+
+
+@numba.njit(cache=True)
+def _rotation(q, out):
+    """R_NB of a unit wxyz quaternion into `out` (3, 3), as ``accuracy_bound._rotations``."""
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    out[0, 0], out[0, 1], out[0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
+    out[1, 0], out[1, 1], out[1, 2] = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
+    out[2, 0], out[2, 1], out[2, 2] = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
