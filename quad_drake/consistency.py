@@ -10,6 +10,7 @@ each is chi^2(dof); the mean over M independent runs, times M, is chi^2(dof M), 
 confidence interval for pass rates.
 """
 
+import functools
 import math
 
 import numpy as np
@@ -20,37 +21,106 @@ from .evaluation import sigma_share
 from .signals import stamp_fresh
 
 
-def nees_of(vocabulary, logs):
-    """(n,) NEES of one vehicle's logged run over the vocabulary's ``nees_states``."""
-    states = np.asarray(vocabulary.nees_states)
-    errors = vocabulary.errors(logs)[:, states]
-    covariances = covariance_matrices(logs["covariance"])[:, states[:, None], states[None, :]]
-    return nees(errors, covariances)
+def nees_of(vocabulary, logs, errors=None):
+    """(n,) NEES of one vehicle's logged run over the vocabulary's ``nees_states``.
+
+    errors: the run's ``vocabulary.errors(logs)`` when the caller has them already.
+    """
+    errors = vocabulary.errors(logs) if errors is None else errors
+    return _nees(errors, covariance_matrices(logs["covariance"]), vocabulary.nees_states)
 
 
 def covariance_matrices(covariance_log):
-    """(n, k, k) covariances from an (n, k*k) row-major log."""
+    """(n, k, k) covariances from an (n, k*k) row-major log ((n, N, k, k) from (n, N, k*k))."""
     covariance_log = np.asarray(covariance_log, dtype=float)
-    k = math.isqrt(covariance_log.shape[1])
-    return covariance_log.reshape(-1, k, k)
+    k = math.isqrt(covariance_log.shape[-1])
+    return covariance_log.reshape(covariance_log.shape[:-1] + (k, k))
 
 
 def nees(errors, covariances):
-    """(n,) e_k^T P_k^-1 e_k; NaN where e or P is not finite or P is singular."""
+    """(n,) e_k^T P_k^-1 e_k of (n, k) errors and (n, k, k) covariances (or (n, N) of (n, N, k),
+    (n, N, k, k)); NaN where e or P is not finite or P is singular (det P <= 0)."""
     errors = np.asarray(errors, dtype=float)
+    return _nees(errors, covariances, range(errors.shape[-1]))
+
+
+def _nees(errors, covariances, states):
+    """:func:`nees` of errors[:, states] and covariances[:, states, states].
+
+    A compiled loop over the samples solves each positive-definite P by Cholesky; the samples
+    where that fails (P not positive definite, or not finite) take the general rule: NaN unless
+    det P > 0 and e, P are finite, else e^T P^-1 e by LU.
+    """
+    shape = np.shape(errors)[:-1]
+    errors = np.asarray(errors, dtype=float).reshape(-1, np.shape(errors)[-1])
     covariances = np.asarray(covariances, dtype=float)
-    result = np.full(errors.shape[0], np.nan)
-    ok = np.isfinite(errors).all(axis=1) & np.isfinite(covariances).all(axis=(1, 2))
-    ok[ok] &= np.linalg.det(covariances[ok]) > 0.0
-    if ok.any():
-        solved = np.linalg.solve(covariances[ok], errors[ok][:, :, None])[:, :, 0]
-        result[ok] = np.einsum("ij,ij->i", errors[ok], solved)
+    covariances = covariances.reshape((-1,) + covariances.shape[-2:])
+    states = np.asarray(states, dtype=np.int64)
+    result = _cholesky_nees_kernel()(errors, covariances, states)
+    rest = np.isnan(result)
+    if rest.any():
+        e = errors[rest][:, states]
+        P = covariances[rest][:, states[:, None], states[None, :]]
+        ok = np.isfinite(e).all(axis=1) & np.isfinite(P).all(axis=(1, 2))
+        ok[ok] &= np.linalg.det(P[ok]) > 0.0
+        values = np.full(e.shape[0], np.nan)
+        if ok.any():
+            solved = np.linalg.solve(P[ok], e[ok][:, :, None])[:, :, 0]
+            values[ok] = np.einsum("ij,ij->i", e[ok], solved)
+        result[rest] = values
+    return result.reshape(shape)
+
+
+def _cholesky_nees(errors, covariances, states):
+    """(n,) e^T P^-1 e = |L^-1 e|^2 with P = L L^T over `states`; NaN where the Cholesky
+    factorisation fails or a value is not finite (compiled by numba: one sample at a time)."""
+    n, k = errors.shape[0], states.shape[0]
+    result = np.full(n, np.nan)
+    L = np.empty((k, k))
+    y = np.empty(k)
+    for i in range(n):
+        ok = True
+        for r in range(k):
+            for c in range(k):
+                ok = ok and np.isfinite(covariances[i, states[r], states[c]])
+        for r in range(k):
+            if not ok:
+                break
+            for c in range(r + 1):
+                s = covariances[i, states[r], states[c]]
+                for m in range(c):
+                    s -= L[r, m] * L[c, m]
+                if r == c:
+                    if not s > 0.0:
+                        ok = False
+                        break
+                    L[r, r] = math.sqrt(s)
+                else:
+                    L[r, c] = s / L[c, c]
+        if not ok:
+            continue
+        total = 0.0
+        for r in range(k):
+            s = errors[i, states[r]]
+            for m in range(r):
+                s -= L[r, m] * y[m]
+            y[r] = s / L[r, r]
+            total += y[r] * y[r]
+        result[i] = total
     return result
 
 
+@functools.cache
+def _cholesky_nees_kernel():
+    """:func:`_cholesky_nees` compiled by numba (cached on disk), imported on first use only."""
+    import numba
+
+    return numba.njit(cache=True)(_cholesky_nees)
+
+
 def normalized_squared_errors(errors, covariances):
-    """(n, k) e_i^2 / P_ii per state: 1 on average for a consistent filter (1 dof each)."""
-    variances = np.diagonal(np.asarray(covariances, dtype=float), axis1=1, axis2=2)
+    """(n, k) e_i^2 / P_ii per state ((n, N, k) of a batch): 1 on average for a consistent filter."""
+    variances = np.diagonal(np.asarray(covariances, dtype=float), axis1=-2, axis2=-1)
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.square(np.asarray(errors, dtype=float)) / variances
 

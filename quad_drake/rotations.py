@@ -23,8 +23,8 @@ def wrap_angles(a):
 
 
 def euler_from_quats(q):
-    """(roll, pitch, yaw) arrays of an (n, 4) array of wxyz quaternions (SPEC §0.1)."""
-    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    """(roll, pitch, yaw) arrays of shape (...) of a (..., 4) array of wxyz quaternions (SPEC §0.1)."""
+    w, x, y, z = np.array(np.moveaxis(q, -1, 0))  # one contiguous copy: q may be a strided view
     roll = np.arctan2(2 * (y * z + w * x), w * w - x * x - y * y + z * z)
     pitch = np.arcsin(np.clip(-2 * (x * z - w * y), -1.0, 1.0))
     yaw = np.arctan2(2 * (x * y + w * z), w * w + x * x - y * y - z * z)

@@ -79,11 +79,35 @@ class RunTask:
     seed: int
 
 
-def summarize_run(result, index, bounds=None):
+def vehicle_errors(signals, vehicle, vocabulary):
+    """(n, k) ``vocabulary.errors`` of a vehicle's logs, as its ``Est.E.<state>`` signals hold them
+    ((n, N, k) of a fleet batch's (n, N) signals)."""
+    return np.stack([signals[f"{vehicle}.Est.E.{key}"].values for key in vocabulary.state_names], axis=-1)
+
+
+def consistency_series(vocabulary, logs, errors):
+    """(NEES (n,), time mean (k,) of e_i^2 / P_ii) of a vehicle's logs and errors; of a fleet
+    batch's (n, N, width) logs and (n, N, k) errors: ((n, N), (N, k))."""
+    covariances = cons.covariance_matrices(logs["covariance"])
+    nse = np.mean(cons.normalized_squared_errors(errors, covariances), axis=0)
+    return cons.nees_of(vocabulary, logs, errors), nse
+
+
+def _posterior_crb(logs, sensors):
+    """``accuracy_bound.posterior_crb`` along a vehicle's logged truth, fusing its logged GPS and
+    magnetometer samples."""
+    no_mag = np.zeros(logs["state"].shape[0], dtype=bool)
+    mag_fresh = stamp_fresh(logs["mag"][:, -1]) if "mag" in logs else no_mag
+    return posterior_crb(logs["state"], stamp_fresh(logs["gps"][:, -1]), mag_fresh, sensors)
+
+
+def summarize_run(result, index, bounds=None, consistency=None):
     """RunRecord of a SimulationResult (pure: reads its logs, signals and verdicts).
 
     bounds: {vehicle: {state: (n,) PCRB variance}} already computed along the run's truth
     (a fleet batch computes its runs' at once, ``fleet.bounds``); default: computed here.
+    consistency: {vehicle: :func:`consistency_series` of the run} already computed (a fleet
+    batch's, at once); default: computed here.
     """
     metrics, nees, nse, nis, counters, pcrb = {}, {}, {}, {}, {}, {}
     settled = result.times >= settle_time(result.scenario.end_time) - 1e-9
@@ -93,20 +117,15 @@ def summarize_run(result, index, bounds=None):
         if vocabulary is not None:
             keys = [f"Est.E.{key}" for key in error_units(vocabulary)]
             keys += ["PosFollowErr"] if "reference" in logs else []  # the true flight, too
-            errors = vocabulary.errors(logs)
-            covariances = cons.covariance_matrices(logs["covariance"])
-            nees[vehicle] = cons.nees_of(vocabulary, logs)
-            nse[vehicle] = np.mean(cons.normalized_squared_errors(errors, covariances), axis=0)
+            nees[vehicle], nse[vehicle] = (consistency or {}).get(vehicle) or consistency_series(
+                vocabulary, logs, vehicle_errors(result.signals, vehicle, vocabulary)
+            )
             for sensor in cons.NIS_DOF:
                 if sensor in logs:
                     nis[(vehicle, sensor)] = cons.fresh_nis(logs["diagnostics"], sensor)
             counters[vehicle] = health_counts(logs["diagnostics"])
             if "gps" in logs and settled.any():
-                no_mag = np.zeros(settled.size, dtype=bool)
-                mag_fresh = stamp_fresh(logs["mag"][:, -1]) if "mag" in logs else no_mag
-                bound = (bounds or {}).get(vehicle) or posterior_crb(
-                    logs["state"], stamp_fresh(logs["gps"][:, -1]), mag_fresh, configs[vehicle].sensors
-                )
+                bound = (bounds or {}).get(vehicle) or _posterior_crb(logs, configs[vehicle].sensors)
                 pcrb[vehicle] = {name: float(np.mean(v[settled])) for name, v in bound.items()}
         else:
             keys = ["PosFollowErr"] if "reference" in logs else []

@@ -61,8 +61,8 @@ class EstimatorVocabulary:
     angles: tuple  # True where the entry is an angle (its error is wrapped to [-pi, pi))
     nees_states: tuple  # indices of the entries the NEES is taken over
     logs: dict  # estimator-specific log name -> width, besides the three common outputs
-    errors: Callable  # (logs {name: (n, w)}) -> (n, len(state_names)) estimate minus truth
-    extra_values: Callable  # (logs) -> {name: (n,)} estimated values beyond ESTIMATED_VALUES
+    errors: Callable  # (logs {name: (n, w)}) -> (n, len(state_names)) estimate minus truth (also (n, N, w))
+    extra_values: Callable  # (logs) -> {name: (n,)} estimated values beyond ESTIMATED_VALUES (also (n, N))
 
     @property
     def size(self):
@@ -88,20 +88,21 @@ class EstimatorVocabulary:
 
 def _truth_pv_euler(state):
     state = np.asarray(state, dtype=float)
-    roll, pitch, yaw = euler_from_quats(state[:, 3:7])
-    return state[:, 0:3], state[:, 7:10], roll, pitch, yaw
+    roll, pitch, yaw = euler_from_quats(state[..., 3:7])
+    return state[..., 0:3], state[..., 7:10], roll, pitch, yaw
 
 
 def ekf7_errors(logs):
-    """(n, 7) x_hat - x_true of the EKF7 (m, m/s, rad; yaw wrapped) from ``ekf_state`` and ``state``."""
+    """(n, 7) x_hat - x_true of the EKF7 (m, m/s, rad; yaw wrapped) from ``ekf_state`` and ``state``
+    ((n, N, 7) of a fleet batch's (n, N, width) logs)."""
     p, v, _, _, yaw = _truth_pv_euler(logs["state"])
-    errors = np.asarray(logs["ekf_state"], dtype=float) - np.column_stack([p, v, yaw])
-    errors[:, 6] = wrap_angles(errors[:, 6])
+    errors = np.asarray(logs["ekf_state"], dtype=float) - np.concatenate([p, v, yaw[..., None]], axis=-1)
+    errors[..., 6] = wrap_angles(errors[..., 6])
     return errors
 
 
 def eskf_errors(logs):
-    """(n, 9 or 15) estimate minus truth of the ESKF's error state.
+    """(n, 9 or 15) estimate minus truth of the ESKF's error state ((n, N, 9 or 15) of a batch).
 
     p, v from ``estimated_state``; the attitude error dtheta with R_hat = Exp(dtheta) R_true
     (world axes); the IMU biases from ``imu_bias`` against a true bias of zero (the simulated
@@ -109,11 +110,12 @@ def eskf_errors(logs):
     """
     state = np.asarray(logs["state"], dtype=float)
     estimate = np.asarray(logs["estimated_state"], dtype=float)
-    parts = [estimate[:, 0:3] - state[:, 0:3], estimate[:, 7:10] - state[:, 7:10]]
-    parts.append(attitude_errors(estimate[:, 3:7], state[:, 3:7]))
-    if np.shape(logs["covariance"])[1] == 15 * 15:
+    parts = [estimate[..., 0:3] - state[..., 0:3], estimate[..., 7:10] - state[..., 7:10]]
+    dtheta = attitude_errors(estimate[..., 3:7].reshape(-1, 4), state[..., 3:7].reshape(-1, 4))
+    parts.append(dtheta.reshape(state.shape[:-1] + (3,)))
+    if np.shape(logs["covariance"])[-1] == 15 * 15:
         parts.append(np.asarray(logs["imu_bias"], dtype=float))
-    return np.column_stack(parts)
+    return np.concatenate(parts, axis=-1)
 
 
 def _no_extra_values(logs):
@@ -122,7 +124,7 @@ def _no_extra_values(logs):
 
 def _bias_values(logs):
     bias = np.asarray(logs["imu_bias"], dtype=float)
-    return {name: bias[:, i] for i, name in enumerate(("BAX", "BAY", "BAZ", "BGX", "BGY", "BGZ"))}
+    return {name: bias[..., i] for i, name in enumerate(("BAX", "BAY", "BAZ", "BGX", "BGY", "BGZ"))}
 
 
 EKF7 = EstimatorVocabulary(

@@ -11,16 +11,18 @@ worker; the batch's logs, its memory (``simulation.batch_bytes``), are freed wit
 
 import dataclasses
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
 
-from quad_drake.campaigns.records import summarize_run
+from quad_drake.campaigns.records import consistency_series, summarize_run, vehicle_errors
 from quad_drake.estimation.vocabulary import vehicle_vocabulary
 from quad_drake.fleet.bounds import posterior_crbs
 from quad_drake.fleet.simulation import batch_bytes, run_fleet
-from quad_drake.results import result_from_logs
-from quad_drake.signals import stamp_fresh
+from quad_drake.results import SimulationResult, signals_from_logs
+from quad_drake.signals import Signal, stamp_fresh
+from quad_drake.verdicts import evaluate_criteria
 
 RUNNER = "drake-fleet"
 """What produced a fleet run (a run summary's ``runner``), as ``results.RUNNER`` for the per-vehicle path."""
@@ -65,11 +67,6 @@ def batch_logs(logs, j):
     }
 
 
-def _fresh(stamps):
-    """(n, N) bool of ``signals.stamp_fresh`` of (n, N) stamps."""
-    return np.stack([stamp_fresh(stamps[:, j]) for j in range(stamps.shape[1])], axis=1)
-
-
 def batch_bounds(scenario, logs):
     """{vehicle: {state: (n, N) PCRB variance}} of the batch's vehicles whose runs
     ``summarize_run`` gives a PCRB (an estimator and a GPS), computed for the N runs at once."""
@@ -78,20 +75,84 @@ def batch_bounds(scenario, logs):
         vehicle_logs = logs[vehicle.name]
         if vehicle_vocabulary(vehicle) is None or "gps" not in vehicle_logs:
             continue
-        gps = _fresh(vehicle_logs["gps"][:, :, -1])
-        mag = _fresh(vehicle_logs["mag"][:, :, -1]) if "mag" in vehicle_logs else np.zeros_like(gps)
+        gps = stamp_fresh(vehicle_logs["gps"][:, :, -1])
+        mag = stamp_fresh(vehicle_logs["mag"][:, :, -1]) if "mag" in vehicle_logs else np.zeros_like(gps)
         bounds[vehicle.name] = posterior_crbs(vehicle_logs["state"], gps, mag, vehicle.sensors)
     return bounds
 
 
+def batch_consistency(scenario, logs, signals):
+    """{vehicle: (NEES (n, N), NSE means (N, k))}: ``records.consistency_series`` of the batch's
+    vehicles with an estimator, for the N runs at once; signals: the batch's (n, N) signals."""
+    series = {}
+    for vehicle in scenario.vehicles:
+        vocabulary = vehicle_vocabulary(vehicle)
+        if vocabulary is not None:
+            errors = vehicle_errors(signals, vehicle.name, vocabulary)
+            series[vehicle.name] = consistency_series(vocabulary, logs[vehicle.name], errors)
+    return series
+
+
+class _Rows:
+    """Run j's slice of a batch's arrays (samples first, runs second), from one contiguous copy
+    with the runs first, made on first use: a column of the batch would be read with a stride
+    of N samples (a cache miss per sample), once per use and per run."""
+
+    def __init__(self):
+        self._copies = {}
+
+    def __call__(self, array, j):
+        key = id(array)
+        if key not in self._copies:  # the array is kept with its copy, so that its id stays its own
+            self._copies[key] = (array, np.ascontiguousarray(np.swapaxes(array, 0, 1)))
+        return self._copies[key][1][j]
+
+
+class _RunView(Mapping):
+    """{name: run j's value} of a batch's {name: batch value}, each made on first use by `make`."""
+
+    def __init__(self, batch, make):
+        self._batch, self._make, self._made = batch, make, {}
+
+    def __getitem__(self, name):
+        if name not in self._made:
+            self._made[name] = self._make(self._batch[name])
+        return self._made[name]
+
+    def __iter__(self):
+        return iter(self._batch)
+
+    def __len__(self):
+        return len(self._batch)
+
+
 def simulate_batch(task):
-    """Worker entry point: fly a FleetBatch; the RunRecord of each of its runs, by index."""
+    """Worker entry point: fly a FleetBatch; the RunRecord of each of its runs, by index.
+
+    The signals, NEES, normalised squared errors and PCRB of the batch are computed for its N
+    runs at once by the per-run functions (which take (n, N, width) logs); each run's criteria
+    and record are then made from its rows, by the per-vehicle path's functions.
+    """
     times, logs, wall_time = run_fleet(task.scenario, task.seeds)
+    signals = signals_from_logs(logs, task.scenario)
+    consistency = batch_consistency(task.scenario, logs, signals)
     bounds = batch_bounds(task.scenario, logs)
+    row = _Rows()
     records = []
     for j, seed in enumerate(task.seeds):
         scenario = dataclasses.replace(task.scenario, seed=seed)
-        result = result_from_logs(scenario, times, batch_logs(logs, j), wall_time / len(task.seeds), RUNNER)
-        run_bounds = {v: {k: b[:, j] for k, b in states.items()} for v, states in bounds.items()}
-        records.append(summarize_run(result, task.first_index + j, run_bounds))
+        run_signals = _RunView(signals, lambda s, j=j: Signal(row(s.values, j), row(s.fresh, j)))
+        run_logs = {v: _RunView(vehicle_logs, lambda x, j=j: row(x, j)) for v, vehicle_logs in logs.items()}
+        result = SimulationResult(
+            scenario,
+            times,
+            run_logs,
+            run_signals,
+            evaluate_criteria(scenario, times, run_signals),
+            wall_time / len(task.seeds),
+            RUNNER,
+        )
+        run_bounds = {v: {k: row(b, j) for k, b in states.items()} for v, states in bounds.items()}
+        run_consistency = {v: (row(nees, j), nse[j]) for v, (nees, nse) in consistency.items()}
+        records.append(summarize_run(result, task.first_index + j, run_bounds, run_consistency))
     return records
