@@ -119,6 +119,9 @@ class _RunView(Mapping):
             self._made[name] = self._make(self._batch[name])
         return self._made[name]
 
+    def __contains__(self, name):
+        return name in self._batch
+
     def __iter__(self):
         return iter(self._batch)
 
