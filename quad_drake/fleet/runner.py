@@ -104,7 +104,7 @@ class _Rows:
     def __call__(self, array, j):
         key = id(array)
         if key not in self._copies:  # the array is kept with its copy, so that its id stays its own
-            self._copies[key] = (array, np.ascontiguousarray(np.swapaxes(array, 0, 1)))
+            self._copies[key] = (array, np.ascontiguousarray(np.swapaxes(np.ascontiguousarray(array), 0, 1)))
         return self._copies[key][1][j]
 
 
