@@ -2,11 +2,16 @@
 
 A :class:`FleetBatch` is a task like ``campaigns.records.RunTask``, for any campaign
 Runner (in-process, process pool, Dask): its worker flies the batch's runs as one fleet
-(``fleet.simulation.run_fleet``) and summarises each run's slice of the batch's logs with
-the per-vehicle path's functions (``results.result_from_logs``: signals and the
-``evaluation`` analyzers; ``campaigns.records.summarize_run``: metrics, NEES/NIS), so
-every verdict and statistic follows the one rule of its kind. Only the records leave the
-worker; the batch's logs, its memory (``simulation.batch_bytes``), are freed with it.
+(``fleet.simulation.run_fleet``) and summarises them with the per-vehicle path's functions,
+so every verdict and statistic follows the one rule of its kind: the signals
+(``results.signals_from_logs``), the NEES and normalised squared errors
+(``campaigns.records.consistency_series``) and the PCRB (``fleet.bounds``) of the N runs at
+once, since those functions take a batch's (samples, N, width) logs as well as one run's;
+then per run its criteria (``verdicts.evaluate_criteria``) and its record
+(``campaigns.records.summarize_run``: metrics, NIS, counters), from its rows of those.
+``tests/test_fleet_summaries.py`` checks the records against the per-run functions on each
+run's slice of the logs to 1e-12. Only the records leave the worker; the batch's logs, its
+memory (``simulation.batch_bytes``), are freed with it.
 """
 
 import dataclasses
