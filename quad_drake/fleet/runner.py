@@ -135,13 +135,17 @@ class _RunView(Mapping):
 
 
 def simulate_batch(task):
-    """Worker entry point: fly a FleetBatch; the RunRecord of each of its runs, by index.
+    """Worker entry point: fly a FleetBatch; the RunRecord of each of its runs, by index."""
+    return summarize_batch(task, *run_fleet(task.scenario, task.seeds))
+
+
+def summarize_batch(task, times, logs, wall_time):
+    """The RunRecord of each run of a flown FleetBatch (``run_fleet``'s times, logs, wall time).
 
     The signals, NEES, normalised squared errors and PCRB of the batch are computed for its N
     runs at once by the per-run functions (which take (n, N, width) logs); each run's criteria
     and record are then made from its rows, by the per-vehicle path's functions.
     """
-    times, logs, wall_time = run_fleet(task.scenario, task.seeds)
     signals = signals_from_logs(logs, task.scenario)
     consistency = batch_consistency(task.scenario, logs, signals)
     bounds = batch_bounds(task.scenario, logs)
