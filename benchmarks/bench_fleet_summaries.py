@@ -35,7 +35,8 @@ def main():
     post = time.process_time() - start
     per_run = 1e3 / args.runs
     print(f"{args.scenario}, {args.runs} runs of {scenario.end_time:g} s (CPU ms per run):")
-    print(f"  flight {flight * per_run:.1f}, post-processing {post * per_run:.1f} (of which PCRB {bounds * per_run:.1f})")
+    print(f"  flight {flight * per_run:.1f}, post-processing {post * per_run:.1f}", end="")
+    print(f" (of which PCRB {bounds * per_run:.1f})")
 
 
 if __name__ == "__main__":
