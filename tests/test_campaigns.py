@@ -260,6 +260,12 @@ def test_a_process_pool_used_as_a_context_keeps_its_workers_from_one_map_to_the_
     assert 1 <= len(first) <= 2 and second <= first and os.getpid() not in first
     fresh = {pid for _, pid in ProcessPoolRunner(2).map(_worker_pid, range(2))}
     assert not fresh & first  # outside ``with`` every map starts its own workers
+    with ProcessPoolRunner(2) as runner:
+        abandoned = runner.map(_worker_pid, range(6))
+        first = {next(abandoned)[1]}
+        abandoned.close()  # as on Ctrl-C or a failed task: the kept workers are let go, unwaited
+        after = {pid for _, pid in runner.map(_worker_pid, range(4))}
+    assert after and not after & first
 
 
 class InterruptedRunner(Runner):

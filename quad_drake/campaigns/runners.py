@@ -80,7 +80,8 @@ class ProcessPoolRunner(Runner):
 
     def __exit__(self, *exc_info):
         kept, self._kept = self._kept, None
-        kept.shutdown(wait=exc_info[0] is None, cancel_futures=True)
+        if kept is not None:
+            kept.shutdown(wait=exc_info[0] is None, cancel_futures=True)
         return False
 
     def map(self, fn, tasks):
@@ -102,10 +103,9 @@ class ProcessPoolRunner(Runner):
                 yield index, result
             finished = True
         finally:  # interrupted or failed: do not wait for the runs in flight
-            if executor is self._kept:
-                for future in futures:
-                    future.cancel()
-            else:
+            if not finished and executor is self._kept:
+                self._kept = None  # a later map inside ``with`` starts fresh workers
+            if executor is not self._kept:
                 executor.shutdown(wait=finished, cancel_futures=True)
 
 
