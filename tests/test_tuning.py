@@ -45,6 +45,10 @@ def test_default_space_is_the_estimators_noise_fields_that_are_switched_on(load_
     assert [p.key for p in space.search_space(no_bias)] == [
         k for k in space.DEFAULT_KEYS["eskf"] if "_bias_" not in k
     ]
+    no_gps = load_scenario("10_mag_update", "vehicles.0.ekf={}")  # a magnetometer but no GPS
+    assert [p.key for p in space.search_space(no_gps)] == [
+        k for k in space.DEFAULT_KEYS["ekf7"] if ".gps_" not in k
+    ]
 
 
 def test_a_multiplier_scales_scalars_and_whole_vectors_in_log_space(load_scenario):

@@ -137,11 +137,15 @@ def parameter(scenario, key):
 def default_keys(scenario):
     """The default space: the tuned estimator's noise fields whose start is not zero (a zero
     field, e.g. 11's q_pos_xy_std = 0, is switched off and cannot be scaled; an ESKF without
-    bias states leaves out the bias random walks)."""
+    bias states leaves out the bias random walks), less the measurement noise of a sensor the
+    vehicle does not have (10 has no GPS: its ``gps_*`` fields have no effect)."""
     first = scenario.vehicles[tuned_vehicles(scenario)[0]]
     keys = DEFAULT_KEYS[first.estimator.kind]
     if first.estimator.kind == "eskf" and not first.estimator.estimate_biases:
         keys = [k for k in keys if "_bias_" not in k]  # no bias states: their noise has no effect
+    for sensor in ("gps", "mag"):
+        if getattr(first.sensors, sensor) is None:
+            keys = [k for k in keys if not k.split(".")[-1].startswith(f"{sensor}_")]
     return [k for k in keys if _is_on(_field_value(first, k.split("."), k, "vehicle"))]
 
 
