@@ -5,14 +5,15 @@ For every row of ROWS it runs a Monte Carlo campaign through the project's campa
 ``quad-drake montecarlo <scenario> --runs N --seed S [--set ...]``), and rewrites the table
 between the README's ``<!-- fault-table -->`` markers. Pass rates carry a 95 % Wilson score
 interval. Each finished row is cached as JSON in ``--cache`` (keyed by scenario, overrides,
-runs and seed), so an interrupted table resumes where it stopped; ``--fresh`` ignores the cache.
+runs, seed and runner), so an interrupted table resumes where it stopped; ``--fresh`` ignores the cache.
 
     nice -n 10 python benchmarks/fault_table.py --runs 50 --seed 100 --jobs 1
 
-``--fleet B`` flies the rows whose scenario fleet mode supports (all but 14's GPS delay) on the
-fleet runner in batches of B runs (``quad-drake montecarlo ... --fleet --batch B``; its noise
-streams differ from the per-vehicle path's, README "Fleet mode"), the others on the process pool;
-the table's runner column says which.
+``--fleet B`` flies every row on the fleet runner in batches of B runs (``quad-drake montecarlo
+... --fleet --batch B``; its noise streams differ from the per-vehicle path's, README "Fleet
+mode"); without it every row flies one Diagram per run. The cache key names the runner
+(``_fleetB`` or nothing) and a cached row is used only if its recorded runner is that one; the
+table's runner column says which runner measured each row.
 
 ``--check-seeds A B`` instead flies every bundled fault scenario (12-18, mitigation on) with
 its default seed and with seeds A..B (issue 11: 0-19), prints the failures and exits 1 if any.
@@ -135,24 +136,34 @@ def replace_table(text, new_table):
     return text[: start + len(BEGIN)] + "\n" + new_table + "\n" + text[end:]
 
 
-def fleet_batch_for(scenario, batch):
-    """`batch` if fleet mode flies `scenario` (and batch is not None), else None (the pool)."""
-    if batch is None:
-        return None
-    from quad_drake.config import ConfigError
-    from quad_drake.fleet.simulation import check_supported
+def cache_path(cache, row, runs, seed, fleet_batch):
+    """The JSON file caching `row` measured with `runs` runs from `seed` on the fleet runner in
+    batches of `fleet_batch` (None: one Diagram per run)."""
+    runner_key = f"_fleet{fleet_batch}" if fleet_batch is not None else ""
+    return cache / f"{row.key}_n{runs}_s{seed}{runner_key}.json"
 
-    try:
-        check_supported(scenario)
-    except ConfigError:
+
+def measured_by(figures, fleet_batch):
+    """Whether cached `figures` were measured on the runner of `fleet_batch`: the fleet in
+    batches of B (runner "fleet (batch B) on ..."), or for None one Diagram per run."""
+    runner = figures.get("runner", "")
+    if fleet_batch is None:
+        return not runner.startswith("fleet")
+    return runner.startswith(f"fleet (batch {fleet_batch}) ")
+
+
+def cached(path, fleet_batch):
+    """The figures cached in `path`, or None when there are none or another runner measured them."""
+    if not path.exists():
         return None
-    return batch
+    figures = json.loads(path.read_text())
+    return figures if measured_by(figures, fleet_batch) else None
 
 
 def measure(row, runs, seed, runner, fleet_batch=None):
     scenario = catalog.load(row.scenario, None, list(row.overrides))
-    batch = fleet_batch_for(scenario, fleet_batch)
-    return summarize(campaigns.run_campaign(scenario, runs, runner=runner, seed=seed, fleet_batch=batch))
+    campaign = campaigns.run_campaign(scenario, runs, runner=runner, seed=seed, fleet_batch=fleet_batch)
+    return summarize(campaign)
 
 
 def check_seeds(first, last, runner):
@@ -187,11 +198,9 @@ def main(argv=None):
     measured = {}
     selected = [row for row in ROWS if args.only is None or row.scenario in args.only]
     for row in sorted(selected, key=lambda row: not row.overrides):  # the "off" rows first
-        runner_key = f"_fleet{args.fleet}" if args.fleet else ""
-        path = args.cache / f"{row.key}_n{args.runs}_s{args.seed}{runner_key}.json"
-        if path.exists() and not args.fresh:
-            figures = json.loads(path.read_text())
-        else:
+        path = cache_path(args.cache, row, args.runs, args.seed, args.fleet)
+        figures = None if args.fresh else cached(path, args.fleet)
+        if figures is None:
             figures = measure(row, args.runs, args.seed, runner, args.fleet)
             path.write_text(json.dumps(figures, indent=1))
         print(row_line(row, figures), flush=True)

@@ -62,9 +62,22 @@ def test_every_row_names_a_bundled_scenario_and_each_has_an_off_row():
         assert all(row.overrides for row in rows[1:]), name
 
 
-def test_only_scenarios_fleet_mode_supports_go_to_the_fleet():
-    from quad_drake import catalog
+def test_the_cache_is_keyed_by_the_runner_and_ignores_rows_another_runner_measured(tmp_path):
+    import json
 
-    assert fault_table.fleet_batch_for(catalog.load("13_gps_outlier"), 25) == 25
-    assert fault_table.fleet_batch_for(catalog.load("14_gps_delay"), 25) is None
-    assert fault_table.fleet_batch_for(catalog.load("13_gps_outlier"), None) is None
+    row = fault_table.Row("14_gps_delay", "ESKF, no compensation", ("vehicles.0.gps_delay_compensation=0",))
+    fleet = fault_table.cache_path(tmp_path, row, 50, 100, 25)
+    pool = fault_table.cache_path(tmp_path, row, 50, 100, None)
+    assert fleet.name == "14_gps_delay_vehicles_0_gps_delay_compensation_0_n50_s100_fleet25.json"
+    assert pool.name == "14_gps_delay_vehicles_0_gps_delay_compensation_0_n50_s100.json"
+    assert fault_table.cached(fleet, 25) is None  # nothing cached yet
+    fleet.write_text(json.dumps(FIGURES))  # a pool row under a fleet key, as the script used to write 14
+    assert fault_table.cached(fleet, 25) is None
+    measured = dict(FIGURES, runner="fleet (batch 25) on process-pool x2")
+    fleet.write_text(json.dumps(measured))
+    assert fault_table.cached(fleet, 25) == measured
+    assert fault_table.cached(fleet, 250) is None
+    pool.write_text(json.dumps(measured))
+    assert fault_table.cached(pool, None) is None
+    pool.write_text(json.dumps(FIGURES))
+    assert fault_table.cached(pool, None) == FIGURES

@@ -65,11 +65,9 @@ class Progress:
 def _fleet_tasks(scenario, runs, first, batch):
     """(tasks, worker function, runner label) of a fleet campaign of `batch` runs per task."""
     from ..fleet.runner import batches, simulate_batch
-    from ..fleet.simulation import check_supported
 
     if batch < 1:
         raise ConfigError(f"montecarlo: --batch must be >= 1, got {batch}")
-    check_supported(scenario)
     return batches(scenario, runs, first, batch), simulate_batch, f"fleet (batch {batch})"
 
 

@@ -17,11 +17,10 @@ from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import ConstantVectorSource
 
 from quad_drake import conventions as c
-from quad_drake.config import ConfigError
 from quad_drake.estimation.vocabulary import vehicle_vocabulary
-from quad_drake.faults import gps_delay_of, sensor_of
+from quad_drake.faults import sensor_of
 from quad_drake.fidelity import fidelity_from_mode
-from quad_drake.fleet.estimators import build_fleet_estimator
+from quad_drake.fleet.estimators import FleetGpsDelayCompensator, build_fleet_estimator
 from quad_drake.fleet.streams import GAUSSIAN, UNIFORM
 from quad_drake.fleet.systems import (
     FleetController,
@@ -36,24 +35,6 @@ from quad_drake.fleet.systems import (
 from quad_drake.sensor_models import imu_has_bias_walk
 from quad_drake.simulation import initial_state, sensor_schedule, vehicle_log_widths
 from quad_drake.trajectories import trajectory_from_config
-
-
-def unsupported_reason(scenario):
-    """Why the fleet cannot fly `scenario` (one line), or None when it can."""
-    for vehicle in scenario.vehicles:
-        if gps_delay_of(vehicle.faults) > 0 or vehicle.gps_delay_compensation > 0:
-            return (
-                f"fleet mode cannot fly {scenario.name} yet: vehicle {vehicle.name} has a gps_delay "
-                "fault or GPS delay compensation; run without --fleet"
-            )
-    return None
-
-
-def check_supported(scenario):
-    """Raise ConfigError (one line) when the fleet cannot fly `scenario`."""
-    reason = unsupported_reason(scenario)
-    if reason:
-        raise ConfigError(reason)
 
 
 def _add_noise(builder, system, port, seeds, name, distribution=GAUSSIAN):
@@ -124,8 +105,18 @@ def build_fleet_vehicle(vehicle, seeds, fidelity):
         estimator = builder.AddSystem(build_fleet_estimator(vehicle, n, fidelity))
         for name in vehicle_vocabulary(vehicle).log_widths():
             outputs[name] = estimator.GetOutputPort(name)
-        for kind, size in (("imu", c.IMU_SIZE), ("gps", c.GPS_SIZE), ("mag", c.MAG_SIZE)):
-            port = outputs.get(kind) or _never_sampled(builder, size, n)
+        inputs = {
+            kind: outputs.get(kind) or _never_sampled(builder, size, n)
+            for kind, size in (("imu", c.IMU_SIZE), ("gps", c.GPS_SIZE), ("mag", c.MAG_SIZE))
+        }
+        if vehicle.gps_delay_compensation > 0:
+            compensator = builder.AddNamedSystem(
+                "gps_delay_compensation", FleetGpsDelayCompensator(vehicle.gps_delay_compensation, n)
+            )
+            builder.Connect(inputs["gps"], compensator.GetInputPort("gps"))
+            builder.Connect(outputs["estimated_state"], compensator.GetInputPort("estimated_state"))
+            inputs["gps"] = compensator.GetOutputPort("gps")
+        for kind, port in inputs.items():
             builder.Connect(port, estimator.GetInputPort(kind))
         if not vehicle.use_ideal_estimator:
             state_for_control = outputs["estimated_state"]
@@ -170,7 +161,6 @@ class FleetRecorder(LeafSystem):
 
 def build_fleet_diagram(scenario, seeds):
     """(Diagram, FleetRecorder) of `scenario` flown by N = len(seeds) runs."""
-    check_supported(scenario)
     fidelity = fidelity_from_mode(scenario.fidelity)
     samples = int(round(scenario.end_time / c.LOG_PERIOD))
     builder = DiagramBuilder()

@@ -10,6 +10,7 @@ from Drake's RandomSource, so the noise inputs are plain vector inputs.
 """
 
 import copy
+import math
 
 import numpy as np
 from pydrake.systems.framework import LeafSystem
@@ -290,12 +291,17 @@ class FleetTrajectory(LeafSystem):
 
 
 class FleetSensorFaults(LeafSystem):
-    """N :class:`~quad_drake.systems.faults.SensorFaults` of one sensor without a gps_delay:
-    input and output ``<sensor>`` (N size), firing at first_sample + FAULT_LAG + k period.
+    """N :class:`~quad_drake.systems.faults.SensorFaults` of one sensor: input and output
+    ``<sensor>`` (N size, a state port), on the scalar system's schedule: at
+    first_sample + FAULT_LAG + k period, or with a gps_delay of D s every ONBOARD_PERIOD at
+    SLOW_SENSOR_OFFSET + FAULT_LAG, queueing each new sample (after the other faults) and
+    publishing it at the first tick at or after stamp + D, stamp unchanged (a queue of
+    ceil(D / period) + 2 samples of N vehicles, discrete state).
 
-    The faults are the scalar ``faults.apply_faults`` run once on the sample's columns (each
-    entry an (N,) array, the stamp a float): a fault's decision depends only on the
-    measurement time, which every vehicle of a fleet shares (its sensors sample together).
+    The faults are the scalar ``faults.apply_faults`` and ``faults.release_due`` run once on
+    the sample's columns (each entry an (N,) array, the stamp a float): a fault's decision
+    and a sample's release time depend only on its measurement time, which every vehicle of
+    a fleet shares (its sensors sample together), so one queue holds every vehicle's samples.
     """
 
     def __init__(self, sensor, size, fault_list, period, first_sample, n):
@@ -303,23 +309,65 @@ class FleetSensorFaults(LeafSystem):
         self._faults = faults.sample_faults(fault_list, sensor)
         self._stamped = faults.STAMPED[sensor]
         self._period, self._first_sample = float(period), float(first_sample)
+        self._delay = faults.gps_delay_of(fault_list) if sensor == "gps" else 0.0
         self._n, self._size = n, size
         self._read = _reader(self.DeclareVectorInputPort(sensor, n * size), n, size)
         initial = np.zeros((n, size))
         if self._stamped:
             initial[:, -1] = NO_SAMPLE_STAMP
         self._output = _discrete(self, initial.ravel(), sensor)
-        self.DeclarePeriodicDiscreteUpdateEvent(self._period, self._first_sample + FAULT_LAG, self._sample)
+        if self._delay > 0:
+            self._capacity = math.ceil(self._delay / self._period) + 2
+            self._pending = _discrete(self, np.full(self._capacity * n * size, np.nan))
+            self._last_stamp = _discrete(self, [NO_SAMPLE_STAMP])
+            self._tick_offset = SLOW_SENSOR_OFFSET + FAULT_LAG  # the GPS's offset in every tick
+            self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, self._tick_offset, self._delayed)
+        else:
+            self.DeclarePeriodicDiscreteUpdateEvent(
+                self._period, self._first_sample + FAULT_LAG, self._sample
+            )
 
-    def _sample(self, context, discrete_state):
-        sample = self._read(context)
+    def _columns(self, sample):
+        """(N, size) samples as the list of their columns, the stamp (shared) as one float."""
         columns = list(sample.T)
         if self._stamped:
-            time = columns[-1] = float(sample[0, -1])
+            columns[-1] = float(sample[0, -1])
+        return columns
+
+    def _rows(self, columns):
+        """The inverse of :meth:`_columns`: (N, size); a float entry is every vehicle's value."""
+        return np.column_stack([np.broadcast_to(c, (self._n,)) for c in columns])
+
+    def _faulted(self, columns, time):
+        return faults.apply_faults(self._faults, columns, time, self._period)
+
+    def _sample(self, context, discrete_state):
+        columns = self._columns(self._read(context))
+        if self._stamped:
+            time = columns[-1]
         else:
             ticks = round((context.get_time() - FAULT_LAG - self._first_sample) / self._period)
             time = self._first_sample + ticks * self._period
-        out = faults.apply_faults(self._faults, columns, time, self._period)
-        discrete_state.set_value(
-            self._output, np.column_stack([np.broadcast_to(c, (self._n,)) for c in out]).ravel()
-        )
+        discrete_state.set_value(self._output, self._rows(self._faulted(columns, time)).ravel())
+
+    def _delayed(self, context, discrete_state):
+        shape = (self._capacity, self._n, self._size)
+        queue = discrete_state.value(self._pending).reshape(shape)
+        pending = [self._columns(rows) for rows in queue if not np.isnan(rows[0, -1])]
+        columns = self._columns(self._read(context))
+        stamp = columns[-1]
+        if stamp != NO_SAMPLE_STAMP and stamp != discrete_state.value(self._last_stamp)[0]:
+            discrete_state.set_value(self._last_stamp, [stamp])
+            faulted = self._faulted(columns, stamp)
+            if faulted[-1] != NO_SAMPLE_STAMP:
+                pending.append(faulted)
+        now = round((context.get_time() - self._tick_offset) / ONBOARD_PERIOD) * ONBOARD_PERIOD
+        due, pending = faults.release_due(pending, now, self._delay)
+        if due:
+            discrete_state.set_value(self._output, self._rows(due[-1]).ravel())
+        if len(pending) > self._capacity:
+            raise RuntimeError(f"gps_delay queue overflow at t = {now} s ({len(pending)} samples)")
+        queue = np.full(shape, np.nan)
+        for slot, entry in enumerate(pending):
+            queue[slot] = self._rows(entry)
+        discrete_state.set_value(self._pending, queue.ravel())

@@ -2,12 +2,11 @@
 
 Every campaign of ``quad-drake tune`` (each candidate on the training seeds, the before/after
 comparison on the held-out seeds) goes through :func:`fly_campaign`, so the choice of the
-fleet runner is made in one place: a scenario that fleet mode flies (``quad_drake.fleet``) is
-flown as fleet batches, the others one Diagram per run. The candidates of one CMA-ES
-generation are scored at once, one candidate per worker (:func:`score_candidates`): a
-candidate's runs fly as one fleet batch in its worker, so a worker's fixed cost per tick is
-shared by all of a candidate's runs, and the workers of the session's runner (a ``with``
-block) are started once.
+runner is made in one place: every campaign is flown as fleet batches (``quad_drake.fleet``).
+The candidates of one CMA-ES generation are scored at once, one candidate per worker
+(:func:`score_candidates`): a candidate's runs fly as one fleet batch in its worker, so a
+worker's fixed cost per tick is shared by all of a candidate's runs, and the workers of the
+session's runner (a ``with`` block) are started once.
 """
 
 import math
@@ -15,7 +14,6 @@ from dataclasses import dataclass
 
 from ..campaigns import InProcessRunner, ProcessPoolRunner, run_campaign
 from ..campaigns.runners import TaskFailed
-from ..fleet.simulation import unsupported_reason
 from .objective import breakdown_score, score
 
 
@@ -37,15 +35,12 @@ def fly_campaign(scenario, first_seed, runs, runner, progress=False):
         runner=runner,
         seed=first_seed,
         progress=progress,
-        fleet_batch=fleet_batch(scenario, runs, runner),
+        fleet_batch=fleet_batch(runs, runner),
     )
 
 
-def fleet_batch(scenario, runs, runner):
-    """Runs per fleet batch for a campaign of `runs` on `runner` (one batch per worker), or None
-    when fleet mode cannot fly `scenario` (then each run is its own Diagram)."""
-    if unsupported_reason(scenario) is not None:
-        return None
+def fleet_batch(runs, runner):
+    """Runs per fleet batch for a campaign of `runs` on `runner` (one batch per worker)."""
     return math.ceil(runs / getattr(runner, "jobs", 1))
 
 
