@@ -9,8 +9,8 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
 from quad_drake import catalog
-from quad_drake.campaigns import ProcessPoolRunner, run_campaign, table
 from quad_drake import conventions as c
+from quad_drake.campaigns import ProcessPoolRunner, run_campaign, table
 from quad_drake.config import FaultConfig
 from quad_drake.fleet.runner import RUNNER, batches, default_batch_size, simulate_batch
 from quad_drake.fleet.simulation import batch_bytes, run_fleet
@@ -70,7 +70,9 @@ def test_noiseless_fleet_flies_every_vehicle_as_the_per_vehicle_diagram(name, ov
         ("14_gps_delay", 3, ("vehicles.0.estimator={kind: ekf7}",)),
     ],
 )
-def test_noiseless_fleet_with_estimators_and_faults_matches_the_per_vehicle_diagram(name, end_time, overrides):
+def test_noiseless_fleet_with_estimators_and_faults_matches_the_per_vehicle_diagram(
+    name, end_time, overrides
+):
     """The estimators (``fleet.estimators``), the sensor faults and the GPS delay compensation
     too: 1e-12 on every log (the compiled ESKF kernels differ from the scalar maths by rounding,
     ~1e-17 at first). 14 without compensation is flown for 3 s only: its closed loop
@@ -163,7 +165,9 @@ def test_fleet_gps_delay_queue_matches_the_scalar_sensor_faults_tick_by_tick():
     first = period + c.SLOW_SENSOR_OFFSET
     builder = DiagramBuilder()
     systems = {"fleet": FleetSensorFaults("gps", c.GPS_SIZE, fault_list, period, first, n)}
-    systems.update({f"scalar{i}": SensorFaults("gps", c.GPS_SIZE, fault_list, period, first) for i in range(n)})
+    systems.update(
+        {f"scalar{i}": SensorFaults("gps", c.GPS_SIZE, fault_list, period, first) for i in range(n)}
+    )
     for tag, system in systems.items():
         system.set_name(tag)
         builder.AddSystem(system)
