@@ -15,7 +15,6 @@ import numpy as np
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
 from quad_drake import delay_compensation
-from quad_drake.config import ConfigError, estimator_fidelity_problem
 from quad_drake.conventions import (
     ATTITUDE_FILTER_OFFSET,
     ATTITUDE_SIZE,
@@ -33,11 +32,18 @@ from quad_drake.conventions import (
 )
 from quad_drake.estimation import ekf, eskf, gating
 from quad_drake.estimation.complementary import VARIANTS
-from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, NIS_DOF, vocabulary_for
+from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, NIS_DOF
 from quad_drake.fidelity import PHYSICAL
 from quad_drake.fleet import estimation_kernels as kernels
 from quad_drake.rotations import quat_from_euler_tuple
-from quad_drake.systems.estimators import _initial_book, _initial_diagnostics
+from quad_drake.systems.estimators import (
+    _initial_book,
+    _initial_diagnostics,
+    check_eskf_fidelity,
+    estimator_diagram,
+    wire_ekf7,
+    wire_eskf,
+)
 
 BOOK_SIZE = 3
 """Book-keeping columns per vehicle (kernels.GPS_SLOT, MAG_SLOT, GPS_REJECTION_START)."""
@@ -385,33 +391,12 @@ def _build_ekf7(builder, vehicle, n, fidelity):
         ),
     )
     assembler = builder.AddNamedSystem("estimated_state", FleetEstimatedStateAssembler(n))
-    builder.Connect(ekf_system.GetOutputPort("ekf_state"), attitude_filter.GetInputPort("ekf_state"))
-    builder.Connect(attitude_filter.GetOutputPort("attitude"), ekf_system.GetInputPort("attitude"))
-    builder.Connect(attitude_filter.GetOutputPort("attitude"), assembler.GetInputPort("attitude"))
-    builder.Connect(attitude_filter.GetOutputPort("body_rate"), assembler.GetInputPort("body_rate"))
-    builder.Connect(ekf_system.GetOutputPort("ekf_state"), assembler.GetInputPort("ekf_state"))
-    inputs = {
-        "imu": [ekf_system.GetInputPort("imu"), attitude_filter.GetInputPort("imu")],
-        "gps": [ekf_system.GetInputPort("gps")],
-        "mag": [ekf_system.GetInputPort("mag")],
-    }
-    outputs = {
-        "estimated_state": assembler.GetOutputPort("estimated_state"),
-        "attitude": attitude_filter.GetOutputPort("attitude"),
-    }
-    for name in ("ekf_state", "covariance", "diagnostics"):
-        outputs[name] = ekf_system.GetOutputPort(name)
-    return inputs, outputs
+    return wire_ekf7(builder, ekf_system, attitude_filter, assembler)
 
 
 def _build_eskf(builder, vehicle, n, fidelity):
-    problem = estimator_fidelity_problem("eskf", fidelity)
-    if problem:
-        raise ConfigError(problem)
-    system = builder.AddNamedSystem("eskf", FleetEskf(vehicle.estimator, n))
-    inputs = {name: [system.GetInputPort(name)] for name in ("imu", "gps", "mag")}
-    names = ("estimated_state", "covariance", "diagnostics", "imu_bias")
-    return inputs, {name: system.GetOutputPort(name) for name in names}
+    check_eskf_fidelity(fidelity)
+    return wire_eskf(builder.AddNamedSystem("eskf", FleetEskf(vehicle.estimator, n)))
 
 
 _BUILDERS = {"ekf7": _build_ekf7, "eskf": _build_eskf}
@@ -429,12 +414,4 @@ def build_fleet_estimator(vehicle, n, fidelity=PHYSICAL):
         raise ValueError(f"a fleet needs at least one vehicle, got n = {n}")
     builder = DiagramBuilder()
     inputs, outputs = _BUILDERS[vehicle.estimator.kind](builder, vehicle, n, fidelity)
-    for name, ports in inputs.items():
-        exported = builder.ExportInput(ports[0], name)
-        for port in ports[1:]:
-            builder.ConnectInput(exported, port)
-    for name in vocabulary_for(vehicle.estimator).log_widths():
-        builder.ExportOutput(outputs[name], name)
-    diagram = builder.Build()
-    diagram.set_name("estimator")
-    return diagram
+    return estimator_diagram(builder, inputs, outputs, vehicle.estimator)
