@@ -12,7 +12,7 @@ from quad_drake import catalog
 from quad_drake import conventions as c
 from quad_drake.campaigns import ProcessPoolRunner, run_campaign, table
 from quad_drake.config import FaultConfig
-from quad_drake.fleet.runner import RUNNER, batches, default_batch_size, simulate_batch
+from quad_drake.fleet.runner import BATCH_MEMORY, RUNNER, batches, default_batch_size, simulate_batch
 from quad_drake.fleet.simulation import batch_bytes, run_fleet
 from quad_drake.fleet.systems import FleetSensorFaults
 from quad_drake.simulation import run
@@ -149,7 +149,7 @@ def test_default_batch_is_bounded_by_memory():
     scenario = catalog.load("05_trajectory_follow", None, [])
     size = default_batch_size(scenario, 10_000)
     assert 1 <= size <= 1000
-    assert batch_bytes(scenario, size) <= 1 << 30
+    assert batch_bytes(scenario, size) <= BATCH_MEMORY < batch_bytes(scenario, size + 1)
     assert default_batch_size(scenario, 10, jobs=2) == 5
 
 

@@ -31,8 +31,10 @@ from quad_drake.verdicts import evaluate_criteria
 
 RUNNER = "drake-fleet"
 """What produced a fleet run (a run summary's ``runner``), as ``results.RUNNER`` for the per-vehicle path."""
-BATCH_MEMORY = 1 << 30
-"""Bytes of logs a default batch may hold (1 GiB): the batch size is chosen to stay below it."""
+BATCH_MEMORY = 3 << 28
+"""Bytes of logs a default batch may hold (768 MiB): the batch size is chosen to stay below it.
+Summarising a batch holds about 1.6x its logs at the peak, so a worker stays near 1.5 GiB with
+its code, and a campaign on two workers under 4 GB whatever its number of runs."""
 MAX_BATCH = 1000
 """Runs of a default batch at most (beyond it a tick's cost no longer falls per vehicle)."""
 
