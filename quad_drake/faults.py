@@ -13,9 +13,10 @@ a consumer that judges freshness by the stamp sees nothing new, and one that did
 fail loudly. Windows [start, end) are half-open on the measurement time, with
 :data:`TIME_TOLERANCE` so that a stamp equal to a bound up to rounding counts as equal.
 
-``gps_delay`` is not a function of one sample: it holds samples back. :func:`release_due`
-is its pure part (a FIFO of pending samples released at stamp + delay); the stamp is kept,
-so an estimator can fuse a late sample at its measurement time.
+``gps_delay`` is not a function of one sample: it holds samples back. :func:`delay_queue_step`
+is its pure part, one tick of a FIFO of pending samples released at stamp + delay
+(:func:`release_due`); the stamp is kept, so an estimator can fuse a late sample at its
+measurement time.
 """
 
 import math
@@ -133,3 +134,34 @@ def release_due(pending, now, delay):
     while count < len(pending) and pending[count][-1] + delay <= now + TIME_TOLERANCE:
         count += 1
     return pending[:count], pending[count:]
+
+
+def delay_queue_step(pending, sample, last_stamp, now, delay, capacity, sample_faults, period):
+    """One tick of a ``gps_delay`` queue: (due, pending, last_stamp) after taking in `sample`.
+
+    ``pending``: the queued samples (stamp last), oldest first, as of the previous tick;
+    ``sample``: the sensor's current sample (stamp last, s; NO_SAMPLE_STAMP for none);
+    ``last_stamp``: the stamp (s) of the last sample taken in; ``now``: this tick's time (s);
+    ``delay``: s a sample is held after its stamp; ``capacity``: the most samples the queue
+    holds; ``sample_faults`` and ``period`` (s between samples): the sensor's single-sample
+    faults, as for :func:`apply_faults`.
+
+    A sample whose stamp is neither NO_SAMPLE_STAMP nor `last_stamp` is new: its stamp becomes
+    the last one, and it is queued after its faults (measured at its stamp) unless they remove
+    it. Then every queued sample with stamp + delay <= now is released (:func:`release_due`).
+    Returns the released samples (oldest first; the last one is the one to publish), the
+    samples still pending and the last stamp. The queue changed iff a sample was released or
+    the pending count differs from `pending`'s. Raises RuntimeError if more than `capacity`
+    samples stay pending. Entries may be floats or (N,) arrays (a fleet's columns) with the
+    stamp a float; `pending` is not modified.
+    """
+    stamp = sample[-1]
+    if stamp != NO_SAMPLE_STAMP and stamp != last_stamp:
+        last_stamp = stamp
+        faulted = apply_faults(sample_faults, sample, stamp, period)
+        if faulted[-1] != NO_SAMPLE_STAMP:
+            pending = [*pending, faulted]
+    due, pending = release_due(pending, now, delay)
+    if len(pending) > capacity:
+        raise RuntimeError(f"gps_delay queue overflow at t = {now} s ({len(pending)} samples)")
+    return due, pending, last_stamp

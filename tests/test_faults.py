@@ -119,6 +119,55 @@ def test_release_due_keeps_order_and_stamps():
     assert faults.release_due([gps(1.0), gps(1.1)], 5.0, 0.2) == ([gps(1.0), gps(1.1)], [])
 
 
+def _step(pending, sample, last_stamp, now, capacity=4, sample_faults=()):
+    return faults.delay_queue_step(pending, sample, last_stamp, now, 0.2, capacity, sample_faults, GPS_PERIOD)
+
+
+def test_delay_queue_takes_in_a_stamp_once_and_skips_no_sample():
+    due, pending, last = _step([], gps(1.0), NO_SAMPLE_STAMP, 1.0)
+    assert (due, pending, last) == ([], [gps(1.0)], 1.0)
+    held = gps(1.0, p=(9.0, 9.0, 9.0))  # the same stamp again (a sample held between ticks)
+    assert _step(pending, held, last, 1.002) == ([], [gps(1.0)], 1.0)
+    nothing = faults.removed(gps(0.0))
+    assert _step(pending, nothing, last, 1.004) == ([], [gps(1.0)], 1.0)
+    assert _step([], nothing, NO_SAMPLE_STAMP, 1.004) == ([], [], NO_SAMPLE_STAMP)
+    assert pending == [gps(1.0)]  # the argument is not modified
+
+
+def test_delay_queue_releases_in_order_at_stamp_plus_delay_stamps_kept():
+    stamps = [k * 0.05 for k in range(20, 24)]  # 1.0 .. 1.15 s
+    pending, last = [], NO_SAMPLE_STAMP
+    for stamp in stamps:
+        due, pending, last = _step(pending, gps(stamp), last, stamp)
+        assert due == []
+    assert pending == [gps(s) for s in stamps] and last == stamps[-1]
+    # due exactly now up to rounding: 1.0 + 0.2 vs 12 * 0.1; the current sample is not new
+    due, rest, _ = _step(pending, gps(stamps[-1]), last, 12 * GPS_PERIOD)
+    assert due == [gps(stamps[0])] and rest == [gps(s) for s in stamps[1:]]
+    due, rest, _ = _step(rest, gps(stamps[-1]), last, 1.3)
+    assert due == [gps(stamps[1]), gps(stamps[2])] and rest == [gps(stamps[3])]
+    due, rest, last = _step(rest, gps(1.4), last, 10.0)  # a new sample is queued before release
+    assert due == [gps(stamps[3]), gps(1.4)] and rest == [] and last == 1.4
+
+
+def test_delay_queue_applies_the_faults_at_the_stamp_and_drops_removed_samples():
+    outage = FaultConfig(kind="gps_outage", start=1.0, end=1.1)
+    step = FaultConfig(kind="gps_step", start=1.1, end=2.0, offset=[1.0, 0.0, 0.0])
+    due, pending, last = _step([gps(0.9)], gps(1.0), 0.9, 1.05, sample_faults=(outage, step))
+    assert (due, pending, last) == ([], [gps(0.9)], 1.0)  # removed, but its stamp taken in
+    due, pending, last = _step(pending, gps(1.1), last, 1.1, sample_faults=(outage, step))
+    assert (due, pending, last) == ([gps(0.9)], [gps(1.1, p=(2.0, 2.0, -3.0))], 1.1)
+
+
+def test_delay_queue_overflow_raises_past_capacity_after_the_release():
+    pending = [gps(1.0), gps(1.1)]
+    assert _step(pending, gps(1.15), 1.1, 1.15, capacity=3) == ([], [*pending, gps(1.15)], 1.15)
+    with pytest.raises(RuntimeError, match=r"^gps_delay queue overflow at t = 1.15 s \(3 samples\)$"):
+        _step(pending, gps(1.15), 1.1, 1.15, capacity=2)
+    # at 1.2 s the sample of 1.0 s leaves first: two stay, which fit
+    assert _step(pending, gps(1.2), 1.1, 1.2, capacity=2) == ([gps(1.0)], [gps(1.1), gps(1.2)], 1.2)
+
+
 # ----- configuration -------------------------------------------------------------
 
 SCENARIO = """

@@ -298,7 +298,7 @@ class FleetSensorFaults(LeafSystem):
     publishing it at the first tick at or after stamp + D, stamp unchanged (a queue of
     ceil(D / period) + 2 samples of N vehicles, discrete state).
 
-    The faults are the scalar ``faults.apply_faults`` and ``faults.release_due`` run once on
+    The faults are the scalar ``faults.apply_faults`` and ``faults.delay_queue_step`` run once on
     the sample's columns (each entry an (N,) array, the stamp a float): a fault's decision
     and a sample's release time depend only on its measurement time, which every vehicle of
     a fleet shares (its sensors sample together), so one queue holds every vehicle's samples.
@@ -352,22 +352,26 @@ class FleetSensorFaults(LeafSystem):
 
     def _delayed(self, context, discrete_state):
         shape = (self._capacity, self._n, self._size)
-        queue = discrete_state.value(self._pending).reshape(shape)
-        pending = [self._columns(rows) for rows in queue if not np.isnan(rows[0, -1])]
-        columns = self._columns(self._read(context))
-        stamp = columns[-1]
-        if stamp != NO_SAMPLE_STAMP and stamp != discrete_state.value(self._last_stamp)[0]:
-            discrete_state.set_value(self._last_stamp, [stamp])
-            faulted = self._faulted(columns, stamp)
-            if faulted[-1] != NO_SAMPLE_STAMP:
-                pending.append(faulted)
+        stored = discrete_state.value(self._pending).reshape(shape)
+        pending = [self._columns(rows) for rows in stored if not np.isnan(rows[0, -1])]
+        last_stamp = discrete_state.value(self._last_stamp)[0]
         now = round((context.get_time() - self._tick_offset) / ONBOARD_PERIOD) * ONBOARD_PERIOD
-        due, pending = faults.release_due(pending, now, self._delay)
+        due, queued, stamp = faults.delay_queue_step(
+            pending,
+            self._columns(self._read(context)),
+            last_stamp,
+            now,
+            self._delay,
+            self._capacity,
+            self._faults,
+            self._period,
+        )
+        if stamp != last_stamp:
+            discrete_state.set_value(self._last_stamp, [stamp])
         if due:
             discrete_state.set_value(self._output, self._rows(due[-1]).ravel())
-        if len(pending) > self._capacity:
-            raise RuntimeError(f"gps_delay queue overflow at t = {now} s ({len(pending)} samples)")
-        queue = np.full(shape, np.nan)
-        for slot, entry in enumerate(pending):
-            queue[slot] = self._rows(entry)
-        discrete_state.set_value(self._pending, queue.ravel())
+        if due or len(queued) != len(pending):  # the queue changed: rewrite it, else keep it as is
+            queue = np.full(shape, np.nan)
+            for slot, entry in enumerate(queued):
+                queue[slot] = self._rows(entry)
+            discrete_state.set_value(self._pending, queue.ravel())

@@ -80,25 +80,29 @@ class SensorFaults(LeafSystem):
         discrete_state.set_value(self._output, np.array(self._faulted(sample, time)))
 
     def _delayed(self, context, discrete_state):
-        sample = self._read(context)
         rows = discrete_state.value(self._pending).reshape(self._capacity, self._size)
         pending = [row.tolist() for row in rows if not math.isnan(row[-1])]
-        stamp = sample[-1]
-        if stamp != NO_SAMPLE_STAMP and stamp != discrete_state.value(self._last_stamp)[0]:
-            discrete_state.set_value(self._last_stamp, [stamp])
-            faulted = self._faulted(sample, stamp)
-            if faulted[-1] != NO_SAMPLE_STAMP:
-                pending.append(faulted)
+        last_stamp = discrete_state.value(self._last_stamp)[0]
         now = round((context.get_time() - self._tick_offset) / ONBOARD_PERIOD) * ONBOARD_PERIOD
-        due, pending = faults.release_due(pending, now, self._delay)
+        due, queued, stamp = faults.delay_queue_step(
+            pending,
+            self._read(context),
+            last_stamp,
+            now,
+            self._delay,
+            self._capacity,
+            self._faults,
+            self._period,
+        )
+        if stamp != last_stamp:
+            discrete_state.set_value(self._last_stamp, [stamp])
         if due:
             discrete_state.set_value(self._output, np.array(due[-1]))
-        if len(pending) > self._capacity:
-            raise RuntimeError(f"gps_delay queue overflow at t = {now} s ({len(pending)} samples)")
-        queue = np.full((self._capacity, self._size), math.nan)
-        if pending:
-            queue[: len(pending)] = pending
-        discrete_state.set_value(self._pending, queue.ravel())
+        if due or len(queued) != len(pending):
+            queue = np.full((self._capacity, self._size), math.nan)
+            if queued:
+                queue[: len(queued)] = queued
+            discrete_state.set_value(self._pending, queue.ravel())
 
 
 class GpsDelayCompensator(LeafSystem):
