@@ -170,6 +170,12 @@ class EkfParams:
     gps_vel_xy_std: float = _num(0.1, positive=True, noise_std=True)  # m/s
     gps_vel_z_std: float = _num(0.3, positive=True, noise_std=True)  # m/s
     mag_yaw_std: float = _num(0.1, positive=True, noise_std=True)  # rad
+    # Tilt-aware Q (ekf.TiltNoise; 0 = off, the reference's constant Q): the gyro noise the attitude
+    # filter integrates, rad/s per IMU sample, and how long its roll/pitch error acts as white noise
+    # on the velocity and on the yaw, s.
+    tilt_gyro_std: float = _num(0.0, nonnegative=True, noise_std=True)
+    tilt_velocity_time: float = _num(0.25, nonnegative=True)  # s
+    tilt_yaw_time: float = _num(0.15, nonnegative=True)  # s
     dt_imu: float = _num(0.002, positive=True, maximum=1.0)  # s, scales Q (a step, not a flight)
     gps_gate_sigma: float = _num(5.0, nonnegative=True)  # sigma; chi^2 innovation gate, 0 = off
     mag_gate_sigma: float = _num(5.0, nonnegative=True)  # sigma

@@ -5,6 +5,7 @@ from statistics import NormalDist
 
 import numpy as np
 import pytest
+from scipy.stats import chi2
 
 from quad_drake.config import EkfParams
 from quad_drake.conventions import GRAVITY
@@ -267,3 +268,90 @@ def test_nees_of_an_overconfident_filter_leaves_the_band():
     )
     mean_nees, _ = average_nees(truth, overconfident, seed=12, runs=10)
     assert mean_nees[-10:].min() > 20.0
+
+
+# ----- tilt-aware process noise ---------------------------------------------------------------
+
+
+def test_tilt_variance_is_the_complementary_filter_error_recursion():
+    gyro_std, tau = 0.5, 2.0
+    a = tau / (tau + DT)
+    variance = 0.0
+    for k in range(1, 2001):
+        variance = a * a * (variance + (gyro_std * DT) ** 2)
+        if k in (1, 10, 2000):
+            assert ekf.tilt_variance(k * DT, gyro_std, tau, DT) == pytest.approx(variance, rel=1e-9)
+    assert ekf.tilt_variance(0.0, gyro_std, tau, DT) == 0.0
+    # a long tau is the plain gyro random walk, (gyro_std dt)^2 per step
+    assert ekf.tilt_variance(25.0, 0.5, 1e9, DT) == pytest.approx(0.25 * DT * 25.0, rel=1e-6)
+
+
+def test_tilt_variance_follows_the_simulated_filter_error():
+    # The complementary filter's own update, level and still, fed gyro noise only: the spread of
+    # its roll over 400 seeded runs matches the predicted variance (chi-square 99.9 % band).
+    from quad_drake.estimation.complementary import complementary_update
+
+    rng = np.random.default_rng(3)
+    runs, steps, gyro_std, tau = 400, 250, 0.5, 1.0
+    rolls = np.zeros(runs)
+    for j in range(runs):
+        roll = pitch = yaw = 0.0
+        for w in rng.normal(0.0, gyro_std, size=(steps, 3)):
+            roll, pitch, yaw = complementary_update(roll, pitch, yaw, HOVER_F_B, w, DT, tau, "nonlinear")
+        rolls[j] = roll
+    ratio = np.mean(rolls**2) / ekf.tilt_variance(steps * DT, gyro_std, tau, DT)
+    low, high = chi2.ppf([0.0005, 0.9995], runs) / runs
+    assert low < ratio < high
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_tilt_jacobian_matches_central_differences(seed):
+    rng = np.random.default_rng(seed)
+    roll, pitch, yaw = rng.uniform(-0.8, 0.8), rng.uniform(-0.8, 0.8), rng.uniform(-math.pi, math.pi)
+    f_B, w_B = rng.normal([0.0, 0.0, -GRAVITY], 3.0), rng.normal(0.0, 2.0, 3)
+
+    def outputs(r, p):
+        a_N = ekf.predict_state(np.array([0, 0, 0, 0, 0, 0, yaw], dtype=float), r, p, f_B, 1.0)[3:6]
+        return np.append(a_N, (w_B[1] * math.sin(r) + w_B[2] * math.cos(r)) / math.cos(p))
+
+    h = 1e-6
+    d_roll, d_pitch = ekf.tilt_jacobian(roll, pitch, yaw, *f_B, w_B[1], w_B[2])
+    np.testing.assert_allclose(
+        d_roll, (outputs(roll + h, pitch) - outputs(roll - h, pitch)) / (2 * h), atol=1e-7
+    )
+    np.testing.assert_allclose(
+        d_pitch, (outputs(roll, pitch + h) - outputs(roll, pitch - h)) / (2 * h), atol=1e-7
+    )
+
+
+def test_tilt_process_noise_at_hover_is_g_squared_tilt_variance_on_the_horizontal_velocity():
+    variance, velocity_time, yaw_time = 0.01, 0.25, 0.15
+    Q = ekf.tilt_process_noise(
+        (0.0, 0.0, 0.3), HOVER_F_B, (0.0, 0.0, 0.0), variance, velocity_time, yaw_time, DT
+    )
+    horizontal = GRAVITY**2 * variance * velocity_time * DT
+    np.testing.assert_allclose(np.diag(Q), [horizontal, horizontal, 0.0, 0.0], rtol=1e-12, atol=1e-18)
+    np.testing.assert_allclose(Q, Q.T, atol=0)
+    assert np.linalg.eigvalsh(Q).min() > -1e-18
+    # yawing while banked: roll errors leak into the integrated yaw
+    Q = ekf.tilt_process_noise(
+        (0.3, 0.0, 0.0), HOVER_F_B, (0.0, 0.0, 1.0), variance, velocity_time, yaw_time, DT
+    )
+    assert Q[3, 3] == pytest.approx(variance * DT * yaw_time * math.sin(0.3) ** 2, rel=1e-12)
+
+
+def test_tilt_noise_from_params_is_off_by_default_and_adds_to_q():
+    from quad_drake.config import AttitudeFilterParams
+
+    assert ekf.TiltNoise.from_params(EkfParams(), AttitudeFilterParams(), DT) is None
+    params = EkfParams(tilt_gyro_std=0.5)
+    tilt = ekf.TiltNoise.from_params(params, AttitudeFilterParams(tau=50.0), DT)
+    assert tilt.variance(3.0) == ekf.tilt_variance(3.0, 0.5, 50.0, DT)
+    Q = ekf.process_noise(params)
+    total = tilt.process_noise(3.0, Q, (0.1, -0.2, 1.0), HOVER_F_B, (0.3, 0.2, 0.1))
+    extra = ekf.tilt_process_noise(
+        (0.1, -0.2, 1.0), HOVER_F_B, (0.3, 0.2, 0.1), tilt.variance(3.0), 0.25, 0.15, DT
+    )
+    np.testing.assert_allclose(total[3:7, 3:7] - Q[3:7, 3:7], extra, rtol=1e-12, atol=1e-20)
+    np.testing.assert_array_equal(total[:3], Q[:3])
+    assert Q[3, 3] == ekf.process_noise(params)[3, 3]  # Q itself untouched

@@ -99,6 +99,26 @@ def test_ekf7_predict_matches_the_scalar_step(reference_accelerometer):
         np.testing.assert_allclose(P_new[i], P_ref, **TOL)
 
 
+def test_ekf7_predict_tick_with_tilt_noise_matches_the_scalar_step():
+    rng = np.random.default_rng(13)
+    params = EkfParams(tilt_gyro_std=0.5)
+    tilt = ekf.TiltNoise.from_params(params, AttitudeFilterParams(), DT)
+    Q, t = ekf.process_noise(params), 7.3
+    x, P = rng.normal(size=(N, 7)), random_covariances(rng, 7)
+    attitude, imu = random_attitudes(rng), np.column_stack([specific_forces(rng), gyro_samples(rng)])
+    x_ref, P_ref = x.copy(), P.copy()
+    kernels.ekf7_predict_tick(
+        x, P, attitude, imu, np.zeros((N, 16)), DT, Q, tilt=(tilt.variance(t), 0.25, 0.15)
+    )
+    G = ekf.predict_jacobian(np.zeros(7), 0.0, 0.0, (0.0, 0.0, 0.0), DT)
+    for i in range(N):
+        Q_i = tilt.process_noise(t, Q, attitude[i], imu[i, 0:3], imu[i, 3:6])
+        x_i, P_i = ekf.predict_with_yaw(x_ref[i].tolist(), P_ref[i], attitude[i], imu[i], DT, Q_i, G)
+        np.testing.assert_allclose(x[i], x_i, **TOL)
+        np.testing.assert_allclose(P[i], P_i, **TOL)
+        assert not np.array_equal(Q_i, Q)
+
+
 def _check_update(batched, scalar, x, P, z, R):
     x_new, P_new, nis = batched(x, P, z, R)
     for i in range(x.shape[0]):
@@ -352,6 +372,7 @@ VEHICLES = {
         ),
         REFERENCE,
     ),
+    "ekf7-tilt": (VehicleConfig(ekf=EkfParams(gps_reset_timeout=RESET_TIMEOUT, tilt_gyro_std=0.5)), PHYSICAL),
     "eskf15": (VehicleConfig(estimator=EskfEstimatorConfig(gps_reset_timeout=RESET_TIMEOUT)), PHYSICAL),
     "eskf9": (
         VehicleConfig(estimator=EskfEstimatorConfig(gps_reset_timeout=RESET_TIMEOUT, estimate_biases=False)),

@@ -5,9 +5,17 @@ Noise matrices follow the reference: Q = diag(q_std^2) * dt_imu is applied once 
 step, R_gps = diag(gps_std^2), R_mag = [mag_yaw_std^2]. Updates use the Joseph form and
 return the normalised innovation squared (NIS); a non-finite measurement is skipped (the
 state and covariance are returned unchanged and the NIS is NaN).
+
+Tilt-aware process noise (an addition to the reference, off unless ``tilt_gyro_std`` > 0): the
+EKF7 has no roll/pitch states, yet the complementary filter's roll/pitch error, a gyro random
+walk that grows over the flight, rotates the specific force into a velocity error and leaks
+into the integrated yaw. :class:`TiltNoise` adds that error's predicted variance, mapped
+through the Jacobian of (a_N, yaw rate) with respect to (roll, pitch), to Q at every step; see
+:func:`tilt_variance` and :func:`tilt_process_noise`.
 """
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -215,3 +223,103 @@ def mag_update(x, P, yaw_meas, R_mag):
     x_new = x + K * nu
     x_new[YAW_INDEX] = wrap_to_pi(x_new[YAW_INDEX])
     return x_new, P_new, nu * nu / S
+
+
+def tilt_variance(t, gyro_std, tau, dt):
+    """Per-axis variance (rad^2) of the complementary filter's roll/pitch error from gyro noise, t s in.
+
+    The filter (``complementary.complementary_update``) integrates the gyro (noise gyro_std
+    rad/s per sample, step dt s) and keeps a = tau / (tau + dt) of the result each step, so
+    the error follows e_(k+1) = a (e_k + n_k dt) and its variance V_(k+1) = a^2 (V_k + (gyro_std
+    dt)^2) from V_0 = 0 (the filter starts at the truth): V = s (1 - a^(2k)) / (1 - a^2) with
+    s = (a gyro_std dt)^2 and k = t / dt steps. The accelerometer's share (weight 1 - a) is
+    not noise on a drag-free multirotor (its specific force carries no tilt, so it pulls the
+    estimate towards level: a trajectory-dependent bias) and is left out.
+    """
+    a = tau / (tau + dt)
+    step = (a * gyro_std * dt) ** 2
+    return step * (1.0 - a ** (2.0 * max(t, 0.0) / dt)) / (1.0 - a * a)
+
+
+def tilt_jacobian(roll, pitch, yaw, fx, fy, fz, wy, wz):
+    """Sensitivity of the prediction to roll and pitch errors: two 4-tuples (d/droll, d/dpitch) of
+    (a_N x, y, z in m/s^2 per rad, yaw rate in rad/s per rad).
+
+    a_N = R_NB f_B with R_NB = Rz(yaw) Ry(pitch) Rx(roll) (as :func:`predict_state`; gravity
+    does not depend on the angles) and the ZYX yaw rate (wy sin(roll) + wz cos(roll)) / cos(pitch)
+    of the body rate w_NB_B (rad/s). Angles in rad, f_B in m/s^2 (FRD). Plain float
+    arithmetic (the fleet compiles it).
+    """
+    cr, sr = math.cos(roll), math.sin(roll)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    rolled_z = sr * fy + cr * fz
+    ux = cp * fx + sp * rolled_z
+    uy = cr * fy - sr * fz
+    uz = -sp * fx + cp * rolled_z
+    # d u / d roll = (sp uy, -rolled_z, cp uy); d u / d pitch = (uz, 0, -ux); a_N = Rz(yaw) u
+    dux_r, duy_r, duz_r = sp * uy, -rolled_z, cp * uy
+    yaw_rate_numerator = wy * sr + wz * cr
+    d_roll = (
+        cy * dux_r - sy * duy_r,
+        sy * dux_r + cy * duy_r,
+        duz_r,
+        (wy * cr - wz * sr) / cp,
+    )
+    d_pitch = (cy * uz, sy * uz, -ux, yaw_rate_numerator * sp / (cp * cp))
+    return d_roll, d_pitch
+
+
+def tilt_process_noise(attitude, f_B, w_B, variance, velocity_time, yaw_time, dt):
+    """Q_tilt (4x4) for (v_N, yaw) of one predict step: variance * dt * S (J_r J_r^T + J_p J_p^T) S.
+
+    J_r, J_p: :func:`tilt_jacobian` at attitude (roll, pitch, yaw rad), f_B (m/s^2) and w_B
+    (rad/s); variance: roll/pitch error variance, rad^2 (:func:`tilt_variance`), the two
+    axes independent. The tilt error changes slowly, so it enters as white noise held for an
+    effective time: S = diag(sqrt(velocity_time) x3, sqrt(yaw_time)), times in s.
+    """
+    d_roll, d_pitch = tilt_jacobian(
+        attitude[0], attitude[1], attitude[2], f_B[0], f_B[1], f_B[2], w_B[1], w_B[2]
+    )
+    scale = np.sqrt([velocity_time, velocity_time, velocity_time, yaw_time])
+    j_roll, j_pitch = scale * np.array(d_roll), scale * np.array(d_pitch)
+    return (variance * dt) * (np.outer(j_roll, j_roll) + np.outer(j_pitch, j_pitch))
+
+
+@dataclass(frozen=True)
+class TiltNoise:
+    """The EKF7's tilt-aware process noise: ``EkfParams`` ``tilt_gyro_std`` (rad/s per IMU sample,
+    the gyro noise the attitude filter integrates), ``tilt_velocity_time`` and ``tilt_yaw_time``
+    (s), the attitude filter's ``tau`` (s) and the filter step dt (s)."""
+
+    gyro_std: float
+    tau: float
+    velocity_time: float
+    yaw_time: float
+    dt: float
+
+    @classmethod
+    def from_params(cls, params, attitude_filter, dt):
+        """The TiltNoise of EkfParams `params` and AttitudeFilterParams `attitude_filter`, or None
+        when ``tilt_gyro_std`` is 0 (constant Q, as the reference)."""
+        if params.tilt_gyro_std == 0.0:
+            return None
+        return cls(
+            float(params.tilt_gyro_std),
+            float(attitude_filter.tau),
+            float(params.tilt_velocity_time),
+            float(params.tilt_yaw_time),
+            float(dt),
+        )
+
+    def variance(self, t):
+        """Roll/pitch error variance (rad^2) t s into the flight (:func:`tilt_variance`)."""
+        return tilt_variance(t, self.gyro_std, self.tau, self.dt)
+
+    def process_noise(self, t, Q, attitude, f_B, w_B):
+        """Q (7x7) plus :func:`tilt_process_noise` on the (v_N, yaw) block, t s into the flight."""
+        total = Q.copy()
+        total[3:7, 3:7] += tilt_process_noise(
+            attitude, f_B, w_B, self.variance(t), self.velocity_time, self.yaw_time, self.dt
+        )
+        return total

@@ -27,7 +27,7 @@ import numpy as np
 
 from quad_drake.conventions import GRAVITY, NO_SAMPLE_STAMP
 from quad_drake.delay_compensation import TIME_TOLERANCE
-from quad_drake.estimation import eskf, gating
+from quad_drake.estimation import ekf, eskf, gating
 from quad_drake.estimation.complementary import VARIANTS
 from quad_drake.estimation.vocabulary import DIAG
 
@@ -242,6 +242,25 @@ def ekf7_estimated_state(attitude, ekf_state, body_rate):
 # ----- 7-state EKF ---------------------------------------------------------------------------------
 
 
+_tilt_jacobian = numba.njit(ekf.tilt_jacobian, cache=True)
+
+
+@_jit
+def _add_tilt_noise(P_out, i, attitude, w_B, f_B, dt, tilt):
+    """P_out[i, 3:7, 3:7] += ekf.tilt_process_noise (tilt = (variance, velocity_time, yaw_time))."""
+    d_roll, d_pitch = _tilt_jacobian(
+        attitude[i, 0], attitude[i, 1], attitude[i, 2], f_B[i, 0], f_B[i, 1], f_B[i, 2], w_B[i, 1], w_B[i, 2]
+    )
+    scale = (math.sqrt(tilt[1]), math.sqrt(tilt[1]), math.sqrt(tilt[1]), math.sqrt(tilt[2]))
+    factor = tilt[0] * dt
+    for r in range(4):
+        for c in range(4):
+            P_out[i, 3 + r, 3 + c] += factor * (
+                scale[r] * d_roll[r] * (scale[c] * d_roll[c])
+                + scale[r] * d_pitch[r] * (scale[c] * d_pitch[c])
+            )
+
+
 @_jit
 def _ekf7_predict_row(x, P, x_out, P_out, i, attitude, f_B, dt, Q, gravity_z, GP, M):
     """ekf.predict_with_yaw of vehicle i from (x, P) into (x_out, P_out) (may be the same arrays)."""
@@ -292,12 +311,15 @@ def _ekf7_predict_rows(x, P, attitude, f_B, dt, Q, gravity_z):
 
 
 @_jit
-def _ekf7_tick(x, P, attitude, imu, diagnostics, dt, Q, gravity_z):
+def _ekf7_tick(x, P, attitude, imu, diagnostics, dt, Q, tilt, gravity_z):
     GP, M = np.empty((7, 7)), np.empty((7, 7))
     healthy = np.empty(x.shape[0], dtype=np.bool_)
+    w_B = imu[:, 3:6]
     for i in range(x.shape[0]):
         if _row_finite(attitude, i, _row_sum(imu, i)):
             _ekf7_predict_row(x, P, x, P, i, attitude, imu, dt, Q, gravity_z, GP, M)
+            if tilt[0] > 0.0:
+                _add_tilt_noise(P, i, attitude, w_B, imu, dt, tilt)
         else:
             diagnostics[i, _NONFINITE] += 1.0
         healthy[i] = _row_healthy(P, i)
@@ -312,15 +334,19 @@ def ekf7_predict_with_yaw(x, P, attitude, f_B, dt, Q, reference_accelerometer=Fa
     return _ekf7_predict_rows(x, P, attitude, f_B, float(dt), Q, _gravity_z(reference_accelerometer))
 
 
-def ekf7_predict_tick(x, P, attitude, imu, diagnostics, dt, Q, reference_accelerometer=False):
+def ekf7_predict_tick(x, P, attitude, imu, diagnostics, dt, Q, reference_accelerometer=False, tilt=None):
     """The prediction of one EKF7 tick IN PLACE on x (N, 7) and P (N, 7, 7) (``systems.estimators.Ekf``).
 
     A vehicle whose IMU sample (N, 6) or attitude (N, 3) has a non-finite entry is not predicted
     and counts a non-finite sample in diagnostics (N, DIAGNOSTICS_SIZE); the others take
-    :func:`ekf7_predict_with_yaw` with f_B = imu[:, 0:3]. Returns :func:`covariance_looks_healthy`
-    of the new P.
+    :func:`ekf7_predict_with_yaw` with f_B = imu[:, 0:3] and Q plus, with tilt = (variance
+    rad^2, velocity_time s, yaw_time s), ``ekf.tilt_process_noise`` of their attitude and IMU
+    sample (``ekf.TiltNoise.process_noise``). Returns :func:`covariance_looks_healthy` of the new P.
     """
-    return _ekf7_tick(x, P, attitude, imu, diagnostics, float(dt), Q, _gravity_z(reference_accelerometer))
+    tilt = np.zeros(3) if tilt is None else np.asarray(tilt, dtype=float)
+    return _ekf7_tick(
+        x, P, attitude, imu, diagnostics, float(dt), Q, tilt, _gravity_z(reference_accelerometer)
+    )
 
 
 def _gravity_z(reference_accelerometer):

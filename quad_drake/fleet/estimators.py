@@ -173,10 +173,11 @@ class FleetEkf(_FleetGatedFusion, LeafSystem):
     (N*DIAGNOSTICS_SIZE).
     """
 
-    def __init__(self, params, n, fidelity=PHYSICAL):
+    def __init__(self, params, n, fidelity=PHYSICAL, tilt=None):
         super().__init__()
         self._reference_accelerometer = fidelity.reference_accelerometer
         self._Q = ekf.process_noise(params)
+        self._tilt = tilt
         self._R_gps = ekf.gps_noise(params)
         self._R_mag = ekf.mag_noise(params)
         x, P, diagnostics = self._declare_fleet(
@@ -199,8 +200,11 @@ class FleetEkf(_FleetGatedFusion, LeafSystem):
         imu = self._read_imu(context).reshape(n, IMU_SIZE)
         attitude = self._read_attitude(context).reshape(n, ATTITUDE_SIZE)
         x, P, diagnostics, book = self._views(discrete_state, EKF_STATE_SIZE)
+        tilt = None
+        if self._tilt is not None:
+            tilt = (self._tilt.variance(context.get_time()), self._tilt.velocity_time, self._tilt.yaw_time)
         healthy = kernels.ekf7_predict_tick(
-            x, P, attitude, imu, diagnostics, ONBOARD_PERIOD, self._Q, self._reference_accelerometer
+            x, P, attitude, imu, diagnostics, ONBOARD_PERIOD, self._Q, self._reference_accelerometer, tilt
         )
         self._fuse_fresh(
             x,
@@ -380,7 +384,8 @@ class FleetGpsDelayCompensator(LeafSystem):
 
 def _build_ekf7(builder, vehicle, n, fidelity):
     """Fleet CF + EKF7 + assembler in `builder`; returns (input ports by name, output ports by name)."""
-    ekf_system = builder.AddNamedSystem("ekf", FleetEkf(vehicle.ekf, n, fidelity))
+    tilt = ekf.TiltNoise.from_params(vehicle.ekf, vehicle.attitude_filter, ONBOARD_PERIOD)
+    ekf_system = builder.AddNamedSystem("ekf", FleetEkf(vehicle.ekf, n, fidelity, tilt))
     attitude_filter = builder.AddNamedSystem(
         "attitude_filter",
         FleetComplementaryFilter(

@@ -217,13 +217,15 @@ class Ekf(_GatedFusion, LeafSystem):
     differs from the last stamp seen and is not NO_SAMPLE_STAMP. P is checked every tick
     (finite, variances >= 0) and fully (PSD) at every GPS sample, and repaired or reset to P0.
     With ``fidelity.reference_accelerometer`` the prediction reads the IMU as the reference's
-    R_NB^T (a_NB + g_N): a_N = R f - g_N.
+    R_NB^T (a_NB + g_N): a_N = R f - g_N. With ``tilt`` (an ``ekf.TiltNoise``) Q grows with the
+    attitude filter's predicted roll/pitch error at the context time.
     """
 
-    def __init__(self, params, fidelity=PHYSICAL):
+    def __init__(self, params, fidelity=PHYSICAL, tilt=None):
         super().__init__()
         self._reference_accelerometer = fidelity.reference_accelerometer
         self._Q = ekf.process_noise(params)
+        self._tilt = tilt
         self._G = ekf.predict_jacobian(np.zeros(EKF_STATE_SIZE), 0.0, 0.0, (0.0, 0.0, 0.0), ONBOARD_PERIOD)
         self._read_imu = vector_reader(self.DeclareVectorInputPort("imu", IMU_SIZE))
         self._declare_gating(
@@ -251,8 +253,11 @@ class Ekf(_GatedFusion, LeafSystem):
         x = discrete_state.value(0)
         P = discrete_state.value(1).reshape(EKF_STATE_SIZE, EKF_STATE_SIZE)
         if _finite(imu + attitude):
+            Q = self._Q
+            if self._tilt is not None:
+                Q = self._tilt.process_noise(context.get_time(), Q, attitude, imu[0:3], imu[3:6])
             x, P = ekf.predict_with_yaw(
-                x.tolist(), P, attitude, imu, ONBOARD_PERIOD, self._Q, self._G, self._reference_accelerometer
+                x.tolist(), P, attitude, imu, ONBOARD_PERIOD, Q, self._G, self._reference_accelerometer
             )
         else:
             self._count(discrete_state, "nonfinite_samples")
@@ -407,7 +412,8 @@ def estimator_diagram(builder, inputs, outputs, estimator):
 
 def _build_ekf7(builder, vehicle, fidelity):
     """CF + EKF7 + assembler in `builder`; returns (input ports by name, output ports by name)."""
-    ekf_system = builder.AddNamedSystem("ekf", Ekf(vehicle.ekf, fidelity))
+    tilt = ekf.TiltNoise.from_params(vehicle.ekf, vehicle.attitude_filter, ONBOARD_PERIOD)
+    ekf_system = builder.AddNamedSystem("ekf", Ekf(vehicle.ekf, fidelity, tilt))
     attitude_filter = builder.AddNamedSystem(
         "attitude_filter",
         ComplementaryFilter(

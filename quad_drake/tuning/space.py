@@ -26,6 +26,7 @@ DEFAULT_KEYS = {
         "ekf.q_vel_xy_std",
         "ekf.q_vel_z_std",
         "ekf.q_yaw_std",
+        "ekf.tilt_gyro_std",
         "ekf.gps_pos_xy_std",
         "ekf.gps_pos_z_std",
         "ekf.gps_vel_xy_std",
