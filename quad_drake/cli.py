@@ -134,13 +134,18 @@ def cmd_diagram(args):
     return 0
 
 
+def _add_jobs_argument(parser):
+    """``--jobs`` of the commands that fly campaigns: worker processes, all cores by default."""
+    parser.add_argument(
+        "--jobs", type=int, default=os.cpu_count() or 1, help="worker processes (default: all cores)"
+    )
+
+
 def _add_montecarlo_arguments(parser):
     """Arguments of ``quad-drake montecarlo``."""
     parser.add_argument("name", metavar="NAME", help="scenario name or YAML path")
     parser.add_argument("--runs", type=int, default=100, help="number of runs (default: 100)")
-    parser.add_argument(
-        "--jobs", type=int, default=os.cpu_count() or 1, help="worker processes (default: all cores)"
-    )
+    _add_jobs_argument(parser)
     parser.add_argument("--seed", type=int, help="first seed S; run i uses S+i (default: the scenario's)")
     parser.add_argument(
         "--set",
@@ -208,7 +213,7 @@ def _add_tune_arguments(parser):
     )
     parser.add_argument("--no-holdout", action="store_true", help="skip the before/after campaigns")
     parser.add_argument("--search-seed", type=int, default=d.search_seed, help="seed of the CMA-ES sampler")
-    parser.add_argument("--jobs", type=int, default=d.jobs, help=f"worker processes (default: {d.jobs})")
+    _add_jobs_argument(parser)
     parser.add_argument(
         "--set", action="append", default=[], metavar="KEY=VALUE", help="override a config field first"
     )
