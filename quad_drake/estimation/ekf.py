@@ -81,16 +81,19 @@ def mag_noise(params):
     return np.array([[params.mag_yaw_std**2]])
 
 
-def _rotate_specific_force(roll, pitch, yaw, f_B):
-    """(R_NB f_B, dR_NB/dyaw f_B) as two 3-tuples of floats; R_NB = Rz(yaw) Ry(pitch) Rx(roll)."""
-    fx, fy, fz = float(f_B[0]), float(f_B[1]), float(f_B[2])
+def _yaw_free_rotation(roll, pitch, fx, fy, fz):
+    """(ux, uy, uz, rolled_z): u = Ry(pitch) Rx(roll) f (the yaw-free part of R_NB f) and the z
+    component of Rx(roll) f, for f = (fx, fy, fz); plain floats (the fleet compiles it)."""
     cr, sr = math.cos(roll), math.sin(roll)
     cp, sp = math.cos(pitch), math.sin(pitch)
+    rolled_z = sr * fy + cr * fz
+    return cp * fx + sp * rolled_z, cr * fy - sr * fz, -sp * fx + cp * rolled_z, rolled_z
+
+
+def _rotate_specific_force(roll, pitch, yaw, f_B):
+    """(R_NB f_B, dR_NB/dyaw f_B) as two 3-tuples of floats; R_NB = Rz(yaw) Ry(pitch) Rx(roll)."""
+    ux, uy, uz, _ = _yaw_free_rotation(roll, pitch, float(f_B[0]), float(f_B[1]), float(f_B[2]))
     cy, sy = math.cos(yaw), math.sin(yaw)
-    rolled_z = sr * fy + cr * fz  # Rx(roll) f, z component
-    ux = cp * fx + sp * rolled_z  # u = Ry(pitch) Rx(roll) f (the yaw-free part)
-    uy = cr * fy - sr * fz
-    uz = -sp * fx + cp * rolled_z
     return (cy * ux - sy * uy, sy * ux + cy * uy, uz), (-sy * ux - cy * uy, cy * ux - sy * uy, 0.0)
 
 
@@ -250,13 +253,10 @@ def tilt_jacobian(roll, pitch, yaw, fx, fy, fz, wy, wz):
     of the body rate w_NB_B (rad/s). Angles in rad, f_B in m/s^2 (FRD). Plain float
     arithmetic (the fleet compiles it).
     """
+    ux, uy, uz, rolled_z = _yaw_free_rotation(roll, pitch, fx, fy, fz)
     cr, sr = math.cos(roll), math.sin(roll)
     cp, sp = math.cos(pitch), math.sin(pitch)
     cy, sy = math.cos(yaw), math.sin(yaw)
-    rolled_z = sr * fy + cr * fz
-    ux = cp * fx + sp * rolled_z
-    uy = cr * fy - sr * fz
-    uz = -sp * fx + cp * rolled_z
     # d u / d roll = (sp uy, -rolled_z, cp uy); d u / d pitch = (uz, 0, -ux); a_N = Rz(yaw) u
     dux_r, duy_r, duz_r = sp * uy, -rolled_z, cp * uy
     yaw_rate_numerator = wy * sr + wz * cr

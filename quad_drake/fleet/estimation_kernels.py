@@ -30,6 +30,7 @@ from quad_drake.delay_compensation import TIME_TOLERANCE
 from quad_drake.estimation import ekf, eskf, gating
 from quad_drake.estimation.complementary import VARIANTS
 from quad_drake.estimation.vocabulary import DIAG
+from quad_drake.fleet.kernels import compiled
 
 GPS_SLOT, MAG_SLOT, GPS_REJECTION_START = 0, 1, 2
 """Columns of an estimator's book (N, 3): last GPS stamp seen, last mag stamp seen, start of the
@@ -242,7 +243,7 @@ def ekf7_estimated_state(attitude, ekf_state, body_rate):
 # ----- 7-state EKF ---------------------------------------------------------------------------------
 
 
-_tilt_jacobian = numba.njit(ekf.tilt_jacobian, cache=True)
+_tilt_jacobian = compiled(ekf.tilt_jacobian, _yaw_free_rotation=compiled(ekf._yaw_free_rotation))
 
 
 @_jit

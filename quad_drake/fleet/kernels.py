@@ -31,29 +31,29 @@ from quad_drake.sensor_models import gps_measurement
 # ----- dynamics ---------------------------------------------------------------
 
 
-def _compiled(function, **callees):
+def compiled(function, **callees):
     """The scalar `function`'s own code compiled by numba (nopython, cached on disk), with the
     module globals it calls replaced by their compiled forms `callees`."""
     namespace = dict(function.__globals__, **callees)
     return numba.njit(types.FunctionType(function.__code__, namespace, function.__name__), cache=True)
 
 
-_rates_compiled = _compiled(dynamics._rates)
-_coefficients_compiled = _compiled(dynamics._coefficients)
-_plant_compiled = _compiled(
+_rates_compiled = compiled(dynamics._rates)
+_coefficients_compiled = compiled(dynamics._coefficients)
+_plant_compiled = compiled(
     dynamics.plant_step,
-    clamped_noisy_commands=_compiled(dynamics.clamped_noisy_commands),
-    motor_lag_step=_compiled(dynamics.motor_lag_step),
-    wrench_from_thrusts=_compiled(dynamics.wrench_from_thrusts),
-    rigid_body_step=_compiled(
+    clamped_noisy_commands=compiled(dynamics.clamped_noisy_commands),
+    motor_lag_step=compiled(dynamics.motor_lag_step),
+    wrench_from_thrusts=compiled(dynamics.wrench_from_thrusts),
+    rigid_body_step=compiled(
         dynamics.rigid_body_step, _rates=_rates_compiled, _coefficients=_coefficients_compiled
     ),
-    rigid_body_step_semi_implicit=_compiled(
+    rigid_body_step_semi_implicit=compiled(
         dynamics.rigid_body_step_semi_implicit, _rates=_rates_compiled, _coefficients=_coefficients_compiled
     ),
-    outside_room=_compiled(dynamics.outside_room),
-    apply_room_constraints=_compiled(dynamics.apply_room_constraints),
-    float32_rounded=_compiled(dynamics.float32_rounded, _float32=_compiled(dynamics._float32)),
+    outside_room=compiled(dynamics.outside_room),
+    apply_room_constraints=compiled(dynamics.apply_room_constraints),
+    float32_rounded=compiled(dynamics.float32_rounded, _float32=compiled(dynamics._float32)),
 )
 
 
@@ -103,14 +103,14 @@ def plant_step(state, forces_old, commands, noise_unit, params, dt, fidelity=PHY
 # ----- sensors ----------------------------------------------------------------
 
 
-_rotate_to_body_compiled = _compiled(sensor_models._rotate_to_body)
-_imu_compiled = _compiled(
+_rotate_to_body_compiled = compiled(sensor_models._rotate_to_body)
+_imu_compiled = compiled(
     sensor_models.imu_measurement,
-    reference_accelerometer=_compiled(
+    reference_accelerometer=compiled(
         sensor_models.reference_accelerometer, _rotate_to_body=_rotate_to_body_compiled
     ),
-    specific_force=_compiled(sensor_models.specific_force, _rotate_to_body=_rotate_to_body_compiled),
-    _clamp=_compiled(sensor_models._clamp),
+    specific_force=compiled(sensor_models.specific_force, _rotate_to_body=_rotate_to_body_compiled),
+    _clamp=compiled(sensor_models._clamp),
 )
 
 
@@ -172,18 +172,18 @@ def magnetometer_yaws(q_NB, noise, params):
 # ----- cascade controller -----------------------------------------------------
 
 
-_wrap_compiled = _compiled(rotations.wrap_to_pi)
-_thrusts_compiled = _compiled(dynamics.thrusts_from_wrench)
-_cascade_compiled = _compiled(
+_wrap_compiled = compiled(rotations.wrap_to_pi)
+_thrusts_compiled = compiled(dynamics.thrusts_from_wrench)
+_cascade_compiled = compiled(
     cascade.cascade_step,
-    altitude_control=_compiled(cascade.altitude_control),
-    clamp_collective_thrust=_compiled(
-        cascade.clamp_collective_thrust, collective_thrust_limits=_compiled(cascade.collective_thrust_limits)
+    altitude_control=compiled(cascade.altitude_control),
+    clamp_collective_thrust=compiled(
+        cascade.clamp_collective_thrust, collective_thrust_limits=compiled(cascade.collective_thrust_limits)
     ),
-    lateral_position_control=_compiled(cascade.lateral_position_control),
-    _roll_pitch=_compiled(cascade._roll_pitch),
-    yaw_control=_compiled(cascade.yaw_control, wrap_to_pi=_wrap_compiled),
-    body_rate_control=_compiled(cascade.body_rate_control),
+    lateral_position_control=compiled(cascade.lateral_position_control),
+    _roll_pitch=compiled(cascade._roll_pitch),
+    yaw_control=compiled(cascade.yaw_control, wrap_to_pi=_wrap_compiled),
+    body_rate_control=compiled(cascade.body_rate_control),
     thrusts_from_wrench=_thrusts_compiled,
 )
 
