@@ -189,22 +189,25 @@ def test_plant_counts_the_steps_stopped_at_a_wall():
 
 
 @pytest.mark.slow
-def test_a_vehicle_that_cannot_lift_off_fails_11():
-    # README "Safety": 11 with a 2 kg vehicle sits on the floor; its estimate still passes. (With
-    # the EKF7's default 5-sigma GPS gate the touchdown, an impulse the IMU does not sense, gets
-    # the GPS rejected until the 5 s reset, so the estimate fails too; the gate is off here to
-    # show the estimation criterion alone passing a crashed flight.)
+def test_a_vehicle_that_cannot_lift_off_fails_11(constant_q_ekf7):
+    # README "Flight-safety criteria": 11 with a 2 kg vehicle sits on the floor. On the floor the
+    # simulated IMU does not sense the contact force, so the EKF7 predicts a fall the GPS keeps
+    # correcting. With 11's earlier constant-Q EKF7 (a velocity Q wide enough to follow the GPS)
+    # and the GPS gate off (the 5-sigma gate rejects the GPS after the touchdown until its 5 s
+    # reset), the estimate still passes: the estimation criterion alone passes a crashed flight.
     env = dict(os.environ, PYTHONPATH=str(ROOT), MPLBACKEND="Agg")
     command = [sys.executable, "-m", "quad_drake.cli", "run", "11_gps_update"]
-    done = subprocess.run(
-        [*command, "--set", "vehicles.0.physics.mass=2.0", "--set", "vehicles.0.ekf.gps_gate_sigma=0"],
-        capture_output=True,
-        text=True,
-        env=env,
-    )
+    heavy = ["--set", "vehicles.0.physics.mass=2.0"]
+    sets = [arg for s in ["vehicles.0.ekf.gps_gate_sigma=0", *constant_q_ekf7] for arg in ("--set", s)]
+    done = subprocess.run([*command, *heavy, *sets], capture_output=True, text=True, env=env)
     assert done.returncode == 1, done.stderr
     assert "PASS: ABS(Quad.Est.E.Pos) was less than 1.000000 for at least 20.000000 seconds" in done.stdout
-    assert "FAIL: Quad touched the floor 1 time (first at 0.700 s)" in done.stdout  # 11's EKF7 tuning
+    assert "FAIL: Quad touched the floor 1 time (first at 0.700 s)" in done.stdout
+    # As bundled (the tilt-aware EKF7 trusts its IMU more) the estimate fails too; so does the floor.
+    bundled = subprocess.run([*command, *heavy], capture_output=True, text=True, env=env)
+    assert bundled.returncode == 1, bundled.stderr
+    assert "FAIL: Quad touched the floor 1 time" in bundled.stdout
+    assert "FAIL: ABS(Quad.Est.E.Pos)" in bundled.stdout
     assert (
         "FAIL: Quad touched the floor"
         not in subprocess.run(

@@ -12,13 +12,6 @@ from quad_drake.fleet.runner import batch_logs
 from quad_drake.fleet.simulation import run_fleet
 
 RUNS, FIRST_SEED = 30, 5000  # tuned on 1000-1099
-CONSTANT_Q = [  # 11's EKF7 before the tilt-aware Q (README "Estimators")
-    "vehicles.0.ekf.tilt_gyro_std=0",
-    "vehicles.0.ekf.q_vel_xy_std=0.35",
-    "vehicles.0.ekf.q_vel_z_std=0.25",
-    "vehicles.0.ekf.q_yaw_std=0.06",
-    "vehicles.0.ekf.init_std=[0.02, 0.02, 0.05, 0.02, 0.02, 0.05, 0.01]",
-]
 
 
 def nees_share_in_band(*overrides):
@@ -39,10 +32,10 @@ def nees_share_in_band(*overrides):
 
 
 @pytest.mark.slow
-def test_tilt_aware_q_keeps_the_ekf7_consistent_through_11s_flight():
+def test_tilt_aware_q_keeps_the_ekf7_consistent_through_11s_flight(constant_q_ekf7):
     share, ratios = nees_share_in_band()
     assert share >= 0.8, share
     np.testing.assert_array_less(0.6, ratios)  # every state: e^2/P within [0.6, 1.5] on average
     np.testing.assert_array_less(ratios, 1.5)
-    constant_share, _ = nees_share_in_band(*CONSTANT_Q)
+    constant_share, _ = nees_share_in_band(*constant_q_ekf7)
     assert constant_share < 0.6, constant_share
