@@ -23,7 +23,7 @@ from quad_drake.config import (
 from quad_drake.conventions import GRAVITY, NO_SAMPLE_STAMP
 from quad_drake.estimation import ekf, eskf, gating
 from quad_drake.estimation.complementary import complementary_update
-from quad_drake.estimation.vocabulary import DIAG, vocabulary_for
+from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, vocabulary_for
 from quad_drake.fidelity import PHYSICAL, REFERENCE
 from quad_drake.fleet import estimation_kernels as kernels
 from quad_drake.fleet.estimators import FleetGpsDelayCompensator, build_fleet_estimator
@@ -108,7 +108,7 @@ def test_ekf7_predict_tick_with_tilt_noise_matches_the_scalar_step():
     attitude, imu = random_attitudes(rng), np.column_stack([specific_forces(rng), gyro_samples(rng)])
     x_ref, P_ref = x.copy(), P.copy()
     kernels.ekf7_predict_tick(
-        x, P, attitude, imu, np.zeros((N, 16)), DT, Q, tilt=(tilt.variance(t), 0.25, 0.15)
+        x, P, attitude, imu, np.zeros((N, DIAGNOSTICS_SIZE)), DT, Q, tilt_gains=tilt.gains(t)
     )
     G = ekf.predict_jacobian(np.zeros(7), 0.0, 0.0, (0.0, 0.0, 0.0), DT)
     for i in range(N):

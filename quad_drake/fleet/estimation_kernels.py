@@ -243,23 +243,24 @@ def ekf7_estimated_state(attitude, ekf_state, body_rate):
 # ----- 7-state EKF ---------------------------------------------------------------------------------
 
 
-_tilt_jacobian = compiled(ekf.tilt_jacobian, _yaw_free_rotation=compiled(ekf._yaw_free_rotation))
+_tilt_noise_factors = compiled(
+    ekf.tilt_noise_factors,
+    tilt_jacobian=compiled(ekf.tilt_jacobian, _yaw_free_rotation=compiled(ekf._yaw_free_rotation)),
+)
+_NO_TILT = np.zeros(2)
+"""Tilt gains (velocity, yaw) that switch the tilt-aware Q off."""
 
 
 @_jit
-def _add_tilt_noise(P_out, i, attitude, w_B, f_B, dt, tilt):
-    """P_out[i, 3:7, 3:7] += ekf.tilt_process_noise (tilt = (variance, velocity_time, yaw_time))."""
-    d_roll, d_pitch = _tilt_jacobian(
-        attitude[i, 0], attitude[i, 1], attitude[i, 2], f_B[i, 0], f_B[i, 1], f_B[i, 2], w_B[i, 1], w_B[i, 2]
-    )
-    scale = (math.sqrt(tilt[1]), math.sqrt(tilt[1]), math.sqrt(tilt[1]), math.sqrt(tilt[2]))
-    factor = tilt[0] * dt
+def _add_tilt_noise(P_out, i, attitude, w_B, f_B, gains):
+    """P_out[i, 3:7, 3:7] += a a^T + b b^T of ekf.tilt_noise_factors (gains = ekf.tilt_gains)."""
+    a, b = _tilt_noise_factors(
+        attitude[i, 0], attitude[i, 1], attitude[i, 2], f_B[i, 0], f_B[i, 1], f_B[i, 2], w_B[i, 1], w_B[i, 2],
+        gains[0], gains[1],
+    )  # fmt: skip
     for r in range(4):
         for c in range(4):
-            P_out[i, 3 + r, 3 + c] += factor * (
-                scale[r] * d_roll[r] * (scale[c] * d_roll[c])
-                + scale[r] * d_pitch[r] * (scale[c] * d_pitch[c])
-            )
+            P_out[i, 3 + r, 3 + c] += a[r] * a[c] + b[r] * b[c]
 
 
 @_jit
@@ -312,15 +313,15 @@ def _ekf7_predict_rows(x, P, attitude, f_B, dt, Q, gravity_z):
 
 
 @_jit
-def _ekf7_tick(x, P, attitude, imu, diagnostics, dt, Q, tilt, gravity_z):
+def _ekf7_tick(x, P, attitude, imu, diagnostics, dt, Q, tilt_gains, gravity_z):
     GP, M = np.empty((7, 7)), np.empty((7, 7))
     healthy = np.empty(x.shape[0], dtype=np.bool_)
     w_B = imu[:, 3:6]
     for i in range(x.shape[0]):
         if _row_finite(attitude, i, _row_sum(imu, i)):
             _ekf7_predict_row(x, P, x, P, i, attitude, imu, dt, Q, gravity_z, GP, M)
-            if tilt[0] > 0.0:
-                _add_tilt_noise(P, i, attitude, w_B, imu, dt, tilt)
+            if tilt_gains[0] > 0.0 or tilt_gains[1] > 0.0:
+                _add_tilt_noise(P, i, attitude, w_B, imu, tilt_gains)
         else:
             diagnostics[i, _NONFINITE] += 1.0
         healthy[i] = _row_healthy(P, i)
@@ -335,18 +336,21 @@ def ekf7_predict_with_yaw(x, P, attitude, f_B, dt, Q, reference_accelerometer=Fa
     return _ekf7_predict_rows(x, P, attitude, f_B, float(dt), Q, _gravity_z(reference_accelerometer))
 
 
-def ekf7_predict_tick(x, P, attitude, imu, diagnostics, dt, Q, reference_accelerometer=False, tilt=None):
+def ekf7_predict_tick(
+    x, P, attitude, imu, diagnostics, dt, Q, reference_accelerometer=False, tilt_gains=None
+):
     """The prediction of one EKF7 tick IN PLACE on x (N, 7) and P (N, 7, 7) (``systems.estimators.Ekf``).
 
     A vehicle whose IMU sample (N, 6) or attitude (N, 3) has a non-finite entry is not predicted
     and counts a non-finite sample in diagnostics (N, DIAGNOSTICS_SIZE); the others take
-    :func:`ekf7_predict_with_yaw` with f_B = imu[:, 0:3] and Q plus, with tilt = (variance
-    rad^2, velocity_time s, yaw_time s), ``ekf.tilt_process_noise`` of their attitude and IMU
-    sample (``ekf.TiltNoise.process_noise``). Returns :func:`covariance_looks_healthy` of the new P.
+    :func:`ekf7_predict_with_yaw` with f_B = imu[:, 0:3] and Q plus, with tilt_gains =
+    ``ekf.TiltNoise.gains`` (velocity, yaw) of this tick, the tilt-aware block of their attitude
+    and IMU sample (``ekf.TiltNoise.process_noise``). Returns :func:`covariance_looks_healthy`
+    of the new P.
     """
-    tilt = np.zeros(3) if tilt is None else np.asarray(tilt, dtype=float)
+    gains = _NO_TILT if tilt_gains is None else np.asarray(tilt_gains, dtype=float)
     return _ekf7_tick(
-        x, P, attitude, imu, diagnostics, float(dt), Q, tilt, _gravity_z(reference_accelerometer)
+        x, P, attitude, imu, diagnostics, float(dt), Q, gains, _gravity_z(reference_accelerometer)
     )
 
 

@@ -200,11 +200,9 @@ class FleetEkf(_FleetGatedFusion, LeafSystem):
         imu = self._read_imu(context).reshape(n, IMU_SIZE)
         attitude = self._read_attitude(context).reshape(n, ATTITUDE_SIZE)
         x, P, diagnostics, book = self._views(discrete_state, EKF_STATE_SIZE)
-        tilt = None
-        if self._tilt is not None:
-            tilt = (self._tilt.variance(context.get_time()), self._tilt.velocity_time, self._tilt.yaw_time)
+        gains = None if self._tilt is None else self._tilt.gains(context.get_time())
         healthy = kernels.ekf7_predict_tick(
-            x, P, attitude, imu, diagnostics, ONBOARD_PERIOD, self._Q, self._reference_accelerometer, tilt
+            x, P, attitude, imu, diagnostics, ONBOARD_PERIOD, self._Q, self._reference_accelerometer, gains
         )
         self._fuse_fresh(
             x,
