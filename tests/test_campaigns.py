@@ -31,6 +31,8 @@ from quad_drake.campaigns import (
     table,
 )
 from quad_drake.campaigns.output import rows
+from quad_drake.campaigns.records import slim
+from quad_drake.campaigns.tally import ConsistencyTally
 from quad_drake.config import (
     ConfigError,
     CriterionConfig,
@@ -57,9 +59,34 @@ def scenario():
     return catalog.load("10_mag_update", None, ["end_time=1.5"])
 
 
+class Recording(InProcessRunner):
+    """In this process, keeping each record as the worker sent it (with its series)."""
+
+    def __init__(self):
+        self.sent = {}
+
+    def map(self, fn, tasks):
+        for index, record in super().map(fn, tasks):
+            self.sent[record.index] = record
+            yield index, record
+
+
 @pytest.fixture(scope="module")
-def serial(scenario):
-    return run_campaign(scenario, 3, seed=5, progress=False)
+def flown(scenario):
+    """(campaign of 3 runs from seed 5, the records its workers sent, by index)."""
+    runner = Recording()
+    campaign_result = run_campaign(scenario, 3, runner=runner, seed=5, progress=False)
+    return campaign_result, [runner.sent[i] for i in range(3)]
+
+
+@pytest.fixture(scope="module")
+def serial(flown):
+    return flown[0]
+
+
+@pytest.fixture(scope="module")
+def sent(flown):
+    return flown[1]
 
 
 @pytest.mark.slow
@@ -68,11 +95,12 @@ def test_same_table_and_rows_whatever_the_runner(scenario, serial):
     assert (serial.runner, parallel.runner) == ("in-process", "process-pool x2")
     assert table(parallel) == table(serial)
     assert rows(parallel) == rows(serial)
-    for a, b in zip(serial.records, parallel.records, strict=True):
-        np.testing.assert_array_equal(a.nees["Quad"], b.nees["Quad"])
+    for a, b in zip(serial.consistency, parallel.consistency, strict=True):
+        np.testing.assert_array_equal(a["times"], b["times"])
+        np.testing.assert_allclose(a["mean"], b["mean"], rtol=1e-12, atol=0)  # summed in another order
 
 
-def test_run_i_is_the_single_run_with_seed_s_plus_i(scenario, serial):
+def test_run_i_is_the_single_run_with_seed_s_plus_i(scenario, serial, sent):
     from quad_drake.simulation import run
 
     single = run(dataclasses.replace(scenario, seed=7))
@@ -83,13 +111,14 @@ def test_run_i_is_the_single_run_with_seed_s_plus_i(scenario, serial):
     assert record.metrics["Quad.Est.E.Yaw"]["rms_settled"] == rms(yaw_error[single.times >= 0.75 - 1e-9])
     logs = single.logs["Quad"]
     expected = cons.nees(EKF7.errors(logs), cons.covariance_matrices(logs["covariance"]))
-    np.testing.assert_array_equal(record.nees["Quad"], expected)
+    np.testing.assert_array_equal(sent[2].nees["Quad"], expected)
+    assert record.nees_mean == {"Quad": float(np.mean(expected))}
     assert [c["description"] for c in record.criteria] == [c.description for c in single.criteria]
     assert serial.records[0].metrics["Quad.Est.E.Yaw"]["rms"] != record.metrics["Quad.Est.E.Yaw"]["rms"]
 
 
-def test_records_hold_the_consistency_series_of_a_run(serial):
-    record = serial.records[0]
+def test_records_hold_the_consistency_series_of_a_run(sent):
+    record = sent[0]
     assert record.nees["Quad"].shape == (300,)  # 1.5 s of 5 ms samples
     assert np.isfinite(record.nees["Quad"]).all()
     stamps, nis = record.nis[("Quad", "mag")]
@@ -162,7 +191,10 @@ def hand_made_campaign(nees_level):
                 0.005 * np.arange(1, 51),
             )
         )
-    return CampaignResult(scenario, records, wall_time=2.0, runner="in-process")
+    tally = ConsistencyTally()
+    for record in records:
+        tally += ConsistencyTally.of(record)
+    return CampaignResult(scenario, [slim(r) for r in records], tally, wall_time=2.0, runner="in-process")
 
 
 def test_pass_rates_come_with_clopper_pearson_intervals():
@@ -283,14 +315,18 @@ class InterruptedRunner(Runner):
 
 
 @pytest.mark.parametrize("k", [0, 2])
-def test_ctrl_c_keeps_the_finished_runs(scenario, serial, tmp_path, k):
+def test_ctrl_c_keeps_the_finished_runs(scenario, serial, sent, tmp_path, k):
     with pytest.raises(CampaignInterrupted) as caught:
-        run_campaign(scenario, 3, runner=InterruptedRunner(serial.records, k), seed=5, progress=False)
+        run_campaign(scenario, 3, runner=InterruptedRunner(sent, k), seed=5, progress=False)
     partial = caught.value.campaign
     assert isinstance(caught.value, KeyboardInterrupt)
     assert (partial.partial, partial.runs, partial.planned, partial.completed) == (True, k, 3, list(range(k)))
-    finished = CampaignResult(serial.scenario, serial.records[:k], 1.0, "in-process")
+    tally = sum((ConsistencyTally.of(r) for r in sent[:k]), ConsistencyTally())
+    finished = CampaignResult(serial.scenario, serial.records[:k], tally, 1.0, "in-process")
     assert partial.criteria == finished.criteria and partial.metrics == finished.metrics
+    assert [c["realisations"] for c in partial.consistency] == ([k, k] if k else [])  # NEES, NIS mag
+    for a, b in zip(partial.consistency, finished.consistency, strict=True):
+        np.testing.assert_allclose(a["mean"], b["mean"], rtol=1e-12, atol=0)  # folded in reverse order
     out = save(partial, tmp_path / "mc", plots=False)
     summary = strict_loads((out / "summary.json").read_text())
     assert (summary["partial"], summary["runs"], summary["runs_planned"]) == (True, k, 3)

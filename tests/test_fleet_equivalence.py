@@ -37,7 +37,7 @@ def bootstrap_se(a, b, statistic, rng):
 def per_run(campaign, key):
     """The compared per-run values: an error metric's RMS, or the run's NEES time mean."""
     if key == "NEES":
-        return [float(np.mean(nees)) for r in campaign.records for nees in r.nees.values()]
+        return [nees for r in campaign.records for nees in r.nees_mean.values()]
     return [m["rms"] for r in campaign.records for name, m in r.metrics.items() if name.endswith(f".{key}")]
 
 

@@ -2,6 +2,8 @@
 
 - :mod:`.runners`: where runs execute (in-process, process pool, Dask) behind one interface;
 - :mod:`.records`: what a run sends back (:class:`RunRecord`);
+- :mod:`.tally`: :class:`~.tally.ConsistencyTally`, the runs' NEES/NIS series summed as they
+  arrive (memory independent of the run count; tallies add);
 - :mod:`.campaign`: :func:`run_campaign`, progress, Ctrl-C keeping the finished runs;
 - :mod:`.statistics`: :class:`CampaignResult` (pass rates with Clopper-Pearson intervals,
   distributions, NEES/NIS consistency, efficiency against the Kalman bound);

@@ -1,7 +1,9 @@
 """``run_campaign``: N seeded runs of a scenario on a runner, as a CampaignResult.
 
 Run i uses seed S + i, so any run reproduces alone with ``quad-drake run NAME --seed S+i``.
-Records are ordered by run index, so the statistics do not depend on the runner.
+Records are ordered by run index, so the statistics do not depend on the runner. Each record
+is folded into the campaign's :class:`~.tally.ConsistencyTally` as it arrives and kept slim
+(``records.slim``: no per-sample series), so the memory does not grow with the series.
 With ``fleet_batch`` the runner's tasks are fleet batches (``quad_drake.fleet.runner``):
 B runs flown at once, each sending back its B records.
 """
@@ -15,9 +17,10 @@ from tqdm import tqdm
 from ..config import ConfigError
 from ..simulation import available_signals
 from ..verdicts import check_criteria
-from .records import RunTask, simulate_run
+from .records import RunTask, simulate_run, slim
 from .runners import InProcessRunner, TaskFailed
 from .statistics import CampaignResult
+from .tally import ConsistencyTally
 
 
 class CampaignInterrupted(KeyboardInterrupt):
@@ -92,18 +95,21 @@ def run_campaign(scenario, runs, runner=None, seed=None, progress=True, fleet_ba
     else:
         tasks, worker, label = _fleet_tasks(scenario, runs, first, fleet_batch)
     runner_name = runner.name if label is None else f"{label} on {runner.name}"
-    records = {}
+    records, tally = {}, ConsistencyTally()
     bar = Progress(scenario.name, runs, progress)
     start = time.perf_counter()
 
     def campaign():
         ordered = [records[i] for i in sorted(records)]
-        return CampaignResult(scenario, ordered, time.perf_counter() - start, runner_name, planned=runs)
+        return CampaignResult(
+            scenario, ordered, tally, time.perf_counter() - start, runner_name, planned=runs
+        )
 
     try:
         for _, result in runner.map(worker, tasks):
             for record in result if label else [result]:
-                records[record.index] = record
+                tally += ConsistencyTally.of(record)
+                records[record.index] = slim(record)
                 bar.update(record)
     except TaskFailed as e:
         task = tasks[e.index]

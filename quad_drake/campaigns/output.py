@@ -154,8 +154,8 @@ def rows(campaign):
         header += [f"c{j}.passed", f"c{j}.measured"]
         header += [f"c{j}.percent"] if verdict["percent"] is not None else []
     header += [f"{name}.{stat}" for name in first.metrics for stat in METRIC_STATS]
-    header += [f"{v}.NEES.mean" for v in first.nees]
-    header += [f"{v}.NIS.{sensor}.mean" for v, sensor in first.nis]
+    header += [f"{v}.NEES.mean" for v in first.nees_mean]
+    header += [f"{v}.NIS.{sensor}.mean" for v, sensor in first.nis_mean]
     lines = []
     for r in campaign.records:
         row = [r.index, r.seed, int(r.passed)]
@@ -163,8 +163,8 @@ def rows(campaign):
             row += [int(verdict["passed"]), verdict["measured"]]
             row += [verdict["percent"]] if shape["percent"] is not None else []
         row += [r.metrics[name][stat] for name in first.metrics for stat in METRIC_STATS]
-        row += [float(np.mean(r.nees[v])) for v in first.nees]
-        row += [float(np.mean(r.nis[key][1])) for key in first.nis]
+        row += [r.nees_mean[v] for v in first.nees_mean]
+        row += [r.nis_mean[key] for key in first.nis_mean]
         lines.append([repr(float(x)) if isinstance(x, float) else x for x in row])
     return header, lines
 

@@ -54,20 +54,39 @@ def settle_time(end_time):
 
 @dataclass
 class RunRecord:
-    """What one run sends back: verdicts, metrics and the per-sample consistency series."""
+    """What one run sends back: verdicts, metrics and the per-sample consistency series.
+
+    A campaign keeps the :func:`slim` record: the series (nees, nis, times) folded into its
+    ``tally.ConsistencyTally`` and replaced by their time means (nees_mean, nis_mean).
+    """
 
     index: int
     seed: int
     passed: bool
     criteria: list  # per judged criterion: {"kind", "description", "passed", "measured", "percent"}
     metrics: dict  # "<vehicle>.<signal>" -> {"rms", "max", "rms_settled"} (METRIC_STATS)
-    nees: dict  # vehicle -> (n,) NEES at the log samples
+    nees: dict  # vehicle -> (n,) NEES at the log samples; {} in a slim record
     nse: dict  # vehicle -> (k,) time mean of e_i^2 / P_ii per error state of its vocabulary
-    nis: dict  # (vehicle, "gps" | "mag") -> (stamps, NIS) of the fresh updates
+    nis: dict  # (vehicle, "gps" | "mag") -> (stamps, NIS) of the fresh updates; {} in a slim record
     wall_time: float  # s, simulation only
-    times: np.ndarray = field(repr=False, default=None)  # (n,) s, log sample times
+    times: np.ndarray = field(repr=False, default=None)  # (n,) s, log sample times; None in a slim record
     counters: dict = field(default_factory=dict)  # vehicle -> {diagnostics counter: final count}
     pcrb: dict = field(default_factory=dict)  # vehicle -> {state: PCRB variance averaged after settling}
+    nees_mean: dict = field(default_factory=dict)  # vehicle -> time mean of its NEES (slim record)
+    nis_mean: dict = field(default_factory=dict)  # (vehicle, sensor) -> mean of its NIS (slim record)
+
+
+def slim(record):
+    """The RunRecord a campaign keeps: no per-sample series, their time means instead (a NaN
+    sample makes its mean NaN)."""
+    return dataclasses.replace(
+        record,
+        nees={},
+        nis={},
+        times=None,
+        nees_mean={vehicle: float(np.mean(values)) for vehicle, values in record.nees.items()},
+        nis_mean={key: float(np.mean(values)) for key, (_, values) in record.nis.items()},
+    )
 
 
 @dataclass(frozen=True)

@@ -12,6 +12,7 @@ import numpy as np
 from .. import consistency as cons
 from ..accuracy_bound import accuracy_bound
 from .records import campaign_vocabulary, error_units
+from .tally import NEES, nis_statistic
 
 MIN_IN_BAND = 0.8
 """Campaign criterion: share of samples whose run-averaged NEES/NIS lies inside its 95 %
@@ -38,14 +39,16 @@ def distribution(values):
 
 @dataclass
 class CampaignResult:
-    """Records of a campaign (ordered by run index) and the statistics derived from them.
+    """Records of a campaign (ordered by run index), the tally of their consistency series and
+    the statistics derived from them.
 
     A campaign stopped early (Ctrl-C) is ``partial``: its statistics are those of the
     finished runs, ``completed`` lists their indices.
     """
 
     scenario: object  # ScenarioConfig; its seed is the campaign's first seed S
-    records: list  # RunRecord per finished run, by index; run i has seed S + i
+    records: list  # slim RunRecord (``records.slim``) per finished run, by index; run i has seed S + i
+    tally: object  # ConsistencyTally of the finished runs' NEES / NIS series
     wall_time: float  # s, whole campaign
     runner: str  # Runner.name
     planned: Optional[int] = None  # runs asked for (None: as many as records)
@@ -123,26 +126,21 @@ class CampaignResult:
 
     @cached_property
     def consistency(self):
-        """Mean NEES / NIS over all (run, vehicle) realisations against the chi^2 95 % band."""
-        if not self.records:
-            return []
-        stats = []
-        first = self.records[0]
-        if first.nees:
-            series = np.vstack([r.nees[v] for r in self.records for v in r.nees])
-            dof = campaign_vocabulary(self.scenario).nees_dof
-            stats.append(self._statistic("NEES", dof, first.times, series))
+        """Mean NEES / NIS over all (run, vehicle) realisations against the chi^2 95 % band, at
+        the stamps every realisation had (``tally``)."""
+        sums, stats = self.tally.sums, []
+        if NEES in sums:
+            stats.append(self._statistic(NEES, campaign_vocabulary(self.scenario).nees_dof, sums[NEES]))
         for sensor, dof in cons.NIS_DOF.items():
-            series = [r.nis[key] for r in self.records for key in r.nis if key[1] == sensor]
-            if series:
-                stamps, values = cons.stack_by_stamp(series)
-                stats.append(self._statistic(f"NIS {sensor}", dof, stamps, values))
+            name = nis_statistic(sensor)
+            if name in sums:
+                stats.append(self._statistic(name, dof, sums[name]))
         return stats
 
-    def _statistic(self, name, dof, times, values):
-        count = values.shape[0]
+    def _statistic(self, name, dof, stamp_sum):
+        count = stamp_sum.count
         band = cons.chi2_band(dof, count)
-        mean = values.mean(axis=0)
+        mean = stamp_sum.mean
         fraction = cons.in_band_fraction(mean, band)
         return {
             "statistic": name,
@@ -154,7 +152,7 @@ class CampaignResult:
             "below": float(np.mean(mean < band[0])),
             "above": float(np.mean(mean > band[1])),
             "passed": bool(fraction >= self.min_in_band),
-            "times": np.asarray(times),
+            "times": stamp_sum.stamps,
             "mean": mean,
         }
 
