@@ -4,6 +4,14 @@ Inputs are the 5 ms analyzer samples (SPEC §0.2): ``times`` (s) and the signal'
 ``values`` at those times; ``fresh_mask`` marks the samples on which a sensor
 signal had a new measurement (the reference's analyzers only see those).
 
+Every analyzer is a *fold*: a small per-run state updated chunk by chunk of samples, for N
+runs at once (``update(times (k,), values (k, N), ...)``), and a ``result(j)`` that makes run
+j's :class:`CriterionResult`. A run's whole log is one chunk of one run (the functions
+``window_threshold`` … below); a fleet batch feeds its samples as they are flown
+(``fleet.streaming``), so its verdicts never need the full logs. The rule and its text live
+once, in the fold; ``tests/test_evaluation_folds.py`` checks that any split into chunks and
+any N give each run the verdict of its own whole log.
+
 Times are treated as exact multiples of the log period: a stretch is compared
 with the window W with a tolerance of :data:`TIME_TOLERANCE`, so a stretch of
 exactly W counts as W (not longer) whatever the floating-point rounding of the
@@ -78,17 +86,139 @@ def judged_criteria(scenario):
     return list(scenario.criteria) + safety_criteria(scenario)
 
 
-def _select(times, values, fresh_mask):
+def _one_run(times, values, fresh_mask=None):
+    """(times (n,), values (n, 1), fresh (n, 1) bool) of one run's whole log; all fresh when
+    `fresh_mask` is None. Raises ValueError when the lengths differ."""
     times = np.asarray(times, dtype=float).reshape(-1)
     values = np.asarray(values, dtype=float).reshape(-1)
     if times.shape != values.shape:
         raise ValueError(f"times {times.shape} and values {values.shape} differ in length")
     if fresh_mask is None:
-        return times, values, None
+        return times, values[:, None], np.ones((times.size, 1), dtype=bool)
     mask = np.asarray(fresh_mask, dtype=bool).reshape(-1)
     if mask.shape != times.shape:
         raise ValueError(f"fresh_mask {mask.shape} and times {times.shape} differ in length")
-    return times[mask], values[mask], mask
+    return times, values[:, None], mask[:, None]
+
+
+def _column(values, n):
+    """A one-run signal as a (n, 1) column (a scalar stays a scalar)."""
+    values = np.asarray(values, dtype=float)
+    return values if values.ndim == 0 else values.reshape(n, 1)
+
+
+def _last_index(mask):
+    """(N,) index of each run's last true sample of a (k, N) mask (k - 1 where none)."""
+    return mask.shape[0] - 1 - np.argmax(mask[::-1], axis=0)
+
+
+def _at(array, index):
+    """(N,) entries array[index[j], j] of a (k, N) array."""
+    return array[index, np.arange(array.shape[1])]
+
+
+def _note_first(first, times, mask):
+    """Set first[j] (NaN until then) to the time of run j's first sample with mask true."""
+    hit = mask.any(axis=0) & np.isnan(first)
+    first[hit] = times[np.argmax(mask, axis=0)[hit]]
+
+
+def _whole_log(fold, times, **inputs):
+    """The verdict of a one-run fold fed a whole log at once, with the plot series of its kind."""
+    per_sample = fold.update(times, **inputs)
+    return fold.result(0, fold.series(times, per_sample, **inputs))
+
+
+class _Fold:
+    """An analyzer's state for N runs: ``update(times (k,), **inputs)`` folds a chunk of samples,
+    ``result(j, series)`` makes run j's CriterionResult; ``series`` the plot arrays of a
+    one-run whole log (None: the kind has none)."""
+
+    def series(self, times, per_sample, **inputs):
+        return None
+
+
+def _violations(values, threshold):
+    """True where |x| > threshold or x is not finite (as the window analyzer counts a violation)."""
+    return ~(np.abs(np.asarray(values, dtype=float)) <= threshold)
+
+
+class WindowFold(_Fold):
+    """WindowThreshold(name, threshold, window) of N runs: "ABS(x) < threshold for more than W s",
+    latched (:func:`window_threshold` has the rule and the lines)."""
+
+    kind = "window"
+
+    def __init__(self, name, threshold, window, runs):
+        self.name, self.threshold, self.window = name, float(threshold), float(window)
+        self.last_above = np.full(runs, np.nan)  # s, last violating sample (the first sample until one)
+        self.longest = np.full(runs, -np.inf)  # s, longest stretch so far
+        self.last_time = np.full(runs, np.nan)  # s, last sample judged
+        self.samples = np.zeros(runs, dtype=np.int64)
+
+    def update(self, times, values, fresh):
+        """Fold times (k,) s, values (k, N), fresh (k, N) bool (only fresh samples are judged);
+        returns {"last_above", "stretch"} (k, N), meaningful on the fresh samples."""
+        if times.size == 0:
+            return {"last_above": np.zeros(values.shape), "stretch": np.zeros(values.shape)}
+        _note_first(self.last_above, times, fresh)
+        column = times[:, None]
+        above = _violations(values, self.threshold)
+        marks = np.where(above & fresh, column, -np.inf)
+        last_above = np.maximum(np.maximum.accumulate(marks, axis=0), self.last_above)
+        stretch = column - last_above
+        self.longest = np.maximum(self.longest, np.where(fresh, stretch, -np.inf).max(axis=0))
+        self.last_above = last_above[-1]
+        self.last_time = np.where(fresh.any(axis=0), times[_last_index(fresh)], self.last_time)
+        self.samples += fresh.sum(axis=0)
+        return {"last_above": last_above, "stretch": stretch}
+
+    def series(self, times, per_sample, values, fresh):
+        """Plot arrays of a one-run whole log: the fresh samples' times and stretches, and the
+        span (start, end) of the longest stretch; None without samples."""
+        if self.samples[0] == 0:
+            return None
+        mask = fresh[:, 0]
+        stretch, last_above = per_sample["stretch"][mask, 0], per_sample["last_above"][mask, 0]
+        end = int(np.argmax(stretch))
+        t = times[mask]
+        return {"times": t, "stretch": stretch, "span": np.array([last_above[end], t[end]])}
+
+    def result(self, j, series=None):
+        """Run j's CriterionResult (series: the plot arrays of a whole-log evaluation, or None)."""
+        name, threshold, window = self.name, self.threshold, self.window
+        text = {
+            "description": f"|{name}| < {threshold:g} for > {window:g} s",
+            "required_text": f"> {window:g} s",
+        }
+        if self.samples[j] == 0:
+            line = f"FAIL: ABS({name}) had no samples"
+            return CriterionResult(
+                "window", name, False, line, 0.0, window, 0.0, samples=0, measured_text="no samples", **text
+            )
+        longest = float(self.longest[j])
+        trailing = float(self.last_time[j] - self.last_above[j])
+        passed = longest > window + TIME_TOLERANCE
+        if passed:
+            line = f"PASS: ABS({name}) was less than {threshold:f} for at least {window:f} seconds"
+        else:
+            line = (
+                f"FAIL: ABS({name}) was less than {threshold:f} for {trailing:f} seconds, "
+                f"which was less than {window:f} seconds"
+            )
+        return CriterionResult(
+            "window",
+            name,
+            bool(passed),
+            line,
+            longest,
+            window,
+            trailing,
+            samples=int(self.samples[j]),
+            measured_text=f"longest stretch within: {longest:.4g} s",
+            series=series,
+            **text,
+        )
 
 
 def window_threshold(times, values, threshold, window, name="x", fresh_mask=None):
@@ -106,51 +236,8 @@ def window_threshold(times, values, threshold, window, name="x", fresh_mask=None
     where <trailing> = last sample time - last violating sample time, which is what
     the reference prints (not the longest stretch; that is ``measured``).
     """
-    times, values, _ = _select(times, values, fresh_mask)
-    text = {
-        "description": f"|{name}| < {threshold:g} for > {window:g} s",
-        "required_text": f"> {window:g} s",
-    }
-    if times.size == 0:
-        return CriterionResult(
-            "window",
-            name,
-            False,
-            f"FAIL: ABS({name}) had no samples",
-            0.0,
-            float(window),
-            0.0,
-            samples=0,
-            measured_text="no samples",
-            **text,
-        )
-    above = ~(np.abs(values) <= threshold)  # NaN counts as above
-    last_above = np.maximum.accumulate(np.where(above, times, times[0]))
-    stretches = times - last_above
-    end = int(np.argmax(stretches))
-    longest = float(stretches[end])
-    trailing = float(stretches[-1])
-    passed = longest > window + TIME_TOLERANCE
-    if passed:
-        line = f"PASS: ABS({name}) was less than {threshold:f} for at least {window:f} seconds"
-    else:
-        line = (
-            f"FAIL: ABS({name}) was less than {threshold:f} for {trailing:f} seconds, "
-            f"which was less than {window:f} seconds"
-        )
-    return CriterionResult(
-        "window",
-        name,
-        bool(passed),
-        line,
-        longest,
-        float(window),
-        trailing,
-        samples=int(times.size),
-        measured_text=f"longest stretch within: {longest:.4g} s",
-        series={"times": times, "stretch": stretches, "span": np.array([last_above[end], times[end]])},
-        **text,
-    )
+    times, values, fresh = _one_run(times, values, fresh_mask)
+    return _whole_log(WindowFold(name, threshold, window, 1), times, values=values, fresh=fresh)
 
 
 def _label(label, value):
@@ -159,6 +246,101 @@ def _label(label, value):
     if np.ndim(value) != 0:
         raise ValueError("a signal-valued ref or sigma needs a label for the report line")
     return f"{float(value):f}"
+
+
+class SigmaFold(_Fold):
+    """SigmaThreshold(name, ref, sigma, minP, maxP, W) of N runs (:func:`sigma_threshold` has the
+    rule). ref_label / sigma_label name the live signals ref and sigma are read from ("" : the
+    numbers ref_value / sigma_value, printed with ``%lf``)."""
+
+    kind = "sigma"
+
+    def __init__(
+        self, name, ref_label, ref_value, sigma_label, sigma_value, min_percent, max_percent, window, runs
+    ):
+        self.name, self.window = name, float(window)
+        self.min_percent, self.max_percent = float(min_percent), float(max_percent)
+        self.head = (
+            f"ABS({name}-{_label(ref_label, ref_value)}) was less than {_label(sigma_label, sigma_value)}"
+        )
+        short_ref = ref_label or f"{float(np.asarray(ref_value).flat[0]):g}"
+        short_sigma = sigma_label or f"{float(np.asarray(sigma_value).flat[0]):g}"
+        self.text = {
+            "description": (
+                f"|{name} - {short_ref}| <= {short_sigma}: "
+                f"{min_percent:g}-{max_percent:g} % (last {window:g} s)"
+            ),
+            "required_text": f"share in ({min_percent:g} %, {max_percent:g} %) for the last >= {window:g} s",
+        }
+        self.inside = np.zeros(runs, dtype=np.int64)  # fresh samples in the band so far
+        self.counted = np.zeros(runs, dtype=np.int64)  # fresh samples so far
+        self.percent = np.full(runs, np.nan)  # %, cumulative share at the last fresh sample
+        self.last_violation = np.full(runs, np.nan)  # s (the first fresh sample until one)
+        self.last_time = np.full(runs, np.nan)  # s, last fresh sample
+
+    def update(self, times, values, fresh, ref, sigma):
+        """Fold times (k,) s, values (k, N), fresh (k, N) bool, ref and sigma ((k, N) or scalars);
+        returns {"percent"} (k, N), the cumulative share, meaningful on the fresh samples."""
+        if times.size == 0:
+            return {"percent": np.zeros(values.shape)}
+        _note_first(self.last_violation, times, fresh)
+        inside = (values >= ref - sigma) & (values <= ref + sigma) & fresh
+        within = self.inside + np.cumsum(inside, axis=0)
+        counted = self.counted + np.cumsum(fresh, axis=0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            percent = 100.0 * within / counted
+        violation = fresh & ((percent <= self.min_percent) | (percent >= self.max_percent))
+        self.last_violation = np.where(
+            violation.any(axis=0), times[_last_index(violation)], self.last_violation
+        )
+        last, seen = _last_index(fresh), fresh.any(axis=0)
+        self.percent = np.where(seen, _at(percent, last), self.percent)
+        self.last_time = np.where(seen, times[last], self.last_time)
+        self.inside, self.counted = within[-1], counted[-1]
+        return {"percent": percent}
+
+    def series(self, times, per_sample, fresh, **_):
+        """Plot arrays of a one-run whole log: the fresh samples' times and cumulative share (%)."""
+        mask = fresh[:, 0]
+        return {"times": times[mask], "percent": per_sample["percent"][mask, 0]} if mask.any() else None
+
+    def result(self, j, series=None):
+        """Run j's CriterionResult (series: the plot arrays of a whole-log evaluation, or None)."""
+        name, window, count = self.name, self.window, int(self.counted[j])
+        if count == 0:
+            line = f"FAIL: {self.head}: no fresh samples"
+            return CriterionResult(
+                "sigma",
+                name,
+                False,
+                line,
+                0.0,
+                window,
+                0.0,
+                samples=0,
+                measured_text="no fresh samples",
+                **self.text,
+            )
+        stretch = float(self.last_time[j] - self.last_violation[j])
+        passed = stretch >= window - TIME_TOLERANCE
+        final = float(self.percent[j])
+        return CriterionResult(
+            "sigma",
+            name,
+            bool(passed),
+            f"{'PASS' if passed else 'FAIL'}: {self.head} for {final:.0f}% of the time",
+            stretch,
+            window,
+            stretch,
+            percent=final,
+            samples=count,
+            measured_text=(
+                f"{final:.3g} % of {count} samples within; "
+                f"share inside the limits for the last {stretch:.4g} s"
+            ),
+            series=series,
+            **self.text,
+        )
 
 
 def sigma_threshold(
@@ -189,105 +371,19 @@ def sigma_threshold(
     P is the final percentage rounded to an integer):
       ``PASS: ABS(name-ref) was less than sigma for P% of the time`` (or ``FAIL: ...``)
     """
-    all_times = np.asarray(times, dtype=float).reshape(-1)
-    times, values, mask = _select(all_times, values, fresh_mask)
-    ref = np.broadcast_to(np.asarray(ref_values, dtype=float), all_times.shape)
-    sigma = np.broadcast_to(np.asarray(sigma_values, dtype=float), all_times.shape)
-    if mask is not None:
-        ref, sigma = ref[mask], sigma[mask]
-    head = f"ABS({name}-{_label(ref_label, ref_values)}) was less than {_label(sigma_label, sigma_values)}"
-    short_ref = ref_label or f"{float(np.asarray(ref_values).flat[0]):g}"
-    short_sigma = sigma_label or f"{float(np.asarray(sigma_values).flat[0]):g}"
-    text = {
-        "description": (
-            f"|{name} - {short_ref}| <= {short_sigma}: {min_percent:g}-{max_percent:g} % (last {window:g} s)"
-        ),
-        "required_text": f"share in ({min_percent:g} %, {max_percent:g} %) for the last >= {window:g} s",
-    }
-    if times.size == 0:
-        return CriterionResult(
-            "sigma",
-            name,
-            False,
-            f"FAIL: {head}: no fresh samples",
-            0.0,
-            float(window),
-            0.0,
-            samples=0,
-            measured_text="no fresh samples",
-            **text,
-        )
-    inside = (values >= ref - sigma) & (values <= ref + sigma)
-    percent = 100.0 * np.cumsum(inside) / np.arange(1, times.size + 1)
-    violation = (percent <= min_percent) | (percent >= max_percent)
-    last_violation = times[np.flatnonzero(violation)[-1]] if violation.any() else times[0]
-    stretch = float(times[-1] - last_violation)
-    passed = stretch >= window - TIME_TOLERANCE
-    final = float(percent[-1])
-    line = f"{'PASS' if passed else 'FAIL'}: {head} for {final:.0f}% of the time"
-    return CriterionResult(
-        "sigma",
-        name,
-        bool(passed),
-        line,
-        stretch,
-        float(window),
-        stretch,
-        percent=final,
-        samples=int(times.size),
-        measured_text=(
-            f"{final:.3g} % of {times.size} samples within; "
-            f"share inside the limits for the last {stretch:.4g} s"
-        ),
-        series={"times": times, "percent": percent},
-        **text,
+    times, values, fresh = _one_run(times, values, fresh_mask)
+    n = times.size
+    ref = np.broadcast_to(_column(ref_values, n), values.shape)
+    sigma = np.broadcast_to(_column(sigma_values, n), values.shape)
+    fold = SigmaFold(
+        name, ref_label, ref_values, sigma_label, sigma_values, min_percent, max_percent, window, 1
     )
+    return _whole_log(fold, times, values=values, fresh=fresh, ref=ref, sigma=sigma)
 
 
-def evaluate_criterion(criterion, times, signal):
-    """Run one window, sigma or safety :class:`~quad_drake.config.CriterionConfig` on logged samples.
-
-    ``signal(name) -> (values, fresh_mask)`` returns a named signal over ``times``
-    (``fresh_mask`` None when every sample is fresh).
-    """
-    values, fresh = signal(criterion.signal)
-    if criterion.kind == "bound":
-        return bound_threshold(
-            times, values, criterion.threshold, criterion.start, criterion.end, criterion.signal
-        )
-    if criterion.kind == "recovery":
-        return recovery_threshold(
-            times, values, criterion.threshold, criterion.start, criterion.window, criterion.signal
-        )
-    vehicle = criterion.signal.split(".", 1)[0]
-    if criterion.kind == "floor":
-        contact = signal(f"{vehicle}.FloorContact")[0]
-        return floor_touchdowns(times, values, contact, vehicle, criterion.landing_time, criterion.signal)
-    if criterion.kind == "room":
-        return room_contacts(times, values, vehicle, criterion.signal)
-    if criterion.kind == "finite":
-        return state_finite(times, values, vehicle, criterion.signal)
-    if criterion.kind == "tracking":
-        return tracking_bound(times, values, criterion.threshold, criterion.signal)
-    if criterion.kind == "window":
-        return window_threshold(
-            times, values, criterion.threshold, criterion.window, name=criterion.signal, fresh_mask=fresh
-        )
-    ref = signal(criterion.ref_signal)[0] if criterion.ref_signal else criterion.ref
-    sigma = signal(criterion.sigma_signal)[0] if criterion.sigma_signal else criterion.sigma
-    return sigma_threshold(
-        times,
-        values,
-        fresh,
-        ref,
-        sigma,
-        criterion.min_percent,
-        criterion.max_percent,
-        criterion.window,
-        name=criterion.signal,
-        ref_label=criterion.ref_signal,
-        sigma_label=criterion.sigma_signal,
-    )
+def _within(errors, sigmas, multiple):
+    """True where |error| <= multiple * sigma (a non-finite sample is outside)."""
+    return np.abs(errors) <= multiple * sigmas
 
 
 def sigma_share(errors, sigmas, multiple=1.0):
@@ -302,7 +398,54 @@ def sigma_share(errors, sigmas, multiple=1.0):
         return sum(c[0] for c in counts), sum(c[1] for c in counts)
     errors = np.asarray(errors, dtype=float)
     sigmas = np.asarray(sigmas, dtype=float)
-    return int(np.count_nonzero(np.abs(errors) <= multiple * sigmas)), int(errors.size)
+    return int(np.count_nonzero(_within(errors, sigmas, multiple))), int(errors.size)
+
+
+class FleetSigmaFold(_Fold):
+    """The share of a scenario's vehicles' fresh samples with |error| <= multiple * sigma, for N
+    runs (:func:`fleet_sigma_threshold` has the rule); vehicles: how many vehicles are pooled."""
+
+    kind = "fleet_sigma"
+
+    def __init__(self, name, sigma_name, multiple, min_percent, max_percent, vehicles, runs):
+        self.name, self.sigma_name, self.multiple = name, sigma_name, float(multiple)
+        self.min_percent, self.max_percent, self.vehicles = float(min_percent), float(max_percent), vehicles
+        self.inside = np.zeros(runs, dtype=np.int64)
+        self.total = np.zeros(runs, dtype=np.int64)
+
+    def update(self, times, errors, sigmas, fresh):
+        """Fold one (k, N) error, sigma and fresh mask per vehicle (lists; times unused: the
+        vehicles' samples are pooled whatever their times)."""
+        for error, sigma, mask in zip(errors, sigmas, fresh, strict=True):
+            self.inside += np.count_nonzero(_within(error, sigma, self.multiple) & mask, axis=0)
+            self.total += mask.sum(axis=0)
+
+    def result(self, j, series=None):
+        total = int(self.total[j])
+        percent = 100.0 * int(self.inside[j]) / total if total else math.nan
+        passed = bool(self.min_percent <= percent <= self.max_percent)
+        name, multiple, low, high = self.name, self.multiple, self.min_percent, self.max_percent
+        line = (
+            f"{'PASS' if passed else 'FAIL'}: {percent:.0f}% of fleet {name} samples within "
+            f"{multiple:g} x {self.sigma_name} (required {low:g}% to {high:g}%)"
+        )
+        return CriterionResult(
+            kind="fleet_sigma",
+            name=name,
+            passed=passed,
+            line=line,
+            measured=percent,
+            required=low,
+            trailing=None,
+            percent=percent,
+            samples=total,
+            description=(
+                f"fleet |V.{name}| <= {multiple:g} V.{self.sigma_name}: {low:g}-{high:g} % "
+                f"({self.vehicles} vehicles V)"
+            ),
+            measured_text=f"{percent:.3g} % of {total} samples within" if total else "no samples",
+            required_text=f"share in [{low:g} %, {high:g} %]",
+        )
 
 
 def fleet_sigma_threshold(errors, sigmas, name, sigma_name, multiple, min_percent, max_percent):
@@ -312,36 +455,12 @@ def fleet_sigma_threshold(errors, sigmas, name, sigma_name, multiple, min_percen
     matching ``V.<sigma_name>``. Passes iff min_percent <= share <= max_percent (%);
     ``samples`` is the number of (vehicle, fresh sample) pairs counted.
     """
-    inside, total = sigma_share(list(errors), list(sigmas), multiple)
-    percent = 100.0 * inside / total if total else math.nan
-    passed = bool(min_percent <= percent <= max_percent)
-    line = (
-        f"{'PASS' if passed else 'FAIL'}: {percent:.0f}% of fleet {name} samples within "
-        f"{multiple:g} x {sigma_name} (required {min_percent:g}% to {max_percent:g}%)"
+    errors = [np.asarray(e, dtype=float).reshape(-1, 1) for e in errors]
+    sigmas = [np.asarray(s, dtype=float).reshape(-1, 1) for s in sigmas]
+    fold = FleetSigmaFold(name, sigma_name, multiple, min_percent, max_percent, len(errors), 1)
+    return _whole_log(
+        fold, None, errors=errors, sigmas=sigmas, fresh=[np.ones(e.shape, dtype=bool) for e in errors]
     )
-    return CriterionResult(
-        kind="fleet_sigma",
-        name=name,
-        passed=passed,
-        line=line,
-        measured=percent,
-        required=float(min_percent),
-        trailing=None,
-        percent=percent,
-        samples=total,
-        description=(
-            f"fleet |V.{name}| <= {multiple:g} V.{sigma_name}: {min_percent:g}-{max_percent:g} % "
-            f"({len(errors)} vehicles V)"
-        ),
-        measured_text=f"{percent:.3g} % of {total} samples within" if total else "no samples",
-        required_text=f"share in [{min_percent:g} %, {max_percent:g} %]",
-    )
-
-
-def _first_time(times, mask):
-    """Time (s) of the first sample where mask is true, or None."""
-    hits = np.flatnonzero(mask)
-    return float(times[hits[0]]) if hits.size else None
 
 
 def _times_word(n):
@@ -361,6 +480,63 @@ def _safety_name(kind, vehicle, name):
     return name or f"{vehicle}.{SAFETY_SIGNALS[kind]}"
 
 
+class FloorFold(_Fold):
+    """ "Never touched the floor after take-off" of N runs (:func:`floor_touchdowns` has the rule)."""
+
+    kind = "floor"
+
+    def __init__(self, vehicle, landing_time, name, runs):
+        self.vehicle, self.landing_time, self.name = (
+            vehicle,
+            landing_time,
+            _safety_name("floor", vehicle, name),
+        )
+        self.judged_max = np.full(runs, -np.inf)  # most touchdowns counted before the landing time
+        self.grounded = np.ones(runs, dtype=bool)  # on the floor at every sample so far
+        self.first_touch = np.full(runs, np.nan)  # s
+        self.samples = 0
+
+    def update(self, times, touchdowns, contact):
+        """Fold times (k,) s, the cumulative touchdowns and the floor contact (k, N)."""
+        if times.size == 0:
+            return
+        judged = times < self.landing_time if self.landing_time is not None else np.ones(times.shape, bool)
+        self.judged_max = np.maximum(
+            self.judged_max, np.where(judged[:, None], touchdowns, -np.inf).max(axis=0)
+        )
+        self.grounded &= (contact >= 1.0).all(axis=0)
+        _note_first(self.first_touch, times, touchdowns > 0)
+        self.samples += times.size
+
+    def result(self, j, series=None):
+        vehicle, landing_time = self.vehicle, self.landing_time
+        count = int(self.judged_max[j]) if self.judged_max[j] > -np.inf else 0
+        grounded = self.samples > 0 and bool(self.grounded[j])
+        landing = f" before its landing at {landing_time:g} s" if landing_time is not None else ""
+        if grounded:
+            passed, line = False, f"FAIL: {vehicle} never took off (on the floor at every sample)"
+        elif count == 0:
+            passed, line = True, f"PASS: {vehicle} never touched the floor after take-off{landing}"
+        else:
+            passed = False
+            line = (
+                f"FAIL: {vehicle} touched the floor {_times_word(count)}{landing} "
+                f"(first at {self.first_touch[j]:.3f} s)"
+            )
+        return _safety_verdict(
+            "floor",
+            self.name,
+            passed,
+            line,
+            count,
+            0.0,
+            self.samples,
+            description=f"{vehicle}: no floor touchdown after take-off{landing}",
+            measured_text="on the floor at every sample" if grounded else f"{count} touchdown(s)",
+            required_text="0 touchdowns, off the floor at some sample",
+        )
+
+
 def floor_touchdowns(times, touchdowns, contact, vehicle, landing_time=None, name=""):
     """Safety verdict "never touched the floor after take-off" (``floor``).
 
@@ -373,32 +549,54 @@ def floor_touchdowns(times, touchdowns, contact, vehicle, landing_time=None, nam
     ``FAIL: Quad touched the floor 3 times (first at 2.345 s)``,
     ``FAIL: Quad never took off (on the floor at every sample)``.
     """
-    times = np.asarray(times, dtype=float)
-    touchdowns = np.asarray(touchdowns, dtype=float)
-    judged = times < landing_time if landing_time is not None else np.ones(times.shape, dtype=bool)
-    count = int(touchdowns[judged].max()) if judged.any() else 0
-    grounded = times.size > 0 and bool(np.all(np.asarray(contact) >= 1.0))
-    landing = f" before its landing at {landing_time:g} s" if landing_time is not None else ""
-    if grounded:
-        passed, line = False, f"FAIL: {vehicle} never took off (on the floor at every sample)"
-    elif count == 0:
-        passed, line = True, f"PASS: {vehicle} never touched the floor after take-off{landing}"
-    else:
-        first = _first_time(times, touchdowns > 0)
-        passed = False
-        line = f"FAIL: {vehicle} touched the floor {_times_word(count)}{landing} (first at {first:.3f} s)"
-    return _safety_verdict(
-        "floor",
-        _safety_name("floor", vehicle, name),
-        passed,
-        line,
-        count,
-        0.0,
-        int(times.size),
-        description=f"{vehicle}: no floor touchdown after take-off{landing}",
-        measured_text="on the floor at every sample" if grounded else f"{count} touchdown(s)",
-        required_text="0 touchdowns, off the floor at some sample",
-    )
+    times, touchdowns, _ = _one_run(times, touchdowns)
+    fold = FloorFold(vehicle, landing_time, name, 1)
+    return _whole_log(fold, times, touchdowns=touchdowns, contact=_column(contact, times.size))
+
+
+class RoomFold(_Fold):
+    """ "Stayed inside the room" of N runs (:func:`room_contacts` has the rule)."""
+
+    kind = "room"
+
+    def __init__(self, vehicle, name, runs):
+        self.vehicle, self.name = vehicle, _safety_name("room", vehicle, name)
+        self.steps = np.full(runs, -np.inf)  # most wall steps counted so far
+        self.first = np.full(runs, np.nan)  # s, first sample at a bound
+        self.samples = 0
+
+    def update(self, times, wall_steps):
+        """Fold times (k,) s and the cumulative wall-contact steps (k, N)."""
+        if times.size == 0:
+            return
+        self.steps = np.maximum(self.steps, wall_steps.max(axis=0))
+        _note_first(self.first, times, wall_steps > 0)
+        self.samples += times.size
+
+    def result(self, j, series=None):
+        vehicle = self.vehicle
+        steps = int(self.steps[j]) if self.samples else 0
+        seconds = steps * PHYSICS_PERIOD
+        if steps == 0:
+            passed, line = True, f"PASS: {vehicle} stayed inside the room"
+        else:
+            passed = False
+            line = (
+                f"FAIL: {vehicle} was stopped by a wall or the ceiling for {seconds:.3f} s "
+                f"(first at {self.first[j]:.3f} s)"
+            )
+        return _safety_verdict(
+            "room",
+            self.name,
+            passed,
+            line,
+            seconds,
+            0.0,
+            self.samples,
+            description=f"{vehicle}: never stopped by a wall or the ceiling",
+            measured_text=f"{seconds:.3f} s at a wall or the ceiling",
+            required_text="0 s",
+        )
 
 
 def room_contacts(times, wall_steps, vehicle, name=""):
@@ -409,31 +607,49 @@ def room_contacts(times, wall_steps, vehicle, name=""):
     required: 0. Lines: ``PASS: Quad stayed inside the room``,
     ``FAIL: Quad was stopped by a wall or the ceiling for 0.350 s (first at 12.345 s)``.
     """
-    times = np.asarray(times, dtype=float)
-    wall_steps = np.asarray(wall_steps, dtype=float)
-    steps = int(wall_steps.max()) if wall_steps.size else 0
-    seconds = steps * PHYSICS_PERIOD
-    if steps == 0:
-        passed, line = True, f"PASS: {vehicle} stayed inside the room"
-    else:
-        first = _first_time(times, wall_steps > 0)
-        passed = False
-        line = (
-            f"FAIL: {vehicle} was stopped by a wall or the ceiling for {seconds:.3f} s "
-            f"(first at {first:.3f} s)"
+    times, wall_steps, _ = _one_run(times, wall_steps)
+    return _whole_log(RoomFold(vehicle, name, 1), times, wall_steps=wall_steps)
+
+
+class FiniteFold(_Fold):
+    """ "The true state stayed finite" of N runs (:func:`state_finite` has the rule)."""
+
+    kind = "finite"
+
+    def __init__(self, vehicle, name, runs):
+        self.vehicle, self.name = vehicle, _safety_name("finite", vehicle, name)
+        self.bad = np.zeros(runs, dtype=np.int64)  # non-finite samples so far
+        self.first = np.full(runs, np.nan)  # s, first non-finite sample
+        self.samples = 0
+
+    def update(self, times, finite):
+        """Fold times (k,) s and the StateFinite flags (k, N)."""
+        if times.size == 0:
+            return
+        bad = ~(finite >= 1.0)
+        self.bad += bad.sum(axis=0)
+        _note_first(self.first, times, bad)
+        self.samples += times.size
+
+    def result(self, j, series=None):
+        vehicle, bad = self.vehicle, int(self.bad[j])
+        if bad == 0:
+            passed, line = True, f"PASS: the true state of {vehicle} stayed finite"
+        else:
+            passed = False
+            line = f"FAIL: the true state of {vehicle} became non-finite at {self.first[j]:.3f} s"
+        return _safety_verdict(
+            "finite",
+            self.name,
+            passed,
+            line,
+            bad,
+            0.0,
+            self.samples,
+            description=f"{vehicle}: true state finite at every sample",
+            measured_text=f"{bad} non-finite sample(s) of {self.samples}",
+            required_text="0 non-finite samples",
         )
-    return _safety_verdict(
-        "room",
-        _safety_name("room", vehicle, name),
-        passed,
-        line,
-        seconds,
-        0.0,
-        int(times.size),
-        description=f"{vehicle}: never stopped by a wall or the ceiling",
-        measured_text=f"{seconds:.3f} s at a wall or the ceiling",
-        required_text="0 s",
-    )
 
 
 def state_finite(times, finite, vehicle, name=""):
@@ -444,25 +660,68 @@ def state_finite(times, finite, vehicle, name=""):
     ``PASS: the true state of Quad stayed finite``,
     ``FAIL: the true state of Quad became non-finite at 3.210 s``.
     """
-    times = np.asarray(times, dtype=float)
-    bad = ~(np.asarray(finite, dtype=float) >= 1.0)
-    if not bad.any():
-        passed, line = True, f"PASS: the true state of {vehicle} stayed finite"
-    else:
-        passed = False
-        line = f"FAIL: the true state of {vehicle} became non-finite at {_first_time(times, bad):.3f} s"
-    return _safety_verdict(
-        "finite",
-        _safety_name("finite", vehicle, name),
-        passed,
-        line,
-        bad.sum(),
-        0.0,
-        int(times.size),
-        description=f"{vehicle}: true state finite at every sample",
-        measured_text=f"{int(bad.sum())} non-finite sample(s) of {times.size}",
-        required_text="0 non-finite samples",
-    )
+    times, finite, _ = _one_run(times, finite)
+    return _whole_log(FiniteFold(vehicle, name, 1), times, finite=finite)
+
+
+class TrackingFold(_Fold):
+    """ "The true tracking error stayed bounded" of N runs (:func:`tracking_bound` has the rule)."""
+
+    kind = "tracking"
+
+    def __init__(self, name, bound, runs):
+        self.name, self.bound = name, float(bound)
+        self.worst = np.full(runs, -np.inf)  # largest |x| so far (inf: a non-finite sample)
+        self.worst_time = np.full(runs, np.nan)  # s, its first sample
+        self.first_above = np.full(runs, np.nan)  # |x| at the first violating sample
+        self.first_above_time = np.full(runs, np.nan)  # s
+        self.samples = 0
+
+    def update(self, times, error):
+        """Fold times (k,) s and the tracking error (k, N)."""
+        if times.size == 0:
+            return
+        magnitude = np.abs(error)
+        magnitude = np.where(np.isfinite(magnitude), magnitude, math.inf)
+        worst = np.argmax(magnitude, axis=0)
+        larger = _at(magnitude, worst) > self.worst  # strictly: the first sample of the maximum stays
+        self.worst = np.where(larger, _at(magnitude, worst), self.worst)
+        self.worst_time = np.where(larger, times[worst], self.worst_time)
+        above = magnitude > self.bound
+        new = above.any(axis=0) & np.isnan(self.first_above_time)
+        first = np.argmax(above, axis=0)
+        self.first_above = np.where(new, _at(magnitude, first), self.first_above)
+        self.first_above_time = np.where(new, times[first], self.first_above_time)
+        self.samples += times.size
+
+    def result(self, j, series=None):
+        name, bound = self.name, self.bound
+        text = {"description": f"|{name}| <= {bound:g} at every sample", "required_text": f"max <= {bound:g}"}
+        if self.samples == 0:
+            line = f"FAIL: ABS({name}) had no samples"
+            return _safety_verdict(
+                "tracking", name, False, line, 0.0, bound, 0, measured_text="no samples", **text
+            )
+        worst, worst_time = float(self.worst[j]), float(self.worst_time[j])
+        passed = bool(np.isnan(self.first_above_time[j]))
+        if passed:
+            line = f"PASS: ABS({name}) stayed below {bound:f} (max {worst:.3f} at {worst_time:.3f} s)"
+        else:
+            line = (
+                f"FAIL: ABS({name}) reached {self.first_above[j]:.3f} at {self.first_above_time[j]:.3f} s, "
+                f"above {bound:f}"
+            )
+        return _safety_verdict(
+            "tracking",
+            name,
+            passed,
+            line,
+            worst,
+            bound,
+            self.samples,
+            measured_text=f"max {worst:.4g} at {worst_time:.3f} s",
+            **text,
+        )
 
 
 def tracking_bound(times, error, bound, name="x"):
@@ -473,44 +732,8 @@ def tracking_bound(times, error, bound, name="x"):
     ``PASS: ABS(name) stayed below <bound> (max 3.580 at 13.000 s)``,
     ``FAIL: ABS(name) reached 7.123 at 3.450 s, above <bound>`` (the first violating sample).
     """
-    times = np.asarray(times, dtype=float)
-    magnitude = np.abs(np.asarray(error, dtype=float))
-    magnitude = np.where(np.isfinite(magnitude), magnitude, math.inf)
-    text = {"description": f"|{name}| <= {bound:g} at every sample", "required_text": f"max <= {bound:g}"}
-    if magnitude.size == 0:
-        return _safety_verdict(
-            "tracking",
-            name,
-            False,
-            f"FAIL: ABS({name}) had no samples",
-            0.0,
-            bound,
-            0,
-            measured_text="no samples",
-            **text,
-        )
-    worst = int(np.argmax(magnitude))
-    above = magnitude > bound
-    if not above.any():
-        passed = True
-        line = (
-            f"PASS: ABS({name}) stayed below {bound:f} (max {magnitude[worst]:.3f} at {times[worst]:.3f} s)"
-        )
-    else:
-        first = int(np.flatnonzero(above)[0])
-        passed = False
-        line = f"FAIL: ABS({name}) reached {magnitude[first]:.3f} at {times[first]:.3f} s, above {bound:f}"
-    return _safety_verdict(
-        "tracking",
-        name,
-        passed,
-        line,
-        magnitude[worst],
-        bound,
-        int(times.size),
-        measured_text=f"max {magnitude[worst]:.4g} at {times[worst]:.3f} s",
-        **text,
-    )
+    times, error, _ = _one_run(times, error)
+    return _whole_log(TrackingFold(name, bound, 1), times, error=error)
 
 
 def rms(values):
@@ -524,9 +747,74 @@ def max_abs(values):
     return float(np.max(np.abs(np.asarray(values, dtype=float))))
 
 
-def _violations(values, threshold):
-    """True where |x| > threshold or x is not finite (as the window analyzer counts a violation)."""
-    return ~(np.abs(np.asarray(values, dtype=float)) <= threshold)
+class BoundFold(_Fold):
+    """ "ABS(x) < threshold in [start, end) s" of N runs (:func:`bound_threshold` has the rule)."""
+
+    kind = "bound"
+
+    def __init__(self, name, threshold, start, end, runs):
+        self.name, self.threshold, self.start, self.end = name, float(threshold), float(start), float(end)
+        self.worst = np.full(runs, -np.inf)  # largest |x| in the interval (inf: a non-finite sample)
+        self.first_bad = np.full(runs, np.nan)  # |x| at the first violating sample
+        self.first_bad_time = np.full(runs, np.nan)  # s
+        self.samples = 0
+
+    def update(self, times, values):
+        """Fold times (k,) s and values (k, N); returns (times, |x|) of the samples in the interval."""
+        inside = (times >= self.start - TIME_TOLERANCE) & (times < self.end - TIME_TOLERANCE)
+        t, x = times[inside], np.abs(values[inside])
+        if t.size == 0:
+            return t, x
+        self.worst = np.maximum(self.worst, np.where(np.isfinite(x), x, math.inf).max(axis=0))
+        bad = _violations(x, self.threshold)
+        new = bad.any(axis=0) & np.isnan(self.first_bad_time)
+        first = np.argmax(bad, axis=0)
+        self.first_bad = np.where(new, _at(x, first), self.first_bad)
+        self.first_bad_time = np.where(new, t[first], self.first_bad_time)
+        self.samples += t.size
+        return t, x
+
+    def series(self, times, per_sample, **_):
+        """Plot arrays of a one-run whole log: the judged samples' times and |x|."""
+        t, x = per_sample
+        return {"times": t, "values": x[:, 0]}
+
+    def result(self, j, series=None):
+        name, threshold, start, end = self.name, self.threshold, self.start, self.end
+        span = f"from {start:f} to {end:f} seconds"
+        text = {
+            "description": f"|{name}| < {threshold:g} in [{start:g}, {end:g}) s",
+            "required_text": f"< {threshold:g} on every sample",
+        }
+        if self.samples == 0:
+            line = f"FAIL: ABS({name}) had no samples {span}"
+            return CriterionResult(
+                "bound", name, False, line, math.nan, threshold, None, measured_text="no samples", **text
+            )
+        worst = float(self.worst[j])
+        first_time = None if np.isnan(self.first_bad_time[j]) else float(self.first_bad_time[j])
+        if first_time is not None:
+            line = (
+                f"FAIL: ABS({name}) was {self.first_bad[j]:f} at {first_time:f} seconds, "
+                f"not less than {threshold:f} {span}"
+            )
+            measured_text = f"max {worst:.4g}; first above at {first_time:.4g} s"
+        else:
+            line = f"PASS: ABS({name}) was less than {threshold:f} {span} (max {worst:f})"
+            measured_text = f"max {worst:.4g}"
+        return CriterionResult(
+            "bound",
+            name,
+            first_time is None,
+            line,
+            worst,
+            threshold,
+            first_time,
+            samples=self.samples,
+            measured_text=measured_text,
+            series=series,
+            **text,
+        )
 
 
 def bound_threshold(times, values, threshold, start, end, name="x"):
@@ -538,47 +826,96 @@ def bound_threshold(times, values, threshold, start, end, name="x"):
       ``PASS: ABS(name) was less than <thr> from <start> to <end> seconds (max <m>)``
       ``FAIL: ABS(name) was <m> at <t> seconds, not less than <thr> from <start> to <end> seconds``
     """
-    times = np.asarray(times, dtype=float).reshape(-1)
-    values = np.asarray(values, dtype=float).reshape(-1)
-    inside = (times >= start - TIME_TOLERANCE) & (times < end - TIME_TOLERANCE)
-    span = f"from {start:f} to {end:f} seconds"
-    text = {
-        "description": f"|{name}| < {threshold:g} in [{start:g}, {end:g}) s",
-        "required_text": f"< {threshold:g} on every sample",
-    }
-    if not inside.any():
-        line = f"FAIL: ABS({name}) had no samples {span}"
+    times, values, _ = _one_run(times, values)
+    return _whole_log(BoundFold(name, threshold, start, end, 1), times, values=values)
+
+
+class RecoveryFold(_Fold):
+    """ "ABS(x) < threshold within W s after start" of N runs (:func:`recovery_threshold` has the rule)."""
+
+    kind = "recovery"
+
+    def __init__(self, name, threshold, start, within, runs):
+        self.name, self.threshold, self.start, self.within = (
+            name,
+            float(threshold),
+            float(start),
+            float(within),
+        )
+        self.last_bad = np.full(runs, np.nan)  # s, last violating sample from start on
+        self.next_after = np.full(runs, np.nan)  # s, the sample after it
+        self.pending = np.zeros(runs, dtype=bool)  # the last sample so far violates (no sample after it yet)
+        self.last_time = math.nan  # s, last sample from start on
+        self.samples = 0
+
+    def update(self, times, values):
+        """Fold times (k,) s and values (k, N); returns (times, |x|) of the samples from start on."""
+        after = times >= self.start - TIME_TOLERANCE
+        t, x = times[after], values[after]
+        if t.size == 0:
+            return t, np.abs(x)
+        bad = _violations(x, self.threshold)
+        hit = bad.any(axis=0)
+        self.next_after = np.where(self.pending & ~hit, t[0], self.next_after)
+        last = _last_index(bad)
+        followed = last + 1 < t.size
+        self.last_bad = np.where(hit, t[last], self.last_bad)
+        self.next_after = np.where(hit & followed, t[np.minimum(last + 1, t.size - 1)], self.next_after)
+        self.pending = hit & ~followed
+        self.last_time = float(t[-1])
+        self.samples += t.size
+        return t, np.abs(x)
+
+    def series(self, times, per_sample, **_):
+        """Plot arrays of a one-run whole log: the samples' times from start on and |x|."""
+        t, x = per_sample
+        return {"times": t, "values": x[:, 0]}
+
+    def result(self, j, series=None):
+        name, threshold, start, within = self.name, self.threshold, self.start, self.within
+        text = {
+            "description": f"|{name}| < {threshold:g} within {within:g} s after {start:g} s",
+            "required_text": f"back under within {within:g} s, and staying",
+        }
+        if self.samples == 0 or self.last_time < start + within - TIME_TOLERANCE:
+            line = f"FAIL: ABS({name}) had no samples {within:f} seconds after {start:f} seconds"
+            return CriterionResult(
+                "recovery", name, False, line, math.inf, within, None, measured_text="no samples", **text
+            )
+        last_bad = None if np.isnan(self.last_bad[j]) else float(self.last_bad[j])
+        if last_bad is None:
+            recovery = 0.0
+        elif self.pending[j]:
+            recovery = math.inf
+        else:
+            recovery = float(self.next_after[j] - start)
+        passed = recovery <= within + TIME_TOLERANCE
+        if passed:
+            line = (
+                f"PASS: ABS({name}) was less than {threshold:f} {recovery:f} seconds after {start:f} seconds "
+                f"(allowed {within:f})"
+            )
+        else:
+            shown = "never" if math.isinf(recovery) else f"after {recovery:f} seconds"
+            line = (
+                f"FAIL: ABS({name}) was not less than {threshold:f} within {within:f} seconds after "
+                f"{start:f} seconds ({shown})"
+            )
         return CriterionResult(
-            "bound", name, False, line, math.nan, float(threshold), None, measured_text="no samples", **text
+            "recovery",
+            name,
+            bool(passed),
+            line,
+            recovery,
+            within,
+            last_bad,
+            samples=self.samples,
+            measured_text="never back under"
+            if math.isinf(recovery)
+            else f"back under {recovery:.4g} s after",
+            series=series,
+            **text,
         )
-    t, x = times[inside], np.abs(values[inside])
-    bad = _violations(x, threshold)
-    worst = float(np.max(np.where(np.isfinite(x), x, math.inf)))
-    first_time = None
-    if bad.any():
-        first = int(np.flatnonzero(bad)[0])
-        first_time = float(t[first])
-        line = (
-            f"FAIL: ABS({name}) was {x[first]:f} at {first_time:f} seconds, "
-            f"not less than {threshold:f} {span}"
-        )
-        measured_text = f"max {worst:.4g}; first above at {first_time:.4g} s"
-    else:
-        line = f"PASS: ABS({name}) was less than {threshold:f} {span} (max {worst:f})"
-        measured_text = f"max {worst:.4g}"
-    return CriterionResult(
-        "bound",
-        name,
-        not bad.any(),
-        line,
-        worst,
-        float(threshold),
-        first_time,
-        samples=int(t.size),
-        measured_text=measured_text,
-        series={"times": t, "values": x},
-        **text,
-    )
 
 
 def recovery_threshold(times, values, threshold, start, within, name="x"):
@@ -591,48 +928,114 @@ def recovery_threshold(times, values, threshold, start, within, name="x"):
       ``PASS: ABS(name) was less than <thr> <r> seconds after <start> seconds (allowed <W>)``
       ``FAIL: ABS(name) was not less than <thr> within <W> seconds after <start> seconds (<r>)``
     """
+    times, values, _ = _one_run(times, values)
+    return _whole_log(RecoveryFold(name, threshold, start, within, 1), times, values=values)
+
+
+def _criterion_fold(criterion, runs, vehicles):
+    """The fold of a :class:`~quad_drake.config.CriterionConfig` for N = `runs` runs; vehicles:
+    the scenario's vehicle names (a fleet_sigma criterion pools them)."""
+    kind, name = criterion.kind, criterion.signal
+    vehicle = name.split(".", 1)[0]
+    if kind == "window":
+        return WindowFold(name, criterion.threshold, criterion.window, runs)
+    if kind == "sigma":
+        return SigmaFold(
+            name,
+            criterion.ref_signal,
+            criterion.ref,
+            criterion.sigma_signal,
+            criterion.sigma,
+            criterion.min_percent,
+            criterion.max_percent,
+            criterion.window,
+            runs,
+        )
+    if kind == "fleet_sigma":
+        return FleetSigmaFold(
+            name,
+            criterion.sigma_signal,
+            criterion.sigma_multiple,
+            criterion.min_percent,
+            criterion.max_percent,
+            len(vehicles),
+            runs,
+        )
+    if kind == "bound":
+        return BoundFold(name, criterion.threshold, criterion.start, criterion.end, runs)
+    if kind == "recovery":
+        return RecoveryFold(name, criterion.threshold, criterion.start, criterion.window, runs)
+    if kind == "floor":
+        return FloorFold(vehicle, criterion.landing_time, name, runs)
+    if kind == "room":
+        return RoomFold(vehicle, name, runs)
+    if kind == "finite":
+        return FiniteFold(vehicle, name, runs)
+    if kind == "tracking":
+        return TrackingFold(name, criterion.threshold, runs)
+    raise ValueError(f"unknown criterion kind {kind!r}")
+
+
+def _criterion_inputs(criterion, signal, vehicles):
+    """The keyword arguments of the criterion's fold ``update`` after the times, read with
+    ``signal(name) -> (values (k, N), fresh (k, N) bool)``."""
+    kind, name = criterion.kind, criterion.signal
+    if kind == "fleet_sigma":
+        pairs = [(signal(f"{v}.{name}"), signal(f"{v}.{criterion.sigma_signal}")[0]) for v in vehicles]
+        return {
+            "errors": [e for (e, _), _ in pairs],
+            "sigmas": [s for _, s in pairs],
+            "fresh": [f for (_, f), _ in pairs],
+        }
+    values, fresh = signal(name)
+    if kind == "window":
+        return {"values": values, "fresh": fresh}
+    if kind == "sigma":
+        ref = signal(criterion.ref_signal)[0] if criterion.ref_signal else criterion.ref
+        sigma = signal(criterion.sigma_signal)[0] if criterion.sigma_signal else criterion.sigma
+        return {"values": values, "fresh": fresh, "ref": ref, "sigma": sigma}
+    if kind == "floor":
+        return {"touchdowns": values, "contact": signal(f"{name.split('.', 1)[0]}.FloorContact")[0]}
+    if kind == "room":
+        return {"wall_steps": values}
+    if kind == "finite":
+        return {"finite": values}
+    if kind == "tracking":
+        return {"error": values}
+    return {"values": values}  # bound, recovery
+
+
+def evaluate_criterion(criterion, times, signal, vehicles=()):
+    """Run one :class:`~quad_drake.config.CriterionConfig` on one run's logged samples.
+
+    ``signal(name) -> (values, fresh_mask)`` returns a named signal over ``times``
+    (``fresh_mask`` None when every sample is fresh); vehicles: the scenario's vehicle names
+    (what a fleet_sigma criterion pools). The verdict carries the plot series of its kind.
+    """
     times = np.asarray(times, dtype=float).reshape(-1)
-    values = np.asarray(values, dtype=float).reshape(-1)
-    after = times >= start - TIME_TOLERANCE
-    t, bad = times[after], _violations(values[after], threshold)
-    text = {
-        "description": f"|{name}| < {threshold:g} within {within:g} s after {start:g} s",
-        "required_text": f"back under within {within:g} s, and staying",
-    }
-    if t.size == 0 or t[-1] < start + within - TIME_TOLERANCE:
-        line = f"FAIL: ABS({name}) had no samples {within:f} seconds after {start:f} seconds"
-        return CriterionResult(
-            "recovery", name, False, line, math.inf, float(within), None, measured_text="no samples", **text
+
+    def column(name):
+        values, fresh = signal(name)
+        mask = np.ones(times.size, dtype=bool) if fresh is None else np.asarray(fresh, dtype=bool)
+        return _column(values, times.size), mask.reshape(-1, 1)
+
+    fold = _criterion_fold(criterion, 1, vehicles)
+    return _whole_log(fold, times, **_criterion_inputs(criterion, column, vehicles))
+
+
+class CriterionStream:
+    """One judged criterion folded over N runs' signals chunk by chunk (a fleet batch's verdicts
+    without its full logs): ``update(times (k,), signal)`` with ``signal(name) -> (values (k, N),
+    fresh (k, N))``, then ``result(j)``, run j's CriterionResult (without plot series)."""
+
+    def __init__(self, criterion, runs, vehicles):
+        self.criterion, self.vehicles = criterion, tuple(vehicles)
+        self.fold = _criterion_fold(criterion, runs, self.vehicles)
+
+    def update(self, times, signal):
+        self.fold.update(
+            np.asarray(times, dtype=float), **_criterion_inputs(self.criterion, signal, self.vehicles)
         )
-    last_bad = None
-    recovery = 0.0
-    if bad.any():
-        last = int(np.flatnonzero(bad)[-1])
-        last_bad = float(t[last])
-        recovery = float(t[last + 1] - start) if last + 1 < t.size else math.inf
-    passed = recovery <= within + TIME_TOLERANCE
-    if passed:
-        line = (
-            f"PASS: ABS({name}) was less than {threshold:f} {recovery:f} seconds after {start:f} seconds "
-            f"(allowed {within:f})"
-        )
-    else:
-        shown = "never" if math.isinf(recovery) else f"after {recovery:f} seconds"
-        line = (
-            f"FAIL: ABS({name}) was not less than {threshold:f} within {within:f} seconds after "
-            f"{start:f} seconds ({shown})"
-        )
-    measured_text = "never back under" if math.isinf(recovery) else f"back under {recovery:.4g} s after"
-    return CriterionResult(
-        "recovery",
-        name,
-        bool(passed),
-        line,
-        recovery,
-        float(within),
-        last_bad,
-        samples=int(t.size),
-        measured_text=measured_text,
-        series={"times": t, "values": np.abs(values[after])},
-        **text,
-    )
+
+    def result(self, j):
+        return self.fold.result(j)

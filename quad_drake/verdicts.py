@@ -6,7 +6,7 @@ they read, and one :class:`~quad_drake.evaluation.CriterionResult` per criterion
 """
 
 from .config import ConfigError
-from .evaluation import evaluate_criterion, fleet_sigma_threshold, judged_criteria
+from .evaluation import CriterionStream, evaluate_criterion, judged_criteria
 
 
 def _signal_names(criterion, key, vehicle_names):
@@ -36,27 +36,31 @@ def evaluate_criteria(scenario, times, signals):
 
     times: (n,) s; signals: {name: Signal} over those samples.
     """
+    vehicles = [v.name for v in scenario.vehicles]
 
     def lookup(name):
         return signals[name].values, signals[name].fresh
 
-    results = []
-    for criterion in judged_criteria(scenario):
-        if criterion.kind == "fleet_sigma":
-            from .consistency import fleet_samples  # lazily: it imports scipy.stats (~1 s)
+    return [evaluate_criterion(criterion, times, lookup, vehicles) for criterion in judged_criteria(scenario)]
 
-            errors, sigmas = fleet_samples(signals, criterion.signal, criterion.sigma_signal)
-            results.append(
-                fleet_sigma_threshold(
-                    errors,
-                    sigmas,
-                    criterion.signal,
-                    criterion.sigma_signal,
-                    criterion.sigma_multiple,
-                    criterion.min_percent,
-                    criterion.max_percent,
-                )
-            )
-        else:
-            results.append(evaluate_criterion(criterion, times, lookup))
-    return results
+
+class CriteriaStream:
+    """The judged criteria of `scenario` for N runs, folded chunk by chunk of log samples
+    (``evaluation.CriterionStream``): what a fleet batch judges while it flies."""
+
+    def __init__(self, scenario, runs):
+        vehicles = [v.name for v in scenario.vehicles]
+        self._streams = [CriterionStream(c, runs, vehicles) for c in judged_criteria(scenario)]
+
+    def update(self, times, signals):
+        """Fold times (k,) s and {name: Signal} of (k, N) values and fresh masks."""
+
+        def lookup(name):
+            return signals[name].values, signals[name].fresh
+
+        for stream in self._streams:
+            stream.update(times, lookup)
+
+    def results(self, j):
+        """Run j's CriterionResult per judged criterion (as ``evaluate_criteria``'s)."""
+        return [stream.result(j) for stream in self._streams]
