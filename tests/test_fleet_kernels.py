@@ -49,21 +49,34 @@ def close(batched, scalar_rows):
     )
 
 
+def scalar_contacts(before, state, hit_wall, params):
+    """systems.plant.QuadrotorPlant's contact counts (floor 0/1, touchdowns, wall hits) after a step."""
+    floor = dynamics.on_floor(state, params)
+    touchdowns = before[1] + (1.0 if floor and not before[0] else 0.0)
+    return [1.0 if floor else 0.0, touchdowns, before[2] + (1.0 if hit_wall else 0.0)]
+
+
 @FIDELITIES
-def test_plant_step_matches_scalar(fidelity):
+@pytest.mark.parametrize("column", [0, 4])
+def test_plant_steps_match_scalar(fidelity, column):
     rng = np.random.default_rng(1201)
     params = small_room()
     state = random_states(rng)
     forces_old = rng.uniform(0, 5, size=(N, 4))
     commands = rng.uniform(-1, 6, size=(N, 4))  # below and above the motor limits
-    noise = rng.uniform(size=(N, 4))
-    new, accel, forces, wall = kernels.plant_step(state, forces_old, commands, noise, params, 0.001, fidelity)
+    noise = rng.uniform(size=(N, 8))
+    contacts = np.column_stack([rng.integers(0, 2, N), rng.integers(0, 5, size=(N, 2))]).astype(float)
+    new, forces, accel, counted = state.copy(), forces_old.copy(), np.empty((N, 3)), contacts.copy()
+    kernels.plant_steps(
+        new, forces, commands, noise, column, kernels.frozen(params), 0.001, kernels.frozen(fidelity),
+        accel, counted,
+    )  # fmt: skip
     rows = [
         dynamics.plant_step(
             state[i].tolist(),
             forces_old[i].tolist(),
             commands[i].tolist(),
-            noise[i].tolist(),
+            noise[i, column : column + 4].tolist(),
             params,
             0.001,
             fidelity,
@@ -73,24 +86,30 @@ def test_plant_step_matches_scalar(fidelity):
     close(new, [r[0] for r in rows])
     close(accel, [r[1] for r in rows])
     close(forces, [r[2] for r in rows])
-    assert wall.tolist() == [r[3] for r in rows]
-    assert 0 < wall.sum() < N  # the walls were exercised
+    expected = [scalar_contacts(contacts[i], r[0], r[3], params) for i, r in enumerate(rows)]
+    assert counted.tolist() == expected
+    assert 0 < sum(r[3] for r in rows) < N  # the walls were exercised
     floor = kernels.on_floor(new, params)
     assert floor.tolist() == [dynamics.on_floor(r[0], params) for r in rows]
     assert 0 < floor.sum() < N
+    assert 0 < (counted[:, 1] - contacts[:, 1]).sum() < N  # touchdowns were counted
 
 
 @FIDELITIES
-def test_plant_step_matches_scalar_over_many_steps(fidelity):
+def test_plant_steps_match_scalar_over_many_steps(fidelity):
     rng = np.random.default_rng(1202)
     params = PhysicsParams()
     state = random_states(rng)
     commands = rng.uniform(0.5, 4.0, size=(N, 4))
-    batched, forces = state, rng.uniform(0, 5, size=(N, 4))
+    batched, forces = state.copy(), rng.uniform(0, 5, size=(N, 4))
+    accel, contacts = np.empty((N, 3)), np.zeros((N, 3))
     scalar = [(s.tolist(), f.tolist()) for s, f in zip(state, forces, strict=True)]
+    frozen_params, frozen_fidelity = kernels.frozen(params), kernels.frozen(fidelity)
     for _ in range(50):
         noise = rng.uniform(size=(N, 4))
-        batched, _, forces, _ = kernels.plant_step(batched, forces, commands, noise, params, 0.001, fidelity)
+        kernels.plant_steps(
+            batched, forces, commands, noise, 0, frozen_params, 0.001, frozen_fidelity, accel, contacts
+        )
         scalar = [
             dynamics.plant_step(s, f, commands[i].tolist(), noise[i].tolist(), params, 0.001, fidelity)[::2]
             for i, (s, f) in enumerate(scalar)
@@ -107,7 +126,8 @@ def test_imu_matches_scalar(fidelity):
     accel = rng.normal(size=(N, 3)) * 8  # some beyond the saturation
     noise = rng.normal(size=(N, 6))
     bias = rng.normal(size=(N, 6)) * 0.1
-    out = kernels.imu_measurement(state[:, 3:7], state[:, 10:13], accel, noise, params, fidelity, bias)
+    out = np.full((N, 6), np.nan)
+    kernels.imu_samples(state, accel, noise, kernels.frozen(params), kernels.frozen(fidelity), bias, out)
     rows = [
         sensor_models.imu_measurement(
             state[i, 3:7].tolist(),
@@ -121,16 +141,6 @@ def test_imu_matches_scalar(fidelity):
         for i in range(N)
     ]
     close(out, rows)
-    no_bias = kernels.imu_measurement(state[:, 3:7], state[:, 10:13], accel, noise, params, fidelity)
-    close(
-        no_bias,
-        [
-            sensor_models.imu_measurement(
-                state[i, 3:7], state[i, 10:13], accel[i], noise[i], params, fidelity
-            )
-            for i in range(N)
-        ],
-    )
     stepped = kernels.imu_bias_step(bias, noise, params)
     close(
         stepped, [sensor_models.imu_bias_step(bias[i].tolist(), noise[i].tolist(), params) for i in range(N)]
@@ -154,10 +164,15 @@ def test_gps_and_magnetometer_match_scalar():
     close(position, [r[0] for r in rows])
     close(velocity, [r[1] for r in rows])
     close(new_walk, [r[2] for r in rows])
-    yaw_noise = rng.normal(size=N) * 5
+    yaw_noise = rng.normal(size=(N, 1)) * 5
+    out = np.full((N, 2), np.nan)
+    kernels.magnetometer_samples(state, yaw_noise, kernels.frozen(mag), 0.25, out)
     close(
-        kernels.magnetometer_yaws(state[:, 3:7], yaw_noise, mag),
-        [sensor_models.magnetometer_yaw(state[i, 3:7].tolist(), yaw_noise[i], mag) for i in range(N)],
+        out,
+        [
+            [sensor_models.magnetometer_yaw(state[i, 3:7].tolist(), yaw_noise[i, 0], mag), 0.25]
+            for i in range(N)
+        ],
     )
 
 
@@ -173,7 +188,10 @@ def test_cascade_step_matches_scalar(fidelity, spread):
     state[:, 3:7] = q  # near-level, not unit (the controller normalises)
     reference = np.concatenate([rng.normal(size=(N, 9)) * spread, rng.uniform(-4, 4, size=(N, 1))], axis=1)
     integral = rng.normal(size=N) * 0.1
-    forces, new_integral = kernels.cascade_step(state, reference, integral, 0.002, params, fidelity)
+    forces, new_integral = np.full((N, 4), np.nan), integral.copy()
+    kernels.cascade_steps(
+        state, reference, new_integral, 0.002, kernels.frozen(params), kernels.frozen(fidelity), forces
+    )
     rows = [
         cascade.cascade_step(state[i].tolist(), reference[i].tolist(), integral[i], 0.002, params, fidelity)
         for i in range(N)

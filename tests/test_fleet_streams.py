@@ -39,3 +39,12 @@ def test_blocks_out_of_order_are_refused_and_block_zero_restarts():
     with pytest.raises(ValueError, match="block 2 asked for"):
         streams.block(2)
     np.testing.assert_array_equal(streams.block(0), first)
+
+
+def test_a_block_drawn_into_a_buffer_is_the_block():
+    fresh = NoiseStreams([5, 6], "Quad/imu", 6, "gaussian", 500)
+    reused = NoiseStreams([5, 6], "Quad/imu", 6, "gaussian", 500)
+    buffer = np.full((2, 500, 6), np.nan)
+    for block in range(2):
+        assert reused.block(block, out=buffer) is buffer
+        np.testing.assert_array_equal(buffer, fresh.block(block))

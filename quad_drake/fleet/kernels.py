@@ -3,16 +3,16 @@
 Each function here is the array form of the scalar function it names (``dynamics``,
 ``sensor_models``, ``control.cascade``), which stays the reference implementation;
 ``tests/test_fleet_kernels.py`` checks every one against it on seeded random inputs to
-1e-12. One kernel per concept: where a scalar helper is plain arithmetic it is called as
-is on rows of the transposed arrays; the rigid-body steps, the plant's hot spot, are the
-scalar functions' own code compiled by numba (``cache=True``: the JIT cost, about 2 s, is
-paid once per machine) and run per vehicle; the parts written with branches are re-written
-here with numpy (``np.where``, ``np.clip``).
+1e-12. The per-tick steps (plant, IMU, magnetometer, cascade controller) are the scalar
+functions' own code compiled by numba (``cache=True``: the JIT cost, about 2 s, is paid once
+per machine) and run per vehicle, reading and writing the fleet systems' port and state
+arrays in place (no allocation per tick); the 10 Hz GPS and the IMU bias walk, plain
+arithmetic, run the scalar helper as is on rows of the transposed arrays.
 
 Shapes: ``state`` (N, 13) in the ``conventions`` layout (p_NB m NED, q_NB wxyz, v_NB m/s,
 w_NB_B rad/s); motor forces (N, 4) N; IMU samples (N, 6); references (N, 10). Parameters
-are the scalar dataclasses (one set for the whole fleet). Pure: no RNG, no pydrake.
-"""
+are one set for the whole fleet: the compiled kernels take the :func:`frozen` form of the
+scalar dataclasses, the numpy ones the dataclasses. Pure: no RNG, no pydrake."""
 
 import collections
 import dataclasses
@@ -22,10 +22,9 @@ import numba
 import numpy as np
 
 from quad_drake import dynamics, rotations, sensor_models
-from quad_drake.config import ControllerParams, ImuParams, PhysicsParams
+from quad_drake.config import ControllerParams, ImuParams, MagParams, PhysicsParams
 from quad_drake.control import cascade
-from quad_drake.fidelity import PHYSICAL, Fidelity
-from quad_drake.rotations import euler_from_quats, wrap_angles
+from quad_drake.fidelity import Fidelity
 from quad_drake.sensor_models import gps_measurement
 
 # ----- dynamics ---------------------------------------------------------------
@@ -57,47 +56,44 @@ _plant_compiled = compiled(
 )
 
 
+_on_floor_compiled = compiled(dynamics.on_floor)
+
+
 @numba.njit(cache=True)
-def _plant_steps(state, forces_old, commands, noise_unit, params, dt, fidelity, new, accel, forces, hit_wall):
-    """Per vehicle i, the scalar plant step of row i of the inputs into row i of the outputs."""
+def plant_steps(state, forces, commands, noise_unit, column, params, dt, fidelity, accel, contacts):
+    """One :func:`quad_drake.dynamics.plant_step` of N vehicles IN PLACE, the scalar function's
+    code compiled and run per vehicle, with ``systems.plant.QuadrotorPlant``'s contact counts.
+
+    state (N, 13) and forces (N, 4) N (the lagged motor forces before the step): replaced by
+    their values after dt s; commands (N, 4) N; noise_unit (N, >= column + 4): the step's four
+    uniforms in [0, 1] are columns column..column + 3 (the plant's two steps per tick share one
+    (N, 8) draw); accel (N, 3): a_NB m/s^2 of the step, written; contacts (N, 3): (on the floor
+    0/1, floor touchdowns, wall hits), updated: a touchdown counts when the vehicle is on the
+    floor after the step and was not before, a wall hit when the step met a wall. params,
+    fidelity: the :func:`frozen` PhysicsParams and Fidelity; dt: a float.
+    """
     for i in range(state.shape[0]):
-        s, f, u, m = state[i], forces_old[i], noise_unit[i], commands[i]
+        s, f, u, m = state[i], forces[i], noise_unit[i], commands[i]
         x = (s[0], s[1], s[2], s[3], s[4], s[5], s[6], s[7], s[8], s[9], s[10], s[11], s[12])
         lagged_before, command = (f[0], f[1], f[2], f[3]), (m[0], m[1], m[2], m[3])
-        noise = (u[0], u[1], u[2], u[3])
-        out, a, lagged, hit_wall[i] = _plant_compiled(x, lagged_before, command, noise, params, dt, fidelity)
+        noise = (u[column], u[column + 1], u[column + 2], u[column + 3])
+        out, a, lagged, hit_wall = _plant_compiled(x, lagged_before, command, noise, params, dt, fidelity)
         for k in range(13):
-            new[i, k] = out[k]
+            s[k] = out[k]
         accel[i, 0], accel[i, 1], accel[i, 2] = a
         for k in range(4):
-            forces[i, k] = lagged[k]
+            f[k] = lagged[k]
+        floor = _on_floor_compiled(out, params)
+        if floor and contacts[i, 0] == 0.0:
+            contacts[i, 1] += 1.0
+        contacts[i, 0] = 1.0 if floor else 0.0
+        if hit_wall:
+            contacts[i, 2] += 1.0
 
 
 def on_floor(state, params):
     """(N,) bool of :func:`quad_drake.dynamics.on_floor`."""
     return state[:, 2] >= params.z_bounds[1]
-
-
-def plant_step(state, forces_old, commands, noise_unit, params, dt, fidelity=PHYSICAL):
-    """(state_new (N, 13), a_NB (N, 3), forces (N, 4), hit_wall (N,) bool) of
-    :func:`quad_drake.dynamics.plant_step`, whose code numba compiles and runs per vehicle;
-    noise_unit (N, 4) uniforms in [0, 1]. params, fidelity: PhysicsParams and Fidelity, or
-    their :func:`frozen` forms (faster)."""
-    params = frozen(params) if dataclasses.is_dataclass(params) else params
-    fidelity = frozen(fidelity) if dataclasses.is_dataclass(fidelity) else fidelity
-    n = state.shape[0]
-    new, accel, forces, hit_wall = np.empty((n, 13)), np.empty((n, 3)), np.empty((n, 4)), np.empty(n, bool)
-    _plant_steps(
-        *(np.ascontiguousarray(a, dtype=float) for a in (state, forces_old, commands, noise_unit)),
-        params,
-        float(dt),
-        fidelity,
-        new,
-        accel,
-        forces,
-        hit_wall,
-    )
-    return new, accel, forces, hit_wall
 
 
 # ----- sensors ----------------------------------------------------------------
@@ -115,13 +111,16 @@ _imu_compiled = compiled(
 
 
 @numba.njit(cache=True)
-def _imu_samples(q_NB, w_NB_B, a_NB, noise, params, fidelity, bias, out):
-    """Per vehicle i, the scalar IMU sample of row i of the inputs into out[i]."""
-    for i in range(q_NB.shape[0]):
-        q, w, a, u, b = q_NB[i], w_NB_B[i], a_NB[i], noise[i], bias[i]
+def imu_samples(state, a_NB, noise, params, fidelity, bias, out):
+    """:func:`quad_drake.sensor_models.imu_measurement` of N vehicles into out (N, 6), the scalar
+    function's code compiled and run per vehicle: q_NB and w_NB_B from state (N, 13), a_NB (N, 3),
+    noise (N, 6) unit normals, bias (N, 6). params, fidelity: the :func:`frozen` ImuParams and
+    Fidelity."""
+    for i in range(state.shape[0]):
+        s, a, u, b = state[i], a_NB[i], noise[i], bias[i]
         sample = _imu_compiled(
-            (q[0], q[1], q[2], q[3]),
-            (w[0], w[1], w[2]),
+            (s[3], s[4], s[5], s[6]),
+            (s[10], s[11], s[12]),
             (a[0], a[1], a[2]),
             (u[0], u[1], u[2], u[3], u[4], u[5]),
             params,
@@ -130,25 +129,6 @@ def _imu_samples(q_NB, w_NB_B, a_NB, noise, params, fidelity, bias, out):
         )
         for k in range(6):
             out[i, k] = sample[k]
-
-
-def imu_measurement(q_NB, w_NB_B, a_NB, noise, params, fidelity=PHYSICAL, bias=None):
-    """(N, 6) of :func:`quad_drake.sensor_models.imu_measurement`, whose code numba compiles and
-    runs per vehicle; q_NB (N, 4), w_NB_B (N, 3), a_NB (N, 3), noise (N, 6), bias (N, 6) or
-    None (zero). params, fidelity: ImuParams and Fidelity, or their :func:`frozen` forms."""
-    params = frozen(params) if dataclasses.is_dataclass(params) else params
-    fidelity = frozen(fidelity) if dataclasses.is_dataclass(fidelity) else fidelity
-    n = q_NB.shape[0]
-    bias = np.zeros((n, 6)) if bias is None else bias
-    out = np.empty((n, 6))
-    _imu_samples(
-        *(np.ascontiguousarray(x, dtype=float) for x in (q_NB, w_NB_B, a_NB, noise)),
-        params,
-        fidelity,
-        np.ascontiguousarray(bias, dtype=float),
-        out,
-    )
-    return out
 
 
 def imu_bias_step(bias, noise, params):
@@ -164,15 +144,29 @@ def gps_measurements(p_NB, v_NB, random_walk, noise, params):
     return np.stack(position, axis=1), np.stack(velocity, axis=1), np.stack(walk, axis=1)
 
 
-def magnetometer_yaws(q_NB, noise, params):
-    """(N,) of :func:`quad_drake.sensor_models.magnetometer_yaw`; noise (N,)."""
-    return wrap_angles(euler_from_quats(q_NB)[2] + params.yaw_std * noise)
+_wrap_compiled = compiled(rotations.wrap_to_pi)
+_magnetometer_compiled = compiled(
+    sensor_models.magnetometer_yaw,
+    euler_from_quat=compiled(rotations.euler_from_quat),
+    wrap_to_pi=_wrap_compiled,
+)
+
+
+@numba.njit(cache=True)
+def magnetometer_samples(state, noise, params, stamp, out):
+    """N :class:`~quad_drake.systems.sensors.Magnetometer` samples into out (N, 2): the yaw of
+    :func:`quad_drake.sensor_models.magnetometer_yaw` (its code compiled, run per vehicle) of
+    q_NB in state (N, 13) and the unit normal noise (N, 1), rad; and `stamp` s. params: the
+    :func:`frozen` MagParams."""
+    for i in range(state.shape[0]):
+        s = state[i]
+        out[i, 0] = _magnetometer_compiled((s[3], s[4], s[5], s[6]), noise[i, 0], params)
+        out[i, 1] = stamp
 
 
 # ----- cascade controller -----------------------------------------------------
 
 
-_wrap_compiled = compiled(rotations.wrap_to_pi)
 _thrusts_compiled = compiled(dynamics.thrusts_from_wrench)
 _cascade_compiled = compiled(
     cascade.cascade_step,
@@ -189,13 +183,16 @@ _cascade_compiled = compiled(
 
 
 @numba.njit(cache=True)
-def _cascade_steps(state, reference, integral, dt, params, fidelity, forces, new_integral):
-    """Per vehicle i, the scalar cascade step of state[i], reference[i], integral[i]."""
+def cascade_steps(state, reference, integral, dt, params, fidelity, forces):
+    """:func:`quad_drake.control.cascade.cascade_step` of N vehicles, the scalar function's code
+    compiled and run per vehicle: state (N, 13), reference (N, 10), integral (N,) m s (replaced by
+    the new integral), dt s (a float); forces (N, 4) N, written. params, fidelity: the
+    :func:`frozen` ControllerParams and Fidelity."""
     for i in range(state.shape[0]):
         s, r = state[i], reference[i]
         x = (s[0], s[1], s[2], s[3], s[4], s[5], s[6], s[7], s[8], s[9], s[10], s[11], s[12])
         ref = (r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8], r[9])
-        out, new_integral[i] = _cascade_compiled(x, ref, integral[i], dt, params, fidelity)
+        out, integral[i] = _cascade_compiled(x, ref, integral[i], dt, params, fidelity)
         forces[i, 0], forces[i, 1], forces[i, 2], forces[i, 3] = out
 
 
@@ -204,11 +201,13 @@ ControllerTuple = collections.namedtuple(
 )
 PhysicsTuple = collections.namedtuple("PhysicsTuple", [f.name for f in dataclasses.fields(PhysicsParams)])
 ImuTuple = collections.namedtuple("ImuTuple", [f.name for f in dataclasses.fields(ImuParams)])
+MagTuple = collections.namedtuple("MagTuple", [f.name for f in dataclasses.fields(MagParams)])
 FidelityTuple = collections.namedtuple("FidelityTuple", [f.name for f in dataclasses.fields(Fidelity)])
 _FROZEN = {
     ControllerParams: ControllerTuple,
     PhysicsParams: PhysicsTuple,
     ImuParams: ImuTuple,
+    MagParams: MagTuple,
     Fidelity: FidelityTuple,
 }
 
@@ -226,25 +225,3 @@ def frozen(params):
     namedtuple (numbers as floats, lists as tuples of floats): what the compiled scalar
     functions read, typed the same for every config so that numba's on-disk cache is reused."""
     return _FROZEN[type(params)](*(_plain(getattr(params, f.name)) for f in dataclasses.fields(params)))
-
-
-def cascade_step(state, reference, integral, dt, params, fidelity=PHYSICAL):
-    """(forces (N, 4), integral (N,)) of :func:`quad_drake.control.cascade.cascade_step`;
-    state (N, 13), reference (N, 10), integral (N,) m s: the scalar function's code compiled
-    by numba, run per vehicle. params, fidelity: ControllerParams and Fidelity, or their
-    :func:`frozen` forms (faster)."""
-    params = frozen(params) if dataclasses.is_dataclass(params) else params
-    fidelity = frozen(fidelity) if dataclasses.is_dataclass(fidelity) else fidelity
-    n = state.shape[0]
-    forces, new_integral = np.empty((n, 4)), np.empty(n)
-    _cascade_steps(
-        np.ascontiguousarray(state, dtype=float),
-        np.ascontiguousarray(reference, dtype=float),
-        np.ascontiguousarray(integral, dtype=float),
-        float(dt),
-        params,
-        fidelity,
-        forces,
-        new_integral,
-    )
-    return forces, new_integral

@@ -59,8 +59,9 @@ class NoiseStreams:
     def n(self):
         return len(self.seeds)
 
-    def block(self, index):
-        """(N, samples_per_block, size) draws of block `index`.
+    def block(self, index, out=None):
+        """(N, samples_per_block, size) draws of block `index`, written into `out` (a C-contiguous
+        float array of that shape, reused from block to block) when given.
 
         Blocks come in order (0, 1, 2, ...); asking for block 0 again restarts the streams
         (a re-initialised simulation), any other order raises ValueError.
@@ -71,9 +72,11 @@ class NoiseStreams:
         if index != self._next_block:
             raise ValueError(f"{self.name}: block {index} asked for, block {self._next_block} is next")
         self._next_block += 1
-        shape = (self.samples_per_block, self.size)
-        if self.distribution == GAUSSIAN:
-            draws = [g.standard_normal(shape) for g in self._generators]
-        else:
-            draws = [g.random(shape) for g in self._generators]
-        return np.stack(draws) if draws else np.zeros((0, *shape))
+        if out is None:
+            out = np.empty((self.n, self.samples_per_block, self.size))
+        for generator, draws in zip(self._generators, out, strict=True):  # each vehicle's rows in place
+            if self.distribution == GAUSSIAN:
+                generator.standard_normal(out=draws)
+            else:
+                generator.random(out=draws)
+        return out

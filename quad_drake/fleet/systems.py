@@ -57,7 +57,8 @@ class FleetNoiseSource(LeafSystem):
     """Noise of N vehicles from :class:`~quad_drake.fleet.streams.NoiseStreams`, the fleet's
     RandomSource: output ``noise`` (N size) redrawn at t = k period (an unrestricted update,
     applied before the discrete updates at t, as RandomSource's) with sample k of every
-    vehicle's stream. A block of one simulated second is drawn when sample k opens it."""
+    vehicle's stream. A block of one simulated second is drawn, into one buffer reused from block
+    to block, when sample k opens it."""
 
     def __init__(self, seeds, name, size, period, distribution):
         super().__init__()
@@ -77,10 +78,13 @@ class FleetNoiseSource(LeafSystem):
     def _draw(self, context, state):
         k = int(round(context.get_time() / self.period))
         block, row = divmod(k, self._per_block)
-        if block != self._block_index:  # kept sample-major, so that a sample is one contiguous row
-            self._block = np.ascontiguousarray(self._streams.block(block).transpose(1, 0, 2))
+        if block != self._block_index:
+            if self._block is None:
+                self._block = np.empty((self._n, self._per_block, self._size))
+            self._streams.block(block, out=self._block)
             self._block_index = block
-        state.get_mutable_discrete_state().set_value(0, self._block[row].ravel())
+        noise = state.get_mutable_discrete_state().get_mutable_value(0).reshape(self._n, self._size)
+        noise[:] = self._block[:, row]
 
 
 class FleetPlant(LeafSystem):
@@ -115,32 +119,32 @@ class FleetPlant(LeafSystem):
         )
 
     def _first_step(self, context, discrete_state):
-        self._step(context, discrete_state, self._read_noise(context)[:, :NUM_MOTORS])
+        self._step(context, discrete_state, 0)
 
     def _second_step(self, context, discrete_state):
-        self._step(context, discrete_state, self._read_noise(context)[:, NUM_MOTORS:])
+        self._step(context, discrete_state, NUM_MOTORS)
 
-    def _step(self, context, discrete_state, noise):
+    def _step(self, context, discrete_state, column):
+        """One physics step of every vehicle on the noise columns column..column + 3, in place."""
         n = self._n
         commands = self._read_commands(context)
-        if discrete_state.value(self._started)[0]:
-            forces_old = discrete_state.value(self._forces).reshape(n, NUM_MOTORS)
-        else:
-            forces_old = commands
-            discrete_state.set_value(self._started, np.ones(1))
-        state = discrete_state.value(self._state).reshape(n, STATE_SIZE)
-        new, accel, forces, hit_wall = kernels.plant_step(
-            state, forces_old, commands, noise, self._frozen_params, PHYSICS_PERIOD, self._frozen_fidelity
+        forces = discrete_state.get_mutable_value(self._forces).reshape(n, NUM_MOTORS)
+        started = discrete_state.get_mutable_value(self._started)
+        if not started[0]:
+            forces[:] = commands
+            started[0] = 1.0
+        kernels.plant_steps(
+            discrete_state.get_mutable_value(self._state).reshape(n, STATE_SIZE),
+            forces,
+            commands,
+            self._read_noise(context),
+            column,
+            self._frozen_params,
+            PHYSICS_PERIOD,
+            self._frozen_fidelity,
+            discrete_state.get_mutable_value(self._acceleration).reshape(n, 3),
+            discrete_state.get_mutable_value(self._contacts).reshape(n, 3),
         )
-        discrete_state.set_value(self._state, new.ravel())
-        discrete_state.set_value(self._acceleration, accel.ravel())
-        discrete_state.set_value(self._forces, forces.ravel())
-        contacts = discrete_state.value(self._contacts).reshape(n, 3).copy()
-        floor = kernels.on_floor(new, self._params)
-        contacts[:, 1] += floor & (contacts[:, 0] == 0.0)
-        contacts[:, 0] = floor
-        contacts[:, 2] += hit_wall
-        discrete_state.set_value(self._contacts, contacts.ravel())
 
 
 class FleetImu(LeafSystem):
@@ -169,16 +173,19 @@ class FleetImu(LeafSystem):
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, SENSOR_OFFSET, self._sample)
 
     def _sample(self, context, discrete_state):
-        x = self._read_state(context)
-        bias = discrete_state.value(self._bias).reshape(self._n, 6)
+        n = self._n
+        bias = discrete_state.get_mutable_value(self._bias).reshape(n, 6)
         if self._read_bias_noise is not None:
-            bias = kernels.imu_bias_step(bias, self._read_bias_noise(context), self._params)
-            discrete_state.set_value(self._bias, bias.ravel())
-        sample = kernels.imu_measurement(
-            x[:, 3:7], x[:, 10:13], self._read_acceleration(context), self._read_noise(context),
-            self._frozen_params, self._frozen_fidelity, bias,
-        )  # fmt: skip
-        discrete_state.set_value(self._output, sample.ravel())
+            bias[:] = kernels.imu_bias_step(bias, self._read_bias_noise(context), self._params)
+        kernels.imu_samples(
+            self._read_state(context),
+            self._read_acceleration(context),
+            self._read_noise(context),
+            self._frozen_params,
+            self._frozen_fidelity,
+            bias,
+            discrete_state.get_mutable_value(self._output).reshape(n, IMU_SIZE),
+        )
 
 
 class FleetGps(LeafSystem):
@@ -224,10 +231,10 @@ class FleetMagnetometer(LeafSystem):
 
     def __init__(self, params, n):
         super().__init__()
-        self._params, self._n = params, n
+        self._params, self._frozen_params, self._n = params, kernels.frozen(params), n
         self.noise_period = params.period
         self._read_state = _reader(self.DeclareVectorInputPort("state", n * STATE_SIZE), n, STATE_SIZE)
-        self._read_noise = self.DeclareVectorInputPort("noise", n).Eval
+        self._read_noise = _reader(self.DeclareVectorInputPort("noise", n), n, 1)
         self._output = _discrete(self, np.tile([0.0, NO_SAMPLE_STAMP], n), "mag")
         self._count = _discrete(self, 1)
         self.DeclarePeriodicDiscreteUpdateEvent(
@@ -235,14 +242,15 @@ class FleetMagnetometer(LeafSystem):
         )
 
     def _sample(self, context, discrete_state):
-        yaw = kernels.magnetometer_yaws(
-            self._read_state(context)[:, 3:7], self._read_noise(context), self._params
+        count = discrete_state.get_mutable_value(self._count)
+        kernels.magnetometer_samples(
+            self._read_state(context),
+            self._read_noise(context),
+            self._frozen_params,
+            self._params.first_sample_time + count[0] * self._params.period,
+            discrete_state.get_mutable_value(self._output).reshape(self._n, 2),
         )
-        count = float(discrete_state.value(self._count)[0])
-        stamp = self._params.first_sample_time + count * self._params.period
-        out = np.stack([yaw, np.full(self._n, stamp)], axis=1)
-        discrete_state.set_value(self._output, out.ravel())
-        discrete_state.set_value(self._count, np.array([count + 1.0]))
+        count[0] += 1.0
 
 
 class FleetController(LeafSystem):
@@ -262,16 +270,15 @@ class FleetController(LeafSystem):
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, CONTROLLER_OFFSET, self._update)
 
     def _update(self, context, discrete_state):
-        forces, integral = kernels.cascade_step(
+        kernels.cascade_steps(
             self._read_state(context),
             self._read_reference(context),
-            discrete_state.value(self._integral),
+            discrete_state.get_mutable_value(self._integral),
             ONBOARD_PERIOD,
             self._params,
             self._fidelity,
+            discrete_state.get_mutable_value(self._thrusts).reshape(self._n, NUM_MOTORS),
         )
-        discrete_state.set_value(self._integral, integral)
-        discrete_state.set_value(self._thrusts, forces.ravel())
 
 
 class FleetTrajectory(LeafSystem):

@@ -1,0 +1,74 @@
+"""Fleet flight speed: CPU seconds per run of a scenario flown by ``fleet.simulation.run_fleet``.
+
+Flies the scenario (default ``11_gps_update``, shortened to ``--seconds`` of simulated time) as
+fleets of each ``--sizes`` N, ``--repeats`` times each, and prints the CPU time
+(``time.process_time``, the figure that depends least on the machine's other load) per run of the
+full scenario length, per vehicle per 2 ms onboard tick, and the fit of CPU per tick = fixed +
+N x per-vehicle over the sizes (least squares). Flight only: no post-processing (``fleet.runner``).
+``--profile N`` prints the cProfile top entries of one flight of N vehicles instead.
+
+    python benchmarks/bench_fleet_flight.py [--scenario 11_gps_update] [--seconds 5] [--sizes 500 1000]
+                                            [--repeats 3] [--profile N]
+"""
+
+import argparse
+import cProfile
+import dataclasses
+import pstats
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from quad_drake import catalog  # noqa: E402
+from quad_drake.conventions import ONBOARD_PERIOD  # noqa: E402
+from quad_drake.fleet.simulation import run_fleet  # noqa: E402
+
+
+def flight_cpu(scenario, n):
+    """CPU s of flying `scenario` with N = n runs (seeds 0..n-1)."""
+    start = time.process_time()
+    run_fleet(scenario, np.arange(n))
+    return time.process_time() - start
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scenario", default="11_gps_update")
+    parser.add_argument("--seconds", type=float, default=5.0, help="simulated seconds per flight")
+    parser.add_argument("--sizes", type=int, nargs="+", default=[500, 1000])
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--profile", type=int, default=None, metavar="N")
+    args = parser.parse_args()
+    full = catalog.load(args.scenario)
+    scenario = dataclasses.replace(full, end_time=args.seconds)
+    flight_cpu(scenario, 2)  # numba cache load, imports
+    if args.profile is not None:
+        profiler = cProfile.Profile()
+        profiler.enable()
+        run_fleet(scenario, np.arange(args.profile))
+        profiler.disable()
+        pstats.Stats(profiler).sort_stats("tottime").print_stats(25)
+        return
+    ticks = args.seconds / ONBOARD_PERIOD
+    per_tick = {}
+    for n in args.sizes:
+        cpu = min(flight_cpu(scenario, n) for _ in range(args.repeats))
+        per_tick[n] = cpu / ticks
+        per_run = cpu / n * full.end_time / args.seconds
+        print(
+            f"N={n:5d}: {cpu:.2f} s CPU for {args.seconds:g} s (best of {args.repeats}); "
+            f"{per_run * 1e3:.1f} ms per {full.end_time:g} s run; "
+            f"{cpu / ticks / n * 1e6:.2f} us per vehicle-tick"
+        )
+    if len(per_tick) > 1:
+        sizes = np.array(list(per_tick), dtype=float)
+        slope, fixed = np.polyfit(sizes, np.array(list(per_tick.values())), 1)
+        print(f"fit: {fixed * 1e3:.3f} ms fixed per tick + {slope * 1e6:.2f} us per vehicle-tick")
+
+
+if __name__ == "__main__":
+    main()
