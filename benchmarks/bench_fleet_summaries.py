@@ -1,19 +1,37 @@
-"""A fleet batch's post-processing: CPU ms per run of its records, apart from the flight.
+"""A fleet batch's summaries: CPU ms per run of its records, apart from the flight.
 
 Usage: python benchmarks/bench_fleet_summaries.py [--scenario 11_gps_update] [--runs 200]
 
-Flies one batch of `runs` runs (``fleet.simulation.run_fleet``), then times, in CPU time of
-this process (``time.process_time``), the batch's PCRB (``fleet.runner.batch_bounds``) and its
-whole post-processing (``fleet.runner.summarize_batch``: signals, NEES, PCRB, criteria and
-records of the N runs), after a 2-run warm-up that loads numba's cached kernels.
+In CPU time of this process (``time.process_time``), after a 2-run warm-up that loads numba's
+cached kernels: the flight with full logs (``fleet.simulation.run_fleet``), the same batch
+flown and summarised while it flies (``fleet.runner.simulate_batch``), and the summaries
+alone (``fleet.streaming.BatchSummary`` fed the full logs chunk by chunk), with the peak
+resident memory of the process.
 """
 
 import argparse
+import resource
 import time
 
 from quad_drake import catalog
-from quad_drake.fleet.runner import FleetBatch, batch_bounds, summarize_batch
+from quad_drake.fleet.runner import FleetBatch, simulate_batch
 from quad_drake.fleet.simulation import run_fleet
+from quad_drake.fleet.streaming import CHUNK_SAMPLES, BatchSummary
+
+
+def _cpu(function, *args):
+    start = time.process_time()
+    result = function(*args)
+    return time.process_time() - start, result
+
+
+def _summarize(scenario, seeds, times, logs):
+    summary = BatchSummary(scenario, seeds, times.size, {v: list(x) for v, x in logs.items()})
+    for start in range(0, times.size, CHUNK_SAMPLES):
+        first = max(start - 1, 0)
+        chunk = {v: {n: x[first : start + CHUNK_SAMPLES] for n, x in vl.items()} for v, vl in logs.items()}
+        summary.update(chunk, start > 0)
+    return summary.records(0, 0.0)
 
 
 def main():
@@ -23,20 +41,17 @@ def main():
     args = parser.parse_args()
     scenario = catalog.load(args.scenario)
     seeds = tuple(range(args.runs))
-    start = time.process_time()
-    times, logs, wall = run_fleet(scenario, seeds)
-    flight = time.process_time() - start
-    summarize_batch(FleetBatch(scenario, 0, (0, 1)), times, logs, wall)  # warm-up: numba's cache
-    start = time.process_time()
-    batch_bounds(scenario, logs)
-    bounds = time.process_time() - start
-    start = time.process_time()
-    summarize_batch(FleetBatch(scenario, 0, seeds), times, logs, wall)
-    post = time.process_time() - start
+    simulate_batch(FleetBatch(catalog.load(args.scenario, None, ["end_time=0.5"]), 0, (0, 1)))  # warm-up
+    streamed, _ = _cpu(simulate_batch, FleetBatch(scenario, 0, seeds))
+    streamed_rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    flight, (times, logs, _) = _cpu(run_fleet, scenario, seeds)
+    summaries, _ = _cpu(_summarize, scenario, seeds, times, logs)
     per_run = 1e3 / args.runs
     print(f"{args.scenario}, {args.runs} runs of {scenario.end_time:g} s (CPU ms per run):")
-    print(f"  flight {flight * per_run:.1f}, post-processing {post * per_run:.1f}", end="")
-    print(f" (of which PCRB {bounds * per_run:.1f})")
+    print(f"  streamed batch (flight + summaries) {streamed * per_run:.1f}, peak RSS {streamed_rss:.0f} MiB")
+    print(
+        f"  flight with full logs {flight * per_run:.1f}; summaries of those logs {summaries * per_run:.1f}"
+    )
 
 
 if __name__ == "__main__":

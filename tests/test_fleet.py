@@ -12,10 +12,10 @@ from quad_drake import catalog
 from quad_drake import conventions as c
 from quad_drake.campaigns import ProcessPoolRunner, run_campaign, table
 from quad_drake.config import FaultConfig
-from quad_drake.fleet.runner import BATCH_MEMORY, RUNNER, batches, default_batch_size, simulate_batch
-from quad_drake.fleet.simulation import batch_bytes, run_fleet
+from quad_drake.fleet.runner import MAX_BATCH, RUNNER, batches, default_batch_size, simulate_batch
+from quad_drake.fleet.simulation import run_fleet
 from quad_drake.fleet.systems import FleetSensorFaults
-from quad_drake.simulation import run
+from quad_drake.simulation import run, vehicle_log_widths
 from quad_drake.systems.faults import SensorFaults
 
 
@@ -145,12 +145,28 @@ def test_bad_fleet_arguments_are_one_line_errors(quad_drake_cli, out_dir):
     assert not out_dir.exists()
 
 
-def test_default_batch_is_bounded_by_memory():
-    scenario = catalog.load("05_trajectory_follow", None, [])
-    size = default_batch_size(scenario, 10_000)
-    assert 1 <= size <= 1000
-    assert batch_bytes(scenario, size) <= BATCH_MEMORY < batch_bytes(scenario, size + 1)
-    assert default_batch_size(scenario, 10, jobs=2) == 5
+def test_default_batch_is_max_batch_split_over_the_jobs():
+    assert default_batch_size(10_000) == MAX_BATCH
+    assert default_batch_size(10, jobs=2) == 5
+    assert default_batch_size(1, jobs=4) == 1
+
+
+def test_a_batch_summarizer_holds_a_chunk_of_logs_whatever_the_flight_length():
+    """The streamed batch keeps CHUNK_SAMPLES (+1) samples of its logs, not the flight's."""
+    from quad_drake.fleet.simulation import build_fleet_diagram
+    from quad_drake.fleet.streaming import CHUNK_SAMPLES, FleetSummarizer
+
+    held = {}
+    for end_time in (2.5, 25.0):
+        scenario = catalog.load("11_gps_update", None, [f"end_time={end_time}"])
+        _, summarizer = build_fleet_diagram(
+            scenario,
+            [1, 2, 3],
+            lambda signals, samples, s=scenario: FleetSummarizer(s, (1, 2, 3), signals, samples),
+        )
+        held[end_time] = summarizer.buffer_bytes
+    width = sum(vehicle_log_widths(scenario.vehicles[0]).values())
+    assert held[2.5] == held[25.0] == (CHUNK_SAMPLES + 1) * 3 * width * 8
 
 
 def test_fleet_gps_delay_queue_matches_the_scalar_sensor_faults_tick_by_tick():

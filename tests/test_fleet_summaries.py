@@ -1,7 +1,8 @@
-"""A fleet batch's post-processing (``fleet.runner.simulate_batch``: signals, NEES, normalised
-squared errors and PCRB computed for the N runs at once) against the per-run functions on each
-run's slice of the same logs, record field by field; the batched forms of the per-run
-functions (they take (n, N, width) logs) against the per-run calls, column by column."""
+"""A fleet batch's records, made while it flies (``fleet.runner.simulate_batch``: a
+``fleet.streaming.FleetSummarizer`` folds the signals chunk by chunk), against the per-run
+functions on each run's full logs (``fleet.simulation.run_fleet`` keeps them), record field by
+field; any chunk size gives the same records; the batched forms of the per-run functions
+(they take (n, N, width) logs) against the per-run calls, column by column."""
 
 import dataclasses
 
@@ -11,20 +12,31 @@ import pytest
 from quad_drake import catalog
 from quad_drake import consistency as cons
 from quad_drake.campaigns.records import summarize_run
+from quad_drake.config import GpsParams, ImuParams, MagParams, SensorsConfig
 from quad_drake.estimation.vocabulary import vehicle_vocabulary
-from quad_drake.fleet.runner import RUNNER, FleetBatch, batch_logs, summarize_batch
+from quad_drake.fleet.bounds import PcrbStream, posterior_crbs
+from quad_drake.fleet.runner import RUNNER, FleetBatch, batch_logs, simulate_batch
 from quad_drake.fleet.simulation import run_fleet
+from quad_drake.fleet.streaming import BatchSummary
 from quad_drake.results import result_from_logs
 from quad_drake.signals import stamp_fresh, vehicle_signals
 
 RTOL = 1e-12
 SEEDS = (3, 4, 5, 6)
+SCENARIOS = {
+    "11_gps_update": ["end_time=3"],  # EKF7: NEES, NIS gps and mag, PCRB, window criteria
+    "11_gps_update_eskf": ["end_time=3"],
+    "09_predict_covariance": ["end_time=2"],  # several vehicles, a fleet_sigma criterion
+    "06_sensor_noise": [],  # sigma criteria on fresh GPS samples
+    "12_gps_outage": ["end_time=14"],  # a fault: bound and recovery criteria, GPS gaps
+    "03_position_control": ["end_time=2"],  # no estimator
+}
 
 
-@pytest.fixture(scope="module", params=["11_gps_update", "11_gps_update_eskf"])
+@pytest.fixture(scope="module", params=list(SCENARIOS))
 def batch(request):
-    """(scenario, times, logs, wall time) of a fleet batch of SEEDS, 3 s each."""
-    scenario = catalog.load(request.param, None, ["end_time=3"])
+    """(scenario, times, logs, wall time) of a fleet batch of SEEDS with full logs."""
+    scenario = catalog.load(request.param, None, SCENARIOS[request.param])
     return (scenario, *run_fleet(scenario, SEEDS))
 
 
@@ -44,17 +56,77 @@ def close(actual, expected, where):
         assert actual == expected, where
 
 
-def test_batch_records_equal_the_per_run_functions(batch):
-    scenario, times, logs, wall = batch
-    fast = summarize_batch(FleetBatch(scenario, 10, SEEDS), times, logs, wall)
-    assert len(fast) == len(SEEDS)
+def _per_run_records(scenario, times, logs, wall):
+    records = []
     for j, seed in enumerate(SEEDS):
-        run_scenario = dataclasses.replace(scenario, seed=seed)
-        result = result_from_logs(run_scenario, times, batch_logs(logs, j), wall / len(SEEDS), RUNNER)
-        expected = summarize_run(result, 10 + j)  # its own PCRB: accuracy_bound.posterior_crb
-        assert expected.nees and expected.pcrb and expected.nis  # the fields compared are filled
-        for field in dataclasses.fields(expected):
-            close(getattr(fast[j], field.name), getattr(expected, field.name), f"run {j} {field.name}")
+        result = result_from_logs(
+            dataclasses.replace(scenario, seed=seed), times, batch_logs(logs, j), wall, RUNNER
+        )
+        records.append(summarize_run(result, 10 + j))  # its own PCRB: accuracy_bound.posterior_crb
+    return records
+
+
+def _same_records(actual, expected):
+    assert len(actual) == len(expected)
+    for j, (fast, slow) in enumerate(zip(actual, expected, strict=True)):
+        for field in dataclasses.fields(slow):
+            if field.name != "wall_time":
+                close(getattr(fast, field.name), getattr(slow, field.name), f"run {j} {field.name}")
+
+
+def test_streamed_batch_records_equal_the_per_run_functions(batch):
+    scenario, times, logs, wall = batch
+    expected = _per_run_records(scenario, times, logs, wall)
+    if vehicle_vocabulary(scenario.vehicles[0]) is not None and scenario.name.startswith("11"):
+        assert expected[0].nees and expected[0].pcrb and expected[0].nis  # the fields compared are filled
+    _same_records(simulate_batch(FleetBatch(scenario, 10, SEEDS)), expected)
+
+
+@pytest.mark.parametrize("chunk", [1, 7, 10_000])
+def test_any_chunk_size_gives_the_same_records(batch, chunk):
+    """BatchSummary fed the full logs chunk by chunk (row 0: the sample before) gives the
+    whole-log records."""
+    scenario, times, logs, wall = batch
+    names = {vehicle: list(vehicle_logs) for vehicle, vehicle_logs in logs.items()}
+    summary = BatchSummary(scenario, SEEDS, times.size, names)
+    for start in range(0, times.size, chunk):
+        first = max(start - 1, 0)
+        summary.update(
+            {v: {name: x[first : start + chunk] for name, x in vl.items()} for v, vl in logs.items()},
+            start > 0,
+        )
+    _same_records(summary.records(10, wall), _per_run_records(scenario, times, logs, wall))
+
+
+def test_a_pcrb_stream_gives_the_whole_log_bound_for_any_split():
+    rng = np.random.default_rng(9)
+    n, runs = 60, 3
+    q = rng.normal(size=(n, runs, 4))
+    states = np.concatenate(
+        [
+            rng.normal(size=(n, runs, 3)),
+            q / np.linalg.norm(q, axis=-1, keepdims=True),
+            rng.normal(size=(n, runs, 6)),
+        ],
+        axis=-1,
+    )
+    gps, mag = rng.random((n, runs)) < 0.2, rng.random((n, runs)) < 0.5
+    sensors = SensorsConfig(imu=ImuParams(), gps=GpsParams(), mag=MagParams())
+    whole = posterior_crbs(states, gps, mag, sensors)
+    for cuts in ([0, n], [0, 1, 2, 3, n], [0, 1, n], [0, 17, 18, 40, n]):
+        stream = PcrbStream(sensors, runs)
+        parts = [
+            stream.update(states[a:b], gps[a:b], mag[a:b]) for a, b in zip(cuts[:-1], cuts[1:], strict=True)
+        ]
+        parts.append(stream.finish())
+        for name, values in whole.items():
+            np.testing.assert_array_equal(np.concatenate([p[name] for p in parts]), values, err_msg=str(cuts))
+    for length in (1, 2):  # the ends: one sample (no force), two (both one-sided)
+        stream = PcrbStream(sensors, runs)
+        parts = [stream.update(states[:length], gps[:length], mag[:length]), stream.finish()]
+        short = posterior_crbs(states[:length], gps[:length], mag[:length], sensors)
+        for name, values in short.items():
+            np.testing.assert_array_equal(np.concatenate([p[name] for p in parts]), values)
 
 
 def test_signals_of_a_batch_are_the_runs_signals(batch):
@@ -68,6 +140,8 @@ def test_signals_of_a_batch_are_the_runs_signals(batch):
         for name, signal in single.items():
             np.testing.assert_allclose(batched[name].values[:, j], signal.values, rtol=RTOL, atol=0)
             np.testing.assert_array_equal(batched[name].fresh[:, j], signal.fresh)
+        if vocabulary is None:
+            continue
         errors = vocabulary.errors(batch_logs(logs, j)[vehicle.name])
         np.testing.assert_allclose(vocabulary.errors(logs[vehicle.name])[:, j], errors, rtol=RTOL, atol=0)
 

@@ -120,42 +120,18 @@ def _posterior_crb(logs, sensors):
     return posterior_crb(logs["state"], stamp_fresh(logs["gps"][:, -1]), mag_fresh, sensors)
 
 
-def summarize_run(result, index, bounds=None, consistency=None):
-    """RunRecord of a SimulationResult (pure: reads its logs, signals and verdicts).
+def metric_keys(vocabulary, log_names):
+    """The signals (``V.<key>``) a run's record summarises for a vehicle with estimator
+    `vocabulary` (None: none) and logs `log_names`: its ``Est.E.*`` errors, and PosFollowErr
+    (the true flight) when it has a reference."""
+    keys = [] if vocabulary is None else [f"Est.E.{key}" for key in error_units(vocabulary)]
+    return keys + (["PosFollowErr"] if "reference" in log_names else [])
 
-    bounds: {vehicle: {state: (n,) PCRB variance}} already computed along the run's truth
-    (a fleet batch computes its runs' at once, ``fleet.bounds``); default: computed here.
-    consistency: {vehicle: :func:`consistency_series` of the run} already computed (a fleet
-    batch's, at once); default: computed here.
-    """
-    metrics, nees, nse, nis, counters, pcrb = {}, {}, {}, {}, {}, {}
-    settled = result.times >= settle_time(result.scenario.end_time) - 1e-9
-    configs = {v.name: v for v in result.scenario.vehicles}
-    for vehicle, logs in result.logs.items():
-        vocabulary = vehicle_vocabulary(configs[vehicle])
-        if vocabulary is not None:
-            keys = [f"Est.E.{key}" for key in error_units(vocabulary)]
-            keys += ["PosFollowErr"] if "reference" in logs else []  # the true flight, too
-            nees[vehicle], nse[vehicle] = (consistency or {}).get(vehicle) or consistency_series(
-                vocabulary, logs, vehicle_errors(result.signals, vehicle, vocabulary)
-            )
-            for sensor in cons.NIS_DOF:
-                if sensor in logs:
-                    nis[(vehicle, sensor)] = cons.fresh_nis(logs["diagnostics"], sensor)
-            counters[vehicle] = health_counts(logs["diagnostics"])
-            if "gps" in logs and settled.any():
-                bound = (bounds or {}).get(vehicle) or _posterior_crb(logs, configs[vehicle].sensors)
-                pcrb[vehicle] = {name: float(np.mean(v[settled])) for name, v in bound.items()}
-        else:
-            keys = ["PosFollowErr"] if "reference" in logs else []
-        for key in keys:
-            values = result.signals[f"{vehicle}.{key}"].values
-            metrics[f"{vehicle}.{key}"] = {
-                "rms": rms(values),
-                "max": max_abs(values),
-                "rms_settled": rms(values[settled]),
-            }
-    criteria = [
+
+def criteria_rows(verdicts):
+    """A record's ``criteria``: per CriterionResult its kind, description, verdict, measured
+    value and percentage, as plain values."""
+    return [
         {
             "kind": c.kind,
             "description": c.description,
@@ -163,13 +139,41 @@ def summarize_run(result, index, bounds=None, consistency=None):
             "measured": float(c.measured),
             "percent": None if c.percent is None else float(c.percent),
         }
-        for c in result.criteria
+        for c in verdicts
     ]
+
+
+def summarize_run(result, index):
+    """RunRecord of a SimulationResult (pure: reads its logs, signals and verdicts). A fleet
+    batch makes the same records while it flies (``fleet.streaming``)."""
+    metrics, nees, nse, nis, counters, pcrb = {}, {}, {}, {}, {}, {}
+    settled = result.times >= settle_time(result.scenario.end_time) - 1e-9
+    configs = {v.name: v for v in result.scenario.vehicles}
+    for vehicle, logs in result.logs.items():
+        vocabulary = vehicle_vocabulary(configs[vehicle])
+        if vocabulary is not None:
+            nees[vehicle], nse[vehicle] = consistency_series(
+                vocabulary, logs, vehicle_errors(result.signals, vehicle, vocabulary)
+            )
+            for sensor in cons.NIS_DOF:
+                if sensor in logs:
+                    nis[(vehicle, sensor)] = cons.fresh_nis(logs["diagnostics"], sensor)
+            counters[vehicle] = health_counts(logs["diagnostics"])
+            if "gps" in logs and settled.any():
+                bound = _posterior_crb(logs, configs[vehicle].sensors)
+                pcrb[vehicle] = {name: float(np.mean(v[settled])) for name, v in bound.items()}
+        for key in metric_keys(vocabulary, logs):
+            values = result.signals[f"{vehicle}.{key}"].values
+            metrics[f"{vehicle}.{key}"] = {
+                "rms": rms(values),
+                "max": max_abs(values),
+                "rms_settled": rms(values[settled]),
+            }
     return RunRecord(
         index,
         int(result.scenario.seed),
         bool(result.passed),
-        criteria,
+        criteria_rows(result.criteria),
         metrics,
         nees,
         nse,

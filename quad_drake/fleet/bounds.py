@@ -27,50 +27,123 @@ def posterior_crbs(states, gps_fresh, mag_fresh, sensors, period=LOG_PERIOD, dt_
     GPS samples need a (6 x 6) solve instead of three 9 x 9 inverses per log sample. With
     F = [[I, T I, -T^2/2 [u]x], [0, I, -T [u]x], [0, 0, I]] the product F P F^T is formed
     from 3 x 3 blocks and the skew matrix's entries, never as dense 9 x 9 products.
+    The whole log fed at once to a :class:`PcrbStream`.
     """
     states = np.asarray(states, dtype=float)
-    n, runs = states.shape[:2]
-    imu, gps, mag = sensors.imu, sensors.gps, sensors.mag
-    quaternions = np.ascontiguousarray(states[:, :, 3:7])
-    velocity = states[:, :, 7:10]
-    accel = np.gradient(velocity, period, axis=0) if n > 1 else np.zeros((n, runs, 3))
-    u_N = np.ascontiguousarray(accel - np.array([0.0, 0.0, GRAVITY]))
-    use_mag = mag is not None and mag.yaw_std > 0
-    variances, euler_variances = _pcrb_recursion(
-        quaternions,
-        u_N,
-        np.ascontiguousarray(gps_fresh, dtype=np.bool_),
-        np.ascontiguousarray(mag_fresh, dtype=np.bool_) if use_mag else np.zeros((n, runs), dtype=np.bool_),
-        np.square(imu.accel_std) * dt_imu,
-        np.square(imu.gyro_std) * dt_imu,
-        np.square(np.array(list(gps.pos_std) + list(gps.vel_std), dtype=float)),
-        mag.yaw_std**2 if use_mag else 1.0,
-        np.square(np.array(PCRB_PRIOR_STD, dtype=float)),
-        float(period),
-    )
-    result = {name: variances[:, :, i] for i, name in enumerate(PCRB_STATES)}
-    result.update({name: euler_variances[:, :, i] for i, name in enumerate(("Roll", "Pitch", "Yaw"))})
-    return result
+    stream = PcrbStream(sensors, states.shape[1], period, dt_imu)
+    parts = [stream.update(states, gps_fresh, mag_fresh), stream.finish()]
+    return {name: np.concatenate([part[name] for part in parts]) for name in parts[0]}
+
+
+class PcrbStream:
+    """:func:`posterior_crbs` of N runs fed chunk by chunk of log samples: the covariance P is
+    carried between chunks, and a sample's specific force (the central difference of the true
+    velocity, ``np.gradient``'s, one-sided at the run's ends) waits for the next sample, so
+    ``update`` returns the variances of the samples before the chunk's last one and
+    ``finish`` those of the run's last sample. Any split gives the whole log's values."""
+
+    def __init__(self, sensors, runs, period=LOG_PERIOD, dt_imu=ONBOARD_PERIOD):
+        imu, gps, mag = sensors.imu, sensors.gps, sensors.mag
+        self._use_mag = mag is not None and mag.yaw_std > 0
+        self._constants = (
+            np.square(imu.accel_std) * dt_imu,
+            np.square(imu.gyro_std) * dt_imu,
+            np.square(np.array(list(gps.pos_std) + list(gps.vel_std), dtype=float)),
+            mag.yaw_std**2 if self._use_mag else 1.0,
+        )
+        self._period, self._runs = float(period), runs
+        self._P = np.zeros((runs, 9, 9))
+        self._P[:, range(9), range(9)] = np.square(np.array(PCRB_PRIOR_STD, dtype=float))
+        self._held = None  # (states (1, N, 13), gps (1, N), mag (1, N)) of the last sample fed
+        self._before = None  # (N, 3) true velocity of the sample before it (None: it is the first)
+        self._started = False  # the first sample has been propagated
+
+    def update(self, states, gps_fresh, mag_fresh):
+        """Fold samples (k, N, 13) truth, (k, N) GPS and magnetometer freshness; {name: (m, N)
+        variance} of the samples now complete (the held one and all of these but the last)."""
+        states = np.asarray(states, dtype=float)
+        gps_fresh, mag_fresh = np.asarray(gps_fresh, dtype=bool), np.asarray(mag_fresh, dtype=bool)
+        if self._held is not None:
+            states = np.concatenate((self._held[0], states))
+            gps_fresh = np.concatenate((self._held[1], gps_fresh))
+            mag_fresh = np.concatenate((self._held[2], mag_fresh))
+        if states.shape[0] == 0:
+            return self._empty()
+        self._held = (
+            states[-1:].copy(),
+            gps_fresh[-1:].copy(),
+            mag_fresh[-1:].copy(),
+        )  # inputs may be reused
+        done = states.shape[0] - 1
+        velocity = states[:, :, 7:10]
+        accel = np.empty((done, self._runs, 3))
+        if done:
+            T = self._period
+            if self._before is None:  # the run's first sample: one-sided, as np.gradient's edge
+                accel[0] = (velocity[1] - velocity[0]) / T
+            else:
+                accel[0] = (velocity[1] - self._before) / (2.0 * T)
+            accel[1:] = (velocity[2:] - velocity[: done - 1]) / (2.0 * T)
+            self._before = velocity[done - 1].copy()
+        return self._propagate(states[:done], accel, gps_fresh[:done], mag_fresh[:done])
+
+    def finish(self):
+        """{name: (1, N) variance} of the last sample (its force one-sided, as np.gradient's edge;
+        zero for a one-sample run); empty when nothing is held."""
+        if self._held is None:
+            return self._empty()
+        states, gps_fresh, mag_fresh = self._held
+        self._held = None
+        velocity = states[0, :, 7:10]
+        if self._before is None:
+            accel = np.zeros((1, self._runs, 3))
+        else:
+            accel = ((velocity - self._before) / self._period)[None]
+        return self._propagate(states, accel, gps_fresh, mag_fresh)
+
+    def _empty(self):
+        return {name: np.zeros((0, self._runs)) for name in (*PCRB_STATES, "Roll", "Pitch", "Yaw")}
+
+    def _propagate(self, states, accel, gps_fresh, mag_fresh):
+        if states.shape[0] == 0:
+            return self._empty()
+        accel_psd, gyro_psd, gps_var, yaw_var = self._constants
+        variances, euler_variances = _pcrb_recursion(
+            np.ascontiguousarray(states[:, :, 3:7]),
+            np.ascontiguousarray(accel - np.array([0.0, 0.0, GRAVITY])),
+            np.ascontiguousarray(gps_fresh, dtype=np.bool_),
+            np.ascontiguousarray(mag_fresh, dtype=np.bool_)
+            if self._use_mag
+            else np.zeros(gps_fresh.shape, np.bool_),
+            accel_psd,
+            gyro_psd,
+            gps_var,
+            yaw_var,
+            self._P,
+            self._period,
+            not self._started,
+        )
+        self._started = True
+        result = {name: variances[:, :, i] for i, name in enumerate(PCRB_STATES)}
+        result.update({name: euler_variances[:, :, i] for i, name in enumerate(("Roll", "Pitch", "Yaw"))})
+        return result
 
 
 @numba.njit(cache=True)
 def _pcrb_recursion(
-    quaternions, u_N, gps_fresh, mag_fresh, accel_psd, gyro_psd, gps_var, yaw_var, prior_var, T
+    quaternions, u_N, gps_fresh, mag_fresh, accel_psd, gyro_psd, gps_var, yaw_var, P, T, first
 ):
     """((n, N, 9) variances, (n, N, 3) Euler-angle variances) of the covariance-form PCRB.
 
     quaternions: (n, N, 4) q_NB wxyz; u_N: (n, N, 3) specific force in N; gps_fresh, mag_fresh:
     (n, N) bool (mag all false when it is not fused); accel_psd, gyro_psd: (3,) std^2 * dt_imu;
-    gps_var: (6,) GPS p, v variances; yaw_var: magnetometer yaw variance; prior_var: (9,) P_0
-    diagonal; T: the log period, s.
+    gps_var: (6,) GPS p, v variances; yaw_var: magnetometer yaw variance; P: (N, 9, 9) the
+    covariance before these samples, updated in place; T: the log period, s; first: the first
+    sample is the run's (no prediction before it: P holds the prior).
     """
     n, runs = u_N.shape[0], u_N.shape[1]
     variances = np.zeros((n, runs, 9))
     euler_variances = np.zeros((n, runs, 3))
-    P = np.zeros((runs, 9, 9))
-    for j in range(runs):
-        for i in range(9):
-            P[j, i, i] = prior_var[i]
     a, b = T, 0.5 * T * T
     q_pp, q_pv, q_vv = T**3 / 3.0, T * T / 2.0, T
     M = np.empty((9, 9))
@@ -87,7 +160,7 @@ def _pcrb_recursion(
         for j in range(runs):
             Pj = P[j]
             _rotation(quaternions[k, j], R)
-            if k > 0:
+            if k > 0 or not first:
                 u0, u1, u2 = u_N[k, j, 0], u_N[k, j, 1], u_N[k, j, 2]
                 # M = F P: rows of the attitude block times S = [u]x
                 for c in range(9):

@@ -3,10 +3,10 @@
 A fleet of N runs of a scenario is one Diagram: per VehicleConfig one fleet sub-Diagram
 (:func:`build_fleet_vehicle`, the mirror of ``simulation.build_vehicle``) whose systems
 advance the N copies of that vehicle, vehicle j of every group flying run seed
-``seeds[j]``. A :class:`FleetRecorder` keeps every exported signal at the 5 ms log samples
-in preallocated arrays ((samples, N, width) per signal), so a batch costs
-samples x N x (sum of widths) x 8 bytes and a campaign's memory is bounded by its batch
-size, not by its number of runs (``fleet.runner``).
+``seeds[j]``. Every exported signal goes to one sink: a :class:`FleetRecorder`, which keeps
+the full logs at the 5 ms samples ((samples, N, width) per signal: :func:`run_fleet`, for
+tests and analysis), or a campaign's ``fleet.streaming.FleetSummarizer``, which folds them
+into the runs' records as they are flown (``fleet.runner``).
 """
 
 import time
@@ -159,8 +159,10 @@ class FleetRecorder(LeafSystem):
                 log[k - 1] = evaluate(context).reshape(n, width)
 
 
-def build_fleet_diagram(scenario, seeds):
-    """(Diagram, FleetRecorder) of `scenario` flown by N = len(seeds) runs."""
+def build_fleet_diagram(scenario, seeds, make_sink=None):
+    """(Diagram, sink) of `scenario` flown by N = len(seeds) runs; the sink, a LeafSystem made
+    by ``make_sink(signals, samples)`` (signals: ((vehicle, log name), width) per input port,
+    samples: log samples of a run), takes every exported signal; default a FleetRecorder."""
     fidelity = fidelity_from_mode(scenario.fidelity)
     samples = int(round(scenario.end_time / c.LOG_PERIOD))
     builder = DiagramBuilder()
@@ -170,42 +172,46 @@ def build_fleet_diagram(scenario, seeds):
         for name, width in vehicle_log_widths(vehicle).items():
             ports.append(sub.GetOutputPort(name))
             signals.append(((vehicle.name, name), width))
-    recorder = builder.AddNamedSystem("recorder", FleetRecorder(signals, len(seeds), samples))
+    if make_sink is None:
+        sink = FleetRecorder(signals, len(seeds), samples)
+    else:
+        sink = make_sink(signals, samples)
+    builder.AddNamedSystem("sink", sink)
     for i, port in enumerate(ports):
-        builder.Connect(port, recorder.get_input_port(i))
+        builder.Connect(port, sink.get_input_port(i))
     diagram = builder.Build()
     diagram.set_name(f"{scenario.name}_fleet")
-    return diagram, recorder
+    return diagram, sink
 
 
-def batch_bytes(scenario, n):
-    """Bytes the FleetRecorder of an N-run fleet of `scenario` holds."""
-    samples = int(round(scenario.end_time / c.LOG_PERIOD))
-    width = sum(sum(vehicle_log_widths(v).values()) for v in scenario.vehicles)
-    return samples * n * width * 8
-
-
-def _release_memory(diagram):
-    """Call ``release_memory()`` of every fleet system in `diagram` but the recorder: pydrake
-    never frees a Diagram of Python systems, so a batch's large arrays must be dropped by hand
-    (without it a campaign's workers grow by a batch's logs per batch)."""
+def release_memory(diagram, keep=None):
+    """Call ``release_memory()`` of every fleet system in `diagram` but `keep`: pydrake never
+    frees a Diagram of Python systems, so a batch's large arrays must be dropped by hand
+    (without it a campaign's workers grow by a batch's arrays per batch)."""
     for system in diagram.GetSystems():
         if isinstance(system, Diagram):
-            _release_memory(system)
-        elif hasattr(system, "release_memory") and not isinstance(system, FleetRecorder):
+            release_memory(system, keep)
+        elif hasattr(system, "release_memory") and system is not keep:
             system.release_memory()
+
+
+def fly(diagram, end_time):
+    """Fly a fleet Diagram from t = 0 to end_time s; the wall time it took, s."""
+    simulator = Simulator(diagram)
+    start = time.perf_counter()
+    simulator.Initialize()
+    simulator.AdvanceTo(end_time)
+    return time.perf_counter() - start
 
 
 def run_fleet(scenario, seeds):
     """(times (samples,), {vehicle: {log name: (samples, N, width)}}, wall time s) of `scenario`
-    flown by the runs with seeds `seeds` (N,) for end_time s."""
+    flown by the runs with seeds `seeds` (N,) for end_time s, every exported signal kept (a
+    campaign never needs these logs: it summarises its batches while they fly,
+    ``fleet.streaming``)."""
     diagram, recorder = build_fleet_diagram(scenario, [int(s) for s in seeds])
-    simulator = Simulator(diagram)
-    start = time.perf_counter()
-    simulator.Initialize()
-    simulator.AdvanceTo(scenario.end_time)
-    wall_time = time.perf_counter() - start
-    _release_memory(diagram)
+    wall_time = fly(diagram, scenario.end_time)
+    release_memory(diagram, keep=recorder)
     recorded = recorder.release_memory()
     samples = recorder.recorded
     logs = {vehicle.name: {} for vehicle in scenario.vehicles}
