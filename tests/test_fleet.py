@@ -12,7 +12,7 @@ from quad_drake import catalog
 from quad_drake import conventions as c
 from quad_drake.campaigns import ProcessPoolRunner, run_campaign, table
 from quad_drake.config import FaultConfig
-from quad_drake.fleet.runner import MAX_BATCH, RUNNER, batches, default_batch_size, simulate_batch
+from quad_drake.fleet.runner import MAX_BATCH, RUNNER, batches, default_batch_size, fly_batch
 from quad_drake.fleet.simulation import run_fleet
 from quad_drake.fleet.systems import FleetSensorFaults
 from quad_drake.simulation import run, vehicle_log_widths
@@ -93,8 +93,8 @@ def records_key(records):
 
 def test_run_i_is_the_same_in_any_batch():
     scenario = catalog.load("03_position_control", None, ["end_time=1"])
-    whole = simulate_batch(batches(scenario, 5, 40, 5)[0])
-    split = [r for task in batches(scenario, 5, 40, 2) for r in simulate_batch(task)]
+    whole = fly_batch(batches(scenario, 5, 40, 5)[0])
+    split = [r for task in batches(scenario, 5, 40, 2) for r in fly_batch(task)]
     assert [t.seeds for t in batches(scenario, 5, 40, 2)] == [(40, 41), (42, 43), (44,)]
     assert records_key(whole) == records_key(split)
     # the motor noise differs between runs: the runs are not copies of each other

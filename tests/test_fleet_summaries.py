@@ -1,4 +1,4 @@
-"""A fleet batch's records, made while it flies (``fleet.runner.simulate_batch``: a
+"""A fleet batch's records, made while it flies (``fleet.runner.fly_batch``: a
 ``fleet.streaming.FleetSummarizer`` folds the signals chunk by chunk), against the per-run
 functions on each run's full logs (``fleet.simulation.run_fleet`` keeps them), record field by
 field; any chunk size gives the same records; the batched forms of the per-run functions
@@ -15,7 +15,7 @@ from quad_drake.campaigns.records import summarize_run
 from quad_drake.config import GpsParams, ImuParams, MagParams, SensorsConfig
 from quad_drake.estimation.vocabulary import vehicle_vocabulary
 from quad_drake.fleet.bounds import PcrbStream, posterior_crbs
-from quad_drake.fleet.runner import RUNNER, FleetBatch, batch_logs, simulate_batch
+from quad_drake.fleet.runner import RUNNER, FleetBatch, batch_logs, fly_batch
 from quad_drake.fleet.simulation import run_fleet
 from quad_drake.fleet.streaming import BatchSummary
 from quad_drake.results import result_from_logs
@@ -79,7 +79,7 @@ def test_streamed_batch_records_equal_the_per_run_functions(batch):
     expected = _per_run_records(scenario, times, logs, wall)
     if vehicle_vocabulary(scenario.vehicles[0]) is not None and scenario.name.startswith("11"):
         assert expected[0].nees and expected[0].pcrb and expected[0].nis  # the fields compared are filled
-    _same_records(simulate_batch(FleetBatch(scenario, 10, SEEDS)), expected)
+    _same_records(fly_batch(FleetBatch(scenario, 10, SEEDS)), expected)
 
 
 @pytest.mark.parametrize("chunk", [1, 7, 10_000])

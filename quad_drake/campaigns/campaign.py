@@ -5,7 +5,8 @@ Records are ordered by run index, so the statistics do not depend on the runner.
 is folded into the campaign's :class:`~.tally.ConsistencyTally` as it arrives and kept slim
 (``records.slim``: no per-sample series), so the memory does not grow with the series.
 With ``fleet_batch`` the runner's tasks are fleet batches (``quad_drake.fleet.runner``):
-B runs flown at once, each sending back its B records.
+B runs flown at once, each sending back its B slim records and their tally
+(``tally.FoldedRecords``).
 """
 
 import dataclasses
@@ -17,10 +18,10 @@ from tqdm import tqdm
 from ..config import ConfigError
 from ..simulation import available_signals
 from ..verdicts import check_criteria
-from .records import RunTask, simulate_run, slim
+from .records import RunTask, simulate_run
 from .runners import InProcessRunner, TaskFailed
 from .statistics import CampaignResult
-from .tally import ConsistencyTally
+from .tally import ConsistencyTally, fold_records
 
 
 class CampaignInterrupted(KeyboardInterrupt):
@@ -107,9 +108,10 @@ def run_campaign(scenario, runs, runner=None, seed=None, progress=True, fleet_ba
 
     try:
         for _, result in runner.map(worker, tasks):
-            for record in result if label else [result]:
-                tally += ConsistencyTally.of(record)
-                records[record.index] = slim(record)
+            folded = result if label else fold_records([result])
+            tally += folded.tally
+            for record in folded.records:
+                records[record.index] = record
                 bar.update(record)
     except TaskFailed as e:
         task = tasks[e.index]

@@ -16,6 +16,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .records import slim
+
 NEES = "NEES"
 """Name of the NEES statistic (its stamps are the log sample times)."""
 
@@ -74,3 +76,20 @@ class ConsistencyTally:
             one = StampSum(np.asarray(stamps, dtype=float), np.asarray(values, dtype=float), 1)
             tally = tally + cls({name: one})
         return tally
+
+
+@dataclass(frozen=True)
+class FoldedRecords:
+    """What a worker sends for several runs: their slim records (``records.slim``) and the
+    tally of their series, so the series never travel."""
+
+    records: list  # slim RunRecords
+    tally: ConsistencyTally
+
+
+def fold_records(records):
+    """FoldedRecords of full RunRecords."""
+    tally = ConsistencyTally()
+    for record in records:
+        tally += ConsistencyTally.of(record)
+    return FoldedRecords([slim(record) for record in records], tally)

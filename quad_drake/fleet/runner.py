@@ -11,6 +11,7 @@ a batch's memory is bounded by its size times a chunk of samples, not by its len
 import math
 from dataclasses import dataclass
 
+from quad_drake.campaigns.tally import fold_records
 from quad_drake.fleet.simulation import build_fleet_diagram, fly, release_memory
 from quad_drake.fleet.streaming import FleetSummarizer
 
@@ -53,9 +54,9 @@ def batch_logs(logs, j):
     }
 
 
-def simulate_batch(task):
-    """Worker entry point: fly a FleetBatch, summarised while it flies; the RunRecord of each
-    of its runs, by index."""
+def fly_batch(task):
+    """Fly a FleetBatch, summarised while it flies; the full RunRecord of each of its runs
+    (with its NEES and NIS series), by index."""
     diagram, summarizer = build_fleet_diagram(
         task.scenario,
         list(task.seeds),
@@ -66,3 +67,10 @@ def simulate_batch(task):
     records = summarizer.records(task.first_index, wall_time)
     summarizer.release_memory()
     return records
+
+
+def simulate_batch(task):
+    """Worker entry point: :func:`fly_batch`, sent back as slim records and the tally of their
+    series (``campaigns.tally.FoldedRecords``): a batch of 1000 runs of 11 sends about 2 MB,
+    not the 120 MB of its series."""
+    return fold_records(fly_batch(task))
