@@ -16,7 +16,7 @@ from quad_drake.campaigns import CampaignResult, InProcessRunner, Runner, RunRec
 from quad_drake.campaigns.output import rows
 from quad_drake.campaigns.records import campaign_vocabulary, slim
 from quad_drake.campaigns.statistics import MIN_IN_BAND
-from quad_drake.campaigns.tally import ConsistencyTally
+from quad_drake.campaigns.tally import ConsistencyTally, fold_records
 from quad_drake.config import GpsParams, ImuParams, MagParams, ScenarioConfig, SensorsConfig, VehicleConfig
 
 RTOL = 1e-12
@@ -248,3 +248,16 @@ def test_a_campaign_keeps_slim_records(flown):
         for f in dataclasses.fields(full):
             if f.name not in ("nees", "nis", "times", "nse", "nees_mean", "nis_mean"):
                 assert getattr(kept, f.name) == getattr(full, f.name), f.name
+
+
+def test_folded_batches_give_the_rows_and_the_slim_records(scenario):
+    """What a fleet worker sends (fold_records of its batch) merges into the campaign's rows."""
+    rng = np.random.default_rng(6)
+    records = synthetic_records(7, rng)
+    parts = [fold_records(records[:3]), fold_records(records[3:])]
+    merged = parts[1].tally + parts[0].tally
+    sent = parts[0].records + parts[1].records
+    assert [r.index for r in sent] == list(range(7))
+    for record, full in zip(sent, records, strict=True):
+        np.testing.assert_equal(dataclasses.asdict(record), dataclasses.asdict(slim(full)))  # NaN == NaN
+    assert_same_rows(campaign_of(scenario, records, merged).consistency, expected_rows(scenario, records))
