@@ -225,7 +225,7 @@ class FleetSummarizer(LeafSystem):
             port = self.DeclareVectorInputPort(f"{vehicle}.{name}", n * width)
             buffer = np.empty((chunk + 1, n, width))  # row 0: the sample before the chunk
             self._buffers.setdefault(vehicle, {})[name] = buffer
-            self._inputs.append((port.Eval, buffer, n, width))
+            self._inputs.append((port.EvalBasicVector, buffer, n, width))
             log_names.setdefault(vehicle, []).append(name)
         self.summary = BatchSummary(scenario, seeds, samples, log_names)
         self._samples, self._chunk = samples, chunk
@@ -238,8 +238,8 @@ class FleetSummarizer(LeafSystem):
             return
         self._last_k = k
         self._rows += 1
-        for evaluate, buffer, n, width in self._inputs:
-            buffer[self._rows] = evaluate(context).reshape(n, width)
+        for evaluate, buffer, n, width in self._inputs:  # a view of the port's value, copied once
+            buffer[self._rows] = evaluate(context).get_value().reshape(n, width)
         if self._rows == self._chunk:
             self._flush()
 
