@@ -1,10 +1,12 @@
-"""Fleet flight speed: CPU seconds per run of a scenario flown by ``fleet.simulation.run_fleet``.
+"""Fleet flight speed: CPU seconds per run of a scenario's fleet Diagram (``fleet.simulation``).
 
 Flies the scenario (default ``11_gps_update``, shortened to ``--seconds`` of simulated time) as
-fleets of each ``--sizes`` N, ``--repeats`` times each, and prints the CPU time
-(``time.process_time``, the figure that depends least on the machine's other load) per run of the
-full scenario length, per vehicle per 2 ms onboard tick, and the fit of CPU per tick = fixed +
-N x per-vehicle over the sizes (least squares). Flight only: no post-processing (``fleet.runner``).
+fleets of each ``--sizes`` N, ``--repeats`` times each (the best kept), and prints the CPU time
+(``time.process_time``, the figure that depends least on the machine's other load) of the flight
+(``fleet.simulation.fly``) per run of the full scenario length and per vehicle per 2 ms onboard
+tick, then the fit of CPU per tick = fixed + N x per-vehicle over the sizes (least squares).
+The Diagram's sink reads every exported signal at the 5 ms log samples, as a campaign's does, and
+keeps nothing: the figure is the flight, not the logs or their summaries (``fleet.streaming``).
 ``--profile N`` prints the cProfile top entries of one flight of N vehicles instead.
 
     python benchmarks/bench_fleet_flight.py [--scenario 11_gps_update] [--seconds 5] [--sizes 500 1000]
@@ -23,16 +25,34 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from pydrake.systems.framework import LeafSystem  # noqa: E402
+
 from quad_drake import catalog  # noqa: E402
-from quad_drake.conventions import ONBOARD_PERIOD  # noqa: E402
-from quad_drake.fleet.simulation import run_fleet  # noqa: E402
+from quad_drake.conventions import LOG_PERIOD, ONBOARD_PERIOD  # noqa: E402
+from quad_drake.fleet.simulation import build_fleet_diagram, fly, release_memory  # noqa: E402
+
+
+class ReadingSink(LeafSystem):
+    """Evaluates every input (N x width each) at t = k LOG_PERIOD and keeps nothing."""
+
+    def __init__(self, signals, n):
+        super().__init__()
+        self._evaluate = [self.DeclareVectorInputPort(f"{v}.{s}", n * w).Eval for (v, s), w in signals]
+        self.DeclarePeriodicPublishEvent(LOG_PERIOD, 0.0, self._read)
+
+    def _read(self, context):
+        for evaluate in self._evaluate:
+            evaluate(context)
 
 
 def flight_cpu(scenario, n):
-    """CPU s of flying `scenario` with N = n runs (seeds 0..n-1)."""
+    """CPU s of flying `scenario` with N = n runs (seeds 0..n-1), the Diagram's build excluded."""
+    diagram, _ = build_fleet_diagram(scenario, list(range(n)), lambda signals, _: ReadingSink(signals, n))
     start = time.process_time()
-    run_fleet(scenario, np.arange(n))
-    return time.process_time() - start
+    fly(diagram, scenario.end_time)
+    cpu = time.process_time() - start
+    release_memory(diagram)
+    return cpu
 
 
 def main():
@@ -49,7 +69,7 @@ def main():
     if args.profile is not None:
         profiler = cProfile.Profile()
         profiler.enable()
-        run_fleet(scenario, np.arange(args.profile))
+        flight_cpu(scenario, args.profile)
         profiler.disable()
         pstats.Stats(profiler).sort_stats("tottime").print_stats(25)
         return

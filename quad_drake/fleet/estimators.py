@@ -35,6 +35,7 @@ from quad_drake.estimation.complementary import VARIANTS
 from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, NIS_DOF
 from quad_drake.fidelity import PHYSICAL
 from quad_drake.fleet import estimation_kernels as kernels
+from quad_drake.fleet.systems import declare_state_output
 from quad_drake.rotations import quat_from_euler_tuple
 from quad_drake.systems.estimators import (
     _initial_book,
@@ -147,8 +148,8 @@ class FleetComplementaryFilter(LeafSystem):
         self._read_ekf_state = _reader(self.DeclareVectorInputPort("ekf_state", n * EKF_STATE_SIZE))
         attitude = self.DeclareDiscreteState(_tiled(initial_attitude, n))
         rate = self.DeclareDiscreteState(n * 3)
-        self.DeclareStateOutputPort("attitude", attitude)
-        self.DeclareStateOutputPort("body_rate", rate)
+        declare_state_output(self, "attitude", attitude, n * ATTITUDE_SIZE)
+        declare_state_output(self, "body_rate", rate, n * 3)
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, ATTITUDE_FILTER_OFFSET, self._update)
 
     def _update(self, context, discrete_state):
@@ -190,9 +191,9 @@ class FleetEkf(_FleetGatedFusion, LeafSystem):
             range(6),
         )
         self._read_attitude = _reader(self.DeclareVectorInputPort("attitude", n * ATTITUDE_SIZE))
-        self.DeclareStateOutputPort("ekf_state", x)
-        self.DeclareStateOutputPort("covariance", P)
-        self.DeclareStateOutputPort("diagnostics", diagnostics)
+        declare_state_output(self, "ekf_state", x, n * EKF_STATE_SIZE)
+        declare_state_output(self, "covariance", P, n * EKF_STATE_SIZE**2)
+        declare_state_output(self, "diagnostics", diagnostics, n * DIAGNOSTICS_SIZE)
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, EKF_OFFSET, self._update)
 
     def _update(self, context, discrete_state):
@@ -279,10 +280,10 @@ class FleetEskf(_FleetGatedFusion, LeafSystem):
             _tiled(np.concatenate([x0[0:3], x0[6:10], x0[3:6], np.zeros(3)]), n)
         )
         bias = self.DeclareDiscreteState(n * 6)
-        self.DeclareStateOutputPort("estimated_state", estimate)
-        self.DeclareStateOutputPort("covariance", P)
-        self.DeclareStateOutputPort("diagnostics", diagnostics)
-        self.DeclareStateOutputPort("imu_bias", bias)
+        declare_state_output(self, "estimated_state", estimate, n * STATE_SIZE)
+        declare_state_output(self, "covariance", P, n * P0.size)
+        declare_state_output(self, "diagnostics", diagnostics, n * DIAGNOSTICS_SIZE)
+        declare_state_output(self, "imu_bias", bias, n * 6)
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, EKF_OFFSET, self._update)
 
     def _update(self, context, discrete_state):
