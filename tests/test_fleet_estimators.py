@@ -99,7 +99,23 @@ def test_ekf7_predict_matches_the_scalar_step(reference_accelerometer):
         np.testing.assert_allclose(P_new[i], P_ref, **TOL)
 
 
-def test_ekf7_predict_tick_with_tilt_noise_matches_the_scalar_step():
+def _ekf7_tick(x, P, attitude, imu, gps, mag, diagnostics, book, Q, gains, R_mag, threshold=9.0):
+    """kernels.ekf7_tick with the scalar EKF's settings; (quiet, healthy)."""
+    healthy = np.empty(x.shape[0], dtype=bool)
+    quiet = kernels.ekf7_tick(
+        x, P, attitude, imu, gps, mag, diagnostics, book, DT, Q, gains, kernels.gravity_z(False),
+        R_mag[0, 0], threshold, healthy,
+    )  # fmt: skip
+    return quiet, healthy
+
+
+def _never_sampled(width, count=N):
+    samples = np.zeros((count, width))
+    samples[:, -1] = NO_SAMPLE_STAMP
+    return samples
+
+
+def test_ekf7_tick_with_tilt_noise_matches_the_scalar_step():
     rng = np.random.default_rng(13)
     params = EkfParams(tilt_gyro_std=0.5)
     tilt = ekf.TiltNoise.from_params(params, AttitudeFilterParams(), DT)
@@ -107,9 +123,11 @@ def test_ekf7_predict_tick_with_tilt_noise_matches_the_scalar_step():
     x, P = rng.normal(size=(N, 7)), random_covariances(rng, 7)
     attitude, imu = random_attitudes(rng), np.column_stack([specific_forces(rng), gyro_samples(rng)])
     x_ref, P_ref = x.copy(), P.copy()
-    kernels.ekf7_predict_tick(
-        x, P, attitude, imu, np.zeros((N, DIAGNOSTICS_SIZE)), DT, Q, tilt_gains=tilt.gains(t)
-    )
+    quiet, healthy = _ekf7_tick(
+        x, P, attitude, imu, _never_sampled(7), _never_sampled(2), np.zeros((N, DIAGNOSTICS_SIZE)),
+        np.zeros((N, 3)), Q, tilt.gains(t), ekf.mag_noise(params),
+    )  # fmt: skip
+    assert quiet and healthy.all()
     G = ekf.predict_jacobian(np.zeros(7), 0.0, 0.0, (0.0, 0.0, 0.0), DT)
     for i in range(N):
         Q_i = tilt.process_noise(t, Q, attitude[i], imu[i, 0:3], imu[i, 3:6])
@@ -117,6 +135,61 @@ def test_ekf7_predict_tick_with_tilt_noise_matches_the_scalar_step():
         np.testing.assert_allclose(x[i], x_i, **TOL)
         np.testing.assert_allclose(P[i], P_i, **TOL)
         assert not np.array_equal(Q_i, Q)
+
+
+def test_ekf7_tick_fuses_the_magnetometer_only_on_a_quiet_tick():
+    """Quiet (no fresh GPS, P healthy): the prediction then :func:`ekf7_mag_tick`; a fresh GPS
+    sample (or an unhealthy P) leaves the mag step, the repair and the GPS to the caller."""
+    rng = np.random.default_rng(16)
+    params = EkfParams()
+    Q, R_mag = ekf.process_noise(params), ekf.mag_noise(params)
+    x, P = rng.normal(size=(N, 7)), random_covariances(rng, 7, scale=0.1)
+    attitude, imu = random_attitudes(rng), np.column_stack([specific_forces(rng), gyro_samples(rng)])
+    mag = np.column_stack([x[:, 6] + rng.normal(scale=0.3, size=N), np.full(N, 0.01)])
+    mag[::3, 1] = NO_SAMPLE_STAMP  # a third without a sample
+    gps = _never_sampled(7)
+
+    def tick(gps, P_start=P):
+        x_new, P_new = x.copy(), P_start.copy()
+        diagnostics, book = np.zeros((N, DIAGNOSTICS_SIZE)), np.zeros((N, 3))
+        quiet, healthy = _ekf7_tick(
+            x_new, P_new, attitude, imu, gps, mag, diagnostics, book, Q, kernels.NO_TILT, R_mag
+        )
+        return quiet, healthy, x_new, P_new, diagnostics, book
+
+    quiet, healthy, x_new, P_new, diagnostics, book = tick(gps)
+    x_ref, P_ref = x.copy(), P.copy()
+    diagnostics_ref, book_ref = np.zeros((N, DIAGNOSTICS_SIZE)), np.zeros((N, 3))
+    _ekf7_tick(
+        x_ref,
+        P_ref,
+        attitude,
+        imu,
+        gps,
+        _never_sampled(2),
+        diagnostics_ref,
+        book_ref,
+        Q,
+        kernels.NO_TILT,
+        R_mag,
+    )
+    kernels.ekf7_mag_tick(x_ref, P_ref, mag, diagnostics_ref, book_ref, R_mag, 9.0)
+    assert quiet and healthy.all()
+    np.testing.assert_array_equal(x_new, x_ref)
+    np.testing.assert_array_equal(P_new, P_ref)
+    np.testing.assert_array_equal(diagnostics, diagnostics_ref)
+    np.testing.assert_array_equal(book, book_ref)
+    assert (book[:, kernels.MAG_SLOT] == 0.01).sum() == N - len(range(0, N, 3))
+    assert diagnostics[:, DIAG["mag_gated"]].sum() > 0  # the gate was exercised
+
+    gps[5] = [0.0] * 6 + [0.1]  # one fresh GPS sample
+    unhealthy = P.copy()
+    unhealthy[7, 2, 2] = -1.0
+    for gps_case, P_case, flagged in ((gps, P, None), (_never_sampled(7), unhealthy, 7)):
+        quiet, healthy, x_new, P_new, diagnostics, book = tick(gps_case, P_case)
+        assert not quiet
+        assert healthy.tolist() == [i != flagged for i in range(N)]
+        assert (book == 0.0).all() and not diagnostics[:, DIAG["mag_gated"]].any()  # no mag step
 
 
 def _check_update(batched, scalar, x, P, z, R):
@@ -181,6 +254,13 @@ def test_covariance_health_matches_the_scalar_checks(n):
     healthy = kernels.covariance_looks_healthy(P)
     assert healthy.tolist() == [gating.covariance_looks_healthy(P[i]) for i in range(N)]
     assert not healthy[1:4].any() and healthy[4:].all()
+    large = P[4:7].copy()
+    large[0, 0, 1] = large[0, 1, 0] = 1e308  # finite entries, an infinite sum
+    large[1, 0, 1] = large[1, 1, 0] = 1e301  # large finite entries, a finite sum
+    large[2, 1, 2] = -math.inf
+    with np.errstate(over="ignore"):
+        expected = [gating.covariance_looks_healthy(P_i) for P_i in large]
+    assert kernels.covariance_looks_healthy(large).tolist() == expected == [False, True, False]
     fallback = np.diag(rng.uniform(0.1, 1.0, n))
     P_new, outcomes = kernels.repaired_covariance(P, fallback)
     for i in range(N):

@@ -247,7 +247,7 @@ _tilt_noise_factors = compiled(
     ekf.tilt_noise_factors,
     tilt_jacobian=compiled(ekf.tilt_jacobian, _yaw_free_rotation=compiled(ekf._yaw_free_rotation)),
 )
-_NO_TILT = np.zeros(2)
+NO_TILT = (0.0, 0.0)
 """Tilt gains (velocity, yaw) that switch the tilt-aware Q off."""
 
 
@@ -313,10 +313,27 @@ def _ekf7_predict_rows(x, P, attitude, f_B, dt, Q, gravity_z):
 
 
 @_jit
-def _ekf7_tick(x, P, attitude, imu, diagnostics, dt, Q, tilt_gains, gravity_z):
+def ekf7_tick(
+    x, P, attitude, imu, gps, mag, diagnostics, book, dt, Q, tilt_gains, gravity_z, r_mag, threshold, healthy
+):
+    """The prediction and, on a quiet tick, the magnetometer step of one EKF7 tick IN PLACE
+    (``systems.estimators.Ekf``), compiled as one call; True when the tick was quiet.
+
+    Prediction: a vehicle whose IMU sample imu (N, 6) or attitude (N, 3) rad has a non-finite
+    entry is not predicted and counts a non-finite sample in diagnostics (N, DIAGNOSTICS_SIZE);
+    the others take :func:`ekf7_predict_with_yaw` with f_B = imu[:, 0:3], Q (7, 7) and, with
+    tilt_gains = ``ekf.TiltNoise.gains`` (velocity, yaw) of this tick ((0.0, 0.0): off), the
+    tilt-aware block of their attitude and IMU sample (``ekf.TiltNoise.process_noise``);
+    gravity_z = :func:`gravity_z`. healthy (N,) bool: written with :func:`covariance_looks_healthy`
+    of the new P. A quiet tick is one where every P looks healthy and no vehicle has a fresh GPS
+    sample (gps (N, 7), stamp against book[:, GPS_SLOT], :func:`fresh`): then nothing is repaired
+    or fused from the GPS, and the tick ends here with :func:`ekf7_mag_tick` (mag (N, 2), r_mag =
+    R_mag[0, 0] rad^2, threshold its gate). Otherwise the caller runs the repair, the mag step and
+    the GPS fusion (``estimators._FleetGatedFusion._fuse_fresh``).
+    """
     GP, M = np.empty((7, 7)), np.empty((7, 7))
-    healthy = np.empty(x.shape[0], dtype=np.bool_)
     w_B = imu[:, 3:6]
+    quiet = True
     for i in range(x.shape[0]):
         if _row_finite(attitude, i, _row_sum(imu, i)):
             _ekf7_predict_row(x, P, x, P, i, attitude, imu, dt, Q, gravity_z, GP, M)
@@ -325,7 +342,12 @@ def _ekf7_tick(x, P, attitude, imu, diagnostics, dt, Q, tilt_gains, gravity_z):
         else:
             diagnostics[i, _NONFINITE] += 1.0
         healthy[i] = _row_healthy(P, i)
-    return healthy
+        stamp = gps[i, 6]
+        if not healthy[i] or (stamp != book[i, GPS_SLOT] and stamp != NO_SAMPLE_STAMP):
+            quiet = False
+    if quiet:
+        _ekf7_mag_tick(x, P, mag, diagnostics, book, r_mag, threshold)
+    return quiet
 
 
 def ekf7_predict_with_yaw(x, P, attitude, f_B, dt, Q, reference_accelerometer=False):
@@ -333,28 +355,12 @@ def ekf7_predict_with_yaw(x, P, attitude, f_B, dt, Q, reference_accelerometer=Fa
 
     x (N, 7); P (N, 7, 7); attitude (N, 3) roll, pitch, yaw rad; f_B (N, 3); Q (7, 7).
     """
-    return _ekf7_predict_rows(x, P, attitude, f_B, float(dt), Q, _gravity_z(reference_accelerometer))
+    return _ekf7_predict_rows(x, P, attitude, f_B, float(dt), Q, gravity_z(reference_accelerometer))
 
 
-def ekf7_predict_tick(
-    x, P, attitude, imu, diagnostics, dt, Q, reference_accelerometer=False, tilt_gains=None
-):
-    """The prediction of one EKF7 tick IN PLACE on x (N, 7) and P (N, 7, 7) (``systems.estimators.Ekf``).
-
-    A vehicle whose IMU sample (N, 6) or attitude (N, 3) has a non-finite entry is not predicted
-    and counts a non-finite sample in diagnostics (N, DIAGNOSTICS_SIZE); the others take
-    :func:`ekf7_predict_with_yaw` with f_B = imu[:, 0:3] and Q plus, with tilt_gains =
-    ``ekf.TiltNoise.gains`` (velocity, yaw) of this tick, the tilt-aware block of their attitude
-    and IMU sample (``ekf.TiltNoise.process_noise``). Returns :func:`covariance_looks_healthy`
-    of the new P.
-    """
-    gains = _NO_TILT if tilt_gains is None else np.asarray(tilt_gains, dtype=float)
-    return _ekf7_tick(
-        x, P, attitude, imu, diagnostics, float(dt), Q, gains, _gravity_z(reference_accelerometer)
-    )
-
-
-def _gravity_z(reference_accelerometer):
+def gravity_z(reference_accelerometer):
+    """g_N z, m/s^2, as the EKF7 predicts with it: +GRAVITY (NED, the physical accelerometer), or
+    -GRAVITY for the reference accelerometer's sign convention (``fidelity``)."""
     return -GRAVITY if reference_accelerometer else GRAVITY
 
 
@@ -580,13 +586,25 @@ def reset_states(x, P, indices, values, covariance):
     return x, P
 
 
+_BOUNDED = 1e300
+"""Entries below this magnitude sum to a finite value in any order (a P has at most 225)."""
+
+
 @_jit
 def _row_healthy(P, i):
-    """gating.covariance_looks_healthy of P[i]."""
-    total = 0.0
+    """gating.covariance_looks_healthy of P[i]: entries all below _BOUNDED in magnitude (tested
+    without the sum's chain of dependent additions) have a finite sum; otherwise the sum in
+    row-major order decides."""
+    bounded = True
     variances_ok = True
     for a in range(P.shape[1]):
         variances_ok = variances_ok and P[i, a, a] >= 0.0
+        for b in range(P.shape[2]):
+            bounded = bounded & (abs(P[i, a, b]) < _BOUNDED)
+    if bounded:
+        return variances_ok
+    total = 0.0
+    for a in range(P.shape[1]):
         for b in range(P.shape[2]):
             total += P[i, a, b]
     return math.isfinite(total) and variances_ok

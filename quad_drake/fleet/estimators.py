@@ -176,7 +176,7 @@ class FleetEkf(_FleetGatedFusion, LeafSystem):
 
     def __init__(self, params, n, fidelity=PHYSICAL, tilt=None):
         super().__init__()
-        self._reference_accelerometer = fidelity.reference_accelerometer
+        self._gravity_z = kernels.gravity_z(fidelity.reference_accelerometer)
         self._Q = ekf.process_noise(params)
         self._tilt = tilt
         self._R_gps = ekf.gps_noise(params)
@@ -190,6 +190,7 @@ class FleetEkf(_FleetGatedFusion, LeafSystem):
             params.gps_reset_timeout,
             range(6),
         )
+        self._healthy = np.empty(n, dtype=bool)  # scratch of each tick's health check
         self._read_attitude = _reader(self.DeclareVectorInputPort("attitude", n * ATTITUDE_SIZE))
         declare_state_output(self, "ekf_state", x, n * EKF_STATE_SIZE)
         declare_state_output(self, "covariance", P, n * EKF_STATE_SIZE**2)
@@ -198,24 +199,38 @@ class FleetEkf(_FleetGatedFusion, LeafSystem):
 
     def _update(self, context, discrete_state):
         n = self._n
-        imu = self._read_imu(context).reshape(n, IMU_SIZE)
-        attitude = self._read_attitude(context).reshape(n, ATTITUDE_SIZE)
         x, P, diagnostics, book = self._views(discrete_state, EKF_STATE_SIZE)
-        gains = None if self._tilt is None else self._tilt.gains(context.get_time())
-        healthy = kernels.ekf7_predict_tick(
-            x, P, attitude, imu, diagnostics, ONBOARD_PERIOD, self._Q, self._reference_accelerometer, gains
-        )
-        self._fuse_fresh(
+        gps = self._read_gps(context).reshape(n, GPS_SIZE)
+        mag = self._read_mag(context).reshape(n, MAG_SIZE)
+        quiet = kernels.ekf7_tick(
             x,
             P,
+            self._read_attitude(context).reshape(n, ATTITUDE_SIZE),
+            self._read_imu(context).reshape(n, IMU_SIZE),
+            gps,
+            mag,
             diagnostics,
             book,
-            self._read_gps(context).reshape(n, GPS_SIZE),
-            self._read_mag(context).reshape(n, MAG_SIZE),
-            healthy,
-            kernels.ekf7_gps_update,
-            kernels.ekf7_mag_tick,
+            ONBOARD_PERIOD,
+            self._Q,
+            kernels.NO_TILT if self._tilt is None else self._tilt.gains(context.get_time()),
+            self._gravity_z,
+            self._R_mag[0, 0],
+            self._mag_threshold,
+            self._healthy,
         )
+        if not quiet:  # a fresh GPS sample or an unhealthy P somewhere: the full step
+            self._fuse_fresh(
+                x,
+                P,
+                diagnostics,
+                book,
+                gps,
+                mag,
+                self._healthy,
+                kernels.ekf7_gps_update,
+                kernels.ekf7_mag_tick,
+            )
 
 
 class FleetEstimatedStateAssembler(LeafSystem):
