@@ -586,25 +586,13 @@ def reset_states(x, P, indices, values, covariance):
     return x, P
 
 
-_BOUNDED = 1e300
-"""Entries below this magnitude sum to a finite value in any order (a P has at most 225)."""
-
-
 @_jit
 def _row_healthy(P, i):
-    """gating.covariance_looks_healthy of P[i]: entries all below _BOUNDED in magnitude (tested
-    without the sum's chain of dependent additions) have a finite sum; otherwise the sum in
-    row-major order decides."""
-    bounded = True
+    """gating.covariance_looks_healthy of P[i]."""
+    total = 0.0
     variances_ok = True
     for a in range(P.shape[1]):
         variances_ok = variances_ok and P[i, a, a] >= 0.0
-        for b in range(P.shape[2]):
-            bounded = bounded & (abs(P[i, a, b]) < _BOUNDED)
-    if bounded:
-        return variances_ok
-    total = 0.0
-    for a in range(P.shape[1]):
         for b in range(P.shape[2]):
             total += P[i, a, b]
     return math.isfinite(total) and variances_ok
