@@ -5,7 +5,7 @@ Usage: python benchmarks/bench_fleet_summaries.py [--scenario 11_gps_update] [--
 In CPU time of this process (``time.process_time``), after a 2-run warm-up that loads numba's
 cached kernels: the flight with full logs (``fleet.simulation.run_fleet``), the same batch
 flown and summarised while it flies (``fleet.runner.simulate_batch``), and the summaries
-alone (``fleet.streaming.BatchSummary`` fed the full logs chunk by chunk), with the peak
+alone (``fleet.summaries.summarize_logs``: a BatchSummary fed the full logs chunk by chunk), with the peak
 resident memory of the process.
 """
 
@@ -16,22 +16,13 @@ import time
 from quad_drake import catalog
 from quad_drake.fleet.runner import FleetBatch, simulate_batch
 from quad_drake.fleet.simulation import run_fleet
-from quad_drake.fleet.streaming import CHUNK_SAMPLES, BatchSummary
+from quad_drake.fleet.summaries import summarize_logs
 
 
 def _cpu(function, *args):
     start = time.process_time()
     result = function(*args)
     return time.process_time() - start, result
-
-
-def _summarize(scenario, seeds, times, logs):
-    summary = BatchSummary(scenario, seeds, times.size, {v: list(x) for v, x in logs.items()})
-    for start in range(0, times.size, CHUNK_SAMPLES):
-        first = max(start - 1, 0)
-        chunk = {v: {n: x[first : start + CHUNK_SAMPLES] for n, x in vl.items()} for v, vl in logs.items()}
-        summary.update(chunk, start > 0)
-    return summary.records(0, 0.0)
 
 
 def main():
@@ -45,7 +36,7 @@ def main():
     streamed, _ = _cpu(simulate_batch, FleetBatch(scenario, 0, seeds))
     streamed_rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     flight, (times, logs, _) = _cpu(run_fleet, scenario, seeds)
-    summaries, _ = _cpu(_summarize, scenario, seeds, times, logs)
+    summaries, _ = _cpu(lambda: summarize_logs(scenario, seeds, logs).records(0, 0.0))
     per_run = 1e3 / args.runs
     print(f"{args.scenario}, {args.runs} runs of {scenario.end_time:g} s (CPU ms per run):")
     print(f"  streamed batch (flight + summaries) {streamed * per_run:.1f}, peak RSS {streamed_rss:.0f} MiB")

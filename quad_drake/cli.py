@@ -230,7 +230,7 @@ def _campaign_runner(args):
     return InProcessRunner() if args.jobs == 1 else ProcessPoolRunner(args.jobs)
 
 
-def _fleet_batch(args):
+def _fleet_batch(args, scenario):
     """Runs per fleet batch of ``--fleet [--batch B]`` (None without --fleet)."""
     if args.batch is not None and not args.fleet:
         raise ConfigError("montecarlo: --batch needs --fleet")
@@ -240,7 +240,7 @@ def _fleet_batch(args):
         return args.batch
     from .fleet.runner import default_batch_size
 
-    return default_batch_size(args.runs, 1 if args.scheduler else args.jobs)
+    return default_batch_size(scenario, args.runs, 1 if args.scheduler else args.jobs)
 
 
 def cmd_montecarlo(args):
@@ -262,7 +262,7 @@ def cmd_montecarlo(args):
             args.runs,
             runner=_campaign_runner(args),
             progress=not args.quiet,
-            fleet_batch=_fleet_batch(args),
+            fleet_batch=_fleet_batch(args, scenario),
         )
     except campaigns.CampaignInterrupted as interrupted:
         partial = interrupted.campaign

@@ -168,7 +168,7 @@ class WindowFold(_Fold):
         last_above = np.maximum(np.maximum.accumulate(marks, axis=0), self.last_above)
         stretch = column - last_above
         self.longest = np.maximum(self.longest, np.where(fresh, stretch, -np.inf).max(axis=0))
-        self.last_above = last_above[-1]
+        self.last_above = last_above[-1].copy()  # not a view that would keep the chunk's arrays
         self.last_time = np.where(fresh.any(axis=0), times[_last_index(fresh)], self.last_time)
         self.samples += fresh.sum(axis=0)
         return {"last_above": last_above, "stretch": stretch}
@@ -296,7 +296,7 @@ class SigmaFold(_Fold):
         last, seen = _last_index(fresh), fresh.any(axis=0)
         self.percent = np.where(seen, _at(percent, last), self.percent)
         self.last_time = np.where(seen, times[last], self.last_time)
-        self.inside, self.counted = within[-1], counted[-1]
+        self.inside, self.counted = within[-1].copy(), counted[-1].copy()
         return {"percent": percent}
 
     def series(self, times, per_sample, fresh, **_):

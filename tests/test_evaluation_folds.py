@@ -24,9 +24,9 @@ TIMES = 0.005 * np.arange(1, SAMPLES + 1)
 
 
 def _splits(rng):
-    """Chunk boundaries: one whole chunk, single samples at the start, and random cuts."""
+    """Chunk boundaries: one whole chunk, single samples at the start, empty chunks, random cuts."""
     cuts = np.sort(rng.choice(np.arange(1, SAMPLES), size=9, replace=False))
-    return [[0, SAMPLES], [0, 1, 2, 3, SAMPLES], [0, *cuts.tolist(), SAMPLES]]
+    return [[0, SAMPLES], [0, 1, 2, 3, SAMPLES], [0, 0, 5, 5, SAMPLES], [0, *cuts.tolist(), SAMPLES]]
 
 
 def _signals(rng):

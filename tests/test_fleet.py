@@ -12,10 +12,11 @@ from quad_drake import catalog
 from quad_drake import conventions as c
 from quad_drake.campaigns import ProcessPoolRunner, run_campaign, table
 from quad_drake.config import FaultConfig
-from quad_drake.fleet.runner import MAX_BATCH, RUNNER, batches, default_batch_size, fly_batch
+from quad_drake.fleet.runner import BATCH_MEMORY, MAX_BATCH, batches, default_batch_size, fly_batch
 from quad_drake.fleet.simulation import run_fleet
+from quad_drake.fleet.summaries import summary_bytes
 from quad_drake.fleet.systems import FleetSensorFaults
-from quad_drake.simulation import run, vehicle_log_widths
+from quad_drake.simulation import run
 from quad_drake.systems.faults import SensorFaults
 
 
@@ -124,16 +125,6 @@ def test_fleet_campaign_outputs(quad_drake_cli, out_dir):
     assert (folder / "report.html").is_file() and (folder / "table.txt").read_text() in result.stdout
 
 
-def test_fleet_run_summaries_name_their_runner():
-    scenario = catalog.load("01_intro", None, ["end_time=0.2"])
-    times, logs, wall = run_fleet(scenario, [1])
-    from quad_drake.fleet.runner import batch_logs
-    from quad_drake.results import result_from_logs
-
-    result = result_from_logs(scenario, times, batch_logs(logs, 0), wall, RUNNER)
-    assert result.summary()["runner"] == "drake-fleet"
-
-
 def test_bad_fleet_arguments_are_one_line_errors(quad_drake_cli, out_dir):
     no_fleet = quad_drake_cli("montecarlo", "01_intro", "--runs", "2", "--batch", "2", "--out", out_dir)
     assert no_fleet.returncode == 2 and no_fleet.stderr.strip().count("\n") == 0
@@ -145,28 +136,32 @@ def test_bad_fleet_arguments_are_one_line_errors(quad_drake_cli, out_dir):
     assert not out_dir.exists()
 
 
-def test_default_batch_is_max_batch_split_over_the_jobs():
-    assert default_batch_size(10_000) == MAX_BATCH
-    assert default_batch_size(10, jobs=2) == 5
-    assert default_batch_size(1, jobs=4) == 1
+def test_default_batch_is_bounded_by_memory_and_split_over_the_jobs():
+    eleven = catalog.load("11_gps_update", None, [])
+    assert default_batch_size(eleven, 10_000) == MAX_BATCH  # 0.27 GiB of summaries
+    assert default_batch_size(eleven, 10, jobs=2) == 5
+    long = catalog.load("11_gps_update", None, ["end_time=600"])
+    size = default_batch_size(long, 10_000)
+    assert 1 <= size < MAX_BATCH
+    assert summary_bytes(long, size) <= BATCH_MEMORY < summary_bytes(long, size + 1)
 
 
-def test_a_batch_summarizer_holds_a_chunk_of_logs_whatever_the_flight_length():
-    """The streamed batch keeps CHUNK_SAMPLES (+1) samples of its logs, not the flight's."""
-    from quad_drake.fleet.simulation import build_fleet_diagram
-    from quad_drake.fleet.streaming import CHUNK_SAMPLES, FleetSummarizer
+def test_summary_bytes_counts_what_a_batch_holds():
+    """The estimate against the arrays a BatchSummary and its FleetSummarizer keep after a flight."""
+    from quad_drake.fleet.simulation import build_fleet_diagram, fly
+    from quad_drake.fleet.streaming import FleetSummarizer
 
-    held = {}
-    for end_time in (2.5, 25.0):
-        scenario = catalog.load("11_gps_update", None, [f"end_time={end_time}"])
-        _, summarizer = build_fleet_diagram(
-            scenario,
-            [1, 2, 3],
-            lambda signals, samples, s=scenario: FleetSummarizer(s, (1, 2, 3), signals, samples),
-        )
-        held[end_time] = summarizer.buffer_bytes
-    width = sum(vehicle_log_widths(scenario.vehicles[0]).values())
-    assert held[2.5] == held[25.0] == (CHUNK_SAMPLES + 1) * 3 * width * 8
+    scenario = catalog.load("11_gps_update", None, ["end_time=2.3"])
+    seeds = (1, 2, 3)
+    diagram, summarizer = build_fleet_diagram(
+        scenario, list(seeds), lambda signals, samples: FleetSummarizer(scenario, seeds, signals, samples)
+    )
+    fly(diagram, scenario.end_time)
+    records = summarizer.records(0, 0.0)
+    held = sum(b.nbytes for logs in summarizer._buffers.values() for b in logs.values())
+    held += sum(r.nees["Quad"].nbytes for r in records)
+    held += sum(stamps.nbytes + nis.nbytes for r in records for stamps, nis in r.nis.values())
+    assert 0.95 * summary_bytes(scenario, 3) <= held <= summary_bytes(scenario, 3)
 
 
 def test_fleet_gps_delay_queue_matches_the_scalar_sensor_faults_tick_by_tick():

@@ -66,6 +66,28 @@ class Progress:
             self.bar.close()
 
 
+class _OrderedTally:
+    """The campaign's ConsistencyTally, its tasks' tallies added in task order whatever order
+    they finish in (a tally that arrives early waits), so its sums, and the statistics, are
+    the same on every runner to the last bit."""
+
+    def __init__(self):
+        self._sum, self._waiting, self._next = ConsistencyTally(), {}, 0
+
+    def add(self, index, tally):
+        self._waiting[index] = tally
+        while self._next in self._waiting:
+            self._sum += self._waiting.pop(self._next)
+            self._next += 1
+
+    def total(self):
+        """The tally of every task added so far (the waiting ones in task order)."""
+        total = self._sum
+        for index in sorted(self._waiting):
+            total += self._waiting[index]
+        return total
+
+
 def _fleet_tasks(scenario, runs, first, batch):
     """(tasks, worker function, runner label) of a fleet campaign of `batch` runs per task."""
     from ..fleet.runner import batches, simulate_batch
@@ -96,20 +118,20 @@ def run_campaign(scenario, runs, runner=None, seed=None, progress=True, fleet_ba
     else:
         tasks, worker, label = _fleet_tasks(scenario, runs, first, fleet_batch)
     runner_name = runner.name if label is None else f"{label} on {runner.name}"
-    records, tally = {}, ConsistencyTally()
+    records, tally = {}, _OrderedTally()
     bar = Progress(scenario.name, runs, progress)
     start = time.perf_counter()
 
     def campaign():
         ordered = [records[i] for i in sorted(records)]
         return CampaignResult(
-            scenario, ordered, tally, time.perf_counter() - start, runner_name, planned=runs
+            scenario, ordered, tally.total(), time.perf_counter() - start, runner_name, planned=runs
         )
 
     try:
-        for _, result in runner.map(worker, tasks):
+        for index, result in runner.map(worker, tasks):
             folded = result if label else fold_records([result])
-            tally += folded.tally
+            tally.add(index, folded.tally)
             for record in folded.records:
                 records[record.index] = record
                 bar.update(record)

@@ -52,6 +52,11 @@ def settle_time(end_time):
     return min(SETTLE_TIME, end_time / 2)
 
 
+def settled_mask(times, end_time):
+    """True at the log samples (times, s) ``rms_settled`` and the PCRB average use."""
+    return np.asarray(times) >= settle_time(end_time) - 1e-9
+
+
 @dataclass
 class RunRecord:
     """What one run sends back: verdicts, metrics and the per-sample consistency series.
@@ -105,8 +110,7 @@ def vehicle_errors(signals, vehicle, vocabulary):
 
 
 def consistency_series(vocabulary, logs, errors):
-    """(NEES (n,), time mean (k,) of e_i^2 / P_ii) of a vehicle's logs and errors; of a fleet
-    batch's (n, N, width) logs and (n, N, k) errors: ((n, N), (N, k))."""
+    """(NEES (n,), time mean (k,) of e_i^2 / P_ii) of a vehicle's logs (n, width) and errors (n, k)."""
     covariances = cons.covariance_matrices(logs["covariance"])
     nse = np.mean(cons.normalized_squared_errors(errors, covariances), axis=0)
     return cons.nees_of(vocabulary, logs, errors), nse
@@ -147,7 +151,7 @@ def summarize_run(result, index):
     """RunRecord of a SimulationResult (pure: reads its logs, signals and verdicts). A fleet
     batch makes the same records while it flies (``fleet.streaming``)."""
     metrics, nees, nse, nis, counters, pcrb = {}, {}, {}, {}, {}, {}
-    settled = result.times >= settle_time(result.scenario.end_time) - 1e-9
+    settled = settled_mask(result.times, result.scenario.end_time)
     configs = {v.name: v for v in result.scenario.vehicles}
     for vehicle, logs in result.logs.items():
         vocabulary = vehicle_vocabulary(configs[vehicle])

@@ -4,8 +4,9 @@ A :class:`FleetBatch` is a task like ``campaigns.records.RunTask``, for any camp
 Runner (in-process, process pool, Dask): its worker flies the batch's runs as one fleet
 whose sink, a ``fleet.streaming.FleetSummarizer``, folds the exported signals into each
 run's record while it flies, with the per-vehicle path's rules (signals, verdicts, errors,
-NEES/NIS, counters, PCRB). Only the records leave the worker; no full log is ever kept, so
-a batch's memory is bounded by its size times a chunk of samples, not by its length.
+NEES/NIS, counters, PCRB). No full log is ever kept: a batch holds a chunk of its logs and a
+few numbers per sample and run (``fleet.summaries.summary_bytes``), and only slim records and
+the tally of their series leave the worker.
 """
 
 import math
@@ -14,11 +15,13 @@ from dataclasses import dataclass
 from quad_drake.campaigns.tally import fold_records
 from quad_drake.fleet.simulation import build_fleet_diagram, fly, release_memory
 from quad_drake.fleet.streaming import FleetSummarizer
+from quad_drake.fleet.summaries import summary_bytes
 
-RUNNER = "drake-fleet"
-"""What produced a fleet run (a run summary's ``runner``), as ``results.RUNNER`` for the per-vehicle path."""
 MAX_BATCH = 1000
 """Runs of a default batch at most (beyond it a tick's cost no longer falls per vehicle)."""
+BATCH_MEMORY = 1 << 29
+"""Bytes a default batch's summaries may hold (512 MiB, ``fleet.summaries.summary_bytes``): 1000
+runs of 11 hold 0.27 GiB; a batch of 11 flown for 600 s is cut to 241 runs."""
 
 
 @dataclass(frozen=True)
@@ -30,10 +33,11 @@ class FleetBatch:
     seeds: tuple
 
 
-def default_batch_size(runs, jobs=1):
-    """Runs per batch: MAX_BATCH, split evenly over `jobs` workers when the campaign is
-    smaller than jobs full batches."""
-    return max(1, min(MAX_BATCH, math.ceil(runs / jobs)))
+def default_batch_size(scenario, runs, jobs=1):
+    """Runs per batch: as many as MAX_BATCH and BATCH_MEMORY allow, split evenly over `jobs`
+    workers when the campaign is smaller than jobs full batches."""
+    size = max(1, min(MAX_BATCH, BATCH_MEMORY // max(1, summary_bytes(scenario, 1))))
+    return max(1, min(size, math.ceil(runs / jobs)))
 
 
 def batches(scenario, runs, first_seed, batch_size):
@@ -59,7 +63,7 @@ def fly_batch(task):
     (with its NEES and NIS series), by index."""
     diagram, summarizer = build_fleet_diagram(
         task.scenario,
-        list(task.seeds),
+        [int(seed) for seed in task.seeds],
         lambda signals, samples: FleetSummarizer(task.scenario, task.seeds, signals, samples),
     )
     wall_time = fly(diagram, task.scenario.end_time)

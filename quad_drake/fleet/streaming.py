@@ -1,212 +1,16 @@
-"""A fleet batch summarised while it flies: its runs' records without their full logs.
+"""A fleet batch summarised while it flies: the Drake sink of a campaign's fleet Diagram.
 
-A :class:`FleetSummarizer` takes the place of the recorder in a campaign's fleet Diagram. It
-keeps the exported signals of the last :data:`CHUNK_SAMPLES` log samples (and the one before
-them) and, each time the chunk fills, hands it to a :class:`BatchSummary`, which folds it
-into what each run's :class:`~quad_drake.campaigns.records.RunRecord` needs, with the
-per-vehicle path's own rules:
-
-- the named signals (``results.signals_from_logs`` on the chunk and its previous sample, so
-  a sensor's freshness is judged against the sample before, as on a whole log);
-- the verdicts (``verdicts.CriteriaStream``: the analyzers' folds);
-- the RMS / max errors (sums of squares and maxima per run), the NEES per sample and the
-  time means of e^2/P (``consistency``), the fresh NIS values, the estimator's counters (its
-  last sample) and the posterior CRB (``fleet.bounds.PcrbStream``, its covariance carried).
-
-What a batch holds is then bounded by the chunk (samples x N x log widths) plus one NEES
-value per sample and run, not by its length: 11 at N = 1000 is about 0.3 GB, where its full
-logs were 3.8 GB. ``tests/test_fleet_streaming.py`` checks the records against the per-run
-functions on each run's full logs to 1e-12, for any chunk size.
+A :class:`FleetSummarizer` takes the place of the recorder (``fleet.simulation``): it keeps
+the exported signals of the last :data:`~quad_drake.fleet.summaries.CHUNK_SAMPLES` log samples
+(and the one before them) in reused buffers and, each time the chunk fills, hands it to a
+:class:`~quad_drake.fleet.summaries.BatchSummary`, which folds it into the runs' records.
 """
 
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
-from quad_drake import consistency as cons
 from quad_drake import conventions as c
-from quad_drake.campaigns.records import RunRecord, criteria_rows, metric_keys, settle_time, vehicle_errors
-from quad_drake.estimation.vocabulary import NIS_COLUMNS, health_counts, vehicle_vocabulary
-from quad_drake.fleet.bounds import PcrbStream
-from quad_drake.results import signals_from_logs
-from quad_drake.signals import Signal
-from quad_drake.verdicts import CriteriaStream
-
-CHUNK_SAMPLES = 200
-"""Log samples per chunk (1 s of flight)."""
-_NIS_SIGNALS = {"gps": "Est.GpsNIS", "mag": "Est.MagNIS"}
-"""The signal whose fresh mask marks a sensor's NIS updates (``signals``)."""
-
-
-def _sum_over_samples(values):
-    """Sum over the samples (axis 0) of a (k, N, ...) array, run by run along a contiguous
-    copy: the same rounding whatever N (numpy reduces a (k, 1) column pairwise but a (k, N)
-    array row by row), so run i's record does not depend on its batch."""
-    return np.ascontiguousarray(np.moveaxis(values, 0, -1)).sum(axis=-1)
-
-
-class _VehicleSums:
-    """One vehicle's running sums over N runs (see :class:`BatchSummary`)."""
-
-    def __init__(self, vehicle, log_names, runs, samples, settle):
-        self.name, self.settle = vehicle.name, settle
-        self.vocabulary = vehicle_vocabulary(vehicle)
-        self.metric_keys = metric_keys(self.vocabulary, log_names)
-        self.square_sums = {key: np.zeros(runs) for key in self.metric_keys}
-        self.settled_square_sums = {key: np.zeros(runs) for key in self.metric_keys}
-        self.maxima = {key: np.full(runs, -np.inf) for key in self.metric_keys}
-        self.nees = self.nse_sums = self.pcrb = self.pcrb_sums = None
-        self.nis, self.last_diagnostics = {}, None
-        self._bound_rows = 0  # samples whose PCRB has been added
-        if self.vocabulary is not None:
-            self.nees = np.empty((samples, runs))
-            self.nse_sums = np.zeros((runs, self.vocabulary.size))
-            self.nis = {s: [[] for _ in range(runs)] for s in cons.NIS_DOF if s in log_names}
-            if "gps" in log_names:
-                self.pcrb = PcrbStream(vehicle.sensors, runs)
-
-    def update(self, first, times, logs, signals, settled):
-        """Fold samples first .. first + k - 1 at times (k,) s: logs {name: (k, N, w)}, the
-        vehicle's signals {name: Signal (k, N)}, settled (k,) bool."""
-        for key in self.metric_keys:
-            values = signals[f"{self.name}.{key}"].values
-            squares = values * values
-            self.square_sums[key] += _sum_over_samples(squares)
-            self.settled_square_sums[key] += _sum_over_samples(squares[settled])
-            self.maxima[key] = np.maximum(self.maxima[key], np.abs(values).max(axis=0))
-        if self.vocabulary is None:
-            return
-        errors = vehicle_errors(signals, self.name, self.vocabulary)
-        covariances = cons.covariance_matrices(logs["covariance"])
-        self.nees[first : first + times.size] = cons.nees_of(self.vocabulary, logs, errors)
-        self.nse_sums += _sum_over_samples(cons.normalized_squared_errors(errors, covariances))
-        self.last_diagnostics = logs["diagnostics"][-1].copy()  # the chunk's buffer is reused
-        diagnostics = logs["diagnostics"]
-        for sensor, per_run in self.nis.items():
-            nis_column, stamp_column = NIS_COLUMNS[sensor]
-            fresh = signals[f"{self.name}.{_NIS_SIGNALS[sensor]}"].fresh
-            for j, run in enumerate(per_run):
-                rows = fresh[:, j]
-                if rows.any():
-                    run.append((diagnostics[rows, j, stamp_column], diagnostics[rows, j, nis_column]))
-        if self.pcrb is not None:
-            mag = signals[f"{self.name}.MagYaw"].fresh if f"{self.name}.MagYaw" in signals else None
-            gps = signals[f"{self.name}.GPS.X"].fresh
-            self._add_bound(self.pcrb.update(logs["state"], gps, np.zeros_like(gps) if mag is None else mag))
-
-    def _add_bound(self, variances):
-        """Add the settled samples of a PcrbStream output (its rows follow the last ones added)."""
-        done, rows = self._bound_rows, next(iter(variances.values())).shape[0]
-        settled = self.settle[done : done + rows]
-        if self.pcrb_sums is None:
-            self.pcrb_sums = {name: np.zeros(v.shape[1]) for name, v in variances.items()}
-        for name, v in variances.items():
-            self.pcrb_sums[name] += _sum_over_samples(v[settled])
-        self._bound_rows = done + rows
-
-    def finish(self):
-        if self.pcrb is not None:
-            self._add_bound(self.pcrb.finish())
-
-    def record_fields(self, j, samples):
-        """Run j's share of the record: (metrics, nees, nse, nis, counters, pcrb) dicts."""
-        count, settled = samples, int(np.count_nonzero(self.settle[:samples]))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            metrics = {
-                f"{self.name}.{key}": {
-                    "rms": float(np.sqrt(self.square_sums[key][j] / count)),
-                    "max": float(self.maxima[key][j]),
-                    "rms_settled": float(np.sqrt(self.settled_square_sums[key][j] / settled)),
-                }
-                for key in self.metric_keys
-            }
-        if self.vocabulary is None:
-            return metrics, {}, {}, {}, {}, {}
-        nis = {}
-        for sensor, per_run in self.nis.items():
-            parts = per_run[j]
-            nis[(self.name, sensor)] = (
-                (np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]))
-                if parts
-                else (np.zeros(0), np.zeros(0))
-            )
-        pcrb = {}
-        if self.pcrb is not None and settled:
-            pcrb[self.name] = {name: float(s[j] / settled) for name, s in self.pcrb_sums.items()}
-        return (
-            metrics,
-            {self.name: self.nees[:samples, j].copy()},
-            {self.name: self.nse_sums[j] / count},
-            nis,
-            {self.name: health_counts(self.last_diagnostics[j][None])},
-            pcrb,
-        )
-
-
-class BatchSummary:
-    """The RunRecords of a fleet batch's N runs, folded chunk by chunk of log samples. Pure.
-
-    scenario: the batch's ScenarioConfig; seeds: (N,) run seeds; samples: log samples a run
-    has at most; log_names: {vehicle: the names of its exported logs}.
-    """
-
-    def __init__(self, scenario, seeds, samples, log_names):
-        self.scenario, self.seeds = scenario, tuple(int(s) for s in seeds)
-        runs = len(self.seeds)
-        self.times = c.LOG_PERIOD * np.arange(1, samples + 1)
-        settle = self.times >= settle_time(scenario.end_time) - 1e-9
-        self._vehicles = [
-            _VehicleSums(v, log_names[v.name], runs, samples, settle) for v in scenario.vehicles
-        ]
-        self._settle = settle
-        self._criteria = CriteriaStream(scenario, runs)
-        self.samples = 0  # samples folded so far
-
-    def update(self, logs, has_previous):
-        """Fold the next k samples: logs {vehicle: {name: (k (+1), N, w)}}; with has_previous,
-        row 0 of every log is the sample before them (only used to judge freshness)."""
-        skip = 1 if has_previous else 0
-        signals = {
-            name: Signal(s.values[skip:], s.fresh[skip:])
-            for name, s in signals_from_logs(logs, self.scenario).items()
-        }
-        k = next(iter(next(iter(logs.values())).values())).shape[0] - skip
-        first = self.samples
-        times, settled = self.times[first : first + k], self._settle[first : first + k]
-        self._criteria.update(times, signals)
-        for vehicle in self._vehicles:
-            vehicle_logs = {name: log[skip:] for name, log in logs[vehicle.name].items()}
-            vehicle.update(first, times, vehicle_logs, signals, settled)
-        self.samples += k
-
-    def records(self, first_index, wall_time):
-        """The RunRecord of each run, index first_index + j (wall_time: the batch's, s, shared evenly)."""
-        for vehicle in self._vehicles:
-            vehicle.finish()
-        records = []
-        for j, seed in enumerate(self.seeds):
-            fields = [{} for _ in range(6)]
-            for vehicle in self._vehicles:
-                for merged, part in zip(fields, vehicle.record_fields(j, self.samples), strict=True):
-                    merged.update(part)
-            metrics, nees, nse, nis, counters, pcrb = fields
-            verdicts = self._criteria.results(j)
-            records.append(
-                RunRecord(
-                    first_index + j,
-                    seed,
-                    all(v.passed for v in verdicts),
-                    criteria_rows(verdicts),
-                    metrics,
-                    nees,
-                    nse,
-                    nis,
-                    wall_time / len(self.seeds),
-                    times=self.times[: self.samples].copy(),
-                    counters=counters,
-                    pcrb=pcrb,
-                )
-            )
-        return records
+from quad_drake.fleet.summaries import CHUNK_SAMPLES, BatchSummary
 
 
 class FleetSummarizer(LeafSystem):
@@ -264,11 +68,6 @@ class FleetSummarizer(LeafSystem):
         """Fold what the chunk holds; the RunRecord of each run (``BatchSummary.records``)."""
         self._flush()
         return self.summary.records(first_index, wall_time)
-
-    @property
-    def buffer_bytes(self):
-        """Bytes of logs it holds: CHUNK_SAMPLES + 1 samples of every input, whatever the flight's length."""
-        return sum(buffer.nbytes for logs in self._buffers.values() for buffer in logs.values())
 
     def release_memory(self):
         """Drop the chunk buffers and the summary (see ``FleetNoiseSource.release_memory``)."""
