@@ -138,21 +138,6 @@ def fresh_nis(diagnostics, sensor):
     return diagnostics[fresh, stamp_column], diagnostics[fresh, nis_column]
 
 
-def stack_by_stamp(series):
-    """(stamps, (m, k) values) from m (stamps, values) pairs, keeping the stamps all share.
-
-    Stamps are nominal sample times computed the same way in every run, so they compare
-    exactly. Raises ValueError when there are no series.
-    """
-    if not series:
-        raise ValueError("stack_by_stamp: no series")
-    common = series[0][0]
-    for stamps, _ in series[1:]:
-        common = np.intersect1d(common, stamps)
-    rows = [np.asarray(values)[np.isin(stamps, common)] for stamps, values in series]
-    return np.asarray(common, dtype=float), np.vstack(rows)
-
-
 def chi2_band(dof, count, probability=0.95):
     """(low, high): central `probability` interval of the mean of `count` chi^2(dof) variables."""
     if dof < 1 or count < 1:

@@ -112,19 +112,6 @@ def test_fresh_nis_keeps_the_first_sample_of_each_stamp():
     np.testing.assert_array_equal(nis, [0.5, 1.5, 2.5])
 
 
-def test_stack_by_stamp_keeps_common_stamps_in_order():
-    stamps, values = cons.stack_by_stamp(
-        [
-            (np.array([0.1, 0.2, 0.3]), np.array([1.0, 2.0, 3.0])),
-            (np.array([0.2, 0.3, 0.4]), np.array([20.0, 30.0, 40.0])),
-        ]
-    )
-    np.testing.assert_array_equal(stamps, [0.2, 0.3])
-    np.testing.assert_array_equal(values, [[2.0, 3.0], [20.0, 30.0]])
-    with pytest.raises(ValueError):
-        cons.stack_by_stamp([])
-
-
 # ----- bands and intervals -------------------------------------------------------------
 
 

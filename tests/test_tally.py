@@ -1,5 +1,5 @@
 """The campaign's consistency tally (``campaigns.tally``) against the computation it replaces:
-every run's series kept and stacked (np.vstack, ``consistency.stack_by_stamp``), np.mean over
+every run's series kept and stacked (np.vstack, :func:`stack_by_stamp`), np.mean over
 the realisations. Same rows to 1e-12 whatever the order the records arrive in and however they
 are split into merged partial tallies; the tally does not grow with the runs; a campaign keeps
 slim records (no per-sample arrays)."""
@@ -22,6 +22,26 @@ from quad_drake.config import GpsParams, ImuParams, MagParams, ScenarioConfig, S
 RTOL = 1e-12
 
 
+def stack_by_stamp(series):
+    """(stamps, (m, k) values) of m (stamps, values) pairs at the stamps all share: how the NIS
+    series were stacked before the tally (stamps compare exactly: nominal times)."""
+    common = series[0][0]
+    for stamps, _ in series[1:]:
+        common = np.intersect1d(common, stamps)
+    return common, np.vstack([np.asarray(values)[np.isin(stamps, common)] for stamps, values in series])
+
+
+def test_stack_by_stamp_keeps_common_stamps_in_order():
+    stamps, values = stack_by_stamp(
+        [
+            (np.array([0.1, 0.2, 0.3]), np.array([1.0, 2.0, 3.0])),
+            (np.array([0.2, 0.3, 0.4]), np.array([20.0, 30.0, 40.0])),
+        ]
+    )
+    np.testing.assert_array_equal(stamps, [0.2, 0.3])
+    np.testing.assert_array_equal(values, [[2.0, 3.0], [20.0, 30.0]])
+
+
 def stacked(records):
     """{statistic: (stamps, mean, realisations)} as CampaignResult computed them before the tally:
     records by index, all series stacked, np.mean over the realisations."""
@@ -33,7 +53,7 @@ def stacked(records):
     for sensor in cons.NIS_DOF:
         series = [r.nis[key] for r in records for key in r.nis if key[1] == sensor]
         if series:
-            stamps, values = cons.stack_by_stamp(series)
+            stamps, values = stack_by_stamp(series)
             result[f"NIS {sensor}"] = (stamps, values.mean(axis=0), values.shape[0])
     return result
 

@@ -7,7 +7,7 @@ stamp and their count, so a 10,000-run campaign holds one (n,) sum per statistic
 10,000 series. Tallies add: ``a + b`` is the tally of both sets of realisations (in any
 order and split, up to float rounding), so a worker may send a whole batch's partial sums.
 
-A statistic keeps the stamps every realisation had (as ``consistency.stack_by_stamp``):
+A statistic keeps the stamps every realisation had (as the stacked series of the past did):
 stamps are nominal sample times computed the same way in every run and compare exactly. A
 NaN value makes the sum, and so the mean, at its stamp NaN (as ``np.mean``).
 """
