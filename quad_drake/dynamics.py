@@ -306,6 +306,24 @@ def outside_room(state, params):
     return x < x_min or x > x_max or y < y_min or y > y_max or state[2] < params.z_bounds[0]
 
 
+def count_contacts(contacts, state, hit_wall, params):
+    """The contact counts (on the floor 1/0, floor touchdowns, wall hits) after a physics step.
+
+    contacts: the counts before the step (3 floats, the same three); state: the state after it
+    (13 floats, p_NB m NED); hit_wall: the step's ``hit_wall`` from :func:`plant_step`; params:
+    PhysicsParams. A touchdown counts when the vehicle is :func:`on_floor` after the step and was
+    not before (one that starts on the floor has not touched down); a wall hit when the step
+    ended at a wall or the ceiling. Returns a tuple of 3 floats.
+    """
+    was_on_floor, touchdowns, wall_hits = contacts[0], contacts[1], contacts[2]
+    floor = on_floor(state, params)
+    if floor and not was_on_floor:
+        touchdowns += 1.0
+    if hit_wall:
+        wall_hits += 1.0
+    return (1.0 if floor else 0.0, touchdowns, wall_hits)
+
+
 def plant_step(state, forces_old, commands, noise_unit, params, dt, fidelity=PHYSICAL):
     """One physics step of SPEC §3 (steps 1-8).
 

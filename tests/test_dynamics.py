@@ -11,6 +11,7 @@ from quad_drake.conventions import GRAVITY, PHYSICS_PERIOD
 from quad_drake.dynamics import (
     apply_room_constraints,
     clamped_noisy_commands,
+    count_contacts,
     motor_lag_step,
     plant_step,
     rigid_body_derivatives,
@@ -272,6 +273,15 @@ def test_room_bounds_revert_only_the_offending_coordinate():
     np.testing.assert_allclose(new[8:10], [0.5, 0.5], atol=1e-12)
     # inputs are not modified
     assert old[7] == -0.5
+
+
+def test_contact_counts_follow_touchdowns_take_offs_and_wall_hits():
+    floor, air = make_state(p=(0.0, 0.0, 0.0)), make_state(p=(0.0, 0.0, -1.0))
+    assert count_contacts((0.0, 2.0, 5.0), floor, False, PARAMS) == (1.0, 3.0, 5.0)  # touchdown
+    assert count_contacts((1.0, 3.0, 5.0), floor, False, PARAMS) == (1.0, 3.0, 5.0)  # resting
+    assert count_contacts((1.0, 3.0, 5.0), air, False, PARAMS) == (0.0, 3.0, 5.0)  # take-off
+    assert count_contacts((0.0, 3.0, 5.0), air, True, PARAMS) == (0.0, 3.0, 6.0)  # wall hit
+    assert count_contacts((0.0, 3.0, 6.0), floor, True, PARAMS) == (1.0, 4.0, 7.0)  # both
 
 
 NARROW_ROOM = dataclasses.replace(

@@ -49,13 +49,6 @@ def close(batched, scalar_rows):
     )
 
 
-def scalar_contacts(before, state, hit_wall, params):
-    """systems.plant.QuadrotorPlant's contact counts (floor 0/1, touchdowns, wall hits) after a step."""
-    floor = dynamics.on_floor(state, params)
-    touchdowns = before[1] + (1.0 if floor and not before[0] else 0.0)
-    return [1.0 if floor else 0.0, touchdowns, before[2] + (1.0 if hit_wall else 0.0)]
-
-
 @FIDELITIES
 @pytest.mark.parametrize("column", [0, 4])
 def test_plant_steps_match_scalar(fidelity, column):
@@ -86,8 +79,9 @@ def test_plant_steps_match_scalar(fidelity, column):
     close(new, [r[0] for r in rows])
     close(accel, [r[1] for r in rows])
     close(forces, [r[2] for r in rows])
-    expected = [scalar_contacts(contacts[i], r[0], r[3], params) for i, r in enumerate(rows)]
-    assert counted.tolist() == expected
+    before = contacts.tolist()
+    expected = [dynamics.count_contacts(before[i], r[0], r[3], params) for i, r in enumerate(rows)]
+    assert counted.tolist() == [list(c) for c in expected]
     assert 0 < sum(r[3] for r in rows) < N  # the walls were exercised
     floor = kernels.on_floor(new, params)
     assert floor.tolist() == [dynamics.on_floor(r[0], params) for r in rows]
@@ -103,19 +97,25 @@ def test_plant_steps_match_scalar_over_many_steps(fidelity):
     commands = rng.uniform(0.5, 4.0, size=(N, 4))
     batched, forces = state.copy(), rng.uniform(0, 5, size=(N, 4))
     accel, contacts = np.empty((N, 3)), np.zeros((N, 3))
-    scalar = [(s.tolist(), f.tolist()) for s, f in zip(state, forces, strict=True)]
+    scalar = [(s.tolist(), f.tolist(), (0.0, 0.0, 0.0)) for s, f in zip(state, forces, strict=True)]
     frozen_params, frozen_fidelity = kernels.frozen(params), kernels.frozen(fidelity)
     for _ in range(50):
         noise = rng.uniform(size=(N, 4))
         kernels.plant_steps(
             batched, forces, commands, noise, 0, frozen_params, 0.001, frozen_fidelity, accel, contacts
         )
-        scalar = [
-            dynamics.plant_step(s, f, commands[i].tolist(), noise[i].tolist(), params, 0.001, fidelity)[::2]
-            for i, (s, f) in enumerate(scalar)
+        stepped = [
+            dynamics.plant_step(s, f, commands[i].tolist(), noise[i].tolist(), params, 0.001, fidelity)
+            for i, (s, f, _) in enumerate(scalar)
         ]
-    close(batched, [s for s, _ in scalar])
-    close(forces, [f for _, f in scalar])
+        scalar = [
+            (new, lagged, dynamics.count_contacts(c, new, hit_wall, params))
+            for (new, _, lagged, hit_wall), (_, _, c) in zip(stepped, scalar, strict=True)
+        ]
+    close(batched, [s for s, _, _ in scalar])
+    close(forces, [f for _, f, _ in scalar])
+    assert contacts.tolist() == [list(c) for _, _, c in scalar]
+    assert contacts[:, 1].sum() > 0  # touchdowns were counted
 
 
 @FIDELITIES

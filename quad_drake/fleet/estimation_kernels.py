@@ -342,8 +342,7 @@ def ekf7_tick(
         else:
             diagnostics[i, _NONFINITE] += 1.0
         healthy[i] = _row_healthy(P, i)
-        stamp = gps[i, 6]
-        if not healthy[i] or (stamp != book[i, GPS_SLOT] and stamp != NO_SAMPLE_STAMP):
+        if not healthy[i] or fresh(gps[i, 6], book[i, GPS_SLOT]):
             quiet = False
     if quiet:
         _ekf7_mag_tick(x, P, mag, diagnostics, book, r_mag, threshold)
@@ -510,10 +509,18 @@ def ekf7_mag_update(x, P, yaw_meas, R_mag):
 
 
 @_jit
+def fresh(stamps, seen):
+    """True where a stamp (s) differs from the last one seen and is a sample (not NO_SAMPLE_STAMP;
+    ``systems.estimators._fresh``): (N,) bool of stamps and seen (N,), or one bool of two floats
+    (as the compiled kernels call it)."""
+    return (stamps != seen) & (stamps != NO_SAMPLE_STAMP)
+
+
+@_jit
 def _fresh_mag(mag, book, diagnostics, i):
     """True when vehicle i has a fresh finite mag sample to fuse; books its stamp, counts a non-finite one."""
     stamp = mag[i, 1]
-    if stamp == book[i, MAG_SLOT] or stamp == NO_SAMPLE_STAMP:
+    if not fresh(stamp, book[i, MAG_SLOT]):
         return False
     book[i, MAG_SLOT] = stamp
     if not (math.isfinite(stamp) and math.isfinite(mag[i, 0])):
@@ -716,11 +723,6 @@ def fuse_gps(rows, stamps, z, x, P, diagnostics, book, update, R, threshold, res
         x_new[due], P_new[due] = reset_states(x_prior[due], P_prior[due], reset, z_rows[due], R)
     x[rows] = x_new
     P[rows] = P_new
-
-
-def fresh(stamps, seen):
-    """(N,) True where a stamp differs from the last one seen and is a sample (``_fresh`` per vehicle)."""
-    return (stamps != seen) & (stamps != NO_SAMPLE_STAMP)
 
 
 # ----- error-state EKF -----------------------------------------------------------------------------

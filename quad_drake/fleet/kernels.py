@@ -85,7 +85,7 @@ _plant_compiled = compiled(
 )
 
 
-_on_floor_compiled = compiled(dynamics.on_floor)
+_contacts_compiled = compiled(dynamics.count_contacts, on_floor=compiled(dynamics.on_floor))
 
 
 @numba.njit(cache=True)
@@ -97,9 +97,8 @@ def plant_steps(state, forces, commands, noise_unit, column, params, dt, fidelit
     their values after dt s; commands (N, 4) N; noise_unit (N, >= column + 4): the step's four
     uniforms in [0, 1] are columns column..column + 3 (the plant's two steps per tick share one
     (N, 8) draw); accel (N, 3): a_NB m/s^2 of the step, written; contacts (N, 3): (on the floor
-    0/1, floor touchdowns, wall hits), updated: a touchdown counts when the vehicle is on the
-    floor after the step and was not before, a wall hit when the step met a wall. params,
-    fidelity: the :func:`frozen` PhysicsParams and Fidelity; dt: a float.
+    0/1, floor touchdowns, wall hits), updated by :func:`quad_drake.dynamics.count_contacts` (its
+    code compiled). params, fidelity: the :func:`frozen` PhysicsParams and Fidelity; dt: a float.
     """
     physics, fidelity_tuple = PhysicsTuple(*params), FidelityTuple(*fidelity)
     for i in range(state.shape[0]):
@@ -115,12 +114,8 @@ def plant_steps(state, forces, commands, noise_unit, column, params, dt, fidelit
         accel[i, 0], accel[i, 1], accel[i, 2] = a
         for k in range(4):
             f[k] = lagged[k]
-        floor = _on_floor_compiled(out, physics)
-        if floor and contacts[i, 0] == 0.0:
-            contacts[i, 1] += 1.0
-        contacts[i, 0] = 1.0 if floor else 0.0
-        if hit_wall:
-            contacts[i, 2] += 1.0
+        c = contacts[i]
+        c[0], c[1], c[2] = _contacts_compiled((c[0], c[1], c[2]), out, hit_wall, physics)
 
 
 def on_floor(state, params):

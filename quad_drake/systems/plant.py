@@ -7,7 +7,7 @@ from pydrake.common import RandomDistribution
 from pydrake.systems.framework import LeafSystem
 
 from quad_drake.conventions import NUM_MOTORS, ONBOARD_PERIOD, PHYSICS_PERIOD, PLANT_OFFSET, STATE_SIZE
-from quad_drake.dynamics import on_floor, plant_step
+from quad_drake.dynamics import count_contacts, on_floor, plant_step
 from quad_drake.fidelity import PHYSICAL
 from quad_drake.systems._io import entries_reader, scalar, set_scalar, vector_reader
 
@@ -38,7 +38,8 @@ class QuadrotorPlant(LeafSystem):
       ``motor_forces`` (4, N): the lagged motor forces of the last step.
       ``contacts`` (3): on the floor now (1/0); touchdowns so far (steps that ended on the
         floor after one that did not; a vehicle that starts on the floor has not touched
-        down); steps so far that ended at a wall or the ceiling (``dynamics.outside_room``).
+        down); steps so far that ended at a wall or the ceiling (``dynamics.outside_room``);
+        counted by ``dynamics.count_contacts``.
     ``acceleration`` and ``motor_forces`` are zero before the first step. At the first
     step the motor lag starts from the first command (pre-clamp, no noise), as the
     reference does at t = 0; a flag in discrete state records that it happened.
@@ -114,11 +115,8 @@ class QuadrotorPlant(LeafSystem):
         discrete_state.set_value(self._state_group, np.array(state))
         discrete_state.set_value(self._acceleration_group, np.array(accel))
         discrete_state.set_value(self._forces_group, np.array(forces))
-        floor = on_floor(state, self._params)
-        if hit_wall or floor != bool(scalar(discrete_state, self._contacts_group)):  # else: unchanged
-            contacts = discrete_state.get_mutable_value(self._contacts_group)
-            if floor and not contacts[0]:
-                contacts[1] += 1.0
-            contacts[0] = 1.0 if floor else 0.0
-            if hit_wall:
-                contacts[2] += 1.0
+        counts = discrete_state.get_vector(self._contacts_group)
+        before = (counts.GetAtIndex(0), counts.GetAtIndex(1), counts.GetAtIndex(2))
+        after = count_contacts(before, state, hit_wall, self._params)
+        if after != before:  # rarely: a touchdown, a take-off or a wall hit
+            discrete_state.set_value(self._contacts_group, np.array(after))
