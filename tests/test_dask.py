@@ -31,6 +31,24 @@ def test_dask_campaign_equals_the_local_campaign():
     assert rows(remote) == rows(local)
 
 
+def test_dask_runs_fleet_batches_like_the_local_fleet():
+    """Fleet batches on Dask send their slim records and tallies; table, rows and the
+    consistency means equal the in-process fleet campaign's to the last bit."""
+    scenario = catalog.load("11_gps_update", None, ["end_time=1"])
+    local = run_campaign(scenario, 4, seed=30, progress=False, fleet_batch=2)
+    with distributed.LocalCluster(
+        n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None
+    ) as cluster:
+        remote = run_campaign(
+            scenario, 4, runner=DaskRunner(cluster.scheduler_address), seed=30, progress=False, fleet_batch=2
+        )
+    assert remote.runner.startswith("fleet (batch 2) on dask ")
+    assert table(remote) == table(local) and rows(remote) == rows(local)
+    assert [c["statistic"] for c in remote.consistency] == ["NEES", "NIS gps", "NIS mag"]
+    for a, b in zip(remote.consistency, local.consistency, strict=True):
+        assert a["mean"].tobytes() == b["mean"].tobytes()
+
+
 def test_an_unreachable_scheduler_is_a_config_error():
     scenario = catalog.load("10_mag_update", None, ["end_time=1"])
     with (
