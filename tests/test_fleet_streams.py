@@ -48,3 +48,24 @@ def test_a_block_drawn_into_a_buffer_is_the_block():
     for block in range(2):
         assert reused.block(block, out=buffer) is buffer
         np.testing.assert_array_equal(buffer, fresh.block(block))
+
+
+def _noise_at(source, context, time):
+    context.SetTime(time)
+    return source.GetOutputPort("noise").Eval(context).reshape(2, 3)
+
+
+def test_the_noise_source_holds_sample_k_from_its_redraw_at_k_period():
+    from quad_drake.fleet.systems import FleetNoiseSource
+
+    period = 0.1  # 10 samples per block
+    source = FleetNoiseSource([4, 11], "Quad/gps", 3, period, "gaussian")
+    context = source.CreateDefaultContext()
+    assert context.num_total_states() == 0  # a function of the time: no state to copy in a tick
+    streams = [stream_generator(s, "Quad/gps").standard_normal((40, 3)) for s in (4, 11)]
+    for k in (0, 1, 9, 10, 27, 3, 35):  # within a block, the next, one skipped, back in time
+        for offset in (0.0, 1e-6, 0.5 * period, period - 1e-6):
+            expected = [stream[k] for stream in streams]
+            np.testing.assert_array_equal(_noise_at(source, context, k * period + offset), expected)
+    # a sample time computed with rounding below k period still reads sample k
+    np.testing.assert_array_equal(_noise_at(source, context, 3 * period - 1e-15), [s[3] for s in streams])

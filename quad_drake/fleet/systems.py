@@ -73,12 +73,27 @@ def _reader(port, n, size):
     return lambda context: evaluate(context).get_value().reshape(n, size)
 
 
+SAMPLE_TIME_TOLERANCE = 1e-7
+"""Samples (fractions of a noise period) by which a reading may fall short of its sample time and
+still see that sample: the rounding of t / period (about 1e-9 of a sample at 10,000 s of 2 ms
+samples); every consumer reads at or after the sample time (``conventions``' offsets)."""
+
+
+def sample_index(time, period):
+    """The index k of the noise sample held at `time` s: the last redraw at k period <= time."""
+    return math.floor(time / period + SAMPLE_TIME_TOLERANCE)
+
+
 class FleetNoiseSource(LeafSystem):
     """Noise of N vehicles from :class:`~quad_drake.fleet.streams.NoiseStreams`, the fleet's
-    RandomSource: output ``noise`` (N size) redrawn at t = k period (an unrestricted update,
-    applied before the discrete updates at t, as RandomSource's) with sample k of every
-    vehicle's stream. A block of one simulated second is drawn, into one buffer reused from block
-    to block, when sample k opens it."""
+    RandomSource: output ``noise`` (N size) at time t is sample k = floor(t / period) of every
+    vehicle's stream, what a RandomSource holds after its redraw at t = k period (applied before
+    the discrete updates at t). Unlike RandomSource it has no state and no event: the output is a
+    function of the time (cached on Drake's time ticket), so a tick neither copies nor swaps a
+    noise state. A block of one simulated second is drawn, into one buffer reused from block to
+    block, when a reading first needs a sample of it; blocks a reading skips are drawn in order
+    (the streams are sequential), and a reading before the block in hand restarts the streams
+    (a re-initialised simulation)."""
 
     def __init__(self, seeds, name, size, period, distribution):
         super().__init__()
@@ -87,24 +102,25 @@ class FleetNoiseSource(LeafSystem):
         self._streams = NoiseStreams(seeds, name, size, distribution, self._per_block)
         self._n, self._size = len(seeds), int(size)
         self._block, self._block_index = None, -1
-        _discrete(self, self._n * self._size, "noise")
-        self.DeclarePeriodicUnrestrictedUpdateEvent(self.period, 0.0, self._draw)
+        self.DeclareVectorOutputPort(
+            "noise", self._n * self._size, self._calc, prerequisites_of_calc={self.time_ticket()}
+        )
 
     def release_memory(self):
         """Drop the block in hand (a Python system in a Diagram is never garbage-collected:
         pydrake's C++ side keeps it alive)."""
         self._block, self._block_index = None, -1
 
-    def _draw(self, context, state):
-        k = int(round(context.get_time() / self.period))
-        block, row = divmod(k, self._per_block)
+    def _calc(self, context, output):
+        block, row = divmod(sample_index(context.get_time(), self.period), self._per_block)
         if block != self._block_index:
             if self._block is None:
                 self._block = np.empty((self._n, self._per_block, self._size))
-            self._streams.block(block, out=self._block)
+            first = 0 if block < self._block_index or self._block_index < 0 else self._block_index + 1
+            for index in range(first, block + 1):
+                self._streams.block(index, out=self._block)
             self._block_index = block
-        noise = state.get_mutable_discrete_state().get_mutable_value(0).reshape(self._n, self._size)
-        noise[:] = self._block[:, row]
+        output.get_mutable_value().reshape(self._n, self._size)[:] = self._block[:, row]
 
 
 class FleetPlant(LeafSystem):
