@@ -21,7 +21,7 @@ import numpy as np
 from .config import ConfigError, dump_scenario, load_scenario
 from .estimation.vocabulary import vehicle_vocabulary
 from .jsonio import dump_json
-from .signals import vehicle_signals
+from .signals import Signals, vehicle_signals
 from .verdicts import evaluate_criteria
 
 FORMAT_VERSION = 1
@@ -72,9 +72,9 @@ def signals_from_logs(logs, scenario=None):
     Estimator signals need the scenario (its vehicles' estimator vocabularies).
     """
     vocabularies = {} if scenario is None else {v.name: vehicle_vocabulary(v) for v in scenario.vehicles}
-    signals = {}
+    signals = Signals()
     for vehicle, vehicle_logs in logs.items():
-        signals.update(vehicle_signals(vehicle, vehicle_logs, vocabularies.get(vehicle)))
+        signals = signals.merged(vehicle_signals(vehicle, vehicle_logs, vocabularies.get(vehicle)))
     return signals
 
 

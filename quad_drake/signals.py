@@ -28,6 +28,8 @@ Estimator signals come from the logs every estimator exports (``estimated_state`
   ``Est.CovRepairs`` (cumulative counts).
 """
 
+import functools
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -64,8 +66,58 @@ def stamp_fresh(stamps):
     return (stamps != previous) & (stamps >= 0)
 
 
+class Signals(Mapping):
+    """{signal name: :class:`Signal`} whose arrays are derived on first access and kept.
+
+    The names (and their order) are known at once; a caller that reads a few signals of a
+    log, as a campaign's summaries do, derives only those (and what they share, e.g. the
+    true Euler angles). makers: {name: a function of no argument returning its Signal}.
+    """
+
+    def __init__(self, makers=(), values=()):
+        self._makers = dict(makers)
+        self._values = dict(values)
+
+    def __getitem__(self, name):
+        value = self._values.get(name)
+        if value is None:
+            value = self._values[name] = self._makers[name]()
+        return value
+
+    def __contains__(self, name):
+        return name in self._makers
+
+    def __iter__(self):
+        return iter(self._makers)
+
+    def __len__(self):
+        return len(self._makers)
+
+    def __repr__(self):
+        return f"Signals({list(self._makers)})"
+
+    def merged(self, other):
+        """These signals and `other`'s (a Signals), `other`'s taking a name both have."""
+        return Signals({**self._makers, **other._makers}, {**self._values, **other._values})
+
+    def from_sample(self, start):
+        """The same signals from sample `start` on (values and fresh masks sliced on access)."""
+
+        def sliced(name):
+            signal = self[name]
+            return Signal(signal.values[start:], signal.fresh[start:])
+
+        return Signals({name: functools.partial(sliced, name) for name in self._makers})
+
+
+def _once(function):
+    """`function` (no argument) evaluated on its first call only."""
+    return functools.cache(function)
+
+
 def vehicle_signals(name, logs, vocabulary=None):
-    """{signal name: Signal} for vehicle `name` from its logs {log name: (n, width) array}.
+    """{signal name: Signal} (a :class:`Signals`) for vehicle `name` from its logs {log name:
+    (n, width) array}, each derived when first read.
 
     The logs may also be a fleet batch's (n, N, width) arrays: then every Signal's values and
     fresh mask are (n, N), run j's its column j.
@@ -74,84 +126,83 @@ def vehicle_signals(name, logs, vocabulary=None):
     signals need the vehicle's EstimatorVocabulary. Works for n = 0, which gives the names
     a scenario can refer to before it is run.
     """
-    signals = {}
+    makers = {}
     state = logs["state"]
     always = np.ones(state.shape[:-1], dtype=bool)
 
-    def put(key, values, fresh=always):
-        signals[f"{name}.{key}"] = Signal(values, fresh)
+    def put(key, values, fresh=lambda: always):
+        """Signal `key` of the functions (no argument) giving its values and fresh mask."""
+        makers[f"{name}.{key}"] = lambda: Signal(values(), fresh())
 
     p, v, w = state[..., P_SLICE], state[..., V_SLICE], state[..., W_SLICE]
-    roll, pitch, yaw = euler_from_quats(state[..., Q_SLICE])
+    euler = _once(lambda: euler_from_quats(state[..., Q_SLICE]))
     for i, axis in enumerate(AXES):
-        put(f"Pos.{axis}", p[..., i])
-        put(f"Vel.{axis}", v[..., i])
-        put(f"Omega.{axis}", w[..., i])
-    put("Roll", roll)
-    put("Pitch", pitch)
-    put("Yaw", yaw)
-    put("StateFinite", np.isfinite(state).all(axis=-1).astype(float))
+        put(f"Pos.{axis}", lambda i=i: p[..., i])
+        put(f"Vel.{axis}", lambda i=i: v[..., i])
+        put(f"Omega.{axis}", lambda i=i: w[..., i])
+    for i, key in enumerate(("Roll", "Pitch", "Yaw")):
+        put(key, lambda i=i: euler()[i])
+    put("StateFinite", lambda: np.isfinite(state).all(axis=-1).astype(float))
     if "contacts" in logs:
         contacts = logs["contacts"]
-        put("FloorContact", contacts[..., 0])
-        put("FloorTouchdowns", contacts[..., 1])
-        put("WallContactSteps", contacts[..., 2])
+        for i, key in enumerate(("FloorContact", "FloorTouchdowns", "WallContactSteps")):
+            put(key, lambda i=i: contacts[..., i])
     if "reference" in logs:
         ref = logs["reference"]
         for i, axis in enumerate(AXES):
-            put(f"Ref.{axis}", ref[..., REF_P_SLICE][..., i])
-        put("Ref.Yaw", ref[..., REF_YAW_INDEX])
-        put("PosFollowErr", np.linalg.norm(ref[..., REF_P_SLICE] - p, axis=-1))
+            put(f"Ref.{axis}", lambda i=i: ref[..., REF_P_SLICE][..., i])
+        put("Ref.Yaw", lambda: ref[..., REF_YAW_INDEX])
+        put("PosFollowErr", lambda: np.linalg.norm(ref[..., REF_P_SLICE] - p, axis=-1))
     if "motor_forces" in logs:
         for i, motor in enumerate("ABCD"):
-            put(f"Thrust.{motor}", logs["motor_forces"][..., i])
+            put(f"Thrust.{motor}", lambda i=i: logs["motor_forces"][..., i])
     if "imu" in logs:
         for i, key in enumerate(("AX", "AY", "AZ", "GX", "GY", "GZ")):
-            put(f"IMU.{key}", logs["imu"][..., i])
+            put(f"IMU.{key}", lambda i=i: logs["imu"][..., i])
     if "gps" in logs:
         gps = logs["gps"]
-        fresh = stamp_fresh(gps[..., 6])
+        gps_fresh = _once(lambda: stamp_fresh(gps[..., 6]))
         for i, key in enumerate(("X", "Y", "Z", "VX", "VY", "VZ")):
-            put(f"GPS.{key}", gps[..., i], fresh)
+            put(f"GPS.{key}", lambda i=i: gps[..., i], gps_fresh)
     if "mag" in logs:
-        put("MagYaw", logs["mag"][..., 0], stamp_fresh(logs["mag"][..., 1]))
+        put("MagYaw", lambda: logs["mag"][..., 0], lambda: stamp_fresh(logs["mag"][..., 1]))
     if vocabulary is not None and "estimated_state" in logs:
-        _estimator_signals(put, logs, vocabulary, p, v, (roll, pitch, yaw))
-    return signals
+        _estimator_signals(put, logs, vocabulary, p, v, euler)
+    return Signals(makers)
 
 
 def _estimator_signals(put, logs, vocabulary, p, v, euler):
+    """Put the estimator's signals (module docstring); euler: the true (roll, pitch, yaw), on call."""
     estimate = logs["estimated_state"]
     p_hat, v_hat = estimate[..., P_SLICE], estimate[..., V_SLICE]
-    euler_hat = euler_from_quats(estimate[..., Q_SLICE])
+    euler_hat = _once(lambda: euler_from_quats(estimate[..., Q_SLICE]))
     for i, axis in enumerate(AXES):
-        put(f"Est.{axis}", p_hat[..., i])
-        put(f"Est.V{axis}", v_hat[..., i])
-    euler_errors = []
-    for key, value, truth in zip(("Roll", "Pitch", "Yaw"), euler_hat, euler, strict=True):
-        put(f"Est.{key}", value)
-        euler_errors.append(wrap_angles(value - truth))
-        put(f"Est.E.{key}", euler_errors[-1])
-    put("Est.E.MaxEuler", np.max(np.abs(euler_errors), axis=0))
-    put("Est.E.Pos", np.linalg.norm(p_hat - p, axis=-1))
-    put("Est.E.Vel", np.linalg.norm(v_hat - v, axis=-1))
-    errors = vocabulary.errors(logs)
+        put(f"Est.{axis}", lambda i=i: p_hat[..., i])
+        put(f"Est.V{axis}", lambda i=i: v_hat[..., i])
+    euler_errors = [_once(lambda i=i: wrap_angles(euler_hat()[i] - euler()[i])) for i in range(3)]
+    for i, key in enumerate(("Roll", "Pitch", "Yaw")):
+        put(f"Est.{key}", lambda i=i: euler_hat()[i])
+        put(f"Est.E.{key}", euler_errors[i])
+    put("Est.E.MaxEuler", lambda: np.max(np.abs([e() for e in euler_errors]), axis=0))
+    put("Est.E.Pos", lambda: np.linalg.norm(p_hat - p, axis=-1))
+    put("Est.E.Vel", lambda: np.linalg.norm(v_hat - v, axis=-1))
+    errors = _once(lambda: vocabulary.errors(logs))
     k = vocabulary.size
-    sigma = np.sqrt(np.maximum(logs["covariance"][..., :: k + 1], 0.0))  # diagonal of the row-major P
+    sigma = _once(lambda: np.sqrt(np.maximum(logs["covariance"][..., :: k + 1], 0.0)))  # diagonal of P
     for i, key in enumerate(vocabulary.state_names):
-        put(f"Est.E.{key}", errors[..., i])
-        put(f"Est.S.{key}", sigma[..., i])
+        put(f"Est.E.{key}", lambda i=i: errors()[..., i])
+        put(f"Est.S.{key}", lambda i=i: sigma()[..., i])
     for key, values in vocabulary.extra_values(logs).items():
-        put(f"Est.{key}", values)
+        put(f"Est.{key}", lambda values=values: values)
     diagnostics = logs["diagnostics"]
     for sensor, (nis_column, stamp_column) in NIS_COLUMNS.items():
         put(
             f"Est.{sensor.capitalize()}NIS",
-            diagnostics[..., nis_column],
-            stamp_fresh(diagnostics[..., stamp_column]),
+            lambda nis_column=nis_column: diagnostics[..., nis_column],
+            lambda stamp_column=stamp_column: stamp_fresh(diagnostics[..., stamp_column]),
         )
     for counter, key in COUNTER_SIGNALS.items():
-        put(f"Est.{key}", diagnostics[..., DIAG[counter]])
+        put(f"Est.{key}", lambda counter=counter: diagnostics[..., DIAG[counter]])
 
 
 def empty_logs(log_widths):

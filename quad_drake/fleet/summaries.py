@@ -31,7 +31,6 @@ from quad_drake.campaigns.records import (
 from quad_drake.estimation.vocabulary import NIS_COLUMNS, health_counts, vehicle_vocabulary
 from quad_drake.fleet.bounds import PcrbStream
 from quad_drake.results import signals_from_logs
-from quad_drake.signals import Signal
 from quad_drake.simulation import sensor_schedule, vehicle_log_widths
 from quad_drake.verdicts import CriteriaStream
 
@@ -189,10 +188,7 @@ class BatchSummary:
         k = next(iter(next(iter(logs.values())).values())).shape[0] - skip
         if k <= 0:
             return
-        signals = {
-            name: Signal(s.values[skip:], s.fresh[skip:])
-            for name, s in signals_from_logs(logs, self.scenario).items()
-        }
+        signals = signals_from_logs(logs, self.scenario).from_sample(skip)
         first = self.samples
         times, settled = self.times[first : first + k], self._settle[first : first + k]
         self._criteria.update(times, signals)
