@@ -73,21 +73,27 @@ def _nees(errors, covariances, states):
 
 def _cholesky_nees(errors, covariances, states):
     """(n,) e^T P^-1 e = |L^-1 e|^2 with P = L L^T over `states`; NaN where the Cholesky
-    factorisation fails or a value is not finite (compiled by numba: one sample at a time)."""
+    factorisation fails or a value is not finite (compiled by numba: one sample at a time,
+    its sub-matrix gathered once and factorised in place, lower triangle)."""
     n, k = errors.shape[0], states.shape[0]
     result = np.full(n, np.nan)
     L = np.empty((k, k))
     y = np.empty(k)
     for i in range(n):
-        ok = True
+        finite = 0.0  # x - x is 0 for a finite x and NaN otherwise: one branch-free pass
         for r in range(k):
             for c in range(k):
-                ok = ok and np.isfinite(covariances[i, states[r], states[c]])
+                x = covariances[i, states[r], states[c]]
+                finite += x - x
+                L[r, c] = x
+            y[r] = errors[i, states[r]]
+            finite += y[r] - y[r]
+        if finite != 0.0:
+            continue
+        ok = True
         for r in range(k):
-            if not ok:
-                break
             for c in range(r + 1):
-                s = covariances[i, states[r], states[c]]
+                s = L[r, c]
                 for m in range(c):
                     s -= L[r, m] * L[c, m]
                 if r == c:
@@ -97,11 +103,13 @@ def _cholesky_nees(errors, covariances, states):
                     L[r, r] = math.sqrt(s)
                 else:
                     L[r, c] = s / L[c, c]
+            if not ok:
+                break
         if not ok:
             continue
         total = 0.0
         for r in range(k):
-            s = errors[i, states[r]]
+            s = y[r]
             for m in range(r):
                 s -= L[r, m] * y[m]
             y[r] = s / L[r, r]
