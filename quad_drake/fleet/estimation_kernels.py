@@ -773,10 +773,8 @@ def _eskf_predict_row(
             A[3, a, b] = R[a, b] * -dt
             A[4, a, b] = R_next[a, b] * -dt
     biases = n == _ESKF_BIASES
-    for c in range(n):
-        _transition_column(P[i, :, c], FP[:, c], A, dt, biases)
-    for r in range(n):
-        _transition_column(FP[r, :], M[r, :], A, dt, biases)
+    _apply_transition(P[i], FP, A, dt, biases)  # F P
+    _apply_transition(FP.T, M, A, dt, biases)  # F (F P)^T = (F P F^T)^T: symmetrised below
     for r in range(n):
         for c in range(n):
             P_out[i, r, c] = (M[r, c] + M[c, r]) * 0.5 + Q_constant[r, c]
@@ -799,23 +797,25 @@ def _eskf_predict_row(
 
 
 @_jit
-def _transition_column(v, out, A, dt, biases):
-    """out = F v for one column v (n,) of the error transition F = I + E (blocks A, see _eskf_predict_row)."""
-    for r in range(3):
-        p = v[r] + dt * v[3 + r]
-        w = v[3 + r]
-        t = v[6 + r]
-        for k in range(3):
-            p += A[0, r, k] * v[6 + k]
-            w += A[1, r, k] * v[6 + k]
-        if biases:
+def _apply_transition(S, D, A, dt, biases):
+    """D = F S, column by column, for an (n, n) S (a transposed view too) and the error transition
+    F = I + E of the blocks A (see _eskf_predict_row): only E's nonzero blocks are multiplied."""
+    for c in range(S.shape[1]):
+        for r in range(3):
+            p = S[r, c] + dt * S[3 + r, c]
+            w = S[3 + r, c]
+            t = S[6 + r, c]
             for k in range(3):
-                p += A[2, r, k] * v[9 + k]
-                w += A[3, r, k] * v[9 + k]
-                t += A[4, r, k] * v[12 + k]
-        out[r], out[3 + r], out[6 + r] = p, w, t
-    for r in range(9, v.shape[0]):
-        out[r] = v[r]
+                p += A[0, r, k] * S[6 + k, c]
+                w += A[1, r, k] * S[6 + k, c]
+            if biases:
+                for k in range(3):
+                    p += A[2, r, k] * S[9 + k, c]
+                    w += A[3, r, k] * S[9 + k, c]
+                    t += A[4, r, k] * S[12 + k, c]
+            D[r, c], D[3 + r, c], D[6 + r, c] = p, w, t
+        for r in range(9, S.shape[0]):
+            D[r, c] = S[r, c]
 
 
 @_jit
