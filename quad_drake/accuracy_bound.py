@@ -259,20 +259,23 @@ def posterior_crb(state, gps_fresh, mag_fresh, sensors, period=LOG_PERIOD, dt_im
         P = np.linalg.inv(J)
         P = 0.5 * (P + P.T)
         variances[k] = np.diag(P)
-        roll, pitch = _roll_pitch(R)
-        W = _euler_rate_matrix(roll, pitch) @ R.T
+        W = _euler_rate_matrix(R) @ R.T
         euler_variances[k] = np.diag(W @ P[6:9, 6:9] @ W.T)
     result = {name: variances[:, i] for i, name in enumerate(PCRB_STATES)}
     result.update({name: euler_variances[:, i] for i, name in enumerate(("Roll", "Pitch", "Yaw"))})
     return result
 
 
-def _roll_pitch(R):
-    return math.atan2(R[2, 1], R[2, 2]), math.asin(max(-1.0, min(1.0, -R[2, 0])))
+def euler_rate_entries(r20, r21, r22):
+    """The entries (sin r tan p, cos r tan p, cos r, -sin r, sin r / cos p, cos r / cos p) of W,
+    d(roll, pitch, yaw)/dt = W w_B (ZYX angles r, p), from the last row of R_NB without the angles:
+    (R21, R22) = cos p (sin r, cos r) and R20 = -sin p, with cos p >= 0."""
+    cp = math.sqrt(r21 * r21 + r22 * r22)
+    sr, cr, tp = r21 / cp, r22 / cp, -r20 / cp
+    return sr * tp, cr * tp, cr, -sr, sr / cp, cr / cp
 
 
-def _euler_rate_matrix(roll, pitch):
-    """W with d(roll, pitch, yaw)/dt = W w_B (ZYX angles)."""
-    sr, cr = math.sin(roll), math.cos(roll)
-    cp, tp = math.cos(pitch), math.tan(pitch)
-    return np.array([[1.0, sr * tp, cr * tp], [0.0, cr, -sr], [0.0, sr / cp, cr / cp]])
+def _euler_rate_matrix(R):
+    """W with d(roll, pitch, yaw)/dt = W w_B (ZYX angles) at the attitude R_NB."""
+    e1, e2, e4, e5, e7, e8 = euler_rate_entries(R[2, 0], R[2, 1], R[2, 2])
+    return np.array([[1.0, e1, e2], [0.0, e4, e5], [0.0, e7, e8]])

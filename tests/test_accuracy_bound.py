@@ -7,6 +7,7 @@ import pytest
 
 from quad_drake.accuracy_bound import (
     accuracy_bound,
+    euler_rate_entries,
     position_velocity_bound,
     position_velocity_tilt_bound,
     posterior_crb,
@@ -14,6 +15,7 @@ from quad_drake.accuracy_bound import (
     yaw_bound,
 )
 from quad_drake.config import GpsParams, ImuParams, MagParams, SensorsConfig, VehicleConfig
+from quad_drake.rotations import quat_from_euler
 from quad_drake.signals import stamp_fresh
 
 DT = 0.002
@@ -164,3 +166,13 @@ def test_bad_inputs_raise():
         position_velocity_bound(0.5, 0.0, 0.1, 0.1)
     with pytest.raises(ValueError, match="shorter"):
         yaw_bound(0.5, 0.1, 0.0005)
+
+
+def test_euler_rate_entries_are_the_trigonometric_ones_of_the_angles():
+    rng = np.random.default_rng(1203)
+    for roll, pitch, yaw in rng.uniform([-3.1, -1.5, -3.1], [3.1, 1.5, 3.1], size=(200, 3)):
+        w, x, y, z = quat_from_euler(roll, pitch, yaw)
+        r20, r21, r22 = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
+        sr, cr, cp, tp = math.sin(roll), math.cos(roll), math.cos(pitch), math.tan(pitch)
+        expected = (sr * tp, cr * tp, cr, -sr, sr / cp, cr / cp)
+        np.testing.assert_allclose(euler_rate_entries(r20, r21, r22), expected, rtol=1e-12, atol=1e-13)

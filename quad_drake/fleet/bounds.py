@@ -13,8 +13,12 @@ import math
 import numba
 import numpy as np
 
-from quad_drake.accuracy_bound import PCRB_PRIOR_STD, PCRB_STATES
+from quad_drake.accuracy_bound import PCRB_PRIOR_STD, PCRB_STATES, euler_rate_entries
 from quad_drake.conventions import GRAVITY, LOG_PERIOD, ONBOARD_PERIOD
+from quad_drake.fleet.estimation_kernels import rotation_into
+from quad_drake.fleet.kernels import compiled
+
+_euler_rate_entries = compiled(euler_rate_entries)
 
 
 def posterior_crbs(states, gps_fresh, mag_fresh, sensors, period=LOG_PERIOD, dt_imu=ONBOARD_PERIOD):
@@ -159,7 +163,9 @@ def _pcrb_recursion(
     for k in range(n):
         for j in range(runs):
             Pj = P[j]
-            _rotation(quaternions[k, j], R)
+            rotation_into(
+                quaternions[k, j, 0], quaternions[k, j, 1], quaternions[k, j, 2], quaternions[k, j, 3], R
+            )
             if k > 0 or not first:
                 u0, u1, u2 = u_N[k, j, 0], u_N[k, j, 1], u_N[k, j, 2]
                 # M = F P: rows of the attitude block times S = [u]x
@@ -236,10 +242,10 @@ def _pcrb_recursion(
                 h6, h7 = -r00 * r20 / d, -r10 * r20 / d
                 for r in range(9):
                     ph[r] = Pj[r, 6] * h6 + Pj[r, 7] * h7 + Pj[r, 8]
-                s = ph[6] * h6 + ph[7] * h7 + ph[8] + yaw_var
+                inverse = 1.0 / (ph[6] * h6 + ph[7] * h7 + ph[8] + yaw_var)
                 for r in range(9):
                     for c in range(9):
-                        Pj[r, c] -= ph[r] * ph[c] / s
+                        Pj[r, c] -= ph[r] * ph[c] * inverse
             for r in range(9):
                 for c in range(r + 1, 9):
                     mean = 0.5 * (Pj[r, c] + Pj[c, r])
@@ -247,11 +253,7 @@ def _pcrb_recursion(
                     Pj[c, r] = mean
                 variances[k, j, r] = Pj[r, r]
             # Euler-angle variances: W = E(roll, pitch) R^T, diag(W P_att W^T)
-            roll = math.atan2(R[2, 1], R[2, 2])
-            pitch = math.asin(min(1.0, max(-1.0, -R[2, 0])))
-            sr, cr = math.sin(roll), math.cos(roll)
-            cp, tp = math.cos(pitch), math.tan(pitch)
-            e1, e2, e4, e5, e7, e8 = sr * tp, cr * tp, cr, -sr, sr / cp, cr / cp
+            e1, e2, e4, e5, e7, e8 = _euler_rate_entries(R[2, 0], R[2, 1], R[2, 2])
             for c in range(3):
                 W[0, c] = R[c, 0] + e1 * R[c, 1] + e2 * R[c, 2]
                 W[1, c] = e4 * R[c, 1] + e5 * R[c, 2]
@@ -263,12 +265,3 @@ def _pcrb_recursion(
                         s += W[r, c] * Pj[6 + c, 6 + m] * W[r, m]
                 euler_variances[k, j, r] = s
     return variances, euler_variances
-
-
-@numba.njit(cache=True)
-def _rotation(q, out):
-    """R_NB of a unit wxyz quaternion into `out` (3, 3), as ``accuracy_bound._rotations``."""
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    out[0, 0], out[0, 1], out[0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
-    out[1, 0], out[1, 1], out[1, 2] = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
-    out[2, 0], out[2, 1], out[2, 2] = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)

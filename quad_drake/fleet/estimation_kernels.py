@@ -97,7 +97,7 @@ def _quat_mul(aw, ax, ay, az, bw, bx, by, bz):
 
 
 @_jit
-def _rotation(qw, qx, qy, qz, R):
+def rotation_into(qw, qx, qy, qz, R):
     """Writes R_NB of a unit wxyz quaternion into R (3, 3) (eskf._rotation_entries)."""
     R[0, 0] = 1 - 2 * (qy * qy + qz * qz)
     R[0, 1] = 2 * (qx * qy - qw * qz)
@@ -741,7 +741,7 @@ def _eskf_predict_row(
     h = 0.5 * dt * dt
     # nominal step (eskf.predict_nominal)
     qw, qx, qy, qz = x[i, 6], x[i, 7], x[i, 8], x[i, 9]
-    _rotation(qw, qx, qy, qz, R)
+    rotation_into(qw, qx, qy, qz, R)
     fx, fy, fz = f_B[i, 0] - x[i, 10], f_B[i, 1] - x[i, 11], f_B[i, 2] - x[i, 12]
     ux = R[0, 0] * fx + R[0, 1] * fy + R[0, 2] * fz
     uy = R[1, 0] * fx + R[1, 1] * fy + R[1, 2] * fz
@@ -760,7 +760,7 @@ def _eskf_predict_row(
     x_out[i, 6], x_out[i, 7], x_out[i, 8], x_out[i, 9] = qw, qx, qy, qz
     for k in range(10, 16):
         x_out[i, k] = x[i, k]
-    _rotation(qw, qx, qy, qz, R_next)
+    rotation_into(qw, qx, qy, qz, R_next)
     # error transition F = I + E (eskf.fill_transition): E's blocks, A[0] = -[u]x h, A[1] = -[u]x dt,
     # A[2] = -R h, A[3] = -R dt, A[4] = -R' dt (3x3 each); F P F^T = (F (F P)^T)^T from them
     for k, scale in enumerate((h, dt)):
