@@ -223,11 +223,12 @@ def _assembled_rows(attitude, ekf_state, body_rate):
     out = np.empty((attitude.shape[0], 13))
     for i in range(attitude.shape[0]):
         q = _quat_from_euler(attitude[i, 0], attitude[i, 1], ekf_state[i, 6])
-        out[i, 0:3] = ekf_state[i, 0:3]
+        for k in range(3):  # entry by entry: a slice is a new array view per vehicle in numba
+            out[i, k] = ekf_state[i, k]
+            out[i, 7 + k] = ekf_state[i, 3 + k]
+            out[i, 10 + k] = body_rate[i, k]
         for k in range(4):
             out[i, 3 + k] = q[k]
-        out[i, 7:10] = ekf_state[i, 3:6]
-        out[i, 10:13] = body_rate[i]
     return out
 
 
