@@ -253,10 +253,15 @@ def tilt_jacobian(roll, pitch, yaw, fx, fy, fz, wy, wz):
     of the body rate w_NB_B (rad/s). Angles in rad, f_B in m/s^2 (FRD). Plain float
     arithmetic (the fleet compiles it).
     """
-    ux, uy, uz, rolled_z = _yaw_free_rotation(roll, pitch, fx, fy, fz)
-    cr, sr = math.cos(roll), math.sin(roll)
-    cp, sp = math.cos(pitch), math.sin(pitch)
-    cy, sy = math.cos(yaw), math.sin(yaw)
+    trig = (math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch), math.cos(yaw), math.sin(yaw))
+    return tilt_jacobian_of(trig, _yaw_free_rotation(roll, pitch, fx, fy, fz), wy, wz)
+
+
+def tilt_jacobian_of(trig, rotated, wy, wz):
+    """:func:`tilt_jacobian` from the attitude's trig = (cos, sin of roll, of pitch, of yaw) and
+    rotated = (ux, uy, uz, rolled_z) of :func:`_yaw_free_rotation` (a prediction has both already)."""
+    cr, sr, cp, sp, cy, sy = trig
+    ux, uy, uz, rolled_z = rotated
     # d u / d roll = (sp uy, -rolled_z, cp uy); d u / d pitch = (uz, 0, -ux); a_N = Rz(yaw) u
     dux_r, duy_r, duz_r = sp * uy, -rolled_z, cp * uy
     yaw_rate_numerator = wy * sr + wz * cr
@@ -285,7 +290,12 @@ def tilt_noise_factors(roll, pitch, yaw, fx, fy, fz, wy, wz, velocity_gain, yaw_
     """(a, b), two 4-tuples with Q_tilt = a a^T + b b^T on (v_N, yaw): the columns d/droll and
     d/dpitch of :func:`tilt_jacobian`, velocity rows times velocity_gain and the yaw row times
     yaw_gain (:func:`tilt_gains`). Plain float arithmetic (the fleet compiles it)."""
-    d_roll, d_pitch = tilt_jacobian(roll, pitch, yaw, fx, fy, fz, wy, wz)
+    return scaled_tilt_factors(tilt_jacobian(roll, pitch, yaw, fx, fy, fz, wy, wz), velocity_gain, yaw_gain)
+
+
+def scaled_tilt_factors(jacobian, velocity_gain, yaw_gain):
+    """:func:`tilt_noise_factors` of a :func:`tilt_jacobian` (d_roll, d_pitch)."""
+    d_roll, d_pitch = jacobian
     a = (
         velocity_gain * d_roll[0],
         velocity_gain * d_roll[1],

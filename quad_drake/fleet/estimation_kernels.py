@@ -244,21 +244,17 @@ def ekf7_estimated_state(attitude, ekf_state, body_rate):
 # ----- 7-state EKF ---------------------------------------------------------------------------------
 
 
-_tilt_noise_factors = compiled(
-    ekf.tilt_noise_factors,
-    tilt_jacobian=compiled(ekf.tilt_jacobian, _yaw_free_rotation=compiled(ekf._yaw_free_rotation)),
-)
+_tilt_jacobian_of = compiled(ekf.tilt_jacobian_of)
+_scaled_tilt_factors = compiled(ekf.scaled_tilt_factors)
 NO_TILT = (0.0, 0.0)
 """Tilt gains (velocity, yaw) that switch the tilt-aware Q off."""
 
 
 @_jit
-def _add_tilt_noise(P_out, i, attitude, w_B, f_B, gains):
-    """P_out[i, 3:7, 3:7] += a a^T + b b^T of ekf.tilt_noise_factors (gains = ekf.tilt_gains)."""
-    a, b = _tilt_noise_factors(
-        attitude[i, 0], attitude[i, 1], attitude[i, 2], f_B[i, 0], f_B[i, 1], f_B[i, 2], w_B[i, 1], w_B[i, 2],
-        gains[0], gains[1],
-    )  # fmt: skip
+def _add_tilt_noise(P_out, i, trig, rotated, wy, wz, gains):
+    """P_out[i, 3:7, 3:7] += a a^T + b b^T of ekf.tilt_noise_factors (gains = ekf.tilt_gains), from
+    the prediction's trig and rotated specific force (ekf.tilt_jacobian_of)."""
+    a, b = _scaled_tilt_factors(_tilt_jacobian_of(trig, rotated, wy, wz), gains[0], gains[1])
     for r in range(4):
         for c in range(4):
             P_out[i, 3 + r, 3 + c] += a[r] * a[c] + b[r] * b[c]
@@ -266,7 +262,9 @@ def _add_tilt_noise(P_out, i, attitude, w_B, f_B, gains):
 
 @_jit
 def _ekf7_predict_row(x, P, x_out, P_out, i, attitude, f_B, dt, Q, gravity_z, GP, M):
-    """ekf.predict_with_yaw of vehicle i from (x, P) into (x_out, P_out) (may be the same arrays)."""
+    """ekf.predict_with_yaw of vehicle i from (x, P) into (x_out, P_out) (may be the same arrays).
+    Returns the attitude's trig (cos, sin of roll, pitch, yaw) and (ux, uy, uz, rolled_z) of
+    ekf._yaw_free_rotation, which the tilt-aware Q reuses."""
     roll, pitch, yaw = attitude[i, 0], attitude[i, 1], attitude[i, 2]
     fx, fy, fz = f_B[i, 0], f_B[i, 1], f_B[i, 2]
     cr, sr = math.cos(roll), math.sin(roll)
@@ -302,6 +300,7 @@ def _ekf7_predict_row(x, P, x_out, P_out, i, attitude, f_B, dt, Q, gravity_z, GP
     for r in range(7):
         for c in range(7):
             P_out[i, r, c] = (M[r, c] + M[c, r]) * 0.5 + Q[r, c]
+    return (cr, sr, cp, sp, cy, sy), (ux, uy, uz, rolled_z)
 
 
 @_jit
@@ -333,13 +332,12 @@ def ekf7_tick(
     the GPS fusion (``estimators._FleetGatedFusion._fuse_fresh``).
     """
     GP, M = np.empty((7, 7)), np.empty((7, 7))
-    w_B = imu[:, 3:6]
     quiet = True
     for i in range(x.shape[0]):
         if _row_finite(attitude, i, _row_sum(imu, i)):
-            _ekf7_predict_row(x, P, x, P, i, attitude, imu, dt, Q, gravity_z, GP, M)
+            trig, rotated = _ekf7_predict_row(x, P, x, P, i, attitude, imu, dt, Q, gravity_z, GP, M)
             if tilt_gains[0] > 0.0 or tilt_gains[1] > 0.0:
-                _add_tilt_noise(P, i, attitude, w_B, imu, tilt_gains)
+                _add_tilt_noise(P, i, trig, rotated, imu[i, 4], imu[i, 5], tilt_gains)
         else:
             diagnostics[i, _NONFINITE] += 1.0
         healthy[i] = _row_healthy(P, i)
