@@ -110,11 +110,6 @@ class Signals(Mapping):
         return Signals({name: functools.partial(sliced, name) for name in self._makers})
 
 
-def _once(function):
-    """`function` (no argument) evaluated on its first call only."""
-    return functools.cache(function)
-
-
 def vehicle_signals(name, logs, vocabulary=None):
     """{signal name: Signal} (a :class:`Signals`) for vehicle `name` from its logs {log name:
     (n, width) array}, each derived when first read.
@@ -135,7 +130,7 @@ def vehicle_signals(name, logs, vocabulary=None):
         makers[f"{name}.{key}"] = lambda: Signal(values(), fresh())
 
     p, v, w = state[..., P_SLICE], state[..., V_SLICE], state[..., W_SLICE]
-    euler = _once(lambda: euler_from_quats(state[..., Q_SLICE]))
+    euler = functools.cache(lambda: euler_from_quats(state[..., Q_SLICE]))
     for i, axis in enumerate(AXES):
         put(f"Pos.{axis}", lambda i=i: p[..., i])
         put(f"Vel.{axis}", lambda i=i: v[..., i])
@@ -161,7 +156,7 @@ def vehicle_signals(name, logs, vocabulary=None):
             put(f"IMU.{key}", lambda i=i: logs["imu"][..., i])
     if "gps" in logs:
         gps = logs["gps"]
-        gps_fresh = _once(lambda: stamp_fresh(gps[..., 6]))
+        gps_fresh = functools.cache(lambda: stamp_fresh(gps[..., 6]))
         for i, key in enumerate(("X", "Y", "Z", "VX", "VY", "VZ")):
             put(f"GPS.{key}", lambda i=i: gps[..., i], gps_fresh)
     if "mag" in logs:
@@ -175,20 +170,22 @@ def _estimator_signals(put, logs, vocabulary, p, v, euler):
     """Put the estimator's signals (module docstring); euler: the true (roll, pitch, yaw), on call."""
     estimate = logs["estimated_state"]
     p_hat, v_hat = estimate[..., P_SLICE], estimate[..., V_SLICE]
-    euler_hat = _once(lambda: euler_from_quats(estimate[..., Q_SLICE]))
+    euler_hat = functools.cache(lambda: euler_from_quats(estimate[..., Q_SLICE]))
     for i, axis in enumerate(AXES):
         put(f"Est.{axis}", lambda i=i: p_hat[..., i])
         put(f"Est.V{axis}", lambda i=i: v_hat[..., i])
-    euler_errors = [_once(lambda i=i: wrap_angles(euler_hat()[i] - euler()[i])) for i in range(3)]
+    euler_errors = [functools.cache(lambda i=i: wrap_angles(euler_hat()[i] - euler()[i])) for i in range(3)]
     for i, key in enumerate(("Roll", "Pitch", "Yaw")):
         put(f"Est.{key}", lambda i=i: euler_hat()[i])
         put(f"Est.E.{key}", euler_errors[i])
     put("Est.E.MaxEuler", lambda: np.max(np.abs([e() for e in euler_errors]), axis=0))
     put("Est.E.Pos", lambda: np.linalg.norm(p_hat - p, axis=-1))
     put("Est.E.Vel", lambda: np.linalg.norm(v_hat - v, axis=-1))
-    errors = _once(lambda: vocabulary.errors(logs))
+    errors = functools.cache(lambda: vocabulary.errors(logs))
     k = vocabulary.size
-    sigma = _once(lambda: np.sqrt(np.maximum(logs["covariance"][..., :: k + 1], 0.0)))  # diagonal of P
+    sigma = functools.cache(
+        lambda: np.sqrt(np.maximum(logs["covariance"][..., :: k + 1], 0.0))
+    )  # diagonal of P
     for i, key in enumerate(vocabulary.state_names):
         put(f"Est.E.{key}", lambda i=i: errors()[..., i])
         put(f"Est.S.{key}", lambda i=i: sigma()[..., i])

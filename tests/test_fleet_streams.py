@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from quad_drake.fleet.streams import NoiseStreams, stream_generator
+from quad_drake.fleet.systems import FleetNoiseSource
 
 
 def test_a_run_draws_the_same_noise_in_any_batch():
@@ -56,8 +57,6 @@ def _noise_at(source, context, time):
 
 
 def test_the_noise_source_holds_sample_k_from_its_redraw_at_k_period():
-    from quad_drake.fleet.systems import FleetNoiseSource
-
     period = 0.1  # 10 samples per block
     source = FleetNoiseSource([4, 11], "Quad/gps", 3, period, "gaussian")
     context = source.CreateDefaultContext()

@@ -18,6 +18,7 @@ a fleet run and ``quad-drake run NAME --seed S`` see different noise and agree o
 statistically (README "Fleet mode").
 """
 
+import math
 import zlib
 
 import numpy as np
@@ -25,6 +26,17 @@ import numpy as np
 GAUSSIAN = "gaussian"
 UNIFORM = "uniform"
 DISTRIBUTIONS = (GAUSSIAN, UNIFORM)
+
+
+SAMPLE_TIME_TOLERANCE = 1e-7
+"""Samples (fractions of a noise period) by which a reading may fall short of its sample time and
+still see that sample: the rounding of t / period (about 1e-9 of a sample at 10,000 s of 2 ms
+samples); every consumer reads at or after the sample time (``conventions``' offsets)."""
+
+
+def sample_index(time, period):
+    """The index k of the noise sample held at `time` s: the last redraw at k period <= time."""
+    return math.floor(time / period + SAMPLE_TIME_TOLERANCE)
 
 
 def stream_key(run_seed, name):

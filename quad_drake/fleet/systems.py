@@ -34,7 +34,7 @@ from quad_drake.conventions import (
 )
 from quad_drake.fidelity import PHYSICAL
 from quad_drake.fleet import kernels
-from quad_drake.fleet.streams import NoiseStreams
+from quad_drake.fleet.streams import NoiseStreams, sample_index
 from quad_drake.trajectories import lookup_time
 
 STATE_PORT_COPY_LIMIT = 1000
@@ -71,17 +71,6 @@ def _reader(port, n, size):
     value (no copy; valid inside the event handler that reads it)."""
     evaluate = port.EvalBasicVector
     return lambda context: evaluate(context).get_value().reshape(n, size)
-
-
-SAMPLE_TIME_TOLERANCE = 1e-7
-"""Samples (fractions of a noise period) by which a reading may fall short of its sample time and
-still see that sample: the rounding of t / period (about 1e-9 of a sample at 10,000 s of 2 ms
-samples); every consumer reads at or after the sample time (``conventions``' offsets)."""
-
-
-def sample_index(time, period):
-    """The index k of the noise sample held at `time` s: the last redraw at k period <= time."""
-    return math.floor(time / period + SAMPLE_TIME_TOLERANCE)
 
 
 class FleetNoiseSource(LeafSystem):
