@@ -72,10 +72,12 @@ def signals_from_logs(logs, scenario=None):
     Estimator signals need the scenario (its vehicles' estimator vocabularies).
     """
     vocabularies = {} if scenario is None else {v.name: vehicle_vocabulary(v) for v in scenario.vehicles}
-    signals = Signals()
-    for vehicle, vehicle_logs in logs.items():
-        signals = signals.merged(vehicle_signals(vehicle, vehicle_logs, vocabularies.get(vehicle)))
-    return signals
+    return Signals().merged(
+        *(
+            vehicle_signals(vehicle, vehicle_logs, vocabularies.get(vehicle))
+            for vehicle, vehicle_logs in logs.items()
+        )
+    )
 
 
 def result_from_logs(scenario, times, logs, wall_time, runner=RUNNER):

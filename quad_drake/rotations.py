@@ -27,8 +27,18 @@ def euler_from_quats(q):
     w, x, y, z = np.array(np.moveaxis(q, -1, 0))  # one contiguous copy: q may be a strided view
     roll = np.arctan2(2 * (y * z + w * x), w * w - x * x - y * y + z * z)
     pitch = np.arcsin(np.clip(-2 * (x * z - w * y), -1.0, 1.0))
-    yaw = np.arctan2(2 * (x * y + w * z), w * w + x * x - y * y - z * z)
-    return roll, pitch, yaw
+    return roll, pitch, _yaw_of(w, x, y, z)
+
+
+def yaw_from_quats(q):
+    """The yaw array (...) of a (..., 4) array of wxyz quaternions, rad: :func:`euler_from_quats`'
+    yaw without its roll and pitch."""
+    w, x, y, z = np.moveaxis(np.asarray(q), -1, 0)
+    return _yaw_of(w, x, y, z)
+
+
+def _yaw_of(w, x, y, z):
+    return np.arctan2(2 * (x * y + w * z), w * w + x * x - y * y - z * z)
 
 
 def quat_from_euler_tuple(roll, pitch, yaw):

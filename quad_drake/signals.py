@@ -96,9 +96,13 @@ class Signals(Mapping):
     def __repr__(self):
         return f"Signals({list(self._makers)})"
 
-    def merged(self, other):
-        """These signals and `other`'s (a Signals), `other`'s taking a name both have."""
-        return Signals({**self._makers, **other._makers}, {**self._values, **other._values})
+    def merged(self, *others):
+        """These signals and the `others`' (Signals), a later one taking a name they share."""
+        makers, values = dict(self._makers), dict(self._values)
+        for other in others:
+            makers.update(other._makers)
+            values.update(other._values)
+        return Signals(makers, values)
 
     def from_sample(self, start):
         """The same signals from sample `start` on (values and fresh masks sliced on access)."""

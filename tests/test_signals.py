@@ -5,9 +5,11 @@ import math
 import numpy as np
 
 from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, EKF7, ESKF15
-from quad_drake.rotations import euler_from_quat, quat_from_euler
+from quad_drake.rotations import euler_from_quat, quat_from_euler, yaw_from_quats
 from quad_drake.signals import (
     LOG_WIDTHS,
+    Signal,
+    Signals,
     empty_logs,
     euler_from_quats,
     stamp_fresh,
@@ -28,6 +30,24 @@ def test_euler_from_quats_matches_the_scalar_version():
     roll, pitch, yaw = euler_from_quats(quats)
     expected = np.array([euler_from_quat(q) for q in quats])
     np.testing.assert_allclose(np.column_stack([roll, pitch, yaw]), expected, atol=1e-12)
+    np.testing.assert_array_equal(yaw_from_quats(quats), yaw)
+    strided = np.zeros((50, 2, 13))
+    strided[:, 1, 3:7] = quats  # a (50,) view of a batch's state log, as the EKF7 errors read it
+    np.testing.assert_array_equal(yaw_from_quats(strided[:, 1, 3:7]), yaw)
+
+
+def test_merged_signals_are_derived_once_and_later_names_win():
+    calls = []
+
+    def maker(value):
+        return lambda: calls.append(value) or Signal(np.array([value]), np.array([True]))
+
+    a = Signals({"A.x": maker(1.0), "shared": maker(2.0)})
+    assert a["A.x"].values[0] == 1.0 and calls == [1.0]
+    merged = a.merged(Signals({"B.x": maker(3.0)}), Signals({"shared": maker(4.0)}))
+    assert list(merged) == ["A.x", "shared", "B.x"]
+    assert merged["A.x"].values[0] == 1.0 and calls == [1.0]  # derived before the merge: kept
+    assert merged["shared"].values[0] == 4.0 and "B.y" not in merged and len(merged) == 3
 
 
 def test_wrap_angles_into_minus_pi_pi():

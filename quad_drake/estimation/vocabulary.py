@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from quad_drake.estimation.eskf import attitude_errors
-from quad_drake.rotations import euler_from_quats, wrap_angles
+from quad_drake.rotations import wrap_angles, yaw_from_quats
 
 DIAGNOSTICS = (
     "gps_nis",  # NIS of the last fresh GPS sample (fused or gated), NaN before the first
@@ -86,18 +86,14 @@ class EstimatorVocabulary:
         return self.units[self.state_names.index(name)]
 
 
-def _truth_pv_euler(state):
-    state = np.asarray(state, dtype=float)
-    roll, pitch, yaw = euler_from_quats(state[..., 3:7])
-    return state[..., 0:3], state[..., 7:10], roll, pitch, yaw
-
-
 def ekf7_errors(logs):
     """(n, 7) x_hat - x_true of the EKF7 (m, m/s, rad; yaw wrapped) from ``ekf_state`` and ``state``
     ((n, N, 7) of a fleet batch's (n, N, width) logs)."""
-    p, v, _, _, yaw = _truth_pv_euler(logs["state"])
-    errors = np.asarray(logs["ekf_state"], dtype=float) - np.concatenate([p, v, yaw[..., None]], axis=-1)
-    errors[..., 6] = wrap_angles(errors[..., 6])
+    state = np.asarray(logs["state"], dtype=float)
+    errors = np.asarray(logs["ekf_state"], dtype=float).copy()
+    errors[..., 0:3] -= state[..., 0:3]
+    errors[..., 3:6] -= state[..., 7:10]
+    errors[..., 6] = wrap_angles(errors[..., 6] - yaw_from_quats(state[..., 3:7]))
     return errors
 
 

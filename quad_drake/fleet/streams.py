@@ -11,7 +11,8 @@ The draws are taken in blocks of one simulated second (``samples_per_block`` sam
 ``size`` values), so the per-vehicle loop runs once per second, not per tick. Sample k of
 a stream (k = 0, 1, ... at t = k period) is row k % samples_per_block of block
 k // samples_per_block; every block is the next ``samples_per_block * size`` draws of the
-generator, in C order.
+generator, in C order. A block is stored time-major, (samples, N, size), so reading one
+sample of the N vehicles is one contiguous row.
 
 These streams differ from Drake's ``RandomSource`` (which the per-vehicle Diagram uses):
 a fleet run and ``quad-drake run NAME --seed S`` see different noise and agree only
@@ -65,30 +66,33 @@ class NoiseStreams:
         self.name, self.size, self.distribution = name, int(size), distribution
         self.samples_per_block = int(samples_per_block)
         self._generators = None
-        self._next_block = 0
+        self._next_block = 0  # the block the generators draw next
+        self._draws = np.empty((self.samples_per_block, self.size))  # one vehicle's block
 
     @property
     def n(self):
         return len(self.seeds)
 
     def block(self, index, out=None):
-        """(N, samples_per_block, size) draws of block `index`, written into `out` (a C-contiguous
-        float array of that shape, reused from block to block) when given.
+        """(samples_per_block, N, size) draws of block `index` (row k: sample k of the block of
+        every vehicle), written into `out` (a float array of that shape, reused from block to
+        block) when given.
 
-        Blocks come in order (0, 1, 2, ...); asking for block 0 again restarts the streams
-        (a re-initialised simulation), any other order raises ValueError.
+        Blocks may come in any order: the generators are sequential, so a later block draws
+        the ones it skips, and an earlier one restarts the streams (a re-initialised
+        simulation) and draws up to it.
         """
-        if index == 0:
+        if index < 0:
+            raise ValueError(f"{self.name}: block {index} asked for")
+        if self._generators is None or index < self._next_block:
             self._generators = [stream_generator(s, self.name) for s in self.seeds]
             self._next_block = 0
-        if index != self._next_block:
-            raise ValueError(f"{self.name}: block {index} asked for, block {self._next_block} is next")
-        self._next_block += 1
         if out is None:
-            out = np.empty((self.n, self.samples_per_block, self.size))
-        for generator, draws in zip(self._generators, out, strict=True):  # each vehicle's rows in place
-            if self.distribution == GAUSSIAN:
-                generator.standard_normal(out=draws)
-            else:
-                generator.random(out=draws)
+            out = np.empty((self.samples_per_block, self.n, self.size))
+        draw = "standard_normal" if self.distribution == GAUSSIAN else "random"
+        for j, generator in enumerate(self._generators):
+            for _ in range(self._next_block, index + 1):
+                getattr(generator, draw)(out=self._draws)
+            out[:, j] = self._draws
+        self._next_block = index + 1
         return out

@@ -57,11 +57,17 @@ def summary_bytes(scenario, runs, chunk=CHUNK_SAMPLES):
     return runs * per_run
 
 
+def _run_major(values):
+    """A (k, N, ...) array of k samples as a contiguous (N, ..., k) copy: a run's samples are
+    one contiguous row, which numpy sums pairwise. So a sum over them has the same rounding
+    whatever N (numpy reduces a (k, 1) column pairwise but a (k, N) array row by row), and run
+    i's record does not depend on its batch."""
+    return np.ascontiguousarray(np.moveaxis(values, 0, -1))
+
+
 def _sum_over_samples(values):
-    """Sum over the samples (axis 0) of a (k, N, ...) array, run by run along a contiguous
-    copy: the same rounding whatever N (numpy reduces a (k, 1) column pairwise but a (k, N)
-    array row by row), so run i's record does not depend on its batch."""
-    return np.ascontiguousarray(np.moveaxis(values, 0, -1)).sum(axis=-1)
+    """Sum over the samples (axis 0) of a (k, N, ...) array, run by run (:func:`_run_major`)."""
+    return _run_major(values).sum(axis=-1)
 
 
 class _VehicleSums:
@@ -84,15 +90,16 @@ class _VehicleSums:
             if "gps" in log_names:
                 self.pcrb = PcrbStream(vehicle.sensors, runs)
 
-    def update(self, first, times, logs, signals, settled):
+    def update(self, first, times, logs, signals, unsettled):
         """Fold samples first .. first + k - 1 at times (k,) s: logs {name: (k, N, w)}, the
-        vehicle's signals {name: Signal (k, N)}, settled (k,) bool."""
+        vehicle's signals {name: Signal (k, N)}; the first `unsettled` samples come before
+        the settling time, the others after it."""
         for key in self.metric_keys:
-            values = signals[f"{self.name}.{key}"].values
+            values = _run_major(signals[f"{self.name}.{key}"].values)
             squares = values * values
-            self.square_sums[key] += _sum_over_samples(squares)
-            self.settled_square_sums[key] += _sum_over_samples(squares[settled])
-            self.maxima[key] = np.maximum(self.maxima[key], np.abs(values).max(axis=0))
+            self.square_sums[key] += squares.sum(axis=-1)
+            self.settled_square_sums[key] += squares[:, unsettled:].sum(axis=-1)
+            self.maxima[key] = np.maximum(self.maxima[key], np.abs(values).max(axis=-1))
         if self.vocabulary is None:
             return
         errors = vehicle_errors(signals, self.name, self.vocabulary)
@@ -190,11 +197,12 @@ class BatchSummary:
             return
         signals = signals_from_logs(logs, self.scenario).from_sample(skip)
         first = self.samples
-        times, settled = self.times[first : first + k], self._settle[first : first + k]
+        times = self.times[first : first + k]
+        unsettled = int(np.count_nonzero(~self._settle[first : first + k]))  # the times increase
         self._criteria.update(times, signals)
         for vehicle in self._vehicles:
             vehicle_logs = {name: log[skip:] for name, log in logs[vehicle.name].items()}
-            vehicle.update(first, times, vehicle_logs, signals, settled)
+            vehicle.update(first, times, vehicle_logs, signals, unsettled)
         self.samples += k
 
     def records(self, first_index, wall_time):

@@ -80,19 +80,16 @@ class FleetNoiseSource(LeafSystem):
     the discrete updates at t). Unlike RandomSource it has no state and no event: the output is a
     function of the time (cached on Drake's time ticket), so a tick neither copies nor swaps a
     noise state. A block of one simulated second is drawn, into one buffer reused from block to
-    block, when a reading first needs a sample of it; blocks a reading skips are drawn in order
-    (the streams are sequential), and a reading before the block in hand restarts the streams
-    (a re-initialised simulation)."""
+    block, when a reading first needs a sample of it (``NoiseStreams.block``: in any order)."""
 
     def __init__(self, seeds, name, size, period, distribution):
         super().__init__()
         self.period = float(period)
         self._per_block = max(1, int(round(1.0 / self.period)))
         self._streams = NoiseStreams(seeds, name, size, distribution, self._per_block)
-        self._n, self._size = len(seeds), int(size)
         self._block, self._block_index = None, -1
         self.DeclareVectorOutputPort(
-            "noise", self._n * self._size, self._calc, prerequisites_of_calc={self.time_ticket()}
+            "noise", len(seeds) * int(size), self._calc, prerequisites_of_calc={self.time_ticket()}
         )
 
     def release_memory(self):
@@ -103,13 +100,9 @@ class FleetNoiseSource(LeafSystem):
     def _calc(self, context, output):
         block, row = divmod(sample_index(context.get_time(), self.period), self._per_block)
         if block != self._block_index:
-            if self._block is None:
-                self._block = np.empty((self._n, self._per_block, self._size))
-            first = 0 if block < self._block_index or self._block_index < 0 else self._block_index + 1
-            for index in range(first, block + 1):
-                self._streams.block(index, out=self._block)
+            self._block = self._streams.block(block, out=self._block)
             self._block_index = block
-        output.get_mutable_value().reshape(self._n, self._size)[:] = self._block[:, row]
+        output.get_mutable_value()[:] = self._block[row].ravel()
 
 
 class FleetPlant(LeafSystem):
