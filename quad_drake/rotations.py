@@ -38,6 +38,7 @@ def yaw_from_quats(q):
 
 
 def _yaw_of(w, x, y, z):
+    """Yaw, rad, of quaternion components (arrays of one shape): the one yaw formula."""
     return np.arctan2(2 * (x * y + w * z), w * w + x * x - y * y - z * z)
 
 
