@@ -173,7 +173,7 @@ def _add_montecarlo_arguments(parser):
 
 def _add_tune_arguments(parser):
     """Arguments of ``quad-drake tune``."""
-    from .tuning import OBJECTIVES, TuneSettings
+    from .tuning.settings import OBJECTIVES, TuneSettings
 
     d = TuneSettings()
     parser.add_argument("name", metavar="NAME", help="scenario name or YAML path")

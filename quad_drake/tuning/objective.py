@@ -24,8 +24,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import consistency as cons
+from .settings import OBJECTIVES
 
-OBJECTIVES = ("consistency", "accuracy", "both")
 INFEASIBLE = 100.0
 """Added to the loss of a candidate with a failed run (larger than any feasible loss)."""
 NONFINITE_DISTANCE = 10.0

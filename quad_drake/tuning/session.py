@@ -21,25 +21,11 @@ from ..config import ConfigError
 from ..simulation import available_signals
 from ..verdicts import check_criteria
 from . import output
-from .objective import OBJECTIVES, pass_rate, score
+from .objective import pass_rate, score
 from .scoring import CandidateTask, campaign_runner, fly_campaign, score_candidates
 from .search import search
+from .settings import OBJECTIVES, TuneSettings
 from .space import SEARCH_DECADES, apply, search_space
-
-
-@dataclass(frozen=True)
-class TuneSettings:
-    """What ``quad-drake tune`` was asked for (CLI defaults)."""
-
-    objective: str = "both"
-    budget: int = 20  # candidates scored, the start included
-    train_seed: int = 1000  # first training seed; candidate campaigns use train_seed..+train_runs-1
-    train_runs: int = 10
-    holdout_seed: int = 0  # first held-out seed
-    holdout_runs: int = 50
-    jobs: int = 1
-    search_seed: int = 0  # seeds CMA-ES's sampler
-    holdout: bool = True  # fly the before/after comparison
 
 
 @dataclass
