@@ -31,6 +31,20 @@ def strict_loads(text):
     return json.loads(text, parse_constant=refuse)
 
 
+def test_the_package_exports_every_public_name_from_its_module():
+    import quad_drake.tuning as tuning
+
+    modules = {"objective": objective, "session": session, "space": space}
+    for name in tuning.__all__:
+        value = getattr(tuning, name)
+        home = tuning._LAZY.get(name)
+        assert home is None or value is getattr(modules[home], name), name
+        assert name in dir(tuning)
+    assert tuning.TuneSettings is session.TuneSettings and tuning.OBJECTIVES == objective.OBJECTIVES
+    with pytest.raises(AttributeError, match="no attribute 'tunes'"):
+        tuning.tunes  # noqa: B018 (the attribute access is the test)
+
+
 # ----- search space ---------------------------------------------------------------------------
 
 

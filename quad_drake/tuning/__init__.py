@@ -34,6 +34,10 @@ def __getattr__(name):
     return getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
 
 
+def __dir__():
+    return sorted({*globals(), *_LAZY})
+
+
 __all__ = [
     "DEFAULT_KEYS",
     "OBJECTIVES",
