@@ -83,9 +83,13 @@ def mag_noise(params):
 
 def _yaw_free_rotation(roll, pitch, fx, fy, fz):
     """(ux, uy, uz, rolled_z): u = Ry(pitch) Rx(roll) f (the yaw-free part of R_NB f) and the z
-    component of Rx(roll) f, for f = (fx, fy, fz); plain floats (the fleet compiles it)."""
-    cr, sr = math.cos(roll), math.sin(roll)
-    cp, sp = math.cos(pitch), math.sin(pitch)
+    component of Rx(roll) f, for f = (fx, fy, fz); plain floats."""
+    return yaw_free_rotation_of(math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch), fx, fy, fz)
+
+
+def yaw_free_rotation_of(cr, sr, cp, sp, fx, fy, fz):
+    """:func:`_yaw_free_rotation` from the cosines and sines of roll and pitch (plain floats; the
+    fleet's compiled prediction, which has them already, calls it too)."""
     rolled_z = sr * fy + cr * fz
     return cp * fx + sp * rolled_z, cr * fy - sr * fz, -sp * fx + cp * rolled_z, rolled_z
 
@@ -253,13 +257,14 @@ def tilt_jacobian(roll, pitch, yaw, fx, fy, fz, wy, wz):
     of the body rate w_NB_B (rad/s). Angles in rad, f_B in m/s^2 (FRD). Plain float
     arithmetic (the fleet compiles it).
     """
-    trig = (math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch), math.cos(yaw), math.sin(yaw))
-    return tilt_jacobian_of(trig, _yaw_free_rotation(roll, pitch, fx, fy, fz), wy, wz)
+    cr, sr, cp, sp = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch)
+    trig = (cr, sr, cp, sp, math.cos(yaw), math.sin(yaw))
+    return tilt_jacobian_of(trig, yaw_free_rotation_of(cr, sr, cp, sp, fx, fy, fz), wy, wz)
 
 
 def tilt_jacobian_of(trig, rotated, wy, wz):
     """:func:`tilt_jacobian` from the attitude's trig = (cos, sin of roll, of pitch, of yaw) and
-    rotated = (ux, uy, uz, rolled_z) of :func:`_yaw_free_rotation` (a prediction has both already)."""
+    rotated = (ux, uy, uz, rolled_z) of :func:`yaw_free_rotation_of` (a prediction has both already)."""
     cr, sr, cp, sp, cy, sy = trig
     ux, uy, uz, rolled_z = rotated
     # d u / d roll = (sp uy, -rolled_z, cp uy); d u / d pitch = (uz, 0, -ux); a_N = Rz(yaw) u

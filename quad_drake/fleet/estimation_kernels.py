@@ -244,6 +244,7 @@ def ekf7_estimated_state(attitude, ekf_state, body_rate):
 # ----- 7-state EKF ---------------------------------------------------------------------------------
 
 
+_yaw_free_rotation_of = compiled(ekf.yaw_free_rotation_of)
 _tilt_jacobian_of = compiled(ekf.tilt_jacobian_of)
 _scaled_tilt_factors = compiled(ekf.scaled_tilt_factors)
 NO_TILT = (0.0, 0.0)
@@ -264,16 +265,13 @@ def _add_tilt_noise(P_out, i, trig, rotated, wy, wz, gains):
 def _ekf7_predict_row(x, P, x_out, P_out, i, attitude, f_B, dt, Q, gravity_z, GP, M):
     """ekf.predict_with_yaw of vehicle i from (x, P) into (x_out, P_out) (may be the same arrays).
     Returns the attitude's trig (cos, sin of roll, pitch, yaw) and (ux, uy, uz, rolled_z) of
-    ekf._yaw_free_rotation, which the tilt-aware Q reuses."""
+    ekf.yaw_free_rotation_of, which the tilt-aware Q reuses."""
     roll, pitch, yaw = attitude[i, 0], attitude[i, 1], attitude[i, 2]
     fx, fy, fz = f_B[i, 0], f_B[i, 1], f_B[i, 2]
     cr, sr = math.cos(roll), math.sin(roll)
     cp, sp = math.cos(pitch), math.sin(pitch)
     cy, sy = math.cos(yaw), math.sin(yaw)
-    rolled_z = sr * fy + cr * fz
-    ux = cp * fx + sp * rolled_z
-    uy = cr * fy - sr * fz
-    uz = -sp * fx + cp * rolled_z
+    ux, uy, uz, rolled_z = _yaw_free_rotation_of(cr, sr, cp, sp, fx, fy, fz)
     g3 = (-sy * ux - cy * uy) * dt
     g4 = (cy * ux - sy * uy) * dt
     for k in range(3):

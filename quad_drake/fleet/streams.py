@@ -89,10 +89,11 @@ class NoiseStreams:
             self._next_block = 0
         if out is None:
             out = np.empty((self.samples_per_block, self.n, self.size))
-        draw = "standard_normal" if self.distribution == GAUSSIAN else "random"
+        generator_type = np.random.Generator
+        draw = generator_type.standard_normal if self.distribution == GAUSSIAN else generator_type.random
         for j, generator in enumerate(self._generators):
             for _ in range(self._next_block, index + 1):
-                getattr(generator, draw)(out=self._draws)
+                draw(generator, out=self._draws)
             out[:, j] = self._draws
         self._next_block = index + 1
         return out
