@@ -1,8 +1,8 @@
 """Closed-loop speed in CPU time: ``11_gps_update`` against a Drake C++ baseline, in-process and as
 whole processes, all measured in one run of this script.
 
-Four figures, each the median of ``--runs`` rounds (one round runs the four in turn, so a busy
-machine slows all of them alike):
+Four figures (and the floor below), each the median of ``--runs`` rounds (one round runs them
+in turn, so a busy machine slows all of them alike):
 
 - **ours in-process**: CPU s (``time.process_time``) of ``Simulator.Initialize`` + ``AdvanceTo``
   of the scenario's full closed loop (every sensor, filter and logger), build excluded;
@@ -18,7 +18,10 @@ machine slows all of them alike):
 The ratios to the baseline are the machine-independent figures; the issue's targets are 35x real
 time in CPU for the in-process run and a whole process within 4x the baseline's. Child processes
 run with bytecode caching on (as an installed package has it), after one warm-up each.
-``--breakdown`` adds one timed in-process run: CPU per 2 ms tick of each system's handlers.
+Each round also times the **layout floor**: the same in-process run with every handler of
+``quad_drake.systems`` emptied (same systems, ports, events, noise sources and loggers, no
+maths), the least any handler code could cost. ``--breakdown`` adds one timed in-process run:
+CPU per 2 ms tick of each system's handlers.
 
     python benchmarks/bench_closed_loop.py [--runs 3] [--breakdown] [scenario]
 """
@@ -35,6 +38,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
+
+from benchmarks.handlers import empty, replaced_handlers  # noqa: E402
 
 TARGET_REAL_TIME_FACTOR = 35.0
 """Issue 12 target: in-process CPU time of 11_gps_update at >= 35x real time."""
@@ -113,17 +118,20 @@ def process_cpu(command):
     return (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
 
 
-HANDLERS = (
-    "_update",
-    "_sample",
-    "_calc",
-    "_calc_reference",
-    "_book",
-    "_delayed",
-    "_first_step",
-    "_second_step",
-)
-"""Names of the periodic-update and output-calc methods of the systems in quad_drake.systems."""
+def _system_modules():
+    from quad_drake.systems import controller, estimators, faults, plant, sensors, trajectory
+
+    return controller, estimators, faults, plant, sensors, trajectory
+
+
+def layout_floor(scenario):
+    """CPU s of one run of the scenario's Diagram with every handler of quad_drake.systems
+    emptied (a no-op: states and outputs keep what they hold): the same systems, ports, events
+    and steps, Drake's noise sources and loggers, and no maths. No handler code, however fast,
+    makes the run cheaper than this."""
+
+    with replaced_handlers(_system_modules(), empty):
+        return time_scenario(scenario)
 
 
 def breakdown(scenario):
@@ -131,12 +139,7 @@ def breakdown(scenario):
     to run through their input ports) over one run, and the rest: Drake's framework, the noise
     sources, port plumbing between handlers and the logger. Each handler is timed with
     ``time.thread_time`` (CPU, not wall) by a wrapper; its two clock reads (~1 us) are included."""
-    import inspect
-
-    from quad_drake.systems import controller, estimators, faults, plant, sensors, trajectory
-
     totals, calls, stack = {}, {}, [0.0]
-    originals = []
 
     def timed(key, method):
         def handler(self, context, arg):
@@ -153,18 +156,8 @@ def breakdown(scenario):
 
         return handler
 
-    for module in (controller, estimators, faults, plant, sensors, trajectory):
-        for _, cls in inspect.getmembers(module, inspect.isclass):
-            if cls.__module__ == module.__name__:
-                for name in HANDLERS:
-                    if name in cls.__dict__:
-                        originals.append((cls, name, cls.__dict__[name]))
-                        setattr(cls, name, timed(f"{cls.__name__}.{name}", cls.__dict__[name]))
-    try:
+    with replaced_handlers(_system_modules(), timed):
         total = time_scenario(scenario)
-    finally:
-        for cls, name, method in originals:
-            setattr(cls, name, method)
     ticks = scenario.end_time / 0.002
     lines = [f"breakdown of one run: {total:.3f} s CPU = {1e6 * total / ticks:.1f} us per 2 ms tick"]
     for key in sorted(totals, key=totals.get, reverse=True):
@@ -211,9 +204,12 @@ def main(argv=None):
                     time_cpp_baseline(end_time),
                     process_cpu(ours_process),
                     process_cpu(base_process),
+                    layout_floor(scenario),
                 )
             )
-    ours, base, ours_whole, base_whole = (statistics.median(column) for column in zip(*rounds, strict=True))
+    ours, base, ours_whole, base_whole, floor = (
+        statistics.median(column) for column in zip(*rounds, strict=True)
+    )
     ratio = statistics.median(r[0] / r[1] for r in rounds)
     whole_ratio = statistics.median(r[2] / r[3] for r in rounds)
 
@@ -226,9 +222,15 @@ def main(argv=None):
     print(f"{'ours, whole process':34}{ours_whole:8.3f}{end_time / ours_whole:8.1f}")
     print(f"{'C++ baseline, in-process':34}{base:8.3f}{end_time / base:8.1f}")
     print(f"{'C++ baseline, whole process':34}{base_whole:8.3f}{end_time / base_whole:8.1f}")
+    print(f"{'ours, layout floor (no-op handlers)':34}{floor:8.3f}{end_time / floor:8.1f}")
     print(f"ratio in-process (ours / C++): {ratio:.1f}; whole process (ours / C++): {whole_ratio:.2f}")
     verdict = "met" if end_time / ours >= TARGET_REAL_TIME_FACTOR else "NOT met"
     print(f"target {TARGET_REAL_TIME_FACTOR:g}x real time in-process: {verdict} ({end_time / ours:.1f}x)")
+    reachable = "within" if end_time / floor >= TARGET_REAL_TIME_FACTOR else "beyond"
+    print(
+        f"  the Diagram's layout alone runs at {end_time / floor:.1f}x real time (handlers "
+        f"{ours - floor:.3f} s, layout {floor:.3f} s): {TARGET_REAL_TIME_FACTOR:g}x is {reachable} its reach"
+    )
     verdict = "met" if whole_ratio <= TARGET_PROCESS_RATIO else "NOT met"
     print(
         f"target whole process <= {TARGET_PROCESS_RATIO:g}x the C++ baseline's: {verdict} "

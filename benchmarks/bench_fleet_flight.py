@@ -7,10 +7,13 @@ fleets of each ``--sizes`` N, ``--repeats`` times each (the best kept), and prin
 tick, then the fit of CPU per tick = fixed + N x per-vehicle over the sizes (least squares).
 The Diagram's sink reads every exported signal at the 5 ms log samples, as a campaign's does, and
 keeps nothing: the figure is the flight, not the logs or their summaries (``fleet.streaming``).
-``--profile N`` prints the cProfile top entries of one flight of N vehicles instead.
+``--floor`` adds, per size, the same flight with every handler of the fleet systems emptied (no
+maths, no noise drawn): the layout's floor, Drake's steps and state copies, the port plumbing and
+the sink's reads. ``--profile N`` prints the cProfile top entries of one flight of N vehicles
+instead.
 
     python benchmarks/bench_fleet_flight.py [--scenario 11_gps_update] [--seconds 5] [--sizes 500 1000]
-                                            [--repeats 3] [--profile N]
+                                            [--repeats 3] [--floor] [--profile N]
 """
 
 import argparse
@@ -27,8 +30,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from pydrake.systems.framework import LeafSystem  # noqa: E402
 
+from benchmarks.handlers import empty, replaced_handlers  # noqa: E402
 from quad_drake import catalog  # noqa: E402
 from quad_drake.conventions import LOG_PERIOD, ONBOARD_PERIOD  # noqa: E402
+from quad_drake.fleet import estimators, systems  # noqa: E402
 from quad_drake.fleet.simulation import build_fleet_diagram, fly, release_memory  # noqa: E402
 
 
@@ -61,6 +66,7 @@ def main():
     parser.add_argument("--seconds", type=float, default=5.0, help="simulated seconds per flight")
     parser.add_argument("--sizes", type=int, nargs="+", default=[500, 1000])
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--floor", action="store_true", help="also fly each size with empty handlers")
     parser.add_argument("--profile", type=int, default=None, metavar="N")
     args = parser.parse_args()
     full = catalog.load(args.scenario)
@@ -84,6 +90,14 @@ def main():
             f"{per_run * 1e3:.1f} ms per {full.end_time:g} s run; "
             f"{cpu / ticks / n * 1e6:.2f} us per vehicle-tick"
         )
+        if args.floor:
+            with replaced_handlers((systems, estimators), empty):
+                floor = min(flight_cpu(scenario, n) for _ in range(args.repeats))
+            print(
+                f"         layout floor (empty handlers): {floor:.2f} s CPU; "
+                f"{floor / n * full.end_time / args.seconds * 1e3:.1f} ms per run; "
+                f"{floor / ticks / n * 1e6:.2f} us per vehicle-tick ({100 * floor / cpu:.0f} % of the flight)"
+            )
     if len(per_tick) > 1:
         sizes = np.array(list(per_tick), dtype=float)
         slope, fixed = np.polyfit(sizes, np.array(list(per_tick.values())), 1)
