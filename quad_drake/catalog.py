@@ -7,7 +7,7 @@ campaigns all go through it.
 
 from pathlib import Path
 
-from .config import ConfigError, load_scenario
+from .config import ConfigError, check_seed_range, load_scenario
 
 SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios"
 
@@ -34,8 +34,8 @@ def resolve(name_or_path):
 def load(name_or_path, seed=None, overrides=()):
     """Validated ScenarioConfig for a bundled name or a path, with ``dotted.key=value`` overrides.
 
-    ``seed`` (when given) is applied as the override ``seed=<seed>`` after the others, so the
-    same rule as in a file (an int >= 0) validates it. The criteria's signal names are checked
+    ``seed`` (when given, in [0, ``config.MAX_SEED``], else a ConfigError naming ``--seed``) is
+    applied as the override ``seed=<seed>`` after the others. The criteria's signal names are checked
     against what the scenario logs, so a misspelt name is reported (with the file) at load
     time, before anything flies.
     """
@@ -45,6 +45,7 @@ def load(name_or_path, seed=None, overrides=()):
     path = resolve(name_or_path)
     overrides = list(overrides)
     if seed is not None:
+        check_seed_range(seed, 1)
         overrides.append(f"seed={seed}")
     scenario = load_scenario(path, overrides)
     try:

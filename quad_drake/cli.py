@@ -57,10 +57,14 @@ def cmd_run(args):
     from .report import estimator_health
     from .results import save_run
 
+    if args.all and args.names:
+        named = " ".join(args.names)
+        raise ConfigError(f"run: name scenarios or give --all, not both (got {named} and --all)")
     names = list(catalog.bundled_scenarios()) if args.all else args.names
     if not names:
         raise ConfigError("run: name at least one scenario, or --all")
     scenarios = [catalog.load(n, args.seed, args.set) for n in names]  # all input checked first
+    _check_distinct_names(scenarios)
     out = check_output_dir(args.out)
     summaries = []
     try:
@@ -93,6 +97,19 @@ def cmd_run(args):
     if index:
         print(f"open {index}")
     return 0 if all(s["passed"] for s in summaries) else 1
+
+
+def _check_distinct_names(scenarios):
+    """ConfigError when two scenarios of one command share a name: their results would share
+    a folder, the later overwriting the earlier."""
+    seen = set()
+    for scenario in scenarios:
+        if scenario.name in seen:
+            raise ConfigError(
+                f"run: two scenarios are named {scenario.name!r} and would share {scenario.name}/; "
+                "give one another name (name: in its file, or --set name=...)"
+            )
+        seen.add(scenario.name)
 
 
 def _write_index(args, summaries, out):
@@ -130,6 +147,11 @@ def cmd_diagram(args):
 
     scenario = catalog.load(args.name, None, args.set)
     path = Path(args.output or f"{scenario.name}_diagram.svg")
+    if path.suffix.lower() != ".svg":
+        raise ConfigError(f"diagram -o {path}: the diagram is written as SVG; name a .svg file")
+    if path.is_dir():
+        raise ConfigError(f"diagram -o {path}: is a folder; name a .svg file")
+    check_output_dir(path.parent, option=f"diagram -o {path}: folder")
     print(write_diagram_svg(scenario, path, max_depth=args.depth))
     return 0
 
@@ -253,7 +275,7 @@ def cmd_montecarlo(args):
     from .report import write_index
 
     if args.runs < 1 or args.jobs < 1:
-        raise ConfigError("montecarlo: --runs and --jobs must be >= 1")
+        raise ConfigError(f"montecarlo: --runs and --jobs must be >= 1, got {args.runs} and {args.jobs}")
     scenario = catalog.load(args.name, args.seed, args.set)
     out_dir = check_output_dir(args.out) / f"{scenario.name}_montecarlo"
     try:

@@ -38,6 +38,29 @@ def _num(default, **rules):
     return field(default=default, metadata=rules)
 
 
+MAX_SEED = 2**32 - 1
+"""Largest seed: Drake's RandomGenerator (a 32-bit Mersenne Twister) keeps the low 32 bits of
+a seed, so 2**32 would fly the same noise as 0. A campaign's last run (seed S + runs - 1) must
+not pass it either (:func:`check_seed_range`)."""
+
+NAME_PATTERNS = {
+    "scenario": (
+        re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+-]*"),
+        "a letter, digit or _, then letters, digits or _ . + -; default: the file's name",
+    ),
+    "vehicle": (re.compile(r"[A-Za-z_][A-Za-z0-9_-]*"), "a letter or _, then letters, digits, _ or -"),
+}
+"""Names that become folders and files (a scenario's results, a vehicle's CSV) and prefixes of
+signal names (``Quad.Est.E.Pos``): no path separators, no leading dot, no dot in a vehicle's."""
+
+
+def check_seed_range(first_seed, runs, what="--seed"):
+    """ConfigError unless the seeds first_seed .. first_seed + runs - 1 lie in [0, MAX_SEED]."""
+    if first_seed < 0 or first_seed + runs - 1 > MAX_SEED:
+        last = f" to {first_seed + runs - 1}" if runs > 1 else ""
+        raise ConfigError(f"{what}: seeds must lie in [0, {MAX_SEED}] (2**32 - 1), got {first_seed}{last}")
+
+
 def _std(*values):
     """A vector of noise standard deviations (>= 0, see NOISE_STD_RANGE)."""
     return field(
@@ -265,7 +288,7 @@ class TrajectoryConfig:
 
 @dataclass
 class VehicleConfig:
-    name: str = "Quad"
+    name: str = field(default="Quad", metadata={"pattern": "vehicle"})
     initial_position: List[float] = _vec(0.0, 0.0, -1.0)  # m, NED
     initial_velocity: List[float] = _vec(0.0, 0.0, 0.0)  # m/s, NED
     initial_ypr: List[float] = _vec(0.0, 0.0, 0.0)  # rad, yaw pitch roll
@@ -349,10 +372,10 @@ class SafetyConfig:
 
 @dataclass
 class ScenarioConfig:
-    name: str = ""
+    name: str = field(default="", metadata={"pattern": "scenario"})  # default: the file's stem
     description: str = ""
     end_time: float = _num(1.0, positive=True)  # s
-    seed: int = _num(0, nonnegative=True)
+    seed: int = _num(0, nonnegative=True, maximum=MAX_SEED)
     vehicles: List[VehicleConfig] = field(default_factory=lambda: [VehicleConfig()])
     criteria: List[CriterionConfig] = field(default_factory=list)
     safety: SafetyConfig = field(default_factory=SafetyConfig)
@@ -453,6 +476,10 @@ def validate(config, path=""):
         rules = f.metadata
         if "length" in rules and len(value) != rules["length"]:
             raise ConfigError(f"{sub}: expected {rules['length']} values, got {len(value)}")
+        if "pattern" in rules:
+            pattern, allowed = NAME_PATTERNS[rules["pattern"]]
+            if not pattern.fullmatch(value):
+                raise ConfigError(f"{sub}: {value!r} is not a usable name ({allowed})")
         if "choices" in rules and value not in rules["choices"]:
             raise ConfigError(f"{sub}: {value!r} is not one of {', '.join(rules['choices'])}")
         for x in value if isinstance(value, list) else [value]:
@@ -506,6 +533,15 @@ def _check_semantics(scenario):
         p = v.physics
         if p.min_motor_thrust >= p.max_motor_thrust:
             raise ConfigError(f"vehicles.{i}.physics: min_motor_thrust must be < max_motor_thrust")
+        for axis, bounds in enumerate((p.x_bounds, p.y_bounds, p.z_bounds)):
+            where = f"vehicles.{i}.physics.{'xyz'[axis]}_bounds"
+            if not bounds[0] < bounds[1]:
+                raise ConfigError(f"{where}: must be [min, max] with min < max, got {bounds}")
+            if not bounds[0] <= v.initial_position[axis] <= bounds[1]:
+                raise ConfigError(
+                    f"vehicles.{i}.initial_position: {'xyz'[axis]} = {v.initial_position[axis]:g} m is "
+                    f"outside the room ({where} {bounds}; NED, z = {p.z_bounds[1]:g} is the floor)"
+                )
         if v.trajectory.kind == "file":
             resolve_trajectory_file(v.trajectory.file, f"vehicles.{i}.trajectory.file")
         if not v.use_ideal_estimator and not (v.sensors.imu and v.sensors.gps and v.sensors.mag):
@@ -568,7 +604,14 @@ def resolve_trajectory_file(name, where="trajectory.file"):
     raise ConfigError(f"{where}: no such trajectory file {name!r}")
 
 
-def _first_line(error):
+def _first_line(error, located=True):
+    """One line of an error; for a YAML syntax error its problem, where it is (line, column;
+    unless not `located`: a ``--set`` value is parsed inside a wrapper) and its context."""
+    problem, mark = getattr(error, "problem", None), getattr(error, "problem_mark", None)
+    if problem and mark is not None:
+        context = getattr(error, "context", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if located else ""
+        return f"{problem}{where}" + (f" ({context})" if context else "")
     return " ".join(str(error).split("\n")[:2]).strip()
 
 
@@ -613,7 +656,8 @@ def parse_override(text):
     try:
         value = load_yaml(f"value: {raw}")["value"] if raw.strip() else None
     except yaml.YAMLError as e:
-        raise ConfigError(f"--set {text!r}: value is not valid YAML ({_first_line(e)})") from None
+        reason = _first_line(e, located=False)
+        raise ConfigError(f"--set {text!r}: value is not valid YAML ({reason})") from None
     return key.strip().split("."), value
 
 
@@ -667,10 +711,22 @@ def load_scenario(path, overrides=()):
         validate(scenario)
         _check_semantics(scenario)
     except ConfigError as e:
-        raise ConfigError(f"{path}: {e}") from None
+        raise ConfigError(f"{path}: {e}{_override_hint(str(e), overrides)}") from None
     except (RuntimeError, ValueError, TypeError) as e:
         raise ConfigError(f"{path}: {_first_line(e)}") from None
     return scenario
+
+
+def _override_hint(message, overrides):
+    """`` (--set KEY=VALUE)`` when the field a validation message starts with ("field: ...")
+    is, contains or lies in the key of one of the `overrides`, else ``""``: the mistake is on
+    the command line, not in the file."""
+    field_path = message.split(":", 1)[0]
+    for text in reversed(overrides):  # the last override of a key wins
+        key = text.partition("=")[0].strip()
+        if field_path == key or field_path.startswith(key + ".") or key.startswith(field_path + "."):
+            return f" (--set {text})"
+    return ""
 
 
 def dump_scenario(scenario):

@@ -13,6 +13,7 @@ the saved configuration, without simulating again.
 """
 
 import json
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -88,10 +89,20 @@ def result_from_logs(scenario, times, logs, wall_time, runner=RUNNER):
     )
 
 
+RUN_ARTIFACTS = ("report.html", "replay.html", "*.png", "csv/*.csv")
+"""What a run folder holds besides its logs, config and summary (``plots.write_run_artifacts``,
+``export.export_csv``): derived from the logs, so a new run in the folder removes the old ones."""
+
+
 def save_run(result, out_dir):
-    """Write logs.npz, config.yaml (resolved) and summary.json into out_dir; returns out_dir."""
+    """Write logs.npz, config.yaml (resolved) and summary.json into out_dir, after removing an
+    earlier run's RUN_ARTIFACTS there (a run without plots must not sit beside the old run's
+    report); returns out_dir."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    for pattern in RUN_ARTIFACTS:
+        for stale in out_dir.glob(pattern):
+            stale.unlink()
     arrays = {"times": result.times}
     for vehicle, logs in result.logs.items():
         for name, data in logs.items():
@@ -103,17 +114,26 @@ def save_run(result, out_dir):
 
 
 def load_logs(run_dir):
-    """(times, {vehicle: {log name: array}}) from a run folder's logs.npz."""
+    """(times, {vehicle: {log name: array}}) from a run folder's logs.npz.
+
+    Raises ConfigError (one line) for a folder without logs, one whose summary.json is not a
+    run's of a supported format_version (:func:`read_summary`), and logs that cannot be read.
+    """
     path = Path(run_dir) / "logs.npz"
     if not path.is_file():
         raise ConfigError(f"{run_dir}: no logs.npz (is this a run folder?)")
-    with np.load(path) as data:
-        logs = {}
-        for key in data.files:
-            if key != "times":
-                vehicle, name = key.split("/", 1)
-                logs.setdefault(vehicle, {})[name] = data[key]
-        return data["times"], logs
+    read_summary(Path(run_dir) / "summary.json", kind="run")
+    try:
+        with np.load(path) as data:
+            logs = {}
+            for key in data.files:
+                if key != "times":
+                    vehicle, name = key.split("/", 1)
+                    logs.setdefault(vehicle, {})[name] = data[key]
+            return data["times"], logs
+    except (OSError, EOFError, KeyError, ValueError, zipfile.BadZipFile) as e:
+        reason = str(e).splitlines()[0] if str(e) else type(e).__name__
+        raise ConfigError(f"{path}: not a readable quad_drake log ({reason})") from None
 
 
 def read_summary(path, kind=None):

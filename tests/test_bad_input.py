@@ -12,6 +12,7 @@ import pytest
 
 from quad_drake.config import ConfigError
 from quad_drake.outdir import check_output_dir
+from quad_drake.results import FORMAT_VERSION
 
 BAD_CRITERION = """
 description: a criterion on a signal no vehicle logs
@@ -183,3 +184,58 @@ def test_a_numerical_breakdown_during_a_flight_is_one_line_with_exit_2(quad_drak
         "covariance P is not finite at t = 1.234 s); check the noise and covariance settings"
     )
     assert not (tmp_path / "out" / "11_gps_update").exists()
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--set", "name=../../escape"], "name: '../../escape' is not a usable name"),
+        (["--set", "name=/tmp/elsewhere"], "name: '/tmp/elsewhere' is not a usable name"),
+        (["--set", "vehicles.0.name=../x"], "vehicles.0.name: '../x' is not a usable name"),
+        (["--set", "vehicles.0.name=Quad.1"], "vehicles.0.name: 'Quad.1' is not a usable name"),
+        (["--seed", "4294967296"], "--seed: seeds must lie in [0, 4294967295]"),
+        (["--seed", "-1"], "--seed: seeds must lie in [0, 4294967295]"),
+        (["--set", "seed=99999999999999999999"], "seed: must be <= 4294967295"),
+        (["--set", "vehicles.0.physics.x_bounds=[5, -5]"], "x_bounds: must be [min, max] with min < max"),
+        (["--set", "vehicles.0.initial_position=[0, 0, 1]"], "initial_position: z = 1 m is outside the room"),
+        (["--set", "end_tme=3"], "end_tme: unknown key"),
+    ],
+)
+def test_names_seeds_and_rooms_that_cannot_work_are_refused(quad_drake_cli, tmp_path, args, message):
+    result = quad_drake_cli("run", "01_intro", *args, "--no-plots", "--out", str(tmp_path / "out"))
+    assert_refused(result, message)
+    if args[0] == "--set":
+        assert result.stderr.strip().endswith(f"(--set {args[1]})")  # the mistake is on the command line
+    assert not (tmp_path / "out").exists() and not (tmp_path.parent / "escape").exists()
+
+
+def test_a_campaign_whose_last_seed_passes_the_limit_is_refused(quad_drake_cli, tmp_path):
+    args = ["--runs", "2", "--seed", "4294967295", "--out", str(tmp_path)]
+    result = quad_drake_cli("montecarlo", "01_intro", *args)
+    assert_refused(result, "got 4294967295 to 4294967296")
+
+
+def test_two_scenarios_of_one_name_or_names_with_all_are_refused(quad_drake_cli, tmp_path):
+    copy = tmp_path / "01_intro.yaml"
+    copy.write_text("end_time: 0.2\n")
+    out = tmp_path / "out"
+    assert_refused(quad_drake_cli("run", "01_intro", str(copy), "--out", str(out)), "two scenarios are named")
+    assert_refused(quad_drake_cli("run", "01_intro", "--all", "--out", str(out)), "not both")
+    assert not out.exists()
+
+
+def test_a_diagram_path_that_cannot_be_written_is_refused(quad_drake_cli, tmp_path):
+    assert_refused(quad_drake_cli("diagram", "01_intro", "-o", str(tmp_path)), "name a .svg file")
+    assert_refused(quad_drake_cli("diagram", "01_intro", "-o", str(tmp_path / "d.png")), "name a .svg file")
+    missing = tmp_path / "no" / "such" / "d.svg"
+    assert_refused(quad_drake_cli("diagram", "01_intro", "-o", str(missing)), "parent folder")
+
+
+@pytest.mark.parametrize("content", [b"not a zip", b"PK\x03\x04 truncated"])
+@pytest.mark.parametrize("command", ["export", "noise-std"])
+def test_a_damaged_log_file_is_one_line(quad_drake_cli, tmp_path, command, content):
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    (run_dir / "summary.json").write_text(json.dumps({"format_version": FORMAT_VERSION, "kind": "run"}))
+    (run_dir / "logs.npz").write_bytes(content)
+    assert_refused(quad_drake_cli(command, str(run_dir)), "logs.npz: not a readable quad_drake log")

@@ -274,8 +274,10 @@ def test_a_failing_run_names_its_seed(monkeypatch, scenario):
 def test_bad_counts_are_config_errors(scenario):
     with pytest.raises(ConfigError, match="--runs must be >= 1"):
         run_campaign(scenario, 0, progress=False)
-    with pytest.raises(ConfigError, match="--seed must be >= 0"):
+    with pytest.raises(ConfigError, match=r"--seed: seeds must lie in .*, got -1 to 0"):
         run_campaign(scenario, 2, seed=-1, progress=False)
+    with pytest.raises(ConfigError, match=r"--seed: seeds must lie in .*, got 4294967295 to 4294967296"):
+        run_campaign(scenario, 2, seed=2**32 - 1, progress=False)
     with pytest.raises(ConfigError, match="--jobs must be >= 1"):
         ProcessPoolRunner(0)
 

@@ -24,12 +24,15 @@ def test_resolve_refuses_what_is_neither(name, message):
         catalog.resolve(name)
 
 
-def test_seed_is_an_override_validated_by_the_field_rule():
+def test_the_seed_is_applied_last_and_checked_as_the_seed_option():
     assert catalog.load("10_mag_update").seed == 0
     assert catalog.load("10_mag_update", seed=17).seed == 17
-    # the seed is applied last: it beats a --set seed=..., and it is checked like one
+    # the seed is applied last: it beats a --set seed=..., and it is checked first, as --seed
     assert catalog.load("10_mag_update", 3, ["seed=5", "end_time=2"]).seed == 3
-    with pytest.raises(ConfigError, match=r"10_mag_update.yaml: seed: must be >= 0, got -1"):
+    with pytest.raises(ConfigError, match=r"^--seed: seeds must lie in \[0, 4294967295\] .*, got -1$"):
         catalog.load("10_mag_update", seed=-1)
+    with pytest.raises(ConfigError, match=r"--seed: .* got 4294967296$"):
+        catalog.load("10_mag_update", seed=2**32)  # Drake's generator would fly seed 0's noise
+    assert catalog.load("10_mag_update", seed=2**32 - 1).seed == 2**32 - 1
     with pytest.raises(ConfigError, match=r"seed: expected int, got 1.5"):
         catalog.load("10_mag_update", seed=1.5)

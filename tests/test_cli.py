@@ -76,7 +76,7 @@ def test_noise_std_measures_the_configured_noise(tmp_path):
             ["run", "01_intro", "--set", "vehicles.0.trajectory={kind: file, file: nope.txt}"],
             "no such trajectory file 'nope.txt'",
         ),
-        (["run", "01_intro", "--seed", "-1"], "01_intro.yaml: seed: must be >= 0, got -1"),
+        (["run", "01_intro", "--seed", "-1"], "--seed: seeds must lie in [0, 4294967295]"),
         (["run"], "name at least one scenario"),
         (["noise-std", "/nonexistent/run"], "no logs.npz"),
         (["export", "/nonexistent/run"], "/nonexistent/run: no logs.npz"),

@@ -115,14 +115,14 @@ def test_missing_and_malformed_files(tmp_path):
     [("1e9", 1e9), ("2.5e-1", 0.25), ("-3e2", -300.0), ("1E3", 1000.0), ("+1e3", 1000.0), ("1.e3", 1000.0)],
 )
 def test_numbers_as_people_write_them_are_numbers_in_files_and_overrides(tmp_path, text, value):
-    vehicle = f"{{initial_position: [{text}, 0, -1], trajectory: {{yaw: {text}}}}}"
+    vehicle = f"{{initial_velocity: [{text}, 0, 0], trajectory: {{yaw: {text}}}}}"
     from_file = load_scenario(write(tmp_path, f"vehicles: [{vehicle}]\n"))
     assert (
-        from_file.vehicles[0].initial_position[0] == value and from_file.vehicles[0].trajectory.yaw == value
+        from_file.vehicles[0].initial_velocity[0] == value and from_file.vehicles[0].trajectory.yaw == value
     )
-    overrides = [f"vehicles.0.initial_position=[{text}, 0, -1]", f"vehicles.0.trajectory.yaw={text}"]
+    overrides = [f"vehicles.0.initial_velocity=[{text}, 0, 0]", f"vehicles.0.trajectory.yaw={text}"]
     from_set = load_scenario(write(tmp_path, GOOD), overrides)
-    assert from_set.vehicles[0].initial_position[0] == value and from_set.vehicles[0].trajectory.yaw == value
+    assert from_set.vehicles[0].initial_velocity[0] == value and from_set.vehicles[0].trajectory.yaw == value
     assert load_scenario(write(tmp_path, GOOD), ["end_time=2e1"]).end_time == 20.0
 
 

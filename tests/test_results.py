@@ -111,3 +111,15 @@ def test_index_links_every_run_folder_under_out(sensor_run, fleet_run, tmp_path)
     assert "old_format" not in index
     graded = sum(1 for r in (sensor_run[0], fleet_run[0]) if r.passed)
     assert f"{graded} of 2 graded runs passed" in index
+
+
+def test_a_new_run_in_a_folder_removes_the_old_runs_derived_files(gps_flight, tmp_path):
+    stale = [tmp_path / "report.html", tmp_path / "replay.html", tmp_path / "Quad_position.png"]
+    (tmp_path / "csv").mkdir()
+    stale.append(tmp_path / "csv" / "Quad.csv")
+    for path in stale:
+        path.write_text("an earlier run's")
+    (tmp_path / "notes.txt").write_text("the user's")
+    save_run(gps_flight, tmp_path)
+    assert not any(path.exists() for path in stale)
+    assert (tmp_path / "notes.txt").read_text() == "the user's" and (tmp_path / "logs.npz").is_file()

@@ -192,9 +192,10 @@ def test_plant_counts_the_steps_stopped_at_a_wall():
 def test_a_vehicle_that_cannot_lift_off_fails_11(constant_q_ekf7):
     # README "Flight-safety criteria": 11 with a 2 kg vehicle sits on the floor. The EKF7 misses
     # the touchdown (stopped within one 1 ms plant step, between two IMU samples, and beyond the
-    # accelerometer's range), so it predicts a fall the GPS keeps correcting. With 11's earlier constant-Q EKF7 (a velocity Q wide enough to follow the GPS)
-    # and the GPS gate off (the 5-sigma gate rejects the GPS after the touchdown until its 5 s
-    # reset), the estimate still passes: the estimation criterion alone passes a crashed flight.
+    # accelerometer's range), so it predicts a fall the GPS keeps correcting. With 11's earlier
+    # constant-Q EKF7 (a velocity Q wide enough to follow the GPS) and the GPS gate off (the
+    # 5-sigma gate rejects the GPS after the touchdown until its 5 s reset), the estimate still
+    # passes: the estimation criterion alone passes a crashed flight.
     env = dict(os.environ, PYTHONPATH=str(ROOT), MPLBACKEND="Agg")
     command = [sys.executable, "-m", "quad_drake.cli", "run", "11_gps_update"]
     heavy = ["--set", "vehicles.0.physics.mass=2.0"]

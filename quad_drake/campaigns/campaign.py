@@ -15,7 +15,7 @@ import time
 
 from tqdm import tqdm
 
-from ..config import ConfigError
+from ..config import ConfigError, check_seed_range
 from ..simulation import available_signals
 from ..verdicts import check_criteria
 from .records import RunTask, simulate_run
@@ -109,8 +109,7 @@ def run_campaign(scenario, runs, runner=None, seed=None, progress=True, fleet_ba
     if runs < 1:
         raise ConfigError(f"montecarlo: --runs must be >= 1, got {runs}")
     first = scenario.seed if seed is None else seed
-    if first < 0:
-        raise ConfigError(f"montecarlo: --seed must be >= 0, got {first}")
+    check_seed_range(first, runs, "montecarlo: --seed")
     check_criteria(scenario, available_signals(scenario))
     scenario = dataclasses.replace(scenario, seed=first)
     if fleet_batch is None:

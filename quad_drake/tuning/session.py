@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from tqdm import tqdm
 
 from ..accuracy_bound import accuracy_bound
-from ..config import ConfigError
+from ..config import ConfigError, check_seed_range
 from ..simulation import available_signals
 from ..verdicts import check_criteria
 from . import output
@@ -63,8 +63,8 @@ def prepare(scenario, keys, settings):
     _check_count(settings.train_runs, "--seeds")
     _check_count(settings.holdout_runs, "--holdout")
     _check_count(settings.jobs, "--jobs")
-    _check_count(settings.train_seed, "--seed", 0)
-    _check_count(settings.holdout_seed, "--holdout-seed", 0)
+    check_seed_range(settings.train_seed, settings.train_runs, "tune: --seed")
+    check_seed_range(settings.holdout_seed, settings.holdout_runs, "tune: --holdout-seed")
     train = range(settings.train_seed, settings.train_seed + settings.train_runs)
     held = range(settings.holdout_seed, settings.holdout_seed + settings.holdout_runs)
     if settings.holdout and set(train) & set(held):
