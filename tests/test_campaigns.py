@@ -248,15 +248,26 @@ def test_progress_is_a_tqdm_bar_on_a_terminal_and_plain_lines_elsewhere():
     for stream, carriage_return in ((Terminal(), True), (io.StringIO(), False)):
         progress = campaign.Progress("t", 20, stream=stream)
         for _ in range(20):
-            progress.update(record)
+            progress.update([record])
         progress.close()
         text = stream.getvalue()
         assert ("\r" in text) is carriage_return and "20/20" in text
     lines = io.StringIO()
     progress = campaign.Progress("t", 20, stream=lines)
     for _ in range(20):
-        progress.update(record)
+        progress.update([record])
     assert len(lines.getvalue().splitlines()) == 10  # about every tenth of the runs
+    batches = io.StringIO()  # fleet batches: their runs arrive together, one line per batch
+    progress = campaign.Progress("t", 20, stream=batches)
+    progress.update([record] * 7)
+    progress.update([record] * 13)
+    counts = [line.split(",")[0] for line in batches.getvalue().splitlines()]
+    assert counts == ["t: 7/20 runs", "t: 20/20 runs"]
+
+
+def test_a_fleet_label_names_the_batch_flown(scenario):
+    assert campaign._fleet_tasks(scenario, 3, 0, 50)[2] == "fleet (batch 3)"  # not the 50 asked for
+    assert campaign._fleet_tasks(scenario, 120, 0, 50)[2] == "fleet (batch 50)"
 
 
 # ----- errors, Ctrl-C and the command line ---------------------------------------------------------

@@ -403,7 +403,7 @@ def test_a_real_ctrl_c_keeps_the_best_so_far(tmp_path):
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # not ignored if we are
     )
     first = process.stderr.readline()  # the first progress line: the start is scored
-    assert "candidate 1/200" in first, first
+    assert "candidate 0 (1/200; 0 is the start)" in first, first
     process.send_signal(signal.SIGINT)
     out, err = process.communicate(timeout=120)
     assert process.returncode == 130 and "Traceback" not in err and out == "", err

@@ -46,13 +46,16 @@ class Progress:
         self.lines = enabled and not terminal
         self.every = max(1, total // 10)
 
-    def update(self, record):
-        self.done += 1
-        self.failed += not record.passed
+    def update(self, records):
+        """Count finished runs (a task's RunRecords: one run, or a fleet batch at once); at most
+        one line per call."""
+        before = self.done
+        self.done += len(records)
+        self.failed += sum(not record.passed for record in records)
         if self.bar is not None:
             self.bar.set_postfix(failed=self.failed, refresh=False)
-            self.bar.update(1)
-        elif self.lines and (self.done % self.every == 0 or self.done == self.total):
+            self.bar.update(len(records))
+        elif self.lines and (self.done // self.every > before // self.every or self.done == self.total):
             elapsed = time.perf_counter() - self.start
             eta = elapsed / self.done * (self.total - self.done)
             self.stream.write(
@@ -94,7 +97,8 @@ def _fleet_tasks(scenario, runs, first, batch):
 
     if batch < 1:
         raise ConfigError(f"montecarlo: --batch must be >= 1, got {batch}")
-    return batches(scenario, runs, first, batch), simulate_batch, f"fleet (batch {batch})"
+    tasks = batches(scenario, runs, first, batch)
+    return tasks, simulate_batch, f"fleet (batch {max(len(task.seeds) for task in tasks)})"
 
 
 def run_campaign(scenario, runs, runner=None, seed=None, progress=True, fleet_batch=None):
@@ -133,7 +137,7 @@ def run_campaign(scenario, runs, runner=None, seed=None, progress=True, fleet_ba
             tally.add(index, folded.tally)
             for record in folded.records:
                 records[record.index] = record
-                bar.update(record)
+            bar.update(folded.records)
     except TaskFailed as e:
         task = tasks[e.index]
         seeds = [task.seed] if label is None else task.seeds

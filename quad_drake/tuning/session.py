@@ -106,7 +106,8 @@ class _Progress:
         elif self.lines:
             elapsed = time.perf_counter() - self.start
             self.stream.write(
-                f"tune {self.name}: candidate {evaluation.index + 1}/{self.total}, {text}, {elapsed:.0f} s\n"
+                f"tune {self.name}: candidate {evaluation.index} ({evaluation.index + 1}/{self.total}; "
+                f"0 is the start), {text}, {elapsed:.0f} s\n"
             )
             self.stream.flush()
 
