@@ -48,9 +48,9 @@ class TuneResult:
     files: list = field(default_factory=list)
 
 
-def _check_count(value, option, minimum=1):
-    if value < minimum:
-        raise ConfigError(f"tune: {option} must be >= {minimum}, got {value}")
+def _check_count(value, option):
+    if value < 1:
+        raise ConfigError(f"tune: {option} must be >= 1, got {value}")
 
 
 def prepare(scenario, keys, settings):
