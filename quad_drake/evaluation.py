@@ -27,9 +27,17 @@ import numpy as np
 
 from .conventions import PHYSICS_PERIOD
 from .safety import SAFETY_SIGNALS, safety_criteria
+from .signals import signal_unit
 
 TIME_TOLERANCE = 1e-9
 """s; stretches within this of the window W count as exactly W."""
+
+
+def _amount(value, signal):
+    """`value` (:g) with the unit of the named `signal` ("1 m"; bare when it has none), for a
+    criterion's description."""
+    unit = signal_unit(signal)
+    return f"{value:g} {unit}" if unit else f"{value:g}"
 
 
 @dataclass(frozen=True)
@@ -188,7 +196,7 @@ class WindowFold(_Fold):
         """Run j's CriterionResult (series: the plot arrays of a whole-log evaluation, or None)."""
         name, threshold, window = self.name, self.threshold, self.window
         text = {
-            "description": f"|{name}| < {threshold:g} for > {window:g} s",
+            "description": f"|{name}| < {_amount(threshold, name)} for > {window:g} s",
             "required_text": f"> {window:g} s",
         }
         if self.samples[j] == 0:
@@ -696,7 +704,8 @@ class TrackingFold(_Fold):
 
     def result(self, j, series=None):
         name, bound = self.name, self.bound
-        text = {"description": f"|{name}| <= {bound:g} at every sample", "required_text": f"max <= {bound:g}"}
+        limit = _amount(bound, name)
+        text = {"description": f"|{name}| <= {limit} at every sample", "required_text": f"max <= {limit}"}
         if self.samples == 0:
             line = f"FAIL: ABS({name}) had no samples"
             return _safety_verdict(
@@ -783,7 +792,7 @@ class BoundFold(_Fold):
         name, threshold, start, end = self.name, self.threshold, self.start, self.end
         span = f"from {start:f} to {end:f} seconds"
         text = {
-            "description": f"|{name}| < {threshold:g} in [{start:g}, {end:g}) s",
+            "description": f"|{name}| < {_amount(threshold, name)} in [{start:g}, {end:g}) s",
             "required_text": f"< {threshold:g} on every sample",
         }
         if self.samples == 0:
@@ -874,7 +883,7 @@ class RecoveryFold(_Fold):
     def result(self, j, series=None):
         name, threshold, start, within = self.name, self.threshold, self.start, self.within
         text = {
-            "description": f"|{name}| < {threshold:g} within {within:g} s after {start:g} s",
+            "description": f"|{name}| < {_amount(threshold, name)} within {within:g} s after {start:g} s",
             "required_text": f"back under within {within:g} s, and staying",
         }
         if self.samples == 0 or self.last_time < start + within - TIME_TOLERANCE:

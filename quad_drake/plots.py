@@ -22,11 +22,12 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from .consistency import fleet_sigma_fraction
-from .estimation.vocabulary import STATE_UNITS, vehicle_vocabulary
+from .estimation.vocabulary import vehicle_vocabulary
 from .evaluation import judged_criteria, sigma_share
 from .report import write_report
+from .signals import signal_unit
 
-__all__ = ["make_figures", "signal_unit", "write_plots", "write_report", "write_run_artifacts"]
+__all__ = ["make_figures", "write_plots", "write_report", "write_run_artifacts"]
 
 DPI = 80
 COLORS = (
@@ -44,27 +45,6 @@ COLORS = (
 FLEET_SIZE = 3
 """Three or more vehicles with an estimator get the fleet plot instead of per-vehicle ones."""
 MOTOR_NAMES = ("front left", "front right", "rear left", "rear right")
-
-
-def signal_unit(name):
-    """Unit of a named signal (``Quad.Est.E.VX`` -> ``m/s``); "" when unknown."""
-    key = name.split(".", 1)[-1]
-    last = key.rsplit(".", 1)[-1]
-    if key.startswith(("Omega.", "IMU.G")):
-        return "rad/s"
-    if key.startswith("IMU.A"):
-        return "m/s²"
-    if key.startswith("Thrust."):
-        return "N"
-    if key.startswith("Est.") and last in STATE_UNITS:
-        return STATE_UNITS[last]
-    if last in ("Roll", "Pitch", "Yaw", "MagYaw", "MaxEuler"):
-        return "rad"
-    if key.startswith("Vel.") or last in ("VX", "VY", "VZ", "Vel"):
-        return "m/s"
-    if last in ("X", "Y", "Z", "Pos", "PosFollowErr"):
-        return "m"
-    return ""
 
 
 def _label(text, unit):

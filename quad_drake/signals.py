@@ -35,8 +35,29 @@ from dataclasses import dataclass
 import numpy as np
 
 from .conventions import P_SLICE, Q_SLICE, REF_P_SLICE, REF_YAW_INDEX, V_SLICE, W_SLICE
-from .estimation.vocabulary import DIAG, NIS_COLUMNS
+from .estimation.vocabulary import DIAG, NIS_COLUMNS, STATE_UNITS
 from .rotations import euler_from_quats, wrap_angles  # noqa: F401 (re-exported for the analyzers)
+
+
+def signal_unit(name):
+    """Unit of a named signal (``Quad.Est.E.VX`` -> ``m/s``); "" when unknown."""
+    key = name.split(".", 1)[-1]
+    last = key.rsplit(".", 1)[-1]
+    if key.startswith(("Omega.", "IMU.G")):
+        return "rad/s"
+    if key.startswith("IMU.A"):
+        return "m/s²"
+    if key.startswith("Thrust."):
+        return "N"
+    if key.startswith("Est.") and last in STATE_UNITS:
+        return STATE_UNITS[last]
+    if last in ("Roll", "Pitch", "Yaw", "MagYaw", "MaxEuler"):
+        return "rad"
+    if key.startswith("Vel.") or last in ("VX", "VY", "VZ", "Vel"):
+        return "m/s"
+    if last in ("X", "Y", "Z", "Pos", "PosFollowErr"):
+        return "m"
+    return ""
 
 
 @dataclass(frozen=True)

@@ -152,7 +152,7 @@ def test_saved_files_and_the_campaign_page(serial, tmp_path):
     assert page.count("data:image/png;base64,") == 2
     low, high = serial.criteria[0]["ci95"]
     assert f"[{100 * low:.3g}, {100 * high:.3g}]" in page  # pass rates with their interval
-    assert "|Quad.Est.E.Yaw| &lt; 0.12 for &gt; 10 s" in page
+    assert "|Quad.Est.E.Yaw| &lt; 0.12 rad for &gt; 10 s" in page
     assert ">NIS mag<" in page and ">Quad.Yaw<" in page  # consistency and efficiency tables
     index = write_index(tmp_path).read_text()
     assert 'href="mc/report.html"' in index and "Monte Carlo campaigns" in index
@@ -347,6 +347,7 @@ def test_ctrl_c_keeps_the_finished_runs(scenario, serial, sent, tmp_path, k):
     with open(out / "runs.csv") as f:
         assert [r["seed"] for r in csv.DictReader(f)] == [str(5 + i) for i in range(k)]
     assert table(partial).startswith(f"Monte Carlo 10_mag_update: {k} of 3 runs (interrupted) of 1.5 s")
+    assert summary["verdict"].startswith(f"PARTIAL ({k} of 3 runs, interrupted): ")  # never a bare PASS
 
 
 def test_ctrl_c_in_the_cli_saves_a_partial_campaign_and_exits_130(monkeypatch, tmp_path, capsys):
@@ -440,3 +441,16 @@ def test_a_real_ctrl_c_keeps_the_finished_runs(tmp_path):
     summary = strict_loads((tmp_path / "10_mag_update_montecarlo" / "summary.json").read_text())
     assert summary["partial"] and 20 <= summary["runs"] < 200
     assert summary["completed"] == list(range(summary["runs"]))  # one after the other in-process
+
+
+def test_a_campaign_saved_over_another_leaves_none_of_its_plots(tmp_path):
+    folder = tmp_path / "t_montecarlo"
+    folder.mkdir()
+    stale = [folder / "errors.png", folder / "consistency.png", folder / "consistency.npz"]
+    for path in stale:
+        path.write_bytes(b"an earlier campaign's")
+    (folder / "notes.txt").write_text("the user's")
+    save(hand_made_campaign(7.0), folder, plots=False)
+    assert not (folder / "errors.png").exists() and not (folder / "consistency.png").exists()
+    assert (folder / "consistency.npz").read_bytes() != b"an earlier campaign's"  # this campaign's own
+    assert (folder / "notes.txt").read_text() == "the user's"

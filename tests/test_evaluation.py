@@ -227,7 +227,7 @@ def test_window_series_locate_the_longest_credited_stretch():
     r = window_threshold(t, x, 0.5, 0.9, name="Quad.Pos.Z")
     assert r.series["span"] == pytest.approx([0.2, 0.995], abs=1e-12)
     np.testing.assert_allclose(r.series["stretch"][-1], r.trailing)
-    assert (r.description, r.required_text) == ("|Quad.Pos.Z| < 0.5 for > 0.9 s", "> 0.9 s")
+    assert (r.description, r.required_text) == ("|Quad.Pos.Z| < 0.5 m for > 0.9 s", "> 0.9 s")
     assert r.measured_text == "longest stretch within: 0.795 s" and not r.passed
 
 

@@ -99,35 +99,6 @@ def _close(a, b, tol=1e-12):
     return abs(a - b) <= tol
 
 
-@pytest.mark.parametrize(
-    "name, unit",
-    [
-        ("Quad.Pos.X", "m"),
-        ("Quad.Vel.Z", "m/s"),
-        ("Quad.Omega.X", "rad/s"),
-        ("Quad.Roll", "rad"),
-        ("Quad.Ref.Yaw", "rad"),
-        ("Quad.PosFollowErr", "m"),
-        ("Quad.GPS.X", "m"),
-        ("Quad.GPS.VX", "m/s"),
-        ("Quad.IMU.AX", "m/s²"),
-        ("Quad.IMU.GZ", "rad/s"),
-        ("Quad.MagYaw", "rad"),
-        ("Quad.Thrust.B", "N"),
-        ("Quad2.Est.E.Yaw", "rad"),
-        ("Quad.Est.S.Z", "m"),
-        ("Quad.Est.E.VX", "m/s"),
-        ("Quad.Est.E.Pos", "m"),
-        ("Quad.Est.E.Vel", "m/s"),
-        ("Quad.Est.E.MaxEuler", "rad"),
-        ("Quad.Est.Roll", "rad"),
-        ("Quad.Unknown", ""),
-    ],
-)
-def test_signal_unit(name, unit):
-    assert plots.signal_unit(name) == unit
-
-
 def test_figure_set_of_one_estimating_vehicle():
     result = make_result()
     assert list(plots.make_figures(result)) == [
@@ -224,7 +195,7 @@ def test_metrics_and_consistency_tables():
 def test_criterion_rows_of_window_and_sigma_criteria():
     result = make_result()
     window, sigma = (criterion_row(v) for v in result.criteria[:2])  # then the safety ones
-    assert window[:3] == ["|Quad.PosFollowErr| &lt; 0.1 for &gt; 1 s", "window", ("PASS", "PASS")]
+    assert window[:3] == ["|Quad.PosFollowErr| &lt; 0.1 m for &gt; 1 s", "window", ("PASS", "PASS")]
     assert window[3] == f"longest stretch within: {result.criteria[0].measured:.4g} s"
     assert window[4] == "&gt; 1 s"
     assert sigma[0] == "|Quad.GPS.X - Quad.Pos.X| &lt;= 0.7: 60-76 % (last 1 s)" and sigma[1] == "sigma"
@@ -313,18 +284,18 @@ def test_fleet_sigma_counts_only_fresh_samples():
 @pytest.mark.parametrize(
     "criteria, expected",
     [
-        (None, ["|Quad.PosFollowErr| &lt; 0.1 for &gt; 1 s", "longest stretch within: "]),
+        (None, ["|Quad.PosFollowErr| &lt; 0.1 m for &gt; 1 s", "longest stretch within: "]),
         (
             [CriterionConfig(kind="fleet_sigma", signal="Est.E.VX", sigma_signal="Est.S.VX", min_percent=60)],
             ["fleet |V.Est.E.VX| &lt;= 1 V.Est.S.VX: 60-100 % (3 vehicles V)", "share in [60 %, 100 %]"],
         ),
         (
             [CriterionConfig(kind="bound", signal="Quad.Est.E.Pos", threshold=2.0, start=1.0, end=3.0)],
-            ["|Quad.Est.E.Pos| &lt; 2 in [1, 3) s", "&lt; 2 on every sample", "max "],
+            ["|Quad.Est.E.Pos| &lt; 2 m in [1, 3) s", "&lt; 2 on every sample", "max "],
         ),
         (
             [CriterionConfig(kind="recovery", signal="Quad.Est.E.Pos", threshold=2.0, start=1.0, window=1.0)],
-            ["|Quad.Est.E.Pos| &lt; 2 within 1 s after 1 s", "back under within 1 s, and staying"],
+            ["|Quad.Est.E.Pos| &lt; 2 m within 1 s after 1 s", "back under within 1 s, and staying"],
         ),
     ],
 )

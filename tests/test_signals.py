@@ -3,6 +3,7 @@
 import math
 
 import numpy as np
+import pytest
 
 from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, EKF7, ESKF15
 from quad_drake.rotations import euler_from_quat, quat_from_euler, yaw_from_quats
@@ -12,6 +13,7 @@ from quad_drake.signals import (
     Signals,
     empty_logs,
     euler_from_quats,
+    signal_unit,
     stamp_fresh,
     vehicle_signals,
     wrap_angles,
@@ -107,3 +109,32 @@ def test_estimation_errors_sigmas_and_freshness():
     np.testing.assert_allclose(signals["Q.Est.E.MaxEuler"].values, 2 * math.pi - 6.2, atol=1e-9)
     np.testing.assert_array_equal(signals["Q.GPS.X"].fresh, [False, True])
     assert signals["Q.Pos.X"].fresh.all()
+
+
+@pytest.mark.parametrize(
+    "name, unit",
+    [
+        ("Quad.Pos.X", "m"),
+        ("Quad.Vel.Z", "m/s"),
+        ("Quad.Omega.X", "rad/s"),
+        ("Quad.Roll", "rad"),
+        ("Quad.Ref.Yaw", "rad"),
+        ("Quad.PosFollowErr", "m"),
+        ("Quad.GPS.X", "m"),
+        ("Quad.GPS.VX", "m/s"),
+        ("Quad.IMU.AX", "m/s²"),
+        ("Quad.IMU.GZ", "rad/s"),
+        ("Quad.MagYaw", "rad"),
+        ("Quad.Thrust.B", "N"),
+        ("Quad2.Est.E.Yaw", "rad"),
+        ("Quad.Est.S.Z", "m"),
+        ("Quad.Est.E.VX", "m/s"),
+        ("Quad.Est.E.Pos", "m"),
+        ("Quad.Est.E.Vel", "m/s"),
+        ("Quad.Est.E.MaxEuler", "rad"),
+        ("Quad.Est.Roll", "rad"),
+        ("Quad.Unknown", ""),
+    ],
+)
+def test_signal_unit(name, unit):
+    assert signal_unit(name) == unit

@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 
 from ..jsonio import dump_json
-from ..plots import signal_unit
 from ..results import FORMAT_VERSION
+from ..signals import signal_unit
 from .page import write_page
 from .plots import write_plots
 from .records import METRIC_STATS, settle_time
@@ -169,11 +169,21 @@ def rows(campaign):
     return header, lines
 
 
+CAMPAIGN_ARTIFACTS = ("*.png", "consistency.npz")
+"""What a campaign folder may hold from an earlier campaign that this one does not rewrite (its
+plots when this one has none, its NEES/NIS series when this one has no estimator): removed
+first, so a folder never mixes two campaigns."""
+
+
 def save(campaign, out_dir, plots=True):
     """Write runs.csv, summary.json, table.txt, consistency.npz, (plots) PNGs and report.html
-    (the campaign page) into out_dir; returns out_dir."""
+    (the campaign page) into out_dir, after removing an earlier campaign's CAMPAIGN_ARTIFACTS
+    there; returns out_dir."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    for pattern in CAMPAIGN_ARTIFACTS:
+        for stale in out_dir.glob(pattern):
+            stale.unlink()
     header, lines = rows(campaign)
     with open(out_dir / "runs.csv", "w", newline="") as f:
         writer = csv.writer(f)

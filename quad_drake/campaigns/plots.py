@@ -5,7 +5,7 @@ from pathlib import Path
 
 from matplotlib.figure import Figure
 
-from ..plots import signal_unit
+from ..signals import signal_unit
 from .records import settle_time
 
 DPI = 110

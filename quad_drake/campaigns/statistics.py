@@ -233,7 +233,12 @@ class CampaignResult:
         ]
 
     def verdict(self):
-        """The one line that explains the exit code: which consistency criterion failed, or PASS."""
+        """The one line that explains the exit code: which consistency criterion failed, or PASS;
+        a partial campaign's says first that it judges only the runs that finished."""
+        partial = f"PARTIAL ({self.runs} of {self.planned} runs, interrupted): " if self.partial else ""
+        return partial + self._judgement()
+
+    def _judgement(self):
         reasons = self.failure_reasons()
         if reasons:
             return "FAIL: " + "; ".join(reasons)

@@ -34,6 +34,16 @@ def _changes(result):
     return [(p.key, p.label(0.0), p.label(x)) for p, x in zip(result.problem.space, best.x, strict=True)]
 
 
+def _number(value):
+    """A parameter's value for JSON: a float, or a list of floats for a vector field."""
+    return list(value) if isinstance(value, tuple) else value
+
+
+def _exact(value):
+    """A parameter's value for history.csv in full precision (repr): a float, or [a, b, c]."""
+    return "[" + ", ".join(repr(v) for v in value) + "]" if isinstance(value, tuple) else repr(value)
+
+
 def _header(result):
     s = result.problem.settings
     best = result.search.best
@@ -86,7 +96,7 @@ def _write_history(result, path):
                 e.score.pass_rate,
             ]
             row += [e.score.in_band.get(name, "") for name in statistics]
-            row += list(e.x) + [p.label(x) for p, x in zip(space, e.x, strict=True)] + [best]
+            row += list(e.x) + [_exact(p.values(x)[0]) for p, x in zip(space, e.x, strict=True)] + [best]
             writer.writerow([repr(v) if isinstance(v, float) else v for v in row])
     return path
 
@@ -94,6 +104,7 @@ def _write_history(result, path):
 def _write_plot(result, path):
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
+    from matplotlib.ticker import MaxNLocator
 
     history = result.search.history
     losses = [e.score.loss for e in history]
@@ -108,6 +119,7 @@ def _write_plot(result, path):
     if min(losses) > 0 and max(losses) / min(losses) > 30:
         ax.set_yscale("log")
     ax.set_xlabel("candidate (0 = the start)")
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_ylabel(f"loss ({result.problem.settings.objective}) [-]")
     ax.set_title(f"tune {result.problem.scenario.name}: loss over the training seeds", fontsize=10)
     ax.legend(fontsize=8)
@@ -146,7 +158,10 @@ def summary(result):
         "start_loss": result.search.history[0].score.loss,
         "best_loss": best.score.loss,
         "best_candidate": best.index,
-        "parameters": [{"key": k, "start": a, "tuned": b} for k, a, b in _changes(result)],
+        "parameters": [
+            {"key": p.key, "start": _number(p.values(0.0)[0]), "tuned": _number(p.values(x)[0])}
+            for p, x in zip(result.problem.space, result.search.best.x, strict=True)
+        ],
     }
     if result.before is not None:
         data["holdout_time_s"] = result.holdout_time
