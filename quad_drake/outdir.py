@@ -24,3 +24,11 @@ def check_output_dir(path, option="--out"):
     except OSError as e:
         raise ConfigError(f"{option} {path}: cannot write in {probe_in} ({os.strerror(e.errno)})") from None
     return path
+
+
+def remove_stale(folder, patterns):
+    """Delete the files of `folder` matching any glob pattern of `patterns` (what an earlier
+    result left there that the one being written would not replace)."""
+    for pattern in patterns:
+        for stale in Path(folder).glob(pattern):
+            stale.unlink()

@@ -22,6 +22,7 @@ import numpy as np
 from .config import ConfigError, dump_scenario, load_scenario
 from .estimation.vocabulary import vehicle_vocabulary
 from .jsonio import dump_json
+from .outdir import remove_stale
 from .signals import Signals, vehicle_signals
 from .verdicts import evaluate_criteria
 
@@ -100,9 +101,7 @@ def save_run(result, out_dir):
     report); returns out_dir."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    for pattern in RUN_ARTIFACTS:
-        for stale in out_dir.glob(pattern):
-            stale.unlink()
+    remove_stale(out_dir, RUN_ARTIFACTS)
     arrays = {"times": result.times}
     for vehicle, logs in result.logs.items():
         for name, data in logs.items():

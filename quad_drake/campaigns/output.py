@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from ..jsonio import dump_json
+from ..outdir import remove_stale
 from ..results import FORMAT_VERSION
 from ..signals import signal_unit
 from .page import write_page
@@ -181,9 +182,7 @@ def save(campaign, out_dir, plots=True):
     there; returns out_dir."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    for pattern in CAMPAIGN_ARTIFACTS:
-        for stale in out_dir.glob(pattern):
-            stale.unlink()
+    remove_stale(out_dir, CAMPAIGN_ARTIFACTS)
     header, lines = rows(campaign)
     with open(out_dir / "runs.csv", "w", newline="") as f:
         writer = csv.writer(f)
