@@ -35,13 +35,9 @@ def _changes(result):
 
 
 def _number(value):
-    """A parameter's value for JSON: a float, or a list of floats for a vector field."""
+    """A parameter's value for JSON and history.csv: a float, or a list of floats for a vector
+    field (the csv writer prints either in full precision: repr, ``[a, b, c]``)."""
     return list(value) if isinstance(value, tuple) else value
-
-
-def _exact(value):
-    """A parameter's value for history.csv in full precision (repr): a float, or [a, b, c]."""
-    return "[" + ", ".join(repr(v) for v in value) + "]" if isinstance(value, tuple) else repr(value)
 
 
 def _header(result):
@@ -96,7 +92,7 @@ def _write_history(result, path):
                 e.score.pass_rate,
             ]
             row += [e.score.in_band.get(name, "") for name in statistics]
-            row += list(e.x) + [_exact(p.values(x)[0]) for p, x in zip(space, e.x, strict=True)] + [best]
+            row += list(e.x) + [_number(p.values(x)[0]) for p, x in zip(space, e.x, strict=True)] + [best]
             writer.writerow([repr(v) if isinstance(v, float) else v for v in row])
     return path
 
