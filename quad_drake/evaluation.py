@@ -40,6 +40,19 @@ def _amount(value, signal):
     return f"{value:g} {unit}" if unit else f"{value:g}"
 
 
+MEASURED_UNITS = {
+    "window": "s",
+    "sigma": "s",
+    "fleet_sigma": "%",
+    "recovery": "s",
+    "room": "s",
+    "floor": "count",
+    "finite": "count",
+}
+"""Unit of a CriterionResult's ``measured`` by kind ("count": touchdowns, non-finite samples); a
+``tracking`` or ``bound`` verdict measures its signal, in the signal's unit."""
+
+
 @dataclass(frozen=True)
 class CriterionResult:
     """Verdict of one analyzer, with the text every reader (console, report, campaign) prints.
@@ -83,9 +96,16 @@ class CriterionResult:
     def __str__(self):
         return self.line
 
+    @property
+    def measured_unit(self):
+        """The unit of ``measured`` (:data:`MEASURED_UNITS`; the signal's for tracking and bound)."""
+        return MEASURED_UNITS.get(self.kind, signal_unit(self.name))
+
     def to_dict(self):
-        """The verdict as a dict of plain values, without ``series`` (for summary.json)."""
-        return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "series"}
+        """The verdict as a dict of plain values, without ``series``, with ``measured_unit`` (for
+        summary.json)."""
+        values = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "series"}
+        return {**values, "measured_unit": self.measured_unit}
 
 
 def judged_criteria(scenario):

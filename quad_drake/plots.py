@@ -25,7 +25,7 @@ from .consistency import fleet_sigma_fraction
 from .estimation.vocabulary import vehicle_vocabulary
 from .evaluation import judged_criteria, sigma_share
 from .report import write_report
-from .signals import signal_unit
+from .signals import key_unit, signal_unit
 
 __all__ = ["make_figures", "write_plots", "write_report", "write_run_artifacts"]
 
@@ -455,7 +455,7 @@ def _fleet_figure(result, vehicles):
             ax.plot(t, sign * sigma, color="k", ls=style, lw=1.0)
         share = 100.0 * fleet_sigma_fraction(result.signals, f"Est.E.{key}", f"Est.S.{key}", 1.0)
         ax.set_title(f"{key} error: {share:.0f} % within ±σ (±2σ dashed)", fontsize=9, y=1.0)
-        ax.set_ylabel(_label(f"{key} error", signal_unit(f"x.Est.E.{key}")))
+        ax.set_ylabel(_label(f"{key} error", key_unit(f"Est.E.{key}")))
     axes[0, 0].legend(loc="upper left", fontsize=6, ncol=2)
     return fig
 

@@ -311,10 +311,13 @@ def write_index(out_dir):
     runs = [(f, s) for f, s in found if s["kind"] == "run"]
     campaigns = [(f, s) for f, s in found if s["kind"] == "campaign"]
     graded = [s for _, s in runs if s["criteria"]]
-    parts = [
-        "<h1>quad_drake results</h1>",
-        f"<h2>Runs</h2><p>{sum(s['passed'] for s in graded)} of {len(graded)} graded runs passed.</p>",
-    ]
+    parts = ["<h1>quad_drake results</h1>", "<h2>Runs</h2>"]
+    if graded:
+        parts.append(f"<p>{sum(s['passed'] for s in graded)} of {len(graded)} graded runs passed.</p>")
+    elif runs:
+        parts.append("<p>No run here is graded (none has criteria).</p>")
+    else:
+        parts.append("<p>None yet: <code>quad-drake run NAME</code> writes one.</p>")
     if runs:
         parts.append(
             html_table(

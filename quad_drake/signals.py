@@ -41,7 +41,12 @@ from .rotations import euler_from_quats, wrap_angles  # noqa: F401 (re-exported 
 
 def signal_unit(name):
     """Unit of a named signal (``Quad.Est.E.VX`` -> ``m/s``); "" when unknown."""
-    key = name.split(".", 1)[-1]
+    return key_unit(name.split(".", 1)[-1])
+
+
+def key_unit(key):
+    """Unit of a signal named without its vehicle (``Est.E.VX`` -> ``m/s``, as a campaign pools
+    its metrics over vehicles); "" when unknown."""
     last = key.rsplit(".", 1)[-1]
     if key.startswith(("Omega.", "IMU.G")):
         return "rad/s"

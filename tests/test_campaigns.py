@@ -31,6 +31,7 @@ from quad_drake.campaigns import (
     table,
 )
 from quad_drake.campaigns.output import rows
+from quad_drake.campaigns.plots import errors_figure
 from quad_drake.campaigns.records import slim
 from quad_drake.campaigns.tally import ConsistencyTally
 from quad_drake.config import (
@@ -156,6 +157,42 @@ def test_saved_files_and_the_campaign_page(serial, tmp_path):
     assert ">NIS mag<" in page and ">Quad.Yaw<" in page  # consistency and efficiency tables
     index = write_index(tmp_path).read_text()
     assert 'href="mc/report.html"' in index and "Monte Carlo campaigns" in index
+    assert "graded runs" not in index and "<code>quad-drake run NAME</code> writes one" in index
+
+
+def test_summary_names_the_unit_of_every_column_and_the_column_of_every_criterion(serial, tmp_path):
+    out = save(serial, tmp_path / "mc")
+    with open(out / "runs.csv") as f:
+        header = next(csv.reader(f))
+    summary = strict_loads((out / "summary.json").read_text())
+    columns = summary["columns"]
+    assert list(columns) == header
+    kinds = ["window", "sigma", "floor", "room", "finite", "tracking", None]
+    assert [c["kind"] for c in summary["criteria"]] == kinds
+    assert [c["column"] for c in summary["criteria"]] == ["c1", "c2", "c3", "c4", "c5", "c6", "passed"]
+    assert [c["measured_unit"] for c in summary["criteria"]] == ["s", "s", "count", "s", "count", "m", None]
+    for criterion in summary["criteria"][:-1]:
+        assert columns[f"{criterion['column']}.measured"] == criterion["measured_unit"]
+        assert columns[f"{criterion['column']}.passed"] == ""
+    assert columns["c2.percent"] == "%" and "c1.percent" not in columns
+    assert columns["Quad.Est.E.Yaw.rms"] == columns["Quad.Est.E.Yaw.rms_settled"] == "rad"
+    assert columns["Quad.PosFollowErr.max"] == "m"
+    assert columns["Quad.NEES.mean"] == columns["seed"] == ""
+    assert summary["metrics"]["Est.E.Vel"]["unit"] == "m/s"
+
+
+def test_an_eskf_campaign_gives_every_error_signal_its_unit(tmp_path):
+    scenario = catalog.load("17_imu_bias", None, ["end_time=1"])
+    result = run_campaign(scenario, 2, runner=InProcessRunner(), progress=False)
+    units = {key: m["unit"] for key, m in result.metrics.items()}
+    assert (units["Est.E.AttN"], units["Est.E.BAX"], units["Est.E.BGZ"]) == ("rad", "m/s^2", "rad/s")
+    assert "" not in units.values()
+    figure = errors_figure(result)  # one box-plot panel per unit, every error signal in one
+    ticks = [t.get_text() for ax in figure.axes for t in ax.get_xticklabels()]
+    assert sorted(ticks) == sorted(key.rsplit(".", 1)[-1] for key in units)
+    assert len(figure.axes) == len(set(units.values()))
+    table_text = table(result)
+    assert "Est.E.AttN [rad]" in table_text and "Est.E.BGZ [rad/s]" in table_text
 
 
 # ----- statistics on hand-made records (no simulation) ------------------------------------------
@@ -176,7 +213,8 @@ def hand_made_campaign(nees_level):
         metrics = {"Quad.Est.E.Yaw": {"rms": yaw_rms, "max": 3 * (i + 1), "rms_settled": 0.02 * (i + 1)}}
         stamps = 0.008 + 0.01 * np.arange(10)
         nis = {("Quad", "mag"): (stamps, np.full(10, 1.0))}
-        verdict = {"kind": "window", "description": "d", "passed": i < 15, "measured": 0.6, "percent": None}
+        verdict = {"kind": "window", "description": "d", "passed": i < 15, "measured": 0.6, "unit": "s"}
+        verdict["percent"] = None
         records.append(
             RunRecord(
                 i,

@@ -3,6 +3,7 @@ import pytest
 
 from quad_drake.config import CriterionConfig
 from quad_drake.evaluation import (
+    bound_threshold,
     evaluate_criterion,
     fleet_sigma_threshold,
     max_abs,
@@ -251,3 +252,12 @@ def test_fleet_sigma_counts_what_it_judged_and_writes_no_nan():
     assert r.description == "fleet |V.Est.E.X| <= 1 V.Est.S.X: 40-60 % (2 vehicles V)"
     assert (r.measured_text, r.required_text) == ("50 % of 4 samples within", "share in [40 %, 60 %]")
     assert "series" not in r.to_dict() and r.to_dict()["samples"] == 4
+    assert r.measured_unit == r.to_dict()["measured_unit"] == "%"
+
+
+def test_the_measured_unit_follows_the_kind_or_the_signal():
+    t = frames(0.1)
+    assert window_threshold(t, np.zeros(t.size), 0.5, 0.05, name="Quad.Pos.Z").measured_unit == "s"
+    bound = bound_threshold(t, np.zeros(t.size), 0.1, 0.0, 0.1, name="Quad.Est.E.Vel")
+    assert (bound.measured_unit, bound.to_dict()["measured_unit"]) == ("m/s", "m/s")
+    assert bound_threshold(t, np.zeros(t.size), 0.1, 0.0, 0.1, name="x").measured_unit == ""

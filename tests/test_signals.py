@@ -13,6 +13,7 @@ from quad_drake.signals import (
     Signals,
     empty_logs,
     euler_from_quats,
+    key_unit,
     signal_unit,
     stamp_fresh,
     vehicle_signals,
@@ -138,3 +139,17 @@ def test_estimation_errors_sigmas_and_freshness():
 )
 def test_signal_unit(name, unit):
     assert signal_unit(name) == unit
+
+
+@pytest.mark.parametrize(
+    "key, unit",
+    [
+        ("Est.E.AttN", "rad"),
+        ("Est.E.BAX", "m/s^2"),
+        ("Est.E.BGZ", "rad/s"),
+        ("Est.E.X", "m"),
+        ("PosFollowErr", "m"),
+    ],
+)
+def test_a_signal_named_without_its_vehicle_has_the_same_unit(key, unit):
+    assert key_unit(key) == signal_unit(f"Quad.{key}") == unit

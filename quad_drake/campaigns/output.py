@@ -12,7 +12,7 @@ from ..results import FORMAT_VERSION
 from ..signals import signal_unit
 from .page import write_page
 from .plots import write_plots
-from .records import METRIC_STATS, settle_time
+from .records import METRIC_STATS, criterion_column, settle_time
 
 
 def _header(campaign):
@@ -43,7 +43,7 @@ def table(campaign):
             f"{'MAX: median':>11s} {'p95':>8s} {'max':>8s}"
         )
         for key, m in campaign.metrics.items():
-            label = f"{key} [{campaign.units.get(key.rsplit('.', 1)[-1], signal_unit(key))}]"
+            label = f"{key} [{m['unit']}]"
             label += f" x{m['vehicles']}" if m["vehicles"] > 1 else ""
             r, x = m["rms"], m["max"]
             lines.append(
@@ -131,6 +131,7 @@ def summary(campaign):
         "end_time": s.end_time,
         "criteria": campaign.criteria,
         "metrics": campaign.metrics,
+        "columns": columns(campaign),
         "consistency": consistency,
         "min_in_band": campaign.min_in_band,
         "state_consistency": None
@@ -145,18 +146,31 @@ def summary(campaign):
     }
 
 
+def columns(campaign):
+    """{runs.csv column: unit}, in column order: "" for the run index, seed, pass flags (1 or 0)
+    and the NEES/NIS means; a criterion's ``measured`` in its unit (``CriterionResult.measured_unit``)
+    and ``percent`` in %; an error metric in its signal's unit."""
+    units = {"run": "", "seed": "", "passed": ""}
+    if not campaign.records:
+        return units
+    first = campaign.records[0]
+    for j, verdict in enumerate(first.criteria, start=1):
+        column = criterion_column(j)
+        units.update({f"{column}.passed": "", f"{column}.measured": verdict["unit"]})
+        units.update({f"{column}.percent": "%"} if verdict["percent"] is not None else {})
+    units.update({f"{name}.{stat}": signal_unit(name) for name in first.metrics for stat in METRIC_STATS})
+    units.update({f"{v}.NEES.mean": "" for v in first.nees_mean})
+    units.update({f"{v}.NIS.{sensor}.mean": "" for v, sensor in first.nis_mean})
+    return units
+
+
 def rows(campaign):
-    """(header, rows) of the per-run CSV: seed, verdicts, metrics, NEES/NIS time means."""
-    header = ["run", "seed", "passed"]
+    """(header, rows) of the per-run CSV: seed, verdicts, metrics, NEES/NIS time means
+    (:func:`columns` names them, with their units)."""
+    header = list(columns(campaign))
     if not campaign.records:
         return header, []
     first = campaign.records[0]
-    for j, verdict in enumerate(first.criteria, start=1):
-        header += [f"c{j}.passed", f"c{j}.measured"]
-        header += [f"c{j}.percent"] if verdict["percent"] is not None else []
-    header += [f"{name}.{stat}" for name in first.metrics for stat in METRIC_STATS]
-    header += [f"{v}.NEES.mean" for v in first.nees_mean]
-    header += [f"{v}.NIS.{sensor}.mean" for v, sensor in first.nis_mean]
     lines = []
     for r in campaign.records:
         row = [r.index, r.seed, int(r.passed)]

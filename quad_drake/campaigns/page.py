@@ -6,7 +6,6 @@ from pathlib import Path
 
 from ..config import dump_scenario
 from ..report import esc, figures_html, html_page, html_table, num, verdict_cell
-from ..signals import signal_unit
 from .records import settle_time
 
 
@@ -32,7 +31,7 @@ def _criteria(campaign):
 def _metrics(campaign):
     rows = []
     for key, m in campaign.metrics.items():
-        cells = [esc(key), esc(signal_unit(key)), (str(m["vehicles"]), "num")]
+        cells = [esc(key), esc(m["unit"]), (str(m["vehicles"]), "num")]
         cells += [(num(m[stat][q]), "num") for stat in ("rms", "max") for q in ("median", "p95", "max")]
         rows.append(cells)
     header = ["error signal", "unit", "vehicles"]

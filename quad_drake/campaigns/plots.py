@@ -5,7 +5,6 @@ from pathlib import Path
 
 from matplotlib.figure import Figure
 
-from ..signals import signal_unit
 from .records import settle_time
 
 DPI = 110
@@ -31,8 +30,8 @@ def consistency_figure(campaign):
 def errors_figure(campaign):
     """Box plots (min-max whiskers) of the per-run settled RMS errors, grouped by unit; red: bound."""
     keys = list(campaign.metrics)
-    unit_of = {key: signal_unit(key) for key in keys}
-    groups = [g for g in ([k for k in keys if unit_of[k] == u] for u in ("m", "m/s", "rad")) if g]
+    unit_of = {key: m["unit"] for key, m in campaign.metrics.items()}
+    groups = [[k for k in keys if unit_of[k] == u] for u in dict.fromkeys(unit_of.values())]
     bounds = {e["state"]: e["bound_std"] for e in campaign.efficiency if e["bound_std"] is not None}
     fig = Figure(figsize=(3 + 0.9 * len(keys), 3.6), layout="constrained")
     axes = fig.subplots(1, len(groups), squeeze=False, width_ratios=[len(g) for g in groups])[0]

@@ -68,7 +68,7 @@ class RunRecord:
     index: int
     seed: int
     passed: bool
-    criteria: list  # per judged criterion: {"kind", "description", "passed", "measured", "percent"}
+    criteria: list  # per judged criterion: {"kind", "description", "passed", "measured", "unit", "percent"}
     metrics: dict  # "<vehicle>.<signal>" -> {"rms", "max", "rms_settled"} (METRIC_STATS)
     nees: dict  # vehicle -> (n,) NEES at the log samples; {} in a slim record
     nse: dict  # vehicle -> (k,) time mean of e_i^2 / P_ii per error state of its vocabulary
@@ -132,15 +132,22 @@ def metric_keys(vocabulary, log_names):
     return keys + (["PosFollowErr"] if "reference" in log_names else [])
 
 
+def criterion_column(number):
+    """The runs.csv column prefix of a campaign's judged criterion `number` (1, 2, ...): ``c1``
+    for ``c1.passed``, ``c1.measured`` and ``c1.percent``."""
+    return f"c{number}"
+
+
 def criteria_rows(verdicts):
     """A record's ``criteria``: per CriterionResult its kind, description, verdict, measured
-    value and percentage, as plain values."""
+    value (and its unit) and percentage, as plain values."""
     return [
         {
             "kind": c.kind,
             "description": c.description,
             "passed": bool(c.passed),
             "measured": float(c.measured),
+            "unit": c.measured_unit,
             "percent": None if c.percent is None else float(c.percent),
         }
         for c in verdicts

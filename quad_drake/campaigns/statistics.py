@@ -11,7 +11,8 @@ import numpy as np
 
 from .. import consistency as cons
 from ..accuracy_bound import accuracy_bound
-from .records import campaign_vocabulary, error_units
+from ..signals import key_unit
+from .records import campaign_vocabulary, criterion_column, error_units
 from .tally import NEES, nis_statistic
 
 MIN_IN_BAND = 0.8
@@ -75,18 +76,27 @@ class CampaignResult:
 
     @cached_property
     def criteria(self):
-        """Per judged criterion (then 'all criteria'): passes, runs, rate and 95 % interval."""
+        """Per judged criterion (then 'all criteria'): passes, runs, rate and 95 % interval, with
+        the criterion's kind, its runs.csv column prefix (``c1``: ``c1.passed``, ``c1.measured``
+        ...; ``passed`` for all criteria) and the unit of its ``measured`` column."""
         if not self.records or not self.records[0].criteria:
             return []
-        labels = [c["description"] for c in self.records[0].criteria] + ["all criteria"]
-        verdicts = [[r.criteria[j]["passed"] for r in self.records] for j in range(len(labels) - 1)]
+        shapes = [
+            (c["description"], c["kind"], criterion_column(j), c["unit"])
+            for j, c in enumerate(self.records[0].criteria, start=1)
+        ]
+        shapes.append(("all criteria", None, "passed", None))
+        verdicts = [[r.criteria[j]["passed"] for r in self.records] for j in range(len(shapes) - 1)]
         verdicts.append([r.passed for r in self.records])
         rows = []
-        for label, passed in zip(labels, verdicts, strict=True):
+        for (label, kind, column, unit), passed in zip(shapes, verdicts, strict=True):
             k = int(sum(passed))
             rows.append(
                 {
                     "criterion": label,
+                    "kind": kind,
+                    "column": column,
+                    "measured_unit": unit,
                     "passes": k,
                     "runs": self.runs,
                     "rate": k / self.runs,
@@ -97,7 +107,8 @@ class CampaignResult:
 
     @cached_property
     def metrics(self):
-        """{signal without vehicle: {"rms": dist, "max": dist, "vehicles": n}}, pooled over vehicles."""
+        """{signal without vehicle: {"unit", "rms": dist, "max": dist, "vehicles": n}}, pooled over
+        vehicles (``signals.key_unit``)."""
         pooled = {}
         for name in self.records[0].metrics if self.records else ():
             vehicle, key = name.split(".", 1)
@@ -108,6 +119,7 @@ class CampaignResult:
                 entry["max"].append(record.metrics[name]["max"])
         return {
             key: {
+                "unit": key_unit(key),
                 "rms": distribution(e["rms"]),
                 "max": distribution(e["max"]),
                 "vehicles": len(e["vehicles"]),
