@@ -2,6 +2,7 @@
 on any runner, the campaign outputs, the CLI's --fleet/--batch and its refusals."""
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -136,14 +137,20 @@ def test_bad_fleet_arguments_are_one_line_errors(quad_drake_cli, out_dir):
     assert not out_dir.exists()
 
 
-def test_default_batch_is_bounded_by_memory_and_split_over_the_jobs():
+def test_default_batch_is_bounded_by_memory_and_split_evenly_over_the_jobs():
     eleven = catalog.load("11_gps_update", None, [])
     assert default_batch_size(eleven, 10_000) == MAX_BATCH  # 0.27 GiB of summaries
+    assert default_batch_size(eleven, 10_000, jobs=2) == MAX_BATCH  # 5 full rounds of 2
     assert default_batch_size(eleven, 10, jobs=2) == 5
+    assert default_batch_size(eleven, 3000, jobs=2) == 750  # 2 full rounds, not 1000 x 3 (one idle)
+    assert default_batch_size(eleven, 2500, jobs=2) == 625
+    assert default_batch_size(eleven, 2500) == 834  # 834 + 834 + 832, not 1000 + 1000 + 500
     long = catalog.load("11_gps_update", None, ["end_time=600"])
+    most = BATCH_MEMORY // summary_bytes(long, 1)  # summary_bytes is proportional to the runs
+    assert most < MAX_BATCH
     size = default_batch_size(long, 10_000)
-    assert 1 <= size < MAX_BATCH
-    assert summary_bytes(long, size) <= BATCH_MEMORY < summary_bytes(long, size + 1)
+    assert summary_bytes(long, size) <= BATCH_MEMORY
+    assert math.ceil(10_000 / size) == math.ceil(10_000 / most)  # as few batches as the memory allows
 
 
 def test_summary_bytes_counts_what_a_batch_holds():
