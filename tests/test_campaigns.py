@@ -6,11 +6,13 @@ import dataclasses
 import io
 import json
 import math
+import multiprocessing
 import os
 import re
 import signal
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -349,6 +351,27 @@ def test_a_process_pool_used_as_a_context_keeps_its_workers_from_one_map_to_the_
         abandoned.close()  # as on Ctrl-C or a failed task: the kept workers are let go, unwaited
         after = {pid for _, pid in runner.map(_worker_pid, range(4))}
     assert after and not after & first
+
+
+def _pid_after(seconds):
+    time.sleep(seconds)
+    return os.getpid()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kept", [False, True])
+def test_an_interrupted_process_pool_abandons_the_runs_its_workers_hold(kept):
+    """Ctrl-C used to take 9 s on 11: the interpreter's exit waited for the workers to fly the
+    runs they held. Now they are stopped: workers asleep for a minute are gone in seconds."""
+    before = set(multiprocessing.active_children())
+    with ProcessPoolRunner(2) as runner:
+        mapped = (runner if kept else ProcessPoolRunner(2)).map(_pid_after, [0.0, 60.0, 60.0, 60.0])
+        next(mapped)
+        workers = [p for p in multiprocessing.active_children() if p not in before]
+        mapped.close()  # as on Ctrl-C or a failed task
+    for worker in workers:
+        worker.join(timeout=20)
+    assert len(workers) == 2 and not any(worker.is_alive() for worker in workers)
 
 
 class InterruptedRunner(Runner):
