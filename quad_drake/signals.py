@@ -51,7 +51,7 @@ def key_unit(key):
     if key.startswith(("Omega.", "IMU.G")):
         return "rad/s"
     if key.startswith("IMU.A"):
-        return "m/s²"
+        return "m/s^2"
     if key.startswith("Thrust."):
         return "N"
     if key.startswith("Est.") and last in STATE_UNITS:

@@ -1,6 +1,7 @@
 """``quad-drake export``: a run's logs as one CSV per vehicle, exactly what the signals hold."""
 
 import csv
+import json
 import math
 
 import numpy as np
@@ -16,8 +17,8 @@ def read_csv(path):
 
 
 def test_one_csv_per_vehicle_time_first_every_signal_exact(gps_run_dir, tmp_path):
-    (path,) = export_csv(gps_run_dir, tmp_path / "csv")
-    assert path.name == "Quad.csv"
+    path, units_path = export_csv(gps_run_dir, tmp_path / "csv")
+    assert (path.name, units_path.name) == ("Quad.csv", "units.json")
     header, table = read_csv(path)
     times, logs = load_logs(gps_run_dir)
     signals = signals_from_logs(logs)
@@ -35,6 +36,10 @@ def test_one_csv_per_vehicle_time_first_every_signal_exact(gps_run_dir, tmp_path
     fresh = table[:, header.index("Quad.GPS.X.fresh")]
     assert 0 < fresh.sum() < 0.1 * fresh.size
     assert math.isclose(table[-1, 0], 3.0)
+    units = json.loads(units_path.read_text())["Quad.csv"]
+    assert list(units) == header  # every column, in order
+    assert (units["time"], units["Quad.Pos.X"], units["Quad.GPS.X.fresh"]) == ("s", "m", "")
+    assert (units["Quad.IMU.AX"], units["Quad.IMU.GZ"], units["Quad.Est.E.Yaw"]) == ("m/s^2", "rad/s", "rad")
 
 
 def test_a_fleet_gets_a_file_per_vehicle(quad_drake_cli, tmp_path):
@@ -44,6 +49,7 @@ def test_a_fleet_gets_a_file_per_vehicle(quad_drake_cli, tmp_path):
     exported = quad_drake_cli("export", out / "09_predict_covariance")
     assert exported.returncode == 0, exported.stderr
     paths = exported.stdout.split()
-    assert len(paths) == 10 and paths[0].endswith("09_predict_covariance/csv/Quad1.csv")
+    assert len(paths) == 11 and paths[0].endswith("09_predict_covariance/csv/Quad1.csv")
+    assert paths[-1].endswith("csv/units.json")
     header, table = read_csv(out / "09_predict_covariance" / "csv" / "Quad10.csv")
     assert header[:2] == ["time", "Quad10.Pos.X"] and table.shape[0] == 20

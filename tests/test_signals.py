@@ -123,7 +123,7 @@ def test_estimation_errors_sigmas_and_freshness():
         ("Quad.PosFollowErr", "m"),
         ("Quad.GPS.X", "m"),
         ("Quad.GPS.VX", "m/s"),
-        ("Quad.IMU.AX", "m/s²"),
+        ("Quad.IMU.AX", "m/s^2"),
         ("Quad.IMU.GZ", "rad/s"),
         ("Quad.MagYaw", "rad"),
         ("Quad.Thrust.B", "N"),
