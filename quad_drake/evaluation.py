@@ -33,11 +33,11 @@ TIME_TOLERANCE = 1e-9
 """s; stretches within this of the window W count as exactly W."""
 
 
-def _amount(value, signal):
-    """`value` (:g) with the unit of the named `signal` ("1 m"; bare when it has none), for a
-    criterion's description."""
+def _amount(value, signal, spec="g"):
+    """`value` (formatted with `spec`) with the unit of the named `signal` ("1 m"; bare when it
+    has none), for a criterion's texts."""
     unit = signal_unit(signal)
-    return f"{value:g} {unit}" if unit else f"{value:g}"
+    return f"{value:{spec}} {unit}" if unit else f"{value:{spec}}"
 
 
 MEASURED_UNITS = {
@@ -748,7 +748,7 @@ class TrackingFold(_Fold):
             worst,
             bound,
             self.samples,
-            measured_text=f"max {worst:.4g} at {worst_time:.3f} s",
+            measured_text=f"max {_amount(worst, name, '.4g')} at {worst_time:.3f} s",
             **text,
         )
 
@@ -813,7 +813,7 @@ class BoundFold(_Fold):
         span = f"from {start:f} to {end:f} seconds"
         text = {
             "description": f"|{name}| < {_amount(threshold, name)} in [{start:g}, {end:g}) s",
-            "required_text": f"< {threshold:g} on every sample",
+            "required_text": f"< {_amount(threshold, name)} on every sample",
         }
         if self.samples == 0:
             line = f"FAIL: ABS({name}) had no samples {span}"
@@ -827,10 +827,10 @@ class BoundFold(_Fold):
                 f"FAIL: ABS({name}) was {self.first_bad[j]:f} at {first_time:f} seconds, "
                 f"not less than {threshold:f} {span}"
             )
-            measured_text = f"max {worst:.4g}; first above at {first_time:.4g} s"
+            measured_text = f"max {_amount(worst, name, '.4g')}; first above at {first_time:.4g} s"
         else:
             line = f"PASS: ABS({name}) was less than {threshold:f} {span} (max {worst:f})"
-            measured_text = f"max {worst:.4g}"
+            measured_text = f"max {_amount(worst, name, '.4g')}"
         return CriterionResult(
             "bound",
             name,

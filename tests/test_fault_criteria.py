@@ -47,8 +47,8 @@ def test_bound_and_recovery_fill_the_criterion_texts():
     values = bump(2.0, 4.0, 6.5)
     bound = bound_threshold(TIMES, values, 1.0, 4.0, 6.0, "Quad.Est.E.Pos")
     assert bound.description == "|Quad.Est.E.Pos| < 1 m in [4, 6) s"
-    assert bound.required_text == "< 1 on every sample"
-    assert bound.measured_text == "max 2; first above at 4 s"
+    assert bound.required_text == "< 1 m on every sample"
+    assert bound.measured_text == "max 2 m; first above at 4 s"
     recovery = recovery_threshold(TIMES, values, 1.0, 6.0, 1.0, "Quad.Est.E.Pos")
     assert recovery.description == "|Quad.Est.E.Pos| < 1 m within 1 s after 6 s"
     assert recovery.required_text == "back under within 1 s, and staying"

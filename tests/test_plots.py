@@ -291,7 +291,7 @@ def test_fleet_sigma_counts_only_fresh_samples():
         ),
         (
             [CriterionConfig(kind="bound", signal="Quad.Est.E.Pos", threshold=2.0, start=1.0, end=3.0)],
-            ["|Quad.Est.E.Pos| &lt; 2 m in [1, 3) s", "&lt; 2 on every sample", "max "],
+            ["|Quad.Est.E.Pos| &lt; 2 m in [1, 3) s", "&lt; 2 m on every sample", "max "],
         ),
         (
             [CriterionConfig(kind="recovery", signal="Quad.Est.E.Pos", threshold=2.0, start=1.0, window=1.0)],

@@ -120,6 +120,8 @@ def test_room_finite_and_tracking_verdicts():
     ok = tracking_bound(TIMES, error, 2.5, "Quad.PosFollowErr")
     assert ok.passed and ok.measured == pytest.approx(2.0)
     assert ok.line == "PASS: ABS(Quad.PosFollowErr) stayed below 2.500000 (max 2.000 at 0.500 s)"
+    assert (ok.measured_text, ok.required_text) == ("max 2 m at 0.500 s", "max <= 2.5 m")
+    assert ok.measured_unit == "m"
     lost = tracking_bound(TIMES, error, 1.5, "Quad.PosFollowErr")
     assert not lost.passed
     assert lost.line.startswith("FAIL: ABS(Quad.PosFollowErr) reached 1.5")
