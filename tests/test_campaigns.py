@@ -182,6 +182,7 @@ def test_summary_names_the_unit_of_every_column_and_the_column_of_every_criterio
     assert columns["Quad.PosFollowErr.max"] == "m"
     assert columns["Quad.NEES.mean"] == columns["seed"] == ""
     assert summary["metrics"]["Est.E.Vel"]["unit"] == "m/s"
+    assert [(e["state"], e["unit"]) for e in summary["efficiency"]] == [("Yaw", "rad")]
 
 
 def test_an_eskf_campaign_gives_every_error_signal_its_unit(tmp_path):

@@ -96,7 +96,7 @@ def table(campaign):
             return f"{value:{width}.{digits}f}" if value is not None else f"{'-':>{width}s}"
 
         for e in campaign.efficiency:
-            label = f"{e['vehicle']}.{e['state']} [{campaign.units[e['state']]}]"
+            label = f"{e['vehicle']}.{e['state']} [{e['unit']}]"
             lines.append(
                 f"{label:20s} {cell(e['bound_std'], 9, 4)} {cell(e['pcrb_std'], 9, 4)} {e['rmse']:9.4f} "
                 f"{cell(e['efficiency'], 10, 2)} {cell(e['pcrb_efficiency'], 9, 2)}"

@@ -74,7 +74,7 @@ def _efficiency(campaign):
     rows = [
         [
             esc(f"{e['vehicle']}.{e['state']}"),
-            esc(campaign.units[e["state"]]),
+            esc(e["unit"]),
             (num(e["bound_std"]), "num") if e["bound_std"] is not None else "-",
             (num(e["pcrb_std"]), "num") if e["pcrb_std"] is not None else "-",
             (num(e["rmse"]), "num"),

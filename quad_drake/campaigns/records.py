@@ -18,28 +18,14 @@ from min(SETTLE_TIME, end_time / 2) on: the truth starts at the EKF's initial st
 error of the first seconds is smaller than in steady state."""
 
 METRIC_STATS = ("rms", "max", "rms_settled")
-COMMON_ERROR_UNITS = {
-    "X": "m",
-    "Y": "m",
-    "Z": "m",
-    "VX": "m/s",
-    "VY": "m/s",
-    "VZ": "m/s",
-    "Roll": "rad",
-    "Pitch": "rad",
-    "Yaw": "rad",
-    "Pos": "m",
-    "Vel": "m/s",
-}
+COMMON_ERRORS = ("X", "Y", "Z", "VX", "VY", "VZ", "Roll", "Pitch", "Yaw", "Pos", "Vel")
 """Error signals every estimator has (``Est.E.<key>``), besides its vocabulary's."""
 
 
-def error_units(vocabulary):
-    """{key: unit} of the ``Est.E.<key>`` signals a campaign summarises for this estimator
-    (PosFollowErr for a vehicle without one)."""
-    units = dict(COMMON_ERROR_UNITS)
-    units.update(zip(vocabulary.state_names, vocabulary.units, strict=True))
-    return units
+def error_keys(vocabulary):
+    """The keys of the ``Est.E.<key>`` signals a campaign summarises for this estimator, in order:
+    COMMON_ERRORS, then its vocabulary's other states (their units: ``signals.key_unit``)."""
+    return list(dict.fromkeys((*COMMON_ERRORS, *vocabulary.state_names)))
 
 
 def campaign_vocabulary(scenario):
@@ -128,7 +114,7 @@ def metric_keys(vocabulary, log_names):
     """The signals (``V.<key>``) a run's record summarises for a vehicle with estimator
     `vocabulary` (None: none) and logs `log_names`: its ``Est.E.*`` errors, and PosFollowErr
     (the true flight) when it has a reference."""
-    keys = [] if vocabulary is None else [f"Est.E.{key}" for key in error_units(vocabulary)]
+    keys = [] if vocabulary is None else [f"Est.E.{key}" for key in error_keys(vocabulary)]
     return keys + (["PosFollowErr"] if "reference" in log_names else [])
 
 

@@ -12,7 +12,7 @@ import numpy as np
 from .. import consistency as cons
 from ..accuracy_bound import accuracy_bound
 from ..signals import key_unit
-from .records import campaign_vocabulary, criterion_column, error_units
+from .records import campaign_vocabulary, criterion_column
 from .tally import NEES, nis_statistic
 
 MIN_IN_BAND = 0.8
@@ -181,12 +181,6 @@ class CampaignResult:
         return () if vocabulary is None else vocabulary.state_names
 
     @cached_property
-    def units(self):
-        """{error signal key: unit}: ``Est.E.*`` of the estimator's vocabulary, PosFollowErr."""
-        vocabulary = campaign_vocabulary(self.scenario)
-        return {"PosFollowErr": "m", **({} if vocabulary is None else error_units(vocabulary))}
-
-    @cached_property
     def counters(self):
         """{diagnostics counter: total over runs and vehicles} (gated samples, resets, repairs)."""
         totals = {}
@@ -198,8 +192,8 @@ class CampaignResult:
 
     @cached_property
     def efficiency(self):
-        """Per vehicle and bounded state: the hover Riccati bound sigma, the posterior CRB sigma
-        (sqrt of its variance averaged over runs after the settling time), the RMSE pooled over
+        """Per vehicle and bounded state (with its unit): the hover Riccati bound sigma, the posterior
+        CRB sigma (sqrt of its variance averaged over runs after the settling time), the RMSE pooled over
         runs after the settling time, and the efficiencies RMSE / bound (>= 1 up to sampling
         error and the bounds' simplifications; None where a bound does not cover the state)."""
         rows = []
@@ -221,6 +215,7 @@ class CampaignResult:
                     {
                         "vehicle": vehicle.name,
                         "state": state,
+                        "unit": key_unit(f"Est.E.{state}"),
                         "bound_std": hover,
                         "posterior_std": bounds[state].posterior_std if state in bounds else None,
                         "pcrb_std": crb,
