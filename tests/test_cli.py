@@ -119,9 +119,9 @@ def test_run_writes_plots_report_replay_and_index(tmp_path):
     assert "09_predict_covariance/report.html" in index and "01_intro/report.html" in index
 
 
-HEAVY_MODULES = ("scipy.stats", "scipy.optimize", "matplotlib", "numba", "cma", "dask")
-"""Imported only by the commands that need them (campaigns, tuning, plots, the fleet); a run
-needs only ``scipy.special`` (the gates' chi-square threshold)."""
+HEAVY_MODULES = ("scipy.stats", "scipy.optimize", "matplotlib", "cma", "dask")
+"""Imported only by the commands that need them (campaigns, tuning, plots); a run needs only
+``scipy.special`` (the gates' chi-square threshold) and numba (its handlers' compiled kernels)."""
 
 
 def test_a_run_without_plots_imports_no_heavy_module(tmp_path):

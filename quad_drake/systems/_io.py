@@ -24,6 +24,14 @@ def vector_reader(port):
     return lambda context: evaluate(context).tolist()
 
 
+def row_reader(port):
+    """``read(context) -> (1, size) array``: a read-only view of the vector input `port`'s value
+    (no copy; valid inside the handler that reads it), as one vehicle's row for the compiled
+    ``fleet`` kernels."""
+    evaluate = port.EvalBasicVector
+    return lambda context: evaluate(context).get_value().reshape(1, -1)
+
+
 def entry_reader(port, index):
     """``read(context) -> float``: entry `index` of the vector input `port`."""
     evaluate = port.EvalBasicVector

@@ -1,11 +1,12 @@
-"""Drake glue for the cascade controller (SPEC §5): :class:`CascadeController`."""
+"""Drake glue for the cascade controller (SPEC §5): :class:`CascadeController`, which runs
+``control.cascade.cascade_step`` as its compiled form for one vehicle (``fleet.kernels.cascade_steps``
+with N = 1)."""
 
 import copy
 
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
-from quad_drake.control.cascade import cascade_step
 from quad_drake.conventions import (
     CONTROLLER_OFFSET,
     GRAVITY,
@@ -15,7 +16,8 @@ from quad_drake.conventions import (
     STATE_SIZE,
 )
 from quad_drake.fidelity import PHYSICAL
-from quad_drake.systems._io import scalar, set_scalar, vector_reader
+from quad_drake.fleet import kernels
+from quad_drake.systems._io import row_reader
 
 
 class CascadeController(LeafSystem):
@@ -36,9 +38,9 @@ class CascadeController(LeafSystem):
     def __init__(self, params, fidelity=PHYSICAL):
         super().__init__()
         self._params = copy.deepcopy(params)
-        self._fidelity = fidelity
-        self._read_state = vector_reader(self.DeclareVectorInputPort("state", STATE_SIZE))
-        self._read_reference = vector_reader(self.DeclareVectorInputPort("reference", REFERENCE_SIZE))
+        self._frozen_params, self._frozen_fidelity = kernels.frozen(self._params), kernels.frozen(fidelity)
+        self._read_state = row_reader(self.DeclareVectorInputPort("state", STATE_SIZE))
+        self._read_reference = row_reader(self.DeclareVectorInputPort("reference", REFERENCE_SIZE))
         self._integral_index = self.DeclareDiscreteState(1)
         hover = params.mass * GRAVITY / NUM_MOTORS
         self._thrusts_index = self.DeclareDiscreteState(np.full(NUM_MOTORS, hover))
@@ -51,13 +53,12 @@ class CascadeController(LeafSystem):
         return self._integral_index
 
     def _update(self, context, discrete_state):
-        forces, integral = cascade_step(
+        kernels.cascade_steps(
             self._read_state(context),
             self._read_reference(context),
-            scalar(discrete_state, self._integral_group),
+            discrete_state.get_mutable_value(self._integral_group),
             ONBOARD_PERIOD,
-            self._params,
-            self._fidelity,
+            self._frozen_params,
+            self._frozen_fidelity,
+            discrete_state.get_mutable_value(self._thrusts_group).reshape(1, NUM_MOTORS),
         )
-        set_scalar(discrete_state, self._integral_group, integral)
-        discrete_state.set_value(self._thrusts_group, np.array(forces))

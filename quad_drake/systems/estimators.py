@@ -37,11 +37,12 @@ from quad_drake.conventions import (
     STATE_SIZE,
 )
 from quad_drake.estimation import ekf, eskf, gating
-from quad_drake.estimation.complementary import VARIANTS, complementary_update
+from quad_drake.estimation.complementary import VARIANTS
 from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, NIS_DOF, vocabulary_for
 from quad_drake.fidelity import PHYSICAL
+from quad_drake.fleet import estimation_kernels as kernels
 from quad_drake.rotations import quat_from_euler_tuple
-from quad_drake.systems._io import entries_reader, entry_reader, vector_reader
+from quad_drake.systems._io import entries_reader, entry_reader, row_reader, vector_reader
 
 GPS_SLOT, MAG_SLOT, GPS_REJECTION_START = 0, 1, 2
 """Book-keeping state: last GPS stamp seen, last mag stamp seen, start of the GPS rejection run."""
@@ -172,8 +173,8 @@ class ComplementaryFilter(LeafSystem):
             raise ValueError(f"attitude filter variant {params.variant!r} is not one of {VARIANTS}")
         self._tau = float(params.tau)
         self._variant = params.variant
-        self._read_imu = vector_reader(self.DeclareVectorInputPort("imu", IMU_SIZE))
-        self._read_prior_yaw = entry_reader(self.DeclareVectorInputPort("ekf_state", EKF_STATE_SIZE), 6)
+        self._read_imu = row_reader(self.DeclareVectorInputPort("imu", IMU_SIZE))
+        self._read_ekf_state = row_reader(self.DeclareVectorInputPort("ekf_state", EKF_STATE_SIZE))
         state = self.DeclareDiscreteState(np.array(initial_attitude, dtype=float))
         rate = self.DeclareDiscreteState(3)
         self.DeclareStateOutputPort("attitude", state)
@@ -181,24 +182,16 @@ class ComplementaryFilter(LeafSystem):
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, ATTITUDE_FILTER_OFFSET, self._update)
 
     def _update(self, context, discrete_state):
-        imu = self._read_imu(context)
-        yaw = self._read_prior_yaw(context)
-        attitude = discrete_state.get_vector(0)
-        roll, pitch = attitude.GetAtIndex(0), attitude.GetAtIndex(1)
-        if _finite(imu):
-            roll, pitch, yaw = complementary_update(
-                roll,
-                pitch,
-                yaw,
-                imu[0:3],
-                imu[3:6],
-                ONBOARD_PERIOD,
-                self._tau,
-                self._variant,
-                self._reference_accelerometer,
-            )
-            discrete_state.set_value(1, np.array(imu[3:6]))
-        discrete_state.set_value(0, np.array((roll, pitch, yaw)))
+        kernels.complementary_tick(
+            discrete_state.get_mutable_value(0).reshape(1, ATTITUDE_SIZE),
+            discrete_state.get_mutable_value(1).reshape(1, 3),
+            self._read_imu(context),
+            self._read_ekf_state(context),
+            ONBOARD_PERIOD,
+            self._tau,
+            self._variant,
+            self._reference_accelerometer,
+        )
 
 
 class Ekf(_GatedFusion, LeafSystem):
@@ -223,11 +216,10 @@ class Ekf(_GatedFusion, LeafSystem):
 
     def __init__(self, params, fidelity=PHYSICAL, tilt=None):
         super().__init__()
-        self._reference_accelerometer = fidelity.reference_accelerometer
+        self._gravity_z = kernels.gravity_z(fidelity.reference_accelerometer)
         self._Q = ekf.process_noise(params)
         self._tilt = tilt
-        self._G = ekf.predict_jacobian(np.zeros(EKF_STATE_SIZE), 0.0, 0.0, (0.0, 0.0, 0.0), ONBOARD_PERIOD)
-        self._read_imu = vector_reader(self.DeclareVectorInputPort("imu", IMU_SIZE))
+        self._read_imu = row_reader(self.DeclareVectorInputPort("imu", IMU_SIZE))
         self._declare_gating(
             params,
             ekf.initial_covariance(params),
@@ -235,9 +227,10 @@ class Ekf(_GatedFusion, LeafSystem):
             (ekf.mag_update, ekf.gps_update),
             (ekf.mag_noise(params), ekf.gps_noise(params)),
         )
-        self._read_attitude = entries_reader(
-            self.DeclareVectorInputPort("attitude", ATTITUDE_SIZE), 0, ATTITUDE_SIZE
-        )
+        self._read_gps_row = row_reader(self.GetInputPort("gps"))
+        self._read_mag_row = row_reader(self.GetInputPort("mag"))
+        self._read_attitude = row_reader(self.DeclareVectorInputPort("attitude", ATTITUDE_SIZE))
+        self._looks_healthy = np.empty(1, dtype=bool)  # scratch of the kernel's per-tick health check
         x = self.DeclareDiscreteState(ekf.initial_state(params))
         P = self.DeclareDiscreteState(ekf.initial_covariance(params).ravel())
         diagnostics = self.DeclareDiscreteState(_initial_diagnostics())
@@ -248,22 +241,32 @@ class Ekf(_GatedFusion, LeafSystem):
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, EKF_OFFSET, self._update)
 
     def _update(self, context, discrete_state):
-        imu = self._read_imu(context)
-        attitude = self._read_attitude(context)
-        x = discrete_state.value(0)
-        P = discrete_state.value(1).reshape(EKF_STATE_SIZE, EKF_STATE_SIZE)
-        if _finite(imu + attitude):
-            Q = self._Q
-            if self._tilt is not None:
-                Q = self._tilt.process_noise(context.get_time(), Q, attitude, imu[0:3], imu[3:6])
-            x, P = ekf.predict_with_yaw(
-                x.tolist(), P, attitude, imu, ONBOARD_PERIOD, Q, self._G, self._reference_accelerometer
-            )
-        else:
-            self._count(discrete_state, "nonfinite_samples")
-        x, P = self._fuse_fresh_samples(context, discrete_state, x, P)
-        discrete_state.set_value(0, x)
-        discrete_state.set_value(1, P.ravel())
+        """The prediction and, on a quiet tick, the mag fusion compiled (``fleet.estimation_kernels
+        .ekf7_tick`` with N = 1, in place); at a fresh GPS sample or an unhealthy P, the health
+        check and the fusions of :meth:`_fuse_fresh_samples`."""
+        x = discrete_state.get_mutable_value(0).reshape(1, EKF_STATE_SIZE)
+        P = discrete_state.get_mutable_value(1).reshape(1, EKF_STATE_SIZE, EKF_STATE_SIZE)
+        quiet = kernels.ekf7_tick(
+            x,
+            P,
+            self._read_attitude(context),
+            self._read_imu(context),
+            self._read_gps_row(context),
+            self._read_mag_row(context),
+            discrete_state.get_mutable_value(self.DIAGNOSTICS_GROUP).reshape(1, DIAGNOSTICS_SIZE),
+            discrete_state.get_mutable_value(self.BOOK_GROUP).reshape(1, -1),
+            ONBOARD_PERIOD,
+            self._Q,
+            kernels.NO_TILT if self._tilt is None else self._tilt.gains(context.get_time()),
+            self._gravity_z,
+            self._R_mag[0, 0],
+            self._threshold[MAG_SLOT],
+            self._looks_healthy,
+        )
+        if not quiet:
+            x, P = self._fuse_fresh_samples(context, discrete_state, x[0], P[0])
+            discrete_state.set_value(0, x)
+            discrete_state.set_value(1, P.ravel())
 
 
 class EstimatedStateAssembler(LeafSystem):
@@ -277,18 +280,18 @@ class EstimatedStateAssembler(LeafSystem):
 
     def __init__(self):
         super().__init__()
-        self._read_roll_pitch = entries_reader(self.DeclareVectorInputPort("attitude", ATTITUDE_SIZE), 0, 2)
-        self._read_ekf_state = vector_reader(self.DeclareVectorInputPort("ekf_state", EKF_STATE_SIZE))
-        self._read_rate = entries_reader(self.DeclareVectorInputPort("body_rate", 3), 0, 3)
+        self._read_attitude = row_reader(self.DeclareVectorInputPort("attitude", ATTITUDE_SIZE))
+        self._read_ekf_state = row_reader(self.DeclareVectorInputPort("ekf_state", EKF_STATE_SIZE))
+        self._read_rate = row_reader(self.DeclareVectorInputPort("body_rate", 3))
         self.DeclareVectorOutputPort(
             "estimated_state", STATE_SIZE, self._calc, prerequisites_of_calc={self.all_input_ports_ticket()}
         )
 
     def _calc(self, context, output):
-        roll, pitch = self._read_roll_pitch(context)
-        x = self._read_ekf_state(context)
-        q = list(quat_from_euler_tuple(roll, pitch, x[6]))
-        output.SetFromVector(np.array(x[0:3] + q + x[3:6] + self._read_rate(context)))
+        estimate = kernels.ekf7_estimated_state(
+            self._read_attitude(context), self._read_ekf_state(context), self._read_rate(context)
+        )
+        output.get_mutable_value()[:] = estimate[0]
 
 
 class Eskf(_GatedFusion, LeafSystem):

@@ -1,4 +1,6 @@
-"""The quadrotor plant (SPEC §3): a 1 kHz discrete system over ``dynamics.plant_step``."""
+"""The quadrotor plant (SPEC §3): a 1 kHz discrete system over ``dynamics.plant_step``, run as its
+compiled form for one vehicle (``fleet.kernels.plant_steps`` with N = 1: the scalar function's own
+code compiled by numba, about a third of its Python cost per step)."""
 
 import copy
 
@@ -7,9 +9,10 @@ from pydrake.common import RandomDistribution
 from pydrake.systems.framework import LeafSystem
 
 from quad_drake.conventions import NUM_MOTORS, ONBOARD_PERIOD, PHYSICS_PERIOD, PLANT_OFFSET, STATE_SIZE
-from quad_drake.dynamics import count_contacts, on_floor, plant_step
+from quad_drake.dynamics import on_floor
 from quad_drake.fidelity import PHYSICAL
-from quad_drake.systems._io import entries_reader, scalar, set_scalar, vector_reader
+from quad_drake.fleet import kernels
+from quad_drake.systems._io import row_reader
 
 
 class QuadrotorPlant(LeafSystem):
@@ -55,12 +58,12 @@ class QuadrotorPlant(LeafSystem):
         if initial_state.shape != (STATE_SIZE,):
             raise ValueError(f"initial_state: expected {STATE_SIZE} values, got shape {initial_state.shape}")
         self._params = copy.deepcopy(params)
-        self._read_commands = vector_reader(self.DeclareVectorInputPort("motor_thrusts", NUM_MOTORS))
+        self._frozen_params, self._frozen_fidelity = kernels.frozen(self._params), kernels.frozen(fidelity)
+        self._read_commands = row_reader(self.DeclareVectorInputPort("motor_thrusts", NUM_MOTORS))
         noise = self.DeclareVectorInputPort(
             "motor_noise", self.noise_size, random_type=RandomDistribution.kUniform
         )
-        self._read_first_noise = entries_reader(noise, 0, NUM_MOTORS)
-        self._read_second_noise = entries_reader(noise, NUM_MOTORS, 2 * NUM_MOTORS)
+        self._read_noise = row_reader(noise)
         state = self.DeclareDiscreteState(initial_state)
         acceleration = self.DeclareDiscreteState(3)
         forces = self.DeclareDiscreteState(NUM_MOTORS)
@@ -90,33 +93,28 @@ class QuadrotorPlant(LeafSystem):
         context.SetDiscreteState(self._contacts_group, self._initial_contacts(state))
 
     def _first_step(self, context, discrete_state):
-        self._step(context, discrete_state, self._read_first_noise(context))
+        self._step(context, discrete_state, 0)
 
     def _second_step(self, context, discrete_state):
-        self._step(context, discrete_state, self._read_second_noise(context))
+        self._step(context, discrete_state, NUM_MOTORS)
 
-    def _step(self, context, discrete_state, noise):
+    def _step(self, context, discrete_state, column):
+        """One physics step on the noise entries column..column + 3, on (1, k) views of the state."""
         commands = self._read_commands(context)
-        if scalar(discrete_state, self._started_group):
-            forces_old = discrete_state.value(self._forces_group).tolist()
-        else:
-            forces_old = commands
-            set_scalar(discrete_state, self._started_group, 1.0)
-        state, accel, forces, hit_wall = plant_step(
-            discrete_state.value(self._state_group).tolist(),
-            forces_old,
+        forces = discrete_state.get_mutable_value(self._forces_group).reshape(1, NUM_MOTORS)
+        started = discrete_state.get_mutable_value(self._started_group)
+        if not started[0]:
+            forces[:] = commands
+            started[0] = 1.0
+        kernels.plant_steps(
+            discrete_state.get_mutable_value(self._state_group).reshape(1, STATE_SIZE),
+            forces,
             commands,
-            noise,
-            self._params,
+            self._read_noise(context),
+            column,
+            self._frozen_params,
             PHYSICS_PERIOD,
-            self._fidelity,
+            self._frozen_fidelity,
+            discrete_state.get_mutable_value(self._acceleration_group).reshape(1, 3),
+            discrete_state.get_mutable_value(self._contacts_group).reshape(1, 3),
         )
-        # numpy arrays: set_value(i, list) costs ~5 us on drake 1.58, set_value(i, ndarray) < 0.5 us.
-        discrete_state.set_value(self._state_group, np.array(state))
-        discrete_state.set_value(self._acceleration_group, np.array(accel))
-        discrete_state.set_value(self._forces_group, np.array(forces))
-        counts = discrete_state.get_vector(self._contacts_group)
-        before = (counts.GetAtIndex(0), counts.GetAtIndex(1), counts.GetAtIndex(2))
-        after = count_contacts(before, state, hit_wall, self._params)
-        if after != before:  # rarely: a touchdown, a take-off or a wall hit
-            discrete_state.set_value(self._contacts_group, np.array(after))

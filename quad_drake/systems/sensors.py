@@ -27,7 +27,8 @@ from quad_drake.conventions import (
     STATE_SIZE,
 )
 from quad_drake.fidelity import PHYSICAL
-from quad_drake.systems._io import entries_reader, entry_reader, scalar, set_scalar, vector_reader
+from quad_drake.fleet import kernels
+from quad_drake.systems._io import entries_reader, entry_reader, row_reader, scalar, set_scalar, vector_reader
 
 
 class _Sensor(LeafSystem):
@@ -56,6 +57,8 @@ class Imu(_Sensor):
     Zero before the first sample.
     With ``fidelity.reference_accelerometer`` the first three entries are the reference's
     R_NB^T (a_NB + g_N) instead (``sensor_models.reference_accelerometer``).
+    The sample is ``sensor_models.imu_measurement``'s compiled form for one vehicle
+    (``fleet.kernels.imu_samples`` with N = 1).
     """
 
     noise_size = 6
@@ -64,12 +67,15 @@ class Imu(_Sensor):
     def __init__(self, params, fidelity=PHYSICAL):
         super().__init__(self.noise_size)
         self._params = params
-        self._fidelity = fidelity
-        self._read_acceleration = entries_reader(self.DeclareVectorInputPort("acceleration", 3), 0, 3)
+        self._frozen_params, self._frozen_fidelity = kernels.frozen(params), kernels.frozen(fidelity)
+        self._read_state_row = row_reader(self._state_port)
+        self._read_noise_row = row_reader(self._noise_port)
+        self._read_acceleration = row_reader(self.DeclareVectorInputPort("acceleration", 3))
         group = self.DeclareDiscreteState(IMU_SIZE)
         self.DeclareStateOutputPort("imu", group)
         self._output_group = int(group)
-        self._bias = sensor_models.imu_initial_bias(params)  # constant without a random walk
+        bias = np.array(sensor_models.imu_initial_bias(params), dtype=float)
+        self._bias_row = bias.reshape(1, self.noise_size)  # constant without a random walk
         self._read_bias_noise = None
         if sensor_models.imu_has_bias_walk(params):
             self._read_bias_noise = vector_reader(
@@ -77,27 +83,26 @@ class Imu(_Sensor):
                     "bias_noise", self.noise_size, random_type=RandomDistribution.kGaussian
                 )
             )
-            self._bias_group = int(self.DeclareDiscreteState(np.array(self._bias)))
+            self._bias_group = int(self.DeclareDiscreteState(bias))
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, SENSOR_OFFSET, self._sample)
 
     def _sample(self, context, discrete_state):
-        x = self._read_state(context)
-        bias = self._bias
+        bias = self._bias_row
         if self._read_bias_noise is not None:
-            bias = sensor_models.imu_bias_step(
+            step = sensor_models.imu_bias_step(
                 discrete_state.value(self._bias_group).tolist(), self._read_bias_noise(context), self._params
             )
-            discrete_state.set_value(self._bias_group, np.array(bias))
-        sample = sensor_models.imu_measurement(
-            x[3:7],
-            x[10:13],
+            discrete_state.set_value(self._bias_group, np.array(step))
+            bias = discrete_state.value(self._bias_group).reshape(1, self.noise_size)
+        kernels.imu_samples(
+            self._read_state_row(context),
             self._read_acceleration(context),
-            self._read_noise(context),
-            self._params,
-            self._fidelity,
-            bias=bias,
+            self._read_noise_row(context),
+            self._frozen_params,
+            self._frozen_fidelity,
+            bias,
+            discrete_state.get_mutable_value(self._output_group).reshape(1, IMU_SIZE),
         )
-        discrete_state.set_value(self._output_group, np.array(sample))
 
 
 class Gps(_Sensor):
