@@ -310,18 +310,19 @@ class Eskf(_GatedFusion, LeafSystem):
     checked as in :class:`Ekf`.
     """
 
+    ESTIMATE_GROUP, BIAS_GROUP = 4, 5
+
     def __init__(self, params):
         super().__init__()
         self._noise = eskf.NoiseModel.from_params(params)
         P0 = eskf.initial_covariance(params)
         n = P0.shape[0]
         self._n = n
-        self._F = eskf.transition_buffer(n, ONBOARD_PERIOD)
         self._Qbuf = eskf.noise_buffer(n, self._noise, ONBOARD_PERIOD)
         yaw, pitch, roll = params.init_ypr
         q0 = quat_from_euler_tuple(roll, pitch, yaw)
         x0 = eskf.initial_nominal(params.init_position, params.init_velocity, q0)
-        self._read_imu = vector_reader(self.DeclareVectorInputPort("imu", IMU_SIZE))
+        self._read_imu = row_reader(self.DeclareVectorInputPort("imu", IMU_SIZE))
         self._declare_gating(
             params,
             P0,
@@ -347,20 +348,26 @@ class Eskf(_GatedFusion, LeafSystem):
         return np.concatenate([x[0:3], x[6:10], x[3:6], rate])
 
     def _update(self, context, discrete_state):
-        imu = self._read_imu(context)
-        x = discrete_state.value(0)
-        P = discrete_state.value(1).reshape(self._n, self._n)
-        rate = discrete_state.value(4)[10:13]
-        if _finite(imu):
-            x, P = eskf.predict(x, P, imu[0:3], imu[3:6], ONBOARD_PERIOD, self._noise, self._F, self._Qbuf)
-            rate = (imu[3] - x[13], imu[4] - x[14], imu[5] - x[15])
-        else:
-            self._count(discrete_state, "nonfinite_samples")
-        x, P = self._fuse_fresh_samples(context, discrete_state, x, P)
+        """The prediction compiled (``fleet.estimation_kernels.eskf_predict_tick`` with N = 1, in
+        place), then the health check and the fusions of :meth:`_fuse_fresh_samples`."""
+        x = discrete_state.get_mutable_value(0).reshape(1, eskf.NOMINAL_SIZE)
+        P = discrete_state.get_mutable_value(1).reshape(1, self._n, self._n)
+        kernels.eskf_predict_tick(
+            x,
+            P,
+            self._read_imu(context),
+            discrete_state.get_mutable_value(self.ESTIMATE_GROUP).reshape(1, STATE_SIZE),
+            discrete_state.get_mutable_value(self.DIAGNOSTICS_GROUP).reshape(1, DIAGNOSTICS_SIZE),
+            ONBOARD_PERIOD,
+            self._noise,
+            self._Qbuf,
+        )
+        x, P = self._fuse_fresh_samples(context, discrete_state, x[0], P[0])
         discrete_state.set_value(0, x)
-        discrete_state.set_value(5, x[10:16])
+        discrete_state.set_value(self.BIAS_GROUP, x[10:16])
         discrete_state.set_value(1, P.ravel())
-        discrete_state.set_value(4, self._estimated_state(x, rate))
+        estimate = discrete_state.get_mutable_value(self.ESTIMATE_GROUP)
+        estimate[0:3], estimate[3:7], estimate[7:10] = x[0:3], x[6:10], x[3:6]
 
 
 def wire_ekf7(builder, ekf_system, attitude_filter, assembler):
