@@ -124,7 +124,7 @@ def _row_sum(values, i):
 
 @_jit
 def _row_finite(values, i, total=0.0):
-    """True if the sum of `total` and row i is finite (``systems.estimators._finite``'s rule)."""
+    """True if the sum of `total` and row i is finite (one NaN or inf makes the sum NaN or inf)."""
     for k in range(values.shape[1]):
         total += values[i, k]
     return math.isfinite(total)

@@ -149,11 +149,6 @@ class _GatedFusion:
         return P_new
 
 
-def _finite(values):
-    """True if every float in the list is finite (any NaN or inf makes the sum NaN or inf)."""
-    return math.isfinite(sum(values))
-
-
 class ComplementaryFilter(LeafSystem):
     """Complementary roll/pitch filter with gyro-integrated yaw (SPEC §4 UpdateFromIMU).
 
