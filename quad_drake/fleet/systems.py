@@ -35,6 +35,7 @@ from quad_drake.conventions import (
 from quad_drake.fidelity import PHYSICAL
 from quad_drake.fleet import kernels
 from quad_drake.fleet.streams import NoiseStreams, sample_index
+from quad_drake.systems.plant import step_plants
 from quad_drake.trajectories import lookup_time
 
 STATE_PORT_COPY_LIMIT = 1000
@@ -144,24 +145,14 @@ class FleetPlant(LeafSystem):
 
     def _step(self, context, discrete_state, column):
         """One physics step of every vehicle on the noise columns column..column + 3, in place."""
-        n = self._n
-        commands = self._read_commands(context)
-        forces = discrete_state.get_mutable_value(self._forces).reshape(n, NUM_MOTORS)
-        started = discrete_state.get_mutable_value(self._started)
-        if not started[0]:
-            forces[:] = commands
-            started[0] = 1.0
-        kernels.plant_steps(
-            discrete_state.get_mutable_value(self._state).reshape(n, STATE_SIZE),
-            forces,
-            commands,
+        step_plants(
+            discrete_state,
+            (self._state, self._acceleration, self._forces, self._started, self._contacts),
+            self._read_commands(context),
             self._read_noise(context),
             column,
             self._frozen_params,
-            PHYSICS_PERIOD,
             self._frozen_fidelity,
-            discrete_state.get_mutable_value(self._acceleration).reshape(n, 3),
-            discrete_state.get_mutable_value(self._contacts).reshape(n, 3),
         )
 
 

@@ -77,6 +77,13 @@ class QuadrotorPlant(LeafSystem):
         # Plain int group indices: faster than DiscreteStateIndex in the 1 kHz handler.
         self._state_group, self._acceleration_group = int(state), int(acceleration)
         self._forces_group, self._started_group = int(forces), int(started)
+        self._groups = (
+            self._state_group,
+            self._acceleration_group,
+            self._forces_group,
+            self._started_group,
+            self._contacts_group,
+        )
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, PLANT_OFFSET, self._first_step)
         self.DeclarePeriodicDiscreteUpdateEvent(
             ONBOARD_PERIOD, PHYSICS_PERIOD + PLANT_OFFSET, self._second_step
@@ -99,22 +106,39 @@ class QuadrotorPlant(LeafSystem):
         self._step(context, discrete_state, NUM_MOTORS)
 
     def _step(self, context, discrete_state, column):
-        """One physics step on the noise entries column..column + 3, on (1, k) views of the state."""
-        commands = self._read_commands(context)
-        forces = discrete_state.get_mutable_value(self._forces_group).reshape(1, NUM_MOTORS)
-        started = discrete_state.get_mutable_value(self._started_group)
-        if not started[0]:
-            forces[:] = commands
-            started[0] = 1.0
-        kernels.plant_steps(
-            discrete_state.get_mutable_value(self._state_group).reshape(1, STATE_SIZE),
-            forces,
-            commands,
+        step_plants(
+            discrete_state,
+            self._groups,
+            self._read_commands(context),
             self._read_noise(context),
             column,
             self._frozen_params,
-            PHYSICS_PERIOD,
             self._frozen_fidelity,
-            discrete_state.get_mutable_value(self._acceleration_group).reshape(1, 3),
-            discrete_state.get_mutable_value(self._contacts_group).reshape(1, 3),
         )
+
+
+def step_plants(discrete_state, groups, commands, noise, column, params, fidelity):
+    """One physics step of N vehicles IN PLACE on `discrete_state` (this plant's, N = 1, and
+    ``fleet.systems.FleetPlant``'s): groups, the indices of the state, acceleration, motor-force,
+    started-flag and contact groups; commands (N, 4) N; noise (N, 8) uniforms, this step's on
+    columns column..column + 3; params, fidelity: ``fleet.kernels.frozen``. The first step
+    starts the motor lag from the commands and sets the started flag."""
+    state, acceleration, motor_forces, started, contacts = groups
+    n = commands.shape[0]
+    forces = discrete_state.get_mutable_value(motor_forces).reshape(n, NUM_MOTORS)
+    flag = discrete_state.get_mutable_value(started)
+    if not flag[0]:
+        forces[:] = commands
+        flag[0] = 1.0
+    kernels.plant_steps(
+        discrete_state.get_mutable_value(state).reshape(n, STATE_SIZE),
+        forces,
+        commands,
+        noise,
+        column,
+        params,
+        PHYSICS_PERIOD,
+        fidelity,
+        discrete_state.get_mutable_value(acceleration).reshape(n, 3),
+        discrete_state.get_mutable_value(contacts).reshape(n, 3),
+    )
