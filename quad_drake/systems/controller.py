@@ -2,8 +2,6 @@
 ``control.cascade.cascade_step`` as its compiled form for one vehicle (``fleet.kernels.cascade_steps``
 with N = 1)."""
 
-import copy
-
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
@@ -37,8 +35,7 @@ class CascadeController(LeafSystem):
 
     def __init__(self, params, fidelity=PHYSICAL):
         super().__init__()
-        self._params = copy.deepcopy(params)
-        self._frozen_params, self._frozen_fidelity = kernels.frozen(self._params), kernels.frozen(fidelity)
+        self._frozen_params, self._frozen_fidelity = kernels.frozen(params), kernels.frozen(fidelity)
         self._read_state = row_reader(self.DeclareVectorInputPort("state", STATE_SIZE))
         self._read_reference = row_reader(self.DeclareVectorInputPort("reference", REFERENCE_SIZE))
         self._integral_index = self.DeclareDiscreteState(1)

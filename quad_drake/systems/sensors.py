@@ -92,8 +92,8 @@ class Imu(_Sensor):
             step = sensor_models.imu_bias_step(
                 discrete_state.value(self._bias_group).tolist(), self._read_bias_noise(context), self._params
             )
-            discrete_state.set_value(self._bias_group, np.array(step))
-            bias = discrete_state.value(self._bias_group).reshape(1, self.noise_size)
+            bias = np.array(step).reshape(1, self.noise_size)
+            discrete_state.set_value(self._bias_group, bias[0])
         kernels.imu_samples(
             self._read_state_row(context),
             self._read_acceleration(context),
