@@ -121,9 +121,9 @@ def _cholesky_nees(errors, covariances, states):
 @functools.cache
 def _cholesky_nees_kernel():
     """:func:`_cholesky_nees` compiled by numba (cached on disk), imported on first use only."""
-    import numba
+    from quad_drake.jit import njit_cached
 
-    return numba.njit(cache=True)(_cholesky_nees)
+    return njit_cached(_cholesky_nees)
 
 
 def normalized_squared_errors(errors, covariances):

@@ -2,7 +2,7 @@
 :func:`quad_drake.accuracy_bound.posterior_crb` (leading axis N after time), so a fleet batch
 summarises its runs' efficiency without a Python loop over the log samples. Pure.
 
-The recursion is a numba-compiled loop (``cache=True``) over the log samples and the runs, in
+The recursion is a numba-compiled loop (cached on disk) over the log samples and the runs, in
 covariance form with the sparsity of the transition used block by block (see
 :func:`posterior_crbs`); it agrees with the information form to rounding
 (``tests/test_fleet_kernels.py``).
@@ -10,13 +10,13 @@ covariance form with the sparsity of the transition used block by block (see
 
 import math
 
-import numba
 import numpy as np
 
 from quad_drake.accuracy_bound import PCRB_PRIOR_STD, PCRB_STATES, euler_rate_entries
 from quad_drake.conventions import GRAVITY, LOG_PERIOD, ONBOARD_PERIOD
 from quad_drake.fleet.estimation_kernels import rotation_into
 from quad_drake.fleet.kernels import compiled
+from quad_drake.jit import njit_cached
 
 _euler_rate_entries = compiled(euler_rate_entries)
 
@@ -133,7 +133,7 @@ class PcrbStream:
         return result
 
 
-@numba.njit(cache=True)
+@njit_cached
 def _pcrb_recursion(
     quaternions, u_N, gps_fresh, mag_fresh, accel_psd, gyro_psd, gps_var, yaw_var, P, T, first
 ):

@@ -12,7 +12,7 @@ error injection, estimate assembly) are numba-compiled loops over the vehicles t
 scalar arithmetic, operation for operation, with the sparsity of the transition matrices used
 as the scalar code uses it; the 10 Hz GPS updates (a 6x6 solve each), the PSD check and the
 gating book-keeping are numpy over the whole batch. numba compiles on first use and caches the
-machine code next to this module (``cache=True``).
+machine code on disk (``jit.njit_cached``).
 
 Shapes: a state x is (N, n), a covariance P (N, n, n), a specific force f_B or gyro sample w_B
 (N, 3) (m/s^2, rad/s, FRD), an angle, stamp or NIS (N,), a per-vehicle flag (N,) bool. Inputs
@@ -22,7 +22,6 @@ are not modified unless a docstring says so. A non-finite measurement leaves its
 
 import math
 
-import numba
 import numpy as np
 
 from quad_drake.conventions import GRAVITY, NO_SAMPLE_STAMP
@@ -31,6 +30,7 @@ from quad_drake.estimation import ekf, eskf, gating
 from quad_drake.estimation.complementary import VARIANTS
 from quad_drake.estimation.vocabulary import DIAG
 from quad_drake.fleet.kernels import compiled
+from quad_drake.jit import njit_cached
 
 GPS_SLOT, MAG_SLOT, GPS_REJECTION_START = 0, 1, 2
 """Columns of an estimator's book (N, 3): last GPS stamp seen, last mag stamp seen, start of the
@@ -39,19 +39,17 @@ _TWO_PI = 2.0 * math.pi
 _NONFINITE, _MAG_NIS, _MAG_GATED = DIAG["nonfinite_samples"], DIAG["mag_nis"], DIAG["mag_gated"]
 _ESKF_BIASES = eskf.ERROR_SIZE_WITH_BIASES
 
-_jit = numba.njit(cache=True)
-
 
 # ----- scalar helpers of the compiled loops (the scalar modules' own formulas) ---------------------
 
 
-@_jit
+@njit_cached
 def _wrap(angle):
     """rotations.wrap_to_pi."""
     return (angle + math.pi) % _TWO_PI - math.pi
 
 
-@_jit
+@njit_cached
 def _quat_from_euler(roll, pitch, yaw):
     """rotations.quat_from_euler_tuple."""
     cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
@@ -65,7 +63,7 @@ def _quat_from_euler(roll, pitch, yaw):
     )
 
 
-@_jit
+@njit_cached
 def _euler_from_quat(w, x, y, z):
     """rotations.euler_from_quat."""
     n2 = w * w + x * x + y * y + z * z
@@ -75,7 +73,7 @@ def _euler_from_quat(w, x, y, z):
     return roll, pitch, yaw
 
 
-@_jit
+@njit_cached
 def _quat_exp(tx, ty, tz):
     """eskf.quat_exp."""
     angle = math.sqrt(tx * tx + ty * ty + tz * tz)
@@ -85,7 +83,7 @@ def _quat_exp(tx, ty, tz):
     return (math.cos(0.5 * angle), tx * s, ty * s, tz * s)
 
 
-@_jit
+@njit_cached
 def _quat_mul(aw, ax, ay, az, bw, bx, by, bz):
     """eskf.quat_mul."""
     return (
@@ -96,7 +94,7 @@ def _quat_mul(aw, ax, ay, az, bw, bx, by, bz):
     )
 
 
-@_jit
+@njit_cached
 def rotation_into(qw, qx, qy, qz, R):
     """Writes R_NB of a unit wxyz quaternion into R (3, 3) (eskf._rotation_entries)."""
     R[0, 0] = 1 - 2 * (qy * qy + qz * qz)
@@ -113,7 +111,7 @@ def rotation_into(qw, qx, qy, qz, R):
 # ----- complementary filter ------------------------------------------------------------------------
 
 
-@_jit
+@njit_cached
 def _row_sum(values, i):
     """The sum of row i of a 2-D array, from 0.0 in column order (Python's ``sum``)."""
     total = 0.0
@@ -122,7 +120,7 @@ def _row_sum(values, i):
     return total
 
 
-@_jit
+@njit_cached
 def _row_finite(values, i, total=0.0):
     """True if the sum of `total` and row i is finite (one NaN or inf makes the sum NaN or inf)."""
     for k in range(values.shape[1]):
@@ -130,7 +128,7 @@ def _row_finite(values, i, total=0.0):
     return math.isfinite(total)
 
 
-@_jit
+@njit_cached
 def _complementary_row(roll, pitch, yaw, fx, fy, fz, wx, wy, wz, dt, tau, nonlinear, reference_accelerometer):
     """complementary.complementary_update of one vehicle, (roll, pitch, yaw)."""
     if nonlinear:
@@ -160,7 +158,7 @@ def _complementary_row(roll, pitch, yaw, fx, fy, fz, wx, wy, wz, dt, tau, nonlin
     )
 
 
-@_jit
+@njit_cached
 def _complementary_rows(attitude, f_B, w_B, dt, tau, nonlinear, reference_accelerometer):
     out = np.empty((attitude.shape[0], 3))
     for i in range(attitude.shape[0]):
@@ -171,7 +169,7 @@ def _complementary_rows(attitude, f_B, w_B, dt, tau, nonlinear, reference_accele
     return out
 
 
-@_jit
+@njit_cached
 def _complementary_tick(attitude, rate, imu, ekf_state, dt, tau, nonlinear, reference_accelerometer):
     for i in range(attitude.shape[0]):
         yaw = ekf_state[i, 6]
@@ -218,7 +216,7 @@ def complementary_tick(attitude, rate, imu, ekf_state, dt, tau, variant, referen
     )
 
 
-@_jit
+@njit_cached
 def _assembled_rows(attitude, ekf_state, body_rate):
     out = np.empty((attitude.shape[0], 13))
     for i in range(attitude.shape[0]):
@@ -251,7 +249,7 @@ NO_TILT = (0.0, 0.0)
 """Tilt gains (velocity, yaw) that switch the tilt-aware Q off."""
 
 
-@_jit
+@njit_cached
 def _add_tilt_noise(P_out, i, trig, rotated, wy, wz, gains):
     """P_out[i, 3:7, 3:7] += a a^T + b b^T of ekf.tilt_noise_factors (gains = ekf.tilt_gains), from
     the prediction's trig and rotated specific force (ekf.tilt_jacobian_of)."""
@@ -261,7 +259,7 @@ def _add_tilt_noise(P_out, i, trig, rotated, wy, wz, gains):
             P_out[i, 3 + r, 3 + c] += a[r] * a[c] + b[r] * b[c]
 
 
-@_jit
+@njit_cached
 def _ekf7_predict_row(x, P, x_out, P_out, i, attitude, f_B, dt, Q, gravity_z, GP, M):
     """ekf.predict_with_yaw of vehicle i from (x, P) into (x_out, P_out) (may be the same arrays).
     Returns the attitude's trig (cos, sin of roll, pitch, yaw) and (ux, uy, uz, rolled_z) of
@@ -301,7 +299,7 @@ def _ekf7_predict_row(x, P, x_out, P_out, i, attitude, f_B, dt, Q, gravity_z, GP
     return (cr, sr, cp, sp, cy, sy), (ux, uy, uz, rolled_z)
 
 
-@_jit
+@njit_cached
 def _ekf7_predict_rows(x, P, attitude, f_B, dt, Q, gravity_z):
     x_new, P_new = np.empty_like(x), np.empty_like(P)
     GP, M = np.empty((7, 7)), np.empty((7, 7))
@@ -310,7 +308,7 @@ def _ekf7_predict_rows(x, P, attitude, f_B, dt, Q, gravity_z):
     return x_new, P_new
 
 
-@_jit
+@njit_cached
 def ekf7_tick(
     x, P, attitude, imu, gps, mag, diagnostics, book, dt, Q, tilt_gains, gravity_z, r_mag, threshold, healthy
 ):
@@ -360,7 +358,7 @@ def gravity_z(reference_accelerometer):
     return -GRAVITY if reference_accelerometer else GRAVITY
 
 
-@_jit
+@njit_cached
 def _gps_joseph_row(x, P, z, R, i, x_out, P_out, inject, work):
     """The GPS update of vehicle i (H = [I6 0], ``ekf.kalman_update`` / ``eskf.joseph_update``) into
     (x_out, P_out), which hold the prior; returns (nis, singular). A singular S leaves them as they are.
@@ -439,7 +437,7 @@ def _gps_joseph_row(x, P, z, R, i, x_out, P_out, inject, work):
     return nis, False
 
 
-@_jit
+@njit_cached
 def _gps_rows(x, P, z, R, inject):
     n = P.shape[1]
     x_new, P_new = x.copy(), P.copy()
@@ -467,13 +465,13 @@ def ekf7_gps_update(x, P, gps_pv, R_gps):
     return x_new, P_new, nis
 
 
-@_jit
+@njit_cached
 def _ekf7_mag_innovation(x, P, i, yaw_meas, r):
     """(nu rad, S rad^2) of vehicle i's magnetometer yaw (ekf.mag_update)."""
     return _wrap(yaw_meas - x[i, 6]), P[i, 6, 6] + r
 
 
-@_jit
+@njit_cached
 def _ekf7_mag_apply(x, P, x_out, P_out, i, nu, S, p6):
     """ekf.mag_update's posterior of vehicle i into (x_out, P_out) (may alias); p6: a 7-buffer."""
     for a in range(7):
@@ -487,7 +485,7 @@ def _ekf7_mag_apply(x, P, x_out, P_out, i, nu, S, p6):
     x_out[i, 6] = _wrap(x_out[i, 6])
 
 
-@_jit
+@njit_cached
 def _ekf7_mag_rows(x, P, yaw_meas, r):
     x_new, P_new = x.copy(), P.copy()
     nis = np.full(x.shape[0], np.nan)
@@ -505,7 +503,7 @@ def ekf7_mag_update(x, P, yaw_meas, R_mag):
     return _ekf7_mag_rows(x, P, np.asarray(yaw_meas, dtype=float), float(R_mag[0, 0]))
 
 
-@_jit
+@njit_cached
 def fresh(stamps, seen):
     """True where a stamp (s) differs from the last one seen and is a sample (not NO_SAMPLE_STAMP;
     ``systems.estimators._fresh``): (N,) bool of stamps and seen (N,), or one bool of two floats
@@ -513,7 +511,7 @@ def fresh(stamps, seen):
     return (stamps != seen) & (stamps != NO_SAMPLE_STAMP)
 
 
-@_jit
+@njit_cached
 def _fresh_mag(mag, book, diagnostics, i):
     """True when vehicle i has a fresh finite mag sample to fuse; books its stamp, counts a non-finite one."""
     stamp = mag[i, 1]
@@ -526,7 +524,7 @@ def _fresh_mag(mag, book, diagnostics, i):
     return True
 
 
-@_jit
+@njit_cached
 def _mag_gate(diagnostics, i, nis, stamp, threshold):
     """True when the gate accepts vehicle i's mag NIS; logs it and counts the gated and NaN ones."""
     if math.isnan(nis):
@@ -540,7 +538,7 @@ def _mag_gate(diagnostics, i, nis, stamp, threshold):
     return False
 
 
-@_jit
+@njit_cached
 def _ekf7_mag_tick(x, P, mag, diagnostics, book, r, threshold):
     p6 = np.empty(7)
     for i in range(x.shape[0]):
@@ -590,7 +588,7 @@ def reset_states(x, P, indices, values, covariance):
     return x, P
 
 
-@_jit
+@njit_cached
 def _row_healthy(P, i):
     """gating.covariance_looks_healthy of P[i]."""
     total = 0.0
@@ -602,7 +600,7 @@ def _row_healthy(P, i):
     return math.isfinite(total) and variances_ok
 
 
-@_jit
+@njit_cached
 def _looks_healthy_rows(P):
     healthy = np.empty(P.shape[0], dtype=np.bool_)
     for i in range(P.shape[0]):
@@ -615,7 +613,7 @@ def covariance_looks_healthy(P):
     return _looks_healthy_rows(P)
 
 
-@_jit
+@njit_cached
 def _symmetrise_checked(P, check):
     """For each checked vehicle with a finite P[i]: P[i] <- (P[i] + P[i]^T) / 2 IN PLACE. Returns (N,)
     True where the full check stays undecided: a non-finite P[i] (left as it is), or a symmetrised
@@ -725,7 +723,7 @@ def fuse_gps(rows, stamps, z, x, P, diagnostics, book, update, R, threshold, res
 # ----- error-state EKF -----------------------------------------------------------------------------
 
 
-@_jit
+@njit_cached
 def _eskf_predict_row(
     x, P, x_out, P_out, i, f_B, w_B, dt, accel_var, gyro_var, isotropic_gyro, Q_constant, work
 ):
@@ -793,7 +791,7 @@ def _eskf_predict_row(
                 P_out[i, 6 + a, 6 + b] = (M[6 + a, 6 + b] + M[6 + b, 6 + a]) * 0.5 + q
 
 
-@_jit
+@njit_cached
 def _apply_transition(S, D, A, dt, biases):
     """D = F S, column by column, for an (n, n) S (a transposed view too) and the error transition
     F = I + E of the blocks A (see _eskf_predict_row): only E's nonzero blocks are multiplied."""
@@ -815,12 +813,12 @@ def _apply_transition(S, D, A, dt, biases):
             D[r, c] = S[r, c]
 
 
-@_jit
+@njit_cached
 def _eskf_work(n):
     return np.empty((3, 3)), np.empty((3, 3)), np.empty((5, 3, 3)), np.empty((n, n)), np.empty((n, n))
 
 
-@_jit
+@njit_cached
 def _eskf_predict_rows(x, P, f_B, w_B, dt, accel_var, gyro_var, isotropic_gyro, Q_constant):
     x_new, P_new = np.empty_like(x), np.empty_like(P)
     work = _eskf_work(P.shape[1])
@@ -831,7 +829,7 @@ def _eskf_predict_rows(x, P, f_B, w_B, dt, accel_var, gyro_var, isotropic_gyro, 
     return x_new, P_new
 
 
-@_jit
+@njit_cached
 def _eskf_tick(x, P, imu, estimate, diagnostics, dt, accel_var, gyro_var, isotropic_gyro, Q_constant):
     work = _eskf_work(P.shape[1])
     healthy = np.empty(x.shape[0], dtype=np.bool_)
@@ -873,7 +871,7 @@ def eskf_predict_tick(x, P, imu, estimate, diagnostics, dt, noise, Q_constant):
     return _eskf_tick(x, P, imu, estimate, diagnostics, float(dt), *_noise_arguments(noise, Q_constant))
 
 
-@_jit
+@njit_cached
 def _inject_row(x, P, i, dx):
     """eskf.inject of the error dx (n,) into vehicle i, IN PLACE on x and P."""
     n = P.shape[1]
@@ -901,7 +899,7 @@ def _inject_row(x, P, i, dx):
         P[i, r, 8] = -c6 * t1 + c7 * t0 + c8
 
 
-@_jit
+@njit_cached
 def _inject_rows(x, P, dx):
     x, P = x.copy(), P.copy()
     for i in range(x.shape[0]):
@@ -923,7 +921,7 @@ def eskf_gps_update(x, P, gps_pv, R_gps):
     return x_new, P_new, nis
 
 
-@_jit
+@njit_cached
 def _eskf_mag_innovation(x, P, i, yaw_meas, r, b):
     """(nu rad, S rad^2) of vehicle i's magnetometer yaw, b = P H^T into the n-buffer b (eskf.mag_update)."""
     qw, qx, qy, qz = x[i, 6], x[i, 7], x[i, 8], x[i, 9]
@@ -937,7 +935,7 @@ def _eskf_mag_innovation(x, P, i, yaw_meas, r, b):
     return _wrap(yaw_meas - math.atan2(r10, r00)), b[6] * h0 + b[7] * h1 + b[8] + r
 
 
-@_jit
+@njit_cached
 def _eskf_mag_apply(x_out, P_out, i, nu, S, b, K):
     """eskf.mag_update's posterior of vehicle i IN PLACE on (x_out, P_out), which hold the prior."""
     n = P_out.shape[1]
@@ -951,7 +949,7 @@ def _eskf_mag_apply(x_out, P_out, i, nu, S, b, K):
     _inject_row(x_out, P_out, i, K)
 
 
-@_jit
+@njit_cached
 def _eskf_mag_rows(x, P, yaw_meas, r):
     x_new, P_new = x.copy(), P.copy()
     nis = np.full(x.shape[0], np.nan)
@@ -969,7 +967,7 @@ def eskf_mag_update(x, P, yaw_meas, R_mag):
     return _eskf_mag_rows(x, P, np.asarray(yaw_meas, dtype=float), float(R_mag[0, 0]))
 
 
-@_jit
+@njit_cached
 def _eskf_mag_tick(x, P, mag, diagnostics, book, r, threshold):
     b, K = np.empty(P.shape[1]), np.empty(P.shape[1])
     for i in range(x.shape[0]):

@@ -4,10 +4,10 @@ Each function here is the array form of the scalar function it names (``dynamics
 ``sensor_models``, ``control.cascade``), which stays the reference implementation;
 ``tests/test_fleet_kernels.py`` checks every one against it on seeded random inputs to
 1e-12. The per-tick steps (plant, IMU, magnetometer, cascade controller) are the scalar
-functions' own code compiled by numba (``cache=True``: the JIT cost, about 2 s, is paid once
-per machine) and run per vehicle, reading and writing the fleet systems' port and state
-arrays in place (no allocation per tick); the 10 Hz GPS and the IMU bias walk, plain
-arithmetic, run the scalar helper as is on rows of the transposed arrays.
+functions' own code compiled by numba (cached on disk, ``jit.njit_cached``: the JIT cost,
+about 2 s, is paid once per machine) and run per vehicle, reading and writing the fleet
+systems' port and state arrays in place (no allocation per tick); the 10 Hz GPS and the IMU
+bias walk, plain arithmetic, run the scalar helper as is on rows of the transposed arrays.
 
 Shapes: ``state`` (N, 13) in the ``conventions`` layout (p_NB m NED, q_NB wxyz, v_NB m/s,
 w_NB_B rad/s); motor forces (N, 4) N; IMU samples (N, 6); references (N, 10). Parameters
@@ -18,13 +18,13 @@ import collections
 import dataclasses
 import types
 
-import numba
 import numpy as np
 
 from quad_drake import dynamics, rotations, sensor_models
 from quad_drake.config import ControllerParams, ImuParams, MagParams, PhysicsParams
 from quad_drake.control import cascade
 from quad_drake.fidelity import Fidelity
+from quad_drake.jit import njit_cached
 from quad_drake.sensor_models import gps_measurement
 
 # ----- parameters ------------------------------------------------------------
@@ -63,7 +63,7 @@ def compiled(function, **callees):
     """The scalar `function`'s own code compiled by numba (nopython, cached on disk), with the
     module globals it calls replaced by their compiled forms `callees`."""
     namespace = dict(function.__globals__, **callees)
-    return numba.njit(types.FunctionType(function.__code__, namespace, function.__name__), cache=True)
+    return njit_cached(types.FunctionType(function.__code__, namespace, function.__name__))
 
 
 _rates_compiled = compiled(dynamics._rates)
@@ -88,7 +88,7 @@ _plant_compiled = compiled(
 _contacts_compiled = compiled(dynamics.count_contacts, on_floor=compiled(dynamics.on_floor))
 
 
-@numba.njit(cache=True)
+@njit_cached
 def _state_row(state, i):
     """Row i of an (N, 13) state array as a 13-tuple, entry by entry: a row view per vehicle
     costs numba about 20 ns."""
@@ -98,7 +98,7 @@ def _state_row(state, i):
     )  # fmt: skip
 
 
-@numba.njit(cache=True)
+@njit_cached
 def plant_steps(state, forces, commands, noise_unit, column, params, dt, fidelity, accel, contacts):
     """One :func:`quad_drake.dynamics.plant_step` of N vehicles IN PLACE, the scalar function's
     code compiled and run per vehicle, with ``systems.plant.QuadrotorPlant``'s contact counts.
@@ -149,7 +149,7 @@ _imu_compiled = compiled(
 )
 
 
-@numba.njit(cache=True)
+@njit_cached
 def imu_samples(state, a_NB, noise, params, fidelity, bias, out):
     """:func:`quad_drake.sensor_models.imu_measurement` of N vehicles into out (N, 6), the scalar
     function's code compiled and run per vehicle: q_NB and w_NB_B from state (N, 13), a_NB (N, 3),
@@ -191,7 +191,7 @@ _magnetometer_compiled = compiled(
 )
 
 
-@numba.njit(cache=True)
+@njit_cached
 def magnetometer_samples(state, noise, params, stamp, out):
     """N :class:`~quad_drake.systems.sensors.Magnetometer` samples into out (N, 2): the yaw of
     :func:`quad_drake.sensor_models.magnetometer_yaw` (its code compiled, run per vehicle) of
@@ -222,7 +222,7 @@ _cascade_compiled = compiled(
 )
 
 
-@numba.njit(cache=True)
+@njit_cached
 def cascade_steps(state, reference, integral, dt, params, fidelity, forces):
     """:func:`quad_drake.control.cascade.cascade_step` of N vehicles, the scalar function's code
     compiled and run per vehicle: state (N, 13), reference (N, 10), integral (N,) m s (replaced by

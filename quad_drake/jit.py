@@ -1,0 +1,53 @@
+"""numba's ``njit`` with its on-disk cache wherever a cache directory can be written.
+
+numba caches a compiled function next to its module (``__pycache__``), or in the user's cache
+directory (``~/.cache/numba``) when the package is read-only, or in ``$NUMBA_CACHE_DIR`` when
+that is set. Where none of them can be written (a read-only install run by a user whose home
+is read-only too), ``numba.njit(cache=True)`` raises at decoration, that is, at the import of
+the module that holds the kernel. :func:`njit_cached` then caches under the temporary directory
+(:func:`fallback_cache_dir`), and where even that fails it compiles without a cache (the
+kernels compile again in every process, about 15 s) and warns once.
+"""
+
+import getpass
+import os
+import tempfile
+import warnings
+
+import numba
+
+_warned = False
+
+
+def fallback_cache_dir():
+    """The cache directory used where numba has none: ``<tmp>/quad_drake-numba-<uid>``, one per
+    user name (``tempfile.gettempdir()`` honours ``$TMPDIR``)."""
+    return os.path.join(tempfile.gettempdir(), f"quad_drake-numba-{getpass.getuser()}")
+
+
+def njit_cached(function):
+    """``numba.njit(cache=True)(function)``, cached under :func:`fallback_cache_dir` where numba
+    can write none of its own cache directories, and uncached (one warning per process) where
+    that cannot be written either. numba decides whether a cache can be written (it raises
+    RuntimeError at decoration when it cannot); compiling stays lazy (on first call)."""
+    global _warned
+    try:
+        return numba.njit(cache=True)(function)
+    except RuntimeError:
+        pass
+    if not numba.config.CACHE_DIR:  # numba's own places failed: try the temporary directory
+        numba.config.CACHE_DIR = fallback_cache_dir()
+        try:
+            return numba.njit(cache=True)(function)
+        except RuntimeError:
+            pass
+    if not _warned:
+        _warned = True
+        warnings.warn(
+            f"quad-drake: numba cannot write a cache for its compiled kernels (tried the package's "
+            f"__pycache__, the user cache and {numba.config.CACHE_DIR}); they compile again in every "
+            "process (about 15 s). Set NUMBA_CACHE_DIR to a writable directory.",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+    return numba.njit(function)

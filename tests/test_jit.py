@@ -1,0 +1,79 @@
+"""jit.njit_cached: numba's cache where it can be written, the temporary directory where numba
+has none, no cache (one warning) where nothing can be written."""
+
+import os
+import shutil
+import subprocess
+import sys
+import warnings
+from pathlib import Path
+
+import numba
+import pytest
+
+import quad_drake
+from quad_drake import jit
+
+
+def _sourceless_function():
+    """A function numba cannot cache anywhere: its code has no source file."""
+    namespace = {}
+    exec("def twice(x):\n    return 2.0 * x\n", namespace)
+    return namespace["twice"]
+
+
+def test_a_kernel_with_no_cache_anywhere_compiles_uncached_and_warns_once(monkeypatch):
+    monkeypatch.setattr(numba.config, "CACHE_DIR", "")
+    monkeypatch.setattr(jit, "_warned", False)
+    with pytest.warns(RuntimeWarning, match="NUMBA_CACHE_DIR"):
+        twice = jit.njit_cached(_sourceless_function())
+    assert numba.config.CACHE_DIR == jit.fallback_cache_dir()  # the temporary directory was tried
+    assert twice(1.5) == 3.0
+    assert twice.__class__.__name__ == "CPUDispatcher"  # compiled, not the Python function
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a second kernel does not warn again
+        assert jit.njit_cached(_sourceless_function())(2.0) == 4.0
+
+
+def test_the_fallback_directory_is_per_user_under_tmpdir(monkeypatch, tmp_path):
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
+    monkeypatch.setattr("tempfile.tempdir", None)  # gettempdir reads TMPDIR again
+    path = Path(jit.fallback_cache_dir())
+    assert path.parent == tmp_path
+    assert path.name.startswith("quad_drake-numba-")
+
+
+def test_a_read_only_install_with_a_read_only_home_caches_its_kernels_in_the_temporary_directory(tmp_path):
+    """A copy of the package whose __pycache__ cannot be created (a file stands in its place)
+    and a HOME under which no cache directory can be made: without the fallback, importing a
+    module with a cached kernel raises numba's "cannot cache function" RuntimeError."""
+    package = tmp_path / "site" / "quad_drake"
+    shutil.copytree(Path(quad_drake.__file__).parent, package, ignore=shutil.ignore_patterns("__pycache__"))
+    for folder in [package, *(p for p in package.rglob("*") if p.is_dir())]:
+        (folder / "__pycache__").write_text("")
+    home = tmp_path / "home"
+    home.write_text("")  # a file: ~/.cache cannot be created under it
+    temporary = tmp_path / "tmp"
+    temporary.mkdir()
+    env = {
+        key: value for key, value in os.environ.items() if key not in ("NUMBA_CACHE_DIR", "XDG_CACHE_HOME")
+    }
+    env.update(
+        HOME=str(home), TMPDIR=str(temporary), PYTHONPATH=str(package.parent), PYTHONDONTWRITEBYTECODE="1"
+    )
+    code = (
+        "import quad_drake.fleet.estimation_kernels as k; "
+        f"assert k.__file__.startswith({str(package)!r}); print(k._wrap(7.0))"
+    )
+    result = subprocess.run(
+        [sys.executable, "-W", "error::RuntimeWarning", "-c", code],
+        env=env,
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert result.returncode == 0, result.stderr
+    assert abs(float(result.stdout) - (7.0 - 2 * 3.141592653589793)) < 1e-12
+    cached = list(temporary.glob("quad_drake-numba-*/**/*.nbi"))
+    assert any("_wrap" in p.name for p in cached), cached
