@@ -32,8 +32,8 @@ from quad_drake.systems._io import entries_reader, entry_reader, row_reader, sca
 
 
 class _Sensor(LeafSystem):
-    """Shared declarations: ``state`` and ``noise`` inputs (``_state_port``, ``_noise_port``) and
-    readers of their whole values (``_read_state``, ``_read_noise``)."""
+    """Shared declarations: the ``state`` and ``noise`` inputs (``_state_port``, ``_noise_port``);
+    each sensor makes the readers of them it uses (``systems._io``)."""
 
     def __init__(self, noise_size):
         super().__init__()
@@ -41,8 +41,6 @@ class _Sensor(LeafSystem):
         self._noise_port = self.DeclareVectorInputPort(
             "noise", noise_size, random_type=RandomDistribution.kGaussian
         )
-        self._read_state = vector_reader(self._state_port)
-        self._read_noise = vector_reader(self._noise_port)
 
 
 class Imu(_Sensor):
@@ -121,6 +119,8 @@ class Gps(_Sensor):
         super().__init__(self.noise_size)
         self._params = params
         self.noise_period = params.period
+        self._read_state = vector_reader(self._state_port)
+        self._read_noise = vector_reader(self._noise_port)
         initial = [0.0] * (GPS_SIZE - 1) + [NO_SAMPLE_STAMP]
         output = self.DeclareDiscreteState(initial)
         self._bias_group = int(self.DeclareDiscreteState(3))
