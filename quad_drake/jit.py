@@ -20,9 +20,11 @@ _warned = False
 
 
 def fallback_cache_dir():
-    """The cache directory used where numba has none: ``<tmp>/quad_drake-numba-<uid>``, one per
-    user name (``tempfile.gettempdir()`` honours ``$TMPDIR``)."""
-    return os.path.join(tempfile.gettempdir(), f"quad_drake-numba-{getpass.getuser()}")
+    """The cache directory used where numba has none: ``<tmp>/quad_drake-numba-<user>``, one per
+    user: the numeric user id where the platform has one (a container may run an id that has no
+    name), else the login name; ``tempfile.gettempdir()`` honours ``$TMPDIR``."""
+    user = os.getuid() if hasattr(os, "getuid") else getpass.getuser()
+    return os.path.join(tempfile.gettempdir(), f"quad_drake-numba-{user}")
 
 
 def njit_cached(function):
