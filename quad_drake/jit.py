@@ -7,10 +7,15 @@ is read-only too), ``numba.njit(cache=True)`` raises at decoration, that is, at 
 the module that holds the kernel. :func:`njit_cached` then caches under the temporary directory
 (:func:`fallback_cache_dir`), and where even that fails it compiles without a cache (the
 kernels compile again in every process, about 15 s) and warns once.
+
+numba's cache files are pickles, and the temporary directory is shared: the fallback directory
+is used only when it is this user's own and no one else can write in it
+(:func:`private_directory`), so another user cannot plant code in it.
 """
 
 import getpass
 import os
+import stat
 import tempfile
 import warnings
 
@@ -27,18 +32,31 @@ def fallback_cache_dir():
     return os.path.join(tempfile.gettempdir(), f"quad_drake-numba-{user}")
 
 
+def private_directory(path):
+    """Make `path` a directory (mode 0o700) unless it exists; True when it is then a real
+    directory (not a link) owned by this user that neither its group nor others can write."""
+    try:
+        os.makedirs(path, mode=0o700, exist_ok=True)
+        status = os.lstat(path)
+    except OSError:
+        return False
+    owned = not hasattr(os, "getuid") or status.st_uid == os.getuid()
+    return stat.S_ISDIR(status.st_mode) and owned and not status.st_mode & (stat.S_IWGRP | stat.S_IWOTH)
+
+
 def njit_cached(function):
     """``numba.njit(cache=True)(function)``, cached under :func:`fallback_cache_dir` where numba
     can write none of its own cache directories, and uncached (one warning per process) where
-    that cannot be written either. numba decides whether a cache can be written (it raises
-    RuntimeError at decoration when it cannot); compiling stays lazy (on first call)."""
+    that cannot be written either or is not private (:func:`private_directory`). numba decides
+    whether a cache can be written (it raises RuntimeError at decoration when it cannot);
+    compiling stays lazy (on first call)."""
     global _warned
     try:
         return numba.njit(cache=True)(function)
     except RuntimeError:
         pass
-    if not numba.config.CACHE_DIR:  # numba's own places failed: try the temporary directory
-        numba.config.CACHE_DIR = fallback_cache_dir()
+    if not numba.config.CACHE_DIR and private_directory(fallback_cache_dir()):
+        numba.config.CACHE_DIR = fallback_cache_dir()  # numba's own places failed
         try:
             return numba.njit(cache=True)(function)
         except RuntimeError:
@@ -46,9 +64,10 @@ def njit_cached(function):
     if not _warned:
         _warned = True
         warnings.warn(
-            f"quad-drake: numba cannot write a cache for its compiled kernels (tried the package's "
-            f"__pycache__, the user cache and {numba.config.CACHE_DIR}); they compile again in every "
-            "process (about 15 s). Set NUMBA_CACHE_DIR to a writable directory.",
+            "quad-drake: numba cannot write a cache for its compiled kernels (tried the package's "
+            f"__pycache__, the user cache and {numba.config.CACHE_DIR or fallback_cache_dir()}, which "
+            "must be writable by this user only); they compile again in every process (about 15 s). "
+            "Set NUMBA_CACHE_DIR to a writable directory.",
             RuntimeWarning,
             stacklevel=2,
         )

@@ -3,6 +3,7 @@ has none, no cache (one warning) where nothing can be written."""
 
 import os
 import shutil
+import stat
 import subprocess
 import sys
 import warnings
@@ -22,7 +23,15 @@ def _sourceless_function():
     return namespace["twice"]
 
 
-def test_a_kernel_with_no_cache_anywhere_compiles_uncached_and_warns_once(monkeypatch):
+@pytest.fixture
+def temporary_directory(monkeypatch, tmp_path):
+    """tempfile.gettempdir() is tmp_path for the test."""
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
+    monkeypatch.setattr("tempfile.tempdir", None)  # gettempdir reads TMPDIR again
+    return tmp_path
+
+
+def test_a_kernel_with_no_cache_anywhere_compiles_uncached_and_warns_once(monkeypatch, temporary_directory):
     monkeypatch.setattr(numba.config, "CACHE_DIR", "")
     monkeypatch.setattr(jit, "_warned", False)
     with pytest.warns(RuntimeWarning, match="NUMBA_CACHE_DIR"):
@@ -35,12 +44,41 @@ def test_a_kernel_with_no_cache_anywhere_compiles_uncached_and_warns_once(monkey
         assert jit.njit_cached(_sourceless_function())(2.0) == 4.0
 
 
-def test_the_fallback_directory_is_per_user_under_tmpdir(monkeypatch, tmp_path):
-    monkeypatch.setenv("TMPDIR", str(tmp_path))
-    monkeypatch.setattr("tempfile.tempdir", None)  # gettempdir reads TMPDIR again
+def test_the_fallback_directory_is_per_user_under_tmpdir(temporary_directory):
     path = Path(jit.fallback_cache_dir())
-    assert path.parent == tmp_path
-    assert path.name.startswith("quad_drake-numba-")
+    assert path.parent == temporary_directory
+    assert path.name == f"quad_drake-numba-{os.getuid()}"
+
+
+def test_a_fallback_directory_others_can_write_is_not_used(monkeypatch, temporary_directory):
+    """numba's cache files are pickles: a directory another user could have planted them in
+    (group- or world-writable, a link, someone else's) is never given to numba."""
+    planted = Path(jit.fallback_cache_dir())
+    planted.mkdir(mode=0o777)
+    planted.chmod(0o777)
+    monkeypatch.setattr(numba.config, "CACHE_DIR", "")
+    monkeypatch.setattr(jit, "_warned", False)
+    with pytest.warns(RuntimeWarning, match="writable by this user only"):
+        twice = jit.njit_cached(_sourceless_function())
+    assert numba.config.CACHE_DIR == ""
+    assert twice(1.0) == 2.0
+
+
+def test_a_private_directory_is_made_0o700_and_a_link_or_shared_one_is_refused(tmp_path):
+    made = tmp_path / "made"
+    assert jit.private_directory(made)
+    assert stat.S_IMODE(made.stat().st_mode) == 0o700
+    assert jit.private_directory(made)  # an existing private one
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    shared.chmod(0o770)
+    assert not jit.private_directory(shared)
+    link = tmp_path / "link"
+    link.symlink_to(made)
+    assert not jit.private_directory(link)
+    a_file = tmp_path / "file"
+    a_file.write_text("")
+    assert not jit.private_directory(a_file)
 
 
 def test_a_read_only_install_with_a_read_only_home_caches_its_kernels_in_the_temporary_directory(tmp_path):
