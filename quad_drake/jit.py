@@ -11,17 +11,48 @@ kernels compile again in every process, about 15 s) and warns once.
 numba's cache files are pickles, and the temporary directory is shared: the fallback directory
 is used only when it is this user's own and no one else can write in it
 (:func:`private_directory`), so another user cannot plant code in it.
+
+A process that compiles (the first run after an install or an upgrade: nothing cached yet)
+says so once on a terminal's stderr (:class:`CompileNotice`), so that the pause of about 15 s
+is not taken for a hang.
 """
 
 import getpass
 import os
 import stat
+import sys
 import tempfile
 import warnings
 
 import numba
+from numba.core import event
 
 _warned = False
+COMPILE_NOTICE = (
+    "quad-drake: compiling the numba kernels into the on-disk cache "
+    "(once after an install or an upgrade; up to about 15 s) ..."
+)
+
+
+class CompileNotice(event.Listener):
+    """numba's ``numba:compile`` event (a kernel not found in the cache is being compiled): the
+    first one of the process prints :data:`COMPILE_NOTICE` on stderr when stderr is a terminal
+    (a log or a test's capture gets nothing)."""
+
+    def __init__(self):
+        self.shown = False
+
+    def on_start(self, compile_event):
+        if not self.shown and sys.stderr is not None and sys.stderr.isatty():
+            self.shown = True
+            print(COMPILE_NOTICE, file=sys.stderr, flush=True)
+
+    def on_end(self, compile_event):
+        pass
+
+
+compile_notice = CompileNotice()
+event.register("numba:compile", compile_notice)
 
 
 def fallback_cache_dir():

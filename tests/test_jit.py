@@ -1,6 +1,7 @@
 """jit.njit_cached: numba's cache where it can be written, the temporary directory where numba
 has none, no cache (one warning) where nothing can be written."""
 
+import io
 import os
 import shutil
 import stat
@@ -115,3 +116,25 @@ def test_a_read_only_install_with_a_read_only_home_caches_its_kernels_in_the_tem
     assert abs(float(result.stdout) - (7.0 - 2 * 3.141592653589793)) < 1e-12
     cached = list(temporary.glob("quad_drake-numba-*/**/*.nbi"))
     assert any("_wrap" in p.name for p in cached), cached
+
+
+class _Terminal(io.StringIO):
+    def isatty(self):
+        return True
+
+
+def test_the_first_compile_of_a_process_is_announced_once_on_a_terminal(monkeypatch):
+    terminal = _Terminal()
+    monkeypatch.setattr(sys, "stderr", terminal)
+    monkeypatch.setattr(jit.compile_notice, "shown", False)
+    numba.njit(_sourceless_function())(1.0)  # compiled: nothing cached for it
+    numba.njit(_sourceless_function())(1.0)
+    assert terminal.getvalue() == jit.COMPILE_NOTICE + "\n"
+
+
+def test_a_compile_is_not_announced_on_a_log(monkeypatch):
+    log = io.StringIO()
+    monkeypatch.setattr(sys, "stderr", log)
+    monkeypatch.setattr(jit.compile_notice, "shown", False)
+    numba.njit(_sourceless_function())(1.0)
+    assert log.getvalue() == ""
