@@ -86,19 +86,25 @@ def njit_cached(function):
         return numba.njit(cache=True)(function)
     except RuntimeError:
         pass
-    if not numba.config.CACHE_DIR and private_directory(fallback_cache_dir()):
-        numba.config.CACHE_DIR = fallback_cache_dir()  # numba's own places failed
-        try:
-            return numba.njit(cache=True)(function)
-        except RuntimeError:
-            pass
+    if numba.config.CACHE_DIR:  # the user's NUMBA_CACHE_DIR (or the fallback, set before) failed
+        tried = f"NUMBA_CACHE_DIR={numba.config.CACHE_DIR} is not usable"
+    else:
+        fallback = fallback_cache_dir()
+        if private_directory(fallback):
+            numba.config.CACHE_DIR = fallback  # for this kernel and the next ones
+            try:
+                return numba.njit(cache=True)(function)
+            except RuntimeError:
+                pass
+        tried = (
+            f"the package's __pycache__, the user cache and {fallback} are not usable (the last "
+            "must be a directory of this user's that no one else can write)"
+        )
     if not _warned:
         _warned = True
         warnings.warn(
-            "quad-drake: numba cannot write a cache for its compiled kernels (tried the package's "
-            f"__pycache__, the user cache and {numba.config.CACHE_DIR or fallback_cache_dir()}, which "
-            "must be writable by this user only); they compile again in every process (about 15 s). "
-            "Set NUMBA_CACHE_DIR to a writable directory.",
+            f"quad-drake: numba cannot cache its compiled kernels: {tried}. They compile again in "
+            "every process (about 15 s); set NUMBA_CACHE_DIR to a directory this user can write.",
             RuntimeWarning,
             stacklevel=2,
         )

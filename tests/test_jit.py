@@ -1,5 +1,6 @@
-"""jit.njit_cached: numba's cache where it can be written, the temporary directory where numba
-has none, no cache (one warning) where nothing can be written."""
+"""jit: numba's cache where it can be written, a private temporary directory where numba has
+none, no cache (one warning) where nothing can be written; the first compile announced on a
+terminal."""
 
 import io
 import os
@@ -26,15 +27,52 @@ def _sourceless_function():
 
 @pytest.fixture
 def temporary_directory(monkeypatch, tmp_path):
-    """tempfile.gettempdir() is tmp_path for the test."""
-    monkeypatch.setenv("TMPDIR", str(tmp_path))
+    """tempfile.gettempdir() is tmp_path / "tmp" for the test."""
+    folder = tmp_path / "tmp"
+    folder.mkdir()
+    monkeypatch.setenv("TMPDIR", str(folder))
     monkeypatch.setattr("tempfile.tempdir", None)  # gettempdir reads TMPDIR again
-    return tmp_path
+    return folder
 
 
-def test_a_kernel_with_no_cache_anywhere_compiles_uncached_and_warns_once(monkeypatch, temporary_directory):
+@pytest.fixture
+def blocked_function(monkeypatch, tmp_path, temporary_directory):
+    """A function in a module file for which numba can write none of its own caches (a file
+    stands in place of its __pycache__, HOME is a file) and NUMBA_CACHE_DIR is unset; the
+    warning of njit_cached not yet given."""
+    module = tmp_path / "module"
+    module.mkdir()
+    (module / "kernel.py").write_text("def triple(x):\n    return 3.0 * x\n")
+    (module / "__pycache__").write_text("")
+    home = tmp_path / "home"
+    home.write_text("")
+    monkeypatch.setenv("HOME", str(home))
+    monkeypatch.delenv("XDG_CACHE_HOME", raising=False)
     monkeypatch.setattr(numba.config, "CACHE_DIR", "")
     monkeypatch.setattr(jit, "_warned", False)
+    namespace = {"__name__": "kernel"}
+    path = module / "kernel.py"
+    exec(compile(path.read_text(), str(path), "exec"), namespace)
+    return namespace["triple"]
+
+
+def test_numba_itself_cannot_cache_the_blocked_function(blocked_function):
+    with pytest.raises(RuntimeError, match="cannot cache"):
+        numba.njit(cache=True)(blocked_function)
+
+
+def test_where_numba_has_no_cache_the_kernel_caches_in_the_temporary_directory(
+    blocked_function, temporary_directory
+):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no warning: it is cached
+        triple = jit.njit_cached(blocked_function)
+    assert triple(2.0) == 6.0
+    assert numba.config.CACHE_DIR == jit.fallback_cache_dir()
+    assert list(Path(jit.fallback_cache_dir()).glob("**/kernel.triple-*.nbi"))
+
+
+def test_a_kernel_with_no_cache_anywhere_compiles_uncached_and_warns_once(blocked_function):
     with pytest.warns(RuntimeWarning, match="NUMBA_CACHE_DIR"):
         twice = jit.njit_cached(_sourceless_function())
     assert numba.config.CACHE_DIR == jit.fallback_cache_dir()  # the temporary directory was tried
@@ -45,24 +83,34 @@ def test_a_kernel_with_no_cache_anywhere_compiles_uncached_and_warns_once(monkey
         assert jit.njit_cached(_sourceless_function())(2.0) == 4.0
 
 
+def test_an_unusable_numba_cache_dir_of_the_user_is_named_in_the_warning(
+    monkeypatch, tmp_path, blocked_function
+):
+    not_a_folder = tmp_path / "file"
+    not_a_folder.write_text("")
+    monkeypatch.setattr(numba.config, "CACHE_DIR", str(not_a_folder))
+    with pytest.warns(RuntimeWarning, match=f"NUMBA_CACHE_DIR={not_a_folder} is not usable"):
+        assert jit.njit_cached(blocked_function)(1.0) == 3.0
+    assert numba.config.CACHE_DIR == str(not_a_folder)  # the user's choice is kept
+
+
 def test_the_fallback_directory_is_per_user_under_tmpdir(temporary_directory):
     path = Path(jit.fallback_cache_dir())
     assert path.parent == temporary_directory
     assert path.name == f"quad_drake-numba-{os.getuid()}"
 
 
-def test_a_fallback_directory_others_can_write_is_not_used(monkeypatch, temporary_directory):
+def test_a_fallback_directory_others_can_write_is_not_used(blocked_function):
     """numba's cache files are pickles: a directory another user could have planted them in
     (group- or world-writable, a link, someone else's) is never given to numba."""
     planted = Path(jit.fallback_cache_dir())
     planted.mkdir(mode=0o777)
     planted.chmod(0o777)
-    monkeypatch.setattr(numba.config, "CACHE_DIR", "")
-    monkeypatch.setattr(jit, "_warned", False)
-    with pytest.warns(RuntimeWarning, match="writable by this user only"):
-        twice = jit.njit_cached(_sourceless_function())
+    with pytest.warns(RuntimeWarning, match="a directory of this user's that no one else can write"):
+        triple = jit.njit_cached(blocked_function)
     assert numba.config.CACHE_DIR == ""
-    assert twice(1.0) == 2.0
+    assert triple(1.0) == 3.0
+    assert not any(planted.iterdir())
 
 
 def test_a_private_directory_is_made_0o700_and_a_link_or_shared_one_is_refused(tmp_path):
