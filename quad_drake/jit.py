@@ -36,14 +36,18 @@ COMPILE_NOTICE = (
 
 class CompileNotice(event.Listener):
     """numba's ``numba:compile`` event (a kernel not found in the cache is being compiled): the
-    first one of the process prints :data:`COMPILE_NOTICE` on stderr when stderr is a terminal
-    (a log or a test's capture gets nothing)."""
+    first one of the process for a quad_drake kernel (not another library's or the user's own)
+    prints :data:`COMPILE_NOTICE` on stderr when stderr is a terminal (a log or a test's
+    capture gets nothing)."""
 
     def __init__(self):
         self.shown = False
 
     def on_start(self, compile_event):
-        if not self.shown and sys.stderr is not None and sys.stderr.isatty():
+        if self.shown or sys.stderr is None or not sys.stderr.isatty():
+            return
+        module = getattr(compile_event.data["dispatcher"].py_func, "__module__", None) or ""
+        if module.partition(".")[0] == __name__.partition(".")[0]:
             self.shown = True
             print(COMPILE_NOTICE, file=sys.stderr, flush=True)
 

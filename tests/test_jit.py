@@ -18,9 +18,9 @@ import quad_drake
 from quad_drake import jit
 
 
-def _sourceless_function():
-    """A function numba cannot cache anywhere: its code has no source file."""
-    namespace = {}
+def _sourceless_function(module="quad_drake.test_kernels"):
+    """A function of `module` that numba cannot cache anywhere: its code has no source file."""
+    namespace = {"__name__": module}
     exec("def twice(x):\n    return 2.0 * x\n", namespace)
     return namespace["twice"]
 
@@ -176,6 +176,16 @@ def test_the_first_compile_of_a_process_is_announced_once_on_a_terminal(monkeypa
     monkeypatch.setattr(sys, "stderr", terminal)
     monkeypatch.setattr(jit.compile_notice, "shown", False)
     numba.njit(_sourceless_function())(1.0)  # compiled: nothing cached for it
+    numba.njit(_sourceless_function())(1.0)
+    assert terminal.getvalue() == jit.COMPILE_NOTICE + "\n"
+
+
+def test_another_library_s_compile_is_not_announced(monkeypatch):
+    terminal = _Terminal()
+    monkeypatch.setattr(sys, "stderr", terminal)
+    monkeypatch.setattr(jit.compile_notice, "shown", False)
+    numba.njit(_sourceless_function("users_notebook"))(1.0)
+    assert terminal.getvalue() == ""
     numba.njit(_sourceless_function())(1.0)
     assert terminal.getvalue() == jit.COMPILE_NOTICE + "\n"
 
