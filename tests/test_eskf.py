@@ -169,3 +169,17 @@ def test_covariance_stays_symmetric_psd_over_a_long_adversarial_run():
     nees, min_eig = simulate(12, params, 60.0, truth_std=[2.0, 2.0, 6.0], P0_scale=100.0)
     assert min_eig > 0.0
     assert nees.mean() > 9 * 2  # over-confident, as it should be with the wrong noise
+
+
+def test_write_estimate_puts_p_q_v_in_the_state_layout_and_keeps_the_body_rate():
+    x = eskf.initial_nominal((1.0, 2.0, 3.0), (4.0, 5.0, 6.0), (0.5, 0.5, 0.5, 0.5), (7.0, 7.0, 7.0))
+    estimate = np.full(13, -1.0)
+    eskf.write_estimate(x, estimate)
+    np.testing.assert_array_equal(estimate, [1, 2, 3, 0.5, 0.5, 0.5, 0.5, 4, 5, 6, -1, -1, -1])
+    rng = np.random.default_rng(3)
+    batch_x, batch = rng.normal(size=(5, 16)), rng.normal(size=(5, 13))
+    expected = batch.copy()
+    for row_x, row in zip(batch_x, expected, strict=True):
+        eskf.write_estimate(row_x, row)
+    eskf.write_estimate(batch_x, batch)
+    np.testing.assert_array_equal(batch, expected)  # the batched form is the scalar one row by row

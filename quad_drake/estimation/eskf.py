@@ -125,6 +125,15 @@ def initial_nominal(position, velocity, q_NB, accel_bias=(0.0, 0.0, 0.0), gyro_b
     return np.concatenate([position, velocity, q_NB, accel_bias, gyro_bias]).astype(float)
 
 
+def write_estimate(x, estimate):
+    """Write the position, attitude and velocity of nominal states x (..., 16) into estimates
+    (..., 13) in the true ``state`` layout (p_NB m, q_NB wxyz, v_NB m/s) IN PLACE; the body
+    rate, estimate[..., 10:13], is left as it is (the prediction sets it from the IMU sample)."""
+    estimate[..., 0:3] = x[..., P_IDX]
+    estimate[..., 3:7] = x[..., Q_IDX]
+    estimate[..., 7:10] = x[..., V_IDX]
+
+
 def _rotation_entries(qw, qx, qy, qz):
     """The 9 entries of R_NB (row-major floats) of a unit wxyz quaternion."""
     return (

@@ -291,9 +291,9 @@ class FleetEskf(_FleetGatedFusion, LeafSystem):
             params.gps_reset_timeout,
             eskf.GPS_STATES,
         )
-        estimate = self.DeclareDiscreteState(
-            _tiled(np.concatenate([x0[0:3], x0[6:10], x0[3:6], np.zeros(3)]), n)
-        )
+        initial_estimate = np.zeros(STATE_SIZE)  # body rate 0 before the first sample
+        eskf.write_estimate(x0, initial_estimate)
+        estimate = self.DeclareDiscreteState(_tiled(initial_estimate, n))
         bias = self.DeclareDiscreteState(n * 6)
         declare_state_output(self, "estimated_state", estimate, n * STATE_SIZE)
         declare_state_output(self, "covariance", P, n * P0.size)
@@ -320,9 +320,7 @@ class FleetEskf(_FleetGatedFusion, LeafSystem):
             kernels.eskf_gps_update,
             kernels.eskf_mag_tick,
         )
-        estimate[:, 0:3] = x[:, 0:3]
-        estimate[:, 3:7] = x[:, 6:10]
-        estimate[:, 7:10] = x[:, 3:6]
+        eskf.write_estimate(x, estimate)
         discrete_state.get_mutable_value(self.BIAS_GROUP)[:] = x[:, 10:16].ravel()
 
 

@@ -329,18 +329,15 @@ class Eskf(_GatedFusion, LeafSystem):
         P = self.DeclareDiscreteState(P0.ravel())
         diagnostics = self.DeclareDiscreteState(_initial_diagnostics())
         self.DeclareDiscreteState(_initial_book())
-        estimate = self.DeclareDiscreteState(self._estimated_state(x0, (0.0, 0.0, 0.0)))
+        initial_estimate = np.zeros(STATE_SIZE)  # body rate 0 before the first sample
+        eskf.write_estimate(x0, initial_estimate)
+        estimate = self.DeclareDiscreteState(initial_estimate)
         bias = self.DeclareDiscreteState(6)
         self.DeclareStateOutputPort("estimated_state", estimate)
         self.DeclareStateOutputPort("covariance", P)
         self.DeclareStateOutputPort("diagnostics", diagnostics)
         self.DeclareStateOutputPort("imu_bias", bias)
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, EKF_OFFSET, self._update)
-
-    @staticmethod
-    def _estimated_state(x, rate):
-        """13-vector p, q, v, w of the nominal state x (16) and a body rate (3)."""
-        return np.concatenate([x[0:3], x[6:10], x[3:6], rate])
 
     def _update(self, context, discrete_state):
         """The prediction compiled (``fleet.estimation_kernels.eskf_predict_tick`` with N = 1, in
@@ -361,8 +358,7 @@ class Eskf(_GatedFusion, LeafSystem):
         discrete_state.set_value(0, x)
         discrete_state.set_value(self.BIAS_GROUP, x[10:16])
         discrete_state.set_value(1, P.ravel())
-        estimate = discrete_state.get_mutable_value(self.ESTIMATE_GROUP)
-        estimate[0:3], estimate[3:7], estimate[7:10] = x[0:3], x[6:10], x[3:6]
+        eskf.write_estimate(x, discrete_state.get_mutable_value(self.ESTIMATE_GROUP))
 
 
 def wire_ekf7(builder, ekf_system, attitude_filter, assembler):

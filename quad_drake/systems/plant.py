@@ -53,7 +53,6 @@ class QuadrotorPlant(LeafSystem):
 
     def __init__(self, params, initial_state, fidelity=PHYSICAL):
         super().__init__()
-        self._fidelity = fidelity
         initial_state = np.asarray(initial_state, dtype=float)
         if initial_state.shape != (STATE_SIZE,):
             raise ValueError(f"initial_state: expected {STATE_SIZE} values, got shape {initial_state.shape}")

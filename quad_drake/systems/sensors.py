@@ -66,8 +66,8 @@ class Imu(_Sensor):
         super().__init__(self.noise_size)
         self._params = params
         self._frozen_params, self._frozen_fidelity = kernels.frozen(params), kernels.frozen(fidelity)
-        self._read_state_row = row_reader(self._state_port)
-        self._read_noise_row = row_reader(self._noise_port)
+        self._read_state = row_reader(self._state_port)
+        self._read_noise = row_reader(self._noise_port)
         self._read_acceleration = row_reader(self.DeclareVectorInputPort("acceleration", 3))
         group = self.DeclareDiscreteState(IMU_SIZE)
         self.DeclareStateOutputPort("imu", group)
@@ -93,9 +93,9 @@ class Imu(_Sensor):
             bias = np.array(step).reshape(1, self.noise_size)
             discrete_state.set_value(self._bias_group, bias[0])
         kernels.imu_samples(
-            self._read_state_row(context),
+            self._read_state(context),
             self._read_acceleration(context),
-            self._read_noise_row(context),
+            self._read_noise(context),
             self._frozen_params,
             self._frozen_fidelity,
             bias,
