@@ -384,6 +384,9 @@ def test_ekf7_estimated_state_matches_the_scalar_assembly():
     for i in range(N):
         q = quat_from_euler_tuple(attitude[i, 0], attitude[i, 1], x[i, 6])
         np.testing.assert_allclose(estimate[i], np.r_[x[i, 0:3], q, x[i, 3:6], rate[i]], **TOL)
+    out = np.full((N, 13), np.nan)
+    assert kernels.ekf7_estimated_state(attitude, x, rate, out=out) is out
+    np.testing.assert_array_equal(out, estimate)  # written in place, every entry
 
 
 # ----- fleet estimator Diagrams against the scalar ones --------------------------------------------

@@ -217,8 +217,7 @@ def complementary_tick(attitude, rate, imu, ekf_state, dt, tau, variant, referen
 
 
 @njit_cached
-def _assembled_rows(attitude, ekf_state, body_rate):
-    out = np.empty((attitude.shape[0], 13))
+def _assembled_rows(attitude, ekf_state, body_rate, out):
     for i in range(attitude.shape[0]):
         q = _quat_from_euler(attitude[i, 0], attitude[i, 1], ekf_state[i, 6])
         for k in range(3):  # entry by entry: a slice is a new array view per vehicle in numba
@@ -227,16 +226,19 @@ def _assembled_rows(attitude, ekf_state, body_rate):
             out[i, 10 + k] = body_rate[i, k]
         for k in range(4):
             out[i, 3 + k] = q[k]
-    return out
 
 
-def ekf7_estimated_state(attitude, ekf_state, body_rate):
-    """(N, 13) EKF7 estimates in the ``state`` layout (``systems.estimators.EstimatedStateAssembler``).
+def ekf7_estimated_state(attitude, ekf_state, body_rate, out=None):
+    """(N, 13) EKF7 estimates in the ``state`` layout (``systems.estimators.EstimatedStateAssembler``),
+    written into `out` (an (N, 13) float array, e.g. a view of an output port) when given.
 
     p = x[0:3], q_NB = quat(roll, pitch, x[6]) wxyz, v = x[3:6], w = body rate; attitude (N, 3),
     ekf_state (N, 7), body_rate (N, 3).
     """
-    return _assembled_rows(attitude, ekf_state, body_rate)
+    if out is None:
+        out = np.empty((attitude.shape[0], 13))
+    _assembled_rows(attitude, ekf_state, body_rate, out)
+    return out
 
 
 # ----- 7-state EKF ---------------------------------------------------------------------------------

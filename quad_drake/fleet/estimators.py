@@ -258,7 +258,7 @@ class FleetEstimatedStateAssembler(LeafSystem):
         attitude = self._read_attitude(context).reshape(n, ATTITUDE_SIZE)
         x = self._read_ekf_state(context).reshape(n, EKF_STATE_SIZE)
         rate = self._read_rate(context).reshape(n, 3)
-        output.get_mutable_value()[:] = kernels.ekf7_estimated_state(attitude, x, rate).ravel()
+        kernels.ekf7_estimated_state(attitude, x, rate, out=output.get_mutable_value().reshape(n, STATE_SIZE))
 
 
 class FleetEskf(_FleetGatedFusion, LeafSystem):

@@ -283,10 +283,12 @@ class EstimatedStateAssembler(LeafSystem):
         )
 
     def _calc(self, context, output):
-        estimate = kernels.ekf7_estimated_state(
-            self._read_attitude(context), self._read_ekf_state(context), self._read_rate(context)
+        kernels.ekf7_estimated_state(
+            self._read_attitude(context),
+            self._read_ekf_state(context),
+            self._read_rate(context),
+            out=output.get_mutable_value()[None],
         )
-        output.get_mutable_value()[:] = estimate[0]
 
 
 class Eskf(_GatedFusion, LeafSystem):
