@@ -11,14 +11,14 @@ def test_a_run_draws_the_same_noise_in_any_batch():
     alone = NoiseStreams([107], "Quad/imu", 6, "gaussian", 500)
     batch = NoiseStreams([103, 104, 107, 990], "Quad/imu", 6, "gaussian", 500)
     for block in range(3):
-        np.testing.assert_array_equal(alone.block(block)[:, 0], batch.block(block)[:, 2])
+        np.testing.assert_array_equal(alone.block(block)[0], batch.block(block)[2])
 
 
 def test_blocks_are_the_stream_in_order():
     streams = NoiseStreams([7, 8], "Quad/motor_noise", 8, "uniform", 500)
-    blocks = np.concatenate([streams.block(b) for b in range(2)])  # (1000, 2, 8): time-major
+    blocks = np.concatenate([streams.block(b) for b in range(2)], axis=1)  # (2, 1000, 8): run-major
     expected = stream_generator(8, "Quad/motor_noise").random((1000, 8))
-    np.testing.assert_array_equal(blocks[:, 1], expected)
+    np.testing.assert_array_equal(blocks[1], expected)
     assert blocks.min() >= 0.0 and blocks.max() < 1.0
 
 
@@ -27,7 +27,7 @@ def test_names_and_seeds_give_independent_streams():
     b = NoiseStreams([1, 2], "Quad/mag", 9, "gaussian", 10).block(0)
     c = NoiseStreams([1, 2], "Quad2/gps", 9, "gaussian", 10).block(0)
     assert not np.array_equal(a, b) and not np.array_equal(a, c)
-    assert not np.array_equal(a[:, 0], a[:, 1])
+    assert not np.array_equal(a[0], a[1])
     # unit normal: 2 x 10 x 9 draws, mean and std well inside their sampling error (5 sigma)
     draws = NoiseStreams(range(50), "Quad/imu", 6, "gaussian", 500).block(0)
     assert abs(draws.mean()) < 5 / np.sqrt(draws.size)
@@ -47,7 +47,7 @@ def test_blocks_in_any_order_are_the_stream_s_blocks():
 def test_a_block_drawn_into_a_buffer_is_the_block():
     fresh = NoiseStreams([5, 6], "Quad/imu", 6, "gaussian", 500)
     reused = NoiseStreams([5, 6], "Quad/imu", 6, "gaussian", 500)
-    buffer = np.full((500, 2, 6), np.nan)
+    buffer = np.full((2, 500, 6), np.nan)
     for block in range(2):
         assert reused.block(block, out=buffer) is buffer
         np.testing.assert_array_equal(buffer, fresh.block(block))

@@ -11,8 +11,10 @@ The draws are taken in blocks of one simulated second (``samples_per_block`` sam
 ``size`` values), so the per-vehicle loop runs once per second, not per tick. Sample k of
 a stream (k = 0, 1, ... at t = k period) is row k % samples_per_block of block
 k // samples_per_block; every block is the next ``samples_per_block * size`` draws of the
-generator, in C order. A block is stored time-major, (samples, N, size), so reading one
-sample of the N vehicles is one contiguous row.
+generator, in C order. A block is stored run-major, (N, samples, size): each generator draws
+straight into its vehicle's contiguous (samples, size) part, with no copy (a time-major block
+cost as much again as the drawing, in strided copies); reading one sample of the N vehicles is
+a gather of N rows of ``size`` values.
 
 These streams differ from Drake's ``RandomSource`` (which the per-vehicle Diagram uses):
 a fleet run and ``quad-drake run NAME --seed S`` see different noise and agree only
@@ -67,16 +69,15 @@ class NoiseStreams:
         self.samples_per_block = int(samples_per_block)
         self._generators = None
         self._next_block = 0  # the block the generators draw next
-        self._draws = np.empty((self.samples_per_block, self.size))  # one vehicle's block
 
     @property
     def n(self):
         return len(self.seeds)
 
     def block(self, index, out=None):
-        """(samples_per_block, N, size) draws of block `index` (row k: sample k of the block of
-        every vehicle), written into `out` (a float array of that shape, reused from block to
-        block) when given.
+        """(N, samples_per_block, size) draws of block `index` ([j, k]: sample k of the block of
+        vehicle j), written into `out` (a C-contiguous float array of that shape, reused from
+        block to block) when given.
 
         Blocks may come in any order: the generators are sequential, so a later block draws
         the ones it skips, and an earlier one restarts the streams (a re-initialised
@@ -88,12 +89,11 @@ class NoiseStreams:
             self._generators = [stream_generator(s, self.name) for s in self.seeds]
             self._next_block = 0
         if out is None:
-            out = np.empty((self.samples_per_block, self.n, self.size))
+            out = np.empty((self.n, self.samples_per_block, self.size))
         generator_type = np.random.Generator
         draw = generator_type.standard_normal if self.distribution == GAUSSIAN else generator_type.random
         for j, generator in enumerate(self._generators):
             for _ in range(self._next_block, index + 1):
-                draw(generator, out=self._draws)
-            out[:, j] = self._draws
+                draw(generator, out=out[j])
         self._next_block = index + 1
         return out
