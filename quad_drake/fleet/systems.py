@@ -88,7 +88,6 @@ class FleetNoiseSource(LeafSystem):
         self.period = float(period)
         self._per_block = max(1, int(round(1.0 / self.period)))
         self._streams = NoiseStreams(seeds, name, size, distribution, self._per_block)
-        self._sample_shape = (len(seeds), int(size))
         self._block, self._block_index = None, -1
         self.DeclareVectorOutputPort(
             "noise", len(seeds) * int(size), self._calc, prerequisites_of_calc={self.time_ticket()}
@@ -104,7 +103,8 @@ class FleetNoiseSource(LeafSystem):
         if block != self._block_index:
             self._block = self._streams.block(block, out=self._block)
             self._block_index = block
-        output.get_mutable_value().reshape(self._sample_shape)[:] = self._block[:, row]
+        n, _, size = self._block.shape
+        output.get_mutable_value().reshape(n, size)[:] = self._block[:, row]
 
 
 class FleetPlant(LeafSystem):
