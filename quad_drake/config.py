@@ -200,9 +200,16 @@ class EkfParams:
     tilt_velocity_time: float = _num(0.25, nonnegative=True)  # s
     tilt_yaw_time: float = _num(0.15, nonnegative=True)  # s
     dt_imu: float = _num(0.002, positive=True, maximum=1.0)  # s, scales Q (a step, not a flight)
-    gps_gate_sigma: float = _num(5.0, nonnegative=True)  # sigma; chi^2 innovation gate, 0 = off
+    # Gates and resets (estimation/gating.py): chi^2 gates on the GPS horizontal position, height
+    # and velocity apart and on the magnetometer; a GPS group rejected for its timeout is reset to
+    # the sample; after gps_regain_time s without GPS the returning sample is fused or reset.
+    gps_gate_sigma: float = _num(5.0, nonnegative=True)  # sigma; each GPS group's gate, 0 = off
     mag_gate_sigma: float = _num(5.0, nonnegative=True)  # sigma
-    gps_reset_timeout: float = _num(5.0, nonnegative=True)  # s of continuous GPS rejection, 0 = never
+    gps_reset_timeout: float = _num(5.0, nonnegative=True)  # s of rejected horizontal position, 0 = never
+    gps_height_reset_timeout: float = _num(1.0, nonnegative=True)  # s of rejected height, 0 = never
+    gps_vel_reset_timeout: float = _num(0.5, nonnegative=True)  # s of rejected velocity, 0 = never
+    gps_regain_time: float = _num(1.0, nonnegative=True)  # s without GPS that make an outage, 0 = off
+    gps_gate_adaptation: float = _num(0.1, nonnegative=True, maximum=1.0)  # weight of a sample's NIS/dof
 
 
 @dataclass
@@ -237,9 +244,16 @@ class EskfEstimatorConfig:
     gps_pos_std: List[float] = _std(0.7, 0.7, 2.0)  # m
     gps_vel_std: List[float] = _std(0.1, 0.1, 0.3)  # m/s
     mag_yaw_std: float = _num(0.1, positive=True, noise_std=True)  # rad
-    gps_gate_sigma: float = _num(5.0, nonnegative=True)  # sigma; chi^2 innovation gate, 0 = off
+    # Gates and resets (estimation/gating.py): chi^2 gates on the GPS horizontal position, height
+    # and velocity apart and on the magnetometer; a GPS group rejected for its timeout is reset to
+    # the sample; after gps_regain_time s without GPS the returning sample is fused or reset.
+    gps_gate_sigma: float = _num(5.0, nonnegative=True)  # sigma; each GPS group's gate, 0 = off
     mag_gate_sigma: float = _num(5.0, nonnegative=True)  # sigma
-    gps_reset_timeout: float = _num(5.0, nonnegative=True)  # s of continuous GPS rejection, 0 = never
+    gps_reset_timeout: float = _num(5.0, nonnegative=True)  # s of rejected horizontal position, 0 = never
+    gps_height_reset_timeout: float = _num(1.0, nonnegative=True)  # s of rejected height, 0 = never
+    gps_vel_reset_timeout: float = _num(0.5, nonnegative=True)  # s of rejected velocity, 0 = never
+    gps_regain_time: float = _num(1.0, nonnegative=True)  # s without GPS that make an outage, 0 = off
+    gps_gate_adaptation: float = _num(0.1, nonnegative=True, maximum=1.0)  # weight of a sample's NIS/dof
 
 
 EstimatorConfig = Union[Ekf7EstimatorConfig, EskfEstimatorConfig]

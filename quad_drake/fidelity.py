@@ -10,7 +10,8 @@ horizontal norm, the trajectory looked up at the exact simulation time.
 ``reference`` reproduces the FCND E-sim binary (SPEC §2, §3, §5 step 4, §0.2): its
 semi-implicit Euler body step, its float32 vehicle state, its accelerometer R_NB^T (a_NB + g_N)
 (and the estimators read it as the reference's do), its 3-D norm limit of the lateral acceleration command
-(z entry -kp_vel_xy vz), and its float32 clock advanced by 0.001f per physics step.
+(z entry -kp_vel_xy vz), its float32 clock advanced by 0.001f per physics step, and its
+estimator without innovation gates, resets or covariance repair.
 """
 
 from dataclasses import dataclass
@@ -35,6 +36,8 @@ class Fidelity:
         (ax, ay, -kp_vel_xy vz) (SPEC §5 step 4) instead of the norm of (ax, ay).
     float32_clock: the trajectory is looked up at the reference's float32 simulation time,
         0.001f added once per physics step (SPEC §0.2), instead of the exact time.
+    reference_estimator: the estimators fuse every sample as the reference's EKF does: no
+        innovation gates, no resets to the GPS, no covariance repair (``estimation/gating.py``).
     """
 
     semi_implicit_euler: bool = False
@@ -42,6 +45,7 @@ class Fidelity:
     reference_accelerometer: bool = False
     lateral_limit_3d: bool = False
     float32_clock: bool = False
+    reference_estimator: bool = False
 
 
 PHYSICAL = Fidelity()
@@ -51,6 +55,7 @@ REFERENCE = Fidelity(
     reference_accelerometer=True,
     lateral_limit_3d=True,
     float32_clock=True,
+    reference_estimator=True,
 )
 
 

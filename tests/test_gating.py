@@ -1,4 +1,4 @@
-"""Innovation gates, reset timing and covariance repair; a 50 m GPS outlier against the gated EKF7."""
+"""Innovation gates, the GPS gate-and-reset policy and covariance repair; a 50 m GPS outlier against the gated EKF7."""
 
 import math
 
@@ -9,6 +9,9 @@ from scipy.stats import binom, chi2
 from quad_drake.config import EkfParams
 from quad_drake.conventions import GRAVITY
 from quad_drake.estimation import ekf, gating
+from quad_drake.estimation.vocabulary import DIAG
+from quad_drake.fleet import estimation_kernels as kernels
+from quad_drake.systems.estimators import initial_diagnostics
 
 DT = 0.002
 
@@ -30,27 +33,110 @@ def test_gate_threshold_matches_the_scalar_sigma_test():
         gating.gate_threshold(0, 5.0)
 
 
-def test_rejection_clock_and_reset_timing():
-    start = math.nan
-    for stamp in (1.0, 1.1, 1.2):
-        start = gating.rejection_start(start, False, stamp)
-    assert start == 1.0
-    assert not gating.reset_due(start, 1.2, 0.5)
-    assert gating.reset_due(start, 1.5, 0.5)
-    assert not gating.reset_due(start, 100.0, 0.0)  # timeout 0: never
-    assert math.isnan(gating.rejection_start(start, True, 1.6))
-    assert not gating.reset_due(math.nan, 100.0, 0.5)
+GATES = gating.GpsGates(
+    thresholds=tuple(gating.gate_threshold(len(c), 5.0) for c in gating.GPS_GROUP_COMPONENTS),
+    reset_timeouts=(5.0, 1.0, 0.5),
+    regain_time=1.0,
+)
+
+
+def fresh_books(m):
+    return np.tile(gating.initial_gps_book(), (m, 1))
+
+
+def test_each_gps_group_is_gated_against_its_own_marginal():
+    # A 5 m/s velocity error (a graze the IMU missed) with a good position: the velocity group
+    # fails, the horizontal position and the height pass (the joint 6-dof gate refused all three).
+    S = np.diag([0.5, 0.5, 4.0, 0.01, 0.01, 0.09])[None]
+    nu = np.array([[0.3, -0.2, 1.0, 5.0, 0.0, 0.0]])
+    nis = gating.gps_group_nis(nu, S)
+    np.testing.assert_allclose(nis, [[0.26, 0.25, 2500.0]], rtol=1e-12)
+    assert gating.innovation_nis(nu, S)[0] > gating.gate_threshold(6, 5.0)
+    accepted, reset = gating.gps_gate_decisions(nis, [0.1], fresh_books(1), GATES)
+    assert accepted.tolist() == [[True, True, False]] and not reset.any()
+    assert gating.component_mask(accepted).tolist() == [[True] * 3 + [False] * 3]
+
+
+def test_a_rejected_group_is_reset_after_its_own_timeout_and_only_that_group():
+    book = fresh_books(1)
+    bad_velocity = np.array([[1.0, 1.0, 1e4]])
+    for k, stamp in enumerate((0.1, 0.2, 0.3, 0.4, 0.5)):
+        accepted, reset = gating.gps_gate_decisions(bad_velocity, [stamp], book, GATES)
+        assert accepted.tolist() == [[True, True, False]]
+        assert not reset.any(), k
+        assert book[0, gating.GPS_REJECTED_SINCE][2] == 0.1
+    accepted, reset = gating.gps_gate_decisions(bad_velocity, [0.6], book, GATES)  # 0.5 s of rejection
+    assert reset.tolist() == [[False, False, True]]
+    assert np.isnan(book[0, gating.GPS_REJECTED_SINCE]).all()
+    # A timeout of 0 never resets; an accepted sample ends the run.
+    never = gating.GpsGates(GATES.thresholds, (0.0, 0.0, 0.0), 0.0)
+    book = fresh_books(1)
+    for stamp in np.arange(1, 100) * 0.1:
+        _, reset = gating.gps_gate_decisions(bad_velocity, [stamp], book, never)
+        assert not reset.any()
+    gating.gps_gate_decisions(np.ones((1, 3)), [10.0], book, never)
+    assert np.isnan(book[0, gating.GPS_REJECTED_SINCE]).all()
+
+
+def test_a_sample_after_an_outage_is_fused_or_reset_never_gated():
+    book = fresh_books(2)
+    nis = np.array([[1.0, 1.0, 1.0], [1e4, 1.0, 1e4]])
+    gating.gps_gate_decisions(np.ones((2, 3)), [5.0, 5.0], book, GATES)
+    # 0.9 s later: no outage, gated as usual
+    accepted, reset = gating.gps_gate_decisions(nis, [5.9, 5.9], book, GATES)
+    assert accepted.tolist() == [[True] * 3, [False, True, False]] and not reset.any()
+    # then 1.1 s without a sample: the rejected groups are reset at once, the others fused
+    accepted, reset = gating.gps_gate_decisions(nis, [7.0, 7.0], book, GATES)
+    assert accepted.tolist() == [[True] * 3, [False, True, False]]
+    assert reset.tolist() == [[False] * 3, [True, False, True]]
+    off = gating.GpsGates(GATES.thresholds, GATES.reset_timeouts, 0.0)
+    _, reset = gating.gps_gate_decisions(nis, [20.0, 20.0], fresh_books(2), off)
+    assert not reset.any()
+
+
+def test_a_consistently_over_confident_filter_widens_its_gate_and_an_outlier_never_does():
+    adaptive = gating.GpsGates(GATES.thresholds, GATES.reset_timeouts, GATES.regain_time, 0.1)
+    threshold = GATES.thresholds[0]
+    book = fresh_books(1)
+    # innovations 6 times the variance the filter claims (NIS/dof = 6), all within the gate
+    for k in range(1, 40):
+        gating.gps_gate_decisions(np.full((1, 3), 6.0 * np.array([2, 1, 3])), [0.1 * k], book, adaptive)
+    np.testing.assert_allclose(book[0, gating.GPS_NIS_MEAN], 6.0, rtol=0.02)
+    # a sample twice the fixed gate now passes; an outlier 100 times it still fails
+    accepted, _ = gating.gps_gate_decisions(np.array([[2 * threshold, 1.0, 1.0]]), [4.0], book, adaptive)
+    assert accepted[0, 0]
+    mean = book[0, gating.GPS_NIS_MEAN].copy()
+    accepted, _ = gating.gps_gate_decisions(np.array([[100 * threshold, 1.0, 1.0]]), [4.1], book, adaptive)
+    assert not accepted[0, 0]
+    assert book[0, gating.GPS_NIS_MEAN][0] == mean[0]  # rejected samples never move the mean
+    # a consistent filter's gate stays the chi^2 gate: the mean is floored at 1
+    book = fresh_books(1)
+    gating.gps_gate_decisions(np.full((1, 3), 0.01), [0.1], book, adaptive)
+    accepted, _ = gating.gps_gate_decisions(np.array([[1.01 * threshold, 1.0, 1.0]]), [0.2], book, adaptive)
+    assert not accepted[0, 0]
+
+
+def test_gates_off_accept_everything_and_never_reset():
+    off = gating.GpsGates.from_params(EkfParams(), enabled=False)
+    book = fresh_books(1)
+    accepted, reset = gating.gps_gate_decisions(np.full((1, 3), 1e12), [30.0], book, off)
+    assert accepted.all() and not reset.any()
+    assert gating.GpsGates.from_params(EkfParams(gps_gate_sigma=0.0)).thresholds == (math.inf,) * 3
 
 
 def test_reset_states_sets_values_and_drops_cross_covariance():
     rng = np.random.default_rng(1)
-    A = rng.normal(size=(7, 7))
-    P = A @ A.T
-    x, P_new = gating.reset_states(np.arange(7.0), P, [0, 1, 2], [9.0, 8.0, 7.0], np.diag([1.0, 2.0, 3.0]))
-    np.testing.assert_array_equal(x, [9, 8, 7, 3, 4, 5, 6])
-    np.testing.assert_array_equal(P_new[0:3, 0:3], np.diag([1.0, 2.0, 3.0]))
-    np.testing.assert_array_equal(P_new[0:3, 3:], 0.0)
-    np.testing.assert_array_equal(P_new[3:, 3:], P[3:, 3:])
+    A = rng.normal(size=(2, 7, 7))
+    P = A @ A.transpose(0, 2, 1)
+    values = np.array([[9.0, 8.0, 7.0], [6.0, 5.0, 4.0]])
+    x, P_new = gating.reset_states(
+        np.arange(14.0).reshape(2, 7), P, [0, 1, 2], values, np.diag([1.0, 2.0, 3.0])
+    )
+    np.testing.assert_array_equal(x, [[9, 8, 7, 3, 4, 5, 6], [6, 5, 4, 10, 11, 12, 13]])
+    for i in range(2):
+        np.testing.assert_array_equal(P_new[i, 0:3, 0:3], np.diag([1.0, 2.0, 3.0]))
+        np.testing.assert_array_equal(P_new[i, 0:3, 3:], 0.0)
+        np.testing.assert_array_equal(P_new[i, 3:, 3:], P[i, 3:, 3:])
 
 
 def test_repaired_covariance_outcomes():
@@ -88,35 +174,45 @@ SCENARIO_11 = dict(
 
 
 def _hover_run(seed, outlier_at=None, gate_sigma=5.0, seconds=30.0, tuning=CONSISTENT):
-    """Pure EKF7 at hover on synthetic data: truth at rest, noisy IMU and 10 Hz GPS.
+    """Pure EKF7 at hover on synthetic data, fused through the estimators' GPS policy
+    (``estimation_kernels.fuse_gps``, fixed gates): truth at rest, noisy IMU and 10 Hz GPS.
 
-    Returns (max position error after 2 s (m), gated GPS samples, GPS samples).
+    Returns (max position error after 2 s (m), GPS samples with a gated group, GPS samples).
     """
     rng = np.random.default_rng(seed)
-    params = EkfParams(**tuning)
+    params = EkfParams(**tuning, gps_gate_sigma=gate_sigma, gps_gate_adaptation=0.0)
     Q, R = ekf.process_noise(params), ekf.gps_noise(params)
-    threshold = gating.gate_threshold(6, gate_sigma)
-    x, P = ekf.initial_state(params), np.diag([0.01] * 6 + [1e-6])
+    gates = gating.GpsGates.from_params(params)
+    x, P = ekf.initial_state(params)[None], np.diag([0.01] * 6 + [1e-6])[None]
+    diagnostics, book = initial_diagnostics()[None], kernels.initial_book()[None]
     truth = np.array([0.0, 0.0, -1.0, 0.0, 0.0, 0.0])
     accel_std = np.array([0.5, 0.5, 1.5])
     gps_std = np.array([0.7, 0.7, 2.0, 0.1, 0.1, 0.3])
-    worst, gated, samples = 0.0, 0, 0
+    worst, samples = 0.0, 0
     for k in range(1, int(seconds / DT) + 1):
         f_B = np.array([0.0, 0.0, -GRAVITY]) + accel_std * rng.normal(size=3)
-        x, P = ekf.predict(x, P, 0.0, 0.0, f_B, DT, Q)
+        x0, P0 = ekf.predict(x[0], P[0], 0.0, 0.0, f_B, DT, Q)
+        x[0], P[0] = x0, P0
         if k % 50 == 0:
             z = truth + gps_std * rng.normal(size=6)
             if outlier_at is not None and k == outlier_at:
                 z[0] += 50.0
-            x_new, P_new, nis = ekf.gps_update(x, P, z, R)
+            kernels.fuse_gps(
+                slice(None),
+                np.array([k * DT]),
+                z[None],
+                x,
+                P,
+                diagnostics,
+                book,
+                kernels.ekf7_gps_update,
+                R,
+                gates,
+            )
             samples += 1
-            if gating.gate_accepts(nis, threshold):
-                x, P = x_new, P_new
-            else:
-                gated += 1
         if k * DT > 2.0:
-            worst = max(worst, float(np.linalg.norm(x[0:3] - truth[0:3])))
-    return worst, gated, samples
+            worst = max(worst, float(np.linalg.norm(x[0, 0:3] - truth[0:3])))
+    return worst, int(diagnostics[0, DIAG["gps_gated"]]), samples
 
 
 def test_gate_rejects_no_more_consistent_samples_than_its_false_alarm_rate():
@@ -126,9 +222,10 @@ def test_gate_rejects_no_more_consistent_samples_than_its_false_alarm_rate():
         gated, samples = gated + g, samples + n
     # 99.9 % upper quantile of Binomial(samples, P_fa): 0 at 5 sigma for 600 samples.
     assert gated <= binom.ppf(0.999, samples, gating.false_alarm_probability(5.0))
-    # A 2-sigma gate does reject (the test can fail): P_fa = 4.6 % per sample.
+    # A 2-sigma gate does reject (the test can fail): P_fa = 4.6 % per group, three groups.
     _, g, n = _hover_run(200, gate_sigma=2.0, seconds=20.0)
-    assert binom.ppf(0.001, n, 0.0455) <= g <= binom.ppf(0.999, n, 0.0455)
+    p = 1.0 - (1.0 - gating.false_alarm_probability(2.0)) ** len(gating.GPS_GROUPS)
+    assert binom.ppf(0.001, n, p) <= g <= binom.ppf(0.999, n, p)
 
 
 def test_a_single_50_m_gps_outlier_no_longer_fails_the_1_m_criterion():

@@ -1,6 +1,7 @@
-"""Pure: chi-squared innovation gates, reset to the GPS after continuous rejection, covariance health.
+"""Pure: chi-squared innovation gates, the GPS gate-and-reset policy, covariance health.
 
-Shared by every estimator (7-state EKF, error-state EKF) and by fault-injection scenarios.
+Shared by every estimator (7-state EKF, error-state EKF, for one vehicle or a fleet: the GPS
+policy is written for M vehicles at once, M = 1 for a single run) and by fault scenarios.
 
 Gate (PX4 EKF2 / ArduPilot EKF3 practice): a measurement with innovation nu and innovation
 covariance S has the normalised innovation squared ``nis = nu^T S^-1 nu``, chi^2(m) for a
@@ -10,10 +11,20 @@ consistent filter (m = len(nu)). A gate of ``g`` sigma accepts the sample when
 chi2.ppf(1 - P_fa, m)``. The *test ratio* nis / threshold is above 1 for a rejected sample,
 as PX4's ``*_test_ratio``. ``g = 0`` turns the gate off (threshold = inf).
 
-Reset: after ``timeout`` s of continuous rejection of one sensor (no accepted sample in
-between) the filter re-initialises the states that sensor measures to the measurement,
-with the measurement's covariance and no cross-covariance (ArduPilot's reset to GPS after
-its retry time). ``timeout = 0`` never resets.
+GPS policy (:class:`GpsGates`, :func:`gps_gate_decisions`). A GPS sample (p_N, v_N) is gated
+in three groups, each against the marginal of its own innovation: the horizontal position
+(2 dof), the height (1 dof) and the velocity (3 dof), as PX4 gates GNSS position, height and
+velocity apart (``EKF2_GPS_P_GATE``, ``EKF2_GPS_V_GATE``). The groups that pass are fused; a
+wrong velocity never makes the filter refuse a good position. A group rejected for its own
+``reset_timeouts`` s in a row (no accepted sample in between) is reset to the sample: a
+consistent filter rejects a 5-sigma sample with probability 5.7e-7, so a run of rejections is
+the filter, not the sensor, once it outlasts the glitches the timeout is sized for (velocity
+0.5 s and height 1 s by default: a vehicle 1 m above the floor cannot fly longer on a height or
+velocity it cannot check; the horizontal position waits 5 s, longer than a multipath step).
+After ``regain_time`` s without a finite GPS sample (an outage) the returning sample is never
+gated: each group is fused if its gate accepts it and reset to it otherwise (PX4's reset to
+GNSS on regained aiding). A reset sets the group's states to the measurement with the
+measurement's covariance and no cross-covariance (ArduPilot's reset to GPS).
 
 Covariance health (PX4 ``fixCovarianceErrors``): P must be finite, symmetric and positive
 semi-definite. :func:`repaired_covariance` symmetrises, clips negative eigenvalues to zero,
@@ -21,11 +32,24 @@ and replaces a non-finite P by a fallback (the initial covariance); it says what
 """
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
 COVARIANCE_OK, COVARIANCE_REPAIRED, COVARIANCE_RESET = 0, 1, 2
 """Outcomes of :func:`repaired_covariance`: untouched, eigenvalues clipped, replaced by the fallback."""
+
+GPS_GROUPS = ("horizontal", "height", "velocity")
+"""The GPS groups gated, fused and reset apart (:class:`GpsGates`)."""
+GPS_GROUP_COMPONENTS = ((0, 1), (2,), (3, 4, 5))
+"""Indices into a GPS sample (p_N m, v_N m/s) of each group of GPS_GROUPS."""
+GPS_LAST_SAMPLE = 0
+GPS_REJECTED_SINCE = slice(1, 1 + len(GPS_GROUPS))
+GPS_NIS_MEAN = slice(1 + len(GPS_GROUPS), 1 + 2 * len(GPS_GROUPS))
+GPS_BOOK_SIZE = 1 + 2 * len(GPS_GROUPS)
+"""Columns of a filter's GPS book (:func:`gps_gate_decisions`)."""
+STAMP_TOLERANCE = 1e-9
+"""s: stamps are sums of sensor periods, so 0.5 s of 10 Hz samples may read 0.49999999999999994."""
 
 
 def false_alarm_probability(gate_sigma):
@@ -56,35 +80,123 @@ def gate_accepts(nis, threshold):
     return nis <= threshold
 
 
-def rejection_start(previous_start, accepted, stamp):
-    """Time (s) the current run of consecutive rejections began: NaN after an accepted sample.
+@dataclass(frozen=True)
+class GpsGates:
+    """The GPS gate-and-reset policy of one estimator (see the module docstring).
 
-    previous_start: the value returned for the previous sample (NaN if none rejected);
-    stamp: this sample's measurement time, s.
+    thresholds: NIS threshold per GPS group (inf: that gate is off); reset_timeouts: s of
+    continuous rejection after which a group is reset (0: never); regain_time: s without a
+    finite GPS sample after which the returning sample is fused or reset, never gated (0: off);
+    consistency_weight: the weight of each accepted sample in a group's running mean of NIS/dof,
+    which widens that group's gate where it is above 1 (0: fixed gates).
     """
-    if accepted:
-        return math.nan
-    return stamp if math.isnan(previous_start) else previous_start
+
+    thresholds: tuple
+    reset_timeouts: tuple
+    regain_time: float
+    consistency_weight: float = 0.0
+
+    @classmethod
+    def from_params(cls, params, enabled=True):
+        """The policy of an estimator's parameters (``gps_gate_sigma``, ``gps_reset_timeout``
+        (horizontal position), ``gps_height_reset_timeout``, ``gps_vel_reset_timeout``,
+        ``gps_regain_time``, ``gps_gate_adaptation``); ``enabled=False``: no gates and no resets
+        (the reference's EKF)."""
+        if not enabled:
+            return cls((math.inf,) * len(GPS_GROUPS), (0.0,) * len(GPS_GROUPS), 0.0)
+        return cls(
+            tuple(gate_threshold(len(c), params.gps_gate_sigma) for c in GPS_GROUP_COMPONENTS),
+            (
+                float(params.gps_reset_timeout),
+                float(params.gps_height_reset_timeout),
+                float(params.gps_vel_reset_timeout),
+            ),
+            float(params.gps_regain_time),
+            float(params.gps_gate_adaptation),
+        )
 
 
-def reset_due(start, stamp, timeout):
-    """True when the sensor has been rejected continuously since ``start`` for >= ``timeout`` s (> 0)."""
-    return timeout > 0.0 and not math.isnan(start) and stamp - start >= timeout
+def innovation_nis(nu, S):
+    """(M,) nu^T S^-1 nu of innovations nu (M, m) with covariances S (M, m, m)."""
+    return np.einsum("ij,ij->i", nu, np.linalg.solve(S, nu[..., None])[..., 0])
+
+
+def gps_group_nis(nu, S):
+    """(M, 3) NIS of each GPS group (GPS_GROUPS) of the innovations nu (M, 6) with covariance S
+    (M, 6, 6): each group against its own marginal block of S."""
+    out = np.empty((len(nu), len(GPS_GROUPS)))
+    for g, components in enumerate(GPS_GROUP_COMPONENTS):
+        idx = np.asarray(components)
+        out[:, g] = innovation_nis(nu[:, idx], S[:, idx[:, None], idx[None, :]])
+    return out
+
+
+def gps_gate_decisions(group_nis, stamps, book, gates):
+    """What to do with M finite GPS samples: (accepted (M, 3), reset (M, 3)); updates book IN PLACE.
+
+    group_nis (M, 3) from :func:`gps_group_nis` of the prior; stamps (M,) s, the samples'
+    measurement times; book (M, GPS_BOOK_SIZE), per filter: the stamp of its previous finite GPS
+    sample (s; its start time before the first), then per group when its current run of
+    rejections began (s, NaN: none) and its running mean of NIS/dof over accepted samples
+    (1 at the start); gates a :class:`GpsGates`.
+
+    A group passes when its NIS is within its threshold times max(1, running mean): a filter
+    whose innovations have been consistently larger than its covariance says widens its own gate
+    (never below the chi^2 gate), so an over-confident but working filter keeps fusing; the
+    mean moves only with accepted samples, so outliers and steps that the gate rejects never
+    widen it. A group is fused where accepted, reset where ``reset`` (rejected after its
+    timeout, or at a sample that ends an outage longer than regain_time), kept otherwise.
+    """
+    stamps = np.asarray(stamps, dtype=float)[:, None]
+    since, mean = book[:, GPS_REJECTED_SINCE], book[:, GPS_NIS_MEAN]
+    dof = np.array([len(c) for c in GPS_GROUP_COMPONENTS], dtype=float)
+    accepted = group_nis <= np.asarray(gates.thresholds) * np.maximum(mean, 1.0)
+    since = np.where(accepted, math.nan, np.where(np.isnan(since), stamps, since))
+    timeouts = np.asarray(gates.reset_timeouts)
+    timed_out = (timeouts > 0.0) & (stamps - since >= timeouts - STAMP_TOLERANCE)  # False where since is NaN
+    gap = stamps - book[:, GPS_LAST_SAMPLE : GPS_LAST_SAMPLE + 1]
+    outage = (gates.regain_time > 0.0) & (gap > gates.regain_time)  # (M, 1)
+    reset = ~accepted & (timed_out | outage)
+    since[reset] = math.nan
+    weight = gates.consistency_weight
+    book[:, GPS_NIS_MEAN] = np.where(accepted, (1.0 - weight) * mean + weight * group_nis / dof, mean)
+    book[:, GPS_REJECTED_SINCE] = since
+    book[:, GPS_LAST_SAMPLE] = stamps[:, 0]
+    return accepted, reset
+
+
+def initial_gps_book():
+    """A filter's GPS book (GPS_BOOK_SIZE) before its first sample (see :func:`gps_gate_decisions`):
+    its start, t = 0, is its last aiding; no rejections; means 1."""
+    book = np.empty(GPS_BOOK_SIZE)
+    book[GPS_LAST_SAMPLE] = 0.0
+    book[GPS_REJECTED_SINCE] = math.nan
+    book[GPS_NIS_MEAN] = 1.0
+    return book
+
+
+def component_mask(groups):
+    """(M, 6) bool over a GPS sample's components of a per-group flag array (M, 3)."""
+    mask = np.empty((len(groups), 6), dtype=bool)
+    for g, components in enumerate(GPS_GROUP_COMPONENTS):
+        mask[:, list(components)] = groups[:, g : g + 1]
+    return mask
 
 
 def reset_states(x, P, indices, values, covariance):
-    """(x, P) with x[indices] = values, P[indices, indices] = covariance and zero cross-covariance.
+    """(x', P') of M filters with x[:, indices] = values, that block of P = covariance and no
+    cross-covariance with the other states (a reset to a measurement).
 
-    x: state (n); P: (n, n); indices: the m reset states; values (m); covariance (m, m).
+    x (M, n); P (M, n, n); indices: the m reset states; values (M, m); covariance (m, m).
     Returns new arrays.
     """
     x = np.array(x, dtype=float)
     P = np.array(P, dtype=float)
     idx = np.asarray(indices)
-    x[idx] = values
-    P[idx, :] = 0.0
-    P[:, idx] = 0.0
-    P[np.ix_(idx, idx)] = covariance
+    x[:, idx] = values
+    P[:, idx, :] = 0.0
+    P[:, :, idx] = 0.0
+    P[:, idx[:, None], idx[None, :]] = covariance
     return x, P
 
 

@@ -32,9 +32,18 @@ from quad_drake.estimation.vocabulary import DIAG
 from quad_drake.fleet.kernels import compiled
 from quad_drake.jit import njit_cached
 
-GPS_SLOT, MAG_SLOT, GPS_REJECTION_START = 0, 1, 2
-"""Columns of an estimator's book (N, 3): last GPS stamp seen, last mag stamp seen, start of the
-GPS rejection run (as ``systems/estimators.py``)."""
+GPS_SLOT, MAG_SLOT = 0, 1
+GPS_POLICY = slice(2, 2 + gating.GPS_BOOK_SIZE)
+BOOK_SIZE = 2 + gating.GPS_BOOK_SIZE
+"""Columns of an estimator's book (N, BOOK_SIZE): the last GPS and mag stamps seen (s;
+freshness), then the GPS policy's book (``gating.gps_gate_decisions``)."""
+
+
+def initial_book():
+    """One vehicle's book before its first tick: no sample seen, the GPS policy's initial book."""
+    return np.concatenate(([NO_SAMPLE_STAMP, NO_SAMPLE_STAMP], gating.initial_gps_book()))
+
+
 _TWO_PI = 2.0 * math.pi
 _NONFINITE, _MAG_NIS, _MAG_GATED = DIAG["nonfinite_samples"], DIAG["mag_nis"], DIAG["mag_gated"]
 _ESKF_BIASES = eskf.ERROR_SIZE_WITH_BIASES
@@ -361,9 +370,10 @@ def gravity_z(reference_accelerometer):
 
 
 @njit_cached
-def _gps_joseph_row(x, P, z, R, i, x_out, P_out, inject, work):
-    """The GPS update of vehicle i (H = [I6 0], ``ekf.kalman_update`` / ``eskf.joseph_update``) into
-    (x_out, P_out), which hold the prior; returns (nis, singular). A singular S leaves them as they are.
+def _gps_joseph_row(x, P, z, R, i, comps, m, x_out, P_out, inject, work):
+    """The update of vehicle i with the m GPS components comps[:m] (indices into (p, v); H = rows
+    comps of [I6 0], ``ekf.kalman_update`` / ``eskf.joseph_update``) into (x_out, P_out), which hold
+    the prior; returns (nis, singular). A singular S leaves them as they are.
 
     [K^T | S^-1 nu] = S^-1 [H P | nu] by Gaussian elimination with partial pivoting (LAPACK's
     gesv, singular on an exactly zero pivot); P' = (I - K H) P (I - K H)^T + K R K^T symmetrised;
@@ -371,61 +381,62 @@ def _gps_joseph_row(x, P, z, R, i, x_out, P_out, inject, work):
     """
     S, X, nu, K, T, KR, dx = work
     n = P.shape[1]
-    for a in range(6):
-        nu[a] = z[i, a] - x[i, a]
-        for b in range(6):
-            S[a, b] = P[i, a, b] + R[a, b]
+    for a in range(m):
+        ca = comps[a]
+        nu[a] = z[i, ca] - x[i, ca]
+        for b in range(m):
+            S[a, b] = P[i, ca, comps[b]] + R[ca, comps[b]]
         for c in range(n):
-            X[a, c] = P[i, a, c]
+            X[a, c] = P[i, ca, c]
         X[a, n] = nu[a]
-    for k in range(6):
+    for k in range(m):
         pivot, best = k, abs(S[k, k])
-        for r in range(k + 1, 6):
+        for r in range(k + 1, m):
             if abs(S[r, k]) > best:
                 pivot, best = r, abs(S[r, k])
         if best == 0.0:
             return math.nan, True
         if pivot != k:
-            for c in range(6):
+            for c in range(m):
                 S[k, c], S[pivot, c] = S[pivot, c], S[k, c]
             for c in range(n + 1):
                 X[k, c], X[pivot, c] = X[pivot, c], X[k, c]
-        for r in range(k + 1, 6):
+        for r in range(k + 1, m):
             f = S[r, k] / S[k, k]
-            for c in range(k, 6):
+            for c in range(k, m):
                 S[r, c] -= f * S[k, c]
             for c in range(n + 1):
                 X[r, c] -= f * X[k, c]
-    for k in range(5, -1, -1):
+    for k in range(m - 1, -1, -1):
         for c in range(n + 1):
             value = X[k, c]
-            for j in range(k + 1, 6):
+            for j in range(k + 1, m):
                 value -= S[k, j] * X[j, c]
             X[k, c] = value / S[k, k]
     nis = 0.0
-    for a in range(6):
+    for a in range(m):
         nis += nu[a] * X[a, n]
     for r in range(n):
         dx[r] = 0.0
-        for k in range(6):
+        for k in range(m):
             K[r, k] = X[k, r]
             dx[r] += K[r, k] * nu[k]
     for r in range(n):
         for c in range(n):
             value = P[i, r, c]
-            for k in range(6):
-                value -= K[r, k] * P[i, k, c]
+            for k in range(m):
+                value -= K[r, k] * P[i, comps[k], c]
             T[r, c] = value
-        for j in range(6):
+        for j in range(m):
             value = 0.0
-            for k in range(6):
-                value += K[r, k] * R[k, j]
+            for k in range(m):
+                value += K[r, k] * R[comps[k], comps[j]]
             KR[r, j] = value
     for r in range(n):
         for c in range(n):
             value = T[r, c]
-            for k in range(6):
-                value += KR[r, k] * K[c, k] - T[r, k] * K[c, k]
+            for k in range(m):
+                value += KR[r, k] * K[c, k] - T[r, comps[k]] * K[c, k]
             P_out[i, r, c] = value
     for r in range(n):
         for c in range(r):
@@ -440,7 +451,7 @@ def _gps_joseph_row(x, P, z, R, i, x_out, P_out, inject, work):
 
 
 @njit_cached
-def _gps_rows(x, P, z, R, inject):
+def _gps_rows(x, P, z, R, inject, mask):
     n = P.shape[1]
     x_new, P_new = x.copy(), P.copy()
     nis = np.full(x.shape[0], np.nan)
@@ -448,20 +459,38 @@ def _gps_rows(x, P, z, R, inject):
         np.empty((6, 6)), np.empty((6, n + 1)), np.empty(6), np.empty((n, 6)),
         np.empty((n, n)), np.empty((n, 6)), np.empty(n),
     )  # fmt: skip
+    comps = np.empty(6, dtype=np.int64)
     singular = False
     for i in range(x.shape[0]):
-        if np.isfinite(z[i]).all():
-            nis[i], skipped = _gps_joseph_row(x, P, z, R, i, x_new, P_new, inject, work)
+        m = 0
+        finite = True
+        for a in range(6):
+            if mask[i, a]:
+                comps[m] = a
+                m += 1
+                finite = finite and math.isfinite(z[i, a])
+        if m > 0 and finite:
+            nis[i], skipped = _gps_joseph_row(x, P, z, R, i, comps, m, x_new, P_new, inject, work)
             singular = singular or skipped
     return x_new, P_new, nis, singular
 
 
-def ekf7_gps_update(x, P, gps_pv, R_gps):
+def _component_mask(mask, count):
+    """(N, 6) bool of the GPS components each vehicle fuses: all of them when mask is None."""
+    if mask is None:
+        return np.ones((count, 6), dtype=bool)
+    return np.ascontiguousarray(mask, dtype=bool)
+
+
+def ekf7_gps_update(x, P, gps_pv, R_gps, mask=None):
     """(x', P', nis) after GPS samples gps_pv (N, 6: p m, v m/s) with R_gps (6, 6) (``ekf.gps_update``).
 
-    A singular innovation covariance raises LinAlgError, as the scalar update does.
+    mask (N, 6) bool, optional: the components each vehicle fuses (H = those rows of [I6 0]; a
+    vehicle with none keeps (x, P) with NaN NIS); default all six. A singular innovation
+    covariance raises LinAlgError, as the scalar update does.
     """
-    x_new, P_new, nis, singular = _gps_rows(x, P, np.asarray(gps_pv, dtype=float), R_gps, False)
+    z = np.asarray(gps_pv, dtype=float)
+    x_new, P_new, nis, singular = _gps_rows(x, P, z, R_gps, False, _component_mask(mask, len(z)))
     if singular:
         raise np.linalg.LinAlgError("Singular matrix")
     return x_new, P_new, nis
@@ -563,33 +592,6 @@ def ekf7_mag_tick(x, P, mag, diagnostics, book, R_mag, threshold):
 # ----- gating and covariance health ----------------------------------------------------------------
 
 
-def rejection_start(previous_start, accepted, stamp):
-    """(M,) start of each rejection run, s: NaN where accepted (``gating.rejection_start``)."""
-    return np.where(accepted, math.nan, np.where(np.isnan(previous_start), stamp, previous_start))
-
-
-def reset_due(start, stamp, timeout):
-    """(M,) True where rejected continuously for >= timeout s (> 0) (``gating.reset_due``)."""
-    if not timeout > 0.0:
-        return np.zeros(np.shape(start), dtype=bool)
-    return ~np.isnan(start) & (stamp - start >= timeout)
-
-
-def reset_states(x, P, indices, values, covariance):
-    """(x', P') with x[:, indices] = values (M, m), that block of P = covariance (m, m), no cross terms.
-
-    ``gating.reset_states`` per row; returns new arrays.
-    """
-    x = np.array(x, dtype=float)
-    P = np.array(P, dtype=float)
-    idx = np.asarray(indices)
-    x[:, idx] = values
-    P[:, idx, :] = 0.0
-    P[:, :, idx] = 0.0
-    P[:, idx[:, None], idx[None, :]] = covariance
-    return x, P
-
-
 @njit_cached
 def _row_healthy(P, i):
     """gating.covariance_looks_healthy of P[i]."""
@@ -678,48 +680,51 @@ def repaired_covariance(P, fallback):
     return P, repair_covariances(P, np.ones(P.shape[0], dtype=bool), fallback)
 
 
-def fuse_gps(rows, stamps, z, x, P, diagnostics, book, update, R, threshold, reset_timeout, reset):
-    """Fuse the fresh GPS samples of the vehicles ``rows`` (``_GatedFusion._fuse`` for the GPS slot).
+def fuse_gps(rows, stamps, z, x, P, diagnostics, book, update, R, gates):
+    """Fuse the fresh GPS samples of the vehicles ``rows`` through the gates (``gating``'s GPS policy).
 
     rows: int indices (or a full slice) of the vehicles whose sample is fresh; stamps (N,) s; z
     (N, 6) the samples (p m, v m/s); x (N, n), P (N, n, n), diagnostics (N, DIAGNOSTICS_SIZE),
-    book (N, 3): updated IN PLACE for those rows; update(x, P, z, R) -> (x', P', nis) a batched
-    update; threshold: the gate's NIS threshold; reset_timeout (s) and reset (the state indices
-    the GPS measures): the reset to the GPS after continuous rejection.
+    book (N, BOOK_SIZE): updated IN PLACE for those rows; update(x, P, z, R, mask) -> (x', P',
+    nis) a batched update of the components in mask (N, 6) (:func:`ekf7_gps_update`,
+    :func:`eskf_gps_update`); R (6, 6); gates a ``gating.GpsGates``. The GPS states are the
+    first six of x (p, v) in both estimators.
 
-    Per vehicle, as the scalar path: the stamp is booked; a non-finite stamp or sample counts a
-    non-finite sample and keeps (x, P); otherwise the NIS and stamp are logged and the gate
-    accepts the update, or keeps the prior and counts it gated, and after ``reset_timeout`` s
-    of rejection resets the GPS states to the sample (counted).
+    Per vehicle: the stamp is booked; a non-finite stamp or sample counts a non-finite sample and
+    keeps (x, P); otherwise the joint 6-dof NIS of the prior and the stamp are logged, the groups
+    the gates accept are fused in one update, and the groups ``gating.gps_gate_decisions`` resets
+    are set to the sample; ``gps_gated`` counts the samples with a rejected group, ``gps_resets``
+    those with a reset.
     """
     s = stamps[rows]
     book[rows, GPS_SLOT] = s
-    x_prior, P_prior, z_rows = x[rows], P[rows], z[rows]
-    finite_stamp = np.isfinite(s)
-    if not finite_stamp.all():
-        z_rows = np.where(finite_stamp[:, None], z_rows, math.nan)
-    x_new, P_new, nis = update(x_prior, P_prior, z_rows, R)
     index = np.arange(x.shape[0])[rows]
-    valid = ~np.isnan(nis)
+    z_rows = z[rows]
+    valid = np.isfinite(s) & np.isfinite(z_rows).all(axis=1)
     diagnostics[index[~valid], DIAG["nonfinite_samples"]] += 1.0
-    diagnostics[index[valid], DIAG["gps_nis"]] = nis[valid]
-    diagnostics[index[valid], DIAG["gps_stamp"]] = s[valid]
-    accepted = valid & (nis <= threshold)
-    rejected = valid & ~accepted
-    start = book[index, GPS_REJECTION_START]
-    start[valid] = rejection_start(start[valid], accepted[valid], s[valid])
-    book[index, GPS_REJECTION_START] = start
-    diagnostics[index[rejected], DIAG["gps_gated"]] += 1.0
-    keep = ~accepted
-    x_new[keep] = x_prior[keep]
-    P_new[keep] = P_prior[keep]
-    due = rejected & reset_due(start, s, reset_timeout)
-    if due.any():
-        diagnostics[index[due], DIAG["gps_resets"]] += 1.0
-        book[index[due], GPS_REJECTION_START] = math.nan
-        x_new[due], P_new[due] = reset_states(x_prior[due], P_prior[due], reset, z_rows[due], R)
-    x[rows] = x_new
-    P[rows] = P_new
+    if not valid.any():
+        return
+    index, s, z_rows = index[valid], s[valid], z_rows[valid]
+    x_prior, P_prior = x[index], P[index]
+    nu = z_rows - x_prior[:, 0:6]
+    S = P_prior[:, 0:6, 0:6] + R
+    diagnostics[index, DIAG["gps_nis"]] = gating.innovation_nis(nu, S)
+    diagnostics[index, DIAG["gps_stamp"]] = s
+    policy_book = book[index, GPS_POLICY]
+    accepted, reset = gating.gps_gate_decisions(gating.gps_group_nis(nu, S), s, policy_book, gates)
+    book[index, GPS_POLICY] = policy_book
+    diagnostics[index[~accepted.all(axis=1)], DIAG["gps_gated"]] += 1.0
+    diagnostics[index[reset.any(axis=1)], DIAG["gps_resets"]] += 1.0
+    x_new, P_new, _ = update(x_prior, P_prior, z_rows, R, gating.component_mask(accepted))
+    for g, components in enumerate(gating.GPS_GROUP_COMPONENTS):
+        due = reset[:, g]
+        if due.any():
+            idx = list(components)
+            x_new[due], P_new[due] = gating.reset_states(
+                x_new[due], P_new[due], idx, z_rows[due][:, idx], R[np.ix_(idx, idx)]
+            )
+    x[index] = x_new
+    P[index] = P_new
 
 
 # ----- error-state EKF -----------------------------------------------------------------------------
@@ -914,12 +919,14 @@ def eskf_inject(x, P, dx):
     return _inject_rows(x, P, dx)
 
 
-def eskf_gps_update(x, P, gps_pv, R_gps):
+def eskf_gps_update(x, P, gps_pv, R_gps, mask=None):
     """(x', P', nis) after GPS samples gps_pv (N, 6) with R_gps (6, 6) (``eskf.gps_update`` per row).
 
-    A vehicle whose innovation covariance is singular keeps (x, P) with NaN NIS, as the scalar one.
+    mask: the components each vehicle fuses, as :func:`ekf7_gps_update`. A vehicle whose
+    innovation covariance is singular keeps (x, P) with NaN NIS, as the scalar one.
     """
-    x_new, P_new, nis, _ = _gps_rows(x, P, np.asarray(gps_pv, dtype=float), R_gps, True)
+    z = np.asarray(gps_pv, dtype=float)
+    x_new, P_new, nis, _ = _gps_rows(x, P, z, R_gps, True, _component_mask(mask, len(z)))
     return x_new, P_new, nis
 
 

@@ -30,29 +30,20 @@ from quad_drake.conventions import (
     STATE_SIZE,
     V_SLICE,
 )
-from quad_drake.estimation import ekf, eskf, gating
+from quad_drake.estimation import ekf, eskf
 from quad_drake.estimation.complementary import VARIANTS
-from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, NIS_DOF
+from quad_drake.estimation.vocabulary import DIAGNOSTICS_SIZE
 from quad_drake.fidelity import PHYSICAL
 from quad_drake.fleet import estimation_kernels as kernels
 from quad_drake.fleet.systems import declare_state_output
 from quad_drake.rotations import quat_from_euler_tuple
 from quad_drake.systems.estimators import (
-    _initial_book,
-    _initial_diagnostics,
+    GatedFusion,
     check_eskf_fidelity,
     estimator_diagram,
     wire_ekf7,
     wire_eskf,
 )
-
-BOOK_SIZE = 3
-"""Book-keeping columns per vehicle (kernels.GPS_SLOT, MAG_SLOT, GPS_REJECTION_START)."""
-
-
-def _rows(mask):
-    """The vehicles of a flag array as an index: a full slice when all are set (no copies)."""
-    return slice(None) if mask.all() else np.flatnonzero(mask)
 
 
 def _reader(port):
@@ -63,68 +54,6 @@ def _reader(port):
 
 def _tiled(vector, n):
     return np.tile(np.asarray(vector, dtype=float), n)
-
-
-class _FleetGatedFusion:
-    """Shared update logic of the fleet estimators (the fleet form of ``_GatedFusion``).
-
-    Discrete state groups: x (0), P (1), diagnostics (2), book (3); ``_fuse_fresh`` runs the
-    covariance health check and the mag then GPS fusion of one tick on views of them.
-    """
-
-    DIAGNOSTICS_GROUP, BOOK_GROUP = 2, 3
-
-    def _declare_fleet(self, n, x0, P0, gps_gate_sigma, mag_gate_sigma, gps_reset_timeout, gps_indices):
-        self._n = n
-        self._k = P0.shape[0]
-        self._P0 = P0
-        self._gps_threshold = gating.gate_threshold(NIS_DOF["gps"], gps_gate_sigma)
-        self._mag_threshold = gating.gate_threshold(NIS_DOF["mag"], mag_gate_sigma)
-        self._reset_timeout = float(gps_reset_timeout)
-        self._gps_indices = np.asarray(gps_indices)
-        self._read_imu = _reader(self.DeclareVectorInputPort("imu", n * IMU_SIZE))
-        self._read_gps = _reader(self.DeclareVectorInputPort("gps", n * GPS_SIZE))
-        self._read_mag = _reader(self.DeclareVectorInputPort("mag", n * MAG_SIZE))
-        x = self.DeclareDiscreteState(_tiled(x0, n))
-        P = self.DeclareDiscreteState(_tiled(P0.ravel(), n))
-        diagnostics = self.DeclareDiscreteState(_tiled(_initial_diagnostics(), n))
-        self.DeclareDiscreteState(_tiled(_initial_book(), n))
-        return x, P, diagnostics
-
-    def _views(self, discrete_state, width):
-        """Writable (N, ...) views of x, P, diagnostics and the book."""
-        n, k = self._n, self._k
-        return (
-            discrete_state.get_mutable_value(0).reshape(n, width),
-            discrete_state.get_mutable_value(1).reshape(n, k, k),
-            discrete_state.get_mutable_value(self.DIAGNOSTICS_GROUP).reshape(n, DIAGNOSTICS_SIZE),
-            discrete_state.get_mutable_value(self.BOOK_GROUP).reshape(n, BOOK_SIZE),
-        )
-
-    def _fuse_fresh(self, x, P, diagnostics, book, gps, mag, healthy, gps_update, mag_tick):
-        """Repair P where the per-tick check (``healthy``) or, at a fresh GPS sample, the full check
-        finds it unhealthy; then fuse the fresh mag and GPS samples. In place."""
-        gps_fresh = kernels.fresh(gps[:, 6], book[:, kernels.GPS_SLOT])
-        check = gps_fresh | ~healthy
-        if check.any():
-            outcomes = kernels.repair_covariances(P, check, self._P0)
-            diagnostics[outcomes != gating.COVARIANCE_OK, DIAG["covariance_repairs"]] += 1.0
-        mag_tick(x, P, mag, diagnostics, book, self._R_mag, self._mag_threshold)
-        if gps_fresh.any():
-            kernels.fuse_gps(
-                _rows(gps_fresh),
-                gps[:, 6],
-                gps[:, 0:6],
-                x,
-                P,
-                diagnostics,
-                book,
-                gps_update,
-                self._R_gps,
-                self._gps_threshold,
-                self._reset_timeout,
-                self._gps_indices,
-            )
 
 
 class FleetComplementaryFilter(LeafSystem):
@@ -166,7 +95,7 @@ class FleetComplementaryFilter(LeafSystem):
         )
 
 
-class FleetEkf(_FleetGatedFusion, LeafSystem):
+class FleetEkf(GatedFusion, LeafSystem):
     """N 7-state EKFs (``systems.estimators.Ekf`` per vehicle; same tick, gates, resets and health).
 
     Inputs: ``imu`` (N*6), ``gps`` (N*7), ``mag`` (N*2), ``attitude`` (N*3). Outputs (state ports):
@@ -179,19 +108,14 @@ class FleetEkf(_FleetGatedFusion, LeafSystem):
         self._gravity_z = kernels.gravity_z(fidelity.reference_accelerometer)
         self._Q = ekf.process_noise(params)
         self._tilt = tilt
-        self._R_gps = ekf.gps_noise(params)
-        self._R_mag = ekf.mag_noise(params)
-        x, P, diagnostics = self._declare_fleet(
-            n,
-            ekf.initial_state(params),
-            ekf.initial_covariance(params),
-            params.gps_gate_sigma,
-            params.mag_gate_sigma,
-            params.gps_reset_timeout,
-            range(6),
-        )
-        self._healthy = np.empty(n, dtype=bool)  # scratch of each tick's health check
+        P0 = ekf.initial_covariance(params)
+        self._declare_gating(params, P0, (ekf.mag_noise(params), ekf.gps_noise(params)), fidelity)
+        self._read_imu = _reader(self.DeclareVectorInputPort("imu", n * IMU_SIZE))
+        self._read_gps = _reader(self.DeclareVectorInputPort("gps", n * GPS_SIZE))
+        self._read_mag = _reader(self.DeclareVectorInputPort("mag", n * MAG_SIZE))
         self._read_attitude = _reader(self.DeclareVectorInputPort("attitude", n * ATTITUDE_SIZE))
+        x, P, diagnostics = self._declare_fusion_state(n, ekf.initial_state(params), P0)
+        self._healthy = np.empty(n, dtype=bool)  # scratch of each tick's health check
         declare_state_output(self, "ekf_state", x, n * EKF_STATE_SIZE)
         declare_state_output(self, "covariance", P, n * EKF_STATE_SIZE**2)
         declare_state_output(self, "diagnostics", diagnostics, n * DIAGNOSTICS_SIZE)
@@ -261,7 +185,7 @@ class FleetEstimatedStateAssembler(LeafSystem):
         kernels.ekf7_estimated_state(attitude, x, rate, out=output.get_mutable_value().reshape(n, STATE_SIZE))
 
 
-class FleetEskf(_FleetGatedFusion, LeafSystem):
+class FleetEskf(GatedFusion, LeafSystem):
     """N error-state EKFs (``systems.estimators.Eskf`` per vehicle; same tick, gates, resets, health).
 
     Inputs: ``imu`` (N*6), ``gps`` (N*7), ``mag`` (N*2). Outputs (state ports): ``estimated_state``
@@ -271,26 +195,20 @@ class FleetEskf(_FleetGatedFusion, LeafSystem):
 
     ESTIMATE_GROUP, BIAS_GROUP = 4, 5
 
-    def __init__(self, params, n):
+    def __init__(self, params, n, fidelity=PHYSICAL):
         super().__init__()
         self._noise = eskf.NoiseModel.from_params(params)
         P0 = eskf.initial_covariance(params)
         self._Q_constant = eskf.noise_buffer(P0.shape[0], self._noise, ONBOARD_PERIOD)
-        self._R_gps = eskf.gps_noise(params)
-        self._R_mag = eskf.mag_noise(params)
         yaw, pitch, roll = params.init_ypr
         x0 = eskf.initial_nominal(
             params.init_position, params.init_velocity, quat_from_euler_tuple(roll, pitch, yaw)
         )
-        _, P, diagnostics = self._declare_fleet(
-            n,
-            x0,
-            P0,
-            params.gps_gate_sigma,
-            params.mag_gate_sigma,
-            params.gps_reset_timeout,
-            eskf.GPS_STATES,
-        )
+        self._declare_gating(params, P0, (eskf.mag_noise(params), eskf.gps_noise(params)), fidelity)
+        self._read_imu = _reader(self.DeclareVectorInputPort("imu", n * IMU_SIZE))
+        self._read_gps = _reader(self.DeclareVectorInputPort("gps", n * GPS_SIZE))
+        self._read_mag = _reader(self.DeclareVectorInputPort("mag", n * MAG_SIZE))
+        _, P, diagnostics = self._declare_fusion_state(n, x0, P0)
         initial_estimate = np.zeros(STATE_SIZE)  # body rate 0 before the first sample
         eskf.write_estimate(x0, initial_estimate)
         estimate = self.DeclareDiscreteState(_tiled(initial_estimate, n))
@@ -413,7 +331,7 @@ def _build_ekf7(builder, vehicle, n, fidelity):
 
 def _build_eskf(builder, vehicle, n, fidelity):
     check_eskf_fidelity(fidelity)
-    return wire_eskf(builder.AddNamedSystem("eskf", FleetEskf(vehicle.estimator, n)))
+    return wire_eskf(builder.AddNamedSystem("eskf", FleetEskf(vehicle.estimator, n, fidelity)))
 
 
 _BUILDERS = {"ekf7": _build_ekf7, "eskf": _build_eskf}

@@ -42,111 +42,73 @@ from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, NIS_DOF, vo
 from quad_drake.fidelity import PHYSICAL
 from quad_drake.fleet import estimation_kernels as kernels
 from quad_drake.rotations import quat_from_euler_tuple
-from quad_drake.systems._io import entries_reader, entry_reader, row_reader, vector_reader
-
-GPS_SLOT, MAG_SLOT, GPS_REJECTION_START = 0, 1, 2
-"""Book-keeping state: last GPS stamp seen, last mag stamp seen, start of the GPS rejection run."""
-_NIS_INDEX = {GPS_SLOT: DIAG["gps_nis"], MAG_SLOT: DIAG["mag_nis"]}
-_GATED_INDEX = {GPS_SLOT: DIAG["gps_gated"], MAG_SLOT: DIAG["mag_gated"]}
+from quad_drake.systems._io import row_reader
 
 
-def _initial_diagnostics():
+def initial_diagnostics():
+    """One vehicle's ``diagnostics`` before its first update: no NIS (NaN), no stamps, counters 0."""
     values = np.zeros(DIAGNOSTICS_SIZE)
     values[[DIAG["gps_nis"], DIAG["mag_nis"]]] = math.nan
     values[[DIAG["gps_stamp"], DIAG["mag_stamp"]]] = NO_SAMPLE_STAMP
     return values
 
 
-def _initial_book():
-    return np.array([NO_SAMPLE_STAMP, NO_SAMPLE_STAMP, math.nan])
+class GatedFusion:
+    """Shared update logic of the estimators, for n vehicles (n = 1 for a single run): freshness,
+    gates, GPS resets and covariance health, on (n, ...) views of the discrete state.
 
-
-def _fresh(stamp, seen):
-    return stamp != seen and stamp != NO_SAMPLE_STAMP
-
-
-class _GatedFusion:
-    """Shared update logic of the estimators: freshness, gate, GPS reset and covariance health.
-
-    :meth:`_fuse_fresh_samples` runs the per-tick sequence after the prediction: the covariance
-    health check, then a fresh magnetometer and a fresh GPS sample through :meth:`_fuse`, with
-    the measurement functions, noise matrices and ``mag`` / ``gps`` input ports given to
-    :meth:`_declare_gating`; the diagnostics group is DIAGNOSTICS_GROUP, the book BOOK_GROUP.
+    Discrete state groups: x (0), P (1), diagnostics (DIAGNOSTICS_GROUP), book (BOOK_GROUP,
+    ``kernels.BOOK_SIZE`` per vehicle). :meth:`_fuse_fresh` runs the per-tick sequence after
+    the prediction: the covariance health check, then the fresh magnetometer and GPS samples.
     """
 
     DIAGNOSTICS_GROUP, BOOK_GROUP = 2, 3
 
-    def _declare_gating(self, params, P0, gps_indices, updates, noises):
-        """Gates and reset from params (``gps_gate_sigma``, ``mag_gate_sigma``,
-        ``gps_reset_timeout``), the fallback covariance P0, the states a GPS reset sets;
-        updates = (mag_update, gps_update) with ``update(x, P, z, R) -> (x, P, nis)`` and
-        noises = (R_mag, R_gps). Declares the ``gps`` and ``mag`` inputs."""
-        self._threshold = {
-            GPS_SLOT: gating.gate_threshold(NIS_DOF["gps"], params.gps_gate_sigma),
-            MAG_SLOT: gating.gate_threshold(NIS_DOF["mag"], params.mag_gate_sigma),
-        }
-        self._reset_timeout = float(params.gps_reset_timeout)
+    def _declare_gating(self, params, P0, noises, fidelity):
+        """Gates and resets from params (``gps_gate_sigma``, ``mag_gate_sigma``, the GPS reset
+        and regain times: ``gating.GpsGates``), the fallback covariance P0 and noises = (R_mag,
+        R_gps). ``fidelity.reference_estimator`` switches gates, resets and repairs off."""
+        safety = not fidelity.reference_estimator
+        self._gates = gating.GpsGates.from_params(params, enabled=safety)
+        self._mag_threshold = gating.gate_threshold(NIS_DOF["mag"], params.mag_gate_sigma if safety else 0.0)
+        self._repairs = safety
         self._P0 = P0
-        self._gps_indices = gps_indices
-        self._mag_update, self._gps_update = updates
         self._R_mag, self._R_gps = noises
-        gps = self.DeclareVectorInputPort("gps", GPS_SIZE)
-        self._read_gps = vector_reader(gps)
-        self._read_gps_stamp = entry_reader(gps, GPS_SIZE - 1)
-        self._read_mag = entries_reader(self.DeclareVectorInputPort("mag", MAG_SIZE), 0, MAG_SIZE)
 
-    def _fuse_fresh_samples(self, context, discrete_state, x, P):
-        """(x as an array, P) after the covariance health check (full at a fresh GPS sample)
-        and the fusion of this tick's fresh magnetometer, then GPS, sample."""
-        book = discrete_state.get_vector(self.BOOK_GROUP)
-        gps_seen, mag_seen = book.GetAtIndex(GPS_SLOT), book.GetAtIndex(MAG_SLOT)
-        gps_stamp = self._read_gps_stamp(context)
-        gps_fresh = _fresh(gps_stamp, gps_seen)
-        P = self._healthy(P, discrete_state, gps_fresh)
-        x = np.asarray(x, dtype=float)
-        yaw, mag_stamp = self._read_mag(context)
-        if _fresh(mag_stamp, mag_seen):
-            x, P = self._fuse(MAG_SLOT, mag_stamp, self._mag_update, yaw, self._R_mag, x, P, discrete_state)
-        if gps_fresh:
-            z = self._read_gps(context)[0:6]
-            x, P = self._fuse(GPS_SLOT, gps_stamp, self._gps_update, z, self._R_gps, x, P, discrete_state)
-        return x, P
+    def _declare_fusion_state(self, n, x0, P0):
+        """Declare x, P, diagnostics and the book of n vehicles (groups 0-3); their indices."""
+        self._n, self._k = n, P0.shape[0]
+        x = self.DeclareDiscreteState(np.tile(np.asarray(x0, dtype=float), n))
+        P = self.DeclareDiscreteState(np.tile(P0.ravel(), n))
+        diagnostics = self.DeclareDiscreteState(np.tile(initial_diagnostics(), n))
+        self.DeclareDiscreteState(np.tile(kernels.initial_book(), n))
+        return x, P, diagnostics
 
-    @classmethod
-    def _count(cls, discrete_state, name):
-        discrete_state.get_mutable_value(cls.DIAGNOSTICS_GROUP)[DIAG[name]] += 1.0
+    def _views(self, discrete_state, width):
+        """Writable (n, ...) views of x, P, diagnostics and the book."""
+        n, k = self._n, self._k
+        return (
+            discrete_state.get_mutable_value(0).reshape(n, width),
+            discrete_state.get_mutable_value(1).reshape(n, k, k),
+            discrete_state.get_mutable_value(self.DIAGNOSTICS_GROUP).reshape(n, DIAGNOSTICS_SIZE),
+            discrete_state.get_mutable_value(self.BOOK_GROUP).reshape(n, kernels.BOOK_SIZE),
+        )
 
-    def _fuse(self, slot, stamp, update, z, R, x, P, discrete_state):
-        """(x, P) after the fresh sample z (stamp s): fused, gated (prior kept) or reset to it."""
-        book = discrete_state.get_mutable_value(self.BOOK_GROUP)
-        book[slot] = stamp
-        x_new, P_new, nis = update(x, P, z, R) if math.isfinite(stamp) else (x, P, math.nan)
-        if math.isnan(nis):
-            self._count(discrete_state, "nonfinite_samples")
-            return x, P
-        diagnostics = discrete_state.get_mutable_value(self.DIAGNOSTICS_GROUP)
-        diagnostics[_NIS_INDEX[slot]] = nis
-        diagnostics[_NIS_INDEX[slot] + 1] = stamp
-        accepted = gating.gate_accepts(nis, self._threshold[slot])
-        if slot == GPS_SLOT:
-            book[GPS_REJECTION_START] = gating.rejection_start(book[GPS_REJECTION_START], accepted, stamp)
-        if accepted:
-            return x_new, P_new
-        diagnostics[_GATED_INDEX[slot]] += 1.0
-        if slot == GPS_SLOT and gating.reset_due(book[GPS_REJECTION_START], stamp, self._reset_timeout):
-            diagnostics[DIAG["gps_resets"]] += 1.0
-            book[GPS_REJECTION_START] = math.nan
-            return gating.reset_states(x, P, self._gps_indices, z, R)
-        return x, P
-
-    def _healthy(self, P, discrete_state, full_check):
-        """P, repaired (and counted) when the cheap per-tick check, or the full one, finds it unhealthy."""
-        if gating.covariance_looks_healthy(P) and not full_check:
-            return P
-        P_new, outcome = gating.repaired_covariance(P, self._P0)
-        if outcome != gating.COVARIANCE_OK:
-            self._count(discrete_state, "covariance_repairs")
-        return P_new
+    def _fuse_fresh(self, x, P, diagnostics, book, gps, mag, healthy, gps_update, mag_tick):
+        """Repair P where the per-tick check (``healthy`` (n,)) or, at a fresh GPS sample, the full
+        check finds it unhealthy (counted); then fuse the fresh mag (n, 2) and GPS (n, 7) samples
+        through the gates. In place."""
+        gps_fresh = kernels.fresh(gps[:, 6], book[:, kernels.GPS_SLOT])
+        check = gps_fresh | ~healthy
+        if self._repairs and check.any():
+            outcomes = kernels.repair_covariances(P, check, self._P0)
+            diagnostics[outcomes != gating.COVARIANCE_OK, DIAG["covariance_repairs"]] += 1.0
+        mag_tick(x, P, mag, diagnostics, book, self._R_mag, self._mag_threshold)
+        if gps_fresh.any():
+            rows = slice(None) if gps_fresh.all() else np.flatnonzero(gps_fresh)
+            kernels.fuse_gps(
+                rows, gps[:, 6], gps[:, 0:6], x, P, diagnostics, book, gps_update, self._R_gps, self._gates
+            )
 
 
 class ComplementaryFilter(LeafSystem):
@@ -189,7 +151,7 @@ class ComplementaryFilter(LeafSystem):
         )
 
 
-class Ekf(_GatedFusion, LeafSystem):
+class Ekf(GatedFusion, LeafSystem):
     """7-state EKF (SPEC §4): x = (p_N m, v_N m/s, yaw rad), NED; roll/pitch from the attitude filter.
 
     Inputs: ``imu`` (6: f_B m/s^2, w_NB_B rad/s), ``gps`` (7: p_N m, v_N m/s, stamp s),
@@ -199,14 +161,16 @@ class Ekf(_GatedFusion, LeafSystem):
     ``diagnostics`` (``vocabulary.DIAGNOSTICS``; NIS is NaN before the first update).
 
     Each tick (ONBOARD_PERIOD, offset EKF_OFFSET): yaw <- attitude yaw, predict with dt =
-    ONBOARD_PERIOD; then a fresh mag sample, then a fresh GPS sample, is fused unless its
-    chi^2 gate rejects it (``gps_gate_sigma``, ``mag_gate_sigma``); after ``gps_reset_timeout``
-    s of rejected GPS samples p and v are reset to the GPS. A sample is fresh when its stamp
-    differs from the last stamp seen and is not NO_SAMPLE_STAMP. P is checked every tick
-    (finite, variances >= 0) and fully (PSD) at every GPS sample, and repaired or reset to P0.
-    With ``fidelity.reference_accelerometer`` the prediction reads the IMU as the reference's
-    R_NB^T (a_NB + g_N): a_N = R f - g_N. With ``tilt`` (an ``ekf.TiltNoise``) Q grows with the
-    attitude filter's predicted roll/pitch error at the context time.
+    ONBOARD_PERIOD; then a fresh mag sample, then a fresh GPS sample, is fused through the
+    gates (``mag_gate_sigma``; the GPS policy of ``estimation/gating.py``: horizontal
+    position, height and velocity gated, fused and reset apart, a returning GPS taken after an
+    outage). A sample is fresh when its stamp differs from the last stamp seen and is not
+    NO_SAMPLE_STAMP. P is checked every tick (finite, variances >= 0) and fully (PSD) at every
+    GPS sample, and repaired or reset to P0. With ``fidelity.reference_accelerometer`` the
+    prediction reads the IMU as the reference's R_NB^T (a_NB + g_N): a_N = R f - g_N; with
+    ``fidelity.reference_estimator`` nothing is gated, reset or repaired (the reference's EKF).
+    With ``tilt`` (an ``ekf.TiltNoise``) Q grows with the attitude filter's predicted
+    roll/pitch error at the context time.
     """
 
     def __init__(self, params, fidelity=PHYSICAL, tilt=None):
@@ -214,22 +178,14 @@ class Ekf(_GatedFusion, LeafSystem):
         self._gravity_z = kernels.gravity_z(fidelity.reference_accelerometer)
         self._Q = ekf.process_noise(params)
         self._tilt = tilt
+        P0 = ekf.initial_covariance(params)
+        self._declare_gating(params, P0, (ekf.mag_noise(params), ekf.gps_noise(params)), fidelity)
         self._read_imu = row_reader(self.DeclareVectorInputPort("imu", IMU_SIZE))
-        self._declare_gating(
-            params,
-            ekf.initial_covariance(params),
-            list(range(6)),
-            (ekf.mag_update, ekf.gps_update),
-            (ekf.mag_noise(params), ekf.gps_noise(params)),
-        )
-        self._read_gps_row = row_reader(self.GetInputPort("gps"))
-        self._read_mag_row = row_reader(self.GetInputPort("mag"))
+        self._read_gps = row_reader(self.DeclareVectorInputPort("gps", GPS_SIZE))
+        self._read_mag = row_reader(self.DeclareVectorInputPort("mag", MAG_SIZE))
         self._read_attitude = row_reader(self.DeclareVectorInputPort("attitude", ATTITUDE_SIZE))
         self._looks_healthy = np.empty(1, dtype=bool)  # scratch of the kernel's per-tick health check
-        x = self.DeclareDiscreteState(ekf.initial_state(params))
-        P = self.DeclareDiscreteState(ekf.initial_covariance(params).ravel())
-        diagnostics = self.DeclareDiscreteState(_initial_diagnostics())
-        self.DeclareDiscreteState(_initial_book())
+        x, P, diagnostics = self._declare_fusion_state(1, ekf.initial_state(params), P0)
         self.DeclareStateOutputPort("ekf_state", x)
         self.DeclareStateOutputPort("covariance", P)
         self.DeclareStateOutputPort("diagnostics", diagnostics)
@@ -238,30 +194,38 @@ class Ekf(_GatedFusion, LeafSystem):
     def _update(self, context, discrete_state):
         """The prediction and, on a quiet tick, the mag fusion compiled (``fleet.estimation_kernels
         .ekf7_tick`` with N = 1, in place); at a fresh GPS sample or an unhealthy P, the health
-        check and the fusions of :meth:`_fuse_fresh_samples`."""
-        x = discrete_state.get_mutable_value(0).reshape(1, EKF_STATE_SIZE)
-        P = discrete_state.get_mutable_value(1).reshape(1, EKF_STATE_SIZE, EKF_STATE_SIZE)
+        check and the fusions of :meth:`_fuse_fresh`."""
+        x, P, diagnostics, book = self._views(discrete_state, EKF_STATE_SIZE)
+        gps, mag = self._read_gps(context), self._read_mag(context)
         quiet = kernels.ekf7_tick(
             x,
             P,
             self._read_attitude(context),
             self._read_imu(context),
-            self._read_gps_row(context),
-            self._read_mag_row(context),
-            discrete_state.get_mutable_value(self.DIAGNOSTICS_GROUP).reshape(1, DIAGNOSTICS_SIZE),
-            discrete_state.get_mutable_value(self.BOOK_GROUP).reshape(1, -1),
+            gps,
+            mag,
+            diagnostics,
+            book,
             ONBOARD_PERIOD,
             self._Q,
             kernels.NO_TILT if self._tilt is None else self._tilt.gains(context.get_time()),
             self._gravity_z,
             self._R_mag[0, 0],
-            self._threshold[MAG_SLOT],
+            self._mag_threshold,
             self._looks_healthy,
         )
         if not quiet:
-            x, P = self._fuse_fresh_samples(context, discrete_state, x[0], P[0])
-            discrete_state.set_value(0, x)
-            discrete_state.set_value(1, P.ravel())
+            self._fuse_fresh(
+                x,
+                P,
+                diagnostics,
+                book,
+                gps,
+                mag,
+                self._looks_healthy,
+                kernels.ekf7_gps_update,
+                kernels.ekf7_mag_tick,
+            )
 
 
 class EstimatedStateAssembler(LeafSystem):
@@ -291,7 +255,7 @@ class EstimatedStateAssembler(LeafSystem):
         )
 
 
-class Eskf(_GatedFusion, LeafSystem):
+class Eskf(GatedFusion, LeafSystem):
     """Error-state EKF (``estimation/eskf.py``) on the IMU, GPS and magnetometer.
 
     Inputs: ``imu`` (6: f_B m/s^2, w_NB_B rad/s), ``gps`` (7: p_N m, v_N m/s, stamp s),
@@ -302,35 +266,25 @@ class Eskf(_GatedFusion, LeafSystem):
     (``vocabulary.DIAGNOSTICS``), ``imu_bias`` (6: b_a m/s^2, b_g rad/s).
 
     Each tick (ONBOARD_PERIOD, offset EKF_OFFSET): predict with the IMU sample (skipped and
-    counted when non-finite), then fuse a fresh mag and a fresh GPS sample through the chi^2
-    gates, resetting p, v to the GPS after ``gps_reset_timeout`` s of rejection; P is
-    checked as in :class:`Ekf`.
+    counted when non-finite), then fuse a fresh mag and a fresh GPS sample through the gates
+    and resets of :class:`Ekf`; P is checked as there.
     """
 
     ESTIMATE_GROUP, BIAS_GROUP = 4, 5
 
-    def __init__(self, params):
+    def __init__(self, params, fidelity=PHYSICAL):
         super().__init__()
         self._noise = eskf.NoiseModel.from_params(params)
         P0 = eskf.initial_covariance(params)
-        n = P0.shape[0]
-        self._n = n
-        self._Qbuf = eskf.noise_buffer(n, self._noise, ONBOARD_PERIOD)
+        self._Qbuf = eskf.noise_buffer(P0.shape[0], self._noise, ONBOARD_PERIOD)
         yaw, pitch, roll = params.init_ypr
         q0 = quat_from_euler_tuple(roll, pitch, yaw)
         x0 = eskf.initial_nominal(params.init_position, params.init_velocity, q0)
+        self._declare_gating(params, P0, (eskf.mag_noise(params), eskf.gps_noise(params)), fidelity)
         self._read_imu = row_reader(self.DeclareVectorInputPort("imu", IMU_SIZE))
-        self._declare_gating(
-            params,
-            P0,
-            list(eskf.GPS_STATES),
-            (eskf.mag_update, eskf.gps_update),
-            (eskf.mag_noise(params), eskf.gps_noise(params)),
-        )
-        self.DeclareDiscreteState(x0)
-        P = self.DeclareDiscreteState(P0.ravel())
-        diagnostics = self.DeclareDiscreteState(_initial_diagnostics())
-        self.DeclareDiscreteState(_initial_book())
+        self._read_gps = row_reader(self.DeclareVectorInputPort("gps", GPS_SIZE))
+        self._read_mag = row_reader(self.DeclareVectorInputPort("mag", MAG_SIZE))
+        _, P, diagnostics = self._declare_fusion_state(1, x0, P0)
         initial_estimate = np.zeros(STATE_SIZE)  # body rate 0 before the first sample
         eskf.write_estimate(x0, initial_estimate)
         estimate = self.DeclareDiscreteState(initial_estimate)
@@ -343,24 +297,32 @@ class Eskf(_GatedFusion, LeafSystem):
 
     def _update(self, context, discrete_state):
         """The prediction compiled (``fleet.estimation_kernels.eskf_predict_tick`` with N = 1, in
-        place), then the health check and the fusions of :meth:`_fuse_fresh_samples`."""
-        x = discrete_state.get_mutable_value(0).reshape(1, eskf.NOMINAL_SIZE)
-        P = discrete_state.get_mutable_value(1).reshape(1, self._n, self._n)
-        kernels.eskf_predict_tick(
+        place), then the health check and the fusions of :meth:`_fuse_fresh`."""
+        x, P, diagnostics, book = self._views(discrete_state, eskf.NOMINAL_SIZE)
+        estimate = discrete_state.get_mutable_value(self.ESTIMATE_GROUP)
+        healthy = kernels.eskf_predict_tick(
             x,
             P,
             self._read_imu(context),
-            discrete_state.get_mutable_value(self.ESTIMATE_GROUP).reshape(1, STATE_SIZE),
-            discrete_state.get_mutable_value(self.DIAGNOSTICS_GROUP).reshape(1, DIAGNOSTICS_SIZE),
+            estimate.reshape(1, STATE_SIZE),
+            diagnostics,
             ONBOARD_PERIOD,
             self._noise,
             self._Qbuf,
         )
-        x, P = self._fuse_fresh_samples(context, discrete_state, x[0], P[0])
-        discrete_state.set_value(0, x)
-        discrete_state.set_value(self.BIAS_GROUP, x[10:16])
-        discrete_state.set_value(1, P.ravel())
-        eskf.write_estimate(x, discrete_state.get_mutable_value(self.ESTIMATE_GROUP))
+        self._fuse_fresh(
+            x,
+            P,
+            diagnostics,
+            book,
+            self._read_gps(context),
+            self._read_mag(context),
+            healthy,
+            kernels.eskf_gps_update,
+            kernels.eskf_mag_tick,
+        )
+        eskf.write_estimate(x[0], estimate)
+        discrete_state.get_mutable_value(self.BIAS_GROUP)[:] = x[0, 10:16]
 
 
 def wire_ekf7(builder, ekf_system, attitude_filter, assembler):
@@ -429,7 +391,7 @@ def _build_ekf7(builder, vehicle, fidelity):
 
 def _build_eskf(builder, vehicle, fidelity):
     check_eskf_fidelity(fidelity)
-    return wire_eskf(builder.AddNamedSystem("eskf", Eskf(vehicle.estimator)))
+    return wire_eskf(builder.AddNamedSystem("eskf", Eskf(vehicle.estimator, fidelity)))
 
 
 _BUILDERS = {"ekf7": _build_ekf7, "eskf": _build_eskf}

@@ -324,7 +324,7 @@ def test_a_non_finite_imu_burst_never_reaches_the_estimated_state(estimator):
     assert diagram.GetOutputPort("diagnostics").Eval(context)[DIAG["nonfinite_samples"]] == 100.0
 
 
-def test_ekf_gates_a_50_m_outlier_and_resets_to_the_gps_after_the_timeout():
+def test_ekf_gates_a_50_m_outlier_and_resets_the_horizontal_position_after_the_timeout():
     params = EkfParams(gps_reset_timeout=0.25)
     z = [50.0, 0.0, -1.0, 0.0, 0.0, 0.0]
     f = EkfFixture(params=params, gps=z + [0.1])
@@ -332,22 +332,44 @@ def test_ekf_gates_a_50_m_outlier_and_resets_to_the_gps_after_the_timeout():
     diagnostics = f.output("diagnostics")
     assert diagnostics[DIAG["gps_gated"]] == 1.0
     assert diagnostics[DIAG["gps_nis"]] > gating.gate_threshold(6, 5.0)  # the NIS of the gated sample
-    np.testing.assert_allclose(f.output("ekf_state")[0:3], [0.0, 0.0, -1.0], atol=1e-6)  # prior kept
+    np.testing.assert_allclose(f.output("ekf_state")[0:2], [0.0, 0.0], atol=1e-6)  # prior kept
     for k, stamp in enumerate((0.2, 0.3), start=2):
         f.fix(gps=z + [stamp])
         f.tick()
         assert f.output("diagnostics")[DIAG["gps_gated"]] == k
     assert f.output("diagnostics")[DIAG["gps_resets"]] == 0.0
-    f.fix(gps=z + [0.4])  # >= 0.25 s of continuous rejection: reset p, v to this sample
+    f.fix(gps=z + [0.4])  # >= 0.25 s of continuous rejection: reset the horizontal position
     f.tick()
     assert f.output("diagnostics")[DIAG["gps_resets"]] == 1.0
-    np.testing.assert_allclose(f.output("ekf_state")[0:6], z, atol=1e-12)
+    np.testing.assert_allclose(f.output("ekf_state")[0:2], z[0:2], atol=1e-12)
     P = f.output("covariance").reshape(7, 7)
-    np.testing.assert_allclose(P[0:6, 0:6], ekf.gps_noise(params), atol=1e-15)
-    np.testing.assert_array_equal(P[0:6, 6], 0.0)
+    np.testing.assert_allclose(P[0:2, 0:2], ekf.gps_noise(params)[0:2, 0:2], atol=1e-15)
+    np.testing.assert_array_equal(P[0:2, 2:], 0.0)
     f.fix(gps=z + [0.5])  # consistent with the new estimate: fused
     f.tick()
     assert f.output("diagnostics")[DIAG["gps_gated"]] == 4.0
+
+
+def test_a_wrong_velocity_never_makes_the_ekf_refuse_a_good_position():
+    # The graze the IMU missed: the EKF believes 5 m/s, the GPS says the vehicle stopped where the
+    # EKF thinks it is. The velocity group is gated, the position fused (the joint 6-dof gate
+    # refused both for 5 s); after gps_vel_reset_timeout s of rejection the velocity is reset.
+    params = EkfParams(
+        init_state=[0.0, 0.0, -1.0, 5.0, 0.0, 0.0, 0.0], init_std=[2.0] * 3 + [0.1] * 3 + [0.05]
+    )
+    z = [0.0, 0.0, -1.0, 0.0, 0.0, 0.0]
+    f = EkfFixture(params=params, gps=z + [0.002])
+    P_before = ekf.initial_covariance(params)
+    f.tick()
+    assert f.output("diagnostics")[DIAG["gps_gated"]] == 1.0
+    P = f.output("covariance").reshape(7, 7)
+    assert P[0, 0] < 0.5 * P_before[0, 0]  # the position was fused
+    assert f.output("ekf_state")[3] > 4.0  # the velocity was not
+    for k in range(1, 6):  # 10 Hz samples: rejected until 0.5 s after the first
+        f.fix(gps=z + [0.002 + 0.1 * k])
+        f.tick(50)
+    assert f.output("diagnostics")[DIAG["gps_resets"]] == 1.0
+    np.testing.assert_allclose(f.output("ekf_state")[3:6], 0.0, atol=0.05)
 
 
 @pytest.mark.filterwarnings("ignore:invalid value encountered")
