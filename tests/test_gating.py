@@ -1,4 +1,4 @@
-"""Innovation gates, the GPS gate-and-reset policy and covariance repair; a 50 m GPS outlier against the gated EKF7."""
+"""Innovation gates, the GPS gate-and-reset policy, covariance repair; a 50 m GPS outlier on the EKF7."""
 
 import math
 
