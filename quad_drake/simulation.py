@@ -179,7 +179,7 @@ def build_vehicle(vehicle, fidelity=PHYSICAL):
     for kind, sensor_class in (("gps", Gps), ("mag", Magnetometer)):
         params = getattr(sensors, kind)
         if params is not None:
-            sensor = _add_noisy(builder, sensor_class(params), kind)
+            sensor = _add_noisy(builder, sensor_class(params, fidelity), kind)
             builder.Connect(plant.GetOutputPort("state"), sensor.GetInputPort("state"))
             outputs[kind] = sensor.GetOutputPort(kind)
     _add_faults(builder, vehicle, outputs)

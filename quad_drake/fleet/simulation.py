@@ -97,7 +97,7 @@ def build_fleet_vehicle(vehicle, seeds, fidelity):
     for kind, sensor_class in (("gps", FleetGps), ("mag", FleetMagnetometer)):
         params = getattr(sensors, kind)
         if params is not None:
-            sensor = builder.AddNamedSystem(kind, sensor_class(params, n))
+            sensor = builder.AddNamedSystem(kind, sensor_class(params, n, fidelity))
             _add_noise(builder, sensor, "noise", seeds, f"{vehicle.name}/{kind}")
             builder.Connect(plant.GetOutputPort("state"), sensor.GetInputPort("state"))
             outputs[kind] = sensor.GetOutputPort(kind)
