@@ -296,3 +296,21 @@ def test_07_graded_error_is_the_binarys_definition_in_reference_mode():
     assert graded.max() == pytest.approx(0.0205, abs=0.001)
     assert at_sample.max() < 0.5 * graded.max()
     assert result.passed
+
+
+def test_reference_sensors_and_ekf7_are_stored_in_float32():
+    # 11 for 1 s (IMU, magnetometer and GPS fused, the flight on the estimate): every logged
+    # sensor sample and the filter's state, covariance and attitude are float32 numbers, the
+    # truth too (float32_state); in the physical default none of the estimator's logs is.
+    logs = {}
+    for mode in ("reference", "physical"):
+        result = simulation.run(catalog.load("11_gps_update", overrides=[f"fidelity={mode}", "end_time=1"]))
+        logs[mode] = result.logs["Quad"]
+    stored = ("imu", "gps", "mag", "attitude", "ekf_state", "covariance", "state", TICK_STATE)
+    for name in stored:
+        values = logs["reference"][name]
+        if name in ("gps", "mag"):
+            values = values[:, :-1]  # the stamp is a time, not a sample
+        assert _is_float32(values), name
+    for name in ("imu", "gps", "attitude", "ekf_state", "covariance"):
+        assert not _is_float32(logs["physical"][name]), name
