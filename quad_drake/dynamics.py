@@ -358,23 +358,23 @@ def float32_rounded(state):
     """The 13 floats of `state` each rounded to the nearest float32 (a tuple of floats)."""
     px, py, pz, qw, qx, qy, qz, vx, vy, vz, wx, wy, wz = state
     return (
-        _float32(px),
-        _float32(py),
-        _float32(pz),
-        _float32(qw),
-        _float32(qx),
-        _float32(qy),
-        _float32(qz),
-        _float32(vx),
-        _float32(vy),
-        _float32(vz),
-        _float32(wx),
-        _float32(wy),
-        _float32(wz),
+        to_float32(px),
+        to_float32(py),
+        to_float32(pz),
+        to_float32(qw),
+        to_float32(qx),
+        to_float32(qy),
+        to_float32(qz),
+        to_float32(vx),
+        to_float32(vy),
+        to_float32(vz),
+        to_float32(wx),
+        to_float32(wy),
+        to_float32(wz),
     )
 
 
-def _float32(value):
+def to_float32(value):
     """`value` rounded to the nearest float32, as a float (float64: the inner cast keeps numba's
     compiled form, ``fleet.kernels``, from typing it float32)."""
     return float(np.float64(np.float32(value)))

@@ -10,8 +10,9 @@ horizontal norm, the trajectory looked up at the exact simulation time.
 ``reference`` reproduces the FCND E-sim binary (SPEC §2, §3, §5 step 4, §0.2): its
 semi-implicit Euler body step, its float32 vehicle state, its accelerometer R_NB^T (a_NB + g_N)
 (and the estimators read it as the reference's do), its 3-D norm limit of the lateral acceleration command
-(z entry -kp_vel_xy vz), its float32 clock advanced by 0.001f per physics step, and its
-estimator without innovation gates, resets or covariance repair.
+(z entry -kp_vel_xy vz), its float32 clock advanced by 0.001f per physics step, its sensors
+and estimator stored in float32, its estimator without innovation gates, resets or covariance
+repair, and its logged errors taken at the last onboard tick.
 """
 
 from dataclasses import dataclass
@@ -36,6 +37,20 @@ class Fidelity:
         (ax, ay, -kp_vel_xy vz) (SPEC §5 step 4) instead of the norm of (ax, ay).
     float32_clock: the trajectory is looked up at the reference's float32 simulation time,
         0.001f added once per physics step (SPEC §0.2), instead of the exact time.
+    float32_estimator: the sensors' samples (IMU, GPS with its random walk, magnetometer), the
+        attitude filter's angles and body rate and the EKF7's state and covariance are rounded
+        to float32 after every sample and every 500 Hz tick, as the reference stores them
+        (V3F, float, Eigen's VectorXf/MatrixXf). Rounded where stored, not after every
+        operation as the binary's float arithmetic is. It matters: a float32 position stops
+        moving when the per-tick increment is below half its resolution (6e-8 m at |z| = 1 m),
+        and a constant velocity's increments round the same way tick after tick. The ESKF is
+        not the reference's estimator and is not rounded.
+    errors_at_onboard_tick: the logged ``Est.E.*`` errors, ``PosFollowErr`` and ``Ref.*`` are
+        the binary's (SPEC §7, §0.2): computed at the last onboard (2 ms) tick before each 5 ms
+        sample, against that tick's true state and reference (1 or 2 ms before the sample),
+        instead of the estimate held at the sample against the truth and the reference at the
+        sample time (``signals``). The truth signals (``Pos.*``, ``Roll`` ...) are the sample's
+        in both definitions, as the binary's are.
     reference_estimator: the estimators fuse every sample as the reference's EKF does: no
         innovation gates, no resets to the GPS, no covariance repair (``estimation/gating.py``).
     """
@@ -45,6 +60,8 @@ class Fidelity:
     reference_accelerometer: bool = False
     lateral_limit_3d: bool = False
     float32_clock: bool = False
+    float32_estimator: bool = False
+    errors_at_onboard_tick: bool = False
     reference_estimator: bool = False
 
 
@@ -55,6 +72,8 @@ REFERENCE = Fidelity(
     reference_accelerometer=True,
     lateral_limit_3d=True,
     float32_clock=True,
+    float32_estimator=True,
+    errors_at_onboard_tick=True,
     reference_estimator=True,
 )
 

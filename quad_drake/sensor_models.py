@@ -11,9 +11,15 @@ differs from the reference simulator's ``R^T (a + g)`` (see DESIGN §4), which
 The IMU functions work on Python scalars (they run at 500 Hz): pass sequences such as
 lists, tuples or ``ndarray.tolist()`` results, and get tuples back (plain arithmetic, which
 ``fleet.kernels`` compiles with numba and runs per vehicle).
+
+With ``fidelity.float32_estimator`` every sample (and the GPS random walk) is rounded to
+float32 once computed, as the reference stores its V3F and float samples (SPEC §2).
 """
 
+import numpy as np
+
 from quad_drake.conventions import GRAVITY
+from quad_drake.dynamics import to_float32
 from quad_drake.fidelity import PHYSICAL
 from quad_drake.rotations import euler_from_quat, wrap_to_pi
 
@@ -62,14 +68,15 @@ def imu_measurement(q_NB, w_NB_B, a_NB, noise, params, fidelity=PHYSICAL, bias=N
     bias: 6, accelerometer (m/s^2) then gyro (rad/s) bias, added with the noise.
     params: ImuParams; f_B is saturated per axis to +-accel_limit after the noise.
     fidelity: with ``reference_accelerometer`` the accelerometer part is
-    :func:`reference_accelerometer` instead of :func:`specific_force`.
+    :func:`reference_accelerometer` instead of :func:`specific_force`; with
+    ``float32_estimator`` the six values are rounded to float32.
     """
     if fidelity.reference_accelerometer:
         f = reference_accelerometer(q_NB, a_NB)
     else:
         f = specific_force(q_NB, a_NB)
     sa, sg, limit = params.accel_std, params.gyro_std, params.accel_limit
-    return (
+    sample = (
         _clamp(f[0] + bias[0] + sa[0] * noise[0], limit),
         _clamp(f[1] + bias[1] + sa[1] * noise[1], limit),
         _clamp(f[2] + bias[2] + sa[2] * noise[2], limit),
@@ -77,6 +84,16 @@ def imu_measurement(q_NB, w_NB_B, a_NB, noise, params, fidelity=PHYSICAL, bias=N
         w_NB_B[1] + bias[4] + sg[1] * noise[4],
         w_NB_B[2] + bias[5] + sg[2] * noise[5],
     )
+    if fidelity.float32_estimator:
+        return (
+            to_float32(sample[0]),
+            to_float32(sample[1]),
+            to_float32(sample[2]),
+            to_float32(sample[3]),
+            to_float32(sample[4]),
+            to_float32(sample[5]),
+        )
+    return sample
 
 
 def imu_initial_bias(params):
@@ -99,24 +116,36 @@ def imu_bias_step(bias, noise, params):
     return [b + s * n for b, s, n in zip(bias, walk, noise, strict=True)]
 
 
-def gps_measurement(p_NB, v_NB, random_walk, noise, params):
+def gps_measurement(p_NB, v_NB, random_walk, noise, params, fidelity=PHYSICAL):
     """Noisy GPS sample: (position (3, m), velocity (3, m/s), new random-walk bias (3, m)), NED.
 
     The bias first takes its step, rw += pos_random_walk_std * n_rw, then
     position = p + rw + pos_std * n_p and velocity = v + vel_std * n_v.
     noise: 9 unit-normal draws, 3 random walk, 3 position, 3 velocity (SPEC §0.3 order).
-    params: GpsParams. Returns three lists of 3.
+    params: GpsParams; fidelity: with ``float32_estimator`` all three are rounded to float32.
+    Returns three lists of 3 (floats, or arrays when the inputs' entries are arrays).
     """
     rw_std, pos_std, vel_std = params.pos_random_walk_std, params.pos_std, params.vel_std
     rw = [random_walk[i] + rw_std[i] * noise[i] for i in range(3)]
     position = [p_NB[i] + rw[i] + pos_std[i] * noise[3 + i] for i in range(3)]
     velocity = [v_NB[i] + vel_std[i] * noise[6 + i] for i in range(3)]
+    if fidelity.float32_estimator:
+        return _float32_entries(position), _float32_entries(velocity), _float32_entries(rw)
     return position, velocity, rw
 
 
-def magnetometer_yaw(q_NB, noise, params):
+def _float32_entries(values):
+    """The floats (or arrays) in `values`, each rounded to float32 (as float64)."""
+    return [np.float64(np.float32(value)) for value in values]
+
+
+def magnetometer_yaw(q_NB, noise, params, fidelity=PHYSICAL):
     """Noisy yaw sample, rad, wrapped to [-pi, pi): yaw(q_NB) + yaw_std * noise.
 
-    noise: one unit-normal draw; params: MagParams.
+    noise: one unit-normal draw; params: MagParams; fidelity: with ``float32_estimator`` the
+    sample is rounded to float32.
     """
-    return wrap_to_pi(euler_from_quat(q_NB)[2] + params.yaw_std * noise)
+    yaw = wrap_to_pi(euler_from_quat(q_NB)[2] + params.yaw_std * noise)
+    if fidelity.float32_estimator:
+        return to_float32(yaw)
+    return yaw

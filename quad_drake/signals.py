@@ -11,6 +11,11 @@ just before the systems' updates at t. Sensor signals carry a ``fresh`` mask:
 true on samples where a new measurement arrived since the previous sample
 (SPEC §0.2), judged by a changed stamp, never by comparing float times.
 
+The errors (``Est.E.*``, ``PosFollowErr``) and ``Ref.*`` follow one of two definitions
+(``quad_drake.error_sampling``): at the sample (the physical default), or, when the logs carry
+``tick_state`` and ``tick_reference`` (``fidelity: reference``), the binary's: at the last
+onboard tick, against that tick's truth and reference.
+
 Estimator signals come from the logs every estimator exports (``estimated_state``,
 ``covariance``, ``diagnostics``), read through its :class:`EstimatorVocabulary`
 (``quad_drake.estimation.vocabulary``):
@@ -35,6 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .conventions import P_SLICE, Q_SLICE, REF_P_SLICE, REF_YAW_INDEX, V_SLICE, W_SLICE
+from .error_sampling import error_reference, error_truth
 from .estimation.vocabulary import DIAG, NIS_COLUMNS, STATE_UNITS
 from .rotations import euler_from_quats, wrap_angles  # noqa: F401 (re-exported for the analyzers)
 
@@ -172,12 +178,17 @@ def vehicle_signals(name, logs, vocabulary=None):
         contacts = logs["contacts"]
         for i, key in enumerate(("FloorContact", "FloorTouchdowns", "WallContactSteps")):
             put(key, lambda i=i: contacts[..., i])
+    truth = error_truth(logs)  # the sample's state, or the last onboard tick's (error_sampling)
+    if truth is not state:
+        euler_truth = functools.cache(lambda: euler_from_quats(truth[..., Q_SLICE]))
+    else:
+        euler_truth = euler
     if "reference" in logs:
-        ref = logs["reference"]
+        ref = error_reference(logs)
         for i, axis in enumerate(AXES):
             put(f"Ref.{axis}", lambda i=i: ref[..., REF_P_SLICE][..., i])
         put("Ref.Yaw", lambda: ref[..., REF_YAW_INDEX])
-        put("PosFollowErr", lambda: np.linalg.norm(ref[..., REF_P_SLICE] - p, axis=-1))
+        put("PosFollowErr", lambda: np.linalg.norm(ref[..., REF_P_SLICE] - truth[..., P_SLICE], axis=-1))
     if "motor_forces" in logs:
         for i, motor in enumerate("ABCD"):
             put(f"Thrust.{motor}", lambda i=i: logs["motor_forces"][..., i])
@@ -192,12 +203,13 @@ def vehicle_signals(name, logs, vocabulary=None):
     if "mag" in logs:
         put("MagYaw", lambda: logs["mag"][..., 0], lambda: stamp_fresh(logs["mag"][..., 1]))
     if vocabulary is not None and "estimated_state" in logs:
-        _estimator_signals(put, logs, vocabulary, p, v, euler)
+        _estimator_signals(put, logs, vocabulary, truth[..., P_SLICE], truth[..., V_SLICE], euler_truth)
     return Signals(makers)
 
 
 def _estimator_signals(put, logs, vocabulary, p, v, euler):
-    """Put the estimator's signals (module docstring); euler: the true (roll, pitch, yaw), on call."""
+    """Put the estimator's signals (module docstring); p, v, euler: the truth the errors are taken
+    against (:func:`~quad_drake.error_sampling.error_truth`), euler the (roll, pitch, yaw) on call."""
     estimate = logs["estimated_state"]
     p_hat, v_hat = estimate[..., P_SLICE], estimate[..., V_SLICE]
     euler_hat = functools.cache(lambda: euler_from_quats(estimate[..., Q_SLICE]))

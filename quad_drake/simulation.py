@@ -15,9 +15,16 @@ import numpy as np
 from pydrake.common import RandomDistribution, RandomGenerator
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
-from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput, Multiplexer, RandomSource
+from pydrake.systems.primitives import (
+    ConstantVectorSource,
+    LogVectorOutput,
+    Multiplexer,
+    RandomSource,
+    ZeroOrderHold,
+)
 
 from . import conventions as c
+from .error_sampling import TICK_LOG_WIDTHS, TICK_REFERENCE, TICK_STATE
 from .estimation.vocabulary import vehicle_vocabulary
 from .faults import sensor_of
 from .fidelity import PHYSICAL, fidelity_from_mode
@@ -47,9 +54,13 @@ def initial_state(vehicle):
     )
 
 
-def vehicle_log_widths(vehicle):
-    """{name: width} of the signals a vehicle exports (and the top level logs)."""
+def vehicle_log_widths(vehicle, fidelity=PHYSICAL):
+    """{name: width} of the signals a vehicle exports (and the top level logs) under the
+    :class:`~quad_drake.fidelity.Fidelity` `fidelity` (``errors_at_onboard_tick`` adds
+    ``error_sampling.TICK_LOG_WIDTHS``)."""
     widths = {name: LOG_WIDTHS[name] for name in ("state", "reference", "motor_forces", "contacts")}
+    if fidelity.errors_at_onboard_tick:
+        widths.update(TICK_LOG_WIDTHS)
     sensors = vehicle.sensors
     widths.update({s: LOG_WIDTHS[s] for s in ("imu", "gps", "mag") if getattr(sensors, s) is not None})
     vocabulary = vehicle_vocabulary(vehicle)
@@ -58,9 +69,30 @@ def vehicle_log_widths(vehicle):
     return widths
 
 
-def vehicle_log_names(vehicle):
-    """Names of the signals a vehicle exports (and the top level logs)."""
-    return list(vehicle_log_widths(vehicle))
+def vehicle_log_names(vehicle, fidelity=PHYSICAL):
+    """Names of the signals a vehicle exports (and the top level logs) under `fidelity`."""
+    return list(vehicle_log_widths(vehicle, fidelity))
+
+
+def add_tick_holds(builder, outputs, n=1):
+    """Add the holds of ``error_sampling``'s tick logs (``errors_at_onboard_tick``) to `builder`
+    and put their output ports in `outputs` (log name: port), which must hold ``state`` (n*13)
+    and ``reference`` (n*10) of one vehicle (n = 1) or of a fleet's N copies (n = N).
+
+    Each is a ZeroOrderHold that samples every ONBOARD_PERIOD at CONTROLLER_OFFSET, with the
+    controller (no extra event time): after the sensors and estimators of tick t_k, before the
+    plant steps, so it holds the truth at t_k and the reference the controller used, as the
+    binary's ``UpdateTrueError`` and ``PosFollowErr`` see them, until the next tick. A 5 ms log
+    sample at t reads what the last tick before t left (the loggers publish before the updates
+    at t).
+    """
+    for name, source in ((TICK_STATE, "state"), (TICK_REFERENCE, "reference")):
+        hold = builder.AddNamedSystem(
+            f"{name}_hold",
+            ZeroOrderHold(c.ONBOARD_PERIOD, n * TICK_LOG_WIDTHS[name], c.CONTROLLER_OFFSET),
+        )
+        builder.Connect(outputs[source], hold.get_input_port())
+        outputs[name] = hold.get_output_port()
 
 
 def _add_noisy(builder, system, name, port="noise", distribution=RandomDistribution.kGaussian):
@@ -128,6 +160,8 @@ def build_vehicle(vehicle, fidelity=PHYSICAL):
         "motor_forces": plant.GetOutputPort("motor_forces"),
         "contacts": plant.GetOutputPort("contacts"),
     }
+    if fidelity.errors_at_onboard_tick:
+        add_tick_holds(builder, outputs)
     state_for_control = plant.GetOutputPort("state")
 
     sensors = vehicle.sensors
@@ -145,7 +179,7 @@ def build_vehicle(vehicle, fidelity=PHYSICAL):
     for kind, sensor_class in (("gps", Gps), ("mag", Magnetometer)):
         params = getattr(sensors, kind)
         if params is not None:
-            sensor = _add_noisy(builder, sensor_class(params), kind)
+            sensor = _add_noisy(builder, sensor_class(params, fidelity), kind)
             builder.Connect(plant.GetOutputPort("state"), sensor.GetInputPort("state"))
             outputs[kind] = sensor.GetOutputPort(kind)
     _add_faults(builder, vehicle, outputs)
@@ -171,7 +205,7 @@ def build_vehicle(vehicle, fidelity=PHYSICAL):
             state_for_control = outputs["estimated_state"]
     builder.Connect(state_for_control, controller.GetInputPort("state"))
 
-    for name in vehicle_log_names(vehicle):
+    for name in vehicle_log_names(vehicle, fidelity):
         builder.ExportOutput(outputs[name], name)
     diagram = builder.Build()
     diagram.set_name(vehicle.name)
@@ -217,9 +251,10 @@ def build_diagram(scenario):
     """
     builder = DiagramBuilder()
     ports, rows, start = [], [], 0
+    fidelity = fidelity_from_mode(scenario.fidelity)
     for vehicle in scenario.vehicles:
-        sub = builder.AddSystem(build_vehicle(vehicle, fidelity_from_mode(scenario.fidelity)))
-        for name in vehicle_log_names(vehicle):
+        sub = builder.AddSystem(build_vehicle(vehicle, fidelity))
+        for name in vehicle_log_names(vehicle, fidelity):
             port = sub.GetOutputPort(name)
             ports.append(port)
             rows.append((vehicle.name, name, slice(start, start + port.size())))
@@ -254,8 +289,9 @@ def read_logs(loggers, context, n_samples):
 def available_signals(scenario):
     """Names of every signal the scenario's criteria may refer to."""
     names = set()
+    fidelity = fidelity_from_mode(scenario.fidelity)
     for vehicle in scenario.vehicles:
-        logs = empty_logs(vehicle_log_widths(vehicle))
+        logs = empty_logs(vehicle_log_widths(vehicle, fidelity))
         names |= set(vehicle_signals(vehicle.name, logs, vehicle_vocabulary(vehicle)))
     return names
 

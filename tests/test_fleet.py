@@ -42,11 +42,13 @@ def noiseless(name, *overrides):
         ("03_position_control", ()),
         ("05_trajectory_follow", ("end_time=3",)),
         ("02_attitude_control", ("fidelity=reference",)),
+        ("11_gps_update", ("fidelity=reference", "end_time=3")),
     ],
 )
 def test_noiseless_fleet_flies_every_vehicle_as_the_per_vehicle_diagram(name, overrides):
     """Same tick order and kernels: every logged signal of every fleet vehicle equals the
-    per-vehicle Diagram's to 1e-12 (in practice bit for bit), in both fidelity modes."""
+    per-vehicle Diagram's to 1e-12 (in practice bit for bit), in both fidelity modes (the
+    reference's float32 sensors and EKF7 and its tick-held truth and reference included)."""
     scenario = noiseless(name, *overrides)
     single = run(scenario)
     times, logs, _ = run_fleet(scenario, [11, 12, 13])

@@ -147,17 +147,25 @@ def test_imu_matches_scalar(fidelity):
     )
 
 
-def test_gps_and_magnetometer_match_scalar():
+@FIDELITIES
+def test_gps_and_magnetometer_match_scalar(fidelity):
     rng = np.random.default_rng(1204)
     gps = GpsParams(pos_random_walk_std=[0.1, 0.2, 0.3])
     mag = MagParams(yaw_std=0.3)
     state = random_states(rng)
     walk = rng.normal(size=(N, 3))
     noise = rng.normal(size=(N, 9))
-    position, velocity, new_walk = kernels.gps_measurements(state[:, 0:3], state[:, 7:10], walk, noise, gps)
+    position, velocity, new_walk = kernels.gps_measurements(
+        state[:, 0:3], state[:, 7:10], walk, noise, gps, fidelity
+    )
     rows = [
         sensor_models.gps_measurement(
-            state[i, 0:3].tolist(), state[i, 7:10].tolist(), walk[i].tolist(), noise[i].tolist(), gps
+            state[i, 0:3].tolist(),
+            state[i, 7:10].tolist(),
+            walk[i].tolist(),
+            noise[i].tolist(),
+            gps,
+            fidelity,
         )
         for i in range(N)
     ]
@@ -166,11 +174,11 @@ def test_gps_and_magnetometer_match_scalar():
     close(new_walk, [r[2] for r in rows])
     yaw_noise = rng.normal(size=(N, 1)) * 5
     out = np.full((N, 2), np.nan)
-    kernels.magnetometer_samples(state, yaw_noise, kernels.frozen(mag), 0.25, out)
+    kernels.magnetometer_samples(state, yaw_noise, kernels.frozen(mag), kernels.frozen(fidelity), 0.25, out)
     close(
         out,
         [
-            [sensor_models.magnetometer_yaw(state[i, 3:7].tolist(), yaw_noise[i, 0], mag), 0.25]
+            [sensor_models.magnetometer_yaw(state[i, 3:7].tolist(), yaw_noise[i, 0], mag, fidelity), 0.25]
             for i in range(N)
         ],
     )

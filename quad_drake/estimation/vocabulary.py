@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from quad_drake.error_sampling import error_truth
 from quad_drake.estimation.eskf import attitude_errors
 from quad_drake.rotations import wrap_angles, yaw_from_quats
 
@@ -87,9 +88,9 @@ class EstimatorVocabulary:
 
 
 def ekf7_errors(logs):
-    """(n, 7) x_hat - x_true of the EKF7 (m, m/s, rad; yaw wrapped) from ``ekf_state`` and ``state``
-    ((n, N, 7) of a fleet batch's (n, N, width) logs)."""
-    state = np.asarray(logs["state"], dtype=float)
+    """(n, 7) x_hat - x_true of the EKF7 (m, m/s, rad; yaw wrapped) from ``ekf_state`` and the
+    truth of ``error_sampling.error_truth`` ((n, N, 7) of a fleet batch's (n, N, width) logs)."""
+    state = np.asarray(error_truth(logs), dtype=float)
     errors = np.asarray(logs["ekf_state"], dtype=float).copy()
     errors[..., 0:3] -= state[..., 0:3]
     errors[..., 3:6] -= state[..., 7:10]
@@ -100,11 +101,12 @@ def ekf7_errors(logs):
 def eskf_errors(logs):
     """(n, 9 or 15) estimate minus truth of the ESKF's error state ((n, N, 9 or 15) of a batch).
 
-    p, v from ``estimated_state``; the attitude error dtheta with R_hat = Exp(dtheta) R_true
-    (world axes); the IMU biases from ``imu_bias`` against a true bias of zero (the simulated
-    IMU has none), only when the covariance has 15 states.
+    Against the truth of ``error_sampling.error_truth``. p, v from ``estimated_state``; the
+    attitude error dtheta with R_hat = Exp(dtheta) R_true (world axes); the IMU biases from
+    ``imu_bias`` against a true bias of zero (the simulated IMU has none), only when the
+    covariance has 15 states.
     """
-    state = np.asarray(logs["state"], dtype=float)
+    state = np.asarray(error_truth(logs), dtype=float)
     estimate = np.asarray(logs["estimated_state"], dtype=float)
     parts = [estimate[..., 0:3] - state[..., 0:3], estimate[..., 7:10] - state[..., 7:10]]
     dtheta = attitude_errors(estimate[..., 3:7].reshape(-1, 4), state[..., 3:7].reshape(-1, 4))

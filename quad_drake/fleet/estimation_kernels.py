@@ -225,6 +225,18 @@ def complementary_tick(attitude, rate, imu, ekf_state, dt, tau, variant, referen
     )
 
 
+def round_to_float32(*arrays):
+    """Round every entry of each float64 array IN PLACE to the nearest float32 (kept float64).
+
+    ``Fidelity.float32_estimator``: the reference stores its attitude filter's angles
+    (``rollEst``, ``pitchEst``), its last gyro sample and its EKF's state and covariance
+    (``VectorXf``, ``MatrixXf``) in float, so after each 500 Hz tick they take the nearest
+    float32 (SPEC §4). Any shapes: (N, 3) attitudes, (N, 7) states, (N, 7, 7) covariances.
+    """
+    for values in arrays:
+        np.copyto(values, values.astype(np.float32))
+
+
 @njit_cached
 def _assembled_rows(attitude, ekf_state, body_rate, out):
     for i in range(attitude.shape[0]):

@@ -73,6 +73,7 @@ class FleetComplementaryFilter(LeafSystem):
         self._tau = float(params.tau)
         self._variant = params.variant
         self._reference_accelerometer = fidelity.reference_accelerometer
+        self._float32 = fidelity.float32_estimator
         self._read_imu = _reader(self.DeclareVectorInputPort("imu", n * IMU_SIZE))
         self._read_ekf_state = _reader(self.DeclareVectorInputPort("ekf_state", n * EKF_STATE_SIZE))
         attitude = self.DeclareDiscreteState(_tiled(initial_attitude, n))
@@ -83,9 +84,10 @@ class FleetComplementaryFilter(LeafSystem):
 
     def _update(self, context, discrete_state):
         n = self._n
+        attitude, rate = discrete_state.get_mutable_value(0), discrete_state.get_mutable_value(1)
         kernels.complementary_tick(
-            discrete_state.get_mutable_value(0).reshape(n, ATTITUDE_SIZE),
-            discrete_state.get_mutable_value(1).reshape(n, 3),
+            attitude.reshape(n, ATTITUDE_SIZE),
+            rate.reshape(n, 3),
             self._read_imu(context).reshape(n, IMU_SIZE),
             self._read_ekf_state(context).reshape(n, EKF_STATE_SIZE),
             ONBOARD_PERIOD,
@@ -93,6 +95,8 @@ class FleetComplementaryFilter(LeafSystem):
             self._variant,
             self._reference_accelerometer,
         )
+        if self._float32:
+            kernels.round_to_float32(attitude, rate)
 
 
 class FleetEkf(GatedFusion, LeafSystem):
@@ -106,6 +110,7 @@ class FleetEkf(GatedFusion, LeafSystem):
     def __init__(self, params, n, fidelity=PHYSICAL, tilt=None):
         super().__init__()
         self._gravity_z = kernels.gravity_z(fidelity.reference_accelerometer)
+        self._float32 = fidelity.float32_estimator
         self._Q = ekf.process_noise(params)
         self._tilt = tilt
         P0 = ekf.initial_covariance(params)
@@ -155,6 +160,8 @@ class FleetEkf(GatedFusion, LeafSystem):
                 kernels.ekf7_gps_update,
                 kernels.ekf7_mag_tick,
             )
+        if self._float32:
+            kernels.round_to_float32(x, P)
 
 
 class FleetEstimatedStateAssembler(LeafSystem):

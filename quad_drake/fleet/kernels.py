@@ -23,7 +23,7 @@ import numpy as np
 from quad_drake import dynamics, rotations, sensor_models
 from quad_drake.config import ControllerParams, ImuParams, MagParams, PhysicsParams
 from quad_drake.control import cascade
-from quad_drake.fidelity import Fidelity
+from quad_drake.fidelity import PHYSICAL, Fidelity
 from quad_drake.jit import njit_cached
 from quad_drake.sensor_models import gps_measurement
 
@@ -66,6 +66,7 @@ def compiled(function, **callees):
     return njit_cached(types.FunctionType(function.__code__, namespace, function.__name__))
 
 
+_to_float32_compiled = compiled(dynamics.to_float32)
 _rates_compiled = compiled(dynamics._rates)
 _coefficients_compiled = compiled(dynamics._coefficients)
 _plant_compiled = compiled(
@@ -81,7 +82,7 @@ _plant_compiled = compiled(
     ),
     outside_room=compiled(dynamics.outside_room),
     apply_room_constraints=compiled(dynamics.apply_room_constraints),
-    float32_rounded=compiled(dynamics.float32_rounded, _float32=compiled(dynamics._float32)),
+    float32_rounded=compiled(dynamics.float32_rounded, to_float32=_to_float32_compiled),
 )
 
 
@@ -146,6 +147,7 @@ _imu_compiled = compiled(
     ),
     specific_force=compiled(sensor_models.specific_force, _rotate_to_body=_rotate_to_body_compiled),
     _clamp=compiled(sensor_models._clamp),
+    to_float32=_to_float32_compiled,
 )
 
 
@@ -176,10 +178,10 @@ def imu_bias_step(bias, noise, params):
     return bias + walk * noise
 
 
-def gps_measurements(p_NB, v_NB, random_walk, noise, params):
+def gps_measurements(p_NB, v_NB, random_walk, noise, params, fidelity=PHYSICAL):
     """(position (N, 3), velocity (N, 3), random walk (N, 3)) of
     :func:`quad_drake.sensor_models.gps_measurement` (which runs here on the rows)."""
-    position, velocity, walk = gps_measurement(p_NB.T, v_NB.T, random_walk.T, noise.T, params)
+    position, velocity, walk = gps_measurement(p_NB.T, v_NB.T, random_walk.T, noise.T, params, fidelity)
     return np.stack(position, axis=1), np.stack(velocity, axis=1), np.stack(walk, axis=1)
 
 
@@ -188,19 +190,20 @@ _magnetometer_compiled = compiled(
     sensor_models.magnetometer_yaw,
     euler_from_quat=compiled(rotations.euler_from_quat),
     wrap_to_pi=_wrap_compiled,
+    to_float32=_to_float32_compiled,
 )
 
 
 @njit_cached
-def magnetometer_samples(state, noise, params, stamp, out):
+def magnetometer_samples(state, noise, params, fidelity, stamp, out):
     """N :class:`~quad_drake.systems.sensors.Magnetometer` samples into out (N, 2): the yaw of
     :func:`quad_drake.sensor_models.magnetometer_yaw` (its code compiled, run per vehicle) of
-    q_NB in state (N, 13) and the unit normal noise (N, 1), rad; and `stamp` s. params: the
-    :func:`frozen` MagParams."""
-    mag = MagTuple(*params)
+    q_NB in state (N, 13) and the unit normal noise (N, 1), rad; and `stamp` s. params, fidelity:
+    the :func:`frozen` MagParams and Fidelity."""
+    mag, fidelity_tuple = MagTuple(*params), FidelityTuple(*fidelity)
     for i in range(state.shape[0]):
         quaternion = (state[i, 3], state[i, 4], state[i, 5], state[i, 6])
-        out[i, 0] = _magnetometer_compiled(quaternion, noise[i, 0], mag)
+        out[i, 0] = _magnetometer_compiled(quaternion, noise[i, 0], mag, fidelity_tuple)
         out[i, 1] = stamp
 
 

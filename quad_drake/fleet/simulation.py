@@ -33,7 +33,7 @@ from quad_drake.fleet.systems import (
     FleetTrajectory,
 )
 from quad_drake.sensor_models import imu_has_bias_walk
-from quad_drake.simulation import initial_state, sensor_schedule, vehicle_log_widths
+from quad_drake.simulation import add_tick_holds, initial_state, sensor_schedule, vehicle_log_widths
 from quad_drake.trajectories import trajectory_from_config
 
 
@@ -82,6 +82,8 @@ def build_fleet_vehicle(vehicle, seeds, fidelity):
     builder.Connect(trajectory.GetOutputPort("reference"), controller.GetInputPort("reference"))
     outputs = {name: plant.GetOutputPort(name) for name in ("state", "motor_forces", "contacts")}
     outputs["reference"] = trajectory.GetOutputPort("reference")
+    if fidelity.errors_at_onboard_tick:
+        add_tick_holds(builder, outputs, n)
 
     sensors = vehicle.sensors
     if sensors.imu is not None:
@@ -95,7 +97,7 @@ def build_fleet_vehicle(vehicle, seeds, fidelity):
     for kind, sensor_class in (("gps", FleetGps), ("mag", FleetMagnetometer)):
         params = getattr(sensors, kind)
         if params is not None:
-            sensor = builder.AddNamedSystem(kind, sensor_class(params, n))
+            sensor = builder.AddNamedSystem(kind, sensor_class(params, n, fidelity))
             _add_noise(builder, sensor, "noise", seeds, f"{vehicle.name}/{kind}")
             builder.Connect(plant.GetOutputPort("state"), sensor.GetInputPort("state"))
             outputs[kind] = sensor.GetOutputPort(kind)
@@ -122,7 +124,7 @@ def build_fleet_vehicle(vehicle, seeds, fidelity):
             state_for_control = outputs["estimated_state"]
     builder.Connect(state_for_control, controller.GetInputPort("state"))
 
-    for name in vehicle_log_widths(vehicle):
+    for name in vehicle_log_widths(vehicle, fidelity):
         builder.ExportOutput(outputs[name], name)
     diagram = builder.Build()
     diagram.set_name(vehicle.name)
@@ -169,7 +171,7 @@ def build_fleet_diagram(scenario, seeds, make_sink=None):
     ports, signals = [], []
     for vehicle in scenario.vehicles:
         sub = builder.AddSystem(build_fleet_vehicle(vehicle, seeds, fidelity))
-        for name, width in vehicle_log_widths(vehicle).items():
+        for name, width in vehicle_log_widths(vehicle, fidelity).items():
             ports.append(sub.GetOutputPort(name))
             signals.append(((vehicle.name, name), width))
     if make_sink is None:

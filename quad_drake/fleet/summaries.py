@@ -29,6 +29,7 @@ from quad_drake.campaigns.records import (
     vehicle_errors,
 )
 from quad_drake.estimation.vocabulary import NIS_COLUMNS, health_counts, vehicle_vocabulary
+from quad_drake.fidelity import fidelity_from_mode
 from quad_drake.fleet.bounds import PcrbStream
 from quad_drake.results import signals_from_logs
 from quad_drake.simulation import sensor_schedule, vehicle_log_widths
@@ -46,8 +47,9 @@ def summary_bytes(scenario, runs, chunk=CHUNK_SAMPLES):
     its NEES at each sample and the stamp and NIS of each fresh GPS or magnetometer update."""
     samples = int(round(scenario.end_time / c.LOG_PERIOD))
     per_run = 0
+    fidelity = fidelity_from_mode(scenario.fidelity)
     for vehicle in scenario.vehicles:
-        per_run += 8 * (chunk + 1) * sum(vehicle_log_widths(vehicle).values())
+        per_run += 8 * (chunk + 1) * sum(vehicle_log_widths(vehicle, fidelity).values())
         if vehicle_vocabulary(vehicle) is not None:
             per_run += 8 * samples
             for sensor in ("gps", "mag"):

@@ -204,9 +204,9 @@ class FleetGps(LeafSystem):
 
     noise_size = 9
 
-    def __init__(self, params, n):
+    def __init__(self, params, n, fidelity=PHYSICAL):
         super().__init__()
-        self._params, self._n = params, n
+        self._params, self._n, self._fidelity = params, n, fidelity
         self.noise_period = params.period
         self._read_state = _reader(self.DeclareVectorInputPort("state", n * STATE_SIZE), n, STATE_SIZE)
         self._read_noise = _reader(
@@ -225,7 +225,7 @@ class FleetGps(LeafSystem):
         walk = discrete_state.value(self._walk).reshape(self._n, 3)
         count = float(discrete_state.value(self._count)[0]) + 1.0
         position, velocity, walk = kernels.gps_measurements(
-            x[:, 0:3], x[:, 7:10], walk, self._read_noise(context), self._params
+            x[:, 0:3], x[:, 7:10], walk, self._read_noise(context), self._params, self._fidelity
         )
         stamps = np.full((self._n, 1), count * self._params.period)
         discrete_state.set_value(self._output, np.concatenate([position, velocity, stamps], axis=1).ravel())
@@ -239,9 +239,10 @@ class FleetMagnetometer(LeafSystem):
 
     noise_size = 1
 
-    def __init__(self, params, n):
+    def __init__(self, params, n, fidelity=PHYSICAL):
         super().__init__()
         self._params, self._frozen_params, self._n = params, kernels.frozen(params), n
+        self._frozen_fidelity = kernels.frozen(fidelity)
         self.noise_period = params.period
         self._read_state = _reader(self.DeclareVectorInputPort("state", n * STATE_SIZE), n, STATE_SIZE)
         self._read_noise = _reader(self.DeclareVectorInputPort("noise", n), n, 1)
@@ -257,6 +258,7 @@ class FleetMagnetometer(LeafSystem):
             self._read_state(context),
             self._read_noise(context),
             self._frozen_params,
+            self._frozen_fidelity,
             self._params.first_sample_time + count[0] * self._params.period,
             discrete_state.get_mutable_value(self._output).reshape(self._n, 2),
         )

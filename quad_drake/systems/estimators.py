@@ -120,12 +120,14 @@ class ComplementaryFilter(LeafSystem):
     every ONBOARD_PERIOD at ATTITUDE_FILTER_OFFSET with dt = ONBOARD_PERIOD. A non-finite IMU
     sample is skipped (roll, pitch and body rate held, yaw = prior).
     With ``fidelity.reference_accelerometer`` the IMU carries the reference's reading and the
-    tilt comes from the reference's formulas.
+    tilt comes from the reference's formulas; with ``fidelity.float32_estimator`` the attitude
+    and body rate are rounded to float32 after each tick (``round_to_float32``).
     """
 
     def __init__(self, params, initial_attitude=(0.0, 0.0, 0.0), fidelity=PHYSICAL):
         super().__init__()
         self._reference_accelerometer = fidelity.reference_accelerometer
+        self._float32 = fidelity.float32_estimator
         if params.variant not in VARIANTS:
             raise ValueError(f"attitude filter variant {params.variant!r} is not one of {VARIANTS}")
         self._tau = float(params.tau)
@@ -139,9 +141,10 @@ class ComplementaryFilter(LeafSystem):
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, ATTITUDE_FILTER_OFFSET, self._update)
 
     def _update(self, context, discrete_state):
+        attitude, rate = discrete_state.get_mutable_value(0), discrete_state.get_mutable_value(1)
         kernels.complementary_tick(
-            discrete_state.get_mutable_value(0).reshape(1, ATTITUDE_SIZE),
-            discrete_state.get_mutable_value(1).reshape(1, 3),
+            attitude.reshape(1, ATTITUDE_SIZE),
+            rate.reshape(1, 3),
             self._read_imu(context),
             self._read_ekf_state(context),
             ONBOARD_PERIOD,
@@ -149,6 +152,8 @@ class ComplementaryFilter(LeafSystem):
             self._variant,
             self._reference_accelerometer,
         )
+        if self._float32:
+            kernels.round_to_float32(attitude, rate)
 
 
 class Ekf(GatedFusion, LeafSystem):
@@ -170,12 +175,14 @@ class Ekf(GatedFusion, LeafSystem):
     prediction reads the IMU as the reference's R_NB^T (a_NB + g_N): a_N = R f - g_N; with
     ``fidelity.reference_estimator`` nothing is gated, reset or repaired (the reference's EKF).
     With ``tilt`` (an ``ekf.TiltNoise``) Q grows with the attitude filter's predicted
-    roll/pitch error at the context time.
+    roll/pitch error at the context time. With ``fidelity.float32_estimator`` x and P are
+    rounded to float32 after each tick.
     """
 
     def __init__(self, params, fidelity=PHYSICAL, tilt=None):
         super().__init__()
         self._gravity_z = kernels.gravity_z(fidelity.reference_accelerometer)
+        self._float32 = fidelity.float32_estimator
         self._Q = ekf.process_noise(params)
         self._tilt = tilt
         P0 = ekf.initial_covariance(params)
@@ -226,6 +233,8 @@ class Ekf(GatedFusion, LeafSystem):
                 kernels.ekf7_gps_update,
                 kernels.ekf7_mag_tick,
             )
+        if self._float32:
+            kernels.round_to_float32(x, P)
 
 
 class EstimatedStateAssembler(LeafSystem):

@@ -54,7 +54,8 @@ class Imu(_Sensor):
     from ImuParams.accel_bias / gyro_bias; with a walk it first steps, then is applied).
     Zero before the first sample.
     With ``fidelity.reference_accelerometer`` the first three entries are the reference's
-    R_NB^T (a_NB + g_N) instead (``sensor_models.reference_accelerometer``).
+    R_NB^T (a_NB + g_N) instead (``sensor_models.reference_accelerometer``); with
+    ``fidelity.float32_estimator`` the sample is rounded to float32.
     The sample is ``sensor_models.imu_measurement``'s compiled form for one vehicle
     (``fleet.kernels.imu_samples`` with N = 1).
     """
@@ -111,13 +112,14 @@ class Gps(_Sensor):
     time of the sample. Before the first sample p = v = 0 and stamp = NO_SAMPLE_STAMP
     (consumers judge freshness by the stamp only). The random-walk position bias (m) is
     discrete state; the sample counter k is discrete state so stamps are exact multiples.
+    With ``fidelity.float32_estimator`` p, v and the bias are rounded to float32.
     """
 
     noise_size = 9
 
-    def __init__(self, params):
+    def __init__(self, params, fidelity=PHYSICAL):
         super().__init__(self.noise_size)
-        self._params = params
+        self._params, self._fidelity = params, fidelity
         self.noise_period = params.period
         self._read_state = vector_reader(self._state_port)
         self._read_noise = vector_reader(self._noise_port)
@@ -136,7 +138,9 @@ class Gps(_Sensor):
         noise = self._read_noise(context)
         bias = discrete_state.value(self._bias_group).tolist()
         count = scalar(discrete_state, self._count_group) + 1.0
-        position, velocity, bias = sensor_models.gps_measurement(x[0:3], x[7:10], bias, noise, self._params)
+        position, velocity, bias = sensor_models.gps_measurement(
+            x[0:3], x[7:10], bias, noise, self._params, self._fidelity
+        )
         discrete_state.set_value(
             self._output_group, np.array(position + velocity + [count * self._params.period])
         )
@@ -149,14 +153,15 @@ class Magnetometer(_Sensor):
 
     Inputs: ``state`` (13); ``noise`` (1, unit Gaussian). Output ``mag`` (2): yaw (rad,
     wrapped to [-pi, pi)), stamp (s) = first_sample_time + k * period, the nominal time
-    of the sample. Before the first sample yaw = 0 and stamp = NO_SAMPLE_STAMP.
+    of the sample. Before the first sample yaw = 0 and stamp = NO_SAMPLE_STAMP. With
+    ``fidelity.float32_estimator`` the yaw is rounded to float32.
     """
 
     noise_size = 1
 
-    def __init__(self, params):
+    def __init__(self, params, fidelity=PHYSICAL):
         super().__init__(self.noise_size)
-        self._params = params
+        self._params, self._fidelity = params, fidelity
         self.noise_period = params.period
         output = self.DeclareDiscreteState([0.0, NO_SAMPLE_STAMP])
         self._count_group = int(self.DeclareDiscreteState(1))
@@ -171,7 +176,7 @@ class Magnetometer(_Sensor):
     def _sample(self, context, discrete_state):
         count = scalar(discrete_state, self._count_group)
         yaw = sensor_models.magnetometer_yaw(
-            self._read_quaternion(context), self._read_noise(context), self._params
+            self._read_quaternion(context), self._read_noise(context), self._params, self._fidelity
         )
         stamp = self._params.first_sample_time + count * self._params.period
         discrete_state.set_value(self._output_group, np.array([yaw, stamp]))
