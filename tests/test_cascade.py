@@ -183,6 +183,19 @@ def test_body_rate_control():
     assert m == pytest.approx((0.0805, -0.322, -0.0345), abs=1e-12)
 
 
+@pytest.mark.parametrize("unknown", [(math.nan, 0.0, 0.0), (0.0, 0.0, math.inf), (math.nan,) * 3])
+def test_body_rate_control_commands_no_moment_without_a_measured_rate(unknown):
+    # an IMU dropout: the estimators report the rate as NaN; no feedback, no moment
+    assert body_rate_control((1.0, -2.0, 0.5), unknown, P) == (0.0, 0.0, 0.0)
+
+
+def test_cascade_without_a_measured_rate_gives_the_collective_thrust_alone():
+    state = hover_state()
+    state[10:13] = [math.nan] * 3
+    forces, _ = cascade_step(state, hover_reference(0.4), 0.0, 0.002, P)  # a yaw error, no moment
+    assert forces == pytest.approx((1.22625,) * 4, abs=1e-12)
+
+
 # ----- whole cascade ---------------------------------------------------------------
 
 

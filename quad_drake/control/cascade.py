@@ -116,8 +116,15 @@ def yaw_control(yaw_ref, yaw, params):
 
 
 def body_rate_control(pqr_cmd, pqr, params):
-    """Body moment command (Mx, My, Mz), N m in B: I * kp_pqr * (pqr_cmd - pqr), elementwise."""
+    """Body moment command (Mx, My, Mz), N m in B: I * kp_pqr * (pqr_cmd - pqr), elementwise.
+
+    A non-finite measured rate pqr means none was measured (the estimators report NaN over an
+    IMU dropout): the loop cannot close, so it commands no moment and the body keeps its angular
+    momentum, rather than driving the motors against a stale rate with no feedback.
+    """
     inertia, gain = params.inertia, params.kp_pqr
+    if not (math.isfinite(pqr[0]) and math.isfinite(pqr[1]) and math.isfinite(pqr[2])):
+        return (0.0, 0.0, 0.0)
     return (
         inertia[0] * gain[0] * (pqr_cmd[0] - pqr[0]),
         inertia[1] * gain[1] * (pqr_cmd[1] - pqr[1]),

@@ -232,8 +232,9 @@ def test_ekf_skips_and_counts_non_finite_samples():
     r.predict()
     assert_matches(f, r)
     assert f.output("diagnostics")[4] == 3.0
-    f.fix(gps=NO_GPS, imu=[0.0, 0.0, math.nan, 0.0, 0.0, 0.0])  # a bad IMU sample: no predict
-    f.tick(2)
+    f.fix(gps=NO_GPS, imu=[0.0, 0.0, math.nan, 0.0, 0.0, 0.0])  # a bad IMU sample: predicted with
+    f.tick(2)  # the running mean of the finite ones, all LEVEL_IMU here
+    r.predict(2)
     assert_matches(f, r)
     assert f.output("diagnostics")[4] == 5.0
     f.fix(imu=LEVEL_IMU, attitude=(0.0, math.inf, 0.0))
@@ -303,25 +304,33 @@ BURST_IMU = [0.0, 0.0, -GRAVITY, 0.1, -0.2, 0.3]
 
 
 @pytest.mark.parametrize("estimator", [Ekf7EstimatorConfig(), EskfEstimatorConfig()], ids=["ekf7", "eskf"])
-def test_a_non_finite_imu_burst_never_reaches_the_estimated_state(estimator):
-    # 0.2 s of NaN IMU samples (100 ticks): the estimate stays finite, the body rate holds the
-    # last finite gyro sample, and every skipped sample is counted.
-    diagram, sources = build_estimators(imu=BURST_IMU, estimator=estimator)
-    context = diagram.CreateDefaultContext()
-    simulator = Simulator(diagram, context)
-    simulator.AdvanceTo(ticks_end(10))
-    source_context = sources["imu"].GetMyContextFromRoot(context)
-    sources["imu"].get_mutable_source_value(source_context).set_value(np.full(6, math.nan))
-    simulator.AdvanceTo(ticks_end(110))
-    estimated = diagram.GetOutputPort("estimated_state").Eval(context)
-    assert np.isfinite(estimated).all()
-    np.testing.assert_allclose(estimated[10:13], BURST_IMU[3:6], atol=1e-3)  # ESKF: minus the gyro bias
-    diagnostics = diagram.GetOutputPort("diagnostics").Eval(context)
-    assert diagnostics[DIAG["nonfinite_samples"]] == 100.0
-    sources["imu"].get_mutable_source_value(source_context).set_value(np.array(BURST_IMU))
-    simulator.AdvanceTo(ticks_end(120))
-    assert np.isfinite(diagram.GetOutputPort("estimated_state").Eval(context)).all()
-    assert diagram.GetOutputPort("diagnostics").Eval(context)[DIAG["nonfinite_samples"]] == 100.0
+def test_an_imu_dropout_is_dead_reckoned_on_the_running_mean_and_its_rate_reported_unknown(estimator):
+    # 0.2 s of NaN IMU samples (100 ticks) after a constant IMU: the estimators predict with the
+    # running mean of the finite samples (here exactly the constant), so p, q and v are those of
+    # a run without the dropout; the body rate is NaN (not measured) until the IMU is back, and
+    # every missing sample is counted.
+    runs = {}
+    for dropout in (False, True):
+        diagram, sources = build_estimators(imu=BURST_IMU, estimator=estimator)
+        context = diagram.CreateDefaultContext()
+        simulator = Simulator(diagram, context)
+        simulator.AdvanceTo(ticks_end(10))
+        source_context = sources["imu"].GetMyContextFromRoot(context)
+        if dropout:
+            sources["imu"].get_mutable_source_value(source_context).set_value(np.full(6, math.nan))
+        simulator.AdvanceTo(ticks_end(110))
+        runs[dropout] = diagram.GetOutputPort("estimated_state").Eval(context).copy()
+        assert (
+            diagram.GetOutputPort("diagnostics").Eval(context)[DIAG["nonfinite_samples"]] == 100.0 * dropout
+        )
+        sources["imu"].get_mutable_source_value(source_context).set_value(np.array(BURST_IMU))
+        simulator.AdvanceTo(ticks_end(111))
+        np.testing.assert_allclose(
+            diagram.GetOutputPort("estimated_state").Eval(context)[10:13], BURST_IMU[3:6], atol=1e-3
+        )  # measured again (the ESKF subtracts its gyro bias)
+    np.testing.assert_allclose(runs[True][0:10], runs[False][0:10], rtol=0, atol=1e-12)
+    assert np.isnan(runs[True][10:13]).all()
+    assert np.isfinite(runs[False]).all()
 
 
 def test_ekf_gates_a_50_m_outlier_and_resets_the_horizontal_position_after_the_timeout():
