@@ -399,8 +399,9 @@ def ekf7_tick(
     :func:`covariance_looks_healthy` of the new P. A quiet tick is one where every P looks
     healthy and no vehicle has a fresh GPS sample (gps (N, 7), stamp against book[:, GPS_SLOT],
     :func:`fresh`): then nothing is repaired or fused from the GPS, and the tick ends here with
-    :func:`ekf7_mag_tick` (mag (N, 2), r_mag = R_mag[0, 0] rad^2, threshold its gate). Otherwise the caller runs the repair, the mag step and
-    the GPS fusion (``systems.estimators.GatedFusion._fuse_fresh``).
+    :func:`ekf7_mag_tick` (mag (N, 2), r_mag = R_mag[0, 0] rad^2, threshold its gate).
+    Otherwise the caller runs the repair, the mag step and the GPS fusion
+    (``systems.estimators.GatedFusion._fuse_fresh``).
     """
     GP, M = np.empty((7, 7)), np.empty((7, 7))
     weight = dt / (IMU_HOLD_TIME + dt)
