@@ -19,6 +19,7 @@ from quad_drake.conventions import ATTITUDE_FILTER_OFFSET, GRAVITY, NO_SAMPLE_ST
 from quad_drake.estimation import ekf, eskf, gating
 from quad_drake.estimation.complementary import complementary_update
 from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, vocabulary_for
+from quad_drake.fidelity import PHYSICAL, REFERENCE
 from quad_drake.rotations import quat_from_euler
 from quad_drake.systems.estimators import (
     ComplementaryFilter,
@@ -40,9 +41,11 @@ def ticks_end(n):
 
 
 class EkfFixture:
-    def __init__(self, params=None, imu=LEVEL_IMU, attitude=(0.0, 0.0, 0.0), gps=NO_GPS, mag=NO_MAG):
+    def __init__(
+        self, params=None, imu=LEVEL_IMU, attitude=(0.0, 0.0, 0.0), gps=NO_GPS, mag=NO_MAG, fidelity=PHYSICAL
+    ):
         self.params = params or EkfParams()
-        self.dut = Ekf(self.params)
+        self.dut = Ekf(self.params, fidelity)
         self.context = self.dut.CreateDefaultContext()
         self.ports = {name: self.dut.GetInputPort(name) for name in ("imu", "attitude", "gps", "mag")}
         self.fix(imu=imu, attitude=attitude, gps=gps, mag=mag)
@@ -357,6 +360,19 @@ def test_ekf_gates_a_50_m_outlier_and_resets_the_horizontal_position_after_the_t
     f.fix(gps=z + [0.5])  # consistent with the new estimate: fused
     f.tick()
     assert f.output("diagnostics")[DIAG["gps_gated"]] == 4.0
+
+
+def test_the_reference_estimator_fuses_every_sample_as_the_binary_does():
+    # fidelity: reference runs the reference's EKF: no gate, so a 50 m outlier is fused
+    z = [50.0, 0.0, -1.0, 0.0, 0.0, 0.0]
+    gated = EkfFixture(gps=z + [0.1])
+    reference = EkfFixture(gps=z + [0.1], imu=[0.0, 0.0, GRAVITY, 0.0, 0.0, 0.0], fidelity=REFERENCE)
+    for f in (gated, reference):
+        f.tick()
+    assert gated.output("diagnostics")[DIAG["gps_gated"]] == 1.0
+    assert reference.output("diagnostics")[DIAG["gps_gated"]] == 0.0
+    assert reference.output("ekf_state")[0] > 0.4  # fused: gain P / (P + R) = 0.01 of 50 m
+    assert abs(gated.output("ekf_state")[0]) < 1e-6
 
 
 def test_a_wrong_velocity_never_makes_the_ekf_refuse_a_good_position():
