@@ -136,3 +136,15 @@ def test_a_run_without_plots_imports_no_heavy_module(tmp_path):
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
     assert result.returncode == 1, result.stderr  # a verdict: 1 s cannot pass 11's 20 s criterion
     assert result.stdout.splitlines()[-1] == "heavy:", result.stdout
+
+
+def test_a_run_without_out_writes_into_the_working_folder_not_the_checkout(tmp_path):
+    # The suite's own guard (conftest): the tests run in a temporary working folder, so the
+    # default ``out`` of a subprocess lands there and the checkout's out/ stays as the user left it.
+    from conftest import REPOSITORY_OUT, folder_snapshot
+
+    before = folder_snapshot(REPOSITORY_OUT)
+    result = cli("run", "01_intro", "--no-plots")
+    assert result.returncode == 0, result.stderr
+    assert (tmp_path / "out" / "01_intro" / "summary.json").is_file()
+    assert folder_snapshot(REPOSITORY_OUT) == before

@@ -6,6 +6,7 @@ from pathlib import Path
 from matplotlib.figure import Figure
 
 from .records import settle_time
+from .statistics import per_dof_text, tolerance_text
 
 DPI = 110
 
@@ -20,7 +21,12 @@ def consistency_figure(campaign):
         ax.plot(c["times"], c["mean"], lw=0.8, color="tab:blue", label=f"mean of {c['realisations']}")
         ax.set_yscale("log")
         ax.set_ylabel(f"{c['statistic']} ({c['dof']} dof) [-]")
-        ax.set_title(f"{c['statistic']}: {100 * c['in_band']:.0f}% of the samples in the band", fontsize=9)
+        ax.axhspan(*(c["dof"] * x for x in c["tolerance"]), color="tab:gray", alpha=0.12, label="tolerance")
+        ax.set_title(
+            f"{per_dof_text(c)} ({'PASS' if c['passed'] else 'FAIL'} against {tolerance_text(c)}); "
+            f"{100 * c['in_band']:.0f}% of the samples in the band",
+            fontsize=9,
+        )
         ax.legend(loc="upper right", fontsize=8)
     ax.set_xlabel("t [s]")
     fig.suptitle(f"{campaign.scenario.name}: consistency over {campaign.runs} runs")
