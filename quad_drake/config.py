@@ -7,6 +7,7 @@ metadata and are enforced by :func:`validate`; any problem becomes one
 """
 
 import dataclasses
+import difflib
 import math
 import re
 import typing
@@ -26,6 +27,15 @@ TRAJECTORY_DIR = PACKAGE_DIR / "data" / "traj"
 
 class ConfigError(ValueError):
     """A user mistake in a scenario or an override; str() is one line."""
+
+
+def did_you_mean(word, choices):
+    """`` (did you mean 'x'?)`` naming the choices closest to `word` (stdlib ``difflib``, at most
+    three), or "" when none is close: the hint every "unknown name" message carries."""
+    close = difflib.get_close_matches(str(word), [str(c) for c in choices], n=3, cutoff=0.6)
+    if not close:
+        return ""
+    return " (did you mean " + " or ".join(repr(c) for c in close) + "?)"
 
 
 def _vec(*values):
@@ -410,7 +420,7 @@ def _check_node(node, tp, path):
                 continue
             sub = f"{path}.{key}" if path else str(key)
             if key not in names:
-                return f"{sub}: unknown key (known: {', '.join(names)})"
+                return f"{sub}: unknown key{did_you_mean(key, names)} (known: {', '.join(names)})"
             message = _check_node(value, typing.get_type_hints(tp)[key], sub)
             if message:
                 return message

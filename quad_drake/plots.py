@@ -24,6 +24,7 @@ from matplotlib.ticker import MaxNLocator
 from .consistency import fleet_sigma_fraction
 from .estimation.vocabulary import vehicle_vocabulary
 from .evaluation import judged_criteria, sigma_share
+from .outdir import write_binary_atomic
 from .report import write_report
 from .signals import key_unit, signal_unit
 
@@ -505,7 +506,7 @@ def write_plots(result, run_dir):
     written = []
     for stem, (caption, fig) in make_figures(result).items():
         path = run_dir / f"{stem}.png"
-        fig.savefig(path, dpi=DPI)
+        write_binary_atomic(path, lambda f, fig=fig: fig.savefig(f, format="png", dpi=DPI))
         written.append((caption, path))
     return written
 

@@ -19,6 +19,7 @@ from pydrake.geometry import Box, Cylinder, Meshcat, MeshcatAnimation, MeshcatPa
 from pydrake.math import RigidTransform, RollPitchYaw
 
 from .conventions import P_SLICE, Q_SLICE, REF_P_SLICE
+from .outdir import write_text_atomic
 
 ROOT = "/quad_drake"
 FPS = 30.0
@@ -190,8 +191,7 @@ def replay_html(result, fps=FPS):
 def write_replay(result, path, fps=FPS):
     """Write replay.html (a Meshcat recording of the run, opens offline); -> path."""
     path = Path(path)
-    path.write_text(replay_html(result, fps), encoding="utf-8")
-    return path
+    return write_text_atomic(path, replay_html(result, fps))
 
 
 def show_live(result, meshcat=None, rate=1.0, wait_for_browser=60.0, block=True):

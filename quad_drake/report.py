@@ -17,6 +17,7 @@ import numpy as np
 from .config import ConfigError, dump_scenario
 from .estimation.vocabulary import health_counts, health_line, vehicle_vocabulary
 from .evaluation import sigma_share
+from .outdir import locked, write_text_atomic
 from .results import read_summary
 
 METRICS = (  # (signal key, what it is, unit)
@@ -238,8 +239,7 @@ def write_report(result, path, plots=(), replay=None):
         "<p>Reproduce with <code>quad-drake run config.yaml</code> in this folder.</p>"
     )
     parts.append(f"<pre>{esc(dump_scenario(scenario))}</pre>")
-    path.write_text(html_page(f"quad_drake: {scenario.name}", "\n".join(parts)), encoding="utf-8")
-    return path
+    return write_text_atomic(path, html_page(f"quad_drake: {scenario.name}", "\n".join(parts)))
 
 
 # ----- out/index.html ------------------------------------------------------------------------
@@ -306,7 +306,11 @@ def _campaign_row(folder, summary, out_dir):
 def write_index(out_dir):
     """out_dir/index.html linking every run and campaign folder under out_dir (see find_summaries)."""
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    with locked(out_dir):  # concurrent invocations: the last one to write has seen every folder
+        return _write_index(out_dir)
+
+
+def _write_index(out_dir):
     found = find_summaries(out_dir)
     runs = [(f, s) for f, s in found if s["kind"] == "run"]
     campaigns = [(f, s) for f, s in found if s["kind"] == "campaign"]
@@ -356,5 +360,4 @@ def write_index(out_dir):
     else:
         parts.append("<p>None yet: <code>quad-drake montecarlo NAME</code> writes one.</p>")
     path = out_dir / "index.html"
-    path.write_text(html_page("quad_drake results", "\n".join(parts)), encoding="utf-8")
-    return path
+    return write_text_atomic(path, html_page("quad_drake results", "\n".join(parts)))

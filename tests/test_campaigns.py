@@ -49,6 +49,7 @@ from quad_drake.config import (
 from quad_drake.estimation.vocabulary import EKF7
 from quad_drake.evaluation import rms
 from quad_drake.report import write_index
+from quad_drake.results import variant_name
 
 
 def strict_loads(text):
@@ -262,14 +263,16 @@ def test_consistency_criterion_passes_inside_the_band_and_fails_outside():
     assert good.consistency[1]["statistic"] == "NIS mag" and good.passed
     assert bad.consistency[0]["in_band"] == 0.0 and bad.consistency[0]["above"] == 1.0
     assert not bad.passed and "FAIL" in table(bad)
+    assert nees["per_dof"] == 1.0 and nees["per_dof_ci95"] == [1.0, 1.0]  # every run the same
+    assert bad.consistency[0]["per_dof"] == pytest.approx(12 / 7) and nees["tolerance"] == [1 / 1.5, 1.5]
 
 
 def test_failure_reasons_explain_the_verdict():
     good, bad = hand_made_campaign(7.0), hand_made_campaign(12.0)
     assert good.failure_reasons() == []
     assert good.verdict() == "PASS: every consistency criterion passed (all criteria passed in 15 of 20 runs)"
-    assert bad.failure_reasons() == ["NEES in band 0 % < 80 %"]
-    assert bad.verdict() == "FAIL: NEES in band 0 % < 80 %"
+    assert bad.failure_reasons() == ["NEES/dof 1.71 [1.71, 1.71] outside [0.667, 1.5]"]
+    assert bad.verdict() == "FAIL: NEES/dof 1.71 [1.71, 1.71] outside [0.667, 1.5]"
 
 
 def test_efficiency_is_pooled_rmse_over_the_bound():
@@ -427,17 +430,17 @@ def test_ctrl_c_in_the_cli_saves_a_partial_campaign_and_exits_130(monkeypatch, t
     argv = ["montecarlo", "10_mag_update", "--runs", "4", "--jobs", "1", "--set", "end_time=0.3"]
     code = cli.main([*argv, "--seed", "3", "--out", str(tmp_path), "--quiet"])
     out, err = capsys.readouterr()
+    folder = tmp_path / variant_name("10_mag_update_montecarlo", 3, ["end_time=0.3"])
     assert code == 130 and out == ""
     assert err.strip().splitlines() == [
         f"quad-drake: interrupted after 2 of 4 runs; the finished ones are in "
-        f"{tmp_path / '10_mag_update_montecarlo'}/ (runs.csv, summary.json marked partial)"
+        f"{folder}/ (runs.csv, summary.json marked partial)"
     ]
-    folder = tmp_path / "10_mag_update_montecarlo"
     summary = strict_loads((folder / "summary.json").read_text())
     assert (summary["partial"], summary["completed"], summary["first_seed"]) == (True, [0, 1], 3)
     with open(folder / "runs.csv") as f:
         assert [r["seed"] for r in csv.DictReader(f)] == ["3", "4"]
-    assert "10_mag_update_montecarlo/report.html" in (tmp_path / "index.html").read_text()
+    assert f"{folder.name}/report.html" in (tmp_path / "index.html").read_text()
 
 
 def test_montecarlo_cli_prints_table_and_explains_its_exit_code(tmp_path, capsys):
@@ -446,7 +449,7 @@ def test_montecarlo_cli_prints_table_and_explains_its_exit_code(tmp_path, capsys
     out, err = capsys.readouterr()
     assert "Monte Carlo 10_mag_update: 2 runs of 0.5 s, seeds 3..4" in out
     assert "runs/min" in out and "2/2 runs" in err
-    folder = tmp_path / "10_mag_update_montecarlo"
+    folder = tmp_path / variant_name("10_mag_update_montecarlo", 3, ["end_time=0.5"])
     summary = strict_loads((folder / "summary.json").read_text())
     assert code == (0 if summary["consistency_passed"] else 1)
     last = out.strip().splitlines()[-1]
@@ -463,7 +466,8 @@ def test_a_failing_campaign_names_the_consistency_test_that_failed(tmp_path, cap
     code = cli.main([*argv, "--out", str(tmp_path), "--no-plots", "--quiet"])
     last = capsys.readouterr().out.strip().splitlines()[-1]
     assert code == 1
-    assert re.fullmatch(r"FAIL: NEES in band \d+ % < 80 %; NIS mag in band \d+ % < 80 %", last), last
+    outside = r"/dof [\d.]+ \[[\d.]+, [\d.]+\] outside \[0.667, 1.5\]"
+    assert re.fullmatch(rf"FAIL: (NEES{outside}; )?NIS mag{outside}", last), last
 
 
 @pytest.mark.slow
@@ -502,7 +506,8 @@ def test_a_real_ctrl_c_keeps_the_finished_runs(tmp_path):
     out, err = process.communicate(timeout=120)
     assert process.returncode == 130 and "Traceback" not in err and out == ""
     assert err.strip().splitlines()[-1].startswith("quad-drake: interrupted after ")
-    summary = strict_loads((tmp_path / "10_mag_update_montecarlo" / "summary.json").read_text())
+    folder = tmp_path / variant_name("10_mag_update_montecarlo", None, ["end_time=0.3"])
+    summary = strict_loads((folder / "summary.json").read_text())
     assert summary["partial"] and 20 <= summary["runs"] < 200
     assert summary["completed"] == list(range(summary["runs"]))  # one after the other in-process
 

@@ -43,9 +43,12 @@ def test_run_accepts_a_yaml_path_seed_and_overrides(tmp_path):
     result = cli(
         "run", str(path), "--seed", "9", "--set", "end_time=0.5", "--out", str(tmp_path), "--no-plots"
     )
-    summary = json.loads((tmp_path / "01_intro" / "summary.json").read_text())
+    from quad_drake.results import variant_name
+
+    run_dir = tmp_path / variant_name("01_intro", 9, ["end_time=0.5"])  # 01_intro-seed9-set<hash>
+    summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["seed"] == 9 and summary["end_time"] == 0.5
-    assert "end_time: 0.5" in (tmp_path / "01_intro" / "config.yaml").read_text()
+    assert "end_time: 0.5" in (run_dir / "config.yaml").read_text()
     assert result.returncode == 1  # a 0.8 s window cannot pass in a 0.5 s run
     assert "FAIL: ABS(Quad.PosFollowErr)" in result.stdout
 
@@ -111,12 +114,16 @@ def test_run_writes_plots_report_replay_and_index(tmp_path):
     result = cli("run", "09_predict_covariance", "01_intro", "--set", "end_time=0.3", "--out", str(tmp_path))
     assert result.returncode in (0, 1), result.stderr  # short runs may fail a criterion
     assert "Traceback" not in result.stderr
-    fleet = tmp_path / "09_predict_covariance"
+    from quad_drake.results import variant_name
+
+    fleet, intro = (
+        variant_name(name, None, ["end_time=0.3"]) for name in ("09_predict_covariance", "01_intro")
+    )
     for name in ("fleet_errors.png", "report.html", "replay.html", "logs.npz"):
-        assert (fleet / name).is_file(), name
-    assert (tmp_path / "01_intro" / "criterion_1.png").is_file()
+        assert (tmp_path / fleet / name).is_file(), name
+    assert (tmp_path / intro / "criterion_1.png").is_file()
     index = (tmp_path / "index.html").read_text()
-    assert "09_predict_covariance/report.html" in index and "01_intro/report.html" in index
+    assert f"{fleet}/report.html" in index and f"{intro}/report.html" in index
 
 
 HEAVY_MODULES = ("scipy.stats", "scipy.optimize", "matplotlib", "cma", "dask")

@@ -2,12 +2,13 @@
 plus the plots and the campaign page (:mod:`.plots`, :mod:`.page`)."""
 
 import csv
+import io
 from pathlib import Path
 
 import numpy as np
 
 from ..jsonio import dump_json
-from ..outdir import remove_stale
+from ..outdir import remove_stale, write_binary_atomic, write_text_atomic
 from ..results import FORMAT_VERSION
 from ..signals import signal_unit
 from .page import write_page
@@ -201,19 +202,20 @@ def save(campaign, out_dir, plots=True):
     out_dir.mkdir(parents=True, exist_ok=True)
     remove_stale(out_dir, CAMPAIGN_ARTIFACTS)
     header, lines = rows(campaign)
-    with open(out_dir / "runs.csv", "w", newline="") as f:
-        writer = csv.writer(f)
-        writer.writerow(header)
-        writer.writerows(lines)
-    dump_json(out_dir / "summary.json", summary(campaign))
-    (out_dir / "table.txt").write_text(table(campaign))
+    text = io.StringIO(newline="")
+    writer = csv.writer(text)
+    writer.writerow(header)
+    writer.writerows(lines)
+    write_text_atomic(out_dir / "runs.csv", text.getvalue())
+    write_text_atomic(out_dir / "table.txt", table(campaign))
     arrays = {}
     for c in campaign.consistency:
         key = c["statistic"].replace(" ", "_")
         arrays[f"{key}_times"], arrays[f"{key}_mean"] = c["times"], c["mean"]
         arrays[f"{key}_band"] = np.array(c["band"])
     if arrays:
-        np.savez_compressed(out_dir / "consistency.npz", **arrays)
+        write_binary_atomic(out_dir / "consistency.npz", lambda f: np.savez_compressed(f, **arrays))
     figures = write_plots(campaign, out_dir) if plots else []
     write_page(campaign, out_dir / "report.html", figures)
+    dump_json(out_dir / "summary.json", summary(campaign))  # last: the index lists complete folders
     return out_dir

@@ -5,6 +5,7 @@ Self-contained like a run's report (:mod:`quad_drake.report`)."""
 from pathlib import Path
 
 from ..config import dump_scenario
+from ..outdir import write_text_atomic
 from ..report import esc, figures_html, html_page, html_table, num, verdict_cell
 from .records import settle_time
 
@@ -156,5 +157,4 @@ def write_page(campaign, path, plots=()):
     if plots:
         parts += ["<h2>Plots</h2>", *figures_html(plots)]
     parts += ["<h2>Scenario (first seed)</h2>", f"<pre>{esc(dump_scenario(s))}</pre>"]
-    path.write_text(html_page(f"quad_drake: Monte Carlo {s.name}", "\n".join(parts)), encoding="utf-8")
-    return path
+    return write_text_atomic(path, html_page(f"quad_drake: Monte Carlo {s.name}", "\n".join(parts)))

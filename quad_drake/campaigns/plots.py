@@ -5,6 +5,7 @@ from pathlib import Path
 
 from matplotlib.figure import Figure
 
+from ..outdir import write_binary_atomic
 from .records import settle_time
 from .statistics import per_dof_text, tolerance_text
 
@@ -63,10 +64,12 @@ def write_plots(campaign, out_dir):
     written = []
     if campaign.consistency:
         path = out_dir / "consistency.png"
-        consistency_figure(campaign).savefig(path, dpi=DPI)
+        figure = consistency_figure(campaign)
+        write_binary_atomic(path, lambda f: figure.savefig(f, format="png", dpi=DPI))
         written.append(("Run-averaged NEES / NIS against the chi² 95 % band", path))
     if campaign.metrics:
         path = out_dir / "errors.png"
-        errors_figure(campaign).savefig(path, dpi=DPI)
+        figure = errors_figure(campaign)
+        write_binary_atomic(path, lambda f: figure.savefig(f, format="png", dpi=DPI))
         written.append(("Per-run RMS errors after settling, against the Kalman bound", path))
     return written

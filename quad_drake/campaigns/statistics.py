@@ -16,7 +16,6 @@ from .records import campaign_vocabulary, criterion_column
 from .tally import NEES, nis_statistic
 
 
-
 def _ratio(rmse, bound):
     if bound is None:
         return None

@@ -11,11 +11,13 @@
 
 import csv
 import dataclasses
+import io
 from pathlib import Path
 
 from .. import campaigns
 from ..config import dump_scenario
 from ..jsonio import dump_json
+from ..outdir import write_binary_atomic, write_text_atomic
 from .objective import score
 
 TUNED_SUFFIX = "_tuned"
@@ -63,7 +65,7 @@ def write_search(result, out_dir):
     if result.search.best is None:
         return written
     tuned = out_dir / "tuned.yaml"
-    tuned.write_text("".join(f"# {line}\n" for line in _header(result)) + dump_scenario(result.tuned))
+    write_text_atomic(tuned, "".join(f"# {line}\n" for line in _header(result)) + dump_scenario(result.tuned))
     written += [tuned, _write_plot(result, out_dir / "objective.png")]
     dump_json(out_dir / "tune.json", summary(result))
     return written + [out_dir / "tune.json"]
@@ -78,23 +80,23 @@ def _write_history(result, path):
     header += [f"log10_multiplier.{p.key}" for p in space] + [f"value.{p.key}" for p in space]
     header += ["best_loss"]
     best = float("inf")
-    with open(path, "w", newline="") as f:
-        writer = csv.writer(f)
-        writer.writerow(header)
-        for e in history:
-            best = min(best, e.score.loss)
-            row = [
-                e.index,
-                e.generation,
-                e.score.loss,
-                e.score.consistency,
-                e.score.accuracy,
-                e.score.pass_rate,
-            ]
-            row += [e.score.in_band.get(name, "") for name in statistics]
-            row += list(e.x) + [_number(p.values(x)[0]) for p, x in zip(space, e.x, strict=True)] + [best]
-            writer.writerow([repr(v) if isinstance(v, float) else v for v in row])
-    return path
+    text = io.StringIO(newline="")
+    writer = csv.writer(text)
+    writer.writerow(header)
+    for e in history:
+        best = min(best, e.score.loss)
+        row = [
+            e.index,
+            e.generation,
+            e.score.loss,
+            e.score.consistency,
+            e.score.accuracy,
+            e.score.pass_rate,
+        ]
+        row += [e.score.in_band.get(name, "") for name in statistics]
+        row += list(e.x) + [_number(p.values(x)[0]) for p, x in zip(space, e.x, strict=True)] + [best]
+        writer.writerow([repr(v) if isinstance(v, float) else v for v in row])
+    return write_text_atomic(path, text.getvalue())
 
 
 def _write_plot(result, path):
@@ -119,8 +121,7 @@ def _write_plot(result, path):
     ax.set_ylabel(f"loss ({result.problem.settings.objective}) [-]")
     ax.set_title(f"tune {result.problem.scenario.name}: loss over the training seeds", fontsize=10)
     ax.legend(fontsize=8)
-    FigureCanvasAgg(fig).print_png(str(path))
-    return path
+    return write_binary_atomic(path, FigureCanvasAgg(fig).print_png)
 
 
 def _campaign_stats(campaign, objective):
@@ -207,7 +208,7 @@ def write_holdout(result, out_dir):
     """before_after.txt, the two held-out campaign folders, tune.json updated; the paths."""
     out_dir = Path(out_dir)
     table = out_dir / "before_after.txt"
-    table.write_text(before_after(result))
+    write_text_atomic(table, before_after(result))
     folders = [
         campaigns.save(result.before, out_dir / "holdout_before", plots=False),
         campaigns.save(result.after, out_dir / "holdout_after", plots=False),
