@@ -167,6 +167,7 @@ def write_report(result, path, plots=(), replay=None):
     parts = [
         f'<h1>{esc(scenario.name)} <span class="{overall[1]}">&nbsp;{overall[0]}&nbsp;</span></h1>',
         f"<p>{esc(scenario.description)}</p>",
+        *faults_html(scenario),
         html_table(
             ["seed", "simulated [s]", "wall time [s]", "× real time", "vehicles"],
             [
@@ -240,6 +241,36 @@ def write_report(result, path, plots=(), replay=None):
     )
     parts.append(f"<pre>{esc(dump_scenario(scenario))}</pre>")
     return write_text_atomic(path, html_page(f"quad_drake: {scenario.name}", "\n".join(parts)))
+
+
+def fault_spans(scenario):
+    """[(start, end, label)] s of the scenario's injected faults, for shading: a window fault's
+    [start, end); a GPS outlier's sample at ``time`` (end = start); a GPS delay over the whole
+    flight. Every vehicle's faults, labelled with the vehicle when there are several."""
+    spans = []
+    several = len(scenario.vehicles) > 1
+    for vehicle in scenario.vehicles:
+        for fault in vehicle.faults:
+            label = f"{vehicle.name}: {fault.kind}" if several else fault.kind
+            if fault.kind == "gps_outlier":
+                spans.append((fault.time, fault.time, label))
+            elif fault.kind == "gps_delay":
+                spans.append((0.0, scenario.end_time, f"{label} {fault.delay:g} s"))
+            else:
+                spans.append((fault.start, fault.end, label))
+    return spans
+
+
+def faults_html(scenario):
+    """[a paragraph naming the injected faults and their windows (shaded on the plots)], or []."""
+    spans = fault_spans(scenario)
+    if not spans:
+        return []
+    words = [
+        f"{label} at {start:g} s" if end == start else f"{label} in [{start:g}, {end:g}) s"
+        for start, end, label in spans
+    ]
+    return [f"<p>Injected fault (shaded red on the time plots): {esc('; '.join(words))}.</p>"]
 
 
 # ----- out/index.html ------------------------------------------------------------------------

@@ -6,7 +6,7 @@ from pathlib import Path
 
 from ..config import dump_scenario
 from ..outdir import write_text_atomic
-from ..report import esc, figures_html, html_page, html_table, num, verdict_cell
+from ..report import esc, faults_html, figures_html, html_page, html_table, num, verdict_cell
 from .records import settle_time
 
 
@@ -117,6 +117,7 @@ def write_page(campaign, path, plots=()):
     parts = [
         f'<h1>Monte Carlo {esc(s.name)} <span class="{css}">&nbsp;{word}&nbsp;</span></h1>',
         f"<p>{esc(s.description)}</p>",
+        *faults_html(s),
         f"<p><b>{esc(campaign.verdict())}</b></p>",
         html_table(
             ["runs", "seeds", "simulated per run [s]", "runner", "wall time [s]", "runs/min"],

@@ -6,6 +6,8 @@ from pathlib import Path
 from matplotlib.figure import Figure
 
 from ..outdir import write_binary_atomic
+from ..plots import shade_faults
+from ..report import fault_spans
 from .records import settle_time
 from .statistics import per_dof_text, tolerance_text
 
@@ -31,6 +33,8 @@ def consistency_figure(campaign):
         ax.legend(loc="upper right", fontsize=8)
     ax.set_xlabel("t [s]")
     fig.suptitle(f"{campaign.scenario.name}: consistency over {campaign.runs} runs")
+    fig.time_axes = list(fig.axes)
+    shade_faults(fig, fault_spans(campaign.scenario))
     return fig
 
 
