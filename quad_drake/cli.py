@@ -53,16 +53,45 @@ def _table(rows):
 
 
 def _fly(scenario):
-    """SimulationResult of one scenario; a numerical breakdown of the flight is one line."""
+    """SimulationResult of one scenario (with progress on stderr from progress.LONG_FLIGHT_S
+    of simulated time on); a numerical breakdown of the flight is one line."""
+    from .progress import LONG_FLIGHT_S, FlightProgress
     from .simulation import run
 
+    progress = (
+        FlightProgress(scenario.name, scenario.end_time) if scenario.end_time >= LONG_FLIGHT_S else None
+    )
     try:
-        return run(scenario)
+        return run(scenario, progress)
     except ArithmeticError as e:  # e.g. a filter whose covariance stopped being usable
         raise ConfigError(
             f"{scenario.name}: the simulation broke down numerically ({type(e).__name__}: {e}); "
             "check the noise and covariance settings"
         ) from None
+    finally:
+        if progress is not None:
+            progress.close()
+
+
+def _check_costs(scenarios):
+    """Refuse a scenario whose run would not fit in memory (``limits.check_run``)."""
+    from .limits import check_run
+
+    for scenario in scenarios:
+        check_run(scenario)
+
+
+def _warn(scenarios):
+    """Every input being good: print on stderr what a long run will take and the criteria and
+    faults that cannot matter for the flight's length (``config.ineffective_settings``)."""
+    from .config import ineffective_settings
+    from .limits import cost_warnings
+
+    for scenario in scenarios:
+        for line in cost_warnings(scenario):
+            print(line, file=sys.stderr)
+        for line in ineffective_settings(scenario):
+            print(f"quad-drake: warning: {scenario.name}: {line}", file=sys.stderr)
 
 
 def cmd_run(args):
@@ -84,6 +113,8 @@ def cmd_run(args):
     ]
     _check_distinct_names(scenarios, folders)
     out = _run_out(args, reproduced)
+    _check_costs(scenarios)
+    _warn(scenarios)
     summaries = []
     try:
         for scenario, folder, source in zip(scenarios, folders, reproduced, strict=True):
@@ -93,6 +124,10 @@ def cmd_run(args):
                 print(criterion.line)
             for line in estimator_health(result):
                 print(line)
+            if result.compile_time > 0:
+                print(
+                    f"(numba compiled its kernels for {result.compile_time:.1f} s first: not in the wall time)"
+                )
             # a reproduction goes beside its run folder, never over it
             run_dir = claim_run_folder(out, folder, scenario, replace=source is None)
             run_dir = save_run(result, run_dir)  # logs first: nothing is lost if a plot fails
@@ -324,13 +359,13 @@ def cmd_montecarlo(args):
 
     out_dir = _check_out_is_not_a_result(check_output_dir(args.out))
     out_dir = out_dir / variant_name(f"{scenario.name}_montecarlo", args.seed, args.set)
+    _check_costs([scenario])
+    runner, fleet_batch = _campaign_runner(args), _fleet_batch(args, scenario)
+    campaigns.plan_campaign(scenario, args.runs, runner, fleet_batch=fleet_batch)  # checks all first
+    _warn([scenario])
     try:
         campaign = campaigns.run_campaign(
-            scenario,
-            args.runs,
-            runner=_campaign_runner(args),
-            progress=not args.quiet,
-            fleet_batch=_fleet_batch(args, scenario),
+            scenario, args.runs, runner=runner, progress=not args.quiet, fleet_batch=fleet_batch
         )
     except campaigns.CampaignInterrupted as interrupted:
         partial = interrupted.campaign

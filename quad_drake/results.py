@@ -43,9 +43,10 @@ class SimulationResult:
     logs: dict  # vehicle -> log name -> (n, width)
     signals: dict  # signal name -> Signal
     criteria: list  # CriterionResult per judged criterion (evaluation.judged_criteria)
-    wall_time: float  # s, simulation only
+    wall_time: float  # s, simulation only (without numba compiling its kernels: compile_time)
     runner: str = RUNNER
     extra: dict = field(default_factory=dict)
+    compile_time: float = 0.0  # s, numba compiling kernels during this flight (first run after an install)
 
     @property
     def passed(self):
@@ -66,6 +67,7 @@ class SimulationResult:
             "real_time_factor": round(self.scenario.end_time / self.wall_time, 2)
             if self.wall_time > 0
             else None,
+            "compile_time_s": round(self.compile_time, 3),
             "criteria": [r.to_dict() for r in self.criteria],
         }
 

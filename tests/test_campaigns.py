@@ -308,6 +308,14 @@ def test_progress_is_a_tqdm_bar_on_a_terminal_and_plain_lines_elsewhere():
     progress.update([record] * 13)
     counts = [line.split(",")[0] for line in batches.getvalue().splitlines()]
     assert counts == ["t: 7/20 runs", "t: 20/20 runs"]
+    slow = io.StringIO()  # runs that take long: a line at least every LINE_INTERVAL_S
+    progress = campaign.Progress("t", 1000, stream=slow)
+    progress.start_line("fleet (batch 1) on in-process")
+    progress.update([record])
+    progress.last_line -= campaign.LINE_INTERVAL_S
+    progress.update([record])
+    assert slow.getvalue().splitlines()[0] == "t: 0/1000 runs, started (fleet (batch 1) on in-process)"
+    assert [line.split(",")[0] for line in slow.getvalue().splitlines()[1:]] == ["t: 2/1000 runs"]
 
 
 def test_a_fleet_label_names_the_batch_flown(scenario):
@@ -500,6 +508,8 @@ def test_a_real_ctrl_c_keeps_the_finished_runs(tmp_path):
         text=True,
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # not ignored if we are
     )
+    started = process.stderr.readline()  # in a log, a campaign says at once that it started
+    assert started.startswith("10_mag_update: 0/200 runs, started (in-process)"), started
     first = process.stderr.readline()  # the first progress line: 20 runs finished
     assert "20/200 runs" in first, first
     process.send_signal(signal.SIGINT)
