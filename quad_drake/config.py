@@ -566,9 +566,8 @@ def ineffective_settings(scenario):
         for j, fault in enumerate(v.faults):
             begins = fault.time if fault.kind == "gps_outlier" else fault.start
             if fault.kind != "gps_delay" and begins >= end:
-                lines.append(
-                    f"vehicles.{i}.faults.{j} ({fault.kind}): starts at {begins:g} s, after the {end:g} s flight"
-                )
+                where = f"vehicles.{i}.faults.{j} ({fault.kind})"
+                lines.append(f"{where}: starts at {begins:g} s, after the {end:g} s flight")
     return lines
 
 

@@ -164,7 +164,6 @@ def run_campaign(scenario, runs, runner=None, seed=None, progress=True, fleet_ba
     """
     runner = runner or InProcessRunner()
     scenario, tasks, worker, label = plan_campaign(scenario, runs, runner, seed, fleet_batch)
-    first = scenario.seed
     runner_name = runner.name if label is None else f"{label} on {runner.name}"
     records, tally = {}, _OrderedTally()
     bar = Progress(scenario.name, runs, progress)
