@@ -125,9 +125,8 @@ def cmd_run(args):
             for line in estimator_health(result):
                 print(line)
             if result.compile_time > 0:
-                print(
-                    f"(numba compiled its kernels for {result.compile_time:.1f} s first: not in the wall time)"
-                )
+                compiled = f"{result.compile_time:.1f} s"
+                print(f"(numba compiled its kernels for {compiled} first: not in the wall time)")
             # a reproduction goes beside its run folder, never over it
             run_dir = claim_run_folder(out, folder, scenario, replace=source is None)
             run_dir = save_run(result, run_dir)  # logs first: nothing is lost if a plot fails
