@@ -427,6 +427,10 @@ def cmd_tune(args):
         f"{best.score.loss:.4g} at candidate {best.index} (start {result.search.history[0].score.loss:.4g})"
     )
     print(f"saved {out}/: " + ", ".join(Path(f).name for f in result.files))
+    if args.out is None:  # out/NAME_tune: listed in out/index.html with the runs and campaigns
+        from .report import write_index
+
+        print(f"index: {write_index(out.parent)}")
     if result.after is None:
         print("tuned (no held-out comparison)")
         return 0

@@ -8,6 +8,7 @@ A criterion is rendered from the text its analyzer wrote (``CriterionResult.desc
 
 import base64
 import html
+import json
 import math
 import os
 from pathlib import Path
@@ -298,6 +299,36 @@ def _links(folder, out_dir, names):
     )
 
 
+def find_tune_sessions(out_dir):
+    """[(folder, tune.json dict)] of every tune session folder under out_dir, sorted by folder."""
+    found = []
+    for path in sorted(Path(out_dir).rglob("tune.json")):
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, ValueError):
+            continue
+        if isinstance(data, dict) and "best_loss" in data:
+            found.append((path.parent, data))
+    return found
+
+
+def _tune_row(folder, data, out_dir):
+    holdout = data.get("holdout")
+    passes = "–"
+    if holdout:
+        before, after = holdout["before"], holdout["after"]
+        passes = f"{before['passes']}/{before['runs']} → {after['passes']}/{after['runs']}"
+    return [
+        esc(os.path.relpath(folder, out_dir)),
+        esc(data["scenario"]),
+        esc(data["settings"]["objective"]),
+        (str(data["candidates"]) + (" (interrupted)" if data.get("interrupted") else ""), "num"),
+        (f"{num(data['start_loss'], 4)} → {num(data['best_loss'], 4)}", "num"),
+        (esc(passes), "num"),
+        _links(folder, out_dir, (("report.html", "tune page"), ("tuned.yaml", "tuned.yaml"))) or "–",
+    ]
+
+
 def _run_row(folder, summary, out_dir):
     criteria = summary["criteria"]
     return [
@@ -309,7 +340,7 @@ def _run_row(folder, summary, out_dir):
         (num(summary["wall_time_s"], 3), "num"),
         (num(summary["real_time_factor"], 3), "num"),
         _links(folder, out_dir, (("report.html", "report"), ("replay.html", "3D replay"))) or "–",
-        "<br>".join(esc(c["line"]) for c in criteria if "line" in c),
+        "<br>".join(esc(c["line"]) for c in criteria if "line" in c and not c["passed"]),
     ]
 
 
@@ -365,11 +396,12 @@ def _write_index(out_dir):
                     "wall [s]",
                     "× real time",
                     "open",
-                    "lines",
+                    "failed",
                 ],
                 [_run_row(f, s, out_dir) for f, s in runs],
             )
         )
+        parts.append("<p>One line per run; each run's criteria, plots and health are on its report.</p>")
     parts.append("<h2>Monte Carlo campaigns</h2>")
     if campaigns:
         parts.append(
@@ -390,5 +422,24 @@ def _write_index(out_dir):
         )
     else:
         parts.append("<p>None yet: <code>quad-drake montecarlo NAME</code> writes one.</p>")
+    parts.append("<h2>Tuning sessions</h2>")
+    tunes = find_tune_sessions(out_dir)
+    if tunes:
+        parts.append(
+            html_table(
+                [
+                    "folder",
+                    "scenario",
+                    "objective",
+                    "candidates",
+                    "loss start → best",
+                    "held-out passes start → tuned",
+                    "open",
+                ],
+                [_tune_row(f, d, out_dir) for f, d in tunes],
+            )
+        )
+    else:
+        parts.append("<p>None yet: <code>quad-drake tune NAME</code> writes one.</p>")
     path = out_dir / "index.html"
     return write_text_atomic(path, html_page("quad_drake results", "\n".join(parts)))

@@ -155,3 +155,28 @@ def test_a_run_without_out_writes_into_the_working_folder_not_the_checkout(tmp_p
     assert result.returncode == 0, result.stderr
     assert (tmp_path / "out" / "01_intro" / "summary.json").is_file()
     assert folder_snapshot(REPOSITORY_OUT) == before
+
+
+def test_bare_quad_drake_prints_the_help_with_the_exit_codes(quad_drake_cli):
+    bare = quad_drake_cli()
+    assert bare.returncode == 0 and bare.stdout.startswith("usage: quad-drake") and bare.stderr == ""
+    assert "exit codes:" in bare.stdout
+    for code in ("  0 ", "  1 ", "  2 ", "  3 ", "  130 "):
+        assert code in bare.stdout, code
+
+
+@pytest.mark.parametrize(
+    "args, hint",
+    [
+        (["run", "11_gps_updat"], "(did you mean '11_gps_update'"),
+        (["run", "01_intro", "--set", "vehicles.0.physics.mas=1"], "(did you mean 'mass'?)"),
+        (
+            ["run", "01_intro", "--set", "criteria.0.signal=Quad.PosFolowErr"],
+            "(did you mean 'Quad.PosFollowErr'",
+        ),
+        (["tune", "11_gps_update", "--params", "ekf.q_yaw_sd"], "(did you mean 'q_yaw_std'"),
+    ],
+)
+def test_a_misspelt_name_gets_a_did_you_mean(quad_drake_cli, tmp_path, args, hint):
+    result = quad_drake_cli(*args, "--out", tmp_path / "out")
+    assert result.returncode == 2 and hint in result.stderr and len(result.stderr.splitlines()) == 1

@@ -68,7 +68,7 @@ def write_search(result, out_dir):
     write_text_atomic(tuned, "".join(f"# {line}\n" for line in _header(result)) + dump_scenario(result.tuned))
     written += [tuned, _write_plot(result, out_dir / "objective.png")]
     dump_json(out_dir / "tune.json", summary(result))
-    return written + [out_dir / "tune.json"]
+    return written + [out_dir / "tune.json", write_page(result, out_dir)]
 
 
 def _write_history(result, path):
@@ -214,4 +214,34 @@ def write_holdout(result, out_dir):
         campaigns.save(result.after, out_dir / "holdout_after", plots=False),
     ]
     dump_json(out_dir / "tune.json", summary(result))
+    write_page(result, out_dir)
     return [table, *folders]
+
+
+def write_page(result, out_dir):
+    """report.html of a tune session in out_dir: what was searched, start and tuned values, the
+    objective plot, the held-out before/after table and links to its files; -> its path."""
+    from ..report import esc, figures_html, html_page, html_table
+
+    out_dir = Path(out_dir)
+    name = result.problem.scenario.name
+    parts = [f"<h1>quad-drake tune {esc(name)}</h1>"]
+    parts += [f"<p>{esc(line)}</p>" for line in _header(result)[:2]]
+    parts.append(
+        html_table(
+            ["parameter", "start", "tuned"], [[esc(k), esc(a), esc(b)] for k, a, b in _changes(result)]
+        )
+    )
+    links = [
+        ("tuned.yaml", "tuned.yaml (run it: quad-drake run DIR/tuned.yaml)"),
+        ("history.csv", "history.csv"),
+    ]
+    links += [("tune.json", "tune.json"), ("before_after.txt", "before_after.txt")]
+    links += [(f"holdout_{w}/report.html", f"held-out campaign {w}") for w in ("before", "after")]
+    shown = [f'<a href="{esc(path)}">{esc(label)}</a>' for path, label in links if (out_dir / path).is_file()]
+    parts.append("<p>" + " · ".join(shown) + "</p>")
+    if result.after is not None:
+        parts += ["<h2>Held-out seeds: start against tuned</h2>", f"<pre>{esc(before_after(result))}</pre>"]
+    if (out_dir / "objective.png").is_file():
+        parts += ["<h2>Search</h2>", *figures_html([("Loss per candidate", out_dir / "objective.png")])]
+    return write_text_atomic(out_dir / "report.html", html_page(f"quad_drake: tune {name}", "\n".join(parts)))
