@@ -348,14 +348,15 @@ def cmd_montecarlo(args):
     The last line explains the exit code: 0 every campaign consistency criterion passed (or
     there is none), 1 one failed; Ctrl-C keeps the finished runs (partial summary) and exits 130.
     """
+    if args.runs < 1 or args.jobs < 1:  # the limits first: before the heavy imports
+        raise ConfigError(f"montecarlo: --runs and --jobs must be >= 1, got {args.runs} and {args.jobs}")
+    if args.batch is not None and args.batch < 1:
+        raise ConfigError(f"montecarlo: --batch must be >= 1, got {args.batch}")
     from . import campaigns
     from .report import write_index
-
-    if args.runs < 1 or args.jobs < 1:
-        raise ConfigError(f"montecarlo: --runs and --jobs must be >= 1, got {args.runs} and {args.jobs}")
-    scenario = catalog.load(args.name, args.seed, args.set)
     from .results import variant_name
 
+    scenario = catalog.load(args.name, args.seed, args.set)
     out_dir = _check_out_is_not_a_result(check_output_dir(args.out))
     out_dir = out_dir / variant_name(f"{scenario.name}_montecarlo", args.seed, args.set)
     _check_costs([scenario])

@@ -180,3 +180,19 @@ def test_bare_quad_drake_prints_the_help_with_the_exit_codes(quad_drake_cli):
 def test_a_misspelt_name_gets_a_did_you_mean(quad_drake_cli, tmp_path, args, hint):
     result = quad_drake_cli(*args, "--out", tmp_path / "out")
     assert result.returncode == 2 and hint in result.stderr and len(result.stderr.splitlines()) == 1
+
+
+def test_argument_limits_are_checked_before_the_heavy_imports():
+    code = (
+        "import sys\nfrom quad_drake.cli import main\n"
+        "runs, batch = ['--runs', '0'], ['--fleet', '--batch', '0']\n"
+        "for argv in (['montecarlo', '01_intro', *runs], ['montecarlo', '01_intro', *batch]):\n"
+        "    assert main(argv) == 2\n"
+        "print(sorted(m for m in ('quad_drake.campaigns', 'pydrake.systems', 'numba') if m in sys.modules))\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "[]"
+    assert (
+        "--runs and --jobs must be >= 1" in result.stderr and "--batch must be >= 1, got 0" in result.stderr
+    )
