@@ -365,6 +365,12 @@ def _campaign_row(folder, summary, out_dir):
     ]
 
 
+def _index_section(title, header, rows, hint):
+    """[heading, table of rows] of an index section, or [heading, "None yet: <hint>."]."""
+    table = html_table(header, rows) if rows else f"<p>None yet: {hint}.</p>"
+    return [f"<h2>{esc(title)}</h2>", table]
+
+
 def write_index(out_dir):
     """out_dir/index.html linking every run and campaign folder under out_dir (see find_summaries)."""
     out_dir = Path(out_dir)
@@ -402,44 +408,21 @@ def _write_index(out_dir):
             )
         )
         parts.append("<p>One line per run; each run's criteria, plots and health are on its report.</p>")
-    parts.append("<h2>Monte Carlo campaigns</h2>")
-    if campaigns:
-        parts.append(
-            html_table(
-                [
-                    "folder",
-                    "scenario",
-                    "runs",
-                    "first seed",
-                    "consistency",
-                    "all criteria passed (95% CI)",
-                    "wall [s]",
-                    "open",
-                    "failed",
-                ],
-                [_campaign_row(f, s, out_dir) for f, s in campaigns],
-            )
-        )
-    else:
-        parts.append("<p>None yet: <code>quad-drake montecarlo NAME</code> writes one.</p>")
-    parts.append("<h2>Tuning sessions</h2>")
-    tunes = find_tune_sessions(out_dir)
-    if tunes:
-        parts.append(
-            html_table(
-                [
-                    "folder",
-                    "scenario",
-                    "objective",
-                    "candidates",
-                    "loss start → best",
-                    "held-out passes start → tuned",
-                    "open",
-                ],
-                [_tune_row(f, d, out_dir) for f, d in tunes],
-            )
-        )
-    else:
-        parts.append("<p>None yet: <code>quad-drake tune NAME</code> writes one.</p>")
+    campaign_header = ["folder", "scenario", "runs", "first seed", "consistency"]
+    campaign_header += ["all criteria passed (95% CI)", "wall [s]", "open", "failed"]
+    parts += _index_section(
+        "Monte Carlo campaigns",
+        campaign_header,
+        [_campaign_row(f, s, out_dir) for f, s in campaigns],
+        "<code>quad-drake montecarlo NAME</code> writes one",
+    )
+    tune_header = ["folder", "scenario", "objective", "candidates", "loss start → best"]
+    tune_header += ["held-out passes start → tuned", "open"]
+    parts += _index_section(
+        "Tuning sessions",
+        tune_header,
+        [_tune_row(f, d, out_dir) for f, d in find_tune_sessions(out_dir)],
+        "<code>quad-drake tune NAME</code> writes one",
+    )
     path = out_dir / "index.html"
     return write_text_atomic(path, html_page("quad_drake results", "\n".join(parts)))
