@@ -238,7 +238,8 @@ def write_report(result, path, plots=(), replay=None):
         parts.extend(figures_html(plots))
     parts.append(
         "<h2>Resolved configuration</h2>"
-        "<p>Reproduce with <code>quad-drake run config.yaml</code> in this folder.</p>"
+        "<p>Reproduce with <code>quad-drake run config.yaml</code> in this folder: the new run is "
+        "written beside this one (this folder's name with <code>-2</code>), which it leaves as it is.</p>"
     )
     parts.append(f"<pre>{esc(dump_scenario(scenario))}</pre>")
     return write_text_atomic(path, html_page(f"quad_drake: {scenario.name}", "\n".join(parts)))

@@ -537,3 +537,19 @@ def test_a_campaign_saved_over_another_leaves_none_of_its_plots(tmp_path):
     assert not (folder / "errors.png").exists() and not (folder / "consistency.png").exists()
     assert (folder / "consistency.npz").read_bytes() != b"an earlier campaign's"  # this campaign's own
     assert (folder / "notes.txt").read_text() == "the user's"
+
+
+def test_a_fault_campaign_shades_the_fault_and_names_it_on_its_page(tmp_path):
+    from quad_drake.campaigns.plots import consistency_figure
+    from quad_drake.config import FaultConfig
+
+    result = hand_made_campaign(7.0)
+    result.scenario.vehicles[0].faults = [FaultConfig(kind="mag_outage", start=0.2, end=0.4)]
+    figure = consistency_figure(result)
+    for ax in figure.time_axes:
+        spans = [p for p in ax.patches if p.get_x() == 0.2 and p.get_width() == pytest.approx(0.2)]
+        assert len(spans) == 1
+    save(result, tmp_path, plots=True)
+    page = (tmp_path / "report.html").read_text()
+    assert "Injected fault (shaded red on the time plots): mag_outage in [0.2, 0.4) s." in page
+    assert "mean / dof" in page and "<td class=\"num\">[0.667, 1.5]</td>" in page
