@@ -17,6 +17,7 @@ from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import ConstantVectorSource
 
 from quad_drake import conventions as c
+from quad_drake.config import check_scenario
 from quad_drake.estimation.vocabulary import vehicle_vocabulary
 from quad_drake.faults import sensor_of
 from quad_drake.fidelity import fidelity_from_mode
@@ -32,6 +33,7 @@ from quad_drake.fleet.systems import (
     FleetSensorFaults,
     FleetTrajectory,
 )
+from quad_drake.limits import check_run
 from quad_drake.sensor_models import imu_has_bias_walk
 from quad_drake.simulation import add_tick_holds, initial_state, sensor_schedule, vehicle_log_widths
 from quad_drake.trajectories import trajectory_from_config
@@ -210,7 +212,10 @@ def run_fleet(scenario, seeds):
     """(times (samples,), {vehicle: {log name: (samples, N, width)}}, wall time s) of `scenario`
     flown by the runs with seeds `seeds` (N,) for end_time s, every exported signal kept (a
     campaign never needs these logs: it summarises its batches while they fly,
-    ``fleet.streaming``)."""
+    ``fleet.streaming``). The scenario is checked as a loaded file is (``config.check_scenario``)
+    and the N runs' logs must fit (``limits.check_run``): ConfigError, nothing flown."""
+    check_scenario(scenario)
+    check_run(scenario, at_once=len(seeds))
     diagram, recorder = build_fleet_diagram(scenario, [int(s) for s in seeds])
     wall_time = fly(diagram, scenario.end_time)
     release_memory(diagram, keep=recorder)
