@@ -21,7 +21,7 @@ from quad_drake.config import check_scenario
 from quad_drake.estimation.vocabulary import vehicle_vocabulary
 from quad_drake.faults import sensor_of
 from quad_drake.fidelity import fidelity_from_mode
-from quad_drake.fleet.estimators import FleetGpsDelayCompensator, build_fleet_estimator
+from quad_drake.fleet.estimators import FleetGpsDelayCompensator
 from quad_drake.fleet.streams import GAUSSIAN, UNIFORM
 from quad_drake.fleet.systems import (
     FleetController,
@@ -36,6 +36,7 @@ from quad_drake.fleet.systems import (
 from quad_drake.limits import check_run
 from quad_drake.sensor_models import imu_has_bias_walk
 from quad_drake.simulation import add_tick_holds, initial_state, sensor_schedule, vehicle_log_widths
+from quad_drake.systems.estimators import build_estimator
 from quad_drake.trajectories import trajectory_from_config
 
 
@@ -106,7 +107,7 @@ def build_fleet_vehicle(vehicle, seeds, fidelity):
     _add_faults(builder, vehicle, outputs, n)
     state_for_control = plant.GetOutputPort("state")
     if sensors.imu is not None:
-        estimator = builder.AddSystem(build_fleet_estimator(vehicle, n, fidelity))
+        estimator = builder.AddSystem(build_estimator(vehicle, fidelity, n=n))
         for name in vehicle_vocabulary(vehicle).log_widths():
             outputs[name] = estimator.GetOutputPort(name)
         inputs = {

@@ -58,3 +58,24 @@ def scalar(discrete_state, group):
 def set_scalar(discrete_state, group, value):
     """Set entry 0 of a discrete-state group (a DiscreteValues) to the float `value`."""
     discrete_state.get_mutable_vector(group).SetAtIndex(0, value)
+
+
+STATE_PORT_COPY_LIMIT = 1000
+"""Doubles up to which a state output port is Drake's own (``DeclareStateOutputPort``); a larger
+one is a vector port whose calc copies the state with numpy. Drake 1.58's state port copies at
+about 3.3 ns per double (24 us for 6,500, a 500-vehicle state), the numpy calc at about 0.3 ns plus
+4 us of Python (6 us), measured on the 2-core machine; equal near 1,000."""
+
+
+def declare_state_output(system, name, index, size):
+    """Declare the output port `name` (size doubles) of `system`'s discrete-state group `index`."""
+    if size <= STATE_PORT_COPY_LIMIT:
+        system.DeclareStateOutputPort(name, index)
+        return
+
+    def calc(context, output):
+        output.get_mutable_value()[:] = context.get_discrete_state(index).value()
+
+    system.DeclareVectorOutputPort(
+        name, size, calc, prerequisites_of_calc={system.discrete_state_ticket(index)}
+    )
