@@ -368,9 +368,9 @@ class Eskf(GatedFusion, LeafSystem):
         discrete_state.get_mutable_value(self.BIAS_GROUP)[:] = x[:, 10:16].ravel()
 
 
-def wire_ekf7(builder, ekf_system, attitude_filter, assembler):
-    """Connect an EKF7, its complementary filter and its assembler (added to `builder`, per
-    vehicle or fleet forms: the same ports); (input ports by name, output ports by name)."""
+def _wire_ekf7(builder, ekf_system, attitude_filter, assembler):
+    """Connect an EKF7, its complementary filter and its assembler (added to `builder`);
+    (input ports by name, output ports by name)."""
     builder.Connect(ekf_system.GetOutputPort("ekf_state"), attitude_filter.GetInputPort("ekf_state"))
     builder.Connect(attitude_filter.GetOutputPort("attitude"), ekf_system.GetInputPort("attitude"))
     builder.Connect(attitude_filter.GetOutputPort("attitude"), assembler.GetInputPort("attitude"))
@@ -390,21 +390,21 @@ def wire_ekf7(builder, ekf_system, attitude_filter, assembler):
     return inputs, outputs
 
 
-def wire_eskf(system):
+def _wire_eskf(system):
     """(input ports by name, output ports by name) of an ESKF system."""
     inputs = {name: [system.GetInputPort(name)] for name in ("imu", "gps", "mag")}
     names = ("estimated_state", "covariance", "diagnostics", "imu_bias")
     return inputs, {name: system.GetOutputPort(name) for name in names}
 
 
-def check_eskf_fidelity(fidelity):
+def _check_eskf_fidelity(fidelity):
     """Raise ConfigError (one line) when the ESKF cannot run under `fidelity`."""
     problem = estimator_fidelity_problem("eskf", fidelity)
     if problem:
         raise ConfigError(problem)
 
 
-def estimator_diagram(builder, inputs, outputs, estimator):
+def _estimator_diagram(builder, inputs, outputs, estimator):
     """Export `inputs` (name -> ports fed by one exported input) and the outputs the vocabulary
     of `estimator` (an estimator config) lists; the built Diagram, named ``estimator``."""
     for name, ports in inputs.items():
@@ -432,12 +432,12 @@ def _build_ekf7(builder, vehicle, fidelity, n):
         ),
     )
     assembler = builder.AddNamedSystem("estimated_state", EstimatedStateAssembler(n))
-    return wire_ekf7(builder, ekf_system, attitude_filter, assembler)
+    return _wire_ekf7(builder, ekf_system, attitude_filter, assembler)
 
 
 def _build_eskf(builder, vehicle, fidelity, n):
-    check_eskf_fidelity(fidelity)
-    return wire_eskf(builder.AddNamedSystem("eskf", Eskf(vehicle.estimator, fidelity, n=n)))
+    _check_eskf_fidelity(fidelity)
+    return _wire_eskf(builder.AddNamedSystem("eskf", Eskf(vehicle.estimator, fidelity, n=n)))
 
 
 _BUILDERS = {"ekf7": _build_ekf7, "eskf": _build_eskf}
@@ -456,4 +456,4 @@ def build_estimator(vehicle, fidelity=PHYSICAL, n=1):
         raise ValueError(f"an estimator needs at least one vehicle, got n = {n}")
     builder = DiagramBuilder()
     inputs, outputs = _BUILDERS[vehicle.estimator.kind](builder, vehicle, fidelity, n)
-    return estimator_diagram(builder, inputs, outputs, vehicle.estimator)
+    return _estimator_diagram(builder, inputs, outputs, vehicle.estimator)
