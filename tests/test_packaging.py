@@ -7,6 +7,7 @@ import shutil
 import subprocess
 import sys
 import sysconfig
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -51,11 +52,21 @@ def test_the_import_scan_sees_relative_imports_of_the_cli():
     assert "quad_drake.cli" in _imported_modules(PACKAGE / "__main__.py")
 
 
-def test_catalog_lists_the_bundled_scenarios_inside_the_package():
+def test_catalog_lists_the_bundled_scenarios_from_the_top_level_folder():
     scenarios = catalog.bundled_scenarios()
     assert list(scenarios)[:2] == ["01_intro", "02_attitude_control"] and len(scenarios) == 19  # +eskf, 12-18
-    assert all(path.parent == PACKAGE / "scenarios" for path in scenarios.values())
-    assert not (REPO / "scenarios").exists()
+    assert all(path.parent == REPO / "scenarios" for path in scenarios.values())
+    assert not (PACKAGE / "scenarios").exists()  # one source: the wheel's copy is built from it
+
+
+def test_the_wheel_lists_every_package_and_ships_the_scenarios_as_package_data():
+    """pyproject lists its packages (the top-level scenarios/ is mapped into the package), so a new
+    subpackage must be listed too."""
+    setuptools = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]
+    packages = {".".join(p.parent.relative_to(REPO).parts) for p in PACKAGE.rglob("__init__.py")}
+    assert set(setuptools["packages"]) == packages | {"quad_drake.scenarios"}
+    assert setuptools["package-dir"] == {"quad_drake.scenarios": "scenarios"}
+    assert setuptools["package-data"]["quad_drake.scenarios"] == ["*.yaml"]
 
 
 def _run(*args, **kwargs):
@@ -73,7 +84,8 @@ def test_version_comes_from_one_place():
 def test_wheel_installed_outside_the_repo_lists_and_runs_the_bundled_scenarios(tmp_path):
     # Build from a copy of what the sdist holds: no stale build/ or egg-info of the checkout leaks in.
     source = tmp_path / "source"
-    shutil.copytree(PACKAGE, source / "quad_drake", ignore=shutil.ignore_patterns("__pycache__"))
+    for folder in ("quad_drake", "scenarios"):
+        shutil.copytree(REPO / folder, source / folder, ignore=shutil.ignore_patterns("__pycache__"))
     for name in ("pyproject.toml", "README.md", "LICENSE"):
         shutil.copy(REPO / name, source)
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"} | {"MPLBACKEND": "Agg"}
@@ -102,6 +114,10 @@ def test_wheel_installed_outside_the_repo_lists_and_runs_the_bundled_scenarios(t
     where = _run(str(python), "-c", "import quad_drake; print(quad_drake.__file__)", cwd=cwd, env=env)
     assert Path(where.stdout.strip()).is_relative_to(venv), where.stdout + where.stderr
 
+    folder = _run(
+        str(python), "-c", "from quad_drake import catalog; print(catalog.SCENARIO_DIR)", cwd=cwd, env=env
+    )
+    assert Path(folder.stdout.strip()) == Path(where.stdout.strip()).parent / "scenarios", folder.stderr
     listed = _run(quad_drake_exe, "list", cwd=cwd, env=env)
     assert listed.returncode == 0, listed.stderr
     assert len(listed.stdout.strip().splitlines()) == 19
