@@ -249,7 +249,7 @@ def test_nees_of_a_matched_filter_lies_in_the_chi2_band(seed):
     check's band is the chi-square quantiles at FALSE_FAIL / 2 shared over the checks (Bonferroni);
     the mean over runs and checks lies within the two-sided FALSE_FAIL normal quantile of 7 times
     its standard error, estimated from the spread of the runs' own means (the checks of one run
-    are correlated, so their count does not shrink it: 0.4 to 0.8 at 200 runs, measured at 20 seeds).
+    are correlated, so their count does not shrink it: 0.56 to 0.71 at 200 runs, measured at 20 seeds).
     The old fixed band 6.6-7.4 at 40 runs failed 5 of 20 other seeds; these hold at seeds 100-119
     (issue 28)."""
     nees = run_nees(EkfParams(), EkfParams(), seed=seed)
