@@ -38,18 +38,82 @@ def _imported_modules(path):
     return names
 
 
-def test_no_module_of_the_package_imports_the_cli():
-    offenders = [
-        str(path.relative_to(PACKAGE.parent))
-        for path in sorted(PACKAGE.rglob("*.py"))
-        if path.name not in ("cli.py", "__main__.py") and "quad_drake.cli" in _imported_modules(path)
-    ]
-    assert offenders == []
-
-
 def test_the_import_scan_sees_relative_imports_of_the_cli():
-    # The scan above must be able to fail: __main__ imports the CLI with a relative import.
+    # The scan below must be able to fail: __main__ imports the CLI with a relative import.
     assert "quad_drake.cli" in _imported_modules(PACKAGE / "__main__.py")
+
+
+PURE = (
+    "quad_drake.conventions",
+    "quad_drake.fidelity",
+    "quad_drake.rotations",
+    "quad_drake.dynamics",
+    "quad_drake.sensor_models",
+    "quad_drake.faults",
+    "quad_drake.delay_compensation",
+    "quad_drake.noise_streams",
+    "quad_drake.error_sampling",
+    "quad_drake.control",
+    "quad_drake.estimation",
+)
+"""The pure modules (maths and models: numpy, no Drake); a package name covers its modules."""
+KERNELS = ("quad_drake.fleet.kernels", "quad_drake.fleet.estimation_kernels", "quad_drake.fleet.bounds")
+"""The compiled kernels, below the systems."""
+BATCH_RUNNERS = ("quad_drake.fleet.runner", "quad_drake.fleet.simulation", "quad_drake.fleet.streaming")
+
+FORBIDDEN = (
+    ("nothing imports the CLI", ("quad_drake",), ("quad_drake.cli",)),
+    (
+        "systems import no campaign, simulation or batch runner",
+        ("quad_drake.systems",),
+        ("quad_drake.campaigns", "quad_drake.simulation", "quad_drake.tuning", *BATCH_RUNNERS),
+    ),
+    ("kernels import no pydrake and no systems", KERNELS, ("pydrake", "quad_drake.systems")),
+    (
+        "pure modules import no kernels, systems or pydrake",
+        PURE,
+        ("pydrake", "quad_drake.systems", "quad_drake.simulation", *KERNELS),
+    ),
+)
+"""(rule, importers, imported): no module under an importer prefix imports one under an imported
+prefix (issue 28). ``__main__`` is the CLI's own entry point."""
+
+
+def _under(name, prefixes):
+    return any(name == p or name.startswith(p + ".") for p in prefixes)
+
+
+def forbidden_edges(imports):
+    """[(rule, importer, imported)] of the edges of `imports` ({module: imported names}) that
+    FORBIDDEN forbids."""
+    return [
+        (rule, module, name)
+        for rule, importers, imported in FORBIDDEN
+        for module, names in sorted(imports.items())
+        if _under(module, importers) and module not in ("quad_drake.cli", "quad_drake.__main__")
+        for name in sorted(names)
+        if _under(name, imported)
+    ]
+
+
+def _package_imports():
+    return {
+        ".".join(path.relative_to(PACKAGE.parent).with_suffix("").parts): _imported_modules(path)
+        for path in sorted(PACKAGE.rglob("*.py"))
+    }
+
+
+def test_no_module_imports_across_a_forbidden_edge():
+    assert forbidden_edges(_package_imports()) == []
+
+
+@pytest.mark.parametrize("rule, importers, imported", FORBIDDEN, ids=[rule for rule, _, _ in FORBIDDEN])
+def test_each_forbidden_edge_is_seen(rule, importers, imported):
+    # Each rule can fail: one planted edge from a module it covers to each name it forbids.
+    importer = importers[0] + (".planted" if importers[0] != "quad_drake" else ".anything")
+    for name in imported:
+        imports = _package_imports() | {importer: {name + ".x"}}
+        assert forbidden_edges(imports) == [(rule, importer, name + ".x")]
 
 
 def test_catalog_lists_the_bundled_scenarios_from_the_top_level_folder():
