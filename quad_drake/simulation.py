@@ -6,7 +6,9 @@ signals exported; its estimator is itself a sub-Diagram, chosen by the vehicle's
 The top-level Diagram logs every exported signal of every vehicle every 5 ms through
 one Multiplexer and one ``LogVectorOutput``: every leaf system costs ~0.3-0.6 us in
 every Simulator step, so one logger instead of one per signal saves ~10 % (DESIGN §9).
-The scenario seed reaches every noise source through ``SetRandomContext``.
+The scenario seed reaches every noise source through ``SetRandomContext``. The same
+``build_vehicle`` given run seeds builds N copies of a vehicle flown at once (fleet mode,
+``fleet.simulation``): every system sized by N, the noise from counter-based streams.
 """
 
 import time

@@ -8,9 +8,9 @@ mean over the runs compared with the 7 dof through its Student statistic (standa
 runs' spread). A consistent filter keeps every stretch within the two-sided FALSE_FAIL quantile
 shared over the stretches (Bonferroni), whatever the seeds, but with probability FALSE_FAIL. The
 share of log samples in the 95 % band of a 30-run mean, judged before against a fixed 80 %, passed
-only 5 of 10 other seed windows; this passes at 5000 and 20 other windows (6000-25000). Measured on
-11 windows of 30 seeds (5000-15000): the tilt-aware
-Q's largest |t| 0.9-3.2 against a bound of 4.5, the constant Q's 8.5-24.5.
+only 5 of 10 other seed windows; this test passes at 5000 and at the 20 windows 6000-25000.
+Measured on 11 windows of 30 seeds (5000-15000): the tilt-aware Q's largest |t| 0.9-3.2 against a
+bound of 4.5, the constant Q's 8.5-24.5.
 """
 
 import math
