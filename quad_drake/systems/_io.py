@@ -9,6 +9,8 @@ one or a few entries reads them one by one (``BasicVector.GetAtIndex``, ~0.15 us
 a scalar of discrete state is read and written the same way (``scalar``, ``set_scalar``).
 """
 
+from collections.abc import Callable
+
 from pydrake.systems.framework import InputPort
 
 NANOBIND = type(InputPort.Eval).__module__.startswith("nanobind")
@@ -21,7 +23,7 @@ about 3.3 ns per double (24 us for 6,500, a 500-vehicle state), the numpy calc a
 4 us of Python (6 us), measured on the 2-core machine; equal near 1,000."""
 
 
-def declare_state_output(system, name, index, size):
+def declare_state_output(system, name, index, size) -> None:
     """Declare the output port `name` (size doubles) of `system`'s discrete-state group `index`."""
     if size <= STATE_PORT_COPY_LIMIT:
         system.DeclareStateOutputPort(name, index)
@@ -35,7 +37,7 @@ def declare_state_output(system, name, index, size):
     )
 
 
-def discrete_group(system, initial, output=None):
+def discrete_group(system, initial, output=None) -> int:
     """Declare a discrete-state group of `system` (``initial``: its size or its values) and, when
     `output` names one, the state output port of it; the group's int index (plain ints are faster
     than DiscreteStateIndex in the 1 kHz handlers)."""
@@ -54,7 +56,7 @@ def vector_reader(port):
     return lambda context: evaluate(context).tolist()
 
 
-def row_reader(port, n=1):
+def row_reader(port, n=1) -> Callable:
     """``read(context) -> (n, size) array``: a read-only view of the vector input `port`'s value
     (no copy; valid inside the handler that reads it), the n vehicles' rows of size = port.size() / n
     (vehicle-major) for the compiled kernels."""
