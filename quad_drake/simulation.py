@@ -103,15 +103,16 @@ def _add_noise(builder, system, port, seeds, stream):
     """Feed the random input `port` of `system` (n times system.noise_size values drawn from
     system.noise_distribution every system.noise_period): with `seeds` None a Drake RandomSource (seeded by
     ``SetRandomContext``), else a NoiseStreamSource of the streams named `stream` of the run seeds
-    (``noise_streams``). The source is named ``<port>`` for ``motor_noise``, else ``<system>_<port>``."""
+    (``noise_streams``), named ``<system>_<port>``."""
     input_port = system.GetInputPort(port)
     distribution = system.noise_distribution
     if seeds is None:
         source = RandomSource(distribution, input_port.size(), system.noise_period)
     else:
         source = NoiseStreamSource(distribution, system.noise_size, system.noise_period, seeds, stream)
-    name = port if port.startswith("motor") else f"{system.get_name()}_{port}"
-    builder.Connect(builder.AddNamedSystem(name, source).get_output_port(0), input_port)
+    builder.Connect(
+        builder.AddNamedSystem(f"{system.get_name()}_{port}", source).get_output_port(0), input_port
+    )
 
 
 def _never_sampled(builder, size, n):
