@@ -8,8 +8,14 @@ PYTHON ?= $(shell for v in 3.13 3.12; do \
 VENV ?= .venv
 BIN := $(VENV)/bin
 
+# Tests run in parallel (pytest-xdist) on machines with 4 cores or more; on fewer the campaign
+# tests' own process pools already fill the cores and xdist measured slower (README "Tests"),
+# so they run serially. `make test TEST_JOBS=N` chooses.
+TEST_JOBS ?= $(shell n=$$(nproc 2>/dev/null || echo 1); [ $$n -ge 4 ] && echo auto || echo 0)
+
 .PHONY: run test lint bench clean
 
+# What running needs (`make run`): the package and its dependencies only.
 $(VENV)/.installed: pyproject.toml
 	@# Graphviz draws `quad-drake diagram`; installed where missing and we may (root + apt).
 	@command -v dot >/dev/null || { [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null && \
@@ -17,18 +23,23 @@ $(VENV)/.installed: pyproject.toml
 		echo "note: Graphviz 'dot' missing; 'quad-drake diagram' needs it"
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e .
+	touch $@
+
+# What testing adds (`make test`, `make lint`): the test extras (pytest, pytest-xdist, ruff, ...).
+$(VENV)/.installed-test: $(VENV)/.installed
 	$(BIN)/python -m pip install -q -e '.[test]'
 	touch $@
 
 run: $(VENV)/.installed
 	$(BIN)/quad-drake run --all
 
-lint: $(VENV)/.installed
+lint: $(VENV)/.installed-test
 	$(BIN)/python -m ruff check .
 	$(BIN)/python -m ruff format --check .
 
 test: lint
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n $(TEST_JOBS)
 
 bench: $(VENV)/.installed
 	$(BIN)/python benchmarks/bench_closed_loop.py

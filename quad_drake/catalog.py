@@ -8,7 +8,8 @@ campaigns all go through it.
 
 from pathlib import Path
 
-from .config import ConfigError, check_seed_range, load_scenario
+from .config import ConfigError, check_seed_range, did_you_mean, load_scenario
+from .outdir import is_result_folder
 
 _PACKAGE = Path(__file__).resolve().parent
 SCENARIO_DIR = _PACKAGE / "scenarios" if (_PACKAGE / "scenarios").is_dir() else _PACKAGE.parent / "scenarios"
@@ -32,7 +33,16 @@ def resolve(name_or_path):
         if not path.is_file():
             raise ConfigError(f"{name}: no such scenario file")
         return path
-    raise ConfigError(f"unknown scenario {name!r} (known: {', '.join(known)})")
+    raise ConfigError(f"unknown scenario {name!r}{did_you_mean(name, known)} (known: {', '.join(known)})")
+
+
+def run_folder_of(name_or_path):
+    """The run folder whose config.yaml `name_or_path` is (reproducing a run from its folder),
+    or None for a bundled name or any other file."""
+    path = Path(str(name_or_path))
+    if path.name == "config.yaml" and path.is_file() and is_result_folder(path.parent):
+        return path.resolve().parent
+    return None
 
 
 def load(name_or_path, seed=None, overrides=()):

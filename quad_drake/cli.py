@@ -1,7 +1,9 @@
 """Command line: ``quad-drake list | run | montecarlo | tune | diagram | noise-std | export``.
 
 Exit codes: 0 every criterion passed, 1 a criterion failed, 2 bad input
-(one line on stderr, no traceback), 130 interrupted (Ctrl-C; finished runs are kept).
+(one line on stderr, no traceback), 3 results could not be written (a full disk, a folder
+that became unwritable: one line; every file already written is whole), 130 interrupted
+(Ctrl-C; finished runs are kept).
 """
 
 import argparse
@@ -11,7 +13,18 @@ from pathlib import Path
 
 from . import __version__, catalog
 from .config import ConfigError, load_scenario
-from .outdir import check_output_dir
+from .outdir import check_output_dir, is_result_folder
+
+EXIT_WRITE_FAILED = 3
+"""Exit code when results could not be written (an OSError while saving; one line on stderr)."""
+
+EXIT_CODES = """exit codes:
+  0    every criterion passed (montecarlo: every consistency criterion; tune: held-out check)
+  1    a criterion failed
+  2    bad input: one line on stderr naming the file and the field; nothing ran
+  3    results could not be written (disk full, folder unwritable): one line on stderr;
+       files already written are whole (each is written to a temporary file, then renamed)
+  130  interrupted (Ctrl-C): the finished runs are kept"""
 
 
 def cmd_list(args):
@@ -40,22 +53,51 @@ def _table(rows):
 
 
 def _fly(scenario):
-    """SimulationResult of one scenario; a numerical breakdown of the flight is one line."""
+    """SimulationResult of one scenario (with progress on stderr from progress.LONG_FLIGHT_S
+    of simulated time on); a numerical breakdown of the flight is one line."""
+    from .progress import LONG_FLIGHT_S, FlightProgress
     from .simulation import run
 
+    progress = (
+        FlightProgress(scenario.name, scenario.end_time) if scenario.end_time >= LONG_FLIGHT_S else None
+    )
     try:
-        return run(scenario)
+        return run(scenario, progress)
     except ArithmeticError as e:  # e.g. a filter whose covariance stopped being usable
         raise ConfigError(
             f"{scenario.name}: the simulation broke down numerically ({type(e).__name__}: {e}); "
             "check the noise and covariance settings"
         ) from None
+    finally:
+        if progress is not None:
+            progress.close()
+
+
+def _check_costs(scenarios):
+    """Refuse a scenario whose run would not fit in memory (``limits.check_run``)."""
+    from .limits import check_run
+
+    for scenario in scenarios:
+        check_run(scenario)
+
+
+def _warn(scenarios):
+    """Every input being good: print on stderr what a long run will take and the criteria and
+    faults that cannot matter for the flight's length (``config.ineffective_settings``)."""
+    from .config import ineffective_settings
+    from .limits import cost_warnings
+
+    for scenario in scenarios:
+        for line in cost_warnings(scenario):
+            print(line, file=sys.stderr)
+        for line in ineffective_settings(scenario):
+            print(f"quad-drake: warning: {scenario.name}: {line}", file=sys.stderr)
 
 
 def cmd_run(args):
     from .jsonio import dump_json
     from .report import estimator_health
-    from .results import save_run
+    from .results import claim_run_folder, save_run, variant_name
 
     if args.all and args.names:
         named = " ".join(args.names)
@@ -64,18 +106,30 @@ def cmd_run(args):
     if not names:
         raise ConfigError("run: name at least one scenario, or --all")
     scenarios = [catalog.load(n, args.seed, args.set) for n in names]  # all input checked first
-    _check_distinct_names(scenarios)
-    out = check_output_dir(args.out)
+    reproduced = [catalog.run_folder_of(n) for n in names]
+    folders = [
+        variant_name(s.name if source is None else source.name, args.seed, args.set)
+        for s, source in zip(scenarios, reproduced, strict=True)
+    ]
+    _check_distinct_names(scenarios, folders)
+    out = _run_out(args, reproduced)
+    _check_costs(scenarios)
+    _warn(scenarios)
     summaries = []
     try:
-        for scenario in scenarios:
+        for scenario, folder, source in zip(scenarios, folders, reproduced, strict=True):
             print(f"== {scenario.name} (seed {scenario.seed}, {scenario.end_time:g} s)", flush=True)
             result = _fly(scenario)
             for criterion in result.criteria:
                 print(criterion.line)
             for line in estimator_health(result):
                 print(line)
-            run_dir = save_run(result, out / scenario.name)  # logs first: nothing is lost if a plot fails
+            if result.compile_time > 0:
+                compiled = f"{result.compile_time:.1f} s"
+                print(f"(numba compiled its kernels for {compiled} first: not in the wall time)")
+            # a reproduction goes beside its run folder, never over it
+            run_dir = claim_run_folder(out, folder, scenario, replace=source is None)
+            run_dir = save_run(result, run_dir)  # logs first: nothing is lost if a plot fails
             if not args.no_plots:
                 from .plots import write_run_artifacts
 
@@ -86,6 +140,7 @@ def cmd_run(args):
                 show_live(result)
             summaries.append(result.summary())
             dump_json(out / "summary.json", summaries)
+            print(f"saved {run_dir}/", flush=True)
     except KeyboardInterrupt:
         index = _write_index(args, summaries, out)
         kept = f"kept the {len(summaries)} finished run(s) in {out}/" if summaries else "no run had finished"
@@ -99,17 +154,39 @@ def cmd_run(args):
     return 0 if all(s["passed"] for s in summaries) else 1
 
 
-def _check_distinct_names(scenarios):
-    """ConfigError when two scenarios of one command share a name: their results would share
-    a folder, the later overwriting the earlier."""
+def _check_distinct_names(scenarios, folders):
+    """ConfigError when two scenarios of one command would share a folder name (the same
+    scenario name): the later would go to a numbered folder, hard to tell apart."""
     seen = set()
-    for scenario in scenarios:
-        if scenario.name in seen:
+    for scenario, folder in zip(scenarios, folders, strict=True):
+        if folder in seen:
             raise ConfigError(
-                f"run: two scenarios are named {scenario.name!r} and would share {scenario.name}/; "
+                f"run: two scenarios are named {scenario.name!r} and would share {folder}/; "
                 "give one another name (name: in its file, or --set name=...)"
             )
-        seen.add(scenario.name)
+        seen.add(folder)
+
+
+def _run_out(args, reproduced):
+    """The output folder of ``run``: ``--out`` (default ``out``), or, when every NAME is the
+    config.yaml of a run folder and no ``--out`` is given, the folder holding those run folders
+    (the reproduction is written beside the run, not inside it). A result folder given as
+    ``--out`` is refused: its own files would be replaced."""
+    if args.out is None:
+        parents = {source.parent for source in reproduced if source is not None}
+        if len(parents) == 1 and all(source is not None for source in reproduced):
+            return check_output_dir(parents.pop())
+    return _check_out_is_not_a_result(check_output_dir(args.out or "out"))
+
+
+def _check_out_is_not_a_result(out):
+    """`out`, unless it is a run's or campaign's folder (ConfigError naming --out)."""
+    if is_result_folder(out):
+        raise ConfigError(
+            f"--out {out}: is a run or campaign folder (it holds summary.json or logs.npz); "
+            "give the folder that holds it, or a new one"
+        )
+    return out
 
 
 def _write_index(args, summaries, out):
@@ -271,20 +348,24 @@ def cmd_montecarlo(args):
     The last line explains the exit code: 0 every campaign consistency criterion passed (or
     there is none), 1 one failed; Ctrl-C keeps the finished runs (partial summary) and exits 130.
     """
+    if args.runs < 1 or args.jobs < 1:  # the limits first: before the heavy imports
+        raise ConfigError(f"montecarlo: --runs and --jobs must be >= 1, got {args.runs} and {args.jobs}")
+    if args.batch is not None and args.batch < 1:
+        raise ConfigError(f"montecarlo: --batch must be >= 1, got {args.batch}")
     from . import campaigns
     from .report import write_index
+    from .results import variant_name
 
-    if args.runs < 1 or args.jobs < 1:
-        raise ConfigError(f"montecarlo: --runs and --jobs must be >= 1, got {args.runs} and {args.jobs}")
     scenario = catalog.load(args.name, args.seed, args.set)
-    out_dir = check_output_dir(args.out) / f"{scenario.name}_montecarlo"
+    out_dir = _check_out_is_not_a_result(check_output_dir(args.out))
+    out_dir = out_dir / variant_name(f"{scenario.name}_montecarlo", args.seed, args.set)
+    _check_costs([scenario])
+    runner, fleet_batch = _campaign_runner(args), _fleet_batch(args, scenario)
+    campaigns.plan_campaign(scenario, args.runs, runner, fleet_batch=fleet_batch)  # checks all first
+    _warn([scenario])
     try:
         campaign = campaigns.run_campaign(
-            scenario,
-            args.runs,
-            runner=_campaign_runner(args),
-            progress=not args.quiet,
-            fleet_batch=_fleet_batch(args, scenario),
+            scenario, args.runs, runner=runner, progress=not args.quiet, fleet_batch=fleet_batch
         )
     except campaigns.CampaignInterrupted as interrupted:
         partial = interrupted.campaign
@@ -347,6 +428,10 @@ def cmd_tune(args):
         f"{best.score.loss:.4g} at candidate {best.index} (start {result.search.history[0].score.loss:.4g})"
     )
     print(f"saved {out}/: " + ", ".join(Path(f).name for f in result.files))
+    if args.out is None:  # out/NAME_tune: listed in out/index.html with the runs and campaigns
+        from .report import write_index
+
+        print(f"index: {write_index(out.parent)}")
     if result.after is None:
         print("tuned (no held-out comparison)")
         return 0
@@ -358,15 +443,25 @@ def cmd_tune(args):
 
 
 def build_parser():
-    parser = argparse.ArgumentParser(prog="quad-drake", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog="quad-drake",
+        description=__doc__.splitlines()[0],
+        epilog=EXIT_CODES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
-    sub = parser.add_subparsers(dest="command", required=True)
+    sub = parser.add_subparsers(dest="command")
     sub.add_parser("list", help="bundled scenarios with a one-line description").set_defaults(func=cmd_list)
     run_parser = sub.add_parser("run", help="run scenarios, print PASS/FAIL and a summary table")
     run_parser.add_argument("names", nargs="*", metavar="NAME", help="scenario name or YAML path")
     run_parser.add_argument("--all", action="store_true", help="every bundled scenario")
     run_parser.add_argument("--seed", type=int, help="override the scenarios' seed")
-    run_parser.add_argument("--out", default="out", help="output folder (default: out)")
+    run_parser.add_argument(
+        "--out",
+        help="output folder (default: out; for NAME = a run folder's config.yaml, the folder above "
+        "that run folder). A run goes to OUT/NAME[-seedN][-setHASH], numbered -2, -3 ... when that "
+        "holds a run of another config",
+    )
     run_parser.add_argument(
         "--set",
         action="append",
@@ -406,6 +501,9 @@ def build_parser():
 def main(argv=None):
     parser = build_parser()
     args = parser.parse_args(argv)
+    if args.command is None:  # bare `quad-drake`: the help, not an error
+        parser.print_help()
+        return 0
     try:
         return args.func(args)
     except ConfigError as e:
@@ -417,6 +515,13 @@ def main(argv=None):
     except BrokenPipeError:  # output piped into e.g. `head`: stop quietly
         sys.stdout = open(os.devnull, "w")  # noqa: SIM115 (flushed at exit)
         return 0
+    except OSError as e:  # writing results failed: a full disk, a folder gone or made read-only
+        where = f" {e.filename}" if e.filename else ""
+        print(
+            f"quad-drake: could not write{where}: {e.strerror or e}; the files written before are whole",
+            file=sys.stderr,
+        )
+        return EXIT_WRITE_FAILED
 
 
 if __name__ == "__main__":

@@ -7,6 +7,7 @@ metadata and are enforced by :func:`validate`; any problem becomes one
 """
 
 import dataclasses
+import difflib
 import math
 import re
 import typing
@@ -26,6 +27,15 @@ TRAJECTORY_DIR = PACKAGE_DIR / "data" / "traj"
 
 class ConfigError(ValueError):
     """A user mistake in a scenario or an override; str() is one line."""
+
+
+def did_you_mean(word, choices):
+    """`` (did you mean 'x'?)`` naming the choices closest to `word` (stdlib ``difflib``, at most
+    three), or "" when none is close: the hint every "unknown name" message carries."""
+    close = difflib.get_close_matches(str(word), [str(c) for c in choices], n=3, cutoff=0.6)
+    if not close:
+        return ""
+    return " (did you mean " + " or ".join(repr(c) for c in close) + "?)"
 
 
 def _vec(*values):
@@ -424,7 +434,7 @@ def _check_node(node, tp, path):
                 continue
             sub = f"{path}.{key}" if path else str(key)
             if key not in names:
-                return f"{sub}: unknown key (known: {', '.join(names)})"
+                return f"{sub}: unknown key{did_you_mean(key, names)} (known: {', '.join(names)})"
             message = _check_node(value, typing.get_type_hints(tp)[key], sub)
             if message:
                 return message
@@ -537,6 +547,44 @@ def estimator_fidelity_problem(estimator_kind, fidelity):
     return None
 
 
+def check_scenario(scenario):
+    """Raise ConfigError (one line, the field's dotted path) for a ScenarioConfig that breaks a
+    rule of :func:`load_scenario`: what every entry point (``simulation.run``, ``run_fleet``,
+    ``run_campaign``) checks, so a config built or changed in Python is judged as a file is."""
+    if not isinstance(scenario, ScenarioConfig):
+        raise ConfigError(f"expected a ScenarioConfig, got {type(scenario).__name__}")
+    try:
+        validate(dataclasses.replace(scenario, name=scenario.name or "scenario"))  # a name comes later
+        _check_semantics(scenario)
+    except (TypeError, AttributeError) as e:  # e.g. a string where a number belongs
+        raise ConfigError(f"{scenario.name or 'scenario'}: a field has the wrong type ({e})") from None
+
+
+def ineffective_settings(scenario):
+    """Lines naming the criteria and faults that cannot matter for a flight of ``end_time`` s:
+    a window (window, sigma) not shorter than the flight, a bound interval or a recovery that
+    starts at or after its end (judged on no samples), a fault that starts after the flight.
+    Not errors (a short trial run may mean it); the command line prints them as warnings."""
+    end, lines = scenario.end_time, []
+    for i, c in enumerate(scenario.criteria):
+        where = f"criteria.{i} ({c.kind} on {c.signal})"
+        if c.kind in ("window", "sigma") and c.window >= end:
+            lines.append(f"{where}: its {c.window:g} s window is not shorter than the {end:g} s flight")
+        if c.kind == "bound" and c.start >= end:
+            lines.append(f"{where}: [{c.start:g}, {c.end:g}) s starts after the {end:g} s flight")
+        if c.kind == "recovery" and c.start + c.window > end:
+            lines.append(
+                f"{where}: judged from {c.start + c.window:g} s (start + window), after the {end:g} s flight"
+            )
+    for i, v in enumerate(scenario.vehicles):
+        for j, fault in enumerate(v.faults):
+            begins = fault.time if fault.kind == "gps_outlier" else fault.start
+            if fault.kind != "gps_delay" and begins >= end:
+                where = f"vehicles.{i}.faults.{j} ({fault.kind})"
+                lines.append(f"{where}: starts at {begins:g} s, after the {end:g} s flight")
+    return lines
+
+
 def _check_semantics(scenario):
     names = [v.name for v in scenario.vehicles]
     if not names:
@@ -634,8 +682,26 @@ class _Loader(yaml.SafeLoader):
 
     PyYAML implements YAML 1.1, where a float needs a dot and a signed exponent: ``1e9``,
     ``-3e2`` or ``1.e3`` load as strings. YAML 1.2 (and Drake's C++ parser) read them as
-    numbers; this loader adds the 1.2 exponent forms to the float resolver.
+    numbers; this loader adds the 1.2 exponent forms to the float resolver. A key given twice in
+    one mapping is refused (PyYAML keeps the last silently); a merge key (``<<``) may still
+    override.
     """
+
+    def construct_mapping(self, node, deep=False):
+        if isinstance(node, yaml.MappingNode):
+            seen = {}
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge" or not isinstance(key_node, yaml.ScalarNode):
+                    continue
+                if key_node.value in seen:
+                    raise yaml.constructor.ConstructorError(
+                        None,
+                        None,
+                        f"duplicate key {key_node.value!r} (first at line {seen[key_node.value]})",
+                        key_node.start_mark,
+                    )
+                seen[key_node.value] = key_node.start_mark.line + 1
+        return super().construct_mapping(node, deep)
 
 
 def _tagged_mapping(loader, tag, node):
@@ -722,8 +788,7 @@ def load_scenario(path, overrides=()):
         scenario = yaml_load_typed(schema=ScenarioConfig, data=yaml_dump(raw))
         if not scenario.name:
             scenario.name = path.stem
-        validate(scenario)
-        _check_semantics(scenario)
+        check_scenario(scenario)
     except ConfigError as e:
         raise ConfigError(f"{path}: {e}{_override_hint(str(e), overrides)}") from None
     except (RuntimeError, ValueError, TypeError) as e:

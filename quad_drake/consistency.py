@@ -14,7 +14,7 @@ import functools
 import math
 
 import numpy as np
-from scipy.stats import beta, chi2
+from scipy.stats import beta, chi2, t
 
 from .estimation.vocabulary import NIS_COLUMNS, NIS_DOF  # noqa: F401 (NIS_DOF re-exported)
 from .evaluation import sigma_share
@@ -153,6 +153,44 @@ def chi2_band(dof, count, probability=0.95):
     tail = (1.0 - probability) / 2.0
     low, high = chi2.ppf([tail, 1.0 - tail], dof * count) / count
     return float(low), float(high)
+
+
+COVARIANCE_TOLERANCE = 1.5
+"""Campaign consistency criterion: the filter's average NEES (or NIS) per degree of freedom
+must be compatible with the interval [1 / COVARIANCE_TOLERANCE, COVARIANCE_TOLERANCE], i.e. the
+covariance the filter reports is within a factor 1.5 of its actual error covariance on average
+(its sigmas within about 22 %). A filter off by a factor 2 fails it in 400 runs; a consistent
+one passes at 20 and at 400 (tests/test_consistency.py)."""
+
+
+def per_dof_interval(run_means, dof, confidence=0.95):
+    """(mean, low, high) of the average statistic per degree of freedom over realisations.
+
+    run_means: each realisation's (run's, vehicle's) time mean of its NEES or NIS: independent
+    across runs (distinct seeds), unlike the samples of one run, so Student's t interval of
+    their mean (``scipy.stats.t``) holds whatever the time correlation within a run. A
+    non-finite realisation (a diverged run) makes all three NaN; one realisation gives the
+    interval (0, inf): it cannot bound the mean.
+    """
+    values = np.asarray(run_means, dtype=float) / dof
+    if values.size == 0 or not np.isfinite(values).all():
+        return math.nan, math.nan, math.nan
+    mean = float(np.mean(values))
+    if values.size < 2:
+        return mean, 0.0, math.inf
+    sem = float(np.std(values, ddof=1) / math.sqrt(values.size))
+    if sem == 0.0:
+        return mean, mean, mean
+    low, high = t.interval(confidence, values.size - 1, loc=mean, scale=sem)
+    return mean, float(low), float(high)
+
+
+def within_tolerance(interval, tolerance=COVARIANCE_TOLERANCE):
+    """True when the confidence interval (low, high) of the average statistic per dof meets
+    [1 / tolerance, tolerance]: the runs do not show (at the interval's confidence) that the
+    filter is off by more than `tolerance` in covariance. False for a NaN interval."""
+    low, high = interval
+    return bool(low <= tolerance and high >= 1.0 / tolerance)
 
 
 def in_band_fraction(values, band):

@@ -939,12 +939,21 @@ class RecoveryFold(_Fold):
             within,
             last_bad,
             samples=self.samples,
-            measured_text="never back under"
-            if math.isinf(recovery)
-            else f"back under {recovery:.4g} s after",
+            measured_text=_recovery_text(recovery, last_bad, start, _amount(threshold, name)),
             series=series,
             **text,
         )
+
+
+def _recovery_text(recovery, last_bad, start, threshold):
+    """The measured value of a recovery verdict in words: ``back under 1.2 s after 12 s``,
+    ``never back under`` or, when no sample from `start` on was above, ``under 0.5 m from
+    12 s on (never above)``."""
+    if math.isinf(recovery):
+        return "never back under"
+    if last_bad is None:
+        return f"under {threshold} from {start:g} s on (never above)"
+    return f"back under {recovery:.4g} s after {start:g} s"
 
 
 def recovery_threshold(times, values, threshold, start, within, name="x"):

@@ -12,7 +12,8 @@ semi-implicit Euler body step, its float32 vehicle state, its accelerometer R_NB
 (and the estimators read it as the reference's do), its 3-D norm limit of the lateral acceleration command
 (z entry -kp_vel_xy vz), its float32 clock advanced by 0.001f per physics step, its sensors
 and estimator stored in float32, its estimator without innovation gates, resets or covariance
-repair, and its logged errors taken at the last onboard tick.
+repair, its altitude integral without anti-windup, and its logged errors taken at the last
+onboard tick.
 """
 
 from dataclasses import dataclass
@@ -53,6 +54,10 @@ class Fidelity:
         in both definitions, as the binary's are.
     reference_estimator: the estimators fuse every sample as the reference's EKF does: no
         innovation gates, no resets to the GPS, no covariance repair (``estimation/gating.py``).
+    altitude_integral_windup: the altitude-error integral keeps integrating while the collective
+        thrust is clamped, as the reference's controller does; the physical default holds it
+        there (anti-windup), so a large height error after a GPS regain or a floor strike does
+        not wind it up into a divergent vertical oscillation (``control.cascade.cascade_step``).
     """
 
     semi_implicit_euler: bool = False
@@ -63,6 +68,7 @@ class Fidelity:
     float32_estimator: bool = False
     errors_at_onboard_tick: bool = False
     reference_estimator: bool = False
+    altitude_integral_windup: bool = False
 
 
 PHYSICAL = Fidelity()
@@ -75,6 +81,7 @@ REFERENCE = Fidelity(
     float32_estimator=True,
     errors_at_onboard_tick=True,
     reference_estimator=True,
+    altitude_integral_windup=True,
 )
 
 

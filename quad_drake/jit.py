@@ -22,6 +22,7 @@ import os
 import stat
 import sys
 import tempfile
+import time
 import warnings
 
 import numba
@@ -42,8 +43,13 @@ class CompileNotice(event.Listener):
 
     def __init__(self):
         self.shown = False
+        self.seconds = 0.0  # s, spent compiling so far in this process (outermost compilations)
+        self._depth, self._start = 0, 0.0
 
     def on_start(self, compile_event):
+        self._depth += 1
+        if self._depth == 1:
+            self._start = time.perf_counter()
         if self.shown or sys.stderr is None or not sys.stderr.isatty():
             return
         module = getattr(compile_event.data["dispatcher"].py_func, "__module__", None) or ""
@@ -52,7 +58,15 @@ class CompileNotice(event.Listener):
             print(COMPILE_NOTICE, file=sys.stderr, flush=True)
 
     def on_end(self, compile_event):
-        pass
+        self._depth -= 1
+        if self._depth == 0:
+            self.seconds += time.perf_counter() - self._start
+
+
+def compile_seconds():
+    """s spent by numba compiling (any kernel, not loading from the cache) in this process so
+    far: what a flight subtracts from its wall time (``simulation.run``)."""
+    return compile_notice.seconds
 
 
 compile_notice = CompileNotice()

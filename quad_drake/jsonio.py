@@ -37,7 +37,8 @@ def dumps_json(obj):
 
 
 def dump_json(path, obj):
-    """Write `obj` as strict JSON to `path`; returns the path."""
-    path = Path(path)
-    path.write_text(dumps_json(obj), encoding="utf-8")
-    return path
+    """Write `obj` as strict JSON to `path`, whole or not at all (``outdir.write_text_atomic``);
+    returns the path."""
+    from .outdir import write_text_atomic
+
+    return write_text_atomic(path, dumps_json(obj))

@@ -14,6 +14,7 @@ gets follows from what it logged, so a new scenario needs no plot code:
   (y / vy) error inside the first vehicle's ±sigma envelope (reference 09).
 """
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +25,8 @@ from matplotlib.ticker import MaxNLocator
 from .consistency import fleet_sigma_fraction
 from .estimation.vocabulary import vehicle_vocabulary
 from .evaluation import judged_criteria, sigma_share
-from .report import write_report
+from .outdir import write_binary_atomic
+from .report import fault_spans, write_report
 from .signals import key_unit, signal_unit
 
 __all__ = ["make_figures", "write_plots", "write_report", "write_run_artifacts"]
@@ -69,7 +71,25 @@ def _figure(rows, cols, width=8.0, height_per_row=2.0, title=""):
     for ax in axes.flat:
         ax.grid(True, alpha=0.3)
         ax.yaxis.set_major_locator(MaxNLocator(nbins=4))
+    fig.time_axes = list(axes.flat)  # what shade_faults marks (every panel here has time as x)
     return fig, axes
+
+
+FAULT_COLOR = "tab:red"
+
+
+def shade_faults(fig, spans):
+    """Shade each fault span on every time panel of `fig` (``fig.time_axes``); a zero-length span
+    (one sample) is a vertical line. The first panel's legend names them."""
+    for k, ax in enumerate(getattr(fig, "time_axes", ())):
+        for start, end, label in spans:
+            shown = f"fault: {label}" if k == 0 else None
+            if end > start:
+                ax.axvspan(start, end, color=FAULT_COLOR, alpha=0.12, lw=0, label=shown)
+            else:
+                ax.axvline(start, color=FAULT_COLOR, lw=1.2, alpha=0.6, label=shown)
+        if k == 0 and spans:
+            ax.legend(loc="upper right", fontsize=7)
 
 
 def _vehicles(result):
@@ -218,7 +238,70 @@ def _sigma_figure(result, criterion, verdict):
     return fig
 
 
-CRITERION_FIGURES = {"window": _window_figure, "sigma": _sigma_figure}
+def _interval_figure(result, criterion, verdict, title, judged, markers):
+    """|signal| over the flight against the threshold, the judged interval shaded (judged:
+    (start, end, label)), markers: [(time, label)] as vertical lines."""
+    signal = result.signals[criterion.signal]
+    unit = signal_unit(criterion.signal)
+    fig, axes = _figure(1, 1, height_per_row=3.0, title=title)
+    ax = axes[0, 0]
+    values = np.abs(signal.values)
+    if signal.fresh.all():
+        ax.plot(result.times, values, lw=1.0, color="tab:blue", label=f"|{criterion.signal}|")
+    else:
+        fresh = signal.fresh
+        ax.plot(
+            result.times[fresh], values[fresh], ".", ms=3, color="tab:blue", label=f"|{criterion.signal}|"
+        )
+    ax.axhline(
+        criterion.threshold, color="tab:red", ls="--", lw=1.0, label=f"threshold {criterion.threshold:g}"
+    )
+    start, end, label = judged
+    ax.axvspan(start, end, color="tab:green" if verdict.passed else "tab:orange", alpha=0.15, label=label)
+    for time, text in markers:
+        ax.axvline(time, color="k", lw=1.0, ls=":", label=text)
+    _robust_ylim(ax, values, criterion.threshold)
+    ax.set_ylabel(_label(f"|{criterion.signal}|", unit))
+    ax.legend(loc="upper left", fontsize=7)
+    return fig
+
+
+def _bound_figure(result, criterion, verdict):
+    """A ``bound`` criterion: |x| < threshold on every sample of [start, end)."""
+    markers = (
+        [] if verdict.trailing is None else [(verdict.trailing, f"first above at {verdict.trailing:.3g} s")]
+    )
+    title = (
+        f"{criterion.signal}: |x| < {criterion.threshold:g} in [{criterion.start:g}, {criterion.end:g}) s"
+        f"  —  {'PASS' if verdict.passed else 'FAIL'} ({verdict.measured_text})"
+    )
+    judged = (criterion.start, criterion.end, f"judged [{criterion.start:g}, {criterion.end:g}) s")
+    return _interval_figure(result, criterion, verdict, title, judged, markers)
+
+
+def _recovery_figure(result, criterion, verdict):
+    """A ``recovery`` criterion: back under the threshold within ``window`` s after start, and
+    staying there to the end of the run (the shaded part must be all under)."""
+    deadline = criterion.start + criterion.window
+    markers = [(criterion.start, f"start {criterion.start:g} s")]
+    if math.isfinite(verdict.measured) and verdict.measured > 0:
+        markers.append(
+            (criterion.start + verdict.measured, f"back under at {criterion.start + verdict.measured:.3g} s")
+        )
+    title = (
+        f"{criterion.signal}: |x| < {criterion.threshold:g} within {criterion.window:g} s after "
+        f"{criterion.start:g} s  —  {'PASS' if verdict.passed else 'FAIL'} ({verdict.measured_text})"
+    )
+    judged = (deadline, result.scenario.end_time, f"must stay under from {deadline:g} s")
+    return _interval_figure(result, criterion, verdict, title, judged, markers)
+
+
+CRITERION_FIGURES = {
+    "window": _window_figure,
+    "sigma": _sigma_figure,
+    "bound": _bound_figure,
+    "recovery": _recovery_figure,
+}
 """Criterion kinds drawn one figure each; fleet_sigma is drawn once in the fleet figure."""
 
 
@@ -495,6 +578,9 @@ def make_figures(result):
     figures["top_view"] = ("Top view of the paths", _top_view_figure(result))
     figures["attitude"] = ("Attitude and body rates", _attitude_figure(result))
     figures["thrust"] = ("Motor thrusts", _thrust_figure(result))
+    spans = fault_spans(result.scenario)
+    for _, fig in figures.values():
+        shade_faults(fig, spans)
     return figures
 
 
@@ -505,7 +591,7 @@ def write_plots(result, run_dir):
     written = []
     for stem, (caption, fig) in make_figures(result).items():
         path = run_dir / f"{stem}.png"
-        fig.savefig(path, dpi=DPI)
+        write_binary_atomic(path, lambda f, fig=fig: fig.savefig(f, format="png", dpi=DPI))
         written.append((caption, path))
     return written
 

@@ -7,6 +7,7 @@ self-contained HTML page (``Meshcat.StaticHtml()``: three.js and the scene are
 inlined, so it opens offline); ``show_live`` plays the flight in a live Meshcat.
 """
 
+import html
 import logging
 import math
 import sys
@@ -19,6 +20,7 @@ from pydrake.geometry import Box, Cylinder, Meshcat, MeshcatAnimation, MeshcatPa
 from pydrake.math import RigidTransform, RollPitchYaw
 
 from .conventions import P_SLICE, Q_SLICE, REF_P_SLICE
+from .outdir import write_text_atomic
 
 ROOT = "/quad_drake"
 FPS = 30.0
@@ -179,19 +181,64 @@ def record(meshcat, tracks, times, fps=FPS):
     meshcat.PublishRecording()
 
 
+def _css(rgba):
+    return f"rgb({round(255 * rgba.r())}, {round(255 * rgba.g())}, {round(255 * rgba.b())})"
+
+
+def legend_html(result):
+    """A fixed legend naming what the replay draws: each vehicle's colour (body and flown path),
+    its nose, the reference and the estimate."""
+    rows = []
+    for i, vehicle in enumerate(v.name for v in result.scenario.vehicles):
+        color = _css(_rgba(VEHICLE_COLORS[i % len(VEHICLE_COLORS)]))
+        rows.append(
+            f'<span style="color:{color}">&#9473;&#9473;</span> {html.escape(vehicle)}: body and flown path'
+        )
+    rows.append(
+        '<span style="color:rgb(230, 26, 26)">&#9679;</span> nose (the front); red rotors: the front pair'
+    )
+    rows.append(f'<span style="color:{_css(REFERENCE_COLOR)}">&#9473;&#9473;</span> reference path')
+    estimate = f'<span style="color:{_css(ESTIMATE_COLOR)}">&#9473;&#9473; &#9679;</span>'
+    rows.append(f"{estimate} estimated path and position")
+    style = (
+        "position:fixed;left:8px;bottom:8px;z-index:10;background:rgba(255,255,255,0.85);"
+        "font:12px sans-serif;padding:6px 8px;border-radius:4px;pointer-events:none"
+    )
+    title = f"<b>{html.escape(result.scenario.name)}</b> (seed {result.scenario.seed}; z up, NED shown z-up)"
+    return f'<div id="quad-drake-legend" style="{style}">' + "<br>".join([title, *rows]) + "</div>"
+
+
+OPEN_CONTROLS = """<script>
+(function openControls(tries) {  // quad_drake: the controls and the animation folder start open
+  var later = function () { if (tries < 100) setTimeout(openControls, 100, tries + 1); };
+  if (typeof viewer === "undefined" || !viewer.gui) { later(); return; }
+  viewer.gui.open();
+  var folders = viewer.gui.__folders || {};
+  if (!folders.Animations) { later(); return; }
+  folders.Animations.open();
+  for (var name in folders.Animations.__folders) folders.Animations.__folders[name].open();
+})(0);
+</script>
+"""
+
+
 def replay_html(result, fps=FPS):
-    """The self-contained HTML text of a run's recording (Meshcat.StaticHtml)."""
+    """The self-contained HTML text of a run's recording (Meshcat.StaticHtml), with a legend
+    (:func:`legend_html`) and the controls open (:data:`OPEN_CONTROLS`)."""
     meshcat = _quiet_meshcat(MeshcatParams(host="localhost", port=0, show_stats_plot=False))
     tracks = build_scene(meshcat, result)
     record(meshcat, tracks, result.times, fps)
-    return meshcat.StaticHtml()
+    page = meshcat.StaticHtml()
+    head, body_end, tail = page.rpartition("</body>")
+    if not body_end:
+        return page
+    return head + legend_html(result) + "\n" + OPEN_CONTROLS + body_end + tail
 
 
 def write_replay(result, path, fps=FPS):
     """Write replay.html (a Meshcat recording of the run, opens offline); -> path."""
     path = Path(path)
-    path.write_text(replay_html(result, fps), encoding="utf-8")
-    return path
+    return write_text_atomic(path, replay_html(result, fps))
 
 
 def show_live(result, meshcat=None, rate=1.0, wait_for_browser=60.0, block=True):

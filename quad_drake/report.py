@@ -8,6 +8,7 @@ A criterion is rendered from the text its analyzer wrote (``CriterionResult.desc
 
 import base64
 import html
+import json
 import math
 import os
 from pathlib import Path
@@ -17,6 +18,7 @@ import numpy as np
 from .config import ConfigError, dump_scenario
 from .estimation.vocabulary import health_counts, health_line, vehicle_vocabulary
 from .evaluation import sigma_share
+from .outdir import locked, write_text_atomic
 from .results import read_summary
 
 METRICS = (  # (signal key, what it is, unit)
@@ -166,6 +168,7 @@ def write_report(result, path, plots=(), replay=None):
     parts = [
         f'<h1>{esc(scenario.name)} <span class="{overall[1]}">&nbsp;{overall[0]}&nbsp;</span></h1>',
         f"<p>{esc(scenario.description)}</p>",
+        *faults_html(scenario),
         html_table(
             ["seed", "simulated [s]", "wall time [s]", "× real time", "vehicles"],
             [
@@ -235,11 +238,41 @@ def write_report(result, path, plots=(), replay=None):
         parts.extend(figures_html(plots))
     parts.append(
         "<h2>Resolved configuration</h2>"
-        "<p>Reproduce with <code>quad-drake run config.yaml</code> in this folder.</p>"
+        "<p>Reproduce with <code>quad-drake run config.yaml</code> in this folder: the new run is "
+        "written beside this one (this folder's name with <code>-2</code>), which it leaves as it is.</p>"
     )
     parts.append(f"<pre>{esc(dump_scenario(scenario))}</pre>")
-    path.write_text(html_page(f"quad_drake: {scenario.name}", "\n".join(parts)), encoding="utf-8")
-    return path
+    return write_text_atomic(path, html_page(f"quad_drake: {scenario.name}", "\n".join(parts)))
+
+
+def fault_spans(scenario):
+    """[(start, end, label)] s of the scenario's injected faults, for shading: a window fault's
+    [start, end); a GPS outlier's sample at ``time`` (end = start); a GPS delay over the whole
+    flight. Every vehicle's faults, labelled with the vehicle when there are several."""
+    spans = []
+    several = len(scenario.vehicles) > 1
+    for vehicle in scenario.vehicles:
+        for fault in vehicle.faults:
+            label = f"{vehicle.name}: {fault.kind}" if several else fault.kind
+            if fault.kind == "gps_outlier":
+                spans.append((fault.time, fault.time, label))
+            elif fault.kind == "gps_delay":
+                spans.append((0.0, scenario.end_time, f"{label} {fault.delay:g} s"))
+            else:
+                spans.append((fault.start, fault.end, label))
+    return spans
+
+
+def faults_html(scenario):
+    """[a paragraph naming the injected faults and their windows (shaded on the plots)], or []."""
+    spans = fault_spans(scenario)
+    if not spans:
+        return []
+    words = [
+        f"{label} at {start:g} s" if end == start else f"{label} in [{start:g}, {end:g}) s"
+        for start, end, label in spans
+    ]
+    return [f"<p>Injected fault (shaded red on the time plots): {esc('; '.join(words))}.</p>"]
 
 
 # ----- out/index.html ------------------------------------------------------------------------
@@ -267,6 +300,36 @@ def _links(folder, out_dir, names):
     )
 
 
+def find_tune_sessions(out_dir):
+    """[(folder, tune.json dict)] of every tune session folder under out_dir, sorted by folder."""
+    found = []
+    for path in sorted(Path(out_dir).rglob("tune.json")):
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, ValueError):
+            continue
+        if isinstance(data, dict) and "best_loss" in data:
+            found.append((path.parent, data))
+    return found
+
+
+def _tune_row(folder, data, out_dir):
+    holdout = data.get("holdout")
+    passes = "–"
+    if holdout:
+        before, after = holdout["before"], holdout["after"]
+        passes = f"{before['passes']}/{before['runs']} → {after['passes']}/{after['runs']}"
+    return [
+        esc(os.path.relpath(folder, out_dir)),
+        esc(data["scenario"]),
+        esc(data["settings"]["objective"]),
+        (str(data["candidates"]) + (" (interrupted)" if data.get("interrupted") else ""), "num"),
+        (f"{num(data['start_loss'], 4)} → {num(data['best_loss'], 4)}", "num"),
+        (esc(passes), "num"),
+        _links(folder, out_dir, (("report.html", "tune page"), ("tuned.yaml", "tuned.yaml"))) or "–",
+    ]
+
+
 def _run_row(folder, summary, out_dir):
     criteria = summary["criteria"]
     return [
@@ -278,7 +341,7 @@ def _run_row(folder, summary, out_dir):
         (num(summary["wall_time_s"], 3), "num"),
         (num(summary["real_time_factor"], 3), "num"),
         _links(folder, out_dir, (("report.html", "report"), ("replay.html", "3D replay"))) or "–",
-        "<br>".join(esc(c["line"]) for c in criteria if "line" in c),
+        "<br>".join(esc(c["line"]) for c in criteria if "line" in c and not c["passed"]),
     ]
 
 
@@ -303,10 +366,20 @@ def _campaign_row(folder, summary, out_dir):
     ]
 
 
+def _index_section(title, header, rows, hint):
+    """[heading, table of rows] of an index section, or [heading, "None yet: <hint>."]."""
+    table = html_table(header, rows) if rows else f"<p>None yet: {hint}.</p>"
+    return [f"<h2>{esc(title)}</h2>", table]
+
+
 def write_index(out_dir):
     """out_dir/index.html linking every run and campaign folder under out_dir (see find_summaries)."""
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    with locked(out_dir):  # concurrent invocations: the last one to write has seen every folder
+        return _write_index(out_dir)
+
+
+def _write_index(out_dir):
     found = find_summaries(out_dir)
     runs = [(f, s) for f, s in found if s["kind"] == "run"]
     campaigns = [(f, s) for f, s in found if s["kind"] == "campaign"]
@@ -330,31 +403,27 @@ def write_index(out_dir):
                     "wall [s]",
                     "× real time",
                     "open",
-                    "lines",
+                    "failed",
                 ],
                 [_run_row(f, s, out_dir) for f, s in runs],
             )
         )
-    parts.append("<h2>Monte Carlo campaigns</h2>")
-    if campaigns:
-        parts.append(
-            html_table(
-                [
-                    "folder",
-                    "scenario",
-                    "runs",
-                    "first seed",
-                    "consistency",
-                    "all criteria passed (95% CI)",
-                    "wall [s]",
-                    "open",
-                    "failed",
-                ],
-                [_campaign_row(f, s, out_dir) for f, s in campaigns],
-            )
-        )
-    else:
-        parts.append("<p>None yet: <code>quad-drake montecarlo NAME</code> writes one.</p>")
+        parts.append("<p>One line per run; each run's criteria, plots and health are on its report.</p>")
+    campaign_header = ["folder", "scenario", "runs", "first seed", "consistency"]
+    campaign_header += ["all criteria passed (95% CI)", "wall [s]", "open", "failed"]
+    parts += _index_section(
+        "Monte Carlo campaigns",
+        campaign_header,
+        [_campaign_row(f, s, out_dir) for f, s in campaigns],
+        "<code>quad-drake montecarlo NAME</code> writes one",
+    )
+    tune_header = ["folder", "scenario", "objective", "candidates", "loss start → best"]
+    tune_header += ["held-out passes start → tuned", "open"]
+    parts += _index_section(
+        "Tuning sessions",
+        tune_header,
+        [_tune_row(f, d, out_dir) for f, d in find_tune_sessions(out_dir)],
+        "<code>quad-drake tune NAME</code> writes one",
+    )
     path = out_dir / "index.html"
-    path.write_text(html_page("quad_drake results", "\n".join(parts)), encoding="utf-8")
-    return path
+    return write_text_atomic(path, html_page("quad_drake results", "\n".join(parts)))

@@ -12,6 +12,8 @@ The run folder is a versioned on-disk contract (``FORMAT_VERSION``):
 the saved configuration, without simulating again.
 """
 
+import hashlib
+import itertools
 import json
 import zipfile
 from dataclasses import dataclass, field
@@ -22,7 +24,7 @@ import numpy as np
 from .config import ConfigError, dump_scenario, load_scenario
 from .estimation.vocabulary import vehicle_vocabulary
 from .jsonio import dump_json
-from .outdir import remove_stale
+from .outdir import locked, remove_stale, write_binary_atomic, write_text_atomic
 from .signals import Signals, vehicle_signals
 from .verdicts import evaluate_criteria
 
@@ -41,9 +43,10 @@ class SimulationResult:
     logs: dict  # vehicle -> log name -> (n, width)
     signals: dict  # signal name -> Signal
     criteria: list  # CriterionResult per judged criterion (evaluation.judged_criteria)
-    wall_time: float  # s, simulation only
+    wall_time: float  # s, simulation only (without numba compiling its kernels: compile_time)
     runner: str = RUNNER
     extra: dict = field(default_factory=dict)
+    compile_time: float = 0.0  # s, numba compiling kernels during this flight (first run after an install)
 
     @property
     def passed(self):
@@ -64,6 +67,7 @@ class SimulationResult:
             "real_time_factor": round(self.scenario.end_time / self.wall_time, 2)
             if self.wall_time > 0
             else None,
+            "compile_time_s": round(self.compile_time, 3),
             "criteria": [r.to_dict() for r in self.criteria],
         }
 
@@ -98,7 +102,8 @@ RUN_ARTIFACTS = ("report.html", "replay.html", "*.png", "csv/*.csv")
 def save_run(result, out_dir):
     """Write logs.npz, config.yaml (resolved) and summary.json into out_dir, after removing an
     earlier run's RUN_ARTIFACTS there (a run without plots must not sit beside the old run's
-    report); returns out_dir."""
+    report); returns out_dir. Each file is written whole or not at all
+    (``outdir.atomic_path``), summary.json last, so a folder with a summary has its logs."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     remove_stale(out_dir, RUN_ARTIFACTS)
@@ -106,10 +111,58 @@ def save_run(result, out_dir):
     for vehicle, logs in result.logs.items():
         for name, data in logs.items():
             arrays[f"{vehicle}/{name}"] = data
-    np.savez_compressed(out_dir / "logs.npz", **arrays)
-    (out_dir / "config.yaml").write_text(dump_scenario(result.scenario))
+    write_binary_atomic(out_dir / "logs.npz", lambda f: np.savez_compressed(f, **arrays))
+    write_text_atomic(out_dir / "config.yaml", dump_scenario(result.scenario))
     dump_json(out_dir / "summary.json", result.summary())
     return out_dir
+
+
+def variant_name(name, seed=None, overrides=()):
+    """The folder name of a scenario flown with ``--seed`` `seed` and ``--set`` `overrides`:
+    `name` as it is, then ``-seed<seed>`` when a seed is given, then ``-set<6 hex digits>`` (a
+    SHA-256 of the overrides in order) when there are any, e.g. ``11_gps_update-seed7-set3fa2c1``.
+    A run of the same command so lands in the same folder (replacing its own earlier result)
+    and a run of another seed or overrides in its own."""
+    parts = [name]
+    if seed is not None:
+        parts.append(f"seed{seed}")
+    if overrides:
+        digest = hashlib.sha256("\n".join(overrides).encode("utf-8")).hexdigest()[:6]
+        parts.append(f"set{digest}")
+    return "-".join(parts)
+
+
+def claim_run_folder(out, name, scenario, replace=True):
+    """The folder under `out` a run of `scenario` is written to, claimed for it by its config.yaml.
+
+    ``out/name`` when it is free, or (``replace``) holds a run of the same resolved config (the
+    same command again: its own earlier result); otherwise the first free ``out/name-2``,
+    ``out/name-3``, ... (a run of an edited file keeps the earlier one). Chosen and claimed
+    under the out folder's lock (``outdir.locked``), so concurrent invocations into one
+    ``--out`` never share a folder unless they fly the same config.
+    """
+    out = Path(out)
+    config = dump_scenario(scenario)
+    with locked(out):
+        for k in itertools.count(1):
+            folder = out / (name if k == 1 else f"{name}-{k}")
+            if folder.exists() and not _claimable(folder, config, replace):
+                continue
+            folder.mkdir(exist_ok=True)
+            write_text_atomic(folder / "config.yaml", config)
+            return folder
+
+
+def _claimable(folder, config, replace):
+    """True for an empty folder, or (replace) a run folder of the same resolved `config`."""
+    if not folder.is_dir():
+        return False
+    if not any(folder.iterdir()):
+        return True
+    try:
+        return replace and (folder / "config.yaml").read_text(encoding="utf-8") == config
+    except (OSError, UnicodeDecodeError):
+        return False
 
 
 def load_logs(run_dir):

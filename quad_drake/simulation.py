@@ -16,7 +16,7 @@ import time
 import numpy as np
 from pydrake.common import RandomGenerator
 from pydrake.systems.analysis import Simulator
-from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.framework import DiagramBuilder, EventStatus
 from pydrake.systems.primitives import (
     ConstantVectorSource,
     LogVectorOutput,
@@ -26,11 +26,14 @@ from pydrake.systems.primitives import (
 )
 
 from . import conventions as c
+from . import jit
+from .config import check_scenario
 from .error_sampling import TICK_LOG_WIDTHS, TICK_REFERENCE, TICK_STATE
 from .estimation.vocabulary import vehicle_vocabulary
 from .faults import sensor_of
 from .fidelity import PHYSICAL, fidelity_from_mode
 from .fleet.estimators import FleetGpsDelayCompensator, build_fleet_estimator
+from .limits import check_run
 from .results import result_from_logs
 from .rotations import quat_from_euler
 from .signals import LOG_WIDTHS, empty_logs, vehicle_signals
@@ -320,18 +323,47 @@ def available_signals(scenario):
     return names
 
 
-def run(scenario):
+def run(scenario, progress=None):
     """SimulationResult of a ScenarioConfig simulated for end_time s with its seed, its criteria
-    evaluated (:mod:`quad_drake.results`)."""
+    evaluated (:mod:`quad_drake.results`). The scenario is checked first as a loaded file is
+    (``config.check_scenario``, ``limits.check_run``): ConfigError, nothing flown."""
+    check_scenario(scenario)
+    check_run(scenario)
     check_criteria(scenario, available_signals(scenario))
     diagram, loggers = build_diagram(scenario)
     simulator = Simulator(diagram)
     context = simulator.get_mutable_context()
     diagram.SetRandomContext(context, RandomGenerator(scenario.seed))
+    if progress is not None:
+        simulator.set_monitor(_progress_monitor(progress, scenario.end_time))
+    compiled = jit.compile_seconds()
     start = time.perf_counter()
     simulator.Initialize()
     simulator.AdvanceTo(scenario.end_time)
-    wall_time = time.perf_counter() - start
+    compile_time = jit.compile_seconds() - compiled
+    wall_time = time.perf_counter() - start - compile_time
 
     times, logs = read_logs(loggers, context, int(round(scenario.end_time / c.LOG_PERIOD)))
-    return result_from_logs(scenario, times, logs, wall_time)
+    result = result_from_logs(scenario, times, logs, wall_time)
+    result.compile_time = compile_time
+    return result
+
+
+PROGRESS_STEPS = 100
+"""How often a flight calls its progress callback: every 1/PROGRESS_STEPS of end_time."""
+
+
+def _progress_monitor(progress, end_time):
+    """A Simulator monitor calling progress(t) (t: simulated s) about every end_time /
+    PROGRESS_STEPS; it reads the time only, so the flight is the same with or without it."""
+    step = end_time / PROGRESS_STEPS
+    due = [step]
+
+    def monitor(context):
+        t = context.get_time()
+        if t >= due[0]:
+            progress(t)
+            due[0] = t + step
+        return EventStatus.Succeeded()
+
+    return monitor

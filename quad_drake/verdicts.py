@@ -5,7 +5,7 @@ The glue between the configuration, the named signals and the pure analyzers of
 they read, and one :class:`~quad_drake.evaluation.CriterionResult` per criterion.
 """
 
-from .config import ConfigError
+from .config import ConfigError, did_you_mean
 from .evaluation import CriterionStream, evaluate_criterion, judged_criteria
 
 
@@ -25,8 +25,9 @@ def check_criteria(scenario, available):
         for key in ("signal", "ref_signal", "sigma_signal"):
             name = getattr(criterion, key)
             if name and any(n not in available for n in _signal_names(criterion, key, vehicles)):
+                missing = next(n for n in _signal_names(criterion, key, vehicles) if n not in available)
                 raise ConfigError(
-                    f"criteria.{i}.{key}: unknown signal {name!r} "
+                    f"criteria.{i}.{key}: unknown signal {name!r}{did_you_mean(missing, available)} "
                     f"(e.g. {', '.join(sorted(available)[:6])}, ...)"
                 )
 

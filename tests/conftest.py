@@ -2,10 +2,46 @@
 that several tests look at, simulated once per session."""
 
 import subprocess
+from pathlib import Path
 
 import pytest
 
 from quad_drake import catalog
+
+ROOT = Path(__file__).resolve().parents[1]
+REPOSITORY_OUT = ROOT / "out"
+
+
+def folder_snapshot(folder):
+    """{relative path: (size, mtime_ns)} of every file under `folder` ({} when it is missing)."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        return {}
+    return {
+        str(p.relative_to(folder)): (p.stat().st_size, p.stat().st_mtime_ns)
+        for p in sorted(folder.rglob("*"))
+        if p.is_file()
+    }
+
+
+@pytest.fixture(autouse=True)
+def _work_in_a_temporary_folder(tmp_path, monkeypatch):
+    """Every test runs in its own temporary working folder, so a command that writes to its
+    default ``out/`` (``quad-drake run`` without ``--out``, in this process or a subprocess, which
+    inherits the folder) writes there, never into the user's ``out/`` of the checkout."""
+    monkeypatch.chdir(tmp_path)
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _repository_out_untouched():
+    """Fails the session's last test when any test added, changed or removed a file under the
+    checkout's ``out/`` (a user's results, e.g. of ``make run``)."""
+    before = folder_snapshot(REPOSITORY_OUT)
+    yield
+    after = folder_snapshot(REPOSITORY_OUT)
+    assert after == before, f"the tests changed {REPOSITORY_OUT}: " + ", ".join(
+        sorted(set(before) ^ set(after) | {k for k in before if k in after and before[k] != after[k]})[:5]
+    )
 
 
 @pytest.fixture

@@ -173,7 +173,7 @@ def test_a_numerical_breakdown_during_a_flight_is_one_line_with_exit_2(quad_drak
     # on a non-finite covariance; plain float code raises ZeroDivisionError or OverflowError).
     from quad_drake import simulation
 
-    def breaks_down(scenario):
+    def breaks_down(scenario, progress=None):
         raise FloatingPointError("covariance P is not finite at t = 1.234 s")
 
     monkeypatch.setattr(simulation, "run", breaks_down)

@@ -17,6 +17,7 @@ from quad_drake.control.cascade import (
     yaw_control,
 )
 from quad_drake.dynamics import thrusts_from_wrench, wrench_from_thrusts
+from quad_drake.fidelity import REFERENCE
 from quad_drake.rotations import (
     euler_from_quat,
     quat_from_euler,
@@ -183,6 +184,19 @@ def test_body_rate_control():
     assert m == pytest.approx((0.0805, -0.322, -0.0345), abs=1e-12)
 
 
+@pytest.mark.parametrize("unknown", [(math.nan, 0.0, 0.0), (0.0, 0.0, math.inf), (math.nan,) * 3])
+def test_body_rate_control_commands_no_moment_without_a_measured_rate(unknown):
+    # an IMU dropout: the estimators report the rate as NaN; no feedback, no moment
+    assert body_rate_control((1.0, -2.0, 0.5), unknown, P) == (0.0, 0.0, 0.0)
+
+
+def test_cascade_without_a_measured_rate_gives_the_collective_thrust_alone():
+    state = hover_state()
+    state[10:13] = [math.nan] * 3
+    forces, _ = cascade_step(state, hover_reference(0.4), 0.0, 0.002, P)  # a yaw error, no moment
+    assert forces == pytest.approx((1.22625,) * 4, abs=1e-12)
+
+
 # ----- whole cascade ---------------------------------------------------------------
 
 
@@ -215,6 +229,18 @@ def test_cascade_clamps_collective_thrust():
     assert forces == pytest.approx((2.16 / 4,) * 4, abs=1e-12)
 
 
+def test_the_altitude_integral_is_held_while_the_collective_thrust_is_clamped():
+    state = hover_state()
+    state[2] = -20.0  # far above the reference: the thrust clamps at its minimum
+    _, integral = cascade_step(state, hover_reference(), 0.25, 0.002, P)
+    assert integral == 0.25  # anti-windup
+    _, integral = cascade_step(state, hover_reference(), 0.25, 0.002, P, REFERENCE)
+    assert integral == pytest.approx(0.25 + 19.0 * 0.002, abs=1e-15)  # the reference winds up
+    state[2] = -1.1  # within reach: integrates
+    _, integral = cascade_step(state, hover_reference(), 0.0, 0.002, P)
+    assert integral == pytest.approx(0.1 * 0.002, abs=1e-15)
+
+
 def test_cascade_matches_composition_of_loops():
     rng = np.random.default_rng(7)
     for _ in range(20):
@@ -229,10 +255,11 @@ def test_cascade_matches_composition_of_loops():
         forces, new_integral = cascade_step(scaled.tolist(), ref.tolist(), integral, 0.002, P)
 
         R = rotation_from_quat(q)
-        thrust, expected_integral = altitude_control(
+        unclamped, integrated = altitude_control(
             ref[2], ref[5], ref[8], p[2], v[2], R[2, 2], integral, 0.002, P
         )
-        thrust = clamp_collective_thrust(thrust, P)
+        thrust = clamp_collective_thrust(unclamped, P)
+        expected_integral = integrated if thrust == unclamped else integral  # anti-windup
         a = lateral_position_control(ref[0:2], ref[3:5], ref[6:8], p[0:2], v[0:2], P)
         pq = roll_pitch_control(a, thrust, R, P)
         r = yaw_control(ref[9], euler_from_quat(q)[2], P)

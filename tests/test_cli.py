@@ -43,9 +43,12 @@ def test_run_accepts_a_yaml_path_seed_and_overrides(tmp_path):
     result = cli(
         "run", str(path), "--seed", "9", "--set", "end_time=0.5", "--out", str(tmp_path), "--no-plots"
     )
-    summary = json.loads((tmp_path / "01_intro" / "summary.json").read_text())
+    from quad_drake.results import variant_name
+
+    run_dir = tmp_path / variant_name("01_intro", 9, ["end_time=0.5"])  # 01_intro-seed9-set<hash>
+    summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["seed"] == 9 and summary["end_time"] == 0.5
-    assert "end_time: 0.5" in (tmp_path / "01_intro" / "config.yaml").read_text()
+    assert "end_time: 0.5" in (run_dir / "config.yaml").read_text()
     assert result.returncode == 1  # a 0.8 s window cannot pass in a 0.5 s run
     assert "FAIL: ABS(Quad.PosFollowErr)" in result.stdout
 
@@ -111,12 +114,16 @@ def test_run_writes_plots_report_replay_and_index(tmp_path):
     result = cli("run", "09_predict_covariance", "01_intro", "--set", "end_time=0.3", "--out", str(tmp_path))
     assert result.returncode in (0, 1), result.stderr  # short runs may fail a criterion
     assert "Traceback" not in result.stderr
-    fleet = tmp_path / "09_predict_covariance"
+    from quad_drake.results import variant_name
+
+    fleet, intro = (
+        variant_name(name, None, ["end_time=0.3"]) for name in ("09_predict_covariance", "01_intro")
+    )
     for name in ("fleet_errors.png", "report.html", "replay.html", "logs.npz"):
-        assert (fleet / name).is_file(), name
-    assert (tmp_path / "01_intro" / "criterion_1.png").is_file()
+        assert (tmp_path / fleet / name).is_file(), name
+    assert (tmp_path / intro / "criterion_1.png").is_file()
     index = (tmp_path / "index.html").read_text()
-    assert "09_predict_covariance/report.html" in index and "01_intro/report.html" in index
+    assert f"{fleet}/report.html" in index and f"{intro}/report.html" in index
 
 
 HEAVY_MODULES = ("scipy.stats", "scipy.optimize", "matplotlib", "cma", "dask")
@@ -136,3 +143,56 @@ def test_a_run_without_plots_imports_no_heavy_module(tmp_path):
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
     assert result.returncode == 1, result.stderr  # a verdict: 1 s cannot pass 11's 20 s criterion
     assert result.stdout.splitlines()[-1] == "heavy:", result.stdout
+
+
+def test_a_run_without_out_writes_into_the_working_folder_not_the_checkout(tmp_path):
+    # The suite's own guard (conftest): the tests run in a temporary working folder, so the
+    # default ``out`` of a subprocess lands there and the checkout's out/ stays as the user left it.
+    from conftest import REPOSITORY_OUT, folder_snapshot
+
+    before = folder_snapshot(REPOSITORY_OUT)
+    result = cli("run", "01_intro", "--no-plots")
+    assert result.returncode == 0, result.stderr
+    assert (tmp_path / "out" / "01_intro" / "summary.json").is_file()
+    assert folder_snapshot(REPOSITORY_OUT) == before
+
+
+def test_bare_quad_drake_prints_the_help_with_the_exit_codes(quad_drake_cli):
+    bare = quad_drake_cli()
+    assert bare.returncode == 0 and bare.stdout.startswith("usage: quad-drake") and bare.stderr == ""
+    assert "exit codes:" in bare.stdout
+    for code in ("  0 ", "  1 ", "  2 ", "  3 ", "  130 "):
+        assert code in bare.stdout, code
+
+
+@pytest.mark.parametrize(
+    "args, hint",
+    [
+        (["run", "11_gps_updat"], "(did you mean '11_gps_update'"),
+        (["run", "01_intro", "--set", "vehicles.0.physics.mas=1"], "(did you mean 'mass'?)"),
+        (
+            ["run", "01_intro", "--set", "criteria.0.signal=Quad.PosFolowErr"],
+            "(did you mean 'Quad.PosFollowErr'",
+        ),
+        (["tune", "11_gps_update", "--params", "ekf.q_yaw_sd"], "(did you mean 'q_yaw_std'"),
+    ],
+)
+def test_a_misspelt_name_gets_a_did_you_mean(quad_drake_cli, tmp_path, args, hint):
+    result = quad_drake_cli(*args, "--out", tmp_path / "out")
+    assert result.returncode == 2 and hint in result.stderr and len(result.stderr.splitlines()) == 1
+
+
+def test_argument_limits_are_checked_before_the_heavy_imports():
+    code = (
+        "import sys\nfrom quad_drake.cli import main\n"
+        "runs, batch = ['--runs', '0'], ['--fleet', '--batch', '0']\n"
+        "for argv in (['montecarlo', '01_intro', *runs], ['montecarlo', '01_intro', *batch]):\n"
+        "    assert main(argv) == 2\n"
+        "print(sorted(m for m in ('quad_drake.campaigns', 'pydrake.systems', 'numba') if m in sys.modules))\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "[]"
+    assert (
+        "--runs and --jobs must be >= 1" in result.stderr and "--batch must be >= 1, got 0" in result.stderr
+    )

@@ -7,7 +7,7 @@ import math
 import numpy as np
 
 from quad_drake.export import export_csv
-from quad_drake.results import load_logs, signals_from_logs
+from quad_drake.results import load_logs, signals_from_logs, variant_name
 
 
 def read_csv(path):
@@ -46,10 +46,11 @@ def test_a_fleet_gets_a_file_per_vehicle(quad_drake_cli, tmp_path):
     out = tmp_path / "out"
     run = quad_drake_cli("run", "09_predict_covariance", "--set", "end_time=0.1", "--no-plots", "--out", out)
     assert run.returncode in (0, 1), run.stderr
-    exported = quad_drake_cli("export", out / "09_predict_covariance")
+    run_dir = out / variant_name("09_predict_covariance", None, ["end_time=0.1"])
+    exported = quad_drake_cli("export", run_dir)
     assert exported.returncode == 0, exported.stderr
     paths = exported.stdout.split()
-    assert len(paths) == 11 and paths[0].endswith("09_predict_covariance/csv/Quad1.csv")
+    assert len(paths) == 11 and paths[0].endswith(f"{run_dir.name}/csv/Quad1.csv")
     assert paths[-1].endswith("csv/units.json")
-    header, table = read_csv(out / "09_predict_covariance" / "csv" / "Quad10.csv")
+    header, table = read_csv(run_dir / "csv" / "Quad10.csv")
     assert header[:2] == ["time", "Quad10.Pos.X"] and table.shape[0] == 20

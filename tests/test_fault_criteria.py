@@ -52,7 +52,10 @@ def test_bound_and_recovery_fill_the_criterion_texts():
     recovery = recovery_threshold(TIMES, values, 1.0, 6.0, 1.0, "Quad.Est.E.Pos")
     assert recovery.description == "|Quad.Est.E.Pos| < 1 m within 1 s after 6 s"
     assert recovery.required_text == "back under within 1 s, and staying"
-    assert recovery.measured_text == "back under 0.5 s after"
+    assert recovery.measured_text == "back under 0.5 s after 6 s"
+    calm = recovery_threshold(TIMES, np.zeros_like(values), 1.0, 6.0, 1.0, "Quad.Est.E.Pos")
+    assert calm.passed and calm.measured == 0.0
+    assert calm.measured_text == "under 1 m from 6 s on (never above)"  # not "back under 0 s after"
 
 
 def test_recovery_time_is_measured_from_start_to_the_first_sample_after_the_last_violation():

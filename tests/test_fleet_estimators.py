@@ -102,11 +102,46 @@ def test_ekf7_predict_matches_the_scalar_step(reference_accelerometer):
 def _ekf7_tick(x, P, attitude, imu, gps, mag, diagnostics, book, Q, gains, R_mag, threshold=9.0):
     """kernels.ekf7_tick with the scalar EKF's settings; (quiet, healthy)."""
     healthy = np.empty(x.shape[0], dtype=bool)
+    hold = np.zeros((x.shape[0], kernels.HOLD_SIZE))
     quiet = kernels.ekf7_tick(
-        x, P, attitude, imu, gps, mag, diagnostics, book, DT, Q, gains, kernels.gravity_z(False),
+        x, P, hold, attitude, imu, gps, mag, diagnostics, book, DT, Q, gains, kernels.gravity_z(False),
         R_mag[0, 0], threshold, healthy,
     )  # fmt: skip
     return quiet, healthy
+
+
+def test_the_running_mean_of_the_imu_bridges_a_dropout():
+    """complementary_tick's hold: the mean of the finite samples with weight dt / (IMU_HOLD_TIME +
+    dt), started by the first; over NaN samples the filter integrates the mean and reports a NaN
+    rate; a vehicle that never had a finite sample keeps its roll and pitch."""
+    rng = np.random.default_rng(21)
+    ticks, count = 60, 4
+    imu = np.column_stack([specific_forces(rng, ticks * count), gyro_samples(rng, ticks * count)])
+    imu = imu.reshape(ticks, count, 6)
+    imu[20:35, 1] = math.nan  # vehicle 1: a 30 ms dropout
+    imu[:, 2] = math.nan  # vehicle 2: never a finite sample
+    attitude, rate = np.zeros((count, 3)), np.zeros((count, 3))
+    hold = np.tile(kernels.initial_hold(), (count, 1))
+    weight = DT / (kernels.IMU_HOLD_TIME + DT)
+    mean = imu[0].copy()
+    for k in range(ticks):
+        before = attitude.copy()
+        kernels.complementary_tick(attitude, rate, hold, imu[k], np.zeros((count, 7)), DT, 0.5, "nonlinear")
+        finite = np.isfinite(imu[k]).all(axis=1)
+        if k:
+            mean[finite] += weight * (imu[k][finite] - mean[finite])
+        np.testing.assert_allclose(hold[[0, 1, 3], 0:6], mean[[0, 1, 3]], **TOL)
+        if 20 <= k < 35:
+            assert np.isnan(rate[1]).all()
+            prior = before[1:2].copy()
+            prior[0, 2] = 0.0  # the prior yaw is the EKF's
+            expected = kernels.complementary_update(
+                prior, mean[1:2, 0:3], mean[1:2, 3:6], DT, 0.5, "nonlinear"
+            )
+            np.testing.assert_allclose(attitude[1], expected[0], **TOL)
+        np.testing.assert_array_equal(rate[[0, 3]], imu[k][[0, 3], 3:6])
+    assert hold[2, 6] == 0.0 and np.isnan(rate[2]).all()
+    np.testing.assert_array_equal(attitude[2, 0:2], 0.0)
 
 
 def _never_sampled(width, count=N):
@@ -125,7 +160,7 @@ def test_ekf7_tick_with_tilt_noise_matches_the_scalar_step():
     x_ref, P_ref = x.copy(), P.copy()
     quiet, healthy = _ekf7_tick(
         x, P, attitude, imu, _never_sampled(7), _never_sampled(2), np.zeros((N, DIAGNOSTICS_SIZE)),
-        np.zeros((N, 3)), Q, tilt.gains(t), ekf.mag_noise(params),
+        np.zeros((N, kernels.BOOK_SIZE)), Q, tilt.gains(t), ekf.mag_noise(params),
     )  # fmt: skip
     assert quiet and healthy.all()
     G = ekf.predict_jacobian(np.zeros(7), 0.0, 0.0, (0.0, 0.0, 0.0), DT)
@@ -151,7 +186,7 @@ def test_ekf7_tick_fuses_the_magnetometer_only_on_a_quiet_tick():
 
     def tick(gps, P_start=P):
         x_new, P_new = x.copy(), P_start.copy()
-        diagnostics, book = np.zeros((N, DIAGNOSTICS_SIZE)), np.zeros((N, 3))
+        diagnostics, book = np.zeros((N, DIAGNOSTICS_SIZE)), np.zeros((N, kernels.BOOK_SIZE))
         quiet, healthy = _ekf7_tick(
             x_new, P_new, attitude, imu, gps, mag, diagnostics, book, Q, kernels.NO_TILT, R_mag
         )
@@ -159,7 +194,7 @@ def test_ekf7_tick_fuses_the_magnetometer_only_on_a_quiet_tick():
 
     quiet, healthy, x_new, P_new, diagnostics, book = tick(gps)
     x_ref, P_ref = x.copy(), P.copy()
-    diagnostics_ref, book_ref = np.zeros((N, DIAGNOSTICS_SIZE)), np.zeros((N, 3))
+    diagnostics_ref, book_ref = np.zeros((N, DIAGNOSTICS_SIZE)), np.zeros((N, kernels.BOOK_SIZE))
     _ekf7_tick(
         x_ref,
         P_ref,

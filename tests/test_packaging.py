@@ -202,3 +202,16 @@ def test_wheel_installed_outside_the_repo_lists_and_runs_the_bundled_scenarios(t
     for command in ([quad_drake_exe], [str(python), "-m", "quad_drake"]):
         version = _run(*command, "--version", cwd=cwd, env=env)
         assert version.stdout.strip() == f"quad-drake {quad_drake.__version__}", version.stderr
+
+
+def test_make_run_installs_only_what_running_needs_and_make_test_runs_in_parallel(tmp_path):
+    venv = tmp_path / "venv"  # not there: make prints every step it would take
+    run = subprocess.run(["make", "-n", "run", f"VENV={venv}"], cwd=REPO, capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert "pip install -q -e .\n" in run.stdout and "[test]" not in run.stdout
+    test = subprocess.run(["make", "-n", "test", f"VENV={venv}"], cwd=REPO, capture_output=True, text=True)
+    workers = "auto" if len(os.sched_getaffinity(0)) >= 4 else "0"  # as nproc: serial below 4 cores
+    assert "pip install -q -e '.[test]'" in test.stdout and f"pytest -n {workers}" in test.stdout
+    forced = ["make", "-n", "test", f"VENV={venv}", "TEST_JOBS=3"]
+    assert "pytest -n 3" in subprocess.run(forced, cwd=REPO, capture_output=True, text=True).stdout
+    assert "pytest-xdist" in (REPO / "pyproject.toml").read_text()

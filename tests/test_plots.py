@@ -329,3 +329,46 @@ def test_report_html_renders_the_safety_criteria_from_their_text(tmp_path):
         assert f"<td>{verdict.kind}</td>" in report
         for text in (verdict.description, verdict.measured_text, verdict.required_text):
             assert text and text.replace("<", "&lt;").replace(">", "&gt;") in report
+
+
+def test_bound_and_recovery_criteria_get_a_figure_and_faults_are_shaded_on_every_time_plot():
+    from quad_drake.config import FaultConfig
+
+    criteria = [
+        CriterionConfig(kind="bound", signal="Quad.Est.E.Pos", threshold=2.0, start=1.0, end=3.0),
+        CriterionConfig(kind="recovery", signal="Quad.Est.E.Pos", threshold=2.0, start=3.0, window=0.5),
+    ]
+    result = make_result(criteria=criteria)
+    result.scenario.vehicles[0].faults = [
+        FaultConfig(kind="gps_outage", start=1.0, end=3.0),
+        FaultConfig(kind="gps_outlier", time=2.5, offset=[50.0, 0.0, 0.0]),
+    ]
+    figures = plots.make_figures(result)
+    assert figures["criterion_1"][0].startswith("Criterion 1: |Quad.Est.E.Pos| < 2 m in [1, 3) s")
+    assert figures["criterion_2"][0].startswith("Criterion 2: |Quad.Est.E.Pos| < 2 m within 0.5 s after 3 s")
+    title = figures["criterion_2"][1]._suptitle.get_text()
+    assert ("PASS" if result.criteria[1].passed else "FAIL") in title and result.criteria[
+        1
+    ].measured_text in title
+    for stem, (_, fig) in figures.items():
+        if stem == "top_view":
+            continue
+        first = fig.time_axes[0]
+        spans = [p for p in first.patches if p.get_label() == "fault: gps_outage"]
+        lines = [line for line in first.lines if line.get_label() == "fault: gps_outlier"]
+        assert len(spans) == 1 and len(lines) == 1, stem
+        assert spans[0].get_x() == 1.0 and spans[0].get_width() == 2.0  # the window [1, 3) s
+        for ax in fig.time_axes[1:]:
+            assert any(p.get_x() == 1.0 for p in ax.patches), stem
+    assert plots.fault_spans(result.scenario) == [(1.0, 3.0, "gps_outage"), (2.5, 2.5, "gps_outlier")]
+
+
+def test_run_and_campaign_pages_name_the_fault_window(tmp_path):
+    from quad_drake.config import FaultConfig
+    from quad_drake.report import faults_html
+
+    result = make_result()
+    assert faults_html(result.scenario) == []
+    result.scenario.vehicles[0].faults = [FaultConfig(kind="mag_bias", start=1.0, end=2.5, offset=[1.0])]
+    report = plots.write_report(result, tmp_path / "report.html").read_text()
+    assert "Injected fault (shaded red on the time plots): mag_bias in [1, 2.5) s." in report

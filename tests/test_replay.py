@@ -74,6 +74,16 @@ def test_replay_html_is_self_contained(flight):
     assert "MeshCat.Viewer" in page
 
 
+def test_replay_has_a_legend_and_opens_its_controls(flight):
+    result, path = flight
+    page = path.read_text()
+    legend = page[page.index('<div id="quad-drake-legend"') :]
+    assert legend.index("</div>") < legend.index("</body>")
+    for words in ("Quad: body and flown path", "nose (the front)", "reference path", "estimated path"):
+        assert words in legend[: legend.index("</div>")]
+    assert "viewer.gui.open();" in page and "folders.Animations.open();" in page
+
+
 def test_show_live_publishes_the_scene_and_a_recording(flight):
     result, _ = flight
     meshcat = show_live(result, rate=1e6, wait_for_browser=0.0, block=False)
@@ -160,7 +170,9 @@ class DevTools:
 SCENE_PROBE = """(() => {
   let meshes = 0, lines = 0;
   viewer.scene.traverse(o => { if (o.isMesh) meshes++; if (o.isLine) lines++; });
-  return {meshes, lines, duration: viewer.animator.duration};
+  const animations = viewer.gui.__folders.Animations;
+  return {meshes, lines, duration: viewer.animator.duration, controls_open: !viewer.gui.closed,
+          animations_open: !animations.closed, legend: !!document.getElementById("quad-drake-legend")};
 })()"""
 
 
@@ -202,6 +214,7 @@ def test_replay_loads_offline_and_draws_in_headless_chromium(flight, tmp_path):
     assert scene["meshes"] >= 13  # quad (12 parts) + estimate
     assert scene["lines"] >= 3  # flown, reference, estimated
     assert math.isclose(scene["duration"], result.times[-1], abs_tol=0.05)
+    assert scene["controls_open"] and scene["animations_open"] and scene["legend"]  # not a closed panel
 
     import matplotlib.image
 

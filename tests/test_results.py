@@ -123,3 +123,22 @@ def test_a_new_run_in_a_folder_removes_the_old_runs_derived_files(gps_flight, tm
     save_run(gps_flight, tmp_path)
     assert not any(path.exists() for path in stale)
     assert (tmp_path / "notes.txt").read_text() == "the user's" and (tmp_path / "logs.npz").is_file()
+
+
+def test_the_index_is_one_line_per_run_and_lists_tune_sessions(sensor_run, tmp_path):
+    out = tmp_path / "out"
+    shutil.copytree(sensor_run[1], out / "11_gps_update")
+    tune = out / "11_gps_update_tune"
+    tune.mkdir()
+    (tune / "report.html").write_text("the session's page")
+    session = {"scenario": "11_gps_update", "settings": {"objective": "both"}, "candidates": 12}
+    session |= {"start_loss": 0.5, "best_loss": 0.25, "interrupted": False}
+    session["holdout"] = {"before": {"passes": 9, "runs": 10}, "after": {"passes": 10, "runs": 10}}
+    dump_json(tune / "tune.json", session)
+    index = write_index(out).read_text()
+    assert "<h2>Tuning sessions</h2>" in index and 'href="11_gps_update_tune/report.html">tune page' in index
+    assert "0.5 → 0.25" in index and "9/10 → 10/10" in index
+    # a run's row carries its failed lines only: the PASS lines are on its page
+    result = sensor_run[0]
+    for verdict in result.criteria:
+        assert (verdict.line in index) is (not verdict.passed)

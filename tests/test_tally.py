@@ -15,7 +15,6 @@ from quad_drake import consistency as cons
 from quad_drake.campaigns import CampaignResult, InProcessRunner, Runner, RunRecord, run_campaign
 from quad_drake.campaigns.output import rows
 from quad_drake.campaigns.records import campaign_vocabulary, slim
-from quad_drake.campaigns.statistics import MIN_IN_BAND
 from quad_drake.campaigns.tally import ConsistencyTally, fold_records
 from quad_drake.config import GpsParams, ImuParams, MagParams, ScenarioConfig, SensorsConfig, VehicleConfig
 
@@ -49,34 +48,41 @@ def stacked(records):
     first, result = records[0], {}
     if first.nees:
         series = np.vstack([r.nees[v] for r in records for v in r.nees])
-        result["NEES"] = (np.asarray(first.times), series.mean(axis=0), series.shape[0])
+        means = [float(np.mean(row)) for row in series]
+        result["NEES"] = (np.asarray(first.times), series.mean(axis=0), series.shape[0], means)
     for sensor in cons.NIS_DOF:
         series = [r.nis[key] for r in records for key in r.nis if key[1] == sensor]
         if series:
             stamps, values = stack_by_stamp(series)
-            result[f"NIS {sensor}"] = (stamps, values.mean(axis=0), values.shape[0])
+            means = [float(np.mean(v)) for _, v in series]
+            result[f"NIS {sensor}"] = (stamps, values.mean(axis=0), values.shape[0], means)
     return result
 
 
 def expected_rows(scenario, records):
-    """The consistency rows of the stacked series, against the chi^2 95 % bands."""
+    """The consistency rows of the stacked series: the average per dof with its t interval over the
+    realisations' time means against the tolerance, and the chi^2 95 % band share."""
     dofs = {"NEES": campaign_vocabulary(scenario).nees_dof}
     dofs.update((f"NIS {sensor}", dof) for sensor, dof in cons.NIS_DOF.items())
     rows = []
-    for name, (times, mean, count) in stacked(records).items():
+    for name, (times, mean, count, run_means) in stacked(records).items():
         band = cons.chi2_band(dofs[name], count)
         in_band = cons.in_band_fraction(mean, band)
+        per_dof, low, high = cons.per_dof_interval(run_means, dofs[name])
         rows.append(
             {
                 "statistic": name,
                 "dof": dofs[name],
                 "realisations": count,
+                "per_dof": per_dof,
+                "per_dof_ci95": [low, high],
+                "tolerance": [1 / cons.COVARIANCE_TOLERANCE, cons.COVARIANCE_TOLERANCE],
                 "band": list(band),
                 "time_mean": float(np.mean(mean)),
                 "in_band": in_band,
                 "below": float(np.mean(mean < band[0])),
                 "above": float(np.mean(mean > band[1])),
-                "passed": bool(in_band >= MIN_IN_BAND),
+                "passed": cons.within_tolerance((low, high)),
                 "times": times,
                 "mean": mean,
             }

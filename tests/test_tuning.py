@@ -361,6 +361,11 @@ def test_tune_writes_a_runnable_tuned_yaml_and_is_deterministic(quad_drake_cli, 
     searched = {p["key"]: p["tuned"] for p in summary["parameters"]}
     assert searched["ekf.q_vel_xy_std"] == tuned.vehicles[0].ekf.q_vel_xy_std
     assert "before" in (folder / "before_after.txt").read_text()
+    page = (folder / "report.html").read_text()  # the session's page, linked from the index
+    assert "ekf.q_vel_xy_std" in page and 'href="holdout_after/report.html"' in page
+    from quad_drake.report import write_index
+
+    assert 'href="a/report.html">tune page</a>' in write_index(tmp_path).read_text()
     # the same seeds and budget: the same search, also with a generation's candidates on two workers
     second = quad_drake_cli(*args, "--out", tmp_path / "b", "--no-holdout", "--jobs", "2")
     assert second.returncode == 0, second.stderr

@@ -10,7 +10,7 @@
 - :mod:`.output`, :mod:`.plots`, :mod:`.page`: table, CSV, JSON, NPZ, PNGs, HTML page.
 """
 
-from .campaign import CampaignInterrupted, run_campaign
+from .campaign import CampaignInterrupted, plan_campaign, run_campaign
 from .output import save, table, timing_line
 from .records import RunRecord
 from .runners import DaskRunner, InProcessRunner, ProcessPoolRunner, Runner
@@ -22,6 +22,7 @@ __all__ = [
     "DaskRunner",
     "InProcessRunner",
     "ProcessPoolRunner",
+    "plan_campaign",
     "RunRecord",
     "Runner",
     "run_campaign",

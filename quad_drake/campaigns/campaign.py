@@ -15,7 +15,8 @@ import time
 
 from tqdm import tqdm
 
-from ..config import ConfigError, check_seed_range
+from ..config import ConfigError, check_scenario, check_seed_range
+from ..limits import check_memory, check_run
 from ..simulation import available_signals
 from ..verdicts import check_criteria
 from .records import RunTask, simulate_run
@@ -32,19 +33,30 @@ class CampaignInterrupted(KeyboardInterrupt):
         self.campaign = campaign
 
 
+LINE_INTERVAL_S = 30.0
+"""s; in a log, a campaign's progress line comes at least this often while runs finish."""
+
+
 class Progress:
     """Progress of a campaign on `stream` (stderr): a tqdm bar on a terminal; elsewhere (a
-    log file, a pipe) a plain line about every tenth of the runs, so no ``\\r`` lands in logs."""
+    log file, a pipe) a line when it starts (``start_line``), then a plain line about every tenth
+    of the runs and at least every LINE_INTERVAL_S while runs finish, so no ``\\r`` lands in logs."""
 
     def __init__(self, label, total, enabled=True, stream=None):
         self.label, self.total = label, total
         self.stream = stream or sys.stderr
         self.done = self.failed = 0
-        self.start = time.perf_counter()
+        self.start = self.last_line = time.perf_counter()
         terminal = enabled and hasattr(self.stream, "isatty") and self.stream.isatty()
         self.bar = tqdm(total=total, desc=label, unit="run", file=self.stream) if terminal else None
         self.lines = enabled and not terminal
         self.every = max(1, total // 10)
+
+    def start_line(self, how):
+        """In a log: one line saying the campaign started and how it flies (`how`, e.g. the runner)."""
+        if self.lines:
+            self.stream.write(f"{self.label}: 0/{self.total} runs, started ({how})\n")
+            self.stream.flush()
 
     def update(self, records):
         """Count finished runs (a task's RunRecords: one run, or a fleet batch at once); at most
@@ -52,11 +64,17 @@ class Progress:
         before = self.done
         self.done += len(records)
         self.failed += sum(not record.passed for record in records)
+        now = time.perf_counter()
         if self.bar is not None:
             self.bar.set_postfix(failed=self.failed, refresh=False)
             self.bar.update(len(records))
-        elif self.lines and (self.done // self.every > before // self.every or self.done == self.total):
-            elapsed = time.perf_counter() - self.start
+        elif self.lines and (
+            self.done // self.every > before // self.every
+            or self.done == self.total
+            or now - self.last_line >= LINE_INTERVAL_S
+        ):
+            self.last_line = now
+            elapsed = now - self.start
             eta = elapsed / self.done * (self.total - self.done)
             self.stream.write(
                 f"{self.label}: {self.done}/{self.total} runs, {self.failed} failed, "
@@ -101,6 +119,41 @@ def _fleet_tasks(scenario, runs, first, batch):
     return tasks, simulate_batch, f"fleet (batch {max(len(task.seeds) for task in tasks)})"
 
 
+def _check_fleet_memory(scenario, batch, at_once):
+    """ConfigError when `at_once` fleet batches of `batch` runs would not fit in memory
+    (``fleet.summaries.summary_bytes``, ``limits.check_memory``)."""
+    from ..fleet.summaries import summary_bytes
+
+    check_memory(
+        summary_bytes(scenario, batch) * at_once,
+        f"montecarlo --fleet: {at_once} batch(es) of {batch} runs of {scenario.end_time:g} s",
+        "give a smaller --batch or a shorter end_time",
+    )
+
+
+def plan_campaign(scenario, runs, runner, seed=None, fleet_batch=None):
+    """(scenario with the first seed, tasks, worker function, fleet label or None) of a campaign,
+    after every check it needs before anything flies (ConfigError, one line): the run count and
+    seeds, the scenario as a loaded file is checked (``config.check_scenario``), its criteria's
+    signals, and the memory of the runs (or fleet batches) the runner holds at once
+    (``limits``). :func:`run_campaign` calls it; a front end may call it first to check."""
+    if runs < 1:
+        raise ConfigError(f"montecarlo: --runs must be >= 1, got {runs}")
+    first = scenario.seed if seed is None else seed
+    check_seed_range(first, runs, "montecarlo: --seed")
+    check_scenario(scenario)
+    check_criteria(scenario, available_signals(scenario))
+    scenario = dataclasses.replace(scenario, seed=first)
+    at_once = min(runs, getattr(runner, "jobs", 1))  # runs (or fleet batches) held at once
+    if fleet_batch is None:
+        check_run(scenario, at_once)
+        return scenario, [RunTask(scenario, i, first + i) for i in range(runs)], simulate_run, None
+    check_run(scenario)
+    tasks, worker, label = _fleet_tasks(scenario, runs, first, fleet_batch)
+    _check_fleet_memory(scenario, max(len(task.seeds) for task in tasks), min(len(tasks), at_once))
+    return scenario, tasks, worker, label
+
+
 def run_campaign(scenario, runs, runner=None, seed=None, progress=True, fleet_batch=None):
     """CampaignResult of `runs` runs of a ScenarioConfig, run i with seed (seed or scenario.seed) + i.
 
@@ -110,19 +163,11 @@ def run_campaign(scenario, runs, runner=None, seed=None, progress=True, fleet_ba
     Ctrl-C raises :class:`CampaignInterrupted` holding the finished runs.
     """
     runner = runner or InProcessRunner()
-    if runs < 1:
-        raise ConfigError(f"montecarlo: --runs must be >= 1, got {runs}")
-    first = scenario.seed if seed is None else seed
-    check_seed_range(first, runs, "montecarlo: --seed")
-    check_criteria(scenario, available_signals(scenario))
-    scenario = dataclasses.replace(scenario, seed=first)
-    if fleet_batch is None:
-        tasks, worker, label = [RunTask(scenario, i, first + i) for i in range(runs)], simulate_run, None
-    else:
-        tasks, worker, label = _fleet_tasks(scenario, runs, first, fleet_batch)
+    scenario, tasks, worker, label = plan_campaign(scenario, runs, runner, seed, fleet_batch)
     runner_name = runner.name if label is None else f"{label} on {runner.name}"
     records, tally = {}, _OrderedTally()
     bar = Progress(scenario.name, runs, progress)
+    bar.start_line(runner_name)
     start = time.perf_counter()
 
     def campaign():

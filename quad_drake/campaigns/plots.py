@@ -5,7 +5,11 @@ from pathlib import Path
 
 from matplotlib.figure import Figure
 
+from ..outdir import write_binary_atomic
+from ..plots import shade_faults
+from ..report import fault_spans
 from .records import settle_time
+from .statistics import per_dof_text, tolerance_text
 
 DPI = 110
 
@@ -20,10 +24,17 @@ def consistency_figure(campaign):
         ax.plot(c["times"], c["mean"], lw=0.8, color="tab:blue", label=f"mean of {c['realisations']}")
         ax.set_yscale("log")
         ax.set_ylabel(f"{c['statistic']} ({c['dof']} dof) [-]")
-        ax.set_title(f"{c['statistic']}: {100 * c['in_band']:.0f}% of the samples in the band", fontsize=9)
+        ax.axhspan(*(c["dof"] * x for x in c["tolerance"]), color="tab:gray", alpha=0.12, label="tolerance")
+        ax.set_title(
+            f"{per_dof_text(c)} ({'PASS' if c['passed'] else 'FAIL'} against {tolerance_text(c)}); "
+            f"{100 * c['in_band']:.0f}% of the samples in the band",
+            fontsize=9,
+        )
         ax.legend(loc="upper right", fontsize=8)
     ax.set_xlabel("t [s]")
     fig.suptitle(f"{campaign.scenario.name}: consistency over {campaign.runs} runs")
+    fig.time_axes = list(fig.axes)
+    shade_faults(fig, fault_spans(campaign.scenario))
     return fig
 
 
@@ -57,10 +68,12 @@ def write_plots(campaign, out_dir):
     written = []
     if campaign.consistency:
         path = out_dir / "consistency.png"
-        consistency_figure(campaign).savefig(path, dpi=DPI)
+        figure = consistency_figure(campaign)
+        write_binary_atomic(path, lambda f: figure.savefig(f, format="png", dpi=DPI))
         written.append(("Run-averaged NEES / NIS against the chi² 95 % band", path))
     if campaign.metrics:
         path = out_dir / "errors.png"
-        errors_figure(campaign).savefig(path, dpi=DPI)
+        figure = errors_figure(campaign)
+        write_binary_atomic(path, lambda f: figure.savefig(f, format="png", dpi=DPI))
         written.append(("Per-run RMS errors after settling, against the Kalman bound", path))
     return written

@@ -15,16 +15,26 @@ from ..signals import key_unit
 from .records import campaign_vocabulary, criterion_column
 from .tally import NEES, nis_statistic
 
-MIN_IN_BAND = 0.8
-"""Campaign criterion: share of samples whose run-averaged NEES/NIS lies inside its 95 %
-chi^2 band. A consistent filter sits inside 95 % of the time on average; 0.8 leaves room
-for the strong time correlation of the averaged statistic (see tests/test_consistency.py)."""
-
 
 def _ratio(rmse, bound):
     if bound is None:
         return None
     return rmse / bound if bound > 0 else math.inf
+
+
+def per_dof_text(row):
+    """``NEES/dof 1.06 [1.04, 1.08]``: a consistency row's average per dof with its 95 % interval
+    (``not finite`` when a realisation diverged)."""
+    low, high = row["per_dof_ci95"]
+    if not math.isfinite(row["per_dof"]):
+        return f"{row['statistic']}/dof not finite (a run diverged)"
+    return f"{row['statistic']}/dof {row['per_dof']:.3g} [{low:.3g}, {high:.3g}]"
+
+
+def tolerance_text(row):
+    """``[0.667, 1.5]``: the tolerance a consistency row is judged against."""
+    low, high = row["tolerance"]
+    return f"[{low:.3g}, {high:.3g}]"
 
 
 def distribution(values):
@@ -53,7 +63,7 @@ class CampaignResult:
     wall_time: float  # s, whole campaign
     runner: str  # Runner.name
     planned: Optional[int] = None  # runs asked for (None: as many as records)
-    min_in_band: float = MIN_IN_BAND
+    tolerance: float = cons.COVARIANCE_TOLERANCE  # the consistency criterion's (consistency.py)
 
     @property
     def runs(self):
@@ -138,32 +148,47 @@ class CampaignResult:
 
     @cached_property
     def consistency(self):
-        """Mean NEES / NIS over all (run, vehicle) realisations against the chi^2 95 % band, at
-        the stamps every realisation had (``tally``)."""
+        """Per statistic (NEES, then each sensor's NIS): the campaign criterion and, as
+        information, the mean over all (run, vehicle) realisations against the chi^2 95 % band at
+        the stamps every realisation had (``tally``).
+
+        The criterion: the average of the statistic per degree of freedom over time and
+        realisations, with its 95 % confidence interval over the realisations' own time means
+        (``consistency.per_dof_interval``), must meet [1 / tolerance, tolerance]
+        (``consistency.within_tolerance``). Its meaning does not change with the run count:
+        more runs narrow the interval around the same average. The share of samples inside the
+        band does change (the band narrows as 1/sqrt(M)), so it is shown but not judged.
+        """
         sums, stats = self.tally.sums, []
         if NEES in sums:
-            stats.append(self._statistic(NEES, campaign_vocabulary(self.scenario).nees_dof, sums[NEES]))
+            means = [m for r in self.records for m in r.nees_mean.values()]
+            dof = campaign_vocabulary(self.scenario).nees_dof
+            stats.append(self._statistic(NEES, dof, sums[NEES], means))
         for sensor, dof in cons.NIS_DOF.items():
             name = nis_statistic(sensor)
             if name in sums:
-                stats.append(self._statistic(name, dof, sums[name]))
+                means = [m for r in self.records for (_, s), m in r.nis_mean.items() if s == sensor]
+                stats.append(self._statistic(name, dof, sums[name], means))
         return stats
 
-    def _statistic(self, name, dof, stamp_sum):
+    def _statistic(self, name, dof, stamp_sum, run_means):
         count = stamp_sum.count
         band = cons.chi2_band(dof, count)
         mean = stamp_sum.mean
-        fraction = cons.in_band_fraction(mean, band)
+        per_dof, low, high = cons.per_dof_interval(run_means, dof)
         return {
             "statistic": name,
             "dof": dof,
             "realisations": count,
+            "per_dof": per_dof,
+            "per_dof_ci95": [low, high],
+            "tolerance": [1.0 / self.tolerance, self.tolerance],
             "band": list(band),
             "time_mean": float(np.mean(mean)),
-            "in_band": fraction,
+            "in_band": cons.in_band_fraction(mean, band),
             "below": float(np.mean(mean < band[0])),
             "above": float(np.mean(mean > band[1])),
-            "passed": bool(fraction >= self.min_in_band),
+            "passed": cons.within_tolerance((low, high), self.tolerance),
             "times": stamp_sum.stamps,
             "mean": mean,
         }
@@ -232,12 +257,9 @@ class CampaignResult:
         return all(s["passed"] for s in self.consistency)
 
     def failure_reasons(self):
-        """One line per failed consistency criterion, e.g. ``NEES in band 27 % < 80 %``."""
-        return [
-            f"{s['statistic']} in band {100 * s['in_band']:.0f} % < {100 * self.min_in_band:.0f} %"
-            for s in self.consistency
-            if not s["passed"]
-        ]
+        """One line per failed consistency criterion, e.g.
+        ``NEES/dof 1.62 [1.55, 1.70] outside [0.667, 1.5]``."""
+        return [f"{per_dof_text(s)} outside {tolerance_text(s)}" for s in self.consistency if not s["passed"]]
 
     def verdict(self):
         """The one line that explains the exit code: which consistency criterion failed, or PASS;

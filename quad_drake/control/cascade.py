@@ -116,8 +116,15 @@ def yaw_control(yaw_ref, yaw, params):
 
 
 def body_rate_control(pqr_cmd, pqr, params):
-    """Body moment command (Mx, My, Mz), N m in B: I * kp_pqr * (pqr_cmd - pqr), elementwise."""
+    """Body moment command (Mx, My, Mz), N m in B: I * kp_pqr * (pqr_cmd - pqr), elementwise.
+
+    A non-finite measured rate pqr means none was measured (the estimators report NaN over an
+    IMU dropout): the loop cannot close, so it commands no moment and the body keeps its angular
+    momentum, rather than driving the motors against a stale rate with no feedback.
+    """
     inertia, gain = params.inertia, params.kp_pqr
+    if not (math.isfinite(pqr[0]) and math.isfinite(pqr[1]) and math.isfinite(pqr[2])):
+        return (0.0, 0.0, 0.0)
     return (
         inertia[0] * gain[0] * (pqr_cmd[0] - pqr[0]),
         inertia[1] * gain[1] * (pqr_cmd[1] - pqr[1]),
@@ -131,8 +138,9 @@ def cascade_step(state13, reference10, integral, dt, params, fidelity=PHYSICAL):
     state13: p_NB (m), q_NB (wxyz, normalised here), v_NB (m/s), w_NB_B (rad/s);
     reference10: p (m), v (m/s), a feed-forward (m/s^2), yaw (rad); integral: the
     altitude-error integral (m s); dt in s; fidelity: a :class:`~quad_drake.fidelity.Fidelity`
-    (its ``lateral_limit_3d`` picks the lateral acceleration limit). Returns (F0..F3 motor forces in N, not
-    clamped: the plant clamps) and the updated integral.
+    (its ``lateral_limit_3d`` picks the lateral acceleration limit; without
+    ``altitude_integral_windup`` the integral is held while the collective thrust is clamped).
+    Returns (F0..F3 motor forces in N, not clamped: the plant clamps) and the updated integral.
     """
     px, py, pz, qw, qx, qy, qz, vx, vy, vz, wx, wy, wz = state13
     rx, ry, rz, rvx, rvy, rvz, rax, ray, raz, yaw_ref = reference10
@@ -146,8 +154,10 @@ def cascade_step(state13, reference10, integral, dt, params, fidelity=PHYSICAL):
     R22 = 1.0 - s * (qx * qx + qy * qy)
     yaw = math.atan2(R10, R00)
 
-    thrust, integral = altitude_control(rz, rvz, raz, pz, vz, R22, integral, dt, params)
-    thrust = clamp_collective_thrust(thrust, params)
+    unclamped, integrated = altitude_control(rz, rvz, raz, pz, vz, R22, integral, dt, params)
+    thrust = clamp_collective_thrust(unclamped, params)
+    if thrust == unclamped or fidelity.altitude_integral_windup:
+        integral = integrated  # anti-windup: no integration while the collective thrust is clamped
     ax, ay = lateral_position_control(
         (rx, ry), (rvx, rvy), (rax, ray), (px, py), (vx, vy), params, vz, fidelity
     )

@@ -137,6 +137,37 @@ def _row_finite(values, i, total=0.0):
     return math.isfinite(total)
 
 
+IMU_HOLD_TIME = 0.02
+"""s: time constant of an estimator's running mean of its finite IMU samples (a 20 ms mean of
+10 samples at 500 Hz: 1/sqrt(10) of one sample's noise, and the lag of a manoeuvre's rate change
+is under one tick's worth). Over an IMU dropout the estimators dead-reckon with this mean, so
+their attitude, velocity and position keep moving as the vehicle did before the gap."""
+HOLD_SIZE = 7
+"""Columns of a hold (N, HOLD_SIZE): the running mean of f_B (m/s^2) and w_B (rad/s), then 1.0
+once a finite sample has started it (0.0 before)."""
+IMU_FINITE, IMU_HELD, IMU_MISSING = 0, 1, 2
+"""What :func:`_bridge_imu_row` found: a finite sample (the mean takes it), a non-finite one with
+a mean to dead-reckon on, a non-finite one before any finite sample."""
+
+
+def initial_hold():
+    """One vehicle's hold before its first IMU sample (not started)."""
+    return np.zeros(HOLD_SIZE)
+
+
+@njit_cached
+def _bridge_imu_row(imu, hold, i, weight):
+    """IMU_FINITE, IMU_HELD or IMU_MISSING for vehicle i's sample imu (N, 6); a finite sample moves
+    the running mean hold (N, HOLD_SIZE) by weight (the first one starts it)."""
+    if _row_finite(imu, i):
+        started = hold[i, 6] > 0.0
+        for k in range(6):
+            hold[i, k] = hold[i, k] + weight * (imu[i, k] - hold[i, k]) if started else imu[i, k]
+        hold[i, 6] = 1.0
+        return IMU_FINITE
+    return IMU_HELD if hold[i, 6] > 0.0 else IMU_MISSING
+
+
 @njit_cached
 def _complementary_row(roll, pitch, yaw, fx, fy, fz, wx, wy, wz, dt, tau, nonlinear, reference_accelerometer):
     """complementary.complementary_update of one vehicle, (roll, pitch, yaw)."""
@@ -179,18 +210,21 @@ def _complementary_rows(attitude, f_B, w_B, dt, tau, nonlinear, reference_accele
 
 
 @njit_cached
-def _complementary_tick(attitude, rate, imu, ekf_state, dt, tau, nonlinear, reference_accelerometer):
+def _complementary_tick(attitude, rate, hold, imu, ekf_state, dt, tau, nonlinear, reference_accelerometer):
+    weight = dt / (IMU_HOLD_TIME + dt)
     for i in range(attitude.shape[0]):
         yaw = ekf_state[i, 6]
-        if not _row_finite(imu, i):
+        status = _bridge_imu_row(imu, hold, i, weight)
+        source = imu if status == IMU_FINITE else hold[:, 0:6]
+        for k in range(3):
+            rate[i, k] = imu[i, 3 + k] if status == IMU_FINITE else math.nan
+        if status == IMU_MISSING:
             attitude[i, 2] = yaw
             continue
         attitude[i, 0], attitude[i, 1], attitude[i, 2] = _complementary_row(
-            attitude[i, 0], attitude[i, 1], yaw, imu[i, 0], imu[i, 1], imu[i, 2],
-            imu[i, 3], imu[i, 4], imu[i, 5], dt, tau, nonlinear, reference_accelerometer,
+            attitude[i, 0], attitude[i, 1], yaw, source[i, 0], source[i, 1], source[i, 2],
+            source[i, 3], source[i, 4], source[i, 5], dt, tau, nonlinear, reference_accelerometer,
         )  # fmt: skip
-        for k in range(3):
-            rate[i, k] = imu[i, 3 + k]
 
 
 def _check_variant(variant):
@@ -211,17 +245,19 @@ def complementary_update(attitude, f_B, w_B, dt, tau, variant, reference_acceler
     )
 
 
-def complementary_tick(attitude, rate, imu, ekf_state, dt, tau, variant, reference_accelerometer=False):
+def complementary_tick(attitude, rate, hold, imu, ekf_state, dt, tau, variant, reference_accelerometer=False):
     """One tick of N attitude filters IN PLACE (``systems.estimators.ComplementaryFilter`` per vehicle).
 
-    attitude (N, 3) rad and rate (N, 3) rad/s: the filters' state, updated; imu (N, 6); ekf_state
-    (N, 7), whose yaw is the prior yaw. A vehicle with a non-finite IMU sample keeps its roll,
-    pitch and rate and takes the prior yaw; the others take :func:`complementary_update` and
-    their gyro sample as rate.
+    attitude (N, 3) rad, rate (N, 3) rad/s and hold (N, HOLD_SIZE): the filters' state, updated;
+    imu (N, 6); ekf_state (N, 7), whose yaw is the prior yaw. A vehicle takes
+    :func:`complementary_update` and its gyro sample as rate; over a non-finite IMU sample it takes
+    the update with its running mean of the IMU (:data:`IMU_HOLD_TIME`) and a NaN rate (no rate
+    measured: the controller then commands no body moment); before its first finite sample it
+    keeps its roll and pitch and takes the prior yaw.
     """
     nonlinear = _check_variant(variant)
     _complementary_tick(
-        attitude, rate, imu, ekf_state, float(dt), float(tau), nonlinear, bool(reference_accelerometer)
+        attitude, rate, hold, imu, ekf_state, float(dt), float(tau), nonlinear, bool(reference_accelerometer)
     )
 
 
@@ -333,32 +369,53 @@ def _ekf7_predict_rows(x, P, attitude, f_B, dt, Q, gravity_z):
 
 @njit_cached
 def ekf7_tick(
-    x, P, attitude, imu, gps, mag, diagnostics, book, dt, Q, tilt_gains, gravity_z, r_mag, threshold, healthy
+    x,
+    P,
+    hold,
+    attitude,
+    imu,
+    gps,
+    mag,
+    diagnostics,
+    book,
+    dt,
+    Q,
+    tilt_gains,
+    gravity_z,
+    r_mag,
+    threshold,
+    healthy,
 ):
     """The prediction and, on a quiet tick, the magnetometer step of one EKF7 tick IN PLACE
     (``systems.estimators.Ekf``), compiled as one call; True when the tick was quiet.
 
-    Prediction: a vehicle whose IMU sample imu (N, 6) or attitude (N, 3) rad has a non-finite
-    entry is not predicted and counts a non-finite sample in diagnostics (N, DIAGNOSTICS_SIZE);
-    the others take :func:`ekf7_predict_with_yaw` with f_B = imu[:, 0:3], Q (7, 7) and, with
-    tilt_gains = ``ekf.TiltNoise.gains`` (velocity, yaw) of this tick ((0.0, 0.0): off), the
-    tilt-aware block of their attitude and IMU sample (``ekf.TiltNoise.process_noise``);
-    gravity_z = :func:`gravity_z`. healthy (N,) bool: written with :func:`covariance_looks_healthy`
-    of the new P. A quiet tick is one where every P looks healthy and no vehicle has a fresh GPS
-    sample (gps (N, 7), stamp against book[:, GPS_SLOT], :func:`fresh`): then nothing is repaired
-    or fused from the GPS, and the tick ends here with :func:`ekf7_mag_tick` (mag (N, 2), r_mag =
-    R_mag[0, 0] rad^2, threshold its gate). Otherwise the caller runs the repair, the mag step and
-    the GPS fusion (``estimators._FleetGatedFusion._fuse_fresh``).
+    Prediction: a vehicle takes :func:`ekf7_predict_with_yaw` with f_B = imu[:, 0:3], Q (7, 7)
+    and, with tilt_gains = ``ekf.TiltNoise.gains`` (velocity, yaw) of this tick ((0.0, 0.0): off),
+    the tilt-aware block of its attitude and IMU sample (``ekf.TiltNoise.process_noise``);
+    gravity_z = :func:`gravity_z`. A non-finite IMU sample counts in diagnostics (N,
+    DIAGNOSTICS_SIZE) and the vehicle dead-reckons on its running mean hold (N, HOLD_SIZE,
+    updated by the finite ones); a vehicle with no mean yet, or a non-finite attitude (N, 3) rad
+    (also counted), is not predicted. healthy (N,) bool: written with
+    :func:`covariance_looks_healthy` of the new P. A quiet tick is one where every P looks
+    healthy and no vehicle has a fresh GPS sample (gps (N, 7), stamp against book[:, GPS_SLOT],
+    :func:`fresh`): then nothing is repaired or fused from the GPS, and the tick ends here with
+    :func:`ekf7_mag_tick` (mag (N, 2), r_mag = R_mag[0, 0] rad^2, threshold its gate).
+    Otherwise the caller runs the repair, the mag step and the GPS fusion
+    (``systems.estimators.GatedFusion._fuse_fresh``).
     """
     GP, M = np.empty((7, 7)), np.empty((7, 7))
+    weight = dt / (IMU_HOLD_TIME + dt)
     quiet = True
     for i in range(x.shape[0]):
-        if _row_finite(attitude, i, _row_sum(imu, i)):
-            trig, rotated = _ekf7_predict_row(x, P, x, P, i, attitude, imu, dt, Q, gravity_z, GP, M)
-            if tilt_gains[0] > 0.0 or tilt_gains[1] > 0.0:
-                _add_tilt_noise(P, i, trig, rotated, imu[i, 4], imu[i, 5], tilt_gains)
-        else:
+        status = _bridge_imu_row(imu, hold, i, weight)
+        attitude_finite = _row_finite(attitude, i)
+        if status != IMU_FINITE or not attitude_finite:
             diagnostics[i, _NONFINITE] += 1.0
+        source = imu if status == IMU_FINITE else hold[:, 0:6]
+        if status != IMU_MISSING and attitude_finite:
+            trig, rotated = _ekf7_predict_row(x, P, x, P, i, attitude, source, dt, Q, gravity_z, GP, M)
+            if tilt_gains[0] > 0.0 or tilt_gains[1] > 0.0:
+                _add_tilt_noise(P, i, trig, rotated, source[i, 4], source[i, 5], tilt_gains)
         healthy[i] = _row_healthy(P, i)
         if not healthy[i] or fresh(gps[i, 6], book[i, GPS_SLOT]):
             quiet = False
@@ -849,19 +906,22 @@ def _eskf_predict_rows(x, P, f_B, w_B, dt, accel_var, gyro_var, isotropic_gyro, 
 
 
 @njit_cached
-def _eskf_tick(x, P, imu, estimate, diagnostics, dt, accel_var, gyro_var, isotropic_gyro, Q_constant):
+def _eskf_tick(x, P, hold, imu, estimate, diagnostics, dt, accel_var, gyro_var, isotropic_gyro, Q_constant):
     work = _eskf_work(P.shape[1])
     healthy = np.empty(x.shape[0], dtype=np.bool_)
-    f_B, w_B = imu[:, 0:3], imu[:, 3:6]
+    weight = dt / (IMU_HOLD_TIME + dt)
     for i in range(x.shape[0]):
-        if _row_finite(imu, i):
-            _eskf_predict_row(
-                x, P, x, P, i, f_B, w_B, dt, accel_var, gyro_var, isotropic_gyro, Q_constant, work
-            )
-            for k in range(3):
-                estimate[i, 10 + k] = imu[i, 3 + k] - x[i, 13 + k]
-        else:
+        status = _bridge_imu_row(imu, hold, i, weight)
+        if status != IMU_FINITE:
             diagnostics[i, _NONFINITE] += 1.0
+        source = imu if status == IMU_FINITE else hold[:, 0:6]
+        if status != IMU_MISSING:
+            _eskf_predict_row(
+                x, P, x, P, i, source[:, 0:3], source[:, 3:6], dt, accel_var, gyro_var, isotropic_gyro,
+                Q_constant, work,
+            )  # fmt: skip
+        for k in range(3):
+            estimate[i, 10 + k] = imu[i, 3 + k] - x[i, 13 + k] if status == IMU_FINITE else math.nan
         healthy[i] = _row_healthy(P, i)
     return healthy
 
@@ -880,14 +940,16 @@ def eskf_predict(x, P, f_B, w_B, dt, noise, Q_constant):
     return _eskf_predict_rows(x, P, f_B, w_B, float(dt), *_noise_arguments(noise, Q_constant))
 
 
-def eskf_predict_tick(x, P, imu, estimate, diagnostics, dt, noise, Q_constant):
+def eskf_predict_tick(x, P, hold, imu, estimate, diagnostics, dt, noise, Q_constant):
     """The prediction of one ESKF tick IN PLACE on x (N, 16), P (N, n, n) (``systems.estimators.Eskf``).
 
-    A vehicle with a non-finite IMU sample (N, 6) is not predicted and counts a non-finite sample
-    in diagnostics; the others take :func:`eskf_predict` and their body rate estimate[:, 10:13]
-    (N, 13) becomes gyro - gyro bias. Returns :func:`covariance_looks_healthy` of the new P.
+    A vehicle takes :func:`eskf_predict` with its IMU sample (N, 6) and its body rate estimate[:,
+    10:13] (N, 13) becomes gyro - gyro bias. Over a non-finite sample (counted in diagnostics) it
+    dead-reckons on its running mean hold (N, HOLD_SIZE; :data:`IMU_HOLD_TIME`) and its body rate
+    is NaN (not measured: the controller then commands no body moment); before its first finite
+    sample it is not predicted. Returns :func:`covariance_looks_healthy` of the new P.
     """
-    return _eskf_tick(x, P, imu, estimate, diagnostics, float(dt), *_noise_arguments(noise, Q_constant))
+    return _eskf_tick(x, P, hold, imu, estimate, diagnostics, float(dt), *_noise_arguments(noise, Q_constant))
 
 
 @njit_cached

@@ -4,7 +4,7 @@ vehicle's config chooses (:func:`build_fleet_estimator`), and the estimator side
 
 Each system mirrors its per-vehicle twin in ``systems/estimators.py``: the same ports, periods,
 within-tick offsets, freshness rule, gates, resets, covariance health, diagnostics and counters,
-and the non-finite IMU skip with the held gyro rate. Every vector port carries the N per-vehicle
+and the dead reckoning over non-finite IMU samples. Every vector port carries the N per-vehicle
 vectors vehicle-major (size N k, vehicle i at [i k, (i + 1) k)), each in the scalar system's
 layout. The maths is ``fleet/estimation_kernels.py``, the scalar functions' array
 form; the handlers only reshape the ports and the discrete state (updated in place) and pick the
@@ -78,6 +78,7 @@ class FleetComplementaryFilter(LeafSystem):
         self._read_ekf_state = _reader(self.DeclareVectorInputPort("ekf_state", n * EKF_STATE_SIZE))
         attitude = self.DeclareDiscreteState(_tiled(initial_attitude, n))
         rate = self.DeclareDiscreteState(n * 3)
+        self.DeclareDiscreteState(_tiled(kernels.initial_hold(), n))
         declare_state_output(self, "attitude", attitude, n * ATTITUDE_SIZE)
         declare_state_output(self, "body_rate", rate, n * 3)
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, ATTITUDE_FILTER_OFFSET, self._update)
@@ -88,6 +89,7 @@ class FleetComplementaryFilter(LeafSystem):
         kernels.complementary_tick(
             attitude.reshape(n, ATTITUDE_SIZE),
             rate.reshape(n, 3),
+            discrete_state.get_mutable_value(2).reshape(n, kernels.HOLD_SIZE),
             self._read_imu(context).reshape(n, IMU_SIZE),
             self._read_ekf_state(context).reshape(n, EKF_STATE_SIZE),
             ONBOARD_PERIOD,
@@ -120,6 +122,7 @@ class FleetEkf(GatedFusion, LeafSystem):
         self._read_mag = _reader(self.DeclareVectorInputPort("mag", n * MAG_SIZE))
         self._read_attitude = _reader(self.DeclareVectorInputPort("attitude", n * ATTITUDE_SIZE))
         x, P, diagnostics = self._declare_fusion_state(n, ekf.initial_state(params), P0)
+        self._hold = self.DeclareDiscreteState(_tiled(kernels.initial_hold(), n))
         self._healthy = np.empty(n, dtype=bool)  # scratch of each tick's health check
         declare_state_output(self, "ekf_state", x, n * EKF_STATE_SIZE)
         declare_state_output(self, "covariance", P, n * EKF_STATE_SIZE**2)
@@ -134,6 +137,7 @@ class FleetEkf(GatedFusion, LeafSystem):
         quiet = kernels.ekf7_tick(
             x,
             P,
+            discrete_state.get_mutable_value(self._hold).reshape(n, kernels.HOLD_SIZE),
             self._read_attitude(context).reshape(n, ATTITUDE_SIZE),
             self._read_imu(context).reshape(n, IMU_SIZE),
             gps,
@@ -220,6 +224,7 @@ class FleetEskf(GatedFusion, LeafSystem):
         eskf.write_estimate(x0, initial_estimate)
         estimate = self.DeclareDiscreteState(_tiled(initial_estimate, n))
         bias = self.DeclareDiscreteState(n * 6)
+        self._hold = self.DeclareDiscreteState(_tiled(kernels.initial_hold(), n))
         declare_state_output(self, "estimated_state", estimate, n * STATE_SIZE)
         declare_state_output(self, "covariance", P, n * P0.size)
         declare_state_output(self, "diagnostics", diagnostics, n * DIAGNOSTICS_SIZE)
@@ -231,8 +236,9 @@ class FleetEskf(GatedFusion, LeafSystem):
         imu = self._read_imu(context).reshape(n, IMU_SIZE)
         x, P, diagnostics, book = self._views(discrete_state, eskf.NOMINAL_SIZE)
         estimate = discrete_state.get_mutable_value(self.ESTIMATE_GROUP).reshape(n, STATE_SIZE)
+        hold = discrete_state.get_mutable_value(self._hold).reshape(n, kernels.HOLD_SIZE)
         healthy = kernels.eskf_predict_tick(
-            x, P, imu, estimate, diagnostics, ONBOARD_PERIOD, self._noise, self._Q_constant
+            x, P, hold, imu, estimate, diagnostics, ONBOARD_PERIOD, self._noise, self._Q_constant
         )
         self._fuse_fresh(
             x,

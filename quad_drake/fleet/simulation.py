@@ -16,7 +16,9 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 
 from quad_drake import conventions as c
+from quad_drake.config import check_scenario
 from quad_drake.fidelity import fidelity_from_mode
+from quad_drake.limits import check_run
 from quad_drake.simulation import build_vehicle, vehicle_log_widths
 
 
@@ -100,7 +102,10 @@ def run_fleet(scenario, seeds):
     """(times (samples,), {vehicle: {log name: (samples, N, width)}}, wall time s) of `scenario`
     flown by the runs with seeds `seeds` (N,) for end_time s, every exported signal kept (a
     campaign never needs these logs: it summarises its batches while they fly,
-    ``fleet.streaming``)."""
+    ``fleet.streaming``). The scenario is checked as a loaded file is (``config.check_scenario``)
+    and the N runs' logs must fit (``limits.check_run``): ConfigError, nothing flown."""
+    check_scenario(scenario)
+    check_run(scenario, at_once=len(seeds))
     diagram, recorder = build_fleet_diagram(scenario, [int(s) for s in seeds])
     wall_time = fly(diagram, scenario.end_time)
     release_memory(diagram, keep=recorder)

@@ -14,8 +14,9 @@ own logs.
 
 Fresh means a changed ``stamp``. Both gate each update (chi^2, ``estimation/gating.py``),
 reset to the GPS after continuous GPS rejection, repair an unhealthy covariance and count
-all of it in ``diagnostics``. A non-finite IMU sample never reaches the controller: the
-body rate in ``estimated_state`` holds the last finite one.
+all of it in ``diagnostics``. Over non-finite IMU samples (a dropout) both dead-reckon on the
+running mean of the IMU and report the body rate in ``estimated_state`` as NaN: no rate is
+measured, and the controller then commands no body moment (``control.cascade``).
 """
 
 import math
@@ -116,9 +117,11 @@ class ComplementaryFilter(LeafSystem):
 
     Inputs: ``imu`` (6: f_B specific force m/s^2, w_NB_B rad/s; FRD), ``ekf_state`` (7; index 6
     is the EKF posterior yaw, rad, used as the prior yaw). Outputs (state ports): ``attitude``
-    (3: roll, pitch, yaw, rad), ``body_rate`` (3: the last finite gyro sample, rad/s). Ticks
-    every ONBOARD_PERIOD at ATTITUDE_FILTER_OFFSET with dt = ONBOARD_PERIOD. A non-finite IMU
-    sample is skipped (roll, pitch and body rate held, yaw = prior).
+    (3: roll, pitch, yaw, rad), ``body_rate`` (3: the gyro sample, rad/s; NaN while the IMU is
+    out). Ticks every ONBOARD_PERIOD at ATTITUDE_FILTER_OFFSET with dt = ONBOARD_PERIOD. Over a
+    non-finite IMU sample the filter dead-reckons on the running mean of the IMU
+    (``estimation_kernels.IMU_HOLD_TIME``) and reports no rate (NaN: the controller then
+    commands no body moment).
     With ``fidelity.reference_accelerometer`` the IMU carries the reference's reading and the
     tilt comes from the reference's formulas; with ``fidelity.float32_estimator`` the attitude
     and body rate are rounded to float32 after each tick (``round_to_float32``).
@@ -136,6 +139,7 @@ class ComplementaryFilter(LeafSystem):
         self._read_ekf_state = row_reader(self.DeclareVectorInputPort("ekf_state", EKF_STATE_SIZE))
         state = self.DeclareDiscreteState(np.array(initial_attitude, dtype=float))
         rate = self.DeclareDiscreteState(3)
+        self.DeclareDiscreteState(kernels.initial_hold())
         self.DeclareStateOutputPort("attitude", state)
         self.DeclareStateOutputPort("body_rate", rate)
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, ATTITUDE_FILTER_OFFSET, self._update)
@@ -145,6 +149,7 @@ class ComplementaryFilter(LeafSystem):
         kernels.complementary_tick(
             attitude.reshape(1, ATTITUDE_SIZE),
             rate.reshape(1, 3),
+            discrete_state.get_mutable_value(2).reshape(1, kernels.HOLD_SIZE),
             self._read_imu(context),
             self._read_ekf_state(context),
             ONBOARD_PERIOD,
@@ -193,6 +198,7 @@ class Ekf(GatedFusion, LeafSystem):
         self._read_attitude = row_reader(self.DeclareVectorInputPort("attitude", ATTITUDE_SIZE))
         self._looks_healthy = np.empty(1, dtype=bool)  # scratch of the kernel's per-tick health check
         x, P, diagnostics = self._declare_fusion_state(1, ekf.initial_state(params), P0)
+        self._hold = self.DeclareDiscreteState(kernels.initial_hold())
         self.DeclareStateOutputPort("ekf_state", x)
         self.DeclareStateOutputPort("covariance", P)
         self.DeclareStateOutputPort("diagnostics", diagnostics)
@@ -207,6 +213,7 @@ class Ekf(GatedFusion, LeafSystem):
         quiet = kernels.ekf7_tick(
             x,
             P,
+            discrete_state.get_mutable_value(self._hold).reshape(1, kernels.HOLD_SIZE),
             self._read_attitude(context),
             self._read_imu(context),
             gps,
@@ -241,7 +248,7 @@ class EstimatedStateAssembler(LeafSystem):
     """The EKF7's estimate in the true ``state`` layout, for the controller and the evaluators.
 
     Inputs: ``attitude`` (3: roll, pitch, yaw rad), ``ekf_state`` (7), ``body_rate`` (3, rad/s,
-    the filter's last finite gyro sample). Output: ``estimated_state`` (13: p = x[0:3] m,
+    the filter's gyro sample, NaN while the IMU is out). Output: ``estimated_state`` (13: p = x[0:3] m,
     q_NB = quat(roll, pitch, x[6]) wxyz, v = x[3:6] m/s, w_NB_B = body rate); a feedthrough
     output (its inputs are state ports).
     """
@@ -270,12 +277,13 @@ class Eskf(GatedFusion, LeafSystem):
     Inputs: ``imu`` (6: f_B m/s^2, w_NB_B rad/s), ``gps`` (7: p_N m, v_N m/s, stamp s),
     ``mag`` (2: yaw rad, stamp s); a missing sensor is wired to a constant with stamp
     NO_SAMPLE_STAMP. Outputs (state ports): ``estimated_state`` (13: p, q_NB, v, body rate =
-    gyro - gyro bias of the last finite sample), ``covariance`` (n*n, n = 15 with bias
+    gyro - gyro bias, NaN while the IMU is out), ``covariance`` (n*n, n = 15 with bias
     estimation, 9 without; error state dp, dv, dtheta[, db_a, db_g]), ``diagnostics``
     (``vocabulary.DIAGNOSTICS``), ``imu_bias`` (6: b_a m/s^2, b_g rad/s).
 
-    Each tick (ONBOARD_PERIOD, offset EKF_OFFSET): predict with the IMU sample (skipped and
-    counted when non-finite), then fuse a fresh mag and a fresh GPS sample through the gates
+    Each tick (ONBOARD_PERIOD, offset EKF_OFFSET): predict with the IMU sample (over a
+    non-finite one, counted, with the running mean of the IMU: ``estimation_kernels
+    .eskf_predict_tick``), then fuse a fresh mag and a fresh GPS sample through the gates
     and resets of :class:`Ekf`; P is checked as there.
     """
 
@@ -298,6 +306,7 @@ class Eskf(GatedFusion, LeafSystem):
         eskf.write_estimate(x0, initial_estimate)
         estimate = self.DeclareDiscreteState(initial_estimate)
         bias = self.DeclareDiscreteState(6)
+        self._hold = self.DeclareDiscreteState(kernels.initial_hold())
         self.DeclareStateOutputPort("estimated_state", estimate)
         self.DeclareStateOutputPort("covariance", P)
         self.DeclareStateOutputPort("diagnostics", diagnostics)
@@ -312,6 +321,7 @@ class Eskf(GatedFusion, LeafSystem):
         healthy = kernels.eskf_predict_tick(
             x,
             P,
+            discrete_state.get_mutable_value(self._hold).reshape(1, kernels.HOLD_SIZE),
             self._read_imu(context),
             estimate.reshape(1, STATE_SIZE),
             diagnostics,

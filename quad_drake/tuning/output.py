@@ -11,11 +11,13 @@
 
 import csv
 import dataclasses
+import io
 from pathlib import Path
 
 from .. import campaigns
 from ..config import dump_scenario
 from ..jsonio import dump_json
+from ..outdir import write_binary_atomic, write_text_atomic
 from .objective import score
 
 TUNED_SUFFIX = "_tuned"
@@ -63,10 +65,10 @@ def write_search(result, out_dir):
     if result.search.best is None:
         return written
     tuned = out_dir / "tuned.yaml"
-    tuned.write_text("".join(f"# {line}\n" for line in _header(result)) + dump_scenario(result.tuned))
+    write_text_atomic(tuned, "".join(f"# {line}\n" for line in _header(result)) + dump_scenario(result.tuned))
     written += [tuned, _write_plot(result, out_dir / "objective.png")]
     dump_json(out_dir / "tune.json", summary(result))
-    return written + [out_dir / "tune.json"]
+    return written + [out_dir / "tune.json", write_page(result, out_dir)]
 
 
 def _write_history(result, path):
@@ -78,23 +80,23 @@ def _write_history(result, path):
     header += [f"log10_multiplier.{p.key}" for p in space] + [f"value.{p.key}" for p in space]
     header += ["best_loss"]
     best = float("inf")
-    with open(path, "w", newline="") as f:
-        writer = csv.writer(f)
-        writer.writerow(header)
-        for e in history:
-            best = min(best, e.score.loss)
-            row = [
-                e.index,
-                e.generation,
-                e.score.loss,
-                e.score.consistency,
-                e.score.accuracy,
-                e.score.pass_rate,
-            ]
-            row += [e.score.in_band.get(name, "") for name in statistics]
-            row += list(e.x) + [_number(p.values(x)[0]) for p, x in zip(space, e.x, strict=True)] + [best]
-            writer.writerow([repr(v) if isinstance(v, float) else v for v in row])
-    return path
+    text = io.StringIO(newline="")
+    writer = csv.writer(text)
+    writer.writerow(header)
+    for e in history:
+        best = min(best, e.score.loss)
+        row = [
+            e.index,
+            e.generation,
+            e.score.loss,
+            e.score.consistency,
+            e.score.accuracy,
+            e.score.pass_rate,
+        ]
+        row += [e.score.in_band.get(name, "") for name in statistics]
+        row += list(e.x) + [_number(p.values(x)[0]) for p, x in zip(space, e.x, strict=True)] + [best]
+        writer.writerow([repr(v) if isinstance(v, float) else v for v in row])
+    return write_text_atomic(path, text.getvalue())
 
 
 def _write_plot(result, path):
@@ -119,8 +121,7 @@ def _write_plot(result, path):
     ax.set_ylabel(f"loss ({result.problem.settings.objective}) [-]")
     ax.set_title(f"tune {result.problem.scenario.name}: loss over the training seeds", fontsize=10)
     ax.legend(fontsize=8)
-    FigureCanvasAgg(fig).print_png(str(path))
-    return path
+    return write_binary_atomic(path, FigureCanvasAgg(fig).print_png)
 
 
 def _campaign_stats(campaign, objective):
@@ -207,10 +208,40 @@ def write_holdout(result, out_dir):
     """before_after.txt, the two held-out campaign folders, tune.json updated; the paths."""
     out_dir = Path(out_dir)
     table = out_dir / "before_after.txt"
-    table.write_text(before_after(result))
+    write_text_atomic(table, before_after(result))
     folders = [
         campaigns.save(result.before, out_dir / "holdout_before", plots=False),
         campaigns.save(result.after, out_dir / "holdout_after", plots=False),
     ]
     dump_json(out_dir / "tune.json", summary(result))
+    write_page(result, out_dir)
     return [table, *folders]
+
+
+def write_page(result, out_dir):
+    """report.html of a tune session in out_dir: what was searched, start and tuned values, the
+    objective plot, the held-out before/after table and links to its files; -> its path."""
+    from ..report import esc, figures_html, html_page, html_table
+
+    out_dir = Path(out_dir)
+    name = result.problem.scenario.name
+    parts = [f"<h1>quad-drake tune {esc(name)}</h1>"]
+    parts += [f"<p>{esc(line)}</p>" for line in _header(result)[:2]]
+    parts.append(
+        html_table(
+            ["parameter", "start", "tuned"], [[esc(k), esc(a), esc(b)] for k, a, b in _changes(result)]
+        )
+    )
+    links = [
+        ("tuned.yaml", "tuned.yaml (run it: quad-drake run DIR/tuned.yaml)"),
+        ("history.csv", "history.csv"),
+    ]
+    links += [("tune.json", "tune.json"), ("before_after.txt", "before_after.txt")]
+    links += [(f"holdout_{w}/report.html", f"held-out campaign {w}") for w in ("before", "after")]
+    shown = [f'<a href="{esc(path)}">{esc(label)}</a>' for path, label in links if (out_dir / path).is_file()]
+    parts.append("<p>" + " · ".join(shown) + "</p>")
+    if result.after is not None:
+        parts += ["<h2>Held-out seeds: start against tuned</h2>", f"<pre>{esc(before_after(result))}</pre>"]
+    if (out_dir / "objective.png").is_file():
+        parts += ["<h2>Search</h2>", *figures_html([("Loss per candidate", out_dir / "objective.png")])]
+    return write_text_atomic(out_dir / "report.html", html_page(f"quad_drake: tune {name}", "\n".join(parts)))

@@ -13,7 +13,7 @@ import copy
 import dataclasses
 from dataclasses import dataclass
 
-from ..config import ConfigError, validate
+from ..config import ConfigError, did_you_mean, validate
 from ..estimation.vocabulary import vehicle_vocabulary
 
 SEARCH_DECADES = 1.0
@@ -91,7 +91,8 @@ def _field_value(node, parts, key, where):
             names = [f.name for f in dataclasses.fields(node)]
             if part not in names:
                 raise ConfigError(
-                    f"--params {key}: unknown field {part!r} in {here} (known: {', '.join(names)})"
+                    f"--params {key}: unknown field {part!r} in {here}{did_you_mean(part, names)} "
+                    f"(known: {', '.join(names)})"
                 )
             node = getattr(node, part)
         else:

@@ -19,6 +19,7 @@ from quad_drake.conventions import ATTITUDE_FILTER_OFFSET, GRAVITY, NO_SAMPLE_ST
 from quad_drake.estimation import ekf, eskf, gating
 from quad_drake.estimation.complementary import complementary_update
 from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, vocabulary_for
+from quad_drake.fidelity import PHYSICAL, REFERENCE
 from quad_drake.rotations import quat_from_euler
 from quad_drake.systems.estimators import (
     ComplementaryFilter,
@@ -40,9 +41,11 @@ def ticks_end(n):
 
 
 class EkfFixture:
-    def __init__(self, params=None, imu=LEVEL_IMU, attitude=(0.0, 0.0, 0.0), gps=NO_GPS, mag=NO_MAG):
+    def __init__(
+        self, params=None, imu=LEVEL_IMU, attitude=(0.0, 0.0, 0.0), gps=NO_GPS, mag=NO_MAG, fidelity=PHYSICAL
+    ):
         self.params = params or EkfParams()
-        self.dut = Ekf(self.params)
+        self.dut = Ekf(self.params, fidelity)
         self.context = self.dut.CreateDefaultContext()
         self.ports = {name: self.dut.GetInputPort(name) for name in ("imu", "attitude", "gps", "mag")}
         self.fix(imu=imu, attitude=attitude, gps=gps, mag=mag)
@@ -232,8 +235,9 @@ def test_ekf_skips_and_counts_non_finite_samples():
     r.predict()
     assert_matches(f, r)
     assert f.output("diagnostics")[4] == 3.0
-    f.fix(gps=NO_GPS, imu=[0.0, 0.0, math.nan, 0.0, 0.0, 0.0])  # a bad IMU sample: no predict
-    f.tick(2)
+    f.fix(gps=NO_GPS, imu=[0.0, 0.0, math.nan, 0.0, 0.0, 0.0])  # a bad IMU sample: predicted with
+    f.tick(2)  # the running mean of the finite ones, all LEVEL_IMU here
+    r.predict(2)
     assert_matches(f, r)
     assert f.output("diagnostics")[4] == 5.0
     f.fix(imu=LEVEL_IMU, attitude=(0.0, math.inf, 0.0))
@@ -303,25 +307,33 @@ BURST_IMU = [0.0, 0.0, -GRAVITY, 0.1, -0.2, 0.3]
 
 
 @pytest.mark.parametrize("estimator", [Ekf7EstimatorConfig(), EskfEstimatorConfig()], ids=["ekf7", "eskf"])
-def test_a_non_finite_imu_burst_never_reaches_the_estimated_state(estimator):
-    # 0.2 s of NaN IMU samples (100 ticks): the estimate stays finite, the body rate holds the
-    # last finite gyro sample, and every skipped sample is counted.
-    diagram, sources = build_estimators(imu=BURST_IMU, estimator=estimator)
-    context = diagram.CreateDefaultContext()
-    simulator = Simulator(diagram, context)
-    simulator.AdvanceTo(ticks_end(10))
-    source_context = sources["imu"].GetMyContextFromRoot(context)
-    sources["imu"].get_mutable_source_value(source_context).set_value(np.full(6, math.nan))
-    simulator.AdvanceTo(ticks_end(110))
-    estimated = diagram.GetOutputPort("estimated_state").Eval(context)
-    assert np.isfinite(estimated).all()
-    np.testing.assert_allclose(estimated[10:13], BURST_IMU[3:6], atol=1e-3)  # ESKF: minus the gyro bias
-    diagnostics = diagram.GetOutputPort("diagnostics").Eval(context)
-    assert diagnostics[DIAG["nonfinite_samples"]] == 100.0
-    sources["imu"].get_mutable_source_value(source_context).set_value(np.array(BURST_IMU))
-    simulator.AdvanceTo(ticks_end(120))
-    assert np.isfinite(diagram.GetOutputPort("estimated_state").Eval(context)).all()
-    assert diagram.GetOutputPort("diagnostics").Eval(context)[DIAG["nonfinite_samples"]] == 100.0
+def test_an_imu_dropout_is_dead_reckoned_on_the_running_mean_and_its_rate_reported_unknown(estimator):
+    # 0.2 s of NaN IMU samples (100 ticks) after a constant IMU: the estimators predict with the
+    # running mean of the finite samples (here exactly the constant), so p, q and v are those of
+    # a run without the dropout; the body rate is NaN (not measured) until the IMU is back, and
+    # every missing sample is counted.
+    runs = {}
+    for dropout in (False, True):
+        diagram, sources = build_estimators(imu=BURST_IMU, estimator=estimator)
+        context = diagram.CreateDefaultContext()
+        simulator = Simulator(diagram, context)
+        simulator.AdvanceTo(ticks_end(10))
+        source_context = sources["imu"].GetMyContextFromRoot(context)
+        if dropout:
+            sources["imu"].get_mutable_source_value(source_context).set_value(np.full(6, math.nan))
+        simulator.AdvanceTo(ticks_end(110))
+        runs[dropout] = diagram.GetOutputPort("estimated_state").Eval(context).copy()
+        assert (
+            diagram.GetOutputPort("diagnostics").Eval(context)[DIAG["nonfinite_samples"]] == 100.0 * dropout
+        )
+        sources["imu"].get_mutable_source_value(source_context).set_value(np.array(BURST_IMU))
+        simulator.AdvanceTo(ticks_end(111))
+        np.testing.assert_allclose(
+            diagram.GetOutputPort("estimated_state").Eval(context)[10:13], BURST_IMU[3:6], atol=1e-3
+        )  # measured again (the ESKF subtracts its gyro bias)
+    np.testing.assert_allclose(runs[True][0:10], runs[False][0:10], rtol=0, atol=1e-12)
+    assert np.isnan(runs[True][10:13]).all()
+    assert np.isfinite(runs[False]).all()
 
 
 def test_ekf_gates_a_50_m_outlier_and_resets_the_horizontal_position_after_the_timeout():
@@ -348,6 +360,19 @@ def test_ekf_gates_a_50_m_outlier_and_resets_the_horizontal_position_after_the_t
     f.fix(gps=z + [0.5])  # consistent with the new estimate: fused
     f.tick()
     assert f.output("diagnostics")[DIAG["gps_gated"]] == 4.0
+
+
+def test_the_reference_estimator_fuses_every_sample_as_the_binary_does():
+    # fidelity: reference runs the reference's EKF: no gate, so a 50 m outlier is fused
+    z = [50.0, 0.0, -1.0, 0.0, 0.0, 0.0]
+    gated = EkfFixture(gps=z + [0.1])
+    reference = EkfFixture(gps=z + [0.1], imu=[0.0, 0.0, GRAVITY, 0.0, 0.0, 0.0], fidelity=REFERENCE)
+    for f in (gated, reference):
+        f.tick()
+    assert gated.output("diagnostics")[DIAG["gps_gated"]] == 1.0
+    assert reference.output("diagnostics")[DIAG["gps_gated"]] == 0.0
+    assert reference.output("ekf_state")[0] > 0.4  # fused: gain P / (P + R) = 0.01 of 50 m
+    assert abs(gated.output("ekf_state")[0]) < 1e-6
 
 
 def test_a_wrong_velocity_never_makes_the_ekf_refuse_a_good_position():
