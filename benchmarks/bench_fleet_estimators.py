@@ -1,4 +1,4 @@
-"""Fleet estimator speed: CPU microseconds per vehicle per 2 ms tick of ``build_fleet_estimator``.
+"""Fleet estimator speed: CPU microseconds per vehicle per 2 ms tick of ``build_estimator(vehicle, n=N)``.
 
 A source system publishes N vehicles' IMU samples every tick (from a bank of seeded random
 samples), a fresh magnetometer sample every 5 ticks and a fresh GPS sample every 50 (100 Hz and
@@ -26,7 +26,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from quad_drake.config import EskfEstimatorConfig, VehicleConfig  # noqa: E402
 from quad_drake.conventions import GRAVITY, NO_SAMPLE_STAMP, ONBOARD_PERIOD  # noqa: E402
-from quad_drake.fleet.estimators import build_fleet_estimator  # noqa: E402
 from quad_drake.systems.estimators import build_estimator  # noqa: E402
 
 BANK = 16
@@ -74,7 +73,7 @@ def cpu_seconds(n, kind, seconds, scalar=False):
     source = builder.AddSystem(SensorSource(n))
     if kind is not None:
         vehicle = VehicleConfig(estimator=EskfEstimatorConfig()) if kind == "eskf" else VehicleConfig()
-        diagram = build_estimator(vehicle) if scalar else build_fleet_estimator(vehicle, n)
+        diagram = build_estimator(vehicle) if scalar else build_estimator(vehicle, n=n)
         estimator = builder.AddSystem(diagram)
         for name in ("imu", "gps", "mag"):
             builder.Connect(source.GetOutputPort(name), estimator.GetInputPort(name))

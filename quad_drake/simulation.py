@@ -32,7 +32,7 @@ from .error_sampling import TICK_LOG_WIDTHS, TICK_REFERENCE, TICK_STATE
 from .estimation.vocabulary import vehicle_vocabulary
 from .faults import sensor_of
 from .fidelity import PHYSICAL, fidelity_from_mode
-from .fleet.estimators import FleetGpsDelayCompensator, build_fleet_estimator
+from .fleet.estimators import FleetGpsDelayCompensator
 from .limits import check_run
 from .results import result_from_logs
 from .rotations import quat_from_euler
@@ -148,15 +148,11 @@ def _add_faults(builder, vehicle, outputs, n):
 
 
 def _add_estimator(builder, vehicle, fidelity, outputs, seeds):
-    """Add the vehicle's estimator (``build_estimator``, or ``build_fleet_estimator`` with run
-    seeds) fed by the sensors in `outputs` (a missing GPS or magnetometer never samples), with the
-    GPS delay compensation when configured; its log signals go into `outputs`."""
+    """Add the estimator of the vehicle's n copies (``build_estimator``; n = 1 without run seeds)
+    fed by the sensors in `outputs` (a missing GPS or magnetometer never samples), with the GPS
+    delay compensation when configured; its log signals go into `outputs`."""
     n = 1 if seeds is None else len(seeds)
-    if seeds is None:
-        estimator = build_estimator(vehicle, fidelity)
-    else:
-        estimator = build_fleet_estimator(vehicle, n, fidelity)
-    estimator = builder.AddSystem(estimator)
+    estimator = builder.AddSystem(build_estimator(vehicle, fidelity, n=n))
     for name in vehicle_vocabulary(vehicle).log_widths():
         outputs[name] = estimator.GetOutputPort(name)
     inputs = {

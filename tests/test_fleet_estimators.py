@@ -26,7 +26,7 @@ from quad_drake.estimation.complementary import complementary_update
 from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, vocabulary_for
 from quad_drake.fidelity import PHYSICAL, REFERENCE
 from quad_drake.fleet import estimation_kernels as kernels
-from quad_drake.fleet.estimators import FleetGpsDelayCompensator, build_fleet_estimator
+from quad_drake.fleet.estimators import FleetGpsDelayCompensator
 from quad_drake.rotations import quat_from_euler_tuple
 from quad_drake.systems.estimators import build_estimator
 from quad_drake.systems.faults import GpsDelayCompensator
@@ -488,7 +488,7 @@ def sensor_sequences(vehicle, reference_accelerometer):
 def fleet_and_scalar_estimators(vehicle, n, fidelity):
     """One Diagram holding the fleet estimator and n scalar ones, every input and output exported."""
     builder = DiagramBuilder()
-    systems = {"fleet": build_fleet_estimator(vehicle, n, fidelity)}
+    systems = {"fleet": build_estimator(vehicle, fidelity, n=n)}
     systems.update({f"scalar{i}": build_estimator(vehicle, fidelity) for i in range(n)})
     for tag, system in systems.items():
         system.set_name(tag)
@@ -554,16 +554,16 @@ def test_fleet_estimator_matches_the_scalar_estimators_tick_by_tick(case):
 def test_fleet_estimator_port_sizes_follow_the_vocabulary():
     for estimator in (Ekf7EstimatorConfig(), EskfEstimatorConfig()):
         vehicle = VehicleConfig(estimator=estimator)
-        diagram = build_fleet_estimator(vehicle, 5)
+        diagram = build_estimator(vehicle, n=5)
         assert diagram.get_name() == "estimator"
         for name, size in SENSORS.items():
             assert diagram.GetInputPort(name).size() == 5 * size
         for name, width in vocabulary_for(estimator).log_widths().items():
             assert diagram.GetOutputPort(name).size() == 5 * width
     with pytest.raises(ValueError, match="physical accelerometer"):
-        build_fleet_estimator(VehicleConfig(estimator=EskfEstimatorConfig()), 2, REFERENCE)
+        build_estimator(VehicleConfig(estimator=EskfEstimatorConfig()), REFERENCE, n=2)
     with pytest.raises(ValueError, match="at least one vehicle"):
-        build_fleet_estimator(VehicleConfig(), 0)
+        build_estimator(VehicleConfig(), n=0)
 
 
 def test_fleet_gps_delay_compensator_matches_the_scalar_one_tick_by_tick():

@@ -7,6 +7,9 @@ are exact at rest for |pitch| < pi/2 (the reference's atan2(-a_x, 9.81) is atan(
 With ``reference_accelerometer`` (``fidelity: reference``) the reading is the reference's
 R_NB^T (a_NB + g_N) and the tilt is the reference's roll = atan2(f_y, f_z),
 pitch = atan2(-f_x, 9.81) (SPEC §4).
+
+``complementary_update`` is the reference oracle of ``estimation_kernels.complementary_tick``,
+which every simulation runs (``tests/test_oracles.py``).
 """
 
 import math

@@ -12,6 +12,12 @@ walk that grows over the flight, rotates the specific force into a velocity erro
 into the integrated yaw. :class:`TiltNoise` adds that error's predicted variance, mapped
 through the Jacobian of (a_N, yaw rate) with respect to (roll, pitch), to Q at every step; see
 :func:`tilt_variance` and :func:`tilt_process_noise`.
+
+The textbook forms here (``predict``, ``predict_with_yaw``, ``predict_state``,
+``predict_jacobian``, ``predict_covariance``, ``kalman_update``, ``gps_update``, ``mag_update``)
+are the reference oracles of the running implementation, ``fleet/estimation_kernels.py``, which
+single runs and fleets both execute; the kernels are tested against them to 1e-12 and no
+simulation calls them (``tests/test_oracles.py``).
 """
 
 import math

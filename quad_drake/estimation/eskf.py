@@ -31,6 +31,10 @@ reference; tested numerically):
 
 Updates return the NIS nu^T S^-1 nu and leave the gating decision to the caller
 (:mod:`quad_drake.estimation.gating`): a gated sample keeps the prior.
+
+``predict``, ``predict_nominal``, ``joseph_update``, ``inject``, ``gps_update`` and ``mag_update``
+are the reference oracles of the running implementation, ``fleet/estimation_kernels.py``; the
+kernels are tested against them to 1e-12 and no simulation calls them (``tests/test_oracles.py``).
 """
 
 import math

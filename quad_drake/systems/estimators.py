@@ -1,5 +1,10 @@
 """Estimator LeafSystems and the estimator sub-Diagrams a vehicle's config chooses.
 
+Every system here is sized by n vehicles (default 1, a single run; a fleet flies n runs of one
+VehicleConfig at once): its ports carry the n per-vehicle vectors vehicle-major (vehicle i at
+[i k, (i + 1) k)), and a single run and a fleet execute the same code (the compiled kernels of
+``fleet/estimation_kernels.py`` over (n, ...) views of the ports and discrete state).
+
 Every estimator is a sub-Diagram (:func:`build_estimator`) with inputs ``imu``, ``gps``,
 ``mag`` and the outputs its vocabulary lists (``estimation/vocabulary.py``):
 ``estimated_state`` (13, the true ``state`` layout), ``covariance``, ``diagnostics`` and its
@@ -12,8 +17,9 @@ own logs.
   GPS sample (the reference's IMU, Mag, GPS order).
 - ``eskf``: the error-state EKF, one system at EKF_OFFSET (predict, mag, GPS).
 
-Fresh means a changed ``stamp``. Both gate each update (chi^2, ``estimation/gating.py``),
-reset to the GPS after continuous GPS rejection, repair an unhealthy covariance and count
+Fresh means a changed ``stamp``. Both gate each update (chi^2, ``estimation/gating.py``: the
+GPS horizontal position, height and velocity apart), reset a GPS quantity after its run of
+rejections or at a GPS regain, repair an unhealthy covariance and count
 all of it in ``diagnostics``. Over non-finite IMU samples (a dropout) both dead-reckon on the
 running mean of the IMU and report the body rate in ``estimated_state`` as NaN: no rate is
 measured, and the controller then commands no body moment (``control.cascade``).
@@ -43,7 +49,7 @@ from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, NIS_DOF, vo
 from quad_drake.fidelity import PHYSICAL
 from quad_drake.fleet import estimation_kernels as kernels
 from quad_drake.rotations import quat_from_euler_tuple
-from quad_drake.systems._io import row_reader
+from quad_drake.systems._io import declare_state_output
 
 
 def initial_diagnostics():
@@ -112,46 +118,60 @@ class GatedFusion:
             )
 
 
-class ComplementaryFilter(LeafSystem):
-    """Complementary roll/pitch filter with gyro-integrated yaw (SPEC §4 UpdateFromIMU).
+def _reader(port):
+    """``read(context)``: the value of the vector input `port` as a read-only numpy view (no copy;
+    valid inside the handler that reads it)."""
+    evaluate = port.EvalBasicVector
+    return lambda context: evaluate(context).get_value()
 
-    Inputs: ``imu`` (6: f_B specific force m/s^2, w_NB_B rad/s; FRD), ``ekf_state`` (7; index 6
-    is the EKF posterior yaw, rad, used as the prior yaw). Outputs (state ports): ``attitude``
-    (3: roll, pitch, yaw, rad), ``body_rate`` (3: the gyro sample, rad/s; NaN while the IMU is
-    out). Ticks every ONBOARD_PERIOD at ATTITUDE_FILTER_OFFSET with dt = ONBOARD_PERIOD. Over a
-    non-finite IMU sample the filter dead-reckons on the running mean of the IMU
-    (``estimation_kernels.IMU_HOLD_TIME``) and reports no rate (NaN: the controller then
-    commands no body moment).
+
+def _tiled(vector, n):
+    return np.tile(np.asarray(vector, dtype=float), n)
+
+
+class ComplementaryFilter(LeafSystem):
+    """n complementary roll/pitch filters with gyro-integrated yaw (SPEC §4 UpdateFromIMU).
+
+    Every port carries the n vehicles' vectors vehicle-major (vehicle i at [i k, (i + 1) k)).
+    Inputs: ``imu`` (n*6: f_B specific force m/s^2, w_NB_B rad/s; FRD), ``ekf_state`` (n*7; index
+    6 is the EKF posterior yaw, rad, used as the prior yaw). Outputs (state ports): ``attitude``
+    (n*3: roll, pitch, yaw, rad), ``body_rate`` (n*3: the gyro sample, rad/s; NaN while the IMU
+    is out). Ticks every ONBOARD_PERIOD at ATTITUDE_FILTER_OFFSET with dt = ONBOARD_PERIOD
+    (``estimation_kernels.complementary_tick``). Over a non-finite IMU sample the filter
+    dead-reckons on the running mean of the IMU (``estimation_kernels.IMU_HOLD_TIME``) and
+    reports no rate (NaN: the controller then commands no body moment).
     With ``fidelity.reference_accelerometer`` the IMU carries the reference's reading and the
     tilt comes from the reference's formulas; with ``fidelity.float32_estimator`` the attitude
     and body rate are rounded to float32 after each tick (``round_to_float32``).
     """
 
-    def __init__(self, params, initial_attitude=(0.0, 0.0, 0.0), fidelity=PHYSICAL):
+    def __init__(self, params, initial_attitude=(0.0, 0.0, 0.0), fidelity=PHYSICAL, n=1):
         super().__init__()
-        self._reference_accelerometer = fidelity.reference_accelerometer
-        self._float32 = fidelity.float32_estimator
         if params.variant not in VARIANTS:
             raise ValueError(f"attitude filter variant {params.variant!r} is not one of {VARIANTS}")
+        self._n = n
         self._tau = float(params.tau)
         self._variant = params.variant
-        self._read_imu = row_reader(self.DeclareVectorInputPort("imu", IMU_SIZE))
-        self._read_ekf_state = row_reader(self.DeclareVectorInputPort("ekf_state", EKF_STATE_SIZE))
-        state = self.DeclareDiscreteState(np.array(initial_attitude, dtype=float))
-        rate = self.DeclareDiscreteState(3)
-        self.DeclareDiscreteState(kernels.initial_hold())
-        self.DeclareStateOutputPort("attitude", state)
-        self.DeclareStateOutputPort("body_rate", rate)
+        self._reference_accelerometer = fidelity.reference_accelerometer
+        self._float32 = fidelity.float32_estimator
+        self._read_imu = _reader(self.DeclareVectorInputPort("imu", n * IMU_SIZE))
+        self._read_ekf_state = _reader(self.DeclareVectorInputPort("ekf_state", n * EKF_STATE_SIZE))
+        attitude = self.DeclareDiscreteState(_tiled(initial_attitude, n))
+        rate = self.DeclareDiscreteState(n * 3)
+        self.DeclareDiscreteState(_tiled(kernels.initial_hold(), n))
+        declare_state_output(self, "attitude", attitude, n * ATTITUDE_SIZE)
+        declare_state_output(self, "body_rate", rate, n * 3)
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, ATTITUDE_FILTER_OFFSET, self._update)
 
     def _update(self, context, discrete_state):
+        n = self._n
         attitude, rate = discrete_state.get_mutable_value(0), discrete_state.get_mutable_value(1)
         kernels.complementary_tick(
-            attitude.reshape(1, ATTITUDE_SIZE),
-            rate.reshape(1, 3),
-            discrete_state.get_mutable_value(2).reshape(1, kernels.HOLD_SIZE),
-            self._read_imu(context),
-            self._read_ekf_state(context),
+            attitude.reshape(n, ATTITUDE_SIZE),
+            rate.reshape(n, 3),
+            discrete_state.get_mutable_value(2).reshape(n, kernels.HOLD_SIZE),
+            self._read_imu(context).reshape(n, IMU_SIZE),
+            self._read_ekf_state(context).reshape(n, EKF_STATE_SIZE),
             ONBOARD_PERIOD,
             self._tau,
             self._variant,
@@ -162,29 +182,31 @@ class ComplementaryFilter(LeafSystem):
 
 
 class Ekf(GatedFusion, LeafSystem):
-    """7-state EKF (SPEC §4): x = (p_N m, v_N m/s, yaw rad), NED; roll/pitch from the attitude filter.
+    """n 7-state EKFs (SPEC §4): x = (p_N m, v_N m/s, yaw rad), NED; roll/pitch from the attitude filter.
 
-    Inputs: ``imu`` (6: f_B m/s^2, w_NB_B rad/s), ``gps`` (7: p_N m, v_N m/s, stamp s),
-    ``mag`` (2: yaw rad, stamp s), ``attitude`` (3: roll, pitch, yaw rad, this tick's filter
-    output). A sensor the vehicle lacks must be wired to a constant with stamp NO_SAMPLE_STAMP.
-    Outputs (state ports): ``ekf_state`` (7), ``covariance`` (49, P row-major),
-    ``diagnostics`` (``vocabulary.DIAGNOSTICS``; NIS is NaN before the first update).
+    Ports vehicle-major as :class:`ComplementaryFilter`'s. Inputs: ``imu`` (n*6: f_B m/s^2,
+    w_NB_B rad/s), ``gps`` (n*7: p_N m, v_N m/s, stamp s), ``mag`` (n*2: yaw rad, stamp s),
+    ``attitude`` (n*3: roll, pitch, yaw rad, this tick's filter output). A sensor the vehicle
+    lacks must be wired to a constant with stamp NO_SAMPLE_STAMP. Outputs (state ports):
+    ``ekf_state`` (n*7), ``covariance`` (n*49, each P row-major), ``diagnostics``
+    (n*``vocabulary.DIAGNOSTICS``; NIS is NaN before the first update).
 
-    Each tick (ONBOARD_PERIOD, offset EKF_OFFSET): yaw <- attitude yaw, predict with dt =
-    ONBOARD_PERIOD; then a fresh mag sample, then a fresh GPS sample, is fused through the
-    gates (``mag_gate_sigma``; the GPS policy of ``estimation/gating.py``: horizontal
-    position, height and velocity gated, fused and reset apart, a returning GPS taken after an
-    outage). A sample is fresh when its stamp differs from the last stamp seen and is not
-    NO_SAMPLE_STAMP. P is checked every tick (finite, variances >= 0) and fully (PSD) at every
-    GPS sample, and repaired or reset to P0. With ``fidelity.reference_accelerometer`` the
-    prediction reads the IMU as the reference's R_NB^T (a_NB + g_N): a_N = R f - g_N; with
-    ``fidelity.reference_estimator`` nothing is gated, reset or repaired (the reference's EKF).
-    With ``tilt`` (an ``ekf.TiltNoise``) Q grows with the attitude filter's predicted
-    roll/pitch error at the context time. With ``fidelity.float32_estimator`` x and P are
-    rounded to float32 after each tick.
+    Each tick (ONBOARD_PERIOD, offset EKF_OFFSET; ``estimation_kernels.ekf7_tick``): yaw <-
+    attitude yaw, predict x' = f(x, f_B), P' = G P G^T + Q with dt = ONBOARD_PERIOD (over a
+    non-finite IMU sample with the IMU's running mean); then a fresh mag sample, then a fresh GPS
+    sample, is fused through the gates (``mag_gate_sigma``; the GPS policy of
+    ``estimation/gating.py``: horizontal position, height and velocity gated, fused and reset
+    apart, a returning GPS taken after an outage). A sample is fresh when its stamp differs from
+    the last stamp seen and is not NO_SAMPLE_STAMP. P is checked every tick (finite, variances
+    >= 0) and fully (PSD) at every GPS sample, and repaired or reset to P0. With
+    ``fidelity.reference_accelerometer`` the prediction reads the IMU as the reference's R_NB^T
+    (a_NB + g_N): a_N = R f - g_N; with ``fidelity.reference_estimator`` nothing is gated, reset
+    or repaired (the reference's EKF); with ``fidelity.float32_estimator`` x and P are rounded
+    to float32 after each tick. With ``tilt`` (an ``ekf.TiltNoise``) Q grows with the attitude
+    filter's predicted roll/pitch error at the context time.
     """
 
-    def __init__(self, params, fidelity=PHYSICAL, tilt=None):
+    def __init__(self, params, fidelity=PHYSICAL, tilt=None, n=1):
         super().__init__()
         self._gravity_z = kernels.gravity_z(fidelity.reference_accelerometer)
         self._float32 = fidelity.float32_estimator
@@ -192,30 +214,31 @@ class Ekf(GatedFusion, LeafSystem):
         self._tilt = tilt
         P0 = ekf.initial_covariance(params)
         self._declare_gating(params, P0, (ekf.mag_noise(params), ekf.gps_noise(params)), fidelity)
-        self._read_imu = row_reader(self.DeclareVectorInputPort("imu", IMU_SIZE))
-        self._read_gps = row_reader(self.DeclareVectorInputPort("gps", GPS_SIZE))
-        self._read_mag = row_reader(self.DeclareVectorInputPort("mag", MAG_SIZE))
-        self._read_attitude = row_reader(self.DeclareVectorInputPort("attitude", ATTITUDE_SIZE))
-        self._looks_healthy = np.empty(1, dtype=bool)  # scratch of the kernel's per-tick health check
-        x, P, diagnostics = self._declare_fusion_state(1, ekf.initial_state(params), P0)
-        self._hold = self.DeclareDiscreteState(kernels.initial_hold())
-        self.DeclareStateOutputPort("ekf_state", x)
-        self.DeclareStateOutputPort("covariance", P)
-        self.DeclareStateOutputPort("diagnostics", diagnostics)
+        self._read_imu = _reader(self.DeclareVectorInputPort("imu", n * IMU_SIZE))
+        self._read_gps = _reader(self.DeclareVectorInputPort("gps", n * GPS_SIZE))
+        self._read_mag = _reader(self.DeclareVectorInputPort("mag", n * MAG_SIZE))
+        self._read_attitude = _reader(self.DeclareVectorInputPort("attitude", n * ATTITUDE_SIZE))
+        x, P, diagnostics = self._declare_fusion_state(n, ekf.initial_state(params), P0)
+        self._hold = self.DeclareDiscreteState(_tiled(kernels.initial_hold(), n))
+        self._healthy = np.empty(n, dtype=bool)  # scratch of each tick's health check
+        declare_state_output(self, "ekf_state", x, n * EKF_STATE_SIZE)
+        declare_state_output(self, "covariance", P, n * EKF_STATE_SIZE**2)
+        declare_state_output(self, "diagnostics", diagnostics, n * DIAGNOSTICS_SIZE)
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, EKF_OFFSET, self._update)
 
     def _update(self, context, discrete_state):
-        """The prediction and, on a quiet tick, the mag fusion compiled (``fleet.estimation_kernels
-        .ekf7_tick`` with N = 1, in place); at a fresh GPS sample or an unhealthy P, the health
-        check and the fusions of :meth:`_fuse_fresh`."""
+        """The prediction and, on a quiet tick, the mag fusion (one compiled call); at a fresh GPS
+        sample or an unhealthy P, the health check and the fusions of :meth:`_fuse_fresh`."""
+        n = self._n
         x, P, diagnostics, book = self._views(discrete_state, EKF_STATE_SIZE)
-        gps, mag = self._read_gps(context), self._read_mag(context)
+        gps = self._read_gps(context).reshape(n, GPS_SIZE)
+        mag = self._read_mag(context).reshape(n, MAG_SIZE)
         quiet = kernels.ekf7_tick(
             x,
             P,
-            discrete_state.get_mutable_value(self._hold).reshape(1, kernels.HOLD_SIZE),
-            self._read_attitude(context),
-            self._read_imu(context),
+            discrete_state.get_mutable_value(self._hold).reshape(n, kernels.HOLD_SIZE),
+            self._read_attitude(context).reshape(n, ATTITUDE_SIZE),
+            self._read_imu(context).reshape(n, IMU_SIZE),
             gps,
             mag,
             diagnostics,
@@ -226,9 +249,9 @@ class Ekf(GatedFusion, LeafSystem):
             self._gravity_z,
             self._R_mag[0, 0],
             self._mag_threshold,
-            self._looks_healthy,
+            self._healthy,
         )
-        if not quiet:
+        if not quiet:  # a fresh GPS sample or an unhealthy P somewhere: the full step
             self._fuse_fresh(
                 x,
                 P,
@@ -236,7 +259,7 @@ class Ekf(GatedFusion, LeafSystem):
                 book,
                 gps,
                 mag,
-                self._looks_healthy,
+                self._healthy,
                 kernels.ekf7_gps_update,
                 kernels.ekf7_mag_tick,
             )
@@ -245,41 +268,47 @@ class Ekf(GatedFusion, LeafSystem):
 
 
 class EstimatedStateAssembler(LeafSystem):
-    """The EKF7's estimate in the true ``state`` layout, for the controller and the evaluators.
+    """n EKF7 estimates in the true ``state`` layout, for the controller and the evaluators.
 
-    Inputs: ``attitude`` (3: roll, pitch, yaw rad), ``ekf_state`` (7), ``body_rate`` (3, rad/s,
-    the filter's gyro sample, NaN while the IMU is out). Output: ``estimated_state`` (13: p = x[0:3] m,
-    q_NB = quat(roll, pitch, x[6]) wxyz, v = x[3:6] m/s, w_NB_B = body rate); a feedthrough
-    output (its inputs are state ports).
+    Inputs: ``attitude`` (n*3: roll, pitch, yaw rad), ``ekf_state`` (n*7), ``body_rate`` (n*3,
+    rad/s, the filter's gyro sample, NaN while the IMU is out). Output: ``estimated_state``
+    (n*13: p = x[0:3] m, q_NB = quat(roll, pitch, x[6]) wxyz, v = x[3:6] m/s, w_NB_B = body
+    rate); a feedthrough output (its inputs are state ports).
     """
 
-    def __init__(self):
+    def __init__(self, n=1):
         super().__init__()
-        self._read_attitude = row_reader(self.DeclareVectorInputPort("attitude", ATTITUDE_SIZE))
-        self._read_ekf_state = row_reader(self.DeclareVectorInputPort("ekf_state", EKF_STATE_SIZE))
-        self._read_rate = row_reader(self.DeclareVectorInputPort("body_rate", 3))
+        self._n = n
+        self._read_attitude = _reader(self.DeclareVectorInputPort("attitude", n * ATTITUDE_SIZE))
+        self._read_ekf_state = _reader(self.DeclareVectorInputPort("ekf_state", n * EKF_STATE_SIZE))
+        self._read_rate = _reader(self.DeclareVectorInputPort("body_rate", n * 3))
         self.DeclareVectorOutputPort(
-            "estimated_state", STATE_SIZE, self._calc, prerequisites_of_calc={self.all_input_ports_ticket()}
+            "estimated_state",
+            n * STATE_SIZE,
+            self._calc,
+            prerequisites_of_calc={self.all_input_ports_ticket()},
         )
 
     def _calc(self, context, output):
+        n = self._n
         kernels.ekf7_estimated_state(
-            self._read_attitude(context),
-            self._read_ekf_state(context),
-            self._read_rate(context),
-            out=output.get_mutable_value()[None],
+            self._read_attitude(context).reshape(n, ATTITUDE_SIZE),
+            self._read_ekf_state(context).reshape(n, EKF_STATE_SIZE),
+            self._read_rate(context).reshape(n, 3),
+            out=output.get_mutable_value().reshape(n, STATE_SIZE),
         )
 
 
 class Eskf(GatedFusion, LeafSystem):
-    """Error-state EKF (``estimation/eskf.py``) on the IMU, GPS and magnetometer.
+    """n error-state EKFs (``estimation/eskf.py``) on the IMU, GPS and magnetometer.
 
-    Inputs: ``imu`` (6: f_B m/s^2, w_NB_B rad/s), ``gps`` (7: p_N m, v_N m/s, stamp s),
-    ``mag`` (2: yaw rad, stamp s); a missing sensor is wired to a constant with stamp
-    NO_SAMPLE_STAMP. Outputs (state ports): ``estimated_state`` (13: p, q_NB, v, body rate =
-    gyro - gyro bias, NaN while the IMU is out), ``covariance`` (n*n, n = 15 with bias
-    estimation, 9 without; error state dp, dv, dtheta[, db_a, db_g]), ``diagnostics``
-    (``vocabulary.DIAGNOSTICS``), ``imu_bias`` (6: b_a m/s^2, b_g rad/s).
+    Ports vehicle-major as :class:`ComplementaryFilter`'s. Inputs: ``imu`` (n*6: f_B m/s^2,
+    w_NB_B rad/s), ``gps`` (n*7: p_N m, v_N m/s, stamp s), ``mag`` (n*2: yaw rad, stamp s); a
+    missing sensor is wired to a constant with stamp NO_SAMPLE_STAMP. Outputs (state ports):
+    ``estimated_state`` (n*13: p, q_NB, v, body rate = gyro - gyro bias, NaN while the IMU is
+    out), ``covariance`` (n*k*k, k = 15 with bias estimation, 9 without; error state dp, dv,
+    dtheta[, db_a, db_g]), ``diagnostics`` (n*``vocabulary.DIAGNOSTICS``), ``imu_bias`` (n*6: b_a
+    m/s^2, b_g rad/s).
 
     Each tick (ONBOARD_PERIOD, offset EKF_OFFSET): predict with the IMU sample (over a
     non-finite one, counted, with the running mean of the IMU: ``estimation_kernels
@@ -289,64 +318,59 @@ class Eskf(GatedFusion, LeafSystem):
 
     ESTIMATE_GROUP, BIAS_GROUP = 4, 5
 
-    def __init__(self, params, fidelity=PHYSICAL):
+    def __init__(self, params, fidelity=PHYSICAL, n=1):
         super().__init__()
         self._noise = eskf.NoiseModel.from_params(params)
         P0 = eskf.initial_covariance(params)
-        self._Qbuf = eskf.noise_buffer(P0.shape[0], self._noise, ONBOARD_PERIOD)
+        self._Q_constant = eskf.noise_buffer(P0.shape[0], self._noise, ONBOARD_PERIOD)
         yaw, pitch, roll = params.init_ypr
-        q0 = quat_from_euler_tuple(roll, pitch, yaw)
-        x0 = eskf.initial_nominal(params.init_position, params.init_velocity, q0)
+        x0 = eskf.initial_nominal(
+            params.init_position, params.init_velocity, quat_from_euler_tuple(roll, pitch, yaw)
+        )
         self._declare_gating(params, P0, (eskf.mag_noise(params), eskf.gps_noise(params)), fidelity)
-        self._read_imu = row_reader(self.DeclareVectorInputPort("imu", IMU_SIZE))
-        self._read_gps = row_reader(self.DeclareVectorInputPort("gps", GPS_SIZE))
-        self._read_mag = row_reader(self.DeclareVectorInputPort("mag", MAG_SIZE))
-        _, P, diagnostics = self._declare_fusion_state(1, x0, P0)
+        self._read_imu = _reader(self.DeclareVectorInputPort("imu", n * IMU_SIZE))
+        self._read_gps = _reader(self.DeclareVectorInputPort("gps", n * GPS_SIZE))
+        self._read_mag = _reader(self.DeclareVectorInputPort("mag", n * MAG_SIZE))
+        _, P, diagnostics = self._declare_fusion_state(n, x0, P0)
         initial_estimate = np.zeros(STATE_SIZE)  # body rate 0 before the first sample
         eskf.write_estimate(x0, initial_estimate)
-        estimate = self.DeclareDiscreteState(initial_estimate)
-        bias = self.DeclareDiscreteState(6)
-        self._hold = self.DeclareDiscreteState(kernels.initial_hold())
-        self.DeclareStateOutputPort("estimated_state", estimate)
-        self.DeclareStateOutputPort("covariance", P)
-        self.DeclareStateOutputPort("diagnostics", diagnostics)
-        self.DeclareStateOutputPort("imu_bias", bias)
+        estimate = self.DeclareDiscreteState(_tiled(initial_estimate, n))
+        bias = self.DeclareDiscreteState(n * 6)
+        self._hold = self.DeclareDiscreteState(_tiled(kernels.initial_hold(), n))
+        declare_state_output(self, "estimated_state", estimate, n * STATE_SIZE)
+        declare_state_output(self, "covariance", P, n * P0.size)
+        declare_state_output(self, "diagnostics", diagnostics, n * DIAGNOSTICS_SIZE)
+        declare_state_output(self, "imu_bias", bias, n * 6)
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, EKF_OFFSET, self._update)
 
     def _update(self, context, discrete_state):
-        """The prediction compiled (``fleet.estimation_kernels.eskf_predict_tick`` with N = 1, in
-        place), then the health check and the fusions of :meth:`_fuse_fresh`."""
+        """The prediction compiled, then the health check and the fusions of :meth:`_fuse_fresh`."""
+        n = self._n
         x, P, diagnostics, book = self._views(discrete_state, eskf.NOMINAL_SIZE)
-        estimate = discrete_state.get_mutable_value(self.ESTIMATE_GROUP)
+        estimate = discrete_state.get_mutable_value(self.ESTIMATE_GROUP).reshape(n, STATE_SIZE)
+        hold = discrete_state.get_mutable_value(self._hold).reshape(n, kernels.HOLD_SIZE)
+        imu = self._read_imu(context).reshape(n, IMU_SIZE)
         healthy = kernels.eskf_predict_tick(
-            x,
-            P,
-            discrete_state.get_mutable_value(self._hold).reshape(1, kernels.HOLD_SIZE),
-            self._read_imu(context),
-            estimate.reshape(1, STATE_SIZE),
-            diagnostics,
-            ONBOARD_PERIOD,
-            self._noise,
-            self._Qbuf,
+            x, P, hold, imu, estimate, diagnostics, ONBOARD_PERIOD, self._noise, self._Q_constant
         )
         self._fuse_fresh(
             x,
             P,
             diagnostics,
             book,
-            self._read_gps(context),
-            self._read_mag(context),
+            self._read_gps(context).reshape(n, GPS_SIZE),
+            self._read_mag(context).reshape(n, MAG_SIZE),
             healthy,
             kernels.eskf_gps_update,
             kernels.eskf_mag_tick,
         )
-        eskf.write_estimate(x[0], estimate)
-        discrete_state.get_mutable_value(self.BIAS_GROUP)[:] = x[0, 10:16]
+        eskf.write_estimate(x, estimate)
+        discrete_state.get_mutable_value(self.BIAS_GROUP)[:] = x[:, 10:16].ravel()
 
 
-def wire_ekf7(builder, ekf_system, attitude_filter, assembler):
-    """Connect an EKF7, its complementary filter and its assembler (added to `builder`, per
-    vehicle or fleet forms: the same ports); (input ports by name, output ports by name)."""
+def _wire_ekf7(builder, ekf_system, attitude_filter, assembler):
+    """Connect an EKF7, its complementary filter and its assembler (added to `builder`);
+    (input ports by name, output ports by name)."""
     builder.Connect(ekf_system.GetOutputPort("ekf_state"), attitude_filter.GetInputPort("ekf_state"))
     builder.Connect(attitude_filter.GetOutputPort("attitude"), ekf_system.GetInputPort("attitude"))
     builder.Connect(attitude_filter.GetOutputPort("attitude"), assembler.GetInputPort("attitude"))
@@ -366,21 +390,21 @@ def wire_ekf7(builder, ekf_system, attitude_filter, assembler):
     return inputs, outputs
 
 
-def wire_eskf(system):
-    """(input ports by name, output ports by name) of an ESKF system (per vehicle or fleet)."""
+def _wire_eskf(system):
+    """(input ports by name, output ports by name) of an ESKF system."""
     inputs = {name: [system.GetInputPort(name)] for name in ("imu", "gps", "mag")}
     names = ("estimated_state", "covariance", "diagnostics", "imu_bias")
     return inputs, {name: system.GetOutputPort(name) for name in names}
 
 
-def check_eskf_fidelity(fidelity):
+def _check_eskf_fidelity(fidelity):
     """Raise ConfigError (one line) when the ESKF cannot run under `fidelity`."""
     problem = estimator_fidelity_problem("eskf", fidelity)
     if problem:
         raise ConfigError(problem)
 
 
-def estimator_diagram(builder, inputs, outputs, estimator):
+def _estimator_diagram(builder, inputs, outputs, estimator):
     """Export `inputs` (name -> ports fed by one exported input) and the outputs the vocabulary
     of `estimator` (an estimator config) lists; the built Diagram, named ``estimator``."""
     for name, ports in inputs.items():
@@ -394,37 +418,42 @@ def estimator_diagram(builder, inputs, outputs, estimator):
     return diagram
 
 
-def _build_ekf7(builder, vehicle, fidelity):
-    """CF + EKF7 + assembler in `builder`; returns (input ports by name, output ports by name)."""
+def _build_ekf7(builder, vehicle, fidelity, n):
+    """CF + EKF7 + assembler of n vehicles in `builder`; (input ports by name, output ports by name)."""
     tilt = ekf.TiltNoise.from_params(vehicle.ekf, vehicle.attitude_filter, ONBOARD_PERIOD)
-    ekf_system = builder.AddNamedSystem("ekf", Ekf(vehicle.ekf, fidelity, tilt))
+    ekf_system = builder.AddNamedSystem("ekf", Ekf(vehicle.ekf, fidelity, tilt, n=n))
     attitude_filter = builder.AddNamedSystem(
         "attitude_filter",
         ComplementaryFilter(
-            vehicle.attitude_filter, initial_attitude=(0.0, 0.0, vehicle.ekf.init_state[6]), fidelity=fidelity
+            vehicle.attitude_filter,
+            initial_attitude=(0.0, 0.0, vehicle.ekf.init_state[6]),
+            fidelity=fidelity,
+            n=n,
         ),
     )
-    assembler = builder.AddNamedSystem("estimated_state", EstimatedStateAssembler())
-    return wire_ekf7(builder, ekf_system, attitude_filter, assembler)
+    assembler = builder.AddNamedSystem("estimated_state", EstimatedStateAssembler(n))
+    return _wire_ekf7(builder, ekf_system, attitude_filter, assembler)
 
 
-def _build_eskf(builder, vehicle, fidelity):
-    check_eskf_fidelity(fidelity)
-    return wire_eskf(builder.AddNamedSystem("eskf", Eskf(vehicle.estimator, fidelity)))
+def _build_eskf(builder, vehicle, fidelity, n):
+    _check_eskf_fidelity(fidelity)
+    return _wire_eskf(builder.AddNamedSystem("eskf", Eskf(vehicle.estimator, fidelity, n=n)))
 
 
 _BUILDERS = {"ekf7": _build_ekf7, "eskf": _build_eskf}
 
 
-def build_estimator(vehicle, fidelity=PHYSICAL):
-    """The estimator sub-Diagram a VehicleConfig chooses (``estimator.kind``), named ``estimator``.
+def build_estimator(vehicle, fidelity=PHYSICAL, n=1):
+    """The estimator sub-Diagram of n vehicles flying one VehicleConfig (``estimator.kind``),
+    named ``estimator``.
 
     fidelity: the scenario's Fidelity (the EKF7 follows the reference's accelerometer reading;
-    the ESKF supports the physical one only).
-
-    Inputs ``imu``, ``gps``, ``mag`` (exported; connect a never-sampled constant for a missing
-    sensor); outputs as ``vocabulary_for(vehicle.estimator).log_widths()``.
+    the ESKF supports the physical one only). Inputs ``imu`` (n*6), ``gps`` (n*7), ``mag``
+    (n*2), exported (connect a never-sampled constant for a missing sensor); outputs as
+    ``vocabulary_for(vehicle.estimator).log_widths()``, each n times as wide, vehicle-major.
     """
+    if n < 1:
+        raise ValueError(f"an estimator needs at least one vehicle, got n = {n}")
     builder = DiagramBuilder()
-    inputs, outputs = _BUILDERS[vehicle.estimator.kind](builder, vehicle, fidelity)
-    return estimator_diagram(builder, inputs, outputs, vehicle.estimator)
+    inputs, outputs = _BUILDERS[vehicle.estimator.kind](builder, vehicle, fidelity, n)
+    return _estimator_diagram(builder, inputs, outputs, vehicle.estimator)

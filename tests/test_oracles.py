@@ -1,0 +1,61 @@
+"""The scalar numpy forms of the filter steps are reference oracles: no simulation calls them.
+
+Single runs and fleets both execute the compiled kernels of ``fleet/estimation_kernels.py``
+(sized by n, ``systems/estimators.py``); the textbook forms in ``estimation/`` stay as the named
+oracles those kernels are tested against (``tests/test_fleet_estimators.py``, 1e-12). Here every
+oracle is patched to raise and closed-loop flights that exercise every filter step (prediction,
+magnetometer and GPS updates, a gated outlier, a delayed GPS, both estimators) must still fly.
+"""
+
+import pytest
+
+from quad_drake import catalog, simulation
+from quad_drake.estimation import complementary, ekf, eskf
+
+ORACLES = {
+    ekf: (
+        "predict",
+        "predict_with_yaw",
+        "predict_state",
+        "predict_jacobian",
+        "predict_covariance",
+        "kalman_update",
+        "gps_update",
+        "mag_update",
+    ),
+    eskf: ("predict", "predict_nominal", "joseph_update", "inject", "gps_update", "mag_update"),
+    complementary: ("complementary_update",),
+}
+FLIGHTS = {
+    "11_gps_update": (),
+    "11_gps_update_eskf": (),
+    "13_gps_outlier": ("vehicles.0.faults.0.time=1.5",),  # the outlier gated within the flight
+    "14_gps_delay": (),
+}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", list(FLIGHTS))
+def test_no_simulation_calls_the_scalar_oracles(name, monkeypatch):
+    called = []
+
+    def forbid(module, function):
+        def oracle(*args, **kwargs):
+            called.append(f"{module.__name__}.{function}")
+            raise AssertionError(f"{module.__name__}.{function} is an oracle; a simulation called it")
+
+        monkeypatch.setattr(module, function, oracle)
+
+    for module, functions in ORACLES.items():
+        for function in functions:
+            forbid(module, function)
+    scenario = catalog.load(name, overrides=("end_time=3.0",) + FLIGHTS[name])
+    result = simulation.run(scenario)
+    assert not called
+    assert result.times[-1] == pytest.approx(3.0)
+    diagnostics = result.logs["Quad"]["diagnostics"]
+    assert diagnostics[-1, 1] > 2.0  # GPS samples were fused up to the end (their stamps)
+    if name == "13_gps_outlier":
+        from quad_drake.estimation.vocabulary import DIAG
+
+        assert diagnostics[-1, DIAG["gps_gated"]] >= 1
