@@ -1,4 +1,5 @@
-"""The bundled scenarios (package data in ``quad_drake/scenarios/``) and how to load one.
+"""The bundled scenarios (``scenarios/`` at the top of the repository, shipped in the wheel as the
+package data ``quad_drake/scenarios/``) and how to load one.
 
 A scenario is named either by its bundled name (``01_intro``) or by the path of a YAML file.
 This is the library's entry point for loading; the CLI, the notebooks, the benchmarks and the
@@ -10,7 +11,10 @@ from pathlib import Path
 from .config import ConfigError, check_seed_range, did_you_mean, load_scenario
 from .outdir import is_result_folder
 
-SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios"
+_PACKAGE = Path(__file__).resolve().parent
+SCENARIO_DIR = _PACKAGE / "scenarios" if (_PACKAGE / "scenarios").is_dir() else _PACKAGE.parent / "scenarios"
+"""The bundled scenarios' folder: the package data of an installed wheel, else (a checkout, an
+editable install) the repository's top-level ``scenarios/``, their one source."""
 
 
 def bundled_scenarios():

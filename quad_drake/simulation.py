@@ -6,13 +6,15 @@ signals exported; its estimator is itself a sub-Diagram, chosen by the vehicle's
 The top-level Diagram logs every exported signal of every vehicle every 5 ms through
 one Multiplexer and one ``LogVectorOutput``: every leaf system costs ~0.3-0.6 us in
 every Simulator step, so one logger instead of one per signal saves ~10 % (DESIGN §9).
-The scenario seed reaches every noise source through ``SetRandomContext``.
+The scenario seed reaches every noise source through ``SetRandomContext``. The same
+``build_vehicle`` given run seeds builds N copies of a vehicle flown at once (fleet mode,
+``fleet.simulation``): every system sized by N, the noise from counter-based streams.
 """
 
 import time
 
 import numpy as np
-from pydrake.common import RandomDistribution, RandomGenerator
+from pydrake.common import RandomGenerator
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, EventStatus
 from pydrake.systems.primitives import (
@@ -30,6 +32,7 @@ from .error_sampling import TICK_LOG_WIDTHS, TICK_REFERENCE, TICK_STATE
 from .estimation.vocabulary import vehicle_vocabulary
 from .faults import sensor_of
 from .fidelity import PHYSICAL, fidelity_from_mode
+from .fleet.estimators import FleetGpsDelayCompensator
 from .limits import check_run
 from .results import result_from_logs
 from .rotations import quat_from_euler
@@ -37,6 +40,7 @@ from .signals import LOG_WIDTHS, empty_logs, vehicle_signals
 from .systems.controller import CascadeController
 from .systems.estimators import build_estimator
 from .systems.faults import GpsDelayCompensator, SensorFaults
+from .systems.noise import NoiseStreamSource
 from .systems.plant import QuadrotorPlant
 from .systems.sensors import Gps, Imu, Magnetometer
 from .systems.trajectory import TrajectorySource
@@ -98,22 +102,27 @@ def add_tick_holds(builder, outputs, n=1):
         outputs[name] = hold.get_output_port()
 
 
-def _add_noisy(builder, system, name, port="noise", distribution=RandomDistribution.kGaussian):
-    """Add `system` and a RandomSource (system.noise_size, system.noise_period) feeding `port`."""
-    builder.AddNamedSystem(name, system)
-    noise = builder.AddNamedSystem(
-        f"{name}_noise" if port == "noise" else port,
-        RandomSource(distribution, system.noise_size, system.noise_period),
+def _add_noise(builder, system, port, seeds, stream):
+    """Feed the random input `port` of `system` (n times system.noise_size values drawn from
+    system.noise_distribution every system.noise_period): with `seeds` None a Drake RandomSource (seeded by
+    ``SetRandomContext``), else a NoiseStreamSource of the streams named `stream` of the run seeds
+    (``noise_streams``), named ``<system>_<port>``."""
+    input_port = system.GetInputPort(port)
+    distribution = system.noise_distribution
+    if seeds is None:
+        source = RandomSource(distribution, input_port.size(), system.noise_period)
+    else:
+        source = NoiseStreamSource(distribution, system.noise_size, system.noise_period, seeds, stream)
+    builder.Connect(
+        builder.AddNamedSystem(f"{system.get_name()}_{port}", source).get_output_port(0), input_port
     )
-    builder.Connect(noise.get_output_port(0), system.GetInputPort(port))
-    return system
 
 
-def _never_sampled(builder, size):
-    """A sensor output that never carries a sample (stamp = NO_SAMPLE_STAMP)."""
-    value = np.zeros(size)
-    value[-1] = c.NO_SAMPLE_STAMP
-    return builder.AddSystem(ConstantVectorSource(value)).get_output_port(0)
+def _never_sampled(builder, size, n):
+    """n sensor outputs that never carry a sample (stamp = NO_SAMPLE_STAMP)."""
+    value = np.zeros((n, size))
+    value[:, -1] = c.NO_SAMPLE_STAMP
+    return builder.AddSystem(ConstantVectorSource(value.ravel())).get_output_port(0)
 
 
 def sensor_schedule(vehicle, sensor):
@@ -125,85 +134,96 @@ def sensor_schedule(vehicle, sensor):
     return params.period, first + c.SLOW_SENSOR_OFFSET
 
 
-def _add_faults(builder, vehicle, outputs):
+def _add_faults(builder, vehicle, outputs, n):
     """Put a SensorFaults between each faulted sensor and its consumers: ``outputs[sensor]``
     (the sensor's output port) is replaced by the fault system's, which is what gets logged."""
     for sensor in sorted({sensor_of(f.kind) for f in vehicle.faults}):
         period, first_sample = sensor_schedule(vehicle, sensor)
-        size = outputs[sensor].size()
+        size = outputs[sensor].size() // n
         system = builder.AddNamedSystem(
-            f"{sensor}_faults", SensorFaults(sensor, size, vehicle.faults, period, first_sample)
+            f"{sensor}_faults", SensorFaults(sensor, size, vehicle.faults, period, first_sample, n)
         )
         builder.Connect(outputs[sensor], system.GetInputPort(sensor))
         outputs[sensor] = system.GetOutputPort(sensor)
 
 
-def build_vehicle(vehicle, fidelity=PHYSICAL):
+def _add_estimator(builder, vehicle, fidelity, outputs, seeds):
+    """Add the estimator of the vehicle's n copies (``build_estimator``; n = 1 without run seeds)
+    fed by the sensors in `outputs` (a missing GPS or magnetometer never samples), with the GPS
+    delay compensation when configured; its log signals go into `outputs`."""
+    n = 1 if seeds is None else len(seeds)
+    estimator = builder.AddSystem(build_estimator(vehicle, fidelity, n=n))
+    for name in vehicle_vocabulary(vehicle).log_widths():
+        outputs[name] = estimator.GetOutputPort(name)
+    inputs = {
+        kind: outputs.get(kind) or _never_sampled(builder, size, n)
+        for kind, size in (("imu", c.IMU_SIZE), ("gps", c.GPS_SIZE), ("mag", c.MAG_SIZE))
+    }
+    if vehicle.gps_delay_compensation > 0:
+        max_lag = vehicle.gps_delay_compensation
+        compensator = builder.AddNamedSystem(
+            "gps_delay_compensation",
+            GpsDelayCompensator(max_lag) if seeds is None else FleetGpsDelayCompensator(max_lag, n),
+        )
+        builder.Connect(inputs["gps"], compensator.GetInputPort("gps"))
+        builder.Connect(outputs["estimated_state"], compensator.GetInputPort("estimated_state"))
+        inputs["gps"] = compensator.GetOutputPort("gps")
+    for kind, port in inputs.items():
+        builder.Connect(port, estimator.GetInputPort(kind))
+
+
+def build_vehicle(vehicle, fidelity=PHYSICAL, *, seeds=None):
     """The sub-Diagram of one VehicleConfig; its outputs are named as `vehicle_log_names`.
 
     fidelity: the scenario's :class:`~quad_drake.fidelity.Fidelity`, given to every system.
+    seeds: None for one vehicle whose noise comes from Drake's RandomSource (seeded by the
+    Diagram's ``SetRandomContext``); else N = len(seeds) copies of the vehicle flown at once,
+    copy j drawing the counter-based noise streams of run seed ``seeds[j]`` (``noise_streams``,
+    named ``<vehicle name>/<noise input>``), every output N x width, vehicle-major.
     """
+    n = 1 if seeds is None else len(seeds)
     builder = DiagramBuilder()
-    plant = _add_noisy(
-        builder,
-        QuadrotorPlant(vehicle.physics, initial_state(vehicle), fidelity),
+
+    def add(name, system, *noise_inputs):
+        """Add `system` as `name`, each of its noise inputs ((port, stream name)) fed."""
+        builder.AddNamedSystem(name, system)
+        for port, stream in noise_inputs:
+            _add_noise(builder, system, port, seeds, f"{vehicle.name}/{stream}")
+        return system
+
+    plant = add(
         "plant",
-        "motor_noise",
-        RandomDistribution.kUniform,
+        QuadrotorPlant(vehicle.physics, initial_state(vehicle), fidelity, n),
+        ("motor_noise", "motor_noise"),
     )
-    controller = builder.AddNamedSystem("controller", CascadeController(vehicle.controller, fidelity))
-    trajectory = builder.AddNamedSystem(
-        "trajectory", TrajectorySource(trajectory_from_config(vehicle.trajectory), fidelity)
-    )
+    controller = add("controller", CascadeController(vehicle.controller, fidelity, n))
+    trajectory = add("trajectory", TrajectorySource(trajectory_from_config(vehicle.trajectory), fidelity, n))
     builder.Connect(controller.GetOutputPort("motor_thrusts"), plant.GetInputPort("motor_thrusts"))
     builder.Connect(trajectory.GetOutputPort("reference"), controller.GetInputPort("reference"))
-    outputs = {
-        "state": plant.GetOutputPort("state"),
-        "reference": trajectory.GetOutputPort("reference"),
-        "motor_forces": plant.GetOutputPort("motor_forces"),
-        "contacts": plant.GetOutputPort("contacts"),
-    }
+    outputs = {name: plant.GetOutputPort(name) for name in ("state", "motor_forces", "contacts")}
+    outputs["reference"] = trajectory.GetOutputPort("reference")
     if fidelity.errors_at_onboard_tick:
-        add_tick_holds(builder, outputs)
-    state_for_control = plant.GetOutputPort("state")
+        add_tick_holds(builder, outputs, n)
 
     sensors = vehicle.sensors
     if sensors.imu is not None:
-        imu = _add_noisy(builder, Imu(sensors.imu, fidelity), "imu")
-        if imu.HasInputPort("bias_noise"):
-            bias_noise = RandomSource(RandomDistribution.kGaussian, imu.noise_size, imu.noise_period)
-            builder.Connect(
-                builder.AddNamedSystem("imu_bias_noise", bias_noise).get_output_port(0),
-                imu.GetInputPort("bias_noise"),
-            )
+        imu = Imu(sensors.imu, fidelity, n)
+        bias_walk = [("bias_noise", "imu_bias")] if imu.HasInputPort("bias_noise") else []
+        add("imu", imu, ("noise", "imu"), *bias_walk)
         builder.Connect(plant.GetOutputPort("state"), imu.GetInputPort("state"))
         builder.Connect(plant.GetOutputPort("acceleration"), imu.GetInputPort("acceleration"))
         outputs["imu"] = imu.GetOutputPort("imu")
     for kind, sensor_class in (("gps", Gps), ("mag", Magnetometer)):
         params = getattr(sensors, kind)
         if params is not None:
-            sensor = _add_noisy(builder, sensor_class(params, fidelity), kind)
+            sensor = add(kind, sensor_class(params, fidelity, n), ("noise", kind))
             builder.Connect(plant.GetOutputPort("state"), sensor.GetInputPort("state"))
             outputs[kind] = sensor.GetOutputPort(kind)
-    _add_faults(builder, vehicle, outputs)
+    _add_faults(builder, vehicle, outputs, n)
 
+    state_for_control = plant.GetOutputPort("state")
     if sensors.imu is not None:
-        estimator = builder.AddSystem(build_estimator(vehicle, fidelity))
-        for name in vehicle_vocabulary(vehicle).log_widths():
-            outputs[name] = estimator.GetOutputPort(name)
-        inputs = {
-            kind: outputs.get(kind) or _never_sampled(builder, size)
-            for kind, size in (("imu", c.IMU_SIZE), ("gps", c.GPS_SIZE), ("mag", c.MAG_SIZE))
-        }
-        if vehicle.gps_delay_compensation > 0:
-            compensator = builder.AddNamedSystem(
-                "gps_delay_compensation", GpsDelayCompensator(vehicle.gps_delay_compensation)
-            )
-            builder.Connect(inputs["gps"], compensator.GetInputPort("gps"))
-            builder.Connect(outputs["estimated_state"], compensator.GetInputPort("estimated_state"))
-            inputs["gps"] = compensator.GetOutputPort("gps")
-        for kind, port in inputs.items():
-            builder.Connect(port, estimator.GetInputPort(kind))
+        _add_estimator(builder, vehicle, fidelity, outputs, seeds)
         if not vehicle.use_ideal_estimator:
             state_for_control = outputs["estimated_state"]
     builder.Connect(state_for_control, controller.GetInputPort("state"))

@@ -16,7 +16,6 @@ from quad_drake.config import FaultConfig
 from quad_drake.fleet.runner import BATCH_MEMORY, MAX_BATCH, batches, default_batch_size, fly_batch
 from quad_drake.fleet.simulation import run_fleet
 from quad_drake.fleet.summaries import summary_bytes
-from quad_drake.fleet.systems import FleetSensorFaults
 from quad_drake.simulation import run
 from quad_drake.systems.faults import SensorFaults
 
@@ -173,9 +172,10 @@ def test_summary_bytes_counts_what_a_batch_holds():
     assert 0.95 * summary_bytes(scenario, 3) <= held <= summary_bytes(scenario, 3)
 
 
-def test_fleet_gps_delay_queue_matches_the_scalar_sensor_faults_tick_by_tick():
+def test_gps_delay_queue_of_n_vehicles_matches_n_one_vehicle_sensor_faults_tick_by_tick():
     """A gps_delay (not a multiple of the GPS period) composed with an outage and an outlier:
-    every tick, each fleet vehicle's output equals its own scalar SensorFaults' bit for bit."""
+    every tick, each vehicle's output of a SensorFaults of n = 3 (the faults on (n,) columns)
+    equals its own one-vehicle SensorFaults' (on floats) bit for bit."""
     n, period, ticks = 3, 0.1, 600
     fault_list = [
         FaultConfig(kind="gps_delay", delay=0.25),
@@ -184,7 +184,7 @@ def test_fleet_gps_delay_queue_matches_the_scalar_sensor_faults_tick_by_tick():
     ]
     first = period + c.SLOW_SENSOR_OFFSET
     builder = DiagramBuilder()
-    systems = {"fleet": FleetSensorFaults("gps", c.GPS_SIZE, fault_list, period, first, n)}
+    systems = {"fleet": SensorFaults("gps", c.GPS_SIZE, fault_list, period, first, n)}
     systems.update(
         {f"scalar{i}": SensorFaults("gps", c.GPS_SIZE, fault_list, period, first) for i in range(n)}
     )

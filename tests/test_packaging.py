@@ -7,6 +7,7 @@ import shutil
 import subprocess
 import sys
 import sysconfig
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -37,25 +38,99 @@ def _imported_modules(path):
     return names
 
 
-def test_no_module_of_the_package_imports_the_cli():
-    offenders = [
-        str(path.relative_to(PACKAGE.parent))
-        for path in sorted(PACKAGE.rglob("*.py"))
-        if path.name not in ("cli.py", "__main__.py") and "quad_drake.cli" in _imported_modules(path)
-    ]
-    assert offenders == []
-
-
 def test_the_import_scan_sees_relative_imports_of_the_cli():
-    # The scan above must be able to fail: __main__ imports the CLI with a relative import.
+    # The scan below must be able to fail: __main__ imports the CLI with a relative import.
     assert "quad_drake.cli" in _imported_modules(PACKAGE / "__main__.py")
 
 
-def test_catalog_lists_the_bundled_scenarios_inside_the_package():
+PURE = (
+    "quad_drake.conventions",
+    "quad_drake.fidelity",
+    "quad_drake.rotations",
+    "quad_drake.dynamics",
+    "quad_drake.sensor_models",
+    "quad_drake.faults",
+    "quad_drake.delay_compensation",
+    "quad_drake.noise_streams",
+    "quad_drake.error_sampling",
+    "quad_drake.control",
+    "quad_drake.estimation",
+)
+"""The pure modules (maths and models: numpy, no Drake); a package name covers its modules."""
+KERNELS = ("quad_drake.fleet.kernels", "quad_drake.fleet.estimation_kernels", "quad_drake.fleet.bounds")
+"""The compiled kernels, below the systems."""
+BATCH_RUNNERS = ("quad_drake.fleet.runner", "quad_drake.fleet.simulation", "quad_drake.fleet.streaming")
+
+FORBIDDEN = (
+    ("nothing imports the CLI", ("quad_drake",), ("quad_drake.cli",)),
+    (
+        "systems import no campaign, simulation or batch runner",
+        ("quad_drake.systems",),
+        ("quad_drake.campaigns", "quad_drake.simulation", "quad_drake.tuning", *BATCH_RUNNERS),
+    ),
+    ("kernels import no pydrake and no systems", KERNELS, ("pydrake", "quad_drake.systems")),
+    (
+        "pure modules import no kernels, systems or pydrake",
+        PURE,
+        ("pydrake", "quad_drake.systems", "quad_drake.simulation", *KERNELS),
+    ),
+)
+"""(rule, importers, imported): no module under an importer prefix imports one under an imported
+prefix (issue 28). ``__main__`` is the CLI's own entry point."""
+
+
+def _under(name, prefixes):
+    return any(name == p or name.startswith(p + ".") for p in prefixes)
+
+
+def forbidden_edges(imports):
+    """[(rule, importer, imported)] of the edges of `imports` ({module: imported names}) that
+    FORBIDDEN forbids."""
+    return [
+        (rule, module, name)
+        for rule, importers, imported in FORBIDDEN
+        for module, names in sorted(imports.items())
+        if _under(module, importers) and module not in ("quad_drake.cli", "quad_drake.__main__")
+        for name in sorted(names)
+        if _under(name, imported)
+    ]
+
+
+def _package_imports():
+    return {
+        ".".join(path.relative_to(PACKAGE.parent).with_suffix("").parts): _imported_modules(path)
+        for path in sorted(PACKAGE.rglob("*.py"))
+    }
+
+
+def test_no_module_imports_across_a_forbidden_edge():
+    assert forbidden_edges(_package_imports()) == []
+
+
+@pytest.mark.parametrize("rule, importers, imported", FORBIDDEN, ids=[rule for rule, _, _ in FORBIDDEN])
+def test_each_forbidden_edge_is_seen(rule, importers, imported):
+    # Each rule can fail: one planted edge from a module it covers to each name it forbids.
+    importer = importers[0] + (".planted" if importers[0] != "quad_drake" else ".anything")
+    for name in imported:
+        imports = _package_imports() | {importer: {name + ".x"}}
+        assert forbidden_edges(imports) == [(rule, importer, name + ".x")]
+
+
+def test_catalog_lists_the_bundled_scenarios_from_the_top_level_folder():
     scenarios = catalog.bundled_scenarios()
     assert list(scenarios)[:2] == ["01_intro", "02_attitude_control"] and len(scenarios) == 19  # +eskf, 12-18
-    assert all(path.parent == PACKAGE / "scenarios" for path in scenarios.values())
-    assert not (REPO / "scenarios").exists()
+    assert all(path.parent == REPO / "scenarios" for path in scenarios.values())
+    assert not (PACKAGE / "scenarios").exists()  # one source: the wheel's copy is built from it
+
+
+def test_the_wheel_lists_every_package_and_ships_the_scenarios_as_package_data():
+    """pyproject lists its packages (the top-level scenarios/ is mapped into the package), so a new
+    subpackage must be listed too."""
+    setuptools = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]
+    packages = {".".join(p.parent.relative_to(REPO).parts) for p in PACKAGE.rglob("__init__.py")}
+    assert set(setuptools["packages"]) == packages | {"quad_drake.scenarios"}
+    assert setuptools["package-dir"] == {"quad_drake.scenarios": "scenarios"}
+    assert setuptools["package-data"]["quad_drake.scenarios"] == ["*.yaml"]
 
 
 def _run(*args, **kwargs):
@@ -73,7 +148,8 @@ def test_version_comes_from_one_place():
 def test_wheel_installed_outside_the_repo_lists_and_runs_the_bundled_scenarios(tmp_path):
     # Build from a copy of what the sdist holds: no stale build/ or egg-info of the checkout leaks in.
     source = tmp_path / "source"
-    shutil.copytree(PACKAGE, source / "quad_drake", ignore=shutil.ignore_patterns("__pycache__"))
+    for folder in ("quad_drake", "scenarios"):
+        shutil.copytree(REPO / folder, source / folder, ignore=shutil.ignore_patterns("__pycache__"))
     for name in ("pyproject.toml", "README.md", "LICENSE"):
         shutil.copy(REPO / name, source)
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"} | {"MPLBACKEND": "Agg"}
@@ -102,6 +178,10 @@ def test_wheel_installed_outside_the_repo_lists_and_runs_the_bundled_scenarios(t
     where = _run(str(python), "-c", "import quad_drake; print(quad_drake.__file__)", cwd=cwd, env=env)
     assert Path(where.stdout.strip()).is_relative_to(venv), where.stdout + where.stderr
 
+    folder = _run(
+        str(python), "-c", "from quad_drake import catalog; print(catalog.SCENARIO_DIR)", cwd=cwd, env=env
+    )
+    assert Path(folder.stdout.strip()) == Path(where.stdout.strip()).parent / "scenarios", folder.stderr
     listed = _run(quad_drake_exe, "list", cwd=cwd, env=env)
     assert listed.returncode == 0, listed.stderr
     assert len(listed.stdout.strip().splitlines()) == 19

@@ -2,7 +2,6 @@
 
 import math
 import re
-import time
 
 import numpy as np
 import pytest
@@ -205,10 +204,7 @@ def test_criterion_rows_of_window_and_sigma_criteria():
 
 def test_run_artifacts_are_self_contained(tmp_path):
     result = make_result(end_time=25.0)
-    start = time.process_time()
-    written = plots.write_plots(result, tmp_path)
-    plot_seconds = time.process_time() - start
-    assert plot_seconds < 5.0  # ~1 s on 2 cores; catches a 5x regression
+    written = plots.write_plots(result, tmp_path)  # its CPU time: benchmarks/bench_plots.py
     artifacts = plots.write_run_artifacts(result, tmp_path)
     assert [p.name for p in artifacts["plots"]] == [p.name for _, p in written]
     assert all(p.stat().st_size > 10_000 for p in artifacts["plots"])

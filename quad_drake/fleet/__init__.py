@@ -1,1 +1,2 @@
-"""Fleet mode: Drake systems that advance N vehicles at once (ports carry N per-vehicle vectors)."""
+"""Fleet mode: N runs of a scenario flown in one Diagram (its recorder, the batch runner and the
+runs' streamed summaries), the estimators' fleet forms and the compiled kernels."""

@@ -17,6 +17,7 @@ scalar dataclasses, the numpy ones the dataclasses. Pure: no RNG, no pydrake."""
 import collections
 import dataclasses
 import types
+from collections.abc import Callable
 
 import numpy as np
 
@@ -47,7 +48,7 @@ def _plain(value):
     return float(value)
 
 
-def frozen(params):
+def frozen(params) -> tuple:
     """The ControllerParams, PhysicsParams, ImuParams, MagParams or Fidelity `params` as a plain
     tuple of its fields in order (numbers as floats, lists as tuples of floats), typed the same for
     every config so that numba's on-disk cache is reused. A compiled kernel makes it the namedtuple
@@ -59,7 +60,7 @@ def frozen(params):
 # ----- dynamics ---------------------------------------------------------------
 
 
-def compiled(function, **callees):
+def compiled(function, **callees) -> Callable:
     """The scalar `function`'s own code compiled by numba (nopython, cached on disk), with the
     module globals it calls replaced by their compiled forms `callees`."""
     namespace = dict(function.__globals__, **callees)
@@ -100,7 +101,7 @@ def _state_row(state, i):
 
 
 @njit_cached
-def plant_steps(state, forces, commands, noise_unit, column, params, dt, fidelity, accel, contacts):
+def plant_steps(state, forces, commands, noise_unit, column, params, dt, fidelity, accel, contacts) -> None:
     """One :func:`quad_drake.dynamics.plant_step` of N vehicles IN PLACE, the scalar function's
     code compiled and run per vehicle, with ``systems.plant.QuadrotorPlant``'s contact counts.
 
@@ -131,7 +132,7 @@ def plant_steps(state, forces, commands, noise_unit, column, params, dt, fidelit
         )
 
 
-def on_floor(state, params):
+def on_floor(state, params) -> np.ndarray:
     """(N,) bool of :func:`quad_drake.dynamics.on_floor`."""
     return state[:, 2] >= params.z_bounds[1]
 
@@ -152,7 +153,7 @@ _imu_compiled = compiled(
 
 
 @njit_cached
-def imu_samples(state, a_NB, noise, params, fidelity, bias, out):
+def imu_samples(state, a_NB, noise, params, fidelity, bias, out) -> None:
     """:func:`quad_drake.sensor_models.imu_measurement` of N vehicles into out (N, 6), the scalar
     function's code compiled and run per vehicle: q_NB and w_NB_B from state (N, 13), a_NB (N, 3),
     noise (N, 6) unit normals, bias (N, 6). params, fidelity: the :func:`frozen` ImuParams and
@@ -172,13 +173,15 @@ def imu_samples(state, a_NB, noise, params, fidelity, bias, out):
             out[i, k] = sample[k]
 
 
-def imu_bias_step(bias, noise, params):
+def imu_bias_step(bias, noise, params) -> np.ndarray:
     """(N, 6) of :func:`quad_drake.sensor_models.imu_bias_step`."""
     walk = np.asarray(list(params.accel_bias_walk_std) + list(params.gyro_bias_walk_std))
     return bias + walk * noise
 
 
-def gps_measurements(p_NB, v_NB, random_walk, noise, params, fidelity=PHYSICAL):
+def gps_measurements(
+    p_NB, v_NB, random_walk, noise, params, fidelity=PHYSICAL
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(position (N, 3), velocity (N, 3), random walk (N, 3)) of
     :func:`quad_drake.sensor_models.gps_measurement` (which runs here on the rows)."""
     position, velocity, walk = gps_measurement(p_NB.T, v_NB.T, random_walk.T, noise.T, params, fidelity)
@@ -195,7 +198,7 @@ _magnetometer_compiled = compiled(
 
 
 @njit_cached
-def magnetometer_samples(state, noise, params, fidelity, stamp, out):
+def magnetometer_samples(state, noise, params, fidelity, stamp, out) -> None:
     """N :class:`~quad_drake.systems.sensors.Magnetometer` samples into out (N, 2): the yaw of
     :func:`quad_drake.sensor_models.magnetometer_yaw` (its code compiled, run per vehicle) of
     q_NB in state (N, 13) and the unit normal noise (N, 1), rad; and `stamp` s. params, fidelity:
@@ -226,7 +229,7 @@ _cascade_compiled = compiled(
 
 
 @njit_cached
-def cascade_steps(state, reference, integral, dt, params, fidelity, forces):
+def cascade_steps(state, reference, integral, dt, params, fidelity, forces) -> None:
     """:func:`quad_drake.control.cascade.cascade_step` of N vehicles, the scalar function's code
     compiled and run per vehicle: state (N, 13), reference (N, 10), integral (N,) m s (replaced by
     the new integral), dt s (a float); forces (N, 4) N, written. params, fidelity: the

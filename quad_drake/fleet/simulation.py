@@ -1,12 +1,12 @@
 """Wire a scenario's fleet (N runs at once) into one Drake Diagram and fly it.
 
-A fleet of N runs of a scenario is one Diagram: per VehicleConfig one fleet sub-Diagram
-(:func:`build_fleet_vehicle`, the mirror of ``simulation.build_vehicle``) whose systems
-advance the N copies of that vehicle, vehicle j of every group flying run seed
-``seeds[j]``. Every exported signal goes to one sink: a :class:`FleetRecorder`, which keeps
-the full logs at the 5 ms samples ((samples, N, width) per signal: :func:`run_fleet`, for
-tests and analysis), or a campaign's ``fleet.streaming.FleetSummarizer``, which folds them
-into the runs' records as they are flown (``fleet.runner``).
+A fleet of N runs of a scenario is one Diagram: per VehicleConfig one sub-Diagram
+(``simulation.build_vehicle(vehicle, fidelity, seeds=seeds)``) whose systems advance the N
+copies of that vehicle, vehicle j of every group flying run seed ``seeds[j]``. Every exported
+signal goes to one sink: a :class:`FleetRecorder`, which keeps the full logs at the 5 ms samples
+((samples, N, width) per signal: :func:`run_fleet`, for tests and analysis), or a campaign's
+``fleet.streaming.FleetSummarizer``, which folds them into the runs' records as they are flown
+(``fleet.runner``).
 """
 
 import time
@@ -14,124 +14,12 @@ import time
 import numpy as np
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
-from pydrake.systems.primitives import ConstantVectorSource
 
 from quad_drake import conventions as c
 from quad_drake.config import check_scenario
-from quad_drake.estimation.vocabulary import vehicle_vocabulary
-from quad_drake.faults import sensor_of
 from quad_drake.fidelity import fidelity_from_mode
-from quad_drake.fleet.estimators import FleetGpsDelayCompensator
-from quad_drake.fleet.streams import GAUSSIAN, UNIFORM
-from quad_drake.fleet.systems import (
-    FleetController,
-    FleetGps,
-    FleetImu,
-    FleetMagnetometer,
-    FleetNoiseSource,
-    FleetPlant,
-    FleetSensorFaults,
-    FleetTrajectory,
-)
 from quad_drake.limits import check_run
-from quad_drake.sensor_models import imu_has_bias_walk
-from quad_drake.simulation import add_tick_holds, initial_state, sensor_schedule, vehicle_log_widths
-from quad_drake.systems.estimators import build_estimator
-from quad_drake.trajectories import trajectory_from_config
-
-
-def _add_noise(builder, system, port, seeds, name, distribution=GAUSSIAN):
-    """A FleetNoiseSource (system.noise_size, system.noise_period) of streams `name` into `port`."""
-    source = builder.AddNamedSystem(
-        f"{name}_source", FleetNoiseSource(seeds, name, system.noise_size, system.noise_period, distribution)
-    )
-    builder.Connect(source.GetOutputPort("noise"), system.GetInputPort(port))
-
-
-def _never_sampled(builder, size, n):
-    """N sensor outputs that never carry a sample (stamp = NO_SAMPLE_STAMP)."""
-    value = np.zeros((n, size))
-    value[:, -1] = c.NO_SAMPLE_STAMP
-    return builder.AddSystem(ConstantVectorSource(value.ravel())).get_output_port(0)
-
-
-def _add_faults(builder, vehicle, outputs, n):
-    """A FleetSensorFaults between each faulted sensor and its consumers (``simulation._add_faults``)."""
-    for sensor in sorted({sensor_of(f.kind) for f in vehicle.faults}):
-        period, first_sample = sensor_schedule(vehicle, sensor)
-        size = outputs[sensor].size() // n
-        system = builder.AddNamedSystem(
-            f"{sensor}_faults", FleetSensorFaults(sensor, size, vehicle.faults, period, first_sample, n)
-        )
-        builder.Connect(outputs[sensor], system.GetInputPort(sensor))
-        outputs[sensor] = system.GetOutputPort(sensor)
-
-
-def build_fleet_vehicle(vehicle, seeds, fidelity):
-    """The fleet sub-Diagram of one VehicleConfig flown with run seeds `seeds` (N,); its
-    outputs are named and ordered as ``simulation.vehicle_log_names(vehicle)``, each N x width.
-
-    Noise streams are named ``<vehicle name>/<noise input>`` (``fleet.streams``).
-    """
-    n = len(seeds)
-    builder = DiagramBuilder()
-    plant = builder.AddNamedSystem("plant", FleetPlant(vehicle.physics, initial_state(vehicle), n, fidelity))
-    _add_noise(builder, plant, "motor_noise", seeds, f"{vehicle.name}/motor_noise", UNIFORM)
-    controller = builder.AddNamedSystem("controller", FleetController(vehicle.controller, n, fidelity))
-    trajectory = builder.AddNamedSystem(
-        "trajectory", FleetTrajectory(trajectory_from_config(vehicle.trajectory), n, fidelity)
-    )
-    builder.Connect(controller.GetOutputPort("motor_thrusts"), plant.GetInputPort("motor_thrusts"))
-    builder.Connect(trajectory.GetOutputPort("reference"), controller.GetInputPort("reference"))
-    outputs = {name: plant.GetOutputPort(name) for name in ("state", "motor_forces", "contacts")}
-    outputs["reference"] = trajectory.GetOutputPort("reference")
-    if fidelity.errors_at_onboard_tick:
-        add_tick_holds(builder, outputs, n)
-
-    sensors = vehicle.sensors
-    if sensors.imu is not None:
-        imu = builder.AddNamedSystem("imu", FleetImu(sensors.imu, n, fidelity))
-        _add_noise(builder, imu, "noise", seeds, f"{vehicle.name}/imu")
-        if imu_has_bias_walk(sensors.imu):
-            _add_noise(builder, imu, "bias_noise", seeds, f"{vehicle.name}/imu_bias")
-        builder.Connect(plant.GetOutputPort("state"), imu.GetInputPort("state"))
-        builder.Connect(plant.GetOutputPort("acceleration"), imu.GetInputPort("acceleration"))
-        outputs["imu"] = imu.GetOutputPort("imu")
-    for kind, sensor_class in (("gps", FleetGps), ("mag", FleetMagnetometer)):
-        params = getattr(sensors, kind)
-        if params is not None:
-            sensor = builder.AddNamedSystem(kind, sensor_class(params, n, fidelity))
-            _add_noise(builder, sensor, "noise", seeds, f"{vehicle.name}/{kind}")
-            builder.Connect(plant.GetOutputPort("state"), sensor.GetInputPort("state"))
-            outputs[kind] = sensor.GetOutputPort(kind)
-    _add_faults(builder, vehicle, outputs, n)
-    state_for_control = plant.GetOutputPort("state")
-    if sensors.imu is not None:
-        estimator = builder.AddSystem(build_estimator(vehicle, fidelity, n=n))
-        for name in vehicle_vocabulary(vehicle).log_widths():
-            outputs[name] = estimator.GetOutputPort(name)
-        inputs = {
-            kind: outputs.get(kind) or _never_sampled(builder, size, n)
-            for kind, size in (("imu", c.IMU_SIZE), ("gps", c.GPS_SIZE), ("mag", c.MAG_SIZE))
-        }
-        if vehicle.gps_delay_compensation > 0:
-            compensator = builder.AddNamedSystem(
-                "gps_delay_compensation", FleetGpsDelayCompensator(vehicle.gps_delay_compensation, n)
-            )
-            builder.Connect(inputs["gps"], compensator.GetInputPort("gps"))
-            builder.Connect(outputs["estimated_state"], compensator.GetInputPort("estimated_state"))
-            inputs["gps"] = compensator.GetOutputPort("gps")
-        for kind, port in inputs.items():
-            builder.Connect(port, estimator.GetInputPort(kind))
-        if not vehicle.use_ideal_estimator:
-            state_for_control = outputs["estimated_state"]
-    builder.Connect(state_for_control, controller.GetInputPort("state"))
-
-    for name in vehicle_log_widths(vehicle, fidelity):
-        builder.ExportOutput(outputs[name], name)
-    diagram = builder.Build()
-    diagram.set_name(vehicle.name)
-    return diagram
+from quad_drake.simulation import build_vehicle, vehicle_log_widths
 
 
 class FleetRecorder(LeafSystem):
@@ -152,7 +40,8 @@ class FleetRecorder(LeafSystem):
         self.DeclarePeriodicPublishEvent(c.LOG_PERIOD, 0.0, self._record)
 
     def release_memory(self):
-        """Hand over the logs and drop every reference to them (see FleetNoiseSource.release_memory)."""
+        """Hand over the logs and drop every reference to them (see
+        ``systems.noise.NoiseStreamSource.release_memory``)."""
         logs, self.logs, self._inputs = self.logs, None, []
         return logs
 
@@ -173,7 +62,7 @@ def build_fleet_diagram(scenario, seeds, make_sink=None):
     builder = DiagramBuilder()
     ports, signals = [], []
     for vehicle in scenario.vehicles:
-        sub = builder.AddSystem(build_fleet_vehicle(vehicle, seeds, fidelity))
+        sub = builder.AddSystem(build_vehicle(vehicle, fidelity, seeds=seeds))
         for name, width in vehicle_log_widths(vehicle, fidelity).items():
             ports.append(sub.GetOutputPort(name))
             signals.append(((vehicle.name, name), width))

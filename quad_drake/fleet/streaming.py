@@ -70,5 +70,5 @@ class FleetSummarizer(LeafSystem):
         return self.summary.records(first_index, wall_time)
 
     def release_memory(self):
-        """Drop the chunk buffers and the summary (see ``FleetNoiseSource.release_memory``)."""
+        """Drop the chunk buffers and the summary (see ``systems.noise.NoiseStreamSource.release_memory``)."""
         self._buffers, self._inputs, self.summary = {}, [], None

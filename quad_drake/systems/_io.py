@@ -9,10 +9,42 @@ one or a few entries reads them one by one (``BasicVector.GetAtIndex``, ~0.15 us
 a scalar of discrete state is read and written the same way (``scalar``, ``set_scalar``).
 """
 
+from collections.abc import Callable
+
 from pydrake.systems.framework import InputPort
 
 NANOBIND = type(InputPort.Eval).__module__.startswith("nanobind")
 """True when pydrake is bound with nanobind (drake 1.58 here)."""
+
+STATE_PORT_COPY_LIMIT = 1000
+"""Doubles up to which a state output port is Drake's own (``DeclareStateOutputPort``); a larger
+one is a vector port whose calc copies the state with numpy. Drake 1.58's state port copies at
+about 3.3 ns per double (24 us for 6,500, a 500-vehicle state), the numpy calc at about 0.3 ns plus
+4 us of Python (6 us), measured on the 2-core machine; equal near 1,000."""
+
+
+def declare_state_output(system, name, index, size) -> None:
+    """Declare the output port `name` (size doubles) of `system`'s discrete-state group `index`."""
+    if size <= STATE_PORT_COPY_LIMIT:
+        system.DeclareStateOutputPort(name, index)
+        return
+
+    def calc(context, output):
+        output.get_mutable_value()[:] = context.get_discrete_state(index).value()
+
+    system.DeclareVectorOutputPort(
+        name, size, calc, prerequisites_of_calc={system.discrete_state_ticket(index)}
+    )
+
+
+def discrete_group(system, initial, output=None) -> int:
+    """Declare a discrete-state group of `system` (``initial``: its size or its values) and, when
+    `output` names one, the state output port of it; the group's int index (plain ints are faster
+    than DiscreteStateIndex in the 1 kHz handlers)."""
+    index = system.DeclareDiscreteState(initial)
+    if output is not None:
+        declare_state_output(system, output, index, initial if isinstance(initial, int) else len(initial))
+    return int(index)
 
 
 def vector_reader(port):
@@ -24,12 +56,15 @@ def vector_reader(port):
     return lambda context: evaluate(context).tolist()
 
 
-def row_reader(port):
-    """``read(context) -> (1, size) array``: a read-only view of the vector input `port`'s value
-    (no copy; valid inside the handler that reads it), as one vehicle's row for the compiled
-    ``fleet`` kernels."""
+def row_reader(port, n=1) -> Callable:
+    """``read(context) -> (n, size) array``: a read-only view of the vector input `port`'s value
+    (no copy; valid inside the handler that reads it), the n vehicles' rows of size = port.size() / n
+    (vehicle-major) for the compiled kernels."""
     evaluate = port.EvalBasicVector
-    return lambda context: evaluate(context).get_value()[None]  # (1, size): [None] costs 0.1 us, reshape 0.26
+    if n == 1:
+        return lambda context: evaluate(context).get_value()[None]  # [None] costs 0.1 us, reshape 0.26
+    size = port.size() // n
+    return lambda context: evaluate(context).get_value().reshape(n, size)
 
 
 def entry_reader(port, index):
@@ -58,24 +93,3 @@ def scalar(discrete_state, group):
 def set_scalar(discrete_state, group, value):
     """Set entry 0 of a discrete-state group (a DiscreteValues) to the float `value`."""
     discrete_state.get_mutable_vector(group).SetAtIndex(0, value)
-
-
-STATE_PORT_COPY_LIMIT = 1000
-"""Doubles up to which a state output port is Drake's own (``DeclareStateOutputPort``); a larger
-one is a vector port whose calc copies the state with numpy. Drake 1.58's state port copies at
-about 3.3 ns per double (24 us for 6,500, a 500-vehicle state), the numpy calc at about 0.3 ns plus
-4 us of Python (6 us), measured on the 2-core machine; equal near 1,000."""
-
-
-def declare_state_output(system, name, index, size):
-    """Declare the output port `name` (size doubles) of `system`'s discrete-state group `index`."""
-    if size <= STATE_PORT_COPY_LIMIT:
-        system.DeclareStateOutputPort(name, index)
-        return
-
-    def calc(context, output):
-        output.get_mutable_value()[:] = context.get_discrete_state(index).value()
-
-    system.DeclareVectorOutputPort(
-        name, size, calc, prerequisites_of_calc={system.discrete_state_ticket(index)}
-    )

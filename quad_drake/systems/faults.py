@@ -25,68 +25,92 @@ from quad_drake.conventions import (
     STATE_SIZE,
     V_SLICE,
 )
-from quad_drake.systems._io import vector_reader
+from quad_drake.systems._io import discrete_group, row_reader, vector_reader
 
 
 class SensorFaults(LeafSystem):
-    """The samples of one sensor after its faults, in the sensor's own layout and port name.
+    """The samples of one sensor of n vehicles (default 1) after its faults, in the sensor's own
+    layout and port name.
 
     ``sensor``: "imu", "gps" or "mag"; ``size``: its sample width; ``fault_list``: FaultConfig
     of the vehicle (those of other sensors are ignored); ``period`` (s) and ``first_sample``
     (s, the event time of the sensor's first sample, offset included): the sensor's schedule.
-    Input ``<sensor>`` (size) and output ``<sensor>`` (size, state port), e.g. ``gps``.
+    Input ``<sensor>`` (n size) and output ``<sensor>`` (n size, state port), e.g. ``gps``, the
+    n samples vehicle-major.
 
     Without a gps_delay it fires at first_sample + FAULT_LAG + k period and publishes the
     current sample after the single-sample faults (``faults.apply_faults``), measured at its
     stamp (GPS, magnetometer) or at its nominal sampling time (IMU). With a gps_delay of D s
     it fires every ONBOARD_PERIOD (at SLOW_SENSOR_OFFSET + FAULT_LAG), queues each new
     sample (after the other faults) and publishes it at the first tick at or after
-    stamp + D, stamp unchanged; the queue is discrete state of ceil(D / period) + 2 samples.
+    stamp + D, stamp unchanged; the queue is discrete state of ceil(D / period) + 2 samples
+    of the n vehicles.
+
+    The faults are the scalar ``faults.apply_faults`` and ``faults.delay_queue_step`` run once on
+    the sample's entries: floats for one vehicle, each entry an (n,) array (the stamp a float) for
+    several. A fault's decision and a sample's release time depend only on its measurement time,
+    which the n vehicles share (their sensors sample together), so one queue holds every vehicle's
+    samples.
     """
 
-    def __init__(self, sensor, size, fault_list, period, first_sample):
+    def __init__(self, sensor, size, fault_list, period, first_sample, n=1) -> None:
         super().__init__()
         self._faults = faults.sample_faults(fault_list, sensor)
         self._stamped = faults.STAMPED[sensor]
-        self._period = float(period)
-        self._first_sample = float(first_sample)
+        self._period, self._first_sample = float(period), float(first_sample)
         self._delay = faults.gps_delay_of(fault_list) if sensor == "gps" else 0.0
-        self._read = vector_reader(self.DeclareVectorInputPort(sensor, size))
-        initial = [0.0] * size
+        self._n, self._size = n, size
+        self._read = row_reader(self.DeclareVectorInputPort(sensor, n * size), n)
+        initial = np.zeros((n, size))
         if self._stamped:
-            initial[-1] = NO_SAMPLE_STAMP
-        self._output = self.DeclareDiscreteState(np.array(initial))
-        self.DeclareStateOutputPort(sensor, self._output)
+            initial[:, -1] = NO_SAMPLE_STAMP
+        self._output = discrete_group(self, initial.ravel(), sensor)
         if self._delay > 0:
-            self._size = size
             self._capacity = math.ceil(self._delay / self._period) + 2
-            self._pending = self.DeclareDiscreteState(np.full(self._capacity * size, math.nan))
-            self._last_stamp = self.DeclareDiscreteState([NO_SAMPLE_STAMP])
+            self._pending = discrete_group(self, np.full(self._capacity * n * size, math.nan))
+            self._last_stamp = discrete_group(self, [NO_SAMPLE_STAMP])
             self._tick_offset = SLOW_SENSOR_OFFSET + FAULT_LAG  # the GPS's offset in every tick
             self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, self._tick_offset, self._delayed)
         else:
-            self.DeclarePeriodicDiscreteUpdateEvent(self._period, first_sample + FAULT_LAG, self._sample)
+            self.DeclarePeriodicDiscreteUpdateEvent(
+                self._period, self._first_sample + FAULT_LAG, self._sample
+            )
 
-    def _faulted(self, sample, time):
-        return faults.apply_faults(self._faults, sample, time, self._period)
+    def _entries(self, sample):
+        """The (n, size) `sample` as its `size` entries: floats for n = 1, else the (n,) columns
+        with the (shared) stamp as one float."""
+        if self._n == 1:
+            return sample[0].tolist()
+        entries = list(sample.T)
+        if self._stamped:
+            entries[-1] = float(sample[0, -1])
+        return entries
+
+    def _rows(self, entries):
+        """The inverse of :meth:`_entries`: (n, size); a float entry is every vehicle's value."""
+        if self._n == 1:
+            return np.array(entries, dtype=float)
+        return np.column_stack([np.broadcast_to(e, (self._n,)) for e in entries])
 
     def _sample(self, context, discrete_state):
-        sample = self._read(context)
+        entries = self._entries(self._read(context))
         if self._stamped:
-            time = sample[-1]
+            time = entries[-1]
         else:
             ticks = round((context.get_time() - FAULT_LAG - self._first_sample) / self._period)
             time = self._first_sample + ticks * self._period
-        discrete_state.set_value(self._output, np.array(self._faulted(sample, time)))
+        faulted = faults.apply_faults(self._faults, entries, time, self._period)
+        discrete_state.set_value(self._output, self._rows(faulted).ravel())
 
     def _delayed(self, context, discrete_state):
-        rows = discrete_state.value(self._pending).reshape(self._capacity, self._size)
-        pending = [row.tolist() for row in rows if not math.isnan(row[-1])]
+        shape = (self._capacity, self._n, self._size)
+        stored = discrete_state.value(self._pending).reshape(shape)
+        pending = [self._entries(rows) for rows in stored if not math.isnan(rows[0, -1])]
         last_stamp = discrete_state.value(self._last_stamp)[0]
         now = round((context.get_time() - self._tick_offset) / ONBOARD_PERIOD) * ONBOARD_PERIOD
         due, queued, stamp = faults.delay_queue_step(
             pending,
-            self._read(context),
+            self._entries(self._read(context)),
             last_stamp,
             now,
             self._delay,
@@ -97,11 +121,11 @@ class SensorFaults(LeafSystem):
         if stamp != last_stamp:
             discrete_state.set_value(self._last_stamp, [stamp])
         if due:
-            discrete_state.set_value(self._output, np.array(due[-1]))
-        if due or len(queued) != len(pending):
-            queue = np.full((self._capacity, self._size), math.nan)
-            if queued:
-                queue[: len(queued)] = queued
+            discrete_state.set_value(self._output, self._rows(due[-1]).ravel())
+        if due or len(queued) != len(pending):  # the queue changed: rewrite it, else keep it as is
+            queue = np.full(shape, math.nan)
+            for slot, entry in enumerate(queued):
+                queue[slot] = self._rows(entry).reshape(self._n, self._size)
             discrete_state.set_value(self._pending, queue.ravel())
 
 

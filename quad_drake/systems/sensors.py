@@ -1,9 +1,12 @@
-"""Sensor LeafSystems (SPEC §2): IMU, GPS and magnetometer, thin glue over ``sensor_models``.
+"""Sensor LeafSystems (SPEC §2) of n vehicles: IMU, GPS and magnetometer, thin glue over
+``sensor_models`` (compiled per vehicle by ``fleet.kernels`` where they tick at 500 Hz or often).
 
 Each sensor samples in one periodic discrete update, holds its last measurement in
-discrete state and publishes it through a state output port (no feedthrough). Noise
-enters through a ``noise`` input port declared ``kGaussian``; wire it with
-``RandomSource(RandomDistribution.kGaussian, sensor.noise_size, sensor.noise_period)``.
+discrete state and publishes it through a state output port (no feedthrough). Every port
+carries the n per-vehicle vectors described below concatenated vehicle-major (size n k,
+vehicle j at [j k, (j + 1) k)); n defaults to 1. Noise enters through a ``noise`` input port
+declared ``kGaussian``; wire it with ``RandomSource(RandomDistribution.kGaussian, n
+sensor.noise_size, sensor.noise_period)`` (or a ``systems.noise.NoiseStreamSource``).
 A RandomSource redraws at t = k * noise_period (an unrestricted update, which Drake
 applies before the discrete updates of the same time), so the IMU sampling at exactly
 t = k * ONBOARD_PERIOD and the slow sensors sampling SLOW_SENSOR_OFFSET after their
@@ -28,19 +31,21 @@ from quad_drake.conventions import (
 )
 from quad_drake.fidelity import PHYSICAL
 from quad_drake.fleet import kernels
-from quad_drake.systems._io import entries_reader, entry_reader, row_reader, scalar, set_scalar, vector_reader
+from quad_drake.systems._io import discrete_group, row_reader
 
 
 class _Sensor(LeafSystem):
-    """Shared declarations: the ``state`` and ``noise`` inputs (``_state_port``, ``_noise_port``);
-    each sensor makes the readers of them it uses (``systems._io``)."""
+    """Shared declarations: the ``state`` and ``noise`` inputs of n vehicles, read as (n, 13) and
+    (n, noise_size) arrays (``_read_state``, ``_read_noise``)."""
 
-    def __init__(self, noise_size):
+    noise_distribution = RandomDistribution.kGaussian
+
+    def __init__(self, noise_size, n):
         super().__init__()
-        self._state_port = self.DeclareVectorInputPort("state", STATE_SIZE)
-        self._noise_port = self.DeclareVectorInputPort(
-            "noise", noise_size, random_type=RandomDistribution.kGaussian
-        )
+        self._n = n
+        self._read_state = row_reader(self.DeclareVectorInputPort("state", n * STATE_SIZE), n)
+        noise = self.DeclareVectorInputPort("noise", n * noise_size, random_type=self.noise_distribution)
+        self._read_noise = row_reader(noise, n)
 
 
 class Imu(_Sensor):
@@ -56,43 +61,34 @@ class Imu(_Sensor):
     With ``fidelity.reference_accelerometer`` the first three entries are the reference's
     R_NB^T (a_NB + g_N) instead (``sensor_models.reference_accelerometer``); with
     ``fidelity.float32_estimator`` the sample is rounded to float32.
-    The sample is ``sensor_models.imu_measurement``'s compiled form for one vehicle
-    (``fleet.kernels.imu_samples`` with N = 1).
+    The sample is ``sensor_models.imu_measurement``'s compiled form (``fleet.kernels.imu_samples``).
     """
 
     noise_size = 6
     noise_period = ONBOARD_PERIOD
 
-    def __init__(self, params, fidelity=PHYSICAL):
-        super().__init__(self.noise_size)
+    def __init__(self, params, fidelity=PHYSICAL, n=1) -> None:
+        super().__init__(self.noise_size, n)
         self._params = params
         self._frozen_params, self._frozen_fidelity = kernels.frozen(params), kernels.frozen(fidelity)
-        self._read_state = row_reader(self._state_port)
-        self._read_noise = row_reader(self._noise_port)
-        self._read_acceleration = row_reader(self.DeclareVectorInputPort("acceleration", 3))
-        group = self.DeclareDiscreteState(IMU_SIZE)
-        self.DeclareStateOutputPort("imu", group)
-        self._output_group = int(group)
-        bias = np.array(sensor_models.imu_initial_bias(params), dtype=float)
-        self._bias_row = bias.reshape(1, self.noise_size)  # constant without a random walk
+        self._read_acceleration = row_reader(self.DeclareVectorInputPort("acceleration", n * 3), n)
+        self._output = discrete_group(self, n * IMU_SIZE, "imu")
+        bias = np.tile(sensor_models.imu_initial_bias(params), (n, 1))
+        self._bias_rows = bias  # constant without a random walk
         self._read_bias_noise = None
         if sensor_models.imu_has_bias_walk(params):
-            self._read_bias_noise = vector_reader(
-                self.DeclareVectorInputPort(
-                    "bias_noise", self.noise_size, random_type=RandomDistribution.kGaussian
-                )
+            port = self.DeclareVectorInputPort(
+                "bias_noise", n * self.noise_size, random_type=self.noise_distribution
             )
-            self._bias_group = int(self.DeclareDiscreteState(bias))
+            self._read_bias_noise = row_reader(port, n)
+            self._bias = discrete_group(self, bias.ravel())
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, SENSOR_OFFSET, self._sample)
 
     def _sample(self, context, discrete_state):
-        bias = self._bias_row
+        bias = self._bias_rows
         if self._read_bias_noise is not None:
-            step = sensor_models.imu_bias_step(
-                discrete_state.value(self._bias_group).tolist(), self._read_bias_noise(context), self._params
-            )
-            bias = np.array(step).reshape(1, self.noise_size)
-            discrete_state.set_value(self._bias_group, bias[0])
+            bias = discrete_state.get_mutable_value(self._bias).reshape(self._n, self.noise_size)
+            bias[:] = kernels.imu_bias_step(bias, self._read_bias_noise(context), self._params)
         kernels.imu_samples(
             self._read_state(context),
             self._read_acceleration(context),
@@ -100,7 +96,7 @@ class Imu(_Sensor):
             self._frozen_params,
             self._frozen_fidelity,
             bias,
-            discrete_state.get_mutable_value(self._output_group).reshape(1, IMU_SIZE),
+            discrete_state.get_mutable_value(self._output).reshape(self._n, IMU_SIZE),
         )
 
 
@@ -109,43 +105,39 @@ class Gps(_Sensor):
 
     Inputs: ``state`` (13); ``noise`` (9, unit Gaussian): 3 random walk, 3 position,
     3 velocity. Output ``gps`` (7): p (m), v (m/s), stamp (s) = k * period, the nominal
-    time of the sample. Before the first sample p = v = 0 and stamp = NO_SAMPLE_STAMP
-    (consumers judge freshness by the stamp only). The random-walk position bias (m) is
-    discrete state; the sample counter k is discrete state so stamps are exact multiples.
-    With ``fidelity.float32_estimator`` p, v and the bias are rounded to float32.
+    time of the sample (every vehicle's the same). Before the first sample p = v = 0 and
+    stamp = NO_SAMPLE_STAMP (consumers judge freshness by the stamp only). The random-walk
+    position bias (m) is discrete state; the sample counter k is discrete state so stamps are
+    exact multiples. With ``fidelity.float32_estimator`` p, v and the bias are rounded to float32.
+    The sample is ``sensor_models.gps_measurement`` run on the vehicles' columns
+    (``fleet.kernels.gps_measurements``).
     """
 
     noise_size = 9
 
-    def __init__(self, params, fidelity=PHYSICAL):
-        super().__init__(self.noise_size)
+    def __init__(self, params, fidelity=PHYSICAL, n=1) -> None:
+        super().__init__(self.noise_size, n)
         self._params, self._fidelity = params, fidelity
         self.noise_period = params.period
-        self._read_state = vector_reader(self._state_port)
-        self._read_noise = vector_reader(self._noise_port)
-        initial = [0.0] * (GPS_SIZE - 1) + [NO_SAMPLE_STAMP]
-        output = self.DeclareDiscreteState(initial)
-        self._bias_group = int(self.DeclareDiscreteState(3))
-        self._count_group = int(self.DeclareDiscreteState(1))
-        self.DeclareStateOutputPort("gps", output)
-        self._output_group = int(output)
+        initial = np.tile([0.0] * (GPS_SIZE - 1) + [NO_SAMPLE_STAMP], n)
+        self._output = discrete_group(self, initial, "gps")
+        self._walk = discrete_group(self, 3 * n)
+        self._count = discrete_group(self, 1)
         self.DeclarePeriodicDiscreteUpdateEvent(
             params.period, params.period + SLOW_SENSOR_OFFSET, self._sample
         )
 
     def _sample(self, context, discrete_state):
         x = self._read_state(context)
-        noise = self._read_noise(context)
-        bias = discrete_state.value(self._bias_group).tolist()
-        count = scalar(discrete_state, self._count_group) + 1.0
-        position, velocity, bias = sensor_models.gps_measurement(
-            x[0:3], x[7:10], bias, noise, self._params, self._fidelity
+        walk = discrete_state.value(self._walk).reshape(self._n, 3)
+        count = float(discrete_state.value(self._count)[0]) + 1.0
+        position, velocity, walk = kernels.gps_measurements(
+            x[:, 0:3], x[:, 7:10], walk, self._read_noise(context), self._params, self._fidelity
         )
-        discrete_state.set_value(
-            self._output_group, np.array(position + velocity + [count * self._params.period])
-        )
-        discrete_state.set_value(self._bias_group, np.array(bias))
-        set_scalar(discrete_state, self._count_group, count)
+        stamps = np.full((self._n, 1), count * self._params.period)
+        discrete_state.set_value(self._output, np.concatenate([position, velocity, stamps], axis=1).ravel())
+        discrete_state.set_value(self._walk, walk.ravel())
+        discrete_state.set_value(self._count, np.array([count]))
 
 
 class Magnetometer(_Sensor):
@@ -153,31 +145,33 @@ class Magnetometer(_Sensor):
 
     Inputs: ``state`` (13); ``noise`` (1, unit Gaussian). Output ``mag`` (2): yaw (rad,
     wrapped to [-pi, pi)), stamp (s) = first_sample_time + k * period, the nominal time
-    of the sample. Before the first sample yaw = 0 and stamp = NO_SAMPLE_STAMP. With
-    ``fidelity.float32_estimator`` the yaw is rounded to float32.
+    of the sample (every vehicle's the same). Before the first sample yaw = 0 and stamp =
+    NO_SAMPLE_STAMP. With ``fidelity.float32_estimator`` the yaw is rounded to float32.
+    The yaw is ``sensor_models.magnetometer_yaw``'s compiled form
+    (``fleet.kernels.magnetometer_samples``).
     """
 
     noise_size = 1
 
-    def __init__(self, params, fidelity=PHYSICAL):
-        super().__init__(self.noise_size)
-        self._params, self._fidelity = params, fidelity
+    def __init__(self, params, fidelity=PHYSICAL, n=1) -> None:
+        super().__init__(self.noise_size, n)
+        self._params, self._frozen_params = params, kernels.frozen(params)
+        self._frozen_fidelity = kernels.frozen(fidelity)
         self.noise_period = params.period
-        output = self.DeclareDiscreteState([0.0, NO_SAMPLE_STAMP])
-        self._count_group = int(self.DeclareDiscreteState(1))
-        self.DeclareStateOutputPort("mag", output)
-        self._output_group = int(output)
-        self._read_quaternion = entries_reader(self._state_port, 3, 7)
-        self._read_noise = entry_reader(self._noise_port, 0)
+        self._output = discrete_group(self, np.tile([0.0, NO_SAMPLE_STAMP], n), "mag")
+        self._count = discrete_group(self, 1)
         self.DeclarePeriodicDiscreteUpdateEvent(
             params.period, params.first_sample_time + SLOW_SENSOR_OFFSET, self._sample
         )
 
     def _sample(self, context, discrete_state):
-        count = scalar(discrete_state, self._count_group)
-        yaw = sensor_models.magnetometer_yaw(
-            self._read_quaternion(context), self._read_noise(context), self._params, self._fidelity
+        count = discrete_state.get_mutable_value(self._count)
+        kernels.magnetometer_samples(
+            self._read_state(context),
+            self._read_noise(context),
+            self._frozen_params,
+            self._frozen_fidelity,
+            self._params.first_sample_time + count[0] * self._params.period,
+            discrete_state.get_mutable_value(self._output).reshape(self._n, 2),
         )
-        stamp = self._params.first_sample_time + count * self._params.period
-        discrete_state.set_value(self._output_group, np.array([yaw, stamp]))
-        set_scalar(discrete_state, self._count_group, count + 1.0)
+        count[0] += 1.0

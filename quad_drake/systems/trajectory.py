@@ -8,7 +8,8 @@ from quad_drake.trajectories import lookup_time
 
 
 class TrajectorySource(LeafSystem):
-    """No inputs; output ``reference`` (10) = trajectory.sample(lookup_time(t)) at context time t (s).
+    """No inputs; output ``reference`` (n 10) = trajectory.sample(lookup_time(t)) at context time t
+    (s), the same sample for each of the n vehicles (default 1), vehicle-major.
 
     Layout: p (3, m, NED), v (3, m/s), a feed-forward (3, m/s^2), yaw (rad). ``trajectory``
     is any object with ``sample(t) -> (10,)`` (see :mod:`quad_drake.trajectories`);
@@ -17,13 +18,13 @@ class TrajectorySource(LeafSystem):
     step), so it cannot close a loop.
     """
 
-    def __init__(self, trajectory, fidelity=PHYSICAL):
+    def __init__(self, trajectory, fidelity=PHYSICAL, n=1) -> None:
         super().__init__()
-        self._trajectory = trajectory
-        self._fidelity = fidelity
+        self._trajectory, self._fidelity, self._n = trajectory, fidelity, n
         self.DeclareVectorOutputPort(
-            "reference", REFERENCE_SIZE, self._calc_reference, prerequisites_of_calc={self.time_ticket()}
+            "reference", n * REFERENCE_SIZE, self._calc_reference, prerequisites_of_calc={self.time_ticket()}
         )
 
     def _calc_reference(self, context, output):
-        output.SetFromVector(self._trajectory.sample(lookup_time(context.get_time(), self._fidelity)))
+        sample = self._trajectory.sample(lookup_time(context.get_time(), self._fidelity))
+        output.get_mutable_value().reshape(self._n, REFERENCE_SIZE)[:] = sample

@@ -2,9 +2,10 @@
 
 import numpy as np
 import pytest
+from pydrake.common import RandomDistribution
 
-from quad_drake.fleet.streams import NoiseStreams, stream_generator
-from quad_drake.fleet.systems import FleetNoiseSource
+from quad_drake.noise_streams import NoiseStreams, stream_generator
+from quad_drake.systems.noise import NoiseStreamSource
 
 
 def test_a_run_draws_the_same_noise_in_any_batch():
@@ -60,7 +61,7 @@ def _noise_at(source, context, time):
 
 def test_the_noise_source_holds_sample_k_from_its_redraw_at_k_period():
     period = 0.1  # 10 samples per block
-    source = FleetNoiseSource([4, 11], "Quad/gps", 3, period, "gaussian")
+    source = NoiseStreamSource(RandomDistribution.kGaussian, 3, period, [4, 11], "Quad/gps")
     context = source.CreateDefaultContext()
     assert context.num_total_states() == 0  # a function of the time: no state to copy in a tick
     streams = [stream_generator(s, "Quad/gps").standard_normal((40, 3)) for s in (4, 11)]

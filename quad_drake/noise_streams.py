@@ -1,11 +1,12 @@
-"""Counter-based noise streams of a fleet: one Philox generator per (run seed, noise name).
+"""Counter-based noise streams: one Philox generator per (run seed, noise name).
 
-Vehicle j of a fleet flies run seed ``seeds[j]`` (a campaign's run i has seed S + i, as on
-the process pool). Each of its noise inputs, named ``"<vehicle name>/<input>"`` (e.g.
-``Quad/imu``), draws from its own Philox generator whose 128-bit key is derived by
-``numpy.random.SeedSequence(run seed, spawn_key=(crc32(name),))``. A stream depends on
-nothing else, so run i gives the same noise, and so the same result, whatever the batch
-it is flown in, its position there and the number of workers.
+Vehicle j of a batch of N runs (``simulation.build_vehicle`` with ``seeds``) flies run seed
+``seeds[j]`` (a campaign's run i has seed S + i, as on the process pool). Each of its noise
+inputs, named ``"<vehicle name>/<input>"`` (e.g. ``Quad/imu``), draws from its own Philox
+generator whose 128-bit key is derived by ``numpy.random.SeedSequence(run seed,
+spawn_key=(crc32(name),))``. A stream depends on nothing else, so run i gives the same noise,
+and so the same result, whatever the batch it is flown in, its position there and the number
+of workers.
 
 The draws are taken in blocks of one simulated second (``samples_per_block`` samples of
 ``size`` values), so the per-vehicle loop runs once per second, not per tick. Sample k of
@@ -16,9 +17,10 @@ straight into its vehicle's contiguous (samples, size) part, with no copy (a tim
 cost as much again as the drawing, in strided copies); reading one sample of the N vehicles is
 a gather of N rows of ``size`` values.
 
-These streams differ from Drake's ``RandomSource`` (which the per-vehicle Diagram uses):
-a fleet run and ``quad-drake run NAME --seed S`` see different noise and agree only
-statistically (README "Fleet mode").
+These streams differ from Drake's ``RandomSource`` (which ``build_vehicle`` wires without
+``seeds``): a fleet run and ``quad-drake run NAME --seed S`` see different noise and agree only
+statistically (README "Fleet mode"). ``systems.noise.NoiseStreamSource`` is their LeafSystem.
+Pure: numpy only.
 """
 
 import math
