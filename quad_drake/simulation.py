@@ -32,7 +32,6 @@ from .error_sampling import TICK_LOG_WIDTHS, TICK_REFERENCE, TICK_STATE
 from .estimation.vocabulary import vehicle_vocabulary
 from .faults import sensor_of
 from .fidelity import PHYSICAL, fidelity_from_mode
-from .fleet.estimators import FleetGpsDelayCompensator
 from .limits import check_run
 from .results import result_from_logs
 from .rotations import quat_from_euler
@@ -163,7 +162,7 @@ def _add_estimator(builder, vehicle, fidelity, outputs, seeds):
         max_lag = vehicle.gps_delay_compensation
         compensator = builder.AddNamedSystem(
             "gps_delay_compensation",
-            GpsDelayCompensator(max_lag) if seeds is None else FleetGpsDelayCompensator(max_lag, n),
+            GpsDelayCompensator(max_lag, n),
         )
         builder.Connect(inputs["gps"], compensator.GetInputPort("gps"))
         builder.Connect(outputs["estimated_state"], compensator.GetInputPort("estimated_state"))

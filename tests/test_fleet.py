@@ -76,7 +76,7 @@ def test_noiseless_fleet_flies_every_vehicle_as_the_per_vehicle_diagram(name, ov
 def test_noiseless_fleet_with_estimators_and_faults_matches_the_per_vehicle_diagram(
     name, end_time, overrides
 ):
-    """The estimators (``fleet.estimators``), the sensor faults and the GPS delay compensation
+    """The estimators (sized by n), the sensor faults and the GPS delay compensation
     too: 1e-12 on every log (the compiled ESKF kernels differ from the scalar maths by rounding,
     ~1e-17 at first). 14 without compensation is flown for 3 s only: its closed loop
     oscillates, and that rounding difference grows about tenfold per second after t = 2 s

@@ -26,7 +26,6 @@ from quad_drake.estimation.complementary import complementary_update
 from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, vocabulary_for
 from quad_drake.fidelity import PHYSICAL, REFERENCE
 from quad_drake.fleet import estimation_kernels as kernels
-from quad_drake.fleet.estimators import FleetGpsDelayCompensator
 from quad_drake.rotations import quat_from_euler_tuple
 from quad_drake.systems.estimators import build_estimator
 from quad_drake.systems.faults import GpsDelayCompensator
@@ -570,7 +569,7 @@ def test_fleet_gps_delay_compensator_matches_the_scalar_one_tick_by_tick():
     """Late GPS samples (0.1 s, one vehicle 0.3 s: past the 0.2 s history) on random-walk estimates."""
     n, max_lag, ticks = 3, 0.2, 250
     builder = DiagramBuilder()
-    systems = {"fleet": FleetGpsDelayCompensator(max_lag, n)}
+    systems = {"fleet": GpsDelayCompensator(max_lag, n)}
     systems.update({f"scalar{i}": GpsDelayCompensator(max_lag) for i in range(n)})
     for tag, system in systems.items():
         system.set_name(tag)

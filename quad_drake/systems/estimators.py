@@ -49,7 +49,7 @@ from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, NIS_DOF, vo
 from quad_drake.fidelity import PHYSICAL
 from quad_drake.fleet import estimation_kernels as kernels
 from quad_drake.rotations import quat_from_euler_tuple
-from quad_drake.systems._io import declare_state_output
+from quad_drake.systems._io import declare_state_output, row_reader
 
 
 def initial_diagnostics():
@@ -118,13 +118,6 @@ class GatedFusion:
             )
 
 
-def _reader(port):
-    """``read(context)``: the value of the vector input `port` as a read-only numpy view (no copy;
-    valid inside the handler that reads it)."""
-    evaluate = port.EvalBasicVector
-    return lambda context: evaluate(context).get_value()
-
-
 def _tiled(vector, n):
     return np.tile(np.asarray(vector, dtype=float), n)
 
@@ -154,8 +147,8 @@ class ComplementaryFilter(LeafSystem):
         self._variant = params.variant
         self._reference_accelerometer = fidelity.reference_accelerometer
         self._float32 = fidelity.float32_estimator
-        self._read_imu = _reader(self.DeclareVectorInputPort("imu", n * IMU_SIZE))
-        self._read_ekf_state = _reader(self.DeclareVectorInputPort("ekf_state", n * EKF_STATE_SIZE))
+        self._read_imu = row_reader(self.DeclareVectorInputPort("imu", n * IMU_SIZE), n)
+        self._read_ekf_state = row_reader(self.DeclareVectorInputPort("ekf_state", n * EKF_STATE_SIZE), n)
         attitude = self.DeclareDiscreteState(_tiled(initial_attitude, n))
         rate = self.DeclareDiscreteState(n * 3)
         self.DeclareDiscreteState(_tiled(kernels.initial_hold(), n))
@@ -170,8 +163,8 @@ class ComplementaryFilter(LeafSystem):
             attitude.reshape(n, ATTITUDE_SIZE),
             rate.reshape(n, 3),
             discrete_state.get_mutable_value(2).reshape(n, kernels.HOLD_SIZE),
-            self._read_imu(context).reshape(n, IMU_SIZE),
-            self._read_ekf_state(context).reshape(n, EKF_STATE_SIZE),
+            self._read_imu(context),
+            self._read_ekf_state(context),
             ONBOARD_PERIOD,
             self._tau,
             self._variant,
@@ -214,10 +207,10 @@ class Ekf(GatedFusion, LeafSystem):
         self._tilt = tilt
         P0 = ekf.initial_covariance(params)
         self._declare_gating(params, P0, (ekf.mag_noise(params), ekf.gps_noise(params)), fidelity)
-        self._read_imu = _reader(self.DeclareVectorInputPort("imu", n * IMU_SIZE))
-        self._read_gps = _reader(self.DeclareVectorInputPort("gps", n * GPS_SIZE))
-        self._read_mag = _reader(self.DeclareVectorInputPort("mag", n * MAG_SIZE))
-        self._read_attitude = _reader(self.DeclareVectorInputPort("attitude", n * ATTITUDE_SIZE))
+        self._read_imu = row_reader(self.DeclareVectorInputPort("imu", n * IMU_SIZE), n)
+        self._read_gps = row_reader(self.DeclareVectorInputPort("gps", n * GPS_SIZE), n)
+        self._read_mag = row_reader(self.DeclareVectorInputPort("mag", n * MAG_SIZE), n)
+        self._read_attitude = row_reader(self.DeclareVectorInputPort("attitude", n * ATTITUDE_SIZE), n)
         x, P, diagnostics = self._declare_fusion_state(n, ekf.initial_state(params), P0)
         self._hold = self.DeclareDiscreteState(_tiled(kernels.initial_hold(), n))
         self._healthy = np.empty(n, dtype=bool)  # scratch of each tick's health check
@@ -231,14 +224,14 @@ class Ekf(GatedFusion, LeafSystem):
         sample or an unhealthy P, the health check and the fusions of :meth:`_fuse_fresh`."""
         n = self._n
         x, P, diagnostics, book = self._views(discrete_state, EKF_STATE_SIZE)
-        gps = self._read_gps(context).reshape(n, GPS_SIZE)
-        mag = self._read_mag(context).reshape(n, MAG_SIZE)
+        gps = self._read_gps(context)
+        mag = self._read_mag(context)
         quiet = kernels.ekf7_tick(
             x,
             P,
             discrete_state.get_mutable_value(self._hold).reshape(n, kernels.HOLD_SIZE),
-            self._read_attitude(context).reshape(n, ATTITUDE_SIZE),
-            self._read_imu(context).reshape(n, IMU_SIZE),
+            self._read_attitude(context),
+            self._read_imu(context),
             gps,
             mag,
             diagnostics,
@@ -279,9 +272,9 @@ class EstimatedStateAssembler(LeafSystem):
     def __init__(self, n=1):
         super().__init__()
         self._n = n
-        self._read_attitude = _reader(self.DeclareVectorInputPort("attitude", n * ATTITUDE_SIZE))
-        self._read_ekf_state = _reader(self.DeclareVectorInputPort("ekf_state", n * EKF_STATE_SIZE))
-        self._read_rate = _reader(self.DeclareVectorInputPort("body_rate", n * 3))
+        self._read_attitude = row_reader(self.DeclareVectorInputPort("attitude", n * ATTITUDE_SIZE), n)
+        self._read_ekf_state = row_reader(self.DeclareVectorInputPort("ekf_state", n * EKF_STATE_SIZE), n)
+        self._read_rate = row_reader(self.DeclareVectorInputPort("body_rate", n * 3), n)
         self.DeclareVectorOutputPort(
             "estimated_state",
             n * STATE_SIZE,
@@ -292,9 +285,9 @@ class EstimatedStateAssembler(LeafSystem):
     def _calc(self, context, output):
         n = self._n
         kernels.ekf7_estimated_state(
-            self._read_attitude(context).reshape(n, ATTITUDE_SIZE),
-            self._read_ekf_state(context).reshape(n, EKF_STATE_SIZE),
-            self._read_rate(context).reshape(n, 3),
+            self._read_attitude(context),
+            self._read_ekf_state(context),
+            self._read_rate(context),
             out=output.get_mutable_value().reshape(n, STATE_SIZE),
         )
 
@@ -328,9 +321,9 @@ class Eskf(GatedFusion, LeafSystem):
             params.init_position, params.init_velocity, quat_from_euler_tuple(roll, pitch, yaw)
         )
         self._declare_gating(params, P0, (eskf.mag_noise(params), eskf.gps_noise(params)), fidelity)
-        self._read_imu = _reader(self.DeclareVectorInputPort("imu", n * IMU_SIZE))
-        self._read_gps = _reader(self.DeclareVectorInputPort("gps", n * GPS_SIZE))
-        self._read_mag = _reader(self.DeclareVectorInputPort("mag", n * MAG_SIZE))
+        self._read_imu = row_reader(self.DeclareVectorInputPort("imu", n * IMU_SIZE), n)
+        self._read_gps = row_reader(self.DeclareVectorInputPort("gps", n * GPS_SIZE), n)
+        self._read_mag = row_reader(self.DeclareVectorInputPort("mag", n * MAG_SIZE), n)
         _, P, diagnostics = self._declare_fusion_state(n, x0, P0)
         initial_estimate = np.zeros(STATE_SIZE)  # body rate 0 before the first sample
         eskf.write_estimate(x0, initial_estimate)
@@ -349,7 +342,7 @@ class Eskf(GatedFusion, LeafSystem):
         x, P, diagnostics, book = self._views(discrete_state, eskf.NOMINAL_SIZE)
         estimate = discrete_state.get_mutable_value(self.ESTIMATE_GROUP).reshape(n, STATE_SIZE)
         hold = discrete_state.get_mutable_value(self._hold).reshape(n, kernels.HOLD_SIZE)
-        imu = self._read_imu(context).reshape(n, IMU_SIZE)
+        imu = self._read_imu(context)
         healthy = kernels.eskf_predict_tick(
             x, P, hold, imu, estimate, diagnostics, ONBOARD_PERIOD, self._noise, self._Q_constant
         )
@@ -358,8 +351,8 @@ class Eskf(GatedFusion, LeafSystem):
             P,
             diagnostics,
             book,
-            self._read_gps(context).reshape(n, GPS_SIZE),
-            self._read_mag(context).reshape(n, MAG_SIZE),
+            self._read_gps(context),
+            self._read_mag(context),
             healthy,
             kernels.eskf_gps_update,
             kernels.eskf_mag_tick,

@@ -25,7 +25,8 @@ from quad_drake.conventions import (
     STATE_SIZE,
     V_SLICE,
 )
-from quad_drake.systems._io import discrete_group, row_reader, vector_reader
+from quad_drake.fleet import estimation_kernels as kernels
+from quad_drake.systems._io import discrete_group, row_reader
 
 
 class SensorFaults(LeafSystem):
@@ -130,75 +131,82 @@ class SensorFaults(LeafSystem):
 
 
 class GpsDelayCompensator(LeafSystem):
-    """Late GPS samples moved to the present by the estimator's predicted motion since their
-    stamp (``quad_drake.delay_compensation``): the estimator side of a ``gps_delay``.
+    """n vehicles' late GPS samples moved to the present by each estimator's predicted motion since
+    their stamp (``quad_drake.delay_compensation``): the estimator side of a ``gps_delay``.
 
-    Inputs ``gps`` (7: p m, v m/s, stamp s; e.g. from a SensorFaults with a gps_delay) and
-    ``estimated_state`` (13, the truth layout: p m, q wxyz, v m/s, w rad/s). Output ``gps``
-    (7): the sample with p and v shifted by the odometry since its stamp, stamp kept; a
-    feedthrough output (its inputs come from state ports) that the estimator reads in the
-    same tick; the odometry "now" is the last tick's carried one tick forward, as the
-    estimator predicts before it fuses.
+    Inputs ``gps`` (n*7: p m, v m/s, stamp s; e.g. from a SensorFaults with a gps_delay) and
+    ``estimated_state`` (n*13, the truth layout: p m, q wxyz, v m/s, w rad/s), vehicle-major.
+    Output ``gps`` (n*7): each sample with p and v shifted by its vehicle's odometry since its
+    stamp, stamp kept; a feedthrough output (its inputs come from state ports) that the estimator
+    reads in the same tick; the odometry "now" is the last tick's carried one tick forward, as
+    the estimator predicts before it fuses. A sample without a stamp, or with a non-finite one,
+    passes unchanged.
 
     Every ONBOARD_PERIOD at EKF_OFFSET + FAULT_LAG (after the estimator, before the
     controller) it books the tick: the estimate's increment (the kinematic one where the GPS
     sample it just read had a new stamp, i.e. was fused) into the odometry, and the odometry
-    into a ring of ``history_capacity(max_lag)`` rows (discrete state); a sample more than
-    ``max_lag`` s late passes unchanged.
+    into a ring of ``history_capacity(max_lag)`` rows per vehicle (discrete state); a sample
+    more than ``max_lag`` s late passes unchanged. The maths is ``estimation_kernels``'
+    ``odometry_step``, ``predicted_odometry`` and ``compensated_gps`` (tested against
+    ``delay_compensation``'s scalar forms).
     """
 
-    def __init__(self, max_lag):
+    def __init__(self, max_lag, n=1):
         super().__init__()
+        self._n = n
         self._capacity = delay_compensation.history_capacity(max_lag, ONBOARD_PERIOD)
-        self._read_gps = vector_reader(self.DeclareVectorInputPort("gps", GPS_SIZE))
-        self._read_estimate = vector_reader(self.DeclareVectorInputPort("estimated_state", STATE_SIZE))
+        self._read_gps = row_reader(self.DeclareVectorInputPort("gps", n * GPS_SIZE), n)
+        self._read_estimate = row_reader(self.DeclareVectorInputPort("estimated_state", n * STATE_SIZE), n)
         width = delay_compensation.HISTORY_WIDTH
-        self._history = self.DeclareDiscreteState(np.full(self._capacity * width, math.nan))
-        # previous p_hat, v_hat (6; NaN before the first tick), velocity step (3), odometry (6),
-        # last GPS stamp read (1)
-        self._memory = self.DeclareDiscreteState(
-            np.array([math.nan] * 6 + [0.0] * 9 + [NO_SAMPLE_STAMP], dtype=float)
-        )
+        self._history = self.DeclareDiscreteState(np.full(n * self._capacity * width, np.nan))
+        # per vehicle: previous p_hat, v_hat (6; NaN before the first tick), velocity step (3),
+        # odometry (6), last GPS stamp read (1)
+        self._memory = self.DeclareDiscreteState(np.tile([np.nan] * 6 + [0.0] * 9 + [NO_SAMPLE_STAMP], n))
         self.DeclareVectorOutputPort(
             "gps",
-            GPS_SIZE,
+            n * GPS_SIZE,
             self._calc,
             prerequisites_of_calc={self.all_input_ports_ticket(), self.xd_ticket()},
         )
         self._offset = EKF_OFFSET + FAULT_LAG
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, self._offset, self._book)
 
-    @staticmethod
-    def _estimate(context_reader, context):
-        x = context_reader(context)
-        return x[P_SLICE] + x[V_SLICE]
+    def _estimate(self, context):
+        x = self._read_estimate(context)
+        return np.concatenate((x[:, P_SLICE], x[:, V_SLICE]), axis=1)
 
     def _book(self, context, discrete_state):
-        estimate = self._estimate(self._read_estimate, context)
-        stamp = self._read_gps(context)[6]
-        memory = discrete_state.value(self._memory).tolist()
-        previous, velocity_step, odometry = memory[0:6], memory[6:9], memory[9:15]
-        if math.isnan(previous[0]):
-            previous = estimate
-        fused = stamp != memory[15] and stamp != NO_SAMPLE_STAMP
-        odometry, velocity_step = delay_compensation.odometry_step(
-            odometry, estimate, previous, velocity_step, fused, ONBOARD_PERIOD
+        n = self._n
+        estimate = self._estimate(context)
+        stamp = self._read_gps(context)[:, 6]
+        memory = discrete_state.get_mutable_value(self._memory).reshape(n, 16)
+        previous = np.where(np.isnan(memory[:, 0:1]), estimate, memory[:, 0:6])
+        fused = (stamp != memory[:, 15]) & (stamp != NO_SAMPLE_STAMP)
+        odometry, velocity_step = kernels.odometry_step(
+            memory[:, 9:15], estimate, previous, memory[:, 6:9], fused, ONBOARD_PERIOD
         )
-        discrete_state.set_value(self._memory, np.array(estimate + velocity_step + odometry + [stamp]))
+        memory[:, 0:6], memory[:, 6:9], memory[:, 9:15], memory[:, 15] = (
+            estimate,
+            velocity_step,
+            odometry,
+            stamp,
+        )
         tick = round((context.get_time() - self._offset) / ONBOARD_PERIOD) * ONBOARD_PERIOD
         slot = delay_compensation.history_slot(tick, ONBOARD_PERIOD, self._capacity)
-        width = delay_compensation.HISTORY_WIDTH
-        discrete_state.get_mutable_value(self._history)[slot * width : (slot + 1) * width] = [tick] + odometry
+        history = discrete_state.get_mutable_value(self._history).reshape(n, self._capacity, -1)
+        history[:, slot, 0] = tick
+        history[:, slot, 1:] = odometry
 
     def _calc(self, context, output):
+        n = self._n
         sample = self._read_gps(context)
-        stamp = sample[6]
-        if stamp == NO_SAMPLE_STAMP:
-            output.SetFromVector(np.array(sample))
-            return
-        memory = context.get_discrete_state(self._memory).value().tolist()
-        now = delay_compensation.predicted_odometry(memory[9:15], memory[3:6], memory[6:9], ONBOARD_PERIOD)
-        width = delay_compensation.HISTORY_WIDTH
-        slot = delay_compensation.history_slot(stamp, ONBOARD_PERIOD, self._capacity)
-        row = context.get_discrete_state(self._history).value()[slot * width : (slot + 1) * width]
-        output.SetFromVector(np.array(delay_compensation.compensated_gps(sample, row.tolist(), now)))
+        out = np.array(sample)
+        stamped = (sample[:, 6] != NO_SAMPLE_STAMP) & np.isfinite(sample[:, 6])
+        if stamped.any():
+            rows = np.flatnonzero(stamped)
+            memory = context.get_discrete_state(self._memory).value().reshape(n, 16)[rows]
+            now = kernels.predicted_odometry(memory[:, 9:15], memory[:, 3:6], memory[:, 6:9], ONBOARD_PERIOD)
+            slots = np.rint(sample[rows, 6] / ONBOARD_PERIOD).astype(int) % self._capacity
+            history = context.get_discrete_state(self._history).value().reshape(n, self._capacity, -1)
+            out[rows] = kernels.compensated_gps(sample[rows], history[rows, slots], now)
+        output.get_mutable_value()[:] = out.ravel()
