@@ -33,7 +33,6 @@ from pydrake.systems.framework import LeafSystem  # noqa: E402
 from benchmarks.handlers import empty, replaced_handlers  # noqa: E402
 from quad_drake import catalog  # noqa: E402
 from quad_drake.conventions import LOG_PERIOD, ONBOARD_PERIOD  # noqa: E402
-from quad_drake.fleet import estimators  # noqa: E402
 from quad_drake.fleet.simulation import build_fleet_diagram, fly, release_memory  # noqa: E402
 from quad_drake.systems import controller, faults, noise, plant, sensors, trajectory  # noqa: E402
 from quad_drake.systems import estimators as estimator_systems  # noqa: E402
@@ -93,7 +92,7 @@ def main():
             f"{cpu / ticks / n * 1e6:.2f} us per vehicle-tick"
         )
         if args.floor:
-            systems = (plant, sensors, faults, controller, trajectory, noise, estimator_systems, estimators)
+            systems = (plant, sensors, faults, controller, trajectory, noise, estimator_systems)
             with replaced_handlers(systems, empty):
                 floor = min(flight_cpu(scenario, n) for _ in range(args.repeats))
             print(

@@ -376,5 +376,5 @@ def float32_rounded(state):
 
 def to_float32(value):
     """`value` rounded to the nearest float32, as a float (float64: the inner cast keeps numba's
-    compiled form, ``fleet.kernels``, from typing it float32)."""
+    compiled form, ``kernels.flight``, from typing it float32)."""
     return float(np.float64(np.float32(value)))

@@ -10,7 +10,7 @@ differs from the reference simulator's ``R^T (a + g)`` (see DESIGN §4), which
 
 The IMU functions work on Python scalars (they run at 500 Hz): pass sequences such as
 lists, tuples or ``ndarray.tolist()`` results, and get tuples back (plain arithmetic, which
-``fleet.kernels`` compiles with numba and runs per vehicle).
+``kernels.flight`` compiles with numba and runs per vehicle).
 
 With ``fidelity.float32_estimator`` every sample (and the GPS random walk) is rounded to
 float32 once computed, as the reference stores its V3F and float samples (SPEC §2).

@@ -25,7 +25,7 @@ from quad_drake.estimation import ekf, eskf, gating
 from quad_drake.estimation.complementary import complementary_update
 from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, vocabulary_for
 from quad_drake.fidelity import PHYSICAL, REFERENCE
-from quad_drake.fleet import estimation_kernels as kernels
+from quad_drake.kernels import estimation as kernels
 from quad_drake.rotations import quat_from_euler_tuple
 from quad_drake.systems.estimators import build_estimator
 from quad_drake.systems.faults import GpsDelayCompensator

@@ -11,7 +11,7 @@ from quad_drake import dynamics, sensor_models
 from quad_drake.config import ControllerParams, GpsParams, ImuParams, MagParams, PhysicsParams
 from quad_drake.control import cascade
 from quad_drake.fidelity import PHYSICAL, REFERENCE
-from quad_drake.fleet import kernels
+from quad_drake.kernels import flight as kernels
 
 N = 200
 TOL = 1e-12

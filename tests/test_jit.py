@@ -149,7 +149,7 @@ def test_a_read_only_install_with_a_read_only_home_caches_its_kernels_in_the_tem
         HOME=str(home), TMPDIR=str(temporary), PYTHONPATH=str(package.parent), PYTHONDONTWRITEBYTECODE="1"
     )
     code = (
-        "import quad_drake.fleet.estimation_kernels as k; "
+        "import quad_drake.kernels.estimation as k; "
         f"assert k.__file__.startswith({str(package)!r}); print(k._wrap(7.0))"
     )
     result = subprocess.run(

@@ -1,6 +1,6 @@
 """The scalar numpy forms of the filter steps are reference oracles: no simulation calls them.
 
-Single runs and fleets both execute the compiled kernels of ``fleet/estimation_kernels.py``
+Single runs and fleets both execute the compiled kernels of ``kernels/estimation.py``
 (sized by n, ``systems/estimators.py``); the textbook forms in ``estimation/`` stay as the named
 oracles those kernels are tested against (``tests/test_fleet_estimators.py``, 1e-12). Here every
 oracle is patched to raise and closed-loop flights that exercise every filter step (prediction,

@@ -57,16 +57,15 @@ PURE = (
     "quad_drake.estimation",
 )
 """The pure modules (maths and models: numpy, no Drake); a package name covers its modules."""
-KERNELS = ("quad_drake.fleet.kernels", "quad_drake.fleet.estimation_kernels", "quad_drake.fleet.bounds")
+KERNELS = ("quad_drake.kernels", "quad_drake.fleet.bounds")
 """The compiled kernels, below the systems."""
-BATCH_RUNNERS = ("quad_drake.fleet.runner", "quad_drake.fleet.simulation", "quad_drake.fleet.streaming")
 
 FORBIDDEN = (
     ("nothing imports the CLI", ("quad_drake",), ("quad_drake.cli",)),
     (
-        "systems import no campaign, simulation or batch runner",
+        "systems import no campaign, simulation, tuning or fleet module",
         ("quad_drake.systems",),
-        ("quad_drake.campaigns", "quad_drake.simulation", "quad_drake.tuning", *BATCH_RUNNERS),
+        ("quad_drake.campaigns", "quad_drake.simulation", "quad_drake.tuning", "quad_drake.fleet"),
     ),
     ("kernels import no pydrake and no systems", KERNELS, ("pydrake", "quad_drake.systems")),
     (

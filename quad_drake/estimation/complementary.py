@@ -8,7 +8,7 @@ With ``reference_accelerometer`` (``fidelity: reference``) the reading is the re
 R_NB^T (a_NB + g_N) and the tilt is the reference's roll = atan2(f_y, f_z),
 pitch = atan2(-f_x, 9.81) (SPEC §4).
 
-``complementary_update`` is the reference oracle of ``estimation_kernels.complementary_tick``,
+``complementary_update`` is the reference oracle of ``kernels.estimation.complementary_tick``,
 which every simulation runs (``tests/test_oracles.py``).
 """
 

@@ -15,7 +15,7 @@ through the Jacobian of (a_N, yaw rate) with respect to (roll, pitch), to Q at e
 
 The textbook forms here (``predict``, ``predict_with_yaw``, ``predict_state``,
 ``predict_jacobian``, ``predict_covariance``, ``kalman_update``, ``gps_update``, ``mag_update``)
-are the reference oracles of the running implementation, ``fleet/estimation_kernels.py``, which
+are the reference oracles of the running implementation, ``kernels/estimation.py``, which
 single runs and fleets both execute; the kernels are tested against them to 1e-12 and no
 simulation calls them (``tests/test_oracles.py``).
 """

@@ -33,7 +33,7 @@ Updates return the NIS nu^T S^-1 nu and leave the gating decision to the caller
 (:mod:`quad_drake.estimation.gating`): a gated sample keeps the prior.
 
 ``predict``, ``predict_nominal``, ``joseph_update``, ``inject``, ``gps_update`` and ``mag_update``
-are the reference oracles of the running implementation, ``fleet/estimation_kernels.py``; the
+are the reference oracles of the running implementation, ``kernels/estimation.py``; the
 kernels are tested against them to 1e-12 and no simulation calls them (``tests/test_oracles.py``).
 """
 

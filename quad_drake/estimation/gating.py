@@ -70,16 +70,6 @@ def gate_threshold(dof, gate_sigma):
     return float(chdtri(dof, false_alarm_probability(gate_sigma)))
 
 
-def gate_ratio(nis, threshold):
-    """nis / threshold: above 1 rejects the sample (0 when the gate is off, NaN for a NaN nis)."""
-    return nis / threshold
-
-
-def gate_accepts(nis, threshold):
-    """True when a finite ``nis`` passes the gate; a NaN nis (no update possible) is not accepted."""
-    return nis <= threshold
-
-
 @dataclass(frozen=True)
 class GpsGates:
     """The GPS gate-and-reset policy of one estimator (see the module docstring).

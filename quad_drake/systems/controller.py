@@ -1,5 +1,5 @@
 """Drake glue for the cascade controller (SPEC §5): :class:`CascadeController` of n vehicles, which
-runs ``control.cascade.cascade_step`` as its compiled form (``fleet.kernels.cascade_steps``)."""
+runs ``control.cascade.cascade_step`` as its compiled form (``kernels.flight.cascade_steps``)."""
 
 import numpy as np
 from pydrake.systems.framework import LeafSystem
@@ -13,7 +13,7 @@ from quad_drake.conventions import (
     STATE_SIZE,
 )
 from quad_drake.fidelity import PHYSICAL
-from quad_drake.fleet import kernels
+from quad_drake.kernels import flight as kernels
 from quad_drake.systems._io import discrete_group, row_reader
 
 

@@ -3,7 +3,7 @@
 Every system here is sized by n vehicles (default 1, a single run; a fleet flies n runs of one
 VehicleConfig at once): its ports carry the n per-vehicle vectors vehicle-major (vehicle i at
 [i k, (i + 1) k)), and a single run and a fleet execute the same code (the compiled kernels of
-``fleet/estimation_kernels.py`` over (n, ...) views of the ports and discrete state).
+``kernels/estimation.py`` over (n, ...) views of the ports and discrete state).
 
 Every estimator is a sub-Diagram (:func:`build_estimator`) with inputs ``imu``, ``gps``,
 ``mag`` and the outputs its vocabulary lists (``estimation/vocabulary.py``):
@@ -47,7 +47,7 @@ from quad_drake.estimation import ekf, eskf, gating
 from quad_drake.estimation.complementary import VARIANTS
 from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, NIS_DOF, vocabulary_for
 from quad_drake.fidelity import PHYSICAL
-from quad_drake.fleet import estimation_kernels as kernels
+from quad_drake.kernels import estimation as kernels
 from quad_drake.rotations import quat_from_euler_tuple
 from quad_drake.systems._io import declare_state_output, row_reader
 
@@ -130,8 +130,8 @@ class ComplementaryFilter(LeafSystem):
     6 is the EKF posterior yaw, rad, used as the prior yaw). Outputs (state ports): ``attitude``
     (n*3: roll, pitch, yaw, rad), ``body_rate`` (n*3: the gyro sample, rad/s; NaN while the IMU
     is out). Ticks every ONBOARD_PERIOD at ATTITUDE_FILTER_OFFSET with dt = ONBOARD_PERIOD
-    (``estimation_kernels.complementary_tick``). Over a non-finite IMU sample the filter
-    dead-reckons on the running mean of the IMU (``estimation_kernels.IMU_HOLD_TIME``) and
+    (``kernels.estimation.complementary_tick``). Over a non-finite IMU sample the filter
+    dead-reckons on the running mean of the IMU (``kernels.estimation.IMU_HOLD_TIME``) and
     reports no rate (NaN: the controller then commands no body moment).
     With ``fidelity.reference_accelerometer`` the IMU carries the reference's reading and the
     tilt comes from the reference's formulas; with ``fidelity.float32_estimator`` the attitude
@@ -184,7 +184,7 @@ class Ekf(GatedFusion, LeafSystem):
     ``ekf_state`` (n*7), ``covariance`` (n*49, each P row-major), ``diagnostics``
     (n*``vocabulary.DIAGNOSTICS``; NIS is NaN before the first update).
 
-    Each tick (ONBOARD_PERIOD, offset EKF_OFFSET; ``estimation_kernels.ekf7_tick``): yaw <-
+    Each tick (ONBOARD_PERIOD, offset EKF_OFFSET; ``kernels.estimation.ekf7_tick``): yaw <-
     attitude yaw, predict x' = f(x, f_B), P' = G P G^T + Q with dt = ONBOARD_PERIOD (over a
     non-finite IMU sample with the IMU's running mean); then a fresh mag sample, then a fresh GPS
     sample, is fused through the gates (``mag_gate_sigma``; the GPS policy of
@@ -304,7 +304,7 @@ class Eskf(GatedFusion, LeafSystem):
     m/s^2, b_g rad/s).
 
     Each tick (ONBOARD_PERIOD, offset EKF_OFFSET): predict with the IMU sample (over a
-    non-finite one, counted, with the running mean of the IMU: ``estimation_kernels
+    non-finite one, counted, with the running mean of the IMU: ``kernels.estimation
     .eskf_predict_tick``), then fuse a fresh mag and a fresh GPS sample through the gates
     and resets of :class:`Ekf`; P is checked as there.
     """

@@ -25,7 +25,7 @@ from quad_drake.conventions import (
     STATE_SIZE,
     V_SLICE,
 )
-from quad_drake.fleet import estimation_kernels as kernels
+from quad_drake.kernels import estimation as kernels
 from quad_drake.systems._io import discrete_group, row_reader
 
 
@@ -146,7 +146,7 @@ class GpsDelayCompensator(LeafSystem):
     controller) it books the tick: the estimate's increment (the kinematic one where the GPS
     sample it just read had a new stamp, i.e. was fused) into the odometry, and the odometry
     into a ring of ``history_capacity(max_lag)`` rows per vehicle (discrete state); a sample
-    more than ``max_lag`` s late passes unchanged. The maths is ``estimation_kernels``'
+    more than ``max_lag`` s late passes unchanged. The maths is ``kernels.estimation``'
     ``odometry_step``, ``predicted_odometry`` and ``compensated_gps`` (tested against
     ``delay_compensation``'s scalar forms).
     """

@@ -1,5 +1,5 @@
 """The quadrotor plant (SPEC §3) of n vehicles: a 1 kHz discrete system over ``dynamics.plant_step``,
-run as its compiled form (``fleet.kernels.plant_steps``: the scalar function's own code compiled by
+run as its compiled form (``kernels.flight.plant_steps``: the scalar function's own code compiled by
 numba, about a third of its Python cost per step)."""
 
 import copy
@@ -10,7 +10,7 @@ from pydrake.systems.framework import LeafSystem
 
 from quad_drake.conventions import NUM_MOTORS, ONBOARD_PERIOD, PHYSICS_PERIOD, PLANT_OFFSET, STATE_SIZE
 from quad_drake.fidelity import PHYSICAL
-from quad_drake.fleet import kernels
+from quad_drake.kernels import flight as kernels
 from quad_drake.systems._io import discrete_group, row_reader
 
 

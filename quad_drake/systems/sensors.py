@@ -1,5 +1,5 @@
 """Sensor LeafSystems (SPEC §2) of n vehicles: IMU, GPS and magnetometer, thin glue over
-``sensor_models`` (compiled per vehicle by ``fleet.kernels`` where they tick at 500 Hz or often).
+``sensor_models`` (compiled per vehicle by ``kernels.flight`` where they tick at 500 Hz or often).
 
 Each sensor samples in one periodic discrete update, holds its last measurement in
 discrete state and publishes it through a state output port (no feedthrough). Every port
@@ -30,7 +30,7 @@ from quad_drake.conventions import (
     STATE_SIZE,
 )
 from quad_drake.fidelity import PHYSICAL
-from quad_drake.fleet import kernels
+from quad_drake.kernels import flight as kernels
 from quad_drake.systems._io import discrete_group, row_reader
 
 
@@ -61,7 +61,7 @@ class Imu(_Sensor):
     With ``fidelity.reference_accelerometer`` the first three entries are the reference's
     R_NB^T (a_NB + g_N) instead (``sensor_models.reference_accelerometer``); with
     ``fidelity.float32_estimator`` the sample is rounded to float32.
-    The sample is ``sensor_models.imu_measurement``'s compiled form (``fleet.kernels.imu_samples``).
+    The sample is ``sensor_models.imu_measurement``'s compiled form (``kernels.flight.imu_samples``).
     """
 
     noise_size = 6
@@ -110,7 +110,7 @@ class Gps(_Sensor):
     position bias (m) is discrete state; the sample counter k is discrete state so stamps are
     exact multiples. With ``fidelity.float32_estimator`` p, v and the bias are rounded to float32.
     The sample is ``sensor_models.gps_measurement`` run on the vehicles' columns
-    (``fleet.kernels.gps_measurements``).
+    (``kernels.flight.gps_measurements``).
     """
 
     noise_size = 9
@@ -148,7 +148,7 @@ class Magnetometer(_Sensor):
     of the sample (every vehicle's the same). Before the first sample yaw = 0 and stamp =
     NO_SAMPLE_STAMP. With ``fidelity.float32_estimator`` the yaw is rounded to float32.
     The yaw is ``sensor_models.magnetometer_yaw``'s compiled form
-    (``fleet.kernels.magnetometer_samples``).
+    (``kernels.flight.magnetometer_samples``).
     """
 
     noise_size = 1

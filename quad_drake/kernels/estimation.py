@@ -29,8 +29,8 @@ from quad_drake.delay_compensation import TIME_TOLERANCE
 from quad_drake.estimation import ekf, eskf, gating
 from quad_drake.estimation.complementary import VARIANTS
 from quad_drake.estimation.vocabulary import DIAG
-from quad_drake.fleet.kernels import compiled
 from quad_drake.jit import njit_cached
+from quad_drake.kernels.flight import compiled
 
 GPS_SLOT, MAG_SLOT = 0, 1
 GPS_POLICY = slice(2, 2 + gating.GPS_BOOK_SIZE)
