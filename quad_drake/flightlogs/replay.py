@@ -35,7 +35,7 @@ from quad_drake.flightlogs.playback import (
     superseded_samples,
 )
 from quad_drake.flightlogs.reader import read_flight_log
-from quad_drake.flightlogs.settings import ReplayConfig, dump_replay, vehicle_for
+from quad_drake.flightlogs.settings import ReplayConfig, dump_replay, resolve_log, vehicle_for
 from quad_drake.jsonio import dump_json
 from quad_drake.outdir import write_binary_atomic, write_text_atomic
 from quad_drake.results import FORMAT_VERSION
@@ -170,7 +170,7 @@ def replay(config, log=None):
 
     Raises reader.FlightLogError (a ConfigError, one line) for a log that cannot be replayed.
     """
-    log = read_flight_log(config.log) if log is None else log
+    log = read_flight_log(resolve_log(config.log)) if log is None else log
     if config.mag_declination is not None:
         log = dataclasses.replace(log, mag_declination=config.mag_declination)
     if not config.name:

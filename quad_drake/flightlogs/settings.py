@@ -17,12 +17,15 @@ accelerometer sooner).
 import dataclasses
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Optional
 
 import yaml
 from pydrake.common.yaml import yaml_dump, yaml_dump_typed, yaml_load_typed
 
 from quad_drake.config import (
+    ESTIMATOR_KINDS,
+    PACKAGE_DIR,
     AttitudeFilterParams,
     ConfigError,
     Ekf7EstimatorConfig,
@@ -33,7 +36,9 @@ from quad_drake.config import (
     _check_node,
     _first_line,
     _num,
+    _override_hint,
     apply_override,
+    did_you_mean,
     load_yaml,
     parse_override,
     validate,
@@ -46,6 +51,8 @@ ACCEL_STD = 0.35 * PER_SAMPLE  # m/s^2 per 2 ms sample
 GPS_POS_STD = 0.5  # m
 GPS_VEL_STD = 0.3  # m/s
 HEADING_STD = 0.3  # rad
+LOG_DIR = PACKAGE_DIR / "data" / "flight_logs"
+"""The bundled flight logs (package data): pyulog's test logs, BSD-3-Clause (README there)."""
 FAKE_VELOCITY_STD = 1e3
 """m/s: the velocity part of a fake position sample, so large that it carries no information."""
 
@@ -107,32 +114,81 @@ def default_replay(kind="ekf7"):
     )
 
 
-def load_replay(log, estimator=None, overrides=()):
-    """Validated ReplayConfig of the log path `log`, an ``--estimator`` mapping (YAML text, e.g.
-    ``{kind: eskf}``: the defaults of that kind with these fields changed) and ``--set``
-    overrides (``ekf.mag_yaw_std=0.2``, ``estimator.gyro_std=[0.05, 0.05, 0.05]``).
+def bundled_logs():
+    """{name: path} of the flight logs shipped with the package (``quad_drake/data/flight_logs``)."""
+    return {p.stem: p for p in sorted(LOG_DIR.glob("*.ulg"))}
 
-    Raises ConfigError (one line naming ``--estimator``, ``--set`` or the field).
+
+def resolve_log(name_or_path):
+    """Path of a flight log given as a file path or a bundled log's name; ConfigError if neither."""
+    path = Path(str(name_or_path))
+    if path.is_file():
+        return path
+    bundled = bundled_logs()
+    if str(name_or_path) in bundled:
+        return bundled[str(name_or_path)]
+    raise ConfigError(
+        f"{name_or_path}: no such flight log file, nor a bundled log"
+        f"{did_you_mean(name_or_path, bundled)} (bundled: {', '.join(bundled)})"
+    )
+
+
+def load_replay(log, estimator=None, overrides=()):
+    """Validated ReplayConfig of `log` (a flight log's path or bundled name, or the config.yaml of
+    an earlier replay), an ``--estimator`` mapping (YAML text, e.g. ``{kind: eskf}``: the defaults
+    of that kind with these fields changed) and ``--set`` overrides (``ekf.mag_yaw_std=0.2``,
+    ``estimator.gyro_std=[0.05, 0.05, 0.05]``).
+
+    Raises ConfigError (one line naming the file, ``--estimator``, ``--set`` or the field).
     """
-    chosen = _estimator_mapping(estimator)
-    kind = chosen.get("kind", "ekf7")
-    raw = load_yaml(yaml_dump_typed(default_replay(kind if kind in ("ekf7", "eskf") else "ekf7")))
-    raw["log"] = str(log)
-    raw["estimator"] = {**_untagged(raw["estimator"]), **chosen}
+    chosen = estimator_mapping(estimator)
+    if Path(str(log)).suffix in (".yaml", ".yml"):
+        raw = _replay_file(Path(str(log)))
+        if chosen:
+            kind = chosen.get("kind", raw["estimator"].get("kind"))
+            base = raw["estimator"] if kind == raw["estimator"].get("kind") else _default_estimator_raw(kind)
+            raw["estimator"] = {**_untagged(base), **chosen}
+    else:
+        kind = chosen.get("kind", "ekf7")
+        raw = load_yaml(yaml_dump_typed(default_replay(kind if kind in ESTIMATOR_KINDS else "ekf7")))
+        path = resolve_log(log)
+        raw["log"] = str(log) if path.parent == LOG_DIR else str(path.resolve())  # a bundled name stays one
+        raw["estimator"] = {**_untagged(raw["estimator"]), **chosen}
     for text in overrides:
         keys, value = parse_override(text)
         apply_override(raw, keys, value, text)
     message = _check_node(raw, ReplayConfig, "")
     if message:
-        raise ConfigError(message)
+        raise ConfigError(message + _override_hint(message, overrides))
     try:
         config = yaml_load_typed(schema=ReplayConfig, data=yaml_dump(raw))
     except (RuntimeError, ValueError, TypeError) as e:
         raise ConfigError(_first_line(e)) from None
+    resolve_log(config.log)
     return check_replay(config)
 
 
-def _estimator_mapping(text):
+def _default_estimator_raw(kind):
+    return load_yaml(yaml_dump_typed(default_replay(kind if kind in ESTIMATOR_KINDS else "ekf7")))[
+        "estimator"
+    ]
+
+
+def _replay_file(path):
+    """The raw mapping of a replay's config.yaml (ConfigError naming the file when unreadable)."""
+    try:
+        raw = load_yaml(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError) as e:
+        raise ConfigError(f"{path}: cannot read ({e})") from None
+    except yaml.YAMLError as e:
+        raise ConfigError(f"{path}: not valid YAML: {_first_line(e)}") from None
+    if not isinstance(raw, dict) or "log" not in raw:
+        raise ConfigError(f"{path}: not a replay's config.yaml (no log: field)")
+    return raw
+
+
+def estimator_mapping(text):
+    """The mapping of an ``--estimator`` YAML text ({} for None); ConfigError naming --estimator."""
     if text is None:
         return {}
     try:
