@@ -168,15 +168,20 @@ def _checked(where, times, values, unit="s"):
         i = backwards[0] + 1
         raise FlightLogError(
             f"{where}: time does not increase at sample {i} "
-            f"({times[i - 1]:.9g} {unit}, then {times[i]:.9g} {unit})"
+            f"({_time_text(times[i - 1], unit)}, then {_time_text(times[i], unit)})"
         )
     bad = np.argwhere(~np.isfinite(values))
     if bad.size:
         i, j = bad[0]
         raise FlightLogError(
-            f"{where}: sample {i} (t = {times[i]:.9g} {unit}) has a non-finite value {values[i, j]}"
+            f"{where}: sample {i} (t = {_time_text(times[i], unit)}) has a non-finite value {values[i, j]}"
         )
     return Samples(times, values)
+
+
+def _time_text(time, unit):
+    """A time for a message: whole microseconds as integers, seconds with 9 digits."""
+    return f"{time:.0f} {unit}" if unit == "µs" else f"{time:.9g} {unit}"
 
 
 def _after_start(samples, start, scale=1.0):

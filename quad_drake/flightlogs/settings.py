@@ -157,15 +157,20 @@ def load_replay(log, estimator=None, overrides=()):
     for text in overrides:
         keys, value = parse_override(text)
         apply_override(raw, keys, value, text)
-    message = _check_node(raw, ReplayConfig, "")
-    if message:
-        raise ConfigError(message + _override_hint(message, overrides))
+    hints = list(overrides) + ([f"estimator={estimator}"] if estimator else [])
     try:
+        message = _check_node(raw, ReplayConfig, "")
+        if message:
+            raise ConfigError(message)
         config = yaml_load_typed(schema=ReplayConfig, data=yaml_dump(raw))
+        check_replay(config)
+    except ConfigError as e:
+        hint = _override_hint(str(e), hints).replace("--set estimator=", "--estimator ")
+        raise ConfigError(f"{e}{hint}") from None
     except (RuntimeError, ValueError, TypeError) as e:
         raise ConfigError(_first_line(e)) from None
     resolve_log(config.log)
-    return check_replay(config)
+    return config
 
 
 def _default_estimator_raw(kind):
