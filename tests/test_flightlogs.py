@@ -84,7 +84,7 @@ def test_px4s_local_position_is_moved_into_the_gps_frame(sitl_log):
         assert np.sqrt(np.mean((reference.values[valid, axis] - gps) ** 2)) < 0.03
 
 
-def _ulog_rows(log):
+def csv_rows(log):
     """The CSV rows of a FlightLog (the SITL log written in the CSV format)."""
     rows = ["# the SITL log in quad_drake's CSV format", "time,sensor,v0,v1,v2,v3,v4,v5"]
     import pymap3d
@@ -111,7 +111,7 @@ def _ulog_rows(log):
 @pytest.fixture(scope="module")
 def sitl_csv(sitl_log, tmp_path_factory):
     path = tmp_path_factory.mktemp("csv") / "sitl.csv"
-    path.write_text("\n".join(_ulog_rows(sitl_log)) + "\n", encoding="utf-8")
+    path.write_text("\n".join(csv_rows(sitl_log)) + "\n", encoding="utf-8")
     return path
 
 
