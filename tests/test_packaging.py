@@ -55,6 +55,9 @@ PURE = (
     "quad_drake.error_sampling",
     "quad_drake.control",
     "quad_drake.estimation",
+    "quad_drake.flightlogs.reader",
+    "quad_drake.flightlogs.playback",
+    "quad_drake.flightlogs.comparison",
 )
 """The pure modules (maths and models: numpy, no Drake); a package name covers its modules."""
 KERNELS = ("quad_drake.kernels", "quad_drake.fleet.bounds")
@@ -197,6 +200,12 @@ def test_wheel_installed_outside_the_repo_lists_and_runs_the_bundled_scenarios(t
         "--out", str(out), cwd=cwd, env=env,
     )  # fmt: skip
     assert traj.returncode in (0, 1) and "Traceback" not in traj.stderr, traj.stderr
+
+    # The bundled flight logs are package data: both replay from the wheel (issue 33).
+    for log in ("real_auav_x21_attitude_flight", "sitl_takeoff_land_gps"):
+        replayed = _run(quad_drake_exe, "replay", log, "--no-plots", "--out", str(out), cwd=cwd, env=env)
+        assert replayed.returncode == 0 and "NIS mag (1 dof)" in replayed.stdout, replayed.stderr
+        assert (out / f"{log}-ekf7" / "summary.json").is_file()
 
     for command in ([quad_drake_exe], [str(python), "-m", "quad_drake"]):
         version = _run(*command, "--version", cwd=cwd, env=env)
