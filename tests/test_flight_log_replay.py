@@ -174,3 +174,11 @@ def test_a_bad_log_in_a_new_process_exits_2_with_one_line(tmp_path):
     assert (
         result.stderr == f"quad-drake: {path}: imu rows: sample 1 (t = 0.004 s) has a non-finite value nan\n"
     )
+
+
+def test_a_replay_that_would_not_fit_in_memory_is_refused_before_it_runs(quad_drake_cli, tmp_path):
+    path = tmp_path / "year.csv"
+    path.write_text("0,imu,0,0,-9.8,0,0,0\n3.2e7,imu,0,0,-9.8,0,0,0\n", encoding="utf-8")  # a year
+    result = quad_drake_cli("replay", path, "--out", tmp_path / "out")
+    assert result.returncode == 2 and result.stdout == ""
+    assert f"{path}: a replay of 3.2e+07 s would take about" in result.stderr

@@ -127,12 +127,12 @@ def heading_samples(log):
     return tilt_compensated_heading(log.mag_field.values, gravity, log.mag_declination)
 
 
-def fake_position(log, period, period_offset=0.0):
+def fake_position(log, period):
     """GPS-shaped Samples (p_N = 0 m, v_N = 0 m/s) every `period` s over the log: what a flight
     controller fuses without any position aiding (PX4 EKF2's fake position, ``EKF2_NOAID_NOISE``)
     so that its velocity, and through it its tilt, stays bounded. Not a measurement: its NIS is
     not judged."""
-    times = np.arange(period + period_offset, log.duration + 1e-9, period)
+    times = np.arange(period, log.duration + 1e-9, period)
     return Samples(times, np.zeros((len(times), 6)))
 
 

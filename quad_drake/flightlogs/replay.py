@@ -37,6 +37,7 @@ from quad_drake.flightlogs.playback import (
 from quad_drake.flightlogs.reader import read_flight_log
 from quad_drake.flightlogs.settings import ReplayConfig, dump_replay, resolve_log, vehicle_for
 from quad_drake.jsonio import dump_json
+from quad_drake.limits import LOG_COPIES, check_memory
 from quad_drake.outdir import write_binary_atomic, write_text_atomic
 from quad_drake.results import FORMAT_VERSION
 from quad_drake.systems.estimators import build_estimator
@@ -176,6 +177,12 @@ def replay(config, log=None):
     if not config.name:
         config = dataclasses.replace(config, name=Path(log.source).stem)
     diagram, sinks, fake = build_replay_diagram(log, config)
+    width = sum(sink.get_input_port().size() for sink in sinks.values())
+    check_memory(
+        log.duration / LOG_PERIOD * width * 8.0 * LOG_COPIES,
+        f"{log.source}: a replay of {log.duration:g} s",
+        "replay a shorter stretch of the flight (e.g. cut into a CSV log)",
+    )
     simulator = Simulator(diagram)
     context = simulator.get_mutable_context()
     compiled = jit.compile_seconds()

@@ -29,6 +29,8 @@ class LogPlayback(LeafSystem):
     since the log's first IMU sample), so consumers see each sample fresh once. Before a stream's
     first sample its output is zero with stamp NO_SAMPLE_STAMP; a sensor the log lacks never
     samples. The tick counter k and each stream's next sample index are discrete state.
+
+    One log is one flight, so the system plays one vehicle (the simulated sensors' n = 1).
     """
 
     def __init__(self, streams):
