@@ -22,7 +22,8 @@ What is read from a PX4 ULog (``pyulog``, PX4's own reader):
 - barometer (optional): ``vehicle_air_data.baro_alt_meter``, else ``sensor_combined``'s when its
   ``baro_timestamp_relative`` marks it valid: pressure altitude, m, up.
 - GPS (optional): ``vehicle_gps_position`` (else ``sensor_gps``) samples with a 3D fix
-  (``fix_type >= 3``): latitude and longitude (``latitude_deg`` or ``lat`` in 1e-7 deg), altitude
+  (``fix_type >= 3``) at their ``timestamp`` (when the flight controller had them; the SITL
+  log's ``timestamp_sample`` is 0): latitude and longitude (``latitude_deg`` or ``lat`` in 1e-7 deg), altitude
   above mean sea level (``altitude_msl_m`` or ``alt`` in mm) and NED velocity (``vel_n_m_s``
   ...). The position becomes NED metres from the first fix (the local origin) with
   ``pymap3d.geodetic2ned`` on the WGS84 ellipsoid; the altitudes are taken as heights above it:
