@@ -55,6 +55,7 @@ PURE = (
     "quad_drake.error_sampling",
     "quad_drake.control",
     "quad_drake.estimation",
+    "quad_drake.config_fields",
 )
 """The pure modules (maths and models: numpy, no Drake); a package name covers its modules."""
 KERNELS = ("quad_drake.kernels", "quad_drake.fleet.bounds")

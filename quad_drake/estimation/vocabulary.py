@@ -167,20 +167,6 @@ STATE_UNITS = {name: unit for v in (EKF7, ESKF15) for name, unit in zip(v.state_
 """Unit of every error-state name any estimator uses (the names mean the same in each)."""
 
 
-def vocabulary_for(estimator):
-    """The EstimatorVocabulary of a vehicle's ``estimator`` config (Ekf7/EskfEstimatorConfig)."""
-    if estimator.kind == "ekf7":
-        return EKF7
-    if estimator.kind == "eskf":
-        return ESKF15 if estimator.estimate_biases else ESKF9
-    raise ValueError(f"no vocabulary for estimator kind {estimator.kind!r}")
-
-
-def vehicle_vocabulary(vehicle):
-    """The EstimatorVocabulary of a VehicleConfig's estimator; None without an IMU (no estimator)."""
-    return vocabulary_for(vehicle.estimator) if vehicle.sensors.imu is not None else None
-
-
 def health_counts(diagnostics):
     """{counter: final count} of a ``diagnostics`` log (n, DIAGNOSTICS_SIZE); zeros when empty."""
     diagnostics = np.asarray(diagnostics, dtype=float)
