@@ -14,6 +14,7 @@ from pathlib import Path
 
 from . import __version__, catalog
 from .config import ConfigError, load_scenario
+from .estimation.custom import EstimatorProblem
 from .outdir import check_output_dir, is_result_folder
 
 EXIT_WRITE_FAILED = 3
@@ -514,7 +515,7 @@ def main(argv=None):
         with warnings.catch_warnings():
             warnings.showwarning = _show_warning
             return args.func(args)
-    except ConfigError as e:
+    except (ConfigError, EstimatorProblem) as e:  # a user's mistake, their own estimator's included
         print(f"quad-drake: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

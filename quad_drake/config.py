@@ -381,6 +381,15 @@ def _check_node(node, tp, path):
             if message:
                 return message
         return None
+    if origin in (dict, typing.Dict):
+        if not isinstance(node, dict):
+            return f"{path}: expected a mapping, got {node!r}"
+        key_type, value_type = typing.get_args(tp)
+        for key, value in node.items():
+            message = _check_node(key, key_type, path) or _check_node(value, value_type, f"{path}.{key}")
+            if message:
+                return message
+        return None
     if origin in (list, typing.List):
         if not isinstance(node, list):
             return f"{path}: expected a list, got {node!r}"
@@ -543,7 +552,8 @@ def _check_semantics(scenario):
         if v.flies_on == "estimate" and v.estimator.kind != "truth":
             if not (v.sensors.imu and v.sensors.gps and v.sensors.mag):
                 raise ConfigError(f"vehicles.{i}.flies_on: estimate needs imu, gps and mag sensors")
-        problem = kind_of(v.estimator).fidelity_problem(fidelity_from_mode(scenario.fidelity))
+        kind = kind_of(v.estimator)
+        problem = kind.fidelity_problem(fidelity_from_mode(scenario.fidelity)) or kind.problem(v.estimator)
         if problem:
             raise ConfigError(f"vehicles.{i}.estimator: {problem}")
         if v.gps_delay_compensation > 0 and not (v.sensors.imu and v.sensors.gps):
@@ -724,6 +734,8 @@ def load_scenario(path, overrides=()):
         scenario = yaml_load_typed(schema=ScenarioConfig, data=yaml_dump(raw))
         if not scenario.name:
             scenario.name = path.stem
+        for vehicle in scenario.vehicles:
+            vehicle.estimator = kind_of(vehicle.estimator).locate(vehicle.estimator, path.parent)
         check_scenario(scenario)
     except ConfigError as e:
         raise ConfigError(f"{path}: {e}{_override_hint(str(e), overrides)}") from None

@@ -12,7 +12,10 @@ to know of it:
   ``DiagramBuilder``, ``(builder, vehicle, fidelity, n) -> (inputs {name: [input ports]},
   outputs {name: output port})``; imported on first use, so this module needs no pydrake;
 - ``tuning_keys(config)``: the dotted config keys ``quad-drake tune`` searches by default;
-- ``fidelity_problem(fidelity)``: why it cannot run under a Fidelity (one line), or None.
+- ``fidelity_problem(fidelity)``: why it cannot run under a Fidelity (one line), or None;
+- ``problem(config)``: why a config of it cannot fly (one line; a custom estimator's check
+  before any flight), or None; ``locate(config, base_dir)``: the config with the paths it names
+  made absolute against the scenario file's folder ``base_dir``.
 
 Adding an estimator is its config dataclass and one entry in :data:`KINDS`.
 
@@ -22,13 +25,17 @@ estimate, or the true state with the estimator running beside it to be judged (t
 state, so the controller flies on the truth either way.
 """
 
+import dataclasses
 import importlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import List, Optional, Union
+from functools import lru_cache
+from typing import Dict, List, Optional, Union
 
 from quad_drake.config_fields import noise_stds, number, vector
-from quad_drake.estimation.vocabulary import EKF7, ESKF9, ESKF15, EstimatorVocabulary
+from quad_drake.conventions import ONBOARD_PERIOD
+from quad_drake.estimation import custom
+from quad_drake.estimation.vocabulary import EKF7, ESKF9, ESKF15, EstimatorVocabulary, euler_vocabulary
 from quad_drake.fidelity import Fidelity
 
 
@@ -84,6 +91,25 @@ class TruthEstimatorConfig:
     kind: str = field(default="truth", metadata={"choices": ("truth",)})
 
 
+@dataclass
+class CustomEstimatorConfig:
+    """Your own estimator: a Python class flown through the workbench's adapter
+    (``estimation/custom.py`` says what the class provides)."""
+
+    kind: str = field(default="custom", metadata={"choices": ("custom",)})
+    factory: str = ""  # "module:name" or "path/to/file.py:name" (relative to the scenario file)
+    params: Dict[str, float] = field(default_factory=dict)  # keyword arguments of factory(**params)
+    gate_sigma: float = number(5.0, nonnegative=True)  # sigma; chi^2 gate of GPS and mag samples, 0 = off
+
+
+def _no_problem(config):
+    return None
+
+
+def _as_is(config, base_dir):
+    return config
+
+
 @dataclass(frozen=True)
 class EstimatorKind:
     """One estimator kind (see the module docstring)."""
@@ -94,6 +120,8 @@ class EstimatorKind:
     builder: Optional[str]  # "module:function", None when the kind runs no estimator
     tuning_keys: Callable[[object], tuple]
     fidelity_problem: Callable[[Fidelity], Optional[str]]
+    problem: Callable[[object], Optional[str]] = _no_problem
+    locate: Callable[[object, object], object] = _as_is
 
     def build_function(self) -> Callable:
         """The function named by ``builder``, imported."""
@@ -140,6 +168,36 @@ def _eskf_tuning(config):
     return _ESKF_TUNING if config.estimate_biases else tuple(k for k in _ESKF_TUNING if "_bias_" not in k)
 
 
+@lru_cache(maxsize=64)
+def _custom_state_names(factory, params):
+    """The state names of the custom estimator `factory` (``params`` as sorted items), checked by
+    one step of each of its methods (``custom.check_estimator``)."""
+    return custom.check_estimator(factory, dict(params), ONBOARD_PERIOD)
+
+
+def _custom_names(config):
+    return _custom_state_names(config.factory, tuple(sorted(config.params.items())))
+
+
+def _custom_problem(config):
+    if not config.factory:
+        return "kind custom needs a factory ('module:name' or 'path/to/file.py:name')"
+    try:
+        _custom_names(config)
+    except custom.EstimatorProblem as e:
+        return str(e)
+    return None
+
+
+def _custom_located(config, base_dir):
+    return dataclasses.replace(config, factory=custom.absolute_factory(config.factory, base_dir))
+
+
+def _custom_tuning(config):
+    """The custom estimator's noise parameters: those named ``*_std``."""
+    return tuple(f"estimator.params.{name}" for name in config.params if name.endswith("_std"))
+
+
 KINDS = {
     kind.name: kind
     for kind in (
@@ -158,6 +216,16 @@ KINDS = {
             builder="quad_drake.systems.estimators:add_eskf",
             tuning_keys=_eskf_tuning,
             fidelity_problem=_physical_accelerometer_only,
+        ),
+        EstimatorKind(
+            name="custom",
+            config_type=CustomEstimatorConfig,
+            vocabulary=lambda config: euler_vocabulary("custom", _custom_names(config)),
+            builder="quad_drake.systems.custom_estimator:add_custom",
+            tuning_keys=_custom_tuning,
+            fidelity_problem=_any_fidelity,
+            problem=_custom_problem,
+            locate=_custom_located,
         ),
         EstimatorKind(
             name="truth",

@@ -54,13 +54,20 @@ def tuned_vehicles(scenario):
 
 
 def _field_value(node, parts, key, where):
-    """Value at `parts` below `node` (a dataclass or list); ConfigError naming the unknown part."""
+    """Value at `parts` below `node` (a dataclass, dict or list); ConfigError naming the unknown part."""
     for depth, part in enumerate(parts):
         here = ".".join([where, *parts[:depth]]).strip(".") or "the scenario"
         if isinstance(node, list):
             if not part.isdigit() or int(part) >= len(node):
                 raise ConfigError(f"--params {key}: {part!r} is not an index of {here} (0..{len(node) - 1})")
             node = node[int(part)]
+        elif isinstance(node, dict):  # a custom estimator's params
+            if part not in node:
+                raise ConfigError(
+                    f"--params {key}: unknown key {part!r} in {here}{did_you_mean(part, node)} "
+                    f"(known: {', '.join(node) or 'none'})"
+                )
+            node = node[part]
         elif dataclasses.is_dataclass(node):
             names = [f.name for f in dataclasses.fields(node)]
             if part not in names:
@@ -151,6 +158,8 @@ def apply(scenario, space, x):
             value = list(value) if isinstance(value, tuple) else value
             if isinstance(node, list):
                 node[int(path[-1])] = value
+            elif isinstance(node, dict):
+                node[path[-1]] = value
             else:
                 setattr(node, path[-1], value)
     validate(candidate)
