@@ -12,8 +12,12 @@ ROOT = Path(__file__).resolve().parent.parent
 NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
 
 
-def test_both_notebooks_exist():
-    assert [p.name for p in NOTEBOOKS] == ["01_walkthrough.ipynb", "02_estimator_analysis.ipynb"]
+def test_the_notebooks_exist():
+    assert [p.name for p in NOTEBOOKS] == [
+        "01_walkthrough.ipynb",
+        "02_estimator_analysis.ipynb",
+        "04_workbench.ipynb",
+    ]
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
