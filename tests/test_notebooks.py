@@ -17,6 +17,7 @@ def test_the_notebooks_exist():
         "01_walkthrough.ipynb",
         "02_estimator_analysis.ipynb",
         "03_write_your_own_ekf.ipynb",
+        "04_workbench.ipynb",
     ]
 
 
