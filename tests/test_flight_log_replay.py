@@ -97,7 +97,7 @@ def test_an_attitude_only_log_runs_the_attitude_part_and_says_so(replays):
 
 
 def test_the_estimator_is_the_same_sub_diagram_a_simulated_vehicle_flies(replays):
-    from quad_drake.estimation.vocabulary import vocabulary_for
+    from quad_drake.estimation.registry import vocabulary_for
 
     for kind in KINDS:
         result = replays[LOGS[1], kind]

@@ -55,6 +55,7 @@ PURE = (
     "quad_drake.error_sampling",
     "quad_drake.control",
     "quad_drake.estimation",
+    "quad_drake.config_fields",
     "quad_drake.flightlogs.reader",
     "quad_drake.flightlogs.playback",
     "quad_drake.flightlogs.comparison",
@@ -200,6 +201,16 @@ def test_wheel_installed_outside_the_repo_lists_and_runs_the_bundled_scenarios(t
         "--out", str(out), cwd=cwd, env=env,
     )  # fmt: skip
     assert traj.returncode in (0, 1) and "Traceback" not in traj.stderr, traj.stderr
+
+    # The README's own estimator, copied into a new file outside the repository, flies 11.
+    from test_custom_estimator import custom_override, readme_estimator
+
+    readme_estimator(cwd)
+    own = _run(
+        quad_drake_exe, "run", "11_gps_update", "--no-plots", "--out", str(out),
+        "--set", custom_override("my_ekf.py:MyEkf"), cwd=cwd, env=env,
+    )  # fmt: skip
+    assert own.returncode == 0 and "PASS: ABS(Quad.Est.E.Pos)" in own.stdout, own.stdout + own.stderr
 
     # The bundled flight logs are package data: both replay from the wheel (issue 33).
     for log in ("real_auav_x21_attitude_flight", "sitl_takeoff_land_gps"):

@@ -82,18 +82,23 @@ def attitude_sigmas(vocabulary, covariance, yaw):
         sigmas[:, 0] = np.sqrt(np.maximum(c * c * pnn + 2 * c * s * pne + s * s * pee, 0.0))
         sigmas[:, 1] = np.sqrt(np.maximum(s * s * pnn - 2 * c * s * pne + c * c * pee, 0.0))
         sigmas[:, 2] = np.sqrt(np.maximum(P[:, d, d], 0.0))
-    else:
+    elif "Yaw" in names:
         sigmas[:, 2] = np.sqrt(np.maximum(P[:, names.index("Yaw"), names.index("Yaw")], 0.0))
     return sigmas
 
 
 def state_sigmas(vocabulary, covariance, states):
-    """(n, len(states)) our σ of each named state from a covariance log (n, k*k)."""
+    """(n, len(states)) our σ of each named state from a covariance log (n, k*k); NaN for a state
+    the vocabulary does not name."""
     k = vocabulary.size
     P = np.asarray(covariance, dtype=float).reshape(-1, k, k)
-    return np.column_stack(
-        [np.sqrt(np.maximum(P[:, i, i], 0.0)) for i in map(vocabulary.state_names.index, states)]
-    )
+    names = vocabulary.state_names
+    sigmas = np.full((len(P), len(states)), np.nan)
+    for column, state in enumerate(states):
+        if state in names:
+            i = names.index(state)
+            sigmas[:, column] = np.sqrt(np.maximum(P[:, i, i], 0.0))
+    return sigmas
 
 
 def _interpolated(times, values, at, angle=False):

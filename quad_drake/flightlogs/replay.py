@@ -25,7 +25,8 @@ from pydrake.systems.primitives import LogVectorOutput
 
 from quad_drake import jit
 from quad_drake.conventions import LOG_PERIOD
-from quad_drake.estimation.vocabulary import health_counts, health_line, vocabulary_for
+from quad_drake.estimation.registry import vocabulary_for
+from quad_drake.estimation.vocabulary import health_counts, health_line
 from quad_drake.fidelity import PHYSICAL
 from quad_drake.flightlogs import comparison
 from quad_drake.flightlogs.playback import (

@@ -24,18 +24,13 @@ import yaml
 from pydrake.common.yaml import yaml_dump, yaml_dump_typed, yaml_load_typed
 
 from quad_drake.config import (
-    ESTIMATOR_KINDS,
     PACKAGE_DIR,
     AttitudeFilterParams,
     ConfigError,
-    Ekf7EstimatorConfig,
     EkfParams,
-    EskfEstimatorConfig,
-    EstimatorConfig,
     VehicleConfig,
     _check_node,
     _first_line,
-    _num,
     _override_hint,
     apply_override,
     did_you_mean,
@@ -43,6 +38,8 @@ from quad_drake.config import (
     parse_override,
     validate,
 )
+from quad_drake.config_fields import number
+from quad_drake.estimation.registry import KINDS, Ekf7EstimatorConfig, EskfEstimatorConfig, EstimatorConfig
 
 PER_SAMPLE = math.sqrt(0.010 / 0.002)
 """PX4 EKF2's IMU noise is per 10 ms prediction step; ours is per 2 ms sample of equal density."""
@@ -69,8 +66,8 @@ class ReplayConfig:
     mag_declination: Optional[float] = None  # rad, east of true north; None: the log's own
     # m: a log without GPS gets a zero position sample every fake_position_period s with this
     # std (PX4's EKF2_NOAID_NOISE), so the estimator's velocity, and its tilt, stay bounded; 0 = off
-    fake_position_std: float = _num(10.0, nonnegative=True)
-    fake_position_period: float = _num(0.2, tick_multiple=1)  # s
+    fake_position_std: float = number(10.0, nonnegative=True)
+    fake_position_period: float = number(0.2, tick_multiple=1)  # s
 
 
 def default_estimator(kind):
@@ -150,7 +147,7 @@ def load_replay(log, estimator=None, overrides=()):
             raw["estimator"] = {**_untagged(base), **chosen}
     else:
         kind = chosen.get("kind", "ekf7")
-        raw = load_yaml(yaml_dump_typed(default_replay(kind if kind in ESTIMATOR_KINDS else "ekf7")))
+        raw = load_yaml(yaml_dump_typed(default_replay(kind if kind in KINDS else "ekf7")))
         path = resolve_log(log)
         raw["log"] = str(log) if path.parent == LOG_DIR else str(path.resolve())  # a bundled name stays one
         raw["estimator"] = {**_untagged(raw["estimator"]), **chosen}
@@ -174,9 +171,7 @@ def load_replay(log, estimator=None, overrides=()):
 
 
 def _default_estimator_raw(kind):
-    return load_yaml(yaml_dump_typed(default_replay(kind if kind in ESTIMATOR_KINDS else "ekf7")))[
-        "estimator"
-    ]
+    return load_yaml(yaml_dump_typed(default_replay(kind if kind in KINDS else "ekf7")))["estimator"]
 
 
 def _replay_file(path):
@@ -215,6 +210,12 @@ def check_replay(config):
         validate(dataclasses.replace(config, name=config.name or "replay"))
     except (TypeError, AttributeError) as e:
         raise ConfigError(f"a replay field has the wrong type ({e})") from None
+    kind = KINDS[config.estimator.kind]
+    if kind.builder is None:
+        raise ConfigError(f"estimator.kind: {kind.name!r} runs no estimator; nothing to replay")
+    problem = kind.problem(config.estimator)
+    if problem:
+        raise ConfigError(f"estimator: {problem}")
     if config.mag_declination is not None and not abs(config.mag_declination) <= math.pi:
         raise ConfigError(f"mag_declination: must be within [-pi, pi] rad, got {config.mag_declination}")
     return config
