@@ -182,3 +182,21 @@ def test_a_replay_that_would_not_fit_in_memory_is_refused_before_it_runs(quad_dr
     result = quad_drake_cli("replay", path, "--out", tmp_path / "out")
     assert result.returncode == 2 and result.stdout == ""
     assert f"{path}: a replay of 3.2e+07 s would take about" in result.stderr
+
+
+def test_your_own_estimator_replays_too(quad_drake_cli, tmp_path, monkeypatch):
+    from test_custom_estimator import readme_estimator
+
+    readme_estimator(tmp_path)
+    monkeypatch.chdir(tmp_path)  # the factory's file is named relative to the working folder
+    estimator = '{kind: custom, factory: "my_ekf.py:MyEkf"}'
+    result = quad_drake_cli(
+        "replay", LOGS[1], "--estimator", estimator, "--no-plots", "--out", tmp_path / "out"
+    )
+    assert result.returncode == 0, result.stderr
+    (folder,) = (tmp_path / "out").glob(f"{LOGS[1]}-custom-set*")
+    summary = json.loads((folder / "summary.json").read_text())
+    rms = {d["state"]: d["rms"] for d in summary["differences"]}
+    assert rms["Roll"] < 0.02 and rms["X"] < 0.05  # the README's EKF7-like example, untuned here
+    assert f"factory: {tmp_path / 'my_ekf.py'}:MyEkf" in (folder / "config.yaml").read_text()
+    assert quad_drake_cli("replay", LOGS[1], "--estimator", "{kind: truth}").returncode == 2

@@ -167,7 +167,8 @@ def load_replay(log, estimator=None, overrides=()):
     except (RuntimeError, ValueError, TypeError) as e:
         raise ConfigError(_first_line(e)) from None
     resolve_log(config.log)
-    return config
+    located = KINDS[config.estimator.kind].locate(config.estimator, Path.cwd())  # a custom factory's file
+    return dataclasses.replace(config, estimator=located)
 
 
 def _default_estimator_raw(kind):
