@@ -347,7 +347,7 @@ def _type_name(tp):
     return getattr(tp, "__name__", str(tp))
 
 
-def _check_node(node, tp, path):
+def check_node(node, tp, path):
     """Shape check of raw YAML `node` against annotation `tp`; returns a message or None."""
     origin = typing.get_origin(tp)
     if origin is typing.Union:
@@ -356,7 +356,7 @@ def _check_node(node, tp, path):
             return None
         if len(members) > 1:
             return _check_kind_choice(node, members, path)
-        return _check_node(node, members[0], path)
+        return check_node(node, members[0], path)
     if dataclasses.is_dataclass(tp):
         if not isinstance(node, dict):
             return f"{path or 'the file'}: expected a mapping, got {node!r}"
@@ -367,7 +367,7 @@ def _check_node(node, tp, path):
             sub = f"{path}.{key}" if path else str(key)
             if key not in names:
                 return f"{sub}: unknown key{did_you_mean(key, names)} (known: {', '.join(names)})"
-            message = _check_node(value, typing.get_type_hints(tp)[key], sub)
+            message = check_node(value, typing.get_type_hints(tp)[key], sub)
             if message:
                 return message
         return None
@@ -376,7 +376,7 @@ def _check_node(node, tp, path):
             return f"{path}: expected a mapping, got {node!r}"
         key_type, value_type = typing.get_args(tp)
         for key, value in node.items():
-            message = _check_node(key, key_type, path) or _check_node(value, value_type, f"{path}.{key}")
+            message = check_node(key, key_type, path) or check_node(value, value_type, f"{path}.{key}")
             if message:
                 return message
         return None
@@ -385,7 +385,7 @@ def _check_node(node, tp, path):
             return f"{path}: expected a list, got {node!r}"
         (item_type,) = typing.get_args(tp)
         for i, item in enumerate(node):
-            message = _check_node(item, item_type, f"{path}.{i}")
+            message = check_node(item, item_type, f"{path}.{i}")
             if message:
                 return message
         return None
@@ -423,7 +423,7 @@ def _check_kind_choice(node, members, path):
     else:
         return f"{path}.kind: missing; one of {', '.join(by_kind)}"
     node["_tag"] = f"!{member.__name__}"
-    return _check_node(node, member, path)
+    return check_node(node, member, path)
 
 
 def validate(config, path=""):
@@ -601,7 +601,7 @@ def resolve_trajectory_file(name, where="trajectory.file"):
     raise ConfigError(f"{where}: no such trajectory file {name!r}")
 
 
-def _first_line(error, located=True):
+def first_line(error, located=True):
     """One line of an error; for a YAML syntax error its problem, where it is (line, column;
     unless not `located`: a ``--set`` value is parsed inside a wrapper) and its context."""
     problem, mark = getattr(error, "problem", None), getattr(error, "problem_mark", None)
@@ -671,7 +671,7 @@ def parse_override(text):
     try:
         value = load_yaml(f"value: {raw}")["value"] if raw.strip() else None
     except yaml.YAMLError as e:
-        reason = _first_line(e, located=False)
+        reason = first_line(e, located=False)
         raise ConfigError(f"--set {text!r}: value is not valid YAML ({reason})") from None
     return key.strip().split("."), value
 
@@ -706,7 +706,7 @@ def load_scenario(path, overrides=()):
     try:
         raw = load_yaml(path.read_text())
     except yaml.YAMLError as e:
-        raise ConfigError(f"{path}: not valid YAML: {_first_line(e)}") from None
+        raise ConfigError(f"{path}: not valid YAML: {first_line(e)}") from None
     except (OSError, UnicodeDecodeError) as e:
         raise ConfigError(f"{path}: cannot read: {e}") from None
     if raw is None:
@@ -718,7 +718,7 @@ def load_scenario(path, overrides=()):
             keys, value = parse_override(text)
             apply_override(raw, keys, value, text)
         _migrate_use_ideal_estimator(raw)
-        message = _check_node(raw, ScenarioConfig, "")
+        message = check_node(raw, ScenarioConfig, "")
         if message:
             raise ConfigError(message)
         scenario = yaml_load_typed(schema=ScenarioConfig, data=yaml_dump(raw))
@@ -728,9 +728,9 @@ def load_scenario(path, overrides=()):
             vehicle.estimator = kind_of(vehicle.estimator).locate(vehicle.estimator, path.parent)
         check_scenario(scenario)
     except ConfigError as e:
-        raise ConfigError(f"{path}: {e}{_override_hint(str(e), overrides)}") from None
+        raise ConfigError(f"{path}: {e}{override_hint(str(e), overrides)}") from None
     except (RuntimeError, ValueError, TypeError) as e:
-        raise ConfigError(f"{path}: {_first_line(e)}") from None
+        raise ConfigError(f"{path}: {first_line(e)}") from None
     return scenario
 
 
@@ -756,7 +756,7 @@ def _migrate_use_ideal_estimator(raw):
         )
 
 
-def _override_hint(message, overrides):
+def override_hint(message, overrides):
     """`` (--set KEY=VALUE)`` when the field a validation message starts with ("field: ...")
     is, contains or lies in the key of one of the `overrides`, else ``""``: the mistake is on
     the command line, not in the file."""

@@ -29,12 +29,12 @@ from quad_drake.config import (
     ConfigError,
     EkfParams,
     VehicleConfig,
-    _check_node,
-    _first_line,
-    _override_hint,
     apply_override,
+    check_node,
     did_you_mean,
+    first_line,
     load_yaml,
+    override_hint,
     parse_override,
     validate,
 )
@@ -156,16 +156,16 @@ def load_replay(log, estimator=None, overrides=()):
         apply_override(raw, keys, value, text)
     hints = list(overrides) + ([f"estimator={estimator}"] if estimator else [])
     try:
-        message = _check_node(raw, ReplayConfig, "")
+        message = check_node(raw, ReplayConfig, "")
         if message:
             raise ConfigError(message)
         config = yaml_load_typed(schema=ReplayConfig, data=yaml_dump(raw))
         check_replay(config)
     except ConfigError as e:
-        hint = _override_hint(str(e), hints).replace("--set estimator=", "--estimator ")
+        hint = override_hint(str(e), hints).replace("--set estimator=", "--estimator ")
         raise ConfigError(f"{e}{hint}") from None
     except (RuntimeError, ValueError, TypeError) as e:
-        raise ConfigError(_first_line(e)) from None
+        raise ConfigError(first_line(e)) from None
     resolve_log(config.log)
     located = KINDS[config.estimator.kind].locate(config.estimator, Path.cwd())  # a custom factory's file
     return dataclasses.replace(config, estimator=located)
@@ -182,7 +182,7 @@ def _replay_file(path):
     except (OSError, UnicodeDecodeError) as e:
         raise ConfigError(f"{path}: cannot read ({e})") from None
     except yaml.YAMLError as e:
-        raise ConfigError(f"{path}: not valid YAML: {_first_line(e)}") from None
+        raise ConfigError(f"{path}: not valid YAML: {first_line(e)}") from None
     if not isinstance(raw, dict) or "log" not in raw:
         raise ConfigError(f"{path}: not a replay's config.yaml (no log: field)")
     return raw
@@ -195,7 +195,7 @@ def estimator_mapping(text):
     try:
         mapping = load_yaml(text)
     except yaml.YAMLError as e:
-        raise ConfigError(f"--estimator {text!r}: not valid YAML ({_first_line(e, located=False)})") from None
+        raise ConfigError(f"--estimator {text!r}: not valid YAML ({first_line(e, located=False)})") from None
     if not isinstance(mapping, dict):
         raise ConfigError(f"--estimator {text!r}: expected a mapping such as '{{kind: eskf}}'")
     return mapping
