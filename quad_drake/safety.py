@@ -71,5 +71,9 @@ def landing_criterion(vehicle_name, max_speed, end_time):
     """What tells a landing from a crash: every touchdown's descent speed (``V.TouchdownSpeed``,
     m/s) stays below `max_speed` over the whole flight of `end_time` s (a ``bound`` criterion)."""
     return CriterionConfig(
-        kind="bound", signal=f"{vehicle_name}.TouchdownSpeed", threshold=max_speed, start=0.0, end=end_time + 1.0
+        kind="bound",
+        signal=f"{vehicle_name}.TouchdownSpeed",
+        threshold=max_speed,
+        start=0.0,
+        end=end_time + 1.0,
     )

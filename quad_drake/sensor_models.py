@@ -80,7 +80,9 @@ def imu_saturated(sample, params):
     (ImuParams.accel_limit, gyro_limit; gyro_limit 0: never), else 0.0; a NaN sample is not."""
     a_limit, g_limit = params.accel_limit, params.gyro_limit
     accel = abs(sample[0]) >= a_limit or abs(sample[1]) >= a_limit or abs(sample[2]) >= a_limit
-    gyro = g_limit > 0.0 and (abs(sample[3]) >= g_limit or abs(sample[4]) >= g_limit or abs(sample[5]) >= g_limit)
+    gyro = g_limit > 0.0 and (
+        abs(sample[3]) >= g_limit or abs(sample[4]) >= g_limit or abs(sample[5]) >= g_limit
+    )
     return (1.0 if accel else 0.0, 1.0 if gyro else 0.0)
 
 

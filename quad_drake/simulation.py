@@ -185,7 +185,9 @@ def _add_wind(builder, vehicle, plant, outputs, n, add):
         add("wind", wind, *([("noise", "wind")] if wind.HasInputPort("noise") else []))
         outputs["wind"] = wind.GetOutputPort("wind")
     if plant.HasInputPort("wind"):
-        source = outputs.get("wind") or builder.AddSystem(ConstantVectorSource(np.zeros(3 * n))).get_output_port(0)
+        source = outputs.get("wind") or builder.AddSystem(
+            ConstantVectorSource(np.zeros(3 * n))
+        ).get_output_port(0)
         builder.Connect(source, plant.GetInputPort("wind"))
 
 

@@ -30,7 +30,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import expm, solve_continuous_lyapunov
 
 FT = 0.3048
 """m per foot."""
@@ -117,12 +116,18 @@ class DrydenModel:
 def dryden_model(config, period):
     """The :class:`DrydenModel` of a WindConfig on the update `period` s, or None when its
     turbulence is ``none``."""
+    from scipy.linalg import expm, solve_continuous_lyapunov  # noqa: PLC0415 (scipy's import, 0.2 s, only here)
+
     w20 = turbulence_intensity(config)
     if w20 <= 0.0:
         return None
     sigmas, lengths = dryden_low_altitude(config.altitude, w20)
     speed = turbulence_speed(config)
-    blocks = [_first_order(lengths[0] / speed), _second_order(lengths[1] / speed), _second_order(lengths[2] / speed)]
+    blocks = [
+        _first_order(lengths[0] / speed),
+        _second_order(lengths[1] / speed),
+        _second_order(lengths[2] / speed),
+    ]
     a = np.zeros((TURBULENCE_STATES, TURBULENCE_STATES))
     b = np.zeros((TURBULENCE_STATES, 3))
     c = np.zeros((3, TURBULENCE_STATES))
@@ -148,20 +153,55 @@ def dryden_model(config, period):
 
 def turbulence_start(noise, model):
     """(n, 5) filter states drawn from the stationary distribution: noise (n, 5) unit normals."""
-    return noise @ model.initial_gain.T
+    states = np.zeros(noise.shape)
+    filter_rows(states, noise, 0.0 * model.phi, model.initial_gain)
+    return states
 
 
 def turbulence_step(states, noise, model):
     """(n, 5) filter states one period later: Phi x + G n, noise (n, 5) unit normals."""
-    return states @ model.phi.T + noise @ model.noise_gain.T
+    stepped = states.copy()
+    filter_rows(stepped, noise, model.phi, model.noise_gain)
+    return stepped
 
 
 def turbulence_velocity(states, model):
     """(n, 3) turbulence velocity, m/s, NED, of the (n, 5) filter states: (u, v, w) in the mean
     wind's axes turned by its heading into N (w is down)."""
-    uvw = states @ model.output.T
-    c, s = math.cos(model.heading), math.sin(model.heading)
-    return np.stack([c * uvw[:, 0] - s * uvw[:, 1], s * uvw[:, 0] + c * uvw[:, 1], uvw[:, 2]], axis=1)
+    out = np.empty((len(states), 3))
+    velocity_rows(states, model.output, math.cos(model.heading), math.sin(model.heading), out)
+    return out
+
+
+def filter_rows(states, noise, phi, gain):
+    """IN PLACE, row by row: states[i] = phi states[i] + gain noise[i] ((n, m) states and noise,
+    (m, m) phi and gain). Summed entry by entry in a fixed order, so a row's result does not depend
+    on n (a matrix product's rounding does); ``kernels.flight`` compiles this code."""
+    n, m = states.shape
+    row = np.empty(m)
+    for i in range(n):
+        for r in range(m):
+            total = 0.0
+            for k in range(m):
+                total += phi[r, k] * states[i, k] + gain[r, k] * noise[i, k]
+            row[r] = total
+        for r in range(m):
+            states[i, r] = row[r]
+
+
+def velocity_rows(states, output, cos_heading, sin_heading, out):
+    """out (n, 3) = the NED turbulence velocity (m/s) of each row of states (n, 5): (u, v, w) =
+    output states[i], turned by the mean wind's heading (cos, sin); entry by entry (as
+    :func:`filter_rows`)."""
+    for i in range(states.shape[0]):
+        u = v = w = 0.0
+        for k in range(states.shape[1]):
+            u += output[0, k] * states[i, k]
+            v += output[1, k] * states[i, k]
+            w += output[2, k] * states[i, k]
+        out[i, 0] = cos_heading * u - sin_heading * v
+        out[i, 1] = sin_heading * u + cos_heading * v
+        out[i, 2] = w
 
 
 def gust_velocity(time, gusts):
@@ -173,7 +213,13 @@ def gust_velocity(time, gusts):
         phase = (time - gust.start) / gust.duration
         if 0.0 <= phase <= 1.0:
             direction = np.asarray(gust.direction, dtype=float)
-            total += 0.5 * gust.amplitude * (1.0 - math.cos(2.0 * math.pi * phase)) * direction / np.linalg.norm(direction)
+            total += (
+                0.5
+                * gust.amplitude
+                * (1.0 - math.cos(2.0 * math.pi * phase))
+                * direction
+                / np.linalg.norm(direction)
+            )
     return total
 
 

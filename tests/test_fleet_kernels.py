@@ -91,7 +91,9 @@ def test_plant_steps_match_scalar(fidelity, column, drag):
     close(new, [r[0] for r in rows])
     close(accel, [r[1] for r in rows])
     close(forces, [r[2] for r in rows])
-    steps = [sensor_models.delta_velocity_step(state[i, 3:7], r[0][3:7], r[1], 0.001) for i, r in enumerate(rows)]
+    steps = [
+        sensor_models.delta_velocity_step(state[i, 3:7], r[0][3:7], r[1], 0.001) for i, r in enumerate(rows)
+    ]
     close(delta_v, np.asarray(steps) + (delta_v_before if column else 0.0))
     if drag:  # the wind acted
         still = dynamics.plant_step(state[0].tolist(), forces_old[0].tolist(), commands[0].tolist(),
@@ -142,7 +144,10 @@ def test_plant_steps_match_scalar_over_many_steps(fidelity):
 def test_imu_matches_scalar(fidelity, gyro_limit):
     rng = np.random.default_rng(1203)
     params = ImuParams(
-        accel_limit=12.0, accel_bias=[0.1, -0.2, 0.3], gyro_bias_walk_std=[0.01, 0.02, 0.03], gyro_limit=gyro_limit
+        accel_limit=12.0,
+        accel_bias=[0.1, -0.2, 0.3],
+        gyro_bias_walk_std=[0.01, 0.02, 0.03],
+        gyro_limit=gyro_limit,
     )
     state = random_states(rng)
     accel = rng.normal(size=(N, 3)) * 8  # some beyond the saturation
@@ -151,7 +156,16 @@ def test_imu_matches_scalar(fidelity, gyro_limit):
     out = np.full((N, 6), np.nan)
     saturation = np.zeros((N, 2))
     kernels.imu_samples(
-        state, accel, noise, kernels.frozen(params), kernels.frozen(fidelity), bias, out, accel, 0.002, saturation
+        state,
+        accel,
+        noise,
+        kernels.frozen(params),
+        kernels.frozen(fidelity),
+        bias,
+        out,
+        accel,
+        0.002,
+        saturation,
     )
     expected = [sensor_models.imu_saturated(row, params) for row in out.tolist()]
     assert saturation.tolist() == [list(e) for e in expected]
@@ -174,11 +188,25 @@ def test_imu_matches_scalar(fidelity, gyro_limit):
         delta = dataclasses.replace(params, delta_velocity=True)
         dv = rng.normal(size=(N, 3)) * 0.02
         kernels.imu_samples(
-            state, accel, noise, kernels.frozen(delta), kernels.frozen(fidelity), bias, out, dv, 0.002, saturation
+            state,
+            accel,
+            noise,
+            kernels.frozen(delta),
+            kernels.frozen(fidelity),
+            bias,
+            out,
+            dv,
+            0.002,
+            saturation,
         )
         rows = [
             sensor_models.imu_from_specific_force(
-                (dv[i] / 0.002).tolist(), state[i, 10:13].tolist(), noise[i].tolist(), delta, fidelity, bias[i].tolist()
+                (dv[i] / 0.002).tolist(),
+                state[i, 10:13].tolist(),
+                noise[i].tolist(),
+                delta,
+                fidelity,
+                bias[i].tolist(),
             )
             for i in range(N)
         ]

@@ -21,7 +21,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from quad_drake import dynamics, rotations, sensor_models
+from quad_drake import dynamics, rotations, sensor_models, wind
 from quad_drake.config import ControllerParams, ImuParams, MagParams, PhysicsParams
 from quad_drake.control import cascade
 from quad_drake.fidelity import PHYSICAL, Fidelity
@@ -70,9 +70,7 @@ def compiled(function, **callees) -> Callable:
 _to_float32_compiled = compiled(dynamics.to_float32)
 _rates_compiled = compiled(dynamics._rates)
 _coefficients_compiled = compiled(dynamics._coefficients)
-_drag_compiled = compiled(
-    dynamics.drag_acceleration, drag_force_body=compiled(dynamics.drag_force_body)
-)
+_drag_compiled = compiled(dynamics.drag_acceleration, drag_force_body=compiled(dynamics.drag_force_body))
 _plant_compiled = compiled(
     dynamics.plant_step,
     has_drag=compiled(dynamics.has_drag),
@@ -161,11 +159,22 @@ def on_floor(state, params) -> np.ndarray:
     return state[:, 2] >= params.z_bounds[1]
 
 
+# ----- wind -------------------------------------------------------------------
+
+
+turbulence_filter_rows = compiled(wind.filter_rows)
+""":func:`quad_drake.wind.filter_rows` compiled: the Dryden filters of N vehicles, in place."""
+turbulence_velocity_rows = compiled(wind.velocity_rows)
+""":func:`quad_drake.wind.velocity_rows` compiled: (N, 3) NED turbulence of the filter states."""
+
+
 # ----- sensors ----------------------------------------------------------------
 
 
 _from_specific_force_compiled = compiled(
-    sensor_models.imu_from_specific_force, _clamp=compiled(sensor_models._clamp), to_float32=_to_float32_compiled
+    sensor_models.imu_from_specific_force,
+    _clamp=compiled(sensor_models._clamp),
+    to_float32=_to_float32_compiled,
 )
 _imu_compiled = compiled(
     sensor_models.imu_measurement,

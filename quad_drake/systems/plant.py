@@ -100,9 +100,12 @@ class QuadrotorPlant(LeafSystem):
     @staticmethod
     def _initial_delta_v(states):
         """(n, 3) delta-velocity of one onboard tick at rest at the (n, 13) `states`' attitudes."""
-        return np.array(
-            [sensor_models.specific_force(x[3:7], (0.0, 0.0, 0.0)) for x in states.tolist()]
-        ).reshape(-1, 3) * ONBOARD_PERIOD
+        return (
+            np.array(
+                [sensor_models.specific_force(x[3:7], (0.0, 0.0, 0.0)) for x in states.tolist()]
+            ).reshape(-1, 3)
+            * ONBOARD_PERIOD
+        )
 
     def set_initial_state(self, context, state) -> None:
         """Set every vehicle's state in `context` to `state` (13, or (n, 13)), re-arm the

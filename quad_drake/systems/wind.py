@@ -6,6 +6,7 @@ from pydrake.systems.framework import LeafSystem
 
 from quad_drake import wind
 from quad_drake.conventions import ONBOARD_PERIOD, SENSOR_OFFSET
+from quad_drake.kernels import flight as kernels
 from quad_drake.systems._io import discrete_group, row_reader
 
 
@@ -31,10 +32,16 @@ class Wind(LeafSystem):
     def __init__(self, config, n=1) -> None:
         super().__init__()
         self._config, self._n = config, n
-        self._model = wind.dryden_model(config, ONBOARD_PERIOD)
+        self._model = model = wind.dryden_model(config, ONBOARD_PERIOD)
+        if model is not None:
+            self._heading = (np.cos(model.heading), np.sin(model.heading))
+            self._no_phi = np.zeros_like(model.phi)
+            self._turbulence_out = np.empty((n, 3))
         self._output = discrete_group(self, np.tile(np.asarray(config.mean, dtype=float), n), "wind")
         if self._model is not None:
-            port = self.DeclareVectorInputPort("noise", n * self.noise_size, random_type=self.noise_distribution)
+            port = self.DeclareVectorInputPort(
+                "noise", n * self.noise_size, random_type=self.noise_distribution
+            )
             self._read_noise = row_reader(port, n)
             self._turbulence = discrete_group(self, n * self.noise_size)
             self._started = discrete_group(self, 1)
@@ -53,10 +60,11 @@ class Wind(LeafSystem):
             return
         states = discrete_state.get_mutable_value(self._turbulence).reshape(self._n, self.noise_size)
         started = discrete_state.get_mutable_value(self._started)
-        noise = self._read_noise(context)
-        if started[0]:
-            states[:] = wind.turbulence_step(states, noise, self._model)
-        else:
-            states[:] = wind.turbulence_start(noise, self._model)
+        noise, model = self._read_noise(context), self._model
+        if started[0]:  # x = Phi x + G n (quad_drake.wind.turbulence_step, compiled)
+            kernels.turbulence_filter_rows(states, noise, model.phi, model.noise_gain)
+        else:  # the stationary start x = P^(1/2) n (quad_drake.wind.turbulence_start)
+            kernels.turbulence_filter_rows(states, noise, self._no_phi, model.initial_gain)
             started[0] = 1.0
-        out += wind.turbulence_velocity(states, self._model)
+        kernels.turbulence_velocity_rows(states, model.output, *self._heading, self._turbulence_out)
+        out += self._turbulence_out
