@@ -314,7 +314,8 @@ TURBULENCE_LEVELS = ("none", "light", "moderate", "severe")
 @dataclass
 class GustConfig:
     """A discrete gust of (1 - cos) shape (MIL-F-8785C §3.7.4): the air's velocity gains
-    amplitude/2 (1 - cos(2 pi (t - start)/duration)) along ``direction`` for t in [start, start + duration]."""
+    amplitude/2 (1 - cos(2 pi (t - start)/duration)) along ``direction`` for t in
+    [start, start + duration]."""
 
     start: float = _num(0.0, nonnegative=True)  # s
     duration: float = _num(1.0, positive=True)  # s

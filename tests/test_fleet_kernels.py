@@ -96,8 +96,8 @@ def test_plant_steps_match_scalar(fidelity, column, drag):
     ]
     close(delta_v, np.asarray(steps) + (delta_v_before if column else 0.0))
     if drag:  # the wind acted
-        still = dynamics.plant_step(state[0].tolist(), forces_old[0].tolist(), commands[0].tolist(),
-                                    noise[0, column : column + 4].tolist(), params, 0.001, fidelity)  # fmt: skip
+        first = (state[0].tolist(), forces_old[0].tolist(), commands[0].tolist())
+        still = dynamics.plant_step(*first, noise[0, column : column + 4].tolist(), params, 0.001, fidelity)
         assert still[0] != rows[0][0]
     before = contacts.tolist()
     expected = [dynamics.count_contacts(before[i], r[0], r[3], params) for i, r in enumerate(rows)]
