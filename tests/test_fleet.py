@@ -42,6 +42,8 @@ def noiseless(name, *overrides):
         ("05_trajectory_follow", ("end_time=3",)),
         ("02_attitude_control", ("fidelity=reference",)),
         ("11_gps_update", ("fidelity=reference", "end_time=3")),
+        # wind (mean and a gust; the turbulence is noise, off here), drag, a delta-velocity IMU
+        ("20_gust_figure_eight", ("end_time=8", "vehicles.0.wind.turbulence=none")),
     ],
 )
 def test_noiseless_fleet_flies_every_vehicle_as_the_per_vehicle_diagram(name, overrides):
