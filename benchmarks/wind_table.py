@@ -42,7 +42,12 @@ REAL_IMU = (
 )
 LAST_STEP_IMU = ("vehicles.0.sensors.imu.delta_velocity=false",)
 SEVERE = ("vehicles.0.wind.turbulence=severe",)
-STILL = ("vehicles.0.wind.turbulence=none", "vehicles.0.wind.mean=[0, 0, 0]")
+STILL = (
+    "vehicles.0.wind.turbulence=none",
+    "vehicles.0.wind.mean=[0, 0, 0]",
+    "vehicles.0.physics.rotor_drag=[0, 0, 0]",
+    "vehicles.0.physics.parasitic_drag=[0, 0, 0]",
+)
 AIR_AT_11 = (
     "vehicles.0.physics.rotor_drag=[0.22, 0.22, 0.44]",
     "vehicles.0.physics.parasitic_drag=[0.005, 0.005, 0.01]",
@@ -53,6 +58,7 @@ AIR_AT_11 = (
 ROWS = (
     ("EKF7", "still air (11)", "last step", EKF7_11, ()),
     ("EKF7", "still air", "delta-v, 16 g", EKF7_11, REAL_IMU),
+    ("EKF7", "22's flight (at 3 m), still air, no drag", "delta-v, 16 g", EKF7_22, STILL),
     ("EKF7", "3 m/s + moderate, drag (22)", "delta-v, 16 g", EKF7_22, ()),
     ("EKF7", "3 m/s + moderate, drag", "last step", EKF7_22, LAST_STEP_IMU),
     ("EKF7", "3 m/s + severe, drag", "delta-v, 16 g", EKF7_22, SEVERE),
@@ -65,6 +71,7 @@ ROWS = (
     ),
     ("ESKF", "still air (11)", "last step", ESKF_11, ()),
     ("ESKF", "still air", "delta-v, 16 g", ESKF_11, REAL_IMU),
+    ("ESKF", "22's flight (at 3 m), still air, no drag", "delta-v, 16 g", ESKF_22, STILL),
     ("ESKF", "3 m/s + moderate, drag (22)", "delta-v, 16 g", ESKF_22, ()),
     ("ESKF", "3 m/s + moderate, drag", "last step", ESKF_22, LAST_STEP_IMU),
     ("ESKF", "3 m/s + severe, drag", "delta-v, 16 g", ESKF_22, SEVERE),
