@@ -121,3 +121,23 @@ def test_kernels_match_the_matrix_forms():
     c, s = math.cos(model.heading), math.sin(model.heading)
     expected = np.stack([c * uvw[:, 0] - s * uvw[:, 1], s * uvw[:, 0] + c * uvw[:, 1], uvw[:, 2]], axis=1)
     np.testing.assert_allclose(out, expected, rtol=0, atol=1e-12)
+
+
+def test_config_checks_of_the_air():
+    from quad_drake import catalog
+    from quad_drake.config import ConfigError, ineffective_settings
+
+    with pytest.raises(ConfigError, match=r"vehicles\.0\.wind\.gusts\.0\.direction: must not be zero"):
+        catalog.load("20_gust_figure_eight", None, ["vehicles.0.wind.gusts.0.direction=[0, 0, 0]"])
+    with pytest.raises(ConfigError, match=r"sensors\.imu\.delta_velocity: .*fidelity: physical only"):
+        catalog.load("19_windy_hover", None, ["fidelity=reference", "vehicles.0.estimator={kind: ekf7}"])
+    with pytest.raises(ConfigError, match=r"wind\.turbulence: 'gale' is not one of"):
+        catalog.load("19_windy_hover", None, ["vehicles.0.wind.turbulence=gale"])
+    parasitic = catalog.load("19_windy_hover", None, ["vehicles.0.physics.rotor_drag=[0, 0, 0]"])
+    assert not ineffective_settings(parasitic)  # the parasitic drag still acts
+    still = catalog.load(
+        "19_windy_hover",
+        None,
+        ["vehicles.0.physics.rotor_drag=[0, 0, 0]", "vehicles.0.physics.parasitic_drag=[0, 0, 0]"],
+    )
+    assert any("vehicles.0.wind: has no effect" in line for line in ineffective_settings(still))
