@@ -189,6 +189,18 @@ def filter_rows(states, noise, phi, gain):
             states[i, r] = row[r]
 
 
+def wind_rows(states, noise, phi, gain, output, cos_heading, sin_heading, steady, out):
+    """IN PLACE, the wind of n vehicles in one call: the filters step (:func:`filter_rows`), then
+    out[i] = the NED turbulence velocity of states[i] (:func:`velocity_rows`) + steady (3, m/s,
+    NED: the mean wind and the gusts, every vehicle's the same); ``kernels.flight`` compiles it."""
+    filter_rows(states, noise, phi, gain)
+    velocity_rows(states, output, cos_heading, sin_heading, out)
+    for i in range(out.shape[0]):
+        out[i, 0] += steady[0]
+        out[i, 1] += steady[1]
+        out[i, 2] += steady[2]
+
+
 def velocity_rows(states, output, cos_heading, sin_heading, out):
     """out (n, 3) = the NED turbulence velocity (m/s) of each row of states (n, 5): (u, v, w) =
     output states[i], turned by the mean wind's heading (cos, sin); entry by entry (as

@@ -117,7 +117,8 @@ def test_each_forbidden_edge_is_seen(rule, importers, imported):
 
 def test_catalog_lists_the_bundled_scenarios_from_the_top_level_folder():
     scenarios = catalog.bundled_scenarios()
-    assert list(scenarios)[:2] == ["01_intro", "02_attitude_control"] and len(scenarios) == 24  # +eskf, 12-18, 19-22 (+eskf)
+    # 01-11, 11_gps_update_eskf, the faults 12-18, the air 19-22 (+ 22's eskf)
+    assert list(scenarios)[:2] == ["01_intro", "02_attitude_control"] and len(scenarios) == 24
     assert all(path.parent == REPO / "scenarios" for path in scenarios.values())
     assert not (PACKAGE / "scenarios").exists()  # one source: the wheel's copy is built from it
 

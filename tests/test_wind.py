@@ -141,3 +141,16 @@ def test_config_checks_of_the_air():
         ["vehicles.0.physics.rotor_drag=[0, 0, 0]", "vehicles.0.physics.parasitic_drag=[0, 0, 0]"],
     )
     assert any("vehicles.0.wind: has no effect" in line for line in ineffective_settings(still))
+
+
+def test_one_tick_kernel_is_the_filter_step_plus_the_steady_wind():
+    rng = np.random.default_rng(3102)
+    model = wind.dryden_model(WindConfig(turbulence="moderate", mean=[2.0, 1.0, 0.0]), 0.002)
+    states, noise, steady = rng.normal(size=(20, 5)), rng.normal(size=(20, 5)), np.array([2.0, 1.0, -0.5])
+    expected_states = wind.turbulence_step(states, noise, model)
+    expected = wind.turbulence_velocity(expected_states, model) + steady
+    c, s = math.cos(model.heading), math.sin(model.heading)
+    out = np.empty((20, 3))
+    kernels.wind_rows(states, noise, model.phi, model.noise_gain, model.output, c, s, steady, out)
+    np.testing.assert_allclose(states, expected_states, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(out, expected, rtol=0, atol=1e-12)

@@ -166,6 +166,10 @@ turbulence_filter_rows = compiled(wind.filter_rows)
 """:func:`quad_drake.wind.filter_rows` compiled: the Dryden filters of N vehicles, in place."""
 turbulence_velocity_rows = compiled(wind.velocity_rows)
 """:func:`quad_drake.wind.velocity_rows` compiled: (N, 3) NED turbulence of the filter states."""
+wind_rows = compiled(
+    wind.wind_rows, filter_rows=turbulence_filter_rows, velocity_rows=turbulence_velocity_rows
+)
+""":func:`quad_drake.wind.wind_rows` compiled: one tick of ``systems.wind.Wind`` for N vehicles."""
 
 
 # ----- sensors ----------------------------------------------------------------

@@ -33,10 +33,10 @@ class Wind(LeafSystem):
         super().__init__()
         self._config, self._n = config, n
         self._model = model = wind.dryden_model(config, ONBOARD_PERIOD)
+        self._mean = np.asarray(config.mean, dtype=float)
         if model is not None:
-            self._heading = (np.cos(model.heading), np.sin(model.heading))
+            self._heading = (float(np.cos(model.heading)), float(np.sin(model.heading)))
             self._no_phi = np.zeros_like(model.phi)
-            self._turbulence_out = np.empty((n, 3))
         self._output = discrete_group(self, np.tile(np.asarray(config.mean, dtype=float), n), "wind")
         if self._model is not None:
             port = self.DeclareVectorInputPort(
@@ -55,16 +55,18 @@ class Wind(LeafSystem):
 
     def _update(self, context, discrete_state):
         out = discrete_state.get_mutable_value(self._output).reshape(self._n, 3)
-        out[:] = wind.steady_wind(context.get_time(), self._config)
-        if self._model is None:
+        config, model = self._config, self._model
+        steady = wind.steady_wind(context.get_time(), config) if config.gusts else self._mean
+        if model is None:
+            out[:] = steady
             return
         states = discrete_state.get_mutable_value(self._turbulence).reshape(self._n, self.noise_size)
         started = discrete_state.get_mutable_value(self._started)
-        noise, model = self._read_noise(context), self._model
-        if started[0]:  # x = Phi x + G n (quad_drake.wind.turbulence_step, compiled)
-            kernels.turbulence_filter_rows(states, noise, model.phi, model.noise_gain)
+        if started[0]:  # x = Phi x + G n (quad_drake.wind.turbulence_step)
+            phi, gain = model.phi, model.noise_gain
         else:  # the stationary start x = P^(1/2) n (quad_drake.wind.turbulence_start)
-            kernels.turbulence_filter_rows(states, noise, self._no_phi, model.initial_gain)
+            phi, gain = self._no_phi, model.initial_gain
             started[0] = 1.0
-        kernels.turbulence_velocity_rows(states, model.output, *self._heading, self._turbulence_out)
-        out += self._turbulence_out
+        kernels.wind_rows(
+            states, self._read_noise(context), phi, gain, model.output, *self._heading, steady, out
+        )
