@@ -40,7 +40,7 @@ def test_a_landing_passes_and_a_fall_fails():
     assert 0.2 < speeds.max() < 1.0
     assert landed.signals["Quad.IMU.AccelSaturated"].values[-1] >= 1  # the floor's impulse, clipped at 16 g
     # The same vehicle sent straight to a set-point below the floor: its altitude integral winds the
-    # thrust down and it falls, touching down at ~1.7 m/s after the landing time: a crash.
+    # thrust down and it falls, touching down at 1.5-1.8 m/s after the landing time: a crash.
     fall = run(
         catalog.load(
             "21_landing",
@@ -51,4 +51,4 @@ def test_a_landing_passes_and_a_fall_fails():
     assert verdicts["Quad.TouchdownSpeed"] is False
     floor = [r for r in fall.criteria if r.kind == "floor"]
     assert floor and all(r.passed for r in floor)  # its touchdowns come after the landing time
-    assert fall.signals["Quad.TouchdownSpeed"].values.max() > 1.5
+    assert fall.signals["Quad.TouchdownSpeed"].values.max() > 1.2  # 1.51-1.77 m/s over seeds 0-20
