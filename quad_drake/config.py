@@ -313,7 +313,7 @@ TURBULENCE_LEVELS = ("none", "light", "moderate", "severe")
 
 @dataclass
 class GustConfig:
-    """A discrete gust of (1 - cos) shape (MIL-F-8785C §3.7.4): the air's velocity gains
+    """A discrete gust of (1 - cos) shape (the discrete gust of MIL-F-8785C): the air's velocity gains
     amplitude/2 (1 - cos(2 pi (t - start)/duration)) along ``direction`` for t in
     [start, start + duration]."""
 

@@ -3,17 +3,18 @@
 wind_N(t) = mean + sum of the (1 - cos) gusts at t + the Dryden turbulence, turned from the
 mean wind's axes (u along the mean wind's horizontal direction, v to its right, w down) into N.
 
-**Dryden turbulence**, the low-altitude forms of MIL-F-8785C §3.7.2 (MIL-HDBK-1797 gives the
-same spectra with L_v, L_w doubled in its formulas), with the altitude h and the wind speed at
-20 ft (6.1 m) W20 in feet and ft/s::
+**Dryden turbulence**, the low-altitude forms of MIL-F-8785C (MIL-HDBK-1797 writes the v and w
+spectra with scale lengths defined differently; the spectra below are 8785C's), with the altitude h
+and the wind speed at 20 ft (6.1 m) W20 in feet and ft/s::
 
     L_w = h,  L_u = L_v = h / (0.177 + 0.000823 h)^1.2           (scale lengths)
     sigma_w = 0.1 W20,  sigma_u = sigma_v = sigma_w / (0.177 + 0.000823 h)^0.4
     H_u(s) = sigma_u sqrt(2 L_u / (pi V)) / (1 + (L_u/V) s)
     H_v(s) = sigma_v sqrt(L_v / (pi V)) (1 + sqrt(3) (L_v/V) s) / (1 + (L_v/V) s)^2,  H_w alike
 
-for 10 ft <= h <= 1000 ft (h is clamped to that range; the forms are not defined below 10 ft).
-W20 is 15, 30, 45 knots for light, moderate, severe turbulence (MIL-F-8785C fig. 11), unless a
+for 10 ft <= h <= 1000 ft (h is clamped to that range: the low-altitude forms end at 1000 ft,
+and below 10 ft the scale length L_w = h would vanish).
+W20 is 15, 30, 45 knots for light, moderate, severe turbulence (MIL-F-8785C), unless a
 wind speed at 6 m is given. V is the speed at which the frozen turbulence field passes the vehicle
 (Taylor's hypothesis): the configured airspeed, else the mean wind's speed, at least 1 m/s (a
 hovering multirotor has no airspeed of its own). The autocorrelations are
@@ -37,7 +38,7 @@ KNOT = 1852.0 / 3600.0
 """m/s per knot."""
 
 TURBULENCE_W20 = {"light": 15.0 * KNOT, "moderate": 30.0 * KNOT, "severe": 45.0 * KNOT}
-"""Wind speed at 20 ft (m/s) of each turbulence level, MIL-F-8785C fig. 11 (low altitude)."""
+"""Wind speed at 20 ft (m/s) of each turbulence level, MIL-F-8785C (low altitude)."""
 
 MIN_ALTITUDE = 10.0 * FT
 MAX_ALTITUDE = 1000.0 * FT

@@ -12,7 +12,7 @@ from quad_drake.kernels import flight as kernels
 
 
 def test_low_altitude_forms_match_the_spec():
-    # MIL-F-8785C 3.7.2.3 at h = 10 ft and 1000 ft, W20 = 30 kt (moderate), in ft and ft/s.
+    # MIL-F-8785C low altitude at h = 10, 100 and 1000 ft, W20 = 30 kt (moderate), in ft and ft/s.
     w20 = wind.TURBULENCE_W20["moderate"]
     assert w20 == pytest.approx(30 * 0.514444, rel=1e-6)
     for h_ft in (10.0, 100.0, 1000.0):
