@@ -41,14 +41,13 @@ unchanged and gives NaN NIS. Pure: numba and numpy, no pydrake.
 """
 
 import collections
-import math
 
 import numpy as np
 
 from quad_drake.estimation import ekf
 from quad_drake.estimation.vocabulary import DIAG
 from quad_drake.jit import njit_cached
-from quad_drake.kernels import rotations
+from quad_drake.kernels import fusion, rotations
 from quad_drake.kernels.flight import compiled
 from quad_drake.kernels.fusion import (
     GPS_SLOT,
@@ -174,25 +173,6 @@ def _mag_update_row(x, P, i, nu, S, p6):
 
 
 @njit_cached
-def _mag_rows(x, P, yaw_meas, r):
-    nis = np.full(x.shape[0], np.nan)
-    p6 = np.empty(7)
-    for i in range(x.shape[0]):
-        if math.isfinite(yaw_meas[i]):
-            nu, S = mag_innovation(yaw_meas[i], x[i, 6], P[i, 6, 6], r)
-            _mag_update_row(x, P, i, nu, S, p6)
-            nis[i] = nu * nu / S
-    return nis
-
-
-def mag_update(x, P, yaw_meas, R_mag) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(x', P', nis) after magnetometer yaws (N,) rad with R_mag (1, 1) (``ekf.mag_update`` per row)."""
-    x, P = np.array(x, dtype=float), np.array(P, dtype=float)
-    nis = _mag_rows(x, P, np.asarray(yaw_meas, dtype=float), float(R_mag[0, 0]))
-    return x, P, nis
-
-
-@njit_cached
 def _mag_tick(x, P, mag, diagnostics, book, r, threshold):
     p6 = np.empty(7)
     for i in range(x.shape[0]):
@@ -210,6 +190,12 @@ def mag_tick(filters, mag, R_mag, threshold) -> None:
     """
     f = filters
     _mag_tick(f.x, f.P, mag, f.diagnostics, f.book, float(R_mag[0, 0]), float(threshold))
+
+
+def mag_update(x, P, yaw_meas, R_mag) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(x', P', nis) after magnetometer yaws (N,) rad with R_mag (1, 1) (``ekf.mag_update`` per row):
+    :func:`mag_tick` with every sample fresh and no gate (``fusion.mag_update``)."""
+    return fusion.mag_update(mag_tick, x, P, yaw_meas, R_mag)
 
 
 # ----- GPS -----------------------------------------------------------------------------------------

@@ -48,7 +48,7 @@ import numpy as np
 from quad_drake.estimation import eskf
 from quad_drake.estimation.vocabulary import DIAG
 from quad_drake.jit import njit_cached
-from quad_drake.kernels import rotations
+from quad_drake.kernels import fusion, rotations
 from quad_drake.kernels.flight import compiled
 from quad_drake.kernels.fusion import Filters, fresh_mag, joseph_rows, looks_healthy, mag_gate, mag_innovation
 from quad_drake.kernels.imu_hold import IMU_FINITE, IMU_MISSING, bridge_imu_row, hold_weight, imu_row
@@ -311,25 +311,6 @@ def _mag_update_row(x, P, i, nu, S, b, K):
 
 
 @njit_cached
-def _mag_rows(x, P, yaw_meas, r):
-    nis = np.full(x.shape[0], np.nan)
-    b, K = np.empty(P.shape[1]), np.empty(P.shape[1])
-    for i in range(x.shape[0]):
-        if math.isfinite(yaw_meas[i]):
-            nu, S = _mag_innovation_row(x, P, i, yaw_meas[i], r, b)
-            _mag_update_row(x, P, i, nu, S, b, K)
-            nis[i] = nu * nu / S
-    return nis
-
-
-def mag_update(x, P, yaw_meas, R_mag) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(x', P', nis) after magnetometer yaws (N,) rad with R_mag (1, 1) (``eskf.mag_update`` per row)."""
-    x, P = np.array(x, dtype=float), np.array(P, dtype=float)
-    nis = _mag_rows(x, P, np.asarray(yaw_meas, dtype=float), float(R_mag[0, 0]))
-    return x, P, nis
-
-
-@njit_cached
 def _mag_tick(x, P, mag, diagnostics, book, r, threshold):
     b, K = np.empty(P.shape[1]), np.empty(P.shape[1])
     for i in range(x.shape[0]):
@@ -340,6 +321,14 @@ def _mag_tick(x, P, mag, diagnostics, book, r, threshold):
 
 
 def mag_tick(filters, mag, R_mag, threshold) -> None:
-    """The magnetometer step of one ESKF tick IN PLACE: ``ekf7.mag_tick`` with :func:`mag_update`."""
+    """The magnetometer step of one ESKF tick IN PLACE on the ``fusion.Filters`` `filters`: fresh
+    samples booked, non-finite ones counted, the others fused where the gate accepts them (as
+    ``ekf7.mag_tick``)."""
     f = filters
     _mag_tick(f.x, f.P, mag, f.diagnostics, f.book, float(R_mag[0, 0]), float(threshold))
+
+
+def mag_update(x, P, yaw_meas, R_mag) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(x', P', nis) after magnetometer yaws (N,) rad with R_mag (1, 1) (``eskf.mag_update`` per row):
+    :func:`mag_tick` with every sample fresh and no gate (``fusion.mag_update``)."""
+    return fusion.mag_update(mag_tick, x, P, yaw_meas, R_mag)

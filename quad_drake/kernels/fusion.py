@@ -26,7 +26,7 @@ import numpy as np
 
 from quad_drake.conventions import NO_SAMPLE_STAMP
 from quad_drake.estimation import ekf, gating
-from quad_drake.estimation.vocabulary import DIAG
+from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE
 from quad_drake.jit import njit_cached
 from quad_drake.kernels import rotations
 from quad_drake.kernels.flight import compiled
@@ -86,6 +86,19 @@ def mag_gate(diagnostics, i, nis, stamp, threshold) -> bool:
         return True
     diagnostics[i, _MAG_GATED] += 1.0
     return False
+
+
+def mag_update(mag_tick, x, P, yaw_meas, R_mag) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(x', P', nis) of one magnetometer yaw per vehicle, yaw_meas (N,) rad with R_mag (1, 1), fused
+    by an estimator's ``mag_tick`` with every sample fresh and no gate: the batched form its scalar
+    ``mag_update`` oracle is tested against. A non-finite yaw keeps (x, P) with NaN NIS."""
+    x, P = np.array(x, dtype=float), np.array(P, dtype=float)
+    count = x.shape[0]
+    diagnostics = np.zeros((count, DIAGNOSTICS_SIZE))
+    diagnostics[:, _MAG_NIS] = math.nan
+    mag = np.column_stack((np.asarray(yaw_meas, dtype=float), np.zeros(count)))
+    mag_tick(Filters(x, P, diagnostics, np.tile(initial_book(), (count, 1)), None), mag, R_mag, math.inf)
+    return x, P, diagnostics[:, _MAG_NIS]
 
 
 # ----- covariance health ---------------------------------------------------------------------------

@@ -190,10 +190,9 @@ class Ekf(GatedFusion, LeafSystem):
     (n*``vocabulary.DIAGNOSTICS``; NIS is NaN before the first update).
 
     Each tick (ONBOARD_PERIOD, offset EKF_OFFSET; ``kernels.ekf7.tick``, whose module docstring
-    carries the equations): yaw <-
-    attitude yaw, predict x' = f(x, f_B), P' = G P G^T + Q with dt = ONBOARD_PERIOD (over a
-    non-finite IMU sample with the IMU's running mean); then a fresh mag sample, then a fresh GPS
-    sample, is fused through the gates (``mag_gate_sigma``; the GPS policy of
+    carries the equations): yaw <- attitude yaw, predict x' = f(x, f_B), P' = G P G^T + Q with
+    dt = ONBOARD_PERIOD (over a non-finite IMU sample with the IMU's running mean); then a fresh
+    mag sample, then a fresh GPS sample, is fused through the gates (``mag_gate_sigma``; the GPS policy of
     ``estimation/gating.py``: horizontal position, height and velocity gated, fused and reset
     apart, a returning GPS taken after an outage). A sample is fresh when its stamp differs from
     the last stamp seen and is not NO_SAMPLE_STAMP. P is checked every tick (finite, variances
