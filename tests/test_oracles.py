@@ -24,6 +24,7 @@ ORACLES = {
         "kalman_update",
         "gps_update",
         "mag_update",
+        "tilt_process_noise",
     ),
     eskf: (
         "predict",

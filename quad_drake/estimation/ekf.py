@@ -18,7 +18,8 @@ Two kinds of function. The scalar formulas (:func:`attitude_trig`, :func:`yaw_fr
 :func:`tilt_jacobian_of`, :func:`scaled_tilt_factors`) are plain float arithmetic whose own code
 the running implementation, ``kernels/ekf7.py``, compiles: they exist once. The textbook matrix
 forms (``predict``, ``predict_with_yaw``, ``predict_state``, ``predict_jacobian``,
-``predict_covariance``, ``kalman_update``, ``gps_update``, ``mag_update``) are REFERENCE ORACLES
+``predict_covariance``, ``kalman_update``, ``gps_update``, ``mag_update``, ``tilt_process_noise``
+and ``TiltNoise.process_noise``) are REFERENCE ORACLES
 of the kernel's sparse covariance loops and Joseph updates, which single runs and fleets both
 execute: the kernel is tested against them on seeded random inputs to 1e-12
 (``tests/test_fleet_estimators.py``) and no simulation calls them (``tests/test_oracles.py``).

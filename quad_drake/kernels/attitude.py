@@ -35,6 +35,7 @@ _step = compiled(
     integrate_euler_exact=compiled(
         complementary.integrate_euler_exact,
         quat_from_euler_tuple=rotations.quat_from_euler,
+        quat_product=rotations.quat_product,
         euler_from_quat=rotations.euler_from_quat,
     ),
     accel_roll_pitch=compiled(complementary.accel_roll_pitch),

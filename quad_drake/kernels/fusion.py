@@ -55,7 +55,7 @@ def initial_book() -> np.ndarray:
 
 
 @njit_cached
-def fresh(stamps, seen):
+def fresh(stamps, seen) -> np.ndarray | bool:
     """True where a stamp (s) differs from the last one seen and is a sample (not NO_SAMPLE_STAMP):
     (N,) bool of stamps and seen (N,), or one bool of two floats (as the compiled kernels call it)."""
     return (stamps != seen) & (stamps != NO_SAMPLE_STAMP)
