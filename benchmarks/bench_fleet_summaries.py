@@ -14,7 +14,7 @@ import resource
 import time
 
 from quad_drake import catalog
-from quad_drake.fleet.runner import FleetBatch, simulate_batch
+from quad_drake.fleet.runner import BatchTask, simulate_batch
 from quad_drake.fleet.simulation import run_fleet
 from quad_drake.fleet.summaries import summarize_logs
 
@@ -32,8 +32,8 @@ def main():
     args = parser.parse_args()
     scenario = catalog.load(args.scenario)
     seeds = tuple(range(args.runs))
-    simulate_batch(FleetBatch(catalog.load(args.scenario, None, ["end_time=0.5"]), 0, (0, 1)))  # warm-up
-    streamed, _ = _cpu(simulate_batch, FleetBatch(scenario, 0, seeds))
+    simulate_batch(BatchTask(catalog.load(args.scenario, None, ["end_time=0.5"]), 0, (0, 1)))  # warm-up
+    streamed, _ = _cpu(simulate_batch, BatchTask(scenario, 0, seeds))
     streamed_rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     flight, (times, logs, _) = _cpu(run_fleet, scenario, seeds)
     summaries, _ = _cpu(lambda: summarize_logs(scenario, seeds, logs).records(0, 0.0))

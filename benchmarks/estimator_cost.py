@@ -6,11 +6,10 @@ on the estimate). Each repetition builds both diagrams, then times ``Initialize`
 other processes' load counts less than in wall time), the two back to back in alternating
 order (EKF7 first in even repetitions, ESKF first in odd ones) with the same seed. The ratio
 ESKF / EKF7 of each pair cancels the load both share; the script prints the median CPU s per
-simulated second of each and the median (min-max) of the paired ratios. A third scenario,
-11 with ``use_ideal_estimator: true`` (the controller flies on the truth; sensors still
-A third configuration, 11 flown on the truth without an IMU (so without an estimator; GPS
-and magnetometer still sampled, ``no_est``), gives the rest of the loop: ``cost - no_est`` is
-the estimator's own cost with its IMU.
+simulated second of each and the median (min-max) of the paired ratios. A third configuration,
+11 flown on the truth with no estimator (``estimator: {kind: truth}``; IMU, GPS and
+magnetometer still sampled, ``no_est``), gives the rest of the loop: ``cost - no_est`` is the
+estimator's own cost.
 
     python benchmarks/estimator_cost.py [--repeats 7] [--end-time 10]
 """
@@ -34,7 +33,7 @@ CONFIGURATIONS = {
     "ESKF": ("11_gps_update_eskf", []),
     "no_est": (
         "11_gps_update",
-        ["vehicles.0.use_ideal_estimator=true", "vehicles.0.sensors={gps: {}, mag: {}}", "criteria=[]"],
+        ["vehicles.0.estimator={kind: truth}", "criteria=[]"],
     ),
 }
 

@@ -9,10 +9,12 @@ that became unwritable: one line; every file already written is whole), 130 inte
 import argparse
 import os
 import sys
+import warnings
 from pathlib import Path
 
 from . import __version__, catalog
 from .config import ConfigError, load_scenario
+from .estimation.custom import EstimatorProblem
 from .outdir import check_output_dir, is_result_folder
 
 EXIT_WRITE_FAILED = 3
@@ -498,6 +500,11 @@ def build_parser():
     return parser
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    """A Python warning (e.g. a deprecated field) as one line on stderr, like the command's own."""
+    print(f"quad-drake: warning: {message}", file=sys.stderr)
+
+
 def main(argv=None):
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -505,8 +512,10 @@ def main(argv=None):
         parser.print_help()
         return 0
     try:
-        return args.func(args)
-    except ConfigError as e:
+        with warnings.catch_warnings():
+            warnings.showwarning = _show_warning
+            return args.func(args)
+    except (ConfigError, EstimatorProblem) as e:  # a user's mistake, their own estimator's included
         print(f"quad-drake: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -11,14 +11,17 @@ import difflib
 import math
 import re
 import typing
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import List, Optional, Union
+from typing import List, Optional
 
 import yaml
 from pydrake.common.yaml import yaml_dump, yaml_dump_typed, yaml_load_typed
 
+from .config_fields import noise_stds, number, vector
 from .conventions import ONBOARD_PERIOD
+from .estimation.registry import Ekf7EstimatorConfig, EstimatorConfig, GateParams, kind_of
 from .fidelity import FIDELITY_MODES, fidelity_from_mode
 
 PACKAGE_DIR = Path(__file__).resolve().parent
@@ -36,16 +39,6 @@ def did_you_mean(word, choices):
     if not close:
         return ""
     return " (did you mean " + " or ".join(repr(c) for c in close) + "?)"
-
-
-def _vec(*values):
-    return field(default_factory=lambda: list(values), metadata={"length": len(values)})
-
-
-def _num(default, **rules):
-    """A scalar field; rules: positive=True, nonnegative=True, minimum=, maximum=, noise_std=True,
-    tick_multiple=N (a whole number >= N of onboard ticks)."""
-    return field(default=default, metadata=rules)
 
 
 MAX_SEED = 2**32 - 1
@@ -71,14 +64,6 @@ def check_seed_range(first_seed, runs, what="--seed"):
         raise ConfigError(f"{what}: seeds must lie in [0, {MAX_SEED}] (2**32 - 1), got {first_seed}{last}")
 
 
-def _std(*values):
-    """A vector of noise standard deviations (>= 0, see NOISE_STD_RANGE)."""
-    return field(
-        default_factory=lambda: list(values),
-        metadata={"length": len(values), "nonnegative": True, "noise_std": True},
-    )
-
-
 NOISE_STD_RANGE = (1e-100, 1e100)
 """Allowed magnitudes of a nonzero noise standard deviation (units of its field).
 
@@ -95,76 +80,76 @@ merely >= 0 (a perfect sensor, a zero Q or P0): R, whose fields are > 0, keeps S
 class PhysicsParams:
     """Truth parameters of the vehicle (what the simulator flies)."""
 
-    mass: float = _num(0.5, positive=True)  # kg
-    arm_length: float = _num(0.17, positive=True)  # m, centre to motor (X layout)
+    mass: float = number(0.5, positive=True)  # kg
+    arm_length: float = number(0.17, positive=True)  # m, centre to motor (X layout)
     inertia: List[float] = field(
         default_factory=lambda: [0.0023, 0.0023, 0.0046], metadata={"length": 3, "positive": True}
     )  # kg m^2, Ixx Iyy Izz
-    kappa: float = _num(0.016, positive=True)  # m, yaw torque per newton of thrust
-    min_motor_thrust: float = _num(0.1, nonnegative=True)  # N
-    max_motor_thrust: float = _num(4.5, positive=True)  # N
-    motor_tau_up: float = _num(0.01, positive=True)  # s, lag time constant, rising thrust
-    motor_tau_down: float = _num(0.02, positive=True)  # s, lag time constant, falling thrust
-    motor_noise: float = _num(0.25, nonnegative=True)  # N, half-width of uniform force noise
-    com_offset: List[float] = _vec(0.0, 0.0)  # m, centre of mass (cx, cy) in body x, y
-    x_bounds: List[float] = _vec(-30.0, 30.0)  # m, room limits in N
-    y_bounds: List[float] = _vec(-30.0, 30.0)  # m
-    z_bounds: List[float] = _vec(-40.0, 0.0)  # m, z = 0 is the (sticky) floor
+    kappa: float = number(0.016, positive=True)  # m, yaw torque per newton of thrust
+    min_motor_thrust: float = number(0.1, nonnegative=True)  # N
+    max_motor_thrust: float = number(4.5, positive=True)  # N
+    motor_tau_up: float = number(0.01, positive=True)  # s, lag time constant, rising thrust
+    motor_tau_down: float = number(0.02, positive=True)  # s, lag time constant, falling thrust
+    motor_noise: float = number(0.25, nonnegative=True)  # N, half-width of uniform force noise
+    com_offset: List[float] = vector(0.0, 0.0)  # m, centre of mass (cx, cy) in body x, y
+    x_bounds: List[float] = vector(-30.0, 30.0)  # m, room limits in N
+    y_bounds: List[float] = vector(-30.0, 30.0)  # m
+    z_bounds: List[float] = vector(-40.0, 0.0)  # m, z = 0 is the (sticky) floor
 
 
 @dataclass
 class ControllerParams:
     """Cascade controller: its vehicle model, gains and limits (SPEC §5)."""
 
-    mass: float = _num(0.5, positive=True)  # kg, assumed
-    arm_length: float = _num(0.17, positive=True)  # m
+    mass: float = number(0.5, positive=True)  # kg, assumed
+    arm_length: float = number(0.17, positive=True)  # m
     inertia: List[float] = field(
         default_factory=lambda: [0.0023, 0.0023, 0.0046], metadata={"length": 3, "positive": True}
     )  # kg m^2
-    kappa: float = _num(0.016, positive=True)  # m
-    min_motor_thrust: float = _num(0.1, nonnegative=True)  # N
-    max_motor_thrust: float = _num(4.5, positive=True)  # N
-    kp_pos_xy: float = _num(2.0, nonnegative=True)  # 1/s
-    kp_pos_z: float = _num(2.0, nonnegative=True)  # 1/s
-    ki_pos_z: float = _num(50.0, nonnegative=True)  # 1/s^2
-    kp_vel_xy: float = _num(8.0, nonnegative=True)  # 1/s
-    kp_vel_z: float = _num(8.0, nonnegative=True)  # 1/s
-    kp_bank: float = _num(12.0, nonnegative=True)  # 1/s
-    kp_yaw: float = _num(3.0, nonnegative=True)  # 1/s
+    kappa: float = number(0.016, positive=True)  # m
+    min_motor_thrust: float = number(0.1, nonnegative=True)  # N
+    max_motor_thrust: float = number(4.5, positive=True)  # N
+    kp_pos_xy: float = number(2.0, nonnegative=True)  # 1/s
+    kp_pos_z: float = number(2.0, nonnegative=True)  # 1/s
+    ki_pos_z: float = number(50.0, nonnegative=True)  # 1/s^2
+    kp_vel_xy: float = number(8.0, nonnegative=True)  # 1/s
+    kp_vel_z: float = number(8.0, nonnegative=True)  # 1/s
+    kp_bank: float = number(12.0, nonnegative=True)  # 1/s
+    kp_yaw: float = number(3.0, nonnegative=True)  # 1/s
     kp_pqr: List[float] = field(
         default_factory=lambda: [70.0, 70.0, 15.0], metadata={"length": 3, "nonnegative": True}
     )  # 1/s
-    max_ascent_rate: float = _num(5.0, positive=True)  # m/s
-    max_descent_rate: float = _num(2.0, positive=True)  # m/s
-    max_speed_xy: float = _num(5.0, positive=True)  # m/s
-    max_horiz_accel: float = _num(12.0, positive=True)  # m/s^2
-    max_tilt: float = _num(0.7, positive=True)  # dimensionless limit on R02, R12
+    max_ascent_rate: float = number(5.0, positive=True)  # m/s
+    max_descent_rate: float = number(2.0, positive=True)  # m/s
+    max_speed_xy: float = number(5.0, positive=True)  # m/s
+    max_horiz_accel: float = number(12.0, positive=True)  # m/s^2
+    max_tilt: float = number(0.7, positive=True)  # dimensionless limit on R02, R12
 
 
 @dataclass
 class ImuParams:
-    accel_std: List[float] = _std(0.5, 0.5, 1.5)  # m/s^2 per sample, body x y z
-    gyro_std: List[float] = _std(0.5, 0.5, 0.5)  # rad/s per sample
-    accel_limit: float = _num(6 * 9.81, positive=True)  # m/s^2, per-axis saturation
-    accel_bias: List[float] = _vec(0.0, 0.0, 0.0)  # m/s^2, initial accelerometer bias, body x y z
-    gyro_bias: List[float] = _vec(0.0, 0.0, 0.0)  # rad/s, initial gyro bias
-    accel_bias_walk_std: List[float] = _std(0.0, 0.0, 0.0)  # m/s^2 per sample, bias increment
-    gyro_bias_walk_std: List[float] = _std(0.0, 0.0, 0.0)  # rad/s per sample, bias increment
+    accel_std: List[float] = noise_stds(0.5, 0.5, 1.5)  # m/s^2 per sample, body x y z
+    gyro_std: List[float] = noise_stds(0.5, 0.5, 0.5)  # rad/s per sample
+    accel_limit: float = number(6 * 9.81, positive=True)  # m/s^2, per-axis saturation
+    accel_bias: List[float] = vector(0.0, 0.0, 0.0)  # m/s^2, initial accelerometer bias, body x y z
+    gyro_bias: List[float] = vector(0.0, 0.0, 0.0)  # rad/s, initial gyro bias
+    accel_bias_walk_std: List[float] = noise_stds(0.0, 0.0, 0.0)  # m/s^2 per sample, bias increment
+    gyro_bias_walk_std: List[float] = noise_stds(0.0, 0.0, 0.0)  # rad/s per sample, bias increment
 
 
 @dataclass
 class GpsParams:
-    pos_std: List[float] = _std(0.7, 0.7, 2.0)  # m per sample, N x y z
-    vel_std: List[float] = _std(0.1, 0.1, 0.3)  # m/s per sample
-    pos_random_walk_std: List[float] = _std(0.0, 0.0, 0.0)  # m per sample, bias increment
-    period: float = _num(0.1, tick_multiple=1)  # s, a multiple of the 2 ms tick; first sample at t = period
+    pos_std: List[float] = noise_stds(0.7, 0.7, 2.0)  # m per sample, N x y z
+    vel_std: List[float] = noise_stds(0.1, 0.1, 0.3)  # m/s per sample
+    pos_random_walk_std: List[float] = noise_stds(0.0, 0.0, 0.0)  # m per sample, bias increment
+    period: float = number(0.1, tick_multiple=1)  # s, a multiple of the 2 ms tick; first sample at t = period
 
 
 @dataclass
 class MagParams:
-    yaw_std: float = _num(0.1, nonnegative=True, noise_std=True)  # rad per sample
-    period: float = _num(0.01, tick_multiple=1)  # s, a multiple of the 2 ms onboard tick
-    first_sample_time: float = _num(0.008, tick_multiple=0)  # s (reference: tick 4)
+    yaw_std: float = number(0.1, nonnegative=True, noise_std=True)  # rad per sample
+    period: float = number(0.01, tick_multiple=1)  # s, a multiple of the 2 ms onboard tick
+    first_sample_time: float = number(0.008, tick_multiple=0)  # s (reference: tick 4)
 
 
 @dataclass
@@ -184,91 +169,33 @@ class AttitudeFilterParams:
     """Complementary filter (SPEC §4 UpdateFromIMU)."""
 
     variant: str = field(default="nonlinear", metadata={"choices": ATTITUDE_FILTER_VARIANTS})
-    tau: float = _num(100.0, positive=True)  # s, accelerometer blend time constant
+    tau: float = number(100.0, positive=True)  # s, accelerometer blend time constant
 
 
 @dataclass
-class EkfParams:
+class EkfParams(GateParams):
     """What the 7-state EKF assumes (SPEC §4); independent of the sensor truth."""
 
-    init_state: List[float] = _vec(0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0)  # m, m/s, rad
-    init_std: List[float] = _std(0.1, 0.1, 0.3, 0.1, 0.1, 0.3, 0.05)
-    q_pos_xy_std: float = _num(0.05, nonnegative=True, noise_std=True)  # m/sqrt(s): Q = diag(std^2) * dt_imu
-    q_pos_z_std: float = _num(0.05, nonnegative=True, noise_std=True)
-    q_vel_xy_std: float = _num(0.05, nonnegative=True, noise_std=True)  # m/s/sqrt(s)
-    q_vel_z_std: float = _num(0.1, nonnegative=True, noise_std=True)
-    q_yaw_std: float = _num(0.05, nonnegative=True, noise_std=True)  # rad/sqrt(s)
-    gps_pos_xy_std: float = _num(1.0, positive=True, noise_std=True)  # m
-    gps_pos_z_std: float = _num(3.0, positive=True, noise_std=True)  # m
-    gps_vel_xy_std: float = _num(0.1, positive=True, noise_std=True)  # m/s
-    gps_vel_z_std: float = _num(0.3, positive=True, noise_std=True)  # m/s
-    mag_yaw_std: float = _num(0.1, positive=True, noise_std=True)  # rad
+    init_state: List[float] = vector(0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0)  # m, m/s, rad
+    init_std: List[float] = noise_stds(0.1, 0.1, 0.3, 0.1, 0.1, 0.3, 0.05)
+    # m/sqrt(s): Q = diag(std^2) * dt_imu
+    q_pos_xy_std: float = number(0.05, nonnegative=True, noise_std=True)
+    q_pos_z_std: float = number(0.05, nonnegative=True, noise_std=True)
+    q_vel_xy_std: float = number(0.05, nonnegative=True, noise_std=True)  # m/s/sqrt(s)
+    q_vel_z_std: float = number(0.1, nonnegative=True, noise_std=True)
+    q_yaw_std: float = number(0.05, nonnegative=True, noise_std=True)  # rad/sqrt(s)
+    gps_pos_xy_std: float = number(1.0, positive=True, noise_std=True)  # m
+    gps_pos_z_std: float = number(3.0, positive=True, noise_std=True)  # m
+    gps_vel_xy_std: float = number(0.1, positive=True, noise_std=True)  # m/s
+    gps_vel_z_std: float = number(0.3, positive=True, noise_std=True)  # m/s
+    mag_yaw_std: float = number(0.1, positive=True, noise_std=True)  # rad
     # Tilt-aware Q (ekf.TiltNoise; 0 = off, the reference's constant Q): the gyro noise the attitude
     # filter integrates, rad/s per IMU sample, and how long its roll/pitch error acts as white noise
     # on the velocity and on the yaw, s.
-    tilt_gyro_std: float = _num(0.0, nonnegative=True, noise_std=True)
-    tilt_velocity_time: float = _num(0.25, nonnegative=True)  # s
-    tilt_yaw_time: float = _num(0.15, nonnegative=True)  # s
-    dt_imu: float = _num(0.002, positive=True, maximum=1.0)  # s, scales Q (a step, not a flight)
-    # Gates and resets (estimation/gating.py): chi^2 gates on the GPS horizontal position, height
-    # and velocity apart and on the magnetometer; a GPS group rejected for its timeout is reset to
-    # the sample; after gps_regain_time s without GPS the returning sample is fused or reset.
-    gps_gate_sigma: float = _num(5.0, nonnegative=True)  # sigma; each GPS group's gate, 0 = off
-    mag_gate_sigma: float = _num(5.0, nonnegative=True)  # sigma
-    gps_reset_timeout: float = _num(5.0, nonnegative=True)  # s of rejected horizontal position, 0 = never
-    gps_height_reset_timeout: float = _num(1.0, nonnegative=True)  # s of rejected height, 0 = never
-    gps_vel_reset_timeout: float = _num(0.5, nonnegative=True)  # s of rejected velocity, 0 = never
-    gps_regain_time: float = _num(1.0, nonnegative=True)  # s without GPS that make an outage, 0 = off
-    gps_gate_adaptation: float = _num(0.1, nonnegative=True, maximum=1.0)  # weight of a sample's NIS/dof
-
-
-@dataclass
-class Ekf7EstimatorConfig:
-    """The reference's estimator: complementary filter + 7-state EKF.
-
-    Its parameters are the vehicle's ``attitude_filter:`` and ``ekf:`` blocks (kept there so
-    the reference's scenarios read as before).
-    """
-
-    kind: str = field(default="ekf7", metadata={"choices": ("ekf7",)})
-
-
-@dataclass
-class EskfEstimatorConfig:
-    """Error-state EKF (``estimation/eskf.py``): what it assumes, independent of the sensor truth."""
-
-    kind: str = field(default="eskf", metadata={"choices": ("eskf",)})
-    init_position: List[float] = _vec(0.0, 0.0, -1.0)  # m, NED
-    init_velocity: List[float] = _vec(0.0, 0.0, 0.0)  # m/s
-    init_ypr: List[float] = _vec(0.0, 0.0, 0.0)  # rad, yaw pitch roll
-    init_pos_std: List[float] = _std(0.1, 0.1, 0.3)  # m
-    init_vel_std: List[float] = _std(0.1, 0.1, 0.3)  # m/s
-    init_att_std: List[float] = _std(0.05, 0.05, 0.05)  # rad, about N, E, D
-    estimate_biases: bool = True  # false: 9 error states, biases fixed at zero
-    init_accel_bias_std: List[float] = _std(0.05, 0.05, 0.05)  # m/s^2
-    init_gyro_bias_std: List[float] = _std(0.01, 0.01, 0.01)  # rad/s
-    accel_std: List[float] = _std(0.5, 0.5, 1.5)  # m/s^2 per IMU sample, body x y z
-    gyro_std: List[float] = _std(0.5, 0.5, 0.5)  # rad/s per IMU sample
-    accel_bias_rw_std: float = _num(0.001, nonnegative=True, noise_std=True)  # m/s^2/sqrt(s)
-    gyro_bias_rw_std: float = _num(0.0001, nonnegative=True, noise_std=True)  # rad/s/sqrt(s)
-    gps_pos_std: List[float] = _std(0.7, 0.7, 2.0)  # m
-    gps_vel_std: List[float] = _std(0.1, 0.1, 0.3)  # m/s
-    mag_yaw_std: float = _num(0.1, positive=True, noise_std=True)  # rad
-    # Gates and resets (estimation/gating.py): chi^2 gates on the GPS horizontal position, height
-    # and velocity apart and on the magnetometer; a GPS group rejected for its timeout is reset to
-    # the sample; after gps_regain_time s without GPS the returning sample is fused or reset.
-    gps_gate_sigma: float = _num(5.0, nonnegative=True)  # sigma; each GPS group's gate, 0 = off
-    mag_gate_sigma: float = _num(5.0, nonnegative=True)  # sigma
-    gps_reset_timeout: float = _num(5.0, nonnegative=True)  # s of rejected horizontal position, 0 = never
-    gps_height_reset_timeout: float = _num(1.0, nonnegative=True)  # s of rejected height, 0 = never
-    gps_vel_reset_timeout: float = _num(0.5, nonnegative=True)  # s of rejected velocity, 0 = never
-    gps_regain_time: float = _num(1.0, nonnegative=True)  # s without GPS that make an outage, 0 = off
-    gps_gate_adaptation: float = _num(0.1, nonnegative=True, maximum=1.0)  # weight of a sample's NIS/dof
-
-
-EstimatorConfig = Union[Ekf7EstimatorConfig, EskfEstimatorConfig]
-"""A vehicle's estimator, chosen by ``kind`` (``estimator: {kind: eskf, ...}``); default ekf7."""
-ESTIMATOR_KINDS = ("ekf7", "eskf")
+    tilt_gyro_std: float = number(0.0, nonnegative=True, noise_std=True)
+    tilt_velocity_time: float = number(0.25, nonnegative=True)  # s
+    tilt_yaw_time: float = number(0.15, nonnegative=True)  # s
+    dt_imu: float = number(0.002, positive=True, maximum=1.0)  # s, scales Q (a step, not a flight)
 
 
 FAULT_KINDS = ("gps_outage", "gps_outlier", "gps_step", "gps_delay", "mag_bias", "mag_outage", "imu_dropout")
@@ -288,11 +215,11 @@ class FaultConfig:
     """
 
     kind: str = field(default="gps_outage", metadata={"choices": FAULT_KINDS})
-    start: float = _num(0.0, nonnegative=True)  # s
-    end: float = _num(0.0, nonnegative=True)  # s
-    time: float = _num(0.0, nonnegative=True)  # s, gps_outlier
+    start: float = number(0.0, nonnegative=True)  # s
+    end: float = number(0.0, nonnegative=True)  # s
+    time: float = number(0.0, nonnegative=True)  # s, gps_outlier
     offset: List[float] = field(default_factory=list)  # m (gps_outlier, gps_step: 3) or rad (mag_bias: 1)
-    delay: float = _num(0.0, nonnegative=True)  # s, gps_delay
+    delay: float = number(0.0, nonnegative=True)  # s, gps_delay
 
 
 TRAJECTORY_KINDS = ("point", "file", "figure_eight")
@@ -303,21 +230,23 @@ class TrajectoryConfig:
     """Reference to fly (SPEC §6). ``file`` is a name in the package data or a path."""
 
     kind: str = field(default="point", metadata={"choices": TRAJECTORY_KINDS})
-    point: List[float] = _vec(0.0, 0.0, -1.0)  # m, NED, for kind = point
+    point: List[float] = vector(0.0, 0.0, -1.0)  # m, NED, for kind = point
     yaw: float = 0.0  # rad, for kind = point
     file: str = ""  # for kind = file
-    position_offset: List[float] = _vec(0.0, 0.0, 0.0)  # m, added to every point
+    position_offset: List[float] = vector(0.0, 0.0, 0.0)  # m, added to every point
     time_offset: float = 0.0  # s, added to the lookup time
+
+
+FLIES_ON = ("truth", "estimate")
 
 
 @dataclass
 class VehicleConfig:
     name: str = field(default="Quad", metadata={"pattern": "vehicle"})
-    initial_position: List[float] = _vec(0.0, 0.0, -1.0)  # m, NED
-    initial_velocity: List[float] = _vec(0.0, 0.0, 0.0)  # m/s, NED
-    initial_ypr: List[float] = _vec(0.0, 0.0, 0.0)  # rad, yaw pitch roll
-    initial_omega: List[float] = _vec(0.0, 0.0, 0.0)  # rad/s, body FRD
-    use_ideal_estimator: bool = True  # true: controller flies on truth; false: on the estimate
+    initial_position: List[float] = vector(0.0, 0.0, -1.0)  # m, NED
+    initial_velocity: List[float] = vector(0.0, 0.0, 0.0)  # m/s, NED
+    initial_ypr: List[float] = vector(0.0, 0.0, 0.0)  # rad, yaw pitch roll
+    initial_omega: List[float] = vector(0.0, 0.0, 0.0)  # rad/s, body FRD
     physics: PhysicsParams = field(default_factory=PhysicsParams)
     controller: ControllerParams = field(default_factory=ControllerParams)
     trajectory: TrajectoryConfig = field(default_factory=TrajectoryConfig)
@@ -325,10 +254,13 @@ class VehicleConfig:
     attitude_filter: AttitudeFilterParams = field(default_factory=AttitudeFilterParams)
     ekf: EkfParams = field(default_factory=EkfParams)
     estimator: EstimatorConfig = field(default_factory=Ekf7EstimatorConfig)
+    # What the controller flies on: the true state (the reference's default; the estimator runs
+    # beside it and is judged) or the estimator's estimate (estimation/registry.py)
+    flies_on: str = field(default="truth", metadata={"choices": FLIES_ON})
     faults: List[FaultConfig] = field(default_factory=list)  # applied in order, see FaultConfig
     # s, the longest GPS lag the estimator compensates (0 = off): a late GPS sample is moved by
     # the estimate's own motion since its stamp (quad_drake.delay_compensation)
-    gps_delay_compensation: float = _num(0.0, nonnegative=True)
+    gps_delay_compensation: float = number(0.0, nonnegative=True)
 
 
 SAFETY_KINDS = ("floor", "room", "finite", "tracking")
@@ -363,18 +295,18 @@ class CriterionConfig:
 
     kind: str = field(default="window", metadata={"choices": CRITERION_KINDS})
     signal: str = ""
-    threshold: float = _num(0.0, nonnegative=True)
-    window: float = _num(1.0, nonnegative=True)  # s
+    threshold: float = number(0.0, nonnegative=True)
+    window: float = number(1.0, nonnegative=True)  # s
     ref: float = 0.0
     ref_signal: str = ""
-    sigma: float = _num(0.0, nonnegative=True)
+    sigma: float = number(0.0, nonnegative=True)
     sigma_signal: str = ""
-    sigma_multiple: float = _num(1.0, positive=True)
-    min_percent: float = _num(0.0, minimum=0.0, maximum=100.0)
-    max_percent: float = _num(100.0, minimum=0.0, maximum=100.0)
+    sigma_multiple: float = number(1.0, positive=True)
+    min_percent: float = number(0.0, minimum=0.0, maximum=100.0)
+    max_percent: float = number(100.0, minimum=0.0, maximum=100.0)
     landing_time: Optional[float] = None  # s, floor: touchdowns from then on are a landing
-    start: float = _num(0.0, nonnegative=True)  # s, bound and recovery
-    end: float = _num(0.0, nonnegative=True)  # s, bound
+    start: float = number(0.0, nonnegative=True)  # s, bound and recovery
+    end: float = number(0.0, nonnegative=True)  # s, bound
 
 
 @dataclass
@@ -390,7 +322,7 @@ class SafetyConfig:
     room: bool = True  # never stopped by a wall or the ceiling
     finite: bool = True  # the true state stays finite
     tracking: bool = True  # |Vehicle.PosFollowErr| <= tracking_bound
-    tracking_bound: float = _num(6.0, positive=True)  # m (quad_drake.safety: why 6)
+    tracking_bound: float = number(6.0, positive=True)  # m (quad_drake.safety: why 6)
     landing_time: Optional[float] = None  # s, a documented landing: touchdowns from then on pass
 
 
@@ -398,8 +330,8 @@ class SafetyConfig:
 class ScenarioConfig:
     name: str = field(default="", metadata={"pattern": "scenario"})  # default: the file's stem
     description: str = ""
-    end_time: float = _num(1.0, positive=True)  # s
-    seed: int = _num(0, nonnegative=True, maximum=MAX_SEED)
+    end_time: float = number(1.0, positive=True)  # s
+    seed: int = number(0, nonnegative=True, maximum=MAX_SEED)
     vehicles: List[VehicleConfig] = field(default_factory=lambda: [VehicleConfig()])
     criteria: List[CriterionConfig] = field(default_factory=list)
     safety: SafetyConfig = field(default_factory=SafetyConfig)
@@ -436,6 +368,15 @@ def _check_node(node, tp, path):
             if key not in names:
                 return f"{sub}: unknown key{did_you_mean(key, names)} (known: {', '.join(names)})"
             message = _check_node(value, typing.get_type_hints(tp)[key], sub)
+            if message:
+                return message
+        return None
+    if origin in (dict, typing.Dict):
+        if not isinstance(node, dict):
+            return f"{path}: expected a mapping, got {node!r}"
+        key_type, value_type = typing.get_args(tp)
+        for key, value in node.items():
+            message = _check_node(key, key_type, path) or _check_node(value, value_type, f"{path}.{key}")
             if message:
                 return message
         return None
@@ -539,14 +480,6 @@ def _check_tick_multiple(seconds, min_ticks, where):
         )
 
 
-def estimator_fidelity_problem(estimator_kind, fidelity):
-    """Why an estimator of `estimator_kind` cannot run under the Fidelity `fidelity` (one
-    line), or None when it can."""
-    if estimator_kind == "eskf" and fidelity.reference_accelerometer:
-        return "the error-state EKF is written for the physical accelerometer (fidelity: physical)"
-    return None
-
-
 def check_scenario(scenario):
     """Raise ConfigError (one line, the field's dotted path) for a ScenarioConfig that breaks a
     rule of :func:`load_scenario`: what every entry point (``simulation.run``, ``run_fleet``,
@@ -606,9 +539,11 @@ def _check_semantics(scenario):
                 )
         if v.trajectory.kind == "file":
             resolve_trajectory_file(v.trajectory.file, f"vehicles.{i}.trajectory.file")
-        if not v.use_ideal_estimator and not (v.sensors.imu and v.sensors.gps and v.sensors.mag):
-            raise ConfigError(f"vehicles.{i}.use_ideal_estimator: false needs imu, gps and mag sensors")
-        problem = estimator_fidelity_problem(v.estimator.kind, fidelity_from_mode(scenario.fidelity))
+        if v.flies_on == "estimate" and v.estimator.kind != "truth":
+            if not (v.sensors.imu and v.sensors.gps and v.sensors.mag):
+                raise ConfigError(f"vehicles.{i}.flies_on: estimate needs imu, gps and mag sensors")
+        kind = kind_of(v.estimator)
+        problem = kind.fidelity_problem(fidelity_from_mode(scenario.fidelity)) or kind.problem(v.estimator)
         if problem:
             raise ConfigError(f"vehicles.{i}.estimator: {problem}")
         if v.gps_delay_compensation > 0 and not (v.sensors.imu and v.sensors.gps):
@@ -782,18 +717,43 @@ def load_scenario(path, overrides=()):
         for text in overrides:
             keys, value = parse_override(text)
             apply_override(raw, keys, value, text)
+        _migrate_use_ideal_estimator(raw)
         message = _check_node(raw, ScenarioConfig, "")
         if message:
             raise ConfigError(message)
         scenario = yaml_load_typed(schema=ScenarioConfig, data=yaml_dump(raw))
         if not scenario.name:
             scenario.name = path.stem
+        for vehicle in scenario.vehicles:
+            vehicle.estimator = kind_of(vehicle.estimator).locate(vehicle.estimator, path.parent)
         check_scenario(scenario)
     except ConfigError as e:
         raise ConfigError(f"{path}: {e}{_override_hint(str(e), overrides)}") from None
     except (RuntimeError, ValueError, TypeError) as e:
         raise ConfigError(f"{path}: {_first_line(e)}") from None
     return scenario
+
+
+def _migrate_use_ideal_estimator(raw):
+    """Rewrite each vehicle's deprecated ``use_ideal_estimator`` (raw YAML, in place) into its
+    ``flies_on`` (true: truth, false: estimate), with a FutureWarning saying what to write
+    instead; ConfigError where both are given and disagree."""
+    vehicles = raw.get("vehicles")
+    for i, vehicle in enumerate(vehicles if isinstance(vehicles, list) else []):
+        if not isinstance(vehicle, dict) or "use_ideal_estimator" not in vehicle:
+            continue
+        where, ideal = f"vehicles.{i}.use_ideal_estimator", vehicle.pop("use_ideal_estimator")
+        if not isinstance(ideal, bool):
+            raise ConfigError(f"{where}: expected bool, got {ideal!r}")
+        flies_on = "truth" if ideal else "estimate"
+        if vehicle.setdefault("flies_on", flies_on) != flies_on:
+            raise ConfigError(f"{where}: contradicts vehicles.{i}.flies_on (drop the deprecated field)")
+        warnings.warn(
+            f"{where} is deprecated: write vehicles.{i}.flies_on: {flies_on}"
+            + (" (or estimator: {kind: truth} to run no estimator)" if ideal else ""),
+            FutureWarning,
+            stacklevel=3,
+        )
 
 
 def _override_hint(message, overrides):

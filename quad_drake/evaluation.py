@@ -429,7 +429,7 @@ def sigma_share(errors, sigmas, multiple=1.0):
     return int(np.count_nonzero(_within(errors, sigmas, multiple))), int(errors.size)
 
 
-class FleetSigmaFold(_Fold):
+class PooledSigmaFold(_Fold):
     """The share of a scenario's vehicles' fresh samples with |error| <= multiple * sigma, for N
     runs (:func:`fleet_sigma_threshold` has the rule); vehicles: how many vehicles are pooled."""
 
@@ -485,7 +485,7 @@ def fleet_sigma_threshold(errors, sigmas, name, sigma_name, multiple, min_percen
     """
     errors = [np.asarray(e, dtype=float).reshape(-1, 1) for e in errors]
     sigmas = [np.asarray(s, dtype=float).reshape(-1, 1) for s in sigmas]
-    fold = FleetSigmaFold(name, sigma_name, multiple, min_percent, max_percent, len(errors), 1)
+    fold = PooledSigmaFold(name, sigma_name, multiple, min_percent, max_percent, len(errors), 1)
     return _whole_log(
         fold, None, errors=errors, sigmas=sigmas, fresh=[np.ones(e.shape, dtype=bool) for e in errors]
     )
@@ -990,7 +990,7 @@ def _criterion_fold(criterion, runs, vehicles):
             runs,
         )
     if kind == "fleet_sigma":
-        return FleetSigmaFold(
+        return PooledSigmaFold(
             name,
             criterion.sigma_signal,
             criterion.sigma_multiple,

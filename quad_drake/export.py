@@ -13,7 +13,7 @@ import csv
 from pathlib import Path
 
 from .config import load_scenario
-from .estimation.vocabulary import vehicle_vocabulary
+from .estimation.registry import vehicle_vocabulary
 from .jsonio import dump_json
 from .results import load_logs
 from .signals import signal_unit, vehicle_signals

@@ -23,7 +23,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from .consistency import fleet_sigma_fraction
-from .estimation.vocabulary import vehicle_vocabulary
+from .estimation.registry import vehicle_vocabulary
 from .evaluation import judged_criteria, sigma_share
 from .outdir import write_binary_atomic
 from .report import fault_spans, write_report

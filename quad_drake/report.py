@@ -16,7 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from .config import ConfigError, dump_scenario
-from .estimation.vocabulary import health_counts, health_line, vehicle_vocabulary
+from .estimation.registry import vehicle_vocabulary
+from .estimation.vocabulary import health_counts, health_line
 from .evaluation import sigma_share
 from .outdir import locked, write_text_atomic
 from .results import read_summary

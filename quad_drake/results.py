@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from .config import ConfigError, dump_scenario, load_scenario
-from .estimation.vocabulary import vehicle_vocabulary
+from .estimation.registry import vehicle_vocabulary
 from .jsonio import dump_json
 from .outdir import locked, remove_stale, write_binary_atomic, write_text_atomic
 from .signals import Signals, vehicle_signals

@@ -29,7 +29,7 @@ from . import conventions as c
 from . import jit
 from .config import check_scenario
 from .error_sampling import TICK_LOG_WIDTHS, TICK_REFERENCE, TICK_STATE
-from .estimation.vocabulary import vehicle_vocabulary
+from .estimation.registry import flies_on_estimate, vehicle_vocabulary
 from .faults import sensor_of
 from .fidelity import PHYSICAL, fidelity_from_mode
 from .limits import check_run
@@ -221,9 +221,9 @@ def build_vehicle(vehicle, fidelity=PHYSICAL, *, seeds=None):
     _add_faults(builder, vehicle, outputs, n)
 
     state_for_control = plant.GetOutputPort("state")
-    if sensors.imu is not None:
+    if vehicle_vocabulary(vehicle) is not None:
         _add_estimator(builder, vehicle, fidelity, outputs, seeds)
-        if not vehicle.use_ideal_estimator:
+        if flies_on_estimate(vehicle):
             state_for_control = outputs["estimated_state"]
     builder.Connect(state_for_control, controller.GetInputPort("state"))
 

@@ -79,7 +79,7 @@ def test_overrides_reach_nested_fields(tmp_path):
             "vehicles.0.attitude_filter.variant: 'quaternionish' is not one of nonlinear, small_angle",
         ),
         (["vehicles.1.name=Quad1"], "vehicles: names must be unique"),
-        (["vehicles.0.use_ideal_estimator=false"], "needs imu, gps and mag sensors"),
+        (["vehicles.0.flies_on=estimate"], "vehicles.0.flies_on: estimate needs imu, gps and mag sensors"),
         (["seed"], "--set 'seed': expected dotted.key=value"),
         (["=3"], "expected dotted.key=value"),
         (["vehicles.5.physics.mass=1"], "'5' is not an index of a list of 2"),
@@ -201,7 +201,7 @@ def test_zero_noise_and_the_edges_of_the_noise_range_are_accepted(tmp_path):
 
 
 def test_estimator_choice_loads_by_kind_with_one_line_errors(tmp_path):
-    from quad_drake.config import EskfEstimatorConfig
+    from quad_drake.estimation.registry import EskfEstimatorConfig
 
     def load(text, *overrides):
         path = tmp_path / "s.yaml"

@@ -155,14 +155,14 @@ def test_default_batch_is_bounded_by_memory_and_split_evenly_over_the_jobs():
 
 
 def test_summary_bytes_counts_what_a_batch_holds():
-    """The estimate against the arrays a BatchSummary and its FleetSummarizer keep after a flight."""
+    """The estimate against the arrays a BatchSummary and its BatchSummarizer keep after a flight."""
     from quad_drake.fleet.simulation import build_fleet_diagram, fly
-    from quad_drake.fleet.streaming import FleetSummarizer
+    from quad_drake.fleet.streaming import BatchSummarizer
 
     scenario = catalog.load("11_gps_update", None, ["end_time=2.3"])
     seeds = (1, 2, 3)
     diagram, summarizer = build_fleet_diagram(
-        scenario, list(seeds), lambda signals, samples: FleetSummarizer(scenario, seeds, signals, samples)
+        scenario, list(seeds), lambda signals, samples: BatchSummarizer(scenario, seeds, signals, samples)
     )
     fly(diagram, scenario.end_time)
     records = summarizer.records(0, 0.0)

@@ -13,17 +13,12 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
 from quad_drake import delay_compensation
-from quad_drake.config import (
-    AttitudeFilterParams,
-    Ekf7EstimatorConfig,
-    EkfParams,
-    EskfEstimatorConfig,
-    VehicleConfig,
-)
+from quad_drake.config import AttitudeFilterParams, EkfParams, VehicleConfig
 from quad_drake.conventions import GRAVITY, NO_SAMPLE_STAMP
 from quad_drake.estimation import ekf, eskf, gating
 from quad_drake.estimation.complementary import complementary_update
-from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, vocabulary_for
+from quad_drake.estimation.registry import Ekf7EstimatorConfig, EskfEstimatorConfig, vocabulary_for
+from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE
 from quad_drake.fidelity import PHYSICAL, REFERENCE
 from quad_drake.kernels import attitude as attitude_kernel
 from quad_drake.kernels import ekf7, fusion

@@ -1,5 +1,5 @@
 """A fleet batch's records, made while it flies (``fleet.runner.fly_batch``: a
-``fleet.streaming.FleetSummarizer`` folds the signals chunk by chunk), against the per-run
+``fleet.streaming.BatchSummarizer`` folds the signals chunk by chunk), against the per-run
 functions on each run's full logs (``fleet.simulation.run_fleet`` keeps them), record field by
 field; any chunk size gives the same records; the batched forms of the per-run functions
 (they take (n, N, width) logs) against the per-run calls, column by column."""
@@ -13,9 +13,9 @@ from quad_drake import catalog
 from quad_drake import consistency as cons
 from quad_drake.campaigns.records import summarize_run
 from quad_drake.config import GpsParams, ImuParams, MagParams, SensorsConfig
-from quad_drake.estimation.vocabulary import vehicle_vocabulary
+from quad_drake.estimation.registry import vehicle_vocabulary
 from quad_drake.fleet.bounds import PcrbStream, posterior_crbs
-from quad_drake.fleet.runner import FleetBatch, batch_logs, fly_batch
+from quad_drake.fleet.runner import BatchTask, batch_logs, fly_batch
 from quad_drake.fleet.simulation import run_fleet
 from quad_drake.fleet.summaries import summarize_logs
 from quad_drake.results import result_from_logs
@@ -78,7 +78,7 @@ def test_streamed_batch_records_equal_the_per_run_functions(batch):
     expected = _per_run_records(scenario, times, logs, wall)
     if vehicle_vocabulary(scenario.vehicles[0]) is not None and scenario.name.startswith("11"):
         assert expected[0].nees and expected[0].pcrb and expected[0].nis  # the fields compared are filled
-    _same_records(fly_batch(FleetBatch(scenario, 10, SEEDS)), expected)
+    _same_records(fly_batch(BatchTask(scenario, 10, SEEDS)), expected)
 
 
 @pytest.mark.parametrize("chunk", [1, 7, 10_000])

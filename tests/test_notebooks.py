@@ -12,8 +12,13 @@ ROOT = Path(__file__).resolve().parent.parent
 NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
 
 
-def test_both_notebooks_exist():
-    assert [p.name for p in NOTEBOOKS] == ["01_walkthrough.ipynb", "02_estimator_analysis.ipynb"]
+def test_the_notebooks_exist():
+    assert [p.name for p in NOTEBOOKS] == [
+        "01_walkthrough.ipynb",
+        "02_estimator_analysis.ipynb",
+        "03_write_your_own_ekf.ipynb",
+        "04_workbench.ipynb",
+    ]
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
@@ -32,6 +37,7 @@ def test_notebook_executes(path, tmp_path, monkeypatch):
     # The kernel is this interpreter (jupyter_client maps the "python3" spec to sys.executable)
     # and finds the package even when it is not installed; files it writes go to tmp_path.
     monkeypatch.setenv("PYTHONPATH", os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])))
+    monkeypatch.setenv("QUAD_DRAKE_QUICK", "1")  # a notebook's campaigns and searches at their smallest
     notebook = nbformat.read(path, as_version=4)
     client = nbclient.NotebookClient(
         notebook, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}

@@ -55,6 +55,7 @@ PURE = (
     "quad_drake.error_sampling",
     "quad_drake.control",
     "quad_drake.estimation",
+    "quad_drake.config_fields",
 )
 """The pure modules (maths and models: numpy, no Drake); a package name covers its modules."""
 KERNELS = ("quad_drake.kernels", "quad_drake.fleet.bounds")
@@ -197,6 +198,16 @@ def test_wheel_installed_outside_the_repo_lists_and_runs_the_bundled_scenarios(t
         "--out", str(out), cwd=cwd, env=env,
     )  # fmt: skip
     assert traj.returncode in (0, 1) and "Traceback" not in traj.stderr, traj.stderr
+
+    # The README's own estimator, copied into a new file outside the repository, flies 11.
+    from test_custom_estimator import custom_override, readme_estimator
+
+    readme_estimator(cwd)
+    own = _run(
+        quad_drake_exe, "run", "11_gps_update", "--no-plots", "--out", str(out),
+        "--set", custom_override("my_ekf.py:MyEkf"), cwd=cwd, env=env,
+    )  # fmt: skip
+    assert own.returncode == 0 and "PASS: ABS(Quad.Est.E.Pos)" in own.stdout, own.stdout + own.stderr
 
     for command in ([quad_drake_exe], [str(python), "-m", "quad_drake"]):
         version = _run(*command, "--version", cwd=cwd, env=env)

@@ -93,7 +93,7 @@ def test_controller_flies_on_truth_or_estimate_as_configured(kind):
         scenario = short(
             "11_gps_update",
             0.1,
-            f"vehicles.0.use_ideal_estimator={str(ideal).lower()}",
+            f"vehicles.0.flies_on={'truth' if ideal else 'estimate'}",
             f"vehicles.0.estimator={{kind: {kind}}}",
         )
         vehicle = build_vehicle(scenario.vehicles[0])

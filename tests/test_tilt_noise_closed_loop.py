@@ -21,7 +21,7 @@ from scipy.stats import t as student_t
 
 from quad_drake import catalog
 from quad_drake import consistency as cons
-from quad_drake.estimation.vocabulary import vehicle_vocabulary
+from quad_drake.estimation.registry import vehicle_vocabulary
 from quad_drake.fleet.runner import batch_logs
 from quad_drake.fleet.simulation import run_fleet
 

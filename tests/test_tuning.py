@@ -16,9 +16,12 @@ import pytest
 
 from quad_drake import consistency as cons
 from quad_drake.config import ConfigError, load_scenario
+from quad_drake.estimation.registry import KINDS, EskfEstimatorConfig
 from quad_drake.tuning import objective, search, session, space
 from quad_drake.tuning.objective import INFEASIBLE, Score
 
+EKF7_KEYS = KINDS["ekf7"].tuning_keys(None)
+ESKF_KEYS = KINDS["eskf"].tuning_keys(EskfEstimatorConfig())
 SHORT_11 = ["end_time=2", "criteria.0.window=1"]
 """11's flight cut to 2 s, its position criterion to a 1 s window (a 20 s window cannot pass)."""
 TINY = ["--budget", "3", "--seeds", "2", "--holdout", "2", "--jobs", "1", "--quiet"]
@@ -52,20 +55,18 @@ def test_default_space_is_the_estimators_noise_fields_that_are_switched_on(load_
     reference = load_scenario("11_gps_update", "vehicles.0.ekf={}")  # the reference's EKF values
     assert [p.key for p in space.search_space(reference)] == [
         k
-        for k in space.DEFAULT_KEYS["ekf7"]
+        for k in EKF7_KEYS
         if k != "ekf.tilt_gyro_std"  # off (0) in the reference
     ]
     tuned_11 = space.search_space(load_scenario("11_gps_update"))  # q_pos_*_std = 0 there, tilt on
-    assert [p.key for p in tuned_11] == [k for k in space.DEFAULT_KEYS["ekf7"] if "q_pos" not in k]
+    assert [p.key for p in tuned_11] == [k for k in EKF7_KEYS if "q_pos" not in k]
     with_biases = load_scenario("11_gps_update_eskf", "vehicles.0.estimator.estimate_biases=true")
-    assert [p.key for p in space.search_space(with_biases)] == list(space.DEFAULT_KEYS["eskf"])
+    assert [p.key for p in space.search_space(with_biases)] == list(ESKF_KEYS)
     no_bias = load_scenario("11_gps_update_eskf")  # estimate_biases: false there (its IMU has none)
-    assert [p.key for p in space.search_space(no_bias)] == [
-        k for k in space.DEFAULT_KEYS["eskf"] if "_bias_" not in k
-    ]
+    assert [p.key for p in space.search_space(no_bias)] == [k for k in ESKF_KEYS if "_bias_" not in k]
     no_gps = load_scenario("10_mag_update", "vehicles.0.ekf={}")  # a magnetometer but no GPS
     assert [p.key for p in space.search_space(no_gps)] == [
-        k for k in space.DEFAULT_KEYS["ekf7"] if ".gps_" not in k and k != "ekf.tilt_gyro_std"
+        k for k in EKF7_KEYS if ".gps_" not in k and k != "ekf.tilt_gyro_std"
     ]
 
 
@@ -100,7 +101,7 @@ def test_a_relative_key_tunes_every_vehicle_a_full_key_one(load_scenario):
         (["ekf.q_velo_std"], "unknown field 'q_velo_std' in vehicles.0.ekf"),
         (["estimator.accel_std"], "unknown field 'accel_std' in vehicles.0.estimator (known: kind)"),
         (["ekf.q_pos_xy_std"], "starts at 0"),  # 0 in 11: a multiplier cannot move it
-        (["use_ideal_estimator"], "not a number"),
+        (["flies_on"], "not a number"),
         (["vehicles.3.ekf.q_yaw_std"], "vehicles.N.<field> with N in 0..0"),
         (["ekf.q_yaw_std", "ekf.q_yaw_std"], "given twice"),
         (["ekf.q_yaw_std", "vehicles.0.ekf.q_yaw_std"], "sets the same field as ekf.q_yaw_std"),
@@ -392,7 +393,7 @@ def test_tune_works_for_the_eskf_and_a_fault_scenario(quad_drake_cli, tmp_path):
     )  # fmt: skip
     assert outlier.returncode in (0, 1), outlier.stderr
     rows = _history(tmp_path / "fault")
-    searched = {f"value.{k}" for k in space.DEFAULT_KEYS["ekf7"] if k != "ekf.tilt_gyro_std"}  # 13: off
+    searched = {f"value.{k}" for k in EKF7_KEYS if k != "ekf.tilt_gyro_std"}  # 13: off
     assert len(rows) == 3 and searched <= set(rows[0]) and "value.ekf.tilt_gyro_std" not in rows[0]
 
 

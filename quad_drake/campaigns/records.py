@@ -7,7 +7,8 @@ import numpy as np
 
 from .. import consistency as cons
 from ..accuracy_bound import posterior_crb
-from ..estimation.vocabulary import health_counts, vehicle_vocabulary
+from ..estimation.registry import vehicle_vocabulary
+from ..estimation.vocabulary import health_counts
 from ..evaluation import max_abs, rms
 from ..signals import stamp_fresh
 from ..simulation import run

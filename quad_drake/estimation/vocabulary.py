@@ -26,7 +26,7 @@ import numpy as np
 
 from quad_drake.error_sampling import error_truth
 from quad_drake.estimation.eskf import attitude_errors
-from quad_drake.rotations import wrap_angles, yaw_from_quats
+from quad_drake.rotations import euler_from_quats, wrap_angles, yaw_from_quats
 
 DIAGNOSTICS = (
     "gps_nis",  # NIS of the last fresh GPS sample (fused or gated), NaN before the first
@@ -163,22 +163,60 @@ ESKF15 = EstimatorVocabulary(
 """Error-state EKF with accelerometer and gyro bias states (15); NEES over the 9 navigation states."""
 
 
-STATE_UNITS = {name: unit for v in (EKF7, ESKF15) for name, unit in zip(v.state_names, v.units, strict=True)}
+EULER_STATES = ("X", "Y", "Z", "VX", "VY", "VZ", "Roll", "Pitch", "Yaw")
+"""Entries a state can have that ``estimated_state`` alone gives: p_N (m), v_N (m/s), ZYX Euler
+angles of the body FRD frame (rad)."""
+
+
+def euler_errors(names):
+    """The errors function ((n, len(names)) estimate minus truth, Euler angles wrapped) of a state
+    whose entries `names` are from :data:`EULER_STATES`, read from ``estimated_state``."""
+    columns = [EULER_STATES.index(name) for name in names]
+
+    def errors(logs):
+        state = np.asarray(error_truth(logs), dtype=float)
+        estimate = np.asarray(logs["estimated_state"], dtype=float)
+        true_euler = np.stack(euler_from_quats(state[..., 3:7]), axis=-1)
+        est_euler = np.stack(euler_from_quats(estimate[..., 3:7]), axis=-1)
+        all_errors = np.concatenate(
+            [
+                estimate[..., 0:3] - state[..., 0:3],
+                estimate[..., 7:10] - state[..., 7:10],
+                wrap_angles(est_euler - true_euler),
+            ],
+            axis=-1,
+        )
+        return all_errors[..., columns]
+
+    return errors
+
+
+def euler_vocabulary(kind, names):
+    """The EstimatorVocabulary of an estimator whose state entries `names` (from
+    :data:`EULER_STATES`) are all read from ``estimated_state`` (a custom estimator's); NEES over
+    every entry."""
+    names = tuple(names)
+    return EstimatorVocabulary(
+        kind=kind,
+        state_names=names,
+        units=tuple(
+            "rad" if name in ("Roll", "Pitch", "Yaw") else ("m/s" if name[0] == "V" else "m")
+            for name in names
+        ),
+        angles=tuple(name in ("Roll", "Pitch", "Yaw") for name in names),
+        nees_states=tuple(range(len(names))),
+        logs={},
+        errors=euler_errors(names),
+        extra_values=_no_extra_values,
+    )
+
+
+STATE_UNITS = {
+    name: unit
+    for v in (EKF7, ESKF15, euler_vocabulary("euler", EULER_STATES))
+    for name, unit in zip(v.state_names, v.units, strict=True)
+}
 """Unit of every error-state name any estimator uses (the names mean the same in each)."""
-
-
-def vocabulary_for(estimator):
-    """The EstimatorVocabulary of a vehicle's ``estimator`` config (Ekf7/EskfEstimatorConfig)."""
-    if estimator.kind == "ekf7":
-        return EKF7
-    if estimator.kind == "eskf":
-        return ESKF15 if estimator.estimate_biases else ESKF9
-    raise ValueError(f"no vocabulary for estimator kind {estimator.kind!r}")
-
-
-def vehicle_vocabulary(vehicle):
-    """The EstimatorVocabulary of a VehicleConfig's estimator; None without an IMU (no estimator)."""
-    return vocabulary_for(vehicle.estimator) if vehicle.sensors.imu is not None else None
 
 
 def health_counts(diagnostics):

@@ -1,8 +1,8 @@
 """Fleet batches as campaign tasks: B runs flown at once, sent back as B RunRecords.
 
-A :class:`FleetBatch` is a task like ``campaigns.records.RunTask``, for any campaign
+A :class:`BatchTask` is a task like ``campaigns.records.RunTask``, for any campaign
 Runner (in-process, process pool, Dask): its worker flies the batch's runs as one fleet
-whose sink, a ``fleet.streaming.FleetSummarizer``, folds the exported signals into each
+whose sink, a ``fleet.streaming.BatchSummarizer``, folds the exported signals into each
 run's record while it flies, with the per-vehicle path's rules (signals, verdicts, errors,
 NEES/NIS, counters, PCRB). No full log is ever kept: a batch holds a chunk of its logs and a
 few numbers per sample and run (``fleet.summaries.summary_bytes``), and only slim records and
@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 from quad_drake.campaigns.tally import fold_records
 from quad_drake.fleet.simulation import build_fleet_diagram, fly, release_memory
-from quad_drake.fleet.streaming import FleetSummarizer
+from quad_drake.fleet.streaming import BatchSummarizer
 from quad_drake.fleet.summaries import summary_bytes
 
 MAX_BATCH = 1000
@@ -25,7 +25,7 @@ runs of 11 hold 0.27 GiB; a batch of 11 flown for 600 s is cut to 241 runs."""
 
 
 @dataclass(frozen=True)
-class FleetBatch:
+class BatchTask:
     """Runs first_index .. first_index + len(seeds) - 1 of a campaign, run first_index + j with seeds[j]."""
 
     scenario: object
@@ -43,9 +43,9 @@ def default_batch_size(scenario, runs, jobs=1):
 
 
 def batches(scenario, runs, first_seed, batch_size):
-    """The FleetBatch tasks of `runs` runs, run i with seed first_seed + i, `batch_size` per batch."""
+    """The BatchTask tasks of `runs` runs, run i with seed first_seed + i, `batch_size` per batch."""
     return [
-        FleetBatch(
+        BatchTask(
             scenario, start, tuple(range(first_seed + start, first_seed + min(runs, start + batch_size)))
         )
         for start in range(0, runs, batch_size)
@@ -61,12 +61,12 @@ def batch_logs(logs, j):
 
 
 def fly_batch(task):
-    """Fly a FleetBatch, summarised while it flies; the full RunRecord of each of its runs
+    """Fly a BatchTask, summarised while it flies; the full RunRecord of each of its runs
     (with its NEES and NIS series), by index."""
     diagram, summarizer = build_fleet_diagram(
         task.scenario,
         [int(seed) for seed in task.seeds],
-        lambda signals, samples: FleetSummarizer(task.scenario, task.seeds, signals, samples),
+        lambda signals, samples: BatchSummarizer(task.scenario, task.seeds, signals, samples),
     )
     wall_time = fly(diagram, task.scenario.end_time)
     release_memory(diagram, keep=summarizer)

@@ -3,9 +3,9 @@
 A fleet of N runs of a scenario is one Diagram: per VehicleConfig one sub-Diagram
 (``simulation.build_vehicle(vehicle, fidelity, seeds=seeds)``) whose systems advance the N
 copies of that vehicle, vehicle j of every group flying run seed ``seeds[j]``. Every exported
-signal goes to one sink: a :class:`FleetRecorder`, which keeps the full logs at the 5 ms samples
+signal goes to one sink: a :class:`BatchRecorder`, which keeps the full logs at the 5 ms samples
 ((samples, N, width) per signal: :func:`run_fleet`, for tests and analysis), or a campaign's
-``fleet.streaming.FleetSummarizer``, which folds them into the runs' records as they are flown
+``fleet.streaming.BatchSummarizer``, which folds them into the runs' records as they are flown
 (``fleet.runner``).
 """
 
@@ -22,7 +22,7 @@ from quad_drake.limits import check_run
 from quad_drake.simulation import build_vehicle, vehicle_log_widths
 
 
-class FleetRecorder(LeafSystem):
+class BatchRecorder(LeafSystem):
     """Keeps its inputs at the log samples t = k LOG_PERIOD, k = 1..samples, in preallocated
     arrays: ``logs[(vehicle, name)]`` (samples, N, width). A periodic publish, as the
     per-vehicle path's ``LogVectorOutput`` (it sees the values held before the updates at t);
@@ -56,7 +56,7 @@ class FleetRecorder(LeafSystem):
 def build_fleet_diagram(scenario, seeds, make_sink=None):
     """(Diagram, sink) of `scenario` flown by N = len(seeds) runs; the sink, a LeafSystem made
     by ``make_sink(signals, samples)`` (signals: ((vehicle, log name), width) per input port,
-    samples: log samples of a run), takes every exported signal; default a FleetRecorder."""
+    samples: log samples of a run), takes every exported signal; default a BatchRecorder."""
     fidelity = fidelity_from_mode(scenario.fidelity)
     samples = int(round(scenario.end_time / c.LOG_PERIOD))
     builder = DiagramBuilder()
@@ -67,7 +67,7 @@ def build_fleet_diagram(scenario, seeds, make_sink=None):
             ports.append(sub.GetOutputPort(name))
             signals.append(((vehicle.name, name), width))
     if make_sink is None:
-        sink = FleetRecorder(signals, len(seeds), samples)
+        sink = BatchRecorder(signals, len(seeds), samples)
     else:
         sink = make_sink(signals, samples)
     builder.AddNamedSystem("sink", sink)

@@ -1,6 +1,6 @@
 """A fleet batch summarised while it flies: the Drake sink of a campaign's fleet Diagram.
 
-A :class:`FleetSummarizer` takes the place of the recorder (``fleet.simulation``): it keeps
+A :class:`BatchSummarizer` takes the place of the recorder (``fleet.simulation``): it keeps
 the exported signals of the last :data:`~quad_drake.fleet.summaries.CHUNK_SAMPLES` log samples
 (and the one before them) in reused buffers and, each time the chunk fills, hands it to a
 :class:`~quad_drake.fleet.summaries.BatchSummary`, which folds it into the runs' records.
@@ -13,7 +13,7 @@ from quad_drake import conventions as c
 from quad_drake.fleet.summaries import CHUNK_SAMPLES, BatchSummary
 
 
-class FleetSummarizer(LeafSystem):
+class BatchSummarizer(LeafSystem):
     """Folds its inputs at the log samples t = k LOG_PERIOD, k = 1..samples, into a
     :class:`BatchSummary`, a chunk of CHUNK_SAMPLES at a time. A periodic publish, as the
     recorder's (it sees the values held before the updates at t); the sample at t = 0 is not

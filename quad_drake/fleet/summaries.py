@@ -12,7 +12,7 @@ sample before the chunk) and keeps what each run's
   last sample) and the posterior CRB (``fleet.bounds.PcrbStream``, its covariance carried).
 
 What it holds grows with the runs' length only by a few numbers per sample and run (the NEES,
-the fresh NIS): :func:`summary_bytes`. ``fleet.streaming.FleetSummarizer`` feeds it while a
+the fresh NIS): :func:`summary_bytes`. ``fleet.streaming.BatchSummarizer`` feeds it while a
 batch flies; ``tests/test_fleet_summaries.py`` checks its records against the per-run
 functions on each run's full logs to 1e-12, for any chunk size.
 """
@@ -28,7 +28,8 @@ from quad_drake.campaigns.records import (
     settled_mask,
     vehicle_errors,
 )
-from quad_drake.estimation.vocabulary import NIS_COLUMNS, health_counts, vehicle_vocabulary
+from quad_drake.estimation.registry import vehicle_vocabulary
+from quad_drake.estimation.vocabulary import NIS_COLUMNS, health_counts
 from quad_drake.fidelity import fidelity_from_mode
 from quad_drake.fleet.bounds import PcrbStream
 from quad_drake.results import signals_from_logs
@@ -240,7 +241,7 @@ class BatchSummary:
 
 def summarize_logs(scenario, seeds, logs, chunk=CHUNK_SAMPLES):
     """A BatchSummary of full logs {vehicle: {name: (n, N, w)}} fed `chunk` samples at a time
-    (what a FleetSummarizer does while the batch flies); for tests and benchmarks."""
+    (what a BatchSummarizer does while the batch flies); for tests and benchmarks."""
     n = next(iter(next(iter(logs.values())).values())).shape[0]
     summary = BatchSummary(scenario, seeds, n, {vehicle: list(x) for vehicle, x in logs.items()})
     for start in range(0, n, chunk):

@@ -32,7 +32,7 @@ import math
 import numpy as np
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
-from quad_drake.config import ConfigError, estimator_fidelity_problem
+from quad_drake.config import ConfigError
 from quad_drake.conventions import (
     ATTITUDE_FILTER_OFFSET,
     ATTITUDE_SIZE,
@@ -47,7 +47,8 @@ from quad_drake.conventions import (
 )
 from quad_drake.estimation import ekf, eskf, gating
 from quad_drake.estimation.complementary import VARIANTS
-from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, NIS_DOF, vocabulary_for
+from quad_drake.estimation.registry import kind_of, vocabulary_for
+from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, NIS_DOF
 from quad_drake.fidelity import PHYSICAL
 from quad_drake.kernels import attitude as attitude_kernel
 from quad_drake.kernels import ekf7 as ekf7_kernel
@@ -364,13 +365,6 @@ def _wire_eskf(system):
     return inputs, {name: system.GetOutputPort(name) for name in names}
 
 
-def _check_eskf_fidelity(fidelity):
-    """Raise ConfigError (one line) when the ESKF cannot run under `fidelity`."""
-    problem = estimator_fidelity_problem("eskf", fidelity)
-    if problem:
-        raise ConfigError(problem)
-
-
 def _estimator_diagram(builder, inputs, outputs, estimator):
     """Export `inputs` (name -> ports fed by one exported input) and the outputs the vocabulary
     of `estimator` (an estimator config) lists; the built Diagram, named ``estimator``."""
@@ -385,8 +379,9 @@ def _estimator_diagram(builder, inputs, outputs, estimator):
     return diagram
 
 
-def _build_ekf7(builder, vehicle, fidelity, n):
-    """CF + EKF7 + assembler of n vehicles in `builder`; (input ports by name, output ports by name)."""
+def add_ekf7(builder, vehicle, fidelity, n):
+    """Add the CF + EKF7 + assembler of n vehicles to `builder` (the ``ekf7`` kind's builder,
+    ``estimation/registry.py``); (input ports by name, output ports by name)."""
     tilt = ekf.TiltNoise.from_params(vehicle.ekf, vehicle.attitude_filter, ONBOARD_PERIOD)
     ekf_system = builder.AddNamedSystem("ekf", Ekf(vehicle.ekf, fidelity, tilt, n=n))
     attitude_filter = builder.AddNamedSystem(
@@ -402,12 +397,10 @@ def _build_ekf7(builder, vehicle, fidelity, n):
     return _wire_ekf7(builder, ekf_system, attitude_filter, assembler)
 
 
-def _build_eskf(builder, vehicle, fidelity, n):
-    _check_eskf_fidelity(fidelity)
+def add_eskf(builder, vehicle, fidelity, n):
+    """Add the ESKF of n vehicles to `builder` (the ``eskf`` kind's builder); (input ports by
+    name, output ports by name)."""
     return _wire_eskf(builder.AddNamedSystem("eskf", Eskf(vehicle.estimator, fidelity, n=n)))
-
-
-_BUILDERS = {"ekf7": _build_ekf7, "eskf": _build_eskf}
 
 
 def build_estimator(vehicle, fidelity=PHYSICAL, n=1):
@@ -421,6 +414,12 @@ def build_estimator(vehicle, fidelity=PHYSICAL, n=1):
     """
     if n < 1:
         raise ValueError(f"an estimator needs at least one vehicle, got n = {n}")
+    kind = kind_of(vehicle.estimator)
+    if kind.builder is None:
+        raise ValueError(f"estimator kind {kind.name!r} runs no estimator")
+    problem = kind.fidelity_problem(fidelity)
+    if problem:
+        raise ConfigError(problem)
     builder = DiagramBuilder()
-    inputs, outputs = _BUILDERS[vehicle.estimator.kind](builder, vehicle, fidelity, n)
+    inputs, outputs = kind.build_function()(builder, vehicle, fidelity, n)
     return _estimator_diagram(builder, inputs, outputs, vehicle.estimator)

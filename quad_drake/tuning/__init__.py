@@ -19,7 +19,6 @@ _LAZY = {
     "prepare": "session",
     "tune": "session",
     "verdict": "session",
-    "DEFAULT_KEYS": "space",
     "Parameter": "space",
     "apply": "space",
     "search_space": "space",
@@ -39,7 +38,6 @@ def __dir__():
 
 
 __all__ = [
-    "DEFAULT_KEYS",
     "OBJECTIVES",
     "Parameter",
     "Score",

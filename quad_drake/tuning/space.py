@@ -14,36 +14,10 @@ import dataclasses
 from dataclasses import dataclass
 
 from ..config import ConfigError, did_you_mean, validate
-from ..estimation.vocabulary import vehicle_vocabulary
+from ..estimation.registry import kind_of, vehicle_vocabulary
 
 SEARCH_DECADES = 1.0
 """Each parameter is searched from 1/10 to 10 times its starting value."""
-
-DEFAULT_KEYS = {
-    "ekf7": (
-        "ekf.q_pos_xy_std",
-        "ekf.q_pos_z_std",
-        "ekf.q_vel_xy_std",
-        "ekf.q_vel_z_std",
-        "ekf.q_yaw_std",
-        "ekf.tilt_gyro_std",
-        "ekf.gps_pos_xy_std",
-        "ekf.gps_pos_z_std",
-        "ekf.gps_vel_xy_std",
-        "ekf.gps_vel_z_std",
-        "ekf.mag_yaw_std",
-    ),
-    "eskf": (
-        "estimator.accel_std",
-        "estimator.gyro_std",
-        "estimator.accel_bias_rw_std",
-        "estimator.gyro_bias_rw_std",
-        "estimator.gps_pos_std",
-        "estimator.gps_vel_std",
-        "estimator.mag_yaw_std",
-    ),
-}
-"""The process-noise and measurement-noise fields of each estimator kind (the default space)."""
 
 
 @dataclass(frozen=True)
@@ -80,13 +54,20 @@ def tuned_vehicles(scenario):
 
 
 def _field_value(node, parts, key, where):
-    """Value at `parts` below `node` (a dataclass or list); ConfigError naming the unknown part."""
+    """Value at `parts` below `node` (a dataclass, dict or list); ConfigError naming the unknown part."""
     for depth, part in enumerate(parts):
         here = ".".join([where, *parts[:depth]]).strip(".") or "the scenario"
         if isinstance(node, list):
             if not part.isdigit() or int(part) >= len(node):
                 raise ConfigError(f"--params {key}: {part!r} is not an index of {here} (0..{len(node) - 1})")
             node = node[int(part)]
+        elif isinstance(node, dict):  # a custom estimator's params
+            if part not in node:
+                raise ConfigError(
+                    f"--params {key}: unknown key {part!r} in {here}{did_you_mean(part, node)} "
+                    f"(known: {', '.join(node) or 'none'})"
+                )
+            node = node[part]
         elif dataclasses.is_dataclass(node):
             names = [f.name for f in dataclasses.fields(node)]
             if part not in names:
@@ -137,14 +118,12 @@ def parameter(scenario, key):
 
 
 def default_keys(scenario):
-    """The default space: the tuned estimator's noise fields whose start is not zero (a zero
-    field, e.g. 11's q_pos_xy_std = 0, is switched off and cannot be scaled; an ESKF without
-    bias states leaves out the bias random walks), less the measurement noise of a sensor the
+    """The default space: the tuned estimator kind's tuning keys (``estimation/registry.py``)
+    whose start is not zero (a zero field, e.g. 11's q_pos_xy_std = 0, is switched off and cannot
+    be scaled), less the measurement noise of a sensor the
     vehicle does not have (10 has no GPS: its ``gps_*`` fields have no effect)."""
     first = scenario.vehicles[tuned_vehicles(scenario)[0]]
-    keys = DEFAULT_KEYS[first.estimator.kind]
-    if first.estimator.kind == "eskf" and not first.estimator.estimate_biases:
-        keys = [k for k in keys if "_bias_" not in k]  # no bias states: their noise has no effect
+    keys = kind_of(first.estimator).tuning_keys(first.estimator)
     for sensor in ("gps", "mag"):
         if getattr(first.sensors, sensor) is None:
             keys = [k for k in keys if not k.split(".")[-1].startswith(f"{sensor}_")]
@@ -179,6 +158,8 @@ def apply(scenario, space, x):
             value = list(value) if isinstance(value, tuple) else value
             if isinstance(node, list):
                 node[int(path[-1])] = value
+            elif isinstance(node, dict):
+                node[path[-1]] = value
             else:
                 setattr(node, path[-1], value)
     validate(candidate)

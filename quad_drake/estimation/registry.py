@@ -1,0 +1,271 @@
+"""Pure: the estimator kinds, each declared in one place.
+
+A vehicle's ``estimator:`` block names its kind (``estimator: {kind: eskf, ...}``).
+The :class:`EstimatorKind` of that name in :data:`KINDS` says everything the package needs
+to know of it:
+
+- ``config_type``: the dataclass the block loads into (its ``kind`` field defaults to the kind's
+  name); :data:`EstimatorConfig`, the vehicle's field type, is the Union of them all;
+- ``vocabulary(config)``: its state vocabulary (``estimation/vocabulary.py``: error states,
+  units, logs, errors against the truth), or None for a kind that runs no estimator;
+- ``builder``: ``"module:function"`` of the function that adds its systems to a Drake
+  ``DiagramBuilder``, ``(builder, vehicle, fidelity, n) -> (inputs {name: [input ports]},
+  outputs {name: output port})``; imported on first use, so this module needs no pydrake;
+- ``tuning_keys(config)``: the dotted config keys ``quad-drake tune`` searches by default;
+- ``fidelity_problem(fidelity)``: why it cannot run under a Fidelity (one line), or None;
+- ``problem(config)``: why a config of it cannot fly (one line; a custom estimator's check
+  before any flight), or None; ``locate(config, base_dir)``: the config with the paths it names
+  made absolute against the scenario file's folder ``base_dir``.
+
+Adding an estimator is its config dataclass and one entry in :data:`KINDS`.
+
+What the controller flies on is the vehicle's ``flies_on`` (:func:`flies_on_estimate`): the
+estimate, or the true state with the estimator running beside it to be judged (the reference's
+``UseIdealEstimator``, its default). Kind ``truth`` runs no estimator: its estimate is the true
+state, so the controller flies on the truth either way.
+"""
+
+import dataclasses
+import importlib
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from functools import lru_cache
+from typing import Dict, List, Optional, Union
+
+from quad_drake.config_fields import noise_stds, number, vector
+from quad_drake.conventions import ONBOARD_PERIOD
+from quad_drake.estimation import custom
+from quad_drake.estimation.vocabulary import EKF7, ESKF9, ESKF15, EstimatorVocabulary, euler_vocabulary
+from quad_drake.fidelity import Fidelity
+
+
+@dataclass
+class GateParams:
+    """Gates and resets (``estimation/gating.py``) of an estimator: chi^2 gates on the GPS
+    horizontal position, height and velocity apart and on the magnetometer; a GPS group
+    rejected for its timeout is reset to the sample; after gps_regain_time s without GPS the
+    returning sample is fused or reset. The EKF7's ``ekf:`` block and the ESKF's config hold them."""
+
+    gps_gate_sigma: float = number(5.0, nonnegative=True)  # sigma; each GPS group's gate, 0 = off
+    mag_gate_sigma: float = number(5.0, nonnegative=True)  # sigma
+    gps_reset_timeout: float = number(5.0, nonnegative=True)  # s of rejected horizontal position, 0 = never
+    gps_height_reset_timeout: float = number(1.0, nonnegative=True)  # s of rejected height, 0 = never
+    gps_vel_reset_timeout: float = number(0.5, nonnegative=True)  # s of rejected velocity, 0 = never
+    gps_regain_time: float = number(1.0, nonnegative=True)  # s without GPS that make an outage, 0 = off
+    gps_gate_adaptation: float = number(0.1, nonnegative=True, maximum=1.0)  # weight of a sample's NIS/dof
+
+
+@dataclass
+class Ekf7EstimatorConfig:
+    """The reference's estimator: complementary filter + 7-state EKF.
+
+    Its parameters are the vehicle's ``attitude_filter:`` and ``ekf:`` blocks (kept there so
+    the reference's scenarios read as before).
+    """
+
+    kind: str = field(default="ekf7", metadata={"choices": ("ekf7",)})
+
+
+@dataclass
+class EskfEstimatorConfig(GateParams):
+    """Error-state EKF (``estimation/eskf.py``): what it assumes, independent of the sensor truth."""
+
+    kind: str = field(default="eskf", metadata={"choices": ("eskf",)})
+    init_position: List[float] = vector(0.0, 0.0, -1.0)  # m, NED
+    init_velocity: List[float] = vector(0.0, 0.0, 0.0)  # m/s
+    init_ypr: List[float] = vector(0.0, 0.0, 0.0)  # rad, yaw pitch roll
+    init_pos_std: List[float] = noise_stds(0.1, 0.1, 0.3)  # m
+    init_vel_std: List[float] = noise_stds(0.1, 0.1, 0.3)  # m/s
+    init_att_std: List[float] = noise_stds(0.05, 0.05, 0.05)  # rad, about N, E, D
+    estimate_biases: bool = True  # false: 9 error states, biases fixed at zero
+    init_accel_bias_std: List[float] = noise_stds(0.05, 0.05, 0.05)  # m/s^2
+    init_gyro_bias_std: List[float] = noise_stds(0.01, 0.01, 0.01)  # rad/s
+    accel_std: List[float] = noise_stds(0.5, 0.5, 1.5)  # m/s^2 per IMU sample, body x y z
+    gyro_std: List[float] = noise_stds(0.5, 0.5, 0.5)  # rad/s per IMU sample
+    accel_bias_rw_std: float = number(0.001, nonnegative=True, noise_std=True)  # m/s^2/sqrt(s)
+    gyro_bias_rw_std: float = number(0.0001, nonnegative=True, noise_std=True)  # rad/s/sqrt(s)
+    gps_pos_std: List[float] = noise_stds(0.7, 0.7, 2.0)  # m
+    gps_vel_std: List[float] = noise_stds(0.1, 0.1, 0.3)  # m/s
+    mag_yaw_std: float = number(0.1, positive=True, noise_std=True)  # rad
+
+
+@dataclass
+class TruthEstimatorConfig:
+    """No estimator: the controller flies on the true state (an ideal estimator). The vehicle's
+    sensors still sample and are logged."""
+
+    kind: str = field(default="truth", metadata={"choices": ("truth",)})
+
+
+@dataclass
+class CustomEstimatorConfig:
+    """Your own estimator: a Python class flown through the workbench's adapter
+    (``estimation/custom.py`` says what the class provides)."""
+
+    kind: str = field(default="custom", metadata={"choices": ("custom",)})
+    factory: str = ""  # "module:name" or "path/to/file.py:name" (relative to the scenario file)
+    params: Dict[str, float] = field(default_factory=dict)  # keyword arguments of factory(**params)
+    gate_sigma: float = number(5.0, nonnegative=True)  # sigma; chi^2 gate of GPS and mag samples, 0 = off
+
+
+def _no_problem(config):
+    return None
+
+
+def _as_is(config, base_dir):
+    return config
+
+
+@dataclass(frozen=True)
+class EstimatorKind:
+    """One estimator kind (see the module docstring)."""
+
+    name: str
+    config_type: type
+    vocabulary: Callable[[object], Optional[EstimatorVocabulary]]
+    builder: Optional[str]  # "module:function", None when the kind runs no estimator
+    tuning_keys: Callable[[object], tuple]
+    fidelity_problem: Callable[[Fidelity], Optional[str]]
+    problem: Callable[[object], Optional[str]] = _no_problem
+    locate: Callable[[object, object], object] = _as_is
+
+    def build_function(self) -> Callable:
+        """The function named by ``builder``, imported."""
+        module, _, name = self.builder.partition(":")
+        return getattr(importlib.import_module(module), name)
+
+
+def _any_fidelity(fidelity):
+    return None
+
+
+def _physical_accelerometer_only(fidelity):
+    if fidelity.reference_accelerometer:
+        return "the error-state EKF is written for the physical accelerometer (fidelity: physical)"
+    return None
+
+
+_EKF7_TUNING = (
+    "ekf.q_pos_xy_std",
+    "ekf.q_pos_z_std",
+    "ekf.q_vel_xy_std",
+    "ekf.q_vel_z_std",
+    "ekf.q_yaw_std",
+    "ekf.tilt_gyro_std",
+    "ekf.gps_pos_xy_std",
+    "ekf.gps_pos_z_std",
+    "ekf.gps_vel_xy_std",
+    "ekf.gps_vel_z_std",
+    "ekf.mag_yaw_std",
+)
+_ESKF_TUNING = (
+    "estimator.accel_std",
+    "estimator.gyro_std",
+    "estimator.accel_bias_rw_std",
+    "estimator.gyro_bias_rw_std",
+    "estimator.gps_pos_std",
+    "estimator.gps_vel_std",
+    "estimator.mag_yaw_std",
+)
+
+
+def _eskf_tuning(config):
+    """The ESKF's noise fields; without bias states their random walks have no effect."""
+    return _ESKF_TUNING if config.estimate_biases else tuple(k for k in _ESKF_TUNING if "_bias_" not in k)
+
+
+@lru_cache(maxsize=64)
+def _custom_state_names(factory, params):
+    """The state names of the custom estimator `factory` (``params`` as sorted items), checked by
+    one step of each of its methods (``custom.check_estimator``)."""
+    return custom.check_estimator(factory, dict(params), ONBOARD_PERIOD)
+
+
+def _custom_names(config):
+    return _custom_state_names(config.factory, tuple(sorted(config.params.items())))
+
+
+def _custom_problem(config):
+    if not config.factory:
+        return "kind custom needs a factory ('module:name' or 'path/to/file.py:name')"
+    try:
+        _custom_names(config)
+    except custom.EstimatorProblem as e:
+        return str(e)
+    return None
+
+
+def _custom_located(config, base_dir):
+    return dataclasses.replace(config, factory=custom.absolute_factory(config.factory, base_dir))
+
+
+def _custom_tuning(config):
+    """The custom estimator's noise parameters: those named ``*_std``."""
+    return tuple(f"estimator.params.{name}" for name in config.params if name.endswith("_std"))
+
+
+KINDS = {
+    kind.name: kind
+    for kind in (
+        EstimatorKind(
+            name="ekf7",
+            config_type=Ekf7EstimatorConfig,
+            vocabulary=lambda config: EKF7,
+            builder="quad_drake.systems.estimators:add_ekf7",
+            tuning_keys=lambda config: _EKF7_TUNING,
+            fidelity_problem=_any_fidelity,
+        ),
+        EstimatorKind(
+            name="eskf",
+            config_type=EskfEstimatorConfig,
+            vocabulary=lambda config: ESKF15 if config.estimate_biases else ESKF9,
+            builder="quad_drake.systems.estimators:add_eskf",
+            tuning_keys=_eskf_tuning,
+            fidelity_problem=_physical_accelerometer_only,
+        ),
+        EstimatorKind(
+            name="custom",
+            config_type=CustomEstimatorConfig,
+            vocabulary=lambda config: euler_vocabulary("custom", _custom_names(config)),
+            builder="quad_drake.systems.custom_estimator:add_custom",
+            tuning_keys=_custom_tuning,
+            fidelity_problem=_any_fidelity,
+            problem=_custom_problem,
+            locate=_custom_located,
+        ),
+        EstimatorKind(
+            name="truth",
+            config_type=TruthEstimatorConfig,
+            vocabulary=lambda config: None,
+            builder=None,
+            tuning_keys=lambda config: (),
+            fidelity_problem=_any_fidelity,
+        ),
+    )
+}
+"""Every estimator kind by name."""
+
+EstimatorConfig = Union[tuple(kind.config_type for kind in KINDS.values())]
+"""A vehicle's estimator, chosen by ``kind`` (``estimator: {kind: eskf, ...}``); default ekf7."""
+
+
+def kind_of(config) -> EstimatorKind:
+    """The EstimatorKind of an estimator config."""
+    return KINDS[config.kind]
+
+
+def vocabulary_for(config) -> Optional[EstimatorVocabulary]:
+    """The EstimatorVocabulary of an estimator config; None for a kind that runs no estimator."""
+    return kind_of(config).vocabulary(config)
+
+
+def vehicle_vocabulary(vehicle) -> Optional[EstimatorVocabulary]:
+    """The EstimatorVocabulary of a VehicleConfig's estimator; None when no estimator runs (no
+    IMU, or kind ``truth``)."""
+    return vocabulary_for(vehicle.estimator) if vehicle.sensors.imu is not None else None
+
+
+def flies_on_estimate(vehicle) -> bool:
+    """True when the vehicle's controller flies on an estimator's estimate (``flies_on:
+    estimate`` and an estimator runs), False when on the true state."""
+    return vehicle.flies_on == "estimate" and vehicle_vocabulary(vehicle) is not None

@@ -1,0 +1,129 @@
+"""A user's own estimator (``estimator: {kind: custom, ...}``, ``estimation/custom.py``) as a
+Drake system with the bundled estimators' ports, stamps, gates and diagnostics."""
+
+import math
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import LeafSystem
+
+from quad_drake.conventions import (
+    EKF_OFFSET,
+    GPS_SIZE,
+    IMU_SIZE,
+    MAG_SIZE,
+    NO_SAMPLE_STAMP,
+    ONBOARD_PERIOD,
+    STATE_SIZE,
+)
+from quad_drake.estimation import custom, gating
+from quad_drake.estimation.registry import vocabulary_for
+from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE
+from quad_drake.rotations import quat_from_euler_tuple
+from quad_drake.systems._io import discrete_group, row_reader
+
+
+class PythonEstimator(LeafSystem):
+    """n copies of a custom estimator (one object per vehicle, made by ``factory(**params)``),
+    held in the context's abstract state.
+
+    Inputs and outputs as the bundled estimators' (vehicle-major): ``imu`` (n*6: f_B m/s^2,
+    w_NB_B rad/s), ``gps`` (n*7: p_N m, v_N m/s, stamp s), ``mag`` (n*2: yaw rad, stamp s);
+    ``estimated_state`` (n*13: p_N, q_NB from the estimate's roll, pitch, yaw, v_N, body rate =
+    the gyro sample, NaN while the IMU is out), ``covariance`` (n*k*k over the estimator's
+    ``state_names``), ``diagnostics`` (n*``vocabulary.DIAGNOSTICS``).
+
+    Each tick (ONBOARD_PERIOD, offset EKF_OFFSET, as the bundled estimators): ``predict`` with
+    the IMU sample (the last finite one over a dropout, counted); then a fresh magnetometer
+    and a fresh GPS sample (by stamp; a non-finite one is counted and skipped), each gated
+    when the estimator gives its innovation (``gate_sigma``, 0 = off) and fused with
+    ``update_mag`` / ``update_gps``; then ``estimate()`` and ``covariance()`` are read.
+    """
+
+    def __init__(self, config, n=1):
+        super().__init__()
+        self._n, self._config = n, config
+        names = vocabulary_for(config).state_names
+        self._k = len(names)
+        self._gps_threshold = gating.gate_threshold(custom.GPS_DOF, config.gate_sigma)
+        self._mag_threshold = gating.gate_threshold(custom.MAG_DOF, config.gate_sigma)
+        estimators = [custom.make_estimator(config.factory, config.params) for _ in range(n)]
+        self._objects = self.DeclareAbstractState(AbstractValue.Make(estimators))
+        initial = np.zeros((n, STATE_SIZE))
+        initial[:, 3] = 1.0  # level until the first tick
+        for i, estimator in enumerate(estimators):
+            self._write_estimate(initial[i], custom.read_estimate(estimator), np.zeros(3))
+        covariances = np.stack([custom.read_covariance(e, self._k) for e in estimators])
+        diagnostics = np.zeros((n, DIAGNOSTICS_SIZE))
+        diagnostics[:, [DIAG["gps_nis"], DIAG["mag_nis"]]] = math.nan
+        diagnostics[:, [DIAG["gps_stamp"], DIAG["mag_stamp"]]] = NO_SAMPLE_STAMP
+        self._estimate = discrete_group(self, initial.ravel(), "estimated_state")
+        self._covariance = discrete_group(self, covariances.ravel(), "covariance")
+        self._diagnostics = discrete_group(self, diagnostics.ravel(), "diagnostics")
+        self._last_imu = discrete_group(self, np.tile([0.0, 0.0, -9.81, 0.0, 0.0, 0.0], n))
+        self._read_imu = row_reader(self.DeclareVectorInputPort("imu", n * IMU_SIZE), n)
+        self._read_gps = row_reader(self.DeclareVectorInputPort("gps", n * GPS_SIZE), n)
+        self._read_mag = row_reader(self.DeclareVectorInputPort("mag", n * MAG_SIZE), n)
+        self.DeclarePeriodicUnrestrictedUpdateEvent(ONBOARD_PERIOD, EKF_OFFSET, self._update)
+
+    @staticmethod
+    def _write_estimate(row, estimate, body_rate):
+        """The 13-state row of a custom ``estimate()`` (9) and the body rate (3)."""
+        row[0:3] = estimate[0:3]
+        row[3:7] = quat_from_euler_tuple(estimate[6], estimate[7], estimate[8])
+        row[7:10] = estimate[3:6]
+        row[10:13] = body_rate
+
+    def _fuse(self, estimator, sensor, sample, stamp, diagnostics, threshold):
+        """Gate (when the estimator gives its innovation) and fuse one fresh sample."""
+        nis_column, stamp_column = DIAG[f"{sensor}_nis"], DIAG[f"{sensor}_stamp"]
+        diagnostics[stamp_column] = stamp
+        if not all(np.isfinite(part).all() for part in sample):
+            diagnostics[DIAG["nonfinite_samples"]] += 1
+            diagnostics[nis_column] = math.nan
+            return
+        pair = custom.innovation(estimator, sensor, *sample)
+        nis = custom.nis(*pair) if pair is not None else math.nan
+        diagnostics[nis_column] = nis
+        if nis > threshold:
+            diagnostics[DIAG[f"{sensor}_gated"]] += 1
+            return
+        custom.call(estimator, f"update_{sensor}", *sample)
+
+    def _update(self, context, state):
+        estimators = state.get_mutable_abstract_state(self._objects).get_mutable_value()
+        discrete = state.get_mutable_discrete_state()
+        estimates = discrete.get_mutable_value(self._estimate).reshape(self._n, STATE_SIZE)
+        covariances = discrete.get_mutable_value(self._covariance).reshape(self._n, self._k, self._k)
+        diagnostics = discrete.get_mutable_value(self._diagnostics).reshape(self._n, DIAGNOSTICS_SIZE)
+        last_imu = discrete.get_mutable_value(self._last_imu).reshape(self._n, IMU_SIZE)
+        imu, gps, mag = self._read_imu(context), self._read_gps(context), self._read_mag(context)
+        for i, estimator in enumerate(estimators):
+            body_rate = imu[i, 3:6]
+            if np.isfinite(imu[i]).all():
+                last_imu[i] = imu[i]
+            else:
+                diagnostics[i, DIAG["nonfinite_samples"]] += 1
+                body_rate = np.full(3, math.nan)
+            custom.call(
+                estimator, "predict", ONBOARD_PERIOD, last_imu[i, 0:3].copy(), last_imu[i, 3:6].copy()
+            )
+            if mag[i, 1] > diagnostics[i, DIAG["mag_stamp"]] + gating.STAMP_TOLERANCE:
+                self._fuse(
+                    estimator, "mag", (float(mag[i, 0]),), mag[i, 1], diagnostics[i], self._mag_threshold
+                )
+            if gps[i, 6] > diagnostics[i, DIAG["gps_stamp"]] + gating.STAMP_TOLERANCE:
+                sample = (gps[i, 0:3].copy(), gps[i, 3:6].copy())
+                self._fuse(estimator, "gps", sample, gps[i, 6], diagnostics[i], self._gps_threshold)
+            self._write_estimate(estimates[i], custom.read_estimate(estimator), body_rate)
+            covariances[i] = custom.read_covariance(estimator, self._k)
+
+
+def add_custom(builder, vehicle, fidelity, n):
+    """Add the custom estimator of n vehicles to `builder` (the ``custom`` kind's builder,
+    ``estimation/registry.py``); (input ports by name, output ports by name)."""
+    system = builder.AddNamedSystem("custom_estimator", PythonEstimator(vehicle.estimator, n))
+    inputs = {name: [system.GetInputPort(name)] for name in ("imu", "gps", "mag")}
+    return inputs, {
+        name: system.GetOutputPort(name) for name in ("estimated_state", "covariance", "diagnostics")
+    }

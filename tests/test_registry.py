@@ -1,0 +1,138 @@
+"""The estimator registry: every kind declared once, kind ``truth`` added by one entry, and the
+deprecated ``use_ideal_estimator`` rewritten into ``flies_on``."""
+
+import textwrap
+import typing
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pydrake.systems.analysis import Simulator
+
+from quad_drake import catalog
+from quad_drake.config import ConfigError, VehicleConfig, load_scenario
+from quad_drake.estimation import registry
+from quad_drake.fidelity import PHYSICAL, REFERENCE
+from quad_drake.simulation import build_vehicle, run, vehicle_log_names
+from quad_drake.tuning.space import search_space
+
+
+class AtRest:
+    """The smallest custom estimator: a vehicle at rest at 1 m, whatever it measures."""
+
+    state_names = ("X", "Y", "Z")
+
+    def predict(self, dt, accel, gyro):
+        pass
+
+    def update_gps(self, position, velocity):
+        pass
+
+    def update_mag(self, yaw):
+        pass
+
+    def estimate(self):
+        return np.array([0, 0, -1.0, 0, 0, 0, 0, 0, 0])
+
+    def covariance(self):
+        return np.eye(3)
+
+
+EXAMPLE_CONFIGS = {"custom": {"factory": f"{Path(__file__).resolve()}:AtRest"}}
+"""Fields a kind's config needs beyond its defaults to be flown."""
+
+
+def test_every_kind_is_declared_once_and_consistently():
+    members = typing.get_args(registry.EstimatorConfig)
+    assert [kind.config_type for kind in registry.KINDS.values()] == list(members)
+    for name, kind in registry.KINDS.items():
+        config = kind.config_type(**EXAMPLE_CONFIGS.get(name, {}))
+        assert kind.problem(config) is None, name
+        assert config.kind == name
+        assert registry.kind_of(config) is kind
+        vocabulary = kind.vocabulary(config)
+        assert (vocabulary is None) == (kind.builder is None), name  # a vocabulary iff it builds systems
+        if kind.builder is not None:
+            assert callable(kind.build_function())
+            assert vocabulary.kind == name
+        assert all(key.count(".") == 1 for key in kind.tuning_keys(config))
+        assert kind.fidelity_problem(PHYSICAL) is None
+
+
+def test_fidelity_support_is_the_registrys():
+    assert registry.KINDS["eskf"].fidelity_problem(REFERENCE).startswith("the error-state EKF")
+    assert registry.KINDS["ekf7"].fidelity_problem(REFERENCE) is None
+    with pytest.raises(ConfigError, match="vehicles.0.estimator: the error-state EKF"):
+        catalog.load("11_gps_update", None, ["fidelity=reference", "vehicles.0.estimator={kind: eskf}"])
+
+
+def test_kind_truth_runs_no_estimator_and_flies_11_on_the_true_state():
+    scenario = catalog.load("11_gps_update", None, ["vehicles.0.estimator={kind: truth}", "criteria=[]"])
+    vehicle = scenario.vehicles[0]
+    assert vehicle.flies_on == "estimate"  # 11's own setting: the truth kind's estimate is the truth
+    assert registry.vehicle_vocabulary(vehicle) is None and not registry.flies_on_estimate(vehicle)
+    names = vehicle_log_names(vehicle)
+    assert {"imu", "gps", "mag"} <= set(names) and "estimated_state" not in names
+    diagram = build_vehicle(vehicle)
+    systems = {s.get_name() for s in diagram.GetSystems()}
+    assert "estimator" not in systems and {"imu", "gps", "mag", "controller"} <= systems
+    context = diagram.CreateDefaultContext()
+    Simulator(diagram, context).AdvanceTo(0.05)
+    controller = diagram.GetSubsystemByName("controller")
+    seen = controller.GetInputPort("state").Eval(controller.GetMyContextFromRoot(context))
+    np.testing.assert_array_equal(seen, diagram.GetOutputPort("state").Eval(context))
+
+    result = run(scenario)  # the whole of 11: the safety verdicts judge the true flight
+    assert result.criteria and result.passed, [r.to_dict() for r in result.criteria if not r.passed]
+    with pytest.raises(ConfigError, match="no estimator to tune"):
+        search_space(scenario)
+
+
+def write(tmp_path, text):
+    path = tmp_path / "s.yaml"
+    path.write_text(textwrap.dedent(text))
+    return path
+
+
+DEPRECATED = """
+    end_time: 1
+    vehicles:
+      - name: Quad
+        use_ideal_estimator: {ideal}
+        sensors: {{imu: {{}}, gps: {{}}, mag: {{}}}}
+        {extra}
+"""
+
+
+@pytest.mark.parametrize("ideal, flies_on", [("false", "estimate"), ("true", "truth")])
+def test_use_ideal_estimator_still_works_with_a_deprecation_message(tmp_path, ideal, flies_on):
+    path = write(tmp_path, DEPRECATED.format(ideal=ideal, extra=""))
+    with pytest.warns(
+        FutureWarning, match=f"use_ideal_estimator is deprecated: write vehicles.0.flies_on: {flies_on}"
+    ):
+        scenario = load_scenario(path)
+    assert scenario.vehicles[0].flies_on == flies_on
+
+
+def test_use_ideal_estimator_contradicting_flies_on_is_one_line(tmp_path):
+    path = write(tmp_path, DEPRECATED.format(ideal="false", extra="flies_on: truth"))
+    with pytest.raises(ConfigError, match=r"use_ideal_estimator: contradicts vehicles.0.flies_on") as error:
+        load_scenario(path)
+    assert "\n" not in str(error.value)
+
+
+def test_flies_on_estimate_needs_the_sensors_unless_the_kind_is_truth():
+    assert VehicleConfig().flies_on == "truth"  # the reference's default
+    with pytest.raises(ConfigError, match="flies_on: estimate needs imu, gps and mag sensors"):
+        catalog.load("01_intro", None, ["vehicles.0.flies_on=estimate"])
+    catalog.load("01_intro", None, ["vehicles.0.flies_on=estimate", "vehicles.0.estimator={kind: truth}"])
+
+
+def test_the_command_line_prints_the_deprecation_as_one_line(tmp_path, capsys):
+    from quad_drake.cli import main
+
+    path = write(tmp_path, DEPRECATED.format(ideal="false", extra=""))
+    assert main(["run", str(path), "--out", str(tmp_path / "out")]) in (0, 1)
+    lines = [line for line in capsys.readouterr().err.splitlines() if "deprecated" in line]
+    deprecated = "vehicles.0.use_ideal_estimator is deprecated: write vehicles.0.flies_on: estimate"
+    assert lines == [f"quad-drake: warning: {deprecated}"]
