@@ -18,8 +18,8 @@ def wrap_to_pi(angle):
 
 
 def wrap_angles(a):
-    """Array version of :func:`wrap_to_pi`: into [-pi, pi)."""
-    return (a + math.pi) % TWO_PI - math.pi
+    """Array version of :func:`wrap_to_pi` (its formula, elementwise): into [-pi, pi)."""
+    return wrap_to_pi(a)
 
 
 def euler_from_quats(q):

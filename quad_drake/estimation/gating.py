@@ -194,12 +194,15 @@ def covariance_looks_healthy(P):
     """Cheap per-step check: every entry finite and every variance >= 0 (not a full PSD test).
 
     Plain loops over a square array, the code the compiled estimator kernels run per vehicle
-    (``kernels/fusion.py``): the entries' sum is finite unless one of them is not (or it
-    overflows)."""
-    for k in range(P.shape[0]):
-        if not P[k, k] >= 0.0:
+    (``kernels/fusion.py``): the entries' sum, row by row, is finite unless one of them is not
+    (or it overflows)."""
+    total = 0.0
+    for a in range(P.shape[0]):
+        if not P[a, a] >= 0.0:
             return False
-    return math.isfinite(float(P.sum()))
+        for b in range(P.shape[1]):
+            total += P[a, b]
+    return math.isfinite(total)
 
 
 def repaired_covariance(P, fallback):
