@@ -51,7 +51,6 @@ from quad_drake.kernels import fusion, rotations
 from quad_drake.kernels.flight import compiled
 from quad_drake.kernels.fusion import (
     GPS_SLOT,
-    Filters,
     fresh,
     fresh_mag,
     joseph_rows,
@@ -64,7 +63,6 @@ from quad_drake.kernels.imu_hold import (
     IMU_MISSING,
     bridge_imu_row,
     hold_weight,
-    imu_row,
     row_finite,
 )
 
@@ -218,27 +216,31 @@ def gps_update(x, P, gps_pv, R_gps, mask=None) -> tuple[np.ndarray, np.ndarray, 
 
 
 @njit_cached
-def _tick(filters, samples, model, tilt_gains, healthy):
-    f, s, m = Filters(*filters), Samples(*samples), Model(*model)
+def _tick(
+    x, P, diagnostics, book, hold, attitude, imu, gps, mag, dt, Q, gravity_z, r_mag, threshold, gains, healthy
+):
+    """:func:`tick` on the fields of its groups (numba runs a loop over flat arguments about a
+    third faster than over the fields of a namedtuple)."""
     GP, M = np.empty((7, 7)), np.empty((7, 7))
-    weight = hold_weight(m.dt)
+    weight = hold_weight(dt)
     quiet = True
-    for i in range(f.x.shape[0]):
-        status = bridge_imu_row(s.imu, f.hold, i, weight)
-        attitude_finite = row_finite(s.attitude, i)
+    for i in range(x.shape[0]):
+        status = bridge_imu_row(imu, hold, i, weight)
+        attitude_finite = row_finite(attitude, i)
         if status != IMU_FINITE or not attitude_finite:
-            f.diagnostics[i, _NONFINITE] += 1.0
+            diagnostics[i, _NONFINITE] += 1.0
         if status != IMU_MISSING and attitude_finite:
-            f_B, w_B = imu_row(s.imu, f.hold, i, status)
-            roll, pitch, yaw = s.attitude[i, 0], s.attitude[i, 1], s.attitude[i, 2]
-            trig, u = _predict_row(f.x, f.P, i, roll, pitch, yaw, f_B, m.dt, m.Q, m.gravity_z, GP, M)
-            if tilt_gains[0] > 0.0 or tilt_gains[1] > 0.0:
-                _add_tilt_noise(f.P, i, trig, u, w_B[1], w_B[2], tilt_gains)
-        healthy[i] = looks_healthy(f.P[i])
-        if not healthy[i] or fresh(s.gps[i, 6], f.book[i, GPS_SLOT]):
+            s = imu if status == IMU_FINITE else hold  # the sample, or the running mean
+            f_B = (s[i, 0], s[i, 1], s[i, 2])
+            roll, pitch, yaw = attitude[i, 0], attitude[i, 1], attitude[i, 2]
+            trig, u = _predict_row(x, P, i, roll, pitch, yaw, f_B, dt, Q, gravity_z, GP, M)
+            if gains[0] > 0.0 or gains[1] > 0.0:
+                _add_tilt_noise(P, i, trig, u, s[i, 4], s[i, 5], gains)  # w_B y, z
+        healthy[i] = looks_healthy(P[i])
+        if not healthy[i] or fresh(gps[i, 6], book[i, GPS_SLOT]):
             quiet = False
     if quiet:
-        _mag_tick(f.x, f.P, s.mag, f.diagnostics, f.book, m.r_mag, m.mag_threshold)
+        _mag_tick(x, P, mag, diagnostics, book, r_mag, threshold)
     return quiet
 
 
@@ -258,7 +260,7 @@ def tick(filters, samples, model, tilt_gains, healthy) -> bool:
     the tick ends here with :func:`mag_tick`. Otherwise the caller runs the repair, the mag step
     and the GPS fusion (``systems.estimators.GatedFusion._fuse_fresh``).
     """
-    return _tick(tuple(filters), tuple(samples), tuple(model), tilt_gains, healthy)
+    return _tick(*filters, *samples, *model, tilt_gains, healthy)
 
 
 # ----- the estimate in the ``state`` layout --------------------------------------------------------

@@ -50,8 +50,8 @@ from quad_drake.estimation.vocabulary import DIAG
 from quad_drake.jit import njit_cached
 from quad_drake.kernels import fusion, rotations
 from quad_drake.kernels.flight import compiled
-from quad_drake.kernels.fusion import Filters, fresh_mag, joseph_rows, looks_healthy, mag_gate, mag_innovation
-from quad_drake.kernels.imu_hold import IMU_FINITE, IMU_MISSING, bridge_imu_row, hold_weight, imu_row
+from quad_drake.kernels.fusion import fresh_mag, joseph_rows, looks_healthy, mag_gate, mag_innovation
+from quad_drake.kernels.imu_hold import IMU_FINITE, IMU_MISSING, bridge_imu_row, hold_weight
 
 Model = collections.namedtuple("Model", ["dt", "accel_var", "gyro_var", "isotropic_gyro", "Q_constant"])
 """The filter's constants: dt s, accel_var and gyro_var (3,) per IMU sample (``eskf.NoiseModel``),
@@ -119,12 +119,11 @@ def _apply_transition(S, D, A, dt, biases):
 
 
 @njit_cached
-def _predict_row(x, P, i, f_B, w_B, m, work):
-    """Vehicle i's prediction IN PLACE on x, P; m: the Model; work: (R, R', A, FP, M) buffers,
-    3x3, 3x3, 5x3x3 (E's blocks) and two n x n."""
+def _predict_row(x, P, i, f_B, w_B, dt, accel_var, gyro_var, isotropic_gyro, Q_constant, work):
+    """Vehicle i's prediction IN PLACE on x, P (the :class:`Model`'s fields as arguments); work:
+    (R, R', A, FP, M) buffers, 3x3, 3x3, 5x3x3 (E's blocks) and two n x n."""
     R, R_next, A, FP, M = work
     n = P.shape[1]
-    dt = m.dt
     h = 0.5 * dt * dt
     prior = (
         x[i, 0], x[i, 1], x[i, 2], x[i, 3], x[i, 4], x[i, 5], x[i, 6], x[i, 7],
@@ -151,21 +150,21 @@ def _predict_row(x, P, i, f_B, w_B, m, work):
     _apply_transition(FP.T, M, A, dt, biases)  # F (F P)^T = (F P F^T)^T: symmetrised below
     for r in range(n):  # P' = sym(F P F^T) + Q, Q's constant blocks
         for c in range(n):
-            P[i, r, c] = (M[r, c] + M[c, r]) * 0.5 + m.Q_constant[r, c]
+            P[i, r, c] = (M[r, c] + M[c, r]) * 0.5 + Q_constant[r, c]
     for a in range(6):  # Q's accelerometer block G R diag(accel_var) R^T G^T, G = [h I; dt I]
         ga = h if a < 3 else dt
         for b in range(6):
             gb = h if b < 3 else dt
             q = 0.0
             for k in range(3):
-                q += (ga * R[a % 3, k]) * m.accel_var[k] * (gb * R[b % 3, k])
+                q += (ga * R[a % 3, k]) * accel_var[k] * (gb * R[b % 3, k])
             P[i, a, b] = (M[a, b] + M[b, a]) * 0.5 + q
-    if not m.isotropic_gyro:  # Q's gyro block R diag(gyro_var) R^T dt^2
+    if not isotropic_gyro:  # Q's gyro block R diag(gyro_var) R^T dt^2
         for a in range(3):
             for b in range(3):
                 q = 0.0
                 for k in range(3):
-                    q += R[a, k] * (m.gyro_var[k] * (dt * dt)) * R[b, k]
+                    q += R[a, k] * (gyro_var[k] * (dt * dt)) * R[b, k]
                 P[i, 6 + a, 6 + b] = (M[6 + a, 6 + b] + M[6 + b, 6 + a]) * 0.5 + q
 
 
@@ -175,12 +174,11 @@ def _work(n):
 
 
 @njit_cached
-def _predict_rows(x, P, f_B, w_B, model):
-    m = Model(*model)
+def _predict_rows(x, P, f_B, w_B, dt, accel_var, gyro_var, isotropic_gyro, Q_constant):
     work = _work(P.shape[1])
     for i in range(x.shape[0]):
         force, rate = (f_B[i, 0], f_B[i, 1], f_B[i, 2]), (w_B[i, 0], w_B[i, 1], w_B[i, 2])
-        _predict_row(x, P, i, force, rate, m, work)
+        _predict_row(x, P, i, force, rate, dt, accel_var, gyro_var, isotropic_gyro, Q_constant, work)
 
 
 def predict(x, P, f_B, w_B, model) -> tuple[np.ndarray, np.ndarray]:
@@ -189,26 +187,30 @@ def predict(x, P, f_B, w_B, model) -> tuple[np.ndarray, np.ndarray]:
     x (N, 16); P (N, n, n), n = 15 or 9; f_B, w_B (N, 3); model: the :class:`Model` (:func:`model`).
     """
     x, P = np.array(x, dtype=float), np.array(P, dtype=float)
-    _predict_rows(x, P, f_B, w_B, tuple(model))
+    _predict_rows(x, P, f_B, w_B, *model)
     return x, P
 
 
 @njit_cached
-def _predict_tick(filters, imu, estimate, model):
-    f, m = Filters(*filters), Model(*model)
-    work = _work(f.P.shape[1])
-    healthy = np.empty(f.x.shape[0], dtype=np.bool_)
-    weight = hold_weight(m.dt)
-    for i in range(f.x.shape[0]):
-        status = bridge_imu_row(imu, f.hold, i, weight)
+def _predict_tick(
+    x, P, diagnostics, book, hold, imu, estimate, dt, accel_var, gyro_var, isotropic_gyro, Q_constant
+):
+    """:func:`predict_tick` on the fields of its groups (numba runs a loop over flat arguments
+    faster than over the fields of a namedtuple); the book is not used."""
+    work = _work(P.shape[1])
+    healthy = np.empty(x.shape[0], dtype=np.bool_)
+    weight = hold_weight(dt)
+    for i in range(x.shape[0]):
+        status = bridge_imu_row(imu, hold, i, weight)
         if status != IMU_FINITE:
-            f.diagnostics[i, _NONFINITE] += 1.0
+            diagnostics[i, _NONFINITE] += 1.0
         if status != IMU_MISSING:
-            f_B, w_B = imu_row(imu, f.hold, i, status)
-            _predict_row(f.x, f.P, i, f_B, w_B, m, work)
+            s = imu if status == IMU_FINITE else hold  # the sample, or the running mean
+            f_B, w_B = (s[i, 0], s[i, 1], s[i, 2]), (s[i, 3], s[i, 4], s[i, 5])
+            _predict_row(x, P, i, f_B, w_B, dt, accel_var, gyro_var, isotropic_gyro, Q_constant, work)
         for k in range(3):
-            estimate[i, 10 + k] = imu[i, 3 + k] - f.x[i, 13 + k] if status == IMU_FINITE else math.nan
-        healthy[i] = looks_healthy(f.P[i])
+            estimate[i, 10 + k] = imu[i, 3 + k] - x[i, 13 + k] if status == IMU_FINITE else math.nan
+        healthy[i] = looks_healthy(P[i])
     return healthy
 
 
@@ -222,7 +224,7 @@ def predict_tick(filters, imu, estimate, model) -> np.ndarray:
     its body rate is NaN (not measured: the controller then commands no body moment); before its
     first finite sample it is not predicted. Returns ``fusion.covariance_looks_healthy`` of the new P.
     """
-    return _predict_tick(tuple(filters), imu, estimate, tuple(model))
+    return _predict_tick(*filters, imu, estimate, *model)
 
 
 # ----- injection -----------------------------------------------------------------------------------

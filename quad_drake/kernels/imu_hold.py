@@ -56,11 +56,3 @@ def bridge_imu_row(imu, hold, i, weight) -> int:
         hold[i, 6] = 1.0
         return IMU_FINITE
     return IMU_HELD if hold[i, 6] > 0.0 else IMU_MISSING
-
-
-@njit_cached
-def imu_row(imu, hold, i, status) -> tuple:
-    """(f_B, w_B) 3-tuples the estimators integrate for vehicle i: its sample when IMU_FINITE, else
-    its running mean (undefined for IMU_MISSING: not integrated)."""
-    source = imu if status == IMU_FINITE else hold
-    return (source[i, 0], source[i, 1], source[i, 2]), (source[i, 3], source[i, 4], source[i, 5])
