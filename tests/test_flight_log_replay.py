@@ -86,6 +86,20 @@ def test_the_nis_of_each_sensor_is_reported_in_its_band(replays, log, kind):
     assert [entry["sensor"] for entry in summary["nis"]] == [s.sensor for s in result.nis]
 
 
+@pytest.mark.parametrize("kind", KINDS)
+def test_the_innovations_are_each_fused_samples_against_the_prior(replays, kind):
+    result = replays[LOGS[1], kind]
+    nis = {s.sensor: s for s in result.nis}
+    for sensor, (stamps, values) in result.innovations.items():
+        assert len(stamps) == nis[sensor].count  # one innovation per fused sample, as the NIS
+        assert np.isfinite(values).all()
+    gps = result.innovations["gps"][1]
+    horizontal = np.sqrt(np.mean(gps[:, 0:2] ** 2, axis=0))
+    assert (horizontal < 0.5).all() and (
+        np.abs(gps[:, 0:2].mean(axis=0)) < 0.1
+    ).all()  # m: unbiased, GPS-sized
+
+
 def test_an_attitude_only_log_runs_the_attitude_part_and_says_so(replays):
     for kind in KINDS:
         result = replays[LOGS[0], kind]
@@ -130,7 +144,8 @@ def test_replay_writes_a_report_an_index_entry_and_reproduces_itself(quad_drake_
     assert summary["kind"] == "replay" and summary["estimator"] == "eskf"
     report = (folder / "report.html").read_text()
     assert "which is another estimator, not the truth" in report and "NIS per sensor" in report
-    assert {p.name for p in folder.glob("*.png")} >= {"attitude_differences.png", "position.png", "nis.png"}
+    pngs = {"attitude_differences.png", "position.png", "nis.png", "innovations.png"}
+    assert {p.name for p in folder.glob("*.png")} >= pngs
     index = (out / "index.html").read_text()
     assert "Flight-log replays" in index and f"{LOGS[1]}-eskf/report.html" in index
 

@@ -183,3 +183,26 @@ def nis_summary(diagnostics, sensor, compare_after=0.0, probability=0.95):
     return NisSummary(
         sensor, dof, len(values), mean, band, band[0] <= mean <= band[1], single, stamps, values
     )
+
+
+INNOVATION_NAMES = {"gps": POSITION_STATES, "mag": ("Yaw",)}
+"""The components of each sensor's innovation: GPS p_N (m), v_N (m/s); magnetometer yaw (rad)."""
+
+
+def innovations(logs, sensor, compare_after=0.0):
+    """(stamps (m,) s, innovations (m, k)) of each fresh `sensor` sample ("gps" or "mag") in the
+    replay's logs from compare_after s on: the sample minus our estimate logged before it arrived
+    (the prior to within one LOG_PERIOD, 5 ms; the yaw difference wrapped), in the order of
+    :data:`INNOVATION_NAMES`. Empty when the log has no such samples."""
+    samples, estimate = logs[sensor], logs["estimated_state"]
+    stamps = samples[:, -1]
+    fresh = np.flatnonzero((np.diff(stamps, prepend=-math.inf) > 0) & (stamps >= max(compare_after, 0.0)))
+    fresh = fresh[(fresh > 0) & np.isfinite(samples[fresh, :-1]).all(axis=1)]
+    before = fresh - 1  # the row logged before the sample arrived
+    if sensor == "gps":
+        predicted = np.column_stack([estimate[before, 0:3], estimate[before, 7:10]])
+        values = samples[fresh, 0:6] - predicted
+    else:
+        yaw = euler_from_quats(estimate[before, 3:7])[2]
+        values = wrap_angles(samples[fresh, 0] - yaw)[:, None]
+    return samples[fresh, -1], values

@@ -13,7 +13,14 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from scipy.stats import chi2
 
-from quad_drake.flightlogs.comparison import ATTITUDE_STATES, attitude_sigmas, estimate_angles, state_sigmas
+from quad_drake.flightlogs.comparison import (
+    ATTITUDE_STATES,
+    INNOVATION_NAMES,
+    UNITS,
+    attitude_sigmas,
+    estimate_angles,
+    state_sigmas,
+)
 from quad_drake.flightlogs.settings import dump_replay
 from quad_drake.outdir import remove_stale, write_binary_atomic, write_text_atomic
 from quad_drake.report import esc, figures_html, html_page, html_table, num
@@ -113,6 +120,20 @@ def _nis_figure(result, path):
     return _save(fig, path)
 
 
+def _innovations_figure(result, path):
+    """Each judged sensor's innovations (sample minus our estimate just before it), per component."""
+    rows = [
+        (sensor, i, name) for sensor in result.innovations for i, name in enumerate(INNOVATION_NAMES[sensor])
+    ]
+    fig, axes = _figure(len(rows), f"{result.config.name}: innovations (sample - our estimate before it)")
+    for ax, (sensor, i, name) in zip(axes, rows, strict=True):
+        stamps, values = result.innovations[sensor]
+        ax.plot(stamps, values[:, i], ".", ms=2)
+        ax.axhline(0.0, color="0.5", lw=0.6)
+        ax.set_ylabel(f"{sensor} {name} [{UNITS[name]}]")
+    return _save(fig, path)
+
+
 def write_plots(result, out_dir):
     """[(caption, png path)] of the replay's figures, written into out_dir."""
     out_dir = Path(out_dir)
@@ -139,6 +160,7 @@ def write_plots(result, out_dir):
         )  # fmt: skip
     if result.nis:
         plots.append(("Innovations: NIS per sensor", _nis_figure(result, out_dir / "nis.png")))
+        plots.append(("Innovations per component", _innovations_figure(result, out_dir / "innovations.png")))
     return plots
 
 

@@ -65,6 +65,7 @@ class ReplayResult:
     attitude: list = field(default_factory=list)  # [comparison.StateDifference] roll, pitch, yaw
     position: list = field(default_factory=list)  # [StateDifference] x ... vz; [] without GPS
     nis: list = field(default_factory=list)  # [comparison.NisSummary] per judged sensor
+    innovations: dict = field(default_factory=dict)  # sensor -> comparison.innovations (stamps, values)
     superseded: dict = field(default_factory=dict)  # stream -> samples never emitted (> 500 Hz)
     compile_time: float = 0.0  # s, numba compiling kernels during this replay
 
@@ -222,6 +223,9 @@ def _judge(result):
     judged = ["mag"] + ([] if result.fake_position else ["gps"])
     summaries = [comparison.nis_summary(result.logs["diagnostics"], s, COMPARE_AFTER) for s in judged]
     result.nis = [s for s in summaries if s is not None]
+    result.innovations = {
+        s.sensor: comparison.innovations(result.logs, s.sensor, COMPARE_AFTER) for s in result.nis
+    }
     sources = {"imu": log.imu, "gps": log.gps, "mag": log.mag_field, "baro": log.baro}
     result.superseded = {name: superseded_samples(s.times) for name, s in sources.items() if s is not None}
 
