@@ -1,7 +1,9 @@
 """Pure: the reference simulator's named signals (``Quad.Pos.X``, ``Quad.Est.E.Yaw`` …)
 derived from one vehicle's logged arrays.
 
-Besides the reference's names, the truth of the flight (safety criteria, ``quad_drake.safety``):
+Besides the reference's names, the aiding sensors' samples (issue 32): ``Baro.Height`` (m, up,
+fresh on each barometer sample) and, for a 3-axis magnetometer in place of ``MagYaw``,
+``Mag.X``, ``Mag.Y``, ``Mag.Z`` (gauss, body FRD); and the truth of the flight (safety criteria, ``quad_drake.safety``):
 ``StateFinite`` (1 while all 13 state entries are finite), ``FloorContact`` (1 while on the
 floor), ``FloorTouchdowns`` (touchdowns so far, after take-off) and ``WallContactSteps``
 (1 ms steps so far stopped at a wall or the ceiling).
@@ -60,13 +62,15 @@ def key_unit(key):
         return "m/s^2"
     if key.startswith("Thrust."):
         return "N"
+    if key.startswith("Mag."):
+        return "gauss"
     if key.startswith("Est.") and last in STATE_UNITS:
         return STATE_UNITS[last]
     if last in ("Roll", "Pitch", "Yaw", "MagYaw", "MaxEuler"):
         return "rad"
     if key.startswith("Vel.") or last in ("VX", "VY", "VZ", "Vel"):
         return "m/s"
-    if last in ("X", "Y", "Z", "Pos", "PosFollowErr"):
+    if last in ("X", "Y", "Z", "Pos", "PosFollowErr", "Height"):
         return "m"
     return ""
 
@@ -78,7 +82,16 @@ class Signal:
 
 
 AXES = ("X", "Y", "Z")
-LOG_WIDTHS = {"state": 13, "reference": 10, "motor_forces": 4, "contacts": 3, "imu": 6, "gps": 7, "mag": 2}
+LOG_WIDTHS = {
+    "state": 13,
+    "reference": 10,
+    "motor_forces": 4,
+    "contacts": 3,
+    "imu": 6,
+    "gps": 7,
+    "mag": 2,
+    "baro": 2,
+}
 """Widths of the logs every vehicle may have; an estimator's come from its vocabulary."""
 COUNTER_SIGNALS = {
     "nonfinite_samples": "NonFinite",
@@ -201,7 +214,16 @@ def vehicle_signals(name, logs, vocabulary=None):
         for i, key in enumerate(("X", "Y", "Z", "VX", "VY", "VZ")):
             put(f"GPS.{key}", lambda i=i: gps[..., i], gps_fresh)
     if "mag" in logs:
-        put("MagYaw", lambda: logs["mag"][..., 0], lambda: stamp_fresh(logs["mag"][..., 1]))
+        mag = logs["mag"]
+        mag_fresh = functools.cache(lambda: stamp_fresh(mag[..., -1]))
+        if mag.shape[-1] == 2:  # the yaw magnetometer
+            put("MagYaw", lambda: mag[..., 0], mag_fresh)
+        else:  # 3-axis: the body-frame field, gauss
+            for i, axis in enumerate(AXES):
+                put(f"Mag.{axis}", lambda i=i: mag[..., i], mag_fresh)
+    if "baro" in logs:
+        baro = logs["baro"]
+        put("Baro.Height", lambda: baro[..., 0], functools.cache(lambda: stamp_fresh(baro[..., 1])))
     if vocabulary is not None and "estimated_state" in logs:
         _estimator_signals(put, logs, vocabulary, truth[..., P_SLICE], truth[..., V_SLICE], euler_truth)
     return Signals(makers)
