@@ -175,9 +175,9 @@ class BaroParams:
     height_std: float = number(0.1, nonnegative=True, noise_std=True)  # m per sample, white noise
     bias: float = number(0.0)  # m, the bias at t = 0
     bias_walk_std: float = number(0.001, nonnegative=True, noise_std=True)  # m per sample, bias increment
-    period: float = number(0.02, tick_multiple=1)  # s, a multiple of the 2 ms tick (50 Hz); first sample at t = period
+    period: float = number(0.02, tick_multiple=1)  # s, a multiple of the 2 ms tick; first at t = period
     ground_effect_height: float = number(0.0, nonnegative=True)  # m above the floor, 0 = no ground effect
-    ground_effect_error: float = number(0.0)  # m, height error on the floor (fades to 0 at ground_effect_height)
+    ground_effect_error: float = number(0.0)  # m, error on the floor, fading to 0 at ground_effect_height
 
 
 @dataclass

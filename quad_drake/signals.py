@@ -3,7 +3,8 @@ derived from one vehicle's logged arrays.
 
 Besides the reference's names, the aiding sensors' samples (issue 32): ``Baro.Height`` (m, up,
 fresh on each barometer sample) and, for a 3-axis magnetometer in place of ``MagYaw``,
-``Mag.X``, ``Mag.Y``, ``Mag.Z`` (gauss, body FRD); and the truth of the flight (safety criteria, ``quad_drake.safety``):
+``Mag.X``, ``Mag.Y``, ``Mag.Z`` (gauss, body FRD); and the truth of the flight (safety
+criteria, ``quad_drake.safety``):
 ``StateFinite`` (1 while all 13 state entries are finite), ``FloorContact`` (1 while on the
 floor), ``FloorTouchdowns`` (touchdowns so far, after take-off) and ``WallContactSteps``
 (1 ms steps so far stopped at a wall or the ceiling).

@@ -1,5 +1,6 @@
-"""Sensor LeafSystems (SPEC §2) of n vehicles: IMU, GPS, magnetometer (yaw or 3-axis) and barometer, thin glue over
-``sensor_models`` (compiled per vehicle by ``kernels.flight`` where they tick at 500 Hz or often).
+"""Sensor LeafSystems (SPEC §2) of n vehicles: IMU, GPS, magnetometer (yaw or 3-axis) and
+barometer, thin glue over ``sensor_models`` (compiled per vehicle by ``kernels.flight`` and
+``kernels.sensors`` where they tick at 500 Hz or often).
 
 Each sensor samples in one periodic discrete update, holds its last measurement in
 discrete state and publishes it through a state output port (no feedthrough). Every port
