@@ -31,9 +31,12 @@ Estimator signals come from the logs every estimator exports (``estimated_state`
   diagonal) for every error-state entry the vocabulary names (EKF7: X Y Z VX VY VZ Yaw;
   ESKF: X Y Z VX VY VZ AttN AttE AttD [BAX BAY BAZ BGX BGY BGZ]); ``Est.<name>`` for its
   extra values (ESKF: the bias estimates BAX ... BGZ);
-- ``Est.GpsNIS`` (fresh on each GPS sample) and ``Est.MagNIS``, and the counters
-  ``Est.NonFinite``, ``Est.GpsGated``, ``Est.MagGated``, ``Est.GpsResets``,
-  ``Est.CovRepairs`` (cumulative counts).
+- ``Est.GpsNIS`` (fresh on each GPS sample), ``Est.MagNIS`` (the yaw, or the EKF7's
+  tilt-compensated heading), ``Est.BaroNIS`` and ``Est.FieldNIS`` (the ESKF's 3-axis field), and
+  the counters ``Est.NonFinite``, ``Est.GpsGated``, ``Est.MagGated``, ``Est.GpsResets``,
+  ``Est.CovRepairs``, ``Est.BaroGated``, ``Est.BaroResets`` (cumulative counts); ``Est.BaroBias``
+  and ``Est.BaroBiasStd`` (m, the baro bias estimate and its standard deviation, NaN without a
+  barometer).
 """
 
 import functools
@@ -71,7 +74,7 @@ def key_unit(key):
         return "rad"
     if key.startswith("Vel.") or last in ("VX", "VY", "VZ", "Vel"):
         return "m/s"
-    if last in ("X", "Y", "Z", "Pos", "PosFollowErr", "Height"):
+    if last in ("X", "Y", "Z", "Pos", "PosFollowErr", "Height", "BaroBias", "BaroBiasStd"):
         return "m"
     return ""
 
@@ -100,6 +103,8 @@ COUNTER_SIGNALS = {
     "mag_gated": "MagGated",
     "gps_resets": "GpsResets",
     "covariance_repairs": "CovRepairs",
+    "baro_gated": "BaroGated",
+    "baro_resets": "BaroResets",
 }
 
 
@@ -265,6 +270,8 @@ def _estimator_signals(put, logs, vocabulary, p, v, euler):
         )
     for counter, key in COUNTER_SIGNALS.items():
         put(f"Est.{key}", lambda counter=counter: diagnostics[..., DIAG[counter]])
+    put("Est.BaroBias", lambda: diagnostics[..., DIAG["baro_bias"]])  # m; NaN without a barometer
+    put("Est.BaroBiasStd", lambda: diagnostics[..., DIAG["baro_bias_std"]])
 
 
 def empty_logs(log_widths):

@@ -52,11 +52,11 @@ from quad_drake.config_fields import number
 HEIGHT_INDEX = 2
 """Index of p_z (m, NED down) in the EKF7 state and in the ESKF error state."""
 
-BIAS, BIAS_VAR, LAST_HEIGHT, LAST_STAMP, REJECTED_SINCE = range(5)
-BARO_BOOK_SIZE = 5
-"""Columns of a filter's baro book: bias estimate (m), its variance (m^2), the latest finite baro
-height (m) and its stamp (s; NO sample: -1), when its current run of gate rejections began (s,
-NaN: none)."""
+BIAS, BIAS_VAR, LAST_HEIGHT, LAST_STAMP, REJECTED_SINCE, GPS_STAMP = range(6)
+BARO_BOOK_SIZE = 6
+"""Columns of a filter's baro book: bias estimate (m), its variance (m^2), the latest baro height
+(m, NaN when it was not finite) and its stamp (s; -1 before the first), when its current run of
+gate rejections began (s, NaN: none), the stamp of the last GPS sample seen (s, -1: none)."""
 
 
 @dataclass
@@ -76,6 +76,7 @@ def initial_book(params):
     book = np.empty(BARO_BOOK_SIZE)
     book[BIAS], book[BIAS_VAR] = params.bias_init, params.bias_init_std**2
     book[LAST_HEIGHT], book[LAST_STAMP], book[REJECTED_SINCE] = math.nan, -1.0, math.nan
+    book[GPS_STAMP] = -1.0
     return book
 
 
@@ -97,24 +98,31 @@ def height_innovation(p_z, P, height, bias, bias_var, height_var):
     return height - bias + p_z, P[HEIGHT_INDEX, HEIGHT_INDEX] + height_var + bias_var
 
 
-def height_correction(P, nu, S):
-    """(dx (n,), P' (n x n), nis): the scalar Joseph update of H = -e_2 (module docstring) with
-    innovation nu (m) and innovation variance S (m^2) from :func:`height_innovation`.
-
-    With b = P H^T = -P[:, 2]: K = b / S, dx = K nu, P' = P - K b^T - b K^T + S K K^T. Loops over
+def scalar_correction(P, index, sign, nu, S):
+    """(dx (n,), P' (n x n), nis) of a scalar measurement with H = sign * e_index (1 x n), innovation
+    nu and innovation variance S = P[index, index] + R: with b = P H^T = sign * P[:, index],
+    K = b / S, dx = K nu, P' = P - K b^T - b K^T + S K K^T (Joseph form), nis = nu^2 / S. Loops over
     the entries (numba compiles it; numpy runs it as well)."""
     n = P.shape[0]
     dx = np.empty(n)
-    P_new = np.empty((n, n))
+    b = np.empty(n)
     k = np.empty(n)
+    P_new = np.empty((n, n))
     for i in range(n):
-        k[i] = -P[i, HEIGHT_INDEX] / S
+        b[i] = sign * P[i, index]
+        k[i] = b[i] / S
         dx[i] = k[i] * nu
     for i in range(n):
         for j in range(n):
-            b_i, b_j = -P[i, HEIGHT_INDEX], -P[j, HEIGHT_INDEX]
-            P_new[i, j] = P[i, j] - k[i] * b_j - b_i * k[j] + S * k[i] * k[j]
+            P_new[i, j] = P[i, j] - k[i] * b[j] - b[i] * k[j] + S * k[i] * k[j]
     return dx, P_new, nu * nu / S
+
+
+def height_correction(P, nu, S):
+    """(dx (n,), P' (n x n), nis): the scalar Joseph update of H = -e_2 (module docstring) with
+    innovation nu (m) and innovation variance S (m^2) from :func:`height_innovation`
+    (:func:`scalar_correction`)."""
+    return scalar_correction(P, HEIGHT_INDEX, -1.0, nu, S)
 
 
 def bias_predict(bias_var, dt, walk_std):

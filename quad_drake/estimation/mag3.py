@@ -41,8 +41,8 @@ import numpy as np
 from quad_drake.config_fields import noise_stds, number, vector
 from quad_drake.sensor_models import world_field
 
-ATTITUDE_ERROR = slice(6, 9)
-"""The ESKF error-state entries the field depends on (dtheta, rad, world axes)."""
+ATTITUDE_START = 6
+"""The first of the ESKF error-state entries the field depends on (dtheta, 6..8, rad, world axes)."""
 
 
 @dataclass
@@ -106,9 +106,12 @@ def field_attitude_jacobian(qw, qx, qy, qz, mx, my, mz):
 
 def field_jacobian(q, m_N, n):
     """H (3 x n) of the field against the ESKF's error state of size n (9 or 15): the attitude
-    block of :func:`field_attitude_jacobian`, zero elsewhere."""
+    block (columns 6..8, dtheta) of :func:`field_attitude_jacobian`, zero elsewhere."""
     H = np.zeros((3, n))
-    H[:, ATTITUDE_ERROR] = field_attitude_jacobian(q[0], q[1], q[2], q[3], m_N[0], m_N[1], m_N[2])
+    J = field_attitude_jacobian(q[0], q[1], q[2], q[3], m_N[0], m_N[1], m_N[2])
+    for i in range(3):
+        for j in range(3):
+            H[i, ATTITUDE_START + j] = J[i, j]
     return H
 
 
@@ -135,20 +138,33 @@ def field_innovation(q, P, m_B, m_N, hard_iron, field_var):
     """(nu (3,), H (3 x n), S (3 x 3), nis) of a 3-axis sample m_B (gauss, FRD) against the ESKF
     at its nominal attitude q (wxyz) and covariance P (n x n): nu = (m_B - hard_iron) - R_hat^T m_N,
     H from :func:`field_jacobian`, S = H P H^T + diag(field_var), nis = nu^T S^-1 nu (NaN when S is
-    not positive definite). field_var: (3,) gauss^2."""
+    not positive definite). field_var: (3,) gauss^2. Loops over the entries (numba compiles it)."""
     n = P.shape[0]
     h = predicted_field(q[0], q[1], q[2], q[3], m_N[0], m_N[1], m_N[2])
     nu = np.empty(3)
     for i in range(3):
         nu[i] = m_B[i] - hard_iron[i] - h[i]
     H = field_jacobian(q, m_N, n)
-    J = H[:, ATTITUDE_ERROR]
-    block = P[ATTITUDE_ERROR, ATTITUDE_ERROR]
-    S = J @ block @ J.T
-    for i in range(3):
+    S = np.empty((3, 3))
+    for i in range(3):  # S = J P_theta J^T + R, J = H's attitude block
+        for j in range(3):
+            value = 0.0
+            for a in range(3):
+                for c in range(3):
+                    value += (
+                        H[i, ATTITUDE_START + a]
+                        * P[ATTITUDE_START + a, ATTITUDE_START + c]
+                        * H[j, ATTITUDE_START + c]
+                    )
+            S[i, j] = value
         S[i, i] += field_var[i]
     inv, det = inverse3(S)
-    nis = math.nan if det <= 0.0 else float(nu @ (inv @ nu))
+    nis = math.nan
+    if det > 0.0:
+        nis = 0.0
+        for i in range(3):
+            for j in range(3):
+                nis += nu[i] * inv[i, j] * nu[j]
     return nu, H, S, nis
 
 
@@ -156,18 +172,30 @@ def sequential_field_update(P, nu, H, field_var):
     """(dx (n,), P' (n x n)): the field innovation nu (3,) fused one axis at a time with the rows
     of H (3 x n, taken at the prior) and the diagonal noise field_var (3,): for each axis i the
     scalar Joseph update b = P h_i^T, S_i = h_i b + r_i, K = b / S_i, dx += K (nu_i - h_i dx),
-    P <- P - K b^T - b K^T + S_i K K^T. Equal to the batch update with R = diag(field_var)."""
+    P <- P - K b^T - b K^T + S_i K K^T. Equal to the batch update with R = diag(field_var).
+    Loops over the entries (numba compiles it)."""
     n = P.shape[0]
     P = P.copy()
     dx = np.zeros(n)
+    b = np.empty(n)
+    k = np.empty(n)
     for axis in range(3):
-        h = H[axis]
-        b = P @ h
-        s = float(h @ b) + field_var[axis]
-        k = b / s
-        residual = nu[axis] - float(h @ dx)
-        dx = dx + k * residual
-        P = P - np.outer(k, b) - np.outer(b, k) + s * np.outer(k, k)
+        s = field_var[axis]
+        residual = nu[axis]
+        for r in range(n):
+            value = 0.0
+            for c in range(n):
+                value += P[r, c] * H[axis, c]
+            b[r] = value
+        for r in range(n):
+            s += H[axis, r] * b[r]
+            residual -= H[axis, r] * dx[r]
+        for r in range(n):
+            k[r] = b[r] / s
+            dx[r] += k[r] * residual
+        for r in range(n):
+            for c in range(n):
+                P[r, c] = P[r, c] - k[r] * b[c] - b[r] * k[c] + s * k[r] * k[c]
     return dx, P
 
 

@@ -58,6 +58,8 @@ def initial_diagnostics():
     values = np.zeros(DIAGNOSTICS_SIZE)
     values[[DIAG["gps_nis"], DIAG["mag_nis"]]] = math.nan
     values[[DIAG["gps_stamp"], DIAG["mag_stamp"]]] = NO_SAMPLE_STAMP
+    values[[DIAG["baro_nis"], DIAG["field_nis"], DIAG["baro_bias"], DIAG["baro_bias_std"]]] = math.nan
+    values[[DIAG["baro_stamp"], DIAG["field_stamp"]]] = NO_SAMPLE_STAMP
     return values
 
 
