@@ -21,7 +21,7 @@ from pydrake.common.yaml import yaml_dump, yaml_dump_typed, yaml_load_typed
 
 from .config_fields import noise_stds, number, vector
 from .conventions import ONBOARD_PERIOD
-from .estimation.registry import Ekf7EstimatorConfig, EstimatorConfig, kind_of
+from .estimation.registry import Ekf7EstimatorConfig, EstimatorConfig, GateParams, kind_of
 from .fidelity import FIDELITY_MODES, fidelity_from_mode
 
 PACKAGE_DIR = Path(__file__).resolve().parent
@@ -202,7 +202,7 @@ class AttitudeFilterParams:
 
 
 @dataclass
-class EkfParams:
+class EkfParams(GateParams):
     """What the 7-state EKF assumes (SPEC §4); independent of the sensor truth."""
 
     init_state: List[float] = vector(0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0)  # m, m/s, rad
@@ -225,16 +225,6 @@ class EkfParams:
     tilt_velocity_time: float = number(0.25, nonnegative=True)  # s
     tilt_yaw_time: float = number(0.15, nonnegative=True)  # s
     dt_imu: float = number(0.002, positive=True, maximum=1.0)  # s, scales Q (a step, not a flight)
-    # Gates and resets (estimation/gating.py): chi^2 gates on the GPS horizontal position, height
-    # and velocity apart and on the magnetometer; a GPS group rejected for its timeout is reset to
-    # the sample; after gps_regain_time s without GPS the returning sample is fused or reset.
-    gps_gate_sigma: float = number(5.0, nonnegative=True)  # sigma; each GPS group's gate, 0 = off
-    mag_gate_sigma: float = number(5.0, nonnegative=True)  # sigma
-    gps_reset_timeout: float = number(5.0, nonnegative=True)  # s of rejected horizontal position, 0 = never
-    gps_height_reset_timeout: float = number(1.0, nonnegative=True)  # s of rejected height, 0 = never
-    gps_vel_reset_timeout: float = number(0.5, nonnegative=True)  # s of rejected velocity, 0 = never
-    gps_regain_time: float = number(1.0, nonnegative=True)  # s without GPS that make an outage, 0 = off
-    gps_gate_adaptation: float = number(0.1, nonnegative=True, maximum=1.0)  # weight of a sample's NIS/dof
 
 
 FAULT_KINDS = (

@@ -3,6 +3,7 @@ deprecated ``use_ideal_estimator`` rewritten into ``flies_on``."""
 
 import textwrap
 import typing
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,11 +17,37 @@ from quad_drake.simulation import build_vehicle, run, vehicle_log_names
 from quad_drake.tuning.space import search_space
 
 
+class AtRest:
+    """The smallest custom estimator: a vehicle at rest at 1 m, whatever it measures."""
+
+    state_names = ("X", "Y", "Z")
+
+    def predict(self, dt, accel, gyro):
+        pass
+
+    def update_gps(self, position, velocity):
+        pass
+
+    def update_mag(self, yaw):
+        pass
+
+    def estimate(self):
+        return np.array([0, 0, -1.0, 0, 0, 0, 0, 0, 0])
+
+    def covariance(self):
+        return np.eye(3)
+
+
+EXAMPLE_CONFIGS = {"custom": {"factory": f"{Path(__file__).resolve()}:AtRest"}}
+"""Fields a kind's config needs beyond its defaults to be flown."""
+
+
 def test_every_kind_is_declared_once_and_consistently():
     members = typing.get_args(registry.EstimatorConfig)
     assert [kind.config_type for kind in registry.KINDS.values()] == list(members)
     for name, kind in registry.KINDS.items():
-        config = kind.config_type()
+        config = kind.config_type(**EXAMPLE_CONFIGS.get(name, {}))
+        assert kind.problem(config) is None, name
         assert config.kind == name
         assert registry.kind_of(config) is kind
         vocabulary = kind.vocabulary(config)

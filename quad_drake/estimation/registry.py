@@ -40,6 +40,22 @@ from quad_drake.fidelity import Fidelity
 
 
 @dataclass
+class GateParams:
+    """Gates and resets (``estimation/gating.py``) of an estimator: chi^2 gates on the GPS
+    horizontal position, height and velocity apart and on the magnetometer; a GPS group
+    rejected for its timeout is reset to the sample; after gps_regain_time s without GPS the
+    returning sample is fused or reset. The EKF7's ``ekf:`` block and the ESKF's config hold them."""
+
+    gps_gate_sigma: float = number(5.0, nonnegative=True)  # sigma; each GPS group's gate, 0 = off
+    mag_gate_sigma: float = number(5.0, nonnegative=True)  # sigma
+    gps_reset_timeout: float = number(5.0, nonnegative=True)  # s of rejected horizontal position, 0 = never
+    gps_height_reset_timeout: float = number(1.0, nonnegative=True)  # s of rejected height, 0 = never
+    gps_vel_reset_timeout: float = number(0.5, nonnegative=True)  # s of rejected velocity, 0 = never
+    gps_regain_time: float = number(1.0, nonnegative=True)  # s without GPS that make an outage, 0 = off
+    gps_gate_adaptation: float = number(0.1, nonnegative=True, maximum=1.0)  # weight of a sample's NIS/dof
+
+
+@dataclass
 class Ekf7EstimatorConfig:
     """The reference's estimator: complementary filter + 7-state EKF.
 
@@ -51,7 +67,7 @@ class Ekf7EstimatorConfig:
 
 
 @dataclass
-class EskfEstimatorConfig:
+class EskfEstimatorConfig(GateParams):
     """Error-state EKF (``estimation/eskf.py``): what it assumes, independent of the sensor truth."""
 
     kind: str = field(default="eskf", metadata={"choices": ("eskf",)})
@@ -71,16 +87,6 @@ class EskfEstimatorConfig:
     gps_pos_std: List[float] = noise_stds(0.7, 0.7, 2.0)  # m
     gps_vel_std: List[float] = noise_stds(0.1, 0.1, 0.3)  # m/s
     mag_yaw_std: float = number(0.1, positive=True, noise_std=True)  # rad
-    # Gates and resets (estimation/gating.py): chi^2 gates on the GPS horizontal position, height
-    # and velocity apart and on the magnetometer; a GPS group rejected for its timeout is reset to
-    # the sample; after gps_regain_time s without GPS the returning sample is fused or reset.
-    gps_gate_sigma: float = number(5.0, nonnegative=True)  # sigma; each GPS group's gate, 0 = off
-    mag_gate_sigma: float = number(5.0, nonnegative=True)  # sigma
-    gps_reset_timeout: float = number(5.0, nonnegative=True)  # s of rejected horizontal position, 0 = never
-    gps_height_reset_timeout: float = number(1.0, nonnegative=True)  # s of rejected height, 0 = never
-    gps_vel_reset_timeout: float = number(0.5, nonnegative=True)  # s of rejected velocity, 0 = never
-    gps_regain_time: float = number(1.0, nonnegative=True)  # s without GPS that make an outage, 0 = off
-    gps_gate_adaptation: float = number(0.1, nonnegative=True, maximum=1.0)  # weight of a sample's NIS/dof
 
 
 @dataclass
