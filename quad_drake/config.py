@@ -21,7 +21,7 @@ from pydrake.common.yaml import yaml_dump, yaml_dump_typed, yaml_load_typed
 
 from .config_fields import noise_stds, number, vector
 from .conventions import ONBOARD_PERIOD
-from .estimation.registry import Ekf7EstimatorConfig, EstimatorConfig, GateParams, kind_of
+from .estimation.registry import AidingParams, Ekf7EstimatorConfig, EstimatorConfig, GateParams, kind_of
 from .fidelity import FIDELITY_MODES, fidelity_from_mode
 
 PACKAGE_DIR = Path(__file__).resolve().parent
@@ -202,7 +202,7 @@ class AttitudeFilterParams:
 
 
 @dataclass
-class EkfParams(GateParams):
+class EkfParams(AidingParams, GateParams):
     """What the 7-state EKF assumes (SPEC §4); independent of the sensor truth."""
 
     init_state: List[float] = vector(0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0)  # m, m/s, rad

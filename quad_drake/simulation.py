@@ -156,18 +156,18 @@ def _add_faults(builder, vehicle, outputs, n):
 
 def _add_estimator(builder, vehicle, fidelity, outputs, seeds):
     """Add the estimator of the vehicle's n copies (``build_estimator``; n = 1 without run seeds)
-    fed by the sensors in `outputs` (a missing GPS or magnetometer never samples), with the GPS
+    fed by the sensors in `outputs` that it has inputs for (a missing GPS or magnetometer never
+    samples; a barometer feeds an estimator that fuses it, ``systems/aiding.py``), with the GPS
     delay compensation when configured; its log signals go into `outputs`."""
     n = 1 if seeds is None else len(seeds)
     estimator = builder.AddSystem(build_estimator(vehicle, fidelity, n=n))
     for name in vehicle_vocabulary(vehicle).log_widths():
         outputs[name] = estimator.GetOutputPort(name)
+    kinds = [kind for kind in ("imu", "gps", "mag", "baro") if estimator.HasInputPort(kind)]
     inputs = {
-        kind: outputs.get(kind) or _never_sampled(builder, size, n)
-        for kind, size in (("imu", c.IMU_SIZE), ("gps", c.GPS_SIZE), ("mag", c.MAG_SIZE))
+        kind: outputs.get(kind) or _never_sampled(builder, estimator.GetInputPort(kind).size() // n, n)
+        for kind in kinds
     }
-    if vehicle.sensors.mag is not None and vehicle.sensors.mag.three_axis:
-        inputs["mag"] = _never_sampled(builder, c.MAG_SIZE, n)  # not fused yet: the estimator sees no yaw
     if vehicle.gps_delay_compensation > 0:
         max_lag = vehicle.gps_delay_compensation
         compensator = builder.AddNamedSystem(

@@ -33,6 +33,13 @@ between GPS samples its variance grows by the random walk (bias_walk_std^2 per s
   the default noise (baro 0.1 m, GPS height 2 m) the bias settles near 0.07 m and the baro, not
   the GPS, dominates the height: the double count is of the weak sensor.
 
+The first sample is not fused: it sets the datum, a bias update with b_meas = h + p_z of
+variance height_std^2 + P[2, 2] against the filter's own height (PX4 sets its baro offset on the
+first sample too), so a filter that starts at a known height does not wait for the GPS to learn
+the baro's offset. After each fusion the height variance is floored at P_b
+(:func:`floored_height_variance`): the bias error is common to all samples, so they cannot make
+the height better known than it.
+
 A baro sample rejected by its gate for ``reset_timeout`` s in a row (a pressure step: weather, a
 door, a gust on the static port) resets the bias to the sample against the filter's height,
 b = h - (-p_z), variance height_std^2 + P[2, 2]: the filter keeps its height and takes the baro
@@ -123,6 +130,17 @@ def height_correction(P, nu, S):
     innovation nu (m) and innovation variance S (m^2) from :func:`height_innovation`
     (:func:`scalar_correction`)."""
     return scalar_correction(P, HEIGHT_INDEX, -1.0, nu, S)
+
+
+def floored_height_variance(p_zz, bias_var):
+    """The filter's height variance (m^2) after a baro fusion: at least the bias variance P_b.
+
+    A baro-corrected height is no better known than the bias that corrects it, and that bias
+    error is common to every sample: fused one by one as if independent, samples would shrink
+    P[2, 2] far below P_b (the cross-covariance the scalar bias filter drops). Raising the one
+    diagonal entry keeps P positive semi-definite (PX4's ``fixCovarianceErrors`` clamps variances
+    per state the same way) and the height's NEES honest."""
+    return bias_var if p_zz < bias_var else p_zz
 
 
 def bias_predict(bias_var, dt, walk_std):

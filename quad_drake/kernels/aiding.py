@@ -7,7 +7,10 @@ The formulas are ``estimation/baro.py``'s and ``estimation/mag3.py``'s own code 
 beside the estimator, fed by the GPS heights; the field as a 3-dof gated, axis-by-axis update of
 the ESKF's error state; the tilt-compensated heading as the EKF7's yaw measurement):
 
-- baro, z = h - b_hat (m):  h(x) = -p_z,  H = -e_2,  R = height_std² + P_b,  NIS 1 dof;
+- baro, z = h - b_hat (m):  h(x) = -p_z,  H = -e_2,  R = height_std² + P_b,  NIS 1 dof, then
+  P[2, 2] >= P_b (``baro.floored_height_variance``); the first sample is not fused: it sets the
+  bias against the filter's height (b_meas = h + p_z, variance height_std² + P[2, 2]), as PX4 sets
+  its baro offset;
   the bias: P_b += walk² (t - t_last) at each sample; at each fresh GPS height (same stamp as the
   latest baro sample) b_meas = h + z_gps, variance height_std² + gps_z_std², gated at the baro's
   gate; after ``reset_timeout`` s of rejected samples b = h + p_z, P_b = height_std² + P[2, 2];
@@ -41,6 +44,7 @@ _TOLERANCE = 1e-9  # s, stamps are sums of periods
 
 _scalar_correction = compiled(baro.scalar_correction)
 _height_innovation = compiled(baro.height_innovation)
+_floored_height_variance = compiled(baro.floored_height_variance)
 _bias_predict = compiled(baro.bias_predict)
 _bias_update = compiled(baro.bias_update)
 _bias_from_gps = compiled(baro.bias_from_gps)
@@ -74,6 +78,10 @@ def _baro_rows(x, P, baro_samples, gps, book, diagnostics, model, dx, fused):
             book[i, _LAST_HEIGHT] = height
             if not (math.isfinite(height) and math.isfinite(stamp)):
                 diagnostics[i, _NONFINITE] += 1.0
+            elif previous == NO_SAMPLE_STAMP:  # the first sample sets the datum (module docstring)
+                book[i, _BIAS], book[i, _BIAS_VAR] = _bias_update(
+                    book[i, _BIAS], book[i, _BIAS_VAR], height + x[i, 2], height_var + P[i, 2, 2]
+                )
             else:
                 nu, S = _height_innovation(
                     x[i, 2], P[i], height, book[i, _BIAS], book[i, _BIAS_VAR], height_var
@@ -82,6 +90,7 @@ def _baro_rows(x, P, baro_samples, gps, book, diagnostics, model, dx, fused):
                 diagnostics[i, _BARO_NIS], diagnostics[i, _BARO_NIS + 1] = nis, stamp
                 if nis <= threshold:
                     correction, P_new, _ = _scalar_correction(P[i], baro.HEIGHT_INDEX, -1.0, nu, S)
+                    P_new[2, 2] = _floored_height_variance(P_new[2, 2], book[i, _BIAS_VAR])
                     P[i] = P_new
                     dx[i] = correction
                     fused[i] = True

@@ -38,7 +38,6 @@ from quad_drake.conventions import (
     EKF_STATE_SIZE,
     GPS_SIZE,
     IMU_SIZE,
-    MAG_SIZE,
     NO_SAMPLE_STAMP,
     ONBOARD_PERIOD,
     STATE_SIZE,
@@ -48,9 +47,11 @@ from quad_drake.estimation.complementary import VARIANTS
 from quad_drake.estimation.registry import kind_of, vocabulary_for
 from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, NIS_DOF
 from quad_drake.fidelity import PHYSICAL
+from quad_drake.kernels import aiding as aiding_kernels
 from quad_drake.kernels import estimation as kernels
 from quad_drake.rotations import quat_from_euler_tuple
 from quad_drake.systems._io import declare_state_output, row_reader
+from quad_drake.systems.aiding import NO_AIDING, AidedFusion, aiding_sensors, mag_size
 
 
 def initial_diagnostics():
@@ -177,7 +178,7 @@ class ComplementaryFilter(LeafSystem):
             kernels.round_to_float32(attitude, rate)
 
 
-class Ekf(GatedFusion, LeafSystem):
+class Ekf(AidedFusion, GatedFusion, LeafSystem):
     """n 7-state EKFs (SPEC §4): x = (p_N m, v_N m/s, yaw rad), NED; roll/pitch from the attitude filter.
 
     Ports vehicle-major as :class:`ComplementaryFilter`'s. Inputs: ``imu`` (n*6: f_B m/s^2,
@@ -202,7 +203,7 @@ class Ekf(GatedFusion, LeafSystem):
     filter's predicted roll/pitch error at the context time.
     """
 
-    def __init__(self, params, fidelity=PHYSICAL, tilt=None, n=1):
+    def __init__(self, params, fidelity=PHYSICAL, tilt=None, n=1, aiding=NO_AIDING):
         super().__init__()
         self._gravity_z = kernels.gravity_z(fidelity.reference_accelerometer)
         self._float32 = fidelity.float32_estimator
@@ -212,9 +213,10 @@ class Ekf(GatedFusion, LeafSystem):
         self._declare_gating(params, P0, (ekf.mag_noise(params), ekf.gps_noise(params)), fidelity)
         self._read_imu = row_reader(self.DeclareVectorInputPort("imu", n * IMU_SIZE), n)
         self._read_gps = row_reader(self.DeclareVectorInputPort("gps", n * GPS_SIZE), n)
-        self._read_mag = row_reader(self.DeclareVectorInputPort("mag", n * MAG_SIZE), n)
+        self._read_mag = row_reader(self.DeclareVectorInputPort("mag", n * mag_size(aiding)), n)
         self._read_attitude = row_reader(self.DeclareVectorInputPort("attitude", n * ATTITUDE_SIZE), n)
         x, P, diagnostics = self._declare_fusion_state(n, ekf.initial_state(params), P0)
+        self._declare_aiding(n, params, aiding, fidelity, params.gps_pos_z_std, tilt)
         self._hold = self.DeclareDiscreteState(_tiled(kernels.initial_hold(), n))
         self._healthy = np.empty(n, dtype=bool)  # scratch of each tick's health check
         declare_state_output(self, "ekf_state", x, n * EKF_STATE_SIZE)
@@ -222,18 +224,26 @@ class Ekf(GatedFusion, LeafSystem):
         declare_state_output(self, "diagnostics", diagnostics, n * DIAGNOSTICS_SIZE)
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, EKF_OFFSET, self._update)
 
+    def _estimates_heading(self):
+        return True  # the tilt-compensated heading: the EKF7 has no roll/pitch states
+
+    def _apply_corrections(self, x, P, dx, fused):
+        aiding_kernels.add_corrections(x, dx, fused, ekf.YAW_INDEX)
+
     def _update(self, context, discrete_state):
         """The prediction and, on a quiet tick, the mag fusion (one compiled call); at a fresh GPS
         sample or an unhealthy P, the health check and the fusions of :meth:`_fuse_fresh`."""
         n = self._n
         x, P, diagnostics, book = self._views(discrete_state, EKF_STATE_SIZE)
         gps = self._read_gps(context)
-        mag = self._read_mag(context)
+        mag_samples = self._read_mag(context)
+        mag = self._yaw_samples(mag_samples)
+        attitude = self._read_attitude(context)
         quiet = kernels.ekf7_tick(
             x,
             P,
             discrete_state.get_mutable_value(self._hold).reshape(n, kernels.HOLD_SIZE),
-            self._read_attitude(context),
+            attitude,
             self._read_imu(context),
             gps,
             mag,
@@ -259,6 +269,7 @@ class Ekf(GatedFusion, LeafSystem):
                 kernels.ekf7_gps_update,
                 kernels.ekf7_mag_tick,
             )
+        self._fuse_aiding(context, discrete_state, (x, P, diagnostics, book), gps, mag_samples, attitude)
         if self._float32:
             kernels.round_to_float32(x, P)
 
@@ -295,7 +306,7 @@ class EstimatedStateAssembler(LeafSystem):
         )
 
 
-class Eskf(GatedFusion, LeafSystem):
+class Eskf(AidedFusion, GatedFusion, LeafSystem):
     """n error-state EKFs (``estimation/eskf.py``) on the IMU, GPS and magnetometer.
 
     Ports vehicle-major as :class:`ComplementaryFilter`'s. Inputs: ``imu`` (n*6: f_B m/s^2,
@@ -314,7 +325,7 @@ class Eskf(GatedFusion, LeafSystem):
 
     ESTIMATE_GROUP, BIAS_GROUP = 4, 5
 
-    def __init__(self, params, fidelity=PHYSICAL, n=1):
+    def __init__(self, params, fidelity=PHYSICAL, n=1, aiding=NO_AIDING):
         super().__init__()
         self._noise = eskf.NoiseModel.from_params(params)
         P0 = eskf.initial_covariance(params)
@@ -326,7 +337,7 @@ class Eskf(GatedFusion, LeafSystem):
         self._declare_gating(params, P0, (eskf.mag_noise(params), eskf.gps_noise(params)), fidelity)
         self._read_imu = row_reader(self.DeclareVectorInputPort("imu", n * IMU_SIZE), n)
         self._read_gps = row_reader(self.DeclareVectorInputPort("gps", n * GPS_SIZE), n)
-        self._read_mag = row_reader(self.DeclareVectorInputPort("mag", n * MAG_SIZE), n)
+        self._read_mag = row_reader(self.DeclareVectorInputPort("mag", n * mag_size(aiding)), n)
         _, P, diagnostics = self._declare_fusion_state(n, x0, P0)
         initial_estimate = np.zeros(STATE_SIZE)  # body rate 0 before the first sample
         eskf.write_estimate(x0, initial_estimate)
@@ -337,7 +348,15 @@ class Eskf(GatedFusion, LeafSystem):
         declare_state_output(self, "covariance", P, n * P0.size)
         declare_state_output(self, "diagnostics", diagnostics, n * DIAGNOSTICS_SIZE)
         declare_state_output(self, "imu_bias", bias, n * 6)
+        self._declare_aiding(n, params, aiding, fidelity, params.gps_pos_std[2])
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, EKF_OFFSET, self._update)
+
+    def _estimates_heading(self):
+        return False  # the field vector, against the error state's attitude
+
+    def _apply_corrections(self, x, P, dx, fused):
+        rows = np.flatnonzero(fused)
+        x[rows], P[rows] = kernels.eskf_inject(x[rows], P[rows], dx[rows])
 
     def _update(self, context, discrete_state):
         """The prediction compiled, then the health check and the fusions of :meth:`_fuse_fresh`."""
@@ -349,17 +368,19 @@ class Eskf(GatedFusion, LeafSystem):
         healthy = kernels.eskf_predict_tick(
             x, P, hold, imu, estimate, diagnostics, ONBOARD_PERIOD, self._noise, self._Q_constant
         )
+        gps, mag = self._read_gps(context), self._read_mag(context)
         self._fuse_fresh(
             x,
             P,
             diagnostics,
             book,
-            self._read_gps(context),
-            self._read_mag(context),
+            gps,
+            self._yaw_samples(mag),
             healthy,
             kernels.eskf_gps_update,
             kernels.eskf_mag_tick,
         )
+        self._fuse_aiding(context, discrete_state, (x, P, diagnostics, book), gps, mag)
         eskf.write_estimate(x, estimate)
         discrete_state.get_mutable_value(self.BIAS_GROUP)[:] = x[:, 10:16].ravel()
 
@@ -411,7 +432,8 @@ def add_ekf7(builder, vehicle, fidelity, n):
     """Add the CF + EKF7 + assembler of n vehicles to `builder` (the ``ekf7`` kind's builder,
     ``estimation/registry.py``); (input ports by name, output ports by name)."""
     tilt = ekf.TiltNoise.from_params(vehicle.ekf, vehicle.attitude_filter, ONBOARD_PERIOD)
-    ekf_system = builder.AddNamedSystem("ekf", Ekf(vehicle.ekf, fidelity, tilt, n=n))
+    aiding = aiding_sensors(vehicle)
+    ekf_system = builder.AddNamedSystem("ekf", Ekf(vehicle.ekf, fidelity, tilt, n=n, aiding=aiding))
     attitude_filter = builder.AddNamedSystem(
         "attitude_filter",
         ComplementaryFilter(
@@ -422,13 +444,21 @@ def add_ekf7(builder, vehicle, fidelity, n):
         ),
     )
     assembler = builder.AddNamedSystem("estimated_state", EstimatedStateAssembler(n))
-    return _wire_ekf7(builder, ekf_system, attitude_filter, assembler)
+    inputs, outputs = _wire_ekf7(builder, ekf_system, attitude_filter, assembler)
+    if aiding.baro_period is not None:
+        inputs["baro"] = [ekf_system.GetInputPort("baro")]
+    return inputs, outputs
 
 
 def add_eskf(builder, vehicle, fidelity, n):
     """Add the ESKF of n vehicles to `builder` (the ``eskf`` kind's builder); (input ports by
     name, output ports by name)."""
-    return _wire_eskf(builder.AddNamedSystem("eskf", Eskf(vehicle.estimator, fidelity, n=n)))
+    aiding = aiding_sensors(vehicle)
+    system = builder.AddNamedSystem("eskf", Eskf(vehicle.estimator, fidelity, n=n, aiding=aiding))
+    inputs, outputs = _wire_eskf(system)
+    if aiding.baro_period is not None:
+        inputs["baro"] = [system.GetInputPort("baro")]
+    return inputs, outputs
 
 
 def build_estimator(vehicle, fidelity=PHYSICAL, n=1):
