@@ -588,6 +588,12 @@ def _check_semantics(scenario):
             if not (v.sensors.imu and v.sensors.gps and v.sensors.mag):
                 raise ConfigError(f"vehicles.{i}.flies_on: estimate needs imu, gps and mag sensors")
         kind = kind_of(v.estimator)
+        three_axis = v.sensors.mag is not None and v.sensors.mag.three_axis
+        if three_axis and kind.builder and not kind.three_axis_nis:
+            raise ConfigError(
+                f"vehicles.{i}.sensors.mag.three_axis: estimator kind {kind.name!r} takes the yaw "
+                "magnetometer only (ekf7 and eskf fuse a 3-axis one)"
+            )
         problem = kind.fidelity_problem(fidelity_from_mode(scenario.fidelity)) or kind.problem(v.estimator)
         if problem:
             raise ConfigError(f"vehicles.{i}.estimator: {problem}")

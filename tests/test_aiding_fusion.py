@@ -40,8 +40,8 @@ def test_height_correction_equals_the_dense_ekf7_update(seed):
     rng = np.random.default_rng(seed)
     x, P = rng.normal(size=7), random_spd(rng, 7)
     height, bias, bias_var, height_var = 1.3, 0.2, 0.05, 0.01
-    expected_x, expected_P, expected_nis = baro.ekf7_baro_update(x, P, height, bias, bias_var, height_var)
-    nu, S = baro.height_innovation(x[2], P, height, bias, bias_var, height_var)
+    expected_x, expected_P, expected_nis = baro.ekf7_baro_update(x, P, height, bias, height_var + bias_var)
+    nu, S = baro.height_innovation(x[2], P, height, bias, height_var + bias_var)
     dx, P_new, nis = baro.height_correction(P, nu, S)
     np.testing.assert_allclose(x + dx, expected_x, atol=1e-12)
     np.testing.assert_allclose(P_new, expected_P, atol=1e-12)
@@ -54,8 +54,8 @@ def test_height_correction_injected_equals_the_eskf_oracle_and_the_jacobian_is_m
     rng = np.random.default_rng(n)
     x, P = random_nominal(rng), random_spd(rng, n, 0.01)
     height, bias, bias_var, height_var = -x[2] + 0.3, 0.1, 0.02, 0.01
-    expected_x, expected_P, expected_nis = baro.eskf_baro_update(x, P, height, bias, bias_var, height_var)
-    nu, S = baro.height_innovation(x[2], P, height, bias, bias_var, height_var)
+    expected_x, expected_P, expected_nis = baro.eskf_baro_update(x, P, height, bias, height_var + bias_var)
+    nu, S = baro.height_innovation(x[2], P, height, bias, height_var + bias_var)
     dx, P_new, nis = baro.height_correction(P, nu, S)
     x_new, P_new = eskf.inject(x, P_new, dx)
     np.testing.assert_allclose(x_new, expected_x, atol=1e-12)
@@ -74,9 +74,9 @@ def test_height_correction_injected_equals_the_eskf_oracle_and_the_jacobian_is_m
 def test_non_finite_baro_height_is_skipped_by_the_oracles():
     P = np.eye(7)
     x = np.zeros(7)
-    assert math.isnan(baro.ekf7_baro_update(x, P, math.nan, 0.0, 0.0, 0.01)[2])
+    assert math.isnan(baro.ekf7_baro_update(x, P, math.nan, 0.0, 0.01)[2])
     x16, P9 = eskf.initial_nominal([0, 0, -1], [0, 0, 0], [1, 0, 0, 0]), np.eye(9)
-    assert math.isnan(baro.eskf_baro_update(x16, P9, math.nan, 0.0, 0.0, 0.01)[2])
+    assert math.isnan(baro.eskf_baro_update(x16, P9, math.nan, 0.0, 0.01)[2])
 
 
 def test_baro_nis_is_chi2_one_dof_when_consistent():
@@ -90,7 +90,7 @@ def test_baro_nis_is_chi2_one_dof_when_consistent():
         p_z_true = -1.0 + error[2]
         bias_true = 0.3 + math.sqrt(bias_var) * rng.normal()
         height = -p_z_true + bias_true + math.sqrt(height_var) * rng.normal()
-        nu, S = baro.height_innovation(-1.0, P, height, 0.3, bias_var, height_var)
+        nu, S = baro.height_innovation(-1.0, P, height, 0.3, height_var + bias_var)
         nis[k] = baro.height_correction(P, nu, S)[2]
     # mean of chi^2(1) over `runs` samples: 1 +- 4 sqrt(2 / runs)
     assert abs(nis.mean() - 1.0) < 4 * math.sqrt(2.0 / runs)
@@ -118,6 +118,11 @@ def test_bias_filter_learns_a_constant_bias_from_gps_and_is_consistent():
     nees = errors**2 / variances
     assert abs(nees.mean() - 1.0) < 4 * math.sqrt(2.0 / 200)
     assert math.sqrt(variances.mean()) < 0.3  # 50 GPS heights of 2 m: 2 / sqrt(50) = 0.28 m
+
+
+def test_height_variance_is_floored_at_the_bias_variance():
+    assert baro.floored_height_variance(0.001, 0.01) == 0.01
+    assert baro.floored_height_variance(0.04, 0.01) == 0.04
 
 
 def test_bias_reset_takes_the_filter_height():

@@ -51,13 +51,16 @@ def test_baro_rows_fuse_as_the_pure_update_and_gate_the_outlier():
     assert fused.tolist() == [True, True, False, False]
     bias_var = 0.5**2 + 0.01**2 * 0.02  # grown over the 20 ms since the previous sample
     for i in (0, 1):
-        nu, S = baro.height_innovation(x[i, 2], P_before[i], heights[i], 0.2, bias_var, 0.01)
+        nu, S = baro.height_innovation(x[i, 2], P_before[i], heights[i], 0.2, 0.01)
         expected_dx, expected_P, nis = baro.height_correction(P_before[i], nu, S)
+        assert expected_P[2, 2] < bias_var  # the floor binds: P[2, 2] is raised to the bias variance
+        expected_P[2, 2] = bias_var
         np.testing.assert_allclose(dx[i], expected_dx, rtol=0, atol=1e-12)
         np.testing.assert_allclose(P[i], expected_P, rtol=0, atol=1e-12)
         assert diagnostics[i, DIAG["baro_nis"]] == pytest.approx(nis, rel=1e-12)
-        # injected, the oracle's posterior
-        x_oracle, P_oracle, _ = baro.eskf_baro_update(x[i], P_before[i], heights[i], 0.2, bias_var, 0.01)
+        # injected, the oracle's posterior (the floor commutes with the injection's G P G^T)
+        x_oracle, P_oracle, _ = baro.eskf_baro_update(x[i], P_before[i], heights[i], 0.2, 0.01)
+        P_oracle[2, 2] = bias_var
         x_new, P_new = eskf.inject(x[i], P[i], dx[i])
         np.testing.assert_allclose(x_new, x_oracle, atol=1e-12)
         np.testing.assert_allclose(P_new, P_oracle, atol=1e-12)
@@ -72,32 +75,39 @@ def test_baro_rows_fuse_as_the_pure_update_and_gate_the_outlier():
     np.testing.assert_array_equal(P, P_after)
 
 
-def test_baro_rejected_past_the_timeout_resets_the_bias_to_the_filter_height():
+def test_the_first_baro_sample_sets_the_datum_and_a_step_past_the_timeout_resets_the_bias():
     x, P = np.array([[0.0, 0.0, -1.0] + [0.0] * 4]), np.eye(7)[None] * 0.04
     book, diagnostics = fresh_books(1)
     model = aiding.baro_model(PARAMS, 2.0, THRESHOLD, 0.02)
     gps = np.array([[0.0] * 6 + [-1.0]])
     dx, fused = np.zeros((1, 7)), np.zeros(1, dtype=bool)
-    stamps = [0.02 * k for k in range(1, 8)]  # a 5 m step: rejected from 0.02 s, reset at 0.12 s
-    for stamp in stamps:
-        aiding.baro_rows(x, P, np.array([[1.0 + 0.2 + 5.0, stamp]]), gps, book, diagnostics, model, dx, fused)
+    aiding.baro_rows(x, P, np.array([[1.5, 0.02]]), gps, book, diagnostics, model, dx, fused)
+    assert not fused[0]  # the first sample is the datum: b against the filter's height, not fused
+    expected = baro.bias_update(0.2, 0.25, 1.5 + -1.0, 0.01 + 0.04)
+    assert (book[0, baro.BIAS], book[0, baro.BIAS_VAR]) == pytest.approx(expected, rel=1e-12)
+    datum = book[0, baro.BIAS]
+    # a 5 m step from 0.04 s: rejected from 0.04 s, the bias reset at 0.14 s (reset_timeout 0.1 s)
+    for k in range(2, 9):
+        sample = np.array([[1.0 + datum + 5.0, 0.02 * k]])
+        aiding.baro_rows(x, P, sample, gps, book, diagnostics, model, dx, fused)
+        assert fused[0] == (k == 8), k
     assert diagnostics[0, DIAG["baro_resets"]] == 1
-    assert diagnostics[0, DIAG["baro_gated"]] == 6  # 0.02 .. 0.12 s; the one at 0.14 s is fused
-    assert fused[0]
-    # reset at 0.12 s: b = h + p_z = 6.2 - 1, variance height_var + P22 (then grown for one sample)
-    assert book[0, baro.BIAS] == pytest.approx(5.2, abs=0.02)
+    assert diagnostics[0, DIAG["baro_gated"]] == 6  # 0.04 .. 0.14 s
+    assert book[0, baro.BIAS] == pytest.approx(datum + 5.0, abs=1e-9)  # b = h + p_z at the reset
 
 
 def test_baro_bias_learns_from_simultaneous_gps_heights_only():
     x, P = np.zeros((2, 7)), np.tile(np.eye(7) * 0.04, (2, 1, 1))
     x[:, 2] = -1.0
     book, diagnostics = fresh_books(2)
+    book[:, baro.LAST_STAMP] = 0.08  # not the first sample
     model = aiding.baro_model(PARAMS, 2.0, THRESHOLD, 0.02)
     dx, fused = np.zeros((2, 7)), np.zeros(2, dtype=bool)
     samples = np.array([[1.5, 0.1], [1.5, 0.1]])
     gps = np.array([[0, 0, -1.1, 0, 0, 0, 0.1], [0, 0, -1.1, 0, 0, 0, 0.3]])  # vehicle 1: stale baro
     aiding.baro_rows(x, P, samples, gps, book, diagnostics, model, dx, fused)
-    bias, var = baro.bias_update(0.2, 0.25, baro.bias_from_gps(1.5, -1.1), 0.01 + 4.0)
+    prior_var = 0.25 + 0.01**2 * 0.02
+    bias, var = baro.bias_update(0.2, prior_var, baro.bias_from_gps(1.5, -1.1), 0.01 + 4.0)
     assert book[0, baro.BIAS] == pytest.approx(bias, rel=1e-12)
     assert book[0, baro.BIAS_VAR] == pytest.approx(var, rel=1e-12)
     assert book[1, baro.BIAS] == 0.2 and book[1, baro.GPS_STAMP] == 0.3

@@ -7,7 +7,7 @@ The formulas are ``estimation/baro.py``'s and ``estimation/mag3.py``'s own code 
 beside the estimator, fed by the GPS heights; the field as a 3-dof gated, axis-by-axis update of
 the ESKF's error state; the tilt-compensated heading as the EKF7's yaw measurement):
 
-- baro, z = h - b_hat (m):  h(x) = -p_z,  H = -e_2,  R = height_std² + P_b,  NIS 1 dof, then
+- baro, z = h - b_hat (m):  h(x) = -p_z,  H = -e_2,  R = height_std²,  NIS 1 dof, then
   P[2, 2] >= P_b (``baro.floored_height_variance``); the first sample is not fused: it sets the
   bias against the filter's height (b_meas = h + p_z, variance height_std² + P[2, 2]), as PX4 sets
   its baro offset;
@@ -83,9 +83,7 @@ def _baro_rows(x, P, baro_samples, gps, book, diagnostics, model, dx, fused):
                     book[i, _BIAS], book[i, _BIAS_VAR], height + x[i, 2], height_var + P[i, 2, 2]
                 )
             else:
-                nu, S = _height_innovation(
-                    x[i, 2], P[i], height, book[i, _BIAS], book[i, _BIAS_VAR], height_var
-                )
+                nu, S = _height_innovation(x[i, 2], P[i], height, book[i, _BIAS], height_var)
                 nis = nu * nu / S
                 diagnostics[i, _BARO_NIS], diagnostics[i, _BARO_NIS + 1] = nis, stamp
                 if nis <= threshold:
