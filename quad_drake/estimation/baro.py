@@ -77,7 +77,9 @@ class BaroFusionParams:
     bias_init_std: float = number(1.0, positive=True, noise_std=True)  # m
     bias_walk_std: float = number(0.007, nonnegative=True, noise_std=True)  # m/sqrt(s), bias random walk
     gate_sigma: float = number(5.0, nonnegative=True)  # sigma; the baro height gate, 0 = off
-    reset_timeout: float = number(2.0, nonnegative=True)  # s of rejected baro before a bias reset, 0 = never
+    # s of rejected baro before a bias reset, 0 = never (1 s as the GPS height's: a vehicle 1 m above
+    # the floor cannot fly long on a height it cannot check)
+    reset_timeout: float = number(1.0, nonnegative=True)
 
 
 def initial_book(params):
