@@ -289,3 +289,17 @@ def test_ekf7_fuses_the_heading_as_its_yaw():
     x_new, _, nis = ekf.mag_update(x, P, heading, np.array([[var]]))
     assert wrap_to_pi(x_new[6] - x[6]) > 0.0  # pulled towards yaw + 0.05
     assert nis == pytest.approx(0.05**2 / (P[6, 6] + var), rel=1e-6)
+
+
+def test_heading_variance_splits_into_a_white_field_part_and_a_tilt_part_that_floors_the_yaw():
+    roll, pitch = 0.1, -0.2
+    m_B = mag3.predicted_field(*quat_from_euler(roll, pitch, 0.7), *M_N)
+    field_part, tilt_part = mag3.heading_variances(roll, pitch, *m_B, (2.5e-5,) * 3, 0.01)
+    assert field_part + tilt_part == pytest.approx(
+        mag3.heading_variance(roll, pitch, *m_B, (2.5e-5,) * 3, 0.01)
+    )
+    assert field_part == pytest.approx(mag3.heading_variance(roll, pitch, *m_B, (2.5e-5,) * 3, 0.0))
+    # near level the heading moves by about tan(inclination) per radian of roll: |J_tilt|^2 ~ tan(I)^2
+    assert tilt_part / 0.01 == pytest.approx(math.tan(1.1) ** 2, rel=0.3)
+    assert mag3.floored_yaw_variance(1e-4, tilt_part) == tilt_part
+    assert mag3.floored_yaw_variance(1.0, tilt_part) == 1.0

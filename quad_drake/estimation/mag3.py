@@ -25,9 +25,13 @@ cos I |m| (cos(yaw - D), -sin(yaw - D)), so
 
     yaw = atan2(-l_y, l_x) + D    (:func:`tilt_compensated_heading`)
 
-is fused as the EKF7's yaw measurement with the variance of the field noise (and of the
-roll/pitch error, when it is known) carried through the heading's Jacobians
-(:func:`heading_jacobians`, :func:`heading_variance`).
+is fused as the EKF7's yaw measurement with R the variance of the field noise carried through
+the heading's Jacobian (:func:`heading_jacobians`, :func:`heading_variances`); the share of the
+roll/pitch error (``EkfParams`` tilt noise, ``tilt_std``), slowly varying and common to many
+samples, floors the posterior yaw variance instead (:func:`floored_yaw_variance`). The EKF7's
+tilt comes from the complementary filter (0.07 rad RMS on 11) and the heading's sensitivity to it
+is about tan(inclination) = 2 at I = 1.1 rad: the tilt-compensated heading is a poor yaw sensor
+for the EKF7 (README "Sensors"), the reason the ESKF fuses the vector.
 
 Scalar float arithmetic and small arrays only: ``kernels/`` compile these functions' own code.
 """
@@ -251,6 +255,25 @@ def heading_jacobians(roll, pitch, mx, my, mz):
     d_field = (gx * cp, gx * sp * sr + gy * cr, gx * sp * cr - gy * sr)
     d_tilt = (gx * sp * ly - gy * rolled_z, gx * lz)
     return d_field, d_tilt
+
+
+def heading_variances(roll, pitch, mx, my, mz, field_var, tilt_var):
+    """(field part, tilt part) of :func:`heading_variance` (rad^2): J_m diag(field_var) J_m^T, white
+    from sample to sample, and tilt_var |J_tilt|^2, the share of the attitude filter's roll/pitch
+    error, which changes slowly (a bias common to many samples)."""
+    d_field, d_tilt = heading_jacobians(roll, pitch, mx, my, mz)
+    field_part = d_field[0] ** 2 * field_var[0] + d_field[1] ** 2 * field_var[1]
+    field_part += d_field[2] ** 2 * field_var[2]
+    return field_part, tilt_var * (d_tilt[0] ** 2 + d_tilt[1] ** 2)
+
+
+def floored_yaw_variance(p_yaw, tilt_part):
+    """The EKF7's yaw variance (rad^2) after a heading fusion: at least the heading's tilt part.
+
+    The tilt error that levels the field is common to many samples (the attitude filter's roll and
+    pitch drift slowly), so fused one by one as independent they would make the yaw far better
+    known than that error allows; as ``baro.floored_height_variance`` for the baro bias."""
+    return tilt_part if p_yaw < tilt_part else p_yaw
 
 
 def heading_variance(roll, pitch, mx, my, mz, field_var, tilt_var):

@@ -263,5 +263,7 @@ def health_line(vehicle, kind, counts):
         f"gated, {counts['gps_resets']} GPS resets, {counts['covariance_repairs']} covariance repairs, "
         f"{counts['nonfinite_samples']} non-finite samples skipped"
     )
+    if counts.get("baro_gated", 0) or counts.get("baro_resets", 0):
+        text += f", {counts['baro_gated']} baro samples gated, {counts['baro_resets']} baro bias resets"
     alarm = counts["covariance_repairs"] > 0 or counts["gps_resets"] > 0
     return ("WARNING: " if alarm else "") + text

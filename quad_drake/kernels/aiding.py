@@ -17,8 +17,9 @@ the ESKF's error state; the tilt-compensated heading as the EKF7's yaw measureme
 - field (ESKF), z = m_B - hard_iron (gauss): h(x) = R_hatᵀ m_N, H = [0 R_hatᵀ[m_N]x 0], R =
   diag(field_std²), NIS 3 dof;
 - heading (EKF7), z = atan2(-l_y, l_x) + D with l = Ry(pitch) Rx(roll) (m_B - hard_iron) (rad):
-  h(x) = x[6], H = e_6, R = the heading's variance from the field noise and the tilt error, NIS
-  1 dof (logged as the magnetometer's).
+  h(x) = x[6], H = e_6, R = the heading's variance from the field noise, NIS 1 dof (logged as
+  the magnetometer's), then P[6, 6] >= the heading's variance from the tilt error
+  (``mag3.floored_yaw_variance``).
 
 Each ``*_rows`` kernel works IN PLACE on P (N, n, n), the diagnostics and the book, and writes
 the correction dx (N, n) of the vehicles it fused (``fused`` (N,) bool): the caller adds it (EKF7,
@@ -59,7 +60,8 @@ _field_innovation = compiled(
 )
 _sequential_field_update = compiled(mag3.sequential_field_update)
 _heading = compiled(mag3.tilt_compensated_heading, leveled_field=compiled(mag3.leveled_field))
-_heading_variance = compiled(mag3.heading_variance, heading_jacobians=compiled(mag3.heading_jacobians))
+_heading_variances = compiled(mag3.heading_variances, heading_jacobians=compiled(mag3.heading_jacobians))
+_floored_yaw_variance = compiled(mag3.floored_yaw_variance)
 _wrap = compiled(rotations.wrap_to_pi)
 
 
@@ -207,7 +209,7 @@ def _heading_rows(x, P, mag, attitude, book, slot, diagnostics, model, dx, fused
         mx, my, mz = mag[i, 0] - hard_iron[0], mag[i, 1] - hard_iron[1], mag[i, 2] - hard_iron[2]
         roll, pitch = attitude[i, 0], attitude[i, 1]
         heading = _heading(roll, pitch, mx, my, mz, declination)
-        r = _heading_variance(roll, pitch, mx, my, mz, field_var, tilt_var)
+        r, tilt_part = _heading_variances(roll, pitch, mx, my, mz, field_var, tilt_var)
         nu = _wrap(heading - x[i, 6])
         S = P[i, 6, 6] + r
         nis = nu * nu / S
@@ -217,6 +219,7 @@ def _heading_rows(x, P, mag, attitude, book, slot, diagnostics, model, dx, fused
         diagnostics[i, _MAG_NIS], diagnostics[i, _MAG_NIS + 1] = nis, mag[i, 3]
         if nis <= threshold:
             correction, P_new, _ = _scalar_correction(P[i], 6, 1.0, nu, S)
+            P_new[6, 6] = _floored_yaw_variance(P_new[6, 6], tilt_part)
             P[i] = P_new
             dx[i] = correction
             fused[i] = True
