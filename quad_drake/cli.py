@@ -1,4 +1,4 @@
-"""Command line: ``quad-drake list | run | montecarlo | tune | diagram | noise-std | export``.
+"""Command line: ``quad-drake list | run | montecarlo | tune | replay | diagram | noise-std | export``.
 
 Exit codes: 0 every criterion passed, 1 a criterion failed, 2 bad input
 (one line on stderr, no traceback), 3 results could not be written (a full disk, a folder
@@ -199,6 +199,14 @@ def _write_index(args, summaries, out):
     from .report import write_index
 
     return write_index(out)
+
+
+def cmd_replay(args):
+    """Replay a flight log through an estimator (``flightlogs.replay``), print the comparison with
+    the log's own estimate and the NIS, save OUT/<log>-<estimator>[-setHASH]/ and the index."""
+    from .flightlogs.command import replay_command
+
+    return replay_command(args)
 
 
 def cmd_noise_std(args):
@@ -490,6 +498,24 @@ def build_parser():
     diagram.add_argument("--depth", type=int, help="sub-diagram depth to expand (default: all)")
     diagram.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     diagram.set_defaults(func=cmd_diagram)
+    replay = sub.add_parser(
+        "replay", help="replay a flight log (PX4 .ulg or .csv) through an estimator, compared with PX4's"
+    )
+    replay.add_argument(
+        "log", metavar="LOG", help="a .ulg or .csv file, a bundled log's name, or a replay's config.yaml"
+    )
+    replay.add_argument(
+        "--estimator", metavar="YAML", help="the estimator, e.g. '{kind: eskf}' (default: ekf7)"
+    )
+    replay.add_argument(
+        "--set", action="append", default=[], metavar="KEY=VALUE", help="e.g. ekf.mag_yaw_std=0.1"
+    )
+    replay.add_argument(
+        "--out",
+        help="output folder (default: out; for LOG = a replay folder's config.yaml, the folder above it)",
+    )
+    replay.add_argument("--no-plots", action="store_true", help="skip the plots, report.html and index.html")
+    replay.set_defaults(func=cmd_replay)
     noise = sub.add_parser("noise-std", help="step 1: GPS-x and accel-x std devs from a run's logs")
     noise.add_argument("run_dir")
     noise.set_defaults(func=cmd_noise_std)

@@ -95,6 +95,14 @@ class PhysicsParams:
     x_bounds: List[float] = vector(-30.0, 30.0)  # m, room limits in N
     y_bounds: List[float] = vector(-30.0, 30.0)  # m
     z_bounds: List[float] = vector(-40.0, 0.0)  # m, z = 0 is the (sticky) floor
+    # Drag (dynamics.drag_force_body; 0 = none, the default): F_B = -K v_rel - |v_rel| C v_rel on the
+    # body-frame velocity relative to the air (wind, VehicleConfig.wind), per body axis x y z.
+    rotor_drag: List[float] = field(
+        default_factory=lambda: [0.0, 0.0, 0.0], metadata={"length": 3, "nonnegative": True}
+    )  # N s/m, K: rotor (induced) drag, linear
+    parasitic_drag: List[float] = field(
+        default_factory=lambda: [0.0, 0.0, 0.0], metadata={"length": 3, "nonnegative": True}
+    )  # N s^2/m^2, C: parasitic body drag, quadratic
 
 
 @dataclass
@@ -135,6 +143,11 @@ class ImuParams:
     gyro_bias: List[float] = vector(0.0, 0.0, 0.0)  # rad/s, initial gyro bias
     accel_bias_walk_std: List[float] = noise_stds(0.0, 0.0, 0.0)  # m/s^2 per sample, bias increment
     gyro_bias_walk_std: List[float] = noise_stds(0.0, 0.0, 0.0)  # rad/s per sample, bias increment
+    # true: the accelerometer reads the mean specific force over its 2 ms sample interval (the
+    # plant's body-frame delta-velocity / dt, as real IMUs deliver it, so a touchdown's impulse
+    # shows); false (default): the specific force of the last 1 ms physics step
+    delta_velocity: bool = False
+    gyro_limit: float = number(0.0, nonnegative=True)  # rad/s, per-axis gyro saturation, 0 = none
 
 
 @dataclass
@@ -267,6 +280,37 @@ class FaultConfig:
     delay: float = number(0.0, nonnegative=True)  # s, gps_delay
 
 
+TURBULENCE_LEVELS = ("none", "light", "moderate", "severe")
+
+
+@dataclass
+class GustConfig:
+    """A discrete gust of (1 - cos) shape (the discrete gust of MIL-F-8785C): the air's velocity gains
+    amplitude/2 (1 - cos(2 pi (t - start)/duration)) along ``direction`` for t in
+    [start, start + duration]."""
+
+    start: float = number(0.0, nonnegative=True)  # s
+    duration: float = number(1.0, positive=True)  # s
+    amplitude: float = 0.0  # m/s, peak
+    direction: List[float] = vector(1.0, 0.0, 0.0)  # NED, normalised (need not be unit)
+
+
+@dataclass
+class WindConfig:
+    """The air's velocity around a vehicle (``quad_drake.wind``, ``systems.wind.Wind``), m/s, NED:
+    constant + gusts + Dryden turbulence. It acts through the drag of ``physics`` only."""
+
+    mean: List[float] = vector(0.0, 0.0, 0.0)  # m/s, NED, constant wind
+    gusts: List[GustConfig] = field(default_factory=list)
+    # Dryden low-altitude turbulence (MIL-F-8785C / MIL-HDBK-1797): none, or the level whose
+    # wind speed at 6 m (20 ft) sets the intensities: light 7.72, moderate 15.4, severe 23.2 m/s
+    turbulence: str = field(default="none", metadata={"choices": TURBULENCE_LEVELS})
+    wind_speed_6m: float = number(0.0, nonnegative=True)  # m/s, W20; 0 = the level's
+    altitude: float = number(3.048, positive=True)  # m above ground for the scale lengths (>= 10 ft used)
+    # m/s, the speed at which the frozen turbulence field passes the vehicle (Taylor); 0 = |mean|, at least 1
+    airspeed: float = number(0.0, nonnegative=True)
+
+
 TRAJECTORY_KINDS = ("point", "file", "figure_eight")
 
 
@@ -306,6 +350,7 @@ class VehicleConfig:
     # s, the longest GPS lag the estimator compensates (0 = off): a late GPS sample is moved by
     # the estimate's own motion since its stamp (quad_drake.delay_compensation)
     gps_delay_compensation: float = number(0.0, nonnegative=True)
+    wind: Optional[WindConfig] = None  # none: still air (quad_drake.wind)
 
 
 SAFETY_KINDS = ("floor", "room", "finite", "tracking")
@@ -369,6 +414,9 @@ class SafetyConfig:
     tracking: bool = True  # |Vehicle.PosFollowErr| <= tracking_bound
     tracking_bound: float = number(6.0, positive=True)  # m (quad_drake.safety: why 6)
     landing_time: Optional[float] = None  # s, a documented landing: touchdowns from then on pass
+    # m/s: with a landing_time, every touchdown's descent speed must stay below it (a landing,
+    # not a crash: V.TouchdownSpeed); 0 = not judged
+    max_touchdown_speed: float = number(1.0, nonnegative=True)
 
 
 @dataclass
@@ -392,7 +440,7 @@ def _type_name(tp):
     return getattr(tp, "__name__", str(tp))
 
 
-def _check_node(node, tp, path):
+def check_node(node, tp, path):
     """Shape check of raw YAML `node` against annotation `tp`; returns a message or None."""
     origin = typing.get_origin(tp)
     if origin is typing.Union:
@@ -401,7 +449,7 @@ def _check_node(node, tp, path):
             return None
         if len(members) > 1:
             return _check_kind_choice(node, members, path)
-        return _check_node(node, members[0], path)
+        return check_node(node, members[0], path)
     if dataclasses.is_dataclass(tp):
         if not isinstance(node, dict):
             return f"{path or 'the file'}: expected a mapping, got {node!r}"
@@ -412,7 +460,7 @@ def _check_node(node, tp, path):
             sub = f"{path}.{key}" if path else str(key)
             if key not in names:
                 return f"{sub}: unknown key{did_you_mean(key, names)} (known: {', '.join(names)})"
-            message = _check_node(value, typing.get_type_hints(tp)[key], sub)
+            message = check_node(value, typing.get_type_hints(tp)[key], sub)
             if message:
                 return message
         return None
@@ -421,7 +469,7 @@ def _check_node(node, tp, path):
             return f"{path}: expected a mapping, got {node!r}"
         key_type, value_type = typing.get_args(tp)
         for key, value in node.items():
-            message = _check_node(key, key_type, path) or _check_node(value, value_type, f"{path}.{key}")
+            message = check_node(key, key_type, path) or check_node(value, value_type, f"{path}.{key}")
             if message:
                 return message
         return None
@@ -430,7 +478,7 @@ def _check_node(node, tp, path):
             return f"{path}: expected a list, got {node!r}"
         (item_type,) = typing.get_args(tp)
         for i, item in enumerate(node):
-            message = _check_node(item, item_type, f"{path}.{i}")
+            message = check_node(item, item_type, f"{path}.{i}")
             if message:
                 return message
         return None
@@ -468,7 +516,7 @@ def _check_kind_choice(node, members, path):
     else:
         return f"{path}.kind: missing; one of {', '.join(by_kind)}"
     node["_tag"] = f"!{member.__name__}"
-    return _check_node(node, member, path)
+    return check_node(node, member, path)
 
 
 def validate(config, path=""):
@@ -555,6 +603,8 @@ def ineffective_settings(scenario):
                 f"{where}: judged from {c.start + c.window:g} s (start + window), after the {end:g} s flight"
             )
     for i, v in enumerate(scenario.vehicles):
+        if v.wind is not None and not any(v.physics.rotor_drag + v.physics.parasitic_drag):
+            lines.append(f"vehicles.{i}.wind: has no effect, physics.rotor_drag and parasitic_drag are 0")
         for j, fault in enumerate(v.faults):
             begins = fault.time if fault.kind == "gps_outlier" else fault.start
             if fault.kind != "gps_delay" and begins >= end:
@@ -603,6 +653,7 @@ def _check_semantics(scenario):
             _check_fault(fault, v.sensors, f"vehicles.{i}.faults.{j}")
         if sum(f.kind == "gps_delay" for f in v.faults) > 1:
             raise ConfigError(f"vehicles.{i}.faults: at most one gps_delay per vehicle")
+        _check_air(v, scenario.fidelity, f"vehicles.{i}")
     for i, c in enumerate(scenario.criteria):
         if not c.signal:
             raise ConfigError(f"criteria.{i}.signal: must name a signal")
@@ -617,6 +668,20 @@ def _check_semantics(scenario):
     landing = scenario.safety.landing_time
     if landing is not None and not landing >= 0:
         raise ConfigError(f"safety.landing_time: must be >= 0, got {landing}")
+
+
+def _check_air(vehicle, fidelity, where):
+    """One-line ConfigError for a wind gust without a direction, or a delta-velocity IMU under the
+    reference's accelerometer (``fidelity: reference``)."""
+    for j, gust in enumerate(vehicle.wind.gusts if vehicle.wind is not None else ()):
+        if not any(gust.direction):
+            raise ConfigError(f"{where}.wind.gusts.{j}.direction: must not be zero")
+    imu = vehicle.sensors.imu
+    if imu is not None and imu.delta_velocity and fidelity_from_mode(fidelity).reference_accelerometer:
+        raise ConfigError(
+            f"{where}.sensors.imu.delta_velocity: the reference's accelerometer reads the last step "
+            "(fidelity: physical only)"
+        )
 
 
 FAULT_OFFSET_LENGTHS = {"gps_outlier": 3, "gps_step": 3, "mag_bias": 1, "mag_disturbance": 3, "baro_step": 1}
@@ -666,7 +731,7 @@ def resolve_trajectory_file(name, where="trajectory.file"):
     raise ConfigError(f"{where}: no such trajectory file {name!r}")
 
 
-def _first_line(error, located=True):
+def first_line(error, located=True):
     """One line of an error; for a YAML syntax error its problem, where it is (line, column;
     unless not `located`: a ``--set`` value is parsed inside a wrapper) and its context."""
     problem, mark = getattr(error, "problem", None), getattr(error, "problem_mark", None)
@@ -736,7 +801,7 @@ def parse_override(text):
     try:
         value = load_yaml(f"value: {raw}")["value"] if raw.strip() else None
     except yaml.YAMLError as e:
-        reason = _first_line(e, located=False)
+        reason = first_line(e, located=False)
         raise ConfigError(f"--set {text!r}: value is not valid YAML ({reason})") from None
     return key.strip().split("."), value
 
@@ -771,7 +836,7 @@ def load_scenario(path, overrides=()):
     try:
         raw = load_yaml(path.read_text())
     except yaml.YAMLError as e:
-        raise ConfigError(f"{path}: not valid YAML: {_first_line(e)}") from None
+        raise ConfigError(f"{path}: not valid YAML: {first_line(e)}") from None
     except (OSError, UnicodeDecodeError) as e:
         raise ConfigError(f"{path}: cannot read: {e}") from None
     if raw is None:
@@ -783,7 +848,7 @@ def load_scenario(path, overrides=()):
             keys, value = parse_override(text)
             apply_override(raw, keys, value, text)
         _migrate_use_ideal_estimator(raw)
-        message = _check_node(raw, ScenarioConfig, "")
+        message = check_node(raw, ScenarioConfig, "")
         if message:
             raise ConfigError(message)
         scenario = yaml_load_typed(schema=ScenarioConfig, data=yaml_dump(raw))
@@ -793,9 +858,9 @@ def load_scenario(path, overrides=()):
             vehicle.estimator = kind_of(vehicle.estimator).locate(vehicle.estimator, path.parent)
         check_scenario(scenario)
     except ConfigError as e:
-        raise ConfigError(f"{path}: {e}{_override_hint(str(e), overrides)}") from None
+        raise ConfigError(f"{path}: {e}{override_hint(str(e), overrides)}") from None
     except (RuntimeError, ValueError, TypeError) as e:
-        raise ConfigError(f"{path}: {_first_line(e)}") from None
+        raise ConfigError(f"{path}: {first_line(e)}") from None
     return scenario
 
 
@@ -821,7 +886,7 @@ def _migrate_use_ideal_estimator(raw):
         )
 
 
-def _override_hint(message, overrides):
+def override_hint(message, overrides):
     """`` (--set KEY=VALUE)`` when the field a validation message starts with ("field: ...")
     is, contains or lies in the key of one of the `overrides`, else ``""``: the mistake is on
     the command line, not in the file."""

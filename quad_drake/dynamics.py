@@ -95,11 +95,86 @@ def thrusts_from_wrench(thrust, mx, my, mz, arm_length, kappa):
     return (t4 - dz + dy + dx, t4 + dz + dy - dx, t4 + dz - dy + dx, t4 - dz - dy - dx)
 
 
-def _rates(qw, qx, qy, qz, wx, wy, wz, c, mx, my, mz, kx, ky, kz):
+NO_EXTRA = (0.0, 0.0, 0.0)
+"""No further acceleration (m/s^2, NED), and no wind (m/s, NED): a drag-free or windless step."""
+
+
+def has_drag(params):
+    """True when PhysicsParams has any non-zero rotor or parasitic drag coefficient."""
+    r, p = params.rotor_drag, params.parasitic_drag
+    return r[0] != 0.0 or r[1] != 0.0 or r[2] != 0.0 or p[0] != 0.0 or p[1] != 0.0 or p[2] != 0.0
+
+
+def drag_force_body(v_rel_B, rotor_drag, parasitic_drag):
+    """Aerodynamic drag force on the body, N, body FRD (3):
+    F_B = -K v_rel - |v_rel| C v_rel, K = diag(rotor_drag), C = diag(parasitic_drag).
+
+    v_rel_B: the body's velocity relative to the air, expressed in B (m/s, FRD): R_NB^T (v_NB -
+    wind_N). rotor_drag (3, N s/m): the induced (rotor, "blade-flapping") drag, linear in the
+    body-frame air-relative velocity, per body axis, summed over the rotors (the multirotor drag
+    model of PX4's EKF2 drag fusion and of RotorPy, there k_d * rotor speed per rotor, here its
+    value at hover: the thrust varies little about hover). parasitic_drag (3, N s^2/m^2): the
+    body's quadratic (parasitic) drag, 1/2 rho C_D A per axis. Its Jacobian is
+    :func:`drag_force_jacobian`.
+    """
+    vx, vy, vz = v_rel_B[0], v_rel_B[1], v_rel_B[2]
+    speed = (vx * vx + vy * vy + vz * vz) ** 0.5
+    return (
+        -(rotor_drag[0] + parasitic_drag[0] * speed) * vx,
+        -(rotor_drag[1] + parasitic_drag[1] * speed) * vy,
+        -(rotor_drag[2] + parasitic_drag[2] * speed) * vz,
+    )
+
+
+def drag_force_jacobian(v_rel_B, rotor_drag, parasitic_drag):
+    """d F_B / d v_rel_B (3 x 3 nested tuples, N s/m) of :func:`drag_force_body`:
+    -K - C (|v| I + v v^T / |v|) (the second term 0 at v = 0, where it is continuous)."""
+    speed = (v_rel_B[0] ** 2 + v_rel_B[1] ** 2 + v_rel_B[2] ** 2) ** 0.5
+    rows = []
+    for i in range(3):
+        row = []
+        for j in range(3):
+            outer = v_rel_B[i] * v_rel_B[j] / speed if speed > 0.0 else 0.0
+            diagonal = rotor_drag[i] + parasitic_drag[i] * speed if i == j else 0.0
+            row.append(-diagonal - parasitic_drag[i] * outer)
+        rows.append(tuple(row))
+    return tuple(rows)
+
+
+def drag_acceleration(state, wind_N, params):
+    """Drag acceleration of the vehicle, m/s^2, NED (3): R_NB F_B / m, with F_B the
+    :func:`drag_force_body` of the air-relative velocity v_rel_B = R_NB^T (v_NB - wind_N).
+
+    state: 13 floats (q_NB wxyz, v_NB m/s NED); wind_N: the air's velocity (3, m/s, NED);
+    params: PhysicsParams (mass, rotor_drag, parasitic_drag).
+    """
+    qw, qx, qy, qz = state[3], state[4], state[5], state[6]
+    dx, dy, dz = state[7] - wind_N[0], state[8] - wind_N[1], state[9] - wind_N[2]
+    s = 2.0 / (qw * qw + qx * qx + qy * qy + qz * qz)
+    r00, r01, r02 = 1.0 - s * (qy * qy + qz * qz), s * (qx * qy - qw * qz), s * (qx * qz + qw * qy)
+    r10, r11, r12 = s * (qx * qy + qw * qz), 1.0 - s * (qx * qx + qz * qz), s * (qy * qz - qw * qx)
+    r20, r21, r22 = s * (qx * qz - qw * qy), s * (qy * qz + qw * qx), 1.0 - s * (qx * qx + qy * qy)
+    v_rel_B = (
+        r00 * dx + r10 * dy + r20 * dz,
+        r01 * dx + r11 * dy + r21 * dz,
+        r02 * dx + r12 * dy + r22 * dz,
+    )
+    fx, fy, fz = drag_force_body(v_rel_B, params.rotor_drag, params.parasitic_drag)
+    m = params.mass
+    return (
+        (r00 * fx + r01 * fy + r02 * fz) / m,
+        (r10 * fx + r11 * fy + r12 * fz) / m,
+        (r20 * fx + r21 * fy + r22 * fz) / m,
+    )
+
+
+def _rates(qw, qx, qy, qz, wx, wy, wz, c, mx, my, mz, kx, ky, kz, extra):
     """(q_dot (4), w_dot (3), a_NB (3)) at attitude q and body rate w.
 
     c = -2 T / m; (mx, my, mz) = M / I; (kx, ky, kz) = ((Iyy - Izz)/Ixx, (Izz - Ixx)/Iyy,
-    (Ixx - Iyy)/Izz). a_NB = R(q) (0, 0, -T/m) + g_N uses only R's third column.
+    (Ixx - Iyy)/Izz). a_NB = R(q) (0, 0, -T/m) + g_N + extra uses only R's third column;
+    extra: a further NED acceleration held over the step (the drag of :func:`drag_acceleration`,
+    m/s^2; ``NO_EXTRA`` adds exact zeros, so a drag-free flight is bit-identical to before).
     """
     return (
         0.5 * (-qx * wx - qy * wy - qz * wz),
@@ -109,9 +184,9 @@ def _rates(qw, qx, qy, qz, wx, wy, wz, c, mx, my, mz, kx, ky, kz):
         mx + kx * wy * wz,
         my + ky * wz * wx,
         mz + kz * wx * wy,
-        c * (qx * qz + qw * qy),
-        c * (qy * qz - qw * qx),
-        GRAVITY + 0.5 * c - c * (qx * qx + qy * qy),
+        c * (qx * qz + qw * qy) + extra[0],
+        c * (qy * qz - qw * qx) + extra[1],
+        GRAVITY + 0.5 * c - c * (qx * qx + qy * qy) + extra[2],
     )
 
 
@@ -128,21 +203,23 @@ def _coefficients(thrust, moment, mass, inertia):
     )
 
 
-def rigid_body_derivatives(state, thrust, moment, mass, inertia):
+def rigid_body_derivatives(state, thrust, moment, mass, inertia, extra=NO_EXTRA):
     """Time derivative (13-tuple) of the state under thrust T (N) and body moment M (N m).
 
-    p_dot = v; q_dot = q (x) (0, w) / 2; v_dot = R(q) (0, 0, -T)/m + g_N (the NED
-    acceleration a_NB, entries 7:10); w_dot = I^-1 (M - w x I w) with I = diag(inertia).
+    p_dot = v; q_dot = q (x) (0, w) / 2; v_dot = R(q) (0, 0, -T)/m + g_N + extra (the NED
+    acceleration a_NB, entries 7:10; extra: e.g. drag, m/s^2, NED); w_dot = I^-1 (M - w x I w)
+    with I = diag(inertia).
     """
     qw, qx, qy, qz, vx, vy, vz, wx, wy, wz = (float(s) for s in state[3:13])
     qdw, qdx, qdy, qdz, wdx, wdy, wdz, ax, ay, az = _rates(
-        qw, qx, qy, qz, wx, wy, wz, *_coefficients(thrust, moment, mass, inertia)
+        qw, qx, qy, qz, wx, wy, wz, *_coefficients(thrust, moment, mass, inertia), extra
     )
     return (vx, vy, vz, qdw, qdx, qdy, qdz, ax, ay, az, wdx, wdy, wdz)
 
 
-def rigid_body_step(state, thrust, moment, mass, inertia, dt):
-    """One classical RK4 step of dt s with the wrench held constant; q renormalised.
+def rigid_body_step(state, thrust, moment, mass, inertia, dt, extra=NO_EXTRA):
+    """One classical RK4 step of dt s with the wrench (and `extra`, a NED acceleration in m/s^2
+    such as the drag of :func:`drag_acceleration`) held constant; q renormalised.
 
     Returns (state_new: 13 floats, a_NB: (3,) mean NED acceleration over the
     step, (v_new - v_old)/dt, m/s^2). RK4 costs about the same as RK3 here and is
@@ -152,7 +229,7 @@ def rigid_body_step(state, thrust, moment, mass, inertia, dt):
     c, mx, my, mz, kx, ky, kz = _coefficients(thrust, moment, mass, inertia)
     h = 0.5 * dt
     qw1, qx1, qy1, qz1, wx1, wy1, wz1, ax1, ay1, az1 = _rates(
-        qw, qx, qy, qz, wx, wy, wz, c, mx, my, mz, kx, ky, kz
+        qw, qx, qy, qz, wx, wy, wz, c, mx, my, mz, kx, ky, kz, extra
     )
     qw2, qx2, qy2, qz2, wx2, wy2, wz2, ax2, ay2, az2 = _rates(
         qw + h * qw1,
@@ -169,6 +246,7 @@ def rigid_body_step(state, thrust, moment, mass, inertia, dt):
         kx,
         ky,
         kz,
+        extra,
     )
     qw3, qx3, qy3, qz3, wx3, wy3, wz3, ax3, ay3, az3 = _rates(
         qw + h * qw2,
@@ -185,6 +263,7 @@ def rigid_body_step(state, thrust, moment, mass, inertia, dt):
         kx,
         ky,
         kz,
+        extra,
     )
     qw4, qx4, qy4, qz4, wx4, wy4, wz4, ax4, ay4, az4 = _rates(
         qw + dt * qw3,
@@ -201,6 +280,7 @@ def rigid_body_step(state, thrust, moment, mass, inertia, dt):
         kx,
         ky,
         kz,
+        extra,
     )
     d6 = dt / 6.0
     qw += d6 * (qw1 + 2.0 * (qw2 + qw3) + qw4)
@@ -231,17 +311,17 @@ def rigid_body_step(state, thrust, moment, mass, inertia, dt):
     return new, (ax, ay, az)
 
 
-def rigid_body_step_semi_implicit(state, thrust, moment, mass, inertia, dt):
+def rigid_body_step_semi_implicit(state, thrust, moment, mass, inertia, dt, extra=NO_EXTRA):
     """One step of dt s of the reference's semi-implicit Euler body (SPEC §3 steps 4-6).
 
-    From the state at the start of the step: a = R(q) (0, 0, -T)/m + g_N; v += a dt;
+    From the state at the start of the step: a = R(q) (0, 0, -T)/m + g_N + extra; v += a dt;
     p += v_new dt; q = normalise(q + q (x) (0, w) dt / 2) with the body rate w of the start
     of the step; w += I^-1 (M - w x I w) dt. Returns (state_new: 13 floats, a_NB:
     (3,) m/s^2, NED). First order: 02 moves ~2 cm / 0.02 rad from RK4 (README "Fidelity").
     """
     px, py, pz, qw, qx, qy, qz, vx, vy, vz, wx, wy, wz = state
     qdw, qdx, qdy, qdz, wdx, wdy, wdz, ax, ay, az = _rates(
-        qw, qx, qy, qz, wx, wy, wz, *_coefficients(thrust, moment, mass, inertia)
+        qw, qx, qy, qz, wx, wy, wz, *_coefficients(thrust, moment, mass, inertia), extra
     )
     vx, vy, vz = vx + dt * ax, vy + dt * ay, vz + dt * az
     qw, qx, qy, qz = qw + dt * qdw, qx + dt * qdx, qy + dt * qdy, qz + dt * qdz
@@ -324,8 +404,10 @@ def count_contacts(contacts, state, hit_wall, params):
     return (1.0 if floor else 0.0, touchdowns, wall_hits)
 
 
-def plant_step(state, forces_old, commands, noise_unit, params, dt, fidelity=PHYSICAL):
-    """One physics step of SPEC §3 (steps 1-8).
+def plant_step(state, forces_old, commands, noise_unit, params, dt, fidelity=PHYSICAL, wind=NO_EXTRA):
+    """One physics step of SPEC §3 (steps 1-8), with the drag of :func:`drag_acceleration` in
+    the air moving at `wind` (3, m/s, NED), held over the step, when PhysicsParams has drag
+    (:func:`has_drag`; without it the wind does not act and the step is the drag-free one).
 
     state: 13 floats; forces_old: lagged motor forces (4, N); commands: commanded motor
     forces (4, N); noise_unit: four uniforms in [0, 1]; params: PhysicsParams; fidelity: a
@@ -342,10 +424,12 @@ def plant_step(state, forces_old, commands, noise_unit, params, dt, fidelity=PHY
     )
     forces = motor_lag_step(forces_old, targets, dt, params.motor_tau_up, params.motor_tau_down)
     thrust, mx, my, mz = wrench_from_thrusts(forces, params.arm_length, params.kappa, params.com_offset)
+    drag = drag_acceleration(state, wind, params) if has_drag(params) else NO_EXTRA
+    moment = (mx, my, mz)
     if fidelity.semi_implicit_euler:
-        new, _ = rigid_body_step_semi_implicit(state, thrust, (mx, my, mz), params.mass, params.inertia, dt)
+        new, _ = rigid_body_step_semi_implicit(state, thrust, moment, params.mass, params.inertia, dt, drag)
     else:
-        new, _ = rigid_body_step(state, thrust, (mx, my, mz), params.mass, params.inertia, dt)
+        new, _ = rigid_body_step(state, thrust, moment, params.mass, params.inertia, dt, drag)
     hit_wall = outside_room(new, params)
     new = apply_room_constraints(new, state, params)
     accel = ((new[7] - state[7]) / dt, (new[8] - state[8]) / dt, (new[9] - state[9]) / dt)

@@ -288,7 +288,7 @@ def find_summaries(out_dir):
             summary = read_summary(path)
         except ConfigError:  # a batch list, an older format, a foreign file: not linked
             continue
-        if summary.get("kind") in ("run", "campaign"):
+        if summary.get("kind") in ("run", "campaign", "replay"):
             found.append((path.parent, summary))
     return found
 
@@ -367,6 +367,23 @@ def _campaign_row(folder, summary, out_dir):
     ]
 
 
+def _replay_row(folder, summary, out_dir):
+    """A replay's index row (``flightlogs.replay``): its log, estimator and largest differences."""
+    rms = {d["state"]: d["rms"] for d in summary["differences"]}
+    nis = ", ".join(
+        f"{s['sensor']} {num(s['mean'], 3)}" + (" ✓" if s["in_band"] else "") for s in summary["nis"]
+    )
+    return [
+        esc(os.path.relpath(folder, out_dir)),
+        esc(summary["scenario"]),
+        esc(summary["estimator"]),
+        (", ".join(num(rms.get(s), 3) for s in ("Roll", "Pitch", "Yaw")), "num"),
+        (", ".join(num(rms.get(s), 3) for s in ("X", "Y", "Z")) if "X" in rms else "–", "num"),
+        esc(nis) or "–",
+        _links(folder, out_dir, (("report.html", "report"),)) or "–",
+    ]
+
+
 def _index_section(title, header, rows, hint):
     """[heading, table of rows] of an index section, or [heading, "None yet: <hint>."]."""
     table = html_table(header, rows) if rows else f"<p>None yet: {hint}.</p>"
@@ -417,6 +434,20 @@ def _write_index(out_dir):
         campaign_header,
         [_campaign_row(f, s, out_dir) for f, s in campaigns],
         "<code>quad-drake montecarlo NAME</code> writes one",
+    )
+    replay_header = [
+        "folder",
+        "log",
+        "estimator",
+        "RMS roll, pitch, yaw − PX4 [rad]",
+        "RMS x, y, z − PX4 [m]",
+    ]
+    replay_header += ["mean NIS (✓ in band)", "open"]
+    parts += _index_section(
+        "Flight-log replays (compared with PX4's estimate, not the truth)",
+        replay_header,
+        [_replay_row(f, s, out_dir) for f, s in found if s["kind"] == "replay"],
+        "<code>quad-drake replay LOG</code> writes one",
     )
     tune_header = ["folder", "scenario", "objective", "candidates", "loss start → best"]
     tune_header += ["held-out passes start → tuned", "open"]

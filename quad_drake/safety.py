@@ -9,6 +9,10 @@ pass (11 with a 2 kg vehicle: 97 % of the run on the floor, PASS). From a
 - ``floor``: no touchdown after take-off (``V.FloorTouchdowns`` stays 0), unless the scenario
   documents a landing (``safety.landing_time``: touchdowns from then on pass), and the vehicle
   leaves the floor at all;
+- with a landing (``safety.landing_time``), a landing is told from a crash by its speed: every
+  touchdown's descent speed ``V.TouchdownSpeed`` stays below ``safety.max_touchdown_speed``
+  (1 m/s by default: a controlled descent meets the floor at about 0.3-0.5 m/s, a fall from
+  1 m at 4.4 m/s);
 - ``room``: never stopped by a wall or the ceiling (``V.WallContactSteps`` stays 0);
 - ``finite``: the true state stays finite (``V.StateFinite``);
 - ``tracking``, for closed-loop flights (position loops closed: kp_pos_xy > 0 and
@@ -58,4 +62,18 @@ def safety_criteria(scenario):
             for kind, enabled, fields in wanted
             if enabled
         ]
+        if safety.floor and safety.landing_time is not None and safety.max_touchdown_speed > 0:
+            criteria.append(landing_criterion(vehicle.name, safety.max_touchdown_speed, scenario.end_time))
     return criteria
+
+
+def landing_criterion(vehicle_name, max_speed, end_time):
+    """What tells a landing from a crash: every touchdown's descent speed (``V.TouchdownSpeed``,
+    m/s) stays below `max_speed` over the whole flight of `end_time` s (a ``bound`` criterion)."""
+    return CriterionConfig(
+        kind="bound",
+        signal=f"{vehicle_name}.TouchdownSpeed",
+        threshold=max_speed,
+        start=0.0,
+        end=end_time + 1.0,
+    )

@@ -58,6 +58,34 @@ def _clamp(value, limit):
     return -limit if value < -limit else (limit if value > limit else value)
 
 
+def delta_velocity_step(q_old, q_new, a_NB, dt):
+    """Body-frame delta-velocity of one physics step, m/s, FRD (3): the integral over the step of
+    the specific force f_B = R_NB^T (a_NB - g_N), by the trapezoid rule on the attitude,
+    dt/2 (R(q_old)^T + R(q_new)^T) (a_NB - g_N).
+
+    q_old, q_new: wxyz quaternions at the start and the end of the step; a_NB: the step's mean
+    NED acceleration (v_new - v_old)/dt, m/s^2, after the room limits (so the floor's support and
+    a touchdown's impulse are in it, as is the drag); dt: s. What a real IMU integrates between
+    two samples is the sum of these over its interval (``systems.plant``'s ``delta_velocity``).
+    """
+    dx, dy, dz = a_NB[0], a_NB[1], a_NB[2] - GRAVITY
+    f0 = _rotate_to_body(q_old, dx, dy, dz)
+    f1 = _rotate_to_body(q_new, dx, dy, dz)
+    h = 0.5 * dt
+    return (h * (f0[0] + f1[0]), h * (f0[1] + f1[1]), h * (f0[2] + f1[2]))
+
+
+def imu_saturated(sample, params):
+    """(accelerometer, gyro) 1.0 where any axis of the IMU `sample` (6) sits at its range limit
+    (ImuParams.accel_limit, gyro_limit; gyro_limit 0: never), else 0.0; a NaN sample is not."""
+    a_limit, g_limit = params.accel_limit, params.gyro_limit
+    accel = abs(sample[0]) >= a_limit or abs(sample[1]) >= a_limit or abs(sample[2]) >= a_limit
+    gyro = g_limit > 0.0 and (
+        abs(sample[3]) >= g_limit or abs(sample[4]) >= g_limit or abs(sample[5]) >= g_limit
+    )
+    return (1.0 if accel else 0.0, 1.0 if gyro else 0.0)
+
+
 NO_IMU_BIAS = (0.0,) * 6
 
 
@@ -75,6 +103,15 @@ def imu_measurement(q_NB, w_NB_B, a_NB, noise, params, fidelity=PHYSICAL, bias=N
         f = reference_accelerometer(q_NB, a_NB)
     else:
         f = specific_force(q_NB, a_NB)
+    return imu_from_specific_force(f, w_NB_B, noise, params, fidelity, bias)
+
+
+def imu_from_specific_force(f_B, w_NB_B, noise, params, fidelity=PHYSICAL, bias=NO_IMU_BIAS):
+    """Noisy IMU sample (6) of the specific force f_B (3, m/s^2, FRD) and the body rate w_NB_B
+    (3, rad/s, FRD): each plus its bias and noise (as :func:`imu_measurement`), the accelerometer
+    saturated per axis to +-accel_limit and, when ImuParams.gyro_limit > 0, the gyro to
+    +-gyro_limit; rounded to float32 with ``fidelity.float32_estimator``."""
+    f = f_B
     sa, sg, limit = params.accel_std, params.gyro_std, params.accel_limit
     sample = (
         _clamp(f[0] + bias[0] + sa[0] * noise[0], limit),
@@ -84,6 +121,16 @@ def imu_measurement(q_NB, w_NB_B, a_NB, noise, params, fidelity=PHYSICAL, bias=N
         w_NB_B[1] + bias[4] + sg[1] * noise[4],
         w_NB_B[2] + bias[5] + sg[2] * noise[5],
     )
+    g_limit = params.gyro_limit
+    if g_limit > 0.0:
+        sample = (
+            sample[0],
+            sample[1],
+            sample[2],
+            _clamp(sample[3], g_limit),
+            _clamp(sample[4], g_limit),
+            _clamp(sample[5], g_limit),
+        )
     if fidelity.float32_estimator:
         return (
             to_float32(sample[0]),

@@ -6,8 +6,10 @@ fresh on each barometer sample) and, for a 3-axis magnetometer in place of ``Mag
 ``Mag.X``, ``Mag.Y``, ``Mag.Z`` (gauss, body FRD); and the truth of the flight (safety
 criteria, ``quad_drake.safety``):
 ``StateFinite`` (1 while all 13 state entries are finite), ``FloorContact`` (1 while on the
-floor), ``FloorTouchdowns`` (touchdowns so far, after take-off) and ``WallContactSteps``
-(1 ms steps so far stopped at a wall or the ceiling).
+floor), ``FloorTouchdowns`` (touchdowns so far, after take-off), ``TouchdownSpeed`` (each touchdown's
+descent speed, m/s, at the sample that counts it: a landing or a crash) and ``WallContactSteps``
+(1 ms steps so far stopped at a wall or the ceiling). With wind, ``Wind.X/Y/Z`` (m/s, NED); with a
+range-limited IMU, ``IMU.AccelSaturated`` and ``IMU.GyroSaturated`` (saturated samples so far).
 
 Logs are sampled every LOG_PERIOD at t = 0.005 k (k >= 1), each value as it was
 just before the systems' updates at t. Sensor signals carry a ``fresh`` mask:
@@ -60,9 +62,11 @@ def key_unit(key):
     """Unit of a signal named without its vehicle (``Est.E.VX`` -> ``m/s``, as a campaign pools
     its metrics over vehicles); "" when unknown."""
     last = key.rsplit(".", 1)[-1]
-    if key.startswith(("Omega.", "IMU.G")):
+    if key.startswith("Wind.") or key == "TouchdownSpeed":
+        return "m/s"
+    if key.startswith(("Omega.", "IMU.GX", "IMU.GY", "IMU.GZ")):
         return "rad/s"
-    if key.startswith("IMU.A"):
+    if key.startswith(("IMU.AX", "IMU.AY", "IMU.AZ")):
         return "m/s^2"
     if key.startswith("Thrust."):
         return "N"
@@ -95,6 +99,8 @@ LOG_WIDTHS = {
     "gps": 7,
     "mag": 2,
     "baro": 2,
+    "wind": 3,
+    "imu_saturation": 2,
 }
 """Widths of the logs every vehicle may have; an estimator's come from its vocabulary."""
 COUNTER_SIGNALS = {
@@ -197,6 +203,13 @@ def vehicle_signals(name, logs, vocabulary=None):
         contacts = logs["contacts"]
         for i, key in enumerate(("FloorContact", "FloorTouchdowns", "WallContactSteps")):
             put(key, lambda i=i: contacts[..., i])
+        put("TouchdownSpeed", lambda: touchdown_speeds(contacts[..., 1], v[..., 2]))
+    if "wind" in logs:
+        for i, axis in enumerate(AXES):
+            put(f"Wind.{axis}", lambda i=i: logs["wind"][..., i])
+    if "imu_saturation" in logs:
+        put("IMU.AccelSaturated", lambda: logs["imu_saturation"][..., 0])
+        put("IMU.GyroSaturated", lambda: logs["imu_saturation"][..., 1])
     truth = error_truth(logs)  # the sample's state, or the last onboard tick's (error_sampling)
     if truth is not state:
         euler_truth = functools.cache(lambda: euler_from_quats(truth[..., Q_SLICE]))
@@ -272,6 +285,16 @@ def _estimator_signals(put, logs, vocabulary, p, v, euler):
         put(f"Est.{key}", lambda counter=counter: diagnostics[..., DIAG[counter]])
     put("Est.BaroBias", lambda: diagnostics[..., DIAG["baro_bias"]])  # m; NaN without a barometer
     put("Est.BaroBiasStd", lambda: diagnostics[..., DIAG["baro_bias_std"]])
+
+
+def touchdown_speeds(touchdowns, vz):
+    """The descent speed (m/s, down) of each touchdown at the sample that counts it, 0 elsewhere:
+    ``vz`` at the sample before (the last one in the air, at most 5 ms before the contact; the
+    floor zeroes vz). touchdowns: the cumulative count (``FloorTouchdowns``); both (n,) or (n, N)."""
+    new = np.zeros(touchdowns.shape, dtype=bool)
+    new[1:] = touchdowns[1:] > touchdowns[:-1]
+    before = np.concatenate((np.zeros((1,) + vz.shape[1:]), vz[:-1]))
+    return np.where(new, np.maximum(before, 0.0), 0.0)
 
 
 def empty_logs(log_widths):

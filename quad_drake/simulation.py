@@ -43,6 +43,7 @@ from .systems.noise import NoiseStreamSource
 from .systems.plant import QuadrotorPlant
 from .systems.sensors import Barometer, Gps, Imu, Magnetometer
 from .systems.trajectory import TrajectorySource
+from .systems.wind import Wind
 from .trajectories import trajectory_from_config
 from .verdicts import check_criteria
 
@@ -69,6 +70,10 @@ def vehicle_log_widths(vehicle, fidelity=PHYSICAL):
         widths.update(TICK_LOG_WIDTHS)
     sensors = vehicle.sensors
     widths.update({s: sensor_width(sensors, s) for s in SENSORS if getattr(sensors, s) is not None})
+    if vehicle.wind is not None:
+        widths["wind"] = LOG_WIDTHS["wind"]
+    if sensors.imu is not None and (sensors.imu.delta_velocity or sensors.imu.gyro_limit > 0):
+        widths["imu_saturation"] = LOG_WIDTHS["imu_saturation"]
     vocabulary = vehicle_vocabulary(vehicle)
     if vocabulary is not None:
         widths.update(vocabulary.log_widths())
@@ -181,6 +186,21 @@ def _add_estimator(builder, vehicle, fidelity, outputs, seeds):
         builder.Connect(port, estimator.GetInputPort(kind))
 
 
+def _add_wind(builder, vehicle, plant, outputs, n, add):
+    """Add the vehicle's Wind (n vehicles; its turbulence noise the stream ``<vehicle>/wind``) and
+    feed the plant's ``wind`` input, which exists only with drag (still air when the vehicle has no
+    ``wind``); the wind goes into `outputs`."""
+    if vehicle.wind is not None:
+        wind = Wind(vehicle.wind, n)
+        add("wind", wind, *([("noise", "wind")] if wind.HasInputPort("noise") else []))
+        outputs["wind"] = wind.GetOutputPort("wind")
+    if plant.HasInputPort("wind"):
+        source = outputs.get("wind") or builder.AddSystem(
+            ConstantVectorSource(np.zeros(3 * n))
+        ).get_output_port(0)
+        builder.Connect(source, plant.GetInputPort("wind"))
+
+
 def build_vehicle(vehicle, fidelity=PHYSICAL, *, seeds=None):
     """The sub-Diagram of one VehicleConfig; its outputs are named as `vehicle_log_names`.
 
@@ -211,6 +231,7 @@ def build_vehicle(vehicle, fidelity=PHYSICAL, *, seeds=None):
     builder.Connect(trajectory.GetOutputPort("reference"), controller.GetInputPort("reference"))
     outputs = {name: plant.GetOutputPort(name) for name in ("state", "motor_forces", "contacts")}
     outputs["reference"] = trajectory.GetOutputPort("reference")
+    _add_wind(builder, vehicle, plant, outputs, n, add)
     if fidelity.errors_at_onboard_tick:
         add_tick_holds(builder, outputs, n)
 
@@ -220,8 +241,10 @@ def build_vehicle(vehicle, fidelity=PHYSICAL, *, seeds=None):
         bias_walk = [("bias_noise", "imu_bias")] if imu.HasInputPort("bias_noise") else []
         add("imu", imu, ("noise", "imu"), *bias_walk)
         builder.Connect(plant.GetOutputPort("state"), imu.GetInputPort("state"))
-        builder.Connect(plant.GetOutputPort("acceleration"), imu.GetInputPort("acceleration"))
+        motion = "delta_velocity" if sensors.imu.delta_velocity else "acceleration"
+        builder.Connect(plant.GetOutputPort(motion), imu.GetInputPort(motion))
         outputs["imu"] = imu.GetOutputPort("imu")
+        outputs["imu_saturation"] = imu.GetOutputPort("imu_saturation")
     for kind, sensor_class in (("gps", Gps), ("mag", Magnetometer)):
         params = getattr(sensors, kind)
         if params is not None:

@@ -42,6 +42,8 @@ def noiseless(name, *overrides):
         ("05_trajectory_follow", ("end_time=3",)),
         ("02_attitude_control", ("fidelity=reference",)),
         ("11_gps_update", ("fidelity=reference", "end_time=3")),
+        # wind (mean and a gust; the turbulence is noise, off here), drag, a delta-velocity IMU
+        ("20_gust_figure_eight", ("end_time=8", "vehicles.0.wind.turbulence=none")),
     ],
 )
 def test_noiseless_fleet_flies_every_vehicle_as_the_per_vehicle_diagram(name, overrides):
@@ -102,6 +104,19 @@ def test_run_i_is_the_same_in_any_batch():
     assert records_key(whole) == records_key(split)
     # the motor noise differs between runs: the runs are not copies of each other
     assert len({r.metrics["Quad1.PosFollowErr"]["rms"] for r in whole}) == 5
+
+
+def test_windy_run_i_is_the_same_in_any_batch_and_its_turbulence_its_own():
+    """The turbulence draws from the run's own stream (``<vehicle>/wind``): run i flies the same
+    wind in any batch, and two runs fly different winds."""
+    scenario = catalog.load("19_windy_hover", None, ["end_time=1"])
+    whole = fly_batch(batches(scenario, 3, 70, 3)[0])
+    split = [r for task in batches(scenario, 3, 70, 1) for r in fly_batch(task)]
+    assert records_key(whole) == records_key(split)
+    _, logs, _ = run_fleet(scenario, [70, 71, 70])
+    wind = logs["Quad"]["wind"]
+    np.testing.assert_array_equal(wind[:, 0], wind[:, 2])
+    assert np.abs(wind[:, 0] - wind[:, 1]).max() > 0.1
 
 
 @pytest.mark.slow

@@ -44,7 +44,7 @@ def per_run(campaign, key):
 @pytest.mark.slow
 @pytest.mark.parametrize(
     "name, runs",
-    [("06_sensor_noise", 40), ("10_mag_update", 30), ("11_gps_update", 30)],
+    [("06_sensor_noise", 40), ("10_mag_update", 30), ("11_gps_update", 30), ("19_windy_hover", 30)],
 )
 def test_fleet_and_per_vehicle_campaigns_agree(name, runs):
     scenario = catalog.load(name, None, [])

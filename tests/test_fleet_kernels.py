@@ -4,6 +4,8 @@ Tolerance: 1e-12 absolute on every output (the values are O(1)-O(100); in practi
 kernels agree bit for bit or to a few ulp).
 """
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -49,20 +51,29 @@ def close(batched, scalar_rows):
     )
 
 
+DRAG = {"rotor_drag": [0.22, 0.25, 0.44], "parasitic_drag": [0.005, 0.006, 0.01]}
+
+
 @FIDELITIES
 @pytest.mark.parametrize("column", [0, 4])
-def test_plant_steps_match_scalar(fidelity, column):
+@pytest.mark.parametrize("drag", [False, True], ids=["still", "drag"])
+def test_plant_steps_match_scalar(fidelity, column, drag):
     rng = np.random.default_rng(1201)
     params = small_room()
+    if drag:
+        params = PhysicsParams(**{**params.__dict__, **DRAG})
     state = random_states(rng)
     forces_old = rng.uniform(0, 5, size=(N, 4))
     commands = rng.uniform(-1, 6, size=(N, 4))  # below and above the motor limits
     noise = rng.uniform(size=(N, 8))
+    wind = rng.normal(size=(N, 3)) * 5
     contacts = np.column_stack([rng.integers(0, 2, N), rng.integers(0, 5, size=(N, 2))]).astype(float)
     new, forces, accel, counted = state.copy(), forces_old.copy(), np.empty((N, 3)), contacts.copy()
+    delta_v = rng.normal(size=(N, 3))
+    delta_v_before = delta_v.copy()
     kernels.plant_steps(
         new, forces, commands, noise, column, kernels.frozen(params), 0.001, kernels.frozen(fidelity),
-        accel, counted,
+        accel, counted, wind, delta_v,
     )  # fmt: skip
     rows = [
         dynamics.plant_step(
@@ -73,12 +84,21 @@ def test_plant_steps_match_scalar(fidelity, column):
             params,
             0.001,
             fidelity,
+            wind[i].tolist(),
         )
         for i in range(N)
     ]
     close(new, [r[0] for r in rows])
     close(accel, [r[1] for r in rows])
     close(forces, [r[2] for r in rows])
+    steps = [
+        sensor_models.delta_velocity_step(state[i, 3:7], r[0][3:7], r[1], 0.001) for i, r in enumerate(rows)
+    ]
+    close(delta_v, np.asarray(steps) + (delta_v_before if column else 0.0))
+    if drag:  # the wind acted
+        first = (state[0].tolist(), forces_old[0].tolist(), commands[0].tolist())
+        still = dynamics.plant_step(*first, noise[0, column : column + 4].tolist(), params, 0.001, fidelity)
+        assert still[0] != rows[0][0]
     before = contacts.tolist()
     expected = [dynamics.count_contacts(before[i], r[0], r[3], params) for i, r in enumerate(rows)]
     assert counted.tolist() == [list(c) for c in expected]
@@ -102,8 +122,9 @@ def test_plant_steps_match_scalar_over_many_steps(fidelity):
     for _ in range(50):
         noise = rng.uniform(size=(N, 4))
         kernels.plant_steps(
-            batched, forces, commands, noise, 0, frozen_params, 0.001, frozen_fidelity, accel, contacts
-        )
+            batched, forces, commands, noise, 0, frozen_params, 0.001, frozen_fidelity, accel, contacts,
+            np.zeros((N, 3)), np.zeros((N, 3)),
+        )  # fmt: skip
         stepped = [
             dynamics.plant_step(s, f, commands[i].tolist(), noise[i].tolist(), params, 0.001, fidelity)
             for i, (s, f, _) in enumerate(scalar)
@@ -119,15 +140,37 @@ def test_plant_steps_match_scalar_over_many_steps(fidelity):
 
 
 @FIDELITIES
-def test_imu_matches_scalar(fidelity):
+@pytest.mark.parametrize("gyro_limit", [0.0, 4.0])
+def test_imu_matches_scalar(fidelity, gyro_limit):
     rng = np.random.default_rng(1203)
-    params = ImuParams(accel_limit=12.0, accel_bias=[0.1, -0.2, 0.3], gyro_bias_walk_std=[0.01, 0.02, 0.03])
+    params = ImuParams(
+        accel_limit=12.0,
+        accel_bias=[0.1, -0.2, 0.3],
+        gyro_bias_walk_std=[0.01, 0.02, 0.03],
+        gyro_limit=gyro_limit,
+    )
     state = random_states(rng)
     accel = rng.normal(size=(N, 3)) * 8  # some beyond the saturation
     noise = rng.normal(size=(N, 6))
     bias = rng.normal(size=(N, 6)) * 0.1
     out = np.full((N, 6), np.nan)
-    kernels.imu_samples(state, accel, noise, kernels.frozen(params), kernels.frozen(fidelity), bias, out)
+    saturation = np.zeros((N, 2))
+    kernels.imu_samples(
+        state,
+        accel,
+        noise,
+        kernels.frozen(params),
+        kernels.frozen(fidelity),
+        bias,
+        out,
+        accel,
+        0.002,
+        saturation,
+    )
+    expected = [sensor_models.imu_saturated(row, params) for row in out.tolist()]
+    assert saturation.tolist() == [list(e) for e in expected]
+    assert 0 < saturation[:, 0].sum() < N
+    assert (0 < saturation[:, 1].sum() < N) == (gyro_limit > 0)
     rows = [
         sensor_models.imu_measurement(
             state[i, 3:7].tolist(),
@@ -141,6 +184,33 @@ def test_imu_matches_scalar(fidelity):
         for i in range(N)
     ]
     close(out, rows)
+    if fidelity is PHYSICAL:  # the delta-velocity accelerometer: the mean specific force dv / dt
+        delta = dataclasses.replace(params, delta_velocity=True)
+        dv = rng.normal(size=(N, 3)) * 0.02
+        kernels.imu_samples(
+            state,
+            accel,
+            noise,
+            kernels.frozen(delta),
+            kernels.frozen(fidelity),
+            bias,
+            out,
+            dv,
+            0.002,
+            saturation,
+        )
+        rows = [
+            sensor_models.imu_from_specific_force(
+                (dv[i] / 0.002).tolist(),
+                state[i, 10:13].tolist(),
+                noise[i].tolist(),
+                delta,
+                fidelity,
+                bias[i].tolist(),
+            )
+            for i in range(N)
+        ]
+        close(out, rows)
     stepped = kernels.imu_bias_step(bias, noise, params)
     close(
         stepped, [sensor_models.imu_bias_step(bias[i].tolist(), noise[i].tolist(), params) for i in range(N)]

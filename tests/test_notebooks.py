@@ -18,6 +18,7 @@ def test_the_notebooks_exist():
         "02_estimator_analysis.ipynb",
         "03_write_your_own_ekf.ipynb",
         "04_workbench.ipynb",
+        "05_flight_log_replay.ipynb",
     ]
 
 

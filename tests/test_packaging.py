@@ -56,6 +56,9 @@ PURE = (
     "quad_drake.control",
     "quad_drake.estimation",
     "quad_drake.config_fields",
+    "quad_drake.flightlogs.reader",
+    "quad_drake.flightlogs.playback",
+    "quad_drake.flightlogs.comparison",
 )
 """The pure modules (maths and models: numpy, no Drake); a package name covers its modules."""
 KERNELS = ("quad_drake.kernels", "quad_drake.fleet.bounds")
@@ -118,7 +121,8 @@ def test_each_forbidden_edge_is_seen(rule, importers, imported):
 
 def test_catalog_lists_the_bundled_scenarios_from_the_top_level_folder():
     scenarios = catalog.bundled_scenarios()
-    assert list(scenarios)[:2] == ["01_intro", "02_attitude_control"] and len(scenarios) == 22  # +eskf, 12-21
+    # 01-11, 11_gps_update_eskf, the faults 12-18, the air 19-22 (+ 22's eskf), baro and 3-axis mag 23-25
+    assert list(scenarios)[:2] == ["01_intro", "02_attitude_control"] and len(scenarios) == 27
     assert all(path.parent == REPO / "scenarios" for path in scenarios.values())
     assert not (PACKAGE / "scenarios").exists()  # one source: the wheel's copy is built from it
 
@@ -184,7 +188,7 @@ def test_wheel_installed_outside_the_repo_lists_and_runs_the_bundled_scenarios(t
     assert Path(folder.stdout.strip()) == Path(where.stdout.strip()).parent / "scenarios", folder.stderr
     listed = _run(quad_drake_exe, "list", cwd=cwd, env=env)
     assert listed.returncode == 0, listed.stderr
-    assert len(listed.stdout.strip().splitlines()) == 22
+    assert len(listed.stdout.strip().splitlines()) == 27
 
     out = tmp_path / "out"
     ran = _run(quad_drake_exe, "run", "01_intro", "--no-plots", "--out", str(out), cwd=cwd, env=env)
@@ -208,6 +212,12 @@ def test_wheel_installed_outside_the_repo_lists_and_runs_the_bundled_scenarios(t
         "--set", custom_override("my_ekf.py:MyEkf"), cwd=cwd, env=env,
     )  # fmt: skip
     assert own.returncode == 0 and "PASS: ABS(Quad.Est.E.Pos)" in own.stdout, own.stdout + own.stderr
+
+    # The bundled flight logs are package data: both replay from the wheel (issue 33).
+    for log in ("real_auav_x21_attitude_flight", "sitl_takeoff_land_gps"):
+        replayed = _run(quad_drake_exe, "replay", log, "--no-plots", "--out", str(out), cwd=cwd, env=env)
+        assert replayed.returncode == 0 and "NIS mag (1 dof)" in replayed.stdout, replayed.stderr
+        assert (out / f"{log}-ekf7" / "summary.json").is_file()
 
     for command in ([quad_drake_exe], [str(python), "-m", "quad_drake"]):
         version = _run(*command, "--version", cwd=cwd, env=env)

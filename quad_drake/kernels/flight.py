@@ -21,7 +21,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from quad_drake import dynamics, rotations, sensor_models
+from quad_drake import dynamics, rotations, sensor_models, wind
 from quad_drake.config import ControllerParams, ImuParams, MagParams, PhysicsParams
 from quad_drake.control import cascade
 from quad_drake.fidelity import PHYSICAL, Fidelity
@@ -70,8 +70,11 @@ def compiled(function, **callees) -> Callable:
 _to_float32_compiled = compiled(dynamics.to_float32)
 _rates_compiled = compiled(dynamics._rates)
 _coefficients_compiled = compiled(dynamics._coefficients)
+_drag_compiled = compiled(dynamics.drag_acceleration, drag_force_body=compiled(dynamics.drag_force_body))
 _plant_compiled = compiled(
     dynamics.plant_step,
+    has_drag=compiled(dynamics.has_drag),
+    drag_acceleration=_drag_compiled,
     clamped_noisy_commands=compiled(dynamics.clamped_noisy_commands),
     motor_lag_step=compiled(dynamics.motor_lag_step),
     wrench_from_thrusts=compiled(dynamics.wrench_from_thrusts),
@@ -88,6 +91,10 @@ _plant_compiled = compiled(
 
 
 _contacts_compiled = compiled(dynamics.count_contacts, on_floor=compiled(dynamics.on_floor))
+_rotate_to_body_compiled = compiled(sensor_models._rotate_to_body)
+_delta_velocity_compiled = compiled(
+    sensor_models.delta_velocity_step, _rotate_to_body=_rotate_to_body_compiled
+)
 
 
 @njit_cached
@@ -101,16 +108,23 @@ def _state_row(state, i):
 
 
 @njit_cached
-def plant_steps(state, forces, commands, noise_unit, column, params, dt, fidelity, accel, contacts) -> None:
+def plant_steps(
+    state, forces, commands, noise_unit, column, params, dt, fidelity, accel, contacts, wind, delta_v
+) -> None:
     """One :func:`quad_drake.dynamics.plant_step` of N vehicles IN PLACE, the scalar function's
-    code compiled and run per vehicle, with ``systems.plant.QuadrotorPlant``'s contact counts.
+    code compiled and run per vehicle, with ``systems.plant.QuadrotorPlant``'s contact counts and
+    body-frame delta-velocity.
 
     state (N, 13) and forces (N, 4) N (the lagged motor forces before the step): replaced by
     their values after dt s; commands (N, 4) N; noise_unit (N, >= column + 4): the step's four
     uniforms in [0, 1] are columns column..column + 3 (the plant's two steps per tick share one
     (N, 8) draw); accel (N, 3): a_NB m/s^2 of the step, written; contacts (N, 3): (on the floor
     0/1, floor touchdowns, wall hits), updated by :func:`quad_drake.dynamics.count_contacts` (its
-    code compiled). params, fidelity: the :func:`frozen` PhysicsParams and Fidelity; dt: a float.
+    code compiled). wind (N, 3): the air's velocity, m/s, NED (acts through the drag only);
+    delta_v (N, 3): the body-frame delta-velocity (m/s, FRD) of the onboard tick so far, set to
+    this step's :func:`quad_drake.sensor_models.delta_velocity_step` when column is 0 (the
+    tick's first step) and added to otherwise. params, fidelity: the :func:`frozen`
+    PhysicsParams and Fidelity; dt: a float.
     """
     physics, fidelity_tuple = PhysicsTuple(*params), FidelityTuple(*fidelity)
     for i in range(state.shape[0]):  # entries indexed in place (see _state_row)
@@ -119,9 +133,17 @@ def plant_steps(state, forces, commands, noise_unit, column, params, dt, fidelit
         command = (commands[i, 0], commands[i, 1], commands[i, 2], commands[i, 3])
         c = column
         noise = (noise_unit[i, c], noise_unit[i, c + 1], noise_unit[i, c + 2], noise_unit[i, c + 3])
+        air = (wind[i, 0], wind[i, 1], wind[i, 2])
         out, a, lagged, hit_wall = _plant_compiled(
-            x, lagged_before, command, noise, physics, dt, fidelity_tuple
+            x, lagged_before, command, noise, physics, dt, fidelity_tuple, air
         )
+        dv = _delta_velocity_compiled((x[3], x[4], x[5], x[6]), (out[3], out[4], out[5], out[6]), a, dt)
+        if column == 0:
+            delta_v[i, 0], delta_v[i, 1], delta_v[i, 2] = dv
+        else:
+            delta_v[i, 0] += dv[0]
+            delta_v[i, 1] += dv[1]
+            delta_v[i, 2] += dv[2]
         for k in range(13):
             state[i, k] = out[k]
         accel[i, 0], accel[i, 1], accel[i, 2] = a
@@ -137,40 +159,65 @@ def on_floor(state, params) -> np.ndarray:
     return state[:, 2] >= params.z_bounds[1]
 
 
+# ----- wind -------------------------------------------------------------------
+
+
+turbulence_filter_rows = compiled(wind.filter_rows)
+""":func:`quad_drake.wind.filter_rows` compiled: the Dryden filters of N vehicles, in place."""
+turbulence_velocity_rows = compiled(wind.velocity_rows)
+""":func:`quad_drake.wind.velocity_rows` compiled: (N, 3) NED turbulence of the filter states."""
+wind_rows = compiled(
+    wind.wind_rows, filter_rows=turbulence_filter_rows, velocity_rows=turbulence_velocity_rows
+)
+""":func:`quad_drake.wind.wind_rows` compiled: one tick of ``systems.wind.Wind`` for N vehicles."""
+
+
 # ----- sensors ----------------------------------------------------------------
 
 
-_rotate_to_body_compiled = compiled(sensor_models._rotate_to_body)
+_from_specific_force_compiled = compiled(
+    sensor_models.imu_from_specific_force,
+    _clamp=compiled(sensor_models._clamp),
+    to_float32=_to_float32_compiled,
+)
 _imu_compiled = compiled(
     sensor_models.imu_measurement,
     reference_accelerometer=compiled(
         sensor_models.reference_accelerometer, _rotate_to_body=_rotate_to_body_compiled
     ),
     specific_force=compiled(sensor_models.specific_force, _rotate_to_body=_rotate_to_body_compiled),
-    _clamp=compiled(sensor_models._clamp),
-    to_float32=_to_float32_compiled,
+    imu_from_specific_force=_from_specific_force_compiled,
 )
+_saturated_compiled = compiled(sensor_models.imu_saturated)
 
 
 @njit_cached
-def imu_samples(state, a_NB, noise, params, fidelity, bias, out) -> None:
+def imu_samples(state, a_NB, noise, params, fidelity, bias, out, delta_v, interval, saturation) -> None:
     """:func:`quad_drake.sensor_models.imu_measurement` of N vehicles into out (N, 6), the scalar
     function's code compiled and run per vehicle: q_NB and w_NB_B from state (N, 13), a_NB (N, 3),
-    noise (N, 6) unit normals, bias (N, 6). params, fidelity: the :func:`frozen` ImuParams and
-    Fidelity."""
+    noise (N, 6) unit normals, bias (N, 6). With ImuParams.delta_velocity the accelerometer reads
+    instead the mean specific force delta_v / interval (delta_v (N, 3) m/s, body FRD, over the
+    `interval` s before the sample) through :func:`quad_drake.sensor_models.imu_from_specific_force`.
+    saturation (N, 2): the saturated samples so far (accelerometer, gyro), counted by
+    :func:`quad_drake.sensor_models.imu_saturated`. params, fidelity: the :func:`frozen` ImuParams
+    and Fidelity."""
     imu, fidelity_tuple = ImuTuple(*params), FidelityTuple(*fidelity)
     for i in range(state.shape[0]):  # entries indexed in place (see _state_row)
-        sample = _imu_compiled(
-            (state[i, 3], state[i, 4], state[i, 5], state[i, 6]),
-            (state[i, 10], state[i, 11], state[i, 12]),
-            (a_NB[i, 0], a_NB[i, 1], a_NB[i, 2]),
-            (noise[i, 0], noise[i, 1], noise[i, 2], noise[i, 3], noise[i, 4], noise[i, 5]),
-            imu,
-            fidelity_tuple,
-            (bias[i, 0], bias[i, 1], bias[i, 2], bias[i, 3], bias[i, 4], bias[i, 5]),
-        )
+        w = (state[i, 10], state[i, 11], state[i, 12])
+        n = (noise[i, 0], noise[i, 1], noise[i, 2], noise[i, 3], noise[i, 4], noise[i, 5])
+        b = (bias[i, 0], bias[i, 1], bias[i, 2], bias[i, 3], bias[i, 4], bias[i, 5])
+        if imu.delta_velocity:
+            f = (delta_v[i, 0] / interval, delta_v[i, 1] / interval, delta_v[i, 2] / interval)
+            sample = _from_specific_force_compiled(f, w, n, imu, fidelity_tuple, b)
+        else:
+            q = (state[i, 3], state[i, 4], state[i, 5], state[i, 6])
+            a = (a_NB[i, 0], a_NB[i, 1], a_NB[i, 2])
+            sample = _imu_compiled(q, w, a, n, imu, fidelity_tuple, b)
         for k in range(6):
             out[i, k] = sample[k]
+        accel_saturated, gyro_saturated = _saturated_compiled(sample, imu)
+        saturation[i, 0] += accel_saturated
+        saturation[i, 1] += gyro_saturated
 
 
 def imu_bias_step(bias, noise, params) -> np.ndarray:

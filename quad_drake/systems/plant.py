@@ -8,6 +8,7 @@ import numpy as np
 from pydrake.common import RandomDistribution
 from pydrake.systems.framework import LeafSystem
 
+from quad_drake import dynamics, sensor_models
 from quad_drake.conventions import NUM_MOTORS, ONBOARD_PERIOD, PHYSICS_PERIOD, PLANT_OFFSET, STATE_SIZE
 from quad_drake.fidelity import PHYSICAL
 from quad_drake.kernels import flight as kernels
@@ -36,6 +37,10 @@ class QuadrotorPlant(LeafSystem):
         ``RandomSource(RandomDistribution.kUniform, n noise_size, noise_period)`` (or a
         ``systems.noise.NoiseStreamSource``): it redraws at t_k, before the plant's steps of
         that tick.
+      ``wind`` (3, m/s, NED; only when PhysicsParams has drag, ``dynamics.has_drag``): the air's
+        velocity (``systems.wind.Wind``); the drag ``dynamics.drag_acceleration`` of the
+        air-relative velocity is held over each step. Without drag the wind cannot act and the
+        port does not exist.
     Outputs (state output ports, no feedthrough):
       ``state`` (13): p_NB (m, NED), q_NB (wxyz), v_NB (m/s, NED), w_NB_B (rad/s, FRD).
       ``acceleration`` (3, m/s^2): a_NB, NED kinematic acceleration (v_new - v_old)/dt of
@@ -45,6 +50,11 @@ class QuadrotorPlant(LeafSystem):
         floor after one that did not; a vehicle that starts on the floor has not touched
         down); steps so far that ended at a wall or the ceiling (``dynamics.outside_room``);
         counted by ``dynamics.count_contacts``.
+      ``delta_velocity`` (3, m/s, FRD): the body-frame integral of the specific force over the
+        last onboard tick's two steps (``sensor_models.delta_velocity_step``; the floor's support,
+        a touchdown's impulse and the drag included, gravity not), what a delta-velocity IMU
+        reads (``ImuParams.delta_velocity``); before the first step R_NB^T (-g_N) ONBOARD_PERIOD
+        of the initial attitude (at rest).
     ``acceleration`` and ``motor_forces`` are zero before the first step. At the first
     step the motor lag starts from the first command (pre-clamp, no noise), as the
     reference does at t = 0; a flag in discrete state records that it happened.
@@ -72,6 +82,11 @@ class QuadrotorPlant(LeafSystem):
         self._forces = discrete_group(self, NUM_MOTORS * n, "motor_forces")
         self._started = discrete_group(self, 1)  # 0 until the first step
         self._contacts = discrete_group(self, self._initial_contacts(initial).ravel(), "contacts")
+        self._delta_v = discrete_group(self, self._initial_delta_v(initial).ravel(), "delta_velocity")
+        self._no_wind = np.zeros((n, 3))
+        self._read_wind = None
+        if dynamics.has_drag(self._params):
+            self._read_wind = row_reader(self.DeclareVectorInputPort("wind", 3 * n), n)
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, PLANT_OFFSET, self._first_step)
         self.DeclarePeriodicDiscreteUpdateEvent(
             ONBOARD_PERIOD, PHYSICS_PERIOD + PLANT_OFFSET, self._second_step
@@ -82,6 +97,16 @@ class QuadrotorPlant(LeafSystem):
         floor = kernels.on_floor(states, self._params).astype(float)
         return np.stack([floor, np.zeros(len(states)), np.zeros(len(states))], axis=1)
 
+    @staticmethod
+    def _initial_delta_v(states):
+        """(n, 3) delta-velocity of one onboard tick at rest at the (n, 13) `states`' attitudes."""
+        return (
+            np.array(
+                [sensor_models.specific_force(x[3:7], (0.0, 0.0, 0.0)) for x in states.tolist()]
+            ).reshape(-1, 3)
+            * ONBOARD_PERIOD
+        )
+
     def set_initial_state(self, context, state) -> None:
         """Set every vehicle's state in `context` to `state` (13, or (n, 13)), re-arm the
         motor-lag initialisation and reset the contact counts."""
@@ -89,6 +114,7 @@ class QuadrotorPlant(LeafSystem):
         context.SetDiscreteState(self._state, states.ravel())
         context.SetDiscreteState(self._started, [0.0])
         context.SetDiscreteState(self._contacts, self._initial_contacts(states).ravel())
+        context.SetDiscreteState(self._delta_v, self._initial_delta_v(states).ravel())
 
     def _first_step(self, context, discrete_state):
         self._step(context, discrete_state, 0)
@@ -117,4 +143,6 @@ class QuadrotorPlant(LeafSystem):
             self._frozen_fidelity,
             discrete_state.get_mutable_value(self._acceleration).reshape(n, 3),
             discrete_state.get_mutable_value(self._contacts).reshape(n, 3),
+            self._no_wind if self._read_wind is None else self._read_wind(context),
+            discrete_state.get_mutable_value(self._delta_v).reshape(n, 3),
         )

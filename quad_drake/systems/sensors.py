@@ -67,6 +67,11 @@ class Imu(_Sensor):
     R_NB^T (a_NB + g_N) instead (``sensor_models.reference_accelerometer``); with
     ``fidelity.float32_estimator`` the sample is rounded to float32.
     The sample is ``sensor_models.imu_measurement``'s compiled form (``kernels.flight.imu_samples``).
+    With ImuParams.delta_velocity an input ``delta_velocity`` (3, m/s, FRD: the plant's output of
+    that name) replaces ``acceleration``: the accelerometer reads delta_velocity / ONBOARD_PERIOD,
+    the mean specific force over the sample interval. With ImuParams.gyro_limit > 0 the gyro
+    saturates at +-gyro_limit. Output ``imu_saturation`` (2): the samples so far with an
+    accelerometer axis at +-accel_limit, and with a gyro axis at +-gyro_limit.
     """
 
     noise_size = 6
@@ -76,8 +81,10 @@ class Imu(_Sensor):
         super().__init__(self.noise_size, n)
         self._params = params
         self._frozen_params, self._frozen_fidelity = kernels.frozen(params), kernels.frozen(fidelity)
-        self._read_acceleration = row_reader(self.DeclareVectorInputPort("acceleration", n * 3), n)
+        motion = "delta_velocity" if params.delta_velocity else "acceleration"
+        self._read_acceleration = row_reader(self.DeclareVectorInputPort(motion, n * 3), n)
         self._output = discrete_group(self, n * IMU_SIZE, "imu")
+        self._saturation = discrete_group(self, n * 2, "imu_saturation")
         bias = np.tile(sensor_models.imu_initial_bias(params), (n, 1))
         self._bias_rows = bias  # constant without a random walk
         self._read_bias_noise = None
@@ -94,14 +101,18 @@ class Imu(_Sensor):
         if self._read_bias_noise is not None:
             bias = discrete_state.get_mutable_value(self._bias).reshape(self._n, self.noise_size)
             bias[:] = kernels.imu_bias_step(bias, self._read_bias_noise(context), self._params)
+        motion = self._read_acceleration(context)  # a_NB, or the delta-velocity
         kernels.imu_samples(
             self._read_state(context),
-            self._read_acceleration(context),
+            motion,
             self._read_noise(context),
             self._frozen_params,
             self._frozen_fidelity,
             bias,
             discrete_state.get_mutable_value(self._output).reshape(self._n, IMU_SIZE),
+            motion,
+            ONBOARD_PERIOD,
+            discrete_state.get_mutable_value(self._saturation).reshape(self._n, 2),
         )
 
 

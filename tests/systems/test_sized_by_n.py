@@ -9,12 +9,22 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
 from quad_drake import conventions as c
-from quad_drake.config import BaroParams, ControllerParams, GpsParams, ImuParams, MagParams, PhysicsParams
+from quad_drake.config import (
+    BaroParams,
+    ControllerParams,
+    GpsParams,
+    GustConfig,
+    ImuParams,
+    MagParams,
+    PhysicsParams,
+    WindConfig,
+)
 from quad_drake.rotations import quat_from_euler
 from quad_drake.systems.controller import CascadeController
 from quad_drake.systems.plant import QuadrotorPlant
 from quad_drake.systems.sensors import Barometer, Gps, Imu, Magnetometer
 from quad_drake.systems.trajectory import TrajectorySource
+from quad_drake.systems.wind import Wind
 from quad_drake.trajectories import figure_eight
 
 N = 3
@@ -42,6 +52,22 @@ MAKERS = {
     "plant": lambda n: QuadrotorPlant(PhysicsParams(), np.r_[0, 0, -1, 1, 0, 0, 0, np.zeros(6)], n=n),
     "imu with a bias walk": lambda n: Imu(
         ImuParams(accel_bias_walk_std=[0.01, 0.02, 0.03], gyro_bias_walk_std=[0.001, 0.002, 0.003]), n=n
+    ),
+    "plant with drag in wind": lambda n: QuadrotorPlant(
+        PhysicsParams(rotor_drag=[0.2, 0.3, 0.4], parasitic_drag=[0.01, 0.02, 0.03]),
+        np.r_[0, 0, -1, 1, 0, 0, 0, np.zeros(6)],
+        n=n,
+    ),
+    "delta-velocity imu with range limits": lambda n: Imu(
+        ImuParams(delta_velocity=True, accel_limit=1.5, gyro_limit=1.0), n=n
+    ),
+    "wind": lambda n: Wind(
+        WindConfig(
+            mean=[2.0, 1.0, 0.0],
+            gusts=[GustConfig(start=0.05, duration=0.1, amplitude=3.0)],
+            turbulence="severe",
+        ),
+        n=n,
     ),
     "gps": lambda n: Gps(GpsParams(), n=n),
     "magnetometer": lambda n: Magnetometer(MagParams(), n=n),

@@ -1,0 +1,9 @@
+"""Recorded flights replayed through the estimators (README "Replaying flight logs").
+
+``reader`` turns a PX4 ULog or a CSV file into arrays of timestamped samples in the package's
+units and frames; ``playback`` schedules them on the onboard tick and derives the yaw-only
+magnetometer sample; ``comparison`` judges the estimate against the flight controller's own
+(another estimator, not the truth) and the NIS in its chi^2 band; ``replay`` wires the Diagram
+(``systems.playback.LogPlayback`` feeding the estimator sub-Diagram) and runs it; ``page``
+writes the run folder's report.
+"""

@@ -1,0 +1,185 @@
+"""Pure: a replayed estimate judged without truth.
+
+The flight controller's own estimate (PX4's ``vehicle_attitude`` and ``vehicle_local_position``)
+is the reference: another estimator, not the truth, so a difference is the two estimators'
+disagreement, bounded by both their errors. Per state: the RMS and max |difference| and the
+RMS of our estimator's σ over the same samples (how large it believes its own error is).
+Consistency needs no truth: the NIS of each sensor's updates, whose mean over m independent
+updates lies in the χ²(dof m)/m band when the filter's innovation covariance is right, and 95 %
+of single updates in the χ²(dof) 95 % band.
+
+Our estimate is logged every LOG_PERIOD; a logged sample at t is the estimate through the IMU
+samples before t, and it is interpolated linearly (angles unwrapped) to the reference's sample
+times. Samples before ``compare_after`` s (the estimators' start-up from the first samples) and
+reference entries PX4 marks invalid (NaN) are not compared.
+"""
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.stats import chi2
+
+from quad_drake.consistency import chi2_band, fresh_nis
+from quad_drake.estimation.vocabulary import NIS_DOF
+from quad_drake.rotations import euler_from_quats, wrap_angles
+
+ATTITUDE_STATES = ("Roll", "Pitch", "Yaw")
+POSITION_STATES = ("X", "Y", "Z", "VX", "VY", "VZ")
+UNITS = {"Roll": "rad", "Pitch": "rad", "Yaw": "rad", "X": "m", "Y": "m", "Z": "m"} | {
+    f"V{axis}": "m/s" for axis in "XYZ"
+}
+
+
+@dataclass(frozen=True)
+class StateDifference:
+    """Our estimate minus the reference for one state over `count` compared samples."""
+
+    state: str
+    unit: str
+    count: int
+    rms: float
+    max_abs: float
+    sigma_rms: float  # RMS of our estimator's σ at those samples; NaN where it has none
+    within_2sigma: float  # share of |difference| <= 2 σ (NaN without σ)
+    times: np.ndarray  # (count,) s
+    differences: np.ndarray  # (count,)
+
+
+@dataclass(frozen=True)
+class NisSummary:
+    """The NIS of one sensor's fresh updates: mean and its χ² band, the share in the single-update band."""
+
+    sensor: str
+    dof: int
+    count: int
+    mean: float
+    band: tuple  # (low, high) 95 % band of the mean of `count` independent χ²(dof)
+    in_band: bool  # the mean inside `band`
+    single_share: float  # share of updates inside the single-update 95 % band
+    times: np.ndarray  # (count,) s, the updates' stamps
+    values: np.ndarray  # (count,)
+
+
+def estimate_angles(estimated_state):
+    """(n, 3) roll, pitch, yaw (rad) of an ``estimated_state`` log (n, 13)."""
+    roll, pitch, yaw = euler_from_quats(np.asarray(estimated_state)[:, 3:7])
+    return np.column_stack([roll, pitch, yaw])
+
+
+def attitude_sigmas(vocabulary, covariance, yaw):
+    """(n, 3) our σ of roll, pitch, yaw (rad) from a covariance log (n, k*k): the EKF7 has a yaw σ
+    only (its roll and pitch come from the complementary filter: NaN); the ESKF's rotation error
+    about N, E, D, turned into the heading frame (roll about the heading's x, pitch about its y)."""
+    k = vocabulary.size
+    P = np.asarray(covariance, dtype=float).reshape(-1, k, k)
+    sigmas = np.full((len(P), 3), np.nan)
+    names = vocabulary.state_names
+    if "AttN" in names:
+        n, e, d = (names.index(s) for s in ("AttN", "AttE", "AttD"))
+        c, s = np.cos(yaw), np.sin(yaw)
+        pnn, pee, pne = P[:, n, n], P[:, e, e], P[:, n, e]
+        sigmas[:, 0] = np.sqrt(np.maximum(c * c * pnn + 2 * c * s * pne + s * s * pee, 0.0))
+        sigmas[:, 1] = np.sqrt(np.maximum(s * s * pnn - 2 * c * s * pne + c * c * pee, 0.0))
+        sigmas[:, 2] = np.sqrt(np.maximum(P[:, d, d], 0.0))
+    elif "Yaw" in names:
+        sigmas[:, 2] = np.sqrt(np.maximum(P[:, names.index("Yaw"), names.index("Yaw")], 0.0))
+    return sigmas
+
+
+def state_sigmas(vocabulary, covariance, states):
+    """(n, len(states)) our σ of each named state from a covariance log (n, k*k); NaN for a state
+    the vocabulary does not name."""
+    k = vocabulary.size
+    P = np.asarray(covariance, dtype=float).reshape(-1, k, k)
+    names = vocabulary.state_names
+    sigmas = np.full((len(P), len(states)), np.nan)
+    for column, state in enumerate(states):
+        if state in names:
+            i = names.index(state)
+            sigmas[:, column] = np.sqrt(np.maximum(P[:, i, i], 0.0))
+    return sigmas
+
+
+def _interpolated(times, values, at, angle=False):
+    """(m,) `values` (n,) at `times` (n,), linearly at the times `at` (m,); angles unwrapped first
+    and wrapped after."""
+    if angle:
+        return wrap_angles(np.interp(at, times, np.unwrap(values)))
+    return np.interp(at, times, values)
+
+
+def _difference(state, times, ours, sigma, ref_times, reference, compare_after, angle):
+    """StateDifference of our (n,) `ours` and σ at `times` against `reference` at `ref_times`."""
+    keep = (ref_times >= max(compare_after, times[0])) & (ref_times <= times[-1]) & np.isfinite(reference)
+    at = ref_times[keep]
+    difference = _interpolated(times, ours, at, angle) - reference[keep]
+    if angle:
+        difference = wrap_angles(difference)
+    s = np.interp(at, times, sigma) if np.isfinite(sigma).any() else np.full(len(at), np.nan)
+    if not len(at):
+        nan = math.nan
+        return StateDifference(state, UNITS[state], 0, nan, nan, nan, nan, at, difference)
+    with np.errstate(invalid="ignore"):
+        within = float(np.mean(np.abs(difference) <= 2.0 * s)) if np.isfinite(s).all() else math.nan
+    return StateDifference(
+        state,
+        UNITS[state],
+        len(at),
+        float(np.sqrt(np.mean(difference**2))),
+        float(np.max(np.abs(difference))),
+        float(np.sqrt(np.mean(s**2))),
+        within,
+        at,
+        difference,
+    )
+
+
+def compare_attitude(vocabulary, times, logs, reference, compare_after):
+    """[StateDifference] of roll, pitch, yaw against the reference attitude Samples (q_NB wxyz)."""
+    angles = estimate_angles(logs["estimated_state"])
+    sigmas = attitude_sigmas(vocabulary, logs["covariance"], angles[:, 2])
+    ref = np.column_stack(euler_from_quats(reference.values))
+    return [
+        _difference(state, times, angles[:, i], sigmas[:, i], reference.times, ref[:, i], compare_after, True)
+        for i, state in enumerate(ATTITUDE_STATES)
+    ]
+
+
+def compare_position(vocabulary, times, logs, reference, compare_after):
+    """[StateDifference] of x, y, z, vx, vy, vz against the reference position Samples."""
+    state = np.asarray(logs["estimated_state"], dtype=float)
+    ours = np.column_stack([state[:, 0:3], state[:, 7:10]])
+    sigmas = state_sigmas(vocabulary, logs["covariance"], POSITION_STATES)
+    return [
+        _difference(
+            name,
+            times,
+            ours[:, i],
+            sigmas[:, i],
+            reference.times,
+            reference.values[:, i],
+            compare_after,
+            False,
+        )
+        for i, name in enumerate(POSITION_STATES)
+    ]
+
+
+def nis_summary(diagnostics, sensor, compare_after=0.0, probability=0.95):
+    """NisSummary of the fresh `sensor` ("gps" or "mag") updates in a diagnostics log from
+    compare_after s on; None when there are none."""
+    stamps, values = fresh_nis(diagnostics, sensor)
+    keep = (stamps >= compare_after) & np.isfinite(values)
+    stamps, values = stamps[keep], values[keep]
+    if not len(values):
+        return None
+    dof = NIS_DOF[sensor]
+    band = chi2_band(dof, len(values), probability)
+    tail = (1.0 - probability) / 2.0
+    low, high = chi2.ppf([tail, 1.0 - tail], dof)
+    mean = float(np.mean(values))
+    single = float(np.mean((values >= low) & (values <= high)))
+    return NisSummary(
+        sensor, dof, len(values), mean, band, band[0] <= mean <= band[1], single, stamps, values
+    )

@@ -1,0 +1,455 @@
+"""Pure: a recorded flight (PX4 ULog or the CSV format below) as arrays of timestamped samples.
+
+Units and frames are converted here, once, into the package's conventions (``quad_drake``:
+NED world, FRD body, SI units, quaternions wxyz body to world); everything downstream reads a
+:class:`FlightLog` and never a log's own units. Times are seconds since the log's first IMU
+sample (t = 0 of the replay); samples recorded earlier are dropped.
+
+What is read from a PX4 ULog (``pyulog``, PX4's own reader):
+
+- IMU (required): ``sensor_combined``: ``accelerometer_m_s2`` (specific force, m/s^2, FRD: the
+  physical convention of ``quad_drake``, (0, 0, -9.81) level at rest) and ``gyro_rad`` (rad/s,
+  FRD). PX4 logs each as the mean over the interval ``gyro_integral_dt`` that ends at
+  ``timestamp``; a simulated IMU sample taken at t_k is held and integrated over the tick after
+  t_k, so a PX4 sample is timed at the start of its interval, ``timestamp - gyro_integral_dt``
+  (s in older logs, µs in newer ones): then the interval the estimator integrates it over is the
+  one it was measured over. (Measured on the two bundled logs, timing it at ``timestamp``
+  instead changes the roll and pitch differences from PX4's estimate by less than 0.1 mrad.)
+- magnetometer (optional): ``vehicle_magnetometer.magnetometer_ga``, else the field inside
+  ``sensor_combined`` (older PX4, at ``timestamp + magnetometer_timestamp_relative``, each
+  sample once): the body field in gauss, FRD, as PX4 calibrated it. Gauss stays (PX4's unit and
+  the world field's of issue 32's magnetometer).
+- barometer (optional): ``vehicle_air_data.baro_alt_meter``, else ``sensor_combined``'s when its
+  ``baro_timestamp_relative`` marks it valid: pressure altitude, m, up.
+- GPS (optional): ``vehicle_gps_position`` (else ``sensor_gps``) samples with a 3D fix
+  (``fix_type >= 3``) at their ``timestamp`` (when the flight controller had them; the SITL
+  log's ``timestamp_sample`` is 0): latitude and longitude (``latitude_deg`` or ``lat`` in 1e-7 deg), altitude
+  above mean sea level (``altitude_msl_m`` or ``alt`` in mm) and NED velocity (``vel_n_m_s``
+  ...). The position becomes NED metres from the first fix (the local origin) with
+  ``pymap3d.geodetic2ned`` on the WGS84 ellipsoid; the altitudes are taken as heights above it:
+  the geoid's offset is constant over a flight and cancels.
+- PX4's own estimate, the reference of the comparison (optional): ``vehicle_attitude.q`` (wxyz,
+  body FRD to NED; at ``timestamp_sample`` where logged) and ``vehicle_local_position``
+  (x, y, z, vx, vy, vz in NED about PX4's origin ``ref_lat``, ``ref_lon``, ``ref_alt``), moved
+  into the GPS origin's frame (``geodetic2ned`` of PX4's origin); entries PX4 flags invalid
+  (``xy_valid``, ``z_valid``, ``v_xy_valid``, ``v_z_valid``; a position without a global origin)
+  are NaN. Only with GPS: without it there is no common frame to compare positions in.
+- the magnetic declination (rad, east of true north): PX4's parameter ``EKF2_MAG_DECL`` or
+  ``ATT_MAG_DECL`` (degrees), 0 when the log has neither.
+
+The CSV format (``.csv``), for data from any source: one sample per row, ``#`` starts a
+comment line, an optional header row ``time,sensor,...``. Column 1 is the time in seconds
+(any origin; t = 0 becomes the first IMU sample), column 2 the kind of sample, then its values
+in the units and frames of :data:`CSV_SENSORS`::
+
+    time,sensor,v0,v1,v2,v3,v4,v5
+    0.000,imu,0.06,-0.01,-9.82,0.001,-0.003,0.000
+    0.010,mag,0.214,0.012,0.422
+    0.020,baro,488.06
+    0.100,gps,47.3977418,8.5455939,487.99,0.0,0.0,0.0
+    0.004,attitude,0.99999,0.00066,0.00438,-0.00045
+    0.100,position,0.0,0.0,0.0,0.0,0.0,0.0
+    0.000,declination,0.058
+
+Any bad log raises :class:`FlightLogError`, one line naming the file, the topic or row and what
+is wrong: a file that cannot be read, no IMU, time that does not increase, a non-finite value.
+"""
+
+import csv
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from quad_drake.config import ConfigError
+
+
+class FlightLogError(ConfigError):
+    """A flight log that cannot be replayed; str() is one line (the CLI prints it, exit 2)."""
+
+
+@dataclass(frozen=True)
+class Samples:
+    """Timestamped samples of one signal: times (m,) s, strictly increasing; values (m, k)."""
+
+    times: np.ndarray
+    values: np.ndarray
+
+    def __len__(self):
+        return len(self.times)
+
+
+@dataclass(frozen=True)
+class FlightLog:
+    """One recorded flight in ``quad_drake``'s units and frames (module docstring).
+
+    imu: f_B specific force (3, m/s^2) and w_NB_B (3, rad/s), FRD. gps: p_N (3, m, NED from the
+    first fix) and v_N (3, m/s, NED), or None. mag_field: the body field (3, gauss, FRD), or None.
+    baro: pressure altitude (1, m, up), or None. reference_attitude: PX4's q_NB (4, wxyz), or
+    None. reference_position: PX4's p_N (3, m) and v_N (3, m/s) in the GPS origin's frame, NaN
+    where invalid, or None (always None without GPS). origin: (latitude deg, longitude deg,
+    altitude m) of the first GPS fix, or None. mag_declination: rad, east of true north.
+    start_time: the first IMU sample's time in the log's own clock (s), t = 0 here.
+    """
+
+    source: str
+    imu: Samples
+    gps: Samples | None = None
+    mag_field: Samples | None = None
+    baro: Samples | None = None
+    reference_attitude: Samples | None = None
+    reference_position: Samples | None = None
+    origin: tuple | None = None
+    mag_declination: float = 0.0
+    start_time: float = 0.0
+
+    @property
+    def duration(self):
+        """s from the first to the last IMU sample."""
+        return float(self.imu.times[-1])
+
+    def sensors(self):
+        """Names of the sensors the log holds besides the IMU, e.g. ``["gps", "mag", "baro"]``."""
+        present = {"gps": self.gps, "mag": self.mag_field, "baro": self.baro}
+        return [name for name, samples in present.items() if samples is not None]
+
+
+CSV_SENSORS = {
+    "imu": ("f_x", "f_y", "f_z", "w_x", "w_y", "w_z"),  # m/s^2 specific force, rad/s; FRD
+    "gps": ("latitude", "longitude", "altitude", "v_n", "v_e", "v_d"),  # deg, deg, m (up), m/s NED
+    "mag": ("b_x", "b_y", "b_z"),  # gauss, FRD
+    "baro": ("altitude",),  # m, pressure altitude, up
+    "attitude": ("q_w", "q_x", "q_y", "q_z"),  # reference estimate: body FRD to NED
+    "position": ("x", "y", "z", "v_x", "v_y", "v_z"),  # reference estimate: m, m/s, NED, GPS origin
+    "declination": ("declination",),  # rad, east of true north (one row, time ignored)
+}
+"""Sample kinds of the CSV format and their values, in order (units and frames in comments)."""
+
+GPS_3D_FIX = 3
+"""PX4's ``fix_type`` of a 3D fix; samples with less are not used."""
+INVALID_RELATIVE_TIME = 2**31 - 1
+"""``*_timestamp_relative`` value by which older PX4 marks a sensor absent from ``sensor_combined``."""
+ULOG_TOPICS = (
+    "sensor_combined",
+    "vehicle_magnetometer",
+    "vehicle_air_data",
+    "vehicle_gps_position",
+    "sensor_gps",
+    "vehicle_attitude",
+    "vehicle_local_position",
+)
+US = 1e-6
+"""s per microsecond (ULog timestamps)."""
+
+
+def read_flight_log(path):
+    """FlightLog of a ``.ulg`` (PX4 ULog) or ``.csv`` file (module docstring); FlightLogError if bad."""
+    path = Path(path)
+    if not path.is_file():
+        raise FlightLogError(f"{path}: no such flight log")
+    suffix = path.suffix.lower()
+    if suffix == ".ulg":
+        return read_ulog(path)
+    if suffix == ".csv":
+        return read_csv(path)
+    raise FlightLogError(f"{path}: not a flight log (expected a PX4 .ulg or a .csv file)")
+
+
+# ----- checks shared by both formats -----------------------------------------------------------
+
+
+def _checked(where, times, values, unit="s"):
+    """Samples of (m,) times (in `unit`) and (m, k) values, or FlightLogError (`where` names the topic)."""
+    times = np.asarray(times, dtype=float)
+    values = np.asarray(values, dtype=float).reshape(len(times), -1)
+    bad_time = np.flatnonzero(~np.isfinite(times))
+    if bad_time.size:
+        raise FlightLogError(f"{where}: time of sample {bad_time[0]} is not finite")
+    backwards = np.flatnonzero(np.diff(times) <= 0)
+    if backwards.size:
+        i = backwards[0] + 1
+        raise FlightLogError(
+            f"{where}: time does not increase at sample {i} "
+            f"({_time_text(times[i - 1], unit)}, then {_time_text(times[i], unit)})"
+        )
+    bad = np.argwhere(~np.isfinite(values))
+    if bad.size:
+        i, j = bad[0]
+        raise FlightLogError(
+            f"{where}: sample {i} (t = {_time_text(times[i], unit)}) has a non-finite value {values[i, j]}"
+        )
+    return Samples(times, values)
+
+
+def _time_text(time, unit):
+    """A time for a message: whole microseconds as integers, seconds with 9 digits."""
+    return f"{time:.0f} {unit}" if unit == "µs" else f"{time:.9g} {unit}"
+
+
+def _after_start(samples, start, scale=1.0):
+    """`samples` (times in the log's clock) from `start` on, times made relative to it and
+    multiplied by `scale` (s per unit of the log's clock: ULog's integer µs stay exact until here)."""
+    keep = samples.times >= start
+    return Samples((samples.times[keep] - start) * scale, samples.values[keep])
+
+
+def _to_local(latitude, longitude, altitude, origin):
+    """(m, 3) NED metres of geodetic points (deg, deg, m) from `origin` (deg, deg, m)."""
+    import pymap3d
+
+    north, east, down = pymap3d.geodetic2ned(latitude, longitude, altitude, *origin)
+    return np.column_stack([north, east, down])
+
+
+# ----- ULog ------------------------------------------------------------------------------------
+
+
+def read_ulog(path):
+    """FlightLog of a PX4 ULog file (module docstring); FlightLogError for a bad log."""
+    from pyulog import ULog
+
+    path = Path(path)
+    try:
+        ulog = ULog(str(path), list(ULOG_TOPICS))
+    except Exception as e:  # pyulog raises whatever its parser meets in a foreign file
+        reason = str(e).splitlines()[0] if str(e) else type(e).__name__
+        raise FlightLogError(f"{path}: not a readable ULog file ({reason})") from None
+    topics = {}
+    for dataset in ulog.data_list:
+        if dataset.multi_id == 0:
+            topics[dataset.name] = dataset.data
+    if "sensor_combined" not in topics:
+        raise FlightLogError(f"{path}: no sensor_combined topic (the IMU); cannot replay without it")
+    combined = topics["sensor_combined"]
+    imu = _ulog_samples(
+        path,
+        "sensor_combined",
+        combined,
+        combined["timestamp"] - _integration_interval_us(path, combined),
+        [f"accelerometer_m_s2[{i}]" for i in range(3)] + [f"gyro_rad[{i}]" for i in range(3)],
+    )
+    start = float(imu.times[0])
+    gps, origin = _ulog_gps(path, topics)
+    parameters = ulog.initial_parameters
+    declination = parameters.get("EKF2_MAG_DECL", parameters.get("ATT_MAG_DECL", 0.0))
+    return FlightLog(
+        source=str(path),
+        imu=_after_start(imu, start, US),
+        gps=_optional(gps, start, US),
+        mag_field=_optional(_ulog_mag(path, topics), start, US),
+        baro=_optional(_ulog_baro(path, topics), start, US),
+        reference_attitude=_optional(_ulog_attitude(path, topics), start, US),
+        reference_position=_optional(_ulog_local_position(path, topics, origin), start, US),
+        origin=origin,
+        mag_declination=math.radians(float(declination)),
+        start_time=start * US,
+    )
+
+
+def _integration_interval_us(path, combined):
+    """(m,) µs over which each ``sensor_combined`` sample was integrated (``gyro_integral_dt``:
+    float seconds in older PX4, integer µs in newer)."""
+    interval = combined.get("gyro_integral_dt")
+    if interval is None:
+        return 0.0
+    if np.issubdtype(interval.dtype, np.floating):
+        return np.round(np.asarray(interval, dtype=float) / US)
+    return interval.astype(float)
+
+
+def _optional(samples, start, scale=1.0):
+    """:func:`_after_start` of `samples`; None when there are none (or none from `start` on)."""
+    if samples is None:
+        return None
+    kept = _after_start(samples, start, scale)
+    return kept if len(kept) else None
+
+
+def _field(path, topic, data, name):
+    if name not in data:
+        raise FlightLogError(f"{path}: {topic} has no field {name!r}")
+    return np.asarray(data[name], dtype=float)
+
+
+def _ulog_samples(path, topic, data, timestamps_us, fields, rows=slice(None)):
+    """Checked Samples of `fields` of a ULog topic at timestamps_us (µs, kept in µs), rows selected."""
+    values = np.column_stack([_field(path, topic, data, name)[rows] for name in fields])
+    times = np.asarray(timestamps_us, dtype=float)[rows]
+    return _checked(f"{path}: {topic}", times, values, "µs")
+
+
+def _sample_times(data):
+    """µs: ``timestamp_sample`` where the topic logs it (the measurement's time), else ``timestamp``."""
+    sampled = data.get("timestamp_sample")
+    if sampled is not None and np.all(sampled > 0):
+        return sampled
+    return data["timestamp"]
+
+
+def _ulog_mag(path, topics):
+    fields = [f"magnetometer_ga[{i}]" for i in range(3)]
+    if "vehicle_magnetometer" in topics:
+        data = topics["vehicle_magnetometer"]
+        return _ulog_samples(path, "vehicle_magnetometer", data, data["timestamp"], fields)
+    combined = topics["sensor_combined"]
+    if "magnetometer_timestamp_relative" not in combined:
+        return None
+    relative = combined["magnetometer_timestamp_relative"].astype(np.int64)
+    valid = relative != INVALID_RELATIVE_TIME
+    stamps = combined["timestamp"].astype(np.int64) + relative
+    _, first = np.unique(stamps, return_index=True)  # each sample is repeated until the next
+    rows = np.sort(first[valid[first]])
+    if rows.size == 0:
+        return None
+    return _ulog_samples(path, "sensor_combined (magnetometer)", combined, stamps, fields, rows)
+
+
+def _ulog_baro(path, topics):
+    if "vehicle_air_data" in topics:
+        data = topics["vehicle_air_data"]
+        return _ulog_samples(path, "vehicle_air_data", data, data["timestamp"], ["baro_alt_meter"])
+    combined = topics["sensor_combined"]
+    if "baro_timestamp_relative" not in combined:
+        return None
+    relative = combined["baro_timestamp_relative"].astype(np.int64)
+    valid = relative != INVALID_RELATIVE_TIME
+    stamps = combined["timestamp"].astype(np.int64) + relative
+    _, first = np.unique(stamps, return_index=True)
+    rows = np.sort(first[valid[first]])
+    if rows.size == 0:
+        return None
+    return _ulog_samples(path, "sensor_combined (barometer)", combined, stamps, ["baro_alt_meter"], rows)
+
+
+def _ulog_gps(path, topics):
+    """(Samples of p_N, v_N in the local frame, origin) of the 3D fixes, or (None, None)."""
+    topic = next((t for t in ("vehicle_gps_position", "sensor_gps") if t in topics), None)
+    if topic is None:
+        return None, None
+    data = topics[topic]
+    fixed = np.flatnonzero(_field(path, topic, data, "fix_type") >= GPS_3D_FIX)
+    if fixed.size == 0:
+        return None, None
+    if "latitude_deg" in data:
+        geodetic = ["latitude_deg", "longitude_deg", "altitude_msl_m"]
+        scales = (1.0, 1.0, 1.0)
+    else:  # PX4 before v1.14: integers in 1e-7 deg and mm
+        geodetic, scales = ["lat", "lon", "alt"], (1e-7, 1e-7, 1e-3)
+    fields = geodetic + ["vel_n_m_s", "vel_e_m_s", "vel_d_m_s"]
+    raw = _ulog_samples(path, topic, data, data["timestamp"], fields, fixed)
+    values = raw.values.copy()
+    values[:, 0:3] *= scales
+    return _geodetic_gps(raw.times, values)
+
+
+def _geodetic_gps(times, values):
+    """(Samples of p_N (local NED from the first sample), v_N; origin) of (m, 6) rows of
+    latitude deg, longitude deg, altitude m, v_N m/s."""
+    origin = tuple(float(x) for x in values[0, 0:3])
+    position = _to_local(values[:, 0], values[:, 1], values[:, 2], origin)
+    return Samples(times, np.column_stack([position, values[:, 3:6]])), origin
+
+
+def _ulog_attitude(path, topics):
+    if "vehicle_attitude" not in topics:
+        return None
+    data = topics["vehicle_attitude"]
+    fields = [f"q[{i}]" for i in range(4)]
+    return _ulog_samples(path, "vehicle_attitude", data, _sample_times(data), fields)
+
+
+def _ulog_local_position(path, topics, origin):
+    """PX4's position and velocity in the GPS origin's NED frame (NaN where invalid), or None."""
+    if origin is None or "vehicle_local_position" not in topics:
+        return None
+    topic = "vehicle_local_position"
+    data = topics[topic]
+    times = np.asarray(_sample_times(data), dtype=float)
+    values = np.column_stack([_field(path, topic, data, n) for n in ("x", "y", "z", "vx", "vy", "vz")])
+    reference = np.column_stack([_field(path, topic, data, n) for n in ("ref_lat", "ref_lon", "ref_alt")])
+    xy_global = _field(path, topic, data, "xy_global") > 0
+    z_global = _field(path, topic, data, "z_global") > 0
+    known = np.isfinite(reference).all(axis=1)
+    offsets = np.full((len(times), 3), np.nan)
+    if known.any():
+        offsets[known] = _to_local(reference[known, 0], reference[known, 1], reference[known, 2], origin)
+    values[:, 0:3] += offsets
+    for columns, flag in (
+        ([0, 1], (_field(path, topic, data, "xy_valid") > 0) & xy_global),
+        ([2], (_field(path, topic, data, "z_valid") > 0) & z_global),
+        ([3, 4], _field(path, topic, data, "v_xy_valid") > 0),
+        ([5], _field(path, topic, data, "v_z_valid") > 0),
+    ):
+        values[np.ix_(~flag, columns)] = np.nan
+    _checked(f"{path}: {topic}", times, np.zeros((len(times), 1)), "µs")  # time only: NaN marks invalid
+    return Samples(times, values)
+
+
+# ----- CSV -------------------------------------------------------------------------------------
+
+
+def read_csv(path):
+    """FlightLog of a CSV file in the format of the module docstring; FlightLogError if bad."""
+    path = Path(path)
+    rows = {kind: [] for kind in CSV_SENSORS}
+    try:
+        with path.open(newline="", encoding="utf-8") as f:
+            for line_number, row in enumerate(csv.reader(f), start=1):
+                if not row or row[0].lstrip().startswith("#") or row[0].strip() == "time":
+                    continue
+                rows[_csv_kind(path, line_number, row)].append((line_number, row))
+    except (OSError, UnicodeDecodeError, csv.Error) as e:
+        raise FlightLogError(f"{path}: cannot read as CSV ({e})") from None
+    if not rows["imu"]:
+        raise FlightLogError(f"{path}: no imu rows; cannot replay without an IMU")
+    parsed = {kind: _csv_samples(path, kind, found) for kind, found in rows.items() if found}
+    start = float(parsed["imu"].times[0])
+    gps, origin = (None, None)
+    if "gps" in parsed:
+        gps, origin = _geodetic_gps(parsed["gps"].times, parsed["gps"].values)
+    declination = float(parsed["declination"].values[-1, 0]) if "declination" in parsed else 0.0
+    return FlightLog(
+        source=str(path),
+        imu=_after_start(parsed["imu"], start),
+        gps=_optional(gps, start),
+        mag_field=_optional(parsed.get("mag"), start),
+        baro=_optional(parsed.get("baro"), start),
+        reference_attitude=_optional(parsed.get("attitude"), start),
+        reference_position=_optional(parsed.get("position"), start) if gps is not None else None,
+        origin=origin,
+        mag_declination=declination,
+        start_time=start,
+    )
+
+
+def _csv_kind(path, line_number, row):
+    kind = row[1].strip() if len(row) > 1 else ""
+    if kind not in CSV_SENSORS:
+        raise FlightLogError(
+            f"{path}: line {line_number}: sensor {kind!r} is not one of {', '.join(CSV_SENSORS)}"
+        )
+    return kind
+
+
+def _csv_samples(path, kind, found):
+    """Checked Samples of one kind's CSV rows [(line number, row)]."""
+    width = len(CSV_SENSORS[kind])
+    times, values = [], []
+    for line_number, row in found:
+        cells = [cell.strip() for cell in row[2:]]
+        while cells and not cells[-1]:  # trailing empty columns of a wider table
+            cells.pop()
+        if len(cells) != width:
+            raise FlightLogError(
+                f"{path}: line {line_number}: {kind} takes {width} values "
+                f"({', '.join(CSV_SENSORS[kind])}), got {len(cells)}"
+            )
+        try:
+            times.append(float(row[0]))
+            values.append([float(cell) for cell in cells])
+        except ValueError as e:
+            raise FlightLogError(f"{path}: line {line_number}: not a number ({e})") from None
+    if kind == "position":  # NaN marks an invalid reference entry, as in a ULog
+        return Samples(_checked(f"{path}: {kind} rows", times, np.zeros(len(times))).times, np.array(values))
+    return _checked(f"{path}: {kind} rows", times, values)

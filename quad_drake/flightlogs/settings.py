@@ -1,0 +1,250 @@
+"""What a replay assumes: the estimator and its tuning for a real flight controller's sensors.
+
+A :class:`ReplayConfig` is loaded as a scenario is (``config``'s checks and ``--set`` overrides,
+one-line ConfigError naming the field), from :func:`default_replay` plus the command line's
+``--estimator {kind: ...}`` mapping and ``--set key=value`` overrides, and is written beside
+the results as ``config.yaml``.
+
+The defaults are PX4 EKF2's own (``EKF2_GYR_NOISE`` 0.015 rad/s, ``EKF2_ACC_NOISE`` 0.35 m/s^2 at
+its 10 ms prediction step, ``EKF2_GPS_P_NOISE`` 0.5 m, ``EKF2_GPS_V_NOISE`` 0.3 m/s,
+``EKF2_HEAD_NOISE`` 0.3 rad, ``EKF2_ACC_B_NOISE`` 0.003 m/s^3, ``EKF2_GYR_B_NOISE`` 0.001 rad/s^2),
+not tuned on these logs: the IMU noise is re-expressed per 2 ms sample with the same density
+(x sqrt(10 ms / 2 ms)), and the complementary filter's time constant is 0.5 s (the simulated
+scenarios' 100 s trusts the gyro of a simulated IMU without bias; a real gyro's bias needs the
+accelerometer sooner).
+"""
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Optional
+
+import yaml
+from pydrake.common.yaml import yaml_dump, yaml_dump_typed, yaml_load_typed
+
+from quad_drake.config import (
+    PACKAGE_DIR,
+    AttitudeFilterParams,
+    ConfigError,
+    EkfParams,
+    VehicleConfig,
+    apply_override,
+    check_node,
+    did_you_mean,
+    first_line,
+    load_yaml,
+    override_hint,
+    parse_override,
+    validate,
+)
+from quad_drake.config_fields import number
+from quad_drake.estimation.registry import KINDS, Ekf7EstimatorConfig, EskfEstimatorConfig, EstimatorConfig
+
+PER_SAMPLE = math.sqrt(0.010 / 0.002)
+"""PX4 EKF2's IMU noise is per 10 ms prediction step; ours is per 2 ms sample of equal density."""
+GYRO_STD = 0.015 * PER_SAMPLE  # rad/s per 2 ms sample
+ACCEL_STD = 0.35 * PER_SAMPLE  # m/s^2 per 2 ms sample
+GPS_POS_STD = 0.5  # m
+GPS_VEL_STD = 0.3  # m/s
+HEADING_STD = 0.3  # rad
+LOG_DIR = PACKAGE_DIR / "data" / "flight_logs"
+"""The bundled flight logs (package data): pyulog's test logs, BSD-3-Clause (README there)."""
+FAKE_VELOCITY_STD = 1e3
+"""m/s: the velocity part of a fake position sample, so large that it carries no information."""
+
+
+@dataclass
+class ReplayConfig:
+    """One replay: the log, the estimator and what it assumes (module docstring)."""
+
+    name: str = field(default="", metadata={"pattern": "scenario"})  # default: the log's file stem
+    log: str = ""  # the flight log file (.ulg or .csv)
+    estimator: EstimatorConfig = field(default_factory=Ekf7EstimatorConfig)
+    attitude_filter: AttitudeFilterParams = field(default_factory=AttitudeFilterParams)  # ekf7's
+    ekf: EkfParams = field(default_factory=EkfParams)  # ekf7's
+    mag_declination: Optional[float] = None  # rad, east of true north; None: the log's own
+    # m: a log without GPS gets a zero position sample every fake_position_period s with this
+    # std (PX4's EKF2_NOAID_NOISE), so the estimator's velocity, and its tilt, stay bounded; 0 = off
+    fake_position_std: float = number(10.0, nonnegative=True)
+    fake_position_period: float = number(0.2, tick_multiple=1)  # s
+
+
+def default_estimator(kind):
+    """The replay's default estimator config of `kind` (module docstring: PX4's noise)."""
+    if kind == "eskf":
+        return EskfEstimatorConfig(
+            init_position=[0.0, 0.0, 0.0],
+            init_pos_std=[1.0, 1.0, 1.0],
+            init_vel_std=[0.5, 0.5, 0.5],
+            init_att_std=[0.1, 0.1, 0.3],
+            init_gyro_bias_std=[0.02, 0.02, 0.02],
+            init_accel_bias_std=[0.2, 0.2, 0.2],
+            accel_std=[ACCEL_STD] * 3,
+            gyro_std=[GYRO_STD] * 3,
+            accel_bias_rw_std=0.003,
+            gyro_bias_rw_std=0.001,
+            gps_pos_std=[GPS_POS_STD] * 3,
+            gps_vel_std=[GPS_VEL_STD] * 3,
+            mag_yaw_std=HEADING_STD,
+        )
+    return Ekf7EstimatorConfig()
+
+
+def default_replay(kind="ekf7"):
+    """ReplayConfig with the defaults of the module docstring for an estimator of `kind`."""
+    ekf = EkfParams(
+        init_state=[0.0] * 7,
+        init_std=[1.0, 1.0, 1.0, 0.5, 0.5, 0.5, 0.3],
+        q_vel_xy_std=0.035,  # m/s/sqrt(s): EKF2_ACC_NOISE (0.35 m/s^2 per 10 ms step) as a density
+        q_vel_z_std=0.035,
+        gps_pos_xy_std=GPS_POS_STD,
+        gps_pos_z_std=GPS_POS_STD,
+        gps_vel_xy_std=GPS_VEL_STD,
+        gps_vel_z_std=GPS_VEL_STD,
+        mag_yaw_std=HEADING_STD,
+    )
+    return ReplayConfig(
+        estimator=default_estimator(kind),
+        attitude_filter=AttitudeFilterParams(tau=0.5),
+        ekf=ekf,
+    )
+
+
+def bundled_logs():
+    """{name: path} of the flight logs shipped with the package (``quad_drake/data/flight_logs``)."""
+    return {p.stem: p for p in sorted(LOG_DIR.glob("*.ulg"))}
+
+
+def resolve_log(name_or_path):
+    """Path of a flight log given as a file path or a bundled log's name; ConfigError if neither."""
+    path = Path(str(name_or_path))
+    if path.is_file():
+        return path
+    bundled = bundled_logs()
+    if str(name_or_path) in bundled:
+        return bundled[str(name_or_path)]
+    raise ConfigError(
+        f"{name_or_path}: no such flight log file, nor a bundled log"
+        f"{did_you_mean(name_or_path, bundled)} (bundled: {', '.join(bundled)})"
+    )
+
+
+def load_replay(log, estimator=None, overrides=()):
+    """Validated ReplayConfig of `log` (a flight log's path or bundled name, or the config.yaml of
+    an earlier replay), an ``--estimator`` mapping (YAML text, e.g. ``{kind: eskf}``: the defaults
+    of that kind with these fields changed) and ``--set`` overrides (``ekf.mag_yaw_std=0.2``,
+    ``estimator.gyro_std=[0.05, 0.05, 0.05]``).
+
+    Raises ConfigError (one line naming the file, ``--estimator``, ``--set`` or the field).
+    """
+    chosen = estimator_mapping(estimator)
+    if Path(str(log)).suffix in (".yaml", ".yml"):
+        raw = _replay_file(Path(str(log)))
+        if chosen:
+            kind = chosen.get("kind", raw["estimator"].get("kind"))
+            base = raw["estimator"] if kind == raw["estimator"].get("kind") else _default_estimator_raw(kind)
+            raw["estimator"] = {**_untagged(base), **chosen}
+    else:
+        kind = chosen.get("kind", "ekf7")
+        raw = load_yaml(yaml_dump_typed(default_replay(kind if kind in KINDS else "ekf7")))
+        path = resolve_log(log)
+        raw["log"] = str(log) if path.parent == LOG_DIR else str(path.resolve())  # a bundled name stays one
+        raw["estimator"] = {**_untagged(raw["estimator"]), **chosen}
+    for text in overrides:
+        keys, value = parse_override(text)
+        apply_override(raw, keys, value, text)
+    hints = list(overrides) + ([f"estimator={estimator}"] if estimator else [])
+    try:
+        message = check_node(raw, ReplayConfig, "")
+        if message:
+            raise ConfigError(message)
+        config = yaml_load_typed(schema=ReplayConfig, data=yaml_dump(raw))
+        check_replay(config)
+    except ConfigError as e:
+        hint = override_hint(str(e), hints).replace("--set estimator=", "--estimator ")
+        raise ConfigError(f"{e}{hint}") from None
+    except (RuntimeError, ValueError, TypeError) as e:
+        raise ConfigError(first_line(e)) from None
+    resolve_log(config.log)
+    located = KINDS[config.estimator.kind].locate(config.estimator, Path.cwd())  # a custom factory's file
+    return dataclasses.replace(config, estimator=located)
+
+
+def _default_estimator_raw(kind):
+    return load_yaml(yaml_dump_typed(default_replay(kind if kind in KINDS else "ekf7")))["estimator"]
+
+
+def _replay_file(path):
+    """The raw mapping of a replay's config.yaml (ConfigError naming the file when unreadable)."""
+    try:
+        raw = load_yaml(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError) as e:
+        raise ConfigError(f"{path}: cannot read ({e})") from None
+    except yaml.YAMLError as e:
+        raise ConfigError(f"{path}: not valid YAML: {first_line(e)}") from None
+    if not isinstance(raw, dict) or "log" not in raw:
+        raise ConfigError(f"{path}: not a replay's config.yaml (no log: field)")
+    return raw
+
+
+def estimator_mapping(text):
+    """The mapping of an ``--estimator`` YAML text ({} for None); ConfigError naming --estimator."""
+    if text is None:
+        return {}
+    try:
+        mapping = load_yaml(text)
+    except yaml.YAMLError as e:
+        raise ConfigError(f"--estimator {text!r}: not valid YAML ({first_line(e, located=False)})") from None
+    if not isinstance(mapping, dict):
+        raise ConfigError(f"--estimator {text!r}: expected a mapping such as '{{kind: eskf}}'")
+    return mapping
+
+
+def _untagged(mapping):
+    return {k: v for k, v in mapping.items() if k != "_tag"}
+
+
+def check_replay(config):
+    """`config` (a ReplayConfig) when every field keeps its rules; else ConfigError (one line)."""
+    try:
+        validate(dataclasses.replace(config, name=config.name or "replay"))
+    except (TypeError, AttributeError) as e:
+        raise ConfigError(f"a replay field has the wrong type ({e})") from None
+    kind = KINDS[config.estimator.kind]
+    if kind.builder is None:
+        raise ConfigError(f"estimator.kind: {kind.name!r} runs no estimator; nothing to replay")
+    problem = kind.problem(config.estimator)
+    if problem:
+        raise ConfigError(f"estimator: {problem}")
+    if config.mag_declination is not None and not abs(config.mag_declination) <= math.pi:
+        raise ConfigError(f"mag_declination: must be within [-pi, pi] rad, got {config.mag_declination}")
+    return config
+
+
+def vehicle_for(config, initial_attitude, fake_position):
+    """The VehicleConfig whose estimator blocks ``systems.estimators.build_estimator`` reads:
+    `config`'s, started at `initial_attitude` (roll, pitch, yaw rad) at rest at the origin, and
+    with `fake_position` (a log without GPS) assuming the fake position's noise for its GPS input."""
+    roll, pitch, yaw = initial_attitude
+    ekf = dataclasses.replace(config.ekf, init_state=[0.0] * 6 + [yaw])
+    estimator = config.estimator
+    if estimator.kind == "eskf":
+        estimator = dataclasses.replace(estimator, init_ypr=[yaw, pitch, roll])
+    if fake_position:
+        fake, still = [config.fake_position_std] * 3, [FAKE_VELOCITY_STD] * 3
+        ekf = dataclasses.replace(
+            ekf,
+            gps_pos_xy_std=fake[0],
+            gps_pos_z_std=fake[0],
+            gps_vel_xy_std=still[0],
+            gps_vel_z_std=still[0],
+        )
+        if estimator.kind == "eskf":
+            estimator = dataclasses.replace(estimator, gps_pos_std=fake, gps_vel_std=still)
+    return VehicleConfig(attitude_filter=config.attitude_filter, ekf=ekf, estimator=estimator)
+
+
+def dump_replay(config):
+    """The resolved ReplayConfig as YAML text."""
+    return yaml_dump_typed(config)

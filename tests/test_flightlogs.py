@@ -1,0 +1,300 @@
+"""Flight logs, pure parts: the ULog and CSV readers (units and frames once, bad logs refused in
+one line), the playback schedule, the tilt-compensated heading and the comparison statistics."""
+
+import math
+import re
+
+import numpy as np
+import pytest
+from pyulog import ULog
+from scipy.stats import chi2
+
+from quad_drake.conventions import GRAVITY, NO_SAMPLE_STAMP
+from quad_drake.flightlogs import comparison
+from quad_drake.flightlogs.playback import (
+    first_ticks,
+    gravity_directions,
+    initial_attitude,
+    playback_streams,
+    superseded_samples,
+    tilt_compensated_heading,
+)
+from quad_drake.flightlogs.reader import FlightLogError, Samples, read_flight_log
+from quad_drake.flightlogs.settings import LOG_DIR
+from quad_drake.rotations import euler_from_quats, rotation_from_euler
+
+REAL = LOG_DIR / "real_auav_x21_attitude_flight.ulg"
+SITL = LOG_DIR / "sitl_takeoff_land_gps.ulg"
+
+
+@pytest.fixture(scope="module")
+def real_log():
+    return read_flight_log(REAL)
+
+
+@pytest.fixture(scope="module")
+def sitl_log():
+    return read_flight_log(SITL)
+
+
+def test_the_real_flight_reads_as_an_attitude_only_log(real_log):
+    assert real_log.sensors() == ["mag"]  # its sensor_combined barometer is marked invalid throughout
+    assert len(real_log.imu) == 17070 and real_log.imu.times[0] == 0.0
+    assert 68.8 < real_log.duration < 69.0
+    assert np.median(np.diff(real_log.imu.times)) == pytest.approx(0.004, abs=1e-6)  # 250 Hz
+    assert real_log.gps is None and real_log.reference_position is None and real_log.origin is None
+    assert len(real_log.mag_field) == 6758  # each sensor_combined field sample once
+    assert 0.3 < np.median(np.linalg.norm(real_log.mag_field.values, axis=1)) < 0.6  # gauss
+    assert real_log.mag_declination == 0.0  # ATT_MAG_DECL
+    assert len(real_log.reference_attitude) > 6000
+
+
+def test_the_accelerometer_reads_the_physical_specific_force(sitl_log):
+    # On the ground before take-off: f_B = R^T (a - g) = (0, 0, -9.81), the package's convention.
+    resting = sitl_log.imu.values[sitl_log.imu.times < 5.0, 0:3].mean(axis=0)
+    assert resting == pytest.approx([0.0, 0.0, -GRAVITY], abs=0.1)
+
+
+def test_an_imu_sample_is_timed_at_the_start_of_its_integration_interval(sitl_log):
+    data = ULog(str(SITL), ["sensor_combined"]).get_dataset("sensor_combined").data
+    start = (data["timestamp"] - data["gyro_integral_dt"]).astype(float)
+    assert sitl_log.start_time == pytest.approx(start[0] * 1e-6)
+    assert sitl_log.imu.times == pytest.approx((start - start[0]) * 1e-6, abs=1e-9)
+
+
+def test_the_sitl_gps_becomes_local_ned_at_its_first_fix(sitl_log):
+    gps = sitl_log.gps
+    assert sitl_log.origin == pytest.approx((47.3977418, 8.5455939, 488.005), abs=1e-6)
+    assert gps.values[0, 0:3] == pytest.approx([0.0, 0.0, 0.0], abs=1e-9)
+    assert gps.times[0] == pytest.approx(9.172, abs=0.01)  # samples before the 3D fix are not used
+    assert gps.values[:, 2].min() == pytest.approx(-2.18, abs=0.02)  # the take-off to about 2 m
+    assert sitl_log.mag_declination == pytest.approx(math.radians(3.3230793476104736))
+    assert len(sitl_log.baro) == 622 and sitl_log.baro.values[0, 0] == pytest.approx(488.098, abs=1e-3)
+
+
+def test_px4s_local_position_is_moved_into_the_gps_frame(sitl_log):
+    # Both frames' origins are geodetic points; once PX4's is expressed in ours, its horizontal
+    # position follows the GPS to the centimetre the SITL GPS is good to.
+    reference = sitl_log.reference_position
+    valid = np.isfinite(reference.values[:, 0])
+    assert not valid[:50].any() and valid[-50:].all()  # no global origin before the GPS
+    at = reference.times[valid]
+    for axis in (0, 1):
+        gps = np.interp(at, sitl_log.gps.times, sitl_log.gps.values[:, axis])
+        assert np.sqrt(np.mean((reference.values[valid, axis] - gps) ** 2)) < 0.03
+
+
+def csv_rows(log):
+    """The CSV rows of a FlightLog (the SITL log written in the CSV format)."""
+    rows = ["# the SITL log in quad_drake's CSV format", "time,sensor,v0,v1,v2,v3,v4,v5"]
+    import pymap3d
+
+    latitude, longitude, altitude = pymap3d.ned2geodetic(*log.gps.values[:, 0:3].T, *log.origin)
+    gps = np.column_stack([latitude, longitude, altitude, log.gps.values[:, 3:6]])
+    streams = [
+        ("imu", log.imu.times, log.imu.values),
+        ("gps", log.gps.times, gps),
+        ("mag", log.mag_field.times, log.mag_field.values),
+        ("baro", log.baro.times, log.baro.values),
+        ("attitude", log.reference_attitude.times, log.reference_attitude.values),
+        ("position", log.reference_position.times, log.reference_position.values),
+    ]
+    for kind, times, values in streams:
+        rows += [
+            f"{float(t)!r},{kind}," + ",".join(repr(float(v)) for v in row)
+            for t, row in zip(times, values, strict=True)
+        ]
+    rows.append(f"0,declination,{log.mag_declination!r}")
+    return rows
+
+
+@pytest.fixture(scope="module")
+def sitl_csv(sitl_log, tmp_path_factory):
+    path = tmp_path_factory.mktemp("csv") / "sitl.csv"
+    path.write_text("\n".join(csv_rows(sitl_log)) + "\n", encoding="utf-8")
+    return path
+
+
+def test_a_csv_log_reads_as_the_same_flight(sitl_log, sitl_csv):
+    log = read_flight_log(sitl_csv)
+    assert log.sensors() == sitl_log.sensors() and log.mag_declination == sitl_log.mag_declination
+    for name in ("imu", "mag_field", "baro", "reference_attitude"):
+        ours, theirs = getattr(log, name), getattr(sitl_log, name)
+        assert ours.times == pytest.approx(theirs.times, abs=1e-12)
+        assert ours.values == pytest.approx(theirs.values, abs=1e-12)
+    assert log.gps.values == pytest.approx(sitl_log.gps.values, abs=1e-6)  # geodetic and back
+    assert log.origin == pytest.approx(sitl_log.origin, abs=1e-6)  # ned2geodetic and back
+    np.testing.assert_allclose(log.reference_position.values, sitl_log.reference_position.values)
+
+
+def test_a_csv_gps_sample_north_of_the_first_is_that_far_north(tmp_path):
+    path = tmp_path / "north.csv"
+    rows = ["0,imu,0,0,-9.81,0,0,0", "0.1,gps,47.0,8.0,500.0,0,0,0", "0.2,gps,47.001,8.0,500.0,0,0,0"]
+    path.write_text("\n".join(rows) + "\n", encoding="utf-8")
+    north, east, down = read_flight_log(path).gps.values[1, 0:3]
+    assert north == pytest.approx(111.2, abs=0.2) and abs(east) < 1e-6 and abs(down) < 0.01  # 1e-3 deg
+
+
+BAD_CSV = [
+    ("0,gps,47,8,500,0,0,0\n", "no imu rows"),
+    (
+        "0,imu,0,0,-9.8,0,0,0\n0.004,imu,0,0,-9.8,0,0,nan\n",
+        "imu rows: sample 1 (t = 0.004 s) has a non-finite value nan",
+    ),
+    (
+        "0,imu,0,0,-9.8,0,0,0\n0.004,imu,0,0,-9.8,0,0,0\n0.002,imu,0,0,-9.8,0,0,0\n",
+        "time does not increase at sample 2",
+    ),
+    (
+        "0,imu,0,0,-9.8,0,0,0\n0.004,imu,0,0,-9.8,0,0,0\n0.004,imu,0,0,-9.8,0,0,0\n",
+        "time does not increase at sample 2",
+    ),
+    ("0,imu,0,0,-9.8,0,0,0\n0.1,lidar,3\n", "line 2: sensor 'lidar' is not one of imu, gps"),
+    ("0,imu,0,0,-9.8,0,0\n", "line 1: imu takes 6 values"),
+    ("0,imu,0,0,-9.8,0,0,x\n", "line 1: not a number"),
+    (
+        "0,imu,0,0,-9.8,0,0,0\n0.1,mag,0.2,0.0,inf\n",
+        "mag rows: sample 0 (t = 0.1 s) has a non-finite value inf",
+    ),
+]
+
+
+@pytest.mark.parametrize("text, message", BAD_CSV)
+def test_a_bad_csv_log_is_one_line_naming_the_file_and_the_problem(tmp_path, text, message):
+    path = tmp_path / "bad.csv"
+    path.write_text(text, encoding="utf-8")
+    with pytest.raises(FlightLogError) as error:
+        read_flight_log(path)
+    assert str(error.value).startswith(f"{path}: ") and message in str(error.value)
+    assert "\n" not in str(error.value)
+
+
+def _edited_ulog(tmp_path, edit):
+    ulog = ULog(str(SITL))
+    edit(ulog)
+    path = tmp_path / "edited.ulg"
+    ulog.write_ulog(str(path))
+    return path
+
+
+def _drop_imu(ulog):
+    ulog.data_list[:] = [d for d in ulog.data_list if d.name != "sensor_combined"]
+
+
+def _imu_backwards(ulog):
+    data = ulog.get_dataset("sensor_combined").data
+    data["timestamp"][100] = data["timestamp"][98]
+
+
+def _gps_nan(ulog):
+    ulog.get_dataset("vehicle_gps_position").data["vel_n_m_s"][300] = np.nan
+
+
+@pytest.mark.parametrize(
+    "edit, message",
+    [
+        (_drop_imu, "no sensor_combined topic (the IMU)"),
+        (_imu_backwards, "sensor_combined: time does not increase at sample 99"),
+        (_gps_nan, "vehicle_gps_position: sample "),
+    ],
+)
+def test_a_bad_ulog_is_one_line_naming_the_topic(tmp_path, edit, message):
+    path = _edited_ulog(tmp_path, edit)
+    with pytest.raises(FlightLogError, match=re.escape(message)):
+        read_flight_log(path)
+
+
+@pytest.mark.parametrize(
+    "name, content, message",
+    [
+        ("garbage.ulg", b"not a ulog", "not a readable ULog file"),
+        ("log.txt", b"", "not a flight log (expected a PX4 .ulg or a .csv file)"),
+        ("binary.csv", b"\xff\xfe\x00", "cannot read as CSV"),
+    ],
+)
+def test_a_file_that_is_no_flight_log_is_refused(tmp_path, name, content, message):
+    path = tmp_path / name
+    path.write_bytes(content)
+    with pytest.raises(FlightLogError, match=re.escape(message)):
+        read_flight_log(path)
+    with pytest.raises(FlightLogError, match="no such flight log"):
+        read_flight_log(tmp_path / "missing.ulg")
+
+
+def test_a_sample_is_emitted_at_the_first_tick_at_or_after_its_time():
+    times = np.array([0.0, 0.002, 0.0021, 0.004 + 1e-12, 0.0059, 0.006])
+    assert first_ticks(times).tolist() == [0, 1, 2, 2, 3, 3]
+    assert superseded_samples(times) == 2  # 0.0021 by 0.004, 0.0059 by 0.006
+
+
+def test_the_heading_of_a_tilted_vehicle_is_its_yaw_plus_the_declination():
+    rng = np.random.default_rng(3)
+    inclination, declination = math.radians(63.0), 0.06
+    m_N = 0.48 * np.array(
+        [
+            math.cos(inclination) * math.cos(declination),
+            math.cos(inclination) * math.sin(declination),
+            math.sin(inclination),
+        ]
+    )
+    g_N = np.array([0.0, 0.0, GRAVITY])
+    angles = rng.uniform([-0.6, -0.6, -math.pi], [0.6, 0.6, math.pi], size=(50, 3))
+    fields, forces = [], []
+    for roll, pitch, yaw in angles:
+        R = rotation_from_euler(roll, pitch, yaw)
+        fields.append(R.T @ m_N)
+        forces.append(R.T @ (-g_N))  # at rest: f_B = R^T (0 - g_N)
+    heading = tilt_compensated_heading(np.array(fields), np.array(forces), declination)
+    error = (heading - angles[:, 2] + math.pi) % (2 * math.pi) - math.pi
+    assert np.abs(error).max() < 1e-12
+
+
+def test_gravity_is_the_mean_specific_force_over_the_window_before_a_sample():
+    imu = Samples(np.arange(10) * 0.01, np.column_stack([np.arange(10.0), np.zeros((10, 5))]))
+    mean = gravity_directions(imu, [0.045, 0.0, -1.0], window=0.03)
+    assert mean[:, 0].tolist() == pytest.approx([3.0, 0.0, 0.0])  # samples 2, 3, 4; then the first
+
+
+def test_the_streams_have_the_simulated_sensors_layouts(sitl_log, real_log):
+    streams = playback_streams(sitl_log)
+    assert {name: s.width for name, s in streams.items()} == {
+        "imu": 6,
+        "gps": 7,
+        "mag": 2,
+        "mag_field": 4,
+        "baro": 2,
+    }
+    assert streams["gps"].rows[:, -1] == pytest.approx(sitl_log.gps.times)  # the stamp is the sample's time
+    assert streams["mag"].initial().tolist() == [0.0, NO_SAMPLE_STAMP]
+    empty = playback_streams(real_log)
+    assert len(empty["gps"].first_tick) == 0 and len(empty["baro"].first_tick) == 0
+
+
+def test_the_replay_starts_at_the_attitude_of_the_first_samples(sitl_log):
+    roll, pitch, yaw = initial_attitude(sitl_log)
+    px4 = np.array(euler_from_quats(sitl_log.reference_attitude.values[0]))
+    assert abs(roll - px4[0]) < 0.01 and abs(pitch - px4[1]) < 0.01 and abs(yaw - px4[2]) < 0.05
+
+
+def test_a_known_difference_and_sigma_are_measured():
+    times = np.arange(1, 1001) * 0.005
+    ours = np.sin(times)
+    sigma = np.full_like(times, 0.1)
+    reference_times = times[::3] + 0.001
+    reference = np.sin(reference_times) - 0.05
+    d = comparison._difference("X", times, ours, sigma, reference_times, reference, 1.0, False)
+    assert d.count == np.count_nonzero((reference_times >= 1.0) & (reference_times <= times[-1]))
+    assert d.rms == pytest.approx(0.05, abs=1e-4) and d.max_abs == pytest.approx(0.05, abs=2e-4)
+    assert d.sigma_rms == pytest.approx(0.1) and d.within_2sigma == 1.0
+
+
+def test_the_nis_of_a_consistent_filter_is_in_its_band():
+    n = 400
+    diagnostics = np.zeros((n, 9))
+    diagnostics[:, 0] = chi2.ppf((np.arange(n) + 0.5) / n, 6)  # gps_nis: chi^2(6)'s quantiles
+    diagnostics[:, 1] = np.arange(n) * 0.1  # gps_stamp
+    summary = comparison.nis_summary(diagnostics, "gps")
+    assert summary.count == n and summary.dof == 6 and summary.in_band
+    assert summary.single_share == pytest.approx(0.95, abs=0.01)
+    diagnostics[:, 0] *= 3.0  # innovations larger than the filter predicts
+    assert not comparison.nis_summary(diagnostics, "gps").in_band
