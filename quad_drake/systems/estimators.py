@@ -201,6 +201,11 @@ class Ekf(AidedFusion, GatedFusion, LeafSystem):
     or repaired (the reference's EKF); with ``fidelity.float32_estimator`` x and P are rounded
     to float32 after each tick. With ``tilt`` (an ``ekf.TiltNoise``) Q grows with the attitude
     filter's predicted roll/pitch error at the context time.
+
+    With ``aiding`` (``systems.aiding.AidingSensors``; none by default): a barometer adds the input
+    ``baro`` (n*2: height m up, stamp s), a 3-axis magnetometer makes ``mag`` n*4 (m_B gauss FRD,
+    stamp s); after the GPS each tick the tilt-compensated heading and the baro height are fused
+    through their gates (``systems.aiding.AidedFusion``, ``kernels/aiding.py``).
     """
 
     def __init__(self, params, fidelity=PHYSICAL, tilt=None, n=1, aiding=NO_AIDING):
@@ -320,7 +325,8 @@ class Eskf(AidedFusion, GatedFusion, LeafSystem):
     Each tick (ONBOARD_PERIOD, offset EKF_OFFSET): predict with the IMU sample (over a
     non-finite one, counted, with the running mean of the IMU: ``kernels.estimation
     .eskf_predict_tick``), then fuse a fresh mag and a fresh GPS sample through the gates
-    and resets of :class:`Ekf`; P is checked as there.
+    and resets of :class:`Ekf`; P is checked as there. With ``aiding`` (as :class:`Ekf`'s) the
+    3-axis field vector and the baro height are fused after the GPS.
     """
 
     ESTIMATE_GROUP, BIAS_GROUP = 4, 5
