@@ -41,6 +41,7 @@ def test_baro_rows_fuse_as_the_pure_update_and_gate_the_outlier():
     P_before = P.copy()
     book, diagnostics = fresh_books(N)
     book[:, baro.LAST_STAMP] = 0.98  # the previous sample
+    book[:, baro.DATUM_SET] = 1.0
     heights = -x[:, 2] + 0.2 + np.array([0.05, -0.1, 0.0, 30.0])  # vehicle 3: a 30 m outlier
     heights[2] = math.nan  # vehicle 2: a non-finite sample
     samples = np.column_stack((heights, np.full(N, 1.0)))
@@ -81,9 +82,12 @@ def test_the_first_baro_sample_sets_the_datum_and_a_step_past_the_timeout_resets
     model = aiding.baro_model(PARAMS, 2.0, THRESHOLD, 0.02)
     gps = np.array([[0.0] * 6 + [-1.0]])
     dx, fused = np.zeros((1, 7)), np.zeros(1, dtype=bool)
+    aiding.baro_rows(x, P, np.array([[math.nan, 0.0]]), gps, book, diagnostics, model, dx, fused)
+    assert not fused[0] and diagnostics[0, DIAG["nonfinite_samples"]] == 1  # a non-finite sample: no datum
+    assert book[0, baro.DATUM_SET] == 0.0 and book[0, baro.BIAS] == 0.2
     aiding.baro_rows(x, P, np.array([[1.5, 0.02]]), gps, book, diagnostics, model, dx, fused)
-    assert not fused[0]  # the first sample is the datum: b against the filter's height, not fused
-    expected = baro.bias_update(0.2, 0.25, 1.5 + -1.0, 0.01 + 0.04)
+    assert not fused[0]  # the first finite sample is the datum: b against the filter's height, not fused
+    expected = baro.bias_update(0.2, 0.25 + 0.01**2 * 0.02, 1.5 + -1.0, 0.01 + 0.04)
     assert (book[0, baro.BIAS], book[0, baro.BIAS_VAR]) == pytest.approx(expected, rel=1e-12)
     datum = book[0, baro.BIAS]
     # a 5 m step from 0.04 s: rejected from 0.04 s, the bias reset at 0.14 s (reset_timeout 0.1 s)
@@ -101,6 +105,7 @@ def test_baro_bias_learns_from_simultaneous_gps_heights_only():
     x[:, 2] = -1.0
     book, diagnostics = fresh_books(2)
     book[:, baro.LAST_STAMP] = 0.08  # not the first sample
+    book[:, baro.DATUM_SET] = 1.0
     model = aiding.baro_model(PARAMS, 2.0, THRESHOLD, 0.02)
     dx, fused = np.zeros((2, 7)), np.zeros(2, dtype=bool)
     samples = np.array([[1.5, 0.1], [1.5, 0.1]])

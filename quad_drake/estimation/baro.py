@@ -18,7 +18,7 @@ offset of a height sensor that is not its height reference the same way (``EKF/b
 one ``BiasEstimator`` per height source): a 1-state Kalman filter whose estimate b_hat corrects
 each sample before fusion. Here the GPS height is the reference:
 
-- the first sample is not fused: it sets the datum, b_meas = h + p_z of variance
+- the first finite sample is not fused: it sets the datum, b_meas = h + p_z of variance
   height_std^2 + P[2, 2] against the filter's own height (PX4 sets its baro offset on the first
   sample too), so a filter that starts at a known height needs no GPS to learn the offset;
 - at every GPS sample stamped with the latest baro sample's time (20 ms and 100 ms periods are
@@ -61,11 +61,12 @@ from quad_drake.config_fields import number
 HEIGHT_INDEX = 2
 """Index of p_z (m, NED down) in the EKF7 state and in the ESKF error state."""
 
-BIAS, BIAS_VAR, LAST_HEIGHT, LAST_STAMP, REJECTED_SINCE, GPS_STAMP = range(6)
-BARO_BOOK_SIZE = 6
+BIAS, BIAS_VAR, LAST_HEIGHT, LAST_STAMP, REJECTED_SINCE, GPS_STAMP, DATUM_SET = range(7)
+BARO_BOOK_SIZE = 7
 """Columns of a filter's baro book: bias estimate (m), its variance (m^2), the latest baro height
 (m, NaN when it was not finite) and its stamp (s; -1 before the first), when its current run of
-gate rejections began (s, NaN: none), the stamp of the last GPS sample seen (s, -1: none)."""
+gate rejections began (s, NaN: none), the stamp of the last GPS sample seen (s, -1: none), and
+1 once a finite sample has set the datum (0 before)."""
 
 
 @dataclass
@@ -87,7 +88,7 @@ def initial_book(params):
     book = np.empty(BARO_BOOK_SIZE)
     book[BIAS], book[BIAS_VAR] = params.bias_init, params.bias_init_std**2
     book[LAST_HEIGHT], book[LAST_STAMP], book[REJECTED_SINCE] = math.nan, -1.0, math.nan
-    book[GPS_STAMP] = -1.0
+    book[GPS_STAMP], book[DATUM_SET] = -1.0, 0.0
     return book
 
 

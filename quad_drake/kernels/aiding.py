@@ -8,7 +8,7 @@ beside the estimator, fed by the GPS heights; the field as a 3-dof gated, axis-b
 the ESKF's error state; the tilt-compensated heading as the EKF7's yaw measurement):
 
 - baro, z = h - b_hat (m):  h(x) = -p_z,  H = -e_2,  R = height_std²,  NIS 1 dof, then
-  P[2, 2] >= P_b (``baro.floored_height_variance``); the first sample is not fused: it sets the
+  P[2, 2] >= P_b (``baro.floored_height_variance``); the first finite sample is not fused: it sets the
   bias against the filter's height (b_meas = h + p_z, variance height_std² + P[2, 2]), as PX4 sets
   its baro offset;
   the bias: P_b += walk² (t - t_last) at each sample; at each fresh GPS height (same stamp as the
@@ -40,7 +40,7 @@ _NONFINITE, _MAG_NIS, _MAG_GATED = DIAG["nonfinite_samples"], DIAG["mag_nis"], D
 _BARO_NIS, _BARO_GATED, _BARO_RESETS = DIAG["baro_nis"], DIAG["baro_gated"], DIAG["baro_resets"]
 _BARO_BIAS, _FIELD_NIS = DIAG["baro_bias"], DIAG["field_nis"]
 _BIAS, _BIAS_VAR, _LAST_HEIGHT, _LAST_STAMP = baro.BIAS, baro.BIAS_VAR, baro.LAST_HEIGHT, baro.LAST_STAMP
-_REJECTED_SINCE, _GPS_STAMP = baro.REJECTED_SINCE, baro.GPS_STAMP
+_REJECTED_SINCE, _GPS_STAMP, _DATUM_SET = baro.REJECTED_SINCE, baro.GPS_STAMP, baro.DATUM_SET
 _TOLERANCE = 1e-9  # s, stamps are sums of periods
 
 _scalar_correction = compiled(baro.scalar_correction)
@@ -80,10 +80,11 @@ def _baro_rows(x, P, baro_samples, gps, book, diagnostics, model, dx, fused):
             book[i, _LAST_HEIGHT] = height
             if not (math.isfinite(height) and math.isfinite(stamp)):
                 diagnostics[i, _NONFINITE] += 1.0
-            elif previous == NO_SAMPLE_STAMP:  # the first sample sets the datum (module docstring)
+            elif book[i, _DATUM_SET] == 0.0:  # the first finite sample sets the datum (module docstring)
                 book[i, _BIAS], book[i, _BIAS_VAR] = _bias_update(
                     book[i, _BIAS], book[i, _BIAS_VAR], height + x[i, 2], height_var + P[i, 2, 2]
                 )
+                book[i, _DATUM_SET] = 1.0
             else:
                 nu, S = _height_innovation(x[i, 2], P[i], height, book[i, _BIAS], height_var)
                 nis = nu * nu / S
