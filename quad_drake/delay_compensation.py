@@ -21,6 +21,10 @@ GPS sample was fused; there the correction is removed by taking the kinematic in
 updates move the velocity only through the cross-covariance and are kept. The odometry is
 stored in a ring of rows (time s, o_p (3) m, o_v (3) m/s) indexed by tick number; a sample
 older than the ring passes unchanged.
+
+``odometry_step``, ``predicted_odometry`` and ``compensated_gps`` (one vehicle, lists of floats)
+are the REFERENCE ORACLES of the running implementation, ``kernels/odometry.py`` (N vehicles,
+numpy), tested against them to 1e-12; no simulation calls them (``tests/test_oracles.py``).
 """
 
 import math

@@ -18,8 +18,8 @@ def wrap_to_pi(angle):
 
 
 def wrap_angles(a):
-    """Array version of :func:`wrap_to_pi`: into [-pi, pi)."""
-    return (a + math.pi) % TWO_PI - math.pi
+    """Array version of :func:`wrap_to_pi` (its formula, elementwise): into [-pi, pi)."""
+    return wrap_to_pi(a)
 
 
 def euler_from_quats(q):
@@ -71,16 +71,25 @@ def euler_from_quat(q):
     return roll, pitch, yaw
 
 
+def rotation_entries(qw, qx, qy, qz):
+    """The 9 entries of R_NB (row-major floats) of a unit wxyz quaternion: the one formula of
+    :func:`rotation_from_quat`, in plain float arithmetic (the compiled kernels call it)."""
+    return (
+        1 - 2 * (qy * qy + qz * qz),
+        2 * (qx * qy - qw * qz),
+        2 * (qx * qz + qw * qy),
+        2 * (qx * qy + qw * qz),
+        1 - 2 * (qx * qx + qz * qz),
+        2 * (qy * qz - qw * qx),
+        2 * (qx * qz - qw * qy),
+        2 * (qy * qz + qw * qx),
+        1 - 2 * (qx * qx + qy * qy),
+    )
+
+
 def rotation_from_quat(q):
     """R_NB (3x3) of a unit wxyz quaternion q_NB."""
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
+    return np.array(rotation_entries(q[0], q[1], q[2], q[3])).reshape(3, 3)
 
 
 def rotation_from_euler(roll, pitch, yaw):
@@ -111,18 +120,22 @@ def rotation_yaw_derivative(roll, pitch, yaw):
     )
 
 
-def quat_multiply(a, b):
-    """Hamilton product a * b of wxyz quaternions."""
+def quat_product(a, b):
+    """Hamilton product a (x) b of two wxyz 4-sequences, as a 4-tuple (plain float arithmetic:
+    the compiled kernels call it)."""
     aw, ax, ay, az = a[0], a[1], a[2], a[3]
     bw, bx, by, bz = b[0], b[1], b[2], b[3]
-    return np.array(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ]
+    return (
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
     )
+
+
+def quat_multiply(a, b):
+    """Hamilton product a * b of wxyz quaternions, (4,) (:func:`quat_product`)."""
+    return np.array(quat_product(a, b))
 
 
 def quat_integrate_body_rate(q, w_B, dt):

@@ -24,7 +24,7 @@ from quad_drake.estimation import ekf
 from quad_drake.estimation.complementary import accel_roll_pitch
 from quad_drake.estimation.vocabulary import DIAGNOSTICS_SIZE, EKF7
 from quad_drake.fidelity import FIDELITY_MODES, PHYSICAL, REFERENCE, Fidelity, fidelity_from_mode
-from quad_drake.kernels.estimation import round_to_float32
+from quad_drake.kernels.attitude import round_to_float32
 from quad_drake.rotations import euler_from_quats, quat_from_euler, wrap_angles
 from quad_drake.sensor_models import (
     gps_measurement,

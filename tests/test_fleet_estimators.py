@@ -20,7 +20,11 @@ from quad_drake.estimation.complementary import complementary_update
 from quad_drake.estimation.registry import Ekf7EstimatorConfig, EskfEstimatorConfig, vocabulary_for
 from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE
 from quad_drake.fidelity import PHYSICAL, REFERENCE
-from quad_drake.kernels import estimation as kernels
+from quad_drake.kernels import attitude as attitude_kernel
+from quad_drake.kernels import ekf7, fusion
+from quad_drake.kernels import eskf as eskf_kernel
+from quad_drake.kernels import odometry as odometry_kernel
+from quad_drake.kernels.imu_hold import HOLD_SIZE, IMU_HOLD_TIME, initial_hold
 from quad_drake.rotations import quat_from_euler_tuple
 from quad_drake.systems.estimators import build_estimator
 from quad_drake.systems.faults import GpsDelayCompensator
@@ -63,14 +67,14 @@ def assert_rows(batched, scalar_rows):
 def test_complementary_update_matches_the_scalar_filter(variant, reference_accelerometer):
     rng = np.random.default_rng(11)
     attitude, f, w = random_attitudes(rng), specific_forces(rng), gyro_samples(rng)
-    batched = kernels.complementary_update(attitude, f, w, DT, 0.5, variant, reference_accelerometer)
+    batched = attitude_kernel.complementary_update(attitude, f, w, DT, 0.5, variant, reference_accelerometer)
     scalar = [
         complementary_update(*attitude[i], f[i], w[i], DT, 0.5, variant, reference_accelerometer)
         for i in range(N)
     ]
     assert_rows(batched, scalar)
     with pytest.raises(ValueError):
-        kernels.complementary_update(attitude, f, w, DT, 0.5, "euler")
+        attitude_kernel.complementary_update(attitude, f, w, DT, 0.5, "euler")
 
 
 # ----- 7-state EKF ---------------------------------------------------------------------------------
@@ -83,7 +87,7 @@ def test_ekf7_predict_matches_the_scalar_step(reference_accelerometer):
     Q = ekf.process_noise(params)
     x, P = rng.normal(size=(N, 7)), random_covariances(rng, 7)
     attitude, f = random_attitudes(rng), specific_forces(rng)
-    x_new, P_new = kernels.ekf7_predict_with_yaw(x, P, attitude, f, DT, Q, reference_accelerometer)
+    x_new, P_new = ekf7.predict_with_yaw(x, P, attitude, f, DT, Q, reference_accelerometer)
     G = ekf.predict_jacobian(np.zeros(7), 0.0, 0.0, (0.0, 0.0, 0.0), DT)
     for i in range(N):
         x_ref, P_ref = ekf.predict_with_yaw(
@@ -94,13 +98,12 @@ def test_ekf7_predict_matches_the_scalar_step(reference_accelerometer):
 
 
 def _ekf7_tick(x, P, attitude, imu, gps, mag, diagnostics, book, Q, gains, R_mag, threshold=9.0):
-    """kernels.ekf7_tick with the scalar EKF's settings; (quiet, healthy)."""
+    """ekf7.tick with the scalar EKF's settings; (quiet, healthy)."""
     healthy = np.empty(x.shape[0], dtype=bool)
-    hold = np.zeros((x.shape[0], kernels.HOLD_SIZE))
-    quiet = kernels.ekf7_tick(
-        x, P, hold, attitude, imu, gps, mag, diagnostics, book, DT, Q, gains, kernels.gravity_z(False),
-        R_mag[0, 0], threshold, healthy,
-    )  # fmt: skip
+    filters = fusion.Filters(x, P, diagnostics, book, hold=np.zeros((x.shape[0], HOLD_SIZE)))
+    samples = ekf7.Samples(attitude=attitude, imu=imu, gps=gps, mag=mag)
+    model = ekf7.Model(DT, Q, ekf.gravity_z(False), float(R_mag[0, 0]), float(threshold))
+    quiet = ekf7.tick(filters, samples, model, gains, healthy)
     return quiet, healthy
 
 
@@ -115,12 +118,17 @@ def test_the_running_mean_of_the_imu_bridges_a_dropout():
     imu[20:35, 1] = math.nan  # vehicle 1: a 30 ms dropout
     imu[:, 2] = math.nan  # vehicle 2: never a finite sample
     attitude, rate = np.zeros((count, 3)), np.zeros((count, 3))
-    hold = np.tile(kernels.initial_hold(), (count, 1))
-    weight = DT / (kernels.IMU_HOLD_TIME + DT)
+    hold = np.tile(initial_hold(), (count, 1))
+    weight = DT / (IMU_HOLD_TIME + DT)
+    model = attitude_kernel.model(DT, 0.5, "nonlinear")
     mean = imu[0].copy()
     for k in range(ticks):
         before = attitude.copy()
-        kernels.complementary_tick(attitude, rate, hold, imu[k], np.zeros((count, 7)), DT, 0.5, "nonlinear")
+        attitude_kernel.tick(
+            attitude_kernel.Filters(attitude, rate, hold),
+            attitude_kernel.Samples(imu[k], np.zeros((count, 7))),
+            model,
+        )
         finite = np.isfinite(imu[k]).all(axis=1)
         if k:
             mean[finite] += weight * (imu[k][finite] - mean[finite])
@@ -129,7 +137,7 @@ def test_the_running_mean_of_the_imu_bridges_a_dropout():
             assert np.isnan(rate[1]).all()
             prior = before[1:2].copy()
             prior[0, 2] = 0.0  # the prior yaw is the EKF's
-            expected = kernels.complementary_update(
+            expected = attitude_kernel.complementary_update(
                 prior, mean[1:2, 0:3], mean[1:2, 3:6], DT, 0.5, "nonlinear"
             )
             np.testing.assert_allclose(attitude[1], expected[0], **TOL)
@@ -154,7 +162,7 @@ def test_ekf7_tick_with_tilt_noise_matches_the_scalar_step():
     x_ref, P_ref = x.copy(), P.copy()
     quiet, healthy = _ekf7_tick(
         x, P, attitude, imu, _never_sampled(7), _never_sampled(2), np.zeros((N, DIAGNOSTICS_SIZE)),
-        np.zeros((N, kernels.BOOK_SIZE)), Q, tilt.gains(t), ekf.mag_noise(params),
+        np.zeros((N, fusion.BOOK_SIZE)), Q, tilt.gains(t), ekf.mag_noise(params),
     )  # fmt: skip
     assert quiet and healthy.all()
     G = ekf.predict_jacobian(np.zeros(7), 0.0, 0.0, (0.0, 0.0, 0.0), DT)
@@ -180,15 +188,15 @@ def test_ekf7_tick_fuses_the_magnetometer_only_on_a_quiet_tick():
 
     def tick(gps, P_start=P):
         x_new, P_new = x.copy(), P_start.copy()
-        diagnostics, book = np.zeros((N, DIAGNOSTICS_SIZE)), np.zeros((N, kernels.BOOK_SIZE))
+        diagnostics, book = np.zeros((N, DIAGNOSTICS_SIZE)), np.zeros((N, fusion.BOOK_SIZE))
         quiet, healthy = _ekf7_tick(
-            x_new, P_new, attitude, imu, gps, mag, diagnostics, book, Q, kernels.NO_TILT, R_mag
+            x_new, P_new, attitude, imu, gps, mag, diagnostics, book, Q, ekf7.NO_TILT, R_mag
         )
         return quiet, healthy, x_new, P_new, diagnostics, book
 
     quiet, healthy, x_new, P_new, diagnostics, book = tick(gps)
     x_ref, P_ref = x.copy(), P.copy()
-    diagnostics_ref, book_ref = np.zeros((N, DIAGNOSTICS_SIZE)), np.zeros((N, kernels.BOOK_SIZE))
+    diagnostics_ref, book_ref = np.zeros((N, DIAGNOSTICS_SIZE)), np.zeros((N, fusion.BOOK_SIZE))
     _ekf7_tick(
         x_ref,
         P_ref,
@@ -199,16 +207,16 @@ def test_ekf7_tick_fuses_the_magnetometer_only_on_a_quiet_tick():
         diagnostics_ref,
         book_ref,
         Q,
-        kernels.NO_TILT,
+        ekf7.NO_TILT,
         R_mag,
     )
-    kernels.ekf7_mag_tick(x_ref, P_ref, mag, diagnostics_ref, book_ref, R_mag, 9.0)
+    ekf7.mag_tick(fusion.Filters(x_ref, P_ref, diagnostics_ref, book_ref, None), mag, R_mag, 9.0)
     assert quiet and healthy.all()
     np.testing.assert_array_equal(x_new, x_ref)
     np.testing.assert_array_equal(P_new, P_ref)
     np.testing.assert_array_equal(diagnostics, diagnostics_ref)
     np.testing.assert_array_equal(book, book_ref)
-    assert (book[:, kernels.MAG_SLOT] == 0.01).sum() == N - len(range(0, N, 3))
+    assert (book[:, fusion.MAG_SLOT] == 0.01).sum() == N - len(range(0, N, 3))
     assert diagnostics[:, DIAG["mag_gated"]].sum() > 0  # the gate was exercised
 
     gps[5] = [0.0] * 6 + [0.1]  # one fresh GPS sample
@@ -241,10 +249,10 @@ def test_ekf7_gps_and_mag_updates_match_the_scalar_updates():
     gps = x[:, 0:6] + rng.normal(size=(N, 6))
     gps[5, 2] = math.nan
     gps[6, 0] = math.inf
-    _check_update(kernels.ekf7_gps_update, ekf.gps_update, x, P, gps, ekf.gps_noise(params))
+    _check_update(ekf7.gps_update, ekf.gps_update, x, P, gps, ekf.gps_noise(params))
     yaw = rng.uniform(-math.pi, math.pi, N)
     yaw[7] = math.nan
-    _check_update(kernels.ekf7_mag_update, ekf.mag_update, x, P, yaw, ekf.mag_noise(params))
+    _check_update(ekf7.mag_update, ekf.mag_update, x, P, yaw, ekf.mag_noise(params))
 
 
 # ----- gating and covariance health ----------------------------------------------------------------
@@ -260,7 +268,7 @@ def test_gps_updates_of_any_component_subset_match_the_textbook_update():
     mask[1] = False
     z = rng.normal(size=(N, 6))
     x7, P7 = rng.normal(size=(N, 7)), random_covariances(rng, 7)
-    x_new, P_new, nis = kernels.ekf7_gps_update(x7, P7, z, R, mask)
+    x_new, P_new, nis = ekf7.gps_update(x7, P7, z, R, mask)
     for i in range(N):
         rows = np.flatnonzero(mask[i])
         if not len(rows):
@@ -276,7 +284,7 @@ def test_gps_updates_of_any_component_subset_match_the_textbook_update():
         assert nis[i] == pytest.approx(nis_ref, rel=1e-12)
     x15 = random_nominal(rng)
     P15 = random_covariances(rng, 15, scale=0.1)
-    x_new, P_new, nis = kernels.eskf_gps_update(x15, P15, z, R, mask)
+    x_new, P_new, nis = eskf_kernel.gps_update(x15, P15, z, R, mask)
     for i in np.flatnonzero(mask.any(axis=1)):
         rows = np.flatnonzero(mask[i])
         dx, P_ref, nis_ref = eskf.joseph_update(
@@ -299,7 +307,7 @@ def test_covariance_health_matches_the_scalar_checks(n):
     P[4] = (vectors * np.r_[-1e-3, np.ones(n - 1)]) @ vectors.T  # indefinite, positive diagonal
     P[5] = (vectors * np.r_[0.0, np.ones(n - 1)]) @ vectors.T  # singular PSD
     P[6] = P[4] + 1e-9 * rng.normal(size=(n, n))  # indefinite and asymmetric
-    healthy = kernels.covariance_looks_healthy(P)
+    healthy = fusion.covariance_looks_healthy(P)
     assert healthy.tolist() == [gating.covariance_looks_healthy(P[i]) for i in range(N)]
     assert not healthy[1:4].any() and healthy[4:].all()
     large = P[4:7].copy()
@@ -308,16 +316,16 @@ def test_covariance_health_matches_the_scalar_checks(n):
     large[2, 1, 2] = -math.inf
     with np.errstate(over="ignore"):
         expected = [gating.covariance_looks_healthy(P_i) for P_i in large]
-    assert kernels.covariance_looks_healthy(large).tolist() == expected == [False, True, False]
+    assert fusion.covariance_looks_healthy(large).tolist() == expected == [False, True, False]
     fallback = np.diag(rng.uniform(0.1, 1.0, n))
-    P_new, outcomes = kernels.repaired_covariance(P, fallback)
+    P_new, outcomes = fusion.repaired_covariance(P, fallback)
     for i in range(N):
         P_ref, outcome = gating.repaired_covariance(P[i], fallback)
         assert outcomes[i] == outcome
         np.testing.assert_allclose(P_new[i], P_ref, **TOL)
     assert outcomes[[2, 3, 4, 6]].tolist() == [gating.COVARIANCE_RESET] * 2 + [gating.COVARIANCE_REPAIRED] * 2
     in_place, check = P.copy(), np.arange(N) % 2 == 0
-    outcomes = kernels.repair_covariances(in_place, check, fallback)
+    outcomes = fusion.repair_covariances(in_place, check, fallback)
     np.testing.assert_array_equal(in_place[check], P_new[check])
     np.testing.assert_array_equal(in_place[~check], P[~check])
     assert (outcomes[~check] == gating.COVARIANCE_OK).all()
@@ -350,7 +358,9 @@ def test_eskf_predict_matches_the_scalar_step(estimate_biases, isotropic_gyro):
     n = eskf.initial_covariance(params).shape[0]
     x, P = random_nominal(rng), random_covariances(rng, n, scale=0.3)
     f, w = specific_forces(rng), gyro_samples(rng)
-    x_new, P_new = kernels.eskf_predict(x, P, f, w, DT, noise, eskf.noise_buffer(n, noise, DT))
+    x_new, P_new = eskf_kernel.predict(
+        x, P, f, w, eskf_kernel.model(noise, eskf.noise_buffer(n, noise, DT), DT)
+    )
     for i in range(N):
         x_ref, P_ref = eskf.predict(x[i], P[i], f[i], w[i], DT, noise)
         np.testing.assert_allclose(x_new[i], x_ref, **TOL)
@@ -365,17 +375,17 @@ def test_eskf_updates_and_injection_match_the_scalar_functions(estimate_biases):
     x, P = random_nominal(rng), random_covariances(rng, n, scale=0.2)
     dx = rng.normal(scale=0.1, size=(N, n))
     dx[:3, 6:9] = 1e-14  # the small-angle branch of quat_exp
-    x_new, P_new = kernels.eskf_inject(x, P, dx)
+    x_new, P_new = eskf_kernel.inject(x, P, dx)
     for i in range(N):
         x_ref, P_ref = eskf.inject(x[i], P[i], dx[i])
         np.testing.assert_allclose(x_new[i], x_ref, **TOL)
         np.testing.assert_allclose(P_new[i], P_ref, **TOL)
     gps = x[:, 0:6] + rng.normal(size=(N, 6))
     gps[8, 4] = math.nan
-    _check_update(kernels.eskf_gps_update, eskf.gps_update, x, P, gps, eskf.gps_noise(params))
+    _check_update(eskf_kernel.gps_update, eskf.gps_update, x, P, gps, eskf.gps_noise(params))
     yaw = rng.uniform(-math.pi, math.pi, N)
     yaw[9] = math.nan
-    _check_update(kernels.eskf_mag_update, eskf.mag_update, x, P, yaw, eskf.mag_noise(params))
+    _check_update(eskf_kernel.mag_update, eskf.mag_update, x, P, yaw, eskf.mag_noise(params))
 
 
 def test_gps_updates_on_a_singular_innovation_covariance_behave_as_the_scalar_ones():
@@ -385,13 +395,13 @@ def test_gps_updates_on_a_singular_innovation_covariance_behave_as_the_scalar_on
     P[1, 0:6, :] = 0.0
     P[1, :, 0:6] = 0.0
     gps = x[:, 0:6] + 0.1
-    _check_update(kernels.eskf_gps_update, eskf.gps_update, x, P, gps, R)
-    assert math.isnan(kernels.eskf_gps_update(x, P, gps, R)[2][1])
+    _check_update(eskf_kernel.gps_update, eskf.gps_update, x, P, gps, R)
+    assert math.isnan(eskf_kernel.gps_update(x, P, gps, R)[2][1])
     x7, P7 = rng.normal(size=(3, 7)), P[:, 0:7, 0:7].copy()  # the EKF7's update raises, as its scalar one
     with pytest.raises(np.linalg.LinAlgError):
         ekf.gps_update(x7[1], P7[1], gps[1], R)
     with pytest.raises(np.linalg.LinAlgError):
-        kernels.ekf7_gps_update(x7, P7, gps, R)
+        ekf7.gps_update(x7, P7, gps, R)
 
 
 # ----- GPS delay compensation ----------------------------------------------------------------------
@@ -401,7 +411,7 @@ def test_delay_compensation_matches_the_scalar_functions():
     rng = np.random.default_rng(19)
     odometry, estimate, previous = rng.normal(size=(3, N, 6))
     step, fused = rng.normal(size=(N, 3)), rng.uniform(size=N) < 0.3
-    new, dv = kernels.odometry_step(odometry, estimate, previous, step, fused, DT)
+    new, dv = odometry_kernel.odometry_step(odometry, estimate, previous, step, fused, DT)
     for i in range(N):
         ref, ref_dv = delay_compensation.odometry_step(
             odometry[i].tolist(), estimate[i].tolist(), previous[i].tolist(), step[i].tolist(), fused[i], DT
@@ -409,7 +419,7 @@ def test_delay_compensation_matches_the_scalar_functions():
         np.testing.assert_allclose(new[i], ref, **TOL)
         np.testing.assert_allclose(dv[i], ref_dv, **TOL)
     velocity = rng.normal(size=(N, 3))
-    ahead = kernels.predicted_odometry(odometry, velocity, step, DT)
+    ahead = odometry_kernel.predicted_odometry(odometry, velocity, step, DT)
     for i in range(N):
         ref = delay_compensation.predicted_odometry(
             odometry[i].tolist(), velocity[i].tolist(), step[i].tolist(), DT
@@ -418,7 +428,7 @@ def test_delay_compensation_matches_the_scalar_functions():
     sample = np.column_stack([rng.normal(size=(N, 6)), rng.uniform(0.0, 10.0, N)])
     rows = np.column_stack([sample[:, 6] + rng.choice([0.0, 1e-10, 0.002], N), rng.normal(size=(N, 6))])
     rows[:5, 0] = math.nan
-    shifted = kernels.compensated_gps(sample, rows, ahead)
+    shifted = odometry_kernel.compensated_gps(sample, rows, ahead)
     for i in range(N):
         ref = delay_compensation.compensated_gps(sample[i].tolist(), rows[i].tolist(), ahead[i].tolist())
         np.testing.assert_allclose(shifted[i], ref, **TOL)
@@ -428,12 +438,12 @@ def test_delay_compensation_matches_the_scalar_functions():
 def test_ekf7_estimated_state_matches_the_scalar_assembly():
     rng = np.random.default_rng(20)
     attitude, x, rate = random_attitudes(rng), rng.normal(size=(N, 7)), rng.normal(size=(N, 3))
-    estimate = kernels.ekf7_estimated_state(attitude, x, rate)
+    estimate = ekf7.estimated_state(attitude, x, rate)
     for i in range(N):
         q = quat_from_euler_tuple(attitude[i, 0], attitude[i, 1], x[i, 6])
         np.testing.assert_allclose(estimate[i], np.r_[x[i, 0:3], q, x[i, 3:6], rate[i]], **TOL)
     out = np.full((N, 13), np.nan)
-    assert kernels.ekf7_estimated_state(attitude, x, rate, out=out) is out
+    assert ekf7.estimated_state(attitude, x, rate, out=out) is out
     np.testing.assert_array_equal(out, estimate)  # written in place, every entry
 
 

@@ -10,7 +10,7 @@ from quad_drake.config import EkfParams
 from quad_drake.conventions import GRAVITY
 from quad_drake.estimation import ekf, gating
 from quad_drake.estimation.vocabulary import DIAG
-from quad_drake.kernels import estimation as kernels
+from quad_drake.kernels import ekf7, fusion
 from quad_drake.systems.estimators import initial_diagnostics
 
 DT = 0.002
@@ -172,7 +172,7 @@ SCENARIO_11 = dict(
 
 def _hover_run(seed, outlier_at=None, gate_sigma=5.0, seconds=30.0, tuning=CONSISTENT):
     """Pure EKF7 at hover on synthetic data, fused through the estimators' GPS policy
-    (``kernels.estimation.fuse_gps``, fixed gates): truth at rest, noisy IMU and 10 Hz GPS.
+    (``kernels.fusion.fuse_gps``, fixed gates): truth at rest, noisy IMU and 10 Hz GPS.
 
     Returns (max position error after 2 s (m), GPS samples with a gated group, GPS samples).
     """
@@ -181,7 +181,7 @@ def _hover_run(seed, outlier_at=None, gate_sigma=5.0, seconds=30.0, tuning=CONSI
     Q, R = ekf.process_noise(params), ekf.gps_noise(params)
     gates = gating.GpsGates.from_params(params)
     x, P = ekf.initial_state(params)[None], np.diag([0.01] * 6 + [1e-6])[None]
-    diagnostics, book = initial_diagnostics()[None], kernels.initial_book()[None]
+    diagnostics, book = initial_diagnostics()[None], fusion.initial_book()[None]
     truth = np.array([0.0, 0.0, -1.0, 0.0, 0.0, 0.0])
     accel_std = np.array([0.5, 0.5, 1.5])
     gps_std = np.array([0.7, 0.7, 2.0, 0.1, 0.1, 0.3])
@@ -194,18 +194,8 @@ def _hover_run(seed, outlier_at=None, gate_sigma=5.0, seconds=30.0, tuning=CONSI
             z = truth + gps_std * rng.normal(size=6)
             if outlier_at is not None and k == outlier_at:
                 z[0] += 50.0
-            kernels.fuse_gps(
-                slice(None),
-                np.array([k * DT]),
-                z[None],
-                x,
-                P,
-                diagnostics,
-                book,
-                kernels.ekf7_gps_update,
-                R,
-                gates,
-            )
+            filters = fusion.Filters(x, P, diagnostics, book, hold=None)
+            fusion.fuse_gps(filters, np.r_[z, k * DT][None], slice(None), ekf7.gps_update, R, gates)
             samples += 1
         if k * DT > 2.0:
             worst = max(worst, float(np.linalg.norm(x[0, 0:3] - truth[0:3])))

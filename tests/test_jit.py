@@ -149,8 +149,8 @@ def test_a_read_only_install_with_a_read_only_home_caches_its_kernels_in_the_tem
         HOME=str(home), TMPDIR=str(temporary), PYTHONPATH=str(package.parent), PYTHONDONTWRITEBYTECODE="1"
     )
     code = (
-        "import quad_drake.kernels.estimation as k; "
-        f"assert k.__file__.startswith({str(package)!r}); print(k._wrap(7.0))"
+        "import quad_drake.kernels.rotations as k; "
+        f"assert k.__file__.startswith({str(package)!r}); print(k.wrap_to_pi(7.0))"
     )
     result = subprocess.run(
         [sys.executable, "-W", "error::RuntimeWarning", "-c", code],
@@ -163,7 +163,7 @@ def test_a_read_only_install_with_a_read_only_home_caches_its_kernels_in_the_tem
     assert result.returncode == 0, result.stderr
     assert abs(float(result.stdout) - (7.0 - 2 * 3.141592653589793)) < 1e-12
     cached = list(temporary.glob("quad_drake-numba-*/**/*.nbi"))
-    assert any("_wrap" in p.name for p in cached), cached
+    assert any("wrap_to_pi" in p.name for p in cached), cached
 
 
 class _Terminal(io.StringIO):

@@ -1,16 +1,18 @@
 """The scalar numpy forms of the filter steps are reference oracles: no simulation calls them.
 
-Single runs and fleets both execute the compiled kernels of ``kernels/estimation.py``
-(sized by n, ``systems/estimators.py``); the textbook forms in ``estimation/`` stay as the named
-oracles those kernels are tested against (``tests/test_fleet_estimators.py``, 1e-12). Here every
-oracle is patched to raise and closed-loop flights that exercise every filter step (prediction,
-magnetometer and GPS updates, a gated outlier, a delayed GPS, both estimators) must still fly.
+Single runs and fleets both execute the compiled kernels (``kernels/attitude.py``, ``ekf7.py``,
+``eskf.py``, ``fusion.py``, ``odometry.py``; sized by n, ``systems/estimators.py``), which compile
+the pure scalar formulas' own code; the textbook matrix forms in ``estimation/`` and the list forms
+of ``delay_compensation`` stay as the named oracles those kernels are tested against
+(``tests/test_fleet_estimators.py``, 1e-12). Here every oracle is patched to raise and closed-loop
+flights that exercise every filter step (prediction, magnetometer and GPS updates, a gated outlier,
+a delayed GPS, both estimators) must still fly.
 """
 
 import pytest
 
-from quad_drake import catalog, simulation
-from quad_drake.estimation import complementary, ekf, eskf
+from quad_drake import catalog, delay_compensation, simulation
+from quad_drake.estimation import ekf, eskf
 
 ORACLES = {
     ekf: (
@@ -22,9 +24,19 @@ ORACLES = {
         "kalman_update",
         "gps_update",
         "mag_update",
+        "tilt_process_noise",
     ),
-    eskf: ("predict", "predict_nominal", "joseph_update", "inject", "gps_update", "mag_update"),
-    complementary: ("complementary_update",),
+    eskf: (
+        "predict",
+        "predict_nominal",
+        "transition",
+        "process_noise",
+        "joseph_update",
+        "inject",
+        "gps_update",
+        "mag_update",
+    ),
+    delay_compensation: ("odometry_step", "predicted_odometry", "compensated_gps"),
 }
 FLIGHTS = {
     "11_gps_update": (),

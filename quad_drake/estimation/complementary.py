@@ -8,14 +8,15 @@ With ``reference_accelerometer`` (``fidelity: reference``) the reading is the re
 R_NB^T (a_NB + g_N) and the tilt is the reference's roll = atan2(f_y, f_z),
 pitch = atan2(-f_x, 9.81) (SPEC §4).
 
-``complementary_update`` is the reference oracle of ``kernels.estimation.complementary_tick``,
-which every simulation runs (``tests/test_oracles.py``).
+Every function here is plain float arithmetic: ``kernels/attitude.py`` compiles their own code
+(:func:`complementary_step` and its callees) with numba, so a single run, a fleet and a call
+from Python run one formula.
 """
 
 import math
 
 from quad_drake.conventions import GRAVITY
-from quad_drake.rotations import euler_from_quat, quat_from_euler_tuple, wrap_to_pi
+from quad_drake.rotations import euler_from_quat, quat_from_euler_tuple, quat_product, wrap_to_pi
 
 VARIANTS = ("nonlinear", "small_angle")
 
@@ -35,22 +36,13 @@ def integrate_euler_exact(roll, pitch, yaw, w_B, dt):
     """ZYX angles (rad) after rotating for dt s at the constant body rate w_B (rad/s).
 
     q(roll, pitch, yaw) * exp(w_B dt / 2), then extracted; the same result as
-    ``rotations.quat_integrate_body_rate`` in scalar arithmetic (it runs at 500 Hz).
+    ``rotations.quat_integrate_body_rate`` (its test reference) in scalar arithmetic.
     """
     wx, wy, wz = float(w_B[0]), float(w_B[1]), float(w_B[2])
-    qw, qx, qy, qz = quat_from_euler_tuple(roll, pitch, yaw)
     rate = math.sqrt(wx * wx + wy * wy + wz * wz)
     s = math.sin(0.5 * rate * dt) / rate if rate > 1e-12 else 0.5 * dt
-    c = math.cos(0.5 * rate * dt)
-    dx, dy, dz = wx * s, wy * s, wz * s
-    return euler_from_quat(
-        (
-            qw * c - qx * dx - qy * dy - qz * dz,
-            qw * dx + qx * c + qy * dz - qz * dy,
-            qw * dy - qx * dz + qy * c + qz * dx,
-            qw * dz + qx * dy - qy * dx + qz * c,
-        )
-    )
+    increment = (math.cos(0.5 * rate * dt), wx * s, wy * s, wz * s)
+    return euler_from_quat(quat_product(quat_from_euler_tuple(roll, pitch, yaw), increment))
 
 
 def complementary_update(roll, pitch, yaw, f_B, w_B, dt, tau, variant, reference_accelerometer=False):
@@ -61,16 +53,30 @@ def complementary_update(roll, pitch, yaw, f_B, w_B, dt, tau, variant, reference
     (angles += dt * body rates, as shipped by the reference) or ``"nonlinear"`` (exact
     quaternion integration of the constant body rate). Returns (roll, pitch, yaw) in rad;
     yaw is integrated only (not blended) and wrapped to [-pi, pi). reference_accelerometer:
-    f_B is the reference's reading (see :func:`accel_roll_pitch`).
+    f_B is the reference's reading (see :func:`accel_roll_pitch`). The step is
+    :func:`complementary_step`.
     """
-    if variant == "nonlinear":
+    return complementary_step(
+        roll, pitch, yaw, f_B, w_B, dt, tau, is_nonlinear(variant), reference_accelerometer
+    )
+
+
+def is_nonlinear(variant):
+    """True for the ``"nonlinear"`` variant, False for ``"small_angle"``; ValueError otherwise."""
+    if variant not in VARIANTS:
+        raise ValueError(f"unknown attitude filter variant {variant!r}; expected one of {VARIANTS}")
+    return variant == "nonlinear"
+
+
+def complementary_step(roll, pitch, yaw, f_B, w_B, dt, tau, nonlinear, reference_accelerometer):
+    """:func:`complementary_update` with the variant as a bool (``nonlinear``): plain float
+    arithmetic, the code the compiled attitude kernel runs (``kernels/attitude.py``)."""
+    if nonlinear:
         roll_pred, pitch_pred, yaw_pred = integrate_euler_exact(roll, pitch, yaw, w_B, dt)
-    elif variant == "small_angle":
+    else:
         roll_pred = roll + dt * float(w_B[0])
         pitch_pred = pitch + dt * float(w_B[1])
         yaw_pred = yaw + dt * float(w_B[2])
-    else:
-        raise ValueError(f"unknown attitude filter variant {variant!r}; expected one of {VARIANTS}")
     roll_acc, pitch_acc = accel_roll_pitch(f_B, reference_accelerometer)
     gyro_weight = tau / (tau + dt)
     accel_weight = dt / (tau + dt)

@@ -13,11 +13,16 @@ into the integrated yaw. :class:`TiltNoise` adds that error's predicted variance
 through the Jacobian of (a_N, yaw rate) with respect to (roll, pitch), to Q at every step; see
 :func:`tilt_variance` and :func:`tilt_process_noise`.
 
-The textbook forms here (``predict``, ``predict_with_yaw``, ``predict_state``,
-``predict_jacobian``, ``predict_covariance``, ``kalman_update``, ``gps_update``, ``mag_update``)
-are the reference oracles of the running implementation, ``kernels/estimation.py``, which
-single runs and fleets both execute; the kernels are tested against them to 1e-12 and no
-simulation calls them (``tests/test_oracles.py``).
+Two kinds of function. The scalar formulas (:func:`attitude_trig`, :func:`yaw_free_rotation_of`,
+:func:`specific_force_in_n`, :func:`state_after`, :func:`gravity_z`, :func:`mag_innovation`,
+:func:`tilt_jacobian_of`, :func:`scaled_tilt_factors`) are plain float arithmetic whose own code
+the running implementation, ``kernels/ekf7.py``, compiles: they exist once. The textbook matrix
+forms (``predict``, ``predict_with_yaw``, ``predict_state``, ``predict_jacobian``,
+``predict_covariance``, ``kalman_update``, ``gps_update``, ``mag_update``, ``tilt_process_noise``
+and ``TiltNoise.process_noise``) are REFERENCE ORACLES
+of the kernel's sparse covariance loops and Joseph updates, which single runs and fleets both
+execute: the kernel is tested against them on seeded random inputs to 1e-12
+(``tests/test_fleet_estimators.py``) and no simulation calls them (``tests/test_oracles.py``).
 """
 
 import math
@@ -87,31 +92,52 @@ def mag_noise(params):
     return np.array([[params.mag_yaw_std**2]])
 
 
-def _yaw_free_rotation(roll, pitch, fx, fy, fz):
-    """(ux, uy, uz, rolled_z): u = Ry(pitch) Rx(roll) f (the yaw-free part of R_NB f) and the z
-    component of Rx(roll) f, for f = (fx, fy, fz); plain floats."""
-    return yaw_free_rotation_of(math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch), fx, fy, fz)
+def attitude_trig(roll, pitch, yaw):
+    """(cos, sin of roll, of pitch, of yaw): the trigonometry a prediction evaluates once."""
+    return math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch), math.cos(yaw), math.sin(yaw)
 
 
 def yaw_free_rotation_of(cr, sr, cp, sp, fx, fy, fz):
-    """:func:`_yaw_free_rotation` from the cosines and sines of roll and pitch (plain floats; the
-    fleet's compiled prediction, which has them already, calls it too)."""
+    """(ux, uy, uz, rolled_z): u = Ry(pitch) Rx(roll) f (the yaw-free part of R_NB f) and the z
+    component of Rx(roll) f, for f = (fx, fy, fz), from the cosines and sines of roll and pitch."""
     rolled_z = sr * fy + cr * fz
     return cp * fx + sp * rolled_z, cr * fy - sr * fz, -sp * fx + cp * rolled_z, rolled_z
 
 
-def _rotate_specific_force(roll, pitch, yaw, f_B):
-    """(R_NB f_B, dR_NB/dyaw f_B) as two 3-tuples of floats; R_NB = Rz(yaw) Ry(pitch) Rx(roll)."""
-    ux, uy, uz, _ = _yaw_free_rotation(roll, pitch, float(f_B[0]), float(f_B[1]), float(f_B[2]))
-    cy, sy = math.cos(yaw), math.sin(yaw)
+def specific_force_in_n(trig, rotated):
+    """(R_NB f_B, dR_NB/dyaw f_B) as two 3-tuples, from the attitude's trig
+    (:func:`attitude_trig`) and rotated = :func:`yaw_free_rotation_of` of f_B;
+    R_NB = Rz(yaw) Ry(pitch) Rx(roll). The last entry of dR/dyaw f is 0 (Rz keeps z)."""
+    cy, sy = trig[4], trig[5]
+    ux, uy, uz = rotated[0], rotated[1], rotated[2]
     return (cy * ux - sy * uy, sy * ux + cy * uy, uz), (-sy * ux - cy * uy, cy * ux - sy * uy, 0.0)
 
 
-def _state_after(x, a_N, dt):
-    """x (7) after p += v dt, v += a_N dt; yaw unchanged."""
-    px, py, pz, vx, vy, vz, yaw = x.tolist()
-    return np.array(
-        [px + vx * dt, py + vy * dt, pz + vz * dt, vx + a_N[0] * dt, vy + a_N[1] * dt, vz + a_N[2] * dt, yaw]
+def _rotate_specific_force(roll, pitch, yaw, f_B):
+    """(R_NB f_B, dR_NB/dyaw f_B) as two 3-tuples of floats (:func:`specific_force_in_n`)."""
+    trig = attitude_trig(roll, pitch, yaw)
+    cr, sr, cp, sp = trig[0], trig[1], trig[2], trig[3]
+    rotated = yaw_free_rotation_of(cr, sr, cp, sp, float(f_B[0]), float(f_B[1]), float(f_B[2]))
+    return specific_force_in_n(trig, rotated)
+
+
+def gravity_z(reference_accelerometer):
+    """g_N z, m/s^2, as the EKF7 predicts with it: +GRAVITY (NED, the physical accelerometer), or
+    -GRAVITY for the reference accelerometer's sign convention (``fidelity``)."""
+    return -GRAVITY if reference_accelerometer else GRAVITY
+
+
+def state_after(x, a_N, yaw, dt):
+    """x (7-tuple) after dt s: p += v dt, v += a_N dt (m/s^2, NED), yaw set to `yaw` (rad)."""
+    px, py, pz, vx, vy, vz = x[0], x[1], x[2], x[3], x[4], x[5]
+    return (
+        px + vx * dt,
+        py + vy * dt,
+        pz + vz * dt,
+        vx + a_N[0] * dt,
+        vy + a_N[1] * dt,
+        vz + a_N[2] * dt,
+        yaw,
     )
 
 
@@ -129,7 +155,13 @@ def predict_state(x, roll, pitch, f_B, dt):
     roll, pitch: rad (complementary filter). f_B: specific force, m/s^2 (FRD). dt: s.
     """
     rf, _ = _rotate_specific_force(roll, pitch, x[YAW_INDEX], f_B)
-    return _state_after(np.asarray(x, dtype=float), (rf[0], rf[1], rf[2] + GRAVITY), dt)
+    return _state_with_gravity(x, rf, dt)
+
+
+def _state_with_gravity(x, rf, dt):
+    """(7,) :func:`state_after` of x with a_N = rf + g_N (the physical accelerometer), yaw kept."""
+    x = np.asarray(x, dtype=float).tolist()
+    return np.array(state_after(x, (rf[0], rf[1], rf[2] + GRAVITY), x[YAW_INDEX], dt))
 
 
 def predict_jacobian(x, roll, pitch, f_B, dt):
@@ -159,7 +191,7 @@ def predict(x, P, roll, pitch, f_B, dt, Q, G=None):
     """
     rf, rf_yaw = _rotate_specific_force(roll, pitch, x[YAW_INDEX], f_B)
     G = _fill_jacobian(np.eye(EKF_STATE_SIZE) if G is None else G, rf_yaw, dt)
-    return _state_after(x, (rf[0], rf[1], rf[2] + GRAVITY), dt), predict_covariance(P, G, Q)
+    return _state_with_gravity(x, rf, dt), predict_covariance(P, G, Q)
 
 
 def predict_with_yaw(x, P, attitude, f_B, dt, Q, G, reference_accelerometer=False):
@@ -170,23 +202,11 @@ def predict_with_yaw(x, P, attitude, f_B, dt, Q, G, reference_accelerometer=Fals
     Scalar state arithmetic, as in :func:`predict_state`. reference_accelerometer: f_B is
     the reference's reading R_NB^T (a_NB + g_N), so a_N = R f_B - g_N (SPEC §4 PredictState).
     """
-    gravity_z = -GRAVITY if reference_accelerometer else GRAVITY
     roll, pitch, yaw = attitude
     rf, rf_yaw = _rotate_specific_force(roll, pitch, yaw, f_B)
     _fill_jacobian(G, rf_yaw, dt)
-    px, py, pz, vx, vy, vz = x[0], x[1], x[2], x[3], x[4], x[5]
-    return (
-        [
-            px + vx * dt,
-            py + vy * dt,
-            pz + vz * dt,
-            vx + rf[0] * dt,
-            vy + rf[1] * dt,
-            vz + (rf[2] + gravity_z) * dt,
-            yaw,
-        ],
-        predict_covariance(P, G, Q),
-    )
+    a_N = (rf[0], rf[1], rf[2] + gravity_z(reference_accelerometer))
+    return list(state_after(x, a_N, yaw, dt)), predict_covariance(P, G, Q)
 
 
 def kalman_update(x, P, z, H, R, z_hat):
@@ -227,15 +247,21 @@ def mag_update(x, P, yaw_meas, R_mag):
     yaw_meas = float(yaw_meas)
     if not math.isfinite(yaw_meas):
         return x, P, math.nan
-    nu = wrap_to_pi(yaw_meas - float(x[YAW_INDEX]))
     p6 = P[:, YAW_INDEX]
-    S = float(p6[YAW_INDEX]) + float(R_mag[0, 0])
+    nu, S = mag_innovation(yaw_meas, float(x[YAW_INDEX]), float(p6[YAW_INDEX]), float(R_mag[0, 0]))
     K = p6 / S
     KhP = np.outer(K, p6)
     P_new = P - (KhP + KhP.T) + S * np.outer(K, K)
     x_new = x + K * nu
     x_new[YAW_INDEX] = wrap_to_pi(x_new[YAW_INDEX])
     return x_new, P_new, nu * nu / S
+
+
+def mag_innovation(yaw_meas, yaw, yaw_variance, r):
+    """(nu rad, S rad^2) of a magnetometer yaw yaw_meas against the predicted yaw (rad) of
+    variance H P H^T = yaw_variance, noise r: nu = wrap(yaw_meas - yaw), the short way round,
+    S = yaw_variance + r. Shared by both estimators' mag updates and their compiled kernels."""
+    return wrap_to_pi(yaw_meas - yaw), yaw_variance + r
 
 
 def tilt_variance(t, gyro_std, tau, dt):
@@ -263,8 +289,8 @@ def tilt_jacobian(roll, pitch, yaw, fx, fy, fz, wy, wz):
     of the body rate w_NB_B (rad/s). Angles in rad, f_B in m/s^2 (FRD). Plain float
     arithmetic (the fleet compiles it).
     """
-    cr, sr, cp, sp = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch)
-    trig = (cr, sr, cp, sp, math.cos(yaw), math.sin(yaw))
+    trig = attitude_trig(roll, pitch, yaw)
+    cr, sr, cp, sp = trig[0], trig[1], trig[2], trig[3]
     return tilt_jacobian_of(trig, yaw_free_rotation_of(cr, sr, cp, sp, fx, fy, fz), wy, wz)
 
 

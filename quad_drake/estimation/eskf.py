@@ -32,9 +32,14 @@ reference; tested numerically):
 Updates return the NIS nu^T S^-1 nu and leave the gating decision to the caller
 (:mod:`quad_drake.estimation.gating`): a gated sample keeps the prior.
 
-``predict``, ``predict_nominal``, ``joseph_update``, ``inject``, ``gps_update`` and ``mag_update``
-are the reference oracles of the running implementation, ``kernels/estimation.py``; the
-kernels are tested against them to 1e-12 and no simulation calls them (``tests/test_oracles.py``).
+Two kinds of function. The scalar formulas (:func:`nominal_step`, :func:`quat_exp`,
+:func:`quat_normalized`, :func:`injected_attitude`, :func:`yaw_and_jacobian_of`, with
+``rotations.rotation_entries`` and ``ekf.mag_innovation``) are plain float arithmetic whose own
+code the running implementation, ``kernels/eskf.py``, compiles: they exist once. The matrix forms
+(``predict``, ``predict_nominal``, ``transition``, ``process_noise``, ``joseph_update``, ``inject``,
+``gps_update``, ``mag_update``) are REFERENCE ORACLES of the kernel's sparse loops, which single
+runs and fleets both execute: the kernel is tested against them on seeded random inputs to 1e-12
+(``tests/test_fleet_estimators.py``) and no simulation calls them (``tests/test_oracles.py``).
 """
 
 import math
@@ -43,7 +48,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from quad_drake.conventions import GRAVITY
-from quad_drake.rotations import wrap_to_pi
+from quad_drake.estimation.ekf import mag_innovation
+from quad_drake.rotations import quat_product, rotation_entries
 
 NOMINAL_SIZE = 16
 P_IDX, V_IDX, Q_IDX, BA_IDX, BG_IDX = slice(0, 3), slice(3, 6), slice(6, 10), slice(10, 13), slice(13, 16)
@@ -71,16 +77,20 @@ def quat_exp(theta):
     return (math.cos(0.5 * angle), tx * s, ty * s, tz * s)
 
 
-def quat_mul(a, b):
-    """Hamilton product a (x) b of two wxyz 4-sequences, as a 4-tuple."""
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
-    return (
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-    )
+quat_mul = quat_product
+"""Hamilton product a (x) b of two wxyz 4-sequences, as a 4-tuple (``rotations.quat_product``)."""
+
+
+def quat_normalized(q):
+    """The wxyz 4-tuple q divided by its norm."""
+    qw, qx, qy, qz = q[0], q[1], q[2], q[3]
+    n = 1.0 / math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+    return qw * n, qx * n, qy * n, qz * n
+
+
+def injected_attitude(q, dtheta):
+    """q_NB (unit wxyz 4-tuple) after the attitude error dtheta (rad, world axes): Exp(dtheta) (x) q."""
+    return quat_normalized(quat_mul(quat_exp(dtheta), q))
 
 
 def rotation_log(R):
@@ -138,31 +148,24 @@ def write_estimate(x, estimate):
     estimate[..., 7:10] = x[..., V_IDX]
 
 
-def _rotation_entries(qw, qx, qy, qz):
-    """The 9 entries of R_NB (row-major floats) of a unit wxyz quaternion."""
-    return (
-        1 - 2 * (qy * qy + qz * qz),
-        2 * (qx * qy - qw * qz),
-        2 * (qx * qz + qw * qy),
-        2 * (qx * qy + qw * qz),
-        1 - 2 * (qx * qx + qz * qz),
-        2 * (qy * qz - qw * qx),
-        2 * (qx * qz - qw * qy),
-        2 * (qy * qz + qw * qx),
-        1 - 2 * (qx * qx + qy * qy),
-    )
-
-
 def predict_nominal(x, f_B, w_B, dt):
     """(x', R_hat, R_hat', u_N): nominal after one IMU step (list of 16), rotations before and after
     (3x3 arrays), and u_N = R_hat (f_B - b_a) (m/s^2, the specific force in N, a 3-tuple).
 
-    x: nominal (16); f_B: specific force (m/s^2, FRD); w_B: gyro (rad/s); dt: s. Scalar math.
+    x: nominal (16); f_B: specific force (m/s^2, FRD); w_B: gyro (rad/s); dt: s
+    (:func:`nominal_step`).
     """
-    px, py, pz, vx, vy, vz, qw, qx, qy, qz, bax, bay, baz, bgx, bgy, bgz = (
-        x.tolist() if isinstance(x, np.ndarray) else list(x)
-    )
-    r = _rotation_entries(qw, qx, qy, qz)
+    x_new, r, r_next, u_N = nominal_step(tuple(x.tolist() if isinstance(x, np.ndarray) else x), f_B, w_B, dt)
+    return list(x_new), np.array(r).reshape(3, 3), np.array(r_next).reshape(3, 3), u_N
+
+
+def nominal_step(x, f_B, w_B, dt):
+    """(x' (16-tuple), R_hat, R_hat' (9-tuples, row-major), u_N (3-tuple)) of
+    :func:`predict_nominal`: plain float arithmetic, the code the compiled ESKF kernel runs.
+
+    x: nominal 16-tuple of floats; f_B, w_B: 3-sequences of floats."""
+    px, py, pz, vx, vy, vz, qw, qx, qy, qz, bax, bay, baz, bgx, bgy, bgz = x
+    r = rotation_entries(qw, qx, qy, qz)
     fx, fy, fz = float(f_B[0]) - bax, float(f_B[1]) - bay, float(f_B[2]) - baz
     ux = r[0] * fx + r[1] * fy + r[2] * fz
     uy = r[3] * fx + r[4] * fy + r[5] * fz
@@ -170,10 +173,8 @@ def predict_nominal(x, f_B, w_B, dt):
     az = uz + GRAVITY
     h = 0.5 * dt * dt
     dq = quat_exp(((float(w_B[0]) - bgx) * dt, (float(w_B[1]) - bgy) * dt, (float(w_B[2]) - bgz) * dt))
-    qw, qx, qy, qz = quat_mul((qw, qx, qy, qz), dq)
-    n = 1.0 / math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
-    qw, qx, qy, qz = qw * n, qx * n, qy * n, qz * n
-    x_new = [
+    qw, qx, qy, qz = quat_normalized(quat_mul((qw, qx, qy, qz), dq))
+    x_new = (
         px + vx * dt + ux * h,
         py + vy * dt + uy * h,
         pz + vz * dt + az * h,
@@ -190,10 +191,8 @@ def predict_nominal(x, f_B, w_B, dt):
         bgx,
         bgy,
         bgz,
-    ]
-    R = np.array(r).reshape(3, 3)
-    R_next = np.array(_rotation_entries(qw, qx, qy, qz)).reshape(3, 3)
-    return x_new, R, R_next, (ux, uy, uz)
+    )
+    return x_new, r, rotation_entries(qw, qx, qy, qz), (ux, uy, uz)
 
 
 @dataclass(frozen=True)
@@ -327,9 +326,7 @@ def inject(x, P, dx):
     x = np.array(x, dtype=float)
     x[0:6] += dx[0:6]
     t0, t1, t2 = (0.5 * float(c) for c in dx[6:9])
-    q = quat_mul(quat_exp(dx[6:9]), tuple(x[Q_IDX].tolist()))
-    norm = 1.0 / math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    x[Q_IDX] = (q[0] * norm, q[1] * norm, q[2] * norm, q[3] * norm)
+    x[Q_IDX] = injected_attitude(tuple(x[Q_IDX].tolist()), dx[6:9])
     if dx.shape[0] == ERROR_SIZE_WITH_BIASES:
         x[10:16] += dx[9:15]
     A = np.array(((1.0, -t2, t1), (t2, 1.0, -t0), (-t1, t0, 1.0)))
@@ -366,12 +363,18 @@ def gps_update(x, P, gps_pv, R_gps):
 
 def yaw_and_jacobian(q):
     """(yaw (rad), dyaw/dtheta (3,)) of the nominal attitude q (wxyz), for R = Exp(dtheta) R_hat."""
-    qw, qx, qy, qz = (float(c) for c in q)
+    yaw, h_theta = yaw_and_jacobian_of(float(q[0]), float(q[1]), float(q[2]), float(q[3]))
+    return yaw, np.array(h_theta)
+
+
+def yaw_and_jacobian_of(qw, qx, qy, qz):
+    """:func:`yaw_and_jacobian` of the floats (qw, qx, qy, qz), the Jacobian as a 3-tuple: h =
+    atan2(R10, R00), H_theta = (-R00 R20 / d, -R10 R20 / d, 1) with d = R00^2 + R10^2."""
     r00 = 1.0 - 2.0 * (qy * qy + qz * qz)
     r10 = 2.0 * (qx * qy + qw * qz)
     r20 = 2.0 * (qx * qz - qw * qy)
     d = r00 * r00 + r10 * r10
-    return math.atan2(r10, r00), np.array((-r00 * r20 / d, -r10 * r20 / d, 1.0))
+    return math.atan2(r10, r00), (-r00 * r20 / d, -r10 * r20 / d, 1.0)
 
 
 def mag_update(x, P, yaw_meas, R_mag):
@@ -386,8 +389,7 @@ def mag_update(x, P, yaw_meas, R_mag):
     x = np.asarray(x, dtype=float)
     yaw, h_theta = yaw_and_jacobian(x[Q_IDX])
     b = P[:, 6:9] @ h_theta
-    S = float(b[6:9] @ h_theta) + float(R_mag[0, 0])
-    nu = wrap_to_pi(yaw_meas - yaw)
+    nu, S = mag_innovation(yaw_meas, yaw, float(b[6:9] @ h_theta), float(R_mag[0, 0]))
     K = b / S
     Kb = np.outer(K, b)
     P_new = P - Kb

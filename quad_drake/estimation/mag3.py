@@ -43,6 +43,7 @@ from typing import List
 import numpy as np
 
 from quad_drake.config_fields import noise_stds, number, vector
+from quad_drake.rotations import rotation_entries
 from quad_drake.sensor_models import world_field
 
 ATTITUDE_START = 6
@@ -66,21 +67,6 @@ class MagFieldFusionParams:
 def assumed_world_field(params):
     """m_N (3-tuple, gauss, NED) of MagFieldFusionParams."""
     return world_field(params.field_strength, params.declination, params.inclination)
-
-
-def rotation_entries(qw, qx, qy, qz):
-    """The 9 entries of R_NB (row-major floats) of a unit wxyz quaternion (as eskf.py's)."""
-    return (
-        1 - 2 * (qy * qy + qz * qz),
-        2 * (qx * qy - qw * qz),
-        2 * (qx * qz + qw * qy),
-        2 * (qx * qy + qw * qz),
-        1 - 2 * (qx * qx + qz * qz),
-        2 * (qy * qz - qw * qx),
-        2 * (qx * qz - qw * qy),
-        2 * (qy * qz + qw * qx),
-        1 - 2 * (qx * qx + qy * qy),
-    )
 
 
 def predicted_field(qw, qx, qy, qz, mx, my, mz):

@@ -15,8 +15,8 @@ import numpy as np
 from quad_drake.accuracy_bound import PCRB_PRIOR_STD, PCRB_STATES, euler_rate_entries
 from quad_drake.conventions import GRAVITY, LOG_PERIOD, ONBOARD_PERIOD
 from quad_drake.jit import njit_cached
-from quad_drake.kernels.estimation import rotation_into
 from quad_drake.kernels.flight import compiled
+from quad_drake.kernels.rotations import rotation_into
 
 _euler_rate_entries = compiled(euler_rate_entries)
 

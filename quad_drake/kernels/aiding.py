@@ -29,11 +29,11 @@ Pure: numba and numpy, no pydrake.
 
 import math
 
-from quad_drake import rotations
 from quad_drake.conventions import NO_SAMPLE_STAMP
 from quad_drake.estimation import baro, mag3
 from quad_drake.estimation.vocabulary import DIAG
 from quad_drake.jit import njit_cached
+from quad_drake.kernels import rotations
 from quad_drake.kernels.flight import compiled
 
 _NONFINITE, _MAG_NIS, _MAG_GATED = DIAG["nonfinite_samples"], DIAG["mag_nis"], DIAG["mag_gated"]
@@ -50,11 +50,10 @@ _bias_predict = compiled(baro.bias_predict)
 _bias_update = compiled(baro.bias_update)
 _bias_from_gps = compiled(baro.bias_from_gps)
 _bias_reset = compiled(baro.bias_reset)
-_rotation_entries = compiled(mag3.rotation_entries)
-_field_attitude_jacobian = compiled(mag3.field_attitude_jacobian, rotation_entries=_rotation_entries)
+_field_attitude_jacobian = compiled(mag3.field_attitude_jacobian, rotation_entries=rotations.rotation_entries)
 _field_innovation = compiled(
     mag3.field_innovation,
-    predicted_field=compiled(mag3.predicted_field, rotation_entries=_rotation_entries),
+    predicted_field=compiled(mag3.predicted_field, rotation_entries=rotations.rotation_entries),
     field_jacobian=compiled(mag3.field_jacobian, field_attitude_jacobian=_field_attitude_jacobian),
     inverse3=compiled(mag3.inverse3),
 )
@@ -62,7 +61,7 @@ _sequential_field_update = compiled(mag3.sequential_field_update)
 _heading = compiled(mag3.tilt_compensated_heading, leveled_field=compiled(mag3.leveled_field))
 _heading_variances = compiled(mag3.heading_variances, heading_jacobians=compiled(mag3.heading_jacobians))
 _floored_yaw_variance = compiled(mag3.floored_yaw_variance)
-_wrap = compiled(rotations.wrap_to_pi)
+_wrap = rotations.wrap_to_pi
 
 
 @njit_cached

@@ -2,8 +2,10 @@
 
 Every system here is sized by n vehicles (default 1, a single run; a fleet flies n runs of one
 VehicleConfig at once): its ports carry the n per-vehicle vectors vehicle-major (vehicle i at
-[i k, (i + 1) k)), and a single run and a fleet execute the same code (the compiled kernels of
-``kernels/estimation.py`` over (n, ...) views of the ports and discrete state).
+[i k, (i + 1) k)), and a single run and a fleet execute the same code: the compiled kernels over
+(n, ...) views of the ports and discrete state, ``kernels/attitude.py``, ``kernels/ekf7.py`` and
+``kernels/eskf.py`` (each estimator's equations in its module docstring), with
+``kernels/fusion.py`` for what they share.
 
 Every estimator is a sub-Diagram (:func:`build_estimator`) with inputs ``imu``, ``gps``,
 ``mag`` and the outputs its vocabulary lists (``estimation/vocabulary.py``):
@@ -48,7 +50,11 @@ from quad_drake.estimation.registry import kind_of, vocabulary_for
 from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, NIS_DOF
 from quad_drake.fidelity import PHYSICAL
 from quad_drake.kernels import aiding as aiding_kernels
-from quad_drake.kernels import estimation as kernels
+from quad_drake.kernels import attitude as attitude_kernel
+from quad_drake.kernels import ekf7 as ekf7_kernel
+from quad_drake.kernels import eskf as eskf_kernel
+from quad_drake.kernels import fusion
+from quad_drake.kernels.imu_hold import HOLD_SIZE, initial_hold
 from quad_drake.rotations import quat_from_euler_tuple
 from quad_drake.systems._io import declare_state_output, row_reader
 from quad_drake.systems.aiding import NO_AIDING, AidedFusion, aiding_sensors, mag_size
@@ -69,8 +75,9 @@ class GatedFusion:
     gates, GPS resets and covariance health, on (n, ...) views of the discrete state.
 
     Discrete state groups: x (0), P (1), diagnostics (DIAGNOSTICS_GROUP), book (BOOK_GROUP,
-    ``kernels.BOOK_SIZE`` per vehicle). :meth:`_fuse_fresh` runs the per-tick sequence after
-    the prediction: the covariance health check, then the fresh magnetometer and GPS samples.
+    ``fusion.BOOK_SIZE`` per vehicle), and the IMU hold (``self._hold``). :meth:`_fuse_fresh` runs
+    the per-tick sequence after the prediction: the covariance health check, then the fresh
+    magnetometer and GPS samples.
     """
 
     DIAGNOSTICS_GROUP, BOOK_GROUP = 2, 3
@@ -92,34 +99,34 @@ class GatedFusion:
         x = self.DeclareDiscreteState(np.tile(np.asarray(x0, dtype=float), n))
         P = self.DeclareDiscreteState(np.tile(P0.ravel(), n))
         diagnostics = self.DeclareDiscreteState(np.tile(initial_diagnostics(), n))
-        self.DeclareDiscreteState(np.tile(kernels.initial_book(), n))
+        self.DeclareDiscreteState(np.tile(fusion.initial_book(), n))
         return x, P, diagnostics
 
     def _views(self, discrete_state, width):
-        """Writable (n, ...) views of x, P, diagnostics and the book."""
+        """The ``fusion.Filters``: writable (n, ...) views of x, P, diagnostics, the book and the hold."""
         n, k = self._n, self._k
-        return (
-            discrete_state.get_mutable_value(0).reshape(n, width),
-            discrete_state.get_mutable_value(1).reshape(n, k, k),
-            discrete_state.get_mutable_value(self.DIAGNOSTICS_GROUP).reshape(n, DIAGNOSTICS_SIZE),
-            discrete_state.get_mutable_value(self.BOOK_GROUP).reshape(n, kernels.BOOK_SIZE),
+        return fusion.Filters(
+            x=discrete_state.get_mutable_value(0).reshape(n, width),
+            P=discrete_state.get_mutable_value(1).reshape(n, k, k),
+            diagnostics=discrete_state.get_mutable_value(self.DIAGNOSTICS_GROUP).reshape(n, DIAGNOSTICS_SIZE),
+            book=discrete_state.get_mutable_value(self.BOOK_GROUP).reshape(n, fusion.BOOK_SIZE),
+            hold=discrete_state.get_mutable_value(self._hold).reshape(n, HOLD_SIZE),
         )
 
-    def _fuse_fresh(self, x, P, diagnostics, book, gps, mag, healthy, gps_update, mag_tick):
+    def _fuse_fresh(self, filters, gps, mag, healthy, kernel):
         """Repair P where the per-tick check (``healthy`` (n,)) or, at a fresh GPS sample, the full
         check finds it unhealthy (counted); then fuse the fresh mag (n, 2) and GPS (n, 7) samples
-        through the gates. In place."""
-        gps_fresh = kernels.fresh(gps[:, 6], book[:, kernels.GPS_SLOT])
+        through the gates with the estimator's `kernel` module (its ``mag_tick``, ``gps_update``).
+        In place on the ``fusion.Filters`` `filters`."""
+        gps_fresh = fusion.fresh(gps[:, 6], filters.book[:, fusion.GPS_SLOT])
         check = gps_fresh | ~healthy
         if self._repairs and check.any():
-            outcomes = kernels.repair_covariances(P, check, self._P0)
-            diagnostics[outcomes != gating.COVARIANCE_OK, DIAG["covariance_repairs"]] += 1.0
-        mag_tick(x, P, mag, diagnostics, book, self._R_mag, self._mag_threshold)
+            outcomes = fusion.repair_covariances(filters.P, check, self._P0)
+            filters.diagnostics[outcomes != gating.COVARIANCE_OK, DIAG["covariance_repairs"]] += 1.0
+        kernel.mag_tick(filters, mag, self._R_mag, self._mag_threshold)
         if gps_fresh.any():
             rows = slice(None) if gps_fresh.all() else np.flatnonzero(gps_fresh)
-            kernels.fuse_gps(
-                rows, gps[:, 6], gps[:, 0:6], x, P, diagnostics, book, gps_update, self._R_gps, self._gates
-            )
+            fusion.fuse_gps(filters, gps, rows, kernel.gps_update, self._R_gps, self._gates)
 
 
 def _tiled(vector, n):
@@ -134,9 +141,9 @@ class ComplementaryFilter(LeafSystem):
     6 is the EKF posterior yaw, rad, used as the prior yaw). Outputs (state ports): ``attitude``
     (n*3: roll, pitch, yaw, rad), ``body_rate`` (n*3: the gyro sample, rad/s; NaN while the IMU
     is out). Ticks every ONBOARD_PERIOD at ATTITUDE_FILTER_OFFSET with dt = ONBOARD_PERIOD
-    (``kernels.estimation.complementary_tick``). Over a non-finite IMU sample the filter
-    dead-reckons on the running mean of the IMU (``kernels.estimation.IMU_HOLD_TIME``) and
-    reports no rate (NaN: the controller then commands no body moment).
+    (``kernels.attitude.tick``). Over a non-finite IMU sample the filter dead-reckons on the
+    running mean of the IMU (``kernels.imu_hold.IMU_HOLD_TIME``) and reports no rate (NaN: the
+    controller then commands no body moment).
     With ``fidelity.reference_accelerometer`` the IMU carries the reference's reading and the
     tilt comes from the reference's formulas; with ``fidelity.float32_estimator`` the attitude
     and body rate are rounded to float32 after each tick (``round_to_float32``).
@@ -147,15 +154,15 @@ class ComplementaryFilter(LeafSystem):
         if params.variant not in VARIANTS:
             raise ValueError(f"attitude filter variant {params.variant!r} is not one of {VARIANTS}")
         self._n = n
-        self._tau = float(params.tau)
-        self._variant = params.variant
-        self._reference_accelerometer = fidelity.reference_accelerometer
+        self._model = attitude_kernel.model(
+            ONBOARD_PERIOD, params.tau, params.variant, fidelity.reference_accelerometer
+        )
         self._float32 = fidelity.float32_estimator
         self._read_imu = row_reader(self.DeclareVectorInputPort("imu", n * IMU_SIZE), n)
         self._read_ekf_state = row_reader(self.DeclareVectorInputPort("ekf_state", n * EKF_STATE_SIZE), n)
         attitude = self.DeclareDiscreteState(_tiled(initial_attitude, n))
         rate = self.DeclareDiscreteState(n * 3)
-        self.DeclareDiscreteState(_tiled(kernels.initial_hold(), n))
+        self.DeclareDiscreteState(_tiled(initial_hold(), n))
         declare_state_output(self, "attitude", attitude, n * ATTITUDE_SIZE)
         declare_state_output(self, "body_rate", rate, n * 3)
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, ATTITUDE_FILTER_OFFSET, self._update)
@@ -163,19 +170,17 @@ class ComplementaryFilter(LeafSystem):
     def _update(self, context, discrete_state):
         n = self._n
         attitude, rate = discrete_state.get_mutable_value(0), discrete_state.get_mutable_value(1)
-        kernels.complementary_tick(
-            attitude.reshape(n, ATTITUDE_SIZE),
-            rate.reshape(n, 3),
-            discrete_state.get_mutable_value(2).reshape(n, kernels.HOLD_SIZE),
-            self._read_imu(context),
-            self._read_ekf_state(context),
-            ONBOARD_PERIOD,
-            self._tau,
-            self._variant,
-            self._reference_accelerometer,
+        attitude_kernel.tick(
+            attitude_kernel.Filters(
+                attitude=attitude.reshape(n, ATTITUDE_SIZE),
+                rate=rate.reshape(n, 3),
+                hold=discrete_state.get_mutable_value(2).reshape(n, HOLD_SIZE),
+            ),
+            attitude_kernel.Samples(imu=self._read_imu(context), ekf_state=self._read_ekf_state(context)),
+            self._model,
         )
         if self._float32:
-            kernels.round_to_float32(attitude, rate)
+            attitude_kernel.round_to_float32(attitude, rate)
 
 
 class Ekf(AidedFusion, GatedFusion, LeafSystem):
@@ -188,10 +193,10 @@ class Ekf(AidedFusion, GatedFusion, LeafSystem):
     ``ekf_state`` (n*7), ``covariance`` (n*49, each P row-major), ``diagnostics``
     (n*``vocabulary.DIAGNOSTICS``; NIS is NaN before the first update).
 
-    Each tick (ONBOARD_PERIOD, offset EKF_OFFSET; ``kernels.estimation.ekf7_tick``): yaw <-
-    attitude yaw, predict x' = f(x, f_B), P' = G P G^T + Q with dt = ONBOARD_PERIOD (over a
-    non-finite IMU sample with the IMU's running mean); then a fresh mag sample, then a fresh GPS
-    sample, is fused through the gates (``mag_gate_sigma``; the GPS policy of
+    Each tick (ONBOARD_PERIOD, offset EKF_OFFSET; ``kernels.ekf7.tick``, whose module docstring
+    carries the equations): yaw <- attitude yaw, predict x' = f(x, f_B), P' = G P G^T + Q with
+    dt = ONBOARD_PERIOD (over a non-finite IMU sample with the IMU's running mean); then a fresh
+    mag sample, then a fresh GPS sample, is fused through the gates (``mag_gate_sigma``; the GPS policy of
     ``estimation/gating.py``: horizontal position, height and velocity gated, fused and reset
     apart, a returning GPS taken after an outage). A sample is fresh when its stamp differs from
     the last stamp seen and is not NO_SAMPLE_STAMP. P is checked every tick (finite, variances
@@ -210,19 +215,24 @@ class Ekf(AidedFusion, GatedFusion, LeafSystem):
 
     def __init__(self, params, fidelity=PHYSICAL, tilt=None, n=1, aiding=NO_AIDING):
         super().__init__()
-        self._gravity_z = kernels.gravity_z(fidelity.reference_accelerometer)
         self._float32 = fidelity.float32_estimator
-        self._Q = ekf.process_noise(params)
         self._tilt = tilt
         P0 = ekf.initial_covariance(params)
         self._declare_gating(params, P0, (ekf.mag_noise(params), ekf.gps_noise(params)), fidelity)
+        self._model = ekf7_kernel.Model(
+            dt=ONBOARD_PERIOD,
+            Q=ekf.process_noise(params),
+            gravity_z=ekf.gravity_z(fidelity.reference_accelerometer),
+            r_mag=float(self._R_mag[0, 0]),
+            mag_threshold=float(self._mag_threshold),
+        )
         self._read_imu = row_reader(self.DeclareVectorInputPort("imu", n * IMU_SIZE), n)
         self._read_gps = row_reader(self.DeclareVectorInputPort("gps", n * GPS_SIZE), n)
         self._read_mag = row_reader(self.DeclareVectorInputPort("mag", n * mag_size(aiding)), n)
         self._read_attitude = row_reader(self.DeclareVectorInputPort("attitude", n * ATTITUDE_SIZE), n)
         x, P, diagnostics = self._declare_fusion_state(n, ekf.initial_state(params), P0)
         self._declare_aiding(n, params, aiding, fidelity, params.gps_pos_z_std, tilt)
-        self._hold = self.DeclareDiscreteState(_tiled(kernels.initial_hold(), n))
+        self._hold = self.DeclareDiscreteState(_tiled(initial_hold(), n))
         self._healthy = np.empty(n, dtype=bool)  # scratch of each tick's health check
         declare_state_output(self, "ekf_state", x, n * EKF_STATE_SIZE)
         declare_state_output(self, "covariance", P, n * EKF_STATE_SIZE**2)
@@ -238,45 +248,21 @@ class Ekf(AidedFusion, GatedFusion, LeafSystem):
     def _update(self, context, discrete_state):
         """The prediction and, on a quiet tick, the mag fusion (one compiled call); at a fresh GPS
         sample or an unhealthy P, the health check and the fusions of :meth:`_fuse_fresh`."""
-        n = self._n
-        x, P, diagnostics, book = self._views(discrete_state, EKF_STATE_SIZE)
-        gps = self._read_gps(context)
+        filters = self._views(discrete_state, EKF_STATE_SIZE)
         mag_samples = self._read_mag(context)
-        mag = self._yaw_samples(mag_samples)
-        attitude = self._read_attitude(context)
-        quiet = kernels.ekf7_tick(
-            x,
-            P,
-            discrete_state.get_mutable_value(self._hold).reshape(n, kernels.HOLD_SIZE),
-            attitude,
-            self._read_imu(context),
-            gps,
-            mag,
-            diagnostics,
-            book,
-            ONBOARD_PERIOD,
-            self._Q,
-            kernels.NO_TILT if self._tilt is None else self._tilt.gains(context.get_time()),
-            self._gravity_z,
-            self._R_mag[0, 0],
-            self._mag_threshold,
-            self._healthy,
+        samples = ekf7_kernel.Samples(
+            attitude=self._read_attitude(context),
+            imu=self._read_imu(context),
+            gps=self._read_gps(context),
+            mag=self._yaw_samples(mag_samples),
         )
+        tilt_gains = ekf7_kernel.NO_TILT if self._tilt is None else self._tilt.gains(context.get_time())
+        quiet = ekf7_kernel.tick(filters, samples, self._model, tilt_gains, self._healthy)
         if not quiet:  # a fresh GPS sample or an unhealthy P somewhere: the full step
-            self._fuse_fresh(
-                x,
-                P,
-                diagnostics,
-                book,
-                gps,
-                mag,
-                self._healthy,
-                kernels.ekf7_gps_update,
-                kernels.ekf7_mag_tick,
-            )
-        self._fuse_aiding(context, discrete_state, (x, P, diagnostics, book), gps, mag_samples, attitude)
+            self._fuse_fresh(filters, samples.gps, samples.mag, self._healthy, ekf7_kernel)
+        self._fuse_aiding(context, discrete_state, filters, samples.gps, mag_samples, samples.attitude)
         if self._float32:
-            kernels.round_to_float32(x, P)
+            attitude_kernel.round_to_float32(filters.x, filters.P)
 
 
 class EstimatedStateAssembler(LeafSystem):
@@ -303,7 +289,7 @@ class EstimatedStateAssembler(LeafSystem):
 
     def _calc(self, context, output):
         n = self._n
-        kernels.ekf7_estimated_state(
+        ekf7_kernel.estimated_state(
             self._read_attitude(context),
             self._read_ekf_state(context),
             self._read_rate(context),
@@ -322,20 +308,21 @@ class Eskf(AidedFusion, GatedFusion, LeafSystem):
     dtheta[, db_a, db_g]), ``diagnostics`` (n*``vocabulary.DIAGNOSTICS``), ``imu_bias`` (n*6: b_a
     m/s^2, b_g rad/s).
 
-    Each tick (ONBOARD_PERIOD, offset EKF_OFFSET): predict with the IMU sample (over a
-    non-finite one, counted, with the running mean of the IMU: ``kernels.estimation
-    .eskf_predict_tick``), then fuse a fresh mag and a fresh GPS sample through the gates
-    and resets of :class:`Ekf`; P is checked as there. With ``aiding`` (as :class:`Ekf`'s) the
-    3-axis field vector and the baro height are fused after the GPS.
+    Each tick (ONBOARD_PERIOD, offset EKF_OFFSET; ``kernels/eskf.py``, whose module docstring
+    carries the equations): predict with the IMU sample (over a non-finite one, counted, with the
+    running mean of the IMU: ``kernels.eskf.predict_tick``), then fuse a fresh mag and a fresh GPS
+    sample through the gates and resets of :class:`Ekf`; P is checked as there. With ``aiding``
+    (as :class:`Ekf`'s) the 3-axis field vector and the baro height are fused after the GPS.
     """
 
     ESTIMATE_GROUP, BIAS_GROUP = 4, 5
 
     def __init__(self, params, fidelity=PHYSICAL, n=1, aiding=NO_AIDING):
         super().__init__()
-        self._noise = eskf.NoiseModel.from_params(params)
+        noise = eskf.NoiseModel.from_params(params)
         P0 = eskf.initial_covariance(params)
-        self._Q_constant = eskf.noise_buffer(P0.shape[0], self._noise, ONBOARD_PERIOD)
+        Q_constant = eskf.noise_buffer(P0.shape[0], noise, ONBOARD_PERIOD)
+        self._model = eskf_kernel.model(noise, Q_constant, ONBOARD_PERIOD)
         yaw, pitch, roll = params.init_ypr
         x0 = eskf.initial_nominal(
             params.init_position, params.init_velocity, quat_from_euler_tuple(roll, pitch, yaw)
@@ -349,7 +336,7 @@ class Eskf(AidedFusion, GatedFusion, LeafSystem):
         eskf.write_estimate(x0, initial_estimate)
         estimate = self.DeclareDiscreteState(_tiled(initial_estimate, n))
         bias = self.DeclareDiscreteState(n * 6)
-        self._hold = self.DeclareDiscreteState(_tiled(kernels.initial_hold(), n))
+        self._hold = self.DeclareDiscreteState(_tiled(initial_hold(), n))
         declare_state_output(self, "estimated_state", estimate, n * STATE_SIZE)
         declare_state_output(self, "covariance", P, n * P0.size)
         declare_state_output(self, "diagnostics", diagnostics, n * DIAGNOSTICS_SIZE)
@@ -362,33 +349,18 @@ class Eskf(AidedFusion, GatedFusion, LeafSystem):
 
     def _apply_corrections(self, x, P, dx, fused):
         rows = np.flatnonzero(fused)
-        x[rows], P[rows] = kernels.eskf_inject(x[rows], P[rows], dx[rows])
+        x[rows], P[rows] = eskf_kernel.inject(x[rows], P[rows], dx[rows])
 
     def _update(self, context, discrete_state):
         """The prediction compiled, then the health check and the fusions of :meth:`_fuse_fresh`."""
-        n = self._n
-        x, P, diagnostics, book = self._views(discrete_state, eskf.NOMINAL_SIZE)
-        estimate = discrete_state.get_mutable_value(self.ESTIMATE_GROUP).reshape(n, STATE_SIZE)
-        hold = discrete_state.get_mutable_value(self._hold).reshape(n, kernels.HOLD_SIZE)
-        imu = self._read_imu(context)
-        healthy = kernels.eskf_predict_tick(
-            x, P, hold, imu, estimate, diagnostics, ONBOARD_PERIOD, self._noise, self._Q_constant
-        )
+        filters = self._views(discrete_state, eskf.NOMINAL_SIZE)
+        estimate = discrete_state.get_mutable_value(self.ESTIMATE_GROUP).reshape(self._n, STATE_SIZE)
+        healthy = eskf_kernel.predict_tick(filters, self._read_imu(context), estimate, self._model)
         gps, mag = self._read_gps(context), self._read_mag(context)
-        self._fuse_fresh(
-            x,
-            P,
-            diagnostics,
-            book,
-            gps,
-            self._yaw_samples(mag),
-            healthy,
-            kernels.eskf_gps_update,
-            kernels.eskf_mag_tick,
-        )
-        self._fuse_aiding(context, discrete_state, (x, P, diagnostics, book), gps, mag)
-        eskf.write_estimate(x, estimate)
-        discrete_state.get_mutable_value(self.BIAS_GROUP)[:] = x[:, 10:16].ravel()
+        self._fuse_fresh(filters, gps, self._yaw_samples(mag), healthy, eskf_kernel)
+        self._fuse_aiding(context, discrete_state, filters, gps, mag)
+        eskf.write_estimate(filters.x, estimate)
+        discrete_state.get_mutable_value(self.BIAS_GROUP)[:] = filters.x[:, 10:16].ravel()
 
 
 def _wire_ekf7(builder, ekf_system, attitude_filter, assembler):

@@ -25,7 +25,8 @@ from quad_drake.conventions import (
     STATE_SIZE,
     V_SLICE,
 )
-from quad_drake.kernels import estimation as kernels
+from quad_drake.kernels import odometry as odometry_kernel
+from quad_drake.kernels.fusion import fresh
 from quad_drake.systems._io import discrete_group, row_reader
 
 
@@ -146,9 +147,9 @@ class GpsDelayCompensator(LeafSystem):
     controller) it books the tick: the estimate's increment (the kinematic one where the GPS
     sample it just read had a new stamp, i.e. was fused) into the odometry, and the odometry
     into a ring of ``history_capacity(max_lag)`` rows per vehicle (discrete state); a sample
-    more than ``max_lag`` s late passes unchanged. The maths is ``kernels.estimation``'
+    more than ``max_lag`` s late passes unchanged. The maths is ``kernels/odometry.py``'s
     ``odometry_step``, ``predicted_odometry`` and ``compensated_gps`` (tested against
-    ``delay_compensation``'s scalar forms).
+    ``delay_compensation``'s scalar oracles).
     """
 
     def __init__(self, max_lag, n=1):
@@ -181,8 +182,8 @@ class GpsDelayCompensator(LeafSystem):
         stamp = self._read_gps(context)[:, 6]
         memory = discrete_state.get_mutable_value(self._memory).reshape(n, 16)
         previous = np.where(np.isnan(memory[:, 0:1]), estimate, memory[:, 0:6])
-        fused = (stamp != memory[:, 15]) & (stamp != NO_SAMPLE_STAMP)
-        odometry, velocity_step = kernels.odometry_step(
+        fused = fresh(stamp, memory[:, 15])
+        odometry, velocity_step = odometry_kernel.odometry_step(
             memory[:, 9:15], estimate, previous, memory[:, 6:9], fused, ONBOARD_PERIOD
         )
         memory[:, 0:6], memory[:, 6:9], memory[:, 9:15], memory[:, 15] = (
@@ -205,8 +206,10 @@ class GpsDelayCompensator(LeafSystem):
         if stamped.any():
             rows = np.flatnonzero(stamped)
             memory = context.get_discrete_state(self._memory).value().reshape(n, 16)[rows]
-            now = kernels.predicted_odometry(memory[:, 9:15], memory[:, 3:6], memory[:, 6:9], ONBOARD_PERIOD)
+            now = odometry_kernel.predicted_odometry(
+                memory[:, 9:15], memory[:, 3:6], memory[:, 6:9], ONBOARD_PERIOD
+            )
             slots = np.rint(sample[rows, 6] / ONBOARD_PERIOD).astype(int) % self._capacity
             history = context.get_discrete_state(self._history).value().reshape(n, self._capacity, -1)
-            out[rows] = kernels.compensated_gps(sample[rows], history[rows, slots], now)
+            out[rows] = odometry_kernel.compensated_gps(sample[rows], history[rows, slots], now)
         output.get_mutable_value()[:] = out.ravel()
