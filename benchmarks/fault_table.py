@@ -73,6 +73,22 @@ ROWS = (
     Row("17_imu_bias", "EKF7", (EKF7,)),
     Row("18_imu_dropout", "ESKF (bundled)"),
     Row("18_imu_dropout", "EKF7", (EKF7,)),
+    Row("23_gps_outage_baro", "ESKF + barometer (bundled, 10 s outage)"),
+    Row("23_gps_outage_baro", "ESKF, no barometer", ("vehicles.0.sensors.baro=null",)),
+    Row("24_mag3_disturbance", "ESKF, 3-axis field, 5σ gate (bundled)"),
+    Row("24_mag3_disturbance", "ESKF, field gate off", ("vehicles.0.estimator.mag_field.gate_sigma=0",)),
+    Row(
+        "24_mag3_disturbance",
+        "ESKF, hard iron not calibrated",
+        ("vehicles.0.estimator.mag_field.hard_iron=[0, 0, 0]",),
+    ),
+    Row("25_baro_step", "EKF7, baro gate + bias reset (bundled)"),
+    Row("25_baro_step", "EKF7, baro gate off", ("vehicles.0.ekf.baro.gate_sigma=0",)),
+    Row(
+        "25_baro_step",
+        "ESKF, baro gate + bias reset",
+        ("vehicles.0.estimator={kind: eskf, estimate_biases: false}",),
+    ),
 )
 """Per fault scenario: the bundled mitigation, then without it, then (where the bundled one
 is not the only estimator that copes) the other estimator with the same mitigation."""

@@ -21,7 +21,7 @@ from pydrake.common.yaml import yaml_dump, yaml_dump_typed, yaml_load_typed
 
 from .config_fields import noise_stds, number, vector
 from .conventions import ONBOARD_PERIOD
-from .estimation.registry import Ekf7EstimatorConfig, EstimatorConfig, GateParams, kind_of
+from .estimation.registry import AidingParams, Ekf7EstimatorConfig, EstimatorConfig, GateParams, kind_of
 from .fidelity import FIDELITY_MODES, fidelity_from_mode
 
 PACKAGE_DIR = Path(__file__).resolve().parent
@@ -160,9 +160,37 @@ class GpsParams:
 
 @dataclass
 class MagParams:
-    yaw_std: float = number(0.1, nonnegative=True, noise_std=True)  # rad per sample
+    """Magnetometer truth. Default: the reference's yaw magnetometer, yaw(q_NB) + yaw_std * n.
+    With ``three_axis`` the body-frame field m_B = R_NB^T m_N + hard_iron + field_std * n (gauss,
+    FRD) of the world field m_N of strength, declination and inclination
+    (``sensor_models.world_field``, NED)."""
+
+    yaw_std: float = number(0.1, nonnegative=True, noise_std=True)  # rad per sample (yaw model)
     period: float = number(0.01, tick_multiple=1)  # s, a multiple of the 2 ms onboard tick
     first_sample_time: float = number(0.008, tick_multiple=0)  # s (reference: tick 4)
+    three_axis: bool = False  # true: sample the 3-axis field (gauss) instead of the yaw
+    field_strength: float = number(0.5, positive=True)  # gauss, |m_N|
+    declination: float = number(0.0, minimum=-math.pi, maximum=math.pi)  # rad, field east of true north
+    inclination: float = number(1.1, minimum=-math.pi / 2, maximum=math.pi / 2)  # rad, field below horizontal
+    hard_iron: List[float] = vector(0.0, 0.0, 0.0)  # gauss, constant offset in body FRD
+    field_std: List[float] = noise_stds(0.005, 0.005, 0.005)  # gauss per sample, body x y z
+
+
+@dataclass
+class BaroParams:
+    """Barometer truth (``sensor_models.baro_measurement``): pressure altitude above the datum
+    z_N = 0, h = -z_N + bias + height_std * n (m), sampled at t = k * period, k >= 1. The bias
+    starts at ``bias`` and takes a random-walk step of ``bias_walk_std`` before every sample.
+    Below ``ground_effect_height`` m above the floor the rotor wash adds an error growing linearly
+    to ``ground_effect_error`` m on the floor (a negative value reads low, as rotor downwash raises
+    the static pressure); ground_effect_height = 0 turns it off."""
+
+    height_std: float = number(0.1, nonnegative=True, noise_std=True)  # m per sample, white noise
+    bias: float = number(0.0)  # m, the bias at t = 0
+    bias_walk_std: float = number(0.001, nonnegative=True, noise_std=True)  # m per sample, bias increment
+    period: float = number(0.02, tick_multiple=1)  # s, a multiple of the 2 ms tick; first at t = period
+    ground_effect_height: float = number(0.0, nonnegative=True)  # m above the floor, 0 = no ground effect
+    ground_effect_error: float = number(0.0)  # m, error on the floor, fading to 0 at ground_effect_height
 
 
 @dataclass
@@ -172,6 +200,7 @@ class SensorsConfig:
     imu: Optional[ImuParams] = None
     gps: Optional[GpsParams] = None
     mag: Optional[MagParams] = None
+    baro: Optional[BaroParams] = None
 
 
 ATTITUDE_FILTER_VARIANTS = ("nonlinear", "small_angle")
@@ -186,7 +215,7 @@ class AttitudeFilterParams:
 
 
 @dataclass
-class EkfParams(GateParams):
+class EkfParams(AidingParams, GateParams):
     """What the 7-state EKF assumes (SPEC §4); independent of the sensor truth."""
 
     init_state: List[float] = vector(0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0)  # m, m/s, rad
@@ -211,7 +240,18 @@ class EkfParams(GateParams):
     dt_imu: float = number(0.002, positive=True, maximum=1.0)  # s, scales Q (a step, not a flight)
 
 
-FAULT_KINDS = ("gps_outage", "gps_outlier", "gps_step", "gps_delay", "mag_bias", "mag_outage", "imu_dropout")
+FAULT_KINDS = (
+    "gps_outage",
+    "gps_outlier",
+    "gps_step",
+    "gps_delay",
+    "mag_bias",
+    "mag_outage",
+    "mag_disturbance",
+    "imu_dropout",
+    "baro_outage",
+    "baro_step",
+)
 
 
 @dataclass
@@ -223,7 +263,11 @@ class FaultConfig:
     gps_outlier: the first GPS sample at or after ``time`` is shifted by ``offset`` (3, m, NED).
     gps_step: every GPS position sample in [start, end) is shifted by ``offset`` (3, m, NED).
     gps_delay: every GPS sample reaches the estimators ``delay`` s late, keeping its stamp.
-    mag_bias: ``offset`` (1, rad) added to every magnetometer yaw in [start, end).
+    mag_bias: ``offset`` (1, rad) added to every magnetometer yaw in [start, end) (yaw model).
+    mag_disturbance: ``offset`` (3, gauss, body FRD) added to every 3-axis field sample in
+    [start, end) (``three_axis``; a magnetic disturbance near the vehicle).
+    baro_outage: no barometer samples in [start, end).
+    baro_step: ``offset`` (1, m) added to every barometer height in [start, end).
     imu_dropout: every IMU sample in [start, end) is non-finite (NaN).
     """
 
@@ -231,7 +275,8 @@ class FaultConfig:
     start: float = number(0.0, nonnegative=True)  # s
     end: float = number(0.0, nonnegative=True)  # s
     time: float = number(0.0, nonnegative=True)  # s, gps_outlier
-    offset: List[float] = field(default_factory=list)  # m (gps_outlier, gps_step: 3) or rad (mag_bias: 1)
+    # m (gps_outlier, gps_step: 3; baro_step: 1), rad (mag_bias: 1) or gauss (mag_disturbance: 3)
+    offset: List[float] = field(default_factory=list)
     delay: float = number(0.0, nonnegative=True)  # s, gps_delay
 
 
@@ -593,6 +638,12 @@ def _check_semantics(scenario):
             if not (v.sensors.imu and v.sensors.gps and v.sensors.mag):
                 raise ConfigError(f"vehicles.{i}.flies_on: estimate needs imu, gps and mag sensors")
         kind = kind_of(v.estimator)
+        three_axis = v.sensors.mag is not None and v.sensors.mag.three_axis
+        if three_axis and kind.builder and not kind.three_axis_nis:
+            raise ConfigError(
+                f"vehicles.{i}.sensors.mag.three_axis: estimator kind {kind.name!r} takes the yaw "
+                "magnetometer only (ekf7 and eskf fuse a 3-axis one)"
+            )
         problem = kind.fidelity_problem(fidelity_from_mode(scenario.fidelity)) or kind.problem(v.estimator)
         if problem:
             raise ConfigError(f"vehicles.{i}.estimator: {problem}")
@@ -633,9 +684,20 @@ def _check_air(vehicle, fidelity, where):
         )
 
 
-FAULT_OFFSET_LENGTHS = {"gps_outlier": 3, "gps_step": 3, "mag_bias": 1}
+FAULT_OFFSET_LENGTHS = {"gps_outlier": 3, "gps_step": 3, "mag_bias": 1, "mag_disturbance": 3, "baro_step": 1}
 """Number of ``offset`` values each fault kind takes (the others take none)."""
-WINDOW_FAULT_KINDS = ("gps_outage", "gps_step", "mag_bias", "mag_outage", "imu_dropout")
+WINDOW_FAULT_KINDS = (
+    "gps_outage",
+    "gps_step",
+    "mag_bias",
+    "mag_outage",
+    "mag_disturbance",
+    "imu_dropout",
+    "baro_outage",
+    "baro_step",
+)
+MAG_MODEL_FAULTS = {"mag_bias": False, "mag_disturbance": True}
+"""The magnetometer faults that need one model: False the yaw model, True ``three_axis``."""
 
 
 def _check_fault(fault, sensors, where):
@@ -643,6 +705,9 @@ def _check_fault(fault, sensors, where):
     sensor = fault.kind.split("_")[0]
     if getattr(sensors, sensor) is None:
         raise ConfigError(f"{where}.kind: {fault.kind} needs a {sensor} sensor on the vehicle")
+    if fault.kind in MAG_MODEL_FAULTS and sensors.mag.three_axis != MAG_MODEL_FAULTS[fault.kind]:
+        model = "a 3-axis (three_axis: true)" if MAG_MODEL_FAULTS[fault.kind] else "a yaw (three_axis: false)"
+        raise ConfigError(f"{where}.kind: {fault.kind} needs {model} magnetometer")
     if fault.kind in WINDOW_FAULT_KINDS and not fault.end > fault.start:
         raise ConfigError(f"{where}.end: must be > start ({fault.start}), got {fault.end}")
     expected = FAULT_OFFSET_LENGTHS.get(fault.kind, 0)

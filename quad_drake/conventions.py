@@ -70,3 +70,9 @@ EKF_STATE_SIZE = 7
 NUM_MOTORS = 4
 
 SQRT2 = math.sqrt(2.0)
+
+# ----- aiding sensors (issue 32) ----------------------------------------------
+# `mag` of a 3-axis magnetometer (MagParams.three_axis) (4): m_B (3, gauss, body FRD), stamp (s)
+MAG_FIELD_SIZE = 4
+# `baro` (2): pressure height (m, up, above the datum z_N = 0), stamp (s, -1 = none yet)
+BARO_SIZE = 2

@@ -1,7 +1,8 @@
 """Pure sensor faults: what a configured fault does to one sensor sample at its measurement time.
 
 A sample is a list of floats in its sensor's layout (``conventions``): ``gps`` (7: p_N m,
-v_N m/s, stamp s), ``mag`` (2: yaw rad, stamp s), ``imu`` (6: f_B m/s^2, w_NB_B rad/s).
+v_N m/s, stamp s), ``mag`` (2: yaw rad, stamp s; a 3-axis one 4: m_B gauss FRD, stamp s),
+``imu`` (6: f_B m/s^2, w_NB_B rad/s), ``baro`` (2: height m up, stamp s).
 The measurement time is the sample's stamp (GPS, magnetometer) or its nominal sampling time
 (IMU). Every fault is a function ``(sample, time, fault, period) -> sample`` of one sample;
 they compose by applying a vehicle's faults of one sensor in list order
@@ -27,8 +28,8 @@ from quad_drake.rotations import wrap_to_pi
 TIME_TOLERANCE = 1e-9
 """s; a measurement time within this of a window bound counts as equal to it."""
 
-SENSORS = ("imu", "gps", "mag")
-STAMPED = {"imu": False, "gps": True, "mag": True}
+SENSORS = ("imu", "gps", "mag", "baro")
+STAMPED = {"imu": False, "gps": True, "mag": True, "baro": True}
 """Whether a sensor's sample carries its stamp as its last entry."""
 
 
@@ -85,6 +86,23 @@ def mag_outage(sample, time, fault, period):
     return removed(sample) if in_window(time, fault.start, fault.end) else sample
 
 
+def mag_disturbance(sample, time, fault, period):
+    """3-axis magnetometer fields measured in [start, end) shifted by ``fault.offset`` (3, gauss,
+    body FRD): a magnetic disturbance near the vehicle."""
+    return shifted(sample, fault.offset) if in_window(time, fault.start, fault.end) else sample
+
+
+def baro_outage(sample, time, fault, period):
+    """No barometer sample measured in [start, end)."""
+    return removed(sample) if in_window(time, fault.start, fault.end) else sample
+
+
+def baro_step(sample, time, fault, period):
+    """Barometer heights measured in [start, end) shifted by ``fault.offset[0]`` m (e.g. a
+    pressure change: weather, a door, a gust on the static port)."""
+    return shifted(sample, fault.offset) if in_window(time, fault.start, fault.end) else sample
+
+
 def imu_dropout(sample, time, fault, period):
     """Every IMU sample measured in [start, end) non-finite (NaN)."""
     return removed(sample, stamped=False) if in_window(time, fault.start, fault.end) else sample
@@ -96,7 +114,10 @@ SAMPLE_FAULTS = {
     "gps_step": gps_step,
     "mag_bias": mag_bias,
     "mag_outage": mag_outage,
+    "mag_disturbance": mag_disturbance,
     "imu_dropout": imu_dropout,
+    "baro_outage": baro_outage,
+    "baro_step": baro_step,
 }
 """The faults that are functions of one sample, by kind."""
 

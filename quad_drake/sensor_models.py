@@ -196,3 +196,58 @@ def magnetometer_yaw(q_NB, noise, params, fidelity=PHYSICAL):
     if fidelity.float32_estimator:
         return to_float32(yaw)
     return yaw
+
+
+def baro_ground_effect(z_NB, params, floor_z=0.0):
+    """Ground-effect error of a barometer (m): ``ground_effect_error`` on the floor, fading
+    linearly to 0 at ``ground_effect_height`` m above it, 0 higher up or when the height is 0.
+
+    z_NB: the vehicle's z (m, NED, down); floor_z: the floor's z (m, NED); params: BaroParams.
+    Plain arithmetic on floats or arrays (a fleet's column).
+    """
+    if params.ground_effect_height <= 0.0:
+        return 0.0 * z_NB
+    above = np.maximum(floor_z - z_NB, 0.0)  # m above the floor
+    return params.ground_effect_error * np.maximum(1.0 - above / params.ground_effect_height, 0.0)
+
+
+def baro_measurement(z_NB, bias, noise, params, floor_z=0.0):
+    """Noisy barometer sample: (height (m), new bias (m)).
+
+    The bias first takes its random-walk step, bias += bias_walk_std * n_walk, then
+    height = -z_NB + bias + ground effect (:func:`baro_ground_effect`) + height_std * n_height:
+    the pressure altitude above the datum z_N = 0 (m, up). z_NB: the vehicle's z (m, NED);
+    noise: 2 unit-normal draws (walk, height); params: BaroParams; floor_z: the floor's z (m,
+    NED). Floats, or (N,) arrays of a fleet's columns.
+    """
+    bias = bias + params.bias_walk_std * noise[0]
+    ground = baro_ground_effect(z_NB, params, floor_z)
+    return -z_NB + bias + ground + params.height_std * noise[1], bias
+
+
+def world_field(strength, declination, inclination):
+    """The world magnetic field m_N (3-tuple, gauss, NED): strength (gauss), declination (rad,
+    east of true north), inclination (rad, below the horizontal, positive in the northern
+    hemisphere): strength (cos I cos D, cos I sin D, sin I)."""
+    horizontal = strength * float(np.cos(inclination))
+    return (
+        horizontal * float(np.cos(declination)),
+        horizontal * float(np.sin(declination)),
+        strength * float(np.sin(inclination)),
+    )
+
+
+def magnetometer_field(q_NB, m_N, hard_iron, noise, field_std):
+    """Noisy 3-axis magnetometer sample m_B = R_NB^T m_N + hard_iron + field_std * noise (3-tuple,
+    gauss, body FRD).
+
+    q_NB: wxyz quaternion (any non-zero norm); m_N: the world field (3, gauss, NED;
+    :func:`world_field`); hard_iron: (3, gauss, body) offset; noise: 3 unit-normal draws;
+    field_std: (3, gauss) per sample. Plain arithmetic (``kernels.sensors`` compiles it).
+    """
+    b = _rotate_to_body(q_NB, m_N[0], m_N[1], m_N[2])
+    return (
+        b[0] + hard_iron[0] + field_std[0] * noise[0],
+        b[1] + hard_iron[1] + field_std[1] * noise[1],
+        b[2] + hard_iron[2] + field_std[2] * noise[2],
+    )

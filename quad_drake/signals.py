@@ -1,7 +1,10 @@
 """Pure: the reference simulator's named signals (``Quad.Pos.X``, ``Quad.Est.E.Yaw`` …)
 derived from one vehicle's logged arrays.
 
-Besides the reference's names, the truth of the flight (safety criteria, ``quad_drake.safety``):
+Besides the reference's names, the aiding sensors' samples (issue 32): ``Baro.Height`` (m, up,
+fresh on each barometer sample) and, for a 3-axis magnetometer in place of ``MagYaw``,
+``Mag.X``, ``Mag.Y``, ``Mag.Z`` (gauss, body FRD); and the truth of the flight (safety
+criteria, ``quad_drake.safety``):
 ``StateFinite`` (1 while all 13 state entries are finite), ``FloorContact`` (1 while on the
 floor), ``FloorTouchdowns`` (touchdowns so far, after take-off), ``TouchdownSpeed`` (each touchdown's
 descent speed, m/s, at the sample that counts it: a landing or a crash) and ``WallContactSteps``
@@ -30,9 +33,12 @@ Estimator signals come from the logs every estimator exports (``estimated_state`
   diagonal) for every error-state entry the vocabulary names (EKF7: X Y Z VX VY VZ Yaw;
   ESKF: X Y Z VX VY VZ AttN AttE AttD [BAX BAY BAZ BGX BGY BGZ]); ``Est.<name>`` for its
   extra values (ESKF: the bias estimates BAX ... BGZ);
-- ``Est.GpsNIS`` (fresh on each GPS sample) and ``Est.MagNIS``, and the counters
-  ``Est.NonFinite``, ``Est.GpsGated``, ``Est.MagGated``, ``Est.GpsResets``,
-  ``Est.CovRepairs`` (cumulative counts).
+- ``Est.GpsNIS`` (fresh on each GPS sample), ``Est.MagNIS`` (the yaw, or the EKF7's
+  tilt-compensated heading), ``Est.BaroNIS`` and ``Est.FieldNIS`` (the ESKF's 3-axis field), and
+  the counters ``Est.NonFinite``, ``Est.GpsGated``, ``Est.MagGated``, ``Est.GpsResets``,
+  ``Est.CovRepairs``, ``Est.BaroGated``, ``Est.BaroResets`` (cumulative counts); ``Est.BaroBias``
+  and ``Est.BaroBiasStd`` (m, the baro bias estimate and its standard deviation, NaN without a
+  barometer).
 """
 
 import functools
@@ -64,13 +70,15 @@ def key_unit(key):
         return "m/s^2"
     if key.startswith("Thrust."):
         return "N"
+    if key.startswith("Mag."):
+        return "gauss"
     if key.startswith("Est.") and last in STATE_UNITS:
         return STATE_UNITS[last]
     if last in ("Roll", "Pitch", "Yaw", "MagYaw", "MaxEuler"):
         return "rad"
     if key.startswith("Vel.") or last in ("VX", "VY", "VZ", "Vel"):
         return "m/s"
-    if last in ("X", "Y", "Z", "Pos", "PosFollowErr"):
+    if last in ("X", "Y", "Z", "Pos", "PosFollowErr", "Height", "BaroBias", "BaroBiasStd"):
         return "m"
     return ""
 
@@ -90,6 +98,7 @@ LOG_WIDTHS = {
     "imu": 6,
     "gps": 7,
     "mag": 2,
+    "baro": 2,
     "wind": 3,
     "imu_saturation": 2,
 }
@@ -100,6 +109,8 @@ COUNTER_SIGNALS = {
     "mag_gated": "MagGated",
     "gps_resets": "GpsResets",
     "covariance_repairs": "CovRepairs",
+    "baro_gated": "BaroGated",
+    "baro_resets": "BaroResets",
 }
 
 
@@ -222,7 +233,16 @@ def vehicle_signals(name, logs, vocabulary=None):
         for i, key in enumerate(("X", "Y", "Z", "VX", "VY", "VZ")):
             put(f"GPS.{key}", lambda i=i: gps[..., i], gps_fresh)
     if "mag" in logs:
-        put("MagYaw", lambda: logs["mag"][..., 0], lambda: stamp_fresh(logs["mag"][..., 1]))
+        mag = logs["mag"]
+        mag_fresh = functools.cache(lambda: stamp_fresh(mag[..., -1]))
+        if mag.shape[-1] == 2:  # the yaw magnetometer
+            put("MagYaw", lambda: mag[..., 0], mag_fresh)
+        else:  # 3-axis: the body-frame field, gauss
+            for i, axis in enumerate(AXES):
+                put(f"Mag.{axis}", lambda i=i: mag[..., i], mag_fresh)
+    if "baro" in logs:
+        baro = logs["baro"]
+        put("Baro.Height", lambda: baro[..., 0], functools.cache(lambda: stamp_fresh(baro[..., 1])))
     if vocabulary is not None and "estimated_state" in logs:
         _estimator_signals(put, logs, vocabulary, truth[..., P_SLICE], truth[..., V_SLICE], euler_truth)
     return Signals(makers)
@@ -263,6 +283,8 @@ def _estimator_signals(put, logs, vocabulary, p, v, euler):
         )
     for counter, key in COUNTER_SIGNALS.items():
         put(f"Est.{key}", lambda counter=counter: diagnostics[..., DIAG[counter]])
+    put("Est.BaroBias", lambda: diagnostics[..., DIAG["baro_bias"]])  # m; NaN without a barometer
+    put("Est.BaroBiasStd", lambda: diagnostics[..., DIAG["baro_bias_std"]])
 
 
 def touchdown_speeds(touchdowns, vz):

@@ -30,7 +30,7 @@ from . import jit
 from .config import check_scenario
 from .error_sampling import TICK_LOG_WIDTHS, TICK_REFERENCE, TICK_STATE
 from .estimation.registry import flies_on_estimate, vehicle_vocabulary
-from .faults import sensor_of
+from .faults import SENSORS, sensor_of
 from .fidelity import PHYSICAL, fidelity_from_mode
 from .limits import check_run
 from .results import result_from_logs
@@ -41,7 +41,7 @@ from .systems.estimators import build_estimator
 from .systems.faults import GpsDelayCompensator, SensorFaults
 from .systems.noise import NoiseStreamSource
 from .systems.plant import QuadrotorPlant
-from .systems.sensors import Gps, Imu, Magnetometer
+from .systems.sensors import Barometer, Gps, Imu, Magnetometer
 from .systems.trajectory import TrajectorySource
 from .systems.wind import Wind
 from .trajectories import trajectory_from_config
@@ -69,7 +69,7 @@ def vehicle_log_widths(vehicle, fidelity=PHYSICAL):
     if fidelity.errors_at_onboard_tick:
         widths.update(TICK_LOG_WIDTHS)
     sensors = vehicle.sensors
-    widths.update({s: LOG_WIDTHS[s] for s in ("imu", "gps", "mag") if getattr(sensors, s) is not None})
+    widths.update({s: sensor_width(sensors, s) for s in SENSORS if getattr(sensors, s) is not None})
     if vehicle.wind is not None:
         widths["wind"] = LOG_WIDTHS["wind"]
     if sensors.imu is not None and (sensors.imu.delta_velocity or sensors.imu.gyro_limit > 0):
@@ -78,6 +78,14 @@ def vehicle_log_widths(vehicle, fidelity=PHYSICAL):
     if vocabulary is not None:
         widths.update(vocabulary.log_widths())
     return widths
+
+
+def sensor_width(sensors, sensor):
+    """Width of one sample of `sensor` ("imu", "gps", "mag", "baro") of a SensorsConfig: its log's
+    and its port's (a 3-axis magnetometer's is MAG_FIELD_SIZE)."""
+    if sensor == "mag" and sensors.mag is not None and sensors.mag.three_axis:
+        return c.MAG_FIELD_SIZE
+    return LOG_WIDTHS[sensor]
 
 
 def vehicle_log_names(vehicle, fidelity=PHYSICAL):
@@ -134,7 +142,7 @@ def sensor_schedule(vehicle, sensor):
     if sensor == "imu":
         return c.ONBOARD_PERIOD, c.SENSOR_OFFSET
     params = getattr(vehicle.sensors, sensor)
-    first = params.period if sensor == "gps" else params.first_sample_time
+    first = params.period if sensor in ("gps", "baro") else params.first_sample_time
     return params.period, first + c.SLOW_SENSOR_OFFSET
 
 
@@ -153,15 +161,17 @@ def _add_faults(builder, vehicle, outputs, n):
 
 def _add_estimator(builder, vehicle, fidelity, outputs, seeds):
     """Add the estimator of the vehicle's n copies (``build_estimator``; n = 1 without run seeds)
-    fed by the sensors in `outputs` (a missing GPS or magnetometer never samples), with the GPS
+    fed by the sensors in `outputs` that it has inputs for (a missing GPS or magnetometer never
+    samples; a barometer feeds an estimator that fuses it, ``systems/aiding.py``), with the GPS
     delay compensation when configured; its log signals go into `outputs`."""
     n = 1 if seeds is None else len(seeds)
     estimator = builder.AddSystem(build_estimator(vehicle, fidelity, n=n))
     for name in vehicle_vocabulary(vehicle).log_widths():
         outputs[name] = estimator.GetOutputPort(name)
+    kinds = [kind for kind in ("imu", "gps", "mag", "baro") if estimator.HasInputPort(kind)]
     inputs = {
-        kind: outputs.get(kind) or _never_sampled(builder, size, n)
-        for kind, size in (("imu", c.IMU_SIZE), ("gps", c.GPS_SIZE), ("mag", c.MAG_SIZE))
+        kind: outputs.get(kind) or _never_sampled(builder, estimator.GetInputPort(kind).size() // n, n)
+        for kind in kinds
     }
     if vehicle.gps_delay_compensation > 0:
         max_lag = vehicle.gps_delay_compensation
@@ -241,6 +251,10 @@ def build_vehicle(vehicle, fidelity=PHYSICAL, *, seeds=None):
             sensor = add(kind, sensor_class(params, fidelity, n), ("noise", kind))
             builder.Connect(plant.GetOutputPort("state"), sensor.GetInputPort("state"))
             outputs[kind] = sensor.GetOutputPort(kind)
+    if sensors.baro is not None:
+        baro = add("baro", Barometer(sensors.baro, vehicle.physics.z_bounds[1], n), ("noise", "baro"))
+        builder.Connect(plant.GetOutputPort("state"), baro.GetInputPort("state"))
+        outputs["baro"] = baro.GetOutputPort("baro")
     _add_faults(builder, vehicle, outputs, n)
 
     state_for_control = plant.GetOutputPort("state")

@@ -17,7 +17,7 @@ def test_list_names_every_scenario_with_a_description():
     result = cli("list")
     assert result.returncode == 0
     lines = result.stdout.strip().splitlines()
-    assert len(lines) == 24  # 01-11, 11_gps_update_eskf, the fault scenarios 12-18, the air 19-22 (+ eskf)
+    assert len(lines) == 27  # 01-11, 11_gps_update_eskf, faults 12-18, the air 19-22 (+ eskf), aiding 23-25
     assert lines[0].startswith("01_intro") and "hover" in lines[0].lower()
 
 

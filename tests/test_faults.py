@@ -66,6 +66,25 @@ def test_mag_outage_removes_magnetometer_samples_in_its_window():
     assert faults.mag_outage([0.3, 2.0], 2.0, fault, 0.01) == [0.3, 2.0]
 
 
+def test_mag_disturbance_shifts_the_three_axis_field_over_its_window():
+    fault = FaultConfig(kind="mag_disturbance", start=1.0, end=2.0, offset=[0.1, -0.2, 0.3])
+    sample = [0.2, 0.0, 0.45, 1.5]
+    assert faults.mag_disturbance(sample, 1.5, fault, 0.01) == pytest.approx(
+        [0.3, -0.2, 0.75, 1.5], abs=1e-12
+    )
+    assert faults.mag_disturbance([0.2, 0.0, 0.45, 2.0], 2.0, fault, 0.01) == [0.2, 0.0, 0.45, 2.0]
+
+
+def test_baro_outage_and_step_act_on_the_height_in_their_window():
+    outage = FaultConfig(kind="baro_outage", start=1.0, end=2.0)
+    assert is_removed(faults.baro_outage([1.2, 1.0], 1.0, outage, 0.02))
+    assert faults.baro_outage([1.2, 2.0], 2.0, outage, 0.02) == [1.2, 2.0]
+    step = FaultConfig(kind="baro_step", start=1.0, end=2.0, offset=[-3.0])
+    assert faults.baro_step([1.2, 1.98], 1.98, step, 0.02) == pytest.approx([-1.8, 1.98], abs=1e-12)
+    assert faults.baro_step([1.2, 0.98], 0.98, step, 0.02) == [1.2, 0.98]
+    assert faults.sensor_of("baro_step") == "baro" and faults.STAMPED["baro"]
+
+
 def test_imu_dropout_gives_non_finite_samples_in_its_window():
     fault = FaultConfig(kind="imu_dropout", start=1.0, end=1.2)
     sample = [0.1, 0.2, -9.8, 0.01, 0.02, 0.03]

@@ -7,7 +7,7 @@ import numpy as np
 
 from .. import consistency as cons
 from ..accuracy_bound import posterior_crb
-from ..estimation.registry import vehicle_vocabulary
+from ..estimation.registry import nis_sensors, vehicle_vocabulary
 from ..estimation.vocabulary import health_counts
 from ..evaluation import max_abs, rms
 from ..signals import stamp_fresh
@@ -153,9 +153,8 @@ def summarize_run(result, index):
             nees[vehicle], nse[vehicle] = consistency_series(
                 vocabulary, logs, vehicle_errors(result.signals, vehicle, vocabulary)
             )
-            for sensor in cons.NIS_DOF:
-                if sensor in logs:
-                    nis[(vehicle, sensor)] = cons.fresh_nis(logs["diagnostics"], sensor)
+            for sensor in nis_sensors(configs[vehicle]):
+                nis[(vehicle, sensor)] = cons.fresh_nis(logs["diagnostics"], sensor)
             counters[vehicle] = health_counts(logs["diagnostics"])
             if "gps" in logs and settled.any():
                 bound = _posterior_crb(logs, configs[vehicle].sensors)

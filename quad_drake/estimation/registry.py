@@ -35,6 +35,8 @@ from typing import Dict, List, Optional, Union
 from quad_drake.config_fields import noise_stds, number, vector
 from quad_drake.conventions import ONBOARD_PERIOD
 from quad_drake.estimation import custom
+from quad_drake.estimation.baro import BaroFusionParams
+from quad_drake.estimation.mag3 import MagFieldFusionParams
 from quad_drake.estimation.vocabulary import EKF7, ESKF9, ESKF15, EstimatorVocabulary, euler_vocabulary
 from quad_drake.fidelity import Fidelity
 
@@ -56,6 +58,17 @@ class GateParams:
 
 
 @dataclass
+class AidingParams:
+    """What an estimator assumes of the aiding sensors (issue 32), each fused only when the vehicle
+    carries it: a barometer (``sensors.baro``; ``estimation/baro.py``) and a 3-axis magnetometer
+    (``sensors.mag.three_axis``; ``estimation/mag3.py``). The EKF7's ``ekf:`` block and the ESKF's
+    config hold them."""
+
+    baro: BaroFusionParams = field(default_factory=BaroFusionParams)
+    mag_field: MagFieldFusionParams = field(default_factory=MagFieldFusionParams)
+
+
+@dataclass
 class Ekf7EstimatorConfig:
     """The reference's estimator: complementary filter + 7-state EKF.
 
@@ -67,7 +80,7 @@ class Ekf7EstimatorConfig:
 
 
 @dataclass
-class EskfEstimatorConfig(GateParams):
+class EskfEstimatorConfig(AidingParams, GateParams):
     """Error-state EKF (``estimation/eskf.py``): what it assumes, independent of the sensor truth."""
 
     kind: str = field(default="eskf", metadata={"choices": ("eskf",)})
@@ -128,6 +141,11 @@ class EstimatorKind:
     fidelity_problem: Callable[[Fidelity], Optional[str]]
     problem: Callable[[object], Optional[str]] = _no_problem
     locate: Callable[[object, object], object] = _as_is
+    # the aiding sensors (issue 32): whether it fuses a barometer, and the NIS it logs for a
+    # 3-axis magnetometer ("mag": the EKF7's tilt-compensated heading, "field": the ESKF's vector;
+    # None: it cannot take one)
+    fuses_baro: bool = False
+    three_axis_nis: Optional[str] = None
 
     def build_function(self) -> Callable:
         """The function named by ``builder``, imported."""
@@ -214,6 +232,8 @@ KINDS = {
             builder="quad_drake.systems.estimators:add_ekf7",
             tuning_keys=lambda config: _EKF7_TUNING,
             fidelity_problem=_any_fidelity,
+            fuses_baro=True,
+            three_axis_nis="mag",
         ),
         EstimatorKind(
             name="eskf",
@@ -222,6 +242,8 @@ KINDS = {
             builder="quad_drake.systems.estimators:add_eskf",
             tuning_keys=_eskf_tuning,
             fidelity_problem=_physical_accelerometer_only,
+            fuses_baro=True,
+            three_axis_nis="field",
         ),
         EstimatorKind(
             name="custom",
@@ -269,3 +291,19 @@ def flies_on_estimate(vehicle) -> bool:
     """True when the vehicle's controller flies on an estimator's estimate (``flies_on:
     estimate`` and an estimator runs), False when on the true state."""
     return vehicle.flies_on == "estimate" and vehicle_vocabulary(vehicle) is not None
+
+
+def nis_sensors(vehicle) -> tuple:
+    """The NIS a VehicleConfig's estimator logs (keys of ``vocabulary.NIS_DOF``): "gps" with a GPS,
+    "mag" with a yaw magnetometer (or the EKF7's heading of a 3-axis one), "field" (the ESKF's
+    3-axis field), "baro" with a barometer it fuses; () when no estimator runs."""
+    if vehicle_vocabulary(vehicle) is None:
+        return ()
+    kind, sensors, names = kind_of(vehicle.estimator), vehicle.sensors, []
+    if sensors.gps is not None:
+        names.append("gps")
+    if sensors.mag is not None:
+        names.append(kind.three_axis_nis if sensors.mag.three_axis else "mag")
+    if sensors.baro is not None and kind.fuses_baro:
+        names.append("baro")
+    return tuple(name for name in names if name is not None)

@@ -38,14 +38,43 @@ DIAGNOSTICS = (
     "mag_gated",  # count of magnetometer samples rejected by the innovation gate
     "gps_resets",  # count of resets to the GPS after continuous rejection
     "covariance_repairs",  # count of covariance repairs (indefinite) or resets (non-finite)
+    # the aiding sensors (issue 32; NaN NIS and -1 stamps without them): estimation/baro.py, mag3.py
+    "baro_nis",  # NIS of the last fresh barometer height (1 dof)
+    "baro_stamp",  # s
+    "field_nis",  # NIS of the last fresh 3-axis magnetometer field (ESKF, 3 dof)
+    "field_stamp",  # s
+    "baro_gated",  # count of barometer samples rejected by the innovation gate
+    "baro_resets",  # count of baro bias resets after continuous rejection
+    "baro_bias",  # m, the baro bias estimate (the scalar filter beside the estimator)
+    "baro_bias_std",  # m, its standard deviation
 )
 """Names of the ``diagnostics`` entries, common to every estimator."""
 DIAGNOSTICS_SIZE = len(DIAGNOSTICS)
 DIAG = {name: i for i, name in enumerate(DIAGNOSTICS)}
-COUNTERS = ("nonfinite_samples", "gps_gated", "mag_gated", "gps_resets", "covariance_repairs")
-NIS_DOF = {"gps": 6, "mag": 1}
-"""Degrees of freedom of each sensor's NIS (GPS p and v, magnetometer yaw)."""
-NIS_COLUMNS = {"gps": (DIAG["gps_nis"], DIAG["gps_stamp"]), "mag": (DIAG["mag_nis"], DIAG["mag_stamp"])}
+COUNTERS = (
+    "nonfinite_samples",
+    "gps_gated",
+    "mag_gated",
+    "gps_resets",
+    "covariance_repairs",
+    "baro_gated",
+    "baro_resets",
+)
+NIS_DOF = {"gps": 6, "mag": 1, "baro": 1, "field": 3}
+"""Degrees of freedom of each sensor's NIS (GPS p and v, magnetometer yaw or the EKF7's
+tilt-compensated heading, barometer height, the ESKF's 3-axis field)."""
+NIS_COLUMNS = {sensor: (DIAG[f"{sensor}_nis"], DIAG[f"{sensor}_stamp"]) for sensor in NIS_DOF}
+
+
+def initial_diagnostics():
+    """One vehicle's ``diagnostics`` before its first update: no NIS (NaN), no stamps (-1),
+    counters 0, no baro bias estimate (NaN)."""
+    values = np.zeros(DIAGNOSTICS_SIZE)
+    for nis_column, stamp_column in NIS_COLUMNS.values():
+        values[nis_column], values[stamp_column] = np.nan, -1.0
+    values[DIAG["baro_bias"]] = values[DIAG["baro_bias_std"]] = np.nan
+    return values
+
 
 STATE_LOG_SIZE = 13
 ESTIMATED_VALUES = ("X", "Y", "Z", "VX", "VY", "VZ", "Roll", "Pitch", "Yaw")
@@ -234,5 +263,7 @@ def health_line(vehicle, kind, counts):
         f"gated, {counts['gps_resets']} GPS resets, {counts['covariance_repairs']} covariance repairs, "
         f"{counts['nonfinite_samples']} non-finite samples skipped"
     )
+    if counts.get("baro_gated", 0) or counts.get("baro_resets", 0):
+        text += f", {counts['baro_gated']} baro samples gated, {counts['baro_resets']} baro bias resets"
     alarm = counts["covariance_repairs"] > 0 or counts["gps_resets"] > 0
     return ("WARNING: " if alarm else "") + text

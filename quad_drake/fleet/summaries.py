@@ -28,7 +28,7 @@ from quad_drake.campaigns.records import (
     settled_mask,
     vehicle_errors,
 )
-from quad_drake.estimation.registry import vehicle_vocabulary
+from quad_drake.estimation.registry import nis_sensors, vehicle_vocabulary
 from quad_drake.estimation.vocabulary import NIS_COLUMNS, health_counts
 from quad_drake.fidelity import fidelity_from_mode
 from quad_drake.fleet.bounds import PcrbStream
@@ -38,8 +38,6 @@ from quad_drake.verdicts import CriteriaStream
 
 CHUNK_SAMPLES = 200
 """Log samples per chunk (1 s of flight)."""
-_NIS_SIGNALS = {"gps": "Est.GpsNIS", "mag": "Est.MagNIS"}
-"""The signal whose fresh mask (``signals.stamp_fresh``) marks a sensor's NIS updates."""
 
 
 def summary_bytes(scenario, runs, chunk=CHUNK_SAMPLES):
@@ -53,7 +51,7 @@ def summary_bytes(scenario, runs, chunk=CHUNK_SAMPLES):
         per_run += 8 * (chunk + 1) * sum(vehicle_log_widths(vehicle, fidelity).values())
         if vehicle_vocabulary(vehicle) is not None:
             per_run += 8 * samples
-            for sensor in ("gps", "mag"):
+            for sensor in ("gps", "mag", "baro"):
                 if getattr(vehicle.sensors, sensor) is not None:
                     period = sensor_schedule(vehicle, sensor)[0]
                     per_run += 16 * min(samples, int(scenario.end_time / period) + 1)
@@ -89,7 +87,7 @@ class _VehicleSums:
         if self.vocabulary is not None:
             self.nees = np.empty((runs, samples))  # run-major: a run's series is a contiguous row
             self.nse_sums = np.zeros((runs, self.vocabulary.size))
-            self.nis = {s: [[] for _ in range(runs)] for s in cons.NIS_DOF if s in log_names}
+            self.nis = {s: [[] for _ in range(runs)] for s in nis_sensors(vehicle)}
             if "gps" in log_names:
                 self.pcrb = PcrbStream(vehicle.sensors, runs)
 
@@ -113,7 +111,7 @@ class _VehicleSums:
         diagnostics = logs["diagnostics"]
         for sensor, per_run in self.nis.items():
             nis_column, stamp_column = NIS_COLUMNS[sensor]
-            fresh = signals[f"{self.name}.{_NIS_SIGNALS[sensor]}"].fresh
+            fresh = signals[f"{self.name}.Est.{sensor.capitalize()}NIS"].fresh
             for j, run in enumerate(per_run):
                 rows = fresh[:, j]
                 if rows.any():

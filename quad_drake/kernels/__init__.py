@@ -10,6 +10,9 @@ the LeafSystems of ``quad_drake.systems`` for one vehicle and for a fleet alike.
 - ``fusion``: what both estimators share: freshness, books, the mag gate, the GPS Joseph update
   and gated policy, covariance health and repair.
 - ``odometry``: the GPS delay compensation's odometry.
+- ``sensors``: the 3-axis magnetometer's samples (compiled) and the barometer's (on the columns).
+- ``aiding``: both estimators' barometer and 3-axis magnetometer fusion (``estimation/baro.py``,
+  ``estimation/mag3.py`` compiled): the gates, the baro bias filter, the field and the heading.
 
 They import the pure modules and numba only (no pydrake, no systems: ``tests/test_packaging.py``);
 no kernel re-types a pure formula: the scalar ones are compiled from their own code, and the

@@ -57,6 +57,10 @@ class PythonEstimator(LeafSystem):
         diagnostics = np.zeros((n, DIAGNOSTICS_SIZE))
         diagnostics[:, [DIAG["gps_nis"], DIAG["mag_nis"]]] = math.nan
         diagnostics[:, [DIAG["gps_stamp"], DIAG["mag_stamp"]]] = NO_SAMPLE_STAMP
+        diagnostics[:, [DIAG["baro_nis"], DIAG["field_nis"], DIAG["baro_bias"], DIAG["baro_bias_std"]]] = (
+            math.nan
+        )
+        diagnostics[:, [DIAG["baro_stamp"], DIAG["field_stamp"]]] = NO_SAMPLE_STAMP
         self._estimate = discrete_group(self, initial.ravel(), "estimated_state")
         self._covariance = discrete_group(self, covariances.ravel(), "covariance")
         self._diagnostics = discrete_group(self, diagnostics.ravel(), "diagnostics")

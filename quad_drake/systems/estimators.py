@@ -40,7 +40,6 @@ from quad_drake.conventions import (
     EKF_STATE_SIZE,
     GPS_SIZE,
     IMU_SIZE,
-    MAG_SIZE,
     NO_SAMPLE_STAMP,
     ONBOARD_PERIOD,
     STATE_SIZE,
@@ -50,6 +49,7 @@ from quad_drake.estimation.complementary import VARIANTS
 from quad_drake.estimation.registry import kind_of, vocabulary_for
 from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, NIS_DOF
 from quad_drake.fidelity import PHYSICAL
+from quad_drake.kernels import aiding as aiding_kernels
 from quad_drake.kernels import attitude as attitude_kernel
 from quad_drake.kernels import ekf7 as ekf7_kernel
 from quad_drake.kernels import eskf as eskf_kernel
@@ -57,6 +57,7 @@ from quad_drake.kernels import fusion
 from quad_drake.kernels.imu_hold import HOLD_SIZE, initial_hold
 from quad_drake.rotations import quat_from_euler_tuple
 from quad_drake.systems._io import declare_state_output, row_reader
+from quad_drake.systems.aiding import NO_AIDING, AidedFusion, aiding_sensors, mag_size
 
 
 def initial_diagnostics():
@@ -64,6 +65,8 @@ def initial_diagnostics():
     values = np.zeros(DIAGNOSTICS_SIZE)
     values[[DIAG["gps_nis"], DIAG["mag_nis"]]] = math.nan
     values[[DIAG["gps_stamp"], DIAG["mag_stamp"]]] = NO_SAMPLE_STAMP
+    values[[DIAG["baro_nis"], DIAG["field_nis"], DIAG["baro_bias"], DIAG["baro_bias_std"]]] = math.nan
+    values[[DIAG["baro_stamp"], DIAG["field_stamp"]]] = NO_SAMPLE_STAMP
     return values
 
 
@@ -180,7 +183,7 @@ class ComplementaryFilter(LeafSystem):
             attitude_kernel.round_to_float32(attitude, rate)
 
 
-class Ekf(GatedFusion, LeafSystem):
+class Ekf(AidedFusion, GatedFusion, LeafSystem):
     """n 7-state EKFs (SPEC §4): x = (p_N m, v_N m/s, yaw rad), NED; roll/pitch from the attitude filter.
 
     Ports vehicle-major as :class:`ComplementaryFilter`'s. Inputs: ``imu`` (n*6: f_B m/s^2,
@@ -203,9 +206,14 @@ class Ekf(GatedFusion, LeafSystem):
     or repaired (the reference's EKF); with ``fidelity.float32_estimator`` x and P are rounded
     to float32 after each tick. With ``tilt`` (an ``ekf.TiltNoise``) Q grows with the attitude
     filter's predicted roll/pitch error at the context time.
+
+    With ``aiding`` (``systems.aiding.AidingSensors``; none by default): a barometer adds the input
+    ``baro`` (n*2: height m up, stamp s), a 3-axis magnetometer makes ``mag`` n*4 (m_B gauss FRD,
+    stamp s); after the GPS each tick the tilt-compensated heading and the baro height are fused
+    through their gates (``systems.aiding.AidedFusion``, ``kernels/aiding.py``).
     """
 
-    def __init__(self, params, fidelity=PHYSICAL, tilt=None, n=1):
+    def __init__(self, params, fidelity=PHYSICAL, tilt=None, n=1, aiding=NO_AIDING):
         super().__init__()
         self._float32 = fidelity.float32_estimator
         self._tilt = tilt
@@ -220,9 +228,10 @@ class Ekf(GatedFusion, LeafSystem):
         )
         self._read_imu = row_reader(self.DeclareVectorInputPort("imu", n * IMU_SIZE), n)
         self._read_gps = row_reader(self.DeclareVectorInputPort("gps", n * GPS_SIZE), n)
-        self._read_mag = row_reader(self.DeclareVectorInputPort("mag", n * MAG_SIZE), n)
+        self._read_mag = row_reader(self.DeclareVectorInputPort("mag", n * mag_size(aiding)), n)
         self._read_attitude = row_reader(self.DeclareVectorInputPort("attitude", n * ATTITUDE_SIZE), n)
         x, P, diagnostics = self._declare_fusion_state(n, ekf.initial_state(params), P0)
+        self._declare_aiding(n, params, aiding, fidelity, params.gps_pos_z_std, tilt)
         self._hold = self.DeclareDiscreteState(_tiled(initial_hold(), n))
         self._healthy = np.empty(n, dtype=bool)  # scratch of each tick's health check
         declare_state_output(self, "ekf_state", x, n * EKF_STATE_SIZE)
@@ -230,20 +239,28 @@ class Ekf(GatedFusion, LeafSystem):
         declare_state_output(self, "diagnostics", diagnostics, n * DIAGNOSTICS_SIZE)
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, EKF_OFFSET, self._update)
 
+    def _estimates_heading(self):
+        return True  # the tilt-compensated heading: the EKF7 has no roll/pitch states
+
+    def _apply_corrections(self, x, P, dx, fused):
+        aiding_kernels.add_corrections(x, dx, fused, ekf.YAW_INDEX)
+
     def _update(self, context, discrete_state):
         """The prediction and, on a quiet tick, the mag fusion (one compiled call); at a fresh GPS
         sample or an unhealthy P, the health check and the fusions of :meth:`_fuse_fresh`."""
         filters = self._views(discrete_state, EKF_STATE_SIZE)
+        mag_samples = self._read_mag(context)
         samples = ekf7_kernel.Samples(
             attitude=self._read_attitude(context),
             imu=self._read_imu(context),
             gps=self._read_gps(context),
-            mag=self._read_mag(context),
+            mag=self._yaw_samples(mag_samples),
         )
         tilt_gains = ekf7_kernel.NO_TILT if self._tilt is None else self._tilt.gains(context.get_time())
         quiet = ekf7_kernel.tick(filters, samples, self._model, tilt_gains, self._healthy)
         if not quiet:  # a fresh GPS sample or an unhealthy P somewhere: the full step
             self._fuse_fresh(filters, samples.gps, samples.mag, self._healthy, ekf7_kernel)
+        self._fuse_aiding(context, discrete_state, filters, samples.gps, mag_samples, samples.attitude)
         if self._float32:
             attitude_kernel.round_to_float32(filters.x, filters.P)
 
@@ -280,7 +297,7 @@ class EstimatedStateAssembler(LeafSystem):
         )
 
 
-class Eskf(GatedFusion, LeafSystem):
+class Eskf(AidedFusion, GatedFusion, LeafSystem):
     """n error-state EKFs (``estimation/eskf.py``) on the IMU, GPS and magnetometer.
 
     Ports vehicle-major as :class:`ComplementaryFilter`'s. Inputs: ``imu`` (n*6: f_B m/s^2,
@@ -294,12 +311,13 @@ class Eskf(GatedFusion, LeafSystem):
     Each tick (ONBOARD_PERIOD, offset EKF_OFFSET; ``kernels/eskf.py``, whose module docstring
     carries the equations): predict with the IMU sample (over a non-finite one, counted, with the
     running mean of the IMU: ``kernels.eskf.predict_tick``), then fuse a fresh mag and a fresh GPS
-    sample through the gates and resets of :class:`Ekf`; P is checked as there.
+    sample through the gates and resets of :class:`Ekf`; P is checked as there. With ``aiding``
+    (as :class:`Ekf`'s) the 3-axis field vector and the baro height are fused after the GPS.
     """
 
     ESTIMATE_GROUP, BIAS_GROUP = 4, 5
 
-    def __init__(self, params, fidelity=PHYSICAL, n=1):
+    def __init__(self, params, fidelity=PHYSICAL, n=1, aiding=NO_AIDING):
         super().__init__()
         noise = eskf.NoiseModel.from_params(params)
         P0 = eskf.initial_covariance(params)
@@ -312,7 +330,7 @@ class Eskf(GatedFusion, LeafSystem):
         self._declare_gating(params, P0, (eskf.mag_noise(params), eskf.gps_noise(params)), fidelity)
         self._read_imu = row_reader(self.DeclareVectorInputPort("imu", n * IMU_SIZE), n)
         self._read_gps = row_reader(self.DeclareVectorInputPort("gps", n * GPS_SIZE), n)
-        self._read_mag = row_reader(self.DeclareVectorInputPort("mag", n * MAG_SIZE), n)
+        self._read_mag = row_reader(self.DeclareVectorInputPort("mag", n * mag_size(aiding)), n)
         _, P, diagnostics = self._declare_fusion_state(n, x0, P0)
         initial_estimate = np.zeros(STATE_SIZE)  # body rate 0 before the first sample
         eskf.write_estimate(x0, initial_estimate)
@@ -323,7 +341,15 @@ class Eskf(GatedFusion, LeafSystem):
         declare_state_output(self, "covariance", P, n * P0.size)
         declare_state_output(self, "diagnostics", diagnostics, n * DIAGNOSTICS_SIZE)
         declare_state_output(self, "imu_bias", bias, n * 6)
+        self._declare_aiding(n, params, aiding, fidelity, params.gps_pos_std[2])
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, EKF_OFFSET, self._update)
+
+    def _estimates_heading(self):
+        return False  # the field vector, against the error state's attitude
+
+    def _apply_corrections(self, x, P, dx, fused):
+        rows = np.flatnonzero(fused)
+        x[rows], P[rows] = eskf_kernel.inject(x[rows], P[rows], dx[rows])
 
     def _update(self, context, discrete_state):
         """The prediction compiled, then the health check and the fusions of :meth:`_fuse_fresh`."""
@@ -331,7 +357,8 @@ class Eskf(GatedFusion, LeafSystem):
         estimate = discrete_state.get_mutable_value(self.ESTIMATE_GROUP).reshape(self._n, STATE_SIZE)
         healthy = eskf_kernel.predict_tick(filters, self._read_imu(context), estimate, self._model)
         gps, mag = self._read_gps(context), self._read_mag(context)
-        self._fuse_fresh(filters, gps, mag, healthy, eskf_kernel)
+        self._fuse_fresh(filters, gps, self._yaw_samples(mag), healthy, eskf_kernel)
+        self._fuse_aiding(context, discrete_state, filters, gps, mag)
         eskf.write_estimate(filters.x, estimate)
         discrete_state.get_mutable_value(self.BIAS_GROUP)[:] = filters.x[:, 10:16].ravel()
 
@@ -383,7 +410,8 @@ def add_ekf7(builder, vehicle, fidelity, n):
     """Add the CF + EKF7 + assembler of n vehicles to `builder` (the ``ekf7`` kind's builder,
     ``estimation/registry.py``); (input ports by name, output ports by name)."""
     tilt = ekf.TiltNoise.from_params(vehicle.ekf, vehicle.attitude_filter, ONBOARD_PERIOD)
-    ekf_system = builder.AddNamedSystem("ekf", Ekf(vehicle.ekf, fidelity, tilt, n=n))
+    aiding = aiding_sensors(vehicle)
+    ekf_system = builder.AddNamedSystem("ekf", Ekf(vehicle.ekf, fidelity, tilt, n=n, aiding=aiding))
     attitude_filter = builder.AddNamedSystem(
         "attitude_filter",
         ComplementaryFilter(
@@ -394,13 +422,21 @@ def add_ekf7(builder, vehicle, fidelity, n):
         ),
     )
     assembler = builder.AddNamedSystem("estimated_state", EstimatedStateAssembler(n))
-    return _wire_ekf7(builder, ekf_system, attitude_filter, assembler)
+    inputs, outputs = _wire_ekf7(builder, ekf_system, attitude_filter, assembler)
+    if aiding.baro_period is not None:
+        inputs["baro"] = [ekf_system.GetInputPort("baro")]
+    return inputs, outputs
 
 
 def add_eskf(builder, vehicle, fidelity, n):
     """Add the ESKF of n vehicles to `builder` (the ``eskf`` kind's builder); (input ports by
     name, output ports by name)."""
-    return _wire_eskf(builder.AddNamedSystem("eskf", Eskf(vehicle.estimator, fidelity, n=n)))
+    aiding = aiding_sensors(vehicle)
+    system = builder.AddNamedSystem("eskf", Eskf(vehicle.estimator, fidelity, n=n, aiding=aiding))
+    inputs, outputs = _wire_eskf(system)
+    if aiding.baro_period is not None:
+        inputs["baro"] = [system.GetInputPort("baro")]
+    return inputs, outputs
 
 
 def build_estimator(vehicle, fidelity=PHYSICAL, n=1):

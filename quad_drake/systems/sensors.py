@@ -1,5 +1,6 @@
-"""Sensor LeafSystems (SPEC §2) of n vehicles: IMU, GPS and magnetometer, thin glue over
-``sensor_models`` (compiled per vehicle by ``kernels.flight`` where they tick at 500 Hz or often).
+"""Sensor LeafSystems (SPEC §2) of n vehicles: IMU, GPS, magnetometer (yaw or 3-axis) and
+barometer, thin glue over ``sensor_models`` (compiled per vehicle by ``kernels.flight`` and
+``kernels.sensors`` where they tick at 500 Hz or often).
 
 Each sensor samples in one periodic discrete update, holds its last measurement in
 discrete state and publishes it through a state output port (no feedthrough). Every port
@@ -21,8 +22,11 @@ from pydrake.systems.framework import LeafSystem
 
 from quad_drake import sensor_models
 from quad_drake.conventions import (
+    BARO_SIZE,
     GPS_SIZE,
     IMU_SIZE,
+    MAG_FIELD_SIZE,
+    MAG_SIZE,
     NO_SAMPLE_STAMP,
     ONBOARD_PERIOD,
     SENSOR_OFFSET,
@@ -31,6 +35,7 @@ from quad_drake.conventions import (
 )
 from quad_drake.fidelity import PHYSICAL
 from quad_drake.kernels import flight as kernels
+from quad_drake.kernels import sensors as sensor_kernels
 from quad_drake.systems._io import discrete_group, row_reader
 
 
@@ -152,37 +157,104 @@ class Gps(_Sensor):
 
 
 class Magnetometer(_Sensor):
-    """Magnetometer yaw sampled at t = first_sample_time + k * period + SLOW_SENSOR_OFFSET, k >= 0.
+    """Magnetometer sampled at t = first_sample_time + k * period + SLOW_SENSOR_OFFSET, k >= 0.
 
-    Inputs: ``state`` (13); ``noise`` (1, unit Gaussian). Output ``mag`` (2): yaw (rad,
-    wrapped to [-pi, pi)), stamp (s) = first_sample_time + k * period, the nominal time
-    of the sample (every vehicle's the same). Before the first sample yaw = 0 and stamp =
-    NO_SAMPLE_STAMP. With ``fidelity.float32_estimator`` the yaw is rounded to float32.
-    The yaw is ``sensor_models.magnetometer_yaw``'s compiled form
-    (``kernels.flight.magnetometer_samples``).
+    Inputs: ``state`` (13); ``noise`` (unit Gaussian; 1, or 3 with ``three_axis``). Output
+    ``mag``, by the model of MagParams:
+
+    - yaw (the default, the reference's): (2) yaw (rad, wrapped to [-pi, pi)), stamp (s). The yaw
+      is ``sensor_models.magnetometer_yaw``'s compiled form (``kernels.flight.magnetometer_samples``);
+      with ``fidelity.float32_estimator`` it is rounded to float32.
+    - ``three_axis``: (MAG_FIELD_SIZE = 4) m_B = R_NB^T m_N + hard_iron + noise (3, gauss, body
+      FRD) of the world field m_N (``sensor_models.world_field``: strength, declination,
+      inclination; NED), stamp (s); ``sensor_models.magnetometer_field``'s compiled form
+      (``kernels.sensors.magnetometer_field_samples``).
+
+    The stamp is first_sample_time + k * period, the nominal time of the sample (every
+    vehicle's the same). Before the first sample the values are 0 and stamp = NO_SAMPLE_STAMP.
     """
 
-    noise_size = 1
-
     def __init__(self, params, fidelity=PHYSICAL, n=1) -> None:
+        self.three_axis = bool(params.three_axis)
+        self.noise_size = 3 if self.three_axis else 1
         super().__init__(self.noise_size, n)
         self._params, self._frozen_params = params, kernels.frozen(params)
         self._frozen_fidelity = kernels.frozen(fidelity)
         self.noise_period = params.period
-        self._output = discrete_group(self, np.tile([0.0, NO_SAMPLE_STAMP], n), "mag")
+        self.sample_size = MAG_FIELD_SIZE if self.three_axis else MAG_SIZE
+        initial = np.zeros((n, self.sample_size))
+        initial[:, -1] = NO_SAMPLE_STAMP
+        self._output = discrete_group(self, initial.ravel(), "mag")
         self._count = discrete_group(self, 1)
+        if self.three_axis:
+            self._field = (
+                sensor_models.world_field(params.field_strength, params.declination, params.inclination),
+                tuple(float(v) for v in params.hard_iron),
+                tuple(float(v) for v in params.field_std),
+            )
         self.DeclarePeriodicDiscreteUpdateEvent(
             params.period, params.first_sample_time + SLOW_SENSOR_OFFSET, self._sample
         )
 
     def _sample(self, context, discrete_state):
         count = discrete_state.get_mutable_value(self._count)
-        kernels.magnetometer_samples(
-            self._read_state(context),
-            self._read_noise(context),
-            self._frozen_params,
-            self._frozen_fidelity,
-            self._params.first_sample_time + count[0] * self._params.period,
-            discrete_state.get_mutable_value(self._output).reshape(self._n, 2),
-        )
+        stamp = self._params.first_sample_time + count[0] * self._params.period
+        out = discrete_state.get_mutable_value(self._output).reshape(self._n, self.sample_size)
+        if self.three_axis:
+            m_N, hard_iron, field_std = self._field
+            sensor_kernels.magnetometer_field_samples(
+                self._read_state(context), self._read_noise(context), m_N, hard_iron, field_std, stamp, out
+            )
+        else:
+            kernels.magnetometer_samples(
+                self._read_state(context),
+                self._read_noise(context),
+                self._frozen_params,
+                self._frozen_fidelity,
+                stamp,
+                out,
+            )
         count[0] += 1.0
+
+
+class Barometer(_Sensor):
+    """Barometric height of n vehicles sampled at t = k * period + SLOW_SENSOR_OFFSET, k >= 1.
+
+    Inputs: ``state`` (13); ``noise`` (2, unit Gaussian): the bias walk's draw, then the height's.
+    Output ``baro`` (BARO_SIZE = 2): height (m, up: the pressure altitude above the datum z_N =
+    0) = -z_NB + bias + ground effect + height_std * n, and stamp (s) = k * period, the nominal
+    time of the sample (every vehicle's the same). Before the first sample height = 0 and stamp
+    = NO_SAMPLE_STAMP. The bias (m) is discrete state, starting at BaroParams.bias and stepping
+    by bias_walk_std * n before each sample; the ground effect (``sensor_models.baro_ground_effect``)
+    is measured from the floor at ``floor_z`` (m, NED z; the room's z_bounds[1]). The sample is
+    ``sensor_models.baro_measurement`` run on the vehicles' columns
+    (``kernels.sensors.baro_measurements``). The reference simulator has no barometer.
+    """
+
+    noise_size = 2
+
+    def __init__(self, params, floor_z=0.0, n=1) -> None:
+        super().__init__(self.noise_size, n)
+        self._params, self._floor_z = params, float(floor_z)
+        self.noise_period = params.period
+        self._output = discrete_group(self, np.tile([0.0, NO_SAMPLE_STAMP], n), "baro")
+        self._bias = discrete_group(self, np.full(n, float(params.bias)))
+        self._count = discrete_group(self, 1)
+        self.DeclarePeriodicDiscreteUpdateEvent(
+            params.period, params.period + SLOW_SENSOR_OFFSET, self._sample
+        )
+
+    def _sample(self, context, discrete_state):
+        count = float(discrete_state.value(self._count)[0]) + 1.0
+        height, bias = sensor_kernels.baro_measurements(
+            self._read_state(context)[:, 2],
+            discrete_state.value(self._bias),
+            self._read_noise(context),
+            self._params,
+            self._floor_z,
+        )
+        out = discrete_state.get_mutable_value(self._output).reshape(self._n, BARO_SIZE)
+        out[:, 0] = height
+        out[:, 1] = count * self._params.period
+        discrete_state.set_value(self._bias, bias)
+        discrete_state.set_value(self._count, np.array([count]))

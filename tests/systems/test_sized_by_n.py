@@ -10,6 +10,7 @@ from pydrake.systems.framework import DiagramBuilder
 
 from quad_drake import conventions as c
 from quad_drake.config import (
+    BaroParams,
     ControllerParams,
     GpsParams,
     GustConfig,
@@ -21,7 +22,7 @@ from quad_drake.config import (
 from quad_drake.rotations import quat_from_euler
 from quad_drake.systems.controller import CascadeController
 from quad_drake.systems.plant import QuadrotorPlant
-from quad_drake.systems.sensors import Gps, Imu, Magnetometer
+from quad_drake.systems.sensors import Barometer, Gps, Imu, Magnetometer
 from quad_drake.systems.trajectory import TrajectorySource
 from quad_drake.systems.wind import Wind
 from quad_drake.trajectories import figure_eight
@@ -70,6 +71,14 @@ MAKERS = {
     ),
     "gps": lambda n: Gps(GpsParams(), n=n),
     "magnetometer": lambda n: Magnetometer(MagParams(), n=n),
+    "3-axis magnetometer": lambda n: Magnetometer(
+        MagParams(three_axis=True, hard_iron=[0.05, -0.02, 0.01], field_std=[0.01, 0.02, 0.03]), n=n
+    ),
+    "barometer with a bias walk and ground effect": lambda n: Barometer(
+        BaroParams(bias=0.3, bias_walk_std=0.01, ground_effect_height=3.0, ground_effect_error=-0.2),
+        floor_z=0.5,
+        n=n,
+    ),
     "controller": lambda n: CascadeController(ControllerParams(), n=n),
     "trajectory": lambda n: TrajectorySource(figure_eight(), n=n),
 }

@@ -1,0 +1,258 @@
+"""The barometer and 3-axis magnetometer fusion of N vehicles, compiled: what both estimators run
+each tick when the vehicle carries the sensor (``systems.estimators``; one implementation for a
+single run and a fleet).
+
+The formulas are ``estimation/baro.py``'s and ``estimation/mag3.py``'s own code compiled by numba
+(each module's docstring carries the equations and the design: the baro bias as a scalar filter
+beside the estimator, fed by the GPS heights; the field as a 3-dof gated, axis-by-axis update of
+the ESKF's error state; the tilt-compensated heading as the EKF7's yaw measurement):
+
+- baro, z = h - b_hat (m):  h(x) = -p_z,  H = -e_2,  R = height_std²,  NIS 1 dof, then
+  P[2, 2] >= P_b (``baro.floored_height_variance``); the first finite sample is not fused: it sets the
+  bias against the filter's height (b_meas = h + p_z, variance height_std² + P[2, 2]), as PX4 sets
+  its baro offset;
+  the bias: P_b += walk² (t - t_last) at each sample; at each fresh GPS height (same stamp as the
+  latest baro sample) b_meas = h + z_gps, variance height_std² + gps_z_std², gated at the baro's
+  gate; after ``reset_timeout`` s of rejected samples b = h + p_z, P_b = height_std² + P[2, 2];
+- field (ESKF), z = m_B - hard_iron (gauss): h(x) = R_hatᵀ m_N, H = [0 R_hatᵀ[m_N]x 0], R =
+  diag(field_std²), NIS 3 dof;
+- heading (EKF7), z = atan2(-l_y, l_x) + D with l = Ry(pitch) Rx(roll) (m_B - hard_iron) (rad):
+  h(x) = x[6], H = e_6, R = the heading's variance from the field noise, NIS 1 dof (logged as
+  the magnetometer's), then P[6, 6] >= the heading's variance from the tilt error
+  (``mag3.floored_yaw_variance``).
+
+Each ``*_rows`` kernel works IN PLACE on P (N, n, n), the diagnostics and the book, and writes
+the correction dx (N, n) of the vehicles it fused (``fused`` (N,) bool): the caller adds it (EKF7,
+:func:`add_corrections`) or injects it (ESKF). A non-finite sample is counted and skipped.
+Pure: numba and numpy, no pydrake.
+"""
+
+import math
+
+from quad_drake.conventions import NO_SAMPLE_STAMP
+from quad_drake.estimation import baro, mag3
+from quad_drake.estimation.vocabulary import DIAG
+from quad_drake.jit import njit_cached
+from quad_drake.kernels import rotations
+from quad_drake.kernels.flight import compiled
+
+_NONFINITE, _MAG_NIS, _MAG_GATED = DIAG["nonfinite_samples"], DIAG["mag_nis"], DIAG["mag_gated"]
+_BARO_NIS, _BARO_GATED, _BARO_RESETS = DIAG["baro_nis"], DIAG["baro_gated"], DIAG["baro_resets"]
+_BARO_BIAS, _FIELD_NIS = DIAG["baro_bias"], DIAG["field_nis"]
+_BIAS, _BIAS_VAR, _LAST_HEIGHT, _LAST_STAMP = baro.BIAS, baro.BIAS_VAR, baro.LAST_HEIGHT, baro.LAST_STAMP
+_REJECTED_SINCE, _GPS_STAMP, _DATUM_SET = baro.REJECTED_SINCE, baro.GPS_STAMP, baro.DATUM_SET
+_TOLERANCE = 1e-9  # s, stamps are sums of periods
+
+_scalar_correction = compiled(baro.scalar_correction)
+_height_innovation = compiled(baro.height_innovation)
+_floored_height_variance = compiled(baro.floored_height_variance)
+_bias_predict = compiled(baro.bias_predict)
+_bias_update = compiled(baro.bias_update)
+_bias_from_gps = compiled(baro.bias_from_gps)
+_bias_reset = compiled(baro.bias_reset)
+_field_attitude_jacobian = compiled(mag3.field_attitude_jacobian, rotation_entries=rotations.rotation_entries)
+_field_innovation = compiled(
+    mag3.field_innovation,
+    predicted_field=compiled(mag3.predicted_field, rotation_entries=rotations.rotation_entries),
+    field_jacobian=compiled(mag3.field_jacobian, field_attitude_jacobian=_field_attitude_jacobian),
+    inverse3=compiled(mag3.inverse3),
+)
+_sequential_field_update = compiled(mag3.sequential_field_update)
+_heading = compiled(mag3.tilt_compensated_heading, leveled_field=compiled(mag3.leveled_field))
+_heading_variances = compiled(mag3.heading_variances, heading_jacobians=compiled(mag3.heading_jacobians))
+_floored_yaw_variance = compiled(mag3.floored_yaw_variance)
+_wrap = rotations.wrap_to_pi
+
+
+@njit_cached
+def _baro_rows(x, P, baro_samples, gps, book, diagnostics, model, dx, fused):
+    height_var, gps_z_var, walk_std, threshold, reset_timeout, stamp_match = model
+    for i in range(x.shape[0]):
+        fused[i] = False
+        stamp = baro_samples[i, 1]
+        if stamp != NO_SAMPLE_STAMP and stamp != book[i, _LAST_STAMP]:
+            previous = book[i, _LAST_STAMP]
+            if previous != NO_SAMPLE_STAMP and math.isfinite(stamp):
+                book[i, _BIAS_VAR] = _bias_predict(book[i, _BIAS_VAR], stamp - previous, walk_std)
+            book[i, _LAST_STAMP] = stamp
+            height = baro_samples[i, 0]
+            book[i, _LAST_HEIGHT] = height
+            if not (math.isfinite(height) and math.isfinite(stamp)):
+                diagnostics[i, _NONFINITE] += 1.0
+            elif book[i, _DATUM_SET] == 0.0:  # the first finite sample sets the datum (module docstring)
+                book[i, _BIAS], book[i, _BIAS_VAR] = _bias_update(
+                    book[i, _BIAS], book[i, _BIAS_VAR], height + x[i, 2], height_var + P[i, 2, 2]
+                )
+                book[i, _DATUM_SET] = 1.0
+            else:
+                nu, S = _height_innovation(x[i, 2], P[i], height, book[i, _BIAS], height_var)
+                nis = nu * nu / S
+                diagnostics[i, _BARO_NIS], diagnostics[i, _BARO_NIS + 1] = nis, stamp
+                if nis <= threshold:
+                    correction, P_new, _ = _scalar_correction(P[i], baro.HEIGHT_INDEX, -1.0, nu, S)
+                    P_new[2, 2] = _floored_height_variance(P_new[2, 2], book[i, _BIAS_VAR])
+                    P[i] = P_new
+                    dx[i] = correction
+                    fused[i] = True
+                    book[i, _REJECTED_SINCE] = math.nan
+                else:
+                    diagnostics[i, _BARO_GATED] += 1.0
+                    since = book[i, _REJECTED_SINCE]
+                    if math.isnan(since):
+                        book[i, _REJECTED_SINCE] = stamp
+                    elif reset_timeout > 0.0 and stamp - since >= reset_timeout - _TOLERANCE:
+                        book[i, _BIAS], book[i, _BIAS_VAR] = _bias_reset(
+                            height, x[i, 2], height_var, P[i, 2, 2]
+                        )
+                        book[i, _REJECTED_SINCE] = math.nan
+                        diagnostics[i, _BARO_RESETS] += 1.0
+        gps_stamp = gps[i, 6]
+        if gps_stamp != NO_SAMPLE_STAMP and gps_stamp != book[i, _GPS_STAMP]:
+            book[i, _GPS_STAMP] = gps_stamp
+            matched = abs(gps_stamp - book[i, _LAST_STAMP]) <= stamp_match
+            if matched and math.isfinite(gps[i, 2]) and math.isfinite(book[i, _LAST_HEIGHT]):
+                measured = _bias_from_gps(book[i, _LAST_HEIGHT], gps[i, 2])
+                variance = height_var + gps_z_var
+                innovation = measured - book[i, _BIAS]
+                if innovation * innovation <= threshold * (book[i, _BIAS_VAR] + variance):
+                    book[i, _BIAS], book[i, _BIAS_VAR] = _bias_update(
+                        book[i, _BIAS], book[i, _BIAS_VAR], measured, variance
+                    )
+        diagnostics[i, _BARO_BIAS] = book[i, _BIAS]
+        diagnostics[i, _BARO_BIAS + 1] = math.sqrt(book[i, _BIAS_VAR])
+
+
+def baro_rows(x, P, baro_samples, gps, book, diagnostics, model, dx, fused) -> None:
+    """One tick of the barometer fusion of N filters (module docstring) IN PLACE on P (N, n, n),
+    book (N, ``baro.BARO_BOOK_SIZE``) and diagnostics; the corrections of the fused vehicles into
+    dx (N, n) and fused (N,). x (N, width): p_z is x[:, 2] in both estimators; baro_samples (N, 2:
+    height m, stamp s); gps (N, 7: p m, v m/s, stamp s); model: :func:`baro_model`."""
+    _baro_rows(x, P, baro_samples, gps, book, diagnostics, model, dx, fused)
+
+
+def baro_model(params, gps_z_std, gate_threshold, baro_period) -> tuple:
+    """The baro kernel's constants from BaroFusionParams: (height_var m², gps_z_var m², walk_std
+    m/sqrt(s), the gate's NIS threshold, reset_timeout s, stamp_match s: half the baro period, the
+    largest stamp difference of a baro sample and a GPS sample taken as simultaneous)."""
+    return (
+        float(params.height_std) ** 2,
+        float(gps_z_std) ** 2,
+        float(params.bias_walk_std),
+        float(gate_threshold),
+        float(params.reset_timeout),
+        0.5 * float(baro_period),
+    )
+
+
+@njit_cached
+def _fresh_field(mag, book, slot, diagnostics, i):
+    """True when vehicle i has a fresh finite 3-axis sample (N, 4: m_B gauss, stamp s); books its
+    stamp in book[i, slot] and counts a non-finite one."""
+    stamp = mag[i, 3]
+    if stamp == NO_SAMPLE_STAMP or stamp == book[i, slot]:
+        return False
+    book[i, slot] = stamp
+    if not (math.isfinite(stamp) and math.isfinite(mag[i, 0] + mag[i, 1] + mag[i, 2])):
+        diagnostics[i, _NONFINITE] += 1.0
+        return False
+    return True
+
+
+@njit_cached
+def _field_rows(x, P, mag, book, slot, diagnostics, m_N, hard_iron, field_var, threshold, dx, fused):
+    for i in range(x.shape[0]):
+        fused[i] = False
+        if not _fresh_field(mag, book, slot, diagnostics, i):
+            continue
+        q = (x[i, 6], x[i, 7], x[i, 8], x[i, 9])
+        m_B = (mag[i, 0], mag[i, 1], mag[i, 2])
+        nu, H, _, nis = _field_innovation(q, P[i], m_B, m_N, hard_iron, field_var)
+        if math.isnan(nis):
+            diagnostics[i, _NONFINITE] += 1.0
+            continue
+        diagnostics[i, _FIELD_NIS], diagnostics[i, _FIELD_NIS + 1] = nis, mag[i, 3]
+        if nis <= threshold:
+            correction, P_new = _sequential_field_update(P[i], nu, H, field_var)
+            P[i] = P_new
+            dx[i] = correction
+            fused[i] = True
+        else:
+            diagnostics[i, _MAG_GATED] += 1.0
+
+
+def field_rows(x, P, mag, book, slot, diagnostics, model, dx, fused) -> None:
+    """One tick of the ESKF's 3-axis field fusion of N filters IN PLACE (module docstring): x (N,
+    16) nominal states (q_NB at 6..9), P (N, n, n), mag (N, 4: m_B gauss, stamp s), book[:, slot]
+    the last field stamp seen; the corrections into dx (N, n), fused (N,). model:
+    :func:`field_model`."""
+    m_N, hard_iron, field_var, threshold = model
+    _field_rows(x, P, mag, book, slot, diagnostics, m_N, hard_iron, field_var, threshold, dx, fused)
+
+
+def field_model(params, gate_threshold) -> tuple:
+    """(m_N, hard_iron, field_var (3-tuples: gauss, gauss, gauss²), threshold) of MagFieldFusionParams."""
+    return (
+        tuple(float(v) for v in mag3.assumed_world_field(params)),
+        tuple(float(v) for v in params.hard_iron),
+        tuple(float(s) ** 2 for s in params.field_std),
+        float(gate_threshold),
+    )
+
+
+@njit_cached
+def _heading_rows(x, P, mag, attitude, book, slot, diagnostics, model, dx, fused):
+    hard_iron, field_var, declination, tilt_var, threshold = model
+    for i in range(x.shape[0]):
+        fused[i] = False
+        if not _fresh_field(mag, book, slot, diagnostics, i):
+            continue
+        mx, my, mz = mag[i, 0] - hard_iron[0], mag[i, 1] - hard_iron[1], mag[i, 2] - hard_iron[2]
+        roll, pitch = attitude[i, 0], attitude[i, 1]
+        heading = _heading(roll, pitch, mx, my, mz, declination)
+        r, tilt_part = _heading_variances(roll, pitch, mx, my, mz, field_var, tilt_var)
+        nu = _wrap(heading - x[i, 6])
+        S = P[i, 6, 6] + r
+        nis = nu * nu / S
+        if not math.isfinite(nis):
+            diagnostics[i, _NONFINITE] += 1.0
+            continue
+        diagnostics[i, _MAG_NIS], diagnostics[i, _MAG_NIS + 1] = nis, mag[i, 3]
+        if nis <= threshold:
+            correction, P_new, _ = _scalar_correction(P[i], 6, 1.0, nu, S)
+            P_new[6, 6] = _floored_yaw_variance(P_new[6, 6], tilt_part)
+            P[i] = P_new
+            dx[i] = correction
+            fused[i] = True
+        else:
+            diagnostics[i, _MAG_GATED] += 1.0
+
+
+def heading_rows(x, P, mag, attitude, book, slot, diagnostics, model, dx, fused) -> None:
+    """One tick of the EKF7's tilt-compensated heading fusion of N filters IN PLACE (module
+    docstring): x (N, 7), P (N, 7, 7), mag (N, 4: m_B gauss, stamp s), attitude (N, 3: roll,
+    pitch, yaw rad, the attitude filter's), book[:, slot] the last field stamp seen; the
+    corrections into dx (N, 7), fused (N,). model: :func:`heading_model`."""
+    _heading_rows(x, P, mag, attitude, book, slot, diagnostics, model, dx, fused)
+
+
+def heading_model(params, gate_threshold) -> tuple:
+    """(hard_iron gauss, field_var gauss², declination rad, tilt_var rad², threshold) of
+    MagFieldFusionParams."""
+    return (
+        tuple(float(v) for v in params.hard_iron),
+        tuple(float(s) ** 2 for s in params.field_std),
+        float(params.declination),
+        float(params.tilt_std) ** 2,
+        float(gate_threshold),
+    )
+
+
+@njit_cached
+def add_corrections(x, dx, fused, yaw_index) -> None:
+    """x[i] += dx[i] IN PLACE for the fused vehicles (EKF7), the yaw x[:, yaw_index] wrapped to
+    [-pi, pi) (``rotations.wrap_to_pi``)."""
+    for i in range(x.shape[0]):
+        if fused[i]:
+            for k in range(x.shape[1]):
+                x[i, k] += dx[i, k]
+            x[i, yaw_index] = _wrap(x[i, yaw_index])

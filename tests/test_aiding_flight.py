@@ -1,0 +1,87 @@
+"""Both estimators fusing the barometer and the 3-axis magnetometer in flights (issue 32): the
+ports, one implementation for a single run and a fleet (noiseless, 1e-12), NIS per sensor in the
+diagnostics, the gates against a baro step and a field disturbance, and what stays unchanged
+without the new sensors."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from quad_drake import catalog
+from quad_drake.config import ConfigError, load_scenario
+from quad_drake.estimation.registry import nis_sensors
+from quad_drake.fleet.simulation import run_fleet
+from quad_drake.simulation import build_vehicle, run
+
+SCENARIOS = Path(__file__).resolve().parent.parent / "scenarios"
+ESKF = "vehicles.0.estimator={kind: eskf, estimate_biases: false}"
+BARO = "vehicles.0.sensors.baro={}"
+FIELD = "vehicles.0.sensors.mag={three_axis: true}"
+
+
+def _scenario(*overrides, name="11_gps_update"):
+    return catalog.load(name, None, list(overrides))
+
+
+@pytest.mark.parametrize("estimator", ["ekf7", "eskf"])
+def test_estimator_inputs_follow_the_sensors(estimator):
+    kind = [] if estimator == "ekf7" else [ESKF]
+    plain = build_vehicle(_scenario(*kind).vehicles[0]).GetSubsystemByName("estimator")
+    assert not plain.HasInputPort("baro") and plain.GetInputPort("mag").size() == 2
+    aided = build_vehicle(_scenario(*kind, BARO, FIELD).vehicles[0]).GetSubsystemByName("estimator")
+    assert aided.GetInputPort("baro").size() == 2 and aided.GetInputPort("mag").size() == 4
+    assert nis_sensors(_scenario(*kind, BARO, FIELD).vehicles[0]) == (
+        ("gps", "mag", "baro") if estimator == "ekf7" else ("gps", "field", "baro")
+    )
+
+
+def _noiseless(*overrides):
+    scenario = _scenario("end_time=3", "criteria=[]", *overrides)
+    vehicle = scenario.vehicles[0]
+    vehicle.physics.motor_noise = 0.0
+    vehicle.sensors.imu.accel_std = vehicle.sensors.imu.gyro_std = [0.0] * 3
+    vehicle.sensors.gps.pos_std = vehicle.sensors.gps.vel_std = [0.0] * 3
+    vehicle.sensors.mag.field_std = [0.0] * 3
+    vehicle.sensors.baro.height_std = vehicle.sensors.baro.bias_walk_std = 0.0
+    return scenario
+
+
+@pytest.mark.parametrize("estimator", [[], [ESKF]], ids=["ekf7", "eskf"])
+def test_a_noiseless_fleet_fuses_baro_and_field_as_the_single_run(estimator):
+    """One implementation: the fleet's estimators (sized by n) fly every vehicle as the single
+    run's, to 1e-12 on every log, with a barometer step rejected and reset and a field disturbance
+    in the run (the step rejected from 0.5 s, the bias reset at 2.5 s)."""
+    faults = (
+        "vehicles.0.faults=[{kind: baro_step, start: 0.5, end: 3, offset: [5.0]}, "
+        "{kind: mag_disturbance, start: 1.5, end: 2, offset: [0.0, 0.2, 0.0]}]"
+    )
+    scenario = _noiseless(*estimator, "vehicles.0.sensors.baro={bias: 0.3}", FIELD, faults)
+    single = run(scenario)
+    _, logs, _ = run_fleet(scenario, [5, 6])
+    for log_name, data in single.logs["Quad"].items():
+        for j in range(2):
+            np.testing.assert_allclose(
+                logs["Quad"][log_name][:, j, :], data, rtol=0, atol=1e-12, err_msg=log_name
+            )
+    signals = single.signals
+    assert signals["Quad.Est.BaroGated"].values[-1] > 0 and signals["Quad.Est.BaroResets"].values[-1] >= 1
+    nis = "Quad.Est.MagNIS" if not estimator else "Quad.Est.FieldNIS"
+    assert signals[nis].fresh.sum() > 250 and signals["Quad.Est.BaroNIS"].fresh.sum() > 100
+
+
+@pytest.mark.parametrize("estimator", [[], [ESKF]], ids=["ekf7", "eskf"])
+def test_without_the_new_sensors_the_nis_and_bias_stay_empty(estimator):
+    result = run(_scenario("end_time=1", "criteria=[]", *estimator))
+    signals = result.signals
+    for name in ("Quad.Est.BaroNIS", "Quad.Est.FieldNIS", "Quad.Est.BaroBias"):
+        assert not signals[name].fresh.any() if name.endswith("NIS") else np.isnan(signals[name].values).all()
+    assert signals["Quad.Est.MagNIS"].fresh.sum() > 50
+
+
+def test_a_custom_estimator_cannot_take_a_three_axis_magnetometer():
+    with pytest.raises(ConfigError, match="takes the yaw magnetometer only"):
+        load_scenario(
+            SCENARIOS / "11_gps_update.yaml",
+            [FIELD, "vehicles.0.estimator={kind: custom, factory: 'quad_drake.estimation.custom:Missing'}"],
+        )

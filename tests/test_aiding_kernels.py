@@ -1,0 +1,186 @@
+"""kernels/aiding.py: the compiled barometer, field and heading fusion of N filters against the
+pure functions they compile (estimation/baro.py, estimation/mag3.py) and their dense oracles,
+to 1e-12; the gates, the bias filter's GPS updates and resets, non-finite samples."""
+
+import math
+
+import numpy as np
+import pytest
+
+from quad_drake import sensor_models
+from quad_drake.estimation import baro, ekf, eskf, gating, mag3
+from quad_drake.estimation.vocabulary import DIAG, initial_diagnostics
+from quad_drake.kernels import aiding
+from quad_drake.rotations import quat_from_euler, wrap_to_pi
+
+N = 4
+PARAMS = baro.BaroFusionParams(
+    height_std=0.1, bias_init=0.2, bias_init_std=0.5, bias_walk_std=0.01, reset_timeout=0.1
+)
+THRESHOLD = gating.gate_threshold(1, 5.0)
+
+
+def spd(rng, n, scale):
+    A = rng.normal(size=(n, n))
+    return scale * (A @ A.T / n + 0.1 * np.eye(n))
+
+
+def nominal(rng):
+    q = quat_from_euler(*rng.uniform(-0.4, 0.4, 2), rng.uniform(-math.pi, math.pi))
+    return eskf.initial_nominal(rng.normal(size=3) - [0, 0, 2], rng.normal(size=3), q)
+
+
+def fresh_books(count):
+    return np.tile(baro.initial_book(PARAMS), (count, 1)), np.tile(initial_diagnostics(), (count, 1))
+
+
+def test_baro_rows_fuse_as_the_pure_update_and_gate_the_outlier():
+    rng = np.random.default_rng(0)
+    x = np.stack([nominal(rng) for _ in range(N)])
+    P = np.stack([spd(rng, 15, 0.01) for _ in range(N)])
+    P_before = P.copy()
+    book, diagnostics = fresh_books(N)
+    book[:, baro.LAST_STAMP] = 0.98  # the previous sample
+    book[:, baro.DATUM_SET] = 1.0
+    heights = -x[:, 2] + 0.2 + np.array([0.05, -0.1, 0.0, 30.0])  # vehicle 3: a 30 m outlier
+    heights[2] = math.nan  # vehicle 2: a non-finite sample
+    samples = np.column_stack((heights, np.full(N, 1.0)))
+    gps = np.tile([0.0] * 6 + [-1.0], (N, 1))  # no GPS
+    model = aiding.baro_model(PARAMS, 2.0, THRESHOLD, 0.02)
+    dx, fused = np.zeros((N, 15)), np.zeros(N, dtype=bool)
+    aiding.baro_rows(x, P, samples, gps, book, diagnostics, model, dx, fused)
+    assert fused.tolist() == [True, True, False, False]
+    bias_var = 0.5**2 + 0.01**2 * 0.02  # grown over the 20 ms since the previous sample
+    for i in (0, 1):
+        nu, S = baro.height_innovation(x[i, 2], P_before[i], heights[i], 0.2, 0.01)
+        expected_dx, expected_P, nis = baro.height_correction(P_before[i], nu, S)
+        assert expected_P[2, 2] < bias_var  # the floor binds: P[2, 2] is raised to the bias variance
+        expected_P[2, 2] = bias_var
+        np.testing.assert_allclose(dx[i], expected_dx, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(P[i], expected_P, rtol=0, atol=1e-12)
+        assert diagnostics[i, DIAG["baro_nis"]] == pytest.approx(nis, rel=1e-12)
+        # injected, the oracle's posterior (the floor commutes with the injection's G P G^T)
+        x_oracle, P_oracle, _ = baro.eskf_baro_update(x[i], P_before[i], heights[i], 0.2, 0.01)
+        P_oracle[2, 2] = bias_var
+        x_new, P_new = eskf.inject(x[i], P[i], dx[i])
+        np.testing.assert_allclose(x_new, x_oracle, atol=1e-12)
+        np.testing.assert_allclose(P_new, P_oracle, atol=1e-12)
+    np.testing.assert_array_equal(P[2:], P_before[2:])  # skipped and gated keep P
+    assert diagnostics[2, DIAG["nonfinite_samples"]] == 1 and diagnostics[3, DIAG["baro_gated"]] == 1
+    assert book[3, baro.REJECTED_SINCE] == 1.0 and math.isnan(book[0, baro.REJECTED_SINCE])
+    np.testing.assert_allclose(diagnostics[:, DIAG["baro_bias_std"]], math.sqrt(bias_var))
+    # the same stamp again is not fresh: nothing moves
+    P_after = P.copy()
+    aiding.baro_rows(x, P, samples, gps, book, diagnostics, model, dx, fused)
+    assert not fused.any()
+    np.testing.assert_array_equal(P, P_after)
+
+
+def test_the_first_baro_sample_sets_the_datum_and_a_step_past_the_timeout_resets_the_bias():
+    x, P = np.array([[0.0, 0.0, -1.0] + [0.0] * 4]), np.eye(7)[None] * 0.04
+    book, diagnostics = fresh_books(1)
+    model = aiding.baro_model(PARAMS, 2.0, THRESHOLD, 0.02)
+    gps = np.array([[0.0] * 6 + [-1.0]])
+    dx, fused = np.zeros((1, 7)), np.zeros(1, dtype=bool)
+    aiding.baro_rows(x, P, np.array([[math.nan, 0.0]]), gps, book, diagnostics, model, dx, fused)
+    assert not fused[0] and diagnostics[0, DIAG["nonfinite_samples"]] == 1  # a non-finite sample: no datum
+    assert book[0, baro.DATUM_SET] == 0.0 and book[0, baro.BIAS] == 0.2
+    aiding.baro_rows(x, P, np.array([[1.5, 0.02]]), gps, book, diagnostics, model, dx, fused)
+    assert not fused[0]  # the first finite sample is the datum: b against the filter's height, not fused
+    expected = baro.bias_update(0.2, 0.25 + 0.01**2 * 0.02, 1.5 + -1.0, 0.01 + 0.04)
+    assert (book[0, baro.BIAS], book[0, baro.BIAS_VAR]) == pytest.approx(expected, rel=1e-12)
+    datum = book[0, baro.BIAS]
+    # a 5 m step from 0.04 s: rejected from 0.04 s, the bias reset at 0.14 s (reset_timeout 0.1 s)
+    for k in range(2, 9):
+        sample = np.array([[1.0 + datum + 5.0, 0.02 * k]])
+        aiding.baro_rows(x, P, sample, gps, book, diagnostics, model, dx, fused)
+        assert fused[0] == (k == 8), k
+    assert diagnostics[0, DIAG["baro_resets"]] == 1
+    assert diagnostics[0, DIAG["baro_gated"]] == 6  # 0.04 .. 0.14 s
+    assert book[0, baro.BIAS] == pytest.approx(datum + 5.0, abs=1e-9)  # b = h + p_z at the reset
+
+
+def test_baro_bias_learns_from_simultaneous_gps_heights_only():
+    x, P = np.zeros((2, 7)), np.tile(np.eye(7) * 0.04, (2, 1, 1))
+    x[:, 2] = -1.0
+    book, diagnostics = fresh_books(2)
+    book[:, baro.LAST_STAMP] = 0.08  # not the first sample
+    book[:, baro.DATUM_SET] = 1.0
+    model = aiding.baro_model(PARAMS, 2.0, THRESHOLD, 0.02)
+    dx, fused = np.zeros((2, 7)), np.zeros(2, dtype=bool)
+    samples = np.array([[1.5, 0.1], [1.5, 0.1]])
+    gps = np.array([[0, 0, -1.1, 0, 0, 0, 0.1], [0, 0, -1.1, 0, 0, 0, 0.3]])  # vehicle 1: stale baro
+    aiding.baro_rows(x, P, samples, gps, book, diagnostics, model, dx, fused)
+    prior_var = 0.25 + 0.01**2 * 0.02
+    bias, var = baro.bias_update(0.2, prior_var, baro.bias_from_gps(1.5, -1.1), 0.01 + 4.0)
+    assert book[0, baro.BIAS] == pytest.approx(bias, rel=1e-12)
+    assert book[0, baro.BIAS_VAR] == pytest.approx(var, rel=1e-12)
+    assert book[1, baro.BIAS] == 0.2 and book[1, baro.GPS_STAMP] == 0.3
+    assert diagnostics[0, DIAG["baro_bias"]] == pytest.approx(bias)
+
+
+M_N = sensor_models.world_field(0.5, 0.1, 1.1)
+FIELD = mag3.MagFieldFusionParams(
+    declination=0.1, hard_iron=[0.02, -0.01, 0.0], field_std=[0.005, 0.006, 0.004]
+)
+
+
+def test_field_rows_equal_the_batch_oracle_and_gate_a_disturbance():
+    rng = np.random.default_rng(1)
+    x = np.stack([nominal(rng) for _ in range(N)])
+    P = np.stack([spd(rng, 15, 1e-3) for _ in range(N)])
+    P_before = P.copy()
+    model = aiding.field_model(FIELD, gating.gate_threshold(3, 5.0))
+    mag = np.empty((N, 4))
+    for i in range(N):
+        mag[i, :3] = (
+            mag3.predicted_field(*x[i, 6:10], *M_N) + np.array(FIELD.hard_iron) + rng.normal(0, 0.005, 3)
+        )
+        mag[i, 3] = 0.5
+    mag[3, :3] += [0.3, 0.0, 0.0]  # a disturbance
+    book, diagnostics = np.full((N, 4), -1.0), np.tile(initial_diagnostics(), (N, 1))
+    dx, fused = np.zeros((N, 15)), np.zeros(N, dtype=bool)
+    aiding.field_rows(x, P, mag, book, 1, diagnostics, model, dx, fused)
+    assert fused.tolist() == [True, True, True, False]
+    assert diagnostics[3, DIAG["mag_gated"]] == 1 and (book[:, 1] == 0.5).all()
+    variance = np.square(FIELD.field_std)
+    for i in range(3):
+        x_oracle, P_oracle, nis = mag3.eskf_field_update(
+            x[i], P_before[i], mag[i, :3], M_N, FIELD.hard_iron, variance
+        )
+        x_new, P_new = eskf.inject(x[i], P[i], dx[i])
+        np.testing.assert_allclose(x_new, x_oracle, atol=1e-12)
+        np.testing.assert_allclose(P_new, P_oracle, atol=1e-12)
+        assert diagnostics[i, DIAG["field_nis"]] == pytest.approx(nis, rel=1e-10)
+    np.testing.assert_array_equal(P[3], P_before[3])
+
+
+def test_heading_rows_fuse_the_tilt_compensated_heading_as_the_ekf7_yaw():
+    rng = np.random.default_rng(2)
+    x = rng.normal(size=(N, 7))
+    P = np.stack([spd(rng, 7, 0.01) for _ in range(N)])
+    P_before, x_before = P.copy(), x.copy()
+    attitude = np.column_stack((rng.uniform(-0.3, 0.3, (N, 2)), x[:, 6]))
+    mag = np.empty((N, 4))
+    for i in range(N):
+        q = quat_from_euler(attitude[i, 0], attitude[i, 1], x[i, 6] + 0.05)
+        mag[i, :3] = sensor_models.magnetometer_field(q, M_N, FIELD.hard_iron, (0, 0, 0), (0, 0, 0))
+        mag[i, 3] = 0.25
+    mag[2, :3] = math.nan
+    model = aiding.heading_model(FIELD, gating.gate_threshold(1, 5.0))
+    book, diagnostics = np.full((N, 4), -1.0), np.tile(initial_diagnostics(), (N, 1))
+    dx, fused = np.zeros((N, 7)), np.zeros(N, dtype=bool)
+    aiding.heading_rows(x, P, mag, attitude, book, 1, diagnostics, model, dx, fused)
+    assert fused.tolist() == [True, True, False, True]
+    aiding.add_corrections(x, dx, fused, 6)
+    for i in (0, 1, 3):
+        m = mag[i, :3] - FIELD.hard_iron
+        heading = mag3.tilt_compensated_heading(attitude[i, 0], attitude[i, 1], *m, FIELD.declination)
+        assert wrap_to_pi(heading - x_before[i, 6] - 0.05) == pytest.approx(0.0, abs=1e-12)
+        r = mag3.heading_variance(attitude[i, 0], attitude[i, 1], *m, np.square(FIELD.field_std), 0.0)
+        x_oracle, P_oracle, nis = ekf.mag_update(x_before[i], P_before[i], heading, np.array([[r]]))
+        np.testing.assert_allclose(x[i], x_oracle, atol=1e-12)
+        np.testing.assert_allclose(P[i], P_oracle, atol=1e-12)
+        assert diagnostics[i, DIAG["mag_nis"]] == pytest.approx(nis, rel=1e-10)
+    assert diagnostics[2, DIAG["nonfinite_samples"]] == 1
+    np.testing.assert_array_equal(x[2], x_before[2])
