@@ -686,16 +686,8 @@ def _check_air(vehicle, fidelity, where):
 
 FAULT_OFFSET_LENGTHS = {"gps_outlier": 3, "gps_step": 3, "mag_bias": 1, "mag_disturbance": 3, "baro_step": 1}
 """Number of ``offset`` values each fault kind takes (the others take none)."""
-WINDOW_FAULT_KINDS = (
-    "gps_outage",
-    "gps_step",
-    "mag_bias",
-    "mag_outage",
-    "mag_disturbance",
-    "imu_dropout",
-    "baro_outage",
-    "baro_step",
-)
+WINDOW_FAULT_KINDS = tuple(kind for kind in FAULT_KINDS if kind not in ("gps_outlier", "gps_delay"))
+"""The faults that act over a [start, end) window (gps_outlier acts at ``time``, gps_delay always)."""
 MAG_MODEL_FAULTS = {"mag_bias": False, "mag_disturbance": True}
 """The magnetometer faults that need one model: False the yaw model, True ``three_axis``."""
 

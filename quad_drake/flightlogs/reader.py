@@ -287,39 +287,34 @@ def _sample_times(data):
     return data["timestamp"]
 
 
-def _ulog_mag(path, topics):
-    fields = [f"magnetometer_ga[{i}]" for i in range(3)]
-    if "vehicle_magnetometer" in topics:
-        data = topics["vehicle_magnetometer"]
-        return _ulog_samples(path, "vehicle_magnetometer", data, data["timestamp"], fields)
-    combined = topics["sensor_combined"]
-    if "magnetometer_timestamp_relative" not in combined:
+def _combined_samples(path, combined, sensor, label, fields):
+    """The `sensor` samples ("magnetometer", "baro") sensor_combined repeats at its own rate: each
+    kept once, at its own time (``<sensor>_timestamp_relative``), invalid ones dropped; or None."""
+    if f"{sensor}_timestamp_relative" not in combined:
         return None
-    relative = combined["magnetometer_timestamp_relative"].astype(np.int64)
+    relative = combined[f"{sensor}_timestamp_relative"].astype(np.int64)
     valid = relative != INVALID_RELATIVE_TIME
     stamps = combined["timestamp"].astype(np.int64) + relative
     _, first = np.unique(stamps, return_index=True)  # each sample is repeated until the next
     rows = np.sort(first[valid[first]])
     if rows.size == 0:
         return None
-    return _ulog_samples(path, "sensor_combined (magnetometer)", combined, stamps, fields, rows)
+    return _ulog_samples(path, f"sensor_combined ({label})", combined, stamps, fields, rows)
+
+
+def _ulog_mag(path, topics):
+    fields = [f"magnetometer_ga[{i}]" for i in range(3)]
+    if "vehicle_magnetometer" in topics:
+        data = topics["vehicle_magnetometer"]
+        return _ulog_samples(path, "vehicle_magnetometer", data, data["timestamp"], fields)
+    return _combined_samples(path, topics["sensor_combined"], "magnetometer", "magnetometer", fields)
 
 
 def _ulog_baro(path, topics):
     if "vehicle_air_data" in topics:
         data = topics["vehicle_air_data"]
         return _ulog_samples(path, "vehicle_air_data", data, data["timestamp"], ["baro_alt_meter"])
-    combined = topics["sensor_combined"]
-    if "baro_timestamp_relative" not in combined:
-        return None
-    relative = combined["baro_timestamp_relative"].astype(np.int64)
-    valid = relative != INVALID_RELATIVE_TIME
-    stamps = combined["timestamp"].astype(np.int64) + relative
-    _, first = np.unique(stamps, return_index=True)
-    rows = np.sort(first[valid[first]])
-    if rows.size == 0:
-        return None
-    return _ulog_samples(path, "sensor_combined (barometer)", combined, stamps, ["baro_alt_meter"], rows)
+    return _combined_samples(path, topics["sensor_combined"], "baro", "barometer", ["baro_alt_meter"])
 
 
 def _ulog_gps(path, topics):

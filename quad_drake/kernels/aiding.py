@@ -30,7 +30,7 @@ Pure: numba and numpy, no pydrake.
 import math
 
 from quad_drake.conventions import NO_SAMPLE_STAMP
-from quad_drake.estimation import baro, mag3
+from quad_drake.estimation import baro, gating, mag3
 from quad_drake.estimation.vocabulary import DIAG
 from quad_drake.jit import njit_cached
 from quad_drake.kernels import rotations
@@ -41,7 +41,7 @@ _BARO_NIS, _BARO_GATED, _BARO_RESETS = DIAG["baro_nis"], DIAG["baro_gated"], DIA
 _BARO_BIAS, _FIELD_NIS = DIAG["baro_bias"], DIAG["field_nis"]
 _BIAS, _BIAS_VAR, _LAST_HEIGHT, _LAST_STAMP = baro.BIAS, baro.BIAS_VAR, baro.LAST_HEIGHT, baro.LAST_STAMP
 _REJECTED_SINCE, _GPS_STAMP, _DATUM_SET = baro.REJECTED_SINCE, baro.GPS_STAMP, baro.DATUM_SET
-_TOLERANCE = 1e-9  # s, stamps are sums of periods
+_TOLERANCE = gating.STAMP_TOLERANCE  # s, stamps are sums of periods
 
 _scalar_correction = compiled(baro.scalar_correction)
 _height_innovation = compiled(baro.height_innovation)
