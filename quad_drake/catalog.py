@@ -8,7 +8,9 @@ campaigns all go through it.
 
 from pathlib import Path
 
-from .config import ConfigError, check_seed_range, did_you_mean, load_scenario
+from .config.errors import ConfigError, did_you_mean
+from .config.loader import load_scenario
+from .config.validation import check_seed_range
 from .outdir import is_result_folder
 
 _PACKAGE = Path(__file__).resolve().parent

@@ -13,7 +13,8 @@ import warnings
 from pathlib import Path
 
 from . import __version__, catalog
-from .config import ConfigError, load_scenario
+from .config.errors import ConfigError
+from .config.loader import load_scenario
 from .estimation.custom import EstimatorProblem
 from .outdir import check_output_dir, is_result_folder
 
@@ -86,7 +87,7 @@ def _check_costs(scenarios):
 def _warn(scenarios):
     """Every input being good: print on stderr what a long run will take and the criteria and
     faults that cannot matter for the flight's length (``config.ineffective_settings``)."""
-    from .config import ineffective_settings
+    from .config.validation import ineffective_settings
     from .limits import cost_warnings
 
     for scenario in scenarios:

@@ -4,7 +4,7 @@ import shutil
 import subprocess
 from pathlib import Path
 
-from .config import ConfigError
+from .config.errors import ConfigError
 from .simulation import build_diagram
 
 

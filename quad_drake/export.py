@@ -12,7 +12,7 @@ a value does not exist yet). ``units.json`` beside them gives each file's column
 import csv
 from pathlib import Path
 
-from .config import load_scenario
+from .config.loader import load_scenario
 from .estimation.registry import vehicle_vocabulary
 from .jsonio import dump_json
 from .results import load_logs

@@ -16,7 +16,7 @@ prints for a run it will fly anyway: above :data:`WARN_BYTES` of memory or
 import math
 import os
 
-from .config import ConfigError
+from .config.errors import ConfigError
 from .conventions import LOG_PERIOD
 
 LOG_COPIES = 2.1

@@ -7,7 +7,7 @@ noise; their sample standard deviations over fresh samples are the values the
 
 import numpy as np
 
-from .config import ConfigError
+from .config.errors import ConfigError
 
 
 def measured_noise_std(signals):

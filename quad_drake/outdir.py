@@ -7,7 +7,7 @@ import os
 import tempfile
 from pathlib import Path
 
-from .config import ConfigError
+from .config.errors import ConfigError
 
 
 def check_output_dir(path, option="--out"):

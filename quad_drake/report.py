@@ -15,7 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import ConfigError, dump_scenario
+from .config.errors import ConfigError
+from .config.loader import dump_scenario
 from .estimation.registry import vehicle_vocabulary
 from .estimation.vocabulary import health_counts, health_line
 from .evaluation import sigma_share

@@ -21,7 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import ConfigError, dump_scenario, load_scenario
+from .config.errors import ConfigError
+from .config.loader import dump_scenario, load_scenario
 from .estimation.registry import vehicle_vocabulary
 from .jsonio import dump_json
 from .outdir import locked, remove_stale, write_binary_atomic, write_text_atomic

@@ -27,7 +27,7 @@ A scenario switches all of them off with ``safety: {enabled: false}`` or one by 
 (``safety: {tracking: false}``); pure: config in, CriterionConfig list out.
 """
 
-from quad_drake.config import CriterionConfig
+from quad_drake.config.schema import CriterionConfig
 
 
 def is_closed_loop(vehicle):

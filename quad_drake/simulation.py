@@ -27,7 +27,7 @@ from pydrake.systems.primitives import (
 
 from . import conventions as c
 from . import jit
-from .config import check_scenario
+from .config.validation import check_scenario
 from .error_sampling import TICK_LOG_WIDTHS, TICK_REFERENCE, TICK_STATE
 from .estimation.registry import flies_on_estimate, vehicle_vocabulary
 from .faults import SENSORS, sensor_of

@@ -22,7 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from quad_drake.config import ConfigError, resolve_trajectory_file
+from quad_drake.config.errors import ConfigError
+from quad_drake.config.validation import resolve_trajectory_file
 from quad_drake.conventions import PHYSICS_PERIOD, REFERENCE_SIZE
 from quad_drake.rotations import quat_from_euler
 

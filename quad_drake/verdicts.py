@@ -5,7 +5,7 @@ The glue between the configuration, the named signals and the pure analyzers of
 they read, and one :class:`~quad_drake.evaluation.CriterionResult` per criterion.
 """
 
-from .config import ConfigError, did_you_mean
+from .config.errors import ConfigError, did_you_mean
 from .evaluation import CriterionStream, evaluate_criterion, judged_criteria
 
 

@@ -14,7 +14,7 @@ from quad_drake.accuracy_bound import (
     steady_state_kalman,
     yaw_bound,
 )
-from quad_drake.config import GpsParams, ImuParams, MagParams, SensorsConfig, VehicleConfig
+from quad_drake.config.schema import GpsParams, ImuParams, MagParams, SensorsConfig, VehicleConfig
 from quad_drake.rotations import quat_from_euler
 from quad_drake.signals import stamp_fresh
 

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from quad_drake import catalog
-from quad_drake.config import ConfigError, load_scenario
+from quad_drake.config.errors import ConfigError
+from quad_drake.config.loader import load_scenario
 from quad_drake.estimation.registry import nis_sensors
 from quad_drake.fleet.simulation import run_fleet
 from quad_drake.simulation import build_vehicle, run

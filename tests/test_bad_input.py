@@ -10,7 +10,7 @@ import tempfile
 
 import pytest
 
-from quad_drake.config import ConfigError
+from quad_drake.config.errors import ConfigError
 from quad_drake.outdir import check_output_dir
 from quad_drake.results import FORMAT_VERSION
 

@@ -37,8 +37,8 @@ from quad_drake.campaigns.output import rows
 from quad_drake.campaigns.plots import errors_figure
 from quad_drake.campaigns.records import slim
 from quad_drake.campaigns.tally import ConsistencyTally
-from quad_drake.config import (
-    ConfigError,
+from quad_drake.config.errors import ConfigError
+from quad_drake.config.schema import (
     CriterionConfig,
     ImuParams,
     MagParams,
@@ -543,7 +543,7 @@ def test_a_campaign_saved_over_another_leaves_none_of_its_plots(tmp_path):
 
 def test_a_fault_campaign_shades_the_fault_and_names_it_on_its_page(tmp_path):
     from quad_drake.campaigns.plots import consistency_figure
-    from quad_drake.config import FaultConfig
+    from quad_drake.config.schema import FaultConfig
 
     result = hand_made_campaign(7.0)
     result.scenario.vehicles[0].faults = [FaultConfig(kind="mag_outage", start=0.2, end=0.4)]

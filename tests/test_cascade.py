@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from quad_drake.config import ControllerParams
+from quad_drake.config.schema import ControllerParams
 from quad_drake.control.cascade import (
     altitude_control,
     body_rate_control,

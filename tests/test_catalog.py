@@ -3,7 +3,7 @@
 import pytest
 
 from quad_drake import catalog
-from quad_drake.config import ConfigError
+from quad_drake.config.errors import ConfigError
 
 
 def test_resolve_takes_a_bundled_name_or_a_path(tmp_path):

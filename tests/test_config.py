@@ -7,7 +7,9 @@ import pytest
 from pydrake.common.yaml import yaml_load_typed
 
 from quad_drake import catalog
-from quad_drake.config import ConfigError, ScenarioConfig, dump_scenario, load_scenario
+from quad_drake.config.errors import ConfigError
+from quad_drake.config.loader import dump_scenario, load_scenario
+from quad_drake.config.schema import ScenarioConfig
 
 
 def write(tmp_path, text, name="s.yaml"):

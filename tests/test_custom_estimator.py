@@ -10,7 +10,7 @@ import pytest
 
 from quad_drake import catalog
 from quad_drake.cli import main
-from quad_drake.config import ConfigError
+from quad_drake.config.errors import ConfigError
 from quad_drake.estimation import custom
 from quad_drake.estimation.registry import vehicle_vocabulary
 from quad_drake.simulation import run

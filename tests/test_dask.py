@@ -5,7 +5,7 @@ import pytest
 from quad_drake import catalog
 from quad_drake.campaigns import DaskRunner, run_campaign, table
 from quad_drake.campaigns.output import rows
-from quad_drake.config import ConfigError
+from quad_drake.config.errors import ConfigError
 
 distributed = pytest.importorskip("distributed")
 dask = pytest.importorskip("dask")

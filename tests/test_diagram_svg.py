@@ -6,7 +6,7 @@ import xml.etree.ElementTree as ET
 import pytest
 
 from quad_drake import catalog
-from quad_drake.config import ConfigError
+from quad_drake.config.errors import ConfigError
 from quad_drake.diagram_svg import diagram_dot, write_diagram_svg
 
 needs_dot = pytest.mark.skipif(

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from quad_drake import dynamics, sensor_models
-from quad_drake.config import ImuParams, PhysicsParams
+from quad_drake.config.schema import ImuParams, PhysicsParams
 from quad_drake.conventions import GRAVITY
 from quad_drake.rotations import quat_from_euler, rotation_from_quat
 

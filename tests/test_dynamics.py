@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from quad_drake.config import PhysicsParams
+from quad_drake.config.schema import PhysicsParams
 from quad_drake.conventions import GRAVITY, PHYSICS_PERIOD
 from quad_drake.dynamics import (
     apply_room_constraints,

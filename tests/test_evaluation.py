@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from quad_drake.config import CriterionConfig
+from quad_drake.config.schema import CriterionConfig
 from quad_drake.evaluation import (
     bound_threshold,
     evaluate_criterion,

@@ -5,7 +5,7 @@ fleet batch's streamed verdicts rest on."""
 import numpy as np
 import pytest
 
-from quad_drake.config import CriterionConfig
+from quad_drake.config.schema import CriterionConfig
 from quad_drake.evaluation import (
     CriterionStream,
     bound_threshold,

@@ -7,15 +7,9 @@ import numpy as np
 import pytest
 
 from quad_drake import catalog, simulation
-from quad_drake.config import (
-    ConfigError,
-    ControllerParams,
-    GpsParams,
-    ImuParams,
-    MagParams,
-    PhysicsParams,
-    load_scenario,
-)
+from quad_drake.config.errors import ConfigError
+from quad_drake.config.loader import load_scenario
+from quad_drake.config.schema import ControllerParams, GpsParams, ImuParams, MagParams, PhysicsParams
 from quad_drake.control.cascade import cascade_step, lateral_position_control
 from quad_drake.conventions import GRAVITY, PHYSICS_PERIOD
 from quad_drake.dynamics import plant_step, rigid_body_step, rigid_body_step_semi_implicit

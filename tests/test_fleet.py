@@ -12,7 +12,7 @@ from pydrake.systems.framework import DiagramBuilder
 from quad_drake import catalog
 from quad_drake import conventions as c
 from quad_drake.campaigns import ProcessPoolRunner, run_campaign, table
-from quad_drake.config import FaultConfig
+from quad_drake.config.schema import FaultConfig
 from quad_drake.fleet.runner import BATCH_MEMORY, MAX_BATCH, batches, default_batch_size, fly_batch
 from quad_drake.fleet.simulation import run_fleet
 from quad_drake.fleet.summaries import summary_bytes

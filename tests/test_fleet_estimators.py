@@ -13,7 +13,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
 from quad_drake import delay_compensation
-from quad_drake.config import AttitudeFilterParams, EkfParams, VehicleConfig
+from quad_drake.config.schema import AttitudeFilterParams, EkfParams, VehicleConfig
 from quad_drake.conventions import GRAVITY, NO_SAMPLE_STAMP
 from quad_drake.estimation import ekf, eskf, gating
 from quad_drake.estimation.complementary import complementary_update

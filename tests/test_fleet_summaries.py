@@ -12,7 +12,7 @@ import pytest
 from quad_drake import catalog
 from quad_drake import consistency as cons
 from quad_drake.campaigns.records import summarize_run
-from quad_drake.config import GpsParams, ImuParams, MagParams, SensorsConfig
+from quad_drake.config.schema import GpsParams, ImuParams, MagParams, SensorsConfig
 from quad_drake.estimation.registry import vehicle_vocabulary
 from quad_drake.fleet.bounds import PcrbStream, posterior_crbs
 from quad_drake.fleet.runner import BatchTask, batch_logs, fly_batch

@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from quad_drake.config import TRAJECTORY_DIR, load_scenario
+from quad_drake.config.loader import load_scenario
+from quad_drake.config.schema import TRAJECTORY_DIR
 from quad_drake.evaluation import window_threshold
 from quad_drake.simulation import run
 from quad_drake.trajectories import float32_clock, load_trajectory_file

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from quad_drake import catalog
-from quad_drake.config import SafetyConfig, ScenarioConfig
+from quad_drake.config.schema import SafetyConfig, ScenarioConfig
 from quad_drake.safety import safety_criteria
 from quad_drake.signals import touchdown_speeds
 from quad_drake.simulation import run

@@ -11,7 +11,10 @@ import pytest
 
 from quad_drake import catalog, jit, limits
 from quad_drake.campaigns import run_campaign
-from quad_drake.config import ConfigError, CriterionConfig, FaultConfig, ineffective_settings, load_scenario
+from quad_drake.config.errors import ConfigError
+from quad_drake.config.loader import load_scenario
+from quad_drake.config.schema import CriterionConfig, FaultConfig
+from quad_drake.config.validation import ineffective_settings
 from quad_drake.fleet.simulation import run_fleet
 from quad_drake.progress import FlightProgress
 from quad_drake.simulation import run

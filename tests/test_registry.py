@@ -10,7 +10,9 @@ import pytest
 from pydrake.systems.analysis import Simulator
 
 from quad_drake import catalog
-from quad_drake.config import ConfigError, VehicleConfig, load_scenario
+from quad_drake.config.errors import ConfigError
+from quad_drake.config.loader import load_scenario
+from quad_drake.config.schema import VehicleConfig
 from quad_drake.estimation import registry
 from quad_drake.fidelity import PHYSICAL, REFERENCE
 from quad_drake.simulation import build_vehicle, run, vehicle_log_names

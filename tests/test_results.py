@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from quad_drake import catalog
-from quad_drake.config import ConfigError
+from quad_drake.config.errors import ConfigError
 from quad_drake.jsonio import dump_json, to_json_ready
 from quad_drake.report import find_summaries, write_index
 from quad_drake.results import FORMAT_VERSION, RUNNER, load_run, save_run

@@ -12,7 +12,9 @@ import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
 
-from quad_drake.config import ConfigError, PhysicsParams, ScenarioConfig, VehicleConfig, load_scenario
+from quad_drake.config.errors import ConfigError
+from quad_drake.config.loader import load_scenario
+from quad_drake.config.schema import PhysicsParams, ScenarioConfig, VehicleConfig
 from quad_drake.conventions import GRAVITY
 from quad_drake.dynamics import on_floor, outside_room
 from quad_drake.evaluation import (

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from quad_drake import sensor_models
-from quad_drake.config import GpsParams, ImuParams, MagParams
+from quad_drake.config.schema import GpsParams, ImuParams, MagParams
 from quad_drake.conventions import GRAVITY
 from quad_drake.rotations import quat_from_euler, rotation_from_quat
 

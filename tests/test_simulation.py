@@ -125,7 +125,8 @@ def test_results_save_and_reload(tmp_path):
 
 
 def test_unknown_signal_in_a_criterion_is_a_config_error():
-    from quad_drake.config import ConfigError, load_scenario
+    from quad_drake.config.errors import ConfigError
+    from quad_drake.config.loader import load_scenario
 
     # Loading through the catalog reports it with the file; run() checks a scenario built otherwise.
     with pytest.raises(

@@ -16,7 +16,14 @@ from quad_drake.campaigns import CampaignResult, InProcessRunner, Runner, RunRec
 from quad_drake.campaigns.output import rows
 from quad_drake.campaigns.records import campaign_vocabulary, slim
 from quad_drake.campaigns.tally import ConsistencyTally, fold_records
-from quad_drake.config import GpsParams, ImuParams, MagParams, ScenarioConfig, SensorsConfig, VehicleConfig
+from quad_drake.config.schema import (
+    GpsParams,
+    ImuParams,
+    MagParams,
+    ScenarioConfig,
+    SensorsConfig,
+    VehicleConfig,
+)
 
 RTOL = 1e-12
 

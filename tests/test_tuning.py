@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 from quad_drake import consistency as cons
-from quad_drake.config import ConfigError, load_scenario
+from quad_drake.config.errors import ConfigError
+from quad_drake.config.loader import load_scenario
 from quad_drake.estimation.registry import KINDS, EskfEstimatorConfig
 from quad_drake.tuning import objective, search, session, space
 from quad_drake.tuning.objective import INFEASIBLE, Score

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from quad_drake import wind
-from quad_drake.config import GustConfig, WindConfig
+from quad_drake.config.schema import GustConfig, WindConfig
 from quad_drake.kernels import flight as kernels
 
 
@@ -125,7 +125,8 @@ def test_kernels_match_the_matrix_forms():
 
 def test_config_checks_of_the_air():
     from quad_drake import catalog
-    from quad_drake.config import ConfigError, ineffective_settings
+    from quad_drake.config.errors import ConfigError
+    from quad_drake.config.validation import ineffective_settings
 
     with pytest.raises(ConfigError, match=r"vehicles\.0\.wind\.gusts\.0\.direction: must not be zero"):
         catalog.load("20_gust_figure_eight", None, ["vehicles.0.wind.gusts.0.direction=[0, 0, 0]"])

@@ -15,7 +15,8 @@ import time
 
 from tqdm import tqdm
 
-from ..config import ConfigError, check_scenario, check_seed_range
+from ..config.errors import ConfigError
+from ..config.validation import check_scenario, check_seed_range
 from ..limits import check_memory, check_run
 from ..simulation import available_signals
 from ..verdicts import check_criteria

@@ -4,7 +4,7 @@ Self-contained like a run's report (:mod:`quad_drake.report`)."""
 
 from pathlib import Path
 
-from ..config import dump_scenario
+from ..config.loader import dump_scenario
 from ..outdir import write_text_atomic
 from ..report import esc, faults_html, figures_html, html_page, html_table, num, verdict_cell
 from .records import settle_time

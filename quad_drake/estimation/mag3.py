@@ -42,7 +42,7 @@ from typing import List
 
 import numpy as np
 
-from quad_drake.config_fields import noise_stds, number, vector
+from quad_drake.config.fields import noise_stds, number, vector
 from quad_drake.rotations import rotation_entries
 from quad_drake.sensor_models import world_field
 

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import Dict, List, Optional, Union
 
-from quad_drake.config_fields import noise_stds, number, vector
+from quad_drake.config.fields import noise_stds, number, vector
 from quad_drake.conventions import ONBOARD_PERIOD
 from quad_drake.estimation import custom
 from quad_drake.estimation.baro import BaroFusionParams

@@ -16,7 +16,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 
 from quad_drake import conventions as c
-from quad_drake.config import check_scenario
+from quad_drake.config.validation import check_scenario
 from quad_drake.fidelity import fidelity_from_mode
 from quad_drake.limits import check_run
 from quad_drake.simulation import build_vehicle, vehicle_log_widths

@@ -7,7 +7,7 @@ ConfigError, which the CLI prints as one line with exit code 2.
 import math
 from pathlib import Path
 
-from quad_drake.config import ConfigError
+from quad_drake.config.errors import ConfigError
 from quad_drake.flightlogs.replay import COMPARE_AFTER, replay, save_replay
 from quad_drake.flightlogs.settings import estimator_mapping, load_replay
 from quad_drake.outdir import check_output_dir, is_result_folder

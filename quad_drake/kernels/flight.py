@@ -22,7 +22,7 @@ from collections.abc import Callable
 import numpy as np
 
 from quad_drake import dynamics, rotations, sensor_models, wind
-from quad_drake.config import ControllerParams, ImuParams, MagParams, PhysicsParams
+from quad_drake.config.schema import ControllerParams, ImuParams, MagParams, PhysicsParams
 from quad_drake.control import cascade
 from quad_drake.fidelity import PHYSICAL, Fidelity
 from quad_drake.jit import njit_cached

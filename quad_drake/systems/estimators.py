@@ -32,7 +32,7 @@ import math
 import numpy as np
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
-from quad_drake.config import ConfigError
+from quad_drake.config.errors import ConfigError
 from quad_drake.conventions import (
     ATTITUDE_FILTER_OFFSET,
     ATTITUDE_SIZE,

@@ -15,7 +15,7 @@ import io
 from pathlib import Path
 
 from .. import campaigns
-from ..config import dump_scenario
+from ..config.loader import dump_scenario
 from ..jsonio import dump_json
 from ..outdir import write_binary_atomic, write_text_atomic
 from .objective import score

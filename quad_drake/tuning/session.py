@@ -17,7 +17,8 @@ from dataclasses import dataclass, field
 from tqdm import tqdm
 
 from ..accuracy_bound import accuracy_bound
-from ..config import ConfigError, check_seed_range
+from ..config.errors import ConfigError
+from ..config.validation import check_seed_range
 from ..simulation import available_signals
 from ..verdicts import check_criteria
 from . import output

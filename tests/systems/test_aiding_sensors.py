@@ -12,7 +12,9 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput, RandomSource
 
 from quad_drake import sensor_models
-from quad_drake.config import BaroParams, ConfigError, MagParams, load_scenario
+from quad_drake.config.errors import ConfigError
+from quad_drake.config.loader import load_scenario
+from quad_drake.config.schema import BaroParams, MagParams
 from quad_drake.conventions import NO_SAMPLE_STAMP, SLOW_SENSOR_OFFSET
 from quad_drake.kernels import sensors as sensor_kernels
 from quad_drake.rotations import quat_from_euler, rotation_from_quat

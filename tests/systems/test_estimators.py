@@ -8,7 +8,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
-from quad_drake.config import AttitudeFilterParams, EkfParams, VehicleConfig
+from quad_drake.config.schema import AttitudeFilterParams, EkfParams, VehicleConfig
 from quad_drake.conventions import ATTITUDE_FILTER_OFFSET, GRAVITY, NO_SAMPLE_STAMP, ONBOARD_PERIOD
 from quad_drake.estimation import ekf, eskf, gating
 from quad_drake.estimation.complementary import complementary_update

@@ -8,7 +8,7 @@ from pydrake.systems.analysis import Simulator
 
 from quad_drake import catalog
 from quad_drake import conventions as c
-from quad_drake.config import FaultConfig
+from quad_drake.config.schema import FaultConfig
 from quad_drake.simulation import run
 from quad_drake.systems.faults import SensorFaults
 

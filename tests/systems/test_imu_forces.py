@@ -7,7 +7,7 @@ import pytest
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from quad_drake.config import ImuParams, PhysicsParams
+from quad_drake.config.schema import ImuParams, PhysicsParams
 from quad_drake.conventions import GRAVITY, ONBOARD_PERIOD
 from quad_drake.rotations import quat_from_euler
 from quad_drake.systems.plant import QuadrotorPlant

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
 
-from quad_drake.config import GpsParams, ImuParams, MagParams
+from quad_drake.config.schema import GpsParams, ImuParams, MagParams
 from quad_drake.conventions import NO_SAMPLE_STAMP, ONBOARD_PERIOD
 from quad_drake.flightlogs.playback import playback_streams
 from quad_drake.flightlogs.reader import FlightLog, Samples

@@ -9,7 +9,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
 from quad_drake import conventions as c
-from quad_drake.config import (
+from quad_drake.config.schema import (
     BaroParams,
     ControllerParams,
     GpsParams,
