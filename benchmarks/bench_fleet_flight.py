@@ -31,9 +31,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from pydrake.systems.framework import LeafSystem  # noqa: E402
 
 from benchmarks.handlers import empty, replaced_handlers  # noqa: E402
-from quad_drake import catalog  # noqa: E402
+from quad_drake.campaigns.fleet.diagram import build_fleet_diagram, fly, release_memory  # noqa: E402
 from quad_drake.conventions import LOG_PERIOD, ONBOARD_PERIOD  # noqa: E402
-from quad_drake.fleet.simulation import build_fleet_diagram, fly, release_memory  # noqa: E402
+from quad_drake.running import catalog  # noqa: E402
 from quad_drake.systems import controller, faults, noise, plant, sensors, trajectory  # noqa: E402
 from quad_drake.systems import estimators as estimator_systems  # noqa: E402
 

@@ -13,10 +13,10 @@ import argparse
 import resource
 import time
 
-from quad_drake import catalog
-from quad_drake.fleet.runner import BatchTask, simulate_batch
-from quad_drake.fleet.simulation import run_fleet
-from quad_drake.fleet.summaries import summarize_logs
+from quad_drake.campaigns.fleet.diagram import run_fleet
+from quad_drake.campaigns.fleet.runner import BatchTask, simulate_batch
+from quad_drake.campaigns.fleet.summaries import summarize_logs
+from quad_drake.running import catalog
 
 
 def _cpu(function, *args):

@@ -7,7 +7,7 @@ Conventions (stated once, used everywhere):
   ``GRAVITY_N = (0, 0, +9.81)`` m/s^2; an altitude of 1 m is z = -1.
 - Quaternions are wxyz (Drake order), Hamilton, and map body to world.
   Euler angles are ZYX: ``R_NB = Rz(yaw) @ Ry(pitch) @ Rx(roll)``.
-  Every yaw difference goes through :func:`quad_drake.rotations.wrap_to_pi`.
+  Every yaw difference goes through :func:`quad_drake.models.rotations.wrap_to_pi`.
 - Names follow Drake's monogram notation: ``p_NB`` (position of B in N,
   expressed in N), ``v_NB``, ``R_NB``, ``w_NB_B`` (angular velocity of B in N,
   expressed in B).

@@ -18,9 +18,7 @@ import time
 import numpy as np
 import pytest
 
-from quad_drake import catalog, cli
-from quad_drake import consistency as cons
-from quad_drake.accuracy_bound import accuracy_bound
+from quad_drake import cli
 from quad_drake.campaigns import (
     CampaignInterrupted,
     CampaignResult,
@@ -47,9 +45,12 @@ from quad_drake.config.schema import (
     VehicleConfig,
 )
 from quad_drake.estimation.vocabulary import EKF7
-from quad_drake.evaluation import rms
-from quad_drake.report import write_index
-from quad_drake.results import variant_name
+from quad_drake.judging import consistency as cons
+from quad_drake.judging.evaluation import rms
+from quad_drake.models.accuracy_bound import accuracy_bound
+from quad_drake.output.report import write_index
+from quad_drake.output.results import variant_name
+from quad_drake.running import catalog
 
 
 def strict_loads(text):
@@ -106,7 +107,7 @@ def test_same_table_and_rows_whatever_the_runner(scenario, serial):
 
 
 def test_run_i_is_the_single_run_with_seed_s_plus_i(scenario, serial, sent):
-    from quad_drake.simulation import run
+    from quad_drake.running.simulation import run
 
     single = run(dataclasses.replace(scenario, seed=7))
     record = serial.records[2]

@@ -6,10 +6,10 @@ import textwrap
 import pytest
 from pydrake.common.yaml import yaml_load_typed
 
-from quad_drake import catalog
 from quad_drake.config.errors import ConfigError
 from quad_drake.config.loader import dump_scenario, load_scenario
 from quad_drake.config.schema import ScenarioConfig
+from quad_drake.running import catalog
 
 
 def write(tmp_path, text, name="s.yaml"):

@@ -10,7 +10,7 @@ from scipy.stats import chi2
 from quad_drake.config.schema import EkfParams
 from quad_drake.conventions import GRAVITY
 from quad_drake.estimation import ekf
-from quad_drake.rotations import wrap_to_pi
+from quad_drake.models.rotations import wrap_to_pi
 
 DT = 0.002
 HOVER_F_B = np.array([0.0, 0.0, -GRAVITY])

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from quad_drake.config.schema import CriterionConfig
-from quad_drake.evaluation import (
+from quad_drake.judging.evaluation import (
     CriterionStream,
     bound_threshold,
     evaluate_criterion,

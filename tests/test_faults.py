@@ -4,9 +4,9 @@ import math
 
 import pytest
 
-from quad_drake import faults
 from quad_drake.config.schema import FaultConfig
 from quad_drake.conventions import NO_SAMPLE_STAMP
+from quad_drake.models import faults
 
 GPS_PERIOD = 0.1
 

@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 from scipy.stats import fisher_exact
 
-from quad_drake import catalog
 from quad_drake.campaigns import ProcessPoolRunner, run_campaign
+from quad_drake.running import catalog
 
 SEED = 7000
 BOOTSTRAP = 2000

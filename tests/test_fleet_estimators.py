@@ -19,13 +19,13 @@ from quad_drake.estimation import ekf, eskf, gating
 from quad_drake.estimation.complementary import complementary_update
 from quad_drake.estimation.registry import Ekf7EstimatorConfig, EskfEstimatorConfig, vocabulary_for
 from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE
-from quad_drake.fidelity import PHYSICAL, REFERENCE
 from quad_drake.kernels import attitude as attitude_kernel
 from quad_drake.kernels import ekf7, fusion
 from quad_drake.kernels import eskf as eskf_kernel
 from quad_drake.kernels import odometry as odometry_kernel
 from quad_drake.kernels.imu_hold import HOLD_SIZE, IMU_HOLD_TIME, initial_hold
-from quad_drake.rotations import quat_from_euler_tuple
+from quad_drake.models.fidelity import PHYSICAL, REFERENCE
+from quad_drake.models.rotations import quat_from_euler_tuple
 from quad_drake.systems.estimators import build_estimator
 from quad_drake.systems.faults import GpsDelayCompensator
 

@@ -9,11 +9,11 @@ import dataclasses
 import numpy as np
 import pytest
 
-from quad_drake import dynamics, sensor_models
 from quad_drake.config.schema import ControllerParams, GpsParams, ImuParams, MagParams, PhysicsParams
 from quad_drake.control import cascade
-from quad_drake.fidelity import PHYSICAL, REFERENCE
 from quad_drake.kernels import flight as kernels
+from quad_drake.models import dynamics, sensor_models
+from quad_drake.models.fidelity import PHYSICAL, REFERENCE
 
 N = 200
 TOL = 1e-12
@@ -279,9 +279,9 @@ def test_cascade_step_matches_scalar(fidelity, spread):
 
 
 def test_posterior_crbs_match_the_scalar_bound():
-    from quad_drake.accuracy_bound import posterior_crb
     from quad_drake.config.schema import SensorsConfig
-    from quad_drake.fleet.bounds import posterior_crbs
+    from quad_drake.kernels.bounds import posterior_crbs
+    from quad_drake.models.accuracy_bound import posterior_crb
 
     rng = np.random.default_rng(1206)
     n, runs = 1000, 4

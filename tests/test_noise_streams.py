@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from pydrake.common import RandomDistribution
 
-from quad_drake.noise_streams import NoiseStreams, stream_generator
+from quad_drake.models.random_streams import NoiseStreams, stream_generator
 from quad_drake.systems.noise import NoiseStreamSource
 
 

@@ -11,8 +11,9 @@ a delayed GPS, both estimators) must still fly.
 
 import pytest
 
-from quad_drake import catalog, delay_compensation, simulation
+from quad_drake import delay_compensation
 from quad_drake.estimation import ekf, eskf
+from quad_drake.running import catalog, simulation
 
 ORACLES = {
     ekf: (

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 import quad_drake
-from quad_drake import catalog
+from quad_drake.running import catalog
 
 REPO = Path(__file__).resolve().parent.parent
 PACKAGE = Path(quad_drake.__file__).resolve().parent
@@ -45,14 +45,14 @@ def test_the_import_scan_sees_relative_imports_of_the_cli():
 
 PURE = (
     "quad_drake.conventions",
-    "quad_drake.fidelity",
-    "quad_drake.rotations",
-    "quad_drake.dynamics",
-    "quad_drake.sensor_models",
-    "quad_drake.faults",
+    "quad_drake.models.fidelity",
+    "quad_drake.models.rotations",
+    "quad_drake.models.dynamics",
+    "quad_drake.models.sensor_models",
+    "quad_drake.models.faults",
     "quad_drake.delay_compensation",
-    "quad_drake.noise_streams",
-    "quad_drake.error_sampling",
+    "quad_drake.models.random_streams",
+    "quad_drake.judging.error_sampling",
     "quad_drake.control",
     "quad_drake.estimation",
     "quad_drake.config.errors",
@@ -60,11 +60,11 @@ PURE = (
     "quad_drake.config.schema",
     "quad_drake.config.validation",
     "quad_drake.flightlogs.reader",
-    "quad_drake.flightlogs.playback",
+    "quad_drake.flightlogs.schedule",
     "quad_drake.flightlogs.comparison",
 )
 """The pure modules (maths and models: numpy, no Drake); a package name covers its modules."""
-KERNELS = ("quad_drake.kernels", "quad_drake.fleet.bounds")
+KERNELS = ("quad_drake.kernels", "quad_drake.kernels.bounds")
 """The compiled kernels, below the systems."""
 
 FORBIDDEN = (
@@ -72,13 +72,13 @@ FORBIDDEN = (
     (
         "systems import no campaign, simulation, tuning or fleet module",
         ("quad_drake.systems",),
-        ("quad_drake.campaigns", "quad_drake.simulation", "quad_drake.tuning", "quad_drake.fleet"),
+        ("quad_drake.campaigns", "quad_drake.running.simulation", "quad_drake.tuning", "quad_drake.campaigns.fleet"),
     ),
     ("kernels import no pydrake and no systems", KERNELS, ("pydrake", "quad_drake.systems")),
     (
         "pure modules import no kernels, systems or pydrake",
         PURE,
-        ("pydrake", "quad_drake.systems", "quad_drake.simulation", *KERNELS),
+        ("pydrake", "quad_drake.systems", "quad_drake.running.simulation", *KERNELS),
     ),
 )
 """(rule, importers, imported): no module under an importer prefix imports one under an imported
@@ -186,7 +186,7 @@ def test_wheel_installed_outside_the_repo_lists_and_runs_the_bundled_scenarios(t
     assert Path(where.stdout.strip()).is_relative_to(venv), where.stdout + where.stderr
 
     folder = _run(
-        str(python), "-c", "from quad_drake import catalog; print(catalog.SCENARIO_DIR)", cwd=cwd, env=env
+        str(python), "-c", "from quad_drake.running import catalog; print(catalog.SCENARIO_DIR)", cwd=cwd, env=env
     )
     assert Path(folder.stdout.strip()) == Path(where.stdout.strip()).parent / "scenarios", folder.stderr
     listed = _run(quad_drake_exe, "list", cwd=cwd, env=env)

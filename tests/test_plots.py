@@ -6,7 +6,6 @@ import re
 import numpy as np
 import pytest
 
-from quad_drake import plots
 from quad_drake.config.schema import (
     CriterionConfig,
     GpsParams,
@@ -16,9 +15,10 @@ from quad_drake.config.schema import (
     VehicleConfig,
 )
 from quad_drake.estimation.vocabulary import DIAGNOSTICS_SIZE
-from quad_drake.report import criterion_row, ekf_consistency, key_metrics
-from quad_drake.results import result_from_logs
-from quad_drake.rotations import quat_from_euler
+from quad_drake.models.rotations import quat_from_euler
+from quad_drake.output import plots
+from quad_drake.output.report import criterion_row, ekf_consistency, key_metrics
+from quad_drake.output.results import result_from_logs
 
 LOG_PERIOD = 0.005
 
@@ -237,8 +237,8 @@ def test_diverged_run_still_gets_plots_and_report(tmp_path):
 
 
 def test_real_run_artifacts(tmp_path):
-    from quad_drake import catalog
-    from quad_drake.simulation import run
+    from quad_drake.running import catalog
+    from quad_drake.running.simulation import run
 
     result = run(catalog.load("01_intro"))
     artifacts = plots.write_run_artifacts(result, tmp_path)
@@ -372,7 +372,7 @@ def test_bound_and_recovery_criteria_get_a_figure_and_faults_are_shaded_on_every
 
 def test_run_and_campaign_pages_name_the_fault_window(tmp_path):
     from quad_drake.config.schema import FaultConfig
-    from quad_drake.report import faults_html
+    from quad_drake.output.report import faults_html
 
     result = make_result()
     assert faults_html(result.scenario) == []

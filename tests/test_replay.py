@@ -14,8 +14,8 @@ import time
 import numpy as np
 import pytest
 
-from quad_drake.replay import frame_indices, ned_to_zup, show_live, write_replay
-from quad_drake.rotations import quat_from_euler, rotation_from_quat
+from quad_drake.models.rotations import quat_from_euler, rotation_from_quat
+from quad_drake.output.meshcat_animation import frame_indices, ned_to_zup, show_live, write_replay
 
 C = np.diag([1.0, -1.0, -1.0])
 

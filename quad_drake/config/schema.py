@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import List, Optional
 
 from ..estimation.registry import AidingParams, Ekf7EstimatorConfig, EstimatorConfig, GateParams
-from ..fidelity import FIDELITY_MODES
+from ..models.fidelity import FIDELITY_MODES
 from .fields import noise_stds, number, vector
 
 PACKAGE_DIR = Path(__file__).resolve().parent.parent
@@ -211,7 +211,7 @@ FAULT_KINDS = (
 
 @dataclass
 class FaultConfig:
-    """A sensor fault injected between a sensor and the estimators (``quad_drake.faults``).
+    """A sensor fault injected between a sensor and the estimators (``quad_drake.models.faults``).
 
     Windows are [start, end) s on the sample's measurement time (its stamp):
     gps_outage, mag_outage: no samples in [start, end).
@@ -252,7 +252,7 @@ class GustConfig:
 
 @dataclass
 class WindConfig:
-    """The air's velocity around a vehicle (``quad_drake.wind``, ``systems.wind.Wind``), m/s, NED:
+    """The air's velocity around a vehicle (``quad_drake.models.wind``, ``systems.wind.Wind``), m/s, NED:
     constant + gusts + Dryden turbulence. It acts through the drag of ``physics`` only."""
 
     mean: List[float] = vector(0.0, 0.0, 0.0)  # m/s, NED, constant wind
@@ -309,11 +309,11 @@ class VehicleConfig:
     # s, the longest GPS lag the estimator compensates (0 = off): a late GPS sample is moved by
     # the estimate's own motion since its stamp (quad_drake.delay_compensation)
     gps_delay_compensation: float = number(0.0, nonnegative=True)
-    wind: Optional[WindConfig] = None  # none: still air (quad_drake.wind)
+    wind: Optional[WindConfig] = None  # none: still air (quad_drake.models.wind)
 
 
 SAFETY_KINDS = ("floor", "room", "finite", "tracking")
-"""Flight-safety criterion kinds (``quad_drake.safety`` adds them to every scenario)."""
+"""Flight-safety criterion kinds (``quad_drake.judging.safety`` adds them to every scenario)."""
 CRITERION_KINDS = ("window", "sigma", "fleet_sigma", "bound", "recovery", *SAFETY_KINDS)
 
 
@@ -334,7 +334,7 @@ class CriterionConfig:
     recovery: ABS(signal) < threshold on every sample from start + window s to the end of
             the run: back under the threshold within ``window`` s after ``start`` (e.g. the
             end of a fault) and staying there.
-    Flight safety (derived by ``quad_drake.safety``; ``signal`` is a vehicle's signal):
+    Flight safety (derived by ``quad_drake.judging.safety``; ``signal`` is a vehicle's signal):
     floor:  ``V.FloorTouchdowns`` stays 0 (no touchdown after take-off) until
             ``landing_time`` s (None: the whole run), and V leaves the floor at all.
     room:   ``V.WallContactSteps`` stays 0 (never stopped by a wall or the ceiling).
@@ -360,7 +360,7 @@ class CriterionConfig:
 
 @dataclass
 class SafetyConfig:
-    """Flight-safety criteria judged on every vehicle's true flight (``quad_drake.safety``).
+    """Flight-safety criteria judged on every vehicle's true flight (``quad_drake.judging.safety``).
 
     ``enabled: false`` switches them all off; each check can be switched off alone.
     tracking applies to vehicles whose position loops are closed (kp_pos_xy, kp_pos_z > 0).
@@ -371,7 +371,7 @@ class SafetyConfig:
     room: bool = True  # never stopped by a wall or the ceiling
     finite: bool = True  # the true state stays finite
     tracking: bool = True  # |Vehicle.PosFollowErr| <= tracking_bound
-    tracking_bound: float = number(6.0, positive=True)  # m (quad_drake.safety: why 6)
+    tracking_bound: float = number(6.0, positive=True)  # m (quad_drake.judging.safety: why 6)
     landing_time: Optional[float] = None  # s, a documented landing: touchdowns from then on pass
     # m/s: with a landing_time, every touchdown's descent speed must stay below it (a landing,
     # not a crash: V.TouchdownSpeed); 0 = not judged
@@ -391,5 +391,5 @@ class ScenarioConfig:
     criteria: List[CriterionConfig] = field(default_factory=list)
     safety: SafetyConfig = field(default_factory=SafetyConfig)
     # physical: RK4, physical accelerometer, horizontal accel limit, exact clock;
-    # reference: the FCND binary's numerics (quad_drake.fidelity, README "Fidelity").
+    # reference: the FCND binary's numerics (quad_drake.models.fidelity, README "Fidelity").
     fidelity: str = field(default="physical", metadata={"choices": FIDELITY_MODES})

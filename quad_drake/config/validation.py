@@ -11,7 +11,7 @@ from pathlib import Path
 
 from ..conventions import ONBOARD_PERIOD
 from ..estimation.registry import kind_of
-from ..fidelity import fidelity_from_mode
+from ..models.fidelity import fidelity_from_mode
 from .errors import ConfigError, did_you_mean
 from .schema import FAULT_KINDS, MAX_SEED, TRAJECTORY_DIR, ScenarioConfig
 

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from quad_drake.conventions import EKF_STATE_SIZE, GRAVITY
-from quad_drake.rotations import wrap_to_pi
+from quad_drake.models.rotations import wrap_to_pi
 
 YAW_INDEX = 6
 

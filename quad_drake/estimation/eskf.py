@@ -49,7 +49,7 @@ import numpy as np
 
 from quad_drake.conventions import GRAVITY
 from quad_drake.estimation.ekf import mag_innovation
-from quad_drake.rotations import quat_product, rotation_entries
+from quad_drake.models.rotations import quat_product, rotation_entries
 
 NOMINAL_SIZE = 16
 P_IDX, V_IDX, Q_IDX, BA_IDX, BG_IDX = slice(0, 3), slice(3, 6), slice(6, 10), slice(10, 13), slice(13, 16)

@@ -38,7 +38,7 @@ from quad_drake.estimation import custom
 from quad_drake.estimation.baro import BaroFusionParams
 from quad_drake.estimation.mag3 import MagFieldFusionParams
 from quad_drake.estimation.vocabulary import EKF7, ESKF9, ESKF15, EstimatorVocabulary, euler_vocabulary
-from quad_drake.fidelity import Fidelity
+from quad_drake.models.fidelity import Fidelity
 
 
 @dataclass

@@ -46,9 +46,7 @@ import numpy as np
 
 from quad_drake.estimation import ekf
 from quad_drake.estimation.vocabulary import DIAG
-from quad_drake.jit import njit_cached
 from quad_drake.kernels import fusion, rotations
-from quad_drake.kernels.flight import compiled
 from quad_drake.kernels.fusion import (
     GPS_SLOT,
     fresh,
@@ -65,6 +63,7 @@ from quad_drake.kernels.imu_hold import (
     hold_weight,
     row_finite,
 )
+from quad_drake.kernels.jit import compiled, njit_cached
 
 Samples = collections.namedtuple("Samples", ["attitude", "imu", "gps", "mag"])
 """One tick's inputs of N vehicles: attitude (N, 3) roll, pitch, yaw rad (this tick's attitude

@@ -47,11 +47,10 @@ import numpy as np
 
 from quad_drake.estimation import eskf
 from quad_drake.estimation.vocabulary import DIAG
-from quad_drake.jit import njit_cached
 from quad_drake.kernels import fusion, rotations
-from quad_drake.kernels.flight import compiled
 from quad_drake.kernels.fusion import fresh_mag, joseph_rows, looks_healthy, mag_gate, mag_innovation
 from quad_drake.kernels.imu_hold import IMU_FINITE, IMU_MISSING, bridge_imu_row, hold_weight
+from quad_drake.kernels.jit import compiled, njit_cached
 
 Model = collections.namedtuple("Model", ["dt", "accel_var", "gyro_var", "isotropic_gyro", "Q_constant"])
 """The filter's constants: dt s, accel_var and gyro_var (3,) per IMU sample (``eskf.NoiseModel``),

@@ -27,9 +27,8 @@ import numpy as np
 from quad_drake.conventions import NO_SAMPLE_STAMP
 from quad_drake.estimation import ekf, gating
 from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE
-from quad_drake.jit import njit_cached
 from quad_drake.kernels import rotations
-from quad_drake.kernels.flight import compiled
+from quad_drake.kernels.jit import compiled, njit_cached
 
 GPS_SLOT, MAG_SLOT = 0, 1
 GPS_POLICY = slice(2, 2 + gating.GPS_BOOK_SIZE)

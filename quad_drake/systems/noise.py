@@ -1,17 +1,17 @@
 """The counter-based noise of N runs as a LeafSystem: :class:`NoiseStreamSource`, the
 ``RandomSource`` of a vehicle built with run seeds (``simulation.build_vehicle(..., seeds=...)``),
-thin glue over the pure ``quad_drake.noise_streams``."""
+thin glue over the pure ``quad_drake.models.random_streams``."""
 
 from pydrake.common import RandomDistribution
 from pydrake.systems.framework import LeafSystem
 
-from quad_drake.noise_streams import GAUSSIAN, UNIFORM, NoiseStreams, sample_index
+from quad_drake.models.random_streams import GAUSSIAN, UNIFORM, NoiseStreams, sample_index
 
 _DISTRIBUTIONS = {RandomDistribution.kGaussian: GAUSSIAN, RandomDistribution.kUniform: UNIFORM}
 
 
 class NoiseStreamSource(LeafSystem):
-    """Noise of N = len(seeds) vehicles from :class:`~quad_drake.noise_streams.NoiseStreams`,
+    """Noise of N = len(seeds) vehicles from :class:`~quad_drake.models.random_streams.NoiseStreams`,
     in place of ``RandomSource(distribution, N size, period)``.
 
     distribution: ``RandomDistribution.kGaussian`` (unit normal) or ``kUniform`` (in [0, 1));

@@ -14,8 +14,8 @@ from quad_drake.estimation import ekf, eskf, gating
 from quad_drake.estimation.complementary import complementary_update
 from quad_drake.estimation.registry import Ekf7EstimatorConfig, EskfEstimatorConfig, vocabulary_for
 from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, initial_diagnostics
-from quad_drake.fidelity import PHYSICAL, REFERENCE
-from quad_drake.rotations import quat_from_euler
+from quad_drake.models.fidelity import PHYSICAL, REFERENCE
+from quad_drake.models.rotations import quat_from_euler
 from quad_drake.systems.estimators import (
     ComplementaryFilter,
     Ekf,
