@@ -14,10 +14,10 @@ from quad_drake.conventions import GRAVITY, PHYSICS_PERIOD
 from quad_drake.estimation import ekf
 from quad_drake.estimation.complementary import accel_roll_pitch
 from quad_drake.estimation.vocabulary import DIAGNOSTICS_SIZE, EKF7
-from quad_drake.judging.error_sampling import TICK_LOG_WIDTHS, TICK_STATE
 from quad_drake.judging.signals import vehicle_log_widths, vehicle_signals
 from quad_drake.kernels.attitude import round_to_float32
 from quad_drake.models.dynamics import plant_step, rigid_body_step, rigid_body_step_semi_implicit
+from quad_drake.models.error_sampling import TICK_LOG_WIDTHS, TICK_STATE
 from quad_drake.models.fidelity import FIDELITY_MODES, PHYSICAL, REFERENCE, Fidelity, fidelity_from_mode
 from quad_drake.models.rotations import euler_from_quats, quat_from_euler, wrap_angles
 from quad_drake.models.sensor_models import (

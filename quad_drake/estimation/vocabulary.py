@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from quad_drake.estimation.eskf import attitude_errors
-from quad_drake.judging.error_sampling import error_truth
+from quad_drake.models.error_sampling import error_truth
 from quad_drake.models.rotations import euler_from_quats, wrap_angles, yaw_from_quats
 
 DIAGNOSTICS = (

@@ -17,7 +17,7 @@ true on samples where a new measurement arrived since the previous sample
 (SPEC §0.2), judged by a changed stamp, never by comparing float times.
 
 The errors (``Est.E.*``, ``PosFollowErr``) and ``Ref.*`` follow one of two definitions
-(``quad_drake.judging.error_sampling``): at the sample (the physical default), or, when the logs carry
+(``quad_drake.models.error_sampling``): at the sample (the physical default), or, when the logs carry
 ``tick_state`` and ``tick_reference`` (``fidelity: reference``), the binary's: at the last
 onboard tick, against that tick's truth and reference.
 
@@ -50,10 +50,10 @@ import numpy as np
 from ..conventions import MAG_FIELD_SIZE, P_SLICE, Q_SLICE, REF_P_SLICE, REF_YAW_INDEX, V_SLICE, W_SLICE
 from ..estimation.registry import vehicle_vocabulary
 from ..estimation.vocabulary import DIAG, NIS_COLUMNS, STATE_UNITS
+from ..models.error_sampling import TICK_LOG_WIDTHS, error_reference, error_truth
 from ..models.faults import SENSORS
 from ..models.fidelity import PHYSICAL
 from ..models.rotations import euler_from_quats, wrap_angles  # noqa: F401 (re-exported for the analyzers)
-from .error_sampling import TICK_LOG_WIDTHS, error_reference, error_truth
 
 
 def signal_unit(name):
@@ -253,7 +253,7 @@ def vehicle_signals(name, logs, vocabulary=None):
 
 def _estimator_signals(put, logs, vocabulary, p, v, euler):
     """Put the estimator's signals (module docstring); p, v, euler: the truth the errors are taken
-    against (:func:`~quad_drake.judging.error_sampling.error_truth`), euler the (roll, pitch, yaw) on call."""
+    against (:func:`~quad_drake.models.error_sampling.error_truth`), euler the (roll, pitch, yaw) on call."""
     estimate = logs["estimated_state"]
     p_hat, v_hat = estimate[..., P_SLICE], estimate[..., V_SLICE]
     euler_hat = functools.cache(lambda: euler_from_quats(estimate[..., Q_SLICE]))

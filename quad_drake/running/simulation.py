@@ -28,7 +28,6 @@ from pydrake.systems.primitives import (
 from .. import conventions as c
 from ..config.validation import check_scenario
 from ..estimation.registry import flies_on_estimate, vehicle_vocabulary
-from ..judging.error_sampling import TICK_LOG_WIDTHS, TICK_REFERENCE, TICK_STATE
 from ..judging.signals import (
     empty_logs,
     vehicle_log_names,
@@ -37,6 +36,7 @@ from ..judging.signals import (
 )
 from ..judging.verdicts import check_criteria
 from ..kernels import jit
+from ..models.error_sampling import TICK_LOG_WIDTHS, TICK_REFERENCE, TICK_STATE
 from ..models.faults import sensor_of
 from ..models.fidelity import PHYSICAL, fidelity_from_mode
 from ..models.rotations import quat_from_euler
