@@ -4,8 +4,6 @@ Pure (the standard library only): every module that only refuses bad input impor
 :class:`ConfigError` from here, so importing it loads neither pydrake nor the schema.
 """
 
-import difflib
-
 
 class ConfigError(ValueError):
     """A user mistake in a scenario or an override; str() is one line."""
@@ -14,6 +12,8 @@ class ConfigError(ValueError):
 def did_you_mean(word, choices):
     """`` (did you mean 'x'?)`` naming the choices closest to `word` (stdlib ``difflib``, at most
     three), or "" when none is close: the hint every "unknown name" message carries."""
+    import difflib  # only a mistake needs it: loading a good scenario never pays for it
+
     close = difflib.get_close_matches(str(word), [str(c) for c in choices], n=3, cutoff=0.6)
     if not close:
         return ""

@@ -5,8 +5,6 @@ elsewhere (a log, a pipe) a plain line every tenth of the flight, so no ``\\r`` 
 import sys
 import time
 
-from tqdm import tqdm
-
 LONG_FLIGHT_S = 60.0
 """s of simulated time from which the command line shows a single run's progress."""
 
@@ -19,11 +17,11 @@ class FlightProgress:
         self.stream = stream or sys.stderr
         self.start = time.perf_counter()
         terminal = hasattr(self.stream, "isatty") and self.stream.isatty()
-        self.bar = (
-            tqdm(total=self.end_time, desc=label, unit="sim s", file=self.stream, bar_format=None)
-            if terminal
-            else None
-        )
+        self.bar = None
+        if terminal:
+            from tqdm import tqdm  # only a terminal draws a bar: a run without one never loads tqdm
+
+            self.bar = tqdm(total=self.end_time, desc=label, unit="sim s", file=self.stream, bar_format=None)
         self.shown = 0.0  # s, simulated time at the last update
         self.tenths = 0
 
