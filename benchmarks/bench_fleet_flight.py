@@ -1,12 +1,12 @@
-"""Fleet flight speed: CPU seconds per run of a scenario's fleet Diagram (``fleet.simulation``).
+"""Fleet flight speed: CPU seconds per run of a scenario's fleet Diagram (``campaigns.fleet.diagram``).
 
 Flies the scenario (default ``11_gps_update``, shortened to ``--seconds`` of simulated time) as
 fleets of each ``--sizes`` N, ``--repeats`` times each (the best kept), and prints the CPU time
 (``time.process_time``, the figure that depends least on the machine's other load) of the flight
-(``fleet.simulation.fly``) per run of the full scenario length and per vehicle per 2 ms onboard
+(``campaigns.fleet.diagram.fly``) per run of the full scenario length and per vehicle per 2 ms onboard
 tick, then the fit of CPU per tick = fixed + N x per-vehicle over the sizes (least squares).
 The Diagram's sink reads every exported signal at the 5 ms log samples, as a campaign's does, and
-keeps nothing: the figure is the flight, not the logs or their summaries (``fleet.streaming``).
+keeps nothing: the figure is the flight, not the logs or their summaries (``campaigns.fleet.streaming``).
 ``--floor`` adds, per size, the same flight with every handler of the fleet systems emptied (no
 maths, no noise drawn): the layout's floor, Drake's steps and state copies, the port plumbing and
 the sink's reads. ``--profile N`` prints the cProfile top entries of one flight of N vehicles

@@ -1,6 +1,6 @@
-"""A fleet batch's records, made while it flies (``fleet.runner.fly_batch``: a
-``fleet.streaming.BatchSummarizer`` folds the signals chunk by chunk), against the per-run
-functions on each run's full logs (``fleet.simulation.run_fleet`` keeps them), record field by
+"""A fleet batch's records, made while it flies (``campaigns.fleet.runner.fly_batch``: a
+``campaigns.fleet.streaming.BatchSummarizer`` folds the signals chunk by chunk), against the per-run
+functions on each run's full logs (``campaigns.fleet.diagram.run_fleet`` keeps them), record field by
 field; any chunk size gives the same records; the batched forms of the per-run functions
 (they take (n, N, width) logs) against the per-run calls, column by column."""
 

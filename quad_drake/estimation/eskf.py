@@ -39,7 +39,7 @@ code the running implementation, ``kernels/eskf.py``, compiles: they exist once.
 (``predict``, ``predict_nominal``, ``transition``, ``process_noise``, ``joseph_update``, ``inject``,
 ``gps_update``, ``mag_update``) are REFERENCE ORACLES of the kernel's sparse loops, which single
 runs and fleets both execute: the kernel is tested against them on seeded random inputs to 1e-12
-(``tests/test_fleet_estimators.py``) and no simulation calls them (``tests/test_oracles.py``).
+(``tests/test_estimator_kernels.py``) and no simulation calls them (``tests/test_oracles.py``).
 """
 
 import math

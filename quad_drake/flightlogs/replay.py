@@ -4,7 +4,7 @@ The Diagram: a ``systems.playback.LogPlayback`` emits the log's samples on the o
 ``imu``, ``gps`` and ``mag`` outputs feed the estimator of ``systems.estimators.build_estimator``
 (the same sub-Diagram a simulated vehicle flies on, unchanged); every estimator output and every
 playback output is logged by its own ``VectorLogSink`` every LOG_PERIOD. A log without GPS
-feeds the estimator PX4's fake position instead (``flightlogs.playback.fake_position``), so the
+feeds the estimator PX4's fake position instead (``flightlogs.schedule.fake_position``), so the
 attitude part runs and the position part stays bounded; its position is not compared (there is
 no reference) and its GPS NIS is not judged.
 

@@ -5,7 +5,7 @@ summarises its runs' efficiency without a Python loop over the log samples. Pure
 The recursion is a numba-compiled loop (cached on disk) over the log samples and the runs, in
 covariance form with the sparsity of the transition used block by block (see
 :func:`posterior_crbs`); it agrees with the information form to rounding
-(``tests/test_fleet_kernels.py``).
+(``tests/test_kernels.py``).
 """
 
 import math

@@ -33,7 +33,7 @@ The scalar formulas above are the pure functions' own code compiled by numba (``
 loops over the blocks' nonzeros, whose reference oracles are ``eskf.predict`` (with
 ``eskf.transition`` and ``eskf.process_noise``), ``eskf.mag_update``, ``eskf.inject`` and
 ``eskf.joseph_update`` (matrix form, tested to 1e-12 on seeded random inputs in
-``tests/test_fleet_estimators.py``; no simulation calls them, ``tests/test_oracles.py``).
+``tests/test_estimator_kernels.py``; no simulation calls them, ``tests/test_oracles.py``).
 
 Shapes: x (N, 16), P (N, n, n), f_B, w_B (N, 3), imu (N, 6), estimate (N, 13). A non-finite
 measurement leaves its vehicle's (x, P) unchanged and gives NaN NIS. Pure: numba and numpy, no

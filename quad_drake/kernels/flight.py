@@ -2,9 +2,9 @@
 
 Each function here is the array form of the scalar function it names (``dynamics``,
 ``sensor_models``, ``control.cascade``), which stays the reference implementation;
-``tests/test_fleet_kernels.py`` checks every one against it on seeded random inputs to
+``tests/test_kernels.py`` checks every one against it on seeded random inputs to
 1e-12. The per-tick steps (plant, IMU, magnetometer, cascade controller) are the scalar
-functions' own code compiled by numba (cached on disk, ``jit.njit_cached``: the JIT cost,
+functions' own code compiled by numba (cached on disk, ``kernels.jit.njit_cached``: the JIT cost,
 about 2 s, is paid once per machine) and run per vehicle, reading and writing the fleet
 systems' port and state arrays in place (no allocation per tick); the 10 Hz GPS and the IMU
 bias walk, plain arithmetic, run the scalar helper as is on rows of the transposed arrays.

@@ -8,7 +8,7 @@ one Multiplexer and one ``LogVectorOutput``: every leaf system costs ~0.3-0.6 us
 every Simulator step, so one logger instead of one per signal saves ~10 % (DESIGN §9).
 The scenario seed reaches every noise source through ``SetRandomContext``. The same
 ``build_vehicle`` given run seeds builds N copies of a vehicle flown at once (fleet mode,
-``fleet.simulation``): every system sized by N, the noise from counter-based streams.
+``campaigns.fleet.diagram``): every system sized by N, the noise from counter-based streams.
 """
 
 import time
@@ -91,7 +91,7 @@ def _add_noise(builder, system, port, seeds, stream):
     """Feed the random input `port` of `system` (n times system.noise_size values drawn from
     system.noise_distribution every system.noise_period): with `seeds` None a Drake RandomSource (seeded by
     ``SetRandomContext``), else a NoiseStreamSource of the streams named `stream` of the run seeds
-    (``noise_streams``), named ``<system>_<port>``."""
+    (``models.random_streams``), named ``<system>_<port>``."""
     input_port = system.GetInputPort(port)
     distribution = system.noise_distribution
     if seeds is None:
@@ -180,7 +180,7 @@ def build_vehicle(vehicle, fidelity=PHYSICAL, *, seeds=None):
     fidelity: the scenario's :class:`~quad_drake.models.fidelity.Fidelity`, given to every system.
     seeds: None for one vehicle whose noise comes from Drake's RandomSource (seeded by the
     Diagram's ``SetRandomContext``); else N = len(seeds) copies of the vehicle flown at once,
-    copy j drawing the counter-based noise streams of run seed ``seeds[j]`` (``noise_streams``,
+    copy j drawing the counter-based noise streams of run seed ``seeds[j]`` (``models.random_streams``,
     named ``<vehicle name>/<noise input>``), every output N x width, vehicle-major.
     """
     n = 1 if seeds is None else len(seeds)

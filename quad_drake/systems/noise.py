@@ -16,7 +16,7 @@ class NoiseStreamSource(LeafSystem):
 
     distribution: ``RandomDistribution.kGaussian`` (unit normal) or ``kUniform`` (in [0, 1));
     size: values per vehicle and sample; period (s): the time between samples; seeds: (N,) run
-    seeds; name: the streams' name (``"<vehicle name>/<input>"``, ``noise_streams``).
+    seeds; name: the streams' name (``"<vehicle name>/<input>"``, ``models.random_streams``).
     Output ``noise`` (N size, vehicle-major) at time t is sample k = floor(t / period) of every
     vehicle's stream, what a RandomSource holds after its redraw at t = k period (applied before
     the discrete updates at t). Unlike RandomSource it has no state and no event: the output is a

@@ -5,8 +5,8 @@ A fleet of N runs of a scenario is one Diagram: per VehicleConfig one sub-Diagra
 copies of that vehicle, vehicle j of every group flying run seed ``seeds[j]``. Every exported
 signal goes to one sink: a :class:`BatchRecorder`, which keeps the full logs at the 5 ms samples
 ((samples, N, width) per signal: :func:`run_fleet`, for tests and analysis), or a campaign's
-``fleet.streaming.BatchSummarizer``, which folds them into the runs' records as they are flown
-(``fleet.runner``).
+``campaigns.fleet.streaming.BatchSummarizer``, which folds them into the runs' records as they are flown
+(``campaigns.fleet.runner``).
 """
 
 import time
@@ -103,7 +103,7 @@ def run_fleet(scenario, seeds):
     """(times (samples,), {vehicle: {log name: (samples, N, width)}}, wall time s) of `scenario`
     flown by the runs with seeds `seeds` (N,) for end_time s, every exported signal kept (a
     campaign never needs these logs: it summarises its batches while they fly,
-    ``fleet.streaming``). The scenario is checked as a loaded file is (``config.check_scenario``)
+    ``campaigns.fleet.streaming``). The scenario is checked as a loaded file is (``config.check_scenario``)
     and the N runs' logs must fit (``limits.check_run``): ConfigError, nothing flown."""
     check_scenario(scenario)
     check_run(scenario, at_once=len(seeds))

@@ -1,6 +1,6 @@
 """A fleet batch summarised while it flies: the Drake sink of a campaign's fleet Diagram.
 
-A :class:`BatchSummarizer` takes the place of the recorder (``fleet.simulation``): it keeps
+A :class:`BatchSummarizer` takes the place of the recorder (``campaigns.fleet.diagram``): it keeps
 the exported signals of the last :data:`~quad_drake.campaigns.fleet.summaries.CHUNK_SAMPLES` log samples
 (and the one before them) in reused buffers and, each time the chunk fills, hands it to a
 :class:`~quad_drake.campaigns.fleet.summaries.BatchSummary`, which folds it into the runs' records.

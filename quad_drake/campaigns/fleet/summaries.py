@@ -9,10 +9,10 @@ sample before the chunk) and keeps what each run's
 - the verdicts (``verdicts.CriteriaStream``: the analyzers' folds);
 - the RMS / max errors (sums of squares and maxima per run), the NEES per sample and the
   time means of e^2/P (``consistency``), the fresh NIS values, the estimator's counters (its
-  last sample) and the posterior CRB (``fleet.bounds.PcrbStream``, its covariance carried).
+  last sample) and the posterior CRB (``kernels.bounds.PcrbStream``, its covariance carried).
 
 What it holds grows with the runs' length only by a few numbers per sample and run (the NEES,
-the fresh NIS): :func:`summary_bytes`. ``fleet.streaming.BatchSummarizer`` feeds it while a
+the fresh NIS): :func:`summary_bytes`. ``campaigns.fleet.streaming.BatchSummarizer`` feeds it while a
 batch flies; ``tests/test_fleet_summaries.py`` checks its records against the per-run
 functions on each run's full logs to 1e-12, for any chunk size.
 """

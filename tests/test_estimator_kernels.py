@@ -1,5 +1,5 @@
-"""Fleet estimators: the batched kernels against the scalar functions, row by row, on seeded random
-inputs; the fleet estimator Diagrams against N scalar estimator sub-Diagrams fed the same samples.
+"""The estimators' compiled kernels against the scalar functions, row by row, on seeded random
+inputs; an estimator system sized by n against n estimator systems sized by 1 fed the same samples.
 
 Tolerance: |batched - scalar| <= 1e-12 + 1e-12 |scalar| per entry (absolute for small entries,
 relative for large ones), TOL below.
@@ -447,7 +447,7 @@ def test_ekf7_estimated_state_matches_the_scalar_assembly():
     np.testing.assert_array_equal(out, estimate)  # written in place, every entry
 
 
-# ----- fleet estimator Diagrams against the scalar ones --------------------------------------------
+# ----- an estimator sized by n against n sized by 1 ----------------------------------------------------
 
 TICKS = 300
 GPS_EVERY, MAG_EVERY = 25, 5
@@ -523,7 +523,7 @@ VEHICLES = {
 
 
 @pytest.mark.parametrize("case", list(VEHICLES))
-def test_fleet_estimator_matches_the_scalar_estimators_tick_by_tick(case):
+def test_an_estimator_sized_by_n_matches_n_sized_by_one_tick_by_tick(case):
     vehicle, fidelity = VEHICLES[case]
     n = 4
     diagram = fleet_and_scalar_estimators(vehicle, n, fidelity)
@@ -555,7 +555,7 @@ def test_fleet_estimator_matches_the_scalar_estimators_tick_by_tick(case):
     assert diagnostics[3, DIAG["nonfinite_samples"]] >= 25  # a NaN stamp is fresh on every tick
 
 
-def test_fleet_estimator_port_sizes_follow_the_vocabulary():
+def test_estimator_port_sizes_sized_by_n_follow_the_vocabulary():
     for estimator in (Ekf7EstimatorConfig(), EskfEstimatorConfig()):
         vehicle = VehicleConfig(estimator=estimator)
         diagram = build_estimator(vehicle, n=5)
@@ -570,7 +570,7 @@ def test_fleet_estimator_port_sizes_follow_the_vocabulary():
         build_estimator(VehicleConfig(), n=0)
 
 
-def test_fleet_gps_delay_compensator_matches_the_scalar_one_tick_by_tick():
+def test_gps_delay_compensator_sized_by_n_matches_n_sized_by_one_tick_by_tick():
     """Late GPS samples (0.1 s, one vehicle 0.3 s: past the 0.2 s history) on random-walk estimates."""
     n, max_lag, ticks = 3, 0.2, 250
     builder = DiagramBuilder()
