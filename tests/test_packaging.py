@@ -80,15 +80,15 @@ def _packages_of(module):
     return {".".join(parts[:i]) for i in range(1, len(parts))}
 
 
-def closure(module, imports, through_packages=True):
+def closure(module, imports):
     """Every name importing `module` reaches, transitively: the package modules (with the
-    packages Python runs before each, unless not `through_packages`) and the outside names
-    (``pydrake.systems.framework``) they import."""
+    packages Python runs before each) and the outside names (``pydrake.systems.framework``) they
+    import."""
     edges = file_edges(imports)
     seen, todo = set(), [module]
     while todo:
         current = todo.pop()
-        for reached in edges.get(current, set()) | (_packages_of(current) if through_packages else set()):
+        for reached in edges.get(current, set()) | _packages_of(current):
             if reached not in seen:
                 seen.add(reached)
                 todo.append(reached)
@@ -121,43 +121,37 @@ CAMPAIGN_ORCHESTRATION = tuple(
 """What runs, sums up and writes out a campaign (the fleet is one way it flies its runs)."""
 
 FORBIDDEN = (
-    ("nothing imports the CLI", ("quad_drake",), ("quad_drake.cli",), True),
+    ("nothing imports the CLI", ("quad_drake",), ("quad_drake.cli",)),
     (
         "systems import no campaign, simulation or tuning module",
         ("quad_drake.systems",),
         ("quad_drake.campaigns", "quad_drake.running", "quad_drake.tuning"),
-        True,
     ),
-    ("kernels import no pydrake and no systems", KERNELS, ("pydrake", "quad_drake.systems"), True),
+    ("kernels import no pydrake and no systems", KERNELS, ("pydrake", "quad_drake.systems")),
     (
         "pure modules import no kernels, systems or pydrake",
         PURE,
         ("pydrake", "quad_drake.systems", "quad_drake.running", *KERNELS),
-        True,
     ),
     (
         "judging imports no pydrake and no systems",
         ("quad_drake.judging", "quad_drake.flightlogs.comparison"),
         ("pydrake", "quad_drake.systems", "quad_drake.running"),
-        True,
     ),
     (
         "the configuration's only pydrake is the loader's",
         ("quad_drake.config",),
         ("pydrake.systems", "pydrake.multibody", "pydrake.geometry", "quad_drake.systems"),
-        True,
     ),
     (
         "campaigns fly on the fleet, the fleet never reaches back",
         ("quad_drake.campaigns.fleet",),
         CAMPAIGN_ORCHESTRATION,
-        False,
     ),
 )
-"""(rule, importers, imported, through_packages): no module under an importer prefix reaches a name
-under an imported prefix through its import closure (issues 28, 37: transitive, imports inside
-functions included; with `through_packages` the packages Python runs on the way count too, for the
-direction between two rooms they do not). ``__main__`` is the CLI's own entry point."""
+"""(rule, importers, imported): no module under an importer prefix reaches a name under an imported
+prefix through its import closure (issues 28, 37: transitive, imports inside functions and the
+packages Python runs on the way included). ``__main__`` is the CLI's own entry point."""
 
 
 def _under(name, prefixes):
@@ -168,10 +162,10 @@ def forbidden_reaches(imports):
     """[(rule, importer, reached)] of the names the FORBIDDEN rules forbid that a module of
     `imports` ({module: imported names}) reaches."""
     found = []
-    for rule, importers, imported, through_packages in FORBIDDEN:
+    for rule, importers, imported in FORBIDDEN:
         for module in sorted(imports):
             if _under(module, importers) and module not in ("quad_drake.cli", "quad_drake.__main__"):
-                reached = closure(module, imports, through_packages)
+                reached = closure(module, imports)
                 found += [(rule, module, name) for name in sorted(reached) if _under(name, imported)]
     return found
 
@@ -194,8 +188,8 @@ def test_no_pure_module_loads_pydrake_when_imported():
         assert _run(sys.executable, "-c", code, name).stdout.strip() == "False", name
 
 
-@pytest.mark.parametrize("rule, importers, imported, through", FORBIDDEN, ids=[r[0] for r in FORBIDDEN])
-def test_each_forbidden_reach_is_seen_two_arrows_away(rule, importers, imported, through):
+@pytest.mark.parametrize("rule, importers, imported", FORBIDDEN, ids=[r[0] for r in FORBIDDEN])
+def test_each_forbidden_reach_is_seen_two_arrows_away(rule, importers, imported):
     # Each rule can fail, transitively: a planted module it covers imports an innocent planted
     # module, which imports the forbidden name.
     importer = importers[0] + ".planted"
