@@ -8,9 +8,11 @@ processes back to back, alternating which goes first, so a busy machine slows bo
 every process gets the tree it measures on ``PYTHONPATH`` and writes into a throwaway folder.
 One warm-up run per tree first (numba compiles its kernels into that tree's cache once).
 Printed: each side's median CPU over the rounds, and the ratio of the medians (this tree over
-the revision; <= 1.0 is the guard held).
+the revision; <= 1.0 is the guard held). ``--imports`` times instead a process that only imports
+what such a run imports before it flies (the command line and the simulation module, wherever
+the tree keeps it): the import share of the figure.
 
-    python benchmarks/bench_process_cpu.py [--rev daa41b3] [--rounds 7] [--scenario 11_gps_update]
+    python benchmarks/bench_process_cpu.py [--rev daa41b3] [--rounds 7] [--scenario 11_gps_update] [--imports]
 """
 
 import argparse
@@ -37,11 +39,26 @@ def checkout(revision):
     return folder
 
 
-def process_cpu(tree, scenario, out):
-    """CPU s (user + system) of one ``python -m quad_drake run <scenario> --no-plots`` of `tree`."""
+IMPORTS_ONLY = """
+import importlib, quad_drake.cli
+for name in ("quad_drake.running.simulation", "quad_drake.simulation"):
+    try:
+        importlib.import_module(name)
+        break
+    except ModuleNotFoundError:
+        pass
+"""
+"""What a run imports before it flies, in a tree before or after the modules moved (issue 37)."""
+
+
+def process_cpu(tree, scenario, out, imports_only=False):
+    """CPU s (user + system) of one ``python -m quad_drake run <scenario> --no-plots`` of `tree`
+    (or, `imports_only`, of a process importing what that run imports before it flies)."""
     env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
     env |= {"PYTHONPATH": str(tree), "MPLBACKEND": "Agg"}
     command = [sys.executable, "-m", "quad_drake", "run", scenario, "--no-plots", "--out", str(out)]
+    if imports_only:
+        command = [sys.executable, "-c", IMPORTS_ONLY]
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     done = subprocess.run(command, cwd=tree, env=env, capture_output=True, text=True)
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -55,6 +72,7 @@ def main(argv=None):
     parser.add_argument("--rev", default="daa41b3", help="git revision to compare with (default daa41b3)")
     parser.add_argument("--rounds", type=int, default=7, help="paired rounds, >= 1 (default 7)")
     parser.add_argument("--scenario", default="11_gps_update")
+    parser.add_argument("--imports", action="store_true", help="time only what the run imports")
     args = parser.parse_args(argv)
     if args.rounds < 1:
         parser.error("--rounds must be >= 1")
@@ -66,7 +84,7 @@ def main(argv=None):
         for i in range(args.rounds):
             order = list(trees) if i % 2 == 0 else list(trees)[::-1]
             for name in order:
-                cpu[name].append(process_cpu(trees[name], args.scenario, out))
+                cpu[name].append(process_cpu(trees[name], args.scenario, out, args.imports))
     median = {name: statistics.median(values) for name, values in cpu.items()}
     for name, values in cpu.items():
         rounds = " ".join(f"{v:.2f}" for v in values)
