@@ -61,7 +61,7 @@ def scenario_simulator(scenario):
     from pydrake.common import RandomGenerator
     from pydrake.systems.analysis import Simulator
 
-    from quad_drake.simulation import build_diagram
+    from quad_drake.running.simulation import build_diagram
 
     diagram, _ = build_diagram(scenario)
     simulator = Simulator(diagram)
@@ -188,7 +188,7 @@ def main(argv=None):
     if args.runs < 1:
         parser.error("--runs must be >= 1")
 
-    from quad_drake import catalog
+    from quad_drake.running import catalog
 
     scenario = catalog.load(args.scenario)
     end_time = scenario.end_time

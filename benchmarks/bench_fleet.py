@@ -22,12 +22,12 @@ import sys
 import tempfile
 import time
 
-from quad_drake import catalog
 from quad_drake.campaigns import InProcessRunner, ProcessPoolRunner, run_campaign
+from quad_drake.running import catalog
 
 TINY_FLEET = (
-    "import time; t = time.perf_counter(); from quad_drake import catalog; "
-    "from quad_drake.fleet.simulation import run_fleet; "
+    "import time; t = time.perf_counter(); from quad_drake.running import catalog; "
+    "from quad_drake.campaigns.fleet.diagram import run_fleet; "
     "run_fleet(catalog.load({name!r}, None, ['end_time=0.01']), [0]); print(time.perf_counter() - t)"
 )
 

@@ -24,7 +24,7 @@ from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from quad_drake.config import VehicleConfig  # noqa: E402
+from quad_drake.config.schema import VehicleConfig  # noqa: E402
 from quad_drake.conventions import GRAVITY, NO_SAMPLE_STAMP, ONBOARD_PERIOD  # noqa: E402
 from quad_drake.estimation.registry import EskfEstimatorConfig  # noqa: E402
 from quad_drake.systems.estimators import build_estimator  # noqa: E402

@@ -1,12 +1,12 @@
-"""Fleet flight speed: CPU seconds per run of a scenario's fleet Diagram (``fleet.simulation``).
+"""Fleet flight speed: CPU seconds per run of a scenario's fleet Diagram (``campaigns.fleet.diagram``).
 
 Flies the scenario (default ``11_gps_update``, shortened to ``--seconds`` of simulated time) as
 fleets of each ``--sizes`` N, ``--repeats`` times each (the best kept), and prints the CPU time
 (``time.process_time``, the figure that depends least on the machine's other load) of the flight
-(``fleet.simulation.fly``) per run of the full scenario length and per vehicle per 2 ms onboard
+(``campaigns.fleet.diagram.fly``) per run of the full scenario length and per vehicle per 2 ms onboard
 tick, then the fit of CPU per tick = fixed + N x per-vehicle over the sizes (least squares).
 The Diagram's sink reads every exported signal at the 5 ms log samples, as a campaign's does, and
-keeps nothing: the figure is the flight, not the logs or their summaries (``fleet.streaming``).
+keeps nothing: the figure is the flight, not the logs or their summaries (``campaigns.fleet.streaming``).
 ``--floor`` adds, per size, the same flight with every handler of the fleet systems emptied (no
 maths, no noise drawn): the layout's floor, Drake's steps and state copies, the port plumbing and
 the sink's reads. ``--profile N`` prints the cProfile top entries of one flight of N vehicles
@@ -31,9 +31,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from pydrake.systems.framework import LeafSystem  # noqa: E402
 
 from benchmarks.handlers import empty, replaced_handlers  # noqa: E402
-from quad_drake import catalog  # noqa: E402
+from quad_drake.campaigns.fleet.diagram import build_fleet_diagram, fly, release_memory  # noqa: E402
 from quad_drake.conventions import LOG_PERIOD, ONBOARD_PERIOD  # noqa: E402
-from quad_drake.fleet.simulation import build_fleet_diagram, fly, release_memory  # noqa: E402
+from quad_drake.running import catalog  # noqa: E402
 from quad_drake.systems import controller, faults, noise, plant, sensors, trajectory  # noqa: E402
 from quad_drake.systems import estimators as estimator_systems  # noqa: E402
 

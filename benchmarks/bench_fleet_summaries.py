@@ -3,8 +3,8 @@
 Usage: python benchmarks/bench_fleet_summaries.py [--scenario 11_gps_update] [--runs 200]
 
 In CPU time of this process (``time.process_time``), after a 2-run warm-up that loads numba's
-cached kernels: the flight with full logs (``fleet.simulation.run_fleet``), the same batch
-flown and summarised while it flies (``fleet.runner.simulate_batch``), and the summaries
+cached kernels: the flight with full logs (``campaigns.fleet.diagram.run_fleet``), the same batch
+flown and summarised while it flies (``campaigns.fleet.runner.simulate_batch``), and the summaries
 alone (``fleet.summaries.summarize_logs``: a BatchSummary fed the full logs chunk by chunk), with the peak
 resident memory of the process.
 """
@@ -13,10 +13,10 @@ import argparse
 import resource
 import time
 
-from quad_drake import catalog
-from quad_drake.fleet.runner import BatchTask, simulate_batch
-from quad_drake.fleet.simulation import run_fleet
-from quad_drake.fleet.summaries import summarize_logs
+from quad_drake.campaigns.fleet.diagram import run_fleet
+from quad_drake.campaigns.fleet.runner import BatchTask, simulate_batch
+from quad_drake.campaigns.fleet.summaries import summarize_logs
+from quad_drake.running import catalog
 
 
 def _cpu(function, *args):

@@ -9,8 +9,8 @@ included; the speed-up of J jobs is bounded by the number of physical cores.
 import argparse
 import os
 
-from quad_drake import catalog
 from quad_drake.campaigns import InProcessRunner, ProcessPoolRunner, run_campaign, table
+from quad_drake.running import catalog
 
 
 def main():

@@ -13,8 +13,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from quad_drake import catalog, plots
-from quad_drake.simulation import run
+from quad_drake.output import plots
+from quad_drake.running import catalog
+from quad_drake.running.simulation import run
 
 
 def main():

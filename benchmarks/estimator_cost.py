@@ -25,8 +25,8 @@ from pydrake.systems.analysis import Simulator
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from quad_drake import catalog  # noqa: E402
-from quad_drake.simulation import build_diagram  # noqa: E402
+from quad_drake.running import catalog  # noqa: E402
+from quad_drake.running.simulation import build_diagram  # noqa: E402
 
 CONFIGURATIONS = {
     "EKF7": ("11_gps_update", []),

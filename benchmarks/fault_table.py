@@ -31,7 +31,8 @@ from scipy.stats import binomtest
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from quad_drake import campaigns, catalog  # noqa: E402
+from quad_drake import campaigns  # noqa: E402
+from quad_drake.running import catalog  # noqa: E402
 
 BEGIN, END = "<!-- fault-table -->", "<!-- /fault-table -->"
 EKF7 = "vehicles.0.estimator={kind: ekf7}"

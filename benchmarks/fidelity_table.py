@@ -29,9 +29,9 @@ sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
 from test_golden import CASES, GOLDEN, angle_error, deviations, load_golden  # noqa: E402
 
-from quad_drake import catalog, simulation  # noqa: E402
-from quad_drake.config import load_scenario  # noqa: E402
-from quad_drake.fidelity import PHYSICAL, REFERENCE  # noqa: E402
+from quad_drake.config.loader import load_scenario  # noqa: E402
+from quad_drake.models.fidelity import PHYSICAL, REFERENCE  # noqa: E402
+from quad_drake.running import catalog, simulation  # noqa: E402
 
 ESTIMATOR_ONLY = ("reference_accelerometer", "float32_estimator", "errors_at_onboard_tick")
 """Items that do not touch the truth of the golden set-ups (they fly on the ideal estimator)."""

@@ -34,7 +34,8 @@ from scipy.stats import binomtest
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from quad_drake import campaigns, catalog  # noqa: E402
+from quad_drake import campaigns  # noqa: E402
+from quad_drake.running import catalog  # noqa: E402
 
 MIXED = str(ROOT / "benchmarks" / "scenarios" / "gps_glitch_outage.yaml")
 GATES_OFF = ("vehicles.0.ekf.gps_gate_sigma=0", "vehicles.0.ekf.mag_gate_sigma=0")

@@ -16,7 +16,7 @@ HANDLERS = (
     "_second_step",
 )
 """Names of the periodic-update and output-calc methods of the systems in quad_drake.systems and
-quad_drake.fleet (each takes (self, context, discrete_state or output))."""
+quad_drake.campaigns.fleet (each takes (self, context, discrete_state or output))."""
 
 
 @contextlib.contextmanager

@@ -3,7 +3,7 @@
 Usage: python benchmarks/nees_over_time.py [scenario] [--runs 100] [--seed 1000] [--bin 2.5]
        [--set KEY=VALUE ...]
 
-Flies the runs as one fleet (``quad_drake.fleet``; every vehicle of the scenario with an
+Flies the runs as one fleet (``quad_drake.campaigns.fleet``; every vehicle of the scenario with an
 estimator), then prints, per time bin of ``--bin`` s, the mean over runs of each error-state
 entry's e^2/P (1 = consistent, < 1 conservative, > 1 over-confident) and the mean NEES over
 the vocabulary's NEES states, with the share of the bin's log samples inside the NEES's
@@ -15,11 +15,11 @@ import argparse
 
 import numpy as np
 
-from quad_drake import catalog
-from quad_drake import consistency as cons
+from quad_drake.campaigns.fleet.diagram import run_fleet
+from quad_drake.campaigns.fleet.runner import batch_logs
 from quad_drake.estimation.registry import vehicle_vocabulary
-from quad_drake.fleet.runner import batch_logs
-from quad_drake.fleet.simulation import run_fleet
+from quad_drake.judging import consistency as cons
+from quad_drake.running import catalog
 
 
 def over_time(scenario, runs, first_seed):

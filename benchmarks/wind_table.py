@@ -29,9 +29,10 @@ from scipy.stats import binomtest
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from quad_drake import campaigns, catalog  # noqa: E402
+from quad_drake import campaigns  # noqa: E402
 from quad_drake.campaigns.output import summary as campaign_summary  # noqa: E402
-from quad_drake.simulation import run  # noqa: E402
+from quad_drake.running import catalog  # noqa: E402
+from quad_drake.running.simulation import run  # noqa: E402
 
 EKF7_11, ESKF_11 = "11_gps_update", "11_gps_update_eskf"
 EKF7_22, ESKF_22 = "22_gps_update_turbulence", "22_gps_update_turbulence_eskf"

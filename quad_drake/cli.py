@@ -12,10 +12,12 @@ import sys
 import warnings
 from pathlib import Path
 
-from . import __version__, catalog
-from .config import ConfigError, load_scenario
+from . import __version__
+from .config.errors import ConfigError
+from .config.loader import load_scenario
 from .estimation.custom import EstimatorProblem
-from .outdir import check_output_dir, is_result_folder
+from .output.outdir import check_output_dir, is_result_folder
+from .running import catalog
 
 EXIT_WRITE_FAILED = 3
 """Exit code when results could not be written (an OSError while saving; one line on stderr)."""
@@ -57,8 +59,8 @@ def _table(rows):
 def _fly(scenario):
     """SimulationResult of one scenario (with progress on stderr from progress.LONG_FLIGHT_S
     of simulated time on); a numerical breakdown of the flight is one line."""
-    from .progress import LONG_FLIGHT_S, FlightProgress
-    from .simulation import run
+    from .running.progress import LONG_FLIGHT_S, FlightProgress
+    from .running.simulation import run
 
     progress = (
         FlightProgress(scenario.name, scenario.end_time) if scenario.end_time >= LONG_FLIGHT_S else None
@@ -77,7 +79,7 @@ def _fly(scenario):
 
 def _check_costs(scenarios):
     """Refuse a scenario whose run would not fit in memory (``limits.check_run``)."""
-    from .limits import check_run
+    from .running.limits import check_run
 
     for scenario in scenarios:
         check_run(scenario)
@@ -86,8 +88,8 @@ def _check_costs(scenarios):
 def _warn(scenarios):
     """Every input being good: print on stderr what a long run will take and the criteria and
     faults that cannot matter for the flight's length (``config.ineffective_settings``)."""
-    from .config import ineffective_settings
-    from .limits import cost_warnings
+    from .config.validation import ineffective_settings
+    from .running.limits import cost_warnings
 
     for scenario in scenarios:
         for line in cost_warnings(scenario):
@@ -97,9 +99,9 @@ def _warn(scenarios):
 
 
 def cmd_run(args):
-    from .jsonio import dump_json
-    from .report import estimator_health
-    from .results import claim_run_folder, save_run, variant_name
+    from .output.jsonio import dump_json
+    from .output.report import estimator_health
+    from .output.results import claim_run_folder, save_run, variant_name
 
     if args.all and args.names:
         named = " ".join(args.names)
@@ -133,11 +135,11 @@ def cmd_run(args):
             run_dir = claim_run_folder(out, folder, scenario, replace=source is None)
             run_dir = save_run(result, run_dir)  # logs first: nothing is lost if a plot fails
             if not args.no_plots:
-                from .plots import write_run_artifacts
+                from .output.plots import write_run_artifacts
 
                 write_run_artifacts(result, run_dir)
             if args.meshcat:
-                from .replay import show_live
+                from .output.meshcat_animation import show_live
 
                 show_live(result)
             summaries.append(result.summary())
@@ -196,7 +198,7 @@ def _write_index(args, summaries, out):
     finished, --no-plots)."""
     if args.no_plots or not summaries:
         return None
-    from .report import write_index
+    from .output.report import write_index
 
     return write_index(out)
 
@@ -210,8 +212,8 @@ def cmd_replay(args):
 
 
 def cmd_noise_std(args):
-    from .noise_stats import measured_noise_std
-    from .results import load_logs, signals_from_logs
+    from .judging.noise_std import measured_noise_std
+    from .output.results import load_logs, signals_from_logs
 
     _, logs = load_logs(args.run_dir)
     for name, std in measured_noise_std(signals_from_logs(logs)).items():
@@ -220,7 +222,7 @@ def cmd_noise_std(args):
 
 
 def cmd_export(args):
-    from .export import export_csv
+    from .output.export import export_csv
 
     if args.out is not None:
         check_output_dir(args.out)
@@ -230,7 +232,7 @@ def cmd_export(args):
 
 
 def cmd_diagram(args):
-    from .diagram_svg import write_diagram_svg
+    from .running.diagram_svg import write_diagram_svg
 
     scenario = catalog.load(args.name, None, args.set)
     path = Path(args.output or f"{scenario.name}_diagram.svg")
@@ -347,7 +349,7 @@ def _fleet_batch(args, scenario):
         return None
     if args.batch is not None:
         return args.batch
-    from .fleet.runner import default_batch_size
+    from .campaigns.fleet.runner import default_batch_size
 
     return default_batch_size(scenario, args.runs, 1 if args.scheduler else args.jobs)
 
@@ -363,8 +365,8 @@ def cmd_montecarlo(args):
     if args.batch is not None and args.batch < 1:
         raise ConfigError(f"montecarlo: --batch must be >= 1, got {args.batch}")
     from . import campaigns
-    from .report import write_index
-    from .results import variant_name
+    from .output.report import write_index
+    from .output.results import variant_name
 
     scenario = catalog.load(args.name, args.seed, args.set)
     out_dir = _check_out_is_not_a_result(check_output_dir(args.out))
@@ -439,7 +441,7 @@ def cmd_tune(args):
     )
     print(f"saved {out}/: " + ", ".join(Path(f).name for f in result.files))
     if args.out is None:  # out/NAME_tune: listed in out/index.html with the runs and campaigns
-        from .report import write_index
+        from .output.report import write_index
 
         print(f"index: {write_index(out.parent)}")
     if result.after is None:

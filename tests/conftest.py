@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from quad_drake import catalog
+from quad_drake.running import catalog
 
 ROOT = Path(__file__).resolve().parents[1]
 REPOSITORY_OUT = ROOT / "out"
@@ -91,7 +91,7 @@ def quad_drake_cli(capsys):
 def gps_flight():
     """A 3 s closed-loop flight on the EKF estimate: 11_gps_update with end_time=3
     (SimulationResult; treat as read-only)."""
-    from quad_drake.simulation import run
+    from quad_drake.running.simulation import run
 
     return run(catalog.load("11_gps_update", None, ["end_time=3"]))
 
@@ -99,6 +99,6 @@ def gps_flight():
 @pytest.fixture(scope="session")
 def gps_run_dir(gps_flight, tmp_path_factory):
     """The run folder (logs.npz, config.yaml, summary.json) of :func:`gps_flight`."""
-    from quad_drake.results import save_run
+    from quad_drake.output.results import save_run
 
     return save_run(gps_flight, tmp_path_factory.mktemp("gps_run") / "11_gps_update")

@@ -5,7 +5,9 @@ import math
 import numpy as np
 import pytest
 
-from quad_drake.accuracy_bound import (
+from quad_drake.config.schema import GpsParams, ImuParams, MagParams, SensorsConfig, VehicleConfig
+from quad_drake.judging.signals import stamp_fresh
+from quad_drake.models.accuracy_bound import (
     accuracy_bound,
     euler_rate_entries,
     position_velocity_bound,
@@ -14,9 +16,7 @@ from quad_drake.accuracy_bound import (
     steady_state_kalman,
     yaw_bound,
 )
-from quad_drake.config import GpsParams, ImuParams, MagParams, SensorsConfig, VehicleConfig
-from quad_drake.rotations import quat_from_euler
-from quad_drake.signals import stamp_fresh
+from quad_drake.models.rotations import quat_from_euler
 
 DT = 0.002
 

@@ -8,11 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from quad_drake import catalog
-from quad_drake.config import ConfigError, load_scenario
+from quad_drake.campaigns.fleet.diagram import run_fleet
+from quad_drake.config.errors import ConfigError
+from quad_drake.config.loader import load_scenario
 from quad_drake.estimation.registry import nis_sensors
-from quad_drake.fleet.simulation import run_fleet
-from quad_drake.simulation import build_vehicle, run
+from quad_drake.running import catalog
+from quad_drake.running.simulation import build_vehicle, run
 
 SCENARIOS = Path(__file__).resolve().parent.parent / "scenarios"
 ESKF = "vehicles.0.estimator={kind: eskf, estimate_biases: false}"

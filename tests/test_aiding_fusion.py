@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from quad_drake import sensor_models
 from quad_drake.estimation import baro, ekf, eskf, mag3
-from quad_drake.rotations import euler_from_quat, quat_from_euler, rotation_from_quat, wrap_to_pi
+from quad_drake.models import sensor_models
+from quad_drake.models.rotations import euler_from_quat, quat_from_euler, rotation_from_quat, wrap_to_pi
 
 M_N = sensor_models.world_field(0.5, 0.2, 1.1)
 

@@ -7,11 +7,11 @@ import math
 import numpy as np
 import pytest
 
-from quad_drake import sensor_models
 from quad_drake.estimation import baro, ekf, eskf, gating, mag3
 from quad_drake.estimation.vocabulary import DIAG, initial_diagnostics
 from quad_drake.kernels import aiding
-from quad_drake.rotations import quat_from_euler, wrap_to_pi
+from quad_drake.models import sensor_models
+from quad_drake.models.rotations import quat_from_euler, wrap_to_pi
 
 N = 4
 PARAMS = baro.BaroFusionParams(

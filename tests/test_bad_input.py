@@ -10,9 +10,9 @@ import tempfile
 
 import pytest
 
-from quad_drake.config import ConfigError
-from quad_drake.outdir import check_output_dir
-from quad_drake.results import FORMAT_VERSION
+from quad_drake.config.errors import ConfigError
+from quad_drake.output.outdir import check_output_dir
+from quad_drake.output.results import FORMAT_VERSION
 
 BAD_CRITERION = """
 description: a criterion on a signal no vehicle logs
@@ -171,7 +171,7 @@ def test_ctrl_c_in_a_batch_keeps_the_finished_runs_and_exits_130(tmp_path):
 def test_a_numerical_breakdown_during_a_flight_is_one_line_with_exit_2(quad_drake_cli, monkeypatch, tmp_path):
     # What validation lets through but a filter cannot carry (the EKF raises FloatingPointError
     # on a non-finite covariance; plain float code raises ZeroDivisionError or OverflowError).
-    from quad_drake import simulation
+    from quad_drake.running import simulation
 
     def breaks_down(scenario, progress=None):
         raise FloatingPointError("covariance P is not finite at t = 1.234 s")

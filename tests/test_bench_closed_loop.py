@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 from pydrake.systems.framework import Diagram
 
-from quad_drake import catalog
+from quad_drake.running import catalog
 from quad_drake.systems.plant import QuadrotorPlant
 
 SCRIPT = Path(__file__).resolve().parent.parent / "benchmarks" / "bench_closed_loop.py"

@@ -18,9 +18,7 @@ import time
 import numpy as np
 import pytest
 
-from quad_drake import catalog, cli
-from quad_drake import consistency as cons
-from quad_drake.accuracy_bound import accuracy_bound
+from quad_drake import cli
 from quad_drake.campaigns import (
     CampaignInterrupted,
     CampaignResult,
@@ -37,8 +35,8 @@ from quad_drake.campaigns.output import rows
 from quad_drake.campaigns.plots import errors_figure
 from quad_drake.campaigns.records import slim
 from quad_drake.campaigns.tally import ConsistencyTally
-from quad_drake.config import (
-    ConfigError,
+from quad_drake.config.errors import ConfigError
+from quad_drake.config.schema import (
     CriterionConfig,
     ImuParams,
     MagParams,
@@ -47,9 +45,12 @@ from quad_drake.config import (
     VehicleConfig,
 )
 from quad_drake.estimation.vocabulary import EKF7
-from quad_drake.evaluation import rms
-from quad_drake.report import write_index
-from quad_drake.results import variant_name
+from quad_drake.judging import consistency as cons
+from quad_drake.judging.evaluation import rms
+from quad_drake.models.accuracy_bound import accuracy_bound
+from quad_drake.output.report import write_index
+from quad_drake.output.results import variant_name
+from quad_drake.running import catalog
 
 
 def strict_loads(text):
@@ -106,7 +107,7 @@ def test_same_table_and_rows_whatever_the_runner(scenario, serial):
 
 
 def test_run_i_is_the_single_run_with_seed_s_plus_i(scenario, serial, sent):
-    from quad_drake.simulation import run
+    from quad_drake.running.simulation import run
 
     single = run(dataclasses.replace(scenario, seed=7))
     record = serial.records[2]
@@ -543,7 +544,7 @@ def test_a_campaign_saved_over_another_leaves_none_of_its_plots(tmp_path):
 
 def test_a_fault_campaign_shades_the_fault_and_names_it_on_its_page(tmp_path):
     from quad_drake.campaigns.plots import consistency_figure
-    from quad_drake.config import FaultConfig
+    from quad_drake.config.schema import FaultConfig
 
     result = hand_made_campaign(7.0)
     result.scenario.vehicles[0].faults = [FaultConfig(kind="mag_outage", start=0.2, end=0.4)]

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from quad_drake.config import ControllerParams
+from quad_drake.config.schema import ControllerParams
 from quad_drake.control.cascade import (
     altitude_control,
     body_rate_control,
@@ -16,9 +16,9 @@ from quad_drake.control.cascade import (
     roll_pitch_control,
     yaw_control,
 )
-from quad_drake.dynamics import thrusts_from_wrench, wrench_from_thrusts
-from quad_drake.fidelity import REFERENCE
-from quad_drake.rotations import (
+from quad_drake.models.dynamics import thrusts_from_wrench, wrench_from_thrusts
+from quad_drake.models.fidelity import REFERENCE
+from quad_drake.models.rotations import (
     euler_from_quat,
     quat_from_euler,
     rotation_from_euler,

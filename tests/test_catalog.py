@@ -2,8 +2,8 @@
 
 import pytest
 
-from quad_drake import catalog
-from quad_drake.config import ConfigError
+from quad_drake.config.errors import ConfigError
+from quad_drake.running import catalog
 
 
 def test_resolve_takes_a_bundled_name_or_a_path(tmp_path):

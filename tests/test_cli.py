@@ -37,13 +37,13 @@ def test_run_prints_reference_lines_and_writes_results(tmp_path):
 
 
 def test_run_accepts_a_yaml_path_seed_and_overrides(tmp_path):
-    from quad_drake import catalog
+    from quad_drake.running import catalog
 
     path = catalog.bundled_scenarios()["01_intro"]
     result = cli(
         "run", str(path), "--seed", "9", "--set", "end_time=0.5", "--out", str(tmp_path), "--no-plots"
     )
-    from quad_drake.results import variant_name
+    from quad_drake.output.results import variant_name
 
     run_dir = tmp_path / variant_name("01_intro", 9, ["end_time=0.5"])  # 01_intro-seed9-set<hash>
     summary = json.loads((run_dir / "summary.json").read_text())
@@ -114,7 +114,7 @@ def test_run_writes_plots_report_replay_and_index(tmp_path):
     result = cli("run", "09_predict_covariance", "01_intro", "--set", "end_time=0.3", "--out", str(tmp_path))
     assert result.returncode in (0, 1), result.stderr  # short runs may fail a criterion
     assert "Traceback" not in result.stderr
-    from quad_drake.results import variant_name
+    from quad_drake.output.results import variant_name
 
     fleet, intro = (
         variant_name(name, None, ["end_time=0.3"]) for name in ("09_predict_covariance", "01_intro")

@@ -11,7 +11,7 @@ from quad_drake.estimation.complementary import (
     complementary_update,
     integrate_euler_exact,
 )
-from quad_drake.rotations import (
+from quad_drake.models.rotations import (
     euler_from_quat,
     quat_from_euler,
     quat_integrate_body_rate,

@@ -6,8 +6,10 @@ import textwrap
 import pytest
 from pydrake.common.yaml import yaml_load_typed
 
-from quad_drake import catalog
-from quad_drake.config import ConfigError, ScenarioConfig, dump_scenario, load_scenario
+from quad_drake.config.errors import ConfigError
+from quad_drake.config.loader import dump_scenario, load_scenario
+from quad_drake.config.schema import ScenarioConfig
+from quad_drake.running import catalog
 
 
 def write(tmp_path, text, name="s.yaml"):
@@ -235,3 +237,15 @@ def test_estimator_choice_loads_by_kind_with_one_line_errors(tmp_path):
         ) as e:
             load(text)
         assert "\n" not in str(e.value)
+
+
+def test_the_config_package_reexports_each_modules_names_from_where_they_live():
+    import quad_drake.config as package
+    from quad_drake.config import errors, fields, loader, schema, validation
+
+    homes = {"errors": errors, "fields": fields, "schema": schema, "validation": validation, "loader": loader}
+    for module, names in package._EXPORTS.items():
+        for name in names:
+            assert getattr(package, name) is getattr(homes[module], name), name
+    with pytest.raises(AttributeError, match="no attribute 'nothing_here'"):
+        package.nothing_here  # noqa: B018

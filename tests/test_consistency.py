@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 from scipy.stats import binom
 
-from quad_drake import consistency as cons
 from quad_drake.estimation.eskf import quat_exp, quat_mul
 from quad_drake.estimation.vocabulary import DIAGNOSTICS_SIZE, EKF7, ESKF15
-from quad_drake.rotations import quat_from_euler
-from quad_drake.signals import Signal
+from quad_drake.judging import consistency as cons
+from quad_drake.judging.signals import Signal
+from quad_drake.models.rotations import quat_from_euler
 
 
 def random_spd(rng, n, count):

@@ -8,12 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from quad_drake import catalog
 from quad_drake.cli import main
-from quad_drake.config import ConfigError
+from quad_drake.config.errors import ConfigError
 from quad_drake.estimation import custom
 from quad_drake.estimation.registry import vehicle_vocabulary
-from quad_drake.simulation import run
+from quad_drake.running import catalog
+from quad_drake.running.simulation import run
 
 README = Path(__file__).resolve().parent.parent / "README.md"
 HERE = Path(__file__).resolve()

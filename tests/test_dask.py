@@ -2,10 +2,10 @@
 
 import pytest
 
-from quad_drake import catalog
 from quad_drake.campaigns import DaskRunner, run_campaign, table
 from quad_drake.campaigns.output import rows
-from quad_drake.config import ConfigError
+from quad_drake.config.errors import ConfigError
+from quad_drake.running import catalog
 
 distributed = pytest.importorskip("distributed")
 dask = pytest.importorskip("dask")

@@ -5,9 +5,9 @@ import xml.etree.ElementTree as ET
 
 import pytest
 
-from quad_drake import catalog
-from quad_drake.config import ConfigError
-from quad_drake.diagram_svg import diagram_dot, write_diagram_svg
+from quad_drake.config.errors import ConfigError
+from quad_drake.running import catalog
+from quad_drake.running.diagram_svg import diagram_dot, write_diagram_svg
 
 needs_dot = pytest.mark.skipif(
     shutil.which("dot") is None, reason="Graphviz 'dot' not installed (apt-get install graphviz)"
@@ -36,7 +36,7 @@ def test_depth_one_keeps_vehicles_closed(tmp_path):
 
 
 def test_missing_dot_is_a_one_line_config_error(tmp_path, monkeypatch):
-    monkeypatch.setattr("quad_drake.diagram_svg.shutil.which", lambda name: None)
+    monkeypatch.setattr("quad_drake.running.diagram_svg.shutil.which", lambda name: None)
     with pytest.raises(ConfigError, match=r"^diagram: Graphviz 'dot' not found .*graphviz") as error:
         write_diagram_svg(catalog.load("01_intro"), tmp_path / "d.svg")
     assert "\n" not in str(error.value)

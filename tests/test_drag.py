@@ -6,10 +6,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from quad_drake import dynamics, sensor_models
-from quad_drake.config import ImuParams, PhysicsParams
+from quad_drake.config.schema import ImuParams, PhysicsParams
 from quad_drake.conventions import GRAVITY
-from quad_drake.rotations import quat_from_euler, rotation_from_quat
+from quad_drake.models import dynamics, sensor_models
+from quad_drake.models.rotations import quat_from_euler, rotation_from_quat
 
 DRAG = PhysicsParams(rotor_drag=[0.22, 0.25, 0.44], parasitic_drag=[0.005, 0.006, 0.01])
 HOVER = 0.5 * GRAVITY / 4

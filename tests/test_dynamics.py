@@ -6,9 +6,9 @@ import math
 import numpy as np
 import pytest
 
-from quad_drake.config import PhysicsParams
+from quad_drake.config.schema import PhysicsParams
 from quad_drake.conventions import GRAVITY, PHYSICS_PERIOD
-from quad_drake.dynamics import (
+from quad_drake.models.dynamics import (
     apply_room_constraints,
     clamped_noisy_commands,
     count_contacts,
@@ -19,7 +19,7 @@ from quad_drake.dynamics import (
     thrusts_from_wrench,
     wrench_from_thrusts,
 )
-from quad_drake.rotations import quat_from_euler, rotation_from_quat, skew
+from quad_drake.models.rotations import quat_from_euler, rotation_from_quat, skew
 
 DT = PHYSICS_PERIOD
 PARAMS = PhysicsParams()

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from quad_drake.config import EkfParams
+from quad_drake.config.schema import EkfParams
 from quad_drake.conventions import GRAVITY
 from quad_drake.estimation import ekf
-from quad_drake.rotations import wrap_to_pi
+from quad_drake.models.rotations import wrap_to_pi
 
 DT = 0.002
 HOVER_F_B = np.array([0.0, 0.0, -GRAVITY])
@@ -352,7 +352,7 @@ def test_tilt_process_noise_at_hover_is_g_squared_tilt_variance_on_the_horizonta
 
 
 def test_tilt_noise_from_params_is_off_by_default_and_adds_to_q():
-    from quad_drake.config import AttitudeFilterParams
+    from quad_drake.config.schema import AttitudeFilterParams
 
     assert ekf.TiltNoise.from_params(EkfParams(), AttitudeFilterParams(), DT) is None
     params = EkfParams(tilt_gyro_std=0.5)

@@ -9,7 +9,7 @@ from scipy.stats import chi2
 from quad_drake.conventions import GRAVITY
 from quad_drake.estimation import eskf
 from quad_drake.estimation.registry import EskfEstimatorConfig
-from quad_drake.rotations import quat_from_euler, rotation_from_quat
+from quad_drake.models.rotations import quat_from_euler, rotation_from_quat
 
 DT = 0.002
 

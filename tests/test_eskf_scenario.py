@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 from scipy.stats import t as student_t
 
-from quad_drake import catalog
-from quad_drake import consistency as cons
+from quad_drake.campaigns.fleet.diagram import run_fleet
+from quad_drake.campaigns.fleet.runner import batch_logs
 from quad_drake.estimation.registry import vehicle_vocabulary
 from quad_drake.estimation.vocabulary import ESKF9, health_counts, health_line
-from quad_drake.fleet.runner import batch_logs
-from quad_drake.fleet.simulation import run_fleet
-from quad_drake.simulation import run
+from quad_drake.judging import consistency as cons
+from quad_drake.running import catalog
+from quad_drake.running.simulation import run
 
 FALSE_FAIL = 0.001
 """Probability that the consistency test fails on a consistent filter, whatever its seeds."""

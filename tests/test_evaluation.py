@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from quad_drake.config import CriterionConfig
-from quad_drake.evaluation import (
+from quad_drake.config.schema import CriterionConfig
+from quad_drake.judging.evaluation import (
     bound_threshold,
     evaluate_criterion,
     fleet_sigma_threshold,

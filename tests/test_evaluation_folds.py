@@ -5,8 +5,8 @@ fleet batch's streamed verdicts rest on."""
 import numpy as np
 import pytest
 
-from quad_drake.config import CriterionConfig
-from quad_drake.evaluation import (
+from quad_drake.config.schema import CriterionConfig
+from quad_drake.judging.evaluation import (
     CriterionStream,
     bound_threshold,
     evaluate_criterion,

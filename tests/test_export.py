@@ -6,8 +6,8 @@ import math
 
 import numpy as np
 
-from quad_drake.export import export_csv
-from quad_drake.results import load_logs, signals_from_logs, variant_name
+from quad_drake.output.export import export_csv
+from quad_drake.output.results import load_logs, signals_from_logs, variant_name
 
 
 def read_csv(path):

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from quad_drake.evaluation import bound_threshold, recovery_threshold
+from quad_drake.judging.evaluation import bound_threshold, recovery_threshold
 
 TIMES = 0.005 * np.arange(1, 2001)  # 10 s of 5 ms analyzer samples
 

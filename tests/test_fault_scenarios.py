@@ -9,10 +9,10 @@ from statistics import NormalDist
 import numpy as np
 import pytest
 
-from quad_drake import catalog
-from quad_drake.consistency import covariance_matrices
 from quad_drake.conventions import ONBOARD_PERIOD
-from quad_drake.simulation import run
+from quad_drake.judging.consistency import covariance_matrices
+from quad_drake.running import catalog
+from quad_drake.running.simulation import run
 
 pytestmark = pytest.mark.slow
 

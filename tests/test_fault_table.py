@@ -52,7 +52,7 @@ def test_replace_table_rewrites_only_between_the_markers():
 
 def test_every_row_names_a_bundled_scenario_and_each_has_an_off_row():
     """The bundled configuration first (no --set), then at least one row without its mitigation."""
-    from quad_drake import catalog
+    from quad_drake.running import catalog
 
     bundled = catalog.bundled_scenarios()
     assert all(row.scenario in bundled for row in fault_table.ROWS)

@@ -4,9 +4,9 @@ import math
 
 import pytest
 
-from quad_drake import faults
-from quad_drake.config import FaultConfig
+from quad_drake.config.schema import FaultConfig
 from quad_drake.conventions import NO_SAMPLE_STAMP
+from quad_drake.models import faults
 
 GPS_PERIOD = 0.1
 
@@ -225,7 +225,8 @@ vehicles:
     ],
 )
 def test_bad_faults_are_one_line_naming_the_field(tmp_path, faults_yaml, expected):
-    from quad_drake.config import ConfigError, load_scenario
+    from quad_drake.config.errors import ConfigError
+    from quad_drake.config.loader import load_scenario
 
     path = tmp_path / "s.yaml"
     path.write_text(SCENARIO)
@@ -237,7 +238,8 @@ def test_bad_faults_are_one_line_naming_the_field(tmp_path, faults_yaml, expecte
 
 
 def test_a_fault_needs_its_sensor(tmp_path):
-    from quad_drake.config import ConfigError, load_scenario
+    from quad_drake.config.errors import ConfigError
+    from quad_drake.config.loader import load_scenario
 
     path = tmp_path / "s.yaml"
     path.write_text(SCENARIO)
@@ -256,7 +258,8 @@ def test_a_fault_needs_its_sensor(tmp_path):
 def test_faults_load_in_order_and_round_trip(tmp_path):
     from pydrake.common.yaml import yaml_load_typed
 
-    from quad_drake.config import ScenarioConfig, dump_scenario, load_scenario
+    from quad_drake.config.loader import dump_scenario, load_scenario
+    from quad_drake.config.schema import ScenarioConfig
 
     path = tmp_path / "s.yaml"
     path.write_text(SCENARIO)

@@ -6,36 +6,29 @@ import math
 import numpy as np
 import pytest
 
-from quad_drake import catalog, simulation
-from quad_drake.config import (
-    ConfigError,
-    ControllerParams,
-    GpsParams,
-    ImuParams,
-    MagParams,
-    PhysicsParams,
-    load_scenario,
-)
+from quad_drake.config.errors import ConfigError
+from quad_drake.config.loader import load_scenario
+from quad_drake.config.schema import ControllerParams, GpsParams, ImuParams, MagParams, PhysicsParams
 from quad_drake.control.cascade import cascade_step, lateral_position_control
 from quad_drake.conventions import GRAVITY, PHYSICS_PERIOD
-from quad_drake.dynamics import plant_step, rigid_body_step, rigid_body_step_semi_implicit
-from quad_drake.error_sampling import TICK_LOG_WIDTHS, TICK_STATE
 from quad_drake.estimation import ekf
 from quad_drake.estimation.complementary import accel_roll_pitch
 from quad_drake.estimation.vocabulary import DIAGNOSTICS_SIZE, EKF7
-from quad_drake.fidelity import FIDELITY_MODES, PHYSICAL, REFERENCE, Fidelity, fidelity_from_mode
+from quad_drake.judging.signals import vehicle_log_widths, vehicle_signals
 from quad_drake.kernels.attitude import round_to_float32
-from quad_drake.rotations import euler_from_quats, quat_from_euler, wrap_angles
-from quad_drake.sensor_models import (
+from quad_drake.models.dynamics import plant_step, rigid_body_step, rigid_body_step_semi_implicit
+from quad_drake.models.error_sampling import TICK_LOG_WIDTHS, TICK_STATE
+from quad_drake.models.fidelity import FIDELITY_MODES, PHYSICAL, REFERENCE, Fidelity, fidelity_from_mode
+from quad_drake.models.rotations import euler_from_quats, quat_from_euler, wrap_angles
+from quad_drake.models.sensor_models import (
     gps_measurement,
     imu_measurement,
     magnetometer_yaw,
     reference_accelerometer,
     specific_force,
 )
-from quad_drake.signals import vehicle_signals
-from quad_drake.simulation import vehicle_log_widths
-from quad_drake.trajectories import Trajectory, float32_clock, lookup_time
+from quad_drake.models.trajectories import Trajectory, float32_clock, lookup_time
+from quad_drake.running import catalog, simulation
 
 DT = PHYSICS_PERIOD
 INERTIA = (0.0023, 0.0023, 0.0046)

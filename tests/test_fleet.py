@@ -9,14 +9,14 @@ import pytest
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from quad_drake import catalog
 from quad_drake import conventions as c
 from quad_drake.campaigns import ProcessPoolRunner, run_campaign, table
-from quad_drake.config import FaultConfig
-from quad_drake.fleet.runner import BATCH_MEMORY, MAX_BATCH, batches, default_batch_size, fly_batch
-from quad_drake.fleet.simulation import run_fleet
-from quad_drake.fleet.summaries import summary_bytes
-from quad_drake.simulation import run
+from quad_drake.campaigns.fleet.diagram import run_fleet
+from quad_drake.campaigns.fleet.runner import BATCH_MEMORY, MAX_BATCH, batches, default_batch_size, fly_batch
+from quad_drake.campaigns.fleet.summaries import summary_bytes
+from quad_drake.config.schema import FaultConfig
+from quad_drake.running import catalog
+from quad_drake.running.simulation import run
 from quad_drake.systems.faults import SensorFaults
 
 
@@ -171,8 +171,8 @@ def test_default_batch_is_bounded_by_memory_and_split_evenly_over_the_jobs():
 
 def test_summary_bytes_counts_what_a_batch_holds():
     """The estimate against the arrays a BatchSummary and its BatchSummarizer keep after a flight."""
-    from quad_drake.fleet.simulation import build_fleet_diagram, fly
-    from quad_drake.fleet.streaming import BatchSummarizer
+    from quad_drake.campaigns.fleet.diagram import build_fleet_diagram, fly
+    from quad_drake.campaigns.fleet.streaming import BatchSummarizer
 
     scenario = catalog.load("11_gps_update", None, ["end_time=2.3"])
     seeds = (1, 2, 3)

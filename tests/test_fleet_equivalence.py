@@ -1,6 +1,6 @@
 """Fleet vs per-vehicle path: the same statistics up to sampling error (issue 12 item 4).
 
-The two paths draw different noise (``noise_streams`` vs Drake's RandomSource), so their
+The two paths draw different noise (``models.random_streams`` vs Drake's RandomSource), so their
 campaigns agree only statistically. On seeds nobody tuned on (from 7000), each judged
 criterion's pass counts must not differ significantly (Fisher's exact test, two-sided
 p >= 0.01; requiring each rate inside the other's 95 % interval fails on a rare event, e.g.
@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 from scipy.stats import fisher_exact
 
-from quad_drake import catalog
 from quad_drake.campaigns import ProcessPoolRunner, run_campaign
+from quad_drake.running import catalog
 
 SEED = 7000
 BOOTSTRAP = 2000

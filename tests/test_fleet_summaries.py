@@ -1,6 +1,6 @@
-"""A fleet batch's records, made while it flies (``fleet.runner.fly_batch``: a
-``fleet.streaming.BatchSummarizer`` folds the signals chunk by chunk), against the per-run
-functions on each run's full logs (``fleet.simulation.run_fleet`` keeps them), record field by
+"""A fleet batch's records, made while it flies (``campaigns.fleet.runner.fly_batch``: a
+``campaigns.fleet.streaming.BatchSummarizer`` folds the signals chunk by chunk), against the per-run
+functions on each run's full logs (``campaigns.fleet.diagram.run_fleet`` keeps them), record field by
 field; any chunk size gives the same records; the batched forms of the per-run functions
 (they take (n, N, width) logs) against the per-run calls, column by column."""
 
@@ -9,17 +9,17 @@ import dataclasses
 import numpy as np
 import pytest
 
-from quad_drake import catalog
-from quad_drake import consistency as cons
+from quad_drake.campaigns.fleet.diagram import run_fleet
+from quad_drake.campaigns.fleet.runner import BatchTask, batch_logs, fly_batch
+from quad_drake.campaigns.fleet.summaries import summarize_logs
 from quad_drake.campaigns.records import summarize_run
-from quad_drake.config import GpsParams, ImuParams, MagParams, SensorsConfig
+from quad_drake.config.schema import GpsParams, ImuParams, MagParams, SensorsConfig
 from quad_drake.estimation.registry import vehicle_vocabulary
-from quad_drake.fleet.bounds import PcrbStream, posterior_crbs
-from quad_drake.fleet.runner import BatchTask, batch_logs, fly_batch
-from quad_drake.fleet.simulation import run_fleet
-from quad_drake.fleet.summaries import summarize_logs
-from quad_drake.results import result_from_logs
-from quad_drake.signals import stamp_fresh, vehicle_signals
+from quad_drake.judging import consistency as cons
+from quad_drake.judging.signals import stamp_fresh, vehicle_signals
+from quad_drake.kernels.bounds import PcrbStream, posterior_crbs
+from quad_drake.output.results import result_from_logs
+from quad_drake.running import catalog
 
 RTOL = 1e-12
 SEEDS = (3, 4, 5, 6)

@@ -11,7 +11,8 @@ from scipy.stats import chi2
 
 from quad_drake.conventions import GRAVITY, NO_SAMPLE_STAMP
 from quad_drake.flightlogs import comparison
-from quad_drake.flightlogs.playback import (
+from quad_drake.flightlogs.reader import FlightLogError, Samples, read_flight_log
+from quad_drake.flightlogs.schedule import (
     first_ticks,
     gravity_directions,
     initial_attitude,
@@ -19,9 +20,8 @@ from quad_drake.flightlogs.playback import (
     superseded_samples,
     tilt_compensated_heading,
 )
-from quad_drake.flightlogs.reader import FlightLogError, Samples, read_flight_log
 from quad_drake.flightlogs.settings import LOG_DIR
-from quad_drake.rotations import euler_from_quats, rotation_from_euler
+from quad_drake.models.rotations import euler_from_quats, rotation_from_euler
 
 REAL = LOG_DIR / "real_auav_x21_attitude_flight.ulg"
 SITL = LOG_DIR / "sitl_takeoff_land_gps.ulg"

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.stats import binom, chi2
 
-from quad_drake.config import EkfParams
+from quad_drake.config.schema import EkfParams
 from quad_drake.conventions import GRAVITY
 from quad_drake.estimation import ekf, gating
 from quad_drake.estimation.vocabulary import DIAG

@@ -15,10 +15,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from quad_drake.config import TRAJECTORY_DIR, load_scenario
-from quad_drake.evaluation import window_threshold
-from quad_drake.simulation import run
-from quad_drake.trajectories import float32_clock, load_trajectory_file
+from quad_drake.config.loader import load_scenario
+from quad_drake.config.schema import TRAJECTORY_DIR
+from quad_drake.judging.evaluation import window_threshold
+from quad_drake.models.trajectories import float32_clock, load_trajectory_file
+from quad_drake.running.simulation import run
 
 GOLDEN = Path(__file__).parent / "data" / "golden"
 POSITION_TOLERANCE = 2e-5  # m

@@ -15,7 +15,7 @@ import numba
 import pytest
 
 import quad_drake
-from quad_drake import jit
+from quad_drake.kernels import jit
 
 
 def _sourceless_function(module="quad_drake.test_kernels"):

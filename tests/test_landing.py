@@ -5,11 +5,11 @@ vehicle falling onto the floor fails."""
 import numpy as np
 import pytest
 
-from quad_drake import catalog
-from quad_drake.config import SafetyConfig, ScenarioConfig
-from quad_drake.safety import safety_criteria
-from quad_drake.signals import touchdown_speeds
-from quad_drake.simulation import run
+from quad_drake.config.schema import SafetyConfig, ScenarioConfig
+from quad_drake.judging.safety import safety_criteria
+from quad_drake.judging.signals import touchdown_speeds
+from quad_drake.running import catalog
+from quad_drake.running.simulation import run
 
 
 def test_touchdown_speed_is_the_descent_speed_of_the_sample_before():

@@ -9,12 +9,16 @@ import math
 
 import pytest
 
-from quad_drake import catalog, jit, limits
 from quad_drake.campaigns import run_campaign
-from quad_drake.config import ConfigError, CriterionConfig, FaultConfig, ineffective_settings, load_scenario
-from quad_drake.fleet.simulation import run_fleet
-from quad_drake.progress import FlightProgress
-from quad_drake.simulation import run
+from quad_drake.campaigns.fleet.diagram import run_fleet
+from quad_drake.config.errors import ConfigError
+from quad_drake.config.loader import load_scenario
+from quad_drake.config.schema import CriterionConfig, FaultConfig
+from quad_drake.config.validation import ineffective_settings
+from quad_drake.kernels import jit
+from quad_drake.running import catalog, limits
+from quad_drake.running.progress import FlightProgress
+from quad_drake.running.simulation import run
 
 
 def broken(name, what):

@@ -7,10 +7,10 @@ from pathlib import Path
 
 import numpy as np
 
-from quad_drake import catalog
-from quad_drake import consistency as cons
-from quad_drake.fleet.runner import batch_logs
-from quad_drake.fleet.simulation import run_fleet
+from quad_drake.campaigns.fleet.diagram import run_fleet
+from quad_drake.campaigns.fleet.runner import batch_logs
+from quad_drake.judging import consistency as cons
+from quad_drake.running import catalog
 
 SCRIPT = Path(__file__).resolve().parent.parent / "benchmarks" / "nees_over_time.py"
 

@@ -4,15 +4,16 @@ Single runs and fleets both execute the compiled kernels (``kernels/attitude.py`
 ``eskf.py``, ``fusion.py``, ``odometry.py``; sized by n, ``systems/estimators.py``), which compile
 the pure scalar formulas' own code; the textbook matrix forms in ``estimation/`` and the list forms
 of ``delay_compensation`` stay as the named oracles those kernels are tested against
-(``tests/test_fleet_estimators.py``, 1e-12). Here every oracle is patched to raise and closed-loop
+(``tests/test_estimator_kernels.py``, 1e-12). Here every oracle is patched to raise and closed-loop
 flights that exercise every filter step (prediction, magnetometer and GPS updates, a gated outlier,
 a delayed GPS, both estimators) must still fly.
 """
 
 import pytest
 
-from quad_drake import catalog, delay_compensation, simulation
+from quad_drake import delay_compensation
 from quad_drake.estimation import ekf, eskf
+from quad_drake.running import catalog, simulation
 
 ORACLES = {
     ekf: (

@@ -11,9 +11,9 @@ import threading
 import numpy as np
 import pytest
 
-from quad_drake import catalog
-from quad_drake.outdir import atomic_path, is_result_folder, write_text_atomic
-from quad_drake.results import claim_run_folder, load_run, save_run, variant_name
+from quad_drake.output.outdir import atomic_path, is_result_folder, write_text_atomic
+from quad_drake.output.results import claim_run_folder, load_run, save_run, variant_name
+from quad_drake.running import catalog
 
 
 def test_an_error_while_writing_leaves_the_earlier_file_and_no_temporary(tmp_path):

@@ -6,12 +6,19 @@ import re
 import numpy as np
 import pytest
 
-from quad_drake import plots
-from quad_drake.config import CriterionConfig, GpsParams, ImuParams, MagParams, ScenarioConfig, VehicleConfig
+from quad_drake.config.schema import (
+    CriterionConfig,
+    GpsParams,
+    ImuParams,
+    MagParams,
+    ScenarioConfig,
+    VehicleConfig,
+)
 from quad_drake.estimation.vocabulary import DIAGNOSTICS_SIZE
-from quad_drake.report import criterion_row, ekf_consistency, key_metrics
-from quad_drake.results import result_from_logs
-from quad_drake.rotations import quat_from_euler
+from quad_drake.models.rotations import quat_from_euler
+from quad_drake.output import plots
+from quad_drake.output.report import criterion_row, ekf_consistency, key_metrics
+from quad_drake.output.results import result_from_logs
 
 LOG_PERIOD = 0.005
 
@@ -167,7 +174,7 @@ def test_every_axis_is_labelled_with_a_unit():
 
 
 def test_fleet_sigma_criteria_are_drawn_once_in_the_fleet_figure():
-    from quad_drake.config import CriterionConfig
+    from quad_drake.config.schema import CriterionConfig
 
     criteria = [CriterionConfig(kind="fleet_sigma", signal="Est.E.X", sigma_signal="Est.S.X")]
     result = make_result(("Q1", "Q2", "Q3"), criteria=criteria)
@@ -230,8 +237,8 @@ def test_diverged_run_still_gets_plots_and_report(tmp_path):
 
 
 def test_real_run_artifacts(tmp_path):
-    from quad_drake import catalog
-    from quad_drake.simulation import run
+    from quad_drake.running import catalog
+    from quad_drake.running.simulation import run
 
     result = run(catalog.load("01_intro"))
     artifacts = plots.write_run_artifacts(result, tmp_path)
@@ -332,7 +339,7 @@ def test_report_html_renders_the_safety_criteria_from_their_text(tmp_path):
 
 
 def test_bound_and_recovery_criteria_get_a_figure_and_faults_are_shaded_on_every_time_plot():
-    from quad_drake.config import FaultConfig
+    from quad_drake.config.schema import FaultConfig
 
     criteria = [
         CriterionConfig(kind="bound", signal="Quad.Est.E.Pos", threshold=2.0, start=1.0, end=3.0),
@@ -364,8 +371,8 @@ def test_bound_and_recovery_criteria_get_a_figure_and_faults_are_shaded_on_every
 
 
 def test_run_and_campaign_pages_name_the_fault_window(tmp_path):
-    from quad_drake.config import FaultConfig
-    from quad_drake.report import faults_html
+    from quad_drake.config.schema import FaultConfig
+    from quad_drake.output.report import faults_html
 
     result = make_result()
     assert faults_html(result.scenario) == []

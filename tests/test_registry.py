@@ -9,11 +9,14 @@ import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
 
-from quad_drake import catalog
-from quad_drake.config import ConfigError, VehicleConfig, load_scenario
+from quad_drake.config.errors import ConfigError
+from quad_drake.config.loader import load_scenario
+from quad_drake.config.schema import VehicleConfig
 from quad_drake.estimation import registry
-from quad_drake.fidelity import PHYSICAL, REFERENCE
-from quad_drake.simulation import build_vehicle, run, vehicle_log_names
+from quad_drake.judging.signals import vehicle_log_names
+from quad_drake.models.fidelity import PHYSICAL, REFERENCE
+from quad_drake.running import catalog
+from quad_drake.running.simulation import build_vehicle, run
 from quad_drake.tuning.space import search_space
 
 

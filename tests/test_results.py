@@ -6,12 +6,12 @@ import shutil
 import numpy as np
 import pytest
 
-from quad_drake import catalog
-from quad_drake.config import ConfigError
-from quad_drake.jsonio import dump_json, to_json_ready
-from quad_drake.report import find_summaries, write_index
-from quad_drake.results import FORMAT_VERSION, RUNNER, load_run, save_run
-from quad_drake.simulation import run
+from quad_drake.config.errors import ConfigError
+from quad_drake.output.jsonio import dump_json, to_json_ready
+from quad_drake.output.report import find_summaries, write_index
+from quad_drake.output.results import FORMAT_VERSION, RUNNER, load_run, save_run
+from quad_drake.running import catalog
+from quad_drake.running.simulation import run
 
 
 def strict_loads(text):

@@ -12,10 +12,11 @@ import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
 
-from quad_drake.config import ConfigError, PhysicsParams, ScenarioConfig, VehicleConfig, load_scenario
+from quad_drake.config.errors import ConfigError
+from quad_drake.config.loader import load_scenario
+from quad_drake.config.schema import PhysicsParams, ScenarioConfig, VehicleConfig
 from quad_drake.conventions import GRAVITY
-from quad_drake.dynamics import on_floor, outside_room
-from quad_drake.evaluation import (
+from quad_drake.judging.evaluation import (
     evaluate_criterion,
     floor_touchdowns,
     judged_criteria,
@@ -23,8 +24,9 @@ from quad_drake.evaluation import (
     state_finite,
     tracking_bound,
 )
-from quad_drake.rotations import quat_from_euler
-from quad_drake.safety import is_closed_loop, safety_criteria
+from quad_drake.judging.safety import is_closed_loop, safety_criteria
+from quad_drake.models.dynamics import on_floor, outside_room
+from quad_drake.models.rotations import quat_from_euler
 from quad_drake.systems.plant import QuadrotorPlant
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -2,8 +2,8 @@
 
 import pytest
 
-from quad_drake import catalog
-from quad_drake.simulation import run
+from quad_drake.running import catalog
+from quad_drake.running.simulation import run
 
 pytestmark = pytest.mark.slow  # whole scenarios: up to 40 s of simulated flight each
 

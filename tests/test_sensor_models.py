@@ -5,10 +5,10 @@ import math
 import numpy as np
 import pytest
 
-from quad_drake import sensor_models
-from quad_drake.config import GpsParams, ImuParams, MagParams
+from quad_drake.config.schema import GpsParams, ImuParams, MagParams
 from quad_drake.conventions import GRAVITY
-from quad_drake.rotations import quat_from_euler, rotation_from_quat
+from quad_drake.models import sensor_models
+from quad_drake.models.rotations import quat_from_euler, rotation_from_quat
 
 LEVEL = [1.0, 0.0, 0.0, 0.0]
 G_N = np.array([0.0, 0.0, GRAVITY])

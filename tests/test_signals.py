@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, EKF7, ESKF15
-from quad_drake.rotations import euler_from_quat, quat_from_euler, yaw_from_quats
-from quad_drake.signals import (
+from quad_drake.judging.signals import (
     LOG_WIDTHS,
     Signal,
     Signals,
@@ -19,6 +18,7 @@ from quad_drake.signals import (
     vehicle_signals,
     wrap_angles,
 )
+from quad_drake.models.rotations import euler_from_quat, quat_from_euler, yaw_from_quats
 
 
 def test_stamp_fresh_marks_only_new_samples():

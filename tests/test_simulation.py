@@ -5,12 +5,13 @@ import pytest
 from pydrake.common import RandomGenerator
 from pydrake.systems.analysis import Simulator
 
-from quad_drake import catalog
 from quad_drake import conventions as c
 from quad_drake.control.cascade import cascade_step
-from quad_drake.dynamics import motor_lag_step
-from quad_drake.results import load_logs, save_run
-from quad_drake.simulation import build_diagram, build_vehicle, read_logs, run, vehicle_log_names
+from quad_drake.judging.signals import vehicle_log_names
+from quad_drake.models.dynamics import motor_lag_step
+from quad_drake.output.results import load_logs, save_run
+from quad_drake.running import catalog
+from quad_drake.running.simulation import build_diagram, build_vehicle, read_logs, run
 
 
 def short(name, end_time, *overrides, seed=None):
@@ -125,7 +126,8 @@ def test_results_save_and_reload(tmp_path):
 
 
 def test_unknown_signal_in_a_criterion_is_a_config_error():
-    from quad_drake.config import ConfigError, load_scenario
+    from quad_drake.config.errors import ConfigError
+    from quad_drake.config.loader import load_scenario
 
     # Loading through the catalog reports it with the file; run() checks a scenario built otherwise.
     with pytest.raises(

@@ -10,13 +10,20 @@ import itertools
 import numpy as np
 import pytest
 
-from quad_drake import catalog
-from quad_drake import consistency as cons
 from quad_drake.campaigns import CampaignResult, InProcessRunner, Runner, RunRecord, run_campaign
 from quad_drake.campaigns.output import rows
 from quad_drake.campaigns.records import campaign_vocabulary, slim
 from quad_drake.campaigns.tally import ConsistencyTally, fold_records
-from quad_drake.config import GpsParams, ImuParams, MagParams, ScenarioConfig, SensorsConfig, VehicleConfig
+from quad_drake.config.schema import (
+    GpsParams,
+    ImuParams,
+    MagParams,
+    ScenarioConfig,
+    SensorsConfig,
+    VehicleConfig,
+)
+from quad_drake.judging import consistency as cons
+from quad_drake.running import catalog
 
 RTOL = 1e-12
 

@@ -19,11 +19,11 @@ import numpy as np
 import pytest
 from scipy.stats import t as student_t
 
-from quad_drake import catalog
-from quad_drake import consistency as cons
+from quad_drake.campaigns.fleet.diagram import run_fleet
+from quad_drake.campaigns.fleet.runner import batch_logs
 from quad_drake.estimation.registry import vehicle_vocabulary
-from quad_drake.fleet.runner import batch_logs
-from quad_drake.fleet.simulation import run_fleet
+from quad_drake.judging import consistency as cons
+from quad_drake.running import catalog
 
 RUNS, FIRST_SEED = 30, 5000  # tuned on 1000-1099
 WINDOWS = 10  # 2.5 s stretches of the 25 s flight

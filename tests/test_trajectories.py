@@ -3,10 +3,11 @@ import math
 import numpy as np
 import pytest
 
-from quad_drake.config import TRAJECTORY_DIR, ConfigError, TrajectoryConfig
+from quad_drake.config.errors import ConfigError
+from quad_drake.config.schema import TRAJECTORY_DIR, TrajectoryConfig
 from quad_drake.conventions import REF_A_SLICE, REF_P_SLICE, REF_V_SLICE, REF_YAW_INDEX, REFERENCE_SIZE
-from quad_drake.rotations import wrap_to_pi
-from quad_drake.trajectories import (
+from quad_drake.models.rotations import wrap_to_pi
+from quad_drake.models.trajectories import (
     FigureEight,
     Trajectory,
     constant_trajectory,

@@ -14,9 +14,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from quad_drake import consistency as cons
-from quad_drake.config import ConfigError, load_scenario
+from quad_drake.config.errors import ConfigError
+from quad_drake.config.loader import load_scenario
 from quad_drake.estimation.registry import KINDS, EskfEstimatorConfig
+from quad_drake.judging import consistency as cons
 from quad_drake.tuning import objective, search, session, space
 from quad_drake.tuning.objective import INFEASIBLE, Score
 
@@ -364,7 +365,7 @@ def test_tune_writes_a_runnable_tuned_yaml_and_is_deterministic(quad_drake_cli, 
     assert "before" in (folder / "before_after.txt").read_text()
     page = (folder / "report.html").read_text()  # the session's page, linked from the index
     assert "ekf.q_vel_xy_std" in page and 'href="holdout_after/report.html"' in page
-    from quad_drake.report import write_index
+    from quad_drake.output.report import write_index
 
     assert 'href="a/report.html">tune page</a>' in write_index(tmp_path).read_text()
     # the same seeds and budget: the same search, also with a generation's candidates on two workers

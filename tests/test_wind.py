@@ -1,4 +1,4 @@
-"""Pure wind models (``quad_drake.wind``): the Dryden forms against MIL-F-8785C, the discrete
+"""Pure wind models (``quad_drake.models.wind``): the Dryden forms against MIL-F-8785C, the discrete
 filters' variance and correlation on a long seeded sample, the (1 - cos) gust, the kernels."""
 
 import math
@@ -6,9 +6,9 @@ import math
 import numpy as np
 import pytest
 
-from quad_drake import wind
-from quad_drake.config import GustConfig, WindConfig
+from quad_drake.config.schema import GustConfig, WindConfig
 from quad_drake.kernels import flight as kernels
+from quad_drake.models import wind
 
 
 def test_low_altitude_forms_match_the_spec():
@@ -124,8 +124,9 @@ def test_kernels_match_the_matrix_forms():
 
 
 def test_config_checks_of_the_air():
-    from quad_drake import catalog
-    from quad_drake.config import ConfigError, ineffective_settings
+    from quad_drake.config.errors import ConfigError
+    from quad_drake.config.validation import ineffective_settings
+    from quad_drake.running import catalog
 
     with pytest.raises(ConfigError, match=r"vehicles\.0\.wind\.gusts\.0\.direction: must not be zero"):
         catalog.load("20_gust_figure_eight", None, ["vehicles.0.wind.gusts.0.direction=[0, 0, 0]"])

@@ -10,23 +10,34 @@
 - :mod:`.output`, :mod:`.plots`, :mod:`.page`: table, CSV, JSON, NPZ, PNGs, HTML page.
 """
 
-from .campaign import CampaignInterrupted, plan_campaign, run_campaign
-from .output import save, table, timing_line
-from .records import RunRecord
-from .runners import DaskRunner, InProcessRunner, ProcessPoolRunner, Runner
-from .statistics import CampaignResult
+import importlib
 
-__all__ = [
-    "CampaignInterrupted",
-    "CampaignResult",
-    "DaskRunner",
-    "InProcessRunner",
-    "ProcessPoolRunner",
-    "plan_campaign",
-    "RunRecord",
-    "Runner",
-    "run_campaign",
-    "save",
-    "table",
-    "timing_line",
-]
+_LAZY = {
+    "CampaignInterrupted": "campaign",
+    "plan_campaign": "campaign",
+    "run_campaign": "campaign",
+    "save": "output",
+    "table": "output",
+    "timing_line": "output",
+    "RunRecord": "records",
+    "DaskRunner": "runners",
+    "InProcessRunner": "runners",
+    "ProcessPoolRunner": "runners",
+    "Runner": "runners",
+    "CampaignResult": "statistics",
+}
+"""Names imported from their module on first use, so that the fleet (``campaigns.fleet``), which
+imports what a run sends back (``records``, ``tally``), never loads the campaign that drives it."""
+
+
+def __getattr__(name):
+    if name not in _LAZY:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+
+
+def __dir__():
+    return sorted({*globals(), *_LAZY})
+
+
+__all__ = sorted(_LAZY)

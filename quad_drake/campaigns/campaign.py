@@ -4,7 +4,7 @@ Run i uses seed S + i, so any run reproduces alone with ``quad-drake run NAME --
 Records are ordered by run index, so the statistics do not depend on the runner. Each record
 is folded into the campaign's :class:`~.tally.ConsistencyTally` as it arrives and kept slim
 (``records.slim``: no per-sample series), so the memory does not grow with the series.
-With ``fleet_batch`` the runner's tasks are fleet batches (``quad_drake.fleet.runner``):
+With ``fleet_batch`` the runner's tasks are fleet batches (``quad_drake.campaigns.fleet.runner``):
 B runs flown at once, each sending back its B slim records and their tally
 (``tally.FoldedRecords``).
 """
@@ -15,10 +15,11 @@ import time
 
 from tqdm import tqdm
 
-from ..config import ConfigError, check_scenario, check_seed_range
-from ..limits import check_memory, check_run
-from ..simulation import available_signals
-from ..verdicts import check_criteria
+from ..config.errors import ConfigError
+from ..config.validation import check_scenario, check_seed_range
+from ..judging.verdicts import check_criteria
+from ..running.limits import check_memory, check_run
+from ..running.simulation import available_signals
 from .records import RunTask, simulate_run
 from .runners import InProcessRunner, TaskFailed
 from .statistics import CampaignResult
@@ -111,7 +112,7 @@ class _OrderedTally:
 
 def _fleet_tasks(scenario, runs, first, batch):
     """(tasks, worker function, runner label) of a fleet campaign of `batch` runs per task."""
-    from ..fleet.runner import batches, simulate_batch
+    from .fleet.runner import batches, simulate_batch
 
     if batch < 1:
         raise ConfigError(f"montecarlo: --batch must be >= 1, got {batch}")
@@ -122,7 +123,7 @@ def _fleet_tasks(scenario, runs, first, batch):
 def _check_fleet_memory(scenario, batch, at_once):
     """ConfigError when `at_once` fleet batches of `batch` runs would not fit in memory
     (``fleet.summaries.summary_bytes``, ``limits.check_memory``)."""
-    from ..fleet.summaries import summary_bytes
+    from .fleet.summaries import summary_bytes
 
     check_memory(
         summary_bytes(scenario, batch) * at_once,

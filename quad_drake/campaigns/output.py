@@ -7,10 +7,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..jsonio import dump_json
-from ..outdir import remove_stale, write_binary_atomic, write_text_atomic
-from ..results import FORMAT_VERSION
-from ..signals import signal_unit
+from ..judging.signals import signal_unit
+from ..output.jsonio import dump_json
+from ..output.outdir import remove_stale, write_binary_atomic, write_text_atomic
+from ..output.results import FORMAT_VERSION
 from .page import write_page
 from .plots import write_plots
 from .records import METRIC_STATS, criterion_column, settle_time

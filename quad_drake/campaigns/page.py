@@ -1,12 +1,12 @@
 """The campaign page (report.html in the campaign folder): criteria pass rates with their
 confidence intervals, error distributions, consistency with its plots, efficiency.
-Self-contained like a run's report (:mod:`quad_drake.report`)."""
+Self-contained like a run's report (:mod:`quad_drake.output.report`)."""
 
 from pathlib import Path
 
-from ..config import dump_scenario
-from ..outdir import write_text_atomic
-from ..report import esc, faults_html, figures_html, html_page, html_table, num, verdict_cell
+from ..config.loader import dump_scenario
+from ..output.outdir import write_text_atomic
+from ..output.report import esc, faults_html, figures_html, html_page, html_table, num, verdict_cell
 from .records import settle_time
 
 

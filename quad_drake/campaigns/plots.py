@@ -5,9 +5,9 @@ from pathlib import Path
 
 from matplotlib.figure import Figure
 
-from ..outdir import write_binary_atomic
-from ..plots import shade_faults
-from ..report import fault_spans
+from ..output.outdir import write_binary_atomic
+from ..output.plots import shade_faults
+from ..output.report import fault_spans
 from .records import settle_time
 from .statistics import per_dof_text, tolerance_text
 

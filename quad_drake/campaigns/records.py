@@ -5,13 +5,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .. import consistency as cons
-from ..accuracy_bound import posterior_crb
 from ..estimation.registry import nis_sensors, vehicle_vocabulary
 from ..estimation.vocabulary import health_counts
-from ..evaluation import max_abs, rms
-from ..signals import stamp_fresh
-from ..simulation import run
+from ..judging import consistency as cons
+from ..judging.evaluation import max_abs, rms
+from ..judging.signals import stamp_fresh
+from ..models.accuracy_bound import posterior_crb
+from ..running.simulation import run
 
 SETTLE_TIME = 5.0
 """s; ``rms_settled`` (and so the efficiency against the steady-state bound) uses the samples

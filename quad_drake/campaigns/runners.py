@@ -18,7 +18,7 @@ from abc import ABC, abstractmethod
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 
-from ..config import ConfigError
+from ..config.errors import ConfigError
 
 
 class TaskFailed(Exception):

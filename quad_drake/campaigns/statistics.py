@@ -1,6 +1,6 @@
 """A campaign's statistics from its run records: pass rates with Clopper-Pearson intervals,
 error distributions, NEES/NIS consistency against chi^2 bands, efficiency against the
-tilt-aware hover Riccati bound and the posterior CRB (:mod:`quad_drake.accuracy_bound`)."""
+tilt-aware hover Riccati bound and the posterior CRB (:mod:`quad_drake.models.accuracy_bound`)."""
 
 import math
 from dataclasses import dataclass
@@ -9,9 +9,9 @@ from typing import Optional
 
 import numpy as np
 
-from .. import consistency as cons
-from ..accuracy_bound import accuracy_bound
-from ..signals import key_unit
+from ..judging import consistency as cons
+from ..judging.signals import key_unit
+from ..models.accuracy_bound import accuracy_bound
 from .records import campaign_vocabulary, criterion_column
 from .tally import NEES, nis_statistic
 

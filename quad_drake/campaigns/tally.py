@@ -1,7 +1,7 @@
 """A campaign's consistency series folded as the runs arrive: memory independent of the run count.
 
 The campaign criteria judge the mean over realisations ((run, vehicle) pairs) of the NEES at
-each log sample and of each sensor's NIS at each update stamp (:mod:`quad_drake.consistency`).
+each log sample and of each sensor's NIS at each update stamp (:mod:`quad_drake.judging.consistency`).
 A :class:`ConsistencyTally` keeps, per statistic, the running sum of the realisations at each
 stamp and their count, so a 10,000-run campaign holds one (n,) sum per statistic instead of
 10,000 series. Tallies add: ``a + b`` is the tally of both sets of realisations (in any

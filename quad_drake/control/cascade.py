@@ -10,9 +10,9 @@ Everything is ``math`` on scalars: :func:`cascade_step` runs at 500 Hz.
 import math
 
 from quad_drake.conventions import GRAVITY
-from quad_drake.dynamics import thrusts_from_wrench
-from quad_drake.fidelity import PHYSICAL
-from quad_drake.rotations import wrap_to_pi
+from quad_drake.models.dynamics import thrusts_from_wrench
+from quad_drake.models.fidelity import PHYSICAL
+from quad_drake.models.rotations import wrap_to_pi
 
 
 def altitude_control(z_ref, vz_ref, az_ff, z, vz, R22, integral, dt, params):
@@ -137,7 +137,7 @@ def cascade_step(state13, reference10, integral, dt, params, fidelity=PHYSICAL):
 
     state13: p_NB (m), q_NB (wxyz, normalised here), v_NB (m/s), w_NB_B (rad/s);
     reference10: p (m), v (m/s), a feed-forward (m/s^2), yaw (rad); integral: the
-    altitude-error integral (m s); dt in s; fidelity: a :class:`~quad_drake.fidelity.Fidelity`
+    altitude-error integral (m s); dt in s; fidelity: a :class:`~quad_drake.models.fidelity.Fidelity`
     (its ``lateral_limit_3d`` picks the lateral acceleration limit; without
     ``altitude_integral_windup`` the integral is held while the collective thrust is clamped).
     Returns (F0..F3 motor forces in N, not clamped: the plant clamps) and the updated integral.

@@ -56,7 +56,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from quad_drake.config_fields import number
+from quad_drake.config.fields import number
 
 HEIGHT_INDEX = 2
 """Index of p_z (m, NED down) in the EKF7 state and in the ESKF error state."""

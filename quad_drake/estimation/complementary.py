@@ -16,7 +16,7 @@ from Python run one formula.
 import math
 
 from quad_drake.conventions import GRAVITY
-from quad_drake.rotations import euler_from_quat, quat_from_euler_tuple, quat_product, wrap_to_pi
+from quad_drake.models.rotations import euler_from_quat, quat_from_euler_tuple, quat_product, wrap_to_pi
 
 VARIANTS = ("nonlinear", "small_angle")
 

@@ -22,7 +22,7 @@ forms (``predict``, ``predict_with_yaw``, ``predict_state``, ``predict_jacobian`
 and ``TiltNoise.process_noise``) are REFERENCE ORACLES
 of the kernel's sparse covariance loops and Joseph updates, which single runs and fleets both
 execute: the kernel is tested against them on seeded random inputs to 1e-12
-(``tests/test_fleet_estimators.py``) and no simulation calls them (``tests/test_oracles.py``).
+(``tests/test_estimator_kernels.py``) and no simulation calls them (``tests/test_oracles.py``).
 """
 
 import math
@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from quad_drake.conventions import EKF_STATE_SIZE, GRAVITY
-from quad_drake.rotations import wrap_to_pi
+from quad_drake.models.rotations import wrap_to_pi
 
 YAW_INDEX = 6
 

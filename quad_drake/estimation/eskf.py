@@ -39,7 +39,7 @@ code the running implementation, ``kernels/eskf.py``, compiles: they exist once.
 (``predict``, ``predict_nominal``, ``transition``, ``process_noise``, ``joseph_update``, ``inject``,
 ``gps_update``, ``mag_update``) are REFERENCE ORACLES of the kernel's sparse loops, which single
 runs and fleets both execute: the kernel is tested against them on seeded random inputs to 1e-12
-(``tests/test_fleet_estimators.py``) and no simulation calls them (``tests/test_oracles.py``).
+(``tests/test_estimator_kernels.py``) and no simulation calls them (``tests/test_oracles.py``).
 """
 
 import math
@@ -49,7 +49,7 @@ import numpy as np
 
 from quad_drake.conventions import GRAVITY
 from quad_drake.estimation.ekf import mag_innovation
-from quad_drake.rotations import quat_product, rotation_entries
+from quad_drake.models.rotations import quat_product, rotation_entries
 
 NOMINAL_SIZE = 16
 P_IDX, V_IDX, Q_IDX, BA_IDX, BG_IDX = slice(0, 3), slice(3, 6), slice(6, 10), slice(10, 13), slice(13, 16)

@@ -42,9 +42,9 @@ from typing import List
 
 import numpy as np
 
-from quad_drake.config_fields import noise_stds, number, vector
-from quad_drake.rotations import rotation_entries
-from quad_drake.sensor_models import world_field
+from quad_drake.config.fields import noise_stds, number, vector
+from quad_drake.models.rotations import rotation_entries
+from quad_drake.models.sensor_models import world_field
 
 ATTITUDE_START = 6
 """The first of the ESKF error-state entries the field depends on (dtheta, 6..8, rad, world axes)."""

@@ -32,13 +32,13 @@ from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import Dict, List, Optional, Union
 
-from quad_drake.config_fields import noise_stds, number, vector
+from quad_drake.config.fields import noise_stds, number, vector
 from quad_drake.conventions import ONBOARD_PERIOD
 from quad_drake.estimation import custom
 from quad_drake.estimation.baro import BaroFusionParams
 from quad_drake.estimation.mag3 import MagFieldFusionParams
 from quad_drake.estimation.vocabulary import EKF7, ESKF9, ESKF15, EstimatorVocabulary, euler_vocabulary
-from quad_drake.fidelity import Fidelity
+from quad_drake.models.fidelity import Fidelity
 
 
 @dataclass

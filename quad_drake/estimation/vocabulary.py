@@ -24,9 +24,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from quad_drake.error_sampling import error_truth
 from quad_drake.estimation.eskf import attitude_errors
-from quad_drake.rotations import euler_from_quats, wrap_angles, yaw_from_quats
+from quad_drake.models.error_sampling import error_truth
+from quad_drake.models.rotations import euler_from_quats, wrap_angles, yaw_from_quats
 
 DIAGNOSTICS = (
     "gps_nis",  # NIS of the last fresh GPS sample (fused or gated), NaN before the first

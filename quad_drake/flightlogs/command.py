@@ -7,11 +7,11 @@ ConfigError, which the CLI prints as one line with exit code 2.
 import math
 from pathlib import Path
 
-from quad_drake.config import ConfigError
+from quad_drake.config.errors import ConfigError
 from quad_drake.flightlogs.replay import COMPARE_AFTER, replay, save_replay
 from quad_drake.flightlogs.settings import estimator_mapping, load_replay
-from quad_drake.outdir import check_output_dir, is_result_folder
-from quad_drake.results import claim_run_folder, variant_name
+from quad_drake.output.outdir import check_output_dir, is_result_folder
+from quad_drake.output.results import claim_run_folder, variant_name
 
 
 def _out_folder(args):
@@ -77,7 +77,7 @@ def replay_command(args):
     save_replay(result, folder)
     if not args.no_plots:
         from quad_drake.flightlogs.page import write_replay_artifacts
-        from quad_drake.report import write_index
+        from quad_drake.output.report import write_index
 
         write_replay_artifacts(result, folder)
         print(f"saved {folder}/")

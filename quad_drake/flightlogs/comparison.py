@@ -20,9 +20,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2
 
-from quad_drake.consistency import chi2_band, fresh_nis
 from quad_drake.estimation.vocabulary import NIS_DOF
-from quad_drake.rotations import euler_from_quats, wrap_angles
+from quad_drake.judging.consistency import chi2_band, fresh_nis
+from quad_drake.models.rotations import euler_from_quats, wrap_angles
 
 ATTITUDE_STATES = ("Roll", "Pitch", "Yaw")
 POSITION_STATES = ("X", "Y", "Z", "VX", "VY", "VZ")

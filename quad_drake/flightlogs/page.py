@@ -22,9 +22,9 @@ from quad_drake.flightlogs.comparison import (
     state_sigmas,
 )
 from quad_drake.flightlogs.settings import dump_replay
-from quad_drake.outdir import remove_stale, write_binary_atomic, write_text_atomic
-from quad_drake.report import esc, figures_html, html_page, html_table, num
-from quad_drake.rotations import euler_from_quats
+from quad_drake.models.rotations import euler_from_quats
+from quad_drake.output.outdir import remove_stale, write_binary_atomic, write_text_atomic
+from quad_drake.output.report import esc, figures_html, html_page, html_table, num
 
 DPI = 80
 REPLAY_ARTIFACTS = ("report.html", "*.png")

@@ -62,7 +62,7 @@ from pathlib import Path
 
 import numpy as np
 
-from quad_drake.config import ConfigError
+from quad_drake.config.errors import ConfigError
 
 
 class FlightLogError(ConfigError):

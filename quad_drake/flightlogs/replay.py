@@ -4,7 +4,7 @@ The Diagram: a ``systems.playback.LogPlayback`` emits the log's samples on the o
 ``imu``, ``gps`` and ``mag`` outputs feed the estimator of ``systems.estimators.build_estimator``
 (the same sub-Diagram a simulated vehicle flies on, unchanged); every estimator output and every
 playback output is logged by its own ``VectorLogSink`` every LOG_PERIOD. A log without GPS
-feeds the estimator PX4's fake position instead (``flightlogs.playback.fake_position``), so the
+feeds the estimator PX4's fake position instead (``flightlogs.schedule.fake_position``), so the
 attitude part runs and the position part stays bounded; its position is not compared (there is
 no reference) and its GPS NIS is not judged.
 
@@ -23,24 +23,24 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput
 
-from quad_drake import jit
 from quad_drake.conventions import LOG_PERIOD
 from quad_drake.estimation.registry import vocabulary_for
 from quad_drake.estimation.vocabulary import health_counts, health_line
-from quad_drake.fidelity import PHYSICAL
 from quad_drake.flightlogs import comparison
-from quad_drake.flightlogs.playback import (
+from quad_drake.flightlogs.reader import read_flight_log
+from quad_drake.flightlogs.schedule import (
     fake_position,
     initial_attitude,
     playback_streams,
     superseded_samples,
 )
-from quad_drake.flightlogs.reader import read_flight_log
 from quad_drake.flightlogs.settings import ReplayConfig, dump_replay, resolve_log, vehicle_for
-from quad_drake.jsonio import dump_json
-from quad_drake.limits import LOG_COPIES, check_memory
-from quad_drake.outdir import write_binary_atomic, write_text_atomic
-from quad_drake.results import FORMAT_VERSION
+from quad_drake.kernels import jit
+from quad_drake.models.fidelity import PHYSICAL
+from quad_drake.output.jsonio import dump_json
+from quad_drake.output.outdir import write_binary_atomic, write_text_atomic
+from quad_drake.output.results import FORMAT_VERSION
+from quad_drake.running.limits import LOG_COPIES, check_memory
 from quad_drake.systems.estimators import build_estimator
 from quad_drake.systems.playback import LogPlayback
 

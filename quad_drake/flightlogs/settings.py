@@ -23,22 +23,11 @@ from typing import Optional
 import yaml
 from pydrake.common.yaml import yaml_dump, yaml_dump_typed, yaml_load_typed
 
-from quad_drake.config import (
-    PACKAGE_DIR,
-    AttitudeFilterParams,
-    ConfigError,
-    EkfParams,
-    VehicleConfig,
-    apply_override,
-    check_node,
-    did_you_mean,
-    first_line,
-    load_yaml,
-    override_hint,
-    parse_override,
-    validate,
-)
-from quad_drake.config_fields import number
+from quad_drake.config.errors import ConfigError, did_you_mean, first_line
+from quad_drake.config.fields import number
+from quad_drake.config.loader import apply_override, load_yaml, override_hint, parse_override
+from quad_drake.config.schema import PACKAGE_DIR, AttitudeFilterParams, EkfParams, VehicleConfig
+from quad_drake.config.validation import check_node, validate
 from quad_drake.estimation.registry import KINDS, Ekf7EstimatorConfig, EskfEstimatorConfig, EstimatorConfig
 
 PER_SAMPLE = math.sqrt(0.010 / 0.002)

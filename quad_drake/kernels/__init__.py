@@ -3,7 +3,7 @@ the LeafSystems of ``quad_drake.systems`` for one vehicle and for a fleet alike.
 
 - ``flight``: the plant step, the IMU and magnetometer samples and the cascade controller, the
   pure functions' own code compiled by numba (and ``compiled``, ``frozen``: how to compile one).
-- ``rotations``: ``quad_drake.rotations``' formulas compiled once for the estimator kernels.
+- ``rotations``: ``quad_drake.models.rotations``' formulas compiled once for the estimator kernels.
 - ``imu_hold``: the estimators' running mean of the IMU, dead-reckoned on over a dropout.
 - ``attitude``: the complementary attitude filter.
 - ``ekf7``, ``eskf``: the two estimators' ticks; each module's docstring carries its equations.

@@ -32,9 +32,8 @@ import math
 from quad_drake.conventions import NO_SAMPLE_STAMP
 from quad_drake.estimation import baro, gating, mag3
 from quad_drake.estimation.vocabulary import DIAG
-from quad_drake.jit import njit_cached
 from quad_drake.kernels import rotations
-from quad_drake.kernels.flight import compiled
+from quad_drake.kernels.jit import compiled, njit_cached
 
 _NONFINITE, _MAG_NIS, _MAG_GATED = DIAG["nonfinite_samples"], DIAG["mag_nis"], DIAG["mag_gated"]
 _BARO_NIS, _BARO_GATED, _BARO_RESETS = DIAG["baro_nis"], DIAG["baro_gated"], DIAG["baro_resets"]

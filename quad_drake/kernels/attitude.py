@@ -16,10 +16,9 @@ import math
 import numpy as np
 
 from quad_drake.estimation import complementary
-from quad_drake.jit import njit_cached
 from quad_drake.kernels import rotations
-from quad_drake.kernels.flight import compiled
 from quad_drake.kernels.imu_hold import IMU_FINITE, IMU_MISSING, bridge_imu_row, hold_weight
+from quad_drake.kernels.jit import compiled, njit_cached
 
 Filters = collections.namedtuple("Filters", ["attitude", "rate", "hold"])
 """N filters' arrays, updated IN PLACE each tick: attitude (N, 3) roll, pitch, yaw rad; rate (N, 3)

@@ -33,7 +33,7 @@ The scalar formulas above are the pure functions' own code compiled by numba (``
 exist once); the covariance products are hand-unrolled loops over G's and H's few nonzeros,
 whose reference oracles are ``ekf.predict_with_yaw`` / ``ekf.predict_covariance``,
 ``ekf.mag_update`` and ``ekf.kalman_update`` (matrix form, tested to 1e-12 on seeded random
-inputs in ``tests/test_fleet_estimators.py``; no simulation calls them, ``tests/test_oracles.py``).
+inputs in ``tests/test_estimator_kernels.py``; no simulation calls them, ``tests/test_oracles.py``).
 
 Shapes: x (N, 7), P (N, 7, 7), attitude (N, 3) rad, f_B (N, 3), imu (N, 6), gps (N, 7: p, v,
 stamp s), mag (N, 2: yaw rad, stamp s). A non-finite measurement leaves its vehicle's (x, P)
@@ -46,9 +46,7 @@ import numpy as np
 
 from quad_drake.estimation import ekf
 from quad_drake.estimation.vocabulary import DIAG
-from quad_drake.jit import njit_cached
 from quad_drake.kernels import fusion, rotations
-from quad_drake.kernels.flight import compiled
 from quad_drake.kernels.fusion import (
     GPS_SLOT,
     fresh,
@@ -65,6 +63,7 @@ from quad_drake.kernels.imu_hold import (
     hold_weight,
     row_finite,
 )
+from quad_drake.kernels.jit import compiled, njit_cached
 
 Samples = collections.namedtuple("Samples", ["attitude", "imu", "gps", "mag"])
 """One tick's inputs of N vehicles: attitude (N, 3) roll, pitch, yaw rad (this tick's attitude

@@ -33,7 +33,7 @@ The scalar formulas above are the pure functions' own code compiled by numba (``
 loops over the blocks' nonzeros, whose reference oracles are ``eskf.predict`` (with
 ``eskf.transition`` and ``eskf.process_noise``), ``eskf.mag_update``, ``eskf.inject`` and
 ``eskf.joseph_update`` (matrix form, tested to 1e-12 on seeded random inputs in
-``tests/test_fleet_estimators.py``; no simulation calls them, ``tests/test_oracles.py``).
+``tests/test_estimator_kernels.py``; no simulation calls them, ``tests/test_oracles.py``).
 
 Shapes: x (N, 16), P (N, n, n), f_B, w_B (N, 3), imu (N, 6), estimate (N, 13). A non-finite
 measurement leaves its vehicle's (x, P) unchanged and gives NaN NIS. Pure: numba and numpy, no
@@ -47,11 +47,10 @@ import numpy as np
 
 from quad_drake.estimation import eskf
 from quad_drake.estimation.vocabulary import DIAG
-from quad_drake.jit import njit_cached
 from quad_drake.kernels import fusion, rotations
-from quad_drake.kernels.flight import compiled
 from quad_drake.kernels.fusion import fresh_mag, joseph_rows, looks_healthy, mag_gate, mag_innovation
 from quad_drake.kernels.imu_hold import IMU_FINITE, IMU_MISSING, bridge_imu_row, hold_weight
+from quad_drake.kernels.jit import compiled, njit_cached
 
 Model = collections.namedtuple("Model", ["dt", "accel_var", "gyro_var", "isotropic_gyro", "Q_constant"])
 """The filter's constants: dt s, accel_var and gyro_var (3,) per IMU sample (``eskf.NoiseModel``),

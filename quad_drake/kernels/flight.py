@@ -2,9 +2,9 @@
 
 Each function here is the array form of the scalar function it names (``dynamics``,
 ``sensor_models``, ``control.cascade``), which stays the reference implementation;
-``tests/test_fleet_kernels.py`` checks every one against it on seeded random inputs to
+``tests/test_kernels.py`` checks every one against it on seeded random inputs to
 1e-12. The per-tick steps (plant, IMU, magnetometer, cascade controller) are the scalar
-functions' own code compiled by numba (cached on disk, ``jit.njit_cached``: the JIT cost,
+functions' own code compiled by numba (cached on disk, ``kernels.jit.njit_cached``: the JIT cost,
 about 2 s, is paid once per machine) and run per vehicle, reading and writing the fleet
 systems' port and state arrays in place (no allocation per tick); the 10 Hz GPS and the IMU
 bias walk, plain arithmetic, run the scalar helper as is on rows of the transposed arrays.
@@ -16,17 +16,15 @@ scalar dataclasses, the numpy ones the dataclasses. Pure: no RNG, no pydrake."""
 
 import collections
 import dataclasses
-import types
-from collections.abc import Callable
 
 import numpy as np
 
-from quad_drake import dynamics, rotations, sensor_models, wind
-from quad_drake.config import ControllerParams, ImuParams, MagParams, PhysicsParams
+from quad_drake.config.schema import ControllerParams, ImuParams, MagParams, PhysicsParams
 from quad_drake.control import cascade
-from quad_drake.fidelity import PHYSICAL, Fidelity
-from quad_drake.jit import njit_cached
-from quad_drake.sensor_models import gps_measurement
+from quad_drake.kernels.jit import compiled, njit_cached
+from quad_drake.models import dynamics, rotations, sensor_models, wind
+from quad_drake.models.fidelity import PHYSICAL, Fidelity
+from quad_drake.models.sensor_models import gps_measurement
 
 # ----- parameters ------------------------------------------------------------
 
@@ -58,13 +56,6 @@ def frozen(params) -> tuple:
 
 
 # ----- dynamics ---------------------------------------------------------------
-
-
-def compiled(function, **callees) -> Callable:
-    """The scalar `function`'s own code compiled by numba (nopython, cached on disk), with the
-    module globals it calls replaced by their compiled forms `callees`."""
-    namespace = dict(function.__globals__, **callees)
-    return njit_cached(types.FunctionType(function.__code__, namespace, function.__name__))
 
 
 _to_float32_compiled = compiled(dynamics.to_float32)
@@ -111,7 +102,7 @@ def _state_row(state, i):
 def plant_steps(
     state, forces, commands, noise_unit, column, params, dt, fidelity, accel, contacts, wind, delta_v
 ) -> None:
-    """One :func:`quad_drake.dynamics.plant_step` of N vehicles IN PLACE, the scalar function's
+    """One :func:`quad_drake.models.dynamics.plant_step` of N vehicles IN PLACE, the scalar function's
     code compiled and run per vehicle, with ``systems.plant.QuadrotorPlant``'s contact counts and
     body-frame delta-velocity.
 
@@ -119,10 +110,10 @@ def plant_steps(
     their values after dt s; commands (N, 4) N; noise_unit (N, >= column + 4): the step's four
     uniforms in [0, 1] are columns column..column + 3 (the plant's two steps per tick share one
     (N, 8) draw); accel (N, 3): a_NB m/s^2 of the step, written; contacts (N, 3): (on the floor
-    0/1, floor touchdowns, wall hits), updated by :func:`quad_drake.dynamics.count_contacts` (its
+    0/1, floor touchdowns, wall hits), updated by :func:`quad_drake.models.dynamics.count_contacts` (its
     code compiled). wind (N, 3): the air's velocity, m/s, NED (acts through the drag only);
     delta_v (N, 3): the body-frame delta-velocity (m/s, FRD) of the onboard tick so far, set to
-    this step's :func:`quad_drake.sensor_models.delta_velocity_step` when column is 0 (the
+    this step's :func:`quad_drake.models.sensor_models.delta_velocity_step` when column is 0 (the
     tick's first step) and added to otherwise. params, fidelity: the :func:`frozen`
     PhysicsParams and Fidelity; dt: a float.
     """
@@ -155,7 +146,7 @@ def plant_steps(
 
 
 def on_floor(state, params) -> np.ndarray:
-    """(N,) bool of :func:`quad_drake.dynamics.on_floor`."""
+    """(N,) bool of :func:`quad_drake.models.dynamics.on_floor`."""
     return state[:, 2] >= params.z_bounds[1]
 
 
@@ -163,13 +154,13 @@ def on_floor(state, params) -> np.ndarray:
 
 
 turbulence_filter_rows = compiled(wind.filter_rows)
-""":func:`quad_drake.wind.filter_rows` compiled: the Dryden filters of N vehicles, in place."""
+""":func:`quad_drake.models.wind.filter_rows` compiled: the Dryden filters of N vehicles, in place."""
 turbulence_velocity_rows = compiled(wind.velocity_rows)
-""":func:`quad_drake.wind.velocity_rows` compiled: (N, 3) NED turbulence of the filter states."""
+""":func:`quad_drake.models.wind.velocity_rows` compiled: (N, 3) NED turbulence of the filter states."""
 wind_rows = compiled(
     wind.wind_rows, filter_rows=turbulence_filter_rows, velocity_rows=turbulence_velocity_rows
 )
-""":func:`quad_drake.wind.wind_rows` compiled: one tick of ``systems.wind.Wind`` for N vehicles."""
+""":func:`quad_drake.models.wind.wind_rows` compiled: one tick of ``systems.wind.Wind`` for N vehicles."""
 
 
 # ----- sensors ----------------------------------------------------------------
@@ -193,13 +184,13 @@ _saturated_compiled = compiled(sensor_models.imu_saturated)
 
 @njit_cached
 def imu_samples(state, a_NB, noise, params, fidelity, bias, out, delta_v, interval, saturation) -> None:
-    """:func:`quad_drake.sensor_models.imu_measurement` of N vehicles into out (N, 6), the scalar
+    """:func:`quad_drake.models.sensor_models.imu_measurement` of N vehicles into out (N, 6), the scalar
     function's code compiled and run per vehicle: q_NB and w_NB_B from state (N, 13), a_NB (N, 3),
     noise (N, 6) unit normals, bias (N, 6). With ImuParams.delta_velocity the accelerometer reads
     instead the mean specific force delta_v / interval (delta_v (N, 3) m/s, body FRD, over the
-    `interval` s before the sample) through :func:`quad_drake.sensor_models.imu_from_specific_force`.
+    `interval` s before the sample) through :func:`quad_drake.models.sensor_models.imu_from_specific_force`.
     saturation (N, 2): the saturated samples so far (accelerometer, gyro), counted by
-    :func:`quad_drake.sensor_models.imu_saturated`. params, fidelity: the :func:`frozen` ImuParams
+    :func:`quad_drake.models.sensor_models.imu_saturated`. params, fidelity: the :func:`frozen` ImuParams
     and Fidelity."""
     imu, fidelity_tuple = ImuTuple(*params), FidelityTuple(*fidelity)
     for i in range(state.shape[0]):  # entries indexed in place (see _state_row)
@@ -221,7 +212,7 @@ def imu_samples(state, a_NB, noise, params, fidelity, bias, out, delta_v, interv
 
 
 def imu_bias_step(bias, noise, params) -> np.ndarray:
-    """(N, 6) of :func:`quad_drake.sensor_models.imu_bias_step`."""
+    """(N, 6) of :func:`quad_drake.models.sensor_models.imu_bias_step`."""
     walk = np.asarray(list(params.accel_bias_walk_std) + list(params.gyro_bias_walk_std))
     return bias + walk * noise
 
@@ -230,7 +221,7 @@ def gps_measurements(
     p_NB, v_NB, random_walk, noise, params, fidelity=PHYSICAL
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(position (N, 3), velocity (N, 3), random walk (N, 3)) of
-    :func:`quad_drake.sensor_models.gps_measurement` (which runs here on the rows)."""
+    :func:`quad_drake.models.sensor_models.gps_measurement` (which runs here on the rows)."""
     position, velocity, walk = gps_measurement(p_NB.T, v_NB.T, random_walk.T, noise.T, params, fidelity)
     return np.stack(position, axis=1), np.stack(velocity, axis=1), np.stack(walk, axis=1)
 
@@ -247,7 +238,7 @@ _magnetometer_compiled = compiled(
 @njit_cached
 def magnetometer_samples(state, noise, params, fidelity, stamp, out) -> None:
     """N :class:`~quad_drake.systems.sensors.Magnetometer` samples into out (N, 2): the yaw of
-    :func:`quad_drake.sensor_models.magnetometer_yaw` (its code compiled, run per vehicle) of
+    :func:`quad_drake.models.sensor_models.magnetometer_yaw` (its code compiled, run per vehicle) of
     q_NB in state (N, 13) and the unit normal noise (N, 1), rad; and `stamp` s. params, fidelity:
     the :func:`frozen` MagParams and Fidelity."""
     mag, fidelity_tuple = MagTuple(*params), FidelityTuple(*fidelity)

@@ -10,7 +10,7 @@ GPS states are the first six of x (p m, v m/s, NED) in both estimators.
   symmetrised, nis = nu^T S^-1 nu; the estimator then adds dx (EKF7) or injects it (ESKF). A
   hand-unrolled Gaussian elimination (LAPACK's gesv result to rounding) whose reference oracles
   are ``estimation.ekf.kalman_update`` and ``estimation.eskf.joseph_update`` (matrix form,
-  tested to 1e-12 in ``tests/test_fleet_estimators.py``).
+  tested to 1e-12 in ``tests/test_estimator_kernels.py``).
 - Gates: ``estimation.gating``'s GPS policy (numpy over the vehicles with a fresh sample) and the
   magnetometer's NIS gate (:func:`mag_gate`).
 - Health: ``gating.covariance_looks_healthy``'s own code compiled per vehicle every tick; at a
@@ -27,9 +27,8 @@ import numpy as np
 from quad_drake.conventions import NO_SAMPLE_STAMP
 from quad_drake.estimation import ekf, gating
 from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE
-from quad_drake.jit import njit_cached
 from quad_drake.kernels import rotations
-from quad_drake.kernels.flight import compiled
+from quad_drake.kernels.jit import compiled, njit_cached
 
 GPS_SLOT, MAG_SLOT = 0, 1
 GPS_POLICY = slice(2, 2 + gating.GPS_BOOK_SIZE)

@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from quad_drake.jit import njit_cached
+from quad_drake.kernels.jit import njit_cached
 
 IMU_HOLD_TIME = 0.02
 """s: time constant of an estimator's running mean of its finite IMU samples (a 20 ms mean of

@@ -3,7 +3,7 @@
 The running implementation of ``systems.faults.GpsDelayCompensator`` for one vehicle and for a
 fleet: numpy over the vehicles (no per-vehicle loop; these run once a tick). The list forms of
 ``delay_compensation`` (``odometry_step``, ``predicted_odometry``, ``compensated_gps``) are its
-reference oracles, tested against it row by row to 1e-12 (``tests/test_fleet_estimators.py``);
+reference oracles, tested against it row by row to 1e-12 (``tests/test_estimator_kernels.py``);
 no simulation calls them (``tests/test_oracles.py``). Units and frames as there: p m, v m/s,
 NED; a history row is (time s, odometry position (3), odometry velocity (3)). Pure: no pydrake.
 """

@@ -1,11 +1,10 @@
-"""The pure rotation formulas of ``quad_drake.rotations`` compiled once (their own code, numba),
+"""The pure rotation formulas of ``quad_drake.models.rotations`` compiled once (their own code, numba),
 for the estimator kernels and the fleet's PCRB: nothing here is re-typed. Pure: no pydrake."""
 
 from collections.abc import Callable
 
-from quad_drake import rotations
-from quad_drake.jit import njit_cached
-from quad_drake.kernels.flight import compiled
+from quad_drake.kernels.jit import compiled, njit_cached
+from quad_drake.models import rotations
 
 wrap_to_pi: Callable = compiled(rotations.wrap_to_pi)
 quat_from_euler: Callable = compiled(rotations.quat_from_euler_tuple)

@@ -8,9 +8,9 @@ w_NB_B rad/s). Pure: no RNG, no pydrake."""
 
 import numpy as np
 
-from quad_drake import sensor_models
-from quad_drake.jit import njit_cached
-from quad_drake.kernels.flight import _rotate_to_body_compiled, compiled
+from quad_drake.kernels.flight import _rotate_to_body_compiled
+from quad_drake.kernels.jit import compiled, njit_cached
+from quad_drake.models import sensor_models
 
 _magnetometer_field_compiled = compiled(
     sensor_models.magnetometer_field, _rotate_to_body=_rotate_to_body_compiled
@@ -20,7 +20,7 @@ _magnetometer_field_compiled = compiled(
 @njit_cached
 def magnetometer_field_samples(state, noise, m_N, hard_iron, field_std, stamp, out) -> None:
     """N 3-axis :class:`~quad_drake.systems.sensors.Magnetometer` samples into out (N, 4): m_B of
-    :func:`quad_drake.sensor_models.magnetometer_field` (gauss, body FRD; its code compiled, run
+    :func:`quad_drake.models.sensor_models.magnetometer_field` (gauss, body FRD; its code compiled, run
     per vehicle) of q_NB in state (N, 13) and the unit normal noise (N, 3), and `stamp` s.
     m_N, hard_iron, field_std: 3-tuples of floats (gauss)."""
     for i in range(state.shape[0]):
@@ -33,6 +33,6 @@ def magnetometer_field_samples(state, noise, m_N, hard_iron, field_std, stamp, o
 
 
 def baro_measurements(z_NB, bias, noise, params, floor_z=0.0) -> tuple[np.ndarray, np.ndarray]:
-    """(height (N,), bias (N,)) of :func:`quad_drake.sensor_models.baro_measurement` (which runs
+    """(height (N,), bias (N,)) of :func:`quad_drake.models.sensor_models.baro_measurement` (which runs
     here on the columns): z_NB (N,) m NED, bias (N,) m, noise (N, 2) unit normals."""
     return sensor_models.baro_measurement(z_NB, bias, noise.T, params, floor_z)

@@ -12,8 +12,8 @@ from quad_drake.conventions import (
     REFERENCE_SIZE,
     STATE_SIZE,
 )
-from quad_drake.fidelity import PHYSICAL
 from quad_drake.kernels import flight as kernels
+from quad_drake.models.fidelity import PHYSICAL
 from quad_drake.systems._io import discrete_group, row_reader
 
 
@@ -31,7 +31,7 @@ class CascadeController(LeafSystem):
         output port (no direct feedthrough); mass g / 4 each before the first tick.
     Discrete state: the altitude-error integrals (n, m s) and the last motor commands (4 n, N).
     ``params`` (ControllerParams) are shared by the n vehicles; ``fidelity``
-    (:class:`~quad_drake.fidelity.Fidelity`) picks the lateral acceleration limit (horizontal
+    (:class:`~quad_drake.models.fidelity.Fidelity`) picks the lateral acceleration limit (horizontal
     norm, or the reference's 3-D norm).
     """
 

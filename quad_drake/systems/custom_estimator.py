@@ -19,7 +19,7 @@ from quad_drake.conventions import (
 from quad_drake.estimation import custom, gating
 from quad_drake.estimation.registry import vocabulary_for
 from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE
-from quad_drake.rotations import quat_from_euler_tuple
+from quad_drake.models.rotations import quat_from_euler_tuple
 from quad_drake.systems._io import discrete_group, row_reader
 
 

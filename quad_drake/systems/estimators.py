@@ -32,7 +32,7 @@ import math
 import numpy as np
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
-from quad_drake.config import ConfigError
+from quad_drake.config.errors import ConfigError
 from quad_drake.conventions import (
     ATTITUDE_FILTER_OFFSET,
     ATTITUDE_SIZE,
@@ -48,14 +48,14 @@ from quad_drake.estimation import ekf, eskf, gating
 from quad_drake.estimation.complementary import VARIANTS
 from quad_drake.estimation.registry import kind_of, vocabulary_for
 from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, NIS_DOF
-from quad_drake.fidelity import PHYSICAL
 from quad_drake.kernels import aiding as aiding_kernels
 from quad_drake.kernels import attitude as attitude_kernel
 from quad_drake.kernels import ekf7 as ekf7_kernel
 from quad_drake.kernels import eskf as eskf_kernel
 from quad_drake.kernels import fusion
 from quad_drake.kernels.imu_hold import HOLD_SIZE, initial_hold
-from quad_drake.rotations import quat_from_euler_tuple
+from quad_drake.models.fidelity import PHYSICAL
+from quad_drake.models.rotations import quat_from_euler_tuple
 from quad_drake.systems._io import declare_state_output, row_reader
 from quad_drake.systems.aiding import NO_AIDING, AidedFusion, aiding_sensors, mag_size
 

@@ -1,5 +1,5 @@
 """Sensor fault LeafSystems: one sensor's samples after its configured faults, on the wire between
-the sensor and the estimators (thin glue over the pure ``quad_drake.faults``), and the
+the sensor and the estimators (thin glue over the pure ``quad_drake.models.faults``), and the
 estimator-side compensation of late GPS samples (``quad_drake.delay_compensation``).
 
 The sensors stay truth + white noise; a vehicle with faults gets one ``SensorFaults`` per
@@ -13,7 +13,7 @@ import math
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
-from quad_drake import delay_compensation, faults
+from quad_drake import delay_compensation
 from quad_drake.conventions import (
     EKF_OFFSET,
     FAULT_LAG,
@@ -27,6 +27,7 @@ from quad_drake.conventions import (
 )
 from quad_drake.kernels import odometry as odometry_kernel
 from quad_drake.kernels.fusion import fresh
+from quad_drake.models import faults
 from quad_drake.systems._io import discrete_group, row_reader
 
 

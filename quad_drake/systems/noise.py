@@ -1,22 +1,22 @@
 """The counter-based noise of N runs as a LeafSystem: :class:`NoiseStreamSource`, the
 ``RandomSource`` of a vehicle built with run seeds (``simulation.build_vehicle(..., seeds=...)``),
-thin glue over the pure ``quad_drake.noise_streams``."""
+thin glue over the pure ``quad_drake.models.random_streams``."""
 
 from pydrake.common import RandomDistribution
 from pydrake.systems.framework import LeafSystem
 
-from quad_drake.noise_streams import GAUSSIAN, UNIFORM, NoiseStreams, sample_index
+from quad_drake.models.random_streams import GAUSSIAN, UNIFORM, NoiseStreams, sample_index
 
 _DISTRIBUTIONS = {RandomDistribution.kGaussian: GAUSSIAN, RandomDistribution.kUniform: UNIFORM}
 
 
 class NoiseStreamSource(LeafSystem):
-    """Noise of N = len(seeds) vehicles from :class:`~quad_drake.noise_streams.NoiseStreams`,
+    """Noise of N = len(seeds) vehicles from :class:`~quad_drake.models.random_streams.NoiseStreams`,
     in place of ``RandomSource(distribution, N size, period)``.
 
     distribution: ``RandomDistribution.kGaussian`` (unit normal) or ``kUniform`` (in [0, 1));
     size: values per vehicle and sample; period (s): the time between samples; seeds: (N,) run
-    seeds; name: the streams' name (``"<vehicle name>/<input>"``, ``noise_streams``).
+    seeds; name: the streams' name (``"<vehicle name>/<input>"``, ``models.random_streams``).
     Output ``noise`` (N size, vehicle-major) at time t is sample k = floor(t / period) of every
     vehicle's stream, what a RandomSource holds after its redraw at t = k period (applied before
     the discrete updates at t). Unlike RandomSource it has no state and no event: the output is a

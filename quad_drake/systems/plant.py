@@ -8,10 +8,10 @@ import numpy as np
 from pydrake.common import RandomDistribution
 from pydrake.systems.framework import LeafSystem
 
-from quad_drake import dynamics, sensor_models
 from quad_drake.conventions import NUM_MOTORS, ONBOARD_PERIOD, PHYSICS_PERIOD, PLANT_OFFSET, STATE_SIZE
-from quad_drake.fidelity import PHYSICAL
 from quad_drake.kernels import flight as kernels
+from quad_drake.models import dynamics, sensor_models
+from quad_drake.models.fidelity import PHYSICAL
 from quad_drake.systems._io import discrete_group, row_reader
 
 
@@ -25,7 +25,7 @@ class QuadrotorPlant(LeafSystem):
     Euler step). Systems ticking earlier within t_k see the state at t_k.
 
     Constructor: params (PhysicsParams, shared by the n vehicles), initial_state (13, every
-    vehicle's in the default context), fidelity (:class:`~quad_drake.fidelity.Fidelity`, default
+    vehicle's in the default context), fidelity (:class:`~quad_drake.models.fidelity.Fidelity`, default
     physical), n (vehicles). Every port carries the n per-vehicle vectors below concatenated
     vehicle-major (size n k, vehicle j at [j k, (j + 1) k)).
     Inputs:

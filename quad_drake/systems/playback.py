@@ -1,7 +1,7 @@
 """Log-playback LeafSystem: a recorded flight's sensor samples, emitted as the simulated sensors emit
 theirs, so an estimator sub-Diagram runs on them unchanged.
 
-Thin glue over ``flightlogs.playback`` (which schedules each sample on its first onboard tick at
+Thin glue over ``flightlogs.schedule`` (which schedules each sample on its first onboard tick at
 or after its time and derives the yaw-only magnetometer sample).
 """
 
@@ -14,7 +14,7 @@ from quad_drake.systems._io import discrete_group, scalar, set_scalar
 
 class LogPlayback(LeafSystem):
     """The samples of one recorded flight, one output port per stream of
-    ``flightlogs.playback.playback_streams``, each a state output port with the layout of the
+    ``flightlogs.schedule.playback_streams``, each a state output port with the layout of the
     simulated sensor of that name (one vehicle):
 
     - ``imu`` (6): f_B specific force (m/s^2) and w_NB_B gyro (rad/s), FRD;

@@ -20,7 +20,6 @@ import numpy as np
 from pydrake.common import RandomDistribution
 from pydrake.systems.framework import LeafSystem
 
-from quad_drake import sensor_models
 from quad_drake.conventions import (
     BARO_SIZE,
     GPS_SIZE,
@@ -33,9 +32,10 @@ from quad_drake.conventions import (
     SLOW_SENSOR_OFFSET,
     STATE_SIZE,
 )
-from quad_drake.fidelity import PHYSICAL
 from quad_drake.kernels import flight as kernels
 from quad_drake.kernels import sensors as sensor_kernels
+from quad_drake.models import sensor_models
+from quad_drake.models.fidelity import PHYSICAL
 from quad_drake.systems._io import discrete_group, row_reader
 
 

@@ -3,8 +3,8 @@
 from pydrake.systems.framework import LeafSystem
 
 from quad_drake.conventions import REFERENCE_SIZE
-from quad_drake.fidelity import PHYSICAL
-from quad_drake.trajectories import lookup_time
+from quad_drake.models.fidelity import PHYSICAL
+from quad_drake.models.trajectories import lookup_time
 
 
 class TrajectorySource(LeafSystem):
@@ -12,8 +12,8 @@ class TrajectorySource(LeafSystem):
     (s), the same sample for each of the n vehicles (default 1), vehicle-major.
 
     Layout: p (3, m, NED), v (3, m/s), a feed-forward (3, m/s^2), yaw (rad). ``trajectory``
-    is any object with ``sample(t) -> (10,)`` (see :mod:`quad_drake.trajectories`);
-    ``fidelity`` (:class:`~quad_drake.fidelity.Fidelity`) picks the lookup clock: exact time,
+    is any object with ``sample(t) -> (10,)`` (see :mod:`quad_drake.models.trajectories`);
+    ``fidelity`` (:class:`~quad_drake.models.fidelity.Fidelity`) picks the lookup clock: exact time,
     or the reference's float32 clock. The output depends on time only (cached per time
     step), so it cannot close a loop.
     """

@@ -1,18 +1,18 @@
-"""The air's velocity around n vehicles: :class:`Wind`, thin glue over the pure ``quad_drake.wind``."""
+"""The air's velocity around n vehicles: :class:`Wind`, thin glue over the pure ``quad_drake.models.wind``."""
 
 import numpy as np
 from pydrake.common import RandomDistribution
 from pydrake.systems.framework import LeafSystem
 
-from quad_drake import wind
 from quad_drake.conventions import ONBOARD_PERIOD, SENSOR_OFFSET
 from quad_drake.kernels import flight as kernels
+from quad_drake.models import wind
 from quad_drake.systems._io import discrete_group, row_reader
 
 
 class Wind(LeafSystem):
     """The wind of n vehicles (default 1): constant + (1 - cos) gusts + Dryden turbulence
-    (``quad_drake.wind``), updated every ONBOARD_PERIOD from t = SENSOR_OFFSET = 0 and held in
+    (``quad_drake.models.wind``), updated every ONBOARD_PERIOD from t = SENSOR_OFFSET = 0 and held in
     between (the plant's two 1 ms steps of a tick read the same value).
 
     Constructor: config (WindConfig, shared by the n vehicles; each draws its own turbulence),
@@ -50,7 +50,7 @@ class Wind(LeafSystem):
 
     @property
     def model(self):
-        """The :class:`~quad_drake.wind.DrydenModel`, or None without turbulence."""
+        """The :class:`~quad_drake.models.wind.DrydenModel`, or None without turbulence."""
         return self._model
 
     def _update(self, context, discrete_state):
@@ -62,9 +62,9 @@ class Wind(LeafSystem):
             return
         states = discrete_state.get_mutable_value(self._turbulence).reshape(self._n, self.noise_size)
         started = discrete_state.get_mutable_value(self._started)
-        if started[0]:  # x = Phi x + G n (quad_drake.wind.turbulence_step)
+        if started[0]:  # x = Phi x + G n (quad_drake.models.wind.turbulence_step)
             phi, gain = model.phi, model.noise_gain
-        else:  # the stationary start x = P^(1/2) n (quad_drake.wind.turbulence_start)
+        else:  # the stationary start x = P^(1/2) n (quad_drake.models.wind.turbulence_start)
             phi, gain = self._no_phi, model.initial_gain
             started[0] = 1.0
         kernels.wind_rows(

@@ -2,7 +2,7 @@
 
 Every number comes from :class:`~quad_drake.campaigns.statistics.CampaignResult` (its
 ``consistency`` series, ``efficiency`` rows and ``criteria`` pass rates) and the chi^2 band of
-:func:`quad_drake.consistency.chi2_band`: one place for each rule.
+:func:`quad_drake.judging.consistency.chi2_band`: one place for each rule.
 
 - **consistency**: per statistic (NEES, NIS gps, NIS mag) the share of samples whose
   run-averaged value lies *outside* the 95 % band that a campaign of ``target_runs`` runs is
@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import consistency as cons
+from ..judging import consistency as cons
 from .settings import OBJECTIVES
 
 INFEASIBLE = 100.0

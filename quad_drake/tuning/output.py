@@ -15,9 +15,9 @@ import io
 from pathlib import Path
 
 from .. import campaigns
-from ..config import dump_scenario
-from ..jsonio import dump_json
-from ..outdir import write_binary_atomic, write_text_atomic
+from ..config.loader import dump_scenario
+from ..output.jsonio import dump_json
+from ..output.outdir import write_binary_atomic, write_text_atomic
 from .objective import score
 
 TUNED_SUFFIX = "_tuned"
@@ -221,7 +221,7 @@ def write_holdout(result, out_dir):
 def write_page(result, out_dir):
     """report.html of a tune session in out_dir: what was searched, start and tuned values, the
     objective plot, the held-out before/after table and links to its files; -> its path."""
-    from ..report import esc, figures_html, html_page, html_table
+    from ..output.report import esc, figures_html, html_page, html_table
 
     out_dir = Path(out_dir)
     name = result.problem.scenario.name

@@ -2,7 +2,7 @@
 
 Every campaign of ``quad-drake tune`` (each candidate on the training seeds, the before/after
 comparison on the held-out seeds) goes through :func:`fly_campaign`, so the choice of the
-runner is made in one place: every campaign is flown as fleet batches (``quad_drake.fleet``).
+runner is made in one place: every campaign is flown as fleet batches (``quad_drake.campaigns.fleet``).
 The candidates of one CMA-ES generation are scored at once, one candidate per worker
 (:func:`score_candidates`): a candidate's runs fly as one fleet batch in its worker, so a
 worker's fixed cost per tick is shared by all of a candidate's runs, and the workers of the

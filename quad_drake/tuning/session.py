@@ -16,10 +16,11 @@ from dataclasses import dataclass, field
 
 from tqdm import tqdm
 
-from ..accuracy_bound import accuracy_bound
-from ..config import ConfigError, check_seed_range
-from ..simulation import available_signals
-from ..verdicts import check_criteria
+from ..config.errors import ConfigError
+from ..config.validation import check_seed_range
+from ..judging.verdicts import check_criteria
+from ..models.accuracy_bound import accuracy_bound
+from ..running.simulation import available_signals
 from . import output
 from .objective import pass_rate, score
 from .scoring import CandidateTask, campaign_runner, fly_campaign, score_candidates

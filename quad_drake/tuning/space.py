@@ -13,7 +13,8 @@ import copy
 import dataclasses
 from dataclasses import dataclass
 
-from ..config import ConfigError, did_you_mean, validate
+from ..config.errors import ConfigError, did_you_mean
+from ..config.validation import validate
 from ..estimation.registry import kind_of, vehicle_vocabulary
 
 SEARCH_DECADES = 1.0

@@ -11,11 +11,13 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput, RandomSource
 
-from quad_drake import sensor_models
-from quad_drake.config import BaroParams, ConfigError, MagParams, load_scenario
+from quad_drake.config.errors import ConfigError
+from quad_drake.config.loader import load_scenario
+from quad_drake.config.schema import BaroParams, MagParams
 from quad_drake.conventions import NO_SAMPLE_STAMP, SLOW_SENSOR_OFFSET
 from quad_drake.kernels import sensors as sensor_kernels
-from quad_drake.rotations import quat_from_euler, rotation_from_quat
+from quad_drake.models import sensor_models
+from quad_drake.models.rotations import quat_from_euler, rotation_from_quat
 from quad_drake.systems.sensors import Barometer, Magnetometer
 
 ELEVEN = Path(__file__).resolve().parents[2] / "scenarios" / "11_gps_update.yaml"
@@ -162,7 +164,7 @@ def test_compiled_field_kernel_equals_the_pure_model():
 
 
 def test_a_flight_logs_baro_and_field_signals_and_their_faults(tmp_path):
-    from quad_drake.simulation import run
+    from quad_drake.running.simulation import run
 
     scenario = load_scenario(
         ELEVEN,

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
 
-from quad_drake.config import ControllerParams
+from quad_drake.config.schema import ControllerParams
 from quad_drake.conventions import CONTROLLER_OFFSET, ONBOARD_PERIOD
 from quad_drake.systems.controller import CascadeController
 

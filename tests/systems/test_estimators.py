@@ -8,14 +8,14 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
-from quad_drake.config import AttitudeFilterParams, EkfParams, VehicleConfig
+from quad_drake.config.schema import AttitudeFilterParams, EkfParams, VehicleConfig
 from quad_drake.conventions import ATTITUDE_FILTER_OFFSET, GRAVITY, NO_SAMPLE_STAMP, ONBOARD_PERIOD
 from quad_drake.estimation import ekf, eskf, gating
 from quad_drake.estimation.complementary import complementary_update
 from quad_drake.estimation.registry import Ekf7EstimatorConfig, EskfEstimatorConfig, vocabulary_for
 from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, initial_diagnostics
-from quad_drake.fidelity import PHYSICAL, REFERENCE
-from quad_drake.rotations import quat_from_euler
+from quad_drake.models.fidelity import PHYSICAL, REFERENCE
+from quad_drake.models.rotations import quat_from_euler
 from quad_drake.systems.estimators import (
     ComplementaryFilter,
     Ekf,

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
 
-from quad_drake import catalog
 from quad_drake import conventions as c
-from quad_drake.config import FaultConfig
-from quad_drake.simulation import run
+from quad_drake.config.schema import FaultConfig
+from quad_drake.running import catalog
+from quad_drake.running.simulation import run
 from quad_drake.systems.faults import SensorFaults
 
 GPS_PERIOD = 0.1

@@ -8,10 +8,10 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import AddRandomInputs, LogVectorOutput, RandomSource
 
-from quad_drake import sensor_models
-from quad_drake.config import ImuParams
+from quad_drake.config.schema import ImuParams
 from quad_drake.conventions import ONBOARD_PERIOD
-from quad_drake.rotations import quat_from_euler
+from quad_drake.models import sensor_models
+from quad_drake.models.rotations import quat_from_euler
 from quad_drake.systems.sensors import Imu
 
 STATE = np.concatenate(

@@ -7,9 +7,9 @@ import pytest
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from quad_drake.config import ImuParams, PhysicsParams
+from quad_drake.config.schema import ImuParams, PhysicsParams
 from quad_drake.conventions import GRAVITY, ONBOARD_PERIOD
-from quad_drake.rotations import quat_from_euler
+from quad_drake.models.rotations import quat_from_euler
 from quad_drake.systems.plant import QuadrotorPlant
 from quad_drake.systems.sensors import Imu
 
@@ -108,7 +108,7 @@ def test_steady_wind_reads_the_drag(euler):
     wind = np.array([5.0, 0.0, 0.0])
     rows = fly([0.0, 0.0, -10.0], [0.0, 0.0, 0.0], HOVER, {}, physics, wind, ticks=1, euler=euler)
     averaged, _, last_step, _ = rows[0]
-    from quad_drake.rotations import rotation_from_quat
+    from quad_drake.models.rotations import rotation_from_quat
 
     R = rotation_from_quat(quat_from_euler(*euler))
     v_rel_B = R.T @ (-wind)

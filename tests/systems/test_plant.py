@@ -14,10 +14,10 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import AddRandomInputs, ConstantVectorSource, RandomSource
 
-from quad_drake.config import PhysicsParams
+from quad_drake.config.schema import PhysicsParams
 from quad_drake.conventions import GRAVITY, ONBOARD_PERIOD, PHYSICS_PERIOD, PLANT_OFFSET
-from quad_drake.dynamics import plant_step, rigid_body_derivatives
-from quad_drake.rotations import quat_from_euler, rotation_from_quat
+from quad_drake.models.dynamics import plant_step, rigid_body_derivatives
+from quad_drake.models.rotations import quat_from_euler, rotation_from_quat
 from quad_drake.systems.plant import QuadrotorPlant
 
 PARAMS = PhysicsParams()

@@ -5,10 +5,10 @@ import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
 
-from quad_drake.config import GpsParams, ImuParams, MagParams
+from quad_drake.config.schema import GpsParams, ImuParams, MagParams
 from quad_drake.conventions import NO_SAMPLE_STAMP, ONBOARD_PERIOD
-from quad_drake.flightlogs.playback import playback_streams
 from quad_drake.flightlogs.reader import FlightLog, Samples
+from quad_drake.flightlogs.schedule import playback_streams
 from quad_drake.systems.playback import LogPlayback
 from quad_drake.systems.sensors import Gps, Imu, Magnetometer
 

@@ -9,10 +9,10 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import AddRandomInputs, LogVectorOutput, RandomSource
 
-from quad_drake import sensor_models
-from quad_drake.config import GpsParams, ImuParams, MagParams
+from quad_drake.config.schema import GpsParams, ImuParams, MagParams
 from quad_drake.conventions import NO_SAMPLE_STAMP, ONBOARD_PERIOD, SENSOR_OFFSET, SLOW_SENSOR_OFFSET
-from quad_drake.rotations import quat_from_euler
+from quad_drake.models import sensor_models
+from quad_drake.models.rotations import quat_from_euler
 from quad_drake.systems.sensors import Gps, Imu, Magnetometer
 
 ROLL, PITCH, YAW = 0.3, -0.2, 1.1

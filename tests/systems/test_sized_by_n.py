@@ -9,7 +9,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
 from quad_drake import conventions as c
-from quad_drake.config import (
+from quad_drake.config.schema import (
     BaroParams,
     ControllerParams,
     GpsParams,
@@ -19,13 +19,13 @@ from quad_drake.config import (
     PhysicsParams,
     WindConfig,
 )
-from quad_drake.rotations import quat_from_euler
+from quad_drake.models.rotations import quat_from_euler
+from quad_drake.models.trajectories import figure_eight
 from quad_drake.systems.controller import CascadeController
 from quad_drake.systems.plant import QuadrotorPlant
 from quad_drake.systems.sensors import Barometer, Gps, Imu, Magnetometer
 from quad_drake.systems.trajectory import TrajectorySource
 from quad_drake.systems.wind import Wind
-from quad_drake.trajectories import figure_eight
 
 N = 3
 

@@ -4,10 +4,10 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput
 
-from quad_drake.config import TRAJECTORY_DIR
+from quad_drake.config.schema import TRAJECTORY_DIR
 from quad_drake.conventions import REFERENCE_SIZE
+from quad_drake.models.trajectories import figure_eight, load_trajectory_file
 from quad_drake.systems.trajectory import TrajectorySource
-from quad_drake.trajectories import figure_eight, load_trajectory_file
 
 
 def test_output_is_the_trajectory_at_context_time():

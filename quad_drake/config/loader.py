@@ -1,0 +1,176 @@
+"""Reading and writing scenario YAML: the only module of the package that touches pydrake
+(Drake's ``yaml_load_typed`` / ``yaml_dump_typed``), and PyYAML for the raw data it checks first.
+"""
+
+import re
+import warnings
+from pathlib import Path
+
+import yaml
+from pydrake.common.yaml import yaml_dump, yaml_dump_typed, yaml_load_typed
+
+from ..estimation.registry import kind_of
+from .errors import ConfigError, first_line
+from .schema import ScenarioConfig
+from .validation import check_node, check_scenario
+
+
+class _Loader(yaml.SafeLoader):
+    """PyYAML's safe loader reading numbers as people write them.
+
+    PyYAML implements YAML 1.1, where a float needs a dot and a signed exponent: ``1e9``,
+    ``-3e2`` or ``1.e3`` load as strings. YAML 1.2 (and Drake's C++ parser) read them as
+    numbers; this loader adds the 1.2 exponent forms to the float resolver. A key given twice in
+    one mapping is refused (PyYAML keeps the last silently); a merge key (``<<``) may still
+    override.
+    """
+
+    def construct_mapping(self, node, deep=False):
+        if isinstance(node, yaml.MappingNode):
+            seen = {}
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge" or not isinstance(key_node, yaml.ScalarNode):
+                    continue
+                if key_node.value in seen:
+                    raise yaml.constructor.ConstructorError(
+                        None,
+                        None,
+                        f"duplicate key {key_node.value!r} (first at line {seen[key_node.value]})",
+                        key_node.start_mark,
+                    )
+                seen[key_node.value] = key_node.start_mark.line + 1
+        return super().construct_mapping(node, deep)
+
+
+def _tagged_mapping(loader, tag, node):
+    """A ``!Name {...}`` mapping (how ``yaml_dump_typed`` writes a Union member) as a dict with
+    ``_tag``, as Drake's ``yaml_load`` reads it; :func:`_check_kind_choice` picks the member."""
+    return {**loader.construct_mapping(node, deep=True), "_tag": tag}
+
+
+_Loader.add_multi_constructor("!", _tagged_mapping)
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+    list("-+0123456789."),
+)
+
+
+def load_yaml(text):
+    """Raw YAML data of `text` (merge keys and anchors resolved; 1.2 number forms read as
+    numbers); top-level keys starting with ``_`` are dropped (templates for anchors), as
+    Drake's ``yaml_load`` does."""
+    data = yaml.load(text, Loader=_Loader)  # noqa: S506 (a SafeLoader subclass)
+    if isinstance(data, dict):
+        data = {k: v for k, v in data.items() if not (isinstance(k, str) and k.startswith("_"))}
+    return data
+
+
+def parse_override(text):
+    """Split ``dotted.key=value`` into (['dotted', 'key'], value parsed as YAML)."""
+    key, sep, raw = text.partition("=")
+    if not sep or not key.strip() or any(not part for part in key.strip().split(".")):
+        raise ConfigError(f"--set {text!r}: expected dotted.key=value")
+    try:
+        value = load_yaml(f"value: {raw}")["value"] if raw.strip() else None
+    except yaml.YAMLError as e:
+        reason = first_line(e, located=False)
+        raise ConfigError(f"--set {text!r}: value is not valid YAML ({reason})") from None
+    return key.strip().split("."), value
+
+
+def apply_override(raw, keys, value, text):
+    """Set raw[k0][k1]... = value in a nested dict/list; list indices are integers."""
+    node = raw
+    for depth, key in enumerate(keys):
+        last = depth == len(keys) - 1
+        if isinstance(node, list):
+            if not key.isdigit() or int(key) >= len(node):
+                raise ConfigError(f"--set {text!r}: {key!r} is not an index of a list of {len(node)}")
+            key = int(key)
+        elif not isinstance(node, dict):
+            raise ConfigError(f"--set {text!r}: {'.'.join(keys[:depth])} is not a mapping")
+        if last:
+            node[key] = value
+        else:
+            if isinstance(node, dict) and key not in node:
+                node[key] = {}
+            node = node[key]
+
+
+def load_scenario(path, overrides=()):
+    """ScenarioConfig from a YAML file plus ``dotted.key=value`` overrides; validated.
+
+    Raises ConfigError with one line naming the file and the field.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"{path}: no such scenario file")
+    try:
+        raw = load_yaml(path.read_text())
+    except yaml.YAMLError as e:
+        raise ConfigError(f"{path}: not valid YAML: {first_line(e)}") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise ConfigError(f"{path}: cannot read: {e}") from None
+    if raw is None:
+        raise ConfigError(f"{path}: the file is empty (a scenario is a mapping of fields)")
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{path}: expected a mapping of fields at the top level, got {type(raw).__name__}")
+    try:
+        for text in overrides:
+            keys, value = parse_override(text)
+            apply_override(raw, keys, value, text)
+        _migrate_use_ideal_estimator(raw)
+        message = check_node(raw, ScenarioConfig, "")
+        if message:
+            raise ConfigError(message)
+        scenario = yaml_load_typed(schema=ScenarioConfig, data=yaml_dump(raw))
+        if not scenario.name:
+            scenario.name = path.stem
+        for vehicle in scenario.vehicles:
+            vehicle.estimator = kind_of(vehicle.estimator).locate(vehicle.estimator, path.parent)
+        check_scenario(scenario)
+    except ConfigError as e:
+        raise ConfigError(f"{path}: {e}{override_hint(str(e), overrides)}") from None
+    except (RuntimeError, ValueError, TypeError) as e:
+        raise ConfigError(f"{path}: {first_line(e)}") from None
+    return scenario
+
+
+def _migrate_use_ideal_estimator(raw):
+    """Rewrite each vehicle's deprecated ``use_ideal_estimator`` (raw YAML, in place) into its
+    ``flies_on`` (true: truth, false: estimate), with a FutureWarning saying what to write
+    instead; ConfigError where both are given and disagree."""
+    vehicles = raw.get("vehicles")
+    for i, vehicle in enumerate(vehicles if isinstance(vehicles, list) else []):
+        if not isinstance(vehicle, dict) or "use_ideal_estimator" not in vehicle:
+            continue
+        where, ideal = f"vehicles.{i}.use_ideal_estimator", vehicle.pop("use_ideal_estimator")
+        if not isinstance(ideal, bool):
+            raise ConfigError(f"{where}: expected bool, got {ideal!r}")
+        flies_on = "truth" if ideal else "estimate"
+        if vehicle.setdefault("flies_on", flies_on) != flies_on:
+            raise ConfigError(f"{where}: contradicts vehicles.{i}.flies_on (drop the deprecated field)")
+        warnings.warn(
+            f"{where} is deprecated: write vehicles.{i}.flies_on: {flies_on}"
+            + (" (or estimator: {kind: truth} to run no estimator)" if ideal else ""),
+            FutureWarning,
+            stacklevel=3,
+        )
+
+
+def override_hint(message, overrides):
+    """`` (--set KEY=VALUE)`` when the field a validation message starts with ("field: ...")
+    is, contains or lies in the key of one of the `overrides`, else ``""``: the mistake is on
+    the command line, not in the file."""
+    field_path = message.split(":", 1)[0]
+    for text in reversed(overrides):  # the last override of a key wins
+        key = text.partition("=")[0].strip()
+        if field_path == key or field_path.startswith(key + ".") or key.startswith(field_path + "."):
+            return f" (--set {text})"
+    return ""
+
+
+def dump_scenario(scenario):
+    """The resolved scenario as YAML text (loads back to an equal ScenarioConfig)."""
+    return yaml_dump_typed(scenario)

@@ -1,0 +1,168 @@
+"""Pure: a FlightLog's samples as the streams the log-playback system emits on the onboard tick.
+
+A sample recorded at t (s since the first IMU sample) is emitted at the first onboard tick
+t_k = k ONBOARD_PERIOD >= t and held until the next one, with its own t as its ``stamp`` (so a
+consumer sees it fresh once, as it sees a simulated sensor's sample). When two samples of one
+stream fall between the same two ticks (faster than 500 Hz), the later one is emitted and the
+earlier one is superseded (counted by :func:`superseded_samples`).
+
+The streams have the simulated sensors' port layouts (``conventions``): ``imu`` (6: f_B m/s^2,
+w_NB_B rad/s, FRD; no stamp, a new sample every tick it changes), ``gps`` (7: p_N m, v_N m/s,
+stamp s), ``mag`` (2: yaw rad, stamp s), plus the raw sensors a later estimator may fuse:
+``mag_field`` (4: field_B gauss, FRD, stamp s) and ``baro`` (2: pressure altitude m, up, stamp s).
+
+The yaw-only ``mag`` sample the estimators take today is the tilt-compensated heading of
+:func:`tilt_compensated_heading`: the logged field rotated into the level frame by the roll
+and pitch of gravity's direction, which is the mean accelerometer reading over the
+:data:`HEADING_GRAVITY_WINDOW` before the field sample. It is derived from the log's sensors
+alone, not from PX4's or our own estimate: a measurement, with the error a real one has (the
+accelerometer sees gravity plus the vehicle's own acceleration, and a tilt error dθ becomes a
+heading error of about dθ tan(inclination), twice dθ at a 63° inclination).
+"""
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from quad_drake.conventions import NO_SAMPLE_STAMP, ONBOARD_PERIOD
+from quad_drake.flightlogs.reader import Samples
+from quad_drake.models.rotations import wrap_angles
+
+HEADING_GRAVITY_WINDOW = 0.1
+"""s of accelerometer samples averaged for gravity's direction at a field sample: long enough
+to average out motor vibration (a real 250 Hz IMU: 25 samples), short against the manoeuvres
+whose own acceleration no average removes."""
+TICK_TOLERANCE = 1e-6
+"""Fraction of a tick by which a sample time may exceed a tick time and still be emitted at it
+(the sums that make tick and sample times round differently in their last bits)."""
+
+
+@dataclass(frozen=True)
+class Stream:
+    """One output of the playback: per sample the tick it is emitted at (first_tick (m,) ints)
+    and its output row (rows (m, width)): its values and, for a stamped stream, its stamp (its
+    time, s) last."""
+
+    first_tick: np.ndarray
+    rows: np.ndarray
+    stamped: bool
+
+    @property
+    def width(self):
+        return self.rows.shape[1]
+
+    def initial(self):
+        """The output before the first sample: zeros (and stamp NO_SAMPLE_STAMP)."""
+        value = np.zeros(self.width)
+        if self.stamped:
+            value[-1] = NO_SAMPLE_STAMP
+        return value
+
+
+STREAM_WIDTHS = {"imu": 6, "gps": 6, "mag": 1, "mag_field": 3, "baro": 1}
+"""Values per sample of each stream (before the stamp): the port layouts of the module docstring."""
+STAMPED = {"imu": False, "gps": True, "mag": True, "mag_field": True, "baro": True}
+
+
+def first_ticks(times, period=ONBOARD_PERIOD):
+    """(m,) index k of the first tick t_k = k period >= each sample time (s)."""
+    return np.ceil(np.asarray(times, dtype=float) / period - TICK_TOLERANCE).astype(np.int64)
+
+
+def superseded_samples(times, period=ONBOARD_PERIOD):
+    """How many samples are never emitted: followed by another before their tick."""
+    ticks = first_ticks(times, period)
+    return int(np.count_nonzero(ticks[1:] == ticks[:-1]))
+
+
+def gravity_directions(imu, times, window=HEADING_GRAVITY_WINDOW):
+    """(m, 3) mean specific force f_B (m/s^2, FRD) of the IMU samples in (t - window, t] at each
+    of `times` (s); the first IMU sample where none is that early. imu: the log's IMU Samples."""
+    imu_times = imu.times
+    force = imu.values[:, 0:3]
+    cumulative = np.vstack([np.zeros((1, 3)), np.cumsum(force, axis=0)])
+    last = np.searchsorted(imu_times, times, side="right")  # samples [first, last) are averaged
+    first = np.searchsorted(imu_times, np.asarray(times) - window, side="right")
+    last = np.maximum(last, 1)
+    first = np.minimum(first, last - 1)
+    return (cumulative[last] - cumulative[first]) / (last - first)[:, None]
+
+
+def tilt_compensated_heading(field_B, f_B, declination=0.0):
+    """(m,) yaw (rad, [-pi, pi)) of the body field field_B (m, 3; any unit, FRD) with the tilt of
+    the specific force f_B (m, 3, m/s^2, FRD, gravity's direction at rest); declination: rad,
+    east of true north.
+
+    roll = atan2(-f_y, -f_z), pitch = atan2(f_x, hypot(f_y, f_z)) (``estimation.complementary``'s
+    tilt); the level field m_L = Ry(pitch) Rx(roll) m_B = Rz(yaw)^T m_N, and with m_N's horizontal
+    part along the declination, yaw = declination - atan2(m_L,y, m_L,x).
+    """
+    field_B, f_B = np.asarray(field_B, dtype=float), np.asarray(f_B, dtype=float)
+    roll = np.arctan2(-f_B[:, 1], -f_B[:, 2])
+    pitch = np.arctan2(f_B[:, 0], np.hypot(f_B[:, 1], f_B[:, 2]))
+    cr, sr, cp, sp = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch)
+    mx, my, mz = field_B[:, 0], field_B[:, 1], field_B[:, 2]
+    level_y = cr * my - sr * mz  # Rx(roll) m_B, then Ry(pitch) leaves y alone
+    level_x = cp * mx + sp * (sr * my + cr * mz)
+    return wrap_angles(declination - np.arctan2(level_y, level_x))
+
+
+def initial_attitude(log):
+    """(roll, pitch, yaw) rad of the first samples, as a flight controller aligns at start: tilt
+    from the accelerometer (over HEADING_GRAVITY_WINDOW), yaw from the first heading (0 without a
+    magnetometer)."""
+    f_B = gravity_directions(log.imu, [HEADING_GRAVITY_WINDOW])[0]
+    roll = math.atan2(-f_B[1], -f_B[2])
+    pitch = math.atan2(f_B[0], math.hypot(f_B[1], f_B[2]))
+    yaw = 0.0
+    if log.mag_field is not None:
+        yaw = float(heading_samples(log)[0])
+    return roll, pitch, yaw
+
+
+def heading_samples(log):
+    """(m,) the yaw-only magnetometer samples (rad) at the log's field samples."""
+    gravity = gravity_directions(log.imu, log.mag_field.times)
+    return tilt_compensated_heading(log.mag_field.values, gravity, log.mag_declination)
+
+
+def fake_position(log, period):
+    """GPS-shaped Samples (p_N = 0 m, v_N = 0 m/s) every `period` s over the log: what a flight
+    controller fuses without any position aiding (PX4 EKF2's fake position, ``EKF2_NOAID_NOISE``)
+    so that its velocity, and through it its tilt, stays bounded. Not a measurement: its NIS is
+    not judged."""
+    times = np.arange(period, log.duration + 1e-9, period)
+    return Samples(times, np.zeros((len(times), 6)))
+
+
+def playback_streams(log, gps=None):
+    """{stream name: Stream} of a FlightLog for ``systems.playback.LogPlayback`` (module docstring).
+
+    gps: the GPS Samples to emit (default: the log's own); a sensor the log lacks has a stream
+    with no samples (its output never carries one).
+    """
+    sources = {
+        "imu": log.imu,
+        "gps": log.gps if gps is None else gps,
+        "mag_field": log.mag_field,
+        "baro": log.baro,
+    }
+    streams = {}
+    for name, samples in sources.items():
+        if samples is None:
+            streams[name] = _stream(name, np.zeros(0), np.zeros((0, STREAM_WIDTHS[name])))
+        else:
+            streams[name] = _stream(name, samples.times, samples.values)
+    if log.mag_field is not None:
+        streams["mag"] = _stream("mag", log.mag_field.times, heading_samples(log)[:, None])
+    else:
+        streams["mag"] = _stream("mag", np.zeros(0), np.zeros((0, 1)))
+    return streams
+
+
+def _stream(name, times, values):
+    values = np.asarray(values, dtype=float).reshape(len(times), STREAM_WIDTHS[name])
+    if STAMPED[name]:
+        values = np.column_stack([values, times])
+    return Stream(first_ticks(times), values, STAMPED[name])
