@@ -76,7 +76,8 @@ def test_the_sitl_position_follows_px4s_local_position(replays, kind):
 def test_the_nis_of_each_sensor_is_reported_in_its_band(replays, log, kind):
     result = replays[log, kind]
     nis = {s.sensor: s for s in result.nis}
-    assert set(nis) == ({"mag"} if log == LOGS[0] else {"mag", "gps"})
+    field = "field" if kind == "eskf" else "mag"  # the 3-axis field: the ESKF's vector, the EKF7's heading
+    assert set(nis) == ({field} if log == LOGS[0] else {field, "gps", "baro"})
     for s in nis.values():
         assert s.count > 300 and s.band[0] < s.dof < s.band[1]
         # PX4's default noise (EKF2_HEAD_NOISE 0.3 rad, GPS 0.5 m, 0.3 m/s) is larger than these
@@ -103,9 +104,20 @@ def test_the_innovations_are_each_fused_samples_against_the_prior(replays, kind)
 def test_an_attitude_only_log_runs_the_attitude_part_and_says_so(replays):
     for kind in KINDS:
         result = replays[LOGS[0], kind]
-        assert result.fake_position and result.position == []
-        assert any("has no GPS" in line and "attitude part" in line for line in result.notes())
+        assert result.fake_position
+        position = _by_state(result.position)
+        for state in ("X", "Y"):
+            assert position[state].count == 0
+            assert position[state].reason == "n/a: no GPS, so no common horizontal frame"
+        for state in ("VX", "VY"):  # PX4's attitude_estimator_q + LPE had no horizontal velocity
+            assert position[state].reason == "n/a: PX4 marks it invalid throughout (v_xy_valid = 0)"
+        assert position["Z"].count > 500 and position["VZ"].count > 500
+        assert any(
+            "has no GPS" in line and "horizontal position is not compared" in line for line in result.notes()
+        )
         assert result.summary()["sensors"] == ["imu", "mag"]
+        entry = next(e for e in result.summary()["differences"] if e["state"] == "X")
+        assert entry["rms"] is None and entry["reason"].startswith("n/a: ")
     sitl = replays[LOGS[1], "ekf7"]
     assert not sitl.fake_position and not any("no GPS" in line for line in sitl.notes())
 
@@ -193,7 +205,8 @@ def test_a_bad_log_in_a_new_process_exits_2_with_one_line(tmp_path):
 
 def test_a_replay_that_would_not_fit_in_memory_is_refused_before_it_runs(quad_drake_cli, tmp_path):
     path = tmp_path / "year.csv"
-    path.write_text("0,imu,0,0,-9.8,0,0,0\n3.2e7,imu,0,0,-9.8,0,0,0\n", encoding="utf-8")  # a year
+    rows = [f"{0.004 * k},imu,0,0,-9.8,0,0,0" for k in range(100)] + ["3.2e7,imu,0,0,-9.8,0,0,0"]  # a year
+    path.write_text("\n".join(rows) + "\n", encoding="utf-8")
     result = quad_drake_cli("replay", path, "--out", tmp_path / "out")
     assert result.returncode == 2 and result.stdout == ""
     assert f"{path}: a replay of 3.2e+07 s would take about" in result.stderr

@@ -138,35 +138,41 @@ def write_plots(result, out_dir):
     """[(caption, png path)] of the replay's figures, written into out_dir."""
     out_dir = Path(out_dir)
     plots = [("Attitude: ours and PX4's", _traces_figure(result, out_dir / "attitude.png"))]
-    if result.attitude:
+    attitude = [d for d in result.attitude if d.count]  # no empty panel for a state not compared
+    position = [d for d in result.position if d.count]
+    if attitude:
         title = f"{result.config.name}: attitude differences"
         plots.append(
             ("Attitude differences (ours - PX4) and our ±2σ", _differences_figure(
-                result, result.attitude, title, out_dir / "attitude_differences.png"
+                result, attitude, title, out_dir / "attitude_differences.png"
             ))
         )  # fmt: skip
-    if result.position:
+    if position and result.log.gps is not None:
         plots.append(
             (
                 "Position and velocity: ours, PX4's and the GPS",
                 _position_figure(result, out_dir / "position.png"),
             )
         )
+    if position:
         title = f"{result.config.name}: position and velocity differences"
         plots.append(
             ("Position and velocity differences (ours - PX4) and our ±2σ", _differences_figure(
-                result, result.position, title, out_dir / "position_differences.png"
+                result, position, title, out_dir / "position_differences.png"
             ))
         )  # fmt: skip
     if result.nis:
         plots.append(("Innovations: NIS per sensor", _nis_figure(result, out_dir / "nis.png")))
+    if result.innovations:
         plots.append(("Innovations per component", _innovations_figure(result, out_dir / "innovations.png")))
     return plots
 
 
 def _difference_rows(differences):
     return [
-        [
+        [esc(d.state), esc(d.unit), ("0", "num"), esc(d.reason), "", "", ""]
+        if d.count == 0
+        else [
             esc(d.state),
             esc(d.unit),
             (str(d.count), "num"),
