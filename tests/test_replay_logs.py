@@ -57,7 +57,9 @@ def test_an_imu_too_slow_for_any_replay_exits_2_with_one_line(quad_drake_cli, tm
 def test_an_imu_below_px4s_rate_or_with_gaps_is_replayed_with_a_warning(tmp_path):
     log = read_flight_log(_imu_csv(tmp_path / "slowish.csv", 80.0))
     assert checks.log_warnings(log) == [
-        "The IMU is logged at 80 Hz, below PX4 EKF2's 100 Hz: each sample is held over its whole interval."
+        "The IMU is logged at 80 Hz, below PX4 EKF2's 100 Hz: each sample is held over its whole interval.",
+        "The IMU covers 2.0 s: 2.0 s are compared (from 0 s on); "
+        "too short a stretch to judge an estimator by.",
     ]
     with pytest.raises(FlightLogError):
         checks.log_warnings(read_flight_log(_imu_csv(tmp_path / "slower.csv", 40.0)))

@@ -8,7 +8,8 @@ and returns one line per weakness where it still can:
   the replay reports (a 9 Hz ``sensor_combined`` is a logger's subsample, not the IMU): exit 2;
 - an IMU slower than PX4_IMU_RATE (EKF2's own prediction rate) or with gaps longer than IMU_GAP:
   a warning with the rate or the gaps;
-- a file that ends mid-message (``FlightLog.truncated``): a warning with how much was replayed.
+- a file that ends mid-message (``FlightLog.truncated``): a warning with how much was replayed;
+- a log that leaves less than SHORT_COMPARISON s to compare: a warning.
 """
 
 import numpy as np
@@ -19,6 +20,8 @@ MIN_IMU_RATE = 50.0
 """Hz: below it a replay cannot follow a multirotor's attitude (exit 2)."""
 PX4_IMU_RATE = 100.0
 """Hz: PX4 EKF2's prediction rate; an IMU below it is replayed with a warning."""
+SHORT_COMPARISON = 10.0
+"""s: a comparison over less than this is too short to judge an estimator by (a warning)."""
 IMU_GAP = 0.1
 """s: an interval between IMU samples longer than this is a gap (a dropout in the log)."""
 
@@ -29,8 +32,10 @@ def imu_rate(log):
     return 1.0 / float(np.median(intervals)) if len(intervals) else 0.0
 
 
-def log_warnings(log):
-    """[one-line warning] of a FlightLog that can be replayed; FlightLogError if it cannot."""
+def log_warnings(log, compare_after=0.0):
+    """[one-line warning] of a FlightLog that can be replayed; FlightLogError if it cannot.
+    compare_after: s from the start before the replay compares anything (a log that leaves less
+    than SHORT_COMPARISON s after it is said to be short)."""
     rate = imu_rate(log)
     if rate < MIN_IMU_RATE:
         raise FlightLogError(
@@ -49,6 +54,11 @@ def log_warnings(log):
         warnings.append(
             f"The IMU has {gaps.size} gaps longer than {IMU_GAP:g} s (longest {gaps.max():.2f} s): "
             "the estimators hold the last sample over them."
+        )
+    if log.duration - compare_after < SHORT_COMPARISON:
+        warnings.append(
+            f"The IMU covers {log.duration:.1f} s: {max(log.duration - compare_after, 0.0):.1f} s are "
+            f"compared (from {compare_after:g} s on); too short a stretch to judge an estimator by."
         )
     if log.truncated:
         warnings.append(f"The file ends mid-message (cut short): replayed its first {log.duration:.1f} s.")

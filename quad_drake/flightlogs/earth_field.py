@@ -41,6 +41,9 @@ WMM_MODELS = {
 }
 """pygeomag's World Magnetic Model coefficient files by first valid year (each valid 5 years)."""
 NANOTESLA_PER_GAUSS = 1e5
+INCLINATION_MISMATCH = math.radians(10.0)
+"""rad: a log's field inclination farther than this from the model's at the fix is flagged (the
+model is good to well under 1°; a mounted magnetometer near motors and wires is often 5° off)."""
 ALIGNMENT_TIME = 1.0
 """s from the first field sample over which the field's inclination is measured (before take-off)."""
 
@@ -121,6 +124,12 @@ def magnetometer_model(log, current_year=None):
             f"magnetometer: the WMM at the first fix ({where}, {year:.1f}): {wmm[2]:.3f} G, "
             f"inclination {math.degrees(wmm[1]):.1f}°, declination {math.degrees(wmm[0]):.2f}°"
         )
+        if abs(inclination - wmm[1]) > INCLINATION_MISMATCH:
+            notes.append(
+                f"warning: the log's field inclination ({math.degrees(inclination):.1f}°) is "
+                f"{math.degrees(abs(inclination - wmm[1])):.0f}° from the Earth's there: the "
+                "magnetometer is disturbed or its rotation wrong; its yaw cannot be trusted"
+            )
     looks_up = int(log.parameters.get("EKF2_DECL_TYPE", 0)) & 1 or log.mag_declination is None
     if wmm is not None and looks_up:
         declination = wmm[0]

@@ -281,7 +281,7 @@ def replay(config, log=None):
     Raises reader.FlightLogError (a ConfigError, one line) for a log that cannot be replayed.
     """
     log = read_flight_log(resolve_log(config.log)) if log is None else log
-    warnings = log_warnings(log)
+    warnings = log_warnings(log, COMPARE_AFTER)
     if not config.name:
         config = dataclasses.replace(config, name=Path(log.source).stem)
     width = sum(vocabulary_for(config.estimator).log_widths().values())  # before anything is built
