@@ -116,7 +116,9 @@ def initial_attitude(log, declination=0.0, hard_iron=(0.0, 0.0, 0.0)):
     roll = math.atan2(-f_B[1], -f_B[2])
     pitch = math.atan2(f_B[0], math.hypot(f_B[1], f_B[2]))
     yaw = 0.0
-    if log.mag_field is not None:
+    if log.heading is not None:
+        yaw = float(log.heading.values[0, 0])
+    elif log.mag_field is not None:
         yaw = float(heading_samples(log, declination, hard_iron)[0])
     return roll, pitch, yaw
 
@@ -157,7 +159,9 @@ def playback_streams(log, gps=None, declination=0.0, hard_iron=(0.0, 0.0, 0.0)):
             streams[name] = _stream(name, np.zeros(0), np.zeros((0, STREAM_WIDTHS[name])))
         else:
             streams[name] = _stream(name, samples.times, samples.values)
-    if log.mag_field is not None:
+    if log.heading is not None:  # a yaw magnetometer's samples as received
+        streams["mag"] = _stream("mag", log.heading.times, log.heading.values)
+    elif log.mag_field is not None:
         headings = heading_samples(log, declination, hard_iron)
         streams["mag"] = _stream("mag", log.mag_field.times, headings[:, None])
     else:

@@ -109,7 +109,9 @@ class FlightLog:
     (s), t = 0 here. parameters: the flight controller's parameters by name ({} for a CSV).
     fix_date: decimal year (UTC) of the first GPS fix, or None. truncated: the file ends
     mid-message. truth_attitude: the simulator's q_NB (4, wxyz), truth_position: its p_N (3, m,
-    GPS origin's frame; NaN without GPS) and v_N (3, m/s), or None (a real flight).
+    GPS origin's frame; NaN without GPS) and v_N (3, m/s), or None (a real flight). heading: a
+    yaw magnetometer's samples (1, rad) as an estimator received them (a CSV's ``heading`` rows,
+    e.g. a simulated run's), or None.
     """
 
     source: str
@@ -127,6 +129,7 @@ class FlightLog:
     truncated: bool = False
     truth_attitude: Samples | None = None
     truth_position: Samples | None = None
+    heading: Samples | None = None
 
     @property
     def duration(self):
@@ -135,14 +138,16 @@ class FlightLog:
 
     def sensors(self):
         """Names of the sensors the log holds besides the IMU, e.g. ``["gps", "mag", "baro"]``."""
-        present = {"gps": self.gps, "mag": self.mag_field, "baro": self.baro}
+        present = {"gps": self.gps, "mag": self.mag_field, "heading": self.heading, "baro": self.baro}
         return [name for name, samples in present.items() if samples is not None]
 
 
 CSV_SENSORS = {
     "imu": ("f_x", "f_y", "f_z", "w_x", "w_y", "w_z"),  # m/s^2 specific force, rad/s; FRD
     "gps": ("latitude", "longitude", "altitude", "v_n", "v_e", "v_d"),  # deg, deg, m (up), m/s NED
+    "gps_ned": ("x", "y", "z", "v_n", "v_e", "v_d"),  # m NED about the log's origin, m/s NED (no geodetic)
     "mag": ("b_x", "b_y", "b_z"),  # gauss, FRD
+    "heading": ("yaw",),  # rad, a yaw magnetometer's sample as the estimator received it
     "baro": ("altitude",),  # m, pressure altitude, up
     "attitude": ("q_w", "q_x", "q_y", "q_z"),  # reference estimate: body FRD to NED
     "position": ("x", "y", "z", "v_x", "v_y", "v_z"),  # reference estimate: m, m/s, NED, GPS origin
@@ -518,8 +523,12 @@ def read_csv(path):
     parsed = {kind: _csv_samples(path, kind, found) for kind, found in rows.items() if found}
     start = float(parsed["imu"].times[0])
     gps, origin = (None, None)
+    if "gps" in parsed and "gps_ned" in parsed:
+        raise FlightLogError(f"{path}: both gps and gps_ned rows; give the GPS one way")
     if "gps" in parsed:
         gps, origin = _geodetic_gps(parsed["gps"].times, parsed["gps"].values)
+    elif "gps_ned" in parsed:
+        gps = parsed["gps_ned"]
     declination = float(parsed["declination"].values[-1, 0]) if "declination" in parsed else None
     fix_date = float(parsed["date"].values[-1, 0]) if "date" in parsed else None
     return FlightLog(
@@ -534,6 +543,7 @@ def read_csv(path):
         mag_declination=declination,
         start_time=start,
         fix_date=fix_date,
+        heading=_optional(parsed.get("heading"), start),
         truth_position=_optional(_part(parsed.get("truth"), slice(0, 6)), start),
         truth_attitude=_optional(_part(parsed.get("truth"), slice(6, 10)), start),
     )
@@ -571,6 +581,6 @@ def _csv_samples(path, kind, found):
             values.append([float(cell) for cell in cells])
         except ValueError as e:
             raise FlightLogError(f"{path}: line {line_number}: not a number ({e})") from None
-    if kind == "position":  # NaN marks an invalid reference entry, as in a ULog
+    if kind in ("position", "truth"):  # NaN marks an invalid entry (a position without a frame)
         return Samples(_checked(f"{path}: {kind} rows", times, np.zeros(len(times))).times, np.array(values))
     return _checked(f"{path}: {kind} rows", times, values)

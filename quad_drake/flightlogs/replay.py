@@ -254,24 +254,45 @@ def build_replay_diagram(log, config):
     vehicle = vehicle_for(
         config, initial_attitude(log, declination, hard_iron), fake, baro_period, magnetometer
     )
+    diagram, sinks = _playback_diagram(streams, vehicle, config.name or "replay")
+    return diagram, sinks, Aiding(fake, magnetometer, late_fix, vehicle.sensors.baro is not None)
+
+
+def _playback_diagram(streams, vehicle, name):
+    """(Diagram, {log name: VectorLogSink}): a LogPlayback of `streams` feeding the estimator of
+    the VehicleConfig `vehicle` (``build_estimator``, one vehicle): ``imu``, ``gps``, ``mag`` (the
+    raw field for a 3-axis magnetometer, else the heading) and ``baro`` where it has that input;
+    every estimator and playback output logged every LOG_PERIOD."""
     builder = DiagramBuilder()
     playback = builder.AddNamedSystem("playback", LogPlayback(streams))
     estimator = builder.AddSystem(build_estimator(vehicle, PHYSICAL))
     three_axis = vehicle.sensors.mag is not None and vehicle.sensors.mag.three_axis
-    wiring = {"imu": "imu", "gps": "gps", "mag": "mag_field" if three_axis else "mag"}
-    if vehicle.sensors.baro is not None:
-        wiring["baro"] = "baro"
+    wiring = {"imu": "imu", "gps": "gps", "mag": "mag_field" if three_axis else "mag", "baro": "baro"}
     for port, stream in wiring.items():
-        builder.Connect(playback.GetOutputPort(stream), estimator.GetInputPort(port))
+        if estimator.HasInputPort(port):
+            builder.Connect(playback.GetOutputPort(stream), estimator.GetInputPort(port))
     sinks = {}
-    outputs = [(name, estimator) for name in vocabulary_for(config.estimator).log_widths()]
-    outputs += [(name, playback) for name in streams]
-    for name, system in outputs:
-        sinks[name] = LogVectorOutput(system.GetOutputPort(name), builder, publish_period=LOG_PERIOD)
-        sinks[name].set_name(f"{name}_log")
+    outputs = [(log_name, estimator) for log_name in vocabulary_for(vehicle.estimator).log_widths()]
+    outputs += [(log_name, playback) for log_name in streams]
+    for log_name, system in outputs:
+        sinks[log_name] = LogVectorOutput(system.GetOutputPort(log_name), builder, publish_period=LOG_PERIOD)
+        sinks[log_name].set_name(f"{log_name}_log")
     diagram = builder.Build()
-    diagram.set_name(config.name or "replay")
-    return diagram, sinks, Aiding(fake, magnetometer, late_fix, vehicle.sensors.baro is not None)
+    diagram.set_name(name)
+    return diagram, sinks
+
+
+def replay_as_flown(log, vehicle):
+    """(times (n,) s, {log name: (n, width)}) of the FlightLog `log` replayed through the estimator
+    of the VehicleConfig `vehicle` exactly as configured (its own initial state and noise; no
+    replay defaults, no fake position): a simulated run's CSV (``flightlogs.recording``) replayed
+    through the run's own estimator reproduces the run's estimate."""
+    diagram, sinks = _playback_diagram(playback_streams(log), vehicle, "replay")
+    simulator = Simulator(diagram)
+    context = simulator.get_mutable_context()
+    simulator.Initialize()
+    simulator.AdvanceTo(log.duration)
+    return _read_sinks(sinks, context)
 
 
 def replay(config, log=None):
