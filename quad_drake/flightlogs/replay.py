@@ -117,7 +117,9 @@ class ReplayResult:
                 "as its GPS samples (with the GPS noise it assumes), as PX4 holds a fake position "
                 "while not aided; the GPS from the fix on."
             )
-        if self.log.mag_field is None:
+        if self.log.heading is not None:
+            lines.append("The log's magnetometer is a yaw magnetometer (heading rows): fused as such.")
+        elif self.log.mag_field is None:
             lines.append("The log has no magnetometer: the yaw is the gyro's alone.")
         else:
             lines += list(self.aiding.magnetometer.notes)
