@@ -112,6 +112,12 @@ def test_the_magnetometer_is_taken_as_px4_calibrated_it():
     assert model.hard_iron == (0.0, -0.033, 0.0)
     assert any("EKF2_MAGBIAS_X/Y/Z" in note for note in model.notes)
 
+    doubled = dataclasses.replace(sitl.mag_field, values=sitl.mag_field.values * 2.4)
+    notes = earth_field.magnetometer_model(dataclasses.replace(sitl, mag_field=doubled)).notes
+    assert [n for n in notes if n.startswith("warning: the log's field strength")] == [
+        "warning: the log's field strength (1.15 G) is outside the Earth's (0.22-0.67 G): the "
+        "magnetometer is uncalibrated or disturbed; its yaw and the tilt it constrains cannot be trusted"
+    ]
     real = read_flight_log(REAL)  # no fix: no place to ask the model about, the log's own field
     model = earth_field.magnetometer_model(real)
     assert real.origin is None and model.declination == 0.0

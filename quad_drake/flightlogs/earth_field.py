@@ -41,6 +41,8 @@ WMM_MODELS = {
 }
 """pygeomag's World Magnetic Model coefficient files by first valid year (each valid 5 years)."""
 NANOTESLA_PER_GAUSS = 1e5
+EARTH_FIELD_STRENGTH = (0.22, 0.67)
+"""gauss: the weakest and strongest field at the Earth's surface (the WMM's range)."""
 INCLINATION_MISMATCH = math.radians(10.0)
 """rad: a log's field inclination farther than this from the model's at the fix is flagged (the
 model is good to well under 1°; a mounted magnetometer near motors and wires is often 5° off)."""
@@ -112,6 +114,12 @@ def magnetometer_model(log, current_year=None):
         f"magnetometer: world field {strength:.3f} G, inclination {math.degrees(inclination):.1f}° "
         "(the log's own: median strength; against gravity over its first second)"
     )
+    if not EARTH_FIELD_STRENGTH[0] <= strength <= EARTH_FIELD_STRENGTH[1]:
+        notes.append(
+            f"warning: the log's field strength ({strength:.2f} G) is outside the Earth's "
+            f"({EARTH_FIELD_STRENGTH[0]:g}-{EARTH_FIELD_STRENGTH[1]:g} G): the magnetometer is "
+            "uncalibrated or disturbed; its yaw and the tilt it constrains cannot be trusted"
+        )
     wmm = None
     if log.origin is not None:
         year = log.fix_date
