@@ -129,7 +129,9 @@ def truth_replay():
     return replay(load_replay(str(TRUTH_LOG), "{kind: eskf}"))
 
 
-def test_the_sitl_ground_truth_is_read_and_both_estimates_are_judged_against_it(truth_replay):
+def test_the_sitl_ground_truth_is_read_and_both_estimates_are_judged_against_it(truth_replay, tmp_path):
+    from quad_drake.flightlogs.page import write_report
+
     log = truth_replay.log
     assert len(log.truth_attitude) > 1000 and len(log.truth_position) > 500
     errors = {e.state: e for e in truth_replay.truth}
@@ -148,6 +150,8 @@ def test_the_sitl_ground_truth_is_read_and_both_estimates_are_judged_against_it(
         assert s.count > 1000 and s.mean < s.band[0]
     summary = truth_replay.summary()
     assert summary["truth"][3]["px4_rms"] is None and summary["truth_nees"][0]["block"] == "position"
+    report = write_report(truth_replay, tmp_path / "report.html").read_text(encoding="utf-8")
+    assert "Against the simulator's ground truth" in report and "mean NEES" in report
 
 
 def test_the_log_s_barometer_and_3_axis_field_are_fused(truth_replay):

@@ -248,6 +248,31 @@ def write_report(result, path, plots=()):
         parts.append(html_table(header, rows))
     else:
         parts.append("<p>No sensor updates to judge.</p>")
+    if result.truth:
+        parts.append("<h2>Against the simulator's ground truth</h2>")
+        parts.append(
+            "<p>The log carries the simulator's true state: ours and PX4's estimates are both judged "
+            "against it (RMS error from the comparison's start, at our log samples).</p>"
+        )
+        rows = [
+            [
+                esc(e.state),
+                esc(e.unit),
+                (str(e.count), "num"),
+                esc(e.figure(e.ours_rms)),
+                esc(e.figure(e.px4_rms)),
+            ]
+            for e in result.truth
+        ]
+        parts.append(html_table(["state", "unit", "samples", "ours", "PX4's"], rows))
+        rows = [
+            [esc(s.block), (str(s.dof), "num"), (str(s.count), "num"), (num(s.mean), "num"),
+             (f"[{num(s.band[0])}, {num(s.band[1])}]", "num")]
+            for s in result.truth_nees
+        ]  # fmt: skip
+        if rows:
+            parts.append("<p>Our NEES (samples correlated in time: the band is a guide).</p>")
+            parts.append(html_table(["block", "dof", "samples", "mean NEES", "95 % band of the mean"], rows))
     parts.append("<h2>Estimator health</h2>")
     parts.append(f"<pre>{esc(result.health_line())}</pre>")
     if plots:
