@@ -1,16 +1,20 @@
 """Replay a recorded flight through an estimator sub-Diagram: wiring, run, results.
 
 The Diagram: a ``systems.playback.LogPlayback`` emits the log's samples on the onboard tick; its
-``imu``, ``gps`` and ``mag`` outputs feed the estimator of ``systems.estimators.build_estimator``
-(the same sub-Diagram a simulated vehicle flies on, unchanged); every estimator output and every
-playback output is logged by its own ``VectorLogSink`` every LOG_PERIOD. A log without GPS
-feeds the estimator PX4's fake position instead (``flightlogs.playback.fake_position``), so the
-attitude part runs and the position part stays bounded; its position is not compared (there is
-no reference) and its GPS NIS is not judged.
+``imu``, ``gps``, ``mag`` (the raw 3-axis field where the estimator's kind fuses one, else the
+heading) and ``baro`` (where the kind fuses one) outputs feed the estimator of
+``systems.estimators.build_estimator`` (the same sub-Diagram a simulated vehicle flies on; the
+log's sensors become its vehicle's ``sensors``, ``settings.vehicle_for``); every estimator output
+and every playback output is logged by its own ``VectorLogSink`` every LOG_PERIOD. A log without
+GPS feeds the estimator PX4's fake position instead (``flightlogs.playback.fake_position``), a
+log with a late first fix zero samples before it (:func:`aiding_gps`); the magnetometer's world
+field is ``earth_field.magnetometer_model``'s. ``checks.log_warnings`` refuses a log that cannot
+be replayed and says what weakens one that can.
 
 :func:`replay` is the library call behind ``quad-drake replay``; :func:`save_replay` writes the
 run folder (``logs.npz``, ``config.yaml``, ``summary.json`` of kind ``"replay"``; the report and
-plots: ``flightlogs.page``).
+plots: ``flightlogs.page``). :func:`replay_as_flown` replays a log through a VehicleConfig's
+estimator exactly as configured (a simulated run's CSV, ``flightlogs.recording``).
 """
 
 import dataclasses
