@@ -504,7 +504,11 @@ def build_parser():
         "replay", help="replay a flight log (PX4 .ulg or .csv) through an estimator, compared with PX4's"
     )
     replay.add_argument(
-        "log", metavar="LOG", help="a .ulg or .csv file, a bundled log's name, or a replay's config.yaml"
+        "log",
+        metavar="LOG",
+        nargs="+",
+        help="a .ulg or .csv file, a bundled log's name, a replay's config.yaml, or a folder of logs; "
+        "several: one table over them",
     )
     replay.add_argument(
         "--estimator", metavar="YAML", help="the estimator, e.g. '{kind: eskf}' (default: ekf7)"

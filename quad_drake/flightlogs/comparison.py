@@ -44,6 +44,22 @@ class StateDifference:
     within_2sigma: float  # share of |difference| <= 2 σ (NaN without σ)
     times: np.ndarray  # (count,) s
     differences: np.ndarray  # (count,)
+    reason: str = ""  # why nothing was compared (count 0): "n/a: ..."; "" when compared
+
+    def figure(self, value, digits=4):
+        """`value` (one of this difference's figures) as text: the number, or the n/a reason."""
+        return self.reason if self.count == 0 else f"{value:.{digits}f}"
+
+
+VALIDITY_FLAGS = {
+    "X": "xy_valid",
+    "Y": "xy_valid",
+    "Z": "z_valid",
+    "VX": "v_xy_valid",
+    "VY": "v_xy_valid",
+    "VZ": "v_z_valid",
+}
+"""The ``vehicle_local_position`` flag by which PX4 marks each state valid."""
 
 
 @dataclass(frozen=True)
@@ -109,17 +125,38 @@ def _interpolated(times, values, at, angle=False):
     return np.interp(at, times, values)
 
 
+def missing_reason(state, times, ref_times, reference, compare_after):
+    """Why nothing of `state` is compared ("n/a: ..."), given our log's `times` and the reference's
+    `ref_times` and values `reference` (NaN: invalid); "" when something is."""
+    window = (ref_times >= max(compare_after, times[0])) & (ref_times <= times[-1])
+    if times[-1] < compare_after:
+        return f"n/a: the log ends at {times[-1]:.1f} s, before the comparison starts ({compare_after:g} s)"
+    if not window.any():
+        return f"n/a: no PX4 sample between {compare_after:g} s and the log's end"
+    if not np.isfinite(reference[window]).any():
+        flag = VALIDITY_FLAGS.get(state)
+        marked = f" ({flag} = 0)" if flag else ""
+        return f"n/a: PX4 marks it invalid throughout{marked}"
+    return ""
+
+
+def unavailable(state, reason):
+    """The StateDifference of a state not compared, for `reason` ("n/a: ...")."""
+    nan, empty = math.nan, np.zeros(0)
+    return StateDifference(state, UNITS[state], 0, nan, nan, nan, nan, empty, empty, reason)
+
+
 def _difference(state, times, ours, sigma, ref_times, reference, compare_after, angle):
     """StateDifference of our (n,) `ours` and σ at `times` against `reference` at `ref_times`."""
+    reason = missing_reason(state, times, ref_times, reference, compare_after)
+    if reason:
+        return unavailable(state, reason)
     keep = (ref_times >= max(compare_after, times[0])) & (ref_times <= times[-1]) & np.isfinite(reference)
     at = ref_times[keep]
     difference = _interpolated(times, ours, at, angle) - reference[keep]
     if angle:
         difference = wrap_angles(difference)
     s = np.interp(at, times, sigma) if np.isfinite(sigma).any() else np.full(len(at), np.nan)
-    if not len(at):
-        nan = math.nan
-        return StateDifference(state, UNITS[state], 0, nan, nan, nan, nan, at, difference)
     with np.errstate(invalid="ignore"):
         within = float(np.mean(np.abs(difference) <= 2.0 * s)) if np.isfinite(s).all() else math.nan
     return StateDifference(
@@ -146,13 +183,16 @@ def compare_attitude(vocabulary, times, logs, reference, compare_after):
     ]
 
 
-def compare_position(vocabulary, times, logs, reference, compare_after):
-    """[StateDifference] of x, y, z, vx, vy, vz against the reference position Samples."""
+def compare_position(vocabulary, times, logs, reference, compare_after, horizontal=""):
+    """[StateDifference] of x, y, z, vx, vy, vz against the reference position Samples;
+    horizontal: "" to compare x and y, else why not ("n/a: ...", e.g. a log without GPS)."""
     state = np.asarray(logs["estimated_state"], dtype=float)
     ours = np.column_stack([state[:, 0:3], state[:, 7:10]])
     sigmas = state_sigmas(vocabulary, logs["covariance"], POSITION_STATES)
     return [
-        _difference(
+        unavailable(name, horizontal)
+        if horizontal and name in ("X", "Y")
+        else _difference(
             name,
             times,
             ours[:, i],
@@ -206,3 +246,141 @@ def innovations(logs, sensor, compare_after=0.0):
         yaw = euler_from_quats(estimate[before, 3:7])[2]
         values = wrap_angles(samples[fresh, 0] - yaw)[:, None]
     return samples[fresh, -1], values
+
+
+TRUTH_STATES = ATTITUDE_STATES + POSITION_STATES
+"""The states judged against a simulator's ground truth."""
+NEES_BLOCKS = {"position": ("X", "Y", "Z"), "velocity": ("VX", "VY", "VZ")}
+"""Our covariance blocks whose NEES against the ground truth is judged (m, m/s)."""
+
+
+@dataclass(frozen=True)
+class TruthError:
+    """Ours and PX4's estimate minus the simulator's ground truth for one state, at our logged
+    times from compare_after s on: RMS of each (NaN where one is not available), count of samples."""
+
+    state: str
+    unit: str
+    count: int
+    ours_rms: float
+    px4_rms: float
+    reason: str = ""  # "n/a: ..." when nothing was judged
+
+    def figure(self, value, digits=4):
+        """`value` as text: the number, or the n/a reason (PX4's: "n/a" where PX4 marks it invalid)."""
+        if self.count == 0:
+            return self.reason
+        return f"{value:.{digits}f}" if math.isfinite(value) else "n/a"
+
+
+@dataclass(frozen=True)
+class NeesSummary:
+    """Our NEES of one covariance block against the ground truth: mean over `count` logged samples
+    and the χ²(dof) band of a mean of that many independent samples (the samples are correlated
+    over time, so the band is a guide, not a test)."""
+
+    block: str
+    dof: int
+    count: int
+    mean: float
+    band: tuple
+    in_band: bool
+
+
+def _truth_columns(log, times):
+    """(n, 9) the ground truth's roll, pitch, yaw, p_N, v_N at our logged `times` (NaN outside its
+    span or where it has none)."""
+    columns = np.full((len(times), len(TRUTH_STATES)), np.nan)
+    if log.truth_attitude is not None:
+        angles = np.column_stack(euler_from_quats(log.truth_attitude.values))
+        span = (times >= log.truth_attitude.times[0]) & (times <= log.truth_attitude.times[-1])
+        for i in range(3):
+            columns[span, i] = _interpolated(log.truth_attitude.times, angles[:, i], times[span], True)
+    if log.truth_position is not None:
+        truth = log.truth_position
+        span = (times >= truth.times[0]) & (times <= truth.times[-1])
+        for i in range(6):
+            finite = np.isfinite(truth.values[:, i])
+            if finite.any():
+                columns[span, 3 + i] = np.interp(times[span], truth.times[finite], truth.values[finite, i])
+    return columns
+
+
+def _reference_columns(log, times):
+    """(n, 9) PX4's roll, pitch, yaw, p_N, v_N at our logged `times` (NaN where invalid or absent)."""
+    columns = np.full((len(times), len(TRUTH_STATES)), np.nan)
+    if log.reference_attitude is not None:
+        ref = log.reference_attitude
+        angles = np.column_stack(euler_from_quats(ref.values))
+        span = (times >= ref.times[0]) & (times <= ref.times[-1])
+        for i in range(3):
+            columns[span, i] = _interpolated(ref.times, angles[:, i], times[span], True)
+    if log.reference_position is not None:
+        ref = log.reference_position
+        for i in range(6):
+            finite = np.isfinite(ref.values[:, i])
+            if finite.any():
+                span = (times >= ref.times[finite][0]) & (times <= ref.times[finite][-1])
+                columns[span, 3 + i] = np.interp(times[span], ref.times[finite], ref.values[finite, i])
+    return columns
+
+
+def _our_columns(logs):
+    """(n, 9) our roll, pitch, yaw, p_N, v_N of a replay's logs."""
+    state = np.asarray(logs["estimated_state"], dtype=float)
+    return np.column_stack([estimate_angles(state), state[:, 0:3], state[:, 7:10]])
+
+
+def truth_errors(times, logs, log, compare_after):
+    """[TruthError] of ours and PX4's estimates against a FlightLog's ground truth (module
+    docstring), at our logged `times` from compare_after s on; [] without a ground truth."""
+    if log.truth_attitude is None and log.truth_position is None:
+        return []
+    truth, ours, px4 = _truth_columns(log, times), _our_columns(logs), _reference_columns(log, times)
+    late = times >= compare_after
+    errors = []
+    for i, state in enumerate(TRUTH_STATES):
+        keep = late & np.isfinite(truth[:, i])
+        if not keep.any():
+            reason = "n/a: the ground truth has no " + ("position without a fix" if i in (3, 4, 5) else state)
+            errors.append(TruthError(state, UNITS[state], 0, math.nan, math.nan, reason))
+            continue
+        angle = i < 3
+        ours_error = ours[keep, i] - truth[keep, i]
+        px4_error = px4[keep, i] - truth[keep, i]
+        if angle:
+            ours_error, px4_error = wrap_angles(ours_error), wrap_angles(px4_error)
+        finite = np.isfinite(px4_error)
+        px4_rms = float(np.sqrt(np.mean(px4_error[finite] ** 2))) if finite.any() else math.nan
+        errors.append(
+            TruthError(state, UNITS[state], int(keep.sum()), float(np.sqrt(np.mean(ours_error**2))), px4_rms)
+        )
+    return errors
+
+
+def truth_nees(vocabulary, times, logs, log, compare_after, probability=0.95):
+    """[NeesSummary] of our position and velocity blocks (those the vocabulary names) against the
+    ground truth from compare_after s on; [] without a ground truth position."""
+    if log.truth_position is None:
+        return []
+    truth, ours = _truth_columns(log, times), _our_columns(logs)
+    k = vocabulary.size
+    P = np.asarray(logs["covariance"], dtype=float).reshape(-1, k, k)
+    summaries = []
+    for block, states in NEES_BLOCKS.items():
+        if not all(s in vocabulary.state_names for s in states):
+            continue
+        index = [vocabulary.state_names.index(s) for s in states]
+        columns = [TRUTH_STATES.index(s) for s in states]
+        error = ours[:, columns] - truth[:, columns]
+        keep = (times >= compare_after) & np.isfinite(error).all(axis=1)
+        if not keep.any():
+            continue
+        block_P = P[keep][:, index][:, :, index]
+        nees = np.einsum("ni,ni->n", error[keep], np.linalg.solve(block_P, error[keep][:, :, None])[:, :, 0])
+        band = chi2_band(len(states), int(keep.sum()), probability)
+        mean = float(np.mean(nees))
+        summaries.append(
+            NeesSummary(block, len(states), int(keep.sum()), mean, band, band[0] <= mean <= band[1])
+        )
+    return summaries

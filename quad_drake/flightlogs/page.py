@@ -138,35 +138,41 @@ def write_plots(result, out_dir):
     """[(caption, png path)] of the replay's figures, written into out_dir."""
     out_dir = Path(out_dir)
     plots = [("Attitude: ours and PX4's", _traces_figure(result, out_dir / "attitude.png"))]
-    if result.attitude:
+    attitude = [d for d in result.attitude if d.count]  # no empty panel for a state not compared
+    position = [d for d in result.position if d.count]
+    if attitude:
         title = f"{result.config.name}: attitude differences"
         plots.append(
             ("Attitude differences (ours - PX4) and our ±2σ", _differences_figure(
-                result, result.attitude, title, out_dir / "attitude_differences.png"
+                result, attitude, title, out_dir / "attitude_differences.png"
             ))
         )  # fmt: skip
-    if result.position:
+    if position and result.log.gps is not None:
         plots.append(
             (
                 "Position and velocity: ours, PX4's and the GPS",
                 _position_figure(result, out_dir / "position.png"),
             )
         )
+    if position:
         title = f"{result.config.name}: position and velocity differences"
         plots.append(
             ("Position and velocity differences (ours - PX4) and our ±2σ", _differences_figure(
-                result, result.position, title, out_dir / "position_differences.png"
+                result, position, title, out_dir / "position_differences.png"
             ))
         )  # fmt: skip
     if result.nis:
         plots.append(("Innovations: NIS per sensor", _nis_figure(result, out_dir / "nis.png")))
+    if result.innovations:
         plots.append(("Innovations per component", _innovations_figure(result, out_dir / "innovations.png")))
     return plots
 
 
 def _difference_rows(differences):
     return [
-        [
+        [esc(d.state), esc(d.unit), ("0", "num"), esc(d.reason), "", "", ""]
+        if d.count == 0
+        else [
             esc(d.state),
             esc(d.unit),
             (str(d.count), "num"),
@@ -242,6 +248,31 @@ def write_report(result, path, plots=()):
         parts.append(html_table(header, rows))
     else:
         parts.append("<p>No sensor updates to judge.</p>")
+    if result.truth:
+        parts.append("<h2>Against the simulator's ground truth</h2>")
+        parts.append(
+            "<p>The log carries the simulator's true state: ours and PX4's estimates are both judged "
+            "against it (RMS error from the comparison's start, at our log samples).</p>"
+        )
+        rows = [
+            [
+                esc(e.state),
+                esc(e.unit),
+                (str(e.count), "num"),
+                esc(e.figure(e.ours_rms)),
+                esc(e.figure(e.px4_rms)),
+            ]
+            for e in result.truth
+        ]
+        parts.append(html_table(["state", "unit", "samples", "ours", "PX4's"], rows))
+        rows = [
+            [esc(s.block), (str(s.dof), "num"), (str(s.count), "num"), (num(s.mean), "num"),
+             (f"[{num(s.band[0])}, {num(s.band[1])}]", "num")]
+            for s in result.truth_nees
+        ]  # fmt: skip
+        if rows:
+            parts.append("<p>Our NEES (samples correlated in time: the band is a guide).</p>")
+            parts.append(html_table(["block", "dof", "samples", "mean NEES", "95 % band of the mean"], rows))
     parts.append("<h2>Estimator health</h2>")
     parts.append(f"<pre>{esc(result.health_line())}</pre>")
     if plots:

@@ -32,10 +32,24 @@ What is read from a PX4 ULog (``pyulog``, PX4's own reader):
   body FRD to NED; at ``timestamp_sample`` where logged) and ``vehicle_local_position``
   (x, y, z, vx, vy, vz in NED about PX4's origin ``ref_lat``, ``ref_lon``, ``ref_alt``), moved
   into the GPS origin's frame (``geodetic2ned`` of PX4's origin); entries PX4 flags invalid
-  (``xy_valid``, ``z_valid``, ``v_xy_valid``, ``v_z_valid``; a position without a global origin)
-  are NaN. Only with GPS: without it there is no common frame to compare positions in.
+  (``xy_valid``, ``z_valid``, ``v_xy_valid``, ``v_z_valid``) are NaN. The velocities need no
+  common frame and are read with or without GPS. The horizontal position needs one: valid only
+  with GPS and PX4's global origin (``xy_global``). The height is moved by PX4's ``ref_alt``
+  where it has a global one (``z_global``), else by PX4's own height at the replay's origin
+  time (the first fix, or t = 0 without GPS: our estimate's z = 0 there), so a height PX4 marks
+  valid is compared whether or not PX4 had a global origin.
 - the magnetic declination (rad, east of true north): PX4's parameter ``EKF2_MAG_DECL`` or
-  ``ATT_MAG_DECL`` (degrees), 0 when the log has neither.
+  ``ATT_MAG_DECL`` (degrees), None when the log has neither (``flightlogs.earth_field`` then
+  takes it from the World Magnetic Model at the first fix).
+- PX4's parameters (``parameters``: the initial values, e.g. ``EKF2_MAGBIAS_*``), and the UTC
+  time of the first GPS fix (``time_utc_usec``) when logged, for the world field's date.
+- the simulator's ground truth (a SITL log; optional): ``vehicle_attitude_groundtruth.q`` (wxyz,
+  body FRD to NED) as ``truth_attitude``; ``vehicle_global_position_groundtruth`` (lat, lon,
+  horizontal) moved into the GPS origin's frame, ``vehicle_local_position_groundtruth``'s z
+  (relative as PX4's height above) and (vx, vy, vz) as ``truth_position`` (horizontal NaN
+  without a fix: no common frame then).
+- whether the file ends mid-message (``truncated``: cut short, e.g. an interrupted download;
+  pyulog reads it up to the cut and says nothing).
 
 The CSV format (``.csv``), for data from any source: one sample per row, ``#`` starts a
 comment line, an optional header row ``time,sensor,...``. Column 1 is the time in seconds
@@ -50,6 +64,7 @@ in the units and frames of :data:`CSV_SENSORS`::
     0.004,attitude,0.99999,0.00066,0.00438,-0.00045
     0.100,position,0.0,0.0,0.0,0.0,0.0,0.0
     0.000,declination,0.058
+    0.000,date,2024.21
 
 Any bad log raises :class:`FlightLogError`, one line naming the file, the topic or row and what
 is wrong: a file that cannot be read, no IMU, time that does not increase, a non-finite value.
@@ -57,7 +72,7 @@ is wrong: a file that cannot be read, no IMU, time that does not increase, a non
 
 import csv
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -87,10 +102,16 @@ class FlightLog:
     imu: f_B specific force (3, m/s^2) and w_NB_B (3, rad/s), FRD. gps: p_N (3, m, NED from the
     first fix) and v_N (3, m/s, NED), or None. mag_field: the body field (3, gauss, FRD), or None.
     baro: pressure altitude (1, m, up), or None. reference_attitude: PX4's q_NB (4, wxyz), or
-    None. reference_position: PX4's p_N (3, m) and v_N (3, m/s) in the GPS origin's frame, NaN
-    where invalid, or None (always None without GPS). origin: (latitude deg, longitude deg,
-    altitude m) of the first GPS fix, or None. mag_declination: rad, east of true north.
-    start_time: the first IMU sample's time in the log's own clock (s), t = 0 here.
+    None. reference_position: PX4's p_N (3, m) and v_N (3, m/s) in the replay's origin frame, NaN
+    where invalid (x, y always without GPS), or None. origin: (latitude deg, longitude deg,
+    altitude m) of the first GPS fix, or None. mag_declination: rad, east of true north, None
+    when the log does not say. start_time: the first IMU sample's time in the log's own clock
+    (s), t = 0 here. parameters: the flight controller's parameters by name ({} for a CSV).
+    fix_date: decimal year (UTC) of the first GPS fix, or None. truncated: the file ends
+    mid-message. truth_attitude: the simulator's q_NB (4, wxyz), truth_position: its p_N (3, m,
+    GPS origin's frame; NaN without GPS) and v_N (3, m/s), or None (a real flight). heading: a
+    yaw magnetometer's samples (1, rad) as an estimator received them (a CSV's ``heading`` rows,
+    e.g. a simulated run's), or None.
     """
 
     source: str
@@ -101,8 +122,14 @@ class FlightLog:
     reference_attitude: Samples | None = None
     reference_position: Samples | None = None
     origin: tuple | None = None
-    mag_declination: float = 0.0
+    mag_declination: float | None = None
     start_time: float = 0.0
+    parameters: dict = field(default_factory=dict)
+    fix_date: float | None = None
+    truncated: bool = False
+    truth_attitude: Samples | None = None
+    truth_position: Samples | None = None
+    heading: Samples | None = None
 
     @property
     def duration(self):
@@ -111,18 +138,33 @@ class FlightLog:
 
     def sensors(self):
         """Names of the sensors the log holds besides the IMU, e.g. ``["gps", "mag", "baro"]``."""
-        present = {"gps": self.gps, "mag": self.mag_field, "baro": self.baro}
+        present = {"gps": self.gps, "mag": self.mag_field, "heading": self.heading, "baro": self.baro}
         return [name for name, samples in present.items() if samples is not None]
 
 
 CSV_SENSORS = {
     "imu": ("f_x", "f_y", "f_z", "w_x", "w_y", "w_z"),  # m/s^2 specific force, rad/s; FRD
     "gps": ("latitude", "longitude", "altitude", "v_n", "v_e", "v_d"),  # deg, deg, m (up), m/s NED
+    "gps_ned": ("x", "y", "z", "v_n", "v_e", "v_d"),  # m NED about the log's origin, m/s NED (no geodetic)
     "mag": ("b_x", "b_y", "b_z"),  # gauss, FRD
+    "heading": ("yaw",),  # rad, a yaw magnetometer's sample as the estimator received it
     "baro": ("altitude",),  # m, pressure altitude, up
     "attitude": ("q_w", "q_x", "q_y", "q_z"),  # reference estimate: body FRD to NED
     "position": ("x", "y", "z", "v_x", "v_y", "v_z"),  # reference estimate: m, m/s, NED, GPS origin
     "declination": ("declination",),  # rad, east of true north (one row, time ignored)
+    "truth": (
+        "x",
+        "y",
+        "z",
+        "v_x",
+        "v_y",
+        "v_z",
+        "q_w",
+        "q_x",
+        "q_y",
+        "q_z",
+    ),  # the true state: m, m/s NED, q_NB
+    "date": ("year",),  # decimal year (UTC) of the first GPS fix, for the world field (one row, time ignored)
 }
 """Sample kinds of the CSV format and their values, in order (units and frames in comments)."""
 
@@ -138,6 +180,9 @@ ULOG_TOPICS = (
     "sensor_gps",
     "vehicle_attitude",
     "vehicle_local_position",
+    "vehicle_attitude_groundtruth",
+    "vehicle_local_position_groundtruth",
+    "vehicle_global_position_groundtruth",
 )
 US = 1e-6
 """s per microsecond (ULog timestamps)."""
@@ -231,8 +276,9 @@ def read_ulog(path):
     )
     start = float(imu.times[0])
     gps, origin = _ulog_gps(path, topics)
-    parameters = ulog.initial_parameters
-    declination = parameters.get("EKF2_MAG_DECL", parameters.get("ATT_MAG_DECL", 0.0))
+    parameters = dict(ulog.initial_parameters)
+    declination = parameters.get("EKF2_MAG_DECL", parameters.get("ATT_MAG_DECL"))
+    anchor = float(gps.times[0]) if gps is not None else start
     return FlightLog(
         source=str(path),
         imu=_after_start(imu, start, US),
@@ -240,11 +286,80 @@ def read_ulog(path):
         mag_field=_optional(_ulog_mag(path, topics), start, US),
         baro=_optional(_ulog_baro(path, topics), start, US),
         reference_attitude=_optional(_ulog_attitude(path, topics), start, US),
-        reference_position=_optional(_ulog_local_position(path, topics, origin), start, US),
+        reference_position=_optional(_ulog_local_position(path, topics, origin, anchor), start, US),
         origin=origin,
-        mag_declination=math.radians(float(declination)),
+        mag_declination=None if declination is None else math.radians(float(declination)),
         start_time=start * US,
+        parameters=parameters,
+        fix_date=_fix_date(topics),
+        truncated=ends_mid_message(path),
+        truth_attitude=_optional(_ulog_truth_attitude(path, topics), start, US),
+        truth_position=_optional(_ulog_truth_position(path, topics, origin, anchor), start, US),
     )
+
+
+def _ulog_truth_attitude(path, topics):
+    topic = "vehicle_attitude_groundtruth"
+    if topic not in topics:
+        return None
+    data = topics[topic]
+    return _ulog_samples(path, topic, data, _sample_times(data), [f"q[{i}]" for i in range(4)])
+
+
+def _ulog_truth_position(path, topics, origin, anchor):
+    """The simulator's p_N and v_N at the local ground truth's times, or None: horizontal from
+    the global ground truth in the GPS origin's frame (NaN without a fix); the height from the
+    local ground truth's z, less its value at `anchor` (µs: the first fix, else the first IMU
+    sample), as PX4's relative height (SITL logs its global ground-truth altitude as 0)."""
+    topic = "vehicle_local_position_groundtruth"
+    if topic not in topics:
+        return None
+    data = topics[topic]
+    times = np.asarray(_sample_times(data), dtype=float)
+    velocity = np.column_stack([_field(path, topic, data, n) for n in ("vx", "vy", "vz")])
+    position = np.full((len(times), 3), np.nan)
+    where = "vehicle_global_position_groundtruth"
+    if origin is not None and where in topics:
+        fix = topics[where]
+        fix_times = np.asarray(_sample_times(fix), dtype=float)
+        geodetic = [np.interp(times, fix_times, _field(path, where, fix, n)) for n in ("lat", "lon")]
+        position = _to_local(*geodetic, np.full(len(times), origin[2]), origin)
+    z = _field(path, topic, data, "z")
+    position[:, 2] = z - np.interp(anchor, times, z)
+    _checked(f"{path}: {topic}", times, velocity, "µs")
+    return Samples(times, np.column_stack([position, velocity]))
+
+
+ULOG_HEADER_SIZE = 16
+"""Bytes of a ULog file's header (magic, version, timestamp) before its first message."""
+
+
+def ends_mid_message(path):
+    """True when the ULog file at `path` ends inside a message (its last message cut short):
+    every ULog message starts with a 3-byte header (uint16 payload size, uint8 type), so walking
+    them from the file header on must land exactly on the file's end."""
+    data = Path(path).read_bytes()
+    position, size = ULOG_HEADER_SIZE, len(data)
+    while position + 3 <= size:
+        position += 3 + int.from_bytes(data[position : position + 2], "little")
+    return position != size
+
+
+def _fix_date(topics):
+    """Decimal year (UTC) of the first GPS sample with a 3D fix and a UTC time, or None."""
+    import datetime
+
+    topic = next((t for t in ("vehicle_gps_position", "sensor_gps") if t in topics), None)
+    if topic is None or "time_utc_usec" not in topics[topic]:
+        return None
+    data = topics[topic]
+    usable = np.flatnonzero((data["fix_type"] >= GPS_3D_FIX) & (data["time_utc_usec"] > 0))
+    if usable.size == 0:
+        return None
+    when = datetime.datetime.fromtimestamp(int(data["time_utc_usec"][usable[0]]) * US, datetime.UTC)
+    start = datetime.datetime(when.year, 1, 1, tzinfo=datetime.UTC)
+    days = (datetime.datetime(when.year + 1, 1, 1, tzinfo=datetime.UTC) - start).total_seconds()
+    return when.year + (when - start).total_seconds() / days
 
 
 def _integration_interval_us(path, combined):
@@ -354,30 +469,37 @@ def _ulog_attitude(path, topics):
     return _ulog_samples(path, "vehicle_attitude", data, _sample_times(data), fields)
 
 
-def _ulog_local_position(path, topics, origin):
-    """PX4's position and velocity in the GPS origin's NED frame (NaN where invalid), or None."""
-    if origin is None or "vehicle_local_position" not in topics:
-        return None
+def _ulog_local_position(path, topics, origin, anchor):
+    """PX4's position and velocity in the replay's origin frame, NaN where invalid (module
+    docstring), or None without ``vehicle_local_position``. anchor: µs, the replay's origin time
+    (the first fix, else the first IMU sample)."""
     topic = "vehicle_local_position"
+    if topic not in topics:
+        return None
     data = topics[topic]
     times = np.asarray(_sample_times(data), dtype=float)
+    _checked(f"{path}: {topic}", times, np.zeros((len(times), 1)), "µs")  # time only: NaN marks invalid
     values = np.column_stack([_field(path, topic, data, n) for n in ("x", "y", "z", "vx", "vy", "vz")])
     reference = np.column_stack([_field(path, topic, data, n) for n in ("ref_lat", "ref_lon", "ref_alt")])
     xy_global = _field(path, topic, data, "xy_global") > 0
     z_global = _field(path, topic, data, "z_global") > 0
-    known = np.isfinite(reference).all(axis=1)
+    known = np.isfinite(reference).all(axis=1) & (origin is not None)
     offsets = np.full((len(times), 3), np.nan)
     if known.any():
         offsets[known] = _to_local(reference[known, 0], reference[known, 1], reference[known, 2], origin)
+    z_valid = _field(path, topic, data, "z_valid") > 0
+    z = values[:, 2].copy()
     values[:, 0:3] += offsets
+    relative = z_valid & ~(z_global & known)  # a valid height without a global origin
+    if relative.any():
+        values[relative, 2] = z[relative] - np.interp(anchor, times[relative], z[relative])
     for columns, flag in (
-        ([0, 1], (_field(path, topic, data, "xy_valid") > 0) & xy_global),
-        ([2], (_field(path, topic, data, "z_valid") > 0) & z_global),
+        ([0, 1], (_field(path, topic, data, "xy_valid") > 0) & xy_global & known),
+        ([2], z_valid),
         ([3, 4], _field(path, topic, data, "v_xy_valid") > 0),
         ([5], _field(path, topic, data, "v_z_valid") > 0),
     ):
         values[np.ix_(~flag, columns)] = np.nan
-    _checked(f"{path}: {topic}", times, np.zeros((len(times), 1)), "µs")  # time only: NaN marks invalid
     return Samples(times, values)
 
 
@@ -401,9 +523,14 @@ def read_csv(path):
     parsed = {kind: _csv_samples(path, kind, found) for kind, found in rows.items() if found}
     start = float(parsed["imu"].times[0])
     gps, origin = (None, None)
+    if "gps" in parsed and "gps_ned" in parsed:
+        raise FlightLogError(f"{path}: both gps and gps_ned rows; give the GPS one way")
     if "gps" in parsed:
         gps, origin = _geodetic_gps(parsed["gps"].times, parsed["gps"].values)
-    declination = float(parsed["declination"].values[-1, 0]) if "declination" in parsed else 0.0
+    elif "gps_ned" in parsed:
+        gps = parsed["gps_ned"]
+    declination = float(parsed["declination"].values[-1, 0]) if "declination" in parsed else None
+    fix_date = float(parsed["date"].values[-1, 0]) if "date" in parsed else None
     return FlightLog(
         source=str(path),
         imu=_after_start(parsed["imu"], start),
@@ -411,11 +538,20 @@ def read_csv(path):
         mag_field=_optional(parsed.get("mag"), start),
         baro=_optional(parsed.get("baro"), start),
         reference_attitude=_optional(parsed.get("attitude"), start),
-        reference_position=_optional(parsed.get("position"), start) if gps is not None else None,
+        reference_position=_optional(parsed.get("position"), start),
         origin=origin,
         mag_declination=declination,
         start_time=start,
+        fix_date=fix_date,
+        heading=_optional(parsed.get("heading"), start),
+        truth_position=_optional(_part(parsed.get("truth"), slice(0, 6)), start),
+        truth_attitude=_optional(_part(parsed.get("truth"), slice(6, 10)), start),
     )
+
+
+def _part(samples, columns):
+    """Samples of some columns of `samples` (None for None)."""
+    return None if samples is None else Samples(samples.times, samples.values[:, columns])
 
 
 def _csv_kind(path, line_number, row):
@@ -445,6 +581,6 @@ def _csv_samples(path, kind, found):
             values.append([float(cell) for cell in cells])
         except ValueError as e:
             raise FlightLogError(f"{path}: line {line_number}: not a number ({e})") from None
-    if kind == "position":  # NaN marks an invalid reference entry, as in a ULog
+    if kind in ("position", "truth"):  # NaN marks an invalid entry (a position without a frame)
         return Samples(_checked(f"{path}: {kind} rows", times, np.zeros(len(times))).times, np.array(values))
     return _checked(f"{path}: {kind} rows", times, values)

@@ -1,19 +1,24 @@
 """Replay a recorded flight through an estimator sub-Diagram: wiring, run, results.
 
 The Diagram: a ``systems.playback.LogPlayback`` emits the log's samples on the onboard tick; its
-``imu``, ``gps`` and ``mag`` outputs feed the estimator of ``systems.estimators.build_estimator``
-(the same sub-Diagram a simulated vehicle flies on, unchanged); every estimator output and every
-playback output is logged by its own ``VectorLogSink`` every LOG_PERIOD. A log without GPS
-feeds the estimator PX4's fake position instead (``flightlogs.schedule.fake_position``), so the
-attitude part runs and the position part stays bounded; its position is not compared (there is
-no reference) and its GPS NIS is not judged.
+``imu``, ``gps``, ``mag`` (the raw 3-axis field where the estimator's kind fuses one, else the
+heading) and ``baro`` (where the kind fuses one) outputs feed the estimator of
+``systems.estimators.build_estimator`` (the same sub-Diagram a simulated vehicle flies on; the
+log's sensors become its vehicle's ``sensors``, ``settings.vehicle_for``); every estimator output
+and every playback output is logged by its own ``VectorLogSink`` every LOG_PERIOD. A log without
+GPS feeds the estimator PX4's fake position instead (``flightlogs.schedule.fake_position``), a
+log with a late first fix zero samples before it (:func:`aiding_gps`); the magnetometer's world
+field is ``earth_field.magnetometer_model``'s. ``checks.log_warnings`` refuses a log that cannot
+be replayed and says what weakens one that can.
 
 :func:`replay` is the library call behind ``quad-drake replay``; :func:`save_replay` writes the
 run folder (``logs.npz``, ``config.yaml``, ``summary.json`` of kind ``"replay"``; the report and
-plots: ``flightlogs.page``).
+plots: ``flightlogs.page``). :func:`replay_as_flown` replays a log through a VehicleConfig's
+estimator exactly as configured (a simulated run's CSV, ``flightlogs.recording``).
 """
 
 import dataclasses
+import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,17 +28,20 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput
 
-from quad_drake.conventions import LOG_PERIOD
+from quad_drake.conventions import LOG_PERIOD, ONBOARD_PERIOD
 from quad_drake.estimation.registry import vocabulary_for
 from quad_drake.estimation.vocabulary import health_counts, health_line
-from quad_drake.flightlogs import comparison
-from quad_drake.flightlogs.reader import read_flight_log
+from quad_drake.flightlogs import comparison, earth_field
+from quad_drake.flightlogs.checks import log_warnings
 from quad_drake.flightlogs.schedule import (
+    STAMPED,
+    STREAM_WIDTHS,
     fake_position,
     initial_attitude,
     playback_streams,
     superseded_samples,
 )
+from quad_drake.flightlogs.reader import Samples, read_flight_log
 from quad_drake.flightlogs.settings import ReplayConfig, dump_replay, resolve_log, vehicle_for
 from quad_drake.kernels import jit
 from quad_drake.models.fidelity import PHYSICAL
@@ -48,8 +56,24 @@ COMPARE_AFTER = 5.0
 """s from the log's start before anything is compared or judged: the estimators start from the
 first samples (the EKF7's complementary filter from level, at τ = 0.5 s; both filters' yaw and
 biases from their initial σ), and a comparison should see them running, not starting."""
+LATE_FIX = 1.0
+"""s: a first GPS fix later than this after the log's start is late: zero position and velocity
+samples stand in for it before (``aiding_gps``)."""
 RUNNER = "drake-replay"
 """What produced a replay: the Drake Diagram of this module."""
+
+
+@dataclass(frozen=True)
+class Aiding:
+    """How a replay aided its estimator: fake_position (a log without GPS, PX4's fake position
+    throughout), magnetometer (``earth_field.MagnetometerModel`` or None), late_fix (s, the first
+    fix before which zero samples stood in, or None), fused (the NIS names of the sensors the
+    estimator fuses: ``registry.nis_sensors``)."""
+
+    fake_position: bool = False
+    magnetometer: object = None
+    late_fix: float | None = None
+    baro_fused: bool = False
 
 
 @dataclass
@@ -68,6 +92,10 @@ class ReplayResult:
     innovations: dict = field(default_factory=dict)  # sensor -> comparison.innovations (stamps, values)
     superseded: dict = field(default_factory=dict)  # stream -> samples never emitted (> 500 Hz)
     compile_time: float = 0.0  # s, numba compiling kernels during this replay
+    aiding: Aiding = field(default_factory=Aiding)
+    warnings: list = field(default_factory=list)  # checks.log_warnings: what weakens this replay
+    truth: list = field(default_factory=list)  # [comparison.TruthError]; [] without a ground truth
+    truth_nees: list = field(default_factory=list)  # [comparison.NeesSummary] of ours against it
 
     @property
     def vocabulary(self):
@@ -81,13 +109,27 @@ class ReplayResult:
         ]
         if self.fake_position:
             lines.append(
-                "The log has no GPS: the attitude part is judged; the estimator was given PX4's fake "
-                f"position (0 m with σ = {self.config.fake_position_std:g} m every "
-                f"{self.config.fake_position_period:g} s), its position is not compared and its GPS "
-                "NIS not judged."
+                "The log has no GPS: the estimator was given PX4's fake position (0 m every "
+                f"{self.config.fake_position_period:g} s, for the built-in kinds with σ = "
+                f"{self.config.fake_position_std:g} m; a custom estimator fuses it with its own GPS "
+                "noise); its horizontal position is not compared and its GPS NIS not judged."
             )
-        if self.log.mag_field is None:
+        if self.aiding.late_fix is not None:
+            lines.append(
+                f"The first GPS fix came at {self.aiding.late_fix:.1f} s: before it the estimator was "
+                f"given zero position and velocity every {self.config.fake_position_period:g} s, fused "
+                "as its GPS samples (with the GPS noise it assumes), as PX4 holds a fake position "
+                "while not aided; the GPS from the fix on."
+            )
+        if self.log.heading is not None:
+            lines.append("The log's magnetometer is a yaw magnetometer (heading rows): fused as such.")
+        elif self.log.mag_field is None:
             lines.append("The log has no magnetometer: the yaw is the gyro's alone.")
+        else:
+            lines += list(self.aiding.magnetometer.notes)
+        if self.log.baro is not None and not self.aiding.baro_fused:
+            lines.append(f"The log's barometer is not fused: kind {self.config.estimator.kind} takes none.")
+        lines += self.warnings
         if self.log.reference_attitude is None:
             lines.append("The log has no vehicle_attitude: nothing to compare the attitude with.")
         for stream, count in self.superseded.items():
@@ -116,20 +158,33 @@ class ReplayResult:
             "compile_time_s": round(self.compile_time, 3),
             "differences": [_difference_dict(d) for d in self.attitude + self.position],
             "nis": [_nis_dict(s) for s in self.nis],
+            "truth": [_truth_dict(e) for e in self.truth],
+            "truth_nees": [dataclasses.asdict(s) | {"band": list(s.band)} for s in self.truth_nees],
             "notes": self.notes(),
         }
 
 
 def _difference_dict(d):
-    return {
-        "state": d.state,
-        "unit": d.unit,
-        "count": d.count,
-        "rms": d.rms,
-        "max_abs": d.max_abs,
-        "sigma_rms": d.sigma_rms,
-        "within_2sigma": d.within_2sigma,
-    }
+    """A StateDifference in summary.json: its figures (null where not a number) and, when nothing
+    was compared, the reason."""
+    entry = {"state": d.state, "unit": d.unit, "count": d.count}
+    for name in ("rms", "max_abs", "sigma_rms", "within_2sigma"):
+        value = getattr(d, name)
+        entry[name] = value if math.isfinite(value) else None
+    if d.reason:
+        entry["reason"] = d.reason
+    return entry
+
+
+def _truth_dict(e):
+    """A TruthError in summary.json (null where not a number; the reason when nothing was judged)."""
+    entry = {"state": e.state, "unit": e.unit, "count": e.count}
+    for name in ("ours_rms", "px4_rms"):
+        value = getattr(e, name)
+        entry[name] = value if math.isfinite(value) else None
+    if e.reason:
+        entry["reason"] = e.reason
+    return entry
 
 
 def _nis_dict(s):
@@ -144,27 +199,106 @@ def _nis_dict(s):
     }
 
 
+def baro_pairing_period(baro):
+    """s: the barometer period the estimators' bias filter pairs GPS heights with (a GPS sample
+    and the latest baro sample within half of it are taken as simultaneous): twice the log's
+    median baro interval, rounded up to the 2 ms tick, so on two clocks at two rates every GPS
+    height finds the baro sample before it (at most one interval older)."""
+    interval = float(np.median(np.diff(baro.times))) if len(baro) > 1 else ONBOARD_PERIOD
+    return ONBOARD_PERIOD * math.ceil(2.0 * interval / ONBOARD_PERIOD - 1e-9)
+
+
+def magnetometer_for(log, config):
+    """The ``earth_field.MagnetometerModel`` of the log's magnetometer (``--set mag_declination``
+    overriding its declination), or None without one."""
+    if log.mag_field is None:
+        return None
+    model = earth_field.magnetometer_model(log)
+    if config.mag_declination is not None:
+        note = (
+            f"magnetometer: declination {math.degrees(config.mag_declination):.2f}° (--set mag_declination)"
+        )
+        notes = tuple(n for n in model.notes if "declination" not in n.split(":", 1)[1][:13]) + (note,)
+        model = dataclasses.replace(model, declination=config.mag_declination, notes=notes)
+    return model
+
+
+def aiding_gps(log, config):
+    """(GPS Samples to emit, fake position used, first fix s or None): the log's GPS; without one
+    PX4's fake position (``fake_position``) over the whole log; with a late first fix (after
+    LATE_FIX s) zero position and velocity samples every fake_position_period s before it, as
+    PX4 holds a fake position and zero velocity while not aided, then the GPS from its first fix
+    on (its origin: the first fix is at p_N = 0, so the switch is continuous)."""
+    if log.gps is None:
+        fake = config.fake_position_std > 0
+        return (fake_position(log, config.fake_position_period) if fake else None), fake, None
+    first_fix = float(log.gps.times[0])
+    if first_fix <= LATE_FIX or config.fake_position_std <= 0:
+        return log.gps, False, None
+    before = fake_position(log, config.fake_position_period)
+    before = Samples(before.times[before.times < first_fix], before.values[before.times < first_fix])
+    times = np.concatenate([before.times, log.gps.times])
+    return Samples(times, np.vstack([before.values, log.gps.values])), False, first_fix
+
+
 def build_replay_diagram(log, config):
-    """(Diagram, {log name: VectorLogSink}, fake position used) replaying the FlightLog `log`
-    through the estimator of the ReplayConfig `config` (module docstring)."""
-    fake = log.gps is None and config.fake_position_std > 0
-    gps = fake_position(log, config.fake_position_period) if fake else None
-    streams = playback_streams(log, gps)
-    vehicle = vehicle_for(config, initial_attitude(log), fake)
+    """(Diagram, {log name: VectorLogSink}, fake position used, MagnetometerModel or None, first
+    fix s or None) replaying the FlightLog `log` through the estimator of the ReplayConfig
+    `config` (module docstring)."""
+    gps, fake, late_fix = aiding_gps(log, config)
+    magnetometer = magnetometer_for(log, config)
+    declination, hard_iron = (
+        (0.0, (0.0, 0.0, 0.0))
+        if magnetometer is None
+        else (
+            magnetometer.declination,
+            magnetometer.hard_iron,
+        )
+    )
+    streams = playback_streams(log, gps, declination, hard_iron)
+    baro_period = None if log.baro is None else baro_pairing_period(log.baro)
+    vehicle = vehicle_for(
+        config, initial_attitude(log, declination, hard_iron), fake, baro_period, magnetometer
+    )
+    diagram, sinks = _playback_diagram(streams, vehicle, config.name or "replay")
+    return diagram, sinks, Aiding(fake, magnetometer, late_fix, vehicle.sensors.baro is not None)
+
+
+def _playback_diagram(streams, vehicle, name):
+    """(Diagram, {log name: VectorLogSink}): a LogPlayback of `streams` feeding the estimator of
+    the VehicleConfig `vehicle` (``build_estimator``, one vehicle): ``imu``, ``gps``, ``mag`` (the
+    raw field for a 3-axis magnetometer, else the heading) and ``baro`` where it has that input;
+    every estimator and playback output logged every LOG_PERIOD."""
     builder = DiagramBuilder()
     playback = builder.AddNamedSystem("playback", LogPlayback(streams))
     estimator = builder.AddSystem(build_estimator(vehicle, PHYSICAL))
-    for name in ("imu", "gps", "mag"):
-        builder.Connect(playback.GetOutputPort(name), estimator.GetInputPort(name))
+    three_axis = vehicle.sensors.mag is not None and vehicle.sensors.mag.three_axis
+    wiring = {"imu": "imu", "gps": "gps", "mag": "mag_field" if three_axis else "mag", "baro": "baro"}
+    for port, stream in wiring.items():
+        if estimator.HasInputPort(port):
+            builder.Connect(playback.GetOutputPort(stream), estimator.GetInputPort(port))
     sinks = {}
-    outputs = [(name, estimator) for name in vocabulary_for(config.estimator).log_widths()]
-    outputs += [(name, playback) for name in streams]
-    for name, system in outputs:
-        sinks[name] = LogVectorOutput(system.GetOutputPort(name), builder, publish_period=LOG_PERIOD)
-        sinks[name].set_name(f"{name}_log")
+    outputs = [(log_name, estimator) for log_name in vocabulary_for(vehicle.estimator).log_widths()]
+    outputs += [(log_name, playback) for log_name in streams]
+    for log_name, system in outputs:
+        sinks[log_name] = LogVectorOutput(system.GetOutputPort(log_name), builder, publish_period=LOG_PERIOD)
+        sinks[log_name].set_name(f"{log_name}_log")
     diagram = builder.Build()
-    diagram.set_name(config.name or "replay")
-    return diagram, sinks, fake
+    diagram.set_name(name)
+    return diagram, sinks
+
+
+def replay_as_flown(log, vehicle):
+    """(times (n,) s, {log name: (n, width)}) of the FlightLog `log` replayed through the estimator
+    of the VehicleConfig `vehicle` exactly as configured (its own initial state and noise; no
+    replay defaults, no fake position): a simulated run's CSV (``flightlogs.recording``) replayed
+    through the run's own estimator reproduces the run's estimate."""
+    diagram, sinks = _playback_diagram(playback_streams(log), vehicle, "replay")
+    simulator = Simulator(diagram)
+    context = simulator.get_mutable_context()
+    simulator.Initialize()
+    simulator.AdvanceTo(log.duration)
+    return _read_sinks(sinks, context)
 
 
 def replay(config, log=None):
@@ -174,17 +308,17 @@ def replay(config, log=None):
     Raises reader.FlightLogError (a ConfigError, one line) for a log that cannot be replayed.
     """
     log = read_flight_log(resolve_log(config.log)) if log is None else log
-    if config.mag_declination is not None:
-        log = dataclasses.replace(log, mag_declination=config.mag_declination)
+    warnings = log_warnings(log, COMPARE_AFTER)
     if not config.name:
         config = dataclasses.replace(config, name=Path(log.source).stem)
-    diagram, sinks, fake = build_replay_diagram(log, config)
-    width = sum(sink.get_input_port().size() for sink in sinks.values())
+    width = sum(vocabulary_for(config.estimator).log_widths().values())  # before anything is built
+    width += sum(w + STAMPED[name] for name, w in STREAM_WIDTHS.items())
     check_memory(
         log.duration / LOG_PERIOD * width * 8.0 * LOG_COPIES,
         f"{log.source}: a replay of {log.duration:g} s",
         "replay a shorter stretch of the flight (e.g. cut into a CSV log)",
     )
+    diagram, sinks, aiding = build_replay_diagram(log, config)
     simulator = Simulator(diagram)
     context = simulator.get_mutable_context()
     compiled = jit.compile_seconds()
@@ -194,7 +328,17 @@ def replay(config, log=None):
     compile_time = jit.compile_seconds() - compiled
     wall_time = time.perf_counter() - start - compile_time
     times, logs = _read_sinks(sinks, context)
-    result = ReplayResult(config, log, times, logs, wall_time, fake, compile_time=compile_time)
+    result = ReplayResult(
+        config,
+        log,
+        times,
+        logs,
+        wall_time,
+        aiding.fake_position,
+        compile_time=compile_time,
+        aiding=aiding,
+        warnings=warnings,
+    )
     _judge(result)
     return result
 
@@ -216,16 +360,27 @@ def _judge(result):
         result.attitude = comparison.compare_attitude(
             vocabulary, result.times, result.logs, log.reference_attitude, COMPARE_AFTER
         )
-    if log.reference_position is not None and not result.fake_position:
+    if log.reference_position is not None:
+        horizontal = "" if log.gps is not None else "n/a: no GPS, so no common horizontal frame"
         result.position = comparison.compare_position(
-            vocabulary, result.times, result.logs, log.reference_position, COMPARE_AFTER
+            vocabulary, result.times, result.logs, log.reference_position, COMPARE_AFTER, horizontal
         )
-    judged = ["mag"] + ([] if result.fake_position else ["gps"])
+    else:
+        reason = "n/a: the log has no vehicle_local_position"
+        result.position = [comparison.unavailable(s, reason) for s in comparison.POSITION_STATES]
+    if log.reference_attitude is None:
+        reason = "n/a: the log has no vehicle_attitude"
+        result.attitude = [comparison.unavailable(s, reason) for s in comparison.ATTITUDE_STATES]
+    judged = ["mag", "field", "baro"] + ([] if result.fake_position else ["gps"])
     summaries = [comparison.nis_summary(result.logs["diagnostics"], s, COMPARE_AFTER) for s in judged]
     result.nis = [s for s in summaries if s is not None]
     result.innovations = {
-        s.sensor: comparison.innovations(result.logs, s.sensor, COMPARE_AFTER) for s in result.nis
+        s.sensor: comparison.innovations(result.logs, s.sensor, COMPARE_AFTER)
+        for s in result.nis
+        if s.sensor in comparison.INNOVATION_NAMES
     }
+    result.truth = comparison.truth_errors(result.times, result.logs, log, COMPARE_AFTER)
+    result.truth_nees = comparison.truth_nees(vocabulary, result.times, result.logs, log, COMPARE_AFTER)
     sources = {"imu": log.imu, "gps": log.gps, "mag": log.mag_field, "baro": log.baro}
     result.superseded = {name: superseded_samples(s.times) for name, s in sources.items() if s is not None}
 

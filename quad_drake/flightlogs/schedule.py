@@ -108,23 +108,27 @@ def tilt_compensated_heading(field_B, f_B, declination=0.0):
     return wrap_angles(declination - np.arctan2(level_y, level_x))
 
 
-def initial_attitude(log):
+def initial_attitude(log, declination=0.0, hard_iron=(0.0, 0.0, 0.0)):
     """(roll, pitch, yaw) rad of the first samples, as a flight controller aligns at start: tilt
     from the accelerometer (over HEADING_GRAVITY_WINDOW), yaw from the first heading (0 without a
-    magnetometer)."""
+    magnetometer; declination rad, hard_iron gauss FRD as :func:`heading_samples`)."""
     f_B = gravity_directions(log.imu, [HEADING_GRAVITY_WINDOW])[0]
     roll = math.atan2(-f_B[1], -f_B[2])
     pitch = math.atan2(f_B[0], math.hypot(f_B[1], f_B[2]))
     yaw = 0.0
-    if log.mag_field is not None:
-        yaw = float(heading_samples(log)[0])
+    if log.heading is not None:
+        yaw = float(log.heading.values[0, 0])
+    elif log.mag_field is not None:
+        yaw = float(heading_samples(log, declination, hard_iron)[0])
     return roll, pitch, yaw
 
 
-def heading_samples(log):
-    """(m,) the yaw-only magnetometer samples (rad) at the log's field samples."""
+def heading_samples(log, declination=0.0, hard_iron=(0.0, 0.0, 0.0)):
+    """(m,) the yaw-only magnetometer samples (rad) at the log's field samples, the field less
+    hard_iron (3, gauss, FRD), east of true north by declination (rad)."""
     gravity = gravity_directions(log.imu, log.mag_field.times)
-    return tilt_compensated_heading(log.mag_field.values, gravity, log.mag_declination)
+    field = log.mag_field.values - np.asarray(hard_iron, dtype=float)
+    return tilt_compensated_heading(field, gravity, declination)
 
 
 def fake_position(log, period):
@@ -136,11 +140,12 @@ def fake_position(log, period):
     return Samples(times, np.zeros((len(times), 6)))
 
 
-def playback_streams(log, gps=None):
+def playback_streams(log, gps=None, declination=0.0, hard_iron=(0.0, 0.0, 0.0)):
     """{stream name: Stream} of a FlightLog for ``systems.playback.LogPlayback`` (module docstring).
 
     gps: the GPS Samples to emit (default: the log's own); a sensor the log lacks has a stream
-    with no samples (its output never carries one).
+    with no samples (its output never carries one). declination (rad) and hard_iron (gauss, FRD):
+    the yaw-only heading's (:func:`heading_samples`).
     """
     sources = {
         "imu": log.imu,
@@ -154,8 +159,11 @@ def playback_streams(log, gps=None):
             streams[name] = _stream(name, np.zeros(0), np.zeros((0, STREAM_WIDTHS[name])))
         else:
             streams[name] = _stream(name, samples.times, samples.values)
-    if log.mag_field is not None:
-        streams["mag"] = _stream("mag", log.mag_field.times, heading_samples(log)[:, None])
+    if log.heading is not None:  # a yaw magnetometer's samples as received
+        streams["mag"] = _stream("mag", log.heading.times, log.heading.values)
+    elif log.mag_field is not None:
+        headings = heading_samples(log, declination, hard_iron)
+        streams["mag"] = _stream("mag", log.mag_field.times, headings[:, None])
     else:
         streams["mag"] = _stream("mag", np.zeros(0), np.zeros((0, 1)))
     return streams

@@ -7,7 +7,8 @@ the results as ``config.yaml``.
 
 The defaults are PX4 EKF2's own (``EKF2_GYR_NOISE`` 0.015 rad/s, ``EKF2_ACC_NOISE`` 0.35 m/s^2 at
 its 10 ms prediction step, ``EKF2_GPS_P_NOISE`` 0.5 m, ``EKF2_GPS_V_NOISE`` 0.3 m/s,
-``EKF2_HEAD_NOISE`` 0.3 rad, ``EKF2_ACC_B_NOISE`` 0.003 m/s^3, ``EKF2_GYR_B_NOISE`` 0.001 rad/s^2),
+``EKF2_HEAD_NOISE`` 0.3 rad, ``EKF2_ACC_B_NOISE`` 0.003 m/s^3, ``EKF2_GYR_B_NOISE`` 0.001 rad/s^2,
+``EKF2_BARO_NOISE`` 3.5 m, ``EKF2_MAG_NOISE`` 0.05 gauss for the 3-axis field),
 not tuned on these logs: the IMU noise is re-expressed per 2 ms sample with the same density
 (x sqrt(10 ms / 2 ms)), and the complementary filter's time constant is 0.5 s (the simulated
 scenarios' 100 s trusts the gyro of a simulated IMU without bias; a real gyro's bias needs the
@@ -23,12 +24,35 @@ from typing import Optional
 import yaml
 from pydrake.common.yaml import yaml_dump, yaml_dump_typed, yaml_load_typed
 
-from quad_drake.config.errors import ConfigError, did_you_mean, first_line
+from quad_drake.config import (
+    PACKAGE_DIR,
+    AttitudeFilterParams,
+    BaroParams,
+    ConfigError,
+    EkfParams,
+    MagParams,
+    SensorsConfig,
+    VehicleConfig,
+    apply_override,
+    check_node,
+    did_you_mean,
+    first_line,
+    load_yaml,
+    override_hint,
+    parse_override,
+    validate,
+)
 from quad_drake.config.fields import number
-from quad_drake.config.loader import apply_override, load_yaml, override_hint, parse_override
-from quad_drake.config.schema import PACKAGE_DIR, AttitudeFilterParams, EkfParams, VehicleConfig
-from quad_drake.config.validation import check_node, validate
-from quad_drake.estimation.registry import KINDS, Ekf7EstimatorConfig, EskfEstimatorConfig, EstimatorConfig
+from quad_drake.estimation.baro import BaroFusionParams
+from quad_drake.estimation.mag3 import MagFieldFusionParams
+from quad_drake.estimation.registry import (
+    KINDS,
+    AidingParams,
+    Ekf7EstimatorConfig,
+    EskfEstimatorConfig,
+    EstimatorConfig,
+    kind_of,
+)
 
 PER_SAMPLE = math.sqrt(0.010 / 0.002)
 """PX4 EKF2's IMU noise is per 10 ms prediction step; ours is per 2 ms sample of equal density."""
@@ -37,6 +61,8 @@ ACCEL_STD = 0.35 * PER_SAMPLE  # m/s^2 per 2 ms sample
 GPS_POS_STD = 0.5  # m
 GPS_VEL_STD = 0.3  # m/s
 HEADING_STD = 0.3  # rad
+BARO_STD = 3.5  # m, EKF2_BARO_NOISE
+MAG_FIELD_STD = 0.05  # gauss, EKF2_MAG_NOISE
 LOG_DIR = PACKAGE_DIR / "data" / "flight_logs"
 """The bundled flight logs (package data): pyulog's test logs, BSD-3-Clause (README there)."""
 FAKE_VELOCITY_STD = 1e3
@@ -76,8 +102,17 @@ def default_estimator(kind):
             gps_pos_std=[GPS_POS_STD] * 3,
             gps_vel_std=[GPS_VEL_STD] * 3,
             mag_yaw_std=HEADING_STD,
+            **aiding_defaults(),
         )
     return Ekf7EstimatorConfig()
+
+
+def aiding_defaults():
+    """The AidingParams fields of the replay's defaults: PX4's barometer and field noise."""
+    return {
+        "baro": BaroFusionParams(height_std=BARO_STD),
+        "mag_field": MagFieldFusionParams(field_std=[MAG_FIELD_STD] * 3),
+    }
 
 
 def default_replay(kind="ekf7"):
@@ -92,6 +127,7 @@ def default_replay(kind="ekf7"):
         gps_vel_xy_std=GPS_VEL_STD,
         gps_vel_z_std=GPS_VEL_STD,
         mag_yaw_std=HEADING_STD,
+        **aiding_defaults(),
     )
     return ReplayConfig(
         estimator=default_estimator(kind),
@@ -211,10 +247,17 @@ def check_replay(config):
     return config
 
 
-def vehicle_for(config, initial_attitude, fake_position):
+def vehicle_for(config, initial_attitude, fake_position, baro_period=None, magnetometer=None):
     """The VehicleConfig whose estimator blocks ``systems.estimators.build_estimator`` reads:
     `config`'s, started at `initial_attitude` (roll, pitch, yaw rad) at rest at the origin, and
-    with `fake_position` (a log without GPS) assuming the fake position's noise for its GPS input."""
+    with `fake_position` (a log without GPS) assuming the fake position's noise for its GPS input.
+
+    The log's aiding sensors, where the estimator's kind fuses them (``EstimatorKind.fuses_baro``,
+    ``three_axis_nis``): baro_period (s, the barometer's sample period as the bias filter pairs
+    it with GPS heights; None: no barometer) and magnetometer (``earth_field.MagnetometerModel``:
+    the 3-axis field with its world field and learned bias; None: no magnetometer) become the
+    vehicle's ``sensors.baro`` and 3-axis ``sensors.mag``, and the model's figures its
+    ``mag_field`` (of every AidingParams block: the EKF7's ``ekf``, an AidingParams estimator's)."""
     roll, pitch, yaw = initial_attitude
     ekf = dataclasses.replace(config.ekf, init_state=[0.0] * 6 + [yaw])
     estimator = config.estimator
@@ -231,7 +274,30 @@ def vehicle_for(config, initial_attitude, fake_position):
         )
         if estimator.kind == "eskf":
             estimator = dataclasses.replace(estimator, gps_pos_std=fake, gps_vel_std=still)
-    return VehicleConfig(attitude_filter=config.attitude_filter, ekf=ekf, estimator=estimator)
+    kind = kind_of(estimator)
+    sensors = SensorsConfig()
+    if baro_period is not None and kind.fuses_baro:
+        sensors.baro = BaroParams(period=baro_period)
+    if magnetometer is not None and kind.three_axis_nis is not None:
+        sensors.mag = MagParams(three_axis=True)
+        ekf = _with_field(ekf, magnetometer)
+        if isinstance(estimator, AidingParams):
+            estimator = _with_field(estimator, magnetometer)
+    return VehicleConfig(
+        attitude_filter=config.attitude_filter, ekf=ekf, estimator=estimator, sensors=sensors
+    )
+
+
+def _with_field(params, magnetometer):
+    """AidingParams `params` with its mag_field's world field and hard iron the MagnetometerModel's."""
+    field_params = dataclasses.replace(
+        params.mag_field,
+        field_strength=magnetometer.field_strength,
+        declination=magnetometer.declination,
+        inclination=magnetometer.inclination,
+        hard_iron=list(magnetometer.hard_iron),
+    )
+    return dataclasses.replace(params, mag_field=field_params)
 
 
 def dump_replay(config):

@@ -68,3 +68,24 @@ def test_a_250_hz_imu_is_held_for_two_ticks(dut):
     for tick in range(12):
         t = tick * ONBOARD_PERIOD + 1e-7
         assert _output_at(dut, t, "imu")[3] == pytest.approx(0.004 * (tick // 2))
+
+
+def test_n_flights_play_as_n_single_playbacks():
+    first = playback_streams(_log())
+    later = _log()
+    shifted = FlightLog(  # the same flight's samples 3 ms later: another schedule
+        source="shifted",
+        imu=Samples(later.imu.times + 0.003, later.imu.values * 2.0),
+        gps=Samples(later.gps.times + 0.003, later.gps.values + 1.0),
+        mag_field=later.mag_field,
+    )
+    second = playback_streams(shifted)
+    both = LogPlayback([first, second])
+    singles = [LogPlayback(first), LogPlayback(second)]
+    for t in (0.0, 0.004, 0.012, 0.05, 0.09):
+        for name in ("imu", "gps", "mag", "mag_field", "baro"):
+            joined = _output_at(both, t, name)
+            parts = np.concatenate([_output_at(single, t, name) for single in singles])
+            np.testing.assert_array_equal(joined, parts)
+    with pytest.raises(ValueError, match="same streams"):
+        LogPlayback([first, {"imu": first["imu"]}])

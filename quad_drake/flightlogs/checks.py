@@ -1,0 +1,65 @@
+"""Pure: whether a FlightLog can be replayed, and what weakens its replay.
+
+:func:`log_warnings` raises FlightLogError (one line, exit 2) where a replay cannot mean anything
+and returns one line per weakness where it still can:
+
+- an IMU slower than MIN_IMU_RATE: the estimators integrate each sample over the time to the next
+  one, and at that rate a multirotor's attitude changes between samples by more than any figure
+  the replay reports (a 9 Hz ``sensor_combined`` is a logger's subsample, not the IMU): exit 2;
+- an IMU slower than PX4_IMU_RATE (EKF2's own prediction rate) or with gaps longer than IMU_GAP:
+  a warning with the rate or the gaps;
+- a file that ends mid-message (``FlightLog.truncated``): a warning with how much was replayed;
+- a log that leaves less than SHORT_COMPARISON s to compare: a warning.
+"""
+
+import numpy as np
+
+from quad_drake.flightlogs.reader import FlightLogError
+
+MIN_IMU_RATE = 50.0
+"""Hz: below it a replay cannot follow a multirotor's attitude (exit 2)."""
+PX4_IMU_RATE = 100.0
+"""Hz: PX4 EKF2's prediction rate; an IMU below it is replayed with a warning."""
+SHORT_COMPARISON = 10.0
+"""s: a comparison over less than this is too short to judge an estimator by (a warning)."""
+IMU_GAP = 0.1
+"""s: an interval between IMU samples longer than this is a gap (a dropout in the log)."""
+
+
+def imu_rate(log):
+    """Hz: the log's median IMU rate (the inverse of the median interval)."""
+    intervals = np.diff(log.imu.times)
+    return 1.0 / float(np.median(intervals)) if len(intervals) else 0.0
+
+
+def log_warnings(log, compare_after=0.0):
+    """[one-line warning] of a FlightLog that can be replayed; FlightLogError if it cannot.
+    compare_after: s from the start before the replay compares anything (a log that leaves less
+    than SHORT_COMPARISON s after it is said to be short)."""
+    rate = imu_rate(log)
+    if rate < MIN_IMU_RATE:
+        raise FlightLogError(
+            f"{log.source}: the IMU is logged at {rate:.3g} Hz, below the {MIN_IMU_RATE:g} Hz a replay "
+            "needs (a logger's subsample of sensor_combined?); cannot replay"
+        )
+    warnings = []
+    if rate < PX4_IMU_RATE:
+        warnings.append(
+            f"The IMU is logged at {rate:.0f} Hz, below PX4 EKF2's {PX4_IMU_RATE:g} Hz: each sample "
+            "is held over its whole interval."
+        )
+    gaps = np.diff(log.imu.times)
+    gaps = gaps[gaps > IMU_GAP]
+    if gaps.size:
+        warnings.append(
+            f"The IMU has {gaps.size} gaps longer than {IMU_GAP:g} s (longest {gaps.max():.2f} s): "
+            "the estimators hold the last sample over them."
+        )
+    if log.duration - compare_after < SHORT_COMPARISON:
+        warnings.append(
+            f"The IMU covers {log.duration:.1f} s: {max(log.duration - compare_after, 0.0):.1f} s are "
+            f"compared (from {compare_after:g} s on); too short a stretch to judge an estimator by."
+        )
+    if log.truncated:
+        warnings.append(f"The file ends mid-message (cut short): replayed its first {log.duration:.1f} s.")
+    return warnings

@@ -1,0 +1,151 @@
+"""Pure: the magnetometer a replay fuses, as the flight controller calibrated it, and the world
+field it is fused against.
+
+The logged field (``vehicle_magnetometer`` or ``sensor_combined``'s) is already corrected by
+PX4's calibration (``CAL_MAG*`` offsets and scales); what PX4 subtracts on top is the bias its
+EKF2 learned and stored as parameters (``EKF2_MAGBIAS_X/Y/Z``, gauss, body FRD), so that is the
+hard iron the replay subtracts (:func:`learned_bias`). The world field m_N (strength,
+declination, inclination) comes from, in order:
+
+- the declination: as PX4 chose it: with a fix and ``EKF2_DECL_TYPE`` bit 0 set (its default,
+  7; PX4 then looks the declination up at the fix and only saves it to ``EKF2_MAG_DECL`` at
+  disarm), the World Magnetic Model at the first fix; else the log's own (PX4's parameter
+  ``EKF2_MAG_DECL`` / ``ATT_MAG_DECL``, a CSV's ``declination`` row); else the model at the
+  first fix; else 0;
+- the strength and inclination: the log's own field, as PX4 EKF2 initialises its earth-field
+  states from the measured field at alignment: the median strength over the log, and the median
+  inclination against the accelerometer's gravity (mean over HEADING_GRAVITY_WINDOW before each
+  field sample) over the first ALIGNMENT_TIME s, sin I = m . (-f / |f|) / |m|. The World
+  Magnetic Model's figures at the fix are printed beside them: a simulator's field need not be
+  the Earth's (on the bundled SITL log fixing the model's inclination instead tilts the ESKF's
+  pitch 5.2 mrad RMS from PX4's, against 1.8 with the log's own).
+
+The World Magnetic Model is ``pygeomag``'s (the NOAA/BGS model of the fix's year: WMM2010 ...
+WMM2025), at the first fix and its UTC date.
+
+:func:`magnetometer_model` returns them with one line per choice (printed as the replay's notes).
+"""
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from quad_drake.flightlogs.schedule import gravity_directions
+
+WMM_MODELS = {
+    2010: "wmm/WMM_2010.COF",
+    2015: "wmm/WMM_2015v2.COF",
+    2020: "wmm/WMM_2020.COF",
+    2025: "wmm/WMM_2025.COF",
+}
+"""pygeomag's World Magnetic Model coefficient files by first valid year (each valid 5 years)."""
+NANOTESLA_PER_GAUSS = 1e5
+EARTH_FIELD_STRENGTH = (0.22, 0.67)
+"""gauss: the weakest and strongest field at the Earth's surface (the WMM's range)."""
+INCLINATION_MISMATCH = math.radians(10.0)
+"""rad: a log's field inclination farther than this from the model's at the fix is flagged (the
+model is good to well under 1°; a mounted magnetometer near motors and wires is often 5° off)."""
+ALIGNMENT_TIME = 1.0
+"""s from the first field sample over which the field's inclination is measured (before take-off)."""
+
+
+@dataclass(frozen=True)
+class MagnetometerModel:
+    """What a replay assumes of the log's magnetometer: world field strength (gauss), declination
+    (rad, east of true north), inclination (rad, below horizontal), the hard iron subtracted
+    (3, gauss, body FRD), and notes (one line per choice, where each figure came from)."""
+
+    field_strength: float
+    declination: float
+    inclination: float
+    hard_iron: tuple
+    notes: tuple
+
+
+def world_field(latitude, longitude, altitude, year):
+    """(declination rad, inclination rad, strength gauss) of the World Magnetic Model at a point
+    (deg, deg, m above the ellipsoid) and decimal year, with the model of that year (the nearest
+    one outside 2010-2030)."""
+    from pygeomag import GeoMag
+
+    base = max([first for first in WMM_MODELS if first <= year], default=min(WMM_MODELS))
+    model = GeoMag(coefficients_file=WMM_MODELS[base])
+    result = model.calculate(
+        glat=float(latitude),
+        glon=float(longitude),
+        alt=float(altitude) / 1000.0,
+        time=float(year),
+        allow_date_outside_lifespan=True,
+    )
+    return math.radians(result.d), math.radians(result.i), result.f / NANOTESLA_PER_GAUSS
+
+
+def learned_bias(parameters):
+    """(3-tuple gauss, FRD) PX4 EKF2's learned magnetometer bias ``EKF2_MAGBIAS_X/Y/Z``; zeros
+    when the log does not hold them."""
+    return tuple(float(parameters.get(f"EKF2_MAGBIAS_{axis}", 0.0)) for axis in "XYZ")
+
+
+def measured_field(log, hard_iron):
+    """(strength gauss, inclination rad) of the log's own field: the median |m_B - hard_iron| and
+    the median inclination against the accelerometer's gravity over the first ALIGNMENT_TIME s."""
+    field = log.mag_field.values - np.asarray(hard_iron)
+    strength = float(np.median(np.linalg.norm(field, axis=1)))
+    early = log.mag_field.times <= log.mag_field.times[0] + ALIGNMENT_TIME
+    down = -gravity_directions(log.imu, log.mag_field.times[early])
+    down /= np.linalg.norm(down, axis=1, keepdims=True)
+    sines = np.sum(field[early] * down, axis=1) / np.linalg.norm(field[early], axis=1)
+    return strength, float(np.arcsin(np.clip(np.median(sines), -1.0, 1.0)))
+
+
+def magnetometer_model(log, current_year=None):
+    """MagnetometerModel of a FlightLog with a magnetometer (module docstring). current_year:
+    decimal year used when the log has a fix but no UTC time (default: the newest model's epoch)."""
+    hard_iron = learned_bias(log.parameters)
+    notes = []
+    if any(hard_iron):
+        notes.append(
+            "magnetometer: PX4's learned bias EKF2_MAGBIAS_X/Y/Z = "
+            f"({hard_iron[0]:.4f}, {hard_iron[1]:.4f}, {hard_iron[2]:.4f}) G subtracted"
+        )
+    strength, inclination = measured_field(log, hard_iron)
+    notes.append(
+        f"magnetometer: world field {strength:.3f} G, inclination {math.degrees(inclination):.1f}° "
+        "(the log's own: median strength; against gravity over its first second)"
+    )
+    if not EARTH_FIELD_STRENGTH[0] <= strength <= EARTH_FIELD_STRENGTH[1]:
+        notes.append(
+            f"warning: the log's field strength ({strength:.2f} G) is outside the Earth's "
+            f"({EARTH_FIELD_STRENGTH[0]:g}-{EARTH_FIELD_STRENGTH[1]:g} G): the magnetometer is "
+            "uncalibrated or disturbed; its yaw and the tilt it constrains cannot be trusted"
+        )
+    wmm = None
+    if log.origin is not None:
+        year = log.fix_date
+        if year is None:
+            year = float(max(WMM_MODELS)) if current_year is None else current_year
+            notes.append(f"magnetometer: the log has no UTC time; the WMM is taken at {year:g}")
+        wmm = world_field(*log.origin, year)
+        where = f"{log.origin[0]:.4f}°, {log.origin[1]:.4f}°"
+        notes.append(
+            f"magnetometer: the WMM at the first fix ({where}, {year:.1f}): {wmm[2]:.3f} G, "
+            f"inclination {math.degrees(wmm[1]):.1f}°, declination {math.degrees(wmm[0]):.2f}°"
+        )
+        if abs(inclination - wmm[1]) > INCLINATION_MISMATCH:
+            notes.append(
+                f"warning: the log's field inclination ({math.degrees(inclination):.1f}°) is "
+                f"{math.degrees(abs(inclination - wmm[1])):.0f}° from the Earth's there: the "
+                "magnetometer is disturbed or its rotation wrong; its yaw cannot be trusted"
+            )
+    looks_up = int(log.parameters.get("EKF2_DECL_TYPE", 0)) & 1 or log.mag_declination is None
+    if wmm is not None and looks_up:
+        declination = wmm[0]
+        notes.append(f"magnetometer: declination {math.degrees(declination):.2f}° (WMM at the first fix)")
+    elif log.mag_declination is not None:
+        declination = log.mag_declination
+        notes.append(f"magnetometer: declination {math.degrees(declination):.2f}° (the log's parameter)")
+    else:
+        declination = 0.0
+        notes.append("magnetometer: declination 0 (no parameter, no fix): yaw is magnetic, as PX4's then")
+    return MagnetometerModel(strength, declination, inclination, hard_iron, tuple(notes))

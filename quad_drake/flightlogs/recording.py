@@ -1,0 +1,112 @@
+"""A simulated run as a flight log: the samples its estimator received, written as a replay CSV.
+
+:func:`record_run` flies one vehicle of a scenario (``simulation.build_vehicle``, seeded as
+``simulation.run`` seeds it) with a ZeroOrderHold on each sensor output the estimator reads,
+sampling every ONBOARD_PERIOD at EKF_OFFSET: simultaneous with the estimator's own update, so it
+holds exactly what the estimator read at that tick (the IMU sample of the tick, the latest GPS,
+magnetometer and barometer samples, faults applied). Each hold is logged every ONBOARD_PERIOD;
+the log sample at t_(k+1) holds tick k's input (a log publishes before the updates of its time).
+
+:func:`run_csv_rows` writes them in the CSV format of ``flightlogs.reader``: ``imu`` every tick
+at its tick time; each stamped sample once, at its stamp (the time it was measured), as
+``gps_ned`` (the run's NED metres: no geodetic round trip), ``heading`` (a yaw magnetometer) or
+``mag`` (a 3-axis one) and ``baro``; the true state every tick as ``truth`` rows. The playback
+emits a sample at the first tick at or after its time with its time as its stamp, so a replay of
+the CSV feeds the estimator what it read in the run, tick for tick (a delayed sample, written
+later at its measurement time, is the format's open end for issue 39).
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+from pydrake.common import RandomGenerator
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import LogVectorOutput, ZeroOrderHold
+
+from quad_drake.conventions import EKF_OFFSET, LOG_PERIOD, NO_SAMPLE_STAMP, ONBOARD_PERIOD
+from quad_drake.estimation.registry import vocabulary_for
+from quad_drake.models.fidelity import fidelity_from_mode
+from quad_drake.running.simulation import build_vehicle
+
+SENSOR_ROWS = {"gps": "gps_ned", "baro": "baro"}
+"""CSV kind of each stamped sensor's samples (the magnetometer's depends on its width)."""
+
+
+@dataclass
+class RecordedRun:
+    """One vehicle's simulated run: its estimator's logs every LOG_PERIOD (times (n,) s, k >= 1)
+    and, per tick k (tick_times (m,) s), the samples the estimator read (inputs: sensor -> (m,
+    width)) and the true state (truth (m, 13): p, q_NB, v, w)."""
+
+    vehicle: object  # the VehicleConfig flown
+    times: np.ndarray
+    logs: dict
+    tick_times: np.ndarray
+    inputs: dict
+    truth: np.ndarray
+
+
+def record_run(scenario, vehicle_index=0):
+    """RecordedRun of vehicle `vehicle_index` of a ScenarioConfig flown for its end_time with its
+    seed (module docstring)."""
+    vehicle = scenario.vehicles[vehicle_index]
+    fidelity = fidelity_from_mode(scenario.fidelity)
+    builder = DiagramBuilder()
+    sub = builder.AddSystem(build_vehicle(vehicle, fidelity))
+    sensors = [s for s in ("imu", "gps", "mag", "baro") if sub.HasOutputPort(s)]
+    tick_sinks = {}
+    for name in [*sensors, "state"]:
+        port = sub.GetOutputPort(name)
+        hold = builder.AddSystem(ZeroOrderHold(ONBOARD_PERIOD, port.size(), EKF_OFFSET))
+        builder.Connect(port, hold.get_input_port())
+        tick_sinks[name] = LogVectorOutput(hold.get_output_port(), builder, publish_period=ONBOARD_PERIOD)
+    names = vocabulary_for(vehicle.estimator).log_widths()
+    sinks = {
+        name: LogVectorOutput(sub.GetOutputPort(name), builder, publish_period=LOG_PERIOD) for name in names
+    }
+    diagram = builder.Build()
+    simulator = Simulator(diagram)
+    context = simulator.get_mutable_context()
+    diagram.SetRandomContext(context, RandomGenerator(scenario.seed))
+    simulator.Initialize()
+    simulator.AdvanceTo(scenario.end_time)
+    logs = {name: sink.FindLog(context).data()[:, 1:].T.copy() for name, sink in sinks.items()}
+    times = sinks[next(iter(sinks))].FindLog(context).sample_times()[1:].copy()
+    ticks = {name: sink.FindLog(context).data()[:, 1:].T.copy() for name, sink in tick_sinks.items()}
+    tick_times = tick_sinks["state"].FindLog(context).sample_times()[:-1].copy()  # t_k of sample k+1
+    truth = ticks.pop("state")
+    return RecordedRun(vehicle, times, logs, tick_times, ticks, truth)
+
+
+def run_csv_rows(recorded):
+    """The replay CSV rows of a RecordedRun (module docstring): header, then rows by kind."""
+    rows = ["# a simulated run: the samples its estimator received", "time,sensor,v0,v1,v2,v3,v4,v5"]
+    t = recorded.tick_times
+    rows += _rows("imu", t, recorded.inputs["imu"])
+    for sensor in ("gps", "mag", "baro"):
+        if sensor not in recorded.inputs:
+            continue
+        samples = recorded.inputs[sensor]
+        stamps = samples[:, -1]
+        fresh = (stamps != NO_SAMPLE_STAMP) & (np.diff(stamps, prepend=NO_SAMPLE_STAMP) != 0)
+        kind = SENSOR_ROWS.get(sensor) or ("heading" if samples.shape[1] == 2 else "mag")
+        rows += _rows(kind, stamps[fresh], samples[fresh, :-1])
+    state = recorded.truth
+    rows += _rows("truth", t, np.column_stack([state[:, 0:3], state[:, 7:10], state[:, 3:7]]))
+    return rows
+
+
+def _rows(kind, times, values):
+    return [
+        f"{float(time)!r},{kind}," + ",".join(repr(float(v)) for v in row)
+        for time, row in zip(times, values, strict=True)
+    ]
+
+
+def write_run_csv(recorded, path):
+    """Write a RecordedRun as a replay CSV at `path`; the path."""
+    from quad_drake.output.outdir import write_text_atomic
+
+    write_text_atomic(path, "\n".join(run_csv_rows(recorded)) + "\n")
+    return path
