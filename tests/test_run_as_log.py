@@ -10,10 +10,10 @@ Shortened flights (the round trip is per tick, its length adds nothing): 11 and
 import numpy as np
 import pytest
 
-from quad_drake.running import catalog
 from quad_drake.flightlogs.reader import read_flight_log
 from quad_drake.flightlogs.recording import record_run, write_run_csv
 from quad_drake.flightlogs.replay import replay_as_flown
+from quad_drake.running import catalog
 
 FLIGHTS = {"11_gps_update": 6.0, "11_gps_update_eskf": 6.0, "23_gps_outage_baro": 14.0}
 

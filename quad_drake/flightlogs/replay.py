@@ -33,6 +33,7 @@ from quad_drake.estimation.registry import vocabulary_for
 from quad_drake.estimation.vocabulary import health_counts, health_line
 from quad_drake.flightlogs import comparison, earth_field
 from quad_drake.flightlogs.checks import log_warnings
+from quad_drake.flightlogs.reader import Samples, read_flight_log
 from quad_drake.flightlogs.schedule import (
     STAMPED,
     STREAM_WIDTHS,
@@ -41,7 +42,6 @@ from quad_drake.flightlogs.schedule import (
     playback_streams,
     superseded_samples,
 )
-from quad_drake.flightlogs.reader import Samples, read_flight_log
 from quad_drake.flightlogs.settings import ReplayConfig, dump_replay, resolve_log, vehicle_for
 from quad_drake.kernels import jit
 from quad_drake.models.fidelity import PHYSICAL
