@@ -2,8 +2,9 @@
 
 Exit codes: 0 every criterion passed, 1 a criterion failed, 2 bad input
 (one line on stderr, no traceback), 3 results could not be written (a full disk, a folder
-that became unwritable: one line; every file already written is whole), 130 interrupted
-(Ctrl-C; finished runs are kept).
+that became unwritable: one line; every file already written is whole), 4 your own estimator
+raised during a flight (one line, then your code's traceback), 130 interrupted (Ctrl-C;
+finished runs are kept).
 """
 
 import argparse
@@ -14,11 +15,13 @@ from pathlib import Path
 
 from . import __version__, catalog
 from .config import ConfigError, load_scenario
-from .estimation.custom import EstimatorProblem
+from .estimation.custom import EstimatorProblem, EstimatorRaised
 from .outdir import check_output_dir, is_result_folder
 
 EXIT_WRITE_FAILED = 3
 """Exit code when results could not be written (an OSError while saving; one line on stderr)."""
+EXIT_ESTIMATOR_RAISED = 4
+"""Exit code when a custom estimator raised during a flight (``custom.EstimatorRaised``)."""
 
 EXIT_CODES = """exit codes:
   0    every criterion passed (montecarlo: every consistency criterion; tune: held-out check)
@@ -26,6 +29,8 @@ EXIT_CODES = """exit codes:
   2    bad input: one line on stderr naming the file and the field; nothing ran
   3    results could not be written (disk full, folder unwritable): one line on stderr;
        files already written are whole (each is written to a temporary file, then renamed)
+  4    your own estimator (kind: custom) raised during a flight: one line naming the
+       method, the vehicle, the sim time and the seed, then your code's traceback
   130  interrupted (Ctrl-C): the finished runs are kept"""
 
 
@@ -121,7 +126,10 @@ def cmd_run(args):
     try:
         for scenario, folder, source in zip(scenarios, folders, reproduced, strict=True):
             print(f"== {scenario.name} (seed {scenario.seed}, {scenario.end_time:g} s)", flush=True)
-            result = _fly(scenario)
+            try:
+                result = _fly(scenario)
+            except EstimatorRaised as e:
+                raise e.with_context(f"seed {scenario.seed}") from None
             for criterion in result.criteria:
                 print(criterion.line)
             for line in estimator_health(result):
@@ -363,6 +371,7 @@ def cmd_montecarlo(args):
     if args.batch is not None and args.batch < 1:
         raise ConfigError(f"montecarlo: --batch must be >= 1, got {args.batch}")
     from . import campaigns
+    from .campaigns.campaign import one_run_command
     from .report import write_index
     from .results import variant_name
 
@@ -375,7 +384,12 @@ def cmd_montecarlo(args):
     _warn([scenario])
     try:
         campaign = campaigns.run_campaign(
-            scenario, args.runs, runner=runner, progress=not args.quiet, fleet_batch=fleet_batch
+            scenario,
+            args.runs,
+            runner=runner,
+            progress=not args.quiet,
+            fleet_batch=fleet_batch,
+            run_command=one_run_command(args.name, args.set),
         )
     except campaigns.CampaignInterrupted as interrupted:
         partial = interrupted.campaign
@@ -544,6 +558,10 @@ def main(argv=None):
     except (ConfigError, EstimatorProblem) as e:  # a user's mistake, their own estimator's included
         print(f"quad-drake: {e}", file=sys.stderr)
         return 2
+    except EstimatorRaised as e:  # the user's own code failed mid-flight: its frames, not ours
+        print(f"quad-drake: {e}", file=sys.stderr)
+        print(e.user_frames, end="", file=sys.stderr)
+        return EXIT_ESTIMATOR_RAISED
     except KeyboardInterrupt:
         print("quad-drake: interrupted", file=sys.stderr)
         return 130

@@ -13,7 +13,7 @@
 from .campaign import CampaignInterrupted, plan_campaign, run_campaign
 from .output import save, table, timing_line
 from .records import RunRecord
-from .runners import DaskRunner, InProcessRunner, ProcessPoolRunner, Runner
+from .runners import DaskRunner, InProcessRunner, ProcessPoolRunner, Runner, WorkersDied
 from .statistics import CampaignResult
 
 __all__ = [
@@ -29,4 +29,5 @@ __all__ = [
     "save",
     "table",
     "timing_line",
+    "WorkersDied",
 ]
