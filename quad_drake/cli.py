@@ -1,4 +1,5 @@
-"""Command line: ``quad-drake list | run | montecarlo | tune | replay | diagram | noise-std | export``.
+"""Command line: ``quad-drake list | run | montecarlo | tune | replay | diagram | noise-std | export``,
+``warmup``.
 
 Exit codes: 0 every criterion passed, 1 a criterion failed, 2 bad input
 (one line on stderr, no traceback), 3 results could not be written (a full disk, a folder
@@ -35,17 +36,22 @@ EXIT_CODES = """exit codes:
 
 
 def cmd_list(args):
-    for name, path in catalog.bundled_scenarios().items():
+    scenarios = catalog.bundled_scenarios()
+    width = max(map(len, scenarios))  # the longest name sets the column
+    for name, path in scenarios.items():
         try:
             description = load_scenario(path).description
         except ConfigError as e:
             description = f"(invalid: {e})"
-        print(f"{name:28s} {description}")
+        print(f"{name:{width}s}  {description}")
     return 0
 
 
 def _table(rows):
-    header = f"{'scenario':28s} {'seed':>5s} {'criteria':>9s} {'result':>7s} {'wall[s]':>8s} {'x real':>7s}"
+    width = max([len("scenario"), *(len(s["scenario"]) for s in rows)])
+    header = (
+        f"{'scenario':{width}s} {'seed':>5s} {'criteria':>9s} {'result':>7s} {'wall[s]':>8s} {'x real':>7s}"
+    )
     lines = [header, "-" * len(header)]
     for s in rows:
         passed = sum(c["passed"] for c in s["criteria"])
@@ -53,7 +59,7 @@ def _table(rows):
         if not s["criteria"]:
             verdict = "-"
         lines.append(
-            f"{s['scenario']:28s} {s['seed']:5d} {passed:4d}/{len(s['criteria']):<4d} "
+            f"{s['scenario']:{width}s} {s['seed']:5d} {passed:4d}/{len(s['criteria']):<4d} "
             f"{verdict:>7s} {s['wall_time_s']:8.2f} {s['real_time_factor']:7.1f}"
         )
     return "\n".join(lines)
@@ -136,7 +142,10 @@ def cmd_run(args):
                 print(line)
             if result.compile_time > 0:
                 compiled = f"{result.compile_time:.1f} s"
-                print(f"(numba compiled its kernels for {compiled} first: not in the wall time)")
+                print(
+                    f"(numba compiled its kernels for {compiled} first: not in the wall time; "
+                    "`quad-drake warmup` compiles every kernel once)"
+                )
             # a reproduction goes beside its run folder, never over it
             run_dir = claim_run_folder(out, folder, scenario, replace=source is None)
             run_dir = save_run(result, run_dir)  # logs first: nothing is lost if a plot fails
@@ -466,6 +475,13 @@ def cmd_tune(args):
     return 0 if passed else 1
 
 
+def cmd_warmup(args):
+    """Compile every numba kernel into the on-disk cache (``quad_drake.warmup``)."""
+    from .warmup import warm_up_command
+
+    return warm_up_command()
+
+
 def build_parser():
     parser = argparse.ArgumentParser(
         prog="quad-drake",
@@ -537,6 +553,11 @@ def build_parser():
     export.add_argument("run_dir", metavar="RUN_DIR")
     export.add_argument("--out", help="folder for the CSV files (default: RUN_DIR/csv)")
     export.set_defaults(func=cmd_export)
+    sub.add_parser(
+        "warmup",
+        help="compile every numba kernel into the on-disk cache now (a minute or two, once per install), "
+        "so that no later run, campaign or fleet pauses to compile",
+    ).set_defaults(func=cmd_warmup)
     return parser
 
 
