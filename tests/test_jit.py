@@ -204,8 +204,8 @@ from quad_drake.campaigns import run_campaign
 from quad_drake.simulation import run
 
 run(catalog.load("11_gps_update", 7, ["end_time=1"]))  # longer than the warm-up, another seed
-run(catalog.load("25_baro_step", 3, ["end_time=0.5", "vehicles.0.estimator={kind: eskf}"]))  # another estimator
-run_campaign(catalog.load("19_windy_hover", 5, ["end_time=0.5"]), 3, progress=False, fleet_batch=3)  # 3 at once
+run(catalog.load("25_baro_step", 3, ["end_time=0.5", "vehicles.0.estimator={kind: eskf}"]))  # the ESKF
+run_campaign(catalog.load("19_windy_hover", 5, ["end_time=0.5"]), 3, progress=False, fleet_batch=3)  # a fleet
 run_campaign(catalog.load("24_mag3_disturbance", 1, ["end_time=0.5"]), 2, progress=False)
 print(f"compiled {jit.compile_seconds():.3f} s")
 """
