@@ -310,3 +310,26 @@ def test_a_process_pool_campaign_in_a_script_without_the_main_guard_says_so(tmp_
     worker_lines = [text for text in done.stderr.splitlines() if text.startswith("quad-drake worker: ")]
     # each worker says it in one line (one may be stopped before it does, once the pool is broken)
     assert 1 <= len(worker_lines) <= 2 and "Traceback" not in done.stderr.split("quad-drake worker")[0]
+
+
+def test_a_saved_config_names_the_factory_relative_to_its_folder_and_moves_with_it(tmp_path, monkeypatch):
+    import shutil
+
+    from quad_drake.config import dump_scenario, load_scenario
+
+    project = tmp_path / "project"
+    user_folder(project)
+    monkeypatch.chdir(project)
+    scenario = catalog.load("11_gps_update", None, [custom_override("user_estimator.py:FailsAtTick")])
+    assert scenario.vehicles[0].estimator.factory == f"{project / 'user_estimator.py'}:FailsAtTick"
+    (project / "out" / "tune").mkdir(parents=True)
+    saved = project / "out" / "tune" / "tuned.yaml"  # as quad-drake tune saves its tuned.yaml
+    saved.write_text(dump_scenario(scenario, saved.parent))
+    assert "factory: ../../user_estimator.py:FailsAtTick" in saved.read_text()
+    assert str(tmp_path) not in saved.read_text()
+    moved = shutil.move(project, tmp_path / "elsewhere")  # the project moves (or is cloned) whole
+    monkeypatch.chdir(tmp_path)
+    again = load_scenario(Path(moved) / "out" / "tune" / "tuned.yaml")
+    assert (
+        again.vehicles[0].estimator.factory == f"{tmp_path / 'elsewhere' / 'user_estimator.py'}:FailsAtTick"
+    )

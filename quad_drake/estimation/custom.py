@@ -40,6 +40,7 @@ the file can import the modules beside it.
 import importlib
 import importlib.util
 import math
+import os
 import sys
 import traceback
 from functools import cache
@@ -106,6 +107,20 @@ def absolute_factory(factory, base_dir):
         if (base / location).is_file():
             return f"{(base / location).resolve()}:{name}"
     return factory
+
+
+def relative_factory(factory, folder):
+    """`factory` with an absolute ``file.py`` path made relative to `folder` (where a scenario
+    file saved there is read from: :func:`absolute_factory` makes it absolute again), so that
+    the folder moves with the file beside it; unchanged when it cannot be (another drive) or
+    names a module."""
+    location, colon, name = factory.rpartition(":")
+    if not colon or not location.endswith(".py") or not Path(location).is_absolute():
+        return factory
+    try:
+        return f"{Path(os.path.relpath(location, Path(folder).resolve())).as_posix()}:{name}"
+    except ValueError:  # Windows: another drive
+        return factory
 
 
 @cache
