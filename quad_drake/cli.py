@@ -443,7 +443,10 @@ def cmd_tune(args):
         search_seed=args.search_seed,
         holdout=not args.no_holdout,
     )
-    problem = prepare(catalog.load(args.name, None, args.set), args.params, settings)
+    from .campaigns.campaign import one_run_command
+
+    scenario = catalog.load(args.name, None, args.set)
+    problem = prepare(scenario, args.params, settings, one_run_command(args.name, args.set))
     if args.out is None:  # out/NAME_tune, made with its parent
         out = check_output_dir("out") / f"{problem.scenario.name}_tune"
     else:

@@ -333,3 +333,32 @@ def test_a_saved_config_names_the_factory_relative_to_its_folder_and_moves_with_
     assert (
         again.vehicles[0].estimator.factory == f"{tmp_path / 'elsewhere' / 'user_estimator.py'}:FailsAtTick"
     )
+
+
+def test_an_estimator_raising_in_a_tune_is_exit_4_and_its_hint_carries_the_candidates_values(
+    tmp_path, monkeypatch, capsys
+):
+    user_folder(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    sets = [*FLIGHT_SETS, custom_override("user_estimator.py:FailsAtTick", ", params: {q_vel_std: 0.5}")]
+    argv = [
+        "tune",
+        "11_gps_update",
+        "--budget",
+        "2",
+        "--seeds",
+        "1",
+        "--holdout",
+        "1",
+        "--jobs",
+        "1",
+        "--quiet",
+    ]
+    code = main([*argv, "--out", str(tmp_path / "tune")] + [arg for text in sets for arg in ("--set", text)])
+    err = capsys.readouterr().err.splitlines()
+    assert code == 4, err
+    (line,) = [text for text in err if text.startswith("quad-drake: at t = 0.100 s of the flight")]
+    assert "reproduce with quad-drake run 11_gps_update --set end_time=1 --set criteria.0.window=0.5 " in line
+    assert "--set vehicles.0.estimator.params.q_vel_std=" in line and line.endswith(
+        "in a candidate of the tune"
+    )
