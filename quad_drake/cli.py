@@ -1,9 +1,11 @@
-"""Command line: ``quad-drake list | run | montecarlo | tune | replay | diagram | noise-std | export``.
+"""Command line: ``quad-drake list | run | montecarlo | tune | replay | diagram | noise-std | export``,
+``warmup``.
 
 Exit codes: 0 every criterion passed, 1 a criterion failed, 2 bad input
 (one line on stderr, no traceback), 3 results could not be written (a full disk, a folder
-that became unwritable: one line; every file already written is whole), 130 interrupted
-(Ctrl-C; finished runs are kept).
+that became unwritable: one line; every file already written is whole), 4 your own estimator
+raised during a flight (one line, then your code's traceback), 130 interrupted (Ctrl-C;
+finished runs are kept).
 """
 
 import argparse
@@ -15,12 +17,14 @@ from pathlib import Path
 from . import __version__
 from .config.errors import ConfigError
 from .config.loader import load_scenario
-from .estimation.custom import EstimatorProblem
+from .estimation.custom import EstimatorProblem, EstimatorRaised
 from .output.outdir import check_output_dir, is_result_folder
 from .running import catalog
 
 EXIT_WRITE_FAILED = 3
 """Exit code when results could not be written (an OSError while saving; one line on stderr)."""
+EXIT_ESTIMATOR_RAISED = 4
+"""Exit code when a custom estimator raised during a flight (``custom.EstimatorRaised``)."""
 
 EXIT_CODES = """exit codes:
   0    every criterion passed (montecarlo: every consistency criterion; tune: held-out check)
@@ -28,21 +32,28 @@ EXIT_CODES = """exit codes:
   2    bad input: one line on stderr naming the file and the field; nothing ran
   3    results could not be written (disk full, folder unwritable): one line on stderr;
        files already written are whole (each is written to a temporary file, then renamed)
+  4    your own estimator (kind: custom) raised during a flight: one line naming the
+       method, the vehicle, the sim time and the seed, then your code's traceback
   130  interrupted (Ctrl-C): the finished runs are kept"""
 
 
 def cmd_list(args):
-    for name, path in catalog.bundled_scenarios().items():
+    scenarios = catalog.bundled_scenarios()
+    width = max(map(len, scenarios))  # the longest name sets the column
+    for name, path in scenarios.items():
         try:
             description = load_scenario(path).description
         except ConfigError as e:
             description = f"(invalid: {e})"
-        print(f"{name:28s} {description}")
+        print(f"{name:{width}s}  {description}")
     return 0
 
 
 def _table(rows):
-    header = f"{'scenario':28s} {'seed':>5s} {'criteria':>9s} {'result':>7s} {'wall[s]':>8s} {'x real':>7s}"
+    width = max([len("scenario"), *(len(s["scenario"]) for s in rows)])
+    header = (
+        f"{'scenario':{width}s} {'seed':>5s} {'criteria':>9s} {'result':>7s} {'wall[s]':>8s} {'x real':>7s}"
+    )
     lines = [header, "-" * len(header)]
     for s in rows:
         passed = sum(c["passed"] for c in s["criteria"])
@@ -50,7 +61,7 @@ def _table(rows):
         if not s["criteria"]:
             verdict = "-"
         lines.append(
-            f"{s['scenario']:28s} {s['seed']:5d} {passed:4d}/{len(s['criteria']):<4d} "
+            f"{s['scenario']:{width}s} {s['seed']:5d} {passed:4d}/{len(s['criteria']):<4d} "
             f"{verdict:>7s} {s['wall_time_s']:8.2f} {s['real_time_factor']:7.1f}"
         )
     return "\n".join(lines)
@@ -123,14 +134,20 @@ def cmd_run(args):
     try:
         for scenario, folder, source in zip(scenarios, folders, reproduced, strict=True):
             print(f"== {scenario.name} (seed {scenario.seed}, {scenario.end_time:g} s)", flush=True)
-            result = _fly(scenario)
+            try:
+                result = _fly(scenario)
+            except EstimatorRaised as e:
+                raise e.with_context(f"seed {scenario.seed}") from None
             for criterion in result.criteria:
                 print(criterion.line)
             for line in estimator_health(result):
                 print(line)
             if result.compile_time > 0:
                 compiled = f"{result.compile_time:.1f} s"
-                print(f"(numba compiled its kernels for {compiled} first: not in the wall time)")
+                print(
+                    f"(numba compiled its kernels for {compiled} first: not in the wall time; "
+                    "`quad-drake warmup` compiles every kernel once)"
+                )
             # a reproduction goes beside its run folder, never over it
             run_dir = claim_run_folder(out, folder, scenario, replace=source is None)
             run_dir = save_run(result, run_dir)  # logs first: nothing is lost if a plot fails
@@ -365,6 +382,7 @@ def cmd_montecarlo(args):
     if args.batch is not None and args.batch < 1:
         raise ConfigError(f"montecarlo: --batch must be >= 1, got {args.batch}")
     from . import campaigns
+    from .campaigns.campaign import one_run_command
     from .output.report import write_index
     from .output.results import variant_name
 
@@ -377,7 +395,12 @@ def cmd_montecarlo(args):
     _warn([scenario])
     try:
         campaign = campaigns.run_campaign(
-            scenario, args.runs, runner=runner, progress=not args.quiet, fleet_batch=fleet_batch
+            scenario,
+            args.runs,
+            runner=runner,
+            progress=not args.quiet,
+            fleet_batch=fleet_batch,
+            run_command=one_run_command(args.name, args.set),
         )
     except campaigns.CampaignInterrupted as interrupted:
         partial = interrupted.campaign
@@ -422,7 +445,10 @@ def cmd_tune(args):
         search_seed=args.search_seed,
         holdout=not args.no_holdout,
     )
-    problem = prepare(catalog.load(args.name, None, args.set), args.params, settings)
+    from .campaigns.campaign import one_run_command
+
+    scenario = catalog.load(args.name, None, args.set)
+    problem = prepare(scenario, args.params, settings, one_run_command(args.name, args.set))
     if args.out is None:  # out/NAME_tune, made with its parent
         out = check_output_dir("out") / f"{problem.scenario.name}_tune"
     else:
@@ -452,6 +478,13 @@ def cmd_tune(args):
     passed, line = verdict(result)
     print(line)
     return 0 if passed else 1
+
+
+def cmd_warmup(args):
+    """Compile every numba kernel into the on-disk cache (``quad_drake.warmup``)."""
+    from .campaigns.warmup import warm_up_command
+
+    return warm_up_command()
 
 
 def build_parser():
@@ -529,6 +562,11 @@ def build_parser():
     export.add_argument("run_dir", metavar="RUN_DIR")
     export.add_argument("--out", help="folder for the CSV files (default: RUN_DIR/csv)")
     export.set_defaults(func=cmd_export)
+    sub.add_parser(
+        "warmup",
+        help="compile every numba kernel into the on-disk cache now (a minute or two, once per install), "
+        "so that no later run, campaign or fleet pauses to compile",
+    ).set_defaults(func=cmd_warmup)
     return parser
 
 
@@ -550,6 +588,10 @@ def main(argv=None):
     except (ConfigError, EstimatorProblem) as e:  # a user's mistake, their own estimator's included
         print(f"quad-drake: {e}", file=sys.stderr)
         return 2
+    except EstimatorRaised as e:  # the user's own code failed mid-flight: its frames, not ours
+        print(f"quad-drake: {e}", file=sys.stderr)
+        print(e.user_frames, end="", file=sys.stderr)
+        return EXIT_ESTIMATOR_RAISED
     except KeyboardInterrupt:
         print("quad-drake: interrupted", file=sys.stderr)
         return 130

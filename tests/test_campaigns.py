@@ -554,5 +554,5 @@ def test_a_fault_campaign_shades_the_fault_and_names_it_on_its_page(tmp_path):
         assert len(spans) == 1
     save(result, tmp_path, plots=True)
     page = (tmp_path / "report.html").read_text()
-    assert "Injected fault (shaded red on the time plots): mag_outage in [0.2, 0.4) s." in page
+    assert "Injected fault (hatched red on the time plots): mag_outage in [0.2, 0.4) s." in page
     assert "mean / dof" in page and '<td class="num">[0.667, 1.5]</td>' in page

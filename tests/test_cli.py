@@ -19,6 +19,24 @@ def test_list_names_every_scenario_with_a_description():
     lines = result.stdout.strip().splitlines()
     assert len(lines) == 27  # 01-11, 11_gps_update_eskf, faults 12-18, the air 19-22 (+ eskf), aiding 23-25
     assert lines[0].startswith("01_intro") and "hover" in lines[0].lower()
+    names = [line.split()[0] for line in lines]
+    columns = {len(line) - len(line[len(name) :].lstrip()) for line, name in zip(lines, names, strict=True)}
+    assert columns == {max(map(len, names)) + 2}  # every description in one column, after the longest name
+
+
+def test_the_run_table_fits_a_long_scenario_name():
+    from quad_drake.cli import _table
+
+    row = {
+        "criteria": [{"passed": True}],
+        "passed": True,
+        "seed": 0,
+        "wall_time_s": 1.0,
+        "real_time_factor": 9.0,
+    }
+    rows = [{**row, "scenario": "a_rather_long_scenario_name_of_forty_chars"}, {**row, "scenario": "short"}]
+    header, _, *lines = _table(rows).splitlines()
+    assert len({len(header), *map(len, lines)}) == 1 and header.index("seed") == lines[0].index("    0") + 1
 
 
 def test_run_prints_reference_lines_and_writes_results(tmp_path):

@@ -164,3 +164,201 @@ def test_check_runs_one_step_of_each_method(tmp_path):
     readme_estimator(tmp_path)
     names = custom.check_estimator(f"{tmp_path / 'my_ekf.py'}:MyEkf", {}, 0.002)
     assert names == ("X", "Y", "Z", "VX", "VY", "VZ", "Yaw")
+
+
+USER_HELPERS = """
+def check_tick(ticks, limit):
+    if ticks > limit:
+        raise ZeroDivisionError(f"my bug at tick {ticks}")
+"""
+
+USER_ESTIMATOR = '''
+from my_ekf import MyEkf
+from user_helpers import check_tick  # a sibling module of this file
+
+
+class FailsAtTick(MyEkf):
+    """The README's estimator, whose predict() raises (in a sibling module) after `limit` ticks."""
+
+    def __init__(self, limit=50, **params):
+        super().__init__(**params)
+        self.ticks, self.limit = 0, limit
+
+    def predict(self, dt, accel, gyro):
+        self.ticks += 1
+        check_tick(self.ticks, self.limit)
+        super().predict(dt, accel, gyro)
+'''
+
+
+def user_folder(folder):
+    """A user's folder: the README's my_ekf.py and user_estimator.py, whose FailsAtTick imports
+    its sibling modules (my_ekf, user_helpers) and raises at the 51st IMU tick (t = 0.1 s)."""
+    folder.mkdir(exist_ok=True)
+    readme_estimator(folder)
+    (folder / "user_helpers.py").write_text(USER_HELPERS)
+    (folder / "user_estimator.py").write_text(USER_ESTIMATOR)
+    return folder
+
+
+def test_a_factory_file_imports_its_sibling_modules(tmp_path, monkeypatch):
+    user_folder(tmp_path / "mine")
+    monkeypatch.chdir(tmp_path)  # the factory's folder is not the working directory
+    made = custom.load_factory(str(tmp_path / "mine" / "user_estimator.py") + ":FailsAtTick")
+    assert made(limit=3).limit == 3
+
+
+FLIGHT_SETS = ["end_time=1", "criteria.0.window=0.5"]
+COMMANDS = {
+    "run": ["run", "--no-plots"],
+    "montecarlo": ["montecarlo", "--runs", "2", "--jobs", "1", "--no-plots", "--quiet"],
+    "montecarlo --fleet": [
+        "montecarlo",
+        "--runs",
+        "3",
+        "--jobs",
+        "1",
+        "--fleet",
+        "--batch",
+        "3",
+        "--no-plots",
+    ],
+}
+
+
+@pytest.mark.parametrize("command", list(COMMANDS))
+def test_an_estimator_raising_mid_flight_is_one_line_then_the_users_frames_and_exit_4(
+    tmp_path, monkeypatch, capsys, command
+):
+    user_folder(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    sets = [*FLIGHT_SETS, custom_override("user_estimator.py:FailsAtTick")]
+    argv = [*COMMANDS[command], "11_gps_update", "--out", str(tmp_path / "out")]
+    code = main(argv + [arg for text in sets for arg in ("--set", text)])
+    err = capsys.readouterr().err.splitlines()
+    assert code == 4, err
+    (first,) = [i for i, line in enumerate(err) if line.startswith("quad-drake: at t")]
+    line, frames = err[first], err[first + 1 :]
+    assert line.startswith("quad-drake: at t = 0.100 s of the flight, Quad's estimator ")
+    assert "predict() raised ZeroDivisionError: my bug at tick 51; seed 0" in line
+    if command != "run":  # the hint reproduces the failing run: every --set, its seed
+        hint = "reproduce with quad-drake run 11_gps_update " + " ".join(f"--set '{s}'" for s in sets)
+        hint = hint.replace("'end_time=1'", "end_time=1").replace(
+            "'criteria.0.window=0.5'", "criteria.0.window=0.5"
+        )
+        assert line.endswith(f"{hint} --seed 0"), line
+    assert frames[0] == "Traceback (most recent call last):" and frames[-1].startswith("ZeroDivisionError")
+    files = [text.split('"')[1] for text in frames if text.startswith('  File "')]
+    # theirs only (user_helpers is the first test's module of that name: Python caches it)
+    assert [Path(f).name for f in files] == ["user_estimator.py", "user_helpers.py"], frames
+
+
+def test_the_campaign_page_reproduces_a_run_with_every_set(tmp_path, monkeypatch):
+    import html
+    import shlex
+
+    readme_estimator(tmp_path)  # a pure-Python filter: no kernel to compile
+    monkeypatch.chdir(tmp_path)
+    out = tmp_path / "out"
+    sets = ["end_time=0.5", "criteria.0.window=0.2", custom_override("my_ekf.py:MyEkf")]
+    argv = [
+        "montecarlo",
+        "11_gps_update",
+        "--runs",
+        "1",
+        "--jobs",
+        "1",
+        "--no-plots",
+        "--quiet",
+        "--out",
+        str(out),
+    ]
+    main(argv + [arg for text in sets for arg in ("--set", text)])
+    (page,) = out.glob("*/report.html")
+    command = (
+        "quad-drake run 11_gps_update" + "".join(f" --set {shlex.quote(s)}" for s in sets) + " --seed SEED"
+    )
+    assert command in html.unescape(page.read_text())
+
+
+PLAIN_SCRIPT = """
+from quad_drake.running import catalog
+from quad_drake.campaigns import ProcessPoolRunner, run_campaign
+
+scenario = catalog.load("11_gps_update", None, ["end_time=0.2", "criteria.0.window=0.1"])
+run_campaign(scenario, 2, runner=ProcessPoolRunner(2), progress=False)
+"""
+
+
+@pytest.mark.slow
+def test_a_process_pool_campaign_in_a_script_without_the_main_guard_says_so(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    script = tmp_path / "plain.py"
+    script.write_text(PLAIN_SCRIPT)
+    import quad_drake
+
+    env = {**os.environ, "PYTHONPATH": str(Path(quad_drake.__file__).parent.parent)}  # the tree under test
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, env=env, timeout=300)
+    last = done.stderr.strip().splitlines()[-1]
+    assert done.returncode == 1 and "BrokenProcessPool" not in done.stderr, done.stderr
+    assert (
+        last.startswith("quad_drake.campaigns.runners.WorkersDied: ") and 'if __name__ == "__main__":' in last
+    )
+    worker_lines = [text for text in done.stderr.splitlines() if text.startswith("quad-drake worker: ")]
+    # each worker says it in one line (one may be stopped before it does, once the pool is broken)
+    assert 1 <= len(worker_lines) <= 2 and "Traceback" not in done.stderr.split("quad-drake worker")[0]
+
+
+def test_a_saved_config_names_the_factory_relative_to_its_folder_and_moves_with_it(tmp_path, monkeypatch):
+    import shutil
+
+    from quad_drake.config import dump_scenario, load_scenario
+
+    project = tmp_path / "project"
+    user_folder(project)
+    monkeypatch.chdir(project)
+    scenario = catalog.load("11_gps_update", None, [custom_override("user_estimator.py:FailsAtTick")])
+    assert scenario.vehicles[0].estimator.factory == f"{project / 'user_estimator.py'}:FailsAtTick"
+    (project / "out" / "tune").mkdir(parents=True)
+    saved = project / "out" / "tune" / "tuned.yaml"  # as quad-drake tune saves its tuned.yaml
+    saved.write_text(dump_scenario(scenario, saved.parent))
+    assert "factory: ../../user_estimator.py:FailsAtTick" in saved.read_text()
+    assert str(tmp_path) not in saved.read_text()
+    moved = shutil.move(project, tmp_path / "elsewhere")  # the project moves (or is cloned) whole
+    monkeypatch.chdir(tmp_path)
+    again = load_scenario(Path(moved) / "out" / "tune" / "tuned.yaml")
+    assert (
+        again.vehicles[0].estimator.factory == f"{tmp_path / 'elsewhere' / 'user_estimator.py'}:FailsAtTick"
+    )
+
+
+def test_an_estimator_raising_in_a_tune_is_exit_4_and_its_hint_carries_the_candidates_values(
+    tmp_path, monkeypatch, capsys
+):
+    user_folder(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    sets = [*FLIGHT_SETS, custom_override("user_estimator.py:FailsAtTick", ", params: {q_vel_std: 0.5}")]
+    argv = [
+        "tune",
+        "11_gps_update",
+        "--budget",
+        "2",
+        "--seeds",
+        "1",
+        "--holdout",
+        "1",
+        "--jobs",
+        "1",
+        "--quiet",
+    ]
+    code = main([*argv, "--out", str(tmp_path / "tune")] + [arg for text in sets for arg in ("--set", text)])
+    err = capsys.readouterr().err.splitlines()
+    assert code == 4, err
+    (line,) = [text for text in err if text.startswith("quad-drake: at t = 0.100 s of the flight")]
+    assert "reproduce with quad-drake run 11_gps_update --set end_time=1 --set criteria.0.window=0.5 " in line
+    assert "--set vehicles.0.estimator.params.q_vel_std=" in line and line.endswith(
+        "in a candidate of the tune"
+    )

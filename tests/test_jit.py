@@ -196,3 +196,46 @@ def test_a_compile_is_not_announced_on_a_log(monkeypatch):
     monkeypatch.setattr(jit.compile_notice, "shown", False)
     numba.njit(_sourceless_function())(1.0)
     assert log.getvalue() == ""
+
+
+AFTER_WARMUP = """
+from quad_drake.running import catalog
+from quad_drake.kernels import jit
+from quad_drake.campaigns import run_campaign
+from quad_drake.running.simulation import run
+
+run(catalog.load("11_gps_update", 7, ["end_time=1"]))  # longer than the warm-up, another seed
+run(catalog.load("25_baro_step", 3, ["end_time=0.5", "vehicles.0.estimator={kind: eskf}"]))  # the ESKF
+run_campaign(catalog.load("19_windy_hover", 5, ["end_time=0.5"]), 3, progress=False, fleet_batch=3)  # a fleet
+run_campaign(catalog.load("24_mag3_disturbance", 1, ["end_time=0.5"]), 2, progress=False)
+print(f"compiled {jit.compile_seconds():.3f} s")
+"""
+
+
+@pytest.mark.slow
+def test_after_quad_drake_warmup_no_flight_compiles(tmp_path):
+    """`quad-drake warmup` on an empty cache compiles every kernel a flight uses: a later process
+    flies other scenario lengths, seeds, estimators, fleet sizes and campaigns without compiling."""
+    env = {
+        **os.environ,
+        "NUMBA_CACHE_DIR": str(tmp_path / "cache"),
+        "PYTHONPATH": str(Path(quad_drake.__file__).parent.parent),  # the tree under test
+    }
+    warm = subprocess.run(
+        [sys.executable, "-m", "quad_drake", "warmup"], capture_output=True, text=True, env=env, timeout=900
+    )
+    assert warm.returncode == 0, warm.stderr
+    assert (
+        "numba compiled kernels for" in warm.stdout
+        and "every kernel a flight uses is in the cache" in warm.stdout
+    )
+    later = subprocess.run(
+        [sys.executable, "-c", AFTER_WARMUP],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=600,
+        cwd=tmp_path,
+    )
+    assert later.returncode == 0, later.stderr
+    assert later.stdout.strip().splitlines()[-1] == "compiled 0.000 s", later.stdout

@@ -31,12 +31,20 @@ def test_notebook_is_stored_without_outputs(path):
             assert cell.outputs == [] and cell.execution_count is None, cell.source[:60]
 
 
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
+def test_every_cell_that_flies_a_campaign_shows_its_progress(path):
+    for cell in nbformat.read(path, as_version=4).cells:
+        if cell.cell_type == "code" and any(word in cell.source for word in ("run_campaign(", '"tune"')):
+            assert "progress=False" not in cell.source and '"--quiet"' not in cell.source, cell.source[:80]
+
+
 @pytest.mark.notebook
 @pytest.mark.slow
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
 def test_notebook_executes(path, tmp_path, monkeypatch):
     # The kernel is this interpreter (jupyter_client maps the "python3" spec to sys.executable)
-    # and finds the package even when it is not installed; files it writes go to tmp_path.
+    # and finds the package even when it is not installed; it runs in tmp_path (as in the
+    # notebooks folder of a checkout) and writes its files into a folder of its own.
     monkeypatch.setenv("PYTHONPATH", os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])))
     monkeypatch.setenv("QUAD_DRAKE_QUICK", "1")  # a notebook's campaigns and searches at their smallest
     notebook = nbformat.read(path, as_version=4)
@@ -44,6 +52,7 @@ def test_notebook_executes(path, tmp_path, monkeypatch):
         notebook, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}
     )
     client.execute()  # raises CellExecutionError on any failing cell
+    assert not list(tmp_path.iterdir())  # nothing written where it runs: into a folder it names
     outputs = [o for cell in notebook.cells if cell.cell_type == "code" for o in cell.outputs]
     assert not [o for o in outputs if o.output_type == "error"]
     assert any("image/png" in o.get("data", {}) for o in outputs)  # the plots were drawn

@@ -378,4 +378,128 @@ def test_run_and_campaign_pages_name_the_fault_window(tmp_path):
     assert faults_html(result.scenario) == []
     result.scenario.vehicles[0].faults = [FaultConfig(kind="mag_bias", start=1.0, end=2.5, offset=[1.0])]
     report = plots.write_report(result, tmp_path / "report.html").read_text()
-    assert "Injected fault (shaded red on the time plots): mag_bias in [1, 2.5) s." in report
+    assert "Injected fault (hatched red on the time plots): mag_bias in [1, 2.5) s." in report
+
+
+def _first_panel_labels(fig):
+    return [artist.get_label() for artist in fig.time_axes[0].patches + fig.time_axes[0].lines]
+
+
+def test_windy_runs_get_the_wind_its_steady_part_and_its_turbulence_and_the_gust_window_is_marked(tmp_path):
+    from quad_drake.config import GustConfig, WindConfig
+    from quad_drake.models.wind import steady_wind
+    from quad_drake.output.report import gust_spans
+    from quad_drake.output.results import result_from_logs
+
+    base = make_result()
+    gust = GustConfig(start=1.0, duration=1.5, amplitude=6.0, direction=[0.0, 2.0, 0.0])
+    base.scenario.vehicles[0].wind = WindConfig(mean=[3.0, 1.0, 0.0], gusts=[gust], turbulence="moderate")
+    times = base.times
+    steady = np.array([steady_wind(t, base.scenario.vehicles[0].wind) for t in times])
+    turbulence = np.random.default_rng(5).normal(0.0, 1.0, (times.size, 3))
+    logs = {"Quad": {**base.logs["Quad"], "wind": steady + turbulence}}
+    result = result_from_logs(base.scenario, times, logs, wall_time=0.5)
+    figures = plots.make_figures(result)
+    fig = figures["wind_Quad"][1]
+    axes = fig.axes
+    for i in range(3):  # left: the wind and its steady part; right: the turbulence
+        lines = {line.get_label(): line.get_ydata() for line in axes[2 * i].lines}
+        assert np.array_equal(lines["wind"], steady[:, i] + turbulence[:, i])
+        assert np.array_equal(lines["steady: mean + gusts"], steady[:, i])
+        (turbulent,) = [
+            line.get_ydata() for line in axes[2 * i + 1].lines if line.get_label() == "turbulence"
+        ]
+        assert np.allclose(turbulent, turbulence[:, i], atol=1e-12)
+    assert steady[np.searchsorted(times, 1.75), 1] == pytest.approx(1.0 + 6.0)  # the gust's peak, east
+    label = "gust 6 m/s along (0, 2, 0)"
+    assert gust_spans(result.scenario) == [(1.0, 2.5, label)]
+    for stem, (_, fig) in figures.items():
+        if stem == "top_view":
+            continue
+        (span,) = [p for p in fig.time_axes[0].patches if p.get_label() == label]
+        assert span.get_x() == 1.0 and span.get_width() == 1.5, stem
+        assert all(any(p.get_x() == 1.0 for p in ax.patches) for ax in fig.time_axes), stem
+    report = plots.write_report(result, tmp_path / "report.html").read_text()
+    assert f"Events (marked on the time plots): {label} in [1, 2.5] s." in report
+    assert "wind_Quad" not in plots.make_figures(make_result())  # still air: no wind figure
+
+
+def test_touchdowns_are_marked_with_their_time_and_speed():
+    from quad_drake.output.report import touchdown_marks
+    from quad_drake.output.results import result_from_logs
+
+    base = make_result()
+    logs = {"Quad": dict(base.logs["Quad"])}
+    contacts = np.zeros((base.times.size, 3))
+    state = logs["Quad"]["state"].copy()
+    landing, resting = (np.searchsorted(base.times, t) for t in (2.0, 3.0))
+    contacts[landing:, 1] = 1  # the landing at 2 s ...
+    contacts[resting:, 1] = 2  # ... and a touch at rest
+    state[landing - 1, 9], state[resting - 1, 9] = 0.4, 0.001  # vz down before each, m/s
+    logs["Quad"].update(contacts=contacts, state=state)
+    result = result_from_logs(base.scenario, base.times, logs, wall_time=0.5)
+    label = "touchdown 2.00 s, 0.40 m/s (1 more, each ≤ 0.001 m/s)"
+    assert touchdown_marks(result) == [(pytest.approx(2.0), label)]
+    for stem, (_, fig) in plots.make_figures(result).items():
+        if stem != "top_view":
+            assert label in _first_panel_labels(fig), stem
+            assert all(
+                any(line.get_xdata()[0] == base.times[landing] for line in ax.lines) for ax in fig.time_axes
+            )
+
+
+def test_the_faulted_barometer_and_field_are_drawn_beside_the_truth_and_the_estimate():
+    from quad_drake.config import BaroParams, FaultConfig
+    from quad_drake.models.rotations import rotation_from_quat
+    from quad_drake.models.sensor_models import world_field
+    from quad_drake.output.results import result_from_logs
+
+    base = make_result()
+    vehicle = base.scenario.vehicles[0]
+    vehicle.sensors.baro = BaroParams()
+    vehicle.sensors.mag = MagParams(three_axis=True, hard_iron=[0.08, -0.05, 0.03])
+    vehicle.faults = [FaultConfig(kind="baro_step", start=1.0, end=4.0, offset=[3.0])]
+    logs = {"Quad": dict(base.logs["Quad"])}
+    state, times = logs["Quad"]["state"], base.times
+    stamps = np.floor(times / 0.05 + 1e-9) * 0.05
+    height = -state[:, 2] + 3.0 * (times >= 1.0)
+    logs["Quad"]["baro"] = np.column_stack([height, stamps])
+    m_N = np.array(world_field(0.5, 0.0, 1.1))
+    field = np.array([rotation_from_quat(q).T @ m_N for q in state[:, 3:7]]) + [0.08, -0.05, 0.03]
+    logs["Quad"]["mag"] = np.column_stack([field + 0.1 * (times >= 1.0)[:, None], stamps])
+    result = result_from_logs(base.scenario, times, logs, wall_time=0.5)
+    fig = plots.make_figures(result)["measurements_Quad"][1]
+    fresh = result.signals["Quad.Baro.Height"].fresh
+    for ax, measured, truth in zip(
+        fig.axes, [height, *(field + 0.1 * (times >= 1.0)[:, None]).T], [-state[:, 2], *field.T], strict=True
+    ):
+        lines = {line.get_label(): line for line in ax.lines}
+        assert np.array_equal(lines["measured"].get_ydata(), measured[fresh])
+        assert np.allclose(lines["true"].get_ydata(), truth, atol=1e-12)
+        assert "estimated" in lines
+    assert np.array_equal(fig.axes[0].lines[2].get_ydata(), -result.signals["Quad.Est.Z"].values)
+    assert "measurements_Quad" not in plots.make_figures(make_result())  # GPS and yaw: no such figure
+
+
+def test_a_fault_over_the_judged_band_stays_red_and_green_not_brown():
+    from matplotlib.colors import to_rgb
+
+    from quad_drake.config import FaultConfig
+
+    criteria = [CriterionConfig(kind="bound", signal="Quad.Est.E.Pos", threshold=5.0, start=1.0, end=3.0)]
+    result = make_result(criteria=criteria)
+    result.scenario.vehicles[0].faults = [FaultConfig(kind="gps_outage", start=1.0, end=3.0)]
+    fig = plots.make_figures(result)["criterion_1"][1]
+    fig.canvas.draw()
+    pixels = np.asarray(fig.canvas.buffer_rgba())[..., :3] / 255.0
+    ax = fig.axes[0]
+    (x0, y0), (x1, y1) = ax.transData.transform([(1.3, 2.5), (2.7, 4.5)])  # inside both, above the signal
+    height = pixels.shape[0]
+    region = pixels[int(height - y1) : int(height - y0), int(x0) : int(x1)].reshape(-1, 3)
+    white, green, red = np.ones(3), np.array(to_rgb("tab:green")), np.array(to_rgb(plots.FAULT_COLOR))
+    band = 0.15 * green + 0.85 * white
+    brown = 0.12 * red + 0.88 * band  # a red fill over the band: what the old shading gave everywhere
+    near = np.linalg.norm(region - brown, axis=1) < 0.02  # (a hatch line's antialiased edge may pass it)
+    assert near.mean() < 0.05, near.mean()
+    assert np.mean(np.linalg.norm(region - band, axis=1) < 0.02) > 0.5  # the band still reads green
+    assert np.mean(region[:, 0] - region[:, 1] > 0.25) > 0.03  # and the fault's hatching red

@@ -421,3 +421,19 @@ def test_a_real_ctrl_c_keeps_the_best_so_far(tmp_path):
     assert load_scenario(tmp_path / "t" / "tuned.yaml").name == "11_gps_update_tuned"
     summary = strict_loads((tmp_path / "t" / "tune.json").read_text())
     assert summary["interrupted"] and summary["candidates"] == len(rows)
+
+
+@pytest.mark.parametrize("name", ["11_gps_update", "19_windy_hover"])
+def test_a_candidates_set_texts_give_the_scenario_its_values(name):
+    """The "reproduce with" hint of a failing candidate's run carries its values as --set texts."""
+    from quad_drake.config import dump_scenario
+    from quad_drake.running import catalog
+    from quad_drake.tuning.space import apply, overrides, search_space
+
+    start = catalog.load(name)
+    space = search_space(start, None)
+    x = np.linspace(-0.5, 0.7, len(space))
+    assert dump_scenario(catalog.load(name, None, overrides(space, x))) == dump_scenario(
+        apply(start, space, x)
+    )
+    assert dump_scenario(apply(start, space, x)) != dump_scenario(start)

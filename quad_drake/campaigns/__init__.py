@@ -24,6 +24,7 @@ _LAZY = {
     "InProcessRunner": "runners",
     "ProcessPoolRunner": "runners",
     "Runner": "runners",
+    "WorkersDied": "runners",
     "CampaignResult": "statistics",
 }
 """Names imported from their module on first use, so that the fleet (``campaigns.fleet``), which

@@ -10,6 +10,7 @@ B runs flown at once, each sending back its B slim records and their tally
 """
 
 import dataclasses
+import shlex
 import sys
 import time
 
@@ -17,6 +18,7 @@ from tqdm import tqdm
 
 from ..config.errors import ConfigError
 from ..config.validation import check_scenario, check_seed_range
+from ..estimation.custom import EstimatorRaised
 from ..judging.verdicts import check_criteria
 from ..running.limits import check_memory, check_run
 from ..running.simulation import available_signals
@@ -155,14 +157,28 @@ def plan_campaign(scenario, runs, runner, seed=None, fleet_batch=None):
     return scenario, tasks, worker, label
 
 
-def run_campaign(scenario, runs, runner=None, seed=None, progress=True, fleet_batch=None):
+def one_run_command(name, overrides=()):
+    """The ``quad-drake run`` command line that flies one run of a campaign alone but for its
+    ``--seed``: scenario `name` (a bundled name or a path) with every ``--set`` of `overrides`."""
+    sets = "".join(f" --set {shlex.quote(text)}" for text in overrides)
+    return f"quad-drake run {shlex.quote(str(name))}{sets}"
+
+
+def run_campaign(scenario, runs, runner=None, seed=None, progress=True, fleet_batch=None, run_command=None):
     """CampaignResult of `runs` runs of a ScenarioConfig, run i with seed (seed or scenario.seed) + i.
 
-    runner: a :class:`~quad_drake.campaigns.runners.Runner` (default: in this process).
+    runner: a :class:`~quad_drake.campaigns.runners.Runner` (default: in this process; a
+    ``ProcessPoolRunner`` in a script needs the ``if __name__ == "__main__":`` guard around the
+    campaign, as every ``spawn`` process pool does: its workers import the script).
     fleet_batch: None (one Drake Diagram per run) or B, the runs each fleet task flies at once.
-    progress: report progress on stderr. A failing run raises RuntimeError naming its seed;
-    Ctrl-C raises :class:`CampaignInterrupted` holding the finished runs.
+    progress: report progress on stderr. run_command: the command that flies one run alone but
+    for its ``--seed`` (:func:`one_run_command`; default the scenario's name, no ``--set``): the
+    failures' "reproduce with" hint and the report's. A failing run raises
+    RuntimeError naming its seed and how to reproduce it; a custom estimator that raised,
+    ``custom.EstimatorRaised`` with the same; Ctrl-C raises :class:`CampaignInterrupted`
+    holding the finished runs.
     """
+    run_command = run_command or one_run_command(scenario.name)
     runner = runner or InProcessRunner()
     scenario, tasks, worker, label = plan_campaign(scenario, runs, runner, seed, fleet_batch)
     runner_name = runner.name if label is None else f"{label} on {runner.name}"
@@ -174,7 +190,13 @@ def run_campaign(scenario, runs, runner=None, seed=None, progress=True, fleet_ba
     def campaign():
         ordered = [records[i] for i in sorted(records)]
         return CampaignResult(
-            scenario, ordered, tally.total(), time.perf_counter() - start, runner_name, planned=runs
+            scenario,
+            ordered,
+            tally.total(),
+            time.perf_counter() - start,
+            runner_name,
+            planned=runs,
+            run_command=run_command,
         )
 
     try:
@@ -187,10 +209,14 @@ def run_campaign(scenario, runs, runner=None, seed=None, progress=True, fleet_ba
     except TaskFailed as e:
         task = tasks[e.index]
         seeds = [task.seed] if label is None else task.seeds
+        if isinstance(e.error, EstimatorRaised):  # the user's code: its own line and frames
+            failed = seeds[e.error.copy] if label else seeds[0]
+            reproduce = f"{run_command} --seed {failed}"
+            raise e.error.with_context(f"seed {failed}; reproduce with {reproduce}") from None
         span = f"seed {seeds[0]}" if len(seeds) == 1 else f"seeds {seeds[0]}..{seeds[-1]}"
         raise RuntimeError(
             f"{'run' if label is None else 'fleet batch'} {e.index} ({span}) failed: {e.error!r}; "
-            f"reproduce with quad-drake run {scenario.name} --seed {seeds[0]}"
+            f"reproduce with {run_command} --seed {seeds[0]}"
         ) from e.error
     except KeyboardInterrupt:
         raise CampaignInterrupted(campaign()) from None

@@ -7,6 +7,7 @@ from pathlib import Path
 from ..config.loader import dump_scenario
 from ..output.outdir import write_text_atomic
 from ..output.report import esc, faults_html, figures_html, html_page, html_table, num, verdict_cell
+from .campaign import one_run_command
 from .records import settle_time
 
 
@@ -133,7 +134,8 @@ def write_page(campaign, path, plots=()):
             ],
         ),
         "<p>Run <i>i</i> has seed <i>S + i</i>; reproduce one with "
-        f"<code>quad-drake run {esc(s.name)} --seed SEED</code>. Per-run values: "
+        f"<code>{esc(campaign.run_command or one_run_command(s.name))} --seed SEED</code>. "
+        "Per-run values: "
         '<a href="runs.csv">runs.csv</a>; all statistics: <a href="summary.json">summary.json</a>.</p>',
     ]
     if campaign.criteria:

@@ -10,7 +10,19 @@ is also a context manager: inside ``with runner:`` a process pool keeps its work
 map to the next (a tuning session's many small campaigns pay the workers' start-up once).
 
 Drake's Python systems cannot run in parallel in one process, so the parallel runners use
-processes (``spawn``) or Dask workers started with one thread each.
+processes (``spawn``) or Dask workers started with one thread each. A ``spawn`` worker imports
+the script that started it, so a script that runs a campaign on a :class:`ProcessPoolRunner`
+keeps the campaign under ``if __name__ == "__main__":`` (as every ``spawn`` process pool needs)::
+
+    from quad_drake.running import catalog
+    from quad_drake.campaigns import ProcessPoolRunner, run_campaign
+
+    if __name__ == "__main__":
+        campaign = run_campaign(catalog.load("11_gps_update"), 20, runner=ProcessPoolRunner(2))
+        print(campaign.verdict())
+
+Without it each worker stops with one line saying so, and the campaign raises
+:class:`WorkersDied` saying the same (not ``BrokenProcessPool``).
 """
 
 import multiprocessing
@@ -27,6 +39,25 @@ class TaskFailed(Exception):
     def __init__(self, index, error):
         super().__init__(f"task {index} failed: {error!r}")
         self.index, self.error = index, error
+
+
+MAIN_GUARD_HINT = (
+    'a script that runs a campaign on a ProcessPoolRunner needs `if __name__ == "__main__":` '
+    "around it (each spawned worker imports the script)"
+)
+
+
+class WorkersDied(RuntimeError):
+    """The process pool's workers died before finishing their runs: a script without the
+    ``__main__`` guard (see the module docstring), or a worker killed (e.g. out of memory)."""
+
+
+def _check_not_a_worker_importing_main():
+    """SystemExit (one line) in a spawned worker that is importing its parent's script: that
+    script started a process pool outside ``if __name__ == "__main__":``. (``_inheriting`` is
+    the flag multiprocessing's own check reads, ``spawn._check_not_importing_main``.)"""
+    if getattr(multiprocessing.current_process(), "_inheriting", False):
+        raise SystemExit(f"quad-drake worker: {MAIN_GUARD_HINT}")
 
 
 class Runner(ABC):
@@ -90,6 +121,7 @@ class ProcessPoolRunner(Runner):
         self._kept = None  # the executor kept inside ``with``
 
     def _executor(self, workers):
+        _check_not_a_worker_importing_main()
         return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"))
 
     def __enter__(self):
@@ -117,7 +149,10 @@ class ProcessPoolRunner(Runner):
                 try:
                     result = future.result()
                 except BrokenProcessPool:  # a worker died (e.g. a script without a main guard)
-                    raise
+                    raise WorkersDied(
+                        f"the process pool's workers died before finishing their runs: {MAIN_GUARD_HINT}, "
+                        "or a worker was killed (out of memory?)"
+                    ) from None
                 except Exception as e:
                     raise TaskFailed(index, e) from e
                 yield index, result

@@ -64,6 +64,7 @@ class CampaignResult:
     runner: str  # Runner.name
     planned: Optional[int] = None  # runs asked for (None: as many as records)
     tolerance: float = cons.COVARIANCE_TOLERANCE  # the consistency criterion's (consistency.py)
+    run_command: Optional[str] = None  # flies one run alone, given its --seed
 
     @property
     def runs(self):

@@ -2,6 +2,7 @@
 (Drake's ``yaml_load_typed`` / ``yaml_dump_typed``), and PyYAML for the raw data it checks first.
 """
 
+import dataclasses
 import re
 import warnings
 from pathlib import Path
@@ -171,6 +172,14 @@ def override_hint(message, overrides):
     return ""
 
 
-def dump_scenario(scenario):
-    """The resolved scenario as YAML text (loads back to an equal ScenarioConfig)."""
+def dump_scenario(scenario, folder=None):
+    """The resolved scenario as YAML text (loads back to an equal ScenarioConfig); for a file in
+    `folder`, the paths it names (a custom estimator's factory file) relative to that folder
+    where they can be, so that the folder can move with the files it names."""
+    if folder is not None:
+        vehicles = [
+            dataclasses.replace(v, estimator=kind_of(v.estimator).relative(v.estimator, folder))
+            for v in scenario.vehicles
+        ]
+        scenario = dataclasses.replace(scenario, vehicles=vehicles)
     return yaml_dump_typed(scenario)

@@ -28,13 +28,21 @@ filter: it fuses each GPS and magnetometer sample once (by its stamp), skips and
 non-finite samples, runs the prediction over an IMU dropout on the last finite IMU sample
 and reports the body rate as NaN then (the controller then commands no moment), and fills
 ``diagnostics``. :func:`check_estimator` makes one estimator and runs one step of each method
-on made-up samples before anything flies: a mistake is one line naming the method.
+on made-up samples before anything flies: a mistake is one line naming the method
+(:class:`EstimatorProblem`). A method that raises during a flight is an
+:class:`EstimatorRaised`: one line naming the method, the vehicle and the sim time, and the
+frames of your code in its traceback (not the workbench's).
+
+A ``path/to/file.py`` factory's folder is put on ``sys.path`` (as ``python file.py`` does), so
+the file can import the modules beside it.
 """
 
 import importlib
 import importlib.util
 import math
+import os
 import sys
+import traceback
 from functools import cache
 from pathlib import Path
 
@@ -49,7 +57,39 @@ GPS_DOF, MAG_DOF = 6, 1
 
 
 class EstimatorProblem(ValueError):
-    """A custom estimator that cannot fly; str() is one line."""
+    """A custom estimator that cannot fly; str() is one line. ``user_frames``: when a method of
+    the estimator raised, that error's traceback from the method's frame on (your code), as
+    text; else ``""``."""
+
+    def __init__(self, message, user_frames=""):
+        super().__init__(message)
+        self.user_frames = user_frames
+
+
+class EstimatorRaised(Exception):
+    """A custom estimator failed during a flight (a method raised, or returned what cannot be
+    used): ``str()`` is one line naming the vehicle, the method and the sim time;
+    ``user_frames`` the traceback of your code (``""`` when nothing raised); ``copy`` which of
+    the system's n estimators failed (a fleet flies copy j with its j-th seed). Picklable, so
+    it crosses a process pool or a Dask cluster whole."""
+
+    def __init__(self, line, user_frames="", copy=0):
+        super().__init__(line, user_frames, copy)
+        self.line, self.user_frames, self.copy = line, user_frames, copy
+
+    def __str__(self):
+        return self.line
+
+    def with_context(self, text):
+        """The same failure with `text` appended to its line (e.g. the seed and how to reproduce it)."""
+        return EstimatorRaised(f"{self.line}; {text}", self.user_frames, self.copy)
+
+
+def in_flight(problem, vehicle, factory, copy, time):
+    """The EstimatorRaised of an EstimatorProblem met at sim time `time` s by estimator `copy`
+    of `vehicle` (its name), made by `factory`."""
+    line = f"at t = {time:.3f} s of the flight, {vehicle}'s estimator {factory}: {problem}"
+    return EstimatorRaised(line, problem.user_frames, copy)
 
 
 def _one_line(error):
@@ -69,6 +109,20 @@ def absolute_factory(factory, base_dir):
     return factory
 
 
+def relative_factory(factory, folder):
+    """`factory` with an absolute ``file.py`` path made relative to `folder` (where a scenario
+    file saved there is read from: :func:`absolute_factory` makes it absolute again), so that
+    the folder moves with the file beside it; unchanged when it cannot be (another drive) or
+    names a module."""
+    location, colon, name = factory.rpartition(":")
+    if not colon or not location.endswith(".py") or not Path(location).is_absolute():
+        return factory
+    try:
+        return f"{Path(os.path.relpath(location, Path(folder).resolve())).as_posix()}:{name}"
+    except ValueError:  # Windows: another drive
+        return factory
+
+
 @cache
 def load_factory(factory):
     """The callable `factory` names (``module:name`` or ``path.py:name``); EstimatorProblem when it
@@ -81,6 +135,9 @@ def load_factory(factory):
             path = Path(location)
             if not path.is_file():
                 raise EstimatorProblem(f"factory {factory!r}: no such file {location}")
+            folder = str(path.resolve().parent)
+            if folder not in sys.path:  # its sibling modules import, as under `python file.py`
+                sys.path.insert(0, folder)
             module_name = f"quad_drake_custom_{abs(hash(str(path.resolve()))):x}"
             spec = importlib.util.spec_from_file_location(module_name, path)
             module = importlib.util.module_from_spec(spec)
@@ -122,11 +179,13 @@ def state_names_of(estimator):
 
 
 def call(estimator, method, *args):
-    """``estimator.<method>(*args)``; EstimatorProblem (one line, naming the method) when it raises."""
+    """``estimator.<method>(*args)``; EstimatorProblem (one line, naming the method, with the
+    frames of the method's traceback as ``user_frames``) when it raises."""
     try:
         return getattr(estimator, method)(*args)
     except Exception as e:
-        raise EstimatorProblem(f"{method}() raised {_one_line(e)}") from None
+        frames = "".join(traceback.format_exception(type(e), e, e.__traceback__.tb_next))
+        raise EstimatorProblem(f"{method}() raised {_one_line(e)}", frames) from None
 
 
 def _array(value, shape, what):

@@ -15,7 +15,8 @@ to know of it:
 - ``fidelity_problem(fidelity)``: why it cannot run under a Fidelity (one line), or None;
 - ``problem(config)``: why a config of it cannot fly (one line; a custom estimator's check
   before any flight), or None; ``locate(config, base_dir)``: the config with the paths it names
-  made absolute against the scenario file's folder ``base_dir``.
+  made absolute against the scenario file's folder ``base_dir``; ``relative(config, folder)``:
+  its inverse, for a scenario saved into ``folder`` (the paths relative to it where they can be).
 
 Adding an estimator is its config dataclass and one entry in :data:`KINDS`.
 
@@ -125,7 +126,7 @@ def _no_problem(config):
     return None
 
 
-def _as_is(config, base_dir):
+def _as_is(config, folder):
     return config
 
 
@@ -141,6 +142,7 @@ class EstimatorKind:
     fidelity_problem: Callable[[Fidelity], Optional[str]]
     problem: Callable[[object], Optional[str]] = _no_problem
     locate: Callable[[object, object], object] = _as_is
+    relative: Callable[[object, object], object] = _as_is
     # the aiding sensors (issue 32): whether it fuses a barometer, and the NIS it logs for a
     # 3-axis magnetometer ("mag": the EKF7's tilt-compensated heading, "field": the ESKF's vector;
     # None: it cannot take one)
@@ -217,6 +219,10 @@ def _custom_located(config, base_dir):
     return dataclasses.replace(config, factory=custom.absolute_factory(config.factory, base_dir))
 
 
+def _custom_relative(config, folder):
+    return dataclasses.replace(config, factory=custom.relative_factory(config.factory, folder))
+
+
 def _custom_tuning(config):
     """The custom estimator's noise parameters: those named ``*_std``."""
     return tuple(f"estimator.params.{name}" for name in config.params if name.endswith("_std"))
@@ -254,6 +260,7 @@ KINDS = {
             fidelity_problem=_any_fidelity,
             problem=_custom_problem,
             locate=_custom_located,
+            relative=_custom_relative,
         ),
         EstimatorKind(
             name="truth",

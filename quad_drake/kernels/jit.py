@@ -12,9 +12,11 @@ numba's cache files are pickles, and the temporary directory is shared: the fall
 is used only when it is this user's own and no one else can write in it
 (:func:`private_directory`), so another user cannot plant code in it.
 
-A process that compiles (the first run after an install or an upgrade: nothing cached yet)
-says so once on a terminal's stderr (:class:`CompileNotice`), so that the pause of about 15 s
-is not taken for a hang.
+A kernel compiles the first time it is called (per argument types), so each estimator, sensor,
+fleet or campaign flown first after an install or an upgrade compiles the kernels it is the
+first to use; ``quad-drake warmup`` (``quad_drake.warmup``) compiles them all at once. A process
+that compiles says so once on a terminal's stderr (:class:`CompileNotice`), so that the pause
+of about 15 s is not taken for a hang.
 """
 
 import getpass
@@ -32,8 +34,8 @@ from numba.core import event
 
 _warned = False
 COMPILE_NOTICE = (
-    "quad-drake: compiling the numba kernels into the on-disk cache "
-    "(once after an install or an upgrade; up to about 15 s) ..."
+    "quad-drake: compiling the numba kernels this flight is the first to use into the on-disk cache "
+    "(up to about 15 s; `quad-drake warmup` compiles every kernel once) ..."
 )
 
 

@@ -11,7 +11,14 @@ gets follows from what it logged, so a new scenario needs no plot code:
 - for one or two vehicles with an estimator: true vs estimated attitude and
   states, and every EKF error against its ±sigma;
 - for a fleet (three or more estimating vehicles): every vehicle's x / vx
-  (y / vy) error inside the first vehicle's ±sigma envelope (reference 09).
+  (y / vy) error inside the first vehicle's ±sigma envelope (reference 09);
+- in wind: the wind at the vehicle, its steady part (mean + gusts) and its turbulence;
+- with a barometer, a 3-axis magnetometer or a faulted yaw magnetometer: the measurement
+  itself beside what the truth and the estimate make of it (height, body field, yaw).
+
+On every time panel: injected faults hatched red (hatching, not a fill, so a fault over a
+judged green band stays red and green), gust windows shaded blue, touchdowns as dash-dotted
+lines named with their time and descent speed in the first panel's legend.
 """
 
 import math
@@ -22,12 +29,15 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
+from ..estimation.mag3 import assumed_world_field, predicted_field
 from ..estimation.registry import vehicle_vocabulary
 from ..judging.consistency import fleet_sigma_fraction
 from ..judging.evaluation import judged_criteria, sigma_share
 from ..judging.signals import key_unit, signal_unit
+from ..models.sensor_models import world_field
+from ..models.wind import steady_wind
 from .outdir import write_binary_atomic
-from .report import fault_spans, write_report
+from .report import fault_spans, gust_spans, touchdown_marks, write_report
 
 __all__ = ["make_figures", "write_plots", "write_report", "write_run_artifacts"]
 
@@ -60,7 +70,7 @@ def _figure(rows, cols, width=8.0, height_per_row=2.0, title=""):
     fig.subplots_adjust(
         left=1.0 / width,
         right=0.98,
-        bottom=0.1 if rows < 3 else 0.07,
+        bottom=0.55 / (0.8 + height_per_row * rows),  # room for the time label
         top=1.0 - 0.55 / (0.8 + height_per_row * rows),
         hspace=0.35,
         wspace=0.45,
@@ -76,20 +86,48 @@ def _figure(rows, cols, width=8.0, height_per_row=2.0, title=""):
 
 
 FAULT_COLOR = "tab:red"
+GUST_COLOR = "tab:blue"
+TOUCHDOWN_COLOR = "k"
+MEASURED_COLOR = "tab:orange"
 
 
 def shade_faults(fig, spans):
-    """Shade each fault span on every time panel of `fig` (``fig.time_axes``); a zero-length span
-    (one sample) is a vertical line. The first panel's legend names them."""
+    """Mark each fault span on every time panel of `fig` (``fig.time_axes``): red hatching between
+    two red edges, no fill (a fill over the judged green band would turn brown); a zero-length
+    span (one sample) is a vertical line. The first panel's legend names them."""
     for k, ax in enumerate(getattr(fig, "time_axes", ())):
         for start, end, label in spans:
             shown = f"fault: {label}" if k == 0 else None
             if end > start:
-                ax.axvspan(start, end, color=FAULT_COLOR, alpha=0.12, lw=0, label=shown)
+                ax.axvspan(
+                    start,
+                    end,
+                    facecolor="none",
+                    edgecolor=FAULT_COLOR,
+                    hatch="///",
+                    lw=0.8,
+                    alpha=0.55,
+                    label=shown,
+                )
             else:
                 ax.axvline(start, color=FAULT_COLOR, lw=1.2, alpha=0.6, label=shown)
         if k == 0 and spans:
-            ax.legend(loc="upper right", fontsize=7)
+            ax.legend(loc="best", fontsize=7)
+
+
+def mark_events(fig, gusts, landings):
+    """Mark the flight's events on every time panel of `fig`: each gust window (start, end, label)
+    shaded blue, each touchdown (time s, label: ``report.touchdown_marks``) a dash-dotted line;
+    the first panel's legend names them."""
+    for k, ax in enumerate(getattr(fig, "time_axes", ())):
+        for start, end, label in gusts:
+            ax.axvspan(start, end, color=GUST_COLOR, alpha=0.1, lw=0, label=label if k == 0 else None)
+        for time, label in landings:
+            ax.axvline(
+                time, color=TOUCHDOWN_COLOR, ls="-.", lw=1.0, alpha=0.8, label=label if k == 0 else None
+            )
+        if k == 0 and (gusts or landings):
+            ax.legend(loc="best", fontsize=7)
 
 
 def _vehicles(result):
@@ -543,6 +581,117 @@ def _fleet_figure(result, vehicles):
     return fig
 
 
+def _wind_figure(result, vehicle):
+    """The wind at `vehicle` (``V.Wind.*``, m/s NED), one row per axis: left the wind and its
+    steady part (mean + gusts, from its WindConfig), right its turbulence (the rest), when it
+    has any."""
+    config = next(v for v in result.scenario.vehicles if v.name == vehicle).wind
+    t = result.times
+    steady = np.array([steady_wind(time, config) for time in t]).reshape(t.size, 3)
+    turbulent = config.turbulence != "none"
+    fig, axes = _figure(
+        3,
+        2 if turbulent else 1,
+        width=11.0 if turbulent else 8.0,
+        height_per_row=1.9,
+        title=f"{vehicle}: wind at the vehicle (NED) = steady (mean + gusts)"
+        + (" + turbulence" if turbulent else ""),
+    )
+    for i, axis in enumerate(("north", "east", "down")):
+        total = _values(result, f"{vehicle}.Wind.{'XYZ'[i]}")
+        ax = axes[i, 0]
+        ax.plot(t, total, color="tab:gray", lw=0.8, label="wind")
+        ax.plot(t, steady[:, i], color="k", lw=1.6, label="steady: mean + gusts")
+        ax.set_ylabel(_label(f"wind {axis}", "m/s"))
+        if turbulent:
+            axes[i, 1].plot(t, total - steady[:, i], color="tab:blue", lw=0.8, label="turbulence")
+            axes[i, 1].set_ylabel(_label(f"turbulence {axis}", "m/s"))
+    for ax in axes[0]:
+        ax.legend(loc="upper left", fontsize=7, ncol=2)
+    return fig
+
+
+def _field_assumed(config):
+    """(m_N, hard iron) the vehicle's estimator assumes of a 3-axis magnetometer, or None."""
+    for block in (config.estimator, getattr(config, "ekf", None)):
+        params = getattr(block, "mag_field", None)
+        if params is not None:
+            return np.array(assumed_world_field(params)), np.asarray(params.hard_iron, dtype=float)
+    return None
+
+
+def _measurement_panels(result, vehicle):
+    """[(label, unit, times of the samples, measured samples, truth, estimate or None)] of the
+    vehicle's measurements worth drawing beside the truth and the estimate: the barometer's
+    height, the 3-axis magnetometer's body field, the yaw magnetometer's yaw when a fault acts on
+    it (GPS has its own figure)."""
+    config = next(v for v in result.scenario.vehicles if v.name == vehicle)
+    t, signals = result.times, result.signals
+    estimated = f"{vehicle}.Est.X" in signals
+    panels = []
+    baro = signals.get(f"{vehicle}.Baro.Height")
+    if baro is not None:
+        estimate = -_values(result, f"{vehicle}.Est.Z") if estimated else None
+        panels.append(
+            (
+                "height, up",
+                "m",
+                t[baro.fresh],
+                baro.values[baro.fresh],
+                -_values(result, f"{vehicle}.Pos.Z"),
+                estimate,
+            )
+        )
+    if f"{vehicle}.Mag.X" in signals:
+        mag = config.sensors.mag
+        m_N = world_field(mag.field_strength, mag.declination, mag.inclination)
+        q = result.logs[vehicle]["state"][:, 3:7].T
+        truth = np.array(predicted_field(*q, *m_N)).T + np.asarray(mag.hard_iron)
+        assumed = _field_assumed(config) if estimated else None
+        estimate = None
+        if assumed is not None:
+            q_hat = result.logs[vehicle]["estimated_state"][:, 3:7].T
+            estimate = np.array(predicted_field(*q_hat, *assumed[0])).T + assumed[1]
+        for i, axis in enumerate("xyz"):
+            sample = signals[f"{vehicle}.Mag.{axis.upper()}"]
+            panels.append(
+                (
+                    f"field {axis} (body)",
+                    "gauss",
+                    t[sample.fresh],
+                    sample.values[sample.fresh],
+                    truth[:, i],
+                    None if estimate is None else estimate[:, i],
+                )
+            )
+    yaw = signals.get(f"{vehicle}.MagYaw")
+    if yaw is not None and any(f.kind.startswith("mag_") for f in config.faults):
+        estimate = _values(result, f"{vehicle}.Est.Yaw") if estimated else None
+        panels.append(
+            ("yaw", "rad", t[yaw.fresh], yaw.values[yaw.fresh], _values(result, f"{vehicle}.Yaw"), estimate)
+        )
+    return panels
+
+
+def _measurement_figure(result, vehicle, panels):
+    """Each measurement's samples (dots) beside the truth (black) and the estimate's own view of
+    it (dashed): what a fault did to the sensor and what the filter made of it."""
+    fig, axes = _figure(
+        len(panels),
+        1,
+        height_per_row=2.0 if len(panels) > 1 else 3.0,
+        title=f"{vehicle}: measured (dots) vs true (solid) vs estimated (dashed)",
+    )
+    for (label, unit, times, samples, truth, estimate), ax in zip(panels, axes[:, 0], strict=True):
+        ax.plot(times, samples, ".", ms=2, color=MEASURED_COLOR, label="measured")
+        ax.plot(result.times, truth, color="k", lw=1.0, label="true")
+        if estimate is not None:
+            ax.plot(result.times, estimate, color="tab:blue", lw=1.0, ls="--", label="estimated")
+        ax.set_ylabel(_label(label, unit))
+    axes[0, 0].legend(loc="upper left", fontsize=7, ncol=3)
+    return fig
+
+
 def make_figures(result):
     """Ordered {file stem: (caption, Figure)} for a SimulationResult (see the module doc)."""
     figures = {}
@@ -574,13 +723,36 @@ def make_figures(result):
                 f"{vehicle}: true vs estimated states",
                 _state_estimate_figure(result, vehicle),
             )
+    if len(estimating) < FLEET_SIZE:
+        for vehicle in estimating:
+            panels = _measurement_panels(result, vehicle)
+            if panels:
+                figures[f"measurements_{vehicle}"] = (
+                    f"{vehicle}: measured vs true vs estimated",
+                    _measurement_figure(result, vehicle, panels),
+                )
+    windy = [
+        v.name
+        for v in result.scenario.vehicles
+        if v.wind is not None and f"{v.name}.Wind.X" in result.signals
+    ]
+    for vehicle in windy[: FLEET_SIZE - 1]:
+        figures[f"wind_{vehicle}"] = (
+            f"{vehicle}: wind, steady and turbulent parts",
+            _wind_figure(result, vehicle),
+        )
     figures["position"] = ("Position vs reference", _position_figure(result))
     figures["top_view"] = ("Top view of the paths", _top_view_figure(result))
     figures["attitude"] = ("Attitude and body rates", _attitude_figure(result))
     figures["thrust"] = ("Motor thrusts", _thrust_figure(result))
-    spans = fault_spans(result.scenario)
+    spans, gusts, landings = (
+        fault_spans(result.scenario),
+        gust_spans(result.scenario),
+        touchdown_marks(result),
+    )
     for _, fig in figures.values():
         shade_faults(fig, spans)
+        mark_events(fig, gusts, landings)
     return figures
 
 

@@ -171,6 +171,7 @@ def write_report(result, path, plots=(), replay=None):
         f'<h1>{esc(scenario.name)} <span class="{overall[1]}">&nbsp;{overall[0]}&nbsp;</span></h1>',
         f"<p>{esc(scenario.description)}</p>",
         *faults_html(scenario),
+        *events_html(result),
         html_table(
             ["seed", "simulated [s]", "wall time [s]", "× real time", "vehicles"],
             [
@@ -265,6 +266,68 @@ def fault_spans(scenario):
     return spans
 
 
+def gust_spans(scenario):
+    """[(start, end, label)] s of the scenario's wind gusts, for shading: each gust's
+    [start, start + duration], labelled with its peak and direction (NED) and, when there are
+    several vehicles, the vehicle."""
+    spans = []
+    several = len(scenario.vehicles) > 1
+    for vehicle in scenario.vehicles:
+        for gust in vehicle.wind.gusts if vehicle.wind is not None else ():
+            direction = ", ".join(f"{x:g}" for x in gust.direction)
+            label = f"gust {gust.amplitude:g} m/s along ({direction})"
+            spans.append(
+                (gust.start, gust.start + gust.duration, f"{vehicle.name}: {label}" if several else label)
+            )
+    return spans
+
+
+def touchdowns(result):
+    """{vehicle: [(time s, descent speed m/s)]} of every touchdown after take-off
+    (``V.TouchdownSpeed``, ``signals.touchdown_speeds``), in time order; vehicles without one
+    left out."""
+    found = {}
+    for vehicle in result.scenario.vehicles:
+        signal = result.signals.get(f"{vehicle.name}.TouchdownSpeed")
+        if signal is None:
+            continue
+        counts = result.signals[f"{vehicle.name}.FloorTouchdowns"].values
+        new = np.flatnonzero(np.diff(counts, prepend=counts[:1]) > 0)
+        if new.size:
+            found[vehicle.name] = [(float(result.times[k]), float(signal.values[k])) for k in new]
+    return found
+
+
+def touchdown_marks(result):
+    """[(time s, label)] of the touchdowns worth marking: each vehicle's first (the landing) and
+    its fastest when that is another; the label names the time and descent speed, the first's
+    also how many more there were and how fast (a vehicle at rest on the floor touches it again
+    and again at mm/s)."""
+    several = len(result.scenario.vehicles) > 1
+    marks = []
+    for vehicle, found in touchdowns(result).items():
+        name = f"{vehicle} " if several else ""
+        first = found[0]
+        fastest = max(found, key=lambda touchdown: touchdown[1])
+        shown = [first] if fastest is first else [first, fastest]
+        rest = [speed for time, speed in found if (time, speed) not in shown]
+        for time, speed in shown:
+            label = f"{name}touchdown {time:.2f} s, {speed:.2f} m/s"
+            if time == first[0] and rest:
+                label += f" ({len(rest)} more, each ≤ {max(rest):.2g} m/s)"
+            marks.append((time, label))
+    return marks
+
+
+def events_html(result):
+    """[a paragraph naming the gusts and the touchdowns (marked on the plots)], or []."""
+    words = [f"{label} in [{start:g}, {end:g}] s" for start, end, label in gust_spans(result.scenario)]
+    words += [label for _, label in touchdown_marks(result)]
+    if not words:
+        return []
+    return [f"<p>Events (marked on the time plots): {esc('; '.join(words))}.</p>"]
+
+
 def faults_html(scenario):
     """[a paragraph naming the injected faults and their windows (shaded on the plots)], or []."""
     spans = fault_spans(scenario)
@@ -274,7 +337,7 @@ def faults_html(scenario):
         f"{label} at {start:g} s" if end == start else f"{label} in [{start:g}, {end:g}) s"
         for start, end, label in spans
     ]
-    return [f"<p>Injected fault (shaded red on the time plots): {esc('; '.join(words))}.</p>"]
+    return [f"<p>Injected fault (hatched red on the time plots): {esc('; '.join(words))}.</p>"]
 
 
 # ----- out/index.html ------------------------------------------------------------------------

@@ -37,12 +37,14 @@ class PythonEstimator(LeafSystem):
     the IMU sample (the last finite one over a dropout, counted); then a fresh magnetometer
     and a fresh GPS sample (by stamp; a non-finite one is counted and skipped), each gated
     when the estimator gives its innovation (``gate_sigma``, 0 = off) and fused with
-    ``update_mag`` / ``update_gps``; then ``estimate()`` and ``covariance()`` are read.
+    ``update_mag`` / ``update_gps``; then ``estimate()`` and ``covariance()`` are read. A
+    method that raises (or returns what cannot be used) stops the flight with
+    ``custom.EstimatorRaised`` naming `vehicle` (its name), the method, the copy and the sim time.
     """
 
-    def __init__(self, config, n=1):
+    def __init__(self, config, n=1, vehicle="vehicle"):
         super().__init__()
-        self._n, self._config = n, config
+        self._n, self._config, self._vehicle = n, config, vehicle
         names = vocabulary_for(config).state_names
         self._k = len(names)
         self._gps_threshold = gating.gate_threshold(custom.GPS_DOF, config.gate_sigma)
@@ -103,30 +105,36 @@ class PythonEstimator(LeafSystem):
         last_imu = discrete.get_mutable_value(self._last_imu).reshape(self._n, IMU_SIZE)
         imu, gps, mag = self._read_imu(context), self._read_gps(context), self._read_mag(context)
         for i, estimator in enumerate(estimators):
-            body_rate = imu[i, 3:6]
-            if np.isfinite(imu[i]).all():
-                last_imu[i] = imu[i]
-            else:
-                diagnostics[i, DIAG["nonfinite_samples"]] += 1
-                body_rate = np.full(3, math.nan)
-            custom.call(
-                estimator, "predict", ONBOARD_PERIOD, last_imu[i, 0:3].copy(), last_imu[i, 3:6].copy()
-            )
-            if mag[i, 1] > diagnostics[i, DIAG["mag_stamp"]] + gating.STAMP_TOLERANCE:
-                self._fuse(
-                    estimator, "mag", (float(mag[i, 0]),), mag[i, 1], diagnostics[i], self._mag_threshold
-                )
-            if gps[i, 6] > diagnostics[i, DIAG["gps_stamp"]] + gating.STAMP_TOLERANCE:
-                sample = (gps[i, 0:3].copy(), gps[i, 3:6].copy())
-                self._fuse(estimator, "gps", sample, gps[i, 6], diagnostics[i], self._gps_threshold)
-            self._write_estimate(estimates[i], custom.read_estimate(estimator), body_rate)
-            covariances[i] = custom.read_covariance(estimator, self._k)
+            rows = (imu[i], gps[i], mag[i], estimates[i], covariances[i], diagnostics[i], last_imu[i])
+            try:
+                self._step(estimator, *rows)
+            except custom.EstimatorProblem as e:
+                raise custom.in_flight(
+                    e, self._vehicle, self._config.factory, i, context.get_time()
+                ) from None
+
+    def _step(self, estimator, imu, gps, mag, estimate, covariance, diagnostics, last_imu):
+        """One tick of one estimator; its rows of the inputs, and of the state, updated in place."""
+        body_rate = imu[3:6]
+        if np.isfinite(imu).all():
+            last_imu[:] = imu
+        else:
+            diagnostics[DIAG["nonfinite_samples"]] += 1
+            body_rate = np.full(3, math.nan)
+        custom.call(estimator, "predict", ONBOARD_PERIOD, last_imu[0:3].copy(), last_imu[3:6].copy())
+        if mag[1] > diagnostics[DIAG["mag_stamp"]] + gating.STAMP_TOLERANCE:
+            self._fuse(estimator, "mag", (float(mag[0]),), mag[1], diagnostics, self._mag_threshold)
+        if gps[6] > diagnostics[DIAG["gps_stamp"]] + gating.STAMP_TOLERANCE:
+            sample = (gps[0:3].copy(), gps[3:6].copy())
+            self._fuse(estimator, "gps", sample, gps[6], diagnostics, self._gps_threshold)
+        self._write_estimate(estimate, custom.read_estimate(estimator), body_rate)
+        covariance[:] = custom.read_covariance(estimator, self._k)
 
 
 def add_custom(builder, vehicle, fidelity, n):
     """Add the custom estimator of n vehicles to `builder` (the ``custom`` kind's builder,
     ``estimation/registry.py``); (input ports by name, output ports by name)."""
-    system = builder.AddNamedSystem("custom_estimator", PythonEstimator(vehicle.estimator, n))
+    system = builder.AddNamedSystem("custom_estimator", PythonEstimator(vehicle.estimator, n, vehicle.name))
     inputs = {name: [system.GetInputPort(name)] for name in ("imu", "gps", "mag")}
     return inputs, {
         name: system.GetOutputPort(name) for name in ("estimated_state", "covariance", "diagnostics")

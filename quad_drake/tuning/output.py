@@ -65,7 +65,9 @@ def write_search(result, out_dir):
     if result.search.best is None:
         return written
     tuned = out_dir / "tuned.yaml"
-    write_text_atomic(tuned, "".join(f"# {line}\n" for line in _header(result)) + dump_scenario(result.tuned))
+    write_text_atomic(
+        tuned, "".join(f"# {line}\n" for line in _header(result)) + dump_scenario(result.tuned, out_dir)
+    )
     written += [tuned, _write_plot(result, out_dir / "objective.png")]
     dump_json(out_dir / "tune.json", summary(result))
     return written + [out_dir / "tune.json", write_page(result, out_dir)]

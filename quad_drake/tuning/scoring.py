@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 from ..campaigns import InProcessRunner, ProcessPoolRunner, run_campaign
 from ..campaigns.runners import TaskFailed
+from ..estimation.custom import EstimatorRaised
 from .objective import breakdown_score, score
 
 
@@ -23,8 +24,9 @@ def campaign_runner(scenario, jobs):
     return InProcessRunner() if jobs == 1 else ProcessPoolRunner(jobs)
 
 
-def fly_campaign(scenario, first_seed, runs, runner, progress=False):
-    """CampaignResult of `runs` runs of `scenario` with seeds first_seed.. on `runner`.
+def fly_campaign(scenario, first_seed, runs, runner, progress=False, run_command=None):
+    """CampaignResult of `runs` runs of `scenario` with seeds first_seed.. on `runner`
+    (run_command: the command that flies one run alone, ``campaigns.campaign.one_run_command``).
 
     The same seeds for every candidate (common random numbers): the loss is a deterministic
     function of the parameters, and differences between candidates are not seed noise.
@@ -36,6 +38,7 @@ def fly_campaign(scenario, first_seed, runs, runner, progress=False):
         seed=first_seed,
         progress=progress,
         fleet_batch=fleet_batch(runs, runner),
+        run_command=run_command,
     )
 
 
@@ -47,13 +50,15 @@ def fleet_batch(runs, runner):
 @dataclass(frozen=True)
 class CandidateTask:
     """One candidate's campaign: `scenario` (the candidate's values applied) on the training
-    seeds first_seed.., scored with `objective` against the χ² band of `target_runs` runs."""
+    seeds first_seed.., scored with `objective` against the χ² band of `target_runs` runs;
+    `run_command` flies one of its runs alone (its values as ``--set``s), or None."""
 
     scenario: object
     first_seed: int
     runs: int
     objective: str
     target_runs: int
+    run_command: object = None
 
 
 def score_candidate(task):
@@ -61,7 +66,9 @@ def score_candidate(task):
     run that broke down numerically is the candidate's fault (:func:`.objective.breakdown_score`);
     any other failure is raised."""
     try:
-        campaign = fly_campaign(task.scenario, task.first_seed, task.runs, InProcessRunner())
+        campaign = fly_campaign(
+            task.scenario, task.first_seed, task.runs, InProcessRunner(), run_command=task.run_command
+        )
     except RuntimeError as e:
         if isinstance(e.__cause__, ArithmeticError):
             return breakdown_score()
@@ -71,11 +78,14 @@ def score_candidate(task):
 
 def score_candidates(tasks, runner):
     """Iterator of (index into tasks, Score) of CandidateTasks on `runner`, one candidate per
-    task, in completion order; a failed candidate raises RuntimeError naming its campaign."""
+    task, in completion order; a failed candidate raises RuntimeError naming its campaign (a
+    custom estimator that raised: its ``custom.EstimatorRaised``)."""
     try:
         yield from runner.map(score_candidate, tasks)
     except TaskFailed as e:
         task = tasks[e.index]
+        if isinstance(e.error, EstimatorRaised):  # the user's own code: its line and frames
+            raise e.error.with_context("in a candidate of the tune") from None
         raise RuntimeError(
             f"a candidate's campaign failed ({task.scenario.name}, seeds {task.first_seed}.."
             f"{task.first_seed + task.runs - 1}): {e.error!r}"

@@ -10,9 +10,11 @@ skipped, and the result says it was interrupted.
 """
 
 import math
+import shlex
 import sys
 import time
 from dataclasses import dataclass, field
+from typing import Optional
 
 from tqdm import tqdm
 
@@ -26,7 +28,7 @@ from .objective import pass_rate, score
 from .scoring import CandidateTask, campaign_runner, fly_campaign, score_candidates
 from .search import search
 from .settings import OBJECTIVES, TuneSettings
-from .space import SEARCH_DECADES, apply, search_space
+from .space import SEARCH_DECADES, apply, overrides, search_space
 
 
 @dataclass
@@ -34,6 +36,7 @@ class TuneProblem:
     scenario: object  # ScenarioConfig as given (the start)
     space: list  # [space.Parameter]
     settings: TuneSettings
+    run_command: Optional[str] = None  # flies the start's one run alone (campaign.one_run_command)
 
 
 @dataclass
@@ -54,8 +57,10 @@ def _check_count(value, option):
         raise ConfigError(f"tune: {option} must be >= 1, got {value}")
 
 
-def prepare(scenario, keys, settings):
-    """TuneProblem; ConfigError (one line) for any bad input, before any run flies."""
+def prepare(scenario, keys, settings, run_command=None):
+    """TuneProblem; ConfigError (one line) for any bad input, before any run flies. run_command:
+    the command that flies one run of `scenario` alone (``campaigns.campaign.one_run_command``),
+    for the "reproduce with" hint of a failing run (a candidate's gets its values as ``--set``)."""
     if settings.objective not in OBJECTIVES:
         raise ConfigError(
             f"tune: --objective must be one of {', '.join(OBJECTIVES)}, got {settings.objective!r}"
@@ -84,7 +89,7 @@ def prepare(scenario, keys, settings):
             ) from None
         if not any(bounded):
             raise ConfigError(f"tune: --objective {settings.objective} needs an accuracy bound (no GPS)")
-    return TuneProblem(scenario, space, settings)
+    return TuneProblem(scenario, space, settings, run_command)
 
 
 class _Progress:
@@ -117,6 +122,13 @@ class _Progress:
             self.bar.close()
 
 
+def _with_sets(run_command, texts):
+    """`run_command` with ``--set`` texts appended (None stays None: the campaign's default)."""
+    if run_command is None:
+        return None
+    return run_command + "".join(f" --set {shlex.quote(text)}" for text in texts)
+
+
 def tune(problem, out_dir, progress=True):
     """TuneResult; writes the outputs into out_dir (:func:`.output.write`)."""
     s, scenario, space = problem.settings, problem.scenario, problem.space
@@ -125,7 +137,12 @@ def tune(problem, out_dir, progress=True):
         def evaluate(xs):
             tasks = [
                 CandidateTask(
-                    apply(scenario, space, x), s.train_seed, s.train_runs, s.objective, s.holdout_runs
+                    apply(scenario, space, x),
+                    s.train_seed,
+                    s.train_runs,
+                    s.objective,
+                    s.holdout_runs,
+                    _with_sets(problem.run_command, overrides(space, x)),
                 )
                 for x in xs
             ]
@@ -145,8 +162,11 @@ def tune(problem, out_dir, progress=True):
             return result
         start = time.perf_counter()
         try:
-            result.before = fly_campaign(scenario, s.holdout_seed, s.holdout_runs, runner, progress)
-            result.after = fly_campaign(result.tuned, s.holdout_seed, s.holdout_runs, runner, progress)
+            result.before = fly_campaign(
+                scenario, s.holdout_seed, s.holdout_runs, runner, progress, problem.run_command
+            )
+            tuned = _with_sets(problem.run_command, overrides(space, found.best.x))
+            result.after = fly_campaign(result.tuned, s.holdout_seed, s.holdout_runs, runner, progress, tuned)
         except KeyboardInterrupt:
             result.interrupted = True
             result.before = result.after = None

@@ -150,6 +150,21 @@ def search_space(scenario, keys=None):
     return space
 
 
+def overrides(space, x):
+    """The ``--set`` texts that give a scenario the values of `space` at x (what :func:`apply`
+    sets): ``vehicles.I.PATH=VALUE`` per target, VALUE a number or a ``[...]`` list."""
+    texts = []
+    for p, xi in zip(space, x, strict=True):
+        for (i, path), value in zip(p.targets, p.values(float(xi)), strict=True):
+            shown = (
+                f"[{', '.join(repr(float(v)) for v in value)}]"
+                if isinstance(value, tuple | list)
+                else repr(float(value))
+            )
+            texts.append(f"vehicles.{i}.{'.'.join(map(str, path))}={shown}")
+    return texts
+
+
 def apply(scenario, space, x):
     """A validated copy of `scenario` with every Parameter of `space` at its log10 multiplier in x."""
     candidate = copy.deepcopy(scenario)
