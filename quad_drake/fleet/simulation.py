@@ -19,7 +19,7 @@ from quad_drake import conventions as c
 from quad_drake.config import check_scenario
 from quad_drake.fidelity import fidelity_from_mode
 from quad_drake.limits import check_run
-from quad_drake.simulation import build_vehicle, vehicle_log_widths
+from quad_drake.simulation import build_vehicle, flight_end, log_samples, vehicle_log_widths
 
 
 class BatchRecorder(LeafSystem):
@@ -58,7 +58,7 @@ def build_fleet_diagram(scenario, seeds, make_sink=None):
     by ``make_sink(signals, samples)`` (signals: ((vehicle, log name), width) per input port,
     samples: log samples of a run), takes every exported signal; default a BatchRecorder."""
     fidelity = fidelity_from_mode(scenario.fidelity)
-    samples = int(round(scenario.end_time / c.LOG_PERIOD))
+    samples = log_samples(scenario)
     builder = DiagramBuilder()
     ports, signals = [], []
     for vehicle in scenario.vehicles:
@@ -107,7 +107,7 @@ def run_fleet(scenario, seeds):
     check_scenario(scenario)
     check_run(scenario, at_once=len(seeds))
     diagram, recorder = build_fleet_diagram(scenario, [int(s) for s in seeds])
-    wall_time = fly(diagram, scenario.end_time)
+    wall_time = fly(diagram, flight_end(scenario))
     release_memory(diagram, keep=recorder)
     recorded = recorder.release_memory()
     samples = recorder.recorded

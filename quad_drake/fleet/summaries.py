@@ -33,7 +33,7 @@ from quad_drake.estimation.vocabulary import NIS_COLUMNS, health_counts
 from quad_drake.fidelity import fidelity_from_mode
 from quad_drake.fleet.bounds import PcrbStream
 from quad_drake.results import signals_from_logs
-from quad_drake.simulation import sensor_schedule, vehicle_log_widths
+from quad_drake.simulation import log_samples, sensor_schedule, vehicle_log_widths
 from quad_drake.verdicts import CriteriaStream
 
 CHUNK_SAMPLES = 200
@@ -44,7 +44,7 @@ def summary_bytes(scenario, runs, chunk=CHUNK_SAMPLES):
     """Bytes a batch of `runs` runs of `scenario` holds while it is summarised, to within the
     small per-run sums: the chunk of every exported signal (chunk + 1 samples), and per run
     its NEES at each sample and the stamp and NIS of each fresh GPS or magnetometer update."""
-    samples = int(round(scenario.end_time / c.LOG_PERIOD))
+    samples = log_samples(scenario)
     per_run = 0
     fidelity = fidelity_from_mode(scenario.fidelity)
     for vehicle in scenario.vehicles:
