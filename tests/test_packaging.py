@@ -58,6 +58,10 @@ PURE = (
     "quad_drake.config_fields",
     "quad_drake.flightlogs.reader",
     "quad_drake.flightlogs.playback",
+    "quad_drake.grading.course",
+    "quad_drake.grading.course_math",
+    "quad_drake.grading.criteria",
+    "quad_drake.grading.statistics",
     "quad_drake.flightlogs.comparison",
 )
 """The pure modules (maths and models: numpy, no Drake); a package name covers its modules."""
