@@ -11,8 +11,8 @@ signals (values (samples, N) per signal; all N runs at once).
     fleet's spread).
 10: ``max_yaw_error``: rad, largest |``Est.E.Yaw``|; ``yaw_nees``: the mean of
     (yaw error / sigma)^2 over the run.
-11: ``max_position_error``: m, as 08; ``position_nees``: the mean over samples and x y z of
-    (error / sigma)^2.
+11: ``max_position_error``: m, as 08; ``max_velocity_error``: m/s, largest ``Est.E.Vel``;
+    ``position_nees``: the mean over samples and x y z of (error / sigma)^2.
 """
 
 import numpy as np
