@@ -33,8 +33,8 @@ from quad_drake.grading.criteria import CRITERIA, ISOLATES  # noqa: E402
 NO_REFERENCE_CRITERION = ("08_predict_state", "09_predict_covariance")
 
 
-def variant_plan(names, folder):
-    """{variant: (module path, scenarios to fly)}."""
+def variant_plan(names, folder, only=None):
+    """{variant: (module path, scenarios to fly)}; `only`: fly only these scenarios."""
     plan = {}
     for name in names:
         if name == "correct":
@@ -46,15 +46,17 @@ def variant_plan(names, folder):
         else:
             mistake = next(m for m in MISTAKES if m.name == name)
             plan[name] = (patched(mistake, folder), (mistake.scenario,))
+    if only:
+        plan = {name: (module, [s for s in only]) for name, (module, _) in plan.items()}
     return plan
 
 
-def fly_campaign(names, runs, first_seed):
+def fly_campaign(names, runs, first_seed, only=None):
     """{variant: {scenario: {"stats": {statistic: [N]}, "reference": [N bool], "single_seed": bool|None,
     "cpu": s}}}."""
     out = {}
     with tempfile.TemporaryDirectory() as folder:
-        for variant, (module, scenarios) in variant_plan(names, folder).items():
+        for variant, (module, scenarios) in variant_plan(names, folder, only).items():
             out[variant] = {}
             for scenario in scenarios:
                 seeds = tuple(range(first_seed, first_seed + runs))
@@ -72,7 +74,10 @@ def fly_campaign(names, runs, first_seed):
                     "single_seed": single,
                     "cpu": graded.cpu_time,
                 }
-                print(f"{variant} {scenario}: {graded.passes}/{graded.runs} pass, {graded.cpu_time:.1f} s CPU", flush=True)
+                print(
+                    f"{variant} {scenario}: {graded.passes}/{graded.runs} pass, {graded.cpu_time:.1f} s CPU",
+                    flush=True,
+                )
     return out
 
 
@@ -115,19 +120,34 @@ def table(results):
     return lines
 
 
+def sources():
+    """Markdown rows: each mistake, its function, its patch and where it comes from."""
+    lines = ["| mistake | function | where it comes from |", "|---|---|---|"]
+    lines += [f"| {m.name} | {m.function} | {m.source} |" for m in MISTAKES]
+    return lines
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=200)
     parser.add_argument("--first-seed", type=int, default=0)
     parser.add_argument("--variants", nargs="*", default=["correct", *[m.name for m in MISTAKES]])
+    parser.add_argument("--scenarios", nargs="*", help="fly every variant on these scenarios only")
     parser.add_argument("--out", help="JSON file for the runs' statistics")
-    parser.add_argument("--table", help="print the table of a saved JSON instead of flying")
+    parser.add_argument("--table", nargs="*", help="print the table of saved JSON files instead of flying")
+    parser.add_argument("--sources", action="store_true", help="print the mistakes' sources")
     args = parser.parse_args(argv)
+    if args.sources:
+        print("\n".join(sources()))
+        return
     if args.table:
-        results = json.loads(Path(args.table).read_text())["results"]
+        results = {}
+        for path in args.table:  # later files add variants or replace a variant's scenarios
+            for variant, scenarios in json.loads(Path(path).read_text())["results"].items():
+                results.setdefault(variant, {}).update(scenarios)
     else:
         start = time.process_time()
-        results = fly_campaign(args.variants, args.runs, args.first_seed)
+        results = fly_campaign(args.variants, args.runs, args.first_seed, args.scenarios)
         meta = {"runs": args.runs, "first_seed": args.first_seed, "cpu": time.process_time() - start}
         if args.out:
             Path(args.out).write_text(json.dumps({"meta": meta, "results": results}))

@@ -236,8 +236,8 @@ def cmd_grade(args):
         return 0
     if args.module is None:
         raise ConfigError("grade: give the student's module (my_estimator.py) or --template DIR")
-    if args.runs < 1:
-        raise ConfigError(f"--runs {args.runs}: must be at least 1")
+    if args.runs < 1 or args.jobs < 1:
+        raise ConfigError(f"--runs {args.runs} --jobs {args.jobs}: each must be at least 1")
     names = args.scenario or list(grader.COURSE_SCENARIOS)
     unknown = [n for n in names if n not in grader.COURSE_SCENARIOS]
     if unknown:
@@ -247,7 +247,7 @@ def cmd_grade(args):
         print("\n".join(grader.scenario_lines(scenario_grade)), flush=True)
 
     try:
-        result = grader.grade(args.module, args.runs, args.seed, names, progress)
+        result = grader.grade(args.module, args.runs, args.seed, names, progress, args.jobs)
     except StudentProblem as e:
         raise ConfigError(str(e)) from None
     print(grader.grade_lines(result)[-1])
@@ -561,7 +561,10 @@ def build_parser():
     grade.add_argument(
         "--template", metavar="DIR", help="write the starting file DIR/my_estimator.py instead"
     )
-    grade.add_argument("--runs", type=int, default=30, help="seeds per scenario (default: 30)")
+    grade.add_argument("--runs", type=int, default=50, help="seeds per scenario (default: 50)")
+    grade.add_argument(
+        "--jobs", type=int, default=2, help="worker processes, one scenario each at a time (default: 2)"
+    )
     grade.add_argument("--seed", type=int, default=0, help="first seed (default: 0)")
     grade.add_argument(
         "--scenario", action="append", metavar="NAME", help="grade only this scenario (repeatable)"

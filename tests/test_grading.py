@@ -50,7 +50,9 @@ def test_batched_helpers_equal_the_scalar_rotations(angles):
         np.testing.assert_allclose(q[i], rotations.quat_from_euler(r, p, y), atol=1e-12)
         np.testing.assert_allclose(R[i], rotations.rotation_from_euler(r, p, y), atol=1e-12)
         np.testing.assert_allclose(back[i], angles[i], atol=1e-12)
-        np.testing.assert_allclose(turned[i], rotations.quat_integrate_body_rate(q[i], gyro[i], 0.002), atol=1e-12)
+        np.testing.assert_allclose(
+            turned[i], rotations.quat_integrate_body_rate(q[i], gyro[i], 0.002), atol=1e-12
+        )
         np.testing.assert_allclose(rbg_prime[i], rotations.rotation_yaw_derivative(r, p, y), atol=1e-12)
 
 
@@ -160,9 +162,7 @@ def test_the_correct_solution_passes_every_scenario(correct_grade):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize(
-    "name", ["gps_sigma_as_variance", "small_angle_gyro", "mag_yaw_not_wrapped"]
-)
+@pytest.mark.parametrize("name", ["gps_sigma_as_variance", "small_angle_gyro", "mag_yaw_not_wrapped"])
 def test_a_mistake_fails_its_scenario_and_points_at_its_function(tmp_path, name):
     mistake = next(m for m in MISTAKES.MISTAKES if m.name == name)
     result = grader.grade(MISTAKES.patched(mistake, tmp_path), RUNS, 3000, scenarios=(mistake.scenario,))

@@ -11,11 +11,17 @@ signals (values (samples, N) per signal; all N runs at once).
     fleet's spread).
 10: ``max_yaw_error``: rad, largest |``Est.E.Yaw``|; ``yaw_nees``: the mean of
     (yaw error / sigma)^2 over the run.
-11: ``max_position_error``: m, as 08; ``max_velocity_error``: m/s, largest ``Est.E.Vel``;
-    ``position_nees``: the mean over samples and x y z of (error / sigma)^2.
+11: ``position_window``: s, the longest stretch with ``Est.E.Pos`` <= POSITION_BAND (the
+    reference's window rule, ``evaluation.WindowFold``); ``max_position_error``: m, as 08; ``max_velocity_error``: m/s, largest ``Est.E.Vel``;
+    ``rms_velocity_error``: m/s, its RMS over the run; ``position_nees``: the mean over samples and x y z of (error / sigma)^2.
 """
 
 import numpy as np
+
+from quad_drake.evaluation import WindowFold
+
+POSITION_BAND = 1.0
+"""m: 11's band, the reference's (``WindowThreshold(Quad.Est.E.Pos, 1, 20)``)."""
 
 
 def _rms(values, fresh):
@@ -82,7 +88,15 @@ def gps(flight):
     """11's {statistic: (N,)}."""
     errors = [flight.values(f"Quad.Est.E.{a}") for a in "XYZ"]
     sigmas = [flight.values(f"Quad.Est.S.{a}") for a in "XYZ"]
+    position_error = flight.values("Quad.Est.E.Pos")
+    window = WindowFold("Quad.Est.E.Pos", POSITION_BAND, 0.0, position_error.shape[1])
+    window.update(flight.times, position_error, np.ones(position_error.shape, dtype=bool))
     return {
-        "max_position_error": _max_abs(flight.values("Quad.Est.E.Pos")),
+        "position_window": window.longest,
+        "max_position_error": _max_abs(position_error),
+        "max_velocity_error": _max_abs(flight.values("Quad.Est.E.Vel")),
+        "rms_velocity_error": _nonfinite_as_inf(
+            np.sqrt(np.mean(np.square(flight.values("Quad.Est.E.Vel")), axis=0))
+        ),
         "position_nees": _nees(errors, sigmas),
     }

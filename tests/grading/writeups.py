@@ -49,8 +49,13 @@ WRITEUPS = {
         Writeup(
             "000",
             "quaternion",
-            {"MEASURED_STD_DEV_GPS_POS_XY": 0.72, "MEASURED_STD_DEV_ACCEL_XY": 0.51, "Q_POS_XY_STD": 0.01,
-             "Q_VEL_XY_STD": 0.1, "Q_YAW_STD": 0.06},
+            {
+                "MEASURED_STD_DEV_GPS_POS_XY": 0.72,
+                "MEASURED_STD_DEV_ACCEL_XY": 0.51,
+                "Q_POS_XY_STD": 0.01,
+                "Q_VEL_XY_STD": 0.1,
+                "Q_YAW_STD": 0.06,
+            },
             "sigmas l. 68-69, QPosXYStd/QVelXYStd l. 419-420, QYawStd l. 494, FromEuler123_RPY + IntegrateBodyRate",
         ),
         Writeup(
@@ -62,15 +67,25 @@ WRITEUPS = {
         Writeup(
             "002",
             "quaternion",
-            {"MEASURED_STD_DEV_GPS_POS_XY": 0.709187828, "MEASURED_STD_DEV_ACCEL_XY": 0.487435033,
-             "Q_POS_XY_STD": 0.001, "Q_VEL_XY_STD": 0.2, "Q_YAW_STD": 0.5},
+            {
+                "MEASURED_STD_DEV_GPS_POS_XY": 0.709187828,
+                "MEASURED_STD_DEV_ACCEL_XY": 0.487435033,
+                "Q_POS_XY_STD": 0.001,
+                "Q_VEL_XY_STD": 0.2,
+                "Q_YAW_STD": 0.5,
+            },
             "sigmas l. 30-32, QPosXYStd/QVelXYStd l. 167, QYawStd l. 173, IntegrateBodyRate_fast",
         ),
         Writeup(
             "003",
             "quaternion",
-            {"MEASURED_STD_DEV_GPS_POS_XY": 0.6601210006202937, "MEASURED_STD_DEV_ACCEL_XY": 0.48476061505594636,
-             "Q_POS_XY_STD": 0.1, "Q_VEL_XY_STD": 0.25, "Q_YAW_STD": 0.15},
+            {
+                "MEASURED_STD_DEV_GPS_POS_XY": 0.6601210006202937,
+                "MEASURED_STD_DEV_ACCEL_XY": 0.48476061505594636,
+                "Q_POS_XY_STD": 0.1,
+                "Q_VEL_XY_STD": 0.25,
+                "Q_YAW_STD": 0.15,
+            },
             "sigmas l. 95, QPosXYStd/QVelXYStd l. 354, QYawStd l. 396, IntegrateBodyRate",
         ),
     )
