@@ -12,8 +12,9 @@ signals (values (samples, N) per signal; all N runs at once).
 10: ``max_yaw_error``: rad, largest |``Est.E.Yaw``|; ``yaw_nees``: the mean of
     (yaw error / sigma)^2 over the run.
 11: ``position_window``: s, the longest stretch with ``Est.E.Pos`` <= POSITION_BAND (the
-    reference's window rule, ``evaluation.WindowFold``); ``max_position_error``: m, as 08; ``max_velocity_error``: m/s, largest ``Est.E.Vel``;
-    ``rms_velocity_error``: m/s, its RMS over the run; ``position_nees``: the mean over samples and x y z of (error / sigma)^2.
+    reference's window rule, ``evaluation.WindowFold``); ``max_position_error``: m, as 08;
+    ``max_velocity_error``: m/s, largest ``Est.E.Vel``; ``rms_velocity_error``: m/s, its RMS
+    over the run; ``position_nees``: the mean over samples and x y z of (error / sigma)^2.
 """
 
 import numpy as np

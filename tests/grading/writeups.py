@@ -56,7 +56,8 @@ WRITEUPS = {
                 "Q_VEL_XY_STD": 0.1,
                 "Q_YAW_STD": 0.06,
             },
-            "sigmas l. 68-69, QPosXYStd/QVelXYStd l. 419-420, QYawStd l. 494, FromEuler123_RPY + IntegrateBodyRate",
+            "sigmas l. 68-69, QPosXYStd/QVelXYStd l. 419-420, QYawStd l. 494, "
+            "FromEuler123_RPY + IntegrateBodyRate",
         ),
         Writeup(
             "001",
