@@ -120,6 +120,24 @@ def table(results):
     return lines
 
 
+def matrix(results):
+    """Markdown rows: one per variant flown on every course scenario, its pass count per scenario
+    and, in brackets, the reference's single-seed verdict (— where the reference has none)."""
+    names = grader.COURSE_SCENARIOS
+    lines = ["| variant | " + " | ".join(n[:2] for n in names) + " |", "|---|" + "---|" * len(names)]
+    for variant, scenarios in results.items():
+        if set(scenarios) != set(names):
+            continue
+        cells = []
+        for name in names:
+            record = scenarios[name]
+            ok = passed(name, record["stats"])
+            single = {None: "—", True: "PASS", False: "FAIL"}[record["single_seed"]]
+            cells.append(f"{int(ok.sum())}/{len(ok)} ({single})")
+        lines.append(f"| {variant} | " + " | ".join(cells) + " |")
+    return lines
+
+
 def sources():
     """Markdown rows: each mistake, its function, its patch and where it comes from."""
     lines = ["| mistake | function | where it comes from |", "|---|---|---|"]
@@ -153,6 +171,8 @@ def main(argv=None):
             Path(args.out).write_text(json.dumps({"meta": meta, "results": results}))
         print(f"CPU {meta['cpu']:.0f} s")
     print("\n".join(table(results)))
+    print()
+    print("\n".join(matrix(results)))
 
 
 if __name__ == "__main__":
