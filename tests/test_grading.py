@@ -172,3 +172,13 @@ def test_a_mistake_fails_its_scenario_and_points_at_its_function(tmp_path, name)
     assert lines[0].startswith(f"FAIL {mistake.scenario}: 0/{RUNS}")
     assert lines[-1] == f"    -> look at {ISOLATES[mistake.scenario]}"
     assert not math.isnan(scenario.interval()[1])
+
+
+def test_the_starting_file_flies_and_changes_nothing_it_should_not():
+    # As the course's skeleton: it runs; the state prediction and the updates are left to the student.
+    start = np.tile([0.0, 0.0, -1.0, 0.1, 0.0, 0.0, 0.2], (3, 1))
+    course_filter = CourseFilter(TEMPLATE, start)
+    accel, gyro = np.tile([0.0, 0.0, 9.81], (3, 1)), np.tile([0.0, 0.0, 0.5], (3, 1))
+    course_filter.tick(accel, gyro, np.full(1, 0.3), np.array([1]), np.zeros((1, 6)), np.array([2]))
+    np.testing.assert_allclose(course_filter.ekf_state[:, 0:6], start[:, 0:6])
+    np.testing.assert_allclose(course_filter.ekf_state[:, 6], 0.2 + 0.002 * 0.5)
