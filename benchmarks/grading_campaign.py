@@ -99,7 +99,7 @@ def table(results):
     """Markdown rows of the campaign: the correct solution per scenario, then each variant."""
     lines = [
         "| variant | function | scenario | grading: pass rate (correct) or detection rate [95 % CI] "
-        "| reference criteria, pass rate over the same seeds | the reference's single-seed verdict |",
+        "| the scenario's own criteria: pass rate, same seeds | the reference's single-seed verdict |",
         "|---|---|---|---|---|---|",
     ]
     mistakes = {m.name: m for m in MISTAKES}
