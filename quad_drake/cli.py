@@ -238,6 +238,41 @@ def cmd_noise_std(args):
     return 0
 
 
+def cmd_grade(args):
+    import shutil
+
+    from .grading import grader
+    from .grading.course import StudentProblem
+
+    if args.template is not None:
+        folder = Path(args.template)
+        target = folder / "my_estimator.py"
+        if target.exists():
+            raise ConfigError(f"{target} exists; not overwritten")
+        folder.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(Path(grader.__file__).with_name("student_template.py"), target)
+        print(f"wrote {target}: fill in the STUDENT CODE parts, then quad-drake grade {target}")
+        return 0
+    if args.module is None:
+        raise ConfigError("grade: give the student's module (my_estimator.py) or --template DIR")
+    if args.runs < 1 or args.jobs < 1:
+        raise ConfigError(f"--runs {args.runs} --jobs {args.jobs}: each must be at least 1")
+    names = args.scenario or list(grader.COURSE_SCENARIOS)
+    unknown = [n for n in names if n not in grader.COURSE_SCENARIOS]
+    if unknown:
+        raise ConfigError(f"--scenario {unknown[0]}: one of {', '.join(grader.COURSE_SCENARIOS)}")
+
+    def progress(scenario_grade):
+        print("\n".join(grader.scenario_lines(scenario_grade)), flush=True)
+
+    try:
+        result = grader.grade(args.module, args.runs, args.seed, names, progress, args.jobs)
+    except StudentProblem as e:
+        raise ConfigError(str(e)) from None
+    print(grader.grade_lines(result)[-1])
+    return 0 if result.passed else 1
+
+
 def cmd_export(args):
     from .output.export import export_csv
 
@@ -558,6 +593,22 @@ def build_parser():
     noise = sub.add_parser("noise-std", help="step 1: GPS-x and accel-x std devs from a run's logs")
     noise.add_argument("run_dir")
     noise.set_defaults(func=cmd_noise_std)
+    grade = sub.add_parser(
+        "grade", help="grade a student's estimator (the course's six functions) on 06-11 over many seeds"
+    )
+    grade.add_argument("module", nargs="?", metavar="MODULE.py", help="the student's module")
+    grade.add_argument(
+        "--template", metavar="DIR", help="write the starting file DIR/my_estimator.py instead"
+    )
+    grade.add_argument("--runs", type=int, default=50, help="seeds per scenario (default: 50)")
+    grade.add_argument(
+        "--jobs", type=int, default=2, help="worker processes, one scenario each at a time (default: 2)"
+    )
+    grade.add_argument("--seed", type=int, default=0, help="first seed (default: 0)")
+    grade.add_argument(
+        "--scenario", action="append", metavar="NAME", help="grade only this scenario (repeatable)"
+    )
+    grade.set_defaults(func=cmd_grade)
     export = sub.add_parser("export", help="a run's logs as CSV: one file per vehicle, signals as columns")
     export.add_argument("run_dir", metavar="RUN_DIR")
     export.add_argument("--out", help="folder for the CSV files (default: RUN_DIR/csv)")

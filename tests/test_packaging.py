@@ -110,6 +110,10 @@ PURE = (
     "quad_drake.estimation",
     "quad_drake.flightlogs.reader",
     "quad_drake.flightlogs.schedule",
+    "quad_drake.grading.course",
+    "quad_drake.grading.course_math",
+    "quad_drake.grading.criteria",
+    "quad_drake.grading.statistics",
 )
 """The pure modules (maths, models and configuration: numpy, no Drake); a package name covers its
 modules."""
@@ -254,16 +258,21 @@ FLOORS = (
         "pure: configuration, models, estimators, control, recorded-log reading",
         ("quad_drake.config", "quad_drake.models", "quad_drake.estimation", "quad_drake.control")
         + ("quad_drake.delay_compensation", "quad_drake.flightlogs.reader", "quad_drake.flightlogs.schedule")
-        + ("quad_drake.flightlogs.settings",),
+        + ("quad_drake.flightlogs.settings",)
+        + ("quad_drake.grading.course", "quad_drake.grading.course_math", "quad_drake.grading.criteria")
+        + ("quad_drake.grading.student_template",),
     ),
     ("compiled kernels", ("quad_drake.kernels",)),
-    ("judging a flight from its logs", ("quad_drake.judging", "quad_drake.flightlogs.comparison")),
+    (
+        "judging a flight from its logs",
+        ("quad_drake.judging", "quad_drake.flightlogs.comparison", "quad_drake.grading.statistics"),
+    ),
     ("Drake systems", ("quad_drake.systems",)),
     ("output", ("quad_drake.output",)),
     ("running a scenario", ("quad_drake.running",)),
     (
         "campaigns, tuning, flight-log replay",
-        ("quad_drake.campaigns", "quad_drake.tuning", "quad_drake.flightlogs"),
+        ("quad_drake.campaigns", "quad_drake.tuning", "quad_drake.flightlogs", "quad_drake.grading"),
     ),
     ("command line", ("quad_drake.cli", "quad_drake.__main__")),
 )

@@ -41,7 +41,10 @@ class AtRest:
         return np.eye(3)
 
 
-EXAMPLE_CONFIGS = {"custom": {"factory": f"{Path(__file__).resolve()}:AtRest"}}
+EXAMPLE_CONFIGS = {
+    "custom": {"factory": f"{Path(__file__).resolve()}:AtRest"},
+    "course": {"module": str(Path(__file__).resolve().parent / "grading" / "correct_estimator.py")},
+}
 """Fields a kind's config needs beyond its defaults to be flown."""
 
 

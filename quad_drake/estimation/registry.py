@@ -31,6 +31,7 @@ import importlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import lru_cache
+from pathlib import Path
 from typing import Dict, List, Optional, Union
 
 from quad_drake.config.fields import noise_stds, number, vector
@@ -39,6 +40,7 @@ from quad_drake.estimation import custom
 from quad_drake.estimation.baro import BaroFusionParams
 from quad_drake.estimation.mag3 import MagFieldFusionParams
 from quad_drake.estimation.vocabulary import EKF7, ESKF9, ESKF15, EstimatorVocabulary, euler_vocabulary
+from quad_drake.grading.course import StudentProblem, load_student_module, tuning_of
 from quad_drake.models.fidelity import Fidelity
 
 
@@ -120,6 +122,16 @@ class CustomEstimatorConfig:
     factory: str = ""  # "module:name" or "path/to/file.py:name" (relative to the scenario file)
     params: Dict[str, float] = field(default_factory=dict)  # keyword arguments of factory(**params)
     gate_sigma: float = number(5.0, nonnegative=True)  # sigma; chi^2 gate of GPS and mag samples, 0 = off
+
+
+@dataclass
+class CourseEstimatorConfig:
+    """A student's course estimator: the six functions of the FCND estimation project in a
+    Python module (``grading/course.py``; ``quad-drake grade --template DIR`` writes one)."""
+
+    kind: str = field(default="course", metadata={"choices": ("course",)})
+    module: str = ""  # path/to/my_estimator.py (relative to the scenario file, else the working directory)
+    init_std: List[float] = field(default_factory=list)  # m, m/s, rad (7); empty: the module's INIT_STD_DEVS
 
 
 def _no_problem(config):
@@ -228,6 +240,29 @@ def _custom_tuning(config):
     return tuple(f"estimator.params.{name}" for name in config.params if name.endswith("_std"))
 
 
+def _course_problem(config):
+    if not config.module:
+        return "kind course needs a module (path/to/my_estimator.py)"
+    try:
+        tuning_of(load_student_module(config.module))
+    except StudentProblem as e:
+        return str(e)
+    return None
+
+
+def _course_located(config, base_dir):
+    path = Path(config.module)
+    if not config.module or path.is_absolute():
+        return config
+    for base in (Path(base_dir), Path.cwd()):
+        if (base / path).is_file():
+            return dataclasses.replace(config, module=str((base / path).resolve()))
+    return config
+
+
+COURSE_STATES = ("X", "Y", "Z", "VX", "VY", "VZ", "Yaw")
+
+
 KINDS = {
     kind.name: kind
     for kind in (
@@ -261,6 +296,16 @@ KINDS = {
             problem=_custom_problem,
             locate=_custom_located,
             relative=_custom_relative,
+        ),
+        EstimatorKind(
+            name="course",
+            config_type=CourseEstimatorConfig,
+            vocabulary=lambda config: euler_vocabulary("course", COURSE_STATES),
+            builder="quad_drake.systems.course_estimator:add_course",
+            tuning_keys=lambda config: (),
+            fidelity_problem=_any_fidelity,
+            problem=_course_problem,
+            locate=_course_located,
         ),
         EstimatorKind(
             name="truth",

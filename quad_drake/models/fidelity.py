@@ -12,8 +12,8 @@ semi-implicit Euler body step, its float32 vehicle state, its accelerometer R_NB
 (and the estimators read it as the reference's do), its 3-D norm limit of the lateral acceleration command
 (z entry -kp_vel_xy vz), its float32 clock advanced by 0.001f per physics step, its sensors
 and estimator stored in float32, its estimator without innovation gates, resets or covariance
-repair, its altitude integral without anti-windup, and its logged errors taken at the last
-onboard tick.
+repair, its altitude integral without anti-windup, its logged errors taken at the last
+onboard tick, and its number of log samples (5,001 in 25 s).
 """
 
 from dataclasses import dataclass
@@ -54,6 +54,11 @@ class Fidelity:
         in both definitions, as the binary's are.
     reference_estimator: the estimators fuse every sample as the reference's EKF does: no
         innovation gates, no resets to the GPS, no covariance repair (``estimation/gating.py``).
+    reference_log_samples: the log holds the binary's samples: it samples every 5 ms until its
+        float32 clock (``float32_clock``) has reached end_time at the start of a 5 ms frame, so
+        a 25 s run logs 5,001 samples (t = 0.005 ... 25.005 s; its clock reads 25.0029 at the
+        last) where the physical default logs 5,000 (0.005 ... 25.000 s). With it a "value at
+        the last sample" is the binary's (SPEC §0.2's table; the golden traces' row counts).
     altitude_integral_windup: the altitude-error integral keeps integrating while the collective
         thrust is clamped, as the reference's controller does; the physical default holds it
         there (anti-windup), so a large height error after a GPS regain or a floor strike does
@@ -69,6 +74,7 @@ class Fidelity:
     errors_at_onboard_tick: bool = False
     reference_estimator: bool = False
     altitude_integral_windup: bool = False
+    reference_log_samples: bool = False
 
 
 PHYSICAL = Fidelity()
@@ -82,6 +88,7 @@ REFERENCE = Fidelity(
     errors_at_onboard_tick=True,
     reference_estimator=True,
     altitude_integral_windup=True,
+    reference_log_samples=True,
 )
 
 

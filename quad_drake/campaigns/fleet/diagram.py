@@ -20,7 +20,7 @@ from quad_drake.config.validation import check_scenario
 from quad_drake.judging.signals import vehicle_log_widths
 from quad_drake.models.fidelity import fidelity_from_mode
 from quad_drake.running.limits import check_run
-from quad_drake.running.simulation import build_vehicle
+from quad_drake.running.simulation import build_vehicle, flight_end, log_samples
 
 
 class BatchRecorder(LeafSystem):
@@ -59,7 +59,7 @@ def build_fleet_diagram(scenario, seeds, make_sink=None):
     by ``make_sink(signals, samples)`` (signals: ((vehicle, log name), width) per input port,
     samples: log samples of a run), takes every exported signal; default a BatchRecorder."""
     fidelity = fidelity_from_mode(scenario.fidelity)
-    samples = int(round(scenario.end_time / c.LOG_PERIOD))
+    samples = log_samples(scenario)
     builder = DiagramBuilder()
     ports, signals = [], []
     for vehicle in scenario.vehicles:
@@ -108,7 +108,7 @@ def run_fleet(scenario, seeds):
     check_scenario(scenario)
     check_run(scenario, at_once=len(seeds))
     diagram, recorder = build_fleet_diagram(scenario, [int(s) for s in seeds])
-    wall_time = fly(diagram, scenario.end_time)
+    wall_time = fly(diagram, flight_end(scenario))
     release_memory(diagram, keep=recorder)
     recorded = recorder.release_memory()
     samples = recorder.recorded

@@ -16,6 +16,7 @@ from quad_drake.campaigns.fleet.diagram import build_fleet_diagram, fly, release
 from quad_drake.campaigns.fleet.streaming import BatchSummarizer
 from quad_drake.campaigns.fleet.summaries import summary_bytes
 from quad_drake.campaigns.tally import fold_records
+from quad_drake.running.simulation import flight_end
 
 MAX_BATCH = 1000
 """Runs of a default batch at most (beyond it a tick's cost no longer falls per vehicle)."""
@@ -68,7 +69,7 @@ def fly_batch(task):
         [int(seed) for seed in task.seeds],
         lambda signals, samples: BatchSummarizer(task.scenario, task.seeds, signals, samples),
     )
-    wall_time = fly(diagram, task.scenario.end_time)
+    wall_time = fly(diagram, flight_end(task.scenario))
     release_memory(diagram, keep=summarizer)
     records = summarizer.records(task.first_index, wall_time)
     summarizer.release_memory()

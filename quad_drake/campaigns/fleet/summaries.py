@@ -35,7 +35,7 @@ from quad_drake.judging.verdicts import CriteriaStream
 from quad_drake.kernels.bounds import PcrbStream
 from quad_drake.models.fidelity import fidelity_from_mode
 from quad_drake.output.results import signals_from_logs
-from quad_drake.running.simulation import sensor_schedule
+from quad_drake.running.simulation import log_samples, sensor_schedule
 
 CHUNK_SAMPLES = 200
 """Log samples per chunk (1 s of flight)."""
@@ -45,7 +45,7 @@ def summary_bytes(scenario, runs, chunk=CHUNK_SAMPLES):
     """Bytes a batch of `runs` runs of `scenario` holds while it is summarised, to within the
     small per-run sums: the chunk of every exported signal (chunk + 1 samples), and per run
     its NEES at each sample and the stamp and NIS of each fresh GPS or magnetometer update."""
-    samples = int(round(scenario.end_time / c.LOG_PERIOD))
+    samples = log_samples(scenario)
     per_run = 0
     fidelity = fidelity_from_mode(scenario.fidelity)
     for vehicle in scenario.vehicles:
