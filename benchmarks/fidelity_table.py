@@ -1,4 +1,4 @@
-"""The README "Fidelity" figures: deviation from the reference binary's golden traces, and the
+"""The manual's "Fidelity" figures (docs/reference/fidelity.md): deviation from the reference binary's golden traces, and the
 reference's estimator.
 
 1. For each golden set-up (tests/data/golden/*.yaml, motor noise off) the largest position (m)
