@@ -1,4 +1,5 @@
-"""The manual's fault table (docs/measurements/faults.md): each fault scenario 12-18 with its mitigation on and off, by campaign.
+"""The manual's fault table (docs/measurements/faults.md): each fault scenario with its mitigation on
+and off, by campaign.
 
 For every row of ROWS it runs a Monte Carlo campaign through the project's campaign API
 (``quad_drake.campaigns.run_campaign``; run i flies seed S + i, exactly as

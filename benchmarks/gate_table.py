@@ -1,5 +1,5 @@
-"""The manual's gate tables (docs/measurements/gates.md): do the GPS gates, resets and the IMU-dropout handling keep
-the vehicle safe, and never crash a filter that flies without them?
+"""The manual's gate tables (docs/measurements/gates.md): do the GPS gates, resets and the
+IMU-dropout handling keep the vehicle safe, and never crash a filter that flies without them?
 
 Every row is a fleet campaign through the project's campaign API (run i flies seed S + i, as
 ``quad-drake montecarlo NAME --runs N --seed S --fleet --batch B --set ...``), judged by the

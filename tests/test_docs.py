@@ -163,9 +163,8 @@ def test_the_built_manual_renders_in_headless_chromium(built_manual, tmp_path):
                 "Runtime.evaluate", {"expression": PROBE % element_id, "returnByValue": True}, session=session
             )["result"]["value"]
             seen[name]["errors"] = [e for e in browser.events if e.get("method") == "Runtime.exceptionThrown"]
-            seen[name]["requests"] = [
-                e["params"]["request"]["url"] for e in browser.events if e.get("method") == "Network.requestWillBeSent"
-            ]
+            requests = [e for e in browser.events if e.get("method") == "Network.requestWillBeSent"]
+            seen[name]["requests"] = [e["params"]["request"]["url"] for e in requests]
     finally:
         browser.close()
 
@@ -174,7 +173,7 @@ def test_the_built_manual_renders_in_headless_chromium(built_manual, tmp_path):
         assert [u for u in page["requests"] if not u.startswith(("file:", "data:", "blob:"))] == [], name
     # The API reference shows simulation.run with its signature and its docstring's summary.
     assert seen["api"]["target"] is not None and "run(" in seen["api"]["target"]
-    assert " ".join(run.__doc__.split()[:4]) in seen["api"]["target"]  # "SimulationResult of a ScenarioConfig"
+    assert " ".join(run.__doc__.split()[:4]) in seen["api"]["target"]  # its docstring's first words
     # The scenario reference: a row per bundled scenario (27 when this was written).
     assert [r for r in seen["scenarios"]["rows"] if r in catalog.bundled_scenarios()] == list(
         catalog.bundled_scenarios()

@@ -42,9 +42,7 @@ def test_the_readme_and_the_manual_have_scenario_examples():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize(
-    "example", scenario_examples(), ids=lambda e: f"{e[0]}:{e[1].splitlines()[0][:30]}"
-)
+@pytest.mark.parametrize("example", scenario_examples(), ids=lambda e: f"{e[0]}:{e[1].splitlines()[0][:30]}")
 def test_a_scenario_example_passes_at_its_seed(example, tmp_path, capsys):
     page, block = example
     path = tmp_path / "example.yaml"
@@ -63,7 +61,8 @@ def python_example(page, calls):
 def test_the_manual_campaign_script_runs_as_a_plain_script_on_spawned_workers(tmp_path):
     script = tmp_path / "my_campaign.py"
     script.write_text(python_example("docs/guide/05_campaigns.md", "run_campaign("), encoding="utf-8")
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
+    path = os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))
+    env = {**os.environ, "PYTHONPATH": path}  # the package of this checkout, as an install would give
     ran = subprocess.run([sys.executable, str(script)], cwd=tmp_path, env=env, capture_output=True, text=True)
     assert ran.returncode == 0, ran.stderr[-3000:]
     assert "criterion" in ran.stdout and (tmp_path / "out" / "my_campaign" / "summary.json").is_file()
