@@ -33,6 +33,10 @@ nitpicky = False  # docstrings name numpy/pydrake types that have no inventory o
 # MyST: heading anchors for cross-page links (`page.md#a-heading`), $…$ maths.
 myst_heading_anchors = 3
 myst_enable_extensions = ["dollarmath", "colon_fence"]
+# Set here, not written by myst at start-up: such a value reads as a changed configuration, and
+# Sphinx then re-reads every page. (Furo's pygments_dark_style still does so under Sphinx 9: a
+# rebuild re-reads the pages, about 50 s of CPU, but the notebooks come from their cache.)
+myst_update_mathjax = False
 
 # The API reference: every module of the package, walked from the source tree.
 autoapi_dirs = [str(ROOT / "quad_drake")]
