@@ -140,7 +140,7 @@ PROBE = """(() => {
   const images = [...document.querySelectorAll("img")].map(i => ({src: i.src, width: i.naturalWidth}));
   const target = document.getElementById(%r);
   return {title: document.title, rows, images, text: document.body.innerText,
-          target: target ? target.innerText : null};
+          target: target ? target.closest("dl").innerText : null};
 })()"""
 
 
