@@ -197,3 +197,12 @@ def test_the_built_manual_renders_in_headless_chromium(built_manual, tmp_path):
     # The CLI reference, generated from the parser, names every sub-command.
     commands = cli.build_parser()._subparsers._group_actions[0].choices
     assert all(command in seen["cli"]["text"] for command in commands), sorted(commands)
+
+
+def test_make_docs_sets_up_its_tools_and_builds_with_warnings_as_errors(tmp_path):
+    venv = tmp_path / "venv"  # not there: make prints every step it would take
+    dry = subprocess.run(["make", "-n", "docs", f"VENV={venv}"], cwd=ROOT, capture_output=True, text=True)
+    assert dry.returncode == 0, dry.stderr
+    assert "pip install -q -e '.[docs]'" in dry.stdout
+    assert f"{venv}/bin/python -m sphinx -b html -W --keep-going -q docs docs/_build/html" in dry.stdout
+    assert "make docs" in (ROOT / ".ci" / "run").read_text()
