@@ -1,5 +1,5 @@
 # Two commands do all the set-up: `make run` (every scenario + result table), `make test`
-# (lint, then every test: slow, browser and notebook ones included).
+# (lint, then every test: slow, browser and notebook ones included). `make docs` builds the manual.
 # The virtual environment uses the newest Python that drake supports here (3.13, 3.12,
 # else python3); override with `make test PYTHON=python3 VENV=.venv-311`.
 PYTHON ?= $(shell for v in 3.13 3.12; do \
@@ -13,7 +13,7 @@ BIN := $(VENV)/bin
 # so they run serially. `make test TEST_JOBS=N` chooses.
 TEST_JOBS ?= $(shell n=$$(nproc 2>/dev/null || echo 1); [ $$n -ge 4 ] && echo auto || echo 0)
 
-.PHONY: run test lint bench clean
+.PHONY: run test lint bench docs clean
 
 # What running needs (`make run`): the package and its dependencies only.
 $(VENV)/.installed: pyproject.toml
@@ -31,6 +31,11 @@ $(VENV)/.installed-test: $(VENV)/.installed
 	$(BIN)/python -m pip install -q -e '.[test]'
 	touch $@
 
+# What the manual adds (`make docs`): Sphinx, MyST, myst-nb, sphinx-autoapi, sphinx-argparse.
+$(VENV)/.installed-docs: $(VENV)/.installed
+	$(BIN)/python -m pip install -q -e '.[docs]'
+	touch $@
+
 run: $(VENV)/.installed
 	$(BIN)/quad-drake run --all
 
@@ -41,8 +46,15 @@ lint: $(VENV)/.installed-test
 test: lint
 	$(BIN)/python -m pytest -n $(TEST_JOBS)
 
+# The manual into docs/_build/html, every warning an error (a broken link or anchor, a notebook
+# cell that raises); notebooks execute in their quick mode, cached in docs/_build/.jupyter_cache.
+DOCS_OUT ?= docs/_build/html
+docs: $(VENV)/.installed-docs
+	$(BIN)/python -m sphinx -b html -W --keep-going -q docs $(DOCS_OUT)
+	@echo "the manual: $(DOCS_OUT)/index.html"
+
 bench: $(VENV)/.installed
 	$(BIN)/python benchmarks/bench_closed_loop.py
 
 clean:
-	rm -rf $(VENV) out build dist *.egg-info
+	rm -rf $(VENV) out build dist *.egg-info docs/_build docs/gallery

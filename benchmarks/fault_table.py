@@ -1,17 +1,18 @@
-"""The README fault table: each fault scenario 12-18 with its mitigation on and off, by campaign.
+"""The manual's fault table (docs/measurements/faults.md): each fault scenario with its mitigation on
+and off, by campaign.
 
 For every row of ROWS it runs a Monte Carlo campaign through the project's campaign API
 (``quad_drake.campaigns.run_campaign``; run i flies seed S + i, exactly as
 ``quad-drake montecarlo <scenario> --runs N --seed S [--set ...]``), and rewrites the table
-between the README's ``<!-- fault-table -->`` markers. Pass rates carry a 95 % Wilson score
+between that page's ``<!-- fault-table -->`` markers. Pass rates carry a 95 % Wilson score
 interval. Each finished row is cached as JSON in ``--cache`` (keyed by scenario, overrides,
 runs, seed and runner), so an interrupted table resumes where it stopped; ``--fresh`` ignores the cache.
 
     nice -n 10 python benchmarks/fault_table.py --runs 50 --seed 100 --jobs 1
 
 ``--fleet B`` flies every row on the fleet runner in batches of B runs (``quad-drake montecarlo
-... --fleet --batch B``; its noise streams differ from the per-vehicle path's, README "Fleet
-mode"); without it every row flies one Diagram per run. The cache key names the runner
+... --fleet --batch B``; its noise streams differ from the per-vehicle path's, the manual's
+"Fleet mode"); without it every row flies one Diagram per run. The cache key names the runner
 (``_fleetB`` or nothing) and a cached row is used only if its recorded runner is that one; the
 table's runner column says which runner measured each row.
 
@@ -201,7 +202,7 @@ def main(argv=None):
     parser.add_argument("--runs", type=int, default=50)
     parser.add_argument("--seed", type=int, default=100, help="first seed S; run i flies S + i")
     parser.add_argument("--jobs", type=int, default=1)
-    parser.add_argument("--readme", type=Path, default=ROOT / "README.md")
+    parser.add_argument("--page", type=Path, default=ROOT / "docs" / "measurements" / "faults.md")
     parser.add_argument("--cache", type=Path, default=ROOT / "out" / "fault_table")
     parser.add_argument("--fresh", action="store_true", help="re-measure rows already in the cache")
     parser.add_argument("--only", nargs="*", default=None, help="scenario names to measure (default: all)")
@@ -224,8 +225,8 @@ def main(argv=None):
         measured[row] = figures
     if args.only is None:
         rows = [(row, measured[row]) for row in ROWS]
-        args.readme.write_text(replace_table(args.readme.read_text(), table(rows)))
-        print(f"rewrote the fault table in {args.readme}")
+        args.page.write_text(replace_table(args.page.read_text(), table(rows)))
+        print(f"rewrote the fault table in {args.page}")
 
 
 if __name__ == "__main__":

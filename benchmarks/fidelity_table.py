@@ -1,5 +1,5 @@
-"""The README "Fidelity" figures: deviation from the reference binary's golden traces, and the
-reference's estimator.
+"""The manual's "Fidelity" figures (docs/reference/fidelity.md): deviation from the reference
+binary's golden traces, and the reference's estimator.
 
 1. For each golden set-up (tests/data/golden/*.yaml, motor noise off) the largest position (m)
    and attitude (rad) deviation over every vehicle and 5 ms sample, matched by index, in both

@@ -1,5 +1,5 @@
-"""The README's gate tables (issue 27): do the GPS gates, resets and the IMU-dropout handling keep
-the vehicle safe, and never crash a filter that flies without them?
+"""The manual's gate tables (docs/measurements/gates.md): do the GPS gates, resets and the
+IMU-dropout handling keep the vehicle safe, and never crash a filter that flies without them?
 
 Every row is a fleet campaign through the project's campaign API (run i flies seed S + i, as
 ``quad-drake montecarlo NAME --runs N --seed S --fleet --batch B --set ...``), judged by the
@@ -14,14 +14,14 @@ Tables (``--table``):
   (and the reference's own ``QuadEstimatorEKF.txt``), gates on (the default) against every
   gate off; and the reference's tuning in ``fidelity: reference``, which flies the reference's
   estimator (no gates) as the binary does.
-- ``safety``: 11, 11_gps_update_eskf and 12 with the default gates (``--runs`` 1000 in the README).
+- ``safety``: 11, 11_gps_update_eskf and 12 with the default gates (``--runs`` 1000 in the manual).
 - ``faults``: the mixed fault (``benchmarks/scenarios/gps_glitch_outage.yaml``: a 40 m outlier,
   then a 3 s outage) on both estimators, and 18 with a 0.1 s IMU dropout on both.
 
     nice -n 10 python benchmarks/gate_table.py --table tunings --runs 40 --seed 900000
 
 Run it with ``PYTHONPATH`` pointing at another checkout to measure that version (the "before"
-columns of the README were measured so, on the version before issue 27, with the same seeds).
+columns of the manual were measured so, on the version before issue 27, with the same seeds).
 """
 
 import argparse

@@ -1,5 +1,5 @@
-"""The README "Wind, drag and the IMU" tables: estimation under model mismatch, by campaign, and
-the cost of the air.
+"""The manual's "Wind, drag and the IMU" tables (docs/measurements/wind.md): estimation under
+model mismatch, by campaign, and the cost of the air.
 
 For every row of ROWS it runs a Monte Carlo campaign through the project's campaign API
 (``quad_drake.campaigns.run_campaign``; run i flies seed S + i, exactly as

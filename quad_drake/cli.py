@@ -324,7 +324,7 @@ def _add_montecarlo_arguments(parser):
         help="run on a Dask cluster, e.g. tcp://host:8786 (the 'cluster' extra)",
     )
     parser.add_argument(
-        "--fleet", action="store_true", help="fly the runs in fleet batches (README 'Fleet mode')"
+        "--fleet", action="store_true", help="fly the runs in fleet batches (manual: guide, 'Fleet mode')"
     )
     parser.add_argument(
         "--batch", type=int, metavar="B", help="with --fleet: runs per batch (default: by memory, <= 1000)"

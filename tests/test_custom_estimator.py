@@ -1,4 +1,4 @@
-"""A user's own estimator (``estimator: {kind: custom}``): the README's example flies 11 and a
+"""A user's own estimator (``estimator: {kind: custom}``): the manual's example flies 11 and a
 20-run campaign; a wrong one (defined below) is one line and exit 2 before any flight."""
 
 import json
@@ -15,13 +15,13 @@ from quad_drake.estimation.registry import vehicle_vocabulary
 from quad_drake.running import catalog
 from quad_drake.running.simulation import run
 
-README = Path(__file__).resolve().parent.parent / "README.md"
+ESTIMATORS_GUIDE = Path(__file__).resolve().parent.parent / "docs" / "guide" / "04_estimators.md"
 HERE = Path(__file__).resolve()
 
 
-def readme_estimator(folder):
-    """The README's "Bring your own estimator" example, written to folder/my_ekf.py."""
-    section = README.read_text().split("### Bring your own estimator", 1)[1]
+def manual_estimator(folder):
+    """The manual's "Bring your own estimator" example (docs/guide), written to folder/my_ekf.py."""
+    section = ESTIMATORS_GUIDE.read_text(encoding="utf-8").split("## Bring your own estimator", 1)[1]
     code = re.search(r"```python\n(.*?)```", section, re.S).group(1)
     path = folder / "my_ekf.py"
     path.write_text(code)
@@ -33,9 +33,9 @@ def custom_override(factory, params=""):
 
 
 @pytest.mark.slow
-def test_the_readme_example_flies_11(tmp_path, monkeypatch):
-    readme_estimator(tmp_path)
-    monkeypatch.chdir(tmp_path)  # the README runs it from the folder that holds my_ekf.py
+def test_the_manual_example_flies_11(tmp_path, monkeypatch):
+    manual_estimator(tmp_path)
+    monkeypatch.chdir(tmp_path)  # the manual runs it from the folder that holds my_ekf.py
     scenario = catalog.load("11_gps_update", None, [custom_override("my_ekf.py:MyEkf")])
     assert scenario.vehicles[0].estimator.factory == f"{tmp_path / 'my_ekf.py'}:MyEkf"  # made absolute
     vocabulary = vehicle_vocabulary(scenario.vehicles[0])
@@ -48,8 +48,8 @@ def test_the_readme_example_flies_11(tmp_path, monkeypatch):
 
 
 @pytest.mark.slow
-def test_the_readme_example_flies_a_20_run_campaign_on_the_process_pool(tmp_path, monkeypatch, capsys):
-    readme_estimator(tmp_path)
+def test_the_manual_example_flies_a_20_run_campaign_on_the_process_pool(tmp_path, monkeypatch, capsys):
+    manual_estimator(tmp_path)
     monkeypatch.chdir(tmp_path)
     out = tmp_path / "out"
     code = main(
@@ -120,7 +120,7 @@ def test_a_wrong_estimator_is_one_line_and_exit_2_before_any_flight(tmp_path, ca
 
 
 def test_wrong_params_are_one_line(tmp_path):
-    readme_estimator(tmp_path)
+    manual_estimator(tmp_path)
     factory = f"{tmp_path / 'my_ekf.py'}:MyEkf"
     with pytest.raises(
         ConfigError, match=r"MyEkf\(\*\*params\) raised TypeError: .*unexpected keyword argument 'q_vel'"
@@ -136,7 +136,7 @@ def test_the_adapter_fuses_each_sample_once_gates_and_counts(tmp_path):
     from quad_drake.estimation.vocabulary import DIAG
     from quad_drake.systems.custom_estimator import PythonEstimator
 
-    readme_estimator(tmp_path)
+    manual_estimator(tmp_path)
     factory = f"{tmp_path / 'my_ekf.py'}:MyEkf"
     config = catalog.load("11_gps_update", None, [custom_override(factory)]).vehicles[0].estimator
     system = PythonEstimator(config, n=2)
@@ -161,7 +161,7 @@ def test_the_adapter_fuses_each_sample_once_gates_and_counts(tmp_path):
 
 
 def test_check_runs_one_step_of_each_method(tmp_path):
-    readme_estimator(tmp_path)
+    manual_estimator(tmp_path)
     names = custom.check_estimator(f"{tmp_path / 'my_ekf.py'}:MyEkf", {}, 0.002)
     assert names == ("X", "Y", "Z", "VX", "VY", "VZ", "Yaw")
 
@@ -195,7 +195,7 @@ def user_folder(folder):
     """A user's folder: the README's my_ekf.py and user_estimator.py, whose FailsAtTick imports
     its sibling modules (my_ekf, user_helpers) and raises at the 51st IMU tick (t = 0.1 s)."""
     folder.mkdir(exist_ok=True)
-    readme_estimator(folder)
+    manual_estimator(folder)
     (folder / "user_helpers.py").write_text(USER_HELPERS)
     (folder / "user_estimator.py").write_text(USER_ESTIMATOR)
     return folder
@@ -257,7 +257,7 @@ def test_the_campaign_page_reproduces_a_run_with_every_set(tmp_path, monkeypatch
     import html
     import shlex
 
-    readme_estimator(tmp_path)  # a pure-Python filter: no kernel to compile
+    manual_estimator(tmp_path)  # a pure-Python filter: no kernel to compile
     monkeypatch.chdir(tmp_path)
     out = tmp_path / "out"
     sets = ["end_time=0.5", "criteria.0.window=0.2", custom_override("my_ekf.py:MyEkf")]

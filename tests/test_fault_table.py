@@ -1,4 +1,4 @@
-"""benchmarks/fault_table.py: the table it writes into the README (pure parts, no flight)."""
+"""benchmarks/fault_table.py: the table it writes into docs/measurements/faults.md (pure parts, no flight)."""
 
 import importlib.util
 from pathlib import Path

@@ -400,10 +400,10 @@ def test_wheel_installed_outside_the_repo_lists_and_runs_the_bundled_scenarios(t
     )  # fmt: skip
     assert traj.returncode in (0, 1) and "Traceback" not in traj.stderr, traj.stderr
 
-    # The README's own estimator, copied into a new file outside the repository, flies 11.
-    from test_custom_estimator import custom_override, readme_estimator
+    # The manual's own estimator, copied into a new file outside the repository, flies 11.
+    from test_custom_estimator import custom_override, manual_estimator
 
-    readme_estimator(cwd)
+    manual_estimator(cwd)
     own = _run(
         quad_drake_exe, "run", "11_gps_update", "--no-plots", "--out", str(out),
         "--set", custom_override("my_ekf.py:MyEkf"), cwd=cwd, env=env,

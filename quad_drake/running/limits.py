@@ -95,6 +95,6 @@ def cost_warnings(scenario):
     if nbytes > WARN_BYTES or wall > WARN_WALL_S:
         return [
             f"quad-drake: {scenario.name} simulates {scenario.end_time:g} s: about {wall / 60:.3g} min of "
-            f"wall time and {size_text(nbytes)} of memory (estimates; README 'Limits')"
+            f"wall time and {size_text(nbytes)} of memory (estimates; manual: guide, 'Running scenarios')"
         ]
     return []
