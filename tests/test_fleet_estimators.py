@@ -12,7 +12,6 @@ import pytest
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from quad_drake import delay_compensation
 from quad_drake.config import AttitudeFilterParams, EkfParams, VehicleConfig
 from quad_drake.conventions import GRAVITY, NO_SAMPLE_STAMP
 from quad_drake.estimation import ekf, eskf, gating
@@ -23,7 +22,6 @@ from quad_drake.fidelity import PHYSICAL, REFERENCE
 from quad_drake.kernels import attitude as attitude_kernel
 from quad_drake.kernels import ekf7, fusion
 from quad_drake.kernels import eskf as eskf_kernel
-from quad_drake.kernels import odometry as odometry_kernel
 from quad_drake.kernels.imu_hold import HOLD_SIZE, IMU_HOLD_TIME, initial_hold
 from quad_drake.rotations import quat_from_euler_tuple
 from quad_drake.systems.estimators import build_estimator
@@ -402,37 +400,6 @@ def test_gps_updates_on_a_singular_innovation_covariance_behave_as_the_scalar_on
         ekf.gps_update(x7[1], P7[1], gps[1], R)
     with pytest.raises(np.linalg.LinAlgError):
         ekf7.gps_update(x7, P7, gps, R)
-
-
-# ----- GPS delay compensation ----------------------------------------------------------------------
-
-
-def test_delay_compensation_matches_the_scalar_functions():
-    rng = np.random.default_rng(19)
-    odometry, estimate, previous = rng.normal(size=(3, N, 6))
-    step, fused = rng.normal(size=(N, 3)), rng.uniform(size=N) < 0.3
-    new, dv = odometry_kernel.odometry_step(odometry, estimate, previous, step, fused, DT)
-    for i in range(N):
-        ref, ref_dv = delay_compensation.odometry_step(
-            odometry[i].tolist(), estimate[i].tolist(), previous[i].tolist(), step[i].tolist(), fused[i], DT
-        )
-        np.testing.assert_allclose(new[i], ref, **TOL)
-        np.testing.assert_allclose(dv[i], ref_dv, **TOL)
-    velocity = rng.normal(size=(N, 3))
-    ahead = odometry_kernel.predicted_odometry(odometry, velocity, step, DT)
-    for i in range(N):
-        ref = delay_compensation.predicted_odometry(
-            odometry[i].tolist(), velocity[i].tolist(), step[i].tolist(), DT
-        )
-        np.testing.assert_allclose(ahead[i], ref, **TOL)
-    sample = np.column_stack([rng.normal(size=(N, 6)), rng.uniform(0.0, 10.0, N)])
-    rows = np.column_stack([sample[:, 6] + rng.choice([0.0, 1e-10, 0.002], N), rng.normal(size=(N, 6))])
-    rows[:5, 0] = math.nan
-    shifted = odometry_kernel.compensated_gps(sample, rows, ahead)
-    for i in range(N):
-        ref = delay_compensation.compensated_gps(sample[i].tolist(), rows[i].tolist(), ahead[i].tolist())
-        np.testing.assert_allclose(shifted[i], ref, **TOL)
-    assert (shifted[:5] == sample[:5]).all()
 
 
 def test_ekf7_estimated_state_matches_the_scalar_assembly():

@@ -50,7 +50,6 @@ PURE = (
     "quad_drake.dynamics",
     "quad_drake.sensor_models",
     "quad_drake.faults",
-    "quad_drake.delay_compensation",
     "quad_drake.noise_streams",
     "quad_drake.error_sampling",
     "quad_drake.control",

@@ -9,7 +9,6 @@ the LeafSystems of ``quad_drake.systems`` for one vehicle and for a fleet alike.
 - ``ekf7``, ``eskf``: the two estimators' ticks; each module's docstring carries its equations.
 - ``fusion``: what both estimators share: freshness, books, the mag gate, the GPS Joseph update
   and gated policy, covariance health and repair.
-- ``odometry``: the GPS delay compensation's odometry.
 - ``sensors``: the 3-axis magnetometer's samples (compiled) and the barometer's (on the columns).
 - ``aiding``: both estimators' barometer and 3-axis magnetometer fusion (``estimation/baro.py``,
   ``estimation/mag3.py`` compiled): the gates, the baro bias filter, the field and the heading.
