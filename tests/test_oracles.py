@@ -4,8 +4,8 @@ Single runs and fleets both execute the compiled kernels (``kernels/attitude.py`
 ``eskf.py``, ``fusion.py``; sized by n, ``systems/estimators.py``), which compile the pure scalar
 formulas' own code; the textbook matrix forms in ``estimation/`` stay as the named oracles those
 kernels are tested against (``tests/test_fleet_estimators.py``, 1e-12). Here every oracle is
-patched to raise and closed-loop flights that exercise every filter step (prediction, magnetometer and GPS updates, a gated outlier,
-a delayed GPS, both estimators) must still fly.
+patched to raise and closed-loop flights that exercise every filter step (prediction,
+magnetometer and GPS updates, a gated outlier, a delayed GPS, both estimators) must still fly.
 """
 
 import pytest
