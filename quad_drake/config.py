@@ -21,6 +21,7 @@ from pydrake.common.yaml import yaml_dump, yaml_dump_typed, yaml_load_typed
 
 from .config_fields import noise_stds, number, vector
 from .conventions import ONBOARD_PERIOD
+from .estimation.measurements import unfused_sensor
 from .estimation.registry import AidingParams, Ekf7EstimatorConfig, EstimatorConfig, GateParams, kind_of
 from .fidelity import FIDELITY_MODES, fidelity_from_mode
 
@@ -638,8 +639,7 @@ def _check_semantics(scenario):
             if not (v.sensors.imu and v.sensors.gps and v.sensors.mag):
                 raise ConfigError(f"vehicles.{i}.flies_on: estimate needs imu, gps and mag sensors")
         kind = kind_of(v.estimator)
-        three_axis = v.sensors.mag is not None and v.sensors.mag.three_axis
-        if three_axis and kind.builder and not kind.three_axis_nis:
+        if kind.builder and unfused_sensor(kind.measurements, v.sensors) == "mag":
             raise ConfigError(
                 f"vehicles.{i}.sensors.mag.three_axis: estimator kind {kind.name!r} takes the yaw "
                 "magnetometer only (ekf7 and eskf fuse a 3-axis one)"

@@ -37,6 +37,7 @@ from quad_drake.conventions import ONBOARD_PERIOD
 from quad_drake.estimation import custom
 from quad_drake.estimation.baro import BaroFusionParams
 from quad_drake.estimation.mag3 import MagFieldFusionParams
+from quad_drake.estimation.measurements import NIS_ORDER, measurements_of
 from quad_drake.estimation.vocabulary import EKF7, ESKF9, ESKF15, EstimatorVocabulary, euler_vocabulary
 from quad_drake.fidelity import Fidelity
 
@@ -141,11 +142,9 @@ class EstimatorKind:
     fidelity_problem: Callable[[Fidelity], Optional[str]]
     problem: Callable[[object], Optional[str]] = _no_problem
     locate: Callable[[object, object], object] = _as_is
-    # the aiding sensors (issue 32): whether it fuses a barometer, and the NIS it logs for a
-    # 3-axis magnetometer ("mag": the EKF7's tilt-compensated heading, "field": the ESKF's vector;
-    # None: it cannot take one)
-    fuses_baro: bool = False
-    three_axis_nis: Optional[str] = None
+    # the measurements it fuses, in fusion order (names of ``measurements.MEASUREMENTS``); its
+    # system builds one update per name the vehicle carries and refuses a name it cannot fuse
+    measurements: tuple = ()
 
     def build_function(self) -> Callable:
         """The function named by ``builder``, imported."""
@@ -232,8 +231,7 @@ KINDS = {
             builder="quad_drake.systems.estimators:add_ekf7",
             tuning_keys=lambda config: _EKF7_TUNING,
             fidelity_problem=_any_fidelity,
-            fuses_baro=True,
-            three_axis_nis="mag",
+            measurements=("yaw", "gps", "heading", "baro"),
         ),
         EstimatorKind(
             name="eskf",
@@ -242,8 +240,7 @@ KINDS = {
             builder="quad_drake.systems.estimators:add_eskf",
             tuning_keys=_eskf_tuning,
             fidelity_problem=_physical_accelerometer_only,
-            fuses_baro=True,
-            three_axis_nis="field",
+            measurements=("yaw", "gps", "field", "baro"),
         ),
         EstimatorKind(
             name="custom",
@@ -254,6 +251,7 @@ KINDS = {
             fidelity_problem=_any_fidelity,
             problem=_custom_problem,
             locate=_custom_located,
+            measurements=("yaw", "gps"),
         ),
         EstimatorKind(
             name="truth",
@@ -293,17 +291,19 @@ def flies_on_estimate(vehicle) -> bool:
     return vehicle.flies_on == "estimate" and vehicle_vocabulary(vehicle) is not None
 
 
-def nis_sensors(vehicle) -> tuple:
-    """The NIS a VehicleConfig's estimator logs (keys of ``vocabulary.NIS_DOF``): "gps" with a GPS,
-    "mag" with a yaw magnetometer (or the EKF7's heading of a 3-axis one), "field" (the ESKF's
-    3-axis field), "baro" with a barometer it fuses; () when no estimator runs."""
+def fused_measurements(vehicle) -> tuple:
+    """The ``measurements.Measurement`` s a VehicleConfig's estimator fuses, in fusion order: its
+    kind's that the vehicle's sensors carry; () when no estimator runs. Its input ports and NIS
+    columns (:func:`nis_sensors`) read this list, as its system's updates do."""
     if vehicle_vocabulary(vehicle) is None:
         return ()
-    kind, sensors, names = kind_of(vehicle.estimator), vehicle.sensors, []
-    if sensors.gps is not None:
-        names.append("gps")
-    if sensors.mag is not None:
-        names.append(kind.three_axis_nis if sensors.mag.three_axis else "mag")
-    if sensors.baro is not None and kind.fuses_baro:
-        names.append("baro")
-    return tuple(name for name in names if name is not None)
+    return measurements_of(kind_of(vehicle.estimator).measurements, vehicle.sensors)
+
+
+def nis_sensors(vehicle) -> tuple:
+    """The NIS a VehicleConfig's estimator logs (keys of ``vocabulary.NIS_DOF``, in
+    ``measurements.NIS_ORDER``): "gps" with a GPS, "mag" with a yaw magnetometer (or the EKF7's
+    heading of a 3-axis one), "field" (the ESKF's 3-axis field), "baro" with a barometer it
+    fuses; () when no estimator runs."""
+    names = {m.nis for m in fused_measurements(vehicle)}
+    return tuple(name for name in NIS_ORDER if name in names)

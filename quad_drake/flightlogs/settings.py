@@ -28,6 +28,10 @@ from quad_drake.config import (
     AttitudeFilterParams,
     ConfigError,
     EkfParams,
+    GpsParams,
+    ImuParams,
+    MagParams,
+    SensorsConfig,
     VehicleConfig,
     apply_override,
     check_node,
@@ -242,7 +246,10 @@ def vehicle_for(config, initial_attitude, fake_position):
         )
         if estimator.kind == "eskf":
             estimator = dataclasses.replace(estimator, gps_pos_std=fake, gps_vel_std=still)
-    return VehicleConfig(attitude_filter=config.attitude_filter, ekf=ekf, estimator=estimator)
+    sensors = SensorsConfig(imu=ImuParams(), gps=GpsParams(), mag=MagParams())  # what a playback streams
+    return VehicleConfig(
+        attitude_filter=config.attitude_filter, ekf=ekf, estimator=estimator, sensors=sensors
+    )
 
 
 def dump_replay(config):
