@@ -635,10 +635,10 @@ def _check_semantics(scenario):
                 )
         if v.trajectory.kind == "file":
             resolve_trajectory_file(v.trajectory.file, f"vehicles.{i}.trajectory.file")
-        if v.flies_on == "estimate" and v.estimator.kind != "truth":
+        kind = kind_of(v.estimator)
+        if v.flies_on == "estimate" and kind.builder is not None:
             if not (v.sensors.imu and v.sensors.gps and v.sensors.mag):
                 raise ConfigError(f"vehicles.{i}.flies_on: estimate needs imu, gps and mag sensors")
-        kind = kind_of(v.estimator)
         if kind.builder and unfused_sensor(kind.measurements, v.sensors) == "mag":
             raise ConfigError(
                 f"vehicles.{i}.sensors.mag.three_axis: estimator kind {kind.name!r} takes the yaw "

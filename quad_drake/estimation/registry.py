@@ -15,9 +15,16 @@ to know of it:
 - ``fidelity_problem(fidelity)``: why it cannot run under a Fidelity (one line), or None;
 - ``problem(config)``: why a config of it cannot fly (one line; a custom estimator's check
   before any flight), or None; ``locate(config, base_dir)``: the config with the paths it names
-  made absolute against the scenario file's folder ``base_dir``.
+  made absolute against the scenario file's folder ``base_dir``;
+- ``measurements``: the measurements it fuses, in fusion order (``estimation/measurements.py``);
+- for replaying a real flight controller's log (``flightlogs/``): ``replay_defaults()``, its
+  config with PX4 EKF2's noise (:data:`PX4_NOISE`); ``started_from_log(config, roll, pitch,
+  yaw)``, the config started at the log's first attitude; ``assuming_gps_noise(config, pos_std,
+  vel_std)``, the config assuming that GPS noise (a log without GPS gets fake positions).
 
-Adding an estimator is its config dataclass and one entry in :data:`KINDS`.
+Adding an estimator is its config dataclass and one entry in :data:`KINDS`; its builder lives on
+the systems side (``tests/test_registry.py`` asserts it). Whether a kind runs under a scenario's
+fidelity is checked once, when the scenario loads (``config.validate``).
 
 What the controller flies on is the vehicle's ``flies_on`` (:func:`flies_on_estimate`): the
 estimate, or the true state with the estimator running beside it to be judged (the reference's
@@ -27,6 +34,7 @@ state, so the controller flies on the truth either way.
 
 import dataclasses
 import importlib
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import lru_cache
@@ -145,6 +153,15 @@ class EstimatorKind:
     # the measurements it fuses, in fusion order (names of ``measurements.MEASUREMENTS``); its
     # system builds one update per name the vehicle carries and refuses a name it cannot fuse
     measurements: tuple = ()
+    replay_defaults: Optional[Callable[[], object]] = None  # None: the config type's defaults
+    started_from_log: Callable[[object, float, float, float], object] = lambda config, roll, pitch, yaw: (
+        config
+    )
+    assuming_gps_noise: Callable[[object, float, float], object] = lambda config, pos_std, vel_std: config
+
+    def replay_config(self) -> object:
+        """The kind's config for replaying a flight log (``replay_defaults``, else the defaults)."""
+        return self.config_type() if self.replay_defaults is None else self.replay_defaults()
 
     def build_function(self) -> Callable:
         """The function named by ``builder``, imported."""
@@ -184,6 +201,47 @@ _ESKF_TUNING = (
     "estimator.gps_vel_std",
     "estimator.mag_yaw_std",
 )
+
+
+PX4_PER_SAMPLE = math.sqrt(0.010 / 0.002)
+"""PX4 EKF2's IMU noise is per 10 ms prediction step; ours is per 2 ms sample of equal density."""
+PX4_NOISE = {
+    "gyro_std": 0.015 * PX4_PER_SAMPLE,  # rad/s per 2 ms sample (EKF2_GYR_NOISE)
+    "accel_std": 0.35 * PX4_PER_SAMPLE,  # m/s^2 per 2 ms sample (EKF2_ACC_NOISE)
+    "gps_pos_std": 0.5,  # m (EKF2_GPS_P_NOISE)
+    "gps_vel_std": 0.3,  # m/s (EKF2_GPS_V_NOISE)
+    "heading_std": 0.3,  # rad (EKF2_HEAD_NOISE)
+}
+"""PX4 EKF2's default noise, what a replay of a real flight controller's log assumes (not tuned
+on the logs; ``flightlogs/settings.py``)."""
+
+
+def _eskf_replay_defaults():
+    """The ESKF with PX4 EKF2's noise (:data:`PX4_NOISE`; bias walks EKF2_ACC_B_NOISE 0.003 m/s^3,
+    EKF2_GYR_B_NOISE 0.001 rad/s^2), started at rest at the origin with a wide prior."""
+    return EskfEstimatorConfig(
+        init_position=[0.0, 0.0, 0.0],
+        init_pos_std=[1.0, 1.0, 1.0],
+        init_vel_std=[0.5, 0.5, 0.5],
+        init_att_std=[0.1, 0.1, 0.3],
+        init_gyro_bias_std=[0.02, 0.02, 0.02],
+        init_accel_bias_std=[0.2, 0.2, 0.2],
+        accel_std=[PX4_NOISE["accel_std"]] * 3,
+        gyro_std=[PX4_NOISE["gyro_std"]] * 3,
+        accel_bias_rw_std=0.003,
+        gyro_bias_rw_std=0.001,
+        gps_pos_std=[PX4_NOISE["gps_pos_std"]] * 3,
+        gps_vel_std=[PX4_NOISE["gps_vel_std"]] * 3,
+        mag_yaw_std=PX4_NOISE["heading_std"],
+    )
+
+
+def _eskf_started(config, roll, pitch, yaw):
+    return dataclasses.replace(config, init_ypr=[yaw, pitch, roll])
+
+
+def _eskf_gps_noise(config, pos_std, vel_std):
+    return dataclasses.replace(config, gps_pos_std=[pos_std] * 3, gps_vel_std=[vel_std] * 3)
 
 
 def _eskf_tuning(config):
@@ -241,6 +299,9 @@ KINDS = {
             tuning_keys=_eskf_tuning,
             fidelity_problem=_physical_accelerometer_only,
             measurements=("yaw", "gps", "field", "baro"),
+            replay_defaults=_eskf_replay_defaults,
+            started_from_log=_eskf_started,
+            assuming_gps_noise=_eskf_gps_noise,
         ),
         EstimatorKind(
             name="custom",
@@ -267,6 +328,8 @@ KINDS = {
 
 EstimatorConfig = Union[tuple(kind.config_type for kind in KINDS.values())]
 """A vehicle's estimator, chosen by ``kind`` (``estimator: {kind: eskf, ...}``); default ekf7."""
+DEFAULT_KIND = Ekf7EstimatorConfig().kind
+"""The kind of a vehicle (or a replay) that names none."""
 
 
 def kind_of(config) -> EstimatorKind:
