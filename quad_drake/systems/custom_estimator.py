@@ -9,16 +9,14 @@ from pydrake.systems.framework import LeafSystem
 
 from quad_drake.conventions import (
     EKF_OFFSET,
-    GPS_SIZE,
     IMU_SIZE,
-    MAG_SIZE,
-    NO_SAMPLE_STAMP,
     ONBOARD_PERIOD,
     STATE_SIZE,
 )
 from quad_drake.estimation import custom, gating
-from quad_drake.estimation.registry import vocabulary_for
-from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE
+from quad_drake.estimation.measurements import measurements_of
+from quad_drake.estimation.registry import KINDS, vocabulary_for
+from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, initial_diagnostics
 from quad_drake.rotations import quat_from_euler_tuple
 from quad_drake.systems._io import discrete_group, row_reader
 
@@ -28,7 +26,9 @@ class PythonEstimator(LeafSystem):
     held in the context's abstract state.
 
     Inputs and outputs as the bundled estimators' (vehicle-major): ``imu`` (n*6: f_B m/s^2,
-    w_NB_B rad/s), ``gps`` (n*7: p_N m, v_N m/s, stamp s), ``mag`` (n*2: yaw rad, stamp s);
+    w_NB_B rad/s) and one per measurement of the ``custom`` kind that `sensors` (a SensorsConfig)
+    carry (``estimation/measurements.py``): ``mag`` (n*2: yaw rad, stamp s), ``gps`` (n*7: p_N m,
+    v_N m/s, stamp s);
     ``estimated_state`` (n*13: p_N, q_NB from the estimate's roll, pitch, yaw, v_N, body rate =
     the gyro sample, NaN while the IMU is out), ``covariance`` (n*k*k over the estimator's
     ``state_names``), ``diagnostics`` (n*``vocabulary.DIAGNOSTICS``).
@@ -40,7 +40,7 @@ class PythonEstimator(LeafSystem):
     ``update_mag`` / ``update_gps``; then ``estimate()`` and ``covariance()`` are read.
     """
 
-    def __init__(self, config, n=1):
+    def __init__(self, config, sensors, n=1):
         super().__init__()
         self._n, self._config = n, config
         names = vocabulary_for(config).state_names
@@ -54,20 +54,16 @@ class PythonEstimator(LeafSystem):
         for i, estimator in enumerate(estimators):
             self._write_estimate(initial[i], custom.read_estimate(estimator), np.zeros(3))
         covariances = np.stack([custom.read_covariance(e, self._k) for e in estimators])
-        diagnostics = np.zeros((n, DIAGNOSTICS_SIZE))
-        diagnostics[:, [DIAG["gps_nis"], DIAG["mag_nis"]]] = math.nan
-        diagnostics[:, [DIAG["gps_stamp"], DIAG["mag_stamp"]]] = NO_SAMPLE_STAMP
-        diagnostics[:, [DIAG["baro_nis"], DIAG["field_nis"], DIAG["baro_bias"], DIAG["baro_bias_std"]]] = (
-            math.nan
-        )
-        diagnostics[:, [DIAG["baro_stamp"], DIAG["field_stamp"]]] = NO_SAMPLE_STAMP
+        diagnostics = np.tile(initial_diagnostics(), (n, 1))
         self._estimate = discrete_group(self, initial.ravel(), "estimated_state")
         self._covariance = discrete_group(self, covariances.ravel(), "covariance")
         self._diagnostics = discrete_group(self, diagnostics.ravel(), "diagnostics")
         self._last_imu = discrete_group(self, np.tile([0.0, 0.0, -9.81, 0.0, 0.0, 0.0], n))
         self._read_imu = row_reader(self.DeclareVectorInputPort("imu", n * IMU_SIZE), n)
-        self._read_gps = row_reader(self.DeclareVectorInputPort("gps", n * GPS_SIZE), n)
-        self._read_mag = row_reader(self.DeclareVectorInputPort("mag", n * MAG_SIZE), n)
+        self.measurements = measurements_of(KINDS["custom"].measurements, sensors)
+        self._readers = {
+            m.name: row_reader(self.DeclareVectorInputPort(m.port, n * m.width), n) for m in self.measurements
+        }
         self.DeclarePeriodicUnrestrictedUpdateEvent(ONBOARD_PERIOD, EKF_OFFSET, self._update)
 
     @staticmethod
@@ -101,7 +97,9 @@ class PythonEstimator(LeafSystem):
         covariances = discrete.get_mutable_value(self._covariance).reshape(self._n, self._k, self._k)
         diagnostics = discrete.get_mutable_value(self._diagnostics).reshape(self._n, DIAGNOSTICS_SIZE)
         last_imu = discrete.get_mutable_value(self._last_imu).reshape(self._n, IMU_SIZE)
-        imu, gps, mag = self._read_imu(context), self._read_gps(context), self._read_mag(context)
+        imu = self._read_imu(context)
+        mag = self._readers["yaw"](context) if "yaw" in self._readers else None
+        gps = self._readers["gps"](context) if "gps" in self._readers else None
         for i, estimator in enumerate(estimators):
             body_rate = imu[i, 3:6]
             if np.isfinite(imu[i]).all():
@@ -112,11 +110,11 @@ class PythonEstimator(LeafSystem):
             custom.call(
                 estimator, "predict", ONBOARD_PERIOD, last_imu[i, 0:3].copy(), last_imu[i, 3:6].copy()
             )
-            if mag[i, 1] > diagnostics[i, DIAG["mag_stamp"]] + gating.STAMP_TOLERANCE:
+            if mag is not None and mag[i, 1] > diagnostics[i, DIAG["mag_stamp"]] + gating.STAMP_TOLERANCE:
                 self._fuse(
                     estimator, "mag", (float(mag[i, 0]),), mag[i, 1], diagnostics[i], self._mag_threshold
                 )
-            if gps[i, 6] > diagnostics[i, DIAG["gps_stamp"]] + gating.STAMP_TOLERANCE:
+            if gps is not None and gps[i, 6] > diagnostics[i, DIAG["gps_stamp"]] + gating.STAMP_TOLERANCE:
                 sample = (gps[i, 0:3].copy(), gps[i, 3:6].copy())
                 self._fuse(estimator, "gps", sample, gps[i, 6], diagnostics[i], self._gps_threshold)
             self._write_estimate(estimates[i], custom.read_estimate(estimator), body_rate)
@@ -126,8 +124,11 @@ class PythonEstimator(LeafSystem):
 def add_custom(builder, vehicle, fidelity, n):
     """Add the custom estimator of n vehicles to `builder` (the ``custom`` kind's builder,
     ``estimation/registry.py``); (input ports by name, output ports by name)."""
-    system = builder.AddNamedSystem("custom_estimator", PythonEstimator(vehicle.estimator, n))
-    inputs = {name: [system.GetInputPort(name)] for name in ("imu", "gps", "mag")}
+    system = builder.AddNamedSystem(
+        "custom_estimator", PythonEstimator(vehicle.estimator, vehicle.sensors, n)
+    )
+    ports = ("imu",) + tuple(m.port for m in system.measurements)
+    inputs = {name: [system.GetInputPort(name)] for name in ports}
     return inputs, {
         name: system.GetOutputPort(name) for name in ("estimated_state", "covariance", "diagnostics")
     }
