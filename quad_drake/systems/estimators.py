@@ -5,10 +5,13 @@ VehicleConfig at once): its ports carry the n per-vehicle vectors vehicle-major 
 [i k, (i + 1) k)), and a single run and a fleet execute the same code: the compiled kernels over
 (n, ...) views of the ports and discrete state, ``kernels/attitude.py``, ``kernels/ekf7.py`` and
 ``kernels/eskf.py`` (each estimator's equations in its module docstring), with
-``kernels/fusion.py`` for what they share.
+``kernels/fusion.py`` for what they share. Each estimator system holds its measurement updates
+(``systems/updates.py``: one object per sensor, built once from the vehicle) and supplies only
+its prediction and how a correction is applied.
 
-Every estimator is a sub-Diagram (:func:`build_estimator`) with inputs ``imu``, ``gps``,
-``mag`` and the outputs its vocabulary lists (``estimation/vocabulary.py``):
+Every estimator is a sub-Diagram (:func:`build_estimator`) with the input ``imu``, one input
+per measurement it fuses that the vehicle carries (``gps``, ``mag``, ``baro``) and the outputs
+its vocabulary lists (``estimation/vocabulary.py``):
 ``estimated_state`` (13, the true ``state`` layout), ``covariance``, ``diagnostics`` and its
 own logs.
 
@@ -212,9 +215,9 @@ class Ekf(LeafSystem):
     def _update(self, context, discrete_state):
         """The prediction and, on a quiet tick, the yaw update (one compiled call); at a fresh GPS
         sample or an unhealthy P, the health check and every update (``updates.Fusion.fuse``)."""
-        fused = self._fusion
-        filters = fused.filters(discrete_state)
-        samples = fused.read(context)
+        seam = self._fusion
+        filters = seam.filters(discrete_state)
+        samples = seam.read(context)
         samples["attitude"] = attitude = self._read_attitude(context)
         tick_samples = ekf7_kernel.Samples(
             attitude=attitude,
@@ -225,9 +228,9 @@ class Ekf(LeafSystem):
         tilt_gains = ekf7_kernel.NO_TILT if self._tilt is None else self._tilt.gains(context.get_time())
         if ekf7_kernel.tick(filters, tick_samples, self._model, tilt_gains, self._healthy):
             if self._after_quiet_tick:
-                fused.fuse(context, discrete_state, filters, samples, None, self._after_quiet_tick)
+                seam.fuse(context, discrete_state, filters, samples, None, self._after_quiet_tick)
         else:  # a fresh GPS sample or an unhealthy P somewhere: the full step
-            fused.fuse(context, discrete_state, filters, samples, self._healthy)
+            seam.fuse(context, discrete_state, filters, samples, self._healthy)
         if self._float32:
             attitude_kernel.round_to_float32(filters.x, filters.P)
 
@@ -336,11 +339,11 @@ class Eskf(LeafSystem):
 
     def _update(self, context, discrete_state):
         """The prediction compiled, then the health check and every update (``updates.Fusion.fuse``)."""
-        fused = self._fusion
-        filters = fused.filters(discrete_state)
+        seam = self._fusion
+        filters = seam.filters(discrete_state)
         estimate = discrete_state.get_mutable_value(self._estimate).reshape(self._n, STATE_SIZE)
         healthy = eskf_kernel.predict_tick(filters, self._read_imu(context), estimate, self._model)
-        fused.fuse(context, discrete_state, filters, fused.read(context), healthy)
+        seam.fuse(context, discrete_state, filters, seam.read(context), healthy)
         eskf.write_estimate(filters.x, estimate)
         discrete_state.get_mutable_value(self._bias)[:] = filters.x[:, 10:16].ravel()
 
