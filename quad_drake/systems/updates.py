@@ -68,10 +68,16 @@ class GpsUpdate(Update):
     def __init__(self, measurement, R, gates, correct):
         super().__init__(measurement)
         self._R, self._gates, self._correct = R, gates, correct
+        self._fresh_of = (None, None)  # (the tick's samples, its fresh flags): computed once a tick
 
     def fresh(self, samples, filters) -> np.ndarray:
-        """(n,) bool: the vehicles with a fresh GPS sample this tick."""
-        return fusion.fresh(samples[self.measurement.port][:, 6], filters.book[:, fusion.GPS_SLOT])
+        """(n,) bool: the vehicles with a fresh GPS sample this tick (``samples``: the tick's dict;
+        the other updates leave the GPS stamps booked, so it is computed once per tick)."""
+        seen, flags = self._fresh_of
+        if seen is not samples:
+            flags = fusion.fresh(samples[self.measurement.port][:, 6], filters.book[:, fusion.GPS_SLOT])
+            self._fresh_of = (samples, flags)
+        return flags
 
     def fuse(self, context, discrete_state, filters, samples) -> None:
         gps_fresh = self.fresh(samples, filters)
@@ -79,6 +85,7 @@ class GpsUpdate(Update):
             rows = slice(None) if gps_fresh.all() else np.flatnonzero(gps_fresh)
             gps = samples[self.measurement.port]
             fusion.fuse_gps(filters, gps, rows, self._correct, self._R, self._gates)
+        self._fresh_of = (None, None)
 
 
 class YawUpdate(Update):
