@@ -24,7 +24,7 @@ from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from quad_drake.config.schema import VehicleConfig  # noqa: E402
+from quad_drake.config.schema import GpsParams, ImuParams, MagParams, SensorsConfig, VehicleConfig  # noqa: E402
 from quad_drake.conventions import GRAVITY, NO_SAMPLE_STAMP, ONBOARD_PERIOD  # noqa: E402
 from quad_drake.estimation.registry import EskfEstimatorConfig  # noqa: E402
 from quad_drake.systems.estimators import build_estimator  # noqa: E402
@@ -73,7 +73,10 @@ def cpu_seconds(n, kind, seconds, scalar=False):
     builder = DiagramBuilder()
     source = builder.AddSystem(SensorSource(n))
     if kind is not None:
-        vehicle = VehicleConfig(estimator=EskfEstimatorConfig()) if kind == "eskf" else VehicleConfig()
+        sensors = SensorsConfig(imu=ImuParams(), gps=GpsParams(), mag=MagParams())
+        vehicle = VehicleConfig(sensors=sensors)
+        if kind == "eskf":
+            vehicle = VehicleConfig(sensors=sensors, estimator=EskfEstimatorConfig())
         diagram = build_estimator(vehicle) if scalar else build_estimator(vehicle, n=n)
         estimator = builder.AddSystem(diagram)
         for name in ("imu", "gps", "mag"):

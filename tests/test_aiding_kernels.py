@@ -9,7 +9,7 @@ import pytest
 
 from quad_drake.estimation import baro, ekf, eskf, gating, mag3
 from quad_drake.estimation.vocabulary import DIAG, initial_diagnostics
-from quad_drake.kernels import aiding
+from quad_drake.kernels import aiding, ekf7
 from quad_drake.models import sensor_models
 from quad_drake.models.rotations import quat_from_euler, wrap_to_pi
 
@@ -172,7 +172,7 @@ def test_heading_rows_fuse_the_tilt_compensated_heading_as_the_ekf7_yaw():
     dx, fused = np.zeros((N, 7)), np.zeros(N, dtype=bool)
     aiding.heading_rows(x, P, mag, attitude, book, 1, diagnostics, model, dx, fused)
     assert fused.tolist() == [True, True, False, True]
-    aiding.add_corrections(x, dx, fused, 6)
+    ekf7.correct(x, P, dx, fused)
     for i in (0, 1, 3):
         m = mag[i, :3] - FIELD.hard_iron
         heading = mag3.tilt_compensated_heading(attitude[i, 0], attitude[i, 1], *m, FIELD.declination)

@@ -138,8 +138,8 @@ def test_the_adapter_fuses_each_sample_once_gates_and_counts(tmp_path):
 
     manual_estimator(tmp_path)
     factory = f"{tmp_path / 'my_ekf.py'}:MyEkf"
-    config = catalog.load("11_gps_update", None, [custom_override(factory)]).vehicles[0].estimator
-    system = PythonEstimator(config, n=2)
+    vehicle = catalog.load("11_gps_update", None, [custom_override(factory)]).vehicles[0]
+    system = PythonEstimator(vehicle.estimator, vehicle.sensors, n=2)
     context = system.CreateDefaultContext()
     imu = np.tile([0.0, 0.0, -9.81, 0.0, 0.0, 0.0], 2)
     imu[6:] = np.nan  # vehicle 1: its IMU is out

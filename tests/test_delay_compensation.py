@@ -1,8 +1,12 @@
-"""Delay compensation on hand-made estimates: the odometry leaves GPS corrections out, samples move by it."""
+"""Delay compensation on hand-made estimates: the odometry leaves GPS corrections out, samples move by it;
+one vehicle's vectors and N vehicles' rows give the same numbers."""
 
+import math
+
+import numpy as np
 import pytest
 
-from quad_drake import delay_compensation as dc
+from quad_drake.estimation import delay_compensation as dc
 
 DT = 0.002
 
@@ -35,6 +39,29 @@ def test_a_late_sample_moves_by_the_odometry_since_its_stamp_and_keeps_it():
     row = [4.0, 10.0, 0.0, 0.0, 1.0, 0.0, 0.0]
     now = [10.1, 0.0, 0.0, 1.0, 0.2, 0.0]
     assert dc.compensated_gps(sample, row, now) == pytest.approx([1.1, 2.0, -3.0, 0.5, 0.2, 0.0, 4.0])
-    assert dc.compensated_gps(sample, [3.9] + row[1:], now) == sample  # the ring no longer holds 4.0 s
-    assert dc.compensated_gps(sample, None, now) == sample
-    assert dc.compensated_gps(sample, [float("nan")] * 7, now) == sample
+    np.testing.assert_array_equal(dc.compensated_gps(sample, [3.9] + row[1:], now), sample)  # ring moved on
+    np.testing.assert_array_equal(dc.compensated_gps(sample, [math.nan] * 7, now), sample)  # no row
+
+
+def test_rows_of_n_vehicles_are_each_vehicle_alone():
+    rng = np.random.default_rng(19)
+    n = 20
+    odometry, estimate, previous = rng.normal(size=(3, n, 6))
+    step, fused = rng.normal(size=(n, 3)), rng.uniform(size=n) < 0.3
+    new, dv = dc.odometry_step(odometry, estimate, previous, step, fused, DT)
+    velocity = rng.normal(size=(n, 3))
+    ahead = dc.predicted_odometry(odometry, velocity, step, DT)
+    sample = np.column_stack([rng.normal(size=(n, 6)), rng.uniform(0.0, 10.0, n)])
+    rows = np.column_stack([sample[:, 6] + rng.choice([0.0, 1e-10, 0.002], n), rng.normal(size=(n, 6))])
+    rows[:5, 0] = math.nan
+    shifted = dc.compensated_gps(sample, rows, ahead)
+    assert fused.any() and not fused.all()
+    for i in range(n):
+        one, one_dv = dc.odometry_step(odometry[i], estimate[i], previous[i], step[i], fused[i], DT)
+        np.testing.assert_allclose(new[i], one, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(dv[i], one_dv, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(
+            ahead[i], dc.predicted_odometry(odometry[i], velocity[i], step[i], DT), atol=1e-12
+        )
+        np.testing.assert_allclose(shifted[i], dc.compensated_gps(sample[i], rows[i], ahead[i]), atol=1e-12)
+    np.testing.assert_array_equal(shifted[:5], sample[:5])

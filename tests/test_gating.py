@@ -9,9 +9,8 @@ from scipy.stats import binom, chi2
 from quad_drake.config.schema import EkfParams
 from quad_drake.conventions import GRAVITY
 from quad_drake.estimation import ekf, gating
-from quad_drake.estimation.vocabulary import DIAG
+from quad_drake.estimation.vocabulary import DIAG, initial_diagnostics
 from quad_drake.kernels import ekf7, fusion
-from quad_drake.systems.estimators import initial_diagnostics
 
 DT = 0.002
 
@@ -195,7 +194,7 @@ def _hover_run(seed, outlier_at=None, gate_sigma=5.0, seconds=30.0, tuning=CONSI
             if outlier_at is not None and k == outlier_at:
                 z[0] += 50.0
             filters = fusion.Filters(x, P, diagnostics, book, hold=None)
-            fusion.fuse_gps(filters, np.r_[z, k * DT][None], slice(None), ekf7.gps_update, R, gates)
+            fusion.fuse_gps(filters, np.r_[z, k * DT][None], slice(None), ekf7.correct_gps, R, gates)
             samples += 1
         if k * DT > 2.0:
             worst = max(worst, float(np.linalg.norm(x[0, 0:3] - truth[0:3])))

@@ -1,17 +1,15 @@
 """The scalar numpy forms of the filter steps are reference oracles: no simulation calls them.
 
 Single runs and fleets both execute the compiled kernels (``kernels/attitude.py``, ``ekf7.py``,
-``eskf.py``, ``fusion.py``, ``odometry.py``; sized by n, ``systems/estimators.py``), which compile
-the pure scalar formulas' own code; the textbook matrix forms in ``estimation/`` and the list forms
-of ``delay_compensation`` stay as the named oracles those kernels are tested against
-(``tests/test_estimator_kernels.py``, 1e-12). Here every oracle is patched to raise and closed-loop
-flights that exercise every filter step (prediction, magnetometer and GPS updates, a gated outlier,
-a delayed GPS, both estimators) must still fly.
+``eskf.py``, ``fusion.py``; sized by n, ``systems/estimators.py``), which compile the pure scalar
+formulas' own code; the textbook matrix forms in ``estimation/`` stay as the named oracles those
+kernels are tested against (``tests/test_fleet_estimators.py``, 1e-12). Here every oracle is
+patched to raise and closed-loop flights that exercise every filter step (prediction,
+magnetometer and GPS updates, a gated outlier, a delayed GPS, both estimators) must still fly.
 """
 
 import pytest
 
-from quad_drake import delay_compensation
 from quad_drake.estimation import ekf, eskf
 from quad_drake.running import catalog, simulation
 
@@ -37,7 +35,6 @@ ORACLES = {
         "gps_update",
         "mag_update",
     ),
-    delay_compensation: ("odometry_step", "predicted_odometry", "compensated_gps"),
 }
 FLIGHTS = {
     "11_gps_update": (),

@@ -105,7 +105,6 @@ PURE = (
     "quad_drake.config.schema",
     "quad_drake.config.validation",
     "quad_drake.models",
-    "quad_drake.delay_compensation",
     "quad_drake.control",
     "quad_drake.estimation",
     "quad_drake.flightlogs.reader",
@@ -257,7 +256,7 @@ FLOORS = (
     (
         "pure: configuration, models, estimators, control, recorded-log reading",
         ("quad_drake.config", "quad_drake.models", "quad_drake.estimation", "quad_drake.control")
-        + ("quad_drake.delay_compensation", "quad_drake.flightlogs.reader", "quad_drake.flightlogs.schedule")
+        + ("quad_drake.flightlogs.reader", "quad_drake.flightlogs.schedule")
         + ("quad_drake.flightlogs.settings",)
         + ("quad_drake.grading.course", "quad_drake.grading.course_math", "quad_drake.grading.criteria")
         + ("quad_drake.grading.student_template",),

@@ -1,6 +1,7 @@
 """The estimator registry: every kind declared once, kind ``truth`` added by one entry, and the
 deprecated ``use_ideal_estimator`` rewritten into ``flies_on``."""
 
+import re
 import textwrap
 import typing
 from pathlib import Path
@@ -142,3 +143,43 @@ def test_the_command_line_prints_the_deprecation_as_one_line(tmp_path, capsys):
     lines = [line for line in capsys.readouterr().err.splitlines() if "deprecated" in line]
     deprecated = "vehicles.0.use_ideal_estimator is deprecated: write vehicles.0.flies_on: estimate"
     assert lines == [f"quad-drake: warning: {deprecated}"]
+
+
+def test_no_module_outside_the_registry_switches_on_an_estimator_kind():
+    """A kind is the whole truth of its registry entry: nothing else compares a kind with a name."""
+    names = "|".join(registry.KINDS)
+    switch = re.compile(
+        rf"""[=!]=\s*["']({names})["']|["']({names})["']\s*[=!]=|\bin\s*\(\s*["']({names})["']"""
+    )
+    package = Path(registry.__file__).resolve().parents[1]
+    found = [
+        f"{path.relative_to(package)}:{number}: {line.strip()}"
+        for path in sorted(package.rglob("*.py"))
+        if path.name != "registry.py"
+        for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1)
+        if switch.search(line)
+    ]
+    assert found == []
+    assert switch.search('if estimator.kind == "eskf":') and switch.search(
+        "if 'truth' != kind:"
+    )  # it can fail
+
+
+def test_every_builder_lives_on_the_systems_side():
+    for kind in registry.KINDS.values():
+        if kind.builder is None:
+            continue
+        module, _, name = kind.builder.partition(":")
+        assert module.startswith("quad_drake.systems."), kind.name
+        assert callable(kind.build_function()) and kind.build_function().__name__ == name
+
+
+def test_replay_defaults_and_the_start_from_a_log_are_the_entry_s():
+    eskf = registry.KINDS["eskf"]
+    config = eskf.replay_config()
+    assert config.gps_pos_std == [registry.PX4_NOISE["gps_pos_std"]] * 3
+    started = eskf.started_from_log(config, 0.1, 0.2, 0.3)
+    assert started.init_ypr == [0.3, 0.2, 0.1]
+    assert eskf.assuming_gps_noise(started, 10.0, 1e3).gps_vel_std == [1e3] * 3
+    ekf7 = registry.KINDS["ekf7"]  # its parameters are the vehicle's ekf block: the entry keeps its config
+    assert ekf7.started_from_log(ekf7.replay_config(), 0.1, 0.2, 0.3) == registry.Ekf7EstimatorConfig()

@@ -307,7 +307,7 @@ class VehicleConfig:
     flies_on: str = field(default="truth", metadata={"choices": FLIES_ON})
     faults: List[FaultConfig] = field(default_factory=list)  # applied in order, see FaultConfig
     # s, the longest GPS lag the estimator compensates (0 = off): a late GPS sample is moved by
-    # the estimate's own motion since its stamp (quad_drake.delay_compensation)
+    # the estimate's own motion since its stamp (quad_drake.estimation.delay_compensation)
     gps_delay_compensation: float = number(0.0, nonnegative=True)
     wind: Optional[WindConfig] = None  # none: still air (quad_drake.models.wind)
 

@@ -10,6 +10,7 @@ import typing
 from pathlib import Path
 
 from ..conventions import ONBOARD_PERIOD
+from ..estimation.measurements import unfused_sensor
 from ..estimation.registry import kind_of
 from ..models.fidelity import fidelity_from_mode
 from .errors import ConfigError, did_you_mean
@@ -243,12 +244,11 @@ def _check_semantics(scenario):
                 )
         if v.trajectory.kind == "file":
             resolve_trajectory_file(v.trajectory.file, f"vehicles.{i}.trajectory.file")
-        if v.flies_on == "estimate" and v.estimator.kind != "truth":
+        kind = kind_of(v.estimator)
+        if v.flies_on == "estimate" and kind.builder is not None:
             if not (v.sensors.imu and v.sensors.gps and v.sensors.mag):
                 raise ConfigError(f"vehicles.{i}.flies_on: estimate needs imu, gps and mag sensors")
-        kind = kind_of(v.estimator)
-        three_axis = v.sensors.mag is not None and v.sensors.mag.three_axis
-        if three_axis and kind.builder and not kind.three_axis_nis:
+        if kind.builder and unfused_sensor(kind.measurements, v.sensors) == "mag":
             raise ConfigError(
                 f"vehicles.{i}.sensors.mag.three_axis: estimator kind {kind.name!r} takes the yaw "
                 "magnetometer only (ekf7 and eskf fuse a 3-axis one)"

@@ -17,8 +17,15 @@ to know of it:
   before any flight), or None; ``locate(config, base_dir)``: the config with the paths it names
   made absolute against the scenario file's folder ``base_dir``; ``relative(config, folder)``:
   its inverse, for a scenario saved into ``folder`` (the paths relative to it where they can be).
+- ``measurements``: the measurements it fuses, in fusion order (``estimation/measurements.py``);
+- for replaying a real flight controller's log (``flightlogs/``): ``replay_defaults()``, its
+  config with PX4 EKF2's noise (:data:`PX4_NOISE`); ``started_from_log(config, roll, pitch,
+  yaw)``, the config started at the log's first attitude; ``assuming_gps_noise(config, pos_std,
+  vel_std)``, the config assuming that GPS noise (a log without GPS gets fake positions).
 
-Adding an estimator is its config dataclass and one entry in :data:`KINDS`.
+Adding an estimator is its config dataclass and one entry in :data:`KINDS`; its builder lives on
+the systems side (``tests/test_registry.py`` asserts it). Whether a kind runs under a scenario's
+fidelity is checked once, when the scenario loads (``config.validate``).
 
 What the controller flies on is the vehicle's ``flies_on`` (:func:`flies_on_estimate`): the
 estimate, or the true state with the estimator running beside it to be judged (the reference's
@@ -28,6 +35,7 @@ state, so the controller flies on the truth either way.
 
 import dataclasses
 import importlib
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import lru_cache
@@ -39,6 +47,7 @@ from quad_drake.conventions import ONBOARD_PERIOD
 from quad_drake.estimation import custom
 from quad_drake.estimation.baro import BaroFusionParams
 from quad_drake.estimation.mag3 import MagFieldFusionParams
+from quad_drake.estimation.measurements import NIS_ORDER, measurements_of
 from quad_drake.estimation.vocabulary import EKF7, ESKF9, ESKF15, EstimatorVocabulary, euler_vocabulary
 from quad_drake.grading.course import StudentProblem, load_student_module, tuning_of
 from quad_drake.models.fidelity import Fidelity
@@ -155,11 +164,18 @@ class EstimatorKind:
     problem: Callable[[object], Optional[str]] = _no_problem
     locate: Callable[[object, object], object] = _as_is
     relative: Callable[[object, object], object] = _as_is
-    # the aiding sensors (issue 32): whether it fuses a barometer, and the NIS it logs for a
-    # 3-axis magnetometer ("mag": the EKF7's tilt-compensated heading, "field": the ESKF's vector;
-    # None: it cannot take one)
-    fuses_baro: bool = False
-    three_axis_nis: Optional[str] = None
+    # the measurements it fuses, in fusion order (names of ``measurements.MEASUREMENTS``); its
+    # system builds one update per name the vehicle carries and refuses a name it cannot fuse
+    measurements: tuple = ()
+    replay_defaults: Optional[Callable[[], object]] = None  # None: the config type's defaults
+    started_from_log: Callable[[object, float, float, float], object] = lambda config, roll, pitch, yaw: (
+        config
+    )
+    assuming_gps_noise: Callable[[object, float, float], object] = lambda config, pos_std, vel_std: config
+
+    def replay_config(self) -> object:
+        """The kind's config for replaying a flight log (``replay_defaults``, else the defaults)."""
+        return self.config_type() if self.replay_defaults is None else self.replay_defaults()
 
     def build_function(self) -> Callable:
         """The function named by ``builder``, imported."""
@@ -199,6 +215,58 @@ _ESKF_TUNING = (
     "estimator.gps_vel_std",
     "estimator.mag_yaw_std",
 )
+
+
+PX4_PER_SAMPLE = math.sqrt(0.010 / 0.002)
+"""PX4 EKF2's IMU noise is per 10 ms prediction step; ours is per 2 ms sample of equal density."""
+PX4_NOISE = {
+    "gyro_std": 0.015 * PX4_PER_SAMPLE,  # rad/s per 2 ms sample (EKF2_GYR_NOISE)
+    "accel_std": 0.35 * PX4_PER_SAMPLE,  # m/s^2 per 2 ms sample (EKF2_ACC_NOISE)
+    "gps_pos_std": 0.5,  # m (EKF2_GPS_P_NOISE)
+    "gps_vel_std": 0.3,  # m/s (EKF2_GPS_V_NOISE)
+    "heading_std": 0.3,  # rad (EKF2_HEAD_NOISE)
+    "baro_height_std": 3.5,  # m (EKF2_BARO_NOISE)
+    "mag_field_std": 0.05,  # gauss (EKF2_MAG_NOISE)
+}
+"""PX4 EKF2's default noise, what a replay of a real flight controller's log assumes (not tuned
+on the logs; ``flightlogs/settings.py``)."""
+
+
+def _eskf_replay_defaults():
+    """The ESKF with PX4 EKF2's noise (:data:`PX4_NOISE`; bias walks EKF2_ACC_B_NOISE 0.003 m/s^3,
+    EKF2_GYR_B_NOISE 0.001 rad/s^2), started at rest at the origin with a wide prior."""
+    return EskfEstimatorConfig(
+        init_position=[0.0, 0.0, 0.0],
+        init_pos_std=[1.0, 1.0, 1.0],
+        init_vel_std=[0.5, 0.5, 0.5],
+        init_att_std=[0.1, 0.1, 0.3],
+        init_gyro_bias_std=[0.02, 0.02, 0.02],
+        init_accel_bias_std=[0.2, 0.2, 0.2],
+        accel_std=[PX4_NOISE["accel_std"]] * 3,
+        gyro_std=[PX4_NOISE["gyro_std"]] * 3,
+        accel_bias_rw_std=0.003,
+        gyro_bias_rw_std=0.001,
+        gps_pos_std=[PX4_NOISE["gps_pos_std"]] * 3,
+        gps_vel_std=[PX4_NOISE["gps_vel_std"]] * 3,
+        mag_yaw_std=PX4_NOISE["heading_std"],
+        **px4_aiding_noise(),
+    )
+
+
+def px4_aiding_noise():
+    """The AidingParams fields with PX4 EKF2's barometer and field noise (:data:`PX4_NOISE`)."""
+    return {
+        "baro": BaroFusionParams(height_std=PX4_NOISE["baro_height_std"]),
+        "mag_field": MagFieldFusionParams(field_std=[PX4_NOISE["mag_field_std"]] * 3),
+    }
+
+
+def _eskf_started(config, roll, pitch, yaw):
+    return dataclasses.replace(config, init_ypr=[yaw, pitch, roll])
+
+
+def _eskf_gps_noise(config, pos_std, vel_std):
+    return dataclasses.replace(config, gps_pos_std=[pos_std] * 3, gps_vel_std=[vel_std] * 3)
 
 
 def _eskf_tuning(config):
@@ -273,8 +341,7 @@ KINDS = {
             builder="quad_drake.systems.estimators:add_ekf7",
             tuning_keys=lambda config: _EKF7_TUNING,
             fidelity_problem=_any_fidelity,
-            fuses_baro=True,
-            three_axis_nis="mag",
+            measurements=("yaw", "gps", "heading", "baro"),
         ),
         EstimatorKind(
             name="eskf",
@@ -283,8 +350,10 @@ KINDS = {
             builder="quad_drake.systems.estimators:add_eskf",
             tuning_keys=_eskf_tuning,
             fidelity_problem=_physical_accelerometer_only,
-            fuses_baro=True,
-            three_axis_nis="field",
+            measurements=("yaw", "gps", "field", "baro"),
+            replay_defaults=_eskf_replay_defaults,
+            started_from_log=_eskf_started,
+            assuming_gps_noise=_eskf_gps_noise,
         ),
         EstimatorKind(
             name="custom",
@@ -295,6 +364,7 @@ KINDS = {
             fidelity_problem=_any_fidelity,
             problem=_custom_problem,
             locate=_custom_located,
+            measurements=("yaw", "gps"),
             relative=_custom_relative,
         ),
         EstimatorKind(
@@ -306,6 +376,7 @@ KINDS = {
             fidelity_problem=_any_fidelity,
             problem=_course_problem,
             locate=_course_located,
+            measurements=("yaw", "gps"),
         ),
         EstimatorKind(
             name="truth",
@@ -321,6 +392,8 @@ KINDS = {
 
 EstimatorConfig = Union[tuple(kind.config_type for kind in KINDS.values())]
 """A vehicle's estimator, chosen by ``kind`` (``estimator: {kind: eskf, ...}``); default ekf7."""
+DEFAULT_KIND = Ekf7EstimatorConfig().kind
+"""The kind of a vehicle (or a replay) that names none."""
 
 
 def kind_of(config) -> EstimatorKind:
@@ -345,17 +418,19 @@ def flies_on_estimate(vehicle) -> bool:
     return vehicle.flies_on == "estimate" and vehicle_vocabulary(vehicle) is not None
 
 
-def nis_sensors(vehicle) -> tuple:
-    """The NIS a VehicleConfig's estimator logs (keys of ``vocabulary.NIS_DOF``): "gps" with a GPS,
-    "mag" with a yaw magnetometer (or the EKF7's heading of a 3-axis one), "field" (the ESKF's
-    3-axis field), "baro" with a barometer it fuses; () when no estimator runs."""
+def fused_measurements(vehicle) -> tuple:
+    """The ``measurements.Measurement`` s a VehicleConfig's estimator fuses, in fusion order: its
+    kind's that the vehicle's sensors carry; () when no estimator runs. Its input ports and NIS
+    columns (:func:`nis_sensors`) read this list, as its system's updates do."""
     if vehicle_vocabulary(vehicle) is None:
         return ()
-    kind, sensors, names = kind_of(vehicle.estimator), vehicle.sensors, []
-    if sensors.gps is not None:
-        names.append("gps")
-    if sensors.mag is not None:
-        names.append(kind.three_axis_nis if sensors.mag.three_axis else "mag")
-    if sensors.baro is not None and kind.fuses_baro:
-        names.append("baro")
-    return tuple(name for name in names if name is not None)
+    return measurements_of(kind_of(vehicle.estimator).measurements, vehicle.sensors)
+
+
+def nis_sensors(vehicle) -> tuple:
+    """The NIS a VehicleConfig's estimator logs (keys of ``vocabulary.NIS_DOF``, in
+    ``measurements.NIS_ORDER``): "gps" with a GPS, "mag" with a yaw magnetometer (or the EKF7's
+    heading of a 3-axis one), "field" (the ESKF's 3-axis field), "baro" with a barometer it
+    fuses; () when no estimator runs."""
+    names = {m.nis for m in fused_measurements(vehicle)}
+    return tuple(name for name in NIS_ORDER if name in names)

@@ -30,6 +30,8 @@ from quad_drake.config import (
     BaroParams,
     ConfigError,
     EkfParams,
+    GpsParams,
+    ImuParams,
     MagParams,
     SensorsConfig,
     VehicleConfig,
@@ -43,26 +45,20 @@ from quad_drake.config import (
     validate,
 )
 from quad_drake.config.fields import number
-from quad_drake.estimation.baro import BaroFusionParams
-from quad_drake.estimation.mag3 import MagFieldFusionParams
 from quad_drake.estimation.registry import (
+    DEFAULT_KIND,
     KINDS,
+    PX4_NOISE,
     AidingParams,
     Ekf7EstimatorConfig,
-    EskfEstimatorConfig,
     EstimatorConfig,
-    kind_of,
+    px4_aiding_noise,
 )
+from quad_drake.models.fidelity import PHYSICAL
 
-PER_SAMPLE = math.sqrt(0.010 / 0.002)
-"""PX4 EKF2's IMU noise is per 10 ms prediction step; ours is per 2 ms sample of equal density."""
-GYRO_STD = 0.015 * PER_SAMPLE  # rad/s per 2 ms sample
-ACCEL_STD = 0.35 * PER_SAMPLE  # m/s^2 per 2 ms sample
-GPS_POS_STD = 0.5  # m
-GPS_VEL_STD = 0.3  # m/s
-HEADING_STD = 0.3  # rad
-BARO_STD = 3.5  # m, EKF2_BARO_NOISE
-MAG_FIELD_STD = 0.05  # gauss, EKF2_MAG_NOISE
+GPS_POS_STD = PX4_NOISE["gps_pos_std"]  # m
+GPS_VEL_STD = PX4_NOISE["gps_vel_std"]  # m/s
+HEADING_STD = PX4_NOISE["heading_std"]  # rad
 LOG_DIR = PACKAGE_DIR / "data" / "flight_logs"
 """The bundled flight logs (package data): pyulog's test logs, BSD-3-Clause (README there)."""
 FAKE_VELOCITY_STD = 1e3
@@ -86,36 +82,12 @@ class ReplayConfig:
 
 
 def default_estimator(kind):
-    """The replay's default estimator config of `kind` (module docstring: PX4's noise)."""
-    if kind == "eskf":
-        return EskfEstimatorConfig(
-            init_position=[0.0, 0.0, 0.0],
-            init_pos_std=[1.0, 1.0, 1.0],
-            init_vel_std=[0.5, 0.5, 0.5],
-            init_att_std=[0.1, 0.1, 0.3],
-            init_gyro_bias_std=[0.02, 0.02, 0.02],
-            init_accel_bias_std=[0.2, 0.2, 0.2],
-            accel_std=[ACCEL_STD] * 3,
-            gyro_std=[GYRO_STD] * 3,
-            accel_bias_rw_std=0.003,
-            gyro_bias_rw_std=0.001,
-            gps_pos_std=[GPS_POS_STD] * 3,
-            gps_vel_std=[GPS_VEL_STD] * 3,
-            mag_yaw_std=HEADING_STD,
-            **aiding_defaults(),
-        )
-    return Ekf7EstimatorConfig()
+    """The replay's default estimator config of `kind` (its registry entry's ``replay_config``;
+    PX4's noise, module docstring); an unknown kind: the EKF7's."""
+    return KINDS.get(kind, KINDS[DEFAULT_KIND]).replay_config()
 
 
-def aiding_defaults():
-    """The AidingParams fields of the replay's defaults: PX4's barometer and field noise."""
-    return {
-        "baro": BaroFusionParams(height_std=BARO_STD),
-        "mag_field": MagFieldFusionParams(field_std=[MAG_FIELD_STD] * 3),
-    }
-
-
-def default_replay(kind="ekf7"):
+def default_replay(kind=DEFAULT_KIND):
     """ReplayConfig with the defaults of the module docstring for an estimator of `kind`."""
     ekf = EkfParams(
         init_state=[0.0] * 7,
@@ -127,7 +99,7 @@ def default_replay(kind="ekf7"):
         gps_vel_xy_std=GPS_VEL_STD,
         gps_vel_z_std=GPS_VEL_STD,
         mag_yaw_std=HEADING_STD,
-        **aiding_defaults(),
+        **px4_aiding_noise(),
     )
     return ReplayConfig(
         estimator=default_estimator(kind),
@@ -171,8 +143,8 @@ def load_replay(log, estimator=None, overrides=()):
             base = raw["estimator"] if kind == raw["estimator"].get("kind") else _default_estimator_raw(kind)
             raw["estimator"] = {**_untagged(base), **chosen}
     else:
-        kind = chosen.get("kind", "ekf7")
-        raw = load_yaml(yaml_dump_typed(default_replay(kind if kind in KINDS else "ekf7")))
+        kind = chosen.get("kind", DEFAULT_KIND)
+        raw = load_yaml(yaml_dump_typed(default_replay(kind if kind in KINDS else DEFAULT_KIND)))
         path = resolve_log(log)
         raw["log"] = str(log) if path.parent == LOG_DIR else str(path.resolve())  # a bundled name stays one
         raw["estimator"] = {**_untagged(raw["estimator"]), **chosen}
@@ -197,7 +169,7 @@ def load_replay(log, estimator=None, overrides=()):
 
 
 def _default_estimator_raw(kind):
-    return load_yaml(yaml_dump_typed(default_replay(kind if kind in KINDS else "ekf7")))["estimator"]
+    return load_yaml(yaml_dump_typed(default_replay(kind if kind in KINDS else DEFAULT_KIND)))["estimator"]
 
 
 def _replay_file(path):
@@ -239,7 +211,7 @@ def check_replay(config):
     kind = KINDS[config.estimator.kind]
     if kind.builder is None:
         raise ConfigError(f"estimator.kind: {kind.name!r} runs no estimator; nothing to replay")
-    problem = kind.problem(config.estimator)
+    problem = kind.fidelity_problem(PHYSICAL) or kind.problem(config.estimator)  # a replay is physical
     if problem:
         raise ConfigError(f"estimator: {problem}")
     if config.mag_declination is not None and not abs(config.mag_declination) <= math.pi:
@@ -252,33 +224,28 @@ def vehicle_for(config, initial_attitude, fake_position, baro_period=None, magne
     `config`'s, started at `initial_attitude` (roll, pitch, yaw rad) at rest at the origin, and
     with `fake_position` (a log without GPS) assuming the fake position's noise for its GPS input.
 
-    The log's aiding sensors, where the estimator's kind fuses them (``EstimatorKind.fuses_baro``,
-    ``three_axis_nis``): baro_period (s, the barometer's sample period as the bias filter pairs
-    it with GPS heights; None: no barometer) and magnetometer (``earth_field.MagnetometerModel``:
-    the 3-axis field with its world field and learned bias; None: no magnetometer) become the
+    The log's aiding sensors, where the estimator's kind fuses them (its
+    ``EstimatorKind.measurements``: ``baro``, ``heading`` or ``field``): baro_period (s, the
+    barometer's sample period as the bias filter pairs it with GPS heights; None: no barometer)
+    and magnetometer (``earth_field.MagnetometerModel``: the 3-axis field with its world field
+    and learned bias; None: no magnetometer) become the
     vehicle's ``sensors.baro`` and 3-axis ``sensors.mag``, and the model's figures its
     ``mag_field`` (of every AidingParams block: the EKF7's ``ekf``, an AidingParams estimator's)."""
     roll, pitch, yaw = initial_attitude
+    kind = KINDS[config.estimator.kind]
     ekf = dataclasses.replace(config.ekf, init_state=[0.0] * 6 + [yaw])
-    estimator = config.estimator
-    if estimator.kind == "eskf":
-        estimator = dataclasses.replace(estimator, init_ypr=[yaw, pitch, roll])
+    estimator = kind.started_from_log(config.estimator, roll, pitch, yaw)
     if fake_position:
-        fake, still = [config.fake_position_std] * 3, [FAKE_VELOCITY_STD] * 3
+        fake, still = config.fake_position_std, FAKE_VELOCITY_STD
         ekf = dataclasses.replace(
-            ekf,
-            gps_pos_xy_std=fake[0],
-            gps_pos_z_std=fake[0],
-            gps_vel_xy_std=still[0],
-            gps_vel_z_std=still[0],
+            ekf, gps_pos_xy_std=fake, gps_pos_z_std=fake, gps_vel_xy_std=still, gps_vel_z_std=still
         )
-        if estimator.kind == "eskf":
-            estimator = dataclasses.replace(estimator, gps_pos_std=fake, gps_vel_std=still)
-    kind = kind_of(estimator)
-    sensors = SensorsConfig()
-    if baro_period is not None and kind.fuses_baro:
+        estimator = kind.assuming_gps_noise(estimator, fake, still)
+    sensors = SensorsConfig(imu=ImuParams(), gps=GpsParams(), mag=MagParams())  # what a playback streams
+    fused = set(kind.measurements)
+    if baro_period is not None and "baro" in fused:
         sensors.baro = BaroParams(period=baro_period)
-    if magnetometer is not None and kind.three_axis_nis is not None:
+    if magnetometer is not None and fused & {"heading", "field"}:
         sensors.mag = MagParams(three_axis=True)
         ekf = _with_field(ekf, magnetometer)
         if isinstance(estimator, AidingParams):

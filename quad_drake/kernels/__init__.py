@@ -8,13 +8,32 @@ the LeafSystems of ``quad_drake.systems`` for one vehicle and for a fleet alike.
 - ``attitude``: the complementary attitude filter.
 - ``ekf7``, ``eskf``: the two estimators' ticks; each module's docstring carries its equations.
 - ``fusion``: what both estimators share: freshness, books, the mag gate, the GPS Joseph update
-  and gated policy, covariance health and repair.
-- ``odometry``: the GPS delay compensation's odometry.
+  and gated policy (the correction applied by the estimator's ``correct``), covariance health
+  and repair.
 - ``sensors``: the 3-axis magnetometer's samples (compiled) and the barometer's (on the columns).
 - ``aiding``: both estimators' barometer and 3-axis magnetometer fusion (``estimation/baro.py``,
   ``estimation/mag3.py`` compiled): the gates, the baro bias filter, the field and the heading.
 
-They import the pure modules and numba only (no pydrake, no systems: ``tests/test_packaging.py``);
-no kernel re-types a pure formula: the scalar ones are compiled from their own code, and the
-matrix forms that stay in ``estimation/`` are named reference oracles the kernels are tested against.
+They import the pure modules and numba only (no pydrake, no systems: ``tests/test_packaging.py``).
+
+The rule for what lives here, and in what form:
+
+1. A kernel exists only for a speed reason. Maths that runs once a tick as numpy over all the
+   vehicles' rows needs none: the pure function itself takes (N, ...) arrays (e.g.
+   ``estimation/delay_compensation.py``, called by ``systems.faults`` directly).
+2. No kernel re-types a pure formula: a scalar formula is compiled from its own code
+   (``flight.compiled``), with its callees replaced by their compiled forms.
+3. What runs every tick for every vehicle (the predictions, the covariance health check, the
+   quiet-tick yaw update folded into the EKF7's tick) may be hand-unrolled over the few
+   nonzeros; its matrix form stays in ``estimation/`` as a named reference oracle, tested against
+   the kernel at 1e-12 (``tests/test_fleet_estimators.py``) and never flown
+   (``tests/test_oracles.py``).
+4. What runs only when a sample is fused (the magnetometer updates, the ESKF injection, the
+   aiding updates) should be the oracle's own code compiled; a hand-written row form is kept
+   only while ``benchmarks/bench_fleet_estimators.py`` shows the compiled oracle costs 3 % or
+   more. (Not yet measured for ``ekf7._mag_update_row``, ``eskf._mag_update_row`` and
+   ``eskf._inject_row``, which are still hand-written rows.)
+5. How a correction is applied is the estimator's (``ekf7.correct``: added; ``eskf.correct``:
+   injected); the measurement kernels write the correction dx and the fused flags, and
+   ``systems/updates.py`` hands them to it.
 """

@@ -22,11 +22,12 @@ the ESKF's error state; the tilt-compensated heading as the EKF7's yaw measureme
   (``mag3.floored_yaw_variance``).
 
 Each ``*_rows`` kernel works IN PLACE on P (N, n, n), the diagnostics and the book, and writes
-the correction dx (N, n) of the vehicles it fused (``fused`` (N,) bool): the caller adds it (EKF7,
-:func:`add_corrections`) or injects it (ESKF). A non-finite sample is counted and skipped.
-Pure: numba and numpy, no pydrake.
+the correction dx (N, n) of the vehicles it fused (``fused`` (N,) bool): the caller adds it
+(EKF7, ``kernels.ekf7.correct``) or injects it (ESKF, ``kernels.eskf.correct``). A non-finite
+sample is counted and skipped. Pure: numba and numpy, no pydrake.
 """
 
+import collections
 import math
 
 from quad_drake.conventions import NO_SAMPLE_STAMP
@@ -230,28 +231,23 @@ def heading_rows(x, P, mag, attitude, book, slot, diagnostics, model, dx, fused)
     """One tick of the EKF7's tilt-compensated heading fusion of N filters IN PLACE (module
     docstring): x (N, 7), P (N, 7, 7), mag (N, 4: m_B gauss, stamp s), attitude (N, 3: roll,
     pitch, yaw rad, the attitude filter's), book[:, slot] the last field stamp seen; the
-    corrections into dx (N, 7), fused (N,). model: :func:`heading_model`."""
-    _heading_rows(x, P, mag, attitude, book, slot, diagnostics, model, dx, fused)
+    corrections into dx (N, 7), fused (N,). model: a :class:`HeadingModel`."""
+    _heading_rows(x, P, mag, attitude, book, slot, diagnostics, tuple(model), dx, fused)
 
 
-def heading_model(params, gate_threshold) -> tuple:
-    """(hard_iron gauss, field_var gauss², declination rad, tilt_var rad², threshold) of
-    MagFieldFusionParams."""
-    return (
+HeadingModel = collections.namedtuple(
+    "HeadingModel", ["hard_iron", "field_var", "declination", "tilt_var", "threshold"]
+)
+"""The heading kernel's constants: hard_iron (3, gauss), field_var (3, gauss²), declination rad,
+tilt_var rad² (the attitude's roll/pitch error variance), threshold (the gate's NIS threshold)."""
+
+
+def heading_model(params, gate_threshold) -> HeadingModel:
+    """The :class:`HeadingModel` of MagFieldFusionParams and a gate's NIS threshold."""
+    return HeadingModel(
         tuple(float(v) for v in params.hard_iron),
         tuple(float(s) ** 2 for s in params.field_std),
         float(params.declination),
         float(params.tilt_std) ** 2,
         float(gate_threshold),
     )
-
-
-@njit_cached
-def add_corrections(x, dx, fused, yaw_index) -> None:
-    """x[i] += dx[i] IN PLACE for the fused vehicles (EKF7), the yaw x[:, yaw_index] wrapped to
-    [-pi, pi) (``rotations.wrap_to_pi``)."""
-    for i in range(x.shape[0]):
-        if fused[i]:
-            for k in range(x.shape[1]):
-                x[i, k] += dx[i, k]
-            x[i, yaw_index] = _wrap(x[i, yaw_index])

@@ -51,7 +51,6 @@ from quad_drake.kernels.fusion import (
     GPS_SLOT,
     fresh,
     fresh_mag,
-    joseph_rows,
     looks_healthy,
     mag_gate,
     mag_innovation,
@@ -198,17 +197,41 @@ def mag_update(x, P, yaw_meas, R_mag) -> tuple[np.ndarray, np.ndarray, np.ndarra
 # ----- GPS -----------------------------------------------------------------------------------------
 
 
+@njit_cached
+def correct(x, P, dx, fused) -> None:
+    """How the EKF7 applies a correction: x[i] += dx[i] IN PLACE for the fused vehicles (N,) bool,
+    the yaw x[i, 6] wrapped to [-pi, pi) (``rotations.wrap_to_pi``); P is the update's own."""
+    for i in range(x.shape[0]):
+        if fused[i]:
+            for k in range(x.shape[1]):
+                x[i, k] += dx[i, k]
+            x[i, 6] = rotations.wrap_to_pi(x[i, 6])
+
+
+@njit_cached
+def correct_gps(x, P, dx, fused) -> None:
+    """The EKF7's GPS correction: :func:`correct` without the yaw wrap (the GPS moves the yaw only
+    through the cross-covariance; the yaw is wrapped at its next magnetometer update and replaced
+    by the attitude filter's at the next tick). Kept apart so the logs stay bit-identical to the
+    update this seam replaced; wrapping here too would change them at the last bit."""
+    for i in range(x.shape[0]):
+        if fused[i]:
+            for k in range(x.shape[1]):
+                x[i, k] += dx[i, k]
+
+
 def gps_update(x, P, gps_pv, R_gps, mask=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(x', P', nis) after GPS samples gps_pv (N, 6: p m, v m/s) with R_gps (6, 6) (``ekf.gps_update``).
 
     mask (N, 6) bool, optional: the components each vehicle fuses (H = those rows of [I6 0]; a
     vehicle with none keeps (x, P) with NaN NIS); default all six. A singular innovation
-    covariance raises LinAlgError, as the scalar update does.
+    covariance raises LinAlgError, as the scalar update does (the running ``fusion.fuse_gps``
+    keeps that vehicle's (x, P) instead).
     """
-    dx, P_new, nis, _, singular = joseph_rows(x, P, gps_pv, R_gps, mask)
+    x_new, P_new, nis, singular = fusion.gps_update(x, P, gps_pv, R_gps, correct_gps, mask)
     if singular:
         raise np.linalg.LinAlgError("Singular matrix")
-    return x + dx, P_new, nis
+    return x_new, P_new, nis
 
 
 # ----- one tick ------------------------------------------------------------------------------------
@@ -257,9 +280,13 @@ def tick(filters, samples, model, tilt_gains, healthy) -> bool:
     no mean yet, or a non-finite attitude (also counted), is not predicted. A quiet tick is one
     where every P looks healthy and no vehicle has a fresh GPS sample (``fusion.fresh``): then
     the tick ends here with :func:`mag_tick`. Otherwise the caller runs the repair, the mag step
-    and the GPS fusion (``systems.estimators.GatedFusion._fuse_fresh``).
+    and the measurement updates (``systems.updates.Fusion.fuse``).
     """
-    return _tick(*filters, *samples, *model, tilt_gains, healthy)
+    f, s, m = filters, samples, model
+    return _tick(
+        f.x, f.P, f.diagnostics, f.book, f.hold, s.attitude, s.imu, s.gps, s.mag,
+        m.dt, m.Q, m.gravity_z, m.r_mag, m.mag_threshold, tilt_gains, healthy,
+    )  # fmt: skip
 
 
 # ----- the estimate in the ``state`` layout --------------------------------------------------------

@@ -48,7 +48,7 @@ import numpy as np
 from quad_drake.estimation import eskf
 from quad_drake.estimation.vocabulary import DIAG
 from quad_drake.kernels import fusion, rotations
-from quad_drake.kernels.fusion import fresh_mag, joseph_rows, looks_healthy, mag_gate, mag_innovation
+from quad_drake.kernels.fusion import fresh_mag, looks_healthy, mag_gate, mag_innovation
 from quad_drake.kernels.imu_hold import IMU_FINITE, IMU_MISSING, bridge_imu_row, hold_weight
 from quad_drake.kernels.jit import compiled, njit_cached
 
@@ -186,7 +186,8 @@ def predict(x, P, f_B, w_B, model) -> tuple[np.ndarray, np.ndarray]:
     x (N, 16); P (N, n, n), n = 15 or 9; f_B, w_B (N, 3); model: the :class:`Model` (:func:`model`).
     """
     x, P = np.array(x, dtype=float), np.array(P, dtype=float)
-    _predict_rows(x, P, f_B, w_B, *model)
+    m = model
+    _predict_rows(x, P, f_B, w_B, m.dt, m.accel_var, m.gyro_var, m.isotropic_gyro, m.Q_constant)
     return x, P
 
 
@@ -223,7 +224,11 @@ def predict_tick(filters, imu, estimate, model) -> np.ndarray:
     its body rate is NaN (not measured: the controller then commands no body moment); before its
     first finite sample it is not predicted. Returns ``fusion.covariance_looks_healthy`` of the new P.
     """
-    return _predict_tick(*filters, imu, estimate, *model)
+    f, m = filters, model
+    return _predict_tick(
+        f.x, f.P, f.diagnostics, f.book, f.hold, imu, estimate,
+        m.dt, m.accel_var, m.gyro_var, m.isotropic_gyro, m.Q_constant,
+    )  # fmt: skip
 
 
 # ----- injection -----------------------------------------------------------------------------------
@@ -256,16 +261,18 @@ def _inject_row(x, P, i, dx):
 
 
 @njit_cached
-def _inject_rows(x, P, dx, rows):
+def correct(x, P, dx, fused) -> None:
+    """How the ESKF applies a correction: the errors dx[i] (n,) injected IN PLACE into the fused
+    vehicles' (fused (N,) bool) nominal x[i] and P[i] (``eskf.inject``)."""
     for i in range(x.shape[0]):
-        if rows[i]:
+        if fused[i]:
             _inject_row(x, P, i, dx[i])
 
 
 def inject(x, P, dx) -> tuple[np.ndarray, np.ndarray]:
     """(x', P'): errors dx (N, n) injected into the nominal x (N, 16), P reset by G (``eskf.inject``)."""
     x, P = np.array(x, dtype=float), np.array(P, dtype=float)
-    _inject_rows(x, P, dx, np.ones(x.shape[0], dtype=np.bool_))
+    correct(x, P, dx, np.ones(x.shape[0], dtype=np.bool_))
     return x, P
 
 
@@ -278,9 +285,7 @@ def gps_update(x, P, gps_pv, R_gps, mask=None) -> tuple[np.ndarray, np.ndarray, 
     mask: the components each vehicle fuses, as ``ekf7.gps_update``. A vehicle whose innovation
     covariance is singular keeps (x, P) with NaN NIS, as the scalar one.
     """
-    dx, P_new, nis, fused, _ = joseph_rows(x, P, gps_pv, R_gps, mask)
-    x_new = np.array(x, dtype=float)
-    _inject_rows(x_new, P_new, dx, fused)
+    x_new, P_new, nis, _ = fusion.gps_update(x, P, gps_pv, R_gps, correct, mask)
     return x_new, P_new, nis
 
 

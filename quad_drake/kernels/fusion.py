@@ -36,6 +36,10 @@ BOOK_SIZE = 2 + gating.GPS_BOOK_SIZE
 """Columns of an estimator's book (N, BOOK_SIZE): the last GPS and mag stamps seen (s;
 freshness), then the GPS policy's book (``gating.gps_gate_decisions``)."""
 
+NO_GPS_SAMPLE = np.array([0.0] * 6 + [NO_SAMPLE_STAMP])
+NO_MAG_SAMPLE = np.array([0.0, NO_SAMPLE_STAMP])
+"""One vehicle's GPS (p, v, stamp) and yaw magnetometer (yaw, stamp) input when it has none."""
+
 Filters = collections.namedtuple("Filters", ["x", "P", "diagnostics", "book", "hold"])
 """An estimator's (N, ...) arrays that its tick updates IN PLACE (views of its discrete state)."""
 
@@ -300,14 +304,25 @@ def joseph_rows(
     return _joseph_rows(x, P, z, R_gps, mask)
 
 
-def fuse_gps(filters, gps, rows, update, R, gates) -> None:
+def gps_update(x, P, gps_pv, R_gps, correct, mask=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+    """(x', P', nis (N,), singular) of the Joseph update (:func:`joseph_rows`) of GPS samples gps_pv
+    (N, 6) with R_gps (6, 6) on x (N, width), P (N, n, n), the correction applied by the
+    estimator's ``correct(x, P, dx, fused)`` (IN PLACE on the new arrays: added for the EKF7,
+    injected for the ESKF). mask as :func:`joseph_rows`'; an unfused vehicle keeps (x, P)."""
+    dx, P_new, nis, fused, singular = joseph_rows(x, P, gps_pv, R_gps, mask)
+    x_new = np.array(x, dtype=float)
+    correct(x_new, P_new, dx, fused)
+    return x_new, P_new, nis, singular
+
+
+def fuse_gps(filters, gps, rows, correct, R, gates) -> None:
     """Fuse the fresh GPS samples of the vehicles ``rows`` through the gates (``gating``'s GPS policy).
 
     filters: the estimator's :class:`Filters`, x, P, diagnostics and book updated IN PLACE for
     those rows; gps (N, 7) the samples (p m, v m/s, stamp s); rows: int indices (or a full slice)
-    of the vehicles whose sample is fresh; update(x, P, z, R, mask) -> (x', P', nis) a batched
-    update of the components in mask (N, 6) (``ekf7.gps_update``, ``eskf.gps_update``); R (6, 6);
-    gates a ``gating.GpsGates``.
+    of the vehicles whose sample is fresh; correct(x, P, dx, fused): how the estimator applies a
+    correction (``ekf7.correct``, ``eskf.correct``; :func:`gps_update`); R (6, 6); gates a
+    ``gating.GpsGates``.
 
     Per vehicle: the stamp is booked; a non-finite stamp or sample counts a non-finite sample and
     keeps (x, P); otherwise the joint 6-dof NIS of the prior and the stamp are logged, the groups
@@ -335,7 +350,7 @@ def fuse_gps(filters, gps, rows, update, R, gates) -> None:
     book[index, GPS_POLICY] = policy_book
     diagnostics[index[~accepted.all(axis=1)], DIAG["gps_gated"]] += 1.0
     diagnostics[index[reset.any(axis=1)], DIAG["gps_resets"]] += 1.0
-    x_new, P_new, _ = update(x_prior, P_prior, z_rows, R, gating.component_mask(accepted))
+    x_new, P_new, _, _ = gps_update(x_prior, P_prior, z_rows, R, correct, gating.component_mask(accepted))
     for g, components in enumerate(gating.GPS_GROUP_COMPONENTS):
         due = reset[:, g]
         if due.any():

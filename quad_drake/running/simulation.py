@@ -135,7 +135,7 @@ def _add_faults(builder, vehicle, outputs, n):
 def _add_estimator(builder, vehicle, fidelity, outputs, seeds):
     """Add the estimator of the vehicle's n copies (``build_estimator``; n = 1 without run seeds)
     fed by the sensors in `outputs` that it has inputs for (a missing GPS or magnetometer never
-    samples; a barometer feeds an estimator that fuses it, ``systems/aiding.py``), with the GPS
+    samples; a barometer feeds an estimator that fuses it, ``systems/updates.py``), with the GPS
     delay compensation when configured; its log signals go into `outputs`."""
     n = 1 if seeds is None else len(seeds)
     estimator = builder.AddSystem(build_estimator(vehicle, fidelity, n=n))

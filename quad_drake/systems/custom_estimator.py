@@ -9,16 +9,14 @@ from pydrake.systems.framework import LeafSystem
 
 from quad_drake.conventions import (
     EKF_OFFSET,
-    GPS_SIZE,
     IMU_SIZE,
-    MAG_SIZE,
-    NO_SAMPLE_STAMP,
     ONBOARD_PERIOD,
     STATE_SIZE,
 )
 from quad_drake.estimation import custom, gating
-from quad_drake.estimation.registry import vocabulary_for
-from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE
+from quad_drake.estimation.measurements import measurements_of
+from quad_drake.estimation.registry import KINDS, vocabulary_for
+from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, initial_diagnostics
 from quad_drake.models.rotations import quat_from_euler_tuple
 from quad_drake.systems._io import discrete_group, row_reader
 
@@ -28,7 +26,9 @@ class PythonEstimator(LeafSystem):
     held in the context's abstract state.
 
     Inputs and outputs as the bundled estimators' (vehicle-major): ``imu`` (n*6: f_B m/s^2,
-    w_NB_B rad/s), ``gps`` (n*7: p_N m, v_N m/s, stamp s), ``mag`` (n*2: yaw rad, stamp s);
+    w_NB_B rad/s) and one per measurement of the ``custom`` kind that `sensors` (a SensorsConfig)
+    carry (``estimation/measurements.py``): ``mag`` (n*2: yaw rad, stamp s), ``gps`` (n*7: p_N m,
+    v_N m/s, stamp s);
     ``estimated_state`` (n*13: p_N, q_NB from the estimate's roll, pitch, yaw, v_N, body rate =
     the gyro sample, NaN while the IMU is out), ``covariance`` (n*k*k over the estimator's
     ``state_names``), ``diagnostics`` (n*``vocabulary.DIAGNOSTICS``).
@@ -42,7 +42,7 @@ class PythonEstimator(LeafSystem):
     ``custom.EstimatorRaised`` naming `vehicle` (its name), the method, the copy and the sim time.
     """
 
-    def __init__(self, config, n=1, vehicle="vehicle"):
+    def __init__(self, config, sensors, n=1, vehicle="vehicle"):
         super().__init__()
         self._n, self._config, self._vehicle = n, config, vehicle
         names = vocabulary_for(config).state_names
@@ -56,20 +56,16 @@ class PythonEstimator(LeafSystem):
         for i, estimator in enumerate(estimators):
             self._write_estimate(initial[i], custom.read_estimate(estimator), np.zeros(3))
         covariances = np.stack([custom.read_covariance(e, self._k) for e in estimators])
-        diagnostics = np.zeros((n, DIAGNOSTICS_SIZE))
-        diagnostics[:, [DIAG["gps_nis"], DIAG["mag_nis"]]] = math.nan
-        diagnostics[:, [DIAG["gps_stamp"], DIAG["mag_stamp"]]] = NO_SAMPLE_STAMP
-        diagnostics[:, [DIAG["baro_nis"], DIAG["field_nis"], DIAG["baro_bias"], DIAG["baro_bias_std"]]] = (
-            math.nan
-        )
-        diagnostics[:, [DIAG["baro_stamp"], DIAG["field_stamp"]]] = NO_SAMPLE_STAMP
+        diagnostics = np.tile(initial_diagnostics(), (n, 1))
         self._estimate = discrete_group(self, initial.ravel(), "estimated_state")
         self._covariance = discrete_group(self, covariances.ravel(), "covariance")
         self._diagnostics = discrete_group(self, diagnostics.ravel(), "diagnostics")
         self._last_imu = discrete_group(self, np.tile([0.0, 0.0, -9.81, 0.0, 0.0, 0.0], n))
         self._read_imu = row_reader(self.DeclareVectorInputPort("imu", n * IMU_SIZE), n)
-        self._read_gps = row_reader(self.DeclareVectorInputPort("gps", n * GPS_SIZE), n)
-        self._read_mag = row_reader(self.DeclareVectorInputPort("mag", n * MAG_SIZE), n)
+        self.measurements = measurements_of(KINDS["custom"].measurements, sensors)
+        self._readers = {
+            m.name: row_reader(self.DeclareVectorInputPort(m.port, n * m.width), n) for m in self.measurements
+        }
         self.DeclarePeriodicUnrestrictedUpdateEvent(ONBOARD_PERIOD, EKF_OFFSET, self._update)
 
     @staticmethod
@@ -103,9 +99,19 @@ class PythonEstimator(LeafSystem):
         covariances = discrete.get_mutable_value(self._covariance).reshape(self._n, self._k, self._k)
         diagnostics = discrete.get_mutable_value(self._diagnostics).reshape(self._n, DIAGNOSTICS_SIZE)
         last_imu = discrete.get_mutable_value(self._last_imu).reshape(self._n, IMU_SIZE)
-        imu, gps, mag = self._read_imu(context), self._read_gps(context), self._read_mag(context)
+        imu = self._read_imu(context)
+        mag = self._readers["yaw"](context) if "yaw" in self._readers else None
+        gps = self._readers["gps"](context) if "gps" in self._readers else None
         for i, estimator in enumerate(estimators):
-            rows = (imu[i], gps[i], mag[i], estimates[i], covariances[i], diagnostics[i], last_imu[i])
+            rows = (
+                imu[i],
+                None if gps is None else gps[i],
+                None if mag is None else mag[i],
+                estimates[i],
+                covariances[i],
+                diagnostics[i],
+                last_imu[i],
+            )
             try:
                 self._step(estimator, *rows)
             except custom.EstimatorProblem as e:
@@ -114,7 +120,8 @@ class PythonEstimator(LeafSystem):
                 ) from None
 
     def _step(self, estimator, imu, gps, mag, estimate, covariance, diagnostics, last_imu):
-        """One tick of one estimator; its rows of the inputs, and of the state, updated in place."""
+        """One tick of one estimator; its rows of the inputs (gps, mag: None where the vehicle
+        carries no such sensor), and of the state, updated in place."""
         body_rate = imu[3:6]
         if np.isfinite(imu).all():
             last_imu[:] = imu
@@ -122,9 +129,9 @@ class PythonEstimator(LeafSystem):
             diagnostics[DIAG["nonfinite_samples"]] += 1
             body_rate = np.full(3, math.nan)
         custom.call(estimator, "predict", ONBOARD_PERIOD, last_imu[0:3].copy(), last_imu[3:6].copy())
-        if mag[1] > diagnostics[DIAG["mag_stamp"]] + gating.STAMP_TOLERANCE:
+        if mag is not None and mag[1] > diagnostics[DIAG["mag_stamp"]] + gating.STAMP_TOLERANCE:
             self._fuse(estimator, "mag", (float(mag[0]),), mag[1], diagnostics, self._mag_threshold)
-        if gps[6] > diagnostics[DIAG["gps_stamp"]] + gating.STAMP_TOLERANCE:
+        if gps is not None and gps[6] > diagnostics[DIAG["gps_stamp"]] + gating.STAMP_TOLERANCE:
             sample = (gps[0:3].copy(), gps[3:6].copy())
             self._fuse(estimator, "gps", sample, gps[6], diagnostics, self._gps_threshold)
         self._write_estimate(estimate, custom.read_estimate(estimator), body_rate)
@@ -134,8 +141,11 @@ class PythonEstimator(LeafSystem):
 def add_custom(builder, vehicle, fidelity, n):
     """Add the custom estimator of n vehicles to `builder` (the ``custom`` kind's builder,
     ``estimation/registry.py``); (input ports by name, output ports by name)."""
-    system = builder.AddNamedSystem("custom_estimator", PythonEstimator(vehicle.estimator, n, vehicle.name))
-    inputs = {name: [system.GetInputPort(name)] for name in ("imu", "gps", "mag")}
+    system = builder.AddNamedSystem(
+        "custom_estimator", PythonEstimator(vehicle.estimator, vehicle.sensors, n, vehicle.name)
+    )
+    ports = ("imu",) + tuple(m.port for m in system.measurements)
+    inputs = {name: [system.GetInputPort(name)] for name in ports}
     return inputs, {
         name: system.GetOutputPort(name) for name in ("estimated_state", "covariance", "diagnostics")
     }

@@ -5,10 +5,13 @@ VehicleConfig at once): its ports carry the n per-vehicle vectors vehicle-major 
 [i k, (i + 1) k)), and a single run and a fleet execute the same code: the compiled kernels over
 (n, ...) views of the ports and discrete state, ``kernels/attitude.py``, ``kernels/ekf7.py`` and
 ``kernels/eskf.py`` (each estimator's equations in its module docstring), with
-``kernels/fusion.py`` for what they share.
+``kernels/fusion.py`` for what they share. Each estimator system holds its measurement updates
+(``systems/updates.py``: one object per sensor, built once from the vehicle) and supplies only
+its prediction and how a correction is applied.
 
-Every estimator is a sub-Diagram (:func:`build_estimator`) with inputs ``imu``, ``gps``,
-``mag`` and the outputs its vocabulary lists (``estimation/vocabulary.py``):
+Every estimator is a sub-Diagram (:func:`build_estimator`) with the input ``imu``, one input
+per measurement it fuses that the vehicle carries (``gps``, ``mag``, ``baro``) and the outputs
+its vocabulary lists (``estimation/vocabulary.py``):
 ``estimated_state`` (13, the true ``state`` layout), ``covariance``, ``diagnostics`` and its
 own logs.
 
@@ -27,28 +30,23 @@ running mean of the IMU and report the body rate in ``estimated_state`` as NaN: 
 measured, and the controller then commands no body moment (``control.cascade``).
 """
 
-import math
-
 import numpy as np
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
-from quad_drake.config.errors import ConfigError
+from quad_drake.config.schema import GpsParams, MagParams, SensorsConfig
 from quad_drake.conventions import (
     ATTITUDE_FILTER_OFFSET,
     ATTITUDE_SIZE,
     EKF_OFFSET,
     EKF_STATE_SIZE,
-    GPS_SIZE,
     IMU_SIZE,
-    NO_SAMPLE_STAMP,
     ONBOARD_PERIOD,
     STATE_SIZE,
 )
 from quad_drake.estimation import ekf, eskf, gating
 from quad_drake.estimation.complementary import VARIANTS
-from quad_drake.estimation.registry import kind_of, vocabulary_for
-from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, NIS_DOF
-from quad_drake.kernels import aiding as aiding_kernels
+from quad_drake.estimation.registry import KINDS, kind_of, vocabulary_for
+from quad_drake.estimation.vocabulary import DIAGNOSTICS_SIZE, NIS_DOF
 from quad_drake.kernels import attitude as attitude_kernel
 from quad_drake.kernels import ekf7 as ekf7_kernel
 from quad_drake.kernels import eskf as eskf_kernel
@@ -56,81 +54,21 @@ from quad_drake.kernels import fusion
 from quad_drake.kernels.imu_hold import HOLD_SIZE, initial_hold
 from quad_drake.models.fidelity import PHYSICAL
 from quad_drake.models.rotations import quat_from_euler_tuple
-from quad_drake.systems._io import declare_state_output, row_reader
-from quad_drake.systems.aiding import NO_AIDING, AidedFusion, aiding_sensors, mag_size
-
-
-def initial_diagnostics():
-    """One vehicle's ``diagnostics`` before its first update: no NIS (NaN), no stamps, counters 0."""
-    values = np.zeros(DIAGNOSTICS_SIZE)
-    values[[DIAG["gps_nis"], DIAG["mag_nis"]]] = math.nan
-    values[[DIAG["gps_stamp"], DIAG["mag_stamp"]]] = NO_SAMPLE_STAMP
-    values[[DIAG["baro_nis"], DIAG["field_nis"], DIAG["baro_bias"], DIAG["baro_bias_std"]]] = math.nan
-    values[[DIAG["baro_stamp"], DIAG["field_stamp"]]] = NO_SAMPLE_STAMP
-    return values
-
-
-class GatedFusion:
-    """Shared update logic of the estimators, for n vehicles (n = 1 for a single run): freshness,
-    gates, GPS resets and covariance health, on (n, ...) views of the discrete state.
-
-    Discrete state groups: x (0), P (1), diagnostics (DIAGNOSTICS_GROUP), book (BOOK_GROUP,
-    ``fusion.BOOK_SIZE`` per vehicle), and the IMU hold (``self._hold``). :meth:`_fuse_fresh` runs
-    the per-tick sequence after the prediction: the covariance health check, then the fresh
-    magnetometer and GPS samples.
-    """
-
-    DIAGNOSTICS_GROUP, BOOK_GROUP = 2, 3
-
-    def _declare_gating(self, params, P0, noises, fidelity):
-        """Gates and resets from params (``gps_gate_sigma``, ``mag_gate_sigma``, the GPS reset
-        and regain times: ``gating.GpsGates``), the fallback covariance P0 and noises = (R_mag,
-        R_gps). ``fidelity.reference_estimator`` switches gates, resets and repairs off."""
-        safety = not fidelity.reference_estimator
-        self._gates = gating.GpsGates.from_params(params, enabled=safety)
-        self._mag_threshold = gating.gate_threshold(NIS_DOF["mag"], params.mag_gate_sigma if safety else 0.0)
-        self._repairs = safety
-        self._P0 = P0
-        self._R_mag, self._R_gps = noises
-
-    def _declare_fusion_state(self, n, x0, P0):
-        """Declare x, P, diagnostics and the book of n vehicles (groups 0-3); their indices."""
-        self._n, self._k = n, P0.shape[0]
-        x = self.DeclareDiscreteState(np.tile(np.asarray(x0, dtype=float), n))
-        P = self.DeclareDiscreteState(np.tile(P0.ravel(), n))
-        diagnostics = self.DeclareDiscreteState(np.tile(initial_diagnostics(), n))
-        self.DeclareDiscreteState(np.tile(fusion.initial_book(), n))
-        return x, P, diagnostics
-
-    def _views(self, discrete_state, width):
-        """The ``fusion.Filters``: writable (n, ...) views of x, P, diagnostics, the book and the hold."""
-        n, k = self._n, self._k
-        return fusion.Filters(
-            x=discrete_state.get_mutable_value(0).reshape(n, width),
-            P=discrete_state.get_mutable_value(1).reshape(n, k, k),
-            diagnostics=discrete_state.get_mutable_value(self.DIAGNOSTICS_GROUP).reshape(n, DIAGNOSTICS_SIZE),
-            book=discrete_state.get_mutable_value(self.BOOK_GROUP).reshape(n, fusion.BOOK_SIZE),
-            hold=discrete_state.get_mutable_value(self._hold).reshape(n, HOLD_SIZE),
-        )
-
-    def _fuse_fresh(self, filters, gps, mag, healthy, kernel):
-        """Repair P where the per-tick check (``healthy`` (n,)) or, at a fresh GPS sample, the full
-        check finds it unhealthy (counted); then fuse the fresh mag (n, 2) and GPS (n, 7) samples
-        through the gates with the estimator's `kernel` module (its ``mag_tick``, ``gps_update``).
-        In place on the ``fusion.Filters`` `filters`."""
-        gps_fresh = fusion.fresh(gps[:, 6], filters.book[:, fusion.GPS_SLOT])
-        check = gps_fresh | ~healthy
-        if self._repairs and check.any():
-            outcomes = fusion.repair_covariances(filters.P, check, self._P0)
-            filters.diagnostics[outcomes != gating.COVARIANCE_OK, DIAG["covariance_repairs"]] += 1.0
-        kernel.mag_tick(filters, mag, self._R_mag, self._mag_threshold)
-        if gps_fresh.any():
-            rows = slice(None) if gps_fresh.all() else np.flatnonzero(gps_fresh)
-            fusion.fuse_gps(filters, gps, rows, kernel.gps_update, self._R_gps, self._gates)
+from quad_drake.systems import updates
+from quad_drake.systems._io import declare_state_output, discrete_group, row_reader
 
 
 def _tiled(vector, n):
     return np.tile(np.asarray(vector, dtype=float), n)
+
+
+GPS_AND_MAG = SensorsConfig(gps=GpsParams(), mag=MagParams())
+"""The sensors an estimator system fuses by default: a GPS and a yaw magnetometer."""
+
+
+def _gate(sigma, fidelity) -> float:
+    """A gate's sigma, or 0 (off) under ``fidelity.reference_estimator``."""
+    return 0.0 if fidelity.reference_estimator else sigma
 
 
 class ComplementaryFilter(LeafSystem):
@@ -160,21 +98,22 @@ class ComplementaryFilter(LeafSystem):
         self._float32 = fidelity.float32_estimator
         self._read_imu = row_reader(self.DeclareVectorInputPort("imu", n * IMU_SIZE), n)
         self._read_ekf_state = row_reader(self.DeclareVectorInputPort("ekf_state", n * EKF_STATE_SIZE), n)
-        attitude = self.DeclareDiscreteState(_tiled(initial_attitude, n))
-        rate = self.DeclareDiscreteState(n * 3)
-        self.DeclareDiscreteState(_tiled(initial_hold(), n))
-        declare_state_output(self, "attitude", attitude, n * ATTITUDE_SIZE)
-        declare_state_output(self, "body_rate", rate, n * 3)
+        self._attitude = discrete_group(self, _tiled(initial_attitude, n), "attitude")
+        self._rate = discrete_group(self, n * 3, "body_rate")
+        self._hold = discrete_group(self, _tiled(initial_hold(), n))
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, ATTITUDE_FILTER_OFFSET, self._update)
 
     def _update(self, context, discrete_state):
         n = self._n
-        attitude, rate = discrete_state.get_mutable_value(0), discrete_state.get_mutable_value(1)
+        attitude, rate = (
+            discrete_state.get_mutable_value(self._attitude),
+            discrete_state.get_mutable_value(self._rate),
+        )
         attitude_kernel.tick(
             attitude_kernel.Filters(
                 attitude=attitude.reshape(n, ATTITUDE_SIZE),
                 rate=rate.reshape(n, 3),
-                hold=discrete_state.get_mutable_value(2).reshape(n, HOLD_SIZE),
+                hold=discrete_state.get_mutable_value(self._hold).reshape(n, HOLD_SIZE),
             ),
             attitude_kernel.Samples(imu=self._read_imu(context), ekf_state=self._read_ekf_state(context)),
             self._model,
@@ -183,13 +122,12 @@ class ComplementaryFilter(LeafSystem):
             attitude_kernel.round_to_float32(attitude, rate)
 
 
-class Ekf(AidedFusion, GatedFusion, LeafSystem):
+class Ekf(LeafSystem):
     """n 7-state EKFs (SPEC §4): x = (p_N m, v_N m/s, yaw rad), NED; roll/pitch from the attitude filter.
 
     Ports vehicle-major as :class:`ComplementaryFilter`'s. Inputs: ``imu`` (n*6: f_B m/s^2,
     w_NB_B rad/s), ``gps`` (n*7: p_N m, v_N m/s, stamp s), ``mag`` (n*2: yaw rad, stamp s),
-    ``attitude`` (n*3: roll, pitch, yaw rad, this tick's filter output). A sensor the vehicle
-    lacks must be wired to a constant with stamp NO_SAMPLE_STAMP. Outputs (state ports):
+    ``attitude`` (n*3: roll, pitch, yaw rad, this tick's filter output). Outputs (state ports):
     ``ekf_state`` (n*7), ``covariance`` (n*49, each P row-major), ``diagnostics``
     (n*``vocabulary.DIAGNOSTICS``; NIS is NaN before the first update).
 
@@ -207,60 +145,92 @@ class Ekf(AidedFusion, GatedFusion, LeafSystem):
     to float32 after each tick. With ``tilt`` (an ``ekf.TiltNoise``) Q grows with the attitude
     filter's predicted roll/pitch error at the context time.
 
-    With ``aiding`` (``systems.aiding.AidingSensors``; none by default): a barometer adds the input
+    The measurement updates are those of the ``ekf7`` kind's ``measurements`` that ``sensors``
+    (a SensorsConfig; default a GPS and a yaw magnetometer) carry, in that order
+    (``systems/updates.py``): a sensor it lacks has no input port. A barometer adds the input
     ``baro`` (n*2: height m up, stamp s), a 3-axis magnetometer makes ``mag`` n*4 (m_B gauss FRD,
-    stamp s); after the GPS each tick the tilt-compensated heading and the baro height are fused
-    through their gates (``systems.aiding.AidedFusion``, ``kernels/aiding.py``).
+    stamp s, fused as the tilt-compensated heading); each is fused after the GPS through its gate
+    (``kernels/aiding.py``). Corrections are added, the yaw wrapped (``kernels.ekf7.correct``;
+    the GPS's without the wrap, ``kernels.ekf7.correct_gps``).
     """
 
-    def __init__(self, params, fidelity=PHYSICAL, tilt=None, n=1, aiding=NO_AIDING):
+    def __init__(self, params, fidelity=PHYSICAL, tilt=None, n=1, sensors=GPS_AND_MAG):
         super().__init__()
         self._float32 = fidelity.float32_estimator
         self._tilt = tilt
-        P0 = ekf.initial_covariance(params)
-        self._declare_gating(params, P0, (ekf.mag_noise(params), ekf.gps_noise(params)), fidelity)
+        R_mag = ekf.mag_noise(params)
+        mag_threshold = gating.gate_threshold(NIS_DOF["mag"], _gate(params.mag_gate_sigma, fidelity))
         self._model = ekf7_kernel.Model(
             dt=ONBOARD_PERIOD,
             Q=ekf.process_noise(params),
             gravity_z=ekf.gravity_z(fidelity.reference_accelerometer),
-            r_mag=float(self._R_mag[0, 0]),
-            mag_threshold=float(self._mag_threshold),
+            r_mag=float(R_mag[0, 0]),
+            mag_threshold=float(mag_threshold),
         )
+        correct = ekf7_kernel.correct
+        builders = {
+            "yaw": lambda m: updates.YawUpdate(m, ekf7_kernel.mag_tick, R_mag, mag_threshold),
+            "gps": lambda m: updates.GpsUpdate(
+                m, ekf.gps_noise(params), _gps_gates(params, fidelity), ekf7_kernel.correct_gps
+            ),
+            "heading": lambda m: updates.HeadingUpdate(
+                m, correct, params.mag_field, _gate(params.mag_field.gate_sigma, fidelity), tilt
+            ),
+            "baro": lambda m: updates.BaroUpdate(
+                m, correct, params.baro, _gate(params.baro.gate_sigma, fidelity), params.gps_pos_z_std,
+                float(sensors.baro.period),
+            ),
+        }  # fmt: skip
         self._read_imu = row_reader(self.DeclareVectorInputPort("imu", n * IMU_SIZE), n)
-        self._read_gps = row_reader(self.DeclareVectorInputPort("gps", n * GPS_SIZE), n)
-        self._read_mag = row_reader(self.DeclareVectorInputPort("mag", n * mag_size(aiding)), n)
         self._read_attitude = row_reader(self.DeclareVectorInputPort("attitude", n * ATTITUDE_SIZE), n)
-        x, P, diagnostics = self._declare_fusion_state(n, ekf.initial_state(params), P0)
-        self._declare_aiding(n, params, aiding, fidelity, params.gps_pos_z_std, tilt)
-        self._hold = self.DeclareDiscreteState(_tiled(initial_hold(), n))
+        self._fusion = updates.Fusion(
+            self,
+            n,
+            ekf.initial_state(params),
+            ekf.initial_covariance(params),
+            updates.build_updates(KINDS["ekf7"].measurements, sensors, builders),
+            repairs=not fidelity.reference_estimator,
+        )
+        # a quiet tick (no fresh GPS sample, every P healthy) fused the yaw in the compiled tick
+        # and has no GPS sample to fuse: only the other updates run
+        self._yaw = self._fusion.update_of(updates.YawUpdate)
+        self._after_quiet_tick = tuple(
+            u for u in self._fusion.updates if not isinstance(u, (updates.YawUpdate, updates.GpsUpdate))
+        )
+        self._no_gps, self._no_yaw = (
+            np.tile(fusion.NO_GPS_SAMPLE, (n, 1)),
+            np.tile(fusion.NO_MAG_SAMPLE, (n, 1)),
+        )
         self._healthy = np.empty(n, dtype=bool)  # scratch of each tick's health check
-        declare_state_output(self, "ekf_state", x, n * EKF_STATE_SIZE)
-        declare_state_output(self, "covariance", P, n * EKF_STATE_SIZE**2)
-        declare_state_output(self, "diagnostics", diagnostics, n * DIAGNOSTICS_SIZE)
+        groups = self._fusion.groups
+        declare_state_output(self, "ekf_state", groups.x, n * EKF_STATE_SIZE)
+        declare_state_output(self, "covariance", groups.P, n * EKF_STATE_SIZE**2)
+        declare_state_output(self, "diagnostics", groups.diagnostics, n * DIAGNOSTICS_SIZE)
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, EKF_OFFSET, self._update)
 
-    def _estimates_heading(self):
-        return True  # the tilt-compensated heading: the EKF7 has no roll/pitch states
-
-    def _apply_corrections(self, x, P, dx, fused):
-        aiding_kernels.add_corrections(x, dx, fused, ekf.YAW_INDEX)
+    def measurement_ports(self) -> tuple:
+        """The input ports of the measurement updates, in fusion order."""
+        return self._fusion.ports
 
     def _update(self, context, discrete_state):
-        """The prediction and, on a quiet tick, the mag fusion (one compiled call); at a fresh GPS
-        sample or an unhealthy P, the health check and the fusions of :meth:`_fuse_fresh`."""
-        filters = self._views(discrete_state, EKF_STATE_SIZE)
-        mag_samples = self._read_mag(context)
-        samples = ekf7_kernel.Samples(
-            attitude=self._read_attitude(context),
+        """The prediction and, on a quiet tick, the yaw update (one compiled call); at a fresh GPS
+        sample or an unhealthy P, the health check and every update (``updates.Fusion.fuse``)."""
+        seam = self._fusion
+        filters = seam.filters(discrete_state)
+        samples = seam.read(context)
+        samples["attitude"] = attitude = self._read_attitude(context)
+        tick_samples = ekf7_kernel.Samples(
+            attitude=attitude,
             imu=self._read_imu(context),
-            gps=self._read_gps(context),
-            mag=self._yaw_samples(mag_samples),
+            gps=samples.get("gps", self._no_gps),
+            mag=self._no_yaw if self._yaw is None else samples["mag"],
         )
         tilt_gains = ekf7_kernel.NO_TILT if self._tilt is None else self._tilt.gains(context.get_time())
-        quiet = ekf7_kernel.tick(filters, samples, self._model, tilt_gains, self._healthy)
-        if not quiet:  # a fresh GPS sample or an unhealthy P somewhere: the full step
-            self._fuse_fresh(filters, samples.gps, samples.mag, self._healthy, ekf7_kernel)
-        self._fuse_aiding(context, discrete_state, filters, samples.gps, mag_samples, samples.attitude)
+        if ekf7_kernel.tick(filters, tick_samples, self._model, tilt_gains, self._healthy):
+            if self._after_quiet_tick:
+                seam.fuse(context, discrete_state, filters, samples, None, self._after_quiet_tick)
+        else:  # a fresh GPS sample or an unhealthy P somewhere: the full step
+            seam.fuse(context, discrete_state, filters, samples, self._healthy)
         if self._float32:
             attitude_kernel.round_to_float32(filters.x, filters.P)
 
@@ -297,12 +267,12 @@ class EstimatedStateAssembler(LeafSystem):
         )
 
 
-class Eskf(AidedFusion, GatedFusion, LeafSystem):
+class Eskf(LeafSystem):
     """n error-state EKFs (``estimation/eskf.py``) on the IMU, GPS and magnetometer.
 
     Ports vehicle-major as :class:`ComplementaryFilter`'s. Inputs: ``imu`` (n*6: f_B m/s^2,
     w_NB_B rad/s), ``gps`` (n*7: p_N m, v_N m/s, stamp s), ``mag`` (n*2: yaw rad, stamp s); a
-    missing sensor is wired to a constant with stamp NO_SAMPLE_STAMP. Outputs (state ports):
+    sensor ``sensors`` lacks has no input port. Outputs (state ports):
     ``estimated_state`` (n*13: p, q_NB, v, body rate = gyro - gyro bias, NaN while the IMU is
     out), ``covariance`` (n*k*k, k = 15 with bias estimation, 9 without; error state dp, dv,
     dtheta[, db_a, db_g]), ``diagnostics`` (n*``vocabulary.DIAGNOSTICS``), ``imu_bias`` (n*6: b_a
@@ -311,13 +281,13 @@ class Eskf(AidedFusion, GatedFusion, LeafSystem):
     Each tick (ONBOARD_PERIOD, offset EKF_OFFSET; ``kernels/eskf.py``, whose module docstring
     carries the equations): predict with the IMU sample (over a non-finite one, counted, with the
     running mean of the IMU: ``kernels.eskf.predict_tick``), then fuse a fresh mag and a fresh GPS
-    sample through the gates and resets of :class:`Ekf`; P is checked as there. With ``aiding``
-    (as :class:`Ekf`'s) the 3-axis field vector and the baro height are fused after the GPS.
+    sample through the gates and resets of :class:`Ekf`; P is checked as there. The updates are
+    the ``eskf`` kind's ``measurements`` that ``sensors`` carry (as :class:`Ekf`'s: a 3-axis
+    magnetometer's field vector and the baro height after the GPS); corrections are injected
+    (``kernels.eskf.correct``).
     """
 
-    ESTIMATE_GROUP, BIAS_GROUP = 4, 5
-
-    def __init__(self, params, fidelity=PHYSICAL, n=1, aiding=NO_AIDING):
+    def __init__(self, params, fidelity=PHYSICAL, n=1, sensors=GPS_AND_MAG):
         super().__init__()
         noise = eskf.NoiseModel.from_params(params)
         P0 = eskf.initial_covariance(params)
@@ -327,40 +297,60 @@ class Eskf(AidedFusion, GatedFusion, LeafSystem):
         x0 = eskf.initial_nominal(
             params.init_position, params.init_velocity, quat_from_euler_tuple(roll, pitch, yaw)
         )
-        self._declare_gating(params, P0, (eskf.mag_noise(params), eskf.gps_noise(params)), fidelity)
+        correct = eskf_kernel.correct
+        builders = {
+            "yaw": lambda m: updates.YawUpdate(
+                m, eskf_kernel.mag_tick, eskf.mag_noise(params),
+                gating.gate_threshold(NIS_DOF["mag"], _gate(params.mag_gate_sigma, fidelity)),
+            ),
+            "gps": lambda m: updates.GpsUpdate(
+                m, eskf.gps_noise(params), _gps_gates(params, fidelity), correct
+            ),
+            "field": lambda m: updates.FieldUpdate(
+                m, correct, params.mag_field, _gate(params.mag_field.gate_sigma, fidelity)
+            ),
+            "baro": lambda m: updates.BaroUpdate(
+                m, correct, params.baro, _gate(params.baro.gate_sigma, fidelity), params.gps_pos_std[2],
+                float(sensors.baro.period),
+            ),
+        }  # fmt: skip
+        self._n = n
         self._read_imu = row_reader(self.DeclareVectorInputPort("imu", n * IMU_SIZE), n)
-        self._read_gps = row_reader(self.DeclareVectorInputPort("gps", n * GPS_SIZE), n)
-        self._read_mag = row_reader(self.DeclareVectorInputPort("mag", n * mag_size(aiding)), n)
-        _, P, diagnostics = self._declare_fusion_state(n, x0, P0)
+        self._fusion = updates.Fusion(
+            self,
+            n,
+            x0,
+            P0,
+            updates.build_updates(KINDS["eskf"].measurements, sensors, builders),
+            repairs=not fidelity.reference_estimator,
+        )
         initial_estimate = np.zeros(STATE_SIZE)  # body rate 0 before the first sample
         eskf.write_estimate(x0, initial_estimate)
-        estimate = self.DeclareDiscreteState(_tiled(initial_estimate, n))
-        bias = self.DeclareDiscreteState(n * 6)
-        self._hold = self.DeclareDiscreteState(_tiled(initial_hold(), n))
-        declare_state_output(self, "estimated_state", estimate, n * STATE_SIZE)
-        declare_state_output(self, "covariance", P, n * P0.size)
-        declare_state_output(self, "diagnostics", diagnostics, n * DIAGNOSTICS_SIZE)
-        declare_state_output(self, "imu_bias", bias, n * 6)
-        self._declare_aiding(n, params, aiding, fidelity, params.gps_pos_std[2])
+        self._estimate = discrete_group(self, _tiled(initial_estimate, n), "estimated_state")
+        groups = self._fusion.groups
+        declare_state_output(self, "covariance", groups.P, n * P0.size)
+        declare_state_output(self, "diagnostics", groups.diagnostics, n * DIAGNOSTICS_SIZE)
+        self._bias = discrete_group(self, n * 6, "imu_bias")
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, EKF_OFFSET, self._update)
 
-    def _estimates_heading(self):
-        return False  # the field vector, against the error state's attitude
-
-    def _apply_corrections(self, x, P, dx, fused):
-        rows = np.flatnonzero(fused)
-        x[rows], P[rows] = eskf_kernel.inject(x[rows], P[rows], dx[rows])
+    def measurement_ports(self) -> tuple:
+        """The input ports of the measurement updates, in fusion order."""
+        return self._fusion.ports
 
     def _update(self, context, discrete_state):
-        """The prediction compiled, then the health check and the fusions of :meth:`_fuse_fresh`."""
-        filters = self._views(discrete_state, eskf.NOMINAL_SIZE)
-        estimate = discrete_state.get_mutable_value(self.ESTIMATE_GROUP).reshape(self._n, STATE_SIZE)
+        """The prediction compiled, then the health check and every update (``updates.Fusion.fuse``)."""
+        seam = self._fusion
+        filters = seam.filters(discrete_state)
+        estimate = discrete_state.get_mutable_value(self._estimate).reshape(self._n, STATE_SIZE)
         healthy = eskf_kernel.predict_tick(filters, self._read_imu(context), estimate, self._model)
-        gps, mag = self._read_gps(context), self._read_mag(context)
-        self._fuse_fresh(filters, gps, self._yaw_samples(mag), healthy, eskf_kernel)
-        self._fuse_aiding(context, discrete_state, filters, gps, mag)
+        seam.fuse(context, discrete_state, filters, seam.read(context), healthy)
         eskf.write_estimate(filters.x, estimate)
-        discrete_state.get_mutable_value(self.BIAS_GROUP)[:] = filters.x[:, 10:16].ravel()
+        discrete_state.get_mutable_value(self._bias)[:] = filters.x[:, 10:16].ravel()
+
+
+def _gps_gates(params, fidelity) -> gating.GpsGates:
+    """The GPS gates and resets of an estimator's params; none under ``fidelity.reference_estimator``."""
+    return gating.GpsGates.from_params(params, enabled=not fidelity.reference_estimator)
 
 
 def _wire_ekf7(builder, ekf_system, attitude_filter, assembler):
@@ -371,11 +361,8 @@ def _wire_ekf7(builder, ekf_system, attitude_filter, assembler):
     builder.Connect(attitude_filter.GetOutputPort("attitude"), assembler.GetInputPort("attitude"))
     builder.Connect(attitude_filter.GetOutputPort("body_rate"), assembler.GetInputPort("body_rate"))
     builder.Connect(ekf_system.GetOutputPort("ekf_state"), assembler.GetInputPort("ekf_state"))
-    inputs = {
-        "imu": [ekf_system.GetInputPort("imu"), attitude_filter.GetInputPort("imu")],
-        "gps": [ekf_system.GetInputPort("gps")],
-        "mag": [ekf_system.GetInputPort("mag")],
-    }
+    inputs = {"imu": [ekf_system.GetInputPort("imu"), attitude_filter.GetInputPort("imu")]}
+    inputs.update({port: [ekf_system.GetInputPort(port)] for port in ekf_system.measurement_ports()})
     outputs = {
         "estimated_state": assembler.GetOutputPort("estimated_state"),
         "attitude": attitude_filter.GetOutputPort("attitude"),
@@ -383,13 +370,6 @@ def _wire_ekf7(builder, ekf_system, attitude_filter, assembler):
     for name in ("ekf_state", "covariance", "diagnostics"):
         outputs[name] = ekf_system.GetOutputPort(name)
     return inputs, outputs
-
-
-def _wire_eskf(system):
-    """(input ports by name, output ports by name) of an ESKF system."""
-    inputs = {name: [system.GetInputPort(name)] for name in ("imu", "gps", "mag")}
-    names = ("estimated_state", "covariance", "diagnostics", "imu_bias")
-    return inputs, {name: system.GetOutputPort(name) for name in names}
 
 
 def _estimator_diagram(builder, inputs, outputs, estimator):
@@ -408,10 +388,10 @@ def _estimator_diagram(builder, inputs, outputs, estimator):
 
 def add_ekf7(builder, vehicle, fidelity, n):
     """Add the CF + EKF7 + assembler of n vehicles to `builder` (the ``ekf7`` kind's builder,
-    ``estimation/registry.py``); (input ports by name, output ports by name)."""
+    ``estimation/registry.py``); (input ports by name: ``imu`` and the measurement updates',
+    output ports by name)."""
     tilt = ekf.TiltNoise.from_params(vehicle.ekf, vehicle.attitude_filter, ONBOARD_PERIOD)
-    aiding = aiding_sensors(vehicle)
-    ekf_system = builder.AddNamedSystem("ekf", Ekf(vehicle.ekf, fidelity, tilt, n=n, aiding=aiding))
+    ekf_system = builder.AddNamedSystem("ekf", Ekf(vehicle.ekf, fidelity, tilt, n=n, sensors=vehicle.sensors))
     attitude_filter = builder.AddNamedSystem(
         "attitude_filter",
         ComplementaryFilter(
@@ -422,21 +402,16 @@ def add_ekf7(builder, vehicle, fidelity, n):
         ),
     )
     assembler = builder.AddNamedSystem("estimated_state", EstimatedStateAssembler(n))
-    inputs, outputs = _wire_ekf7(builder, ekf_system, attitude_filter, assembler)
-    if aiding.baro_period is not None:
-        inputs["baro"] = [ekf_system.GetInputPort("baro")]
-    return inputs, outputs
+    return _wire_ekf7(builder, ekf_system, attitude_filter, assembler)
 
 
 def add_eskf(builder, vehicle, fidelity, n):
     """Add the ESKF of n vehicles to `builder` (the ``eskf`` kind's builder); (input ports by
-    name, output ports by name)."""
-    aiding = aiding_sensors(vehicle)
-    system = builder.AddNamedSystem("eskf", Eskf(vehicle.estimator, fidelity, n=n, aiding=aiding))
-    inputs, outputs = _wire_eskf(system)
-    if aiding.baro_period is not None:
-        inputs["baro"] = [system.GetInputPort("baro")]
-    return inputs, outputs
+    name: ``imu`` and the measurement updates', output ports by name)."""
+    system = builder.AddNamedSystem("eskf", Eskf(vehicle.estimator, fidelity, n=n, sensors=vehicle.sensors))
+    inputs = {port: [system.GetInputPort(port)] for port in ("imu",) + system.measurement_ports()}
+    names = ("estimated_state", "covariance", "diagnostics", "imu_bias")
+    return inputs, {name: system.GetOutputPort(name) for name in names}
 
 
 def build_estimator(vehicle, fidelity=PHYSICAL, n=1):
@@ -444,8 +419,10 @@ def build_estimator(vehicle, fidelity=PHYSICAL, n=1):
     named ``estimator``.
 
     fidelity: the scenario's Fidelity (the EKF7 follows the reference's accelerometer reading;
-    the ESKF supports the physical one only). Inputs ``imu`` (n*6), ``gps`` (n*7), ``mag``
-    (n*2), exported (connect a never-sampled constant for a missing sensor); outputs as
+    whether a kind runs under it is checked when the scenario loads,
+    ``EstimatorKind.fidelity_problem``). Inputs ``imu`` (n*6) and one per measurement the
+    estimator fuses of the vehicle's sensors (``estimation.measurements.measurements_of``:
+    ``gps`` n*7, ``mag`` n*2 or n*4, ``baro`` n*2), exported; outputs as
     ``vocabulary_for(vehicle.estimator).log_widths()``, each n times as wide, vehicle-major.
     """
     if n < 1:
@@ -453,9 +430,6 @@ def build_estimator(vehicle, fidelity=PHYSICAL, n=1):
     kind = kind_of(vehicle.estimator)
     if kind.builder is None:
         raise ValueError(f"estimator kind {kind.name!r} runs no estimator")
-    problem = kind.fidelity_problem(fidelity)
-    if problem:
-        raise ConfigError(problem)
     builder = DiagramBuilder()
     inputs, outputs = kind.build_function()(builder, vehicle, fidelity, n)
     return _estimator_diagram(builder, inputs, outputs, vehicle.estimator)

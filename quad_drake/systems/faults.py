@@ -1,6 +1,6 @@
 """Sensor fault LeafSystems: one sensor's samples after its configured faults, on the wire between
 the sensor and the estimators (thin glue over the pure ``quad_drake.models.faults``), and the
-estimator-side compensation of late GPS samples (``quad_drake.delay_compensation``).
+estimator-side compensation of late GPS samples (``quad_drake.estimation.delay_compensation``).
 
 The sensors stay truth + white noise; a vehicle with faults gets one ``SensorFaults`` per
 faulted sensor. It fires FAULT_LAG after each sample of its sensor (conventions), so the
@@ -13,7 +13,6 @@ import math
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
-from quad_drake import delay_compensation
 from quad_drake.conventions import (
     EKF_OFFSET,
     FAULT_LAG,
@@ -25,7 +24,7 @@ from quad_drake.conventions import (
     STATE_SIZE,
     V_SLICE,
 )
-from quad_drake.kernels import odometry as odometry_kernel
+from quad_drake.estimation import delay_compensation
 from quad_drake.kernels.fusion import fresh
 from quad_drake.models import faults
 from quad_drake.systems._io import discrete_group, row_reader
@@ -134,7 +133,7 @@ class SensorFaults(LeafSystem):
 
 class GpsDelayCompensator(LeafSystem):
     """n vehicles' late GPS samples moved to the present by each estimator's predicted motion since
-    their stamp (``quad_drake.delay_compensation``): the estimator side of a ``gps_delay``.
+    their stamp (``estimation/delay_compensation.py``): the estimator side of a ``gps_delay``.
 
     Inputs ``gps`` (n*7: p m, v m/s, stamp s; e.g. from a SensorFaults with a gps_delay) and
     ``estimated_state`` (n*13, the truth layout: p m, q wxyz, v m/s, w rad/s), vehicle-major.
@@ -148,9 +147,8 @@ class GpsDelayCompensator(LeafSystem):
     controller) it books the tick: the estimate's increment (the kinematic one where the GPS
     sample it just read had a new stamp, i.e. was fused) into the odometry, and the odometry
     into a ring of ``history_capacity(max_lag)`` rows per vehicle (discrete state); a sample
-    more than ``max_lag`` s late passes unchanged. The maths is ``kernels/odometry.py``'s
-    ``odometry_step``, ``predicted_odometry`` and ``compensated_gps`` (tested against
-    ``delay_compensation``'s scalar oracles).
+    more than ``max_lag`` s late passes unchanged. The maths is ``estimation/delay_compensation.py``'s
+    ``odometry_step``, ``predicted_odometry`` and ``compensated_gps`` over the n vehicles' rows.
     """
 
     def __init__(self, max_lag, n=1):
@@ -184,7 +182,7 @@ class GpsDelayCompensator(LeafSystem):
         memory = discrete_state.get_mutable_value(self._memory).reshape(n, 16)
         previous = np.where(np.isnan(memory[:, 0:1]), estimate, memory[:, 0:6])
         fused = fresh(stamp, memory[:, 15])
-        odometry, velocity_step = odometry_kernel.odometry_step(
+        odometry, velocity_step = delay_compensation.odometry_step(
             memory[:, 9:15], estimate, previous, memory[:, 6:9], fused, ONBOARD_PERIOD
         )
         memory[:, 0:6], memory[:, 6:9], memory[:, 9:15], memory[:, 15] = (
@@ -207,10 +205,10 @@ class GpsDelayCompensator(LeafSystem):
         if stamped.any():
             rows = np.flatnonzero(stamped)
             memory = context.get_discrete_state(self._memory).value().reshape(n, 16)[rows]
-            now = odometry_kernel.predicted_odometry(
+            now = delay_compensation.predicted_odometry(
                 memory[:, 9:15], memory[:, 3:6], memory[:, 6:9], ONBOARD_PERIOD
             )
             slots = np.rint(sample[rows, 6] / ONBOARD_PERIOD).astype(int) % self._capacity
             history = context.get_discrete_state(self._history).value().reshape(n, self._capacity, -1)
-            out[rows] = odometry_kernel.compensated_gps(sample[rows], history[rows, slots], now)
+            out[rows] = delay_compensation.compensated_gps(sample[rows], history[rows, slots], now)
         output.get_mutable_value()[:] = out.ravel()

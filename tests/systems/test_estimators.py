@@ -8,7 +8,15 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
-from quad_drake.config.schema import AttitudeFilterParams, EkfParams, VehicleConfig
+from quad_drake.config import (
+    AttitudeFilterParams,
+    EkfParams,
+    GpsParams,
+    ImuParams,
+    MagParams,
+    SensorsConfig,
+    VehicleConfig,
+)
 from quad_drake.conventions import ATTITUDE_FILTER_OFFSET, GRAVITY, NO_SAMPLE_STAMP, ONBOARD_PERIOD
 from quad_drake.estimation import ekf, eskf, gating
 from quad_drake.estimation.complementary import complementary_update
@@ -28,6 +36,9 @@ DT = ONBOARD_PERIOD
 LEVEL_IMU = [0.0, 0.0, -GRAVITY, 0.0, 0.0, 0.0]
 NO_GPS = [0.0] * 6 + [NO_SAMPLE_STAMP]
 NO_MAG = [0.0, NO_SAMPLE_STAMP]
+
+SENSORS_GPS_MAG = SensorsConfig(imu=ImuParams(), gps=GpsParams(), mag=MagParams())
+"""An IMU, a GPS and a yaw magnetometer: the estimator has their input ports."""
 
 
 def ticks_end(n):
@@ -272,7 +283,7 @@ def build_estimators(imu, gps=NO_GPS, mag=NO_MAG, estimator=None):
 
     Returns (diagram, {sensor: ConstantVectorSource}) so a test can change the samples.
     """
-    vehicle = VehicleConfig(estimator=estimator or Ekf7EstimatorConfig())
+    vehicle = VehicleConfig(sensors=SENSORS_GPS_MAG, estimator=estimator or Ekf7EstimatorConfig())
     builder = DiagramBuilder()
     dut = builder.AddSystem(build_estimator(vehicle))
     sources = {

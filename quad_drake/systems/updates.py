@@ -1,0 +1,273 @@
+"""The measurement updates of the estimator LeafSystems: one seam for every sensor.
+
+An estimator system (``systems/estimators.py``) holds a :class:`Fusion`: its filter's discrete
+state, declared once by name (:class:`Groups`), and the :class:`Update` s built once from its
+vehicle (:func:`build_updates`: the measurements its kind declares that the vehicle carries,
+``estimation/measurements.py``). Each update owns its input port, its NIS and stamp columns in
+``diagnostics``, its book columns, its gate and its compiled update (``kernels/``); the
+estimator supplies only its prediction and how a correction is applied (``correct(x, P, dx,
+fused)``: added for the EKF7, ``kernels.ekf7.correct``; injected for the ESKF,
+``kernels.eskf.correct``) and the measurement models that depend on its state (the yaw
+update's compiled step). Everything is sized by n vehicles (a single run: n = 1; a fleet: n runs
+of one VehicleConfig) and works IN PLACE on (n, ...) views of the discrete state.
+
+Each tick, after the estimator's prediction, :meth:`Fusion.fuse` checks the covariance (every
+vehicle whose per-tick check failed or that has a fresh GPS sample: the full check and repair,
+counted) and runs the updates in their order. Adding a sensor is one :class:`Update` subclass
+here (its compiled kernel in ``kernels/``) and its name in the kinds that fuse it
+(``estimation/registry.py``); the ports, the NIS columns the campaigns tabulate and the fusion
+all read the same list.
+"""
+
+import collections
+
+import numpy as np
+
+from quad_drake.estimation import baro, gating
+from quad_drake.estimation.measurements import measurements_of
+from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, NIS_DOF, initial_diagnostics
+from quad_drake.kernels import aiding as aiding_kernels
+from quad_drake.kernels import fusion
+from quad_drake.kernels.imu_hold import HOLD_SIZE, initial_hold
+from quad_drake.systems._io import discrete_group, row_reader
+
+Groups = collections.namedtuple("Groups", ["x", "P", "diagnostics", "book", "hold"])
+"""The discrete-state group indices of an estimator's filter: x (its state, n*width), P (n*k*k),
+diagnostics (n*``vocabulary.DIAGNOSTICS_SIZE``), book (n*``fusion.BOOK_SIZE``: the last GPS and
+magnetometer stamps seen, the GPS policy's book), hold (the IMU's running mean, ``imu_hold``)."""
+
+
+class Update:
+    """One measurement update of an estimator system (module docstring): the base of the sensors'.
+
+    measurement: its ``measurements.Measurement`` (port, width, NIS columns). :meth:`declare`
+    declares its input port (and a book of its own, if any) on the system; :meth:`fuse` fuses
+    this tick's fresh samples of the n vehicles IN PLACE.
+    """
+
+    def __init__(self, measurement):
+        self.measurement = measurement
+        self.read = None
+
+    def declare(self, system, n, k) -> None:
+        """Declare the input port (n * width) on `system` (n filters of k error states)."""
+        m = self.measurement
+        self.read = row_reader(system.DeclareVectorInputPort(m.port, n * m.width), n)
+
+    def fuse(self, context, discrete_state, filters, samples) -> None:
+        """Fuse this tick's samples (``samples[port]``: (n, width) arrays of every port the
+        estimator reads) into the ``fusion.Filters`` `filters` IN PLACE."""
+        raise NotImplementedError
+
+
+class GpsUpdate(Update):
+    """The GPS (p_N m, v_N m/s): the Joseph update of the groups the gates accept, the resets of
+    ``estimation/gating.py`` (``fusion.fuse_gps``); NIS 6 dof in ``gps_nis``; book column
+    ``fusion.GPS_SLOT`` and the GPS policy's columns."""
+
+    def __init__(self, measurement, R, gates, correct):
+        super().__init__(measurement)
+        self._R, self._gates, self._correct = R, gates, correct
+        self._fresh_of = (None, None)  # (the tick's samples, its fresh flags): computed once a tick
+
+    def fresh(self, samples, filters) -> np.ndarray:
+        """(n,) bool: the vehicles with a fresh GPS sample this tick (``samples``: the tick's dict;
+        the other updates leave the GPS stamps booked, so it is computed once per tick)."""
+        seen, flags = self._fresh_of
+        if seen is not samples:
+            flags = fusion.fresh(samples[self.measurement.port][:, 6], filters.book[:, fusion.GPS_SLOT])
+            self._fresh_of = (samples, flags)
+        return flags
+
+    def fuse(self, context, discrete_state, filters, samples) -> None:
+        gps_fresh = self.fresh(samples, filters)
+        if gps_fresh.any():
+            rows = slice(None) if gps_fresh.all() else np.flatnonzero(gps_fresh)
+            gps = samples[self.measurement.port]
+            fusion.fuse_gps(filters, gps, rows, self._correct, self._R, self._gates)
+        self._fresh_of = (None, None)
+
+
+class YawUpdate(Update):
+    """The magnetometer's yaw (rad): the estimator's own compiled step ``mag_tick(filters, mag,
+    R_mag, threshold)`` (``kernels.ekf7.mag_tick``: yaw a state; ``kernels.eskf.mag_tick``: yaw of
+    the attitude), gated at `threshold`; NIS 1 dof in ``mag_nis``; book column ``fusion.MAG_SLOT``."""
+
+    def __init__(self, measurement, mag_tick, R_mag, threshold):
+        super().__init__(measurement)
+        self._mag_tick, self.R_mag, self.threshold = mag_tick, R_mag, threshold
+
+    def fuse(self, context, discrete_state, filters, samples) -> None:
+        self._mag_tick(filters, samples[self.measurement.port], self.R_mag, self.threshold)
+
+
+class CorrectionUpdate(Update):
+    """An update whose kernel writes the corrections dx (n, k) of the vehicles it fused (n,) and
+    leaves applying them to the estimator's ``correct`` (the barometer, the 3-axis magnetometer)."""
+
+    def __init__(self, measurement, correct):
+        super().__init__(measurement)
+        self._correct = correct
+        self._dx = self._fused = None  # (n, k) corrections and (n,) fused flags, at declare
+
+    def declare(self, system, n, k) -> None:
+        super().declare(system, n, k)
+        self._dx, self._fused = np.zeros((n, k)), np.zeros(n, dtype=bool)
+
+    def _apply(self, filters) -> None:
+        """Apply the corrections of this tick's fused vehicles."""
+        if self._fused.any():
+            self._correct(filters.x, filters.P, self._dx, self._fused)
+
+
+class FieldUpdate(CorrectionUpdate):
+    """The ESKF's 3-axis magnetometer field (m_B gauss, ``estimation/mag3.py``): 3 dof, gated,
+    axis by axis (``kernels.aiding.field_rows``); NIS in ``field_nis``; book column
+    ``fusion.MAG_SLOT`` (the magnetometer's last stamp)."""
+
+    def __init__(self, measurement, correct, params, gate_sigma):
+        super().__init__(measurement, correct)
+        gate = gating.gate_threshold(NIS_DOF[measurement.nis], gate_sigma)
+        self._model = aiding_kernels.field_model(params, gate)
+
+    def fuse(self, context, discrete_state, filters, samples) -> None:
+        f, dx = filters, self._dx
+        mag = samples[self.measurement.port]
+        aiding_kernels.field_rows(
+            f.x, f.P, mag, f.book, fusion.MAG_SLOT, f.diagnostics, self._model, dx, self._fused
+        )
+        self._apply(filters)
+
+
+class HeadingUpdate(CorrectionUpdate):
+    """The EKF7's tilt-compensated heading of a 3-axis magnetometer (rad, ``estimation/mag3.py``),
+    with the roll and pitch of ``samples["attitude"]`` (the attitude filter's): 1 dof, gated
+    (``kernels.aiding.heading_rows``); NIS in ``mag_nis``; book column ``fusion.MAG_SLOT``.
+    tilt: the EKF7's ``ekf.TiltNoise`` or None (its roll/pitch error variance at the context time
+    then adds to the heading's)."""
+
+    def __init__(self, measurement, correct, params, gate_sigma, tilt=None):
+        super().__init__(measurement, correct)
+        gate = gating.gate_threshold(NIS_DOF[measurement.nis], gate_sigma)
+        self._model, self._tilt = aiding_kernels.heading_model(params, gate), tilt
+
+    def fuse(self, context, discrete_state, filters, samples) -> None:
+        f, dx, model = filters, self._dx, self._model
+        if self._tilt is not None:
+            model = model._replace(tilt_var=model.tilt_var + self._tilt.variance(context.get_time()))
+        mag, attitude = samples[self.measurement.port], samples["attitude"]
+        aiding_kernels.heading_rows(
+            f.x, f.P, mag, attitude, f.book, fusion.MAG_SLOT, f.diagnostics, model, dx, self._fused
+        )
+        self._apply(filters)
+
+
+class BaroUpdate(CorrectionUpdate):
+    """The barometer's height (m up, ``estimation/baro.py``) against its bias filter, which the GPS
+    heights of ``samples["gps"]`` feed: 1 dof, gated (``kernels.aiding.baro_rows``); NIS in
+    ``baro_nis``; a book of its own (discrete-state group, ``baro.BARO_BOOK_SIZE`` per vehicle).
+
+    params: BaroFusionParams; gps_z_std: m, the GPS height noise the estimator assumes (the bias
+    filter's reference); period: s, the barometer's sample period."""
+
+    def __init__(self, measurement, correct, params, gate_sigma, gps_z_std, period):
+        super().__init__(measurement, correct)
+        gate = gating.gate_threshold(NIS_DOF[measurement.nis], gate_sigma)
+        self._params = params
+        self._model = aiding_kernels.baro_model(params, gps_z_std, gate, period)
+        self._book = self._no_gps = None
+
+    def declare(self, system, n, k) -> None:
+        super().declare(system, n, k)
+        self._book = discrete_group(system, np.tile(baro.initial_book(self._params), n))
+        self._no_gps = np.tile(fusion.NO_GPS_SAMPLE, (n, 1))
+
+    def fuse(self, context, discrete_state, filters, samples) -> None:
+        f, dx = filters, self._dx
+        book = discrete_state.get_mutable_value(self._book).reshape(f.x.shape[0], baro.BARO_BOOK_SIZE)
+        gps = samples.get("gps", self._no_gps)
+        aiding_kernels.baro_rows(
+            f.x, f.P, samples[self.measurement.port], gps, book, f.diagnostics, self._model, dx, self._fused
+        )
+        self._apply(filters)
+
+
+def build_updates(declared, sensors, builders) -> tuple:
+    """The :class:`Update` s of a vehicle's estimator: for each measurement of `declared` (the
+    kind's ``measurements``) that `sensors` (the vehicle's SensorsConfig) carry, in order,
+    ``builders[name](measurement)``.
+
+    builders: {measurement name: function} of the estimator system. ValueError (naming the
+    measurement) for a declared measurement the system has no update for: an estimator kind that
+    declares a sensor its system cannot fuse fails when it is built, never by logging NaN.
+    """
+    updates = []
+    for measurement in measurements_of(declared, sensors):
+        if measurement.name not in builders:
+            raise ValueError(
+                f"the estimator declares the {measurement.name!r} measurement but its system has no "
+                f"update for it (it fuses {', '.join(builders)})"
+            )
+        updates.append(builders[measurement.name](measurement))
+    return tuple(updates)
+
+
+class Fusion:
+    """An estimator system's filter state and measurement updates (module docstring).
+
+    system: the LeafSystem (n vehicles); x0 (width), P0 (k, k): one vehicle's initial state and
+    covariance, also the fallback of a covariance reset; updates: from :func:`build_updates`;
+    repairs: False switches the covariance repair off (``fidelity.reference_estimator``).
+    Declares the groups of :class:`Groups` (``groups``) and the updates' ports.
+    """
+
+    def __init__(self, system, n, x0, P0, updates, repairs):
+        self.n, self.width, self.k = n, len(x0), P0.shape[0]
+        self._P0, self._repairs = P0, repairs
+        self.groups = Groups(
+            x=discrete_group(system, np.tile(np.asarray(x0, dtype=float), n)),
+            P=discrete_group(system, np.tile(P0.ravel(), n)),
+            diagnostics=discrete_group(system, np.tile(initial_diagnostics(), n)),
+            book=discrete_group(system, np.tile(fusion.initial_book(), n)),
+            hold=discrete_group(system, np.tile(initial_hold(), n)),
+        )
+        for update in updates:
+            update.declare(system, n, self.k)
+        self.updates = updates
+        self.ports = tuple(update.measurement.port for update in updates)
+        self._gps = next((u for u in updates if isinstance(u, GpsUpdate)), None)
+
+    def update_of(self, kind):
+        """This estimator's update of class `kind`, or None when the vehicle has no such sensor."""
+        return next((u for u in self.updates if isinstance(u, kind)), None)
+
+    def filters(self, discrete_state) -> fusion.Filters:
+        """Writable (n, ...) views of x, P, diagnostics, the book and the hold."""
+        n, g = self.n, self.groups
+        return fusion.Filters(
+            x=discrete_state.get_mutable_value(g.x).reshape(n, self.width),
+            P=discrete_state.get_mutable_value(g.P).reshape(n, self.k, self.k),
+            diagnostics=discrete_state.get_mutable_value(g.diagnostics).reshape(n, DIAGNOSTICS_SIZE),
+            book=discrete_state.get_mutable_value(g.book).reshape(n, fusion.BOOK_SIZE),
+            hold=discrete_state.get_mutable_value(g.hold).reshape(n, HOLD_SIZE),
+        )
+
+    def read(self, context) -> dict:
+        """{port: (n, width) samples} of every update's input this tick."""
+        return {update.measurement.port: update.read(context) for update in self.updates}
+
+    def fuse(self, context, discrete_state, filters, samples, healthy, updates=None) -> None:
+        """The covariance check, then the updates (all, or `updates`), IN PLACE on `filters`.
+
+        healthy (n,) bool: the prediction's per-tick check (``fusion.covariance_looks_healthy``);
+        where it failed or a GPS sample is fresh, the full check and repair (counted in
+        ``covariance_repairs``); None: nothing to check (every P healthy, no fresh GPS sample)."""
+        if self._repairs and healthy is not None:
+            check = ~healthy
+            if self._gps is not None:
+                check = self._gps.fresh(samples, filters) | check
+            if check.any():
+                outcomes = fusion.repair_covariances(filters.P, check, self._P0)
+                filters.diagnostics[outcomes != gating.COVARIANCE_OK, DIAG["covariance_repairs"]] += 1.0
+        for update in self.updates if updates is None else updates:
+            update.fuse(context, discrete_state, filters, samples)
