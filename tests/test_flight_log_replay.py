@@ -233,9 +233,9 @@ def test_a_replay_that_would_not_fit_in_memory_is_refused_before_it_runs(quad_dr
 
 
 def test_your_own_estimator_replays_too(quad_drake_cli, tmp_path, monkeypatch):
-    from test_custom_estimator import readme_estimator
+    from test_custom_estimator import manual_estimator
 
-    readme_estimator(tmp_path)
+    manual_estimator(tmp_path)
     monkeypatch.chdir(tmp_path)  # the factory's file is named relative to the working folder
     estimator = '{kind: custom, factory: "my_ekf.py:MyEkf"}'
     result = quad_drake_cli(
