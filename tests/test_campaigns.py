@@ -95,8 +95,8 @@ def sent(flown):
 
 
 @pytest.mark.slow
-def test_same_table_and_rows_whatever_the_runner(scenario, serial):
-    parallel = run_campaign(scenario, 3, runner=ProcessPoolRunner(2), seed=5, progress=False)
+def test_same_table_and_rows_whatever_the_runner(scenario, serial, process_pool):
+    parallel = run_campaign(scenario, 3, runner=process_pool, seed=5, progress=False)
     assert (serial.runner, parallel.runner) == ("in-process", "process-pool x2")
     assert table(parallel) == table(serial)
     assert rows(parallel) == rows(serial)
