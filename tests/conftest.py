@@ -102,3 +102,15 @@ def gps_run_dir(gps_flight, tmp_path_factory):
     from quad_drake.output.results import save_run
 
     return save_run(gps_flight, tmp_path_factory.mktemp("gps_run") / "11_gps_update")
+
+
+@pytest.fixture(scope="session")
+def process_pool():
+    """A ``ProcessPoolRunner(2)`` whose two workers live for the session, for the tests that
+    compare a campaign on the process pool with another runner: each worker imports Drake and
+    loads the kernels once, not once per campaign. Tests of the pool's own start-up, abandonment
+    or worker state make their own."""
+    from quad_drake.campaigns import ProcessPoolRunner
+
+    with ProcessPoolRunner(2) as pool:
+        yield pool

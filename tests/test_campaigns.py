@@ -13,10 +13,10 @@ import re
 import signal
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
+from pool_tasks import pid_after, worker_pid
 
 from quad_drake import cli
 from quad_drake.campaigns import (
@@ -96,8 +96,8 @@ def sent(flown):
 
 
 @pytest.mark.slow
-def test_same_table_and_rows_whatever_the_runner(scenario, serial):
-    parallel = run_campaign(scenario, 3, runner=ProcessPoolRunner(2), seed=5, progress=False)
+def test_same_table_and_rows_whatever_the_runner(scenario, serial, process_pool):
+    parallel = run_campaign(scenario, 3, runner=process_pool, seed=5, progress=False)
     assert (serial.runner, parallel.runner) == ("in-process", "process-pool x2")
     assert table(parallel) == table(serial)
     assert rows(parallel) == rows(serial)
@@ -347,29 +347,20 @@ def test_bad_counts_are_config_errors(scenario):
         ProcessPoolRunner(0)
 
 
-def _worker_pid(_):
-    return os.getpid()
-
-
 @pytest.mark.slow
 def test_a_process_pool_used_as_a_context_keeps_its_workers_from_one_map_to_the_next():
     with ProcessPoolRunner(2) as runner:
-        first = {pid for _, pid in runner.map(_worker_pid, range(6))}
-        second = {pid for _, pid in runner.map(_worker_pid, range(6))}
+        first = {pid for _, pid in runner.map(worker_pid, range(6))}
+        second = {pid for _, pid in runner.map(worker_pid, range(6))}
     assert 1 <= len(first) <= 2 and second <= first and os.getpid() not in first
-    fresh = {pid for _, pid in ProcessPoolRunner(2).map(_worker_pid, range(2))}
+    fresh = {pid for _, pid in ProcessPoolRunner(2).map(worker_pid, range(2))}
     assert not fresh & first  # outside ``with`` every map starts its own workers
     with ProcessPoolRunner(2) as runner:
-        abandoned = runner.map(_worker_pid, range(6))
+        abandoned = runner.map(worker_pid, range(6))
         first = {next(abandoned)[1]}
         abandoned.close()  # as on Ctrl-C or a failed task: the kept workers are let go, unwaited
-        after = {pid for _, pid in runner.map(_worker_pid, range(4))}
+        after = {pid for _, pid in runner.map(worker_pid, range(4))}
     assert after and not after & first
-
-
-def _pid_after(seconds):
-    time.sleep(seconds)
-    return os.getpid()
 
 
 @pytest.mark.slow
@@ -379,7 +370,7 @@ def test_an_interrupted_process_pool_abandons_the_runs_its_workers_hold(kept):
     runs they held. Now they are stopped: workers asleep for a minute are gone in seconds."""
     before = set(multiprocessing.active_children())
     with ProcessPoolRunner(2) as runner:
-        mapped = (runner if kept else ProcessPoolRunner(2)).map(_pid_after, [0.0, 60.0, 60.0, 60.0])
+        mapped = (runner if kept else ProcessPoolRunner(2)).map(pid_after, [0.0, 60.0, 60.0, 60.0])
         next(mapped)
         workers = [p for p in multiprocessing.active_children() if p not in before]
         mapped.close()  # as on Ctrl-C or a failed task

@@ -10,7 +10,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
 from quad_drake import conventions as c
-from quad_drake.campaigns import ProcessPoolRunner, run_campaign, table
+from quad_drake.campaigns import run_campaign, table
 from quad_drake.campaigns.fleet.diagram import run_fleet
 from quad_drake.campaigns.fleet.runner import BATCH_MEMORY, MAX_BATCH, batches, default_batch_size, fly_batch
 from quad_drake.campaigns.fleet.summaries import summary_bytes
@@ -120,10 +120,10 @@ def test_windy_run_i_is_the_same_in_any_batch_and_its_turbulence_its_own():
 
 
 @pytest.mark.slow
-def test_fleet_campaign_is_the_same_on_the_process_pool():
+def test_fleet_campaign_is_the_same_on_the_process_pool(process_pool):
     scenario = catalog.load("03_position_control", None, ["end_time=1"])
     serial = run_campaign(scenario, 4, seed=3, progress=False, fleet_batch=4)
-    pooled = run_campaign(scenario, 4, runner=ProcessPoolRunner(2), seed=3, progress=False, fleet_batch=2)
+    pooled = run_campaign(scenario, 4, runner=process_pool, seed=3, progress=False, fleet_batch=2)
     assert records_key(serial.records) == records_key(pooled.records)
     assert table(serial) == table(pooled)
     assert serial.runner == "fleet (batch 4) on in-process"
