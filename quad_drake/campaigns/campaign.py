@@ -55,13 +55,13 @@ class Progress:
         self.lines = enabled and not terminal
         self.every = max(1, total // 10)
 
-    def start_line(self, how):
+    def start_line(self, how) -> None:
         """In a log: one line saying the campaign started and how it flies (`how`, e.g. the runner)."""
         if self.lines:
             self.stream.write(f"{self.label}: 0/{self.total} runs, started ({how})\n")
             self.stream.flush()
 
-    def update(self, records):
+    def update(self, records) -> None:
         """Count finished runs (a task's RunRecords: one run, or a fleet batch at once); at most
         one line per call."""
         before = self.done
@@ -85,7 +85,7 @@ class Progress:
             )
             self.stream.flush()
 
-    def close(self):
+    def close(self) -> None:
         if self.bar is not None:
             self.bar.close()
 

@@ -80,7 +80,7 @@ def parse_override(text):
     return key.strip().split("."), value
 
 
-def apply_override(raw, keys, value, text):
+def apply_override(raw, keys, value, text) -> None:
     """Set raw[k0][k1]... = value in a nested dict/list; list indices are integers."""
     node = raw
     for depth, key in enumerate(keys):

@@ -27,7 +27,7 @@ NAME_PATTERNS = {
 signal names (``Quad.Est.E.Pos``): no path separators, no leading dot, no dot in a vehicle's."""
 
 
-def check_seed_range(first_seed, runs, what="--seed"):
+def check_seed_range(first_seed, runs, what="--seed") -> None:
     """ConfigError unless the seeds first_seed .. first_seed + runs - 1 lie in [0, MAX_SEED]."""
     if first_seed < 0 or first_seed + runs - 1 > MAX_SEED:
         last = f" to {first_seed + runs - 1}" if runs > 1 else ""
@@ -129,7 +129,7 @@ def _check_kind_choice(node, members, path):
     return check_node(node, member, path)
 
 
-def validate(config, path=""):
+def validate(config, path="") -> None:
     """Raise ConfigError for the first field of `config` that breaks its metadata rules."""
     for f in dataclasses.fields(config):
         value = getattr(config, f.name)
@@ -183,7 +183,7 @@ def _check_tick_multiple(seconds, min_ticks, where):
         )
 
 
-def check_scenario(scenario):
+def check_scenario(scenario) -> None:
     """Raise ConfigError (one line, the field's dotted path) for a ScenarioConfig that breaks a
     rule of :func:`load_scenario`: what every entry point (``simulation.run``, ``run_fleet``,
     ``run_campaign``) checks, so a config built or changed in Python is judged as a file is."""

@@ -139,7 +139,7 @@ def initial_nominal(position, velocity, q_NB, accel_bias=(0.0, 0.0, 0.0), gyro_b
     return np.concatenate([position, velocity, q_NB, accel_bias, gyro_bias]).astype(float)
 
 
-def write_estimate(x, estimate):
+def write_estimate(x, estimate) -> None:
     """Write the position, attitude and velocity of nominal states x (..., 16) into estimates
     (..., 13) in the true ``state`` layout (p_NB m, q_NB wxyz, v_NB m/s) IN PLACE; the body
     rate, estimate[..., 10:13], is left as it is (the prediction sets it from the IMU sample)."""

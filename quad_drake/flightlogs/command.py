@@ -128,7 +128,7 @@ def table_row(config, result, error=""):
     return row | {"note": ""}
 
 
-def print_table(rows):
+def print_table(rows) -> None:
     """Print the table over many logs (n/a reasons shortened to n/a; the CSV keeps them)."""
     columns = ["log", "estimator", "duration_s", *TABLE_STATES]
     widths = {c: max(len(c), *(len(_short(r[c])) for r in rows)) for c in columns}

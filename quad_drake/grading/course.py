@@ -216,7 +216,7 @@ class CourseFilter:
             out.append(array)
         return tuple(out) if len(shapes) > 1 else out[0]
 
-    def tick(self, accel, gyro, mag_yaw=None, mag_rows=None, gps=None, gps_rows=None):
+    def tick(self, accel, gyro, mag_yaw=None, mag_rows=None, gps=None, gps_rows=None) -> None:
         """One 500 Hz tick: accel (n, 3) the course's accelerometer (m/s^2, body FRD, (0, 0, +9.81)
         level at rest, SPEC §2), gyro (n, 3) rad/s; mag_yaw (k,) rad for the rows `mag_rows`
         (k,) with a fresh sample; gps (k, 6) position m and velocity m/s (NED) for `gps_rows`."""

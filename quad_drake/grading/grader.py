@@ -69,6 +69,8 @@ class ScenarioGrade:
 
 @dataclass
 class Grade:
+    """A student module's grade: its name and the graded scenarios (each with a ``verdict``)."""
+
     module: str
     scenarios: list
 

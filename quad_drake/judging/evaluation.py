@@ -441,7 +441,7 @@ class PooledSigmaFold(_Fold):
         self.inside = np.zeros(runs, dtype=np.int64)
         self.total = np.zeros(runs, dtype=np.int64)
 
-    def update(self, times, errors, sigmas, fresh):
+    def update(self, times, errors, sigmas, fresh) -> None:
         """Fold one (k, N) error, sigma and fresh mask per vehicle (lists; times unused: the
         vehicles' samples are pooled whatever their times)."""
         for error, sigma, mask in zip(errors, sigmas, fresh, strict=True):
@@ -524,7 +524,7 @@ class FloorFold(_Fold):
         self.first_touch = np.full(runs, np.nan)  # s
         self.samples = 0
 
-    def update(self, times, touchdowns, contact):
+    def update(self, times, touchdowns, contact) -> None:
         """Fold times (k,) s, the cumulative touchdowns and the floor contact (k, N)."""
         if times.size == 0:
             return
@@ -593,7 +593,7 @@ class RoomFold(_Fold):
         self.first = np.full(runs, np.nan)  # s, first sample at a bound
         self.samples = 0
 
-    def update(self, times, wall_steps):
+    def update(self, times, wall_steps) -> None:
         """Fold times (k,) s and the cumulative wall-contact steps (k, N)."""
         if times.size == 0:
             return
@@ -650,7 +650,7 @@ class FiniteFold(_Fold):
         self.first = np.full(runs, np.nan)  # s, first non-finite sample
         self.samples = 0
 
-    def update(self, times, finite):
+    def update(self, times, finite) -> None:
         """Fold times (k,) s and the StateFinite flags (k, N)."""
         if times.size == 0:
             return
@@ -705,7 +705,7 @@ class TrackingFold(_Fold):
         self.first_above_time = np.full(runs, np.nan)  # s
         self.samples = 0
 
-    def update(self, times, error):
+    def update(self, times, error) -> None:
         """Fold times (k,) s and the tracking error (k, N)."""
         if times.size == 0:
             return
@@ -1070,7 +1070,7 @@ class CriterionStream:
         self.criterion, self.vehicles = criterion, tuple(vehicles)
         self.fold = _criterion_fold(criterion, runs, self.vehicles)
 
-    def update(self, times, signal):
+    def update(self, times, signal) -> None:
         self.fold.update(
             np.asarray(times, dtype=float), **_criterion_inputs(self.criterion, signal, self.vehicles)
         )

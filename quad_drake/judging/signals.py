@@ -88,6 +88,8 @@ def key_unit(key):
 
 @dataclass(frozen=True)
 class Signal:
+    """One logged signal: its value at each log sample and whether that sample is fresh."""
+
     values: np.ndarray  # (n,) one value per logged sample
     fresh: np.ndarray  # (n,) bool: sample carries a new measurement
 

@@ -17,7 +17,7 @@ def _signal_names(criterion, key, vehicle_names):
     return [name]
 
 
-def check_criteria(scenario, available):
+def check_criteria(scenario, available) -> None:
     """Raise ConfigError when a judged criterion names a signal not in `available` (the names
     the scenario produces, e.g. ``simulation.available_signals(scenario)``)."""
     vehicles = [v.name for v in scenario.vehicles]
@@ -53,7 +53,7 @@ class CriteriaStream:
         vehicles = [v.name for v in scenario.vehicles]
         self._streams = [CriterionStream(c, runs, vehicles) for c in judged_criteria(scenario)]
 
-    def update(self, times, signals):
+    def update(self, times, signals) -> None:
         """Fold times (k,) s and {name: Signal} of (k, N) values and fresh masks."""
 
         def lookup(name):

@@ -50,7 +50,7 @@ class CompileNotice(event.Listener):
         self.seconds = 0.0  # s, spent compiling so far in this process (outermost compilations)
         self._depth, self._start = 0, 0.0
 
-    def on_start(self, compile_event):
+    def on_start(self, compile_event) -> None:
         self._depth += 1
         if self._depth == 1:
             self._start = time.perf_counter()
@@ -61,7 +61,7 @@ class CompileNotice(event.Listener):
             self.shown = True
             print(COMPILE_NOTICE, file=sys.stderr, flush=True)
 
-    def on_end(self, compile_event):
+    def on_end(self, compile_event) -> None:
         self._depth -= 1
         if self._depth == 0:
             self.seconds += time.perf_counter() - self._start

@@ -174,7 +174,7 @@ def turbulence_velocity(states, model):
     return out
 
 
-def filter_rows(states, noise, phi, gain):
+def filter_rows(states, noise, phi, gain) -> None:
     """IN PLACE, row by row: states[i] = phi states[i] + gain noise[i] ((n, m) states and noise,
     (m, m) phi and gain). Summed entry by entry in a fixed order, so a row's result does not depend
     on n (a matrix product's rounding does); ``kernels.flight`` compiles this code."""
@@ -190,7 +190,7 @@ def filter_rows(states, noise, phi, gain):
             states[i, r] = row[r]
 
 
-def wind_rows(states, noise, phi, gain, output, cos_heading, sin_heading, steady, out):
+def wind_rows(states, noise, phi, gain, output, cos_heading, sin_heading, steady, out) -> None:
     """IN PLACE, the wind of n vehicles in one call: the filters step (:func:`filter_rows`), then
     out[i] = the NED turbulence velocity of states[i] (:func:`velocity_rows`) + steady (3, m/s,
     NED: the mean wind and the gusts, every vehicle's the same); ``kernels.flight`` compiles it."""
@@ -202,7 +202,7 @@ def wind_rows(states, noise, phi, gain, output, cos_heading, sin_heading, steady
         out[i, 2] += steady[2]
 
 
-def velocity_rows(states, output, cos_heading, sin_heading, out):
+def velocity_rows(states, output, cos_heading, sin_heading, out) -> None:
     """out (n, 3) = the NED turbulence velocity (m/s) of each row of states (n, 5): (u, v, w) =
     output states[i], turned by the mean wind's heading (cos, sin); entry by entry (as
     :func:`filter_rows`)."""

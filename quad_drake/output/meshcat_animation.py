@@ -71,7 +71,7 @@ def _rgba(color, alpha=1.0):
     return Rgba(*color, alpha)
 
 
-def add_quadrotor(meshcat, path, arm_length, color):
+def add_quadrotor(meshcat, path, arm_length, color) -> None:
     """A quadrotor in its FLU body frame at `path`: body, X arms, motors, rotor discs (front red)."""
     a = arm_length / math.sqrt(2.0)
     meshcat.SetObject(f"{path}/body", Box(0.6 * a, 0.45 * a, 0.05), _rgba(color))
@@ -166,7 +166,7 @@ def _aim_camera(meshcat, tracks):
     meshcat.SetCameraPose(target + distance * np.array([-0.6, -0.6, 0.55]), target)
 
 
-def record(meshcat, tracks, times, fps=FPS):
+def record(meshcat, tracks, times, fps=FPS) -> None:
     """Record every track's poses at `fps` into meshcat's animation and publish it."""
     meshcat.StartRecording(frames_per_second=fps, set_visualizations_while_recording=False)
     frame_times, indices = frame_indices(times, fps)

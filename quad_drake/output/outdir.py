@@ -29,7 +29,7 @@ def check_output_dir(path, option="--out"):
     return path
 
 
-def remove_stale(folder, patterns):
+def remove_stale(folder, patterns) -> None:
     """Delete the files of `folder` matching any glob pattern of `patterns` (what an earlier
     result left there that the one being written would not replace)."""
     for pattern in patterns:

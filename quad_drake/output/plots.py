@@ -91,7 +91,7 @@ TOUCHDOWN_COLOR = "k"
 MEASURED_COLOR = "tab:orange"
 
 
-def shade_faults(fig, spans):
+def shade_faults(fig, spans) -> None:
     """Mark each fault span on every time panel of `fig` (``fig.time_axes``): red hatching between
     two red edges, no fill (a fill over the judged green band would turn brown); a zero-length
     span (one sample) is a vertical line. The first panel's legend names them."""
@@ -115,7 +115,7 @@ def shade_faults(fig, spans):
             ax.legend(loc="best", fontsize=7)
 
 
-def mark_events(fig, gusts, landings):
+def mark_events(fig, gusts, landings) -> None:
     """Mark the flight's events on every time panel of `fig`: each gust window (start, end, label)
     shaded blue, each touchdown (time s, label: ``report.touchdown_marks``) a dash-dotted line;
     the first panel's legend names them."""

@@ -70,7 +70,7 @@ def size_text(nbytes):
     return f"{nbytes / 1024:.3g} KiB"
 
 
-def check_memory(nbytes, what, fix):
+def check_memory(nbytes, what, fix) -> None:
     """ConfigError (one line: `what` would take the estimate, the limit, then `fix`) when
     `nbytes` exceeds MEMORY_SHARE of the physical memory."""
     limit = MEMORY_SHARE * physical_memory()
@@ -81,7 +81,7 @@ def check_memory(nbytes, what, fix):
         )
 
 
-def check_run(scenario, at_once=1):
+def check_run(scenario, at_once=1) -> None:
     """Refuse (ConfigError) a run whose logs, times `at_once` runs held together, would not fit."""
     per_s = size_text(logged_values(scenario) * 8.0 * LOG_COPIES / LOG_PERIOD)
     what = f"{scenario.name}: end_time={scenario.end_time:g} s ({per_s} per simulated second"

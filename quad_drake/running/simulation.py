@@ -66,7 +66,7 @@ def initial_state(vehicle):
     )
 
 
-def add_tick_holds(builder, outputs, n=1):
+def add_tick_holds(builder, outputs, n=1) -> None:
     """Add the holds of ``error_sampling``'s tick logs (``errors_at_onboard_tick``) to `builder`
     and put their output ports in `outputs` (log name: port), which must hold ``state`` (n*13)
     and ``reference`` (n*10) of one vehicle (n = 1) or of a fleet's N copies (n = N).

@@ -92,6 +92,6 @@ def scalar(discrete_state, group):
     return discrete_state.get_vector(group).GetAtIndex(0)
 
 
-def set_scalar(discrete_state, group, value):
+def set_scalar(discrete_state, group, value) -> None:
     """Set entry 0 of a discrete-state group (a DiscreteValues) to the float `value`."""
     discrete_state.get_mutable_vector(group).SetAtIndex(0, value)

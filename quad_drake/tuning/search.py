@@ -41,6 +41,8 @@ class Evaluation:
 
 @dataclass
 class SearchResult:
+    """What a noise-parameter search evaluated, in order, and whether Ctrl-C cut it short."""
+
     history: list = field(default_factory=list)  # [Evaluation] in order
     interrupted: bool = False  # Ctrl-C stopped the search; history holds what finished
 

@@ -33,6 +33,8 @@ from .space import SEARCH_DECADES, apply, overrides, search_space
 
 @dataclass
 class TuneProblem:
+    """What ``quad-drake tune`` searches: the starting scenario, the parameters and the settings."""
+
     scenario: object  # ScenarioConfig as given (the start)
     space: list  # [space.Parameter]
     settings: TuneSettings
@@ -41,6 +43,8 @@ class TuneProblem:
 
 @dataclass
 class TuneResult:
+    """A finished (or interrupted) tuning: the search, the tuned scenario and its held-out check."""
+
     problem: TuneProblem
     search: object  # search.SearchResult
     tuned: object  # ScenarioConfig at the best candidate

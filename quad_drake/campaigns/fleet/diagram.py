@@ -79,7 +79,7 @@ def build_fleet_diagram(scenario, seeds, make_sink=None):
     return diagram, sink
 
 
-def release_memory(diagram, keep=None):
+def release_memory(diagram, keep=None) -> None:
     """Call ``release_memory()`` of every fleet system in `diagram` but `keep`: pydrake never
     frees a Diagram of Python systems, so a batch's large arrays must be dropped by hand
     (without it a campaign's workers grow by a batch's arrays per batch)."""

@@ -69,6 +69,6 @@ class BatchSummarizer(LeafSystem):
         self._flush()
         return self.summary.records(first_index, wall_time)
 
-    def release_memory(self):
+    def release_memory(self) -> None:
         """Drop the chunk buffers and the summary (see ``systems.noise.NoiseStreamSource.release_memory``)."""
         self._buffers, self._inputs, self.summary = {}, [], None

@@ -190,7 +190,7 @@ class BatchSummary:
         self._criteria = CriteriaStream(scenario, runs)
         self.samples = 0  # samples folded so far
 
-    def update(self, logs, has_previous):
+    def update(self, logs, has_previous) -> None:
         """Fold the next k samples: logs {vehicle: {name: (k (+1), N, w)}}; with has_previous,
         row 0 of every log is the sample before them (only used to judge freshness)."""
         skip = 1 if has_previous else 0

@@ -1,0 +1,177 @@
+"""Every public function and method of the package says what it returns, and every dataclass (the
+config schema's included) says what it is: read from the source (AST), nothing imported."""
+
+import ast
+from pathlib import Path
+
+import quad_drake
+
+PACKAGE = Path(quad_drake.__file__).resolve().parent
+
+# Files whose public functions may still lack a return annotation, relative to the package.
+# Shrink it, never grow it: each entry is debt from before the rule (issue 37 item 6).
+NOT_YET_ANNOTATED = {
+    # Being annotated on another branch (the config schema and estimator registry rework).
+    "config/schema.py",
+    "estimation/registry.py",
+    "flightlogs/settings.py",
+    # Not yet annotated (issue 37 item 6 ran out of time here).
+    "campaigns/campaign.py",
+    "campaigns/fleet/diagram.py",
+    "campaigns/fleet/runner.py",
+    "campaigns/fleet/streaming.py",
+    "campaigns/fleet/summaries.py",
+    "campaigns/output.py",
+    "campaigns/page.py",
+    "campaigns/plots.py",
+    "campaigns/records.py",
+    "campaigns/runners.py",
+    "campaigns/statistics.py",
+    "campaigns/tally.py",
+    "campaigns/warmup.py",
+    "cli.py",
+    "config/errors.py",
+    "config/fields.py",
+    "config/loader.py",
+    "config/validation.py",
+    "control/cascade.py",
+    "estimation/baro.py",
+    "estimation/complementary.py",
+    "estimation/custom.py",
+    "estimation/ekf.py",
+    "estimation/eskf.py",
+    "estimation/gating.py",
+    "estimation/mag3.py",
+    "estimation/vocabulary.py",
+    "flightlogs/checks.py",
+    "flightlogs/command.py",
+    "flightlogs/comparison.py",
+    "flightlogs/earth_field.py",
+    "flightlogs/page.py",
+    "flightlogs/reader.py",
+    "flightlogs/recording.py",
+    "flightlogs/replay.py",
+    "flightlogs/schedule.py",
+    "grading/course.py",
+    "grading/course_math.py",
+    "grading/criteria.py",
+    "grading/flights.py",
+    "grading/grader.py",
+    "grading/statistics.py",
+    "grading/student_template.py",
+    "judging/consistency.py",
+    "judging/evaluation.py",
+    "judging/noise_std.py",
+    "judging/safety.py",
+    "judging/signals.py",
+    "judging/verdicts.py",
+    "kernels/bounds.py",
+    "kernels/jit.py",
+    "models/accuracy_bound.py",
+    "models/dynamics.py",
+    "models/error_sampling.py",
+    "models/faults.py",
+    "models/fidelity.py",
+    "models/random_streams.py",
+    "models/rotations.py",
+    "models/sensor_models.py",
+    "models/trajectories.py",
+    "models/wind.py",
+    "output/export.py",
+    "output/jsonio.py",
+    "output/meshcat_animation.py",
+    "output/outdir.py",
+    "output/plots.py",
+    "output/report.py",
+    "output/results.py",
+    "running/catalog.py",
+    "running/diagram_svg.py",
+    "running/limits.py",
+    "running/simulation.py",
+    "systems/_io.py",
+    "systems/course_estimator.py",
+    "systems/custom_estimator.py",
+    "systems/estimators.py",
+    "systems/updates.py",
+    "systems/wind.py",
+    "tuning/objective.py",
+    "tuning/output.py",
+    "tuning/scoring.py",
+    "tuning/search.py",
+    "tuning/session.py",
+    "tuning/space.py",
+}
+
+
+def unannotated_functions(source, name="<source>"):
+    """``file:line: Class.method`` of every public function (module level, or a method of a public
+    class, nested classes included) in `source` without a return annotation. Public: a name not
+    starting with ``_`` (dunder methods such as ``__init__`` are left out)."""
+    found = []
+
+    def walk(body, prefix):
+        for node in body:
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                if not node.name.startswith("_") and node.returns is None:
+                    found.append(f"{name}:{node.lineno}: {prefix}{node.name}")
+            elif isinstance(node, ast.ClassDef) and not node.name.startswith("_"):
+                walk(node.body, f"{prefix}{node.name}.")
+
+    walk(ast.parse(source, name).body, "")
+    return found
+
+
+def package_files():
+    """(path relative to the package as posix text, path) of every module of the package."""
+    return [(path.relative_to(PACKAGE).as_posix(), path) for path in sorted(PACKAGE.rglob("*.py"))]
+
+
+def test_every_public_function_has_a_return_annotation():
+    offenders = [
+        line
+        for relative, path in package_files()
+        if relative not in NOT_YET_ANNOTATED
+        for line in unannotated_functions(path.read_text(), relative)
+    ]
+    assert not offenders, "public functions without a return annotation:\n" + "\n".join(offenders)
+
+
+def test_the_allow_list_names_only_files_that_exist():
+    files = dict(package_files())
+    gone = sorted(NOT_YET_ANNOTATED - files.keys())
+    assert not gone, f"drop from NOT_YET_ANNOTATED (no such file): {gone}"
+
+
+def test_a_planted_unannotated_function_is_seen():
+    source = (
+        "def annotated() -> None: ...\n"
+        "def planted(x): return x\n"
+        "def _private(x): return x\n"
+        "class Public:\n"
+        "    def __init__(self): ...\n"
+        "    def method(self): ...\n"
+        "    class Inner:\n"
+        "        def deep(self): ...\n"
+        "class _Private:\n"
+        "    def method(self): ...\n"
+        "def outer() -> None:\n"
+        "    def nested(): ...\n"
+    )
+    assert unannotated_functions(source, "m.py") == [
+        "m.py:2: planted",
+        "m.py:6: Public.method",
+        "m.py:8: Public.Inner.deep",
+    ]
+
+
+def test_every_dataclass_has_a_docstring():
+    missing = []
+    for relative, path in package_files():
+        for node in ast.walk(ast.parse(path.read_text(), relative)):
+            if (
+                isinstance(node, ast.ClassDef)
+                and any("dataclass" in ast.unparse(d) for d in node.decorator_list)
+                and not ast.get_docstring(node)
+            ):
+                missing.append(f"{relative}:{node.lineno}: {node.name}")
+    assert not missing, "dataclasses without a docstring:\n" + "\n".join(missing)
