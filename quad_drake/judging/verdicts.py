@@ -6,7 +6,7 @@ they read, and one :class:`~quad_drake.judging.evaluation.CriterionResult` per c
 """
 
 from ..config.errors import ConfigError, did_you_mean
-from .evaluation import CriterionStream, evaluate_criterion, judged_criteria
+from .evaluation import CriterionResult, CriterionStream, evaluate_criterion, judged_criteria
 
 
 def _signal_names(criterion, key, vehicle_names):
@@ -32,7 +32,7 @@ def check_criteria(scenario, available) -> None:
                 )
 
 
-def evaluate_criteria(scenario, times, signals):
+def evaluate_criteria(scenario, times, signals) -> list[CriterionResult]:
     """CriterionResult per judged criterion of `scenario`, on the logged 5 ms samples.
 
     times: (n,) s; signals: {name: Signal} over those samples.
@@ -62,6 +62,6 @@ class CriteriaStream:
         for stream in self._streams:
             stream.update(times, lookup)
 
-    def results(self, j):
+    def results(self, j) -> list[CriterionResult]:
         """Run j's CriterionResult per judged criterion (as ``evaluate_criteria``'s)."""
         return [stream.result(j) for stream in self._streams]
