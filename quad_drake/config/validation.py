@@ -50,7 +50,7 @@ def _type_name(tp):
     return getattr(tp, "__name__", str(tp))
 
 
-def check_node(node, tp, path):
+def check_node(node, tp, path) -> str | None:
     """Shape check of raw YAML `node` against annotation `tp`; returns a message or None."""
     origin = typing.get_origin(tp)
     if origin is typing.Union:
@@ -196,7 +196,7 @@ def check_scenario(scenario) -> None:
         raise ConfigError(f"{scenario.name or 'scenario'}: a field has the wrong type ({e})") from None
 
 
-def ineffective_settings(scenario):
+def ineffective_settings(scenario) -> list[str]:
     """Lines naming the criteria and faults that cannot matter for a flight of ``end_time`` s:
     a window (window, sigma) not shorter than the flight, a bound interval or a recovery that
     starts at or after its end (judged on no samples), a fault that starts after the flight.
@@ -322,7 +322,7 @@ def _check_fault(fault, sensors, where):
             )
 
 
-def resolve_trajectory_file(name, where="trajectory.file"):
+def resolve_trajectory_file(name, where="trajectory.file") -> Path:
     """Path of a trajectory file: a packaged name (e.g. ``Square.txt``) or a path."""
     if not name:
         raise ConfigError(f"{where}: kind 'file' needs a file name")
