@@ -37,7 +37,7 @@ EXIT_CODES = """exit codes:
   130  interrupted (Ctrl-C): the finished runs are kept"""
 
 
-def cmd_list(args):
+def cmd_list(args) -> int:
     scenarios = catalog.bundled_scenarios()
     width = max(map(len, scenarios))  # the longest name sets the column
     for name, path in scenarios.items():
@@ -109,7 +109,7 @@ def _warn(scenarios):
             print(f"quad-drake: warning: {scenario.name}: {line}", file=sys.stderr)
 
 
-def cmd_run(args):
+def cmd_run(args) -> int:
     from .output.jsonio import dump_json
     from .output.report import estimator_health
     from .output.results import claim_run_folder, save_run, variant_name
@@ -220,7 +220,7 @@ def _write_index(args, summaries, out):
     return write_index(out)
 
 
-def cmd_replay(args):
+def cmd_replay(args) -> int:
     """Replay a flight log through an estimator (``flightlogs.replay``), print the comparison with
     the log's own estimate and the NIS, save OUT/<log>-<estimator>[-setHASH]/ and the index."""
     from .flightlogs.command import replay_command
@@ -228,7 +228,7 @@ def cmd_replay(args):
     return replay_command(args)
 
 
-def cmd_noise_std(args):
+def cmd_noise_std(args) -> int:
     from .judging.noise_std import measured_noise_std
     from .output.results import load_logs, signals_from_logs
 
@@ -238,7 +238,7 @@ def cmd_noise_std(args):
     return 0
 
 
-def cmd_grade(args):
+def cmd_grade(args) -> int:
     import shutil
 
     from .grading import grader
@@ -273,7 +273,7 @@ def cmd_grade(args):
     return 0 if result.passed else 1
 
 
-def cmd_export(args):
+def cmd_export(args) -> int:
     from .output.export import export_csv
 
     if args.out is not None:
@@ -283,7 +283,7 @@ def cmd_export(args):
     return 0
 
 
-def cmd_diagram(args):
+def cmd_diagram(args) -> int:
     from .running.diagram_svg import write_diagram_svg
 
     scenario = catalog.load(args.name, None, args.set)
@@ -406,7 +406,7 @@ def _fleet_batch(args, scenario):
     return default_batch_size(scenario, args.runs, 1 if args.scheduler else args.jobs)
 
 
-def cmd_montecarlo(args):
+def cmd_montecarlo(args) -> int:
     """Run a campaign, print its table, save OUT/NAME_montecarlo/ and refresh OUT/index.html.
 
     The last line explains the exit code: 0 every campaign consistency criterion passed (or
@@ -461,7 +461,7 @@ def cmd_montecarlo(args):
     return 0 if campaign.passed else 1
 
 
-def cmd_tune(args):
+def cmd_tune(args) -> int:
     """Search the estimator's noise parameters (``quad_drake.tuning``); write OUT (tuned.yaml,
     history.csv, objective.png, tune.json, before_after.txt). Exit 0 when the tuned scenario
     passes every criterion in every held-out run and its held-out loss is not above the start's,
@@ -515,14 +515,14 @@ def cmd_tune(args):
     return 0 if passed else 1
 
 
-def cmd_warmup(args):
+def cmd_warmup(args) -> int:
     """Compile every numba kernel into the on-disk cache (``quad_drake.warmup``)."""
     from .campaigns.warmup import warm_up_command
 
     return warm_up_command()
 
 
-def build_parser():
+def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="quad-drake",
         description=__doc__.splitlines()[0],
@@ -626,7 +626,7 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
     print(f"quad-drake: warning: {message}", file=sys.stderr)
 
 
-def main(argv=None):
+def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command is None:  # bare `quad-drake`: the help, not an error

@@ -13,10 +13,12 @@ import dataclasses
 import shlex
 import sys
 import time
+from collections.abc import Callable
 
 from tqdm import tqdm
 
 from ..config.errors import ConfigError
+from ..config.schema import ScenarioConfig
 from ..config.validation import check_scenario, check_seed_range
 from ..estimation.custom import EstimatorRaised
 from ..judging.verdicts import check_criteria
@@ -55,13 +57,13 @@ class Progress:
         self.lines = enabled and not terminal
         self.every = max(1, total // 10)
 
-    def start_line(self, how):
+    def start_line(self, how) -> None:
         """In a log: one line saying the campaign started and how it flies (`how`, e.g. the runner)."""
         if self.lines:
             self.stream.write(f"{self.label}: 0/{self.total} runs, started ({how})\n")
             self.stream.flush()
 
-    def update(self, records):
+    def update(self, records) -> None:
         """Count finished runs (a task's RunRecords: one run, or a fleet batch at once); at most
         one line per call."""
         before = self.done
@@ -85,7 +87,7 @@ class Progress:
             )
             self.stream.flush()
 
-    def close(self):
+    def close(self) -> None:
         if self.bar is not None:
             self.bar.close()
 
@@ -134,7 +136,9 @@ def _check_fleet_memory(scenario, batch, at_once):
     )
 
 
-def plan_campaign(scenario, runs, runner, seed=None, fleet_batch=None):
+def plan_campaign(
+    scenario, runs, runner, seed=None, fleet_batch=None
+) -> tuple[ScenarioConfig, list, Callable, str | None]:
     """(scenario with the first seed, tasks, worker function, fleet label or None) of a campaign,
     after every check it needs before anything flies (ConfigError, one line): the run count and
     seeds, the scenario as a loaded file is checked (``config.check_scenario``), its criteria's
@@ -157,14 +161,16 @@ def plan_campaign(scenario, runs, runner, seed=None, fleet_batch=None):
     return scenario, tasks, worker, label
 
 
-def one_run_command(name, overrides=()):
+def one_run_command(name, overrides=()) -> str:
     """The ``quad-drake run`` command line that flies one run of a campaign alone but for its
     ``--seed``: scenario `name` (a bundled name or a path) with every ``--set`` of `overrides`."""
     sets = "".join(f" --set {shlex.quote(text)}" for text in overrides)
     return f"quad-drake run {shlex.quote(str(name))}{sets}"
 
 
-def run_campaign(scenario, runs, runner=None, seed=None, progress=True, fleet_batch=None, run_command=None):
+def run_campaign(
+    scenario, runs, runner=None, seed=None, progress=True, fleet_batch=None, run_command=None
+) -> CampaignResult:
     """CampaignResult of `runs` runs of a ScenarioConfig, run i with seed (seed or scenario.seed) + i.
 
     runner: a :class:`~quad_drake.campaigns.runners.Runner` (default: in this process; a

@@ -26,7 +26,7 @@ def _header(campaign):
     return f"Monte Carlo {s.name}: {runs} of {s.end_time:g} s, seeds {first}..{last}"
 
 
-def table(campaign):
+def table(campaign) -> str:
     """The campaign's statistics as text; identical for the same scenario, runs and seed."""
     lines = [_header(campaign), ""]
     if campaign.criteria:
@@ -108,7 +108,7 @@ def table(campaign):
     return "\n".join(lines).rstrip() + "\n"
 
 
-def timing_line(campaign):
+def timing_line(campaign) -> str:
     t = campaign.timing()
     return (
         f"{campaign.runs} runs in {t['wall_time_s']:.1f} s on {t['runner']}: "
@@ -116,7 +116,7 @@ def timing_line(campaign):
     )
 
 
-def summary(campaign):
+def summary(campaign) -> dict:
     """The summary.json dict: every statistic (without the consistency series) and the timing."""
     consistency = [{k: v for k, v in c.items() if k not in ("times", "mean")} for c in campaign.consistency]
     state = campaign.state_consistency
@@ -150,7 +150,7 @@ def summary(campaign):
     }
 
 
-def columns(campaign):
+def columns(campaign) -> dict[str, str]:
     """{runs.csv column: unit}, in column order: "" for the run index, seed, pass flags (1 or 0)
     and the NEES/NIS means; a criterion's ``measured`` in its unit (``CriterionResult.measured_unit``)
     and ``percent`` in %; an error metric in its signal's unit."""
@@ -168,7 +168,7 @@ def columns(campaign):
     return units
 
 
-def rows(campaign):
+def rows(campaign) -> tuple[list[str], list[list]]:
     """(header, rows) of the per-run CSV: seed, verdicts, metrics, NEES/NIS time means
     (:func:`columns` names them, with their units)."""
     header = list(columns(campaign))
@@ -194,7 +194,7 @@ plots when this one has none, its NEES/NIS series when this one has no estimator
 first, so a folder never mixes two campaigns."""
 
 
-def save(campaign, out_dir, plots=True):
+def save(campaign, out_dir, plots=True) -> Path:
     """Write runs.csv, summary.json, table.txt, consistency.npz, (plots) PNGs and report.html
     (the campaign page) into out_dir, after removing an earlier campaign's CAMPAIGN_ARTIFACTS
     there; returns out_dir."""

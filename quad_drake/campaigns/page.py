@@ -107,7 +107,7 @@ def _efficiency(campaign):
     return html_table(header, rows)
 
 
-def write_page(campaign, path, plots=()):
+def write_page(campaign, path, plots=()) -> Path:
     """report.html of a CampaignResult at `path`; plots: [(caption, png path)] to embed."""
     path = Path(path)
     s = campaign.scenario

@@ -14,7 +14,7 @@ from .statistics import per_dof_text, tolerance_text
 DPI = 110
 
 
-def consistency_figure(campaign):
+def consistency_figure(campaign) -> Figure:
     """Mean NEES / NIS over the realisations against the chi^2 95 % band, one panel each."""
     stats = campaign.consistency
     fig = Figure(figsize=(9, 2.6 * len(stats)), layout="constrained")
@@ -38,7 +38,7 @@ def consistency_figure(campaign):
     return fig
 
 
-def errors_figure(campaign):
+def errors_figure(campaign) -> Figure:
     """Box plots (min-max whiskers) of the per-run settled RMS errors, grouped by unit; red: bound."""
     keys = list(campaign.metrics)
     unit_of = {key: m["unit"] for key, m in campaign.metrics.items()}
@@ -62,7 +62,7 @@ def errors_figure(campaign):
     return fig
 
 
-def write_plots(campaign, out_dir):
+def write_plots(campaign, out_dir) -> list[tuple[str, Path]]:
     """consistency.png and errors.png (where the campaign has them); [(caption, path)]."""
     out_dir = Path(out_dir)
     written = []

@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..estimation.registry import nis_sensors, vehicle_vocabulary
-from ..estimation.vocabulary import health_counts
+from ..estimation.vocabulary import EstimatorVocabulary, health_counts
 from ..judging import consistency as cons
 from ..judging.evaluation import max_abs, rms
 from ..judging.signals import stamp_fresh
@@ -23,23 +23,23 @@ COMMON_ERRORS = ("X", "Y", "Z", "VX", "VY", "VZ", "Roll", "Pitch", "Yaw", "Pos",
 """Error signals every estimator has (``Est.E.<key>``), besides its vocabulary's."""
 
 
-def error_keys(vocabulary):
+def error_keys(vocabulary) -> list[str]:
     """The keys of the ``Est.E.<key>`` signals a campaign summarises for this estimator, in order:
     COMMON_ERRORS, then its vocabulary's other states (their units: ``signals.key_unit``)."""
     return list(dict.fromkeys((*COMMON_ERRORS, *vocabulary.state_names)))
 
 
-def campaign_vocabulary(scenario):
+def campaign_vocabulary(scenario) -> EstimatorVocabulary | None:
     """The estimator vocabulary of the scenario's first vehicle with an estimator, or None."""
     return next((v for v in map(vehicle_vocabulary, scenario.vehicles) if v is not None), None)
 
 
-def settle_time(end_time):
+def settle_time(end_time) -> float:
     """s; the start of the samples ``rms_settled`` uses."""
     return min(SETTLE_TIME, end_time / 2)
 
 
-def settled_mask(times, end_time):
+def settled_mask(times, end_time) -> np.ndarray:
     """True at the log samples (times, s) ``rms_settled`` and the PCRB average use."""
     return np.asarray(times) >= settle_time(end_time) - 1e-9
 
@@ -68,7 +68,7 @@ class RunRecord:
     nis_mean: dict = field(default_factory=dict)  # (vehicle, sensor) -> mean of its NIS (slim record)
 
 
-def slim(record):
+def slim(record) -> RunRecord:
     """The RunRecord a campaign keeps: no per-sample series, their time means instead (a NaN
     sample makes its mean NaN)."""
     return dataclasses.replace(
@@ -90,13 +90,13 @@ class RunTask:
     seed: int
 
 
-def vehicle_errors(signals, vehicle, vocabulary):
+def vehicle_errors(signals, vehicle, vocabulary) -> np.ndarray:
     """(n, k) ``vocabulary.errors`` of a vehicle's logs, as its ``Est.E.<state>`` signals hold them
     ((n, N, k) of a fleet batch's (n, N) signals)."""
     return np.stack([signals[f"{vehicle}.Est.E.{key}"].values for key in vocabulary.state_names], axis=-1)
 
 
-def consistency_series(vocabulary, logs, errors):
+def consistency_series(vocabulary, logs, errors) -> tuple[np.ndarray, np.ndarray]:
     """(NEES (n,), time mean (k,) of e_i^2 / P_ii) of a vehicle's logs (n, width) and errors (n, k)."""
     covariances = cons.covariance_matrices(logs["covariance"])
     nse = np.mean(cons.normalized_squared_errors(errors, covariances), axis=0)
@@ -111,7 +111,7 @@ def _posterior_crb(logs, sensors):
     return posterior_crb(logs["state"], stamp_fresh(logs["gps"][:, -1]), mag_fresh, sensors)
 
 
-def metric_keys(vocabulary, log_names):
+def metric_keys(vocabulary, log_names) -> list[str]:
     """The signals (``V.<key>``) a run's record summarises for a vehicle with estimator
     `vocabulary` (None: none) and logs `log_names`: its ``Est.E.*`` errors, and PosFollowErr
     (the true flight) when it has a reference."""
@@ -119,13 +119,13 @@ def metric_keys(vocabulary, log_names):
     return keys + (["PosFollowErr"] if "reference" in log_names else [])
 
 
-def criterion_column(number):
+def criterion_column(number) -> str:
     """The runs.csv column prefix of a campaign's judged criterion `number` (1, 2, ...): ``c1``
     for ``c1.passed``, ``c1.measured`` and ``c1.percent``."""
     return f"c{number}"
 
 
-def criteria_rows(verdicts):
+def criteria_rows(verdicts) -> list[dict]:
     """A record's ``criteria``: per CriterionResult its kind, description, verdict, measured
     value (and its unit) and percentage, as plain values."""
     return [
@@ -141,7 +141,7 @@ def criteria_rows(verdicts):
     ]
 
 
-def summarize_run(result, index):
+def summarize_run(result, index) -> RunRecord:
     """RunRecord of a SimulationResult (pure: reads its logs, signals and verdicts). A fleet
     batch makes the same records while it flies (``fleet.streaming``)."""
     metrics, nees, nse, nis, counters, pcrb = {}, {}, {}, {}, {}, {}
@@ -182,6 +182,6 @@ def summarize_run(result, index):
     )
 
 
-def simulate_run(task):
+def simulate_run(task) -> RunRecord:
     """Worker entry point: fly ``task.scenario`` with ``task.seed``; its RunRecord."""
     return summarize_run(run(dataclasses.replace(task.scenario, seed=task.seed)), task.index)

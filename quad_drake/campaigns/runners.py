@@ -27,6 +27,7 @@ Without it each worker stops with one line saying so, and the campaign raises
 
 import multiprocessing
 from abc import ABC, abstractmethod
+from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 
@@ -66,7 +67,7 @@ class Runner(ABC):
     name = "runner"
 
     @abstractmethod
-    def map(self, fn, tasks):
+    def map(self, fn, tasks) -> Iterator[tuple[int, object]]:
         """Iterator of (index into tasks, fn(tasks[index])) in completion order."""
 
     def __enter__(self):
@@ -81,7 +82,7 @@ class InProcessRunner(Runner):
 
     name = "in-process"
 
-    def map(self, fn, tasks):
+    def map(self, fn, tasks) -> Iterator[tuple[int, object]]:
         for index, task in enumerate(tasks):
             try:
                 result = fn(task)
@@ -136,7 +137,7 @@ class ProcessPoolRunner(Runner):
             _stop(kept)
         return False
 
-    def map(self, fn, tasks):
+    def map(self, fn, tasks) -> Iterator[tuple[int, object]]:
         if not tasks:
             return
         executor = self._kept or self._executor(min(self.jobs, len(tasks)))
@@ -178,7 +179,7 @@ class DaskRunner(Runner):
         self.scheduler = scheduler
         self.name = f"dask {scheduler}"
 
-    def map(self, fn, tasks):
+    def map(self, fn, tasks) -> Iterator[tuple[int, object]]:
         from distributed import Client, as_completed
 
         try:

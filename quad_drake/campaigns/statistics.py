@@ -22,7 +22,7 @@ def _ratio(rmse, bound):
     return rmse / bound if bound > 0 else math.inf
 
 
-def per_dof_text(row):
+def per_dof_text(row) -> str:
     """``NEES/dof 1.06 [1.04, 1.08]``: a consistency row's average per dof with its 95 % interval
     (``not finite`` when a realisation diverged)."""
     low, high = row["per_dof_ci95"]
@@ -31,13 +31,13 @@ def per_dof_text(row):
     return f"{row['statistic']}/dof {row['per_dof']:.3g} [{low:.3g}, {high:.3g}]"
 
 
-def tolerance_text(row):
+def tolerance_text(row) -> str:
     """``[0.667, 1.5]``: the tolerance a consistency row is judged against."""
     low, high = row["tolerance"]
     return f"[{low:.3g}, {high:.3g}]"
 
 
-def distribution(values):
+def distribution(values) -> dict[str, float]:
     """median, 95th percentile, max; a NaN (diverged run) counts as +inf."""
     values = np.asarray(values, dtype=float)
     values = np.where(np.isnan(values), np.inf, values)
@@ -67,26 +67,26 @@ class CampaignResult:
     run_command: Optional[str] = None  # flies one run alone, given its --seed
 
     @property
-    def runs(self):
+    def runs(self) -> int:
         """Number of finished runs."""
         return len(self.records)
 
     @property
-    def partial(self):
+    def partial(self) -> bool:
         return self.planned is not None and self.runs < self.planned
 
     @property
-    def seeds(self):
+    def seeds(self) -> tuple[int, int]:
         """(first, last) seed of the runs asked for."""
         return self.scenario.seed, self.scenario.seed + (self.planned or self.runs) - 1
 
     @property
-    def completed(self):
+    def completed(self) -> list[int]:
         """Indices of the finished runs."""
         return [r.index for r in self.records]
 
     @cached_property
-    def criteria(self):
+    def criteria(self) -> list[dict]:
         """Per judged criterion (then 'all criteria'): passes, runs, rate and 95 % interval, with
         the criterion's kind, its runs.csv column prefix (``c1``: ``c1.passed``, ``c1.measured``
         ...; ``passed`` for all criteria) and the unit of its ``measured`` column."""
@@ -117,7 +117,7 @@ class CampaignResult:
         return rows
 
     @cached_property
-    def metrics(self):
+    def metrics(self) -> dict[str, dict]:
         """{signal without vehicle: {"unit", "rms": dist, "max": dist, "vehicles": n}}, pooled over
         vehicles (``signals.key_unit``)."""
         pooled = {}
@@ -138,7 +138,7 @@ class CampaignResult:
             for key, e in pooled.items()
         }
 
-    def settled_rms(self, key):
+    def settled_rms(self, key) -> list[float]:
         """Per (run, vehicle) settled RMS of the pooled metric `key` (e.g. ``Est.E.X``)."""
         return [
             r.metrics[name]["rms_settled"]
@@ -148,7 +148,7 @@ class CampaignResult:
         ]
 
     @cached_property
-    def consistency(self):
+    def consistency(self) -> list[dict]:
         """Per statistic (NEES, then each sensor's NIS): the campaign criterion and, as
         information, the mean over all (run, vehicle) realisations against the chi^2 95 % band at
         the stamps every realisation had (``tally``).
@@ -195,19 +195,19 @@ class CampaignResult:
         }
 
     @cached_property
-    def state_consistency(self):
+    def state_consistency(self) -> np.ndarray | None:
         """(k,) mean over runs, vehicles and time of e_i^2 / P_ii (1 = consistent), or None."""
         rows = [r.nse[v] for r in self.records for v in r.nse]
         return np.mean(rows, axis=0) if rows else None
 
     @cached_property
-    def state_names(self):
+    def state_names(self) -> tuple[str, ...]:
         """Error-state names of the campaign's estimator (the order of ``state_consistency``)."""
         vocabulary = campaign_vocabulary(self.scenario)
         return () if vocabulary is None else vocabulary.state_names
 
     @cached_property
-    def counters(self):
+    def counters(self) -> dict[str, int]:
         """{diagnostics counter: total over runs and vehicles} (gated samples, resets, repairs)."""
         totals = {}
         for record in self.records:
@@ -217,7 +217,7 @@ class CampaignResult:
         return totals
 
     @cached_property
-    def efficiency(self):
+    def efficiency(self) -> list[dict]:
         """Per vehicle and bounded state (with its unit): the hover Riccati bound sigma, the posterior
         CRB sigma (sqrt of its variance averaged over runs after the settling time), the RMSE pooled over
         runs after the settling time, and the efficiencies RMSE / bound (>= 1 up to sampling
@@ -253,16 +253,16 @@ class CampaignResult:
         return rows
 
     @property
-    def passed(self):
+    def passed(self) -> bool:
         """True when every campaign consistency criterion passed (or there is none)."""
         return all(s["passed"] for s in self.consistency)
 
-    def failure_reasons(self):
+    def failure_reasons(self) -> list[str]:
         """One line per failed consistency criterion, e.g.
         ``NEES/dof 1.62 [1.55, 1.70] outside [0.667, 1.5]``."""
         return [f"{per_dof_text(s)} outside {tolerance_text(s)}" for s in self.consistency if not s["passed"]]
 
-    def verdict(self):
+    def verdict(self) -> str:
         """The one line that explains the exit code: which consistency criterion failed, or PASS;
         a partial campaign's says first that it judges only the runs that finished."""
         partial = f"PARTIAL ({self.runs} of {self.planned} runs, interrupted): " if self.partial else ""
@@ -278,7 +278,7 @@ class CampaignResult:
             return f"PASS: no consistency criterion (no estimator){rates}"
         return f"PASS: every consistency criterion passed{rates}"
 
-    def timing(self):
+    def timing(self) -> dict[str, object]:
         """Wall time, runs per minute, runner and mean simulation time per run (not in the table)."""
         return {
             "wall_time_s": self.wall_time,

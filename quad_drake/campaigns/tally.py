@@ -22,7 +22,7 @@ NEES = "NEES"
 """Name of the NEES statistic (its stamps are the log sample times)."""
 
 
-def nis_statistic(sensor):
+def nis_statistic(sensor) -> str:
     """Name of a sensor's NIS statistic, e.g. ``NIS gps``."""
     return f"NIS {sensor}"
 
@@ -47,7 +47,7 @@ class StampSum:
         return StampSum(stamps, self.total[mine] + other.total[theirs], self.count + other.count)
 
     @property
-    def mean(self):
+    def mean(self) -> np.ndarray:
         """(k,) mean over the realisations at each stamp."""
         return self.total / self.count
 
@@ -66,7 +66,7 @@ class ConsistencyTally:
         return ConsistencyTally(sums)
 
     @classmethod
-    def of(cls, record):
+    def of(cls, record) -> "ConsistencyTally":
         """The tally of one RunRecord's series: its NEES per vehicle at ``record.times`` and
         its NIS per (vehicle, sensor) at the update stamps."""
         series = [(NEES, record.times, values) for values in record.nees.values()]
@@ -87,7 +87,7 @@ class FoldedRecords:
     tally: ConsistencyTally
 
 
-def fold_records(records):
+def fold_records(records) -> FoldedRecords:
     """FoldedRecords of full RunRecords."""
     tally = ConsistencyTally()
     for record in records:

@@ -24,7 +24,7 @@ VARIANTS = (("24_mag3_disturbance", ("vehicles.0.estimator={kind: ekf7}",)),)
 kernels no bundled scenario calls (the EKF7's heading from a 3-axis magnetometer)."""
 
 
-def warm_up(progress=None):
+def warm_up(progress=None) -> tuple[int, float]:
     """Fly every bundled scenario and the VARIANTS for WARMUP_TIME s, each as a one-run campaign
     and as a fleet campaign of two runs, in this process; `progress(text)` is called before each.
     (scenarios flown, s spent compiling: 0 when every kernel was already in the cache)."""
@@ -41,7 +41,7 @@ def warm_up(progress=None):
     return len(flights), jit.compile_seconds() - compiled
 
 
-def warm_up_command(stream=sys.stdout):
+def warm_up_command(stream=sys.stdout) -> int:
     """``quad-drake warmup``: warm up, then print what it compiled."""
     start = time.perf_counter()
     flown, seconds = warm_up(lambda name: print(f"warming up: {name}", file=stream, flush=True))

@@ -9,7 +9,7 @@ class ConfigError(ValueError):
     """A user mistake in a scenario or an override; str() is one line."""
 
 
-def did_you_mean(word, choices):
+def did_you_mean(word, choices) -> str:
     """`` (did you mean 'x'?)`` naming the choices closest to `word` (stdlib ``difflib``, at most
     three), or "" when none is close: the hint every "unknown name" message carries."""
     import difflib  # only a mistake needs it: loading a good scenario never pays for it
@@ -20,7 +20,7 @@ def did_you_mean(word, choices):
     return " (did you mean " + " or ".join(repr(c) for c in close) + "?)"
 
 
-def first_line(error, located=True):
+def first_line(error, located=True) -> str:
     """One line of an error; for a YAML syntax error its problem, where it is (line, column;
     unless not `located`: a ``--set`` value is parsed inside a wrapper) and its context."""
     problem, mark = getattr(error, "problem", None), getattr(error, "problem_mark", None)

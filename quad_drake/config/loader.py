@@ -57,7 +57,7 @@ _Loader.add_implicit_resolver(
 )
 
 
-def load_yaml(text):
+def load_yaml(text) -> object:
     """Raw YAML data of `text` (merge keys and anchors resolved; 1.2 number forms read as
     numbers); top-level keys starting with ``_`` are dropped (templates for anchors), as
     Drake's ``yaml_load`` does."""
@@ -67,7 +67,7 @@ def load_yaml(text):
     return data
 
 
-def parse_override(text):
+def parse_override(text) -> tuple[list[str], object]:
     """Split ``dotted.key=value`` into (['dotted', 'key'], value parsed as YAML)."""
     key, sep, raw = text.partition("=")
     if not sep or not key.strip() or any(not part for part in key.strip().split(".")):
@@ -80,7 +80,7 @@ def parse_override(text):
     return key.strip().split("."), value
 
 
-def apply_override(raw, keys, value, text):
+def apply_override(raw, keys, value, text) -> None:
     """Set raw[k0][k1]... = value in a nested dict/list; list indices are integers."""
     node = raw
     for depth, key in enumerate(keys):
@@ -99,7 +99,7 @@ def apply_override(raw, keys, value, text):
             node = node[key]
 
 
-def load_scenario(path, overrides=()):
+def load_scenario(path, overrides=()) -> ScenarioConfig:
     """ScenarioConfig from a YAML file plus ``dotted.key=value`` overrides; validated.
 
     Raises ConfigError with one line naming the file and the field.
@@ -160,7 +160,7 @@ def _migrate_use_ideal_estimator(raw):
         )
 
 
-def override_hint(message, overrides):
+def override_hint(message, overrides) -> str:
     """`` (--set KEY=VALUE)`` when the field a validation message starts with ("field: ...")
     is, contains or lies in the key of one of the `overrides`, else ``""``: the mistake is on
     the command line, not in the file."""
@@ -172,7 +172,7 @@ def override_hint(message, overrides):
     return ""
 
 
-def dump_scenario(scenario, folder=None):
+def dump_scenario(scenario, folder=None) -> str:
     """The resolved scenario as YAML text (loads back to an equal ScenarioConfig); for a file in
     `folder`, the paths it names (a custom estimator's factory file) relative to that folder
     where they can be, so that the folder can move with the files it names."""

@@ -27,7 +27,7 @@ NAME_PATTERNS = {
 signal names (``Quad.Est.E.Pos``): no path separators, no leading dot, no dot in a vehicle's."""
 
 
-def check_seed_range(first_seed, runs, what="--seed"):
+def check_seed_range(first_seed, runs, what="--seed") -> None:
     """ConfigError unless the seeds first_seed .. first_seed + runs - 1 lie in [0, MAX_SEED]."""
     if first_seed < 0 or first_seed + runs - 1 > MAX_SEED:
         last = f" to {first_seed + runs - 1}" if runs > 1 else ""
@@ -50,7 +50,7 @@ def _type_name(tp):
     return getattr(tp, "__name__", str(tp))
 
 
-def check_node(node, tp, path):
+def check_node(node, tp, path) -> str | None:
     """Shape check of raw YAML `node` against annotation `tp`; returns a message or None."""
     origin = typing.get_origin(tp)
     if origin is typing.Union:
@@ -129,7 +129,7 @@ def _check_kind_choice(node, members, path):
     return check_node(node, member, path)
 
 
-def validate(config, path=""):
+def validate(config, path="") -> None:
     """Raise ConfigError for the first field of `config` that breaks its metadata rules."""
     for f in dataclasses.fields(config):
         value = getattr(config, f.name)
@@ -183,7 +183,7 @@ def _check_tick_multiple(seconds, min_ticks, where):
         )
 
 
-def check_scenario(scenario):
+def check_scenario(scenario) -> None:
     """Raise ConfigError (one line, the field's dotted path) for a ScenarioConfig that breaks a
     rule of :func:`load_scenario`: what every entry point (``simulation.run``, ``run_fleet``,
     ``run_campaign``) checks, so a config built or changed in Python is judged as a file is."""
@@ -196,7 +196,7 @@ def check_scenario(scenario):
         raise ConfigError(f"{scenario.name or 'scenario'}: a field has the wrong type ({e})") from None
 
 
-def ineffective_settings(scenario):
+def ineffective_settings(scenario) -> list[str]:
     """Lines naming the criteria and faults that cannot matter for a flight of ``end_time`` s:
     a window (window, sigma) not shorter than the flight, a bound interval or a recovery that
     starts at or after its end (judged on no samples), a fault that starts after the flight.
@@ -322,7 +322,7 @@ def _check_fault(fault, sensors, where):
             )
 
 
-def resolve_trajectory_file(name, where="trajectory.file"):
+def resolve_trajectory_file(name, where="trajectory.file") -> Path:
     """Path of a trajectory file: a packaged name (e.g. ``Square.txt``) or a path."""
     if not name:
         raise ConfigError(f"{where}: kind 'file' needs a file name")

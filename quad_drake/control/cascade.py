@@ -15,7 +15,7 @@ from quad_drake.models.fidelity import PHYSICAL
 from quad_drake.models.rotations import wrap_to_pi
 
 
-def altitude_control(z_ref, vz_ref, az_ff, z, vz, R22, integral, dt, params):
+def altitude_control(z_ref, vz_ref, az_ff, z, vz, R22, integral, dt, params) -> tuple[float, float]:
     """Collective thrust (N, unclamped) and the new altitude-error integral (m s).
 
     z_ref, z in m (NED, down); vz_ref, vz in m/s; az_ff in m/s^2; R22 = R_NB[2, 2];
@@ -30,7 +30,7 @@ def altitude_control(z_ref, vz_ref, az_ff, z, vz, R22, integral, dt, params):
     return -az * params.mass / R22, integral
 
 
-def collective_thrust_limits(params):
+def collective_thrust_limits(params) -> tuple[float, float]:
     """(low, high) collective-thrust bounds, N: 4 (min + margin), 4 (max - margin).
 
     margin = 0.1 (max_motor_thrust - min_motor_thrust) is headroom for attitude control.
@@ -39,13 +39,15 @@ def collective_thrust_limits(params):
     return 4.0 * (params.min_motor_thrust + margin), 4.0 * (params.max_motor_thrust - margin)
 
 
-def clamp_collective_thrust(thrust, params):
+def clamp_collective_thrust(thrust, params) -> float:
     """Collective thrust (N) clamped to :func:`collective_thrust_limits`."""
     low, high = collective_thrust_limits(params)
     return min(max(thrust, low), high)
 
 
-def lateral_position_control(p_ref_xy, v_ref_xy, a_ff_xy, p_xy, v_xy, params, vz=0.0, fidelity=PHYSICAL):
+def lateral_position_control(
+    p_ref_xy, v_ref_xy, a_ff_xy, p_xy, v_xy, params, vz=0.0, fidelity=PHYSICAL
+) -> tuple[float, float]:
     """Horizontal acceleration command (ax, ay), m/s^2 in N, from xy position/velocity errors.
 
     The velocity command is rescaled to norm max_speed_xy and the acceleration command
@@ -88,7 +90,7 @@ def _roll_pitch(ax, ay, thrust, R00, R01, R02, R10, R11, R12, R22, params):
     return (R10 * bx_dot - R00 * by_dot) / R22, (R11 * bx_dot - R01 * by_dot) / R22
 
 
-def roll_pitch_control(a_cmd_xy, thrust, R, params):
+def roll_pitch_control(a_cmd_xy, thrust, R, params) -> tuple[float, float]:
     """Body roll/pitch rate commands (p, q), rad/s, that tilt the thrust toward a_cmd_xy.
 
     a_cmd_xy in m/s^2 (N); thrust in N (collective, clamped); R = R_NB (3x3 indexable).
@@ -110,12 +112,12 @@ def roll_pitch_control(a_cmd_xy, thrust, R, params):
     )
 
 
-def yaw_control(yaw_ref, yaw, params):
+def yaw_control(yaw_ref, yaw, params) -> float:
     """Yaw rate command r, rad/s: kp_yaw * wrap_to_pi(yaw_ref - yaw); angles in rad."""
     return params.kp_yaw * wrap_to_pi(yaw_ref - yaw)
 
 
-def body_rate_control(pqr_cmd, pqr, params):
+def body_rate_control(pqr_cmd, pqr, params) -> tuple[float, float, float]:
     """Body moment command (Mx, My, Mz), N m in B: I * kp_pqr * (pqr_cmd - pqr), elementwise.
 
     A non-finite measured rate pqr means none was measured (the estimators report NaN over an
@@ -132,7 +134,9 @@ def body_rate_control(pqr_cmd, pqr, params):
     )
 
 
-def cascade_step(state13, reference10, integral, dt, params, fidelity=PHYSICAL):
+def cascade_step(
+    state13, reference10, integral, dt, params, fidelity=PHYSICAL
+) -> tuple[tuple[float, float, float, float], float]:
     """One controller tick (the reference's ``RunControl``): motor forces and new integral.
 
     state13: p_NB (m), q_NB (wxyz, normalised here), v_NB (m/s), w_NB_B (rad/s);

@@ -83,7 +83,7 @@ class BaroFusionParams:
     reset_timeout: float = number(1.0, nonnegative=True)
 
 
-def initial_book(params):
+def initial_book(params) -> np.ndarray:
     """A filter's baro book (BARO_BOOK_SIZE) before its first sample (see the module docstring)."""
     book = np.empty(BARO_BOOK_SIZE)
     book[BIAS], book[BIAS_VAR] = params.bias_init, params.bias_init_std**2
@@ -92,25 +92,25 @@ def initial_book(params):
     return book
 
 
-def predicted_height(p_z):
+def predicted_height(p_z) -> float:
     """h(x) = -p_z: the height (m, up) of the NED down position p_z (m)."""
     return -p_z
 
 
-def height_jacobian(n):
+def height_jacobian(n) -> np.ndarray:
     """H (1 x n) of :func:`predicted_height` against a state or error state of size n: -1 at HEIGHT_INDEX."""
     H = np.zeros((1, n))
     H[0, HEIGHT_INDEX] = -1.0
     return H
 
 
-def height_innovation(p_z, P, height, bias, R):
+def height_innovation(p_z, P, height, bias, R) -> tuple[float, float]:
     """(nu (m), S (m^2)) of a baro height (m) against the filter's p_z (m, NED) and P (n x n):
     nu = (height - bias) - (-p_z), S = P[2, 2] + R; R (m^2): height_std^2 (module docstring)."""
     return height - bias + p_z, P[HEIGHT_INDEX, HEIGHT_INDEX] + R
 
 
-def scalar_correction(P, index, sign, nu, S):
+def scalar_correction(P, index, sign, nu, S) -> tuple[np.ndarray, np.ndarray, float]:
     """(dx (n,), P' (n x n), nis) of a scalar measurement with H = sign * e_index (1 x n), innovation
     nu and innovation variance S = P[index, index] + R: with b = P H^T = sign * P[:, index],
     K = b / S, dx = K nu, P' = P - K b^T - b K^T + S K K^T (Joseph form), nis = nu^2 / S. Loops over
@@ -130,14 +130,14 @@ def scalar_correction(P, index, sign, nu, S):
     return dx, P_new, nu * nu / S
 
 
-def height_correction(P, nu, S):
+def height_correction(P, nu, S) -> tuple[np.ndarray, np.ndarray, float]:
     """(dx (n,), P' (n x n), nis): the scalar Joseph update of H = -e_2 (module docstring) with
     innovation nu (m) and innovation variance S (m^2) from :func:`height_innovation`
     (:func:`scalar_correction`)."""
     return scalar_correction(P, HEIGHT_INDEX, -1.0, nu, S)
 
 
-def floored_height_variance(p_zz, bias_var):
+def floored_height_variance(p_zz, bias_var) -> float:
     """The filter's height variance (m^2) after a baro fusion: at least the bias variance P_b.
 
     A baro-corrected height is no better known than the bias that corrects it, and that bias
@@ -148,31 +148,31 @@ def floored_height_variance(p_zz, bias_var):
     return bias_var if p_zz < bias_var else p_zz
 
 
-def bias_predict(bias_var, dt, walk_std):
+def bias_predict(bias_var, dt, walk_std) -> float:
     """The bias variance (m^2) after dt s of its random walk of walk_std m/sqrt(s)."""
     return bias_var + walk_std * walk_std * dt
 
 
-def bias_update(bias, bias_var, measured, measured_var):
+def bias_update(bias, bias_var, measured, measured_var) -> tuple[float, float]:
     """(bias, bias_var) after the scalar Kalman update with a bias measurement (m) of variance
     measured_var (m^2): K = P_b / (P_b + measured_var)."""
     gain = bias_var / (bias_var + measured_var)
     return bias + gain * (measured - bias), (1.0 - gain) * bias_var
 
 
-def bias_from_gps(height, gps_z):
+def bias_from_gps(height, gps_z) -> float:
     """The bias measurement (m) of a baro height (m, up) and a GPS down position (m, NED) at one
     time: h - (-z)."""
     return height + gps_z
 
 
-def bias_reset(height, p_z, height_var, p_z_var):
+def bias_reset(height, p_z, height_var, p_z_var) -> tuple[float, float]:
     """(bias, bias_var) of a bias reset to a baro height (m) against the filter's p_z (m, NED)
     of variance p_z_var: b = h + p_z, variance height_var + p_z_var."""
     return height + p_z, height_var + p_z_var
 
 
-def ekf7_baro_update(x, P, height, bias, R):
+def ekf7_baro_update(x, P, height, bias, R) -> tuple[np.ndarray, np.ndarray, float]:
     """Oracle: (x', P', nis) of the EKF7 (x (7,), P) fusing a baro height (m) with the dense
     Kalman update (``ekf.kalman_update``) of :func:`height_jacobian`; z = height - bias,
     R (m^2). A non-finite height gives (x, P, nan)."""
@@ -185,7 +185,7 @@ def ekf7_baro_update(x, P, height, bias, R):
     return ekf.kalman_update(x, P, z, H, np.array([[R]]), H @ x)
 
 
-def eskf_baro_update(x, P, height, bias, R):
+def eskf_baro_update(x, P, height, bias, R) -> tuple[np.ndarray, np.ndarray, float]:
     """Oracle: (x', P', nis) of the ESKF (nominal x (16,), P (9 or 15 square)) fusing a baro
     height (m): ``eskf.joseph_update`` with :func:`height_jacobian`, then ``eskf.inject``.
     A non-finite height gives (x, P, nan)."""

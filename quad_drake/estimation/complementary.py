@@ -21,7 +21,7 @@ from quad_drake.models.rotations import euler_from_quat, quat_from_euler_tuple, 
 VARIANTS = ("nonlinear", "small_angle")
 
 
-def accel_roll_pitch(f_B, reference_accelerometer=False):
+def accel_roll_pitch(f_B, reference_accelerometer=False) -> tuple[float, float]:
     """(roll, pitch) in rad that gravity alone would produce from the specific force f_B (m/s^2, FRD).
 
     With ``reference_accelerometer`` f_B is the reference's reading and the formulas are its own.
@@ -32,7 +32,7 @@ def accel_roll_pitch(f_B, reference_accelerometer=False):
     return math.atan2(-fy, -fz), math.atan2(fx, math.hypot(fy, fz))
 
 
-def integrate_euler_exact(roll, pitch, yaw, w_B, dt):
+def integrate_euler_exact(roll, pitch, yaw, w_B, dt) -> tuple[float, float, float]:
     """ZYX angles (rad) after rotating for dt s at the constant body rate w_B (rad/s).
 
     q(roll, pitch, yaw) * exp(w_B dt / 2), then extracted; the same result as
@@ -45,7 +45,9 @@ def integrate_euler_exact(roll, pitch, yaw, w_B, dt):
     return euler_from_quat(quat_product(quat_from_euler_tuple(roll, pitch, yaw), increment))
 
 
-def complementary_update(roll, pitch, yaw, f_B, w_B, dt, tau, variant, reference_accelerometer=False):
+def complementary_update(
+    roll, pitch, yaw, f_B, w_B, dt, tau, variant, reference_accelerometer=False
+) -> tuple[float, float, float]:
     """One filter step: integrate the gyro over dt, then blend roll/pitch with the accelerometer.
 
     roll, pitch, yaw: prior ZYX angles, rad. f_B: specific force, m/s^2 (FRD). w_B: gyro
@@ -61,14 +63,16 @@ def complementary_update(roll, pitch, yaw, f_B, w_B, dt, tau, variant, reference
     )
 
 
-def is_nonlinear(variant):
+def is_nonlinear(variant) -> bool:
     """True for the ``"nonlinear"`` variant, False for ``"small_angle"``; ValueError otherwise."""
     if variant not in VARIANTS:
         raise ValueError(f"unknown attitude filter variant {variant!r}; expected one of {VARIANTS}")
     return variant == "nonlinear"
 
 
-def complementary_step(roll, pitch, yaw, f_B, w_B, dt, tau, nonlinear, reference_accelerometer):
+def complementary_step(
+    roll, pitch, yaw, f_B, w_B, dt, tau, nonlinear, reference_accelerometer
+) -> tuple[float, float, float]:
     """:func:`complementary_update` with the variant as a bool (``nonlinear``): plain float
     arithmetic, the code the compiled attitude kernel runs (``kernels/attitude.py``)."""
     if nonlinear:

@@ -43,6 +43,7 @@ import math
 import os
 import sys
 import traceback
+from collections.abc import Callable
 from functools import cache
 from pathlib import Path
 
@@ -80,12 +81,12 @@ class EstimatorRaised(Exception):
     def __str__(self):
         return self.line
 
-    def with_context(self, text):
+    def with_context(self, text) -> "EstimatorRaised":
         """The same failure with `text` appended to its line (e.g. the seed and how to reproduce it)."""
         return EstimatorRaised(f"{self.line}; {text}", self.user_frames, self.copy)
 
 
-def in_flight(problem, vehicle, factory, copy, time):
+def in_flight(problem, vehicle, factory, copy, time) -> EstimatorRaised:
     """The EstimatorRaised of an EstimatorProblem met at sim time `time` s by estimator `copy`
     of `vehicle` (its name), made by `factory`."""
     line = f"at t = {time:.3f} s of the flight, {vehicle}'s estimator {factory}: {problem}"
@@ -97,7 +98,7 @@ def _one_line(error):
     return f"{type(error).__name__}: {text}"
 
 
-def absolute_factory(factory, base_dir):
+def absolute_factory(factory, base_dir) -> str:
     """`factory` with a relative ``file.py`` path made absolute: against `base_dir` (the scenario
     file's folder) when the file is there, else the working directory; a module name unchanged."""
     location, colon, name = factory.rpartition(":")
@@ -109,7 +110,7 @@ def absolute_factory(factory, base_dir):
     return factory
 
 
-def relative_factory(factory, folder):
+def relative_factory(factory, folder) -> str:
     """`factory` with an absolute ``file.py`` path made relative to `folder` (where a scenario
     file saved there is read from: :func:`absolute_factory` makes it absolute again), so that
     the folder moves with the file beside it; unchanged when it cannot be (another drive) or
@@ -124,7 +125,7 @@ def relative_factory(factory, folder):
 
 
 @cache
-def load_factory(factory):
+def load_factory(factory) -> Callable[..., object]:
     """The callable `factory` names (``module:name`` or ``path.py:name``); EstimatorProblem when it
     cannot be imported or is not callable."""
     location, colon, name = factory.rpartition(":")
@@ -155,7 +156,7 @@ def load_factory(factory):
     return made
 
 
-def make_estimator(factory, params):
+def make_estimator(factory, params) -> object:
     """One estimator: ``factory(**params)``; EstimatorProblem when that raises."""
     made = load_factory(factory)
     try:
@@ -164,7 +165,7 @@ def make_estimator(factory, params):
         raise EstimatorProblem(f"{factory}(**params) raised {_one_line(e)}") from None
 
 
-def state_names_of(estimator):
+def state_names_of(estimator) -> tuple[str, ...]:
     """The estimator's ``state_names`` as a tuple, checked against :data:`STATE_NAMES`."""
     names = getattr(estimator, "state_names", None)
     if names is None:
@@ -178,7 +179,7 @@ def state_names_of(estimator):
     return names
 
 
-def call(estimator, method, *args):
+def call(estimator, method, *args) -> object:
     """``estimator.<method>(*args)``; EstimatorProblem (one line, naming the method, with the
     frames of the method's traceback as ``user_frames``) when it raises."""
     try:
@@ -199,17 +200,17 @@ def _array(value, shape, what):
     return array
 
 
-def read_estimate(estimator):
+def read_estimate(estimator) -> np.ndarray:
     """(9,) ``estimate()`` checked for its shape."""
     return _array(call(estimator, "estimate"), (len(STATE_NAMES),), "estimate()")
 
 
-def read_covariance(estimator, size):
+def read_covariance(estimator, size) -> np.ndarray:
     """(size, size) ``covariance()`` checked for its shape."""
     return _array(call(estimator, "covariance"), (size, size), "covariance()")
 
 
-def innovation(estimator, sensor, *sample):
+def innovation(estimator, sensor, *sample) -> tuple[np.ndarray, np.ndarray] | None:
     """(nu, S) of the estimator's ``<sensor>_innovation(*sample)``, checked for its shapes, or
     None when it has no such method."""
     method = f"{sensor}_innovation"
@@ -222,7 +223,7 @@ def innovation(estimator, sensor, *sample):
     return _array(pair[0], (dof,), f"{method}() nu"), _array(pair[1], (dof, dof), f"{method}() S")
 
 
-def nis(nu, S):
+def nis(nu, S) -> float:
     """nu^T S^-1 nu; inf when S is singular."""
     try:
         return float(nu @ np.linalg.solve(S, nu))
@@ -230,7 +231,7 @@ def nis(nu, S):
         return math.inf
 
 
-def check_estimator(factory, params, dt):
+def check_estimator(factory, params, dt) -> tuple[str, ...]:
     """Make one estimator from `factory` and `params` and run one step of each method on made-up
     samples (a vehicle at rest at 1 m, heading north; the IMU every `dt` s); its state names.
     EstimatorProblem (one line, naming the method) at the first thing that cannot fly."""

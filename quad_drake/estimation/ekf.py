@@ -48,17 +48,17 @@ H_MAG = _constant(np.eye(1, EKF_STATE_SIZE, YAW_INDEX))
 """Magnetometer measurement matrix [0 ... 0 1]: yaw."""
 
 
-def initial_state(params):
+def initial_state(params) -> np.ndarray:
     """x0 (7) from EkfParams.init_state."""
     return np.array(params.init_state, dtype=float)
 
 
-def initial_covariance(params):
+def initial_covariance(params) -> np.ndarray:
     """P0 = diag(init_std^2) (7x7)."""
     return np.diag(np.square(np.asarray(params.init_std, dtype=float)))
 
 
-def process_noise(params):
+def process_noise(params) -> np.ndarray:
     """Q (7x7) per predict step = diag(q_pos_xy^2 x2, q_pos_z^2, q_vel_xy^2 x2, q_vel_z^2, q_yaw^2) dt_imu."""
     p = params
     std = [
@@ -73,7 +73,7 @@ def process_noise(params):
     return np.diag(np.square(std)) * p.dt_imu
 
 
-def gps_noise(params):
+def gps_noise(params) -> np.ndarray:
     """R_gps (6x6) = diag(pos_xy^2 x2, pos_z^2, vel_xy^2 x2, vel_z^2), m^2 and (m/s)^2."""
     p = params
     std = [
@@ -87,24 +87,24 @@ def gps_noise(params):
     return np.diag(np.square(std))
 
 
-def mag_noise(params):
+def mag_noise(params) -> np.ndarray:
     """R_mag (1x1) = [mag_yaw_std^2], rad^2."""
     return np.array([[params.mag_yaw_std**2]])
 
 
-def attitude_trig(roll, pitch, yaw):
+def attitude_trig(roll, pitch, yaw) -> tuple[float, float, float, float, float, float]:
     """(cos, sin of roll, of pitch, of yaw): the trigonometry a prediction evaluates once."""
     return math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch), math.cos(yaw), math.sin(yaw)
 
 
-def yaw_free_rotation_of(cr, sr, cp, sp, fx, fy, fz):
+def yaw_free_rotation_of(cr, sr, cp, sp, fx, fy, fz) -> tuple[float, float, float, float]:
     """(ux, uy, uz, rolled_z): u = Ry(pitch) Rx(roll) f (the yaw-free part of R_NB f) and the z
     component of Rx(roll) f, for f = (fx, fy, fz), from the cosines and sines of roll and pitch."""
     rolled_z = sr * fy + cr * fz
     return cp * fx + sp * rolled_z, cr * fy - sr * fz, -sp * fx + cp * rolled_z, rolled_z
 
 
-def specific_force_in_n(trig, rotated):
+def specific_force_in_n(trig, rotated) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
     """(R_NB f_B, dR_NB/dyaw f_B) as two 3-tuples, from the attitude's trig
     (:func:`attitude_trig`) and rotated = :func:`yaw_free_rotation_of` of f_B;
     R_NB = Rz(yaw) Ry(pitch) Rx(roll). The last entry of dR/dyaw f is 0 (Rz keeps z)."""
@@ -121,13 +121,13 @@ def _rotate_specific_force(roll, pitch, yaw, f_B):
     return specific_force_in_n(trig, rotated)
 
 
-def gravity_z(reference_accelerometer):
+def gravity_z(reference_accelerometer) -> float:
     """g_N z, m/s^2, as the EKF7 predicts with it: +GRAVITY (NED, the physical accelerometer), or
     -GRAVITY for the reference accelerometer's sign convention (``fidelity``)."""
     return -GRAVITY if reference_accelerometer else GRAVITY
 
 
-def state_after(x, a_N, yaw, dt):
+def state_after(x, a_N, yaw, dt) -> tuple[float, float, float, float, float, float, float]:
     """x (7-tuple) after dt s: p += v dt, v += a_N dt (m/s^2, NED), yaw set to `yaw` (rad)."""
     px, py, pz, vx, vy, vz = x[0], x[1], x[2], x[3], x[4], x[5]
     return (
@@ -149,7 +149,7 @@ def _fill_jacobian(G, rf_yaw, dt):
     return G
 
 
-def predict_state(x, roll, pitch, f_B, dt):
+def predict_state(x, roll, pitch, f_B, dt) -> np.ndarray:
     """x (7) after dt s: p += v dt; v += (R(roll, pitch, x[6]) f_B + g_N) dt; yaw unchanged.
 
     roll, pitch: rad (complementary filter). f_B: specific force, m/s^2 (FRD). dt: s.
@@ -164,7 +164,7 @@ def _state_with_gravity(x, rf, dt):
     return np.array(state_after(x, (rf[0], rf[1], rf[2] + GRAVITY), x[YAW_INDEX], dt))
 
 
-def predict_jacobian(x, roll, pitch, f_B, dt):
+def predict_jacobian(x, roll, pitch, f_B, dt) -> np.ndarray:
     """G = d predict_state / dx (7x7): I7, G[0,3] = G[1,4] = G[2,5] = dt, G[3:6, 6] = R' f_B dt."""
     _, rf_yaw = _rotate_specific_force(roll, pitch, x[YAW_INDEX], f_B)
     return _fill_jacobian(np.eye(EKF_STATE_SIZE), rf_yaw, dt)
@@ -176,14 +176,14 @@ def _symmetrised(P):
     return S
 
 
-def predict_covariance(P, G, Q):
+def predict_covariance(P, G, Q) -> np.ndarray:
     """(G P G^T + (G P G^T)^T) / 2 + Q (7x7): G P G^T + Q, symmetrised (Q is diagonal)."""
     S = _symmetrised((G @ P) @ G.T)
     S += Q
     return S
 
 
-def predict(x, P, roll, pitch, f_B, dt, Q, G=None):
+def predict(x, P, roll, pitch, f_B, dt, Q, G=None) -> tuple[np.ndarray, np.ndarray]:
     """(x, P) after one IMU step: predict_state, and P <- G P G^T + Q with G = predict_jacobian.
 
     The rotation is evaluated once. G is an optional 7x7 work buffer from an earlier
@@ -194,7 +194,9 @@ def predict(x, P, roll, pitch, f_B, dt, Q, G=None):
     return _state_with_gravity(x, rf, dt), predict_covariance(P, G, Q)
 
 
-def predict_with_yaw(x, P, attitude, f_B, dt, Q, G, reference_accelerometer=False):
+def predict_with_yaw(
+    x, P, attitude, f_B, dt, Q, G, reference_accelerometer=False
+) -> tuple[list[float], np.ndarray]:
     """The EKF's 500 Hz step: (x (list of 7), P) after x[6] <- attitude yaw, then :func:`predict`.
 
     x: prior state (7 floats); attitude: (roll, pitch, yaw) rad from the attitude filter;
@@ -209,7 +211,7 @@ def predict_with_yaw(x, P, attitude, f_B, dt, Q, G, reference_accelerometer=Fals
     return list(state_after(x, a_N, yaw, dt)), predict_covariance(P, G, Q)
 
 
-def kalman_update(x, P, z, H, R, z_hat):
+def kalman_update(x, P, z, H, R, z_hat) -> tuple[np.ndarray, np.ndarray, float]:
     """(x, P, nis) after the measurement z (m) of model z_hat (m) with Jacobian H (m x 7), noise R.
 
     K = P H^T S^-1 with S = H P H^T + R; P <- (I - K H) P (I - K H)^T + K R K^T (Joseph form,
@@ -225,7 +227,7 @@ def kalman_update(x, P, z, H, R, z_hat):
     return x + K @ nu, _symmetrised(P_new), float(nu @ solved[:, -1])
 
 
-def gps_update(x, P, gps_pv, R_gps):
+def gps_update(x, P, gps_pv, R_gps) -> tuple[np.ndarray, np.ndarray, float]:
     """Update with a GPS sample gps_pv = (p_N (m), v_N (m/s)); returns (x, P, nis).
 
     A non-finite sample is skipped: (x, P, nan).
@@ -236,7 +238,7 @@ def gps_update(x, P, gps_pv, R_gps):
     return kalman_update(x, P, z, H_GPS, R_gps, x[:6])
 
 
-def mag_update(x, P, yaw_meas, R_mag):
+def mag_update(x, P, yaw_meas, R_mag) -> tuple[np.ndarray, np.ndarray, float]:
     """Update with a magnetometer yaw (rad); returns (x, P, nis).
 
     The residual goes the short way round (the reference shifts the predicted yaw by 2 pi),
@@ -257,14 +259,14 @@ def mag_update(x, P, yaw_meas, R_mag):
     return x_new, P_new, nu * nu / S
 
 
-def mag_innovation(yaw_meas, yaw, yaw_variance, r):
+def mag_innovation(yaw_meas, yaw, yaw_variance, r) -> tuple[float, float]:
     """(nu rad, S rad^2) of a magnetometer yaw yaw_meas against the predicted yaw (rad) of
     variance H P H^T = yaw_variance, noise r: nu = wrap(yaw_meas - yaw), the short way round,
     S = yaw_variance + r. Shared by both estimators' mag updates and their compiled kernels."""
     return wrap_to_pi(yaw_meas - yaw), yaw_variance + r
 
 
-def tilt_variance(t, gyro_std, tau, dt):
+def tilt_variance(t, gyro_std, tau, dt) -> float:
     """Per-axis variance (rad^2) of the complementary filter's roll/pitch error from gyro noise, t s in.
 
     The filter (``complementary.complementary_update``) integrates the gyro (noise gyro_std
@@ -280,7 +282,7 @@ def tilt_variance(t, gyro_std, tau, dt):
     return step * (1.0 - a ** (2.0 * max(t, 0.0) / dt)) / (1.0 - a * a)
 
 
-def tilt_jacobian(roll, pitch, yaw, fx, fy, fz, wy, wz):
+def tilt_jacobian(roll, pitch, yaw, fx, fy, fz, wy, wz) -> tuple[tuple[float, ...], tuple[float, ...]]:
     """Sensitivity of the prediction to roll and pitch errors: two 4-tuples (d/droll, d/dpitch) of
     (a_N x, y, z in m/s^2 per rad, yaw rate in rad/s per rad).
 
@@ -294,7 +296,7 @@ def tilt_jacobian(roll, pitch, yaw, fx, fy, fz, wy, wz):
     return tilt_jacobian_of(trig, yaw_free_rotation_of(cr, sr, cp, sp, fx, fy, fz), wy, wz)
 
 
-def tilt_jacobian_of(trig, rotated, wy, wz):
+def tilt_jacobian_of(trig, rotated, wy, wz) -> tuple[tuple[float, ...], tuple[float, ...]]:
     """:func:`tilt_jacobian` from the attitude's trig = (cos, sin of roll, of pitch, of yaw) and
     rotated = (ux, uy, uz, rolled_z) of :func:`yaw_free_rotation_of` (a prediction has both already)."""
     cr, sr, cp, sp, cy, sy = trig
@@ -312,7 +314,7 @@ def tilt_jacobian_of(trig, rotated, wy, wz):
     return d_roll, d_pitch
 
 
-def tilt_gains(variance, velocity_time, yaw_time, dt):
+def tilt_gains(variance, velocity_time, yaw_time, dt) -> tuple[float, float]:
     """(velocity_gain, yaw_gain) = sqrt(variance dt velocity_time), sqrt(variance dt yaw_time).
 
     variance: roll/pitch error variance, rad^2 (:func:`tilt_variance`); dt: the predict step,
@@ -323,14 +325,16 @@ def tilt_gains(variance, velocity_time, yaw_time, dt):
     return math.sqrt(variance * dt * velocity_time), math.sqrt(variance * dt * yaw_time)
 
 
-def tilt_noise_factors(roll, pitch, yaw, fx, fy, fz, wy, wz, velocity_gain, yaw_gain):
+def tilt_noise_factors(
+    roll, pitch, yaw, fx, fy, fz, wy, wz, velocity_gain, yaw_gain
+) -> tuple[tuple[float, ...], tuple[float, ...]]:
     """(a, b), two 4-tuples with Q_tilt = a a^T + b b^T on (v_N, yaw): the columns d/droll and
     d/dpitch of :func:`tilt_jacobian`, velocity rows times velocity_gain and the yaw row times
     yaw_gain (:func:`tilt_gains`). Plain float arithmetic (the fleet compiles it)."""
     return scaled_tilt_factors(tilt_jacobian(roll, pitch, yaw, fx, fy, fz, wy, wz), velocity_gain, yaw_gain)
 
 
-def scaled_tilt_factors(jacobian, velocity_gain, yaw_gain):
+def scaled_tilt_factors(jacobian, velocity_gain, yaw_gain) -> tuple[tuple[float, ...], tuple[float, ...]]:
     """:func:`tilt_noise_factors` of a :func:`tilt_jacobian` (d_roll, d_pitch)."""
     d_roll, d_pitch = jacobian
     a = (
@@ -348,7 +352,7 @@ def scaled_tilt_factors(jacobian, velocity_gain, yaw_gain):
     return a, b
 
 
-def tilt_process_noise(attitude, f_B, w_B, variance, velocity_time, yaw_time, dt):
+def tilt_process_noise(attitude, f_B, w_B, variance, velocity_time, yaw_time, dt) -> np.ndarray:
     """Q_tilt (4x4) for (v_N, yaw) of one predict step: variance * dt * S (J_r J_r^T + J_p J_p^T) S.
 
     J_r, J_p: :func:`tilt_jacobian` at attitude (roll, pitch, yaw rad), f_B (m/s^2) and w_B
@@ -377,7 +381,7 @@ class TiltNoise:
     dt: float
 
     @classmethod
-    def from_params(cls, params, attitude_filter, dt):
+    def from_params(cls, params, attitude_filter, dt) -> "TiltNoise | None":
         """The TiltNoise of EkfParams `params` and AttitudeFilterParams `attitude_filter`, or None
         when ``tilt_gyro_std`` is 0 (constant Q, as the reference)."""
         if params.tilt_gyro_std == 0.0:
@@ -390,15 +394,15 @@ class TiltNoise:
             float(dt),
         )
 
-    def variance(self, t):
+    def variance(self, t) -> float:
         """Roll/pitch error variance (rad^2) t s into the flight (:func:`tilt_variance`)."""
         return tilt_variance(t, self.gyro_std, self.tau, self.dt)
 
-    def gains(self, t):
+    def gains(self, t) -> tuple[float, float]:
         """(velocity_gain, yaw_gain) t s into the flight (:func:`tilt_gains`)."""
         return tilt_gains(self.variance(t), self.velocity_time, self.yaw_time, self.dt)
 
-    def process_noise(self, t, Q, attitude, f_B, w_B):
+    def process_noise(self, t, Q, attitude, f_B, w_B) -> np.ndarray:
         """Q (7x7) plus :func:`tilt_process_noise` on the (v_N, yaw) block, t s into the flight."""
         total = Q.copy()
         total[3:7, 3:7] += tilt_process_noise(

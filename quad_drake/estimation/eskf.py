@@ -67,7 +67,7 @@ H_GPS_15 = _constant(np.eye(6, 15))
 H_GPS_9 = _constant(np.eye(6, 9))
 
 
-def quat_exp(theta):
+def quat_exp(theta) -> tuple[float, float, float, float]:
     """Unit wxyz quaternion of the rotation vector theta (rad) as a 4-tuple."""
     tx, ty, tz = float(theta[0]), float(theta[1]), float(theta[2])
     angle = math.sqrt(tx * tx + ty * ty + tz * tz)
@@ -81,19 +81,19 @@ quat_mul = quat_product
 """Hamilton product a (x) b of two wxyz 4-sequences, as a 4-tuple (``rotations.quat_product``)."""
 
 
-def quat_normalized(q):
+def quat_normalized(q) -> tuple[float, float, float, float]:
     """The wxyz 4-tuple q divided by its norm."""
     qw, qx, qy, qz = q[0], q[1], q[2], q[3]
     n = 1.0 / math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
     return qw * n, qx * n, qy * n, qz * n
 
 
-def injected_attitude(q, dtheta):
+def injected_attitude(q, dtheta) -> tuple[float, float, float, float]:
     """q_NB (unit wxyz 4-tuple) after the attitude error dtheta (rad, world axes): Exp(dtheta) (x) q."""
     return quat_normalized(quat_mul(quat_exp(dtheta), q))
 
 
-def rotation_log(R):
+def rotation_log(R) -> np.ndarray:
     """Rotation vector (3, rad) of a rotation matrix, |angle| < pi (the inverse of Exp)."""
     cos_angle = max(-1.0, min(1.0, 0.5 * (float(np.trace(R)) - 1.0)))
     angle = math.acos(cos_angle)
@@ -103,7 +103,7 @@ def rotation_log(R):
     return axis * (angle / (2.0 * math.sin(angle)))
 
 
-def attitude_errors(q_hat, q_true):
+def attitude_errors(q_hat, q_true) -> np.ndarray:
     """(n, 3) dtheta with R_hat = Exp(dtheta) R_true per row (estimate minus truth, world axes, rad).
 
     q_hat, q_true: (n, 4) wxyz quaternions. Vectorised: dtheta = 2 sign(w) vec(q_hat (x) q_true^*)
@@ -134,12 +134,14 @@ def _skew(v0, v1, v2):
     return np.array([[0.0, -v2, v1], [v2, 0.0, -v0], [-v1, v0, 0.0]])
 
 
-def initial_nominal(position, velocity, q_NB, accel_bias=(0.0, 0.0, 0.0), gyro_bias=(0.0, 0.0, 0.0)):
+def initial_nominal(
+    position, velocity, q_NB, accel_bias=(0.0, 0.0, 0.0), gyro_bias=(0.0, 0.0, 0.0)
+) -> np.ndarray:
     """Nominal state (16,) from its parts (m, m/s, wxyz, m/s^2, rad/s)."""
     return np.concatenate([position, velocity, q_NB, accel_bias, gyro_bias]).astype(float)
 
 
-def write_estimate(x, estimate):
+def write_estimate(x, estimate) -> None:
     """Write the position, attitude and velocity of nominal states x (..., 16) into estimates
     (..., 13) in the true ``state`` layout (p_NB m, q_NB wxyz, v_NB m/s) IN PLACE; the body
     rate, estimate[..., 10:13], is left as it is (the prediction sets it from the IMU sample)."""
@@ -148,7 +150,9 @@ def write_estimate(x, estimate):
     estimate[..., 7:10] = x[..., V_IDX]
 
 
-def predict_nominal(x, f_B, w_B, dt):
+def predict_nominal(
+    x, f_B, w_B, dt
+) -> tuple[list[float], np.ndarray, np.ndarray, tuple[float, float, float]]:
     """(x', R_hat, R_hat', u_N): nominal after one IMU step (list of 16), rotations before and after
     (3x3 arrays), and u_N = R_hat (f_B - b_a) (m/s^2, the specific force in N, a 3-tuple).
 
@@ -159,7 +163,9 @@ def predict_nominal(x, f_B, w_B, dt):
     return list(x_new), np.array(r).reshape(3, 3), np.array(r_next).reshape(3, 3), u_N
 
 
-def nominal_step(x, f_B, w_B, dt):
+def nominal_step(
+    x, f_B, w_B, dt
+) -> tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...], tuple[float, float, float]]:
     """(x' (16-tuple), R_hat, R_hat' (9-tuples, row-major), u_N (3-tuple)) of
     :func:`predict_nominal`: plain float arithmetic, the code the compiled ESKF kernel runs.
 
@@ -205,7 +211,7 @@ class NoiseModel:
     gyro_bias_rate: float  # (rad/s)^2 / s
 
     @classmethod
-    def from_params(cls, params):
+    def from_params(cls, params) -> "NoiseModel":
         return cls(
             _constant(np.square(np.asarray(params.accel_std, dtype=float))),
             _constant(np.square(np.asarray(params.gyro_std, dtype=float))),
@@ -214,14 +220,14 @@ class NoiseModel:
         )
 
 
-def transition_buffer(n, dt):
+def transition_buffer(n, dt) -> np.ndarray:
     """An n x n identity with the constant dp/dv block I dt, for :func:`fill_transition`."""
     F = np.eye(n)
     F[0, 3] = F[1, 4] = F[2, 5] = dt
     return F
 
 
-def fill_transition(F, R, R_next, u_N, dt):
+def fill_transition(F, R, R_next, u_N, dt) -> np.ndarray:
     """Write the attitude-dependent blocks of the error transition into F (from transition_buffer).
 
     R, R_next: R_hat before and after the step; u_N = R (f_B - b_a) (m/s^2). Scalar writes of
@@ -243,12 +249,12 @@ def fill_transition(F, R, R_next, u_N, dt):
     return F
 
 
-def transition(R, R_next, u_N, dt, n):
+def transition(R, R_next, u_N, dt, n) -> np.ndarray:
     """Error transition F (n x n, n = 15 or 9) of one IMU step (see the module docstring)."""
     return fill_transition(transition_buffer(n, dt), R, R_next, u_N, dt)
 
 
-def noise_buffer(n, noise, dt):
+def noise_buffer(n, noise, dt) -> np.ndarray:
     """An n x n Q with the attitude-independent blocks filled: bias random walks, and the gyro's
     when its noise is the same on every axis (then R diag R^T = var I)."""
     Q = np.zeros((n, n))
@@ -260,7 +266,7 @@ def noise_buffer(n, noise, dt):
     return Q
 
 
-def fill_process_noise(Q, R, noise, dt):
+def fill_process_noise(Q, R, noise, dt) -> np.ndarray:
     """Write the attitude-dependent process-noise blocks into Q (from noise_buffer).
 
     Accelerometer: Q[0:6, 0:6] = G M G^T with M = R diag(accel_var) R^T and G = [dt^2/2 I; dt I];
@@ -277,12 +283,12 @@ def fill_process_noise(Q, R, noise, dt):
     return Q
 
 
-def process_noise(R, noise, dt, n):
+def process_noise(R, noise, dt, n) -> np.ndarray:
     """Q (n x n) of one IMU step at attitude R (see the module docstring); noise: NoiseModel."""
     return fill_process_noise(noise_buffer(n, noise, dt), R, noise, dt)
 
 
-def predict(x, P, f_B, w_B, dt, noise, F=None, Q=None):
+def predict(x, P, f_B, w_B, dt, noise, F=None, Q=None) -> tuple[list[float], np.ndarray]:
     """(x', P') after one IMU step: nominal propagation and P' = F P F^T + Q (symmetrised).
 
     noise: NoiseModel. F, Q: optional work buffers from transition_buffer / noise_buffer
@@ -299,7 +305,7 @@ def predict(x, P, f_B, w_B, dt, noise, F=None, Q=None):
     return x_new, P_new
 
 
-def joseph_update(P, H, R_meas, nu):
+def joseph_update(P, H, R_meas, nu) -> tuple[np.ndarray, np.ndarray, float]:
     """(dx, P', nis): the error-state correction of innovation nu (m) with Jacobian H (m x n).
 
     S = H P H^T + R; K = P H^T S^-1; P' = (I - K H) P (I - K H)^T + K R K^T (symmetrised);
@@ -317,7 +323,7 @@ def joseph_update(P, H, R_meas, nu):
     return K @ nu, 0.5 * (P_new + P_new.T), float(nu @ solved[:, -1])
 
 
-def inject(x, P, dx):
+def inject(x, P, dx) -> tuple[np.ndarray, np.ndarray]:
     """(x', P'): the error dx (n) injected into the nominal x (16) and P reset by G (module docstring).
 
     G differs from I only in its attitude block A = I + [dtheta]x / 2, so G P G^T is formed as
@@ -336,14 +342,14 @@ def inject(x, P, dx):
     return x, P
 
 
-def reset_jacobian(dtheta, n):
+def reset_jacobian(dtheta, n) -> np.ndarray:
     """G (n x n): identity with the attitude block I + [dtheta]x / 2."""
     G = np.eye(n)
     G[6:9, 6:9] += 0.5 * _skew(dtheta[0], dtheta[1], dtheta[2])
     return G
 
 
-def gps_update(x, P, gps_pv, R_gps):
+def gps_update(x, P, gps_pv, R_gps) -> tuple[np.ndarray, np.ndarray, float]:
     """(x', P', nis) after fusing a GPS sample (p_N m, v_N m/s); R_gps (6x6).
 
     A non-finite sample gives (x, P, nan). The caller decides the gate on nis (a gated
@@ -361,13 +367,13 @@ def gps_update(x, P, gps_pv, R_gps):
     return x_new, P_new, nis
 
 
-def yaw_and_jacobian(q):
+def yaw_and_jacobian(q) -> tuple[float, np.ndarray]:
     """(yaw (rad), dyaw/dtheta (3,)) of the nominal attitude q (wxyz), for R = Exp(dtheta) R_hat."""
     yaw, h_theta = yaw_and_jacobian_of(float(q[0]), float(q[1]), float(q[2]), float(q[3]))
     return yaw, np.array(h_theta)
 
 
-def yaw_and_jacobian_of(qw, qx, qy, qz):
+def yaw_and_jacobian_of(qw, qx, qy, qz) -> tuple[float, tuple[float, float, float]]:
     """:func:`yaw_and_jacobian` of the floats (qw, qx, qy, qz), the Jacobian as a 3-tuple: h =
     atan2(R10, R00), H_theta = (-R00 R20 / d, -R10 R20 / d, 1) with d = R00^2 + R10^2."""
     r00 = 1.0 - 2.0 * (qy * qy + qz * qz)
@@ -377,7 +383,7 @@ def yaw_and_jacobian_of(qw, qx, qy, qz):
     return math.atan2(r10, r00), (-r00 * r20 / d, -r10 * r20 / d, 1.0)
 
 
-def mag_update(x, P, yaw_meas, R_mag):
+def mag_update(x, P, yaw_meas, R_mag) -> tuple[np.ndarray, np.ndarray, float]:
     """(x', P', nis) after fusing a magnetometer yaw (rad) with variance R_mag (1x1); NaN sample skipped.
 
     Scalar Joseph form: with b = P H^T, S = H b + r and K = b / S,
@@ -399,17 +405,17 @@ def mag_update(x, P, yaw_meas, R_mag):
     return x_new, P_new, nu * nu / S
 
 
-def gps_noise(params):
+def gps_noise(params) -> np.ndarray:
     """R_gps (6x6) = diag(gps_pos_std^2, gps_vel_std^2), m^2 and (m/s)^2."""
     return np.diag(np.square(list(params.gps_pos_std) + list(params.gps_vel_std)))
 
 
-def mag_noise(params):
+def mag_noise(params) -> np.ndarray:
     """R_mag (1x1) = [mag_yaw_std^2], rad^2."""
     return np.array([[params.mag_yaw_std**2]])
 
 
-def initial_covariance(params):
+def initial_covariance(params) -> np.ndarray:
     """P0 (15 or 9 square) = diag(init_std^2) of (p, v, theta[, b_a, b_g])."""
     std = list(params.init_pos_std) + list(params.init_vel_std) + list(params.init_att_std)
     if params.estimate_biases:

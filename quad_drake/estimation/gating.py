@@ -52,14 +52,14 @@ STAMP_TOLERANCE = 1e-9
 """s: stamps are sums of sensor periods, so 0.5 s of 10 Hz samples may read 0.49999999999999994."""
 
 
-def false_alarm_probability(gate_sigma):
+def false_alarm_probability(gate_sigma) -> float:
     """Probability that a consistent sample fails a ``gate_sigma`` gate (any dof); 0 when the gate is off."""
     if gate_sigma <= 0.0:
         return 0.0
     return math.erfc(gate_sigma / math.sqrt(2.0))
 
 
-def gate_threshold(dof, gate_sigma):
+def gate_threshold(dof, gate_sigma) -> float:
     """NIS threshold of a ``gate_sigma`` gate on a ``dof``-dimensional innovation (inf when off)."""
     if dof < 1:
         raise ValueError(f"gate_threshold: dof must be >= 1, got {dof}")
@@ -87,7 +87,7 @@ class GpsGates:
     consistency_weight: float = 0.0
 
     @classmethod
-    def from_params(cls, params, enabled=True):
+    def from_params(cls, params, enabled=True) -> "GpsGates":
         """The policy of an estimator's parameters (``gps_gate_sigma``, ``gps_reset_timeout``
         (horizontal position), ``gps_height_reset_timeout``, ``gps_vel_reset_timeout``,
         ``gps_regain_time``, ``gps_gate_adaptation``); ``enabled=False``: no gates and no resets
@@ -106,12 +106,12 @@ class GpsGates:
         )
 
 
-def innovation_nis(nu, S):
+def innovation_nis(nu, S) -> np.ndarray:
     """(M,) nu^T S^-1 nu of innovations nu (M, m) with covariances S (M, m, m)."""
     return np.einsum("ij,ij->i", nu, np.linalg.solve(S, nu[..., None])[..., 0])
 
 
-def gps_group_nis(nu, S):
+def gps_group_nis(nu, S) -> np.ndarray:
     """(M, 3) NIS of each GPS group (GPS_GROUPS) of the innovations nu (M, 6) with covariance S
     (M, 6, 6): each group against its own marginal block of S."""
     out = np.empty((len(nu), len(GPS_GROUPS)))
@@ -121,7 +121,7 @@ def gps_group_nis(nu, S):
     return out
 
 
-def gps_gate_decisions(group_nis, stamps, book, gates):
+def gps_gate_decisions(group_nis, stamps, book, gates) -> tuple[np.ndarray, np.ndarray]:
     """What to do with M finite GPS samples: (accepted (M, 3), reset (M, 3)); updates book IN PLACE.
 
     group_nis (M, 3) from :func:`gps_group_nis` of the prior; stamps (M,) s, the samples'
@@ -155,7 +155,7 @@ def gps_gate_decisions(group_nis, stamps, book, gates):
     return accepted, reset
 
 
-def initial_gps_book():
+def initial_gps_book() -> np.ndarray:
     """A filter's GPS book (GPS_BOOK_SIZE) before its first sample (see :func:`gps_gate_decisions`):
     its start, t = 0, is its last aiding; no rejections; means 1."""
     book = np.empty(GPS_BOOK_SIZE)
@@ -165,7 +165,7 @@ def initial_gps_book():
     return book
 
 
-def component_mask(groups):
+def component_mask(groups) -> np.ndarray:
     """(M, 6) bool over a GPS sample's components of a per-group flag array (M, 3)."""
     mask = np.empty((len(groups), 6), dtype=bool)
     for g, components in enumerate(GPS_GROUP_COMPONENTS):
@@ -173,7 +173,7 @@ def component_mask(groups):
     return mask
 
 
-def reset_states(x, P, indices, values, covariance):
+def reset_states(x, P, indices, values, covariance) -> tuple[np.ndarray, np.ndarray]:
     """(x', P') of M filters with x[:, indices] = values, that block of P = covariance and no
     cross-covariance with the other states (a reset to a measurement).
 
@@ -190,7 +190,7 @@ def reset_states(x, P, indices, values, covariance):
     return x, P
 
 
-def covariance_looks_healthy(P):
+def covariance_looks_healthy(P) -> bool:
     """Cheap per-step check: every entry finite and every variance >= 0 (not a full PSD test).
 
     Plain loops over a square array, the code the compiled estimator kernels run per vehicle
@@ -205,7 +205,7 @@ def covariance_looks_healthy(P):
     return math.isfinite(total)
 
 
-def repaired_covariance(P, fallback):
+def repaired_covariance(P, fallback) -> tuple[np.ndarray, int]:
     """(P', outcome): P made symmetric positive semi-definite, and which repair it took.
 
     A non-finite P becomes ``fallback`` (COVARIANCE_RESET); a P with a negative eigenvalue

@@ -64,12 +64,12 @@ class MagFieldFusionParams:
     tilt_std: float = number(0.0, nonnegative=True)  # rad, EKF7: the roll/pitch error the heading carries
 
 
-def assumed_world_field(params):
+def assumed_world_field(params) -> tuple[float, float, float]:
     """m_N (3-tuple, gauss, NED) of MagFieldFusionParams."""
     return world_field(params.field_strength, params.declination, params.inclination)
 
 
-def predicted_field(qw, qx, qy, qz, mx, my, mz):
+def predicted_field(qw, qx, qy, qz, mx, my, mz) -> tuple[float, float, float]:
     """h(x) = R_NB^T m_N (3-tuple, gauss, body FRD) of the unit quaternion q_NB (wxyz) and the
     world field m_N = (mx, my, mz) (gauss, NED)."""
     r = rotation_entries(qw, qx, qy, qz)
@@ -80,7 +80,7 @@ def predicted_field(qw, qx, qy, qz, mx, my, mz):
     )
 
 
-def field_attitude_jacobian(qw, qx, qy, qz, mx, my, mz):
+def field_attitude_jacobian(qw, qx, qy, qz, mx, my, mz) -> np.ndarray:
     """d h / d dtheta = R_hat^T [m_N]x (3 x 3 array, gauss/rad) for R_NB = Exp(dtheta) R_hat
     (module docstring)."""
     r = rotation_entries(qw, qx, qy, qz)
@@ -94,7 +94,7 @@ def field_attitude_jacobian(qw, qx, qy, qz, mx, my, mz):
     return J
 
 
-def field_jacobian(q, m_N, n):
+def field_jacobian(q, m_N, n) -> np.ndarray:
     """H (3 x n) of the field against the ESKF's error state of size n (9 or 15): the attitude
     block (columns 6..8, dtheta) of :func:`field_attitude_jacobian`, zero elsewhere."""
     H = np.zeros((3, n))
@@ -105,7 +105,7 @@ def field_jacobian(q, m_N, n):
     return H
 
 
-def inverse3(S):
+def inverse3(S) -> tuple[np.ndarray, float]:
     """(S^-1 (3 x 3), det) of a 3 x 3 matrix in closed form (cofactors); det <= 0 for a
     covariance that is not positive definite (then the inverse is not to be used)."""
     a, b, c = S[0, 0], S[0, 1], S[0, 2]
@@ -124,7 +124,9 @@ def inverse3(S):
     return inv, det
 
 
-def field_innovation(q, P, m_B, m_N, hard_iron, field_var):
+def field_innovation(
+    q, P, m_B, m_N, hard_iron, field_var
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """(nu (3,), H (3 x n), S (3 x 3), nis) of a 3-axis sample m_B (gauss, FRD) against the ESKF
     at its nominal attitude q (wxyz) and covariance P (n x n): nu = (m_B - hard_iron) - R_hat^T m_N,
     H from :func:`field_jacobian`, S = H P H^T + diag(field_var), nis = nu^T S^-1 nu (NaN when S is
@@ -158,7 +160,7 @@ def field_innovation(q, P, m_B, m_N, hard_iron, field_var):
     return nu, H, S, nis
 
 
-def sequential_field_update(P, nu, H, field_var):
+def sequential_field_update(P, nu, H, field_var) -> tuple[np.ndarray, np.ndarray]:
     """(dx (n,), P' (n x n)): the field innovation nu (3,) fused one axis at a time with the rows
     of H (3 x n, taken at the prior) and the diagonal noise field_var (3,): for each axis i the
     scalar Joseph update b = P h_i^T, S_i = h_i b + r_i, K = b / S_i, dx += K (nu_i - h_i dx),
@@ -189,7 +191,7 @@ def sequential_field_update(P, nu, H, field_var):
     return dx, P
 
 
-def eskf_field_update(x, P, m_B, m_N, hard_iron, field_var):
+def eskf_field_update(x, P, m_B, m_N, hard_iron, field_var) -> tuple[np.ndarray, np.ndarray, float]:
     """Oracle: (x', P', nis) of the ESKF (nominal x (16,), P (9 or 15 square)) fusing a 3-axis
     sample m_B (gauss) with the dense batch update: ``eskf.joseph_update`` with H of
     :func:`field_jacobian` and R = diag(field_var), then ``eskf.inject``. A non-finite sample
@@ -209,7 +211,7 @@ def eskf_field_update(x, P, m_B, m_N, hard_iron, field_var):
     return x_new, P_new, nis
 
 
-def leveled_field(roll, pitch, mx, my, mz):
+def leveled_field(roll, pitch, mx, my, mz) -> tuple[float, float, float]:
     """l = Ry(pitch) Rx(roll) m_B (3-tuple, gauss): the body field with the tilt taken out,
     = Rz(yaw)^T m_N (roll, pitch in rad; m_B gauss, FRD)."""
     cr, sr, cp, sp = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch)
@@ -217,7 +219,7 @@ def leveled_field(roll, pitch, mx, my, mz):
     return cp * mx + sp * rolled_z, cr * my - sr * mz, -sp * mx + cp * rolled_z
 
 
-def tilt_compensated_heading(roll, pitch, mx, my, mz, declination):
+def tilt_compensated_heading(roll, pitch, mx, my, mz, declination) -> float:
     """Yaw (rad, wrapped to [-pi, pi)) of a body field m_B (gauss, FRD, hard iron removed) at
     roll and pitch (rad): atan2(-l_y, l_x) + declination with l = :func:`leveled_field`."""
     lx, ly, _ = leveled_field(roll, pitch, mx, my, mz)
@@ -225,7 +227,7 @@ def tilt_compensated_heading(roll, pitch, mx, my, mz, declination):
     return (yaw + math.pi) % (2.0 * math.pi) - math.pi
 
 
-def heading_jacobians(roll, pitch, mx, my, mz):
+def heading_jacobians(roll, pitch, mx, my, mz) -> tuple[tuple[float, float, float], tuple[float, float]]:
     """(d yaw / d m_B (3-tuple, rad/gauss), d yaw / d (roll, pitch) (2-tuple, rad/rad)) of
     :func:`tilt_compensated_heading`.
 
@@ -243,7 +245,7 @@ def heading_jacobians(roll, pitch, mx, my, mz):
     return d_field, d_tilt
 
 
-def heading_variances(roll, pitch, mx, my, mz, field_var, tilt_var):
+def heading_variances(roll, pitch, mx, my, mz, field_var, tilt_var) -> tuple[float, float]:
     """(field part, tilt part) of :func:`heading_variance` (rad^2): J_m diag(field_var) J_m^T, white
     from sample to sample, and tilt_var |J_tilt|^2, the share of the attitude filter's roll/pitch
     error, which changes slowly (a bias common to many samples)."""
@@ -253,7 +255,7 @@ def heading_variances(roll, pitch, mx, my, mz, field_var, tilt_var):
     return field_part, tilt_var * (d_tilt[0] ** 2 + d_tilt[1] ** 2)
 
 
-def floored_yaw_variance(p_yaw, tilt_part):
+def floored_yaw_variance(p_yaw, tilt_part) -> float:
     """The EKF7's yaw variance (rad^2) after a heading fusion: at least the heading's tilt part.
 
     The tilt error that levels the field is common to many samples (the attitude filter's roll and
@@ -262,7 +264,7 @@ def floored_yaw_variance(p_yaw, tilt_part):
     return tilt_part if p_yaw < tilt_part else p_yaw
 
 
-def heading_variance(roll, pitch, mx, my, mz, field_var, tilt_var):
+def heading_variance(roll, pitch, mx, my, mz, field_var, tilt_var) -> float:
     """Variance (rad^2) of :func:`tilt_compensated_heading` from the field noise field_var (3,
     gauss^2, body axes) and the roll/pitch error variance tilt_var (rad^2 each, independent):
     J_m diag(field_var) J_m^T + tilt_var |J_tilt|^2 (:func:`heading_jacobians`)."""

@@ -66,7 +66,7 @@ tilt-compensated heading, barometer height, the ESKF's 3-axis field)."""
 NIS_COLUMNS = {sensor: (DIAG[f"{sensor}_nis"], DIAG[f"{sensor}_stamp"]) for sensor in NIS_DOF}
 
 
-def initial_diagnostics():
+def initial_diagnostics() -> np.ndarray:
     """One vehicle's ``diagnostics`` before its first update: no NIS (NaN), no stamps (-1),
     counters 0, no baro bias estimate (NaN)."""
     values = np.zeros(DIAGNOSTICS_SIZE)
@@ -95,14 +95,14 @@ class EstimatorVocabulary:
     extra_values: Callable  # (logs) -> {name: (n,)} estimated values beyond ESTIMATED_VALUES (also (n, N))
 
     @property
-    def size(self):
+    def size(self) -> int:
         return len(self.state_names)
 
     @property
-    def nees_dof(self):
+    def nees_dof(self) -> int:
         return len(self.nees_states)
 
-    def log_widths(self):
+    def log_widths(self) -> dict[str, int]:
         """{log name: width} of every log this estimator exports."""
         widths = {
             "estimated_state": STATE_LOG_SIZE,
@@ -112,11 +112,11 @@ class EstimatorVocabulary:
         widths.update(self.logs)
         return widths
 
-    def unit(self, name):
+    def unit(self, name) -> str:
         return self.units[self.state_names.index(name)]
 
 
-def ekf7_errors(logs):
+def ekf7_errors(logs) -> np.ndarray:
     """(n, 7) x_hat - x_true of the EKF7 (m, m/s, rad; yaw wrapped) from ``ekf_state`` and the
     truth of ``error_sampling.error_truth`` ((n, N, 7) of a fleet batch's (n, N, width) logs)."""
     state = np.asarray(error_truth(logs), dtype=float)
@@ -127,7 +127,7 @@ def ekf7_errors(logs):
     return errors
 
 
-def eskf_errors(logs):
+def eskf_errors(logs) -> np.ndarray:
     """(n, 9 or 15) estimate minus truth of the ESKF's error state ((n, N, 9 or 15) of a batch).
 
     Against the truth of ``error_sampling.error_truth``. p, v from ``estimated_state``; the
@@ -197,7 +197,7 @@ EULER_STATES = ("X", "Y", "Z", "VX", "VY", "VZ", "Roll", "Pitch", "Yaw")
 angles of the body FRD frame (rad)."""
 
 
-def euler_errors(names):
+def euler_errors(names) -> Callable[[dict], np.ndarray]:
     """The errors function ((n, len(names)) estimate minus truth, Euler angles wrapped) of a state
     whose entries `names` are from :data:`EULER_STATES`, read from ``estimated_state``."""
     columns = [EULER_STATES.index(name) for name in names]
@@ -220,7 +220,7 @@ def euler_errors(names):
     return errors
 
 
-def euler_vocabulary(kind, names):
+def euler_vocabulary(kind, names) -> EstimatorVocabulary:
     """The EstimatorVocabulary of an estimator whose state entries `names` (from
     :data:`EULER_STATES`) are all read from ``estimated_state`` (a custom estimator's); NEES over
     every entry."""
@@ -248,14 +248,14 @@ STATE_UNITS = {
 """Unit of every error-state name any estimator uses (the names mean the same in each)."""
 
 
-def health_counts(diagnostics):
+def health_counts(diagnostics) -> dict[str, int]:
     """{counter: final count} of a ``diagnostics`` log (n, DIAGNOSTICS_SIZE); zeros when empty."""
     diagnostics = np.asarray(diagnostics, dtype=float)
     last = diagnostics[-1] if diagnostics.shape[0] else np.zeros(DIAGNOSTICS_SIZE)
     return {name: int(last[DIAG[name]]) for name in COUNTERS}
 
 
-def health_line(vehicle, kind, counts):
+def health_line(vehicle, kind, counts) -> str:
     """One console/report line of an estimator's counters; starts with WARNING when the covariance
     was repaired or reset, or the filter reset itself to the GPS."""
     text = (

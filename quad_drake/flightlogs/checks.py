@@ -26,13 +26,13 @@ IMU_GAP = 0.1
 """s: an interval between IMU samples longer than this is a gap (a dropout in the log)."""
 
 
-def imu_rate(log):
+def imu_rate(log) -> float:
     """Hz: the log's median IMU rate (the inverse of the median interval)."""
     intervals = np.diff(log.imu.times)
     return 1.0 / float(np.median(intervals)) if len(intervals) else 0.0
 
 
-def log_warnings(log, compare_after=0.0):
+def log_warnings(log, compare_after=0.0) -> list[str]:
     """[one-line warning] of a FlightLog that can be replayed; FlightLogError if it cannot.
     compare_after: s from the start before the replay compares anything (a log that leaves less
     than SHORT_COMPARISON s after it is said to be short)."""

@@ -18,7 +18,7 @@ TABLE_STATES = ("Roll", "Pitch", "Yaw", "X", "Y", "Z", "VX", "VY", "VZ")
 LOG_SUFFIXES = (".ulg", ".csv")
 
 
-def expand_logs(names):
+def expand_logs(names) -> list[str]:
     """The logs of the command line's LOG arguments: a folder stands for its .ulg and .csv files
     (sorted); anything else as given. ConfigError for a folder without any."""
     logs = []
@@ -52,7 +52,7 @@ def _out_folder(args, log):
     return out, reproduced
 
 
-def result_lines(result):
+def result_lines(result) -> list[str]:
     """The console lines of a ReplayResult: differences, NIS, health and notes."""
     lines = [f"  against PX4's own estimate (another estimator, not the truth), from {COMPARE_AFTER:g} s on:"]
     if result.attitude or result.position:
@@ -89,7 +89,7 @@ def result_lines(result):
     return lines
 
 
-def replay_command(args):
+def replay_command(args) -> int:
     """Run ``quad-drake replay`` (README "Replaying flight logs"): one log, or each of many and one
     table over them (``replay_table.csv`` in the output folder). Exit code 0 when every log
     replayed; 2 when one could not (its line printed, the others replayed and saved)."""
@@ -115,7 +115,7 @@ def replay_command(args):
     return 2 if failed else 0
 
 
-def table_row(config, result, error=""):
+def table_row(config, result, error="") -> dict[str, str]:
     """{column: text} of one log in the table over many: its RMS differences (or n/a reasons)."""
     row = {"log": Path(config.log).stem, "estimator": config.estimator.kind}
     if result is None:
@@ -128,7 +128,7 @@ def table_row(config, result, error=""):
     return row | {"note": ""}
 
 
-def print_table(rows):
+def print_table(rows) -> None:
     """Print the table over many logs (n/a reasons shortened to n/a; the CSV keeps them)."""
     columns = ["log", "estimator", "duration_s", *TABLE_STATES]
     widths = {c: max(len(c), *(len(_short(r[c])) for r in rows)) for c in columns}
@@ -141,7 +141,7 @@ def _short(text):
     return "n/a" if text.startswith("n/a") else text
 
 
-def save_table(rows, path):
+def save_table(rows, path) -> Path:
     """Write the table over many logs as CSV (every column, the n/a reasons whole); its path."""
     import csv
     import io

@@ -46,7 +46,7 @@ class StateDifference:
     differences: np.ndarray  # (count,)
     reason: str = ""  # why nothing was compared (count 0): "n/a: ..."; "" when compared
 
-    def figure(self, value, digits=4):
+    def figure(self, value, digits=4) -> str:
         """`value` (one of this difference's figures) as text: the number, or the n/a reason."""
         return self.reason if self.count == 0 else f"{value:.{digits}f}"
 
@@ -77,13 +77,13 @@ class NisSummary:
     values: np.ndarray  # (count,)
 
 
-def estimate_angles(estimated_state):
+def estimate_angles(estimated_state) -> np.ndarray:
     """(n, 3) roll, pitch, yaw (rad) of an ``estimated_state`` log (n, 13)."""
     roll, pitch, yaw = euler_from_quats(np.asarray(estimated_state)[:, 3:7])
     return np.column_stack([roll, pitch, yaw])
 
 
-def attitude_sigmas(vocabulary, covariance, yaw):
+def attitude_sigmas(vocabulary, covariance, yaw) -> np.ndarray:
     """(n, 3) our σ of roll, pitch, yaw (rad) from a covariance log (n, k*k): the EKF7 has a yaw σ
     only (its roll and pitch come from the complementary filter: NaN); the ESKF's rotation error
     about N, E, D, turned into the heading frame (roll about the heading's x, pitch about its y)."""
@@ -103,7 +103,7 @@ def attitude_sigmas(vocabulary, covariance, yaw):
     return sigmas
 
 
-def state_sigmas(vocabulary, covariance, states):
+def state_sigmas(vocabulary, covariance, states) -> np.ndarray:
     """(n, len(states)) our σ of each named state from a covariance log (n, k*k); NaN for a state
     the vocabulary does not name."""
     k = vocabulary.size
@@ -125,7 +125,7 @@ def _interpolated(times, values, at, angle=False):
     return np.interp(at, times, values)
 
 
-def missing_reason(state, times, ref_times, reference, compare_after):
+def missing_reason(state, times, ref_times, reference, compare_after) -> str:
     """Why nothing of `state` is compared ("n/a: ..."), given our log's `times` and the reference's
     `ref_times` and values `reference` (NaN: invalid); "" when something is."""
     window = (ref_times >= max(compare_after, times[0])) & (ref_times <= times[-1])
@@ -140,7 +140,7 @@ def missing_reason(state, times, ref_times, reference, compare_after):
     return ""
 
 
-def unavailable(state, reason):
+def unavailable(state, reason) -> StateDifference:
     """The StateDifference of a state not compared, for `reason` ("n/a: ...")."""
     nan, empty = math.nan, np.zeros(0)
     return StateDifference(state, UNITS[state], 0, nan, nan, nan, nan, empty, empty, reason)
@@ -172,7 +172,7 @@ def _difference(state, times, ours, sigma, ref_times, reference, compare_after, 
     )
 
 
-def compare_attitude(vocabulary, times, logs, reference, compare_after):
+def compare_attitude(vocabulary, times, logs, reference, compare_after) -> list[StateDifference]:
     """[StateDifference] of roll, pitch, yaw against the reference attitude Samples (q_NB wxyz)."""
     angles = estimate_angles(logs["estimated_state"])
     sigmas = attitude_sigmas(vocabulary, logs["covariance"], angles[:, 2])
@@ -183,7 +183,9 @@ def compare_attitude(vocabulary, times, logs, reference, compare_after):
     ]
 
 
-def compare_position(vocabulary, times, logs, reference, compare_after, horizontal=""):
+def compare_position(
+    vocabulary, times, logs, reference, compare_after, horizontal=""
+) -> list[StateDifference]:
     """[StateDifference] of x, y, z, vx, vy, vz against the reference position Samples;
     horizontal: "" to compare x and y, else why not ("n/a: ...", e.g. a log without GPS)."""
     state = np.asarray(logs["estimated_state"], dtype=float)
@@ -206,7 +208,7 @@ def compare_position(vocabulary, times, logs, reference, compare_after, horizont
     ]
 
 
-def nis_summary(diagnostics, sensor, compare_after=0.0, probability=0.95):
+def nis_summary(diagnostics, sensor, compare_after=0.0, probability=0.95) -> NisSummary | None:
     """NisSummary of the fresh `sensor` ("gps" or "mag") updates in a diagnostics log from
     compare_after s on; None when there are none."""
     stamps, values = fresh_nis(diagnostics, sensor)
@@ -229,7 +231,7 @@ INNOVATION_NAMES = {"gps": POSITION_STATES, "mag": ("Yaw",)}
 """The components of each sensor's innovation: GPS p_N (m), v_N (m/s); magnetometer yaw (rad)."""
 
 
-def innovations(logs, sensor, compare_after=0.0):
+def innovations(logs, sensor, compare_after=0.0) -> tuple[np.ndarray, np.ndarray]:
     """(stamps (m,) s, innovations (m, k)) of each fresh `sensor` sample ("gps" or "mag") in the
     replay's logs from compare_after s on: the sample minus our estimate logged before it arrived
     (the prior to within one LOG_PERIOD, 5 ms; the yaw difference wrapped), in the order of
@@ -266,7 +268,7 @@ class TruthError:
     px4_rms: float
     reason: str = ""  # "n/a: ..." when nothing was judged
 
-    def figure(self, value, digits=4):
+    def figure(self, value, digits=4) -> str:
         """`value` as text: the number, or the n/a reason (PX4's: "n/a" where PX4 marks it invalid)."""
         if self.count == 0:
             return self.reason
@@ -331,7 +333,7 @@ def _our_columns(logs):
     return np.column_stack([estimate_angles(state), state[:, 0:3], state[:, 7:10]])
 
 
-def truth_errors(times, logs, log, compare_after):
+def truth_errors(times, logs, log, compare_after) -> list[TruthError]:
     """[TruthError] of ours and PX4's estimates against a FlightLog's ground truth (module
     docstring), at our logged `times` from compare_after s on; [] without a ground truth."""
     if log.truth_attitude is None and log.truth_position is None:
@@ -358,7 +360,7 @@ def truth_errors(times, logs, log, compare_after):
     return errors
 
 
-def truth_nees(vocabulary, times, logs, log, compare_after, probability=0.95):
+def truth_nees(vocabulary, times, logs, log, compare_after, probability=0.95) -> list[NeesSummary]:
     """[NeesSummary] of our position and velocity blocks (those the vocabulary names) against the
     ground truth from compare_after s on; [] without a ground truth position."""
     if log.truth_position is None:

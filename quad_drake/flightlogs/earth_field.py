@@ -63,7 +63,7 @@ class MagnetometerModel:
     notes: tuple
 
 
-def world_field(latitude, longitude, altitude, year):
+def world_field(latitude, longitude, altitude, year) -> tuple[float, float, float]:
     """(declination rad, inclination rad, strength gauss) of the World Magnetic Model at a point
     (deg, deg, m above the ellipsoid) and decimal year, with the model of that year (the nearest
     one outside 2010-2030)."""
@@ -81,13 +81,13 @@ def world_field(latitude, longitude, altitude, year):
     return math.radians(result.d), math.radians(result.i), result.f / NANOTESLA_PER_GAUSS
 
 
-def learned_bias(parameters):
+def learned_bias(parameters) -> tuple[float, ...]:
     """(3-tuple gauss, FRD) PX4 EKF2's learned magnetometer bias ``EKF2_MAGBIAS_X/Y/Z``; zeros
     when the log does not hold them."""
     return tuple(float(parameters.get(f"EKF2_MAGBIAS_{axis}", 0.0)) for axis in "XYZ")
 
 
-def measured_field(log, hard_iron):
+def measured_field(log, hard_iron) -> tuple[float, float]:
     """(strength gauss, inclination rad) of the log's own field: the median |m_B - hard_iron| and
     the median inclination against the accelerometer's gravity over the first ALIGNMENT_TIME s."""
     field = log.mag_field.values - np.asarray(hard_iron)
@@ -99,7 +99,7 @@ def measured_field(log, hard_iron):
     return strength, float(np.arcsin(np.clip(np.median(sines), -1.0, 1.0)))
 
 
-def magnetometer_model(log, current_year=None):
+def magnetometer_model(log, current_year=None) -> MagnetometerModel:
     """MagnetometerModel of a FlightLog with a magnetometer (module docstring). current_year:
     decimal year used when the log has a fix but no UTC time (default: the newest model's epoch)."""
     hard_iron = learned_bias(log.parameters)

@@ -134,7 +134,7 @@ def _innovations_figure(result, path):
     return _save(fig, path)
 
 
-def write_plots(result, out_dir):
+def write_plots(result, out_dir) -> list[tuple[str, Path]]:
     """[(caption, png path)] of the replay's figures, written into out_dir."""
     out_dir = Path(out_dir)
     plots = [("Attitude: ours and PX4's", _traces_figure(result, out_dir / "attitude.png"))]
@@ -185,7 +185,7 @@ def _difference_rows(differences):
     ]
 
 
-def write_report(result, path, plots=()):
+def write_report(result, path, plots=()) -> Path:
     """report.html of a ReplayResult: the statement, what was judged, differences, NIS, plots, config."""
     path = Path(path)
     config, log = result.config, result.log
@@ -286,7 +286,7 @@ def write_report(result, path, plots=()):
     return write_text_atomic(path, html_page(f"quad_drake replay: {config.name}", "\n".join(parts)))
 
 
-def write_replay_artifacts(result, out_dir):
+def write_replay_artifacts(result, out_dir) -> Path:
     """The replay folder's plots and report.html (after removing an earlier replay's); the report's path."""
     remove_stale(out_dir, REPLAY_ARTIFACTS)
     return write_report(result, Path(out_dir) / "report.html", write_plots(result, out_dir))

@@ -132,11 +132,11 @@ class FlightLog:
     heading: Samples | None = None
 
     @property
-    def duration(self):
+    def duration(self) -> float:
         """s from the first to the last IMU sample."""
         return float(self.imu.times[-1])
 
-    def sensors(self):
+    def sensors(self) -> list[str]:
         """Names of the sensors the log holds besides the IMU, e.g. ``["gps", "mag", "baro"]``."""
         present = {"gps": self.gps, "mag": self.mag_field, "heading": self.heading, "baro": self.baro}
         return [name for name, samples in present.items() if samples is not None]
@@ -188,7 +188,7 @@ US = 1e-6
 """s per microsecond (ULog timestamps)."""
 
 
-def read_flight_log(path):
+def read_flight_log(path) -> FlightLog:
     """FlightLog of a ``.ulg`` (PX4 ULog) or ``.csv`` file (module docstring); FlightLogError if bad."""
     path = Path(path)
     if not path.is_file():
@@ -250,7 +250,7 @@ def _to_local(latitude, longitude, altitude, origin):
 # ----- ULog ------------------------------------------------------------------------------------
 
 
-def read_ulog(path):
+def read_ulog(path) -> FlightLog:
     """FlightLog of a PX4 ULog file (module docstring); FlightLogError for a bad log."""
     from pyulog import ULog
 
@@ -334,7 +334,7 @@ ULOG_HEADER_SIZE = 16
 """Bytes of a ULog file's header (magic, version, timestamp) before its first message."""
 
 
-def ends_mid_message(path):
+def ends_mid_message(path) -> bool:
     """True when the ULog file at `path` ends inside a message (its last message cut short):
     every ULog message starts with a 3-byte header (uint16 payload size, uint8 type), so walking
     them from the file header on must land exactly on the file's end."""
@@ -506,7 +506,7 @@ def _ulog_local_position(path, topics, origin, anchor):
 # ----- CSV -------------------------------------------------------------------------------------
 
 
-def read_csv(path):
+def read_csv(path) -> FlightLog:
     """FlightLog of a CSV file in the format of the module docstring; FlightLogError if bad."""
     path = Path(path)
     rows = {kind: [] for kind in CSV_SENSORS}

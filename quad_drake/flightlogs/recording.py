@@ -17,6 +17,7 @@ later at its measurement time, is the format's open end for issue 39).
 """
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from pydrake.common import RandomGenerator
@@ -47,7 +48,7 @@ class RecordedRun:
     truth: np.ndarray
 
 
-def record_run(scenario, vehicle_index=0):
+def record_run(scenario, vehicle_index=0) -> RecordedRun:
     """RecordedRun of vehicle `vehicle_index` of a ScenarioConfig flown for its end_time with its
     seed (module docstring)."""
     vehicle = scenario.vehicles[vehicle_index]
@@ -79,7 +80,7 @@ def record_run(scenario, vehicle_index=0):
     return RecordedRun(vehicle, times, logs, tick_times, ticks, truth)
 
 
-def run_csv_rows(recorded):
+def run_csv_rows(recorded) -> list[str]:
     """The replay CSV rows of a RecordedRun (module docstring): header, then rows by kind."""
     rows = ["# a simulated run: the samples its estimator received", "time,sensor,v0,v1,v2,v3,v4,v5"]
     t = recorded.tick_times
@@ -104,7 +105,7 @@ def _rows(kind, times, values):
     ]
 
 
-def write_run_csv(recorded, path):
+def write_run_csv(recorded, path) -> Path:
     """Write a RecordedRun as a replay CSV at `path`; the path."""
     from quad_drake.output.outdir import write_text_atomic
 

@@ -25,12 +25,12 @@ from pathlib import Path
 
 import numpy as np
 from pydrake.systems.analysis import Simulator
-from pydrake.systems.framework import DiagramBuilder
-from pydrake.systems.primitives import LogVectorOutput
+from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.primitives import LogVectorOutput, VectorLogSink
 
 from quad_drake.conventions import LOG_PERIOD, ONBOARD_PERIOD
 from quad_drake.estimation.registry import vocabulary_for
-from quad_drake.estimation.vocabulary import health_counts, health_line
+from quad_drake.estimation.vocabulary import EstimatorVocabulary, health_counts, health_line
 from quad_drake.flightlogs import comparison, earth_field
 from quad_drake.flightlogs.checks import log_warnings
 from quad_drake.flightlogs.reader import Samples, read_flight_log
@@ -98,10 +98,10 @@ class ReplayResult:
     truth_nees: list = field(default_factory=list)  # [comparison.NeesSummary] of ours against it
 
     @property
-    def vocabulary(self):
+    def vocabulary(self) -> EstimatorVocabulary:
         return vocabulary_for(self.config.estimator)
 
-    def notes(self):
+    def notes(self) -> list[str]:
         """Lines that say what this replay could and could not judge."""
         lines = [
             "The reference is the flight controller's own estimate (PX4), another estimator and not "
@@ -137,10 +137,10 @@ class ReplayResult:
                 lines.append(f"{count} {stream} samples came faster than the 2 ms tick and were superseded.")
         return lines
 
-    def health_line(self):
+    def health_line(self) -> str:
         return health_line("replay", self.config.estimator.kind, health_counts(self.logs["diagnostics"]))
 
-    def summary(self):
+    def summary(self) -> dict:
         """The summary.json dict (kind ``"replay"``)."""
         return {
             "format_version": FORMAT_VERSION,
@@ -199,7 +199,7 @@ def _nis_dict(s):
     }
 
 
-def baro_pairing_period(baro):
+def baro_pairing_period(baro) -> float:
     """s: the barometer period the estimators' bias filter pairs GPS heights with (a GPS sample
     and the latest baro sample within half of it are taken as simultaneous): twice the log's
     median baro interval, rounded up to the 2 ms tick, so on two clocks at two rates every GPS
@@ -208,7 +208,7 @@ def baro_pairing_period(baro):
     return ONBOARD_PERIOD * math.ceil(2.0 * interval / ONBOARD_PERIOD - 1e-9)
 
 
-def magnetometer_for(log, config):
+def magnetometer_for(log, config) -> earth_field.MagnetometerModel | None:
     """The ``earth_field.MagnetometerModel`` of the log's magnetometer (``--set mag_declination``
     overriding its declination), or None without one."""
     if log.mag_field is None:
@@ -223,7 +223,7 @@ def magnetometer_for(log, config):
     return model
 
 
-def aiding_gps(log, config):
+def aiding_gps(log, config) -> tuple[Samples, bool, float | None]:
     """(GPS Samples to emit, fake position used, first fix s or None): the log's GPS; without one
     PX4's fake position (``fake_position``) over the whole log; with a late first fix (after
     LATE_FIX s) zero position and velocity samples every fake_position_period s before it, as
@@ -241,7 +241,7 @@ def aiding_gps(log, config):
     return Samples(times, np.vstack([before.values, log.gps.values])), False, first_fix
 
 
-def build_replay_diagram(log, config):
+def build_replay_diagram(log, config) -> tuple[Diagram, dict[str, VectorLogSink], Aiding]:
     """(Diagram, {log name: VectorLogSink}, fake position used, MagnetometerModel or None, first
     fix s or None) replaying the FlightLog `log` through the estimator of the ReplayConfig
     `config` (module docstring)."""
@@ -288,7 +288,7 @@ def _playback_diagram(streams, vehicle, name):
     return diagram, sinks
 
 
-def replay_as_flown(log, vehicle):
+def replay_as_flown(log, vehicle) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """(times (n,) s, {log name: (n, width)}) of the FlightLog `log` replayed through the estimator
     of the VehicleConfig `vehicle` exactly as configured (its own initial state and noise; no
     replay defaults, no fake position): a simulated run's CSV (``flightlogs.recording``) replayed
@@ -301,7 +301,7 @@ def replay_as_flown(log, vehicle):
     return _read_sinks(sinks, context)
 
 
-def replay(config, log=None):
+def replay(config, log=None) -> ReplayResult:
     """ReplayResult of the ReplayConfig `config` (its ``log`` file read unless the FlightLog `log`
     is given): the flight replayed to its last IMU sample, compared with the log's own estimate.
 
@@ -385,7 +385,7 @@ def _judge(result):
     result.superseded = {name: superseded_samples(s.times) for name, s in sources.items() if s is not None}
 
 
-def save_replay(result, out_dir):
+def save_replay(result, out_dir) -> Path:
     """Write logs.npz (``times`` and ``replay/<log name>``), config.yaml (the resolved
     ReplayConfig) and summary.json into out_dir; returns out_dir."""
     out_dir = Path(out_dir)

@@ -49,10 +49,10 @@ class Stream:
     stamped: bool
 
     @property
-    def width(self):
+    def width(self) -> int:
         return self.rows.shape[1]
 
-    def initial(self):
+    def initial(self) -> np.ndarray:
         """The output before the first sample: zeros (and stamp NO_SAMPLE_STAMP)."""
         value = np.zeros(self.width)
         if self.stamped:
@@ -65,18 +65,18 @@ STREAM_WIDTHS = {"imu": 6, "gps": 6, "mag": 1, "mag_field": 3, "baro": 1}
 STAMPED = {"imu": False, "gps": True, "mag": True, "mag_field": True, "baro": True}
 
 
-def first_ticks(times, period=ONBOARD_PERIOD):
+def first_ticks(times, period=ONBOARD_PERIOD) -> np.ndarray:
     """(m,) index k of the first tick t_k = k period >= each sample time (s)."""
     return np.ceil(np.asarray(times, dtype=float) / period - TICK_TOLERANCE).astype(np.int64)
 
 
-def superseded_samples(times, period=ONBOARD_PERIOD):
+def superseded_samples(times, period=ONBOARD_PERIOD) -> int:
     """How many samples are never emitted: followed by another before their tick."""
     ticks = first_ticks(times, period)
     return int(np.count_nonzero(ticks[1:] == ticks[:-1]))
 
 
-def gravity_directions(imu, times, window=HEADING_GRAVITY_WINDOW):
+def gravity_directions(imu, times, window=HEADING_GRAVITY_WINDOW) -> np.ndarray:
     """(m, 3) mean specific force f_B (m/s^2, FRD) of the IMU samples in (t - window, t] at each
     of `times` (s); the first IMU sample where none is that early. imu: the log's IMU Samples."""
     imu_times = imu.times
@@ -89,7 +89,7 @@ def gravity_directions(imu, times, window=HEADING_GRAVITY_WINDOW):
     return (cumulative[last] - cumulative[first]) / (last - first)[:, None]
 
 
-def tilt_compensated_heading(field_B, f_B, declination=0.0):
+def tilt_compensated_heading(field_B, f_B, declination=0.0) -> np.ndarray:
     """(m,) yaw (rad, [-pi, pi)) of the body field field_B (m, 3; any unit, FRD) with the tilt of
     the specific force f_B (m, 3, m/s^2, FRD, gravity's direction at rest); declination: rad,
     east of true north.
@@ -108,7 +108,7 @@ def tilt_compensated_heading(field_B, f_B, declination=0.0):
     return wrap_angles(declination - np.arctan2(level_y, level_x))
 
 
-def initial_attitude(log, declination=0.0, hard_iron=(0.0, 0.0, 0.0)):
+def initial_attitude(log, declination=0.0, hard_iron=(0.0, 0.0, 0.0)) -> tuple[float, float, float]:
     """(roll, pitch, yaw) rad of the first samples, as a flight controller aligns at start: tilt
     from the accelerometer (over HEADING_GRAVITY_WINDOW), yaw from the first heading (0 without a
     magnetometer; declination rad, hard_iron gauss FRD as :func:`heading_samples`)."""
@@ -123,7 +123,7 @@ def initial_attitude(log, declination=0.0, hard_iron=(0.0, 0.0, 0.0)):
     return roll, pitch, yaw
 
 
-def heading_samples(log, declination=0.0, hard_iron=(0.0, 0.0, 0.0)):
+def heading_samples(log, declination=0.0, hard_iron=(0.0, 0.0, 0.0)) -> np.ndarray:
     """(m,) the yaw-only magnetometer samples (rad) at the log's field samples, the field less
     hard_iron (3, gauss, FRD), east of true north by declination (rad)."""
     gravity = gravity_directions(log.imu, log.mag_field.times)
@@ -131,7 +131,7 @@ def heading_samples(log, declination=0.0, hard_iron=(0.0, 0.0, 0.0)):
     return tilt_compensated_heading(field, gravity, declination)
 
 
-def fake_position(log, period):
+def fake_position(log, period) -> Samples:
     """GPS-shaped Samples (p_N = 0 m, v_N = 0 m/s) every `period` s over the log: what a flight
     controller fuses without any position aiding (PX4 EKF2's fake position, ``EKF2_NOAID_NOISE``)
     so that its velocity, and through it its tilt, stays bounded. Not a measurement: its NIS is
@@ -140,7 +140,7 @@ def fake_position(log, period):
     return Samples(times, np.zeros((len(times), 6)))
 
 
-def playback_streams(log, gps=None, declination=0.0, hard_iron=(0.0, 0.0, 0.0)):
+def playback_streams(log, gps=None, declination=0.0, hard_iron=(0.0, 0.0, 0.0)) -> dict[str, Stream]:
     """{stream name: Stream} of a FlightLog for ``systems.playback.LogPlayback`` (module docstring).
 
     gps: the GPS Samples to emit (default: the log's own); a sensor the log lacks has a stream

@@ -20,6 +20,7 @@ import traceback
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
+from types import ModuleType
 
 import numpy as np
 
@@ -75,7 +76,7 @@ def _student_frame(error, path):
 
 
 @cache
-def load_student_module(path):
+def load_student_module(path) -> ModuleType:
     """The student's module at `path` (a .py file), imported once per process; StudentProblem
     (one line) when it is missing, does not import, or lacks one of :data:`FUNCTIONS`."""
     path = Path(path)
@@ -119,7 +120,7 @@ class CourseTuning:
     mag_std: float
 
 
-def tuning_of(module):
+def tuning_of(module) -> CourseTuning:
     """The CourseTuning of a student module (its constants, the course's where missing);
     StudentProblem when one is not a number (or, INIT_STD_DEVS, not 7 numbers)."""
     values = {}
@@ -186,7 +187,7 @@ class CourseFilter:
         self._q_std, self._gps_std = np.array(self.tuning.q_std), np.array(self.tuning.gps_std)
 
     @property
-    def module(self):
+    def module(self) -> ModuleType:
         """The student's module (imported once per process; never copied with the filter)."""
         return load_student_module(self.path)
 
@@ -216,7 +217,7 @@ class CourseFilter:
             out.append(array)
         return tuple(out) if len(shapes) > 1 else out[0]
 
-    def tick(self, accel, gyro, mag_yaw=None, mag_rows=None, gps=None, gps_rows=None):
+    def tick(self, accel, gyro, mag_yaw=None, mag_rows=None, gps=None, gps_rows=None) -> None:
         """One 500 Hz tick: accel (n, 3) the course's accelerometer (m/s^2, body FRD, (0, 0, +9.81)
         level at rest, SPEC §2), gyro (n, 3) rad/s; mag_yaw (k,) rad for the rows `mag_rows`
         (k,) with a fresh sample; gps (k, 6) position m and velocity m/s (NED) for `gps_rows`."""

@@ -10,7 +10,7 @@ The FCND estimation project gives its students a ``Quaternion`` class (``FromEul
 import numpy as np
 
 
-def quaternion_from_euler(roll, pitch, yaw):
+def quaternion_from_euler(roll, pitch, yaw) -> np.ndarray:
     """(..., 4) wxyz quaternion of R = Rz(yaw) Ry(pitch) Rx(roll) (``FromEuler123_RPY``); rad."""
     cr, sr = np.cos(0.5 * roll), np.sin(0.5 * roll)
     cp, sp = np.cos(0.5 * pitch), np.sin(0.5 * pitch)
@@ -26,7 +26,7 @@ def quaternion_from_euler(roll, pitch, yaw):
     )
 
 
-def euler_from_quaternion(q):
+def euler_from_quaternion(q) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(roll, pitch, yaw), each (...) rad, of (..., 4) wxyz quaternions (``Roll() Pitch() Yaw()``,
     SPEC §0.1)."""
     w, x, y, z = np.moveaxis(np.asarray(q, dtype=float), -1, 0)
@@ -36,7 +36,7 @@ def euler_from_quaternion(q):
     return roll, pitch, yaw
 
 
-def integrate_body_rate(q, gyro, dt):
+def integrate_body_rate(q, gyro, dt) -> np.ndarray:
     """(..., 4) q ⊗ exp(½ ω dt): the attitude q (body to world) turned by the body rate `gyro`
     (..., 3) rad/s (FRD) held for dt s (``IntegrateBodyRate``), normalised."""
     rotation = np.asarray(gyro, dtype=float) * dt
@@ -58,7 +58,7 @@ def integrate_body_rate(q, gyro, dt):
     return out / np.linalg.norm(out, axis=-1, keepdims=True)
 
 
-def rotation_matrix(roll, pitch, yaw):
+def rotation_matrix(roll, pitch, yaw) -> np.ndarray:
     """(..., 3, 3) R_NB = Rz(yaw) Ry(pitch) Rx(roll), body FRD to world NED (``Rotate_BtoI``)."""
     cr, sr = np.cos(roll), np.sin(roll)
     cp, sp = np.cos(pitch), np.sin(pitch)
@@ -71,12 +71,12 @@ def rotation_matrix(roll, pitch, yaw):
     return np.stack([np.stack(row, axis=-1) for row in rows], axis=-2)
 
 
-def rotate(matrices, vectors):
+def rotate(matrices, vectors) -> np.ndarray:
     """(..., 3) M v of (..., 3, 3) matrices and (..., 3) vectors."""
     return np.einsum("...ij,...j->...i", matrices, vectors)
 
 
-def update(ekf_state, ekf_cov, z, H, R, z_from_x):
+def update(ekf_state, ekf_cov, z, H, R, z_from_x) -> tuple[np.ndarray, np.ndarray]:
     """The course's generic EKF update (``QuadEstimatorEKF::Update``, SPEC §4), n at once.
 
     ekf_state (n, 7), ekf_cov (n, 7, 7); z, z_from_x (n, m) the measurement and its prediction;

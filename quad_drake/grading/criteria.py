@@ -14,6 +14,8 @@ A run passes a scenario when it passes all of that scenario's criteria.
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 
 @dataclass(frozen=True)
 class GradingCriterion:
@@ -29,12 +31,12 @@ class GradingCriterion:
     unit: str
     text: str
 
-    def passed(self, values):
+    def passed(self, values) -> np.ndarray:
         """(N,) bool: the runs whose value lies within [low, high] (NaN fails)."""
         return (values >= self.low) & (values <= self.high)
 
     @property
-    def bounds_text(self):
+    def bounds_text(self) -> str:
         """``in [0.84, 1.19]`` or ``<= 0.05 rad``."""
         unit = f" {self.unit}" if self.unit else ""
         if math.isinf(self.low):

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from quad_drake.campaigns.fleet.diagram import run_fleet
+from quad_drake.config.schema import ScenarioConfig
 from quad_drake.estimation.registry import vehicle_vocabulary
 from quad_drake.grading.course import load_student_module, tuning_of
 from quad_drake.judging.signals import vehicle_signals
@@ -36,7 +37,7 @@ spread of errors that start at 0 (every estimate starts at the truth), so its po
 velocity sigmas start at 1 mm and 1 mm/s instead of the student's INIT_STD_DEVS."""
 
 
-def graded_scenario(name, module):
+def graded_scenario(name, module) -> ScenarioConfig:
     """The ScenarioConfig of bundled scenario `name` as the grader flies it with the student's
     module (path): reference numerics, every vehicle on the course estimator (06: none, and its
     own two criteria judge the student's sigmas, as the reference's 06 does)."""
@@ -62,16 +63,16 @@ class Flight:
     times: np.ndarray
     signals: dict
 
-    def values(self, name):
+    def values(self, name) -> np.ndarray:
         """(samples, N) values of ``Vehicle.Signal`` `name`."""
         return self.signals[name.split(".", 1)[0]][name].values
 
-    def fresh(self, name):
+    def fresh(self, name) -> np.ndarray:
         """(samples, N) fresh mask of `name`."""
         return np.asarray(self.signals[name.split(".", 1)[0]][name].fresh, dtype=bool)
 
 
-def fly(name, module, seeds):
+def fly(name, module, seeds) -> Flight:
     """The :class:`Flight` of scenario `name` flown with the student's module for `seeds`.
     A student's exception ends it with ``course.StudentProblem`` (one line)."""
     scenario = graded_scenario(name, module)

@@ -50,41 +50,43 @@ class ScenarioGrade:
     cpu_time: float
 
     @property
-    def runs(self):
+    def runs(self) -> int:
         return len(self.seeds)
 
     @property
-    def passes(self):
+    def passes(self) -> int:
         return int(self.passed.sum())
 
     @property
-    def verdict(self):
+    def verdict(self) -> bool:
         """True when more than PASS_SHARE of the runs pass."""
         return self.passes > PASS_SHARE * self.runs
 
-    def interval(self):
+    def interval(self) -> tuple[float, float]:
         """(low, high) 95 % Clopper-Pearson interval of the pass rate, fractions."""
         return binomial_interval(self.passes, self.runs)
 
 
 @dataclass
 class Grade:
+    """A student module's grade: its name and the graded scenarios (each with a ``verdict``)."""
+
     module: str
     scenarios: list
 
     @property
-    def passed(self):
+    def passed(self) -> bool:
         return all(s.verdict for s in self.scenarios)
 
 
-def scenario_statistics(name, flight, tuning):
+def scenario_statistics(name, flight, tuning) -> dict[str, np.ndarray]:
     """{statistic: (N,)} of one scenario's flight."""
     if name == "06_sensor_noise":
         return statistics.sensor_noise(flight, tuning.gps_sigma, tuning.accel_sigma)
     return STATISTICS[name](flight)
 
 
-def reference_verdicts(flight):
+def reference_verdicts(flight) -> np.ndarray:
     """(N,) bool: each run judged on the scenario's own criteria (all of them passed)."""
     vehicles = [v.name for v in flight.scenario.vehicles]
     runs = len(flight.seeds)
@@ -100,7 +102,7 @@ def reference_verdicts(flight):
     return passed
 
 
-def grade_scenario(name, module, seeds):
+def grade_scenario(name, module, seeds) -> ScenarioGrade:
     """The ScenarioGrade of scenario `name` flown with the student's module for `seeds`."""
     tuning = tuning_of(load_student_module(str(module)))
     start = time.process_time()
@@ -120,7 +122,7 @@ def grade(
     scenarios=COURSE_SCENARIOS,
     progress=None,
     jobs=1,
-):
+) -> Grade:
     """The Grade of the student's module (path): each scenario flown for seeds first_seed ..
     first_seed + runs - 1, on `jobs` worker processes (1: in this process; else the longest
     scenarios first). ``progress(ScenarioGrade)`` after each scenario, in the order they
@@ -158,7 +160,7 @@ FLIGHT_SECONDS = {
 """Simulated vehicle-seconds of one run of each scenario: the order a pool grades them in."""
 
 
-def scenario_lines(s):
+def scenario_lines(s) -> list[str]:
     """The text of one ScenarioGrade: its verdict and pass rate, each criterion's failures, and
     the function to look at when it fails."""
     low, high = s.interval()
@@ -179,7 +181,7 @@ def scenario_lines(s):
     return lines
 
 
-def grade_lines(grade_result):
+def grade_lines(grade_result) -> list[str]:
     """Every line of a Grade's text, then the overall verdict."""
     lines = []
     for s in grade_result.scenarios:

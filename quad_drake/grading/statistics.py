@@ -35,7 +35,7 @@ def _nonfinite_as_inf(values):
     return np.where(np.isfinite(values), values, np.inf)
 
 
-def sensor_noise(flight, gps_sigma, accel_sigma):
+def sensor_noise(flight, gps_sigma, accel_sigma) -> dict[str, np.ndarray]:
     """06's {statistic: (N,)} of the student's sigmas (m, m/s^2)."""
     gps = [flight.values(f"Quad.GPS.{a}") - flight.values(f"Quad.Pos.{a}") for a in "XY"]
     fresh_gps = [flight.fresh(f"Quad.GPS.{a}") for a in "XY"]
@@ -58,17 +58,17 @@ def _nees(errors, sigmas):
     return _nonfinite_as_inf(np.concatenate(ratios).mean(axis=0))
 
 
-def attitude(flight):
+def attitude(flight) -> dict[str, np.ndarray]:
     """07's {statistic: (N,)}."""
     return {"max_euler_error": _max_abs(flight.values("Quad.Est.E.MaxEuler"))}
 
 
-def dead_reckoning(flight):
+def dead_reckoning(flight) -> dict[str, np.ndarray]:
     """08's {statistic: (N,)}."""
     return {"max_position_error": _max_abs(flight.values("Quad.Est.E.Pos"))}
 
 
-def covariance(flight):
+def covariance(flight) -> dict[str, np.ndarray]:
     """09's {statistic: (N,)} pooled over its vehicles."""
     vehicles = [v.name for v in flight.scenario.vehicles]
     out = {}
@@ -79,13 +79,13 @@ def covariance(flight):
     return out
 
 
-def magnetometer(flight):
+def magnetometer(flight) -> dict[str, np.ndarray]:
     """10's {statistic: (N,)}."""
     error = flight.values("Quad.Est.E.Yaw")
     return {"max_yaw_error": _max_abs(error), "yaw_nees": _nees([error], [flight.values("Quad.Est.S.Yaw")])}
 
 
-def gps(flight):
+def gps(flight) -> dict[str, np.ndarray]:
     """11's {statistic: (N,)}."""
     errors = [flight.values(f"Quad.Est.E.{a}") for a in "XYZ"]
     sigmas = [flight.values(f"Quad.Est.S.{a}") for a in "XYZ"]

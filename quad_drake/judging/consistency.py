@@ -21,7 +21,7 @@ from .evaluation import sigma_share
 from .signals import stamp_fresh
 
 
-def nees_of(vocabulary, logs, errors=None):
+def nees_of(vocabulary, logs, errors=None) -> np.ndarray:
     """(n,) NEES of one vehicle's logged run over the vocabulary's ``nees_states``.
 
     errors: the run's ``vocabulary.errors(logs)`` when the caller has them already.
@@ -30,14 +30,14 @@ def nees_of(vocabulary, logs, errors=None):
     return _nees(errors, covariance_matrices(logs["covariance"]), vocabulary.nees_states)
 
 
-def covariance_matrices(covariance_log):
+def covariance_matrices(covariance_log) -> np.ndarray:
     """(n, k, k) covariances from an (n, k*k) row-major log ((n, N, k, k) from (n, N, k*k))."""
     covariance_log = np.asarray(covariance_log, dtype=float)
     k = math.isqrt(covariance_log.shape[-1])
     return covariance_log.reshape(covariance_log.shape[:-1] + (k, k))
 
 
-def nees(errors, covariances):
+def nees(errors, covariances) -> np.ndarray:
     """(n,) e_k^T P_k^-1 e_k of (n, k) errors and (n, k, k) covariances (or (n, N) of (n, N, k),
     (n, N, k, k)); NaN where e or P is not finite or P is singular (det P <= 0)."""
     errors = np.asarray(errors, dtype=float)
@@ -126,14 +126,14 @@ def _cholesky_nees_kernel():
     return njit_cached(_cholesky_nees)
 
 
-def normalized_squared_errors(errors, covariances):
+def normalized_squared_errors(errors, covariances) -> np.ndarray:
     """(n, k) e_i^2 / P_ii per state ((n, N, k) of a batch): 1 on average for a consistent filter."""
     variances = np.diagonal(np.asarray(covariances, dtype=float), axis1=-2, axis2=-1)
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.square(np.asarray(errors, dtype=float)) / variances
 
 
-def fresh_nis(diagnostics, sensor):
+def fresh_nis(diagnostics, sensor) -> tuple[np.ndarray, np.ndarray]:
     """(stamps (s), nis) of the fresh updates of ``sensor`` ("gps" or "mag") in a diagnostics log.
 
     diagnostics: (n, DIAGNOSTICS_SIZE), layout ``vocabulary.DIAGNOSTICS``. An update is fresh
@@ -146,7 +146,7 @@ def fresh_nis(diagnostics, sensor):
     return diagnostics[fresh, stamp_column], diagnostics[fresh, nis_column]
 
 
-def chi2_band(dof, count, probability=0.95):
+def chi2_band(dof, count, probability=0.95) -> tuple[float, float]:
     """(low, high): central `probability` interval of the mean of `count` chi^2(dof) variables."""
     if dof < 1 or count < 1:
         raise ValueError(f"chi2_band: dof and count must be >= 1, got {dof}, {count}")
@@ -163,7 +163,7 @@ covariance the filter reports is within a factor 1.5 of its actual error covaria
 one passes at 20 and at 400 (tests/test_consistency.py)."""
 
 
-def per_dof_interval(run_means, dof, confidence=0.95):
+def per_dof_interval(run_means, dof, confidence=0.95) -> tuple[float, float, float]:
     """(mean, low, high) of the average statistic per degree of freedom over realisations.
 
     run_means: each realisation's (run's, vehicle's) time mean of its NEES or NIS: independent
@@ -185,7 +185,7 @@ def per_dof_interval(run_means, dof, confidence=0.95):
     return mean, float(low), float(high)
 
 
-def within_tolerance(interval, tolerance=COVARIANCE_TOLERANCE):
+def within_tolerance(interval, tolerance=COVARIANCE_TOLERANCE) -> bool:
     """True when the confidence interval (low, high) of the average statistic per dof meets
     [1 / tolerance, tolerance]: the runs do not show (at the interval's confidence) that the
     filter is off by more than `tolerance` in covariance. False for a NaN interval."""
@@ -193,7 +193,7 @@ def within_tolerance(interval, tolerance=COVARIANCE_TOLERANCE):
     return bool(low <= tolerance and high >= 1.0 / tolerance)
 
 
-def in_band_fraction(values, band):
+def in_band_fraction(values, band) -> float:
     """Share of samples with low <= value <= high (a non-finite sample counts as outside)."""
     values = np.asarray(values, dtype=float)
     if values.size == 0:
@@ -202,7 +202,7 @@ def in_band_fraction(values, band):
     return float(np.mean((values >= low) & (values <= high)))
 
 
-def binomial_interval(successes, trials, confidence=0.95):
+def binomial_interval(successes, trials, confidence=0.95) -> tuple[float, float]:
     """(low, high) Clopper-Pearson ("exact") interval of a success probability; fractions."""
     if trials < 1 or not 0 <= successes <= trials:
         raise ValueError(
@@ -214,7 +214,7 @@ def binomial_interval(successes, trials, confidence=0.95):
     return low, high
 
 
-def fleet_samples(signals, error_suffix, sigma_suffix):
+def fleet_samples(signals, error_suffix, sigma_suffix) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """(errors, sigmas): per vehicle V with a ``V.<error_suffix>`` signal (e.g. ``Est.E.X``), the
     fresh samples of that error and of its own ``V.<sigma_suffix>`` (e.g. ``Est.S.X``).
 
@@ -236,7 +236,7 @@ def fleet_samples(signals, error_suffix, sigma_suffix):
     return errors, sigmas
 
 
-def fleet_sigma_fraction(signals, error_suffix, sigma_suffix, multiple):
+def fleet_sigma_fraction(signals, error_suffix, sigma_suffix, multiple) -> float:
     """Share of (vehicle, fresh sample) pairs with |error| <= multiple * sigma, in [0, 1]
     (NaN without samples), over the vehicles of :func:`fleet_samples`.
 

@@ -97,18 +97,18 @@ class CriterionResult:
         return self.line
 
     @property
-    def measured_unit(self):
+    def measured_unit(self) -> str:
         """The unit of ``measured`` (:data:`MEASURED_UNITS`; the signal's for tracking and bound)."""
         return MEASURED_UNITS.get(self.kind, signal_unit(self.name))
 
-    def to_dict(self):
+    def to_dict(self) -> dict:
         """The verdict as a dict of plain values, without ``series``, with ``measured_unit`` (for
         summary.json)."""
         values = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "series"}
         return {**values, "measured_unit": self.measured_unit}
 
 
-def judged_criteria(scenario):
+def judged_criteria(scenario) -> list:
     """The criteria a run of `scenario` is judged on and a campaign counts, in order: its
     own, then the flight-safety ones of :func:`quad_drake.judging.safety.safety_criteria`."""
     return list(scenario.criteria) + safety_criteria(scenario)
@@ -184,7 +184,7 @@ class WindowFold(_Fold):
         self.last_time = np.full(runs, np.nan)  # s, last sample judged
         self.samples = np.zeros(runs, dtype=np.int64)
 
-    def update(self, times, values, fresh):
+    def update(self, times, values, fresh) -> dict[str, np.ndarray]:
         """Fold times (k,) s, values (k, N), fresh (k, N) bool (only fresh samples are judged);
         returns {"last_above", "stretch"} (k, N), meaningful on the fresh samples."""
         if times.size == 0:
@@ -201,7 +201,7 @@ class WindowFold(_Fold):
         self.samples += fresh.sum(axis=0)
         return {"last_above": last_above, "stretch": stretch}
 
-    def series(self, times, per_sample, values, fresh):
+    def series(self, times, per_sample, values, fresh) -> dict[str, np.ndarray] | None:
         """Plot arrays of a one-run whole log: the fresh samples' times and stretches, and the
         span (start, end) of the longest stretch; None without samples."""
         if self.samples[0] == 0:
@@ -212,7 +212,7 @@ class WindowFold(_Fold):
         t = times[mask]
         return {"times": t, "stretch": stretch, "span": np.array([last_above[end], t[end]])}
 
-    def result(self, j, series=None):
+    def result(self, j, series=None) -> CriterionResult:
         """Run j's CriterionResult (series: the plot arrays of a whole-log evaluation, or None)."""
         name, threshold, window = self.name, self.threshold, self.window
         text = {
@@ -249,7 +249,7 @@ class WindowFold(_Fold):
         )
 
 
-def window_threshold(times, values, threshold, window, name="x", fresh_mask=None):
+def window_threshold(times, values, threshold, window, name="x", fresh_mask=None) -> CriterionResult:
     """WindowThreshold(name, threshold, window): "ABS(x) < threshold for more than W s", latched.
 
     SPEC §0.5: lastAbove starts at the first sample time; at each sample t,
@@ -306,7 +306,7 @@ class SigmaFold(_Fold):
         self.last_violation = np.full(runs, np.nan)  # s (the first fresh sample until one)
         self.last_time = np.full(runs, np.nan)  # s, last fresh sample
 
-    def update(self, times, values, fresh, ref, sigma):
+    def update(self, times, values, fresh, ref, sigma) -> dict[str, np.ndarray]:
         """Fold times (k,) s, values (k, N), fresh (k, N) bool, ref and sigma ((k, N) or scalars);
         returns {"percent"} (k, N), the cumulative share, meaningful on the fresh samples."""
         if times.size == 0:
@@ -327,12 +327,12 @@ class SigmaFold(_Fold):
         self.inside, self.counted = within[-1].copy(), counted[-1].copy()
         return {"percent": percent}
 
-    def series(self, times, per_sample, fresh, **_):
+    def series(self, times, per_sample, fresh, **_) -> dict[str, np.ndarray] | None:
         """Plot arrays of a one-run whole log: the fresh samples' times and cumulative share (%)."""
         mask = fresh[:, 0]
         return {"times": times[mask], "percent": per_sample["percent"][mask, 0]} if mask.any() else None
 
-    def result(self, j, series=None):
+    def result(self, j, series=None) -> CriterionResult:
         """Run j's CriterionResult (series: the plot arrays of a whole-log evaluation, or None)."""
         name, window, count = self.name, self.window, int(self.counted[j])
         if count == 0:
@@ -383,7 +383,7 @@ def sigma_threshold(
     name="x",
     ref_label="",
     sigma_label="",
-):
+) -> CriterionResult:
     """SigmaThreshold(name, ref, sigma, minP, maxP, W) (SPEC §0.5).
 
     Only fresh samples count (``fresh_mask`` None: all). ``ref_values`` and
@@ -414,7 +414,7 @@ def _within(errors, sigmas, multiple):
     return np.abs(errors) <= multiple * sigmas
 
 
-def sigma_share(errors, sigmas, multiple=1.0):
+def sigma_share(errors, sigmas, multiple=1.0) -> tuple[int, int]:
     """(inside, total): how many samples have |error| <= multiple * sigma, of how many.
 
     errors, sigmas: arrays of one shape (or sequences of such arrays, e.g. one per vehicle);
@@ -441,14 +441,14 @@ class PooledSigmaFold(_Fold):
         self.inside = np.zeros(runs, dtype=np.int64)
         self.total = np.zeros(runs, dtype=np.int64)
 
-    def update(self, times, errors, sigmas, fresh):
+    def update(self, times, errors, sigmas, fresh) -> None:
         """Fold one (k, N) error, sigma and fresh mask per vehicle (lists; times unused: the
         vehicles' samples are pooled whatever their times)."""
         for error, sigma, mask in zip(errors, sigmas, fresh, strict=True):
             self.inside += np.count_nonzero(_within(error, sigma, self.multiple) & mask, axis=0)
             self.total += mask.sum(axis=0)
 
-    def result(self, j, series=None):
+    def result(self, j, series=None) -> CriterionResult:
         total = int(self.total[j])
         percent = 100.0 * int(self.inside[j]) / total if total else math.nan
         passed = bool(self.min_percent <= percent <= self.max_percent)
@@ -476,7 +476,9 @@ class PooledSigmaFold(_Fold):
         )
 
 
-def fleet_sigma_threshold(errors, sigmas, name, sigma_name, multiple, min_percent, max_percent):
+def fleet_sigma_threshold(
+    errors, sigmas, name, sigma_name, multiple, min_percent, max_percent
+) -> CriterionResult:
     """Verdict on the share of a fleet's fresh samples with |error| <= multiple * sigma.
 
     errors, sigmas: one array per vehicle of its fresh samples of ``V.<name>`` and the
@@ -524,7 +526,7 @@ class FloorFold(_Fold):
         self.first_touch = np.full(runs, np.nan)  # s
         self.samples = 0
 
-    def update(self, times, touchdowns, contact):
+    def update(self, times, touchdowns, contact) -> None:
         """Fold times (k,) s, the cumulative touchdowns and the floor contact (k, N)."""
         if times.size == 0:
             return
@@ -536,7 +538,7 @@ class FloorFold(_Fold):
         _note_first(self.first_touch, times, touchdowns > 0)
         self.samples += times.size
 
-    def result(self, j, series=None):
+    def result(self, j, series=None) -> CriterionResult:
         vehicle, landing_time = self.vehicle, self.landing_time
         count = int(self.judged_max[j]) if self.judged_max[j] > -np.inf else 0
         grounded = self.samples > 0 and bool(self.grounded[j])
@@ -565,7 +567,7 @@ class FloorFold(_Fold):
         )
 
 
-def floor_touchdowns(times, touchdowns, contact, vehicle, landing_time=None, name=""):
+def floor_touchdowns(times, touchdowns, contact, vehicle, landing_time=None, name="") -> CriterionResult:
     """Safety verdict "never touched the floor after take-off" (``floor``).
 
     touchdowns: the cumulative touchdown count per sample (``V.FloorTouchdowns``, counted by
@@ -593,7 +595,7 @@ class RoomFold(_Fold):
         self.first = np.full(runs, np.nan)  # s, first sample at a bound
         self.samples = 0
 
-    def update(self, times, wall_steps):
+    def update(self, times, wall_steps) -> None:
         """Fold times (k,) s and the cumulative wall-contact steps (k, N)."""
         if times.size == 0:
             return
@@ -601,7 +603,7 @@ class RoomFold(_Fold):
         _note_first(self.first, times, wall_steps > 0)
         self.samples += times.size
 
-    def result(self, j, series=None):
+    def result(self, j, series=None) -> CriterionResult:
         vehicle = self.vehicle
         steps = int(self.steps[j]) if self.samples else 0
         seconds = steps * PHYSICS_PERIOD
@@ -627,7 +629,7 @@ class RoomFold(_Fold):
         )
 
 
-def room_contacts(times, wall_steps, vehicle, name=""):
+def room_contacts(times, wall_steps, vehicle, name="") -> CriterionResult:
     """Safety verdict "stayed inside the room" (``room``): never stopped at a wall or the ceiling.
 
     wall_steps: the cumulative count of 1 ms physics steps stopped at a room bound per sample
@@ -650,7 +652,7 @@ class FiniteFold(_Fold):
         self.first = np.full(runs, np.nan)  # s, first non-finite sample
         self.samples = 0
 
-    def update(self, times, finite):
+    def update(self, times, finite) -> None:
         """Fold times (k,) s and the StateFinite flags (k, N)."""
         if times.size == 0:
             return
@@ -659,7 +661,7 @@ class FiniteFold(_Fold):
         _note_first(self.first, times, bad)
         self.samples += times.size
 
-    def result(self, j, series=None):
+    def result(self, j, series=None) -> CriterionResult:
         vehicle, bad = self.vehicle, int(self.bad[j])
         if bad == 0:
             passed, line = True, f"PASS: the true state of {vehicle} stayed finite"
@@ -680,7 +682,7 @@ class FiniteFold(_Fold):
         )
 
 
-def state_finite(times, finite, vehicle, name=""):
+def state_finite(times, finite, vehicle, name="") -> CriterionResult:
     """Safety verdict "the true state stayed finite" (``finite``).
 
     finite: 1 at samples where every true state entry is finite (``V.StateFinite``).
@@ -705,7 +707,7 @@ class TrackingFold(_Fold):
         self.first_above_time = np.full(runs, np.nan)  # s
         self.samples = 0
 
-    def update(self, times, error):
+    def update(self, times, error) -> None:
         """Fold times (k,) s and the tracking error (k, N)."""
         if times.size == 0:
             return
@@ -722,7 +724,7 @@ class TrackingFold(_Fold):
         self.first_above_time = np.where(new, times[first], self.first_above_time)
         self.samples += times.size
 
-    def result(self, j, series=None):
+    def result(self, j, series=None) -> CriterionResult:
         name, bound = self.name, self.bound
         limit = _amount(bound, name)
         text = {"description": f"|{name}| <= {limit} at every sample", "required_text": f"max <= {limit}"}
@@ -753,7 +755,7 @@ class TrackingFold(_Fold):
         )
 
 
-def tracking_bound(times, error, bound, name="x"):
+def tracking_bound(times, error, bound, name="x") -> CriterionResult:
     """Safety verdict "the true tracking error stayed bounded" (``tracking``): |x| <= bound at
     every sample (a non-finite sample violates).
 
@@ -765,13 +767,13 @@ def tracking_bound(times, error, bound, name="x"):
     return _whole_log(TrackingFold(name, bound, 1), times, error=error)
 
 
-def rms(values):
+def rms(values) -> float:
     """Root mean square of the samples (NaN propagates)."""
     values = np.asarray(values, dtype=float)
     return float(np.sqrt(np.mean(values * values)))
 
 
-def max_abs(values):
+def max_abs(values) -> float:
     """Largest |value| (NaN propagates)."""
     return float(np.max(np.abs(np.asarray(values, dtype=float))))
 
@@ -788,7 +790,7 @@ class BoundFold(_Fold):
         self.first_bad_time = np.full(runs, np.nan)  # s
         self.samples = 0
 
-    def update(self, times, values):
+    def update(self, times, values) -> tuple[np.ndarray, np.ndarray]:
         """Fold times (k,) s and values (k, N); returns (times, |x|) of the samples in the interval."""
         inside = (times >= self.start - TIME_TOLERANCE) & (times < self.end - TIME_TOLERANCE)
         t, x = times[inside], np.abs(values[inside])
@@ -803,12 +805,12 @@ class BoundFold(_Fold):
         self.samples += t.size
         return t, x
 
-    def series(self, times, per_sample, **_):
+    def series(self, times, per_sample, **_) -> dict[str, np.ndarray]:
         """Plot arrays of a one-run whole log: the judged samples' times and |x|."""
         t, x = per_sample
         return {"times": t, "values": x[:, 0]}
 
-    def result(self, j, series=None):
+    def result(self, j, series=None) -> CriterionResult:
         name, threshold, start, end = self.name, self.threshold, self.start, self.end
         span = f"from {start:f} to {end:f} seconds"
         text = {
@@ -846,7 +848,7 @@ class BoundFold(_Fold):
         )
 
 
-def bound_threshold(times, values, threshold, start, end, name="x"):
+def bound_threshold(times, values, threshold, start, end, name="x") -> CriterionResult:
     """ "ABS(x) < threshold in [start, end) s": every sample in the interval within the threshold.
 
     A non-finite sample counts as a violation. measured: the largest |x| in the interval
@@ -877,7 +879,7 @@ class RecoveryFold(_Fold):
         self.last_time = math.nan  # s, last sample from start on
         self.samples = 0
 
-    def update(self, times, values):
+    def update(self, times, values) -> tuple[np.ndarray, np.ndarray]:
         """Fold times (k,) s and values (k, N); returns (times, |x|) of the samples from start on."""
         after = times >= self.start - TIME_TOLERANCE
         t, x = times[after], values[after]
@@ -895,12 +897,12 @@ class RecoveryFold(_Fold):
         self.samples += t.size
         return t, np.abs(x)
 
-    def series(self, times, per_sample, **_):
+    def series(self, times, per_sample, **_) -> dict[str, np.ndarray]:
         """Plot arrays of a one-run whole log: the samples' times from start on and |x|."""
         t, x = per_sample
         return {"times": t, "values": x[:, 0]}
 
-    def result(self, j, series=None):
+    def result(self, j, series=None) -> CriterionResult:
         name, threshold, start, within = self.name, self.threshold, self.start, self.within
         text = {
             "description": f"|{name}| < {_amount(threshold, name)} within {within:g} s after {start:g} s",
@@ -956,7 +958,7 @@ def _recovery_text(recovery, last_bad, start, threshold):
     return f"back under {recovery:.4g} s after {start:g} s"
 
 
-def recovery_threshold(times, values, threshold, start, within, name="x"):
+def recovery_threshold(times, values, threshold, start, within, name="x") -> CriterionResult:
     """ "ABS(x) < threshold within W s after start": from start + W to the end every sample within.
 
     The recovery time is (first sample after the last violation at or after `start`) - start,
@@ -1043,7 +1045,7 @@ def _criterion_inputs(criterion, signal, vehicles):
     return {"values": values}  # bound, recovery
 
 
-def evaluate_criterion(criterion, times, signal, vehicles=()):
+def evaluate_criterion(criterion, times, signal, vehicles=()) -> CriterionResult:
     """Run one :class:`~quad_drake.config.CriterionConfig` on one run's logged samples.
 
     ``signal(name) -> (values, fresh_mask)`` returns a named signal over ``times``
@@ -1070,10 +1072,10 @@ class CriterionStream:
         self.criterion, self.vehicles = criterion, tuple(vehicles)
         self.fold = _criterion_fold(criterion, runs, self.vehicles)
 
-    def update(self, times, signal):
+    def update(self, times, signal) -> None:
         self.fold.update(
             np.asarray(times, dtype=float), **_criterion_inputs(self.criterion, signal, self.vehicles)
         )
 
-    def result(self, j):
+    def result(self, j) -> CriterionResult:
         return self.fold.result(j)

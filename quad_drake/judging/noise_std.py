@@ -10,7 +10,7 @@ import numpy as np
 from ..config.errors import ConfigError
 
 
-def measured_noise_std(signals):
+def measured_noise_std(signals) -> dict[str, float]:
     """{'<V>.GPS.X': m, '<V>.IMU.AX': m/s^2} sample std devs for every vehicle with those sensors."""
     result = {}
     for name, signal in signals.items():

@@ -30,7 +30,7 @@ A scenario switches all of them off with ``safety: {enabled: false}`` or one by 
 from quad_drake.config.schema import CriterionConfig
 
 
-def is_closed_loop(vehicle):
+def is_closed_loop(vehicle) -> bool:
     """True when the vehicle's controller tracks its trajectory's position (both position gains > 0)."""
     return vehicle.controller.kp_pos_xy > 0.0 and vehicle.controller.kp_pos_z > 0.0
 
@@ -44,7 +44,7 @@ SAFETY_SIGNALS = {
 """The per-vehicle signal (``V.<name>``) each safety criterion judges."""
 
 
-def safety_criteria(scenario):
+def safety_criteria(scenario) -> list[CriterionConfig]:
     """The flight-safety CriterionConfigs of `scenario`, vehicle by vehicle ([] when disabled)."""
     safety = scenario.safety
     if not safety.enabled:
@@ -67,7 +67,7 @@ def safety_criteria(scenario):
     return criteria
 
 
-def landing_criterion(vehicle_name, max_speed, end_time):
+def landing_criterion(vehicle_name, max_speed, end_time) -> CriterionConfig:
     """What tells a landing from a crash: every touchdown's descent speed (``V.TouchdownSpeed``,
     m/s) stays below `max_speed` over the whole flight of `end_time` s (a ``bound`` criterion)."""
     return CriterionConfig(

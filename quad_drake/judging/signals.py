@@ -56,12 +56,12 @@ from ..models.fidelity import PHYSICAL
 from ..models.rotations import euler_from_quats, wrap_angles  # noqa: F401 (re-exported for the analyzers)
 
 
-def signal_unit(name):
+def signal_unit(name) -> str:
     """Unit of a named signal (``Quad.Est.E.VX`` -> ``m/s``); "" when unknown."""
     return key_unit(name.split(".", 1)[-1])
 
 
-def key_unit(key):
+def key_unit(key) -> str:
     """Unit of a signal named without its vehicle (``Est.E.VX`` -> ``m/s``, as a campaign pools
     its metrics over vehicles); "" when unknown."""
     last = key.rsplit(".", 1)[-1]
@@ -88,6 +88,8 @@ def key_unit(key):
 
 @dataclass(frozen=True)
 class Signal:
+    """One logged signal: its value at each log sample and whether that sample is fresh."""
+
     values: np.ndarray  # (n,) one value per logged sample
     fresh: np.ndarray  # (n,) bool: sample carries a new measurement
 
@@ -117,7 +119,7 @@ COUNTER_SIGNALS = {
 }
 
 
-def stamp_fresh(stamps):
+def stamp_fresh(stamps) -> np.ndarray:
     """True where a stamp differs from the previous sample's and a sample exists (stamp >= 0).
 
     stamps: (n,) or (n, N) (N runs of a fleet batch), samples along the first axis.
@@ -156,7 +158,7 @@ class Signals(Mapping):
     def __repr__(self):
         return f"Signals({list(self._makers)})"
 
-    def merged(self, *others):
+    def merged(self, *others) -> "Signals":
         """These signals and the `others`' (Signals), a later one taking a name they share."""
         makers, values = dict(self._makers), dict(self._values)
         for other in others:
@@ -164,7 +166,7 @@ class Signals(Mapping):
             values.update(other._values)
         return Signals(makers, values)
 
-    def from_sample(self, start):
+    def from_sample(self, start) -> "Signals":
         """The same signals from sample `start` on (values and fresh masks sliced on access)."""
 
         def sliced(name):
@@ -174,7 +176,7 @@ class Signals(Mapping):
         return Signals({name: functools.partial(sliced, name) for name in self._makers})
 
 
-def vehicle_signals(name, logs, vocabulary=None):
+def vehicle_signals(name, logs, vocabulary=None) -> Signals:
     """{signal name: Signal} (a :class:`Signals`) for vehicle `name` from its logs {log name:
     (n, width) array}, each derived when first read.
 
@@ -290,7 +292,7 @@ def _estimator_signals(put, logs, vocabulary, p, v, euler):
     put("Est.BaroBiasStd", lambda: diagnostics[..., DIAG["baro_bias_std"]])
 
 
-def touchdown_speeds(touchdowns, vz):
+def touchdown_speeds(touchdowns, vz) -> np.ndarray:
     """The descent speed (m/s, down) of each touchdown at the sample that counts it, 0 elsewhere:
     ``vz`` at the sample before (the last one in the air, at most 5 ms before the contact; the
     floor zeroes vz). touchdowns: the cumulative count (``FloorTouchdowns``); both (n,) or (n, N)."""
@@ -300,12 +302,12 @@ def touchdown_speeds(touchdowns, vz):
     return np.where(new, np.maximum(before, 0.0), 0.0)
 
 
-def empty_logs(log_widths):
+def empty_logs(log_widths) -> dict[str, np.ndarray]:
     """Zero-sample logs of the given {name: width}: ``vehicle_signals`` on them lists the signal names."""
     return {log: np.zeros((0, width)) for log, width in log_widths.items()}
 
 
-def vehicle_log_widths(vehicle, fidelity=PHYSICAL):
+def vehicle_log_widths(vehicle, fidelity=PHYSICAL) -> dict[str, int]:
     """{name: width} of the signals a vehicle exports (and the top level logs) under the
     :class:`~quad_drake.models.fidelity.Fidelity` `fidelity` (``errors_at_onboard_tick`` adds
     ``error_sampling.TICK_LOG_WIDTHS``)."""
@@ -324,7 +326,7 @@ def vehicle_log_widths(vehicle, fidelity=PHYSICAL):
     return widths
 
 
-def sensor_width(sensors, sensor):
+def sensor_width(sensors, sensor) -> int:
     """Width of one sample of `sensor` ("imu", "gps", "mag", "baro") of a SensorsConfig: its log's
     and its port's (a 3-axis magnetometer's is MAG_FIELD_SIZE)."""
     if sensor == "mag" and sensors.mag is not None and sensors.mag.three_axis:
@@ -332,6 +334,6 @@ def sensor_width(sensors, sensor):
     return LOG_WIDTHS[sensor]
 
 
-def vehicle_log_names(vehicle, fidelity=PHYSICAL):
+def vehicle_log_names(vehicle, fidelity=PHYSICAL) -> list[str]:
     """Names of the signals a vehicle exports (and the top level logs) under `fidelity`."""
     return list(vehicle_log_widths(vehicle, fidelity))

@@ -6,7 +6,7 @@ they read, and one :class:`~quad_drake.judging.evaluation.CriterionResult` per c
 """
 
 from ..config.errors import ConfigError, did_you_mean
-from .evaluation import CriterionStream, evaluate_criterion, judged_criteria
+from .evaluation import CriterionResult, CriterionStream, evaluate_criterion, judged_criteria
 
 
 def _signal_names(criterion, key, vehicle_names):
@@ -17,7 +17,7 @@ def _signal_names(criterion, key, vehicle_names):
     return [name]
 
 
-def check_criteria(scenario, available):
+def check_criteria(scenario, available) -> None:
     """Raise ConfigError when a judged criterion names a signal not in `available` (the names
     the scenario produces, e.g. ``simulation.available_signals(scenario)``)."""
     vehicles = [v.name for v in scenario.vehicles]
@@ -32,7 +32,7 @@ def check_criteria(scenario, available):
                 )
 
 
-def evaluate_criteria(scenario, times, signals):
+def evaluate_criteria(scenario, times, signals) -> list[CriterionResult]:
     """CriterionResult per judged criterion of `scenario`, on the logged 5 ms samples.
 
     times: (n,) s; signals: {name: Signal} over those samples.
@@ -53,7 +53,7 @@ class CriteriaStream:
         vehicles = [v.name for v in scenario.vehicles]
         self._streams = [CriterionStream(c, runs, vehicles) for c in judged_criteria(scenario)]
 
-    def update(self, times, signals):
+    def update(self, times, signals) -> None:
         """Fold times (k,) s and {name: Signal} of (k, N) values and fresh masks."""
 
         def lookup(name):
@@ -62,6 +62,6 @@ class CriteriaStream:
         for stream in self._streams:
             stream.update(times, lookup)
 
-    def results(self, j):
+    def results(self, j) -> list[CriterionResult]:
         """Run j's CriterionResult per judged criterion (as ``evaluate_criteria``'s)."""
         return [stream.result(j) for stream in self._streams]

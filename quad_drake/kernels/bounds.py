@@ -20,7 +20,9 @@ from quad_drake.models.accuracy_bound import PCRB_PRIOR_STD, PCRB_STATES, euler_
 _euler_rate_entries = compiled(euler_rate_entries)
 
 
-def posterior_crbs(states, gps_fresh, mag_fresh, sensors, period=LOG_PERIOD, dt_imu=ONBOARD_PERIOD):
+def posterior_crbs(
+    states, gps_fresh, mag_fresh, sensors, period=LOG_PERIOD, dt_imu=ONBOARD_PERIOD
+) -> dict[str, np.ndarray]:
     """{name: (n, N) variance} of :func:`~quad_drake.models.accuracy_bound.posterior_crb` for N runs.
 
     states: (n, N, 13) logged truth; gps_fresh, mag_fresh: (n, N) bool; sensors: the
@@ -61,7 +63,7 @@ class PcrbStream:
         self._before = None  # (N, 3) true velocity of the sample before it (None: it is the first)
         self._started = False  # the first sample has been propagated
 
-    def update(self, states, gps_fresh, mag_fresh):
+    def update(self, states, gps_fresh, mag_fresh) -> dict[str, np.ndarray]:
         """Fold samples (k, N, 13) truth, (k, N) GPS and magnetometer freshness; {name: (m, N)
         variance} of the samples now complete (the held one and all of these but the last)."""
         states = np.asarray(states, dtype=float)
@@ -90,7 +92,7 @@ class PcrbStream:
             self._before = velocity[done - 1].copy()
         return self._propagate(states[:done], accel, gps_fresh[:done], mag_fresh[:done])
 
-    def finish(self):
+    def finish(self) -> dict[str, np.ndarray]:
         """{name: (1, N) variance} of the last sample (its force one-sided, as np.gradient's edge;
         zero for a one-sample run); empty when nothing is held."""
         if self._held is None:

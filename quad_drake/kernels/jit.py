@@ -50,7 +50,7 @@ class CompileNotice(event.Listener):
         self.seconds = 0.0  # s, spent compiling so far in this process (outermost compilations)
         self._depth, self._start = 0, 0.0
 
-    def on_start(self, compile_event):
+    def on_start(self, compile_event) -> None:
         self._depth += 1
         if self._depth == 1:
             self._start = time.perf_counter()
@@ -61,13 +61,13 @@ class CompileNotice(event.Listener):
             self.shown = True
             print(COMPILE_NOTICE, file=sys.stderr, flush=True)
 
-    def on_end(self, compile_event):
+    def on_end(self, compile_event) -> None:
         self._depth -= 1
         if self._depth == 0:
             self.seconds += time.perf_counter() - self._start
 
 
-def compile_seconds():
+def compile_seconds() -> float:
     """s spent by numba compiling (any kernel, not loading from the cache) in this process so
     far: what a flight subtracts from its wall time (``simulation.run``)."""
     return compile_notice.seconds
@@ -77,7 +77,7 @@ compile_notice = CompileNotice()
 event.register("numba:compile", compile_notice)
 
 
-def fallback_cache_dir():
+def fallback_cache_dir() -> str:
     """The cache directory used where numba has none: ``<tmp>/quad_drake-numba-<user>``, one per
     user: the numeric user id where the platform has one (a container may run an id that has no
     name), else the login name; ``tempfile.gettempdir()`` honours ``$TMPDIR``."""
@@ -85,7 +85,7 @@ def fallback_cache_dir():
     return os.path.join(tempfile.gettempdir(), f"quad_drake-numba-{user}")
 
 
-def private_directory(path):
+def private_directory(path) -> bool:
     """Make `path` a directory (mode 0o700) unless it exists; True when it is then a real
     directory (not a link) owned by this user that neither its group nor others can write."""
     try:
@@ -97,7 +97,7 @@ def private_directory(path):
     return stat.S_ISDIR(status.st_mode) and owned and not status.st_mode & (stat.S_IWGRP | stat.S_IWOTH)
 
 
-def njit_cached(function):
+def njit_cached(function) -> Callable:
     """``numba.njit(cache=True)(function)``, cached under :func:`fallback_cache_dir` where numba
     can write none of its own cache directories, and uncached (one warning per process) where
     that cannot be written either or is not private (:func:`private_directory`). numba decides

@@ -88,7 +88,7 @@ def _propagation(F, Q, steps):
     return transition, accumulated, history
 
 
-def steady_state_kalman(F, Q, H, R, steps):
+def steady_state_kalman(F, Q, H, R, steps) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(posterior, prior, time-averaged) steady-state covariances of a Kalman filter.
 
     The state x_{k+1} = F x_k + w_k, cov(w) = Q per step, is measured z = H x + v,
@@ -122,7 +122,9 @@ def _bounds(posterior, prior, mean):
     ]
 
 
-def position_velocity_tilt_bound(accel_std, gyro_std, pos_std, vel_std, gps_period, dt=ONBOARD_PERIOD):
+def position_velocity_tilt_bound(
+    accel_std, gyro_std, pos_std, vel_std, gps_period, dt=ONBOARD_PERIOD
+) -> tuple[StateBound, StateBound, StateBound]:
     """(position, velocity, tilt) StateBound of one horizontal axis: [p, v, theta], v' = g theta.
 
     gyro_std: rad/s per IMU sample of the tilt axis (pitch for N, roll for E).
@@ -135,7 +137,9 @@ def position_velocity_tilt_bound(accel_std, gyro_std, pos_std, vel_std, gps_peri
     return position, velocity, tilt
 
 
-def position_velocity_bound(accel_std, pos_std, vel_std, gps_period, dt=ONBOARD_PERIOD):
+def position_velocity_bound(
+    accel_std, pos_std, vel_std, gps_period, dt=ONBOARD_PERIOD
+) -> tuple[StateBound, StateBound]:
     """(position, velocity) StateBound of one axis: double integrator, GPS p and v (vertical axis)."""
     F = np.array([[1.0, dt], [0.0, 1.0]])
     G = np.array([[0.5 * dt * dt], [dt]])
@@ -145,7 +149,7 @@ def position_velocity_bound(accel_std, pos_std, vel_std, gps_period, dt=ONBOARD_
     return position, velocity
 
 
-def yaw_bound(gyro_std, yaw_std, mag_period, dt=ONBOARD_PERIOD):
+def yaw_bound(gyro_std, yaw_std, mag_period, dt=ONBOARD_PERIOD) -> StateBound:
     """StateBound of yaw: gyro random walk, direct magnetometer measurement."""
     (bound,) = _bounds(
         *steady_state_kalman(
@@ -155,7 +159,7 @@ def yaw_bound(gyro_std, yaw_std, mag_period, dt=ONBOARD_PERIOD):
     return bound
 
 
-def accuracy_bound(vehicle):
+def accuracy_bound(vehicle) -> dict[str, StateBound]:
     """{state name: StateBound} for the states a VehicleConfig's sensors make observable.
 
     Names as the ``Est.E.*`` signals: X, Y, Z, VX, VY, VZ, Pitch (the N axis's tilt), Roll
@@ -210,7 +214,9 @@ def _rotations(q):
     )
 
 
-def posterior_crb(state, gps_fresh, mag_fresh, sensors, period=LOG_PERIOD, dt_imu=ONBOARD_PERIOD):
+def posterior_crb(
+    state, gps_fresh, mag_fresh, sensors, period=LOG_PERIOD, dt_imu=ONBOARD_PERIOD
+) -> dict[str, np.ndarray]:
     """{name: (n,) variance} of the PCRB at every log sample (after that sample's fusions).
 
     state: (n, 13) logged truth (p, q wxyz, v, w) at the log period; gps_fresh, mag_fresh: (n,)
@@ -266,7 +272,7 @@ def posterior_crb(state, gps_fresh, mag_fresh, sensors, period=LOG_PERIOD, dt_im
     return result
 
 
-def euler_rate_entries(r20, r21, r22):
+def euler_rate_entries(r20, r21, r22) -> tuple[float, float, float, float, float, float]:
     """The entries (sin r tan p, cos r tan p, cos r, -sin r, sin r / cos p, cos r / cos p) of W,
     d(roll, pitch, yaw)/dt = W w_B (ZYX angles r, p), from the last row of R_NB without the angles:
     (R21, R22) = cos p (sin r, cos r) and R20 = -sin p, with cos p >= 0."""

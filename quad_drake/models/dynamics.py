@@ -28,7 +28,9 @@ from quad_drake.conventions import GRAVITY, SQRT2
 from quad_drake.models.fidelity import PHYSICAL
 
 
-def clamped_noisy_commands(commands, noise_unit, min_thrust, max_thrust, noise_half_width):
+def clamped_noisy_commands(
+    commands, noise_unit, min_thrust, max_thrust, noise_half_width
+) -> tuple[float, float, float, float]:
     """Target force of each of the four motors, N: clamp(cmd, min, max) + half_width (2u - 1), u in [0, 1].
 
     The noise is added after the clamp, so the target may slightly exceed the limits
@@ -48,7 +50,7 @@ def clamped_noisy_commands(commands, noise_unit, min_thrust, max_thrust, noise_h
     )
 
 
-def motor_lag_step(forces_old, forces_cmd, dt, tau_up, tau_down):
+def motor_lag_step(forces_old, forces_cmd, dt, tau_up, tau_down) -> tuple[float, float, float, float]:
     """The four motor forces (N) after one backward-Euler first-order lag step of dt s.
 
     F = Fcmd dt/(dt + tau) + Fold tau/(dt + tau), with tau = tau_up when Fcmd >= Fold
@@ -68,7 +70,9 @@ def motor_lag_step(forces_old, forces_cmd, dt, tau_up, tau_down):
     )
 
 
-def wrench_from_thrusts(forces, arm_length, kappa, com_offset=(0.0, 0.0)):
+def wrench_from_thrusts(
+    forces, arm_length, kappa, com_offset=(0.0, 0.0)
+) -> tuple[float, float, float, float]:
     """(T, Mx, My, Mz): total thrust (N, along body -z) and moments about the CoM (N m, FRD).
 
     forces: the four motor forces (N) in the order of the module table. com_offset: the
@@ -85,7 +89,7 @@ def wrench_from_thrusts(forces, arm_length, kappa, com_offset=(0.0, 0.0)):
     )
 
 
-def thrusts_from_wrench(thrust, mx, my, mz, arm_length, kappa):
+def thrusts_from_wrench(thrust, mx, my, mz, arm_length, kappa) -> tuple[float, float, float, float]:
     """Motor forces (F0, F1, F2, F3), N, realising (T, Mx, My, Mz); the exact inverse of
     :func:`wrench_from_thrusts` for a centred CoM (SPEC §5 step 8). Not clamped."""
     dx = mx / (2.0 * SQRT2 * arm_length)
@@ -99,13 +103,13 @@ NO_EXTRA = (0.0, 0.0, 0.0)
 """No further acceleration (m/s^2, NED), and no wind (m/s, NED): a drag-free or windless step."""
 
 
-def has_drag(params):
+def has_drag(params) -> bool:
     """True when PhysicsParams has any non-zero rotor or parasitic drag coefficient."""
     r, p = params.rotor_drag, params.parasitic_drag
     return r[0] != 0.0 or r[1] != 0.0 or r[2] != 0.0 or p[0] != 0.0 or p[1] != 0.0 or p[2] != 0.0
 
 
-def drag_force_body(v_rel_B, rotor_drag, parasitic_drag):
+def drag_force_body(v_rel_B, rotor_drag, parasitic_drag) -> tuple[float, float, float]:
     """Aerodynamic drag force on the body, N, body FRD (3):
     F_B = -K v_rel - |v_rel| C v_rel, K = diag(rotor_drag), C = diag(parasitic_drag).
 
@@ -126,7 +130,7 @@ def drag_force_body(v_rel_B, rotor_drag, parasitic_drag):
     )
 
 
-def drag_force_jacobian(v_rel_B, rotor_drag, parasitic_drag):
+def drag_force_jacobian(v_rel_B, rotor_drag, parasitic_drag) -> tuple[tuple[float, float, float], ...]:
     """d F_B / d v_rel_B (3 x 3 nested tuples, N s/m) of :func:`drag_force_body`:
     -K - C (|v| I + v v^T / |v|) (the second term 0 at v = 0, where it is continuous)."""
     speed = (v_rel_B[0] ** 2 + v_rel_B[1] ** 2 + v_rel_B[2] ** 2) ** 0.5
@@ -141,7 +145,7 @@ def drag_force_jacobian(v_rel_B, rotor_drag, parasitic_drag):
     return tuple(rows)
 
 
-def drag_acceleration(state, wind_N, params):
+def drag_acceleration(state, wind_N, params) -> tuple[float, float, float]:
     """Drag acceleration of the vehicle, m/s^2, NED (3): R_NB F_B / m, with F_B the
     :func:`drag_force_body` of the air-relative velocity v_rel_B = R_NB^T (v_NB - wind_N).
 
@@ -203,7 +207,7 @@ def _coefficients(thrust, moment, mass, inertia):
     )
 
 
-def rigid_body_derivatives(state, thrust, moment, mass, inertia, extra=NO_EXTRA):
+def rigid_body_derivatives(state, thrust, moment, mass, inertia, extra=NO_EXTRA) -> tuple[float, ...]:
     """Time derivative (13-tuple) of the state under thrust T (N) and body moment M (N m).
 
     p_dot = v; q_dot = q (x) (0, w) / 2; v_dot = R(q) (0, 0, -T)/m + g_N + extra (the NED
@@ -217,7 +221,9 @@ def rigid_body_derivatives(state, thrust, moment, mass, inertia, extra=NO_EXTRA)
     return (vx, vy, vz, qdw, qdx, qdy, qdz, ax, ay, az, wdx, wdy, wdz)
 
 
-def rigid_body_step(state, thrust, moment, mass, inertia, dt, extra=NO_EXTRA):
+def rigid_body_step(
+    state, thrust, moment, mass, inertia, dt, extra=NO_EXTRA
+) -> tuple[tuple[float, ...], tuple[float, float, float]]:
     """One classical RK4 step of dt s with the wrench (and `extra`, a NED acceleration in m/s^2
     such as the drag of :func:`drag_acceleration`) held constant; q renormalised.
 
@@ -311,7 +317,9 @@ def rigid_body_step(state, thrust, moment, mass, inertia, dt, extra=NO_EXTRA):
     return new, (ax, ay, az)
 
 
-def rigid_body_step_semi_implicit(state, thrust, moment, mass, inertia, dt, extra=NO_EXTRA):
+def rigid_body_step_semi_implicit(
+    state, thrust, moment, mass, inertia, dt, extra=NO_EXTRA
+) -> tuple[tuple[float, ...], tuple[float, float, float]]:
     """One step of dt s of the reference's semi-implicit Euler body (SPEC §3 steps 4-6).
 
     From the state at the start of the step: a = R(q) (0, 0, -T)/m + g_N + extra; v += a dt;
@@ -344,7 +352,7 @@ def rigid_body_step_semi_implicit(state, thrust, moment, mass, inertia, dt, extr
     return new, (ax, ay, az)
 
 
-def apply_room_constraints(state_new, state_old, params):
+def apply_room_constraints(state_new, state_old, params) -> tuple[float, ...]:
     """State (13 floats) after the room limits of SPEC §3 step 7; inputs are not modified.
 
     params: PhysicsParams (x_bounds, y_bounds, z_bounds in m, NED). Sticky floor: when
@@ -370,13 +378,13 @@ def apply_room_constraints(state_new, state_old, params):
     return (px, py, pz, qw, qx, qy, qz, vx, vy, vz, wx, wy, wz)
 
 
-def on_floor(state, params):
+def on_floor(state, params) -> bool:
     """True when the vehicle rests on the (sticky) floor: z >= z_max (m, NED; the constraint
     sets z = z_max exactly). False for a non-finite z."""
     return state[2] >= params.z_bounds[1]
 
 
-def outside_room(state, params):
+def outside_room(state, params) -> bool:
     """True when x or y is outside its bounds or z is above the ceiling (z < z_min), m, NED;
     :func:`apply_room_constraints` then stops the vehicle at that wall or the ceiling. False
     for non-finite coordinates, which the constraints leave alone too."""
@@ -386,7 +394,7 @@ def outside_room(state, params):
     return x < x_min or x > x_max or y < y_min or y > y_max or state[2] < params.z_bounds[0]
 
 
-def count_contacts(contacts, state, hit_wall, params):
+def count_contacts(contacts, state, hit_wall, params) -> tuple[float, float, float]:
     """The contact counts (on the floor 1/0, floor touchdowns, wall hits) after a physics step.
 
     contacts: the counts before the step (3 floats, the same three); state: the state after it
@@ -404,7 +412,9 @@ def count_contacts(contacts, state, hit_wall, params):
     return (1.0 if floor else 0.0, touchdowns, wall_hits)
 
 
-def plant_step(state, forces_old, commands, noise_unit, params, dt, fidelity=PHYSICAL, wind=NO_EXTRA):
+def plant_step(
+    state, forces_old, commands, noise_unit, params, dt, fidelity=PHYSICAL, wind=NO_EXTRA
+) -> tuple[tuple[float, ...], tuple[float, float, float], tuple[float, float, float, float], bool]:
     """One physics step of SPEC §3 (steps 1-8), with the drag of :func:`drag_acceleration` in
     the air moving at `wind` (3, m/s, NED), held over the step, when PhysicsParams has drag
     (:func:`has_drag`; without it the wind does not act and the step is the drag-free one).
@@ -438,7 +448,7 @@ def plant_step(state, forces_old, commands, noise_unit, params, dt, fidelity=PHY
     return new, accel, forces, hit_wall
 
 
-def float32_rounded(state):
+def float32_rounded(state) -> tuple[float, ...]:
     """The 13 floats of `state` each rounded to the nearest float32 (a tuple of floats)."""
     px, py, pz, qw, qx, qy, qz, vx, vy, vz, wx, wy, wz = state
     return (
@@ -458,7 +468,7 @@ def float32_rounded(state):
     )
 
 
-def to_float32(value):
+def to_float32(value) -> float:
     """`value` rounded to the nearest float32, as a float (float64: the inner cast keeps numba's
     compiled form, ``kernels.flight``, from typing it float32)."""
     return float(np.float64(np.float32(value)))

@@ -19,6 +19,8 @@ The truth signals themselves (``Pos.*``, ``Vel.*``, ``Roll`` ...) and the estima
 are the sample's in both definitions, as the binary's are.
 """
 
+import numpy as np
+
 TICK_STATE = "tick_state"
 """Log of the true state (13, the ``state`` layout) at the last onboard tick before each sample."""
 TICK_REFERENCE = "tick_reference"
@@ -27,13 +29,13 @@ TICK_LOG_WIDTHS = {TICK_STATE: 13, TICK_REFERENCE: 10}
 """The logs a vehicle adds under ``errors_at_onboard_tick`` (name: width)."""
 
 
-def error_truth(logs):
+def error_truth(logs) -> np.ndarray:
     """The true state (n, 13) (or a fleet batch's (n, N, 13)) the logged estimate errors are taken
     against: the tick's (:data:`TICK_STATE`) when the logs have it, else the sample's ``state``."""
     return logs[TICK_STATE] if TICK_STATE in logs else logs["state"]
 
 
-def error_reference(logs):
+def error_reference(logs) -> np.ndarray:
     """The reference (n, 10) ``Ref.*`` and ``PosFollowErr`` are taken from: the tick's
     (:data:`TICK_REFERENCE`) when the logs have it, else the sample's ``reference``."""
     return logs[TICK_REFERENCE] if TICK_REFERENCE in logs else logs["reference"]

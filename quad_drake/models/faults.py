@@ -33,35 +33,35 @@ STAMPED = {"imu": False, "gps": True, "mag": True, "baro": True}
 """Whether a sensor's sample carries its stamp as its last entry."""
 
 
-def sensor_of(kind):
+def sensor_of(kind) -> str:
     """The sensor a fault kind acts on: the prefix of its name (``gps_outage`` -> ``gps``)."""
     return kind.split("_", 1)[0]
 
 
-def in_window(time, start, end):
+def in_window(time, start, end) -> bool:
     """True iff start <= time < end (s), each comparison to TIME_TOLERANCE."""
     return start - TIME_TOLERANCE <= time < end - TIME_TOLERANCE
 
 
-def removed(sample, stamped=True):
+def removed(sample, stamped=True) -> list[float]:
     """The sample taken away: NaN values, and stamp NO_SAMPLE_STAMP where the layout has one."""
     if not stamped:
         return [math.nan] * len(sample)
     return [math.nan] * (len(sample) - 1) + [NO_SAMPLE_STAMP]
 
 
-def shifted(sample, offset):
+def shifted(sample, offset) -> list[float]:
     """The sample with ``offset`` added to its leading entries (len(offset) of them)."""
     n = len(offset)
     return [x + d for x, d in zip(sample[:n], offset, strict=True)] + list(sample[n:])
 
 
-def gps_outage(sample, time, fault, period):
+def gps_outage(sample, time, fault, period) -> list[float]:
     """No GPS sample measured in [start, end)."""
     return removed(sample) if in_window(time, fault.start, fault.end) else sample
 
 
-def gps_outlier(sample, time, fault, period):
+def gps_outlier(sample, time, fault, period) -> list[float]:
     """The first GPS sample measured at or after ``fault.time`` shifted by ``fault.offset`` (3, m).
 
     With samples every ``period`` s that is the one measured in [time, time + period).
@@ -69,41 +69,41 @@ def gps_outlier(sample, time, fault, period):
     return shifted(sample, fault.offset) if in_window(time, fault.time, fault.time + period) else sample
 
 
-def gps_step(sample, time, fault, period):
+def gps_step(sample, time, fault, period) -> list[float]:
     """GPS positions measured in [start, end) shifted by ``fault.offset`` (3, m); velocity kept."""
     return shifted(sample, fault.offset) if in_window(time, fault.start, fault.end) else sample
 
 
-def mag_bias(sample, time, fault, period):
+def mag_bias(sample, time, fault, period) -> list[float]:
     """Magnetometer yaw measured in [start, end) offset by ``fault.offset[0]`` rad, wrapped to [-pi, pi)."""
     if not in_window(time, fault.start, fault.end):
         return sample
     return [wrap_to_pi(sample[0] + fault.offset[0])] + list(sample[1:])
 
 
-def mag_outage(sample, time, fault, period):
+def mag_outage(sample, time, fault, period) -> list[float]:
     """No magnetometer sample measured in [start, end)."""
     return removed(sample) if in_window(time, fault.start, fault.end) else sample
 
 
-def mag_disturbance(sample, time, fault, period):
+def mag_disturbance(sample, time, fault, period) -> list[float]:
     """3-axis magnetometer fields measured in [start, end) shifted by ``fault.offset`` (3, gauss,
     body FRD): a magnetic disturbance near the vehicle."""
     return shifted(sample, fault.offset) if in_window(time, fault.start, fault.end) else sample
 
 
-def baro_outage(sample, time, fault, period):
+def baro_outage(sample, time, fault, period) -> list[float]:
     """No barometer sample measured in [start, end)."""
     return removed(sample) if in_window(time, fault.start, fault.end) else sample
 
 
-def baro_step(sample, time, fault, period):
+def baro_step(sample, time, fault, period) -> list[float]:
     """Barometer heights measured in [start, end) shifted by ``fault.offset[0]`` m (e.g. a
     pressure change: weather, a door, a gust on the static port)."""
     return shifted(sample, fault.offset) if in_window(time, fault.start, fault.end) else sample
 
 
-def imu_dropout(sample, time, fault, period):
+def imu_dropout(sample, time, fault, period) -> list[float]:
     """Every IMU sample measured in [start, end) non-finite (NaN)."""
     return removed(sample, stamped=False) if in_window(time, fault.start, fault.end) else sample
 
@@ -122,17 +122,17 @@ SAMPLE_FAULTS = {
 """The faults that are functions of one sample, by kind."""
 
 
-def sample_faults(faults, sensor):
+def sample_faults(faults, sensor) -> tuple:
     """The faults of `faults` (FaultConfig list) that act on single samples of `sensor`, in order."""
     return tuple(f for f in faults if f.kind in SAMPLE_FAULTS and sensor_of(f.kind) == sensor)
 
 
-def gps_delay_of(faults):
+def gps_delay_of(faults) -> float:
     """The configured GPS delay, s (0 without a gps_delay fault)."""
     return sum(f.delay for f in faults if f.kind == "gps_delay")
 
 
-def apply_faults(faults, sample, time, period):
+def apply_faults(faults, sample, time, period) -> list[float]:
     """`sample` (list) measured at `time` (s) after each fault of `faults` in order.
 
     ``faults``: FaultConfig of one sensor (see :func:`sample_faults`); ``period``: s between
@@ -145,7 +145,7 @@ def apply_faults(faults, sample, time, period):
     return sample
 
 
-def release_due(pending, now, delay):
+def release_due(pending, now, delay) -> tuple[list[list[float]], list[list[float]]]:
     """(due, still pending): samples of `pending` whose stamp + delay <= now (s), oldest first.
 
     ``pending``: stamped samples (lists, stamp last) in the order they were measured. The
@@ -157,7 +157,9 @@ def release_due(pending, now, delay):
     return pending[:count], pending[count:]
 
 
-def delay_queue_step(pending, sample, last_stamp, now, delay, capacity, sample_faults, period):
+def delay_queue_step(
+    pending, sample, last_stamp, now, delay, capacity, sample_faults, period
+) -> tuple[list[list[float]], list[list[float]], float]:
     """One tick of a ``gps_delay`` queue: (due, pending, last_stamp) after taking in `sample`.
 
     ``pending``: the queued samples (stamp last), oldest first, as of the previous tick;

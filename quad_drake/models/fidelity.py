@@ -92,7 +92,7 @@ REFERENCE = Fidelity(
 )
 
 
-def fidelity_from_mode(mode):
+def fidelity_from_mode(mode) -> Fidelity:
     """The :class:`Fidelity` of a mode name in :data:`FIDELITY_MODES`."""
     if mode == "physical":
         return PHYSICAL

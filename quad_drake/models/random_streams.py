@@ -39,18 +39,18 @@ still see that sample: the rounding of t / period (about 1e-9 of a sample at 10,
 samples); every consumer reads at or after the sample time (``conventions``' offsets)."""
 
 
-def sample_index(time, period):
+def sample_index(time, period) -> int:
     """The index k of the noise sample held at `time` s: the last redraw at k period <= time."""
     return math.floor(time / period + SAMPLE_TIME_TOLERANCE)
 
 
-def stream_key(run_seed, name):
+def stream_key(run_seed, name) -> np.ndarray:
     """(2,) uint64 Philox key of the noise named `name` of the run with seed `run_seed` (>= 0)."""
     sequence = np.random.SeedSequence(int(run_seed), spawn_key=(zlib.crc32(name.encode()),))
     return sequence.generate_state(2, np.uint64)
 
 
-def stream_generator(run_seed, name):
+def stream_generator(run_seed, name) -> np.random.Generator:
     """A fresh numpy Generator at the start of the stream (run_seed, name)."""
     return np.random.Generator(np.random.Philox(key=stream_key(run_seed, name)))
 
@@ -73,10 +73,10 @@ class NoiseStreams:
         self._next_block = 0  # the block the generators draw next
 
     @property
-    def n(self):
+    def n(self) -> int:
         return len(self.seeds)
 
-    def block(self, index, out=None):
+    def block(self, index, out=None) -> np.ndarray:
         """(N, samples_per_block, size) draws of block `index` ([j, k]: sample k of the block of
         vehicle j), written into `out` (a C-contiguous float array of that shape, reused from
         block to block) when given.

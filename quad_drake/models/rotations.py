@@ -12,17 +12,17 @@ import numpy as np
 TWO_PI = 2.0 * math.pi
 
 
-def wrap_to_pi(angle):
+def wrap_to_pi(angle) -> float:
     """Angle wrapped into [-pi, pi), rad. The one place yaw differences are wrapped."""
     return (angle + math.pi) % TWO_PI - math.pi
 
 
-def wrap_angles(a):
+def wrap_angles(a) -> np.ndarray:
     """Array version of :func:`wrap_to_pi` (its formula, elementwise): into [-pi, pi)."""
     return wrap_to_pi(a)
 
 
-def euler_from_quats(q):
+def euler_from_quats(q) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(roll, pitch, yaw) arrays of shape (...) of a (..., 4) array of wxyz quaternions (SPEC §0.1)."""
     w, x, y, z = np.array(np.moveaxis(q, -1, 0))  # one contiguous copy: q may be a strided view
     roll = np.arctan2(2 * (y * z + w * x), w * w - x * x - y * y + z * z)
@@ -30,7 +30,7 @@ def euler_from_quats(q):
     return roll, pitch, _yaw_of(w, x, y, z)
 
 
-def yaw_from_quats(q):
+def yaw_from_quats(q) -> np.ndarray:
     """The yaw array (...) of a (..., 4) array of wxyz quaternions, rad: :func:`euler_from_quats`'
     yaw without its roll and pitch."""
     w, x, y, z = np.moveaxis(np.asarray(q), -1, 0)
@@ -42,7 +42,7 @@ def _yaw_of(w, x, y, z):
     return np.arctan2(2 * (x * y + w * z), w * w + x * x - y * y - z * z)
 
 
-def quat_from_euler_tuple(roll, pitch, yaw):
+def quat_from_euler_tuple(roll, pitch, yaw) -> tuple[float, float, float, float]:
     """Quaternion (w, x, y, z) of R = Rz(yaw) Ry(pitch) Rx(roll) as a tuple of floats; angles in rad."""
     cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
     cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
@@ -55,12 +55,12 @@ def quat_from_euler_tuple(roll, pitch, yaw):
     )
 
 
-def quat_from_euler(roll, pitch, yaw):
+def quat_from_euler(roll, pitch, yaw) -> np.ndarray:
     """Quaternion wxyz (4,) of R = Rz(yaw) Ry(pitch) Rx(roll); angles in rad."""
     return np.array(quat_from_euler_tuple(roll, pitch, yaw))
 
 
-def euler_from_quat(q):
+def euler_from_quat(q) -> tuple[float, float, float]:
     """(roll, pitch, yaw) in rad of a wxyz quaternion (need not be unit)."""
     w, x, y, z = q[0], q[1], q[2], q[3]
     n2 = w * w + x * x + y * y + z * z
@@ -71,7 +71,7 @@ def euler_from_quat(q):
     return roll, pitch, yaw
 
 
-def rotation_entries(qw, qx, qy, qz):
+def rotation_entries(qw, qx, qy, qz) -> tuple[float, float, float, float, float, float, float, float, float]:
     """The 9 entries of R_NB (row-major floats) of a unit wxyz quaternion: the one formula of
     :func:`rotation_from_quat`, in plain float arithmetic (the compiled kernels call it)."""
     return (
@@ -87,12 +87,12 @@ def rotation_entries(qw, qx, qy, qz):
     )
 
 
-def rotation_from_quat(q):
+def rotation_from_quat(q) -> np.ndarray:
     """R_NB (3x3) of a unit wxyz quaternion q_NB."""
     return np.array(rotation_entries(q[0], q[1], q[2], q[3])).reshape(3, 3)
 
 
-def rotation_from_euler(roll, pitch, yaw):
+def rotation_from_euler(roll, pitch, yaw) -> np.ndarray:
     """R_NB = Rz(yaw) Ry(pitch) Rx(roll) (3x3); angles in rad."""
     cr, sr = math.cos(roll), math.sin(roll)
     cp, sp = math.cos(pitch), math.sin(pitch)
@@ -106,7 +106,7 @@ def rotation_from_euler(roll, pitch, yaw):
     )
 
 
-def rotation_yaw_derivative(roll, pitch, yaw):
+def rotation_yaw_derivative(roll, pitch, yaw) -> np.ndarray:
     """dR_NB/dyaw (3x3) of R = Rz(yaw) Ry(pitch) Rx(roll); the EKF's R'."""
     cr, sr = math.cos(roll), math.sin(roll)
     cp, sp = math.cos(pitch), math.sin(pitch)
@@ -120,7 +120,7 @@ def rotation_yaw_derivative(roll, pitch, yaw):
     )
 
 
-def quat_product(a, b):
+def quat_product(a, b) -> tuple[float, float, float, float]:
     """Hamilton product a (x) b of two wxyz 4-sequences, as a 4-tuple (plain float arithmetic:
     the compiled kernels call it)."""
     aw, ax, ay, az = a[0], a[1], a[2], a[3]
@@ -133,12 +133,12 @@ def quat_product(a, b):
     )
 
 
-def quat_multiply(a, b):
+def quat_multiply(a, b) -> np.ndarray:
     """Hamilton product a * b of wxyz quaternions, (4,) (:func:`quat_product`)."""
     return np.array(quat_product(a, b))
 
 
-def quat_integrate_body_rate(q, w_B, dt):
+def quat_integrate_body_rate(q, w_B, dt) -> np.ndarray:
     """q_NB after rotating for dt s at constant body rate w_B (rad/s): q * exp(w dt / 2).
 
     Exact for constant w_B; the result is normalised.
@@ -155,6 +155,6 @@ def quat_integrate_body_rate(q, w_B, dt):
     return out / math.sqrt(out @ out)
 
 
-def skew(v):
+def skew(v) -> np.ndarray:
     """Cross-product matrix [v]x with [v]x u = v x u."""
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])

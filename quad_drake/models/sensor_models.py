@@ -24,7 +24,7 @@ from quad_drake.models.fidelity import PHYSICAL
 from quad_drake.models.rotations import euler_from_quat, wrap_to_pi
 
 
-def specific_force(q_NB, a_NB):
+def specific_force(q_NB, a_NB) -> tuple[float, float, float]:
     """Specific force f_B = R_NB^T (a_NB - g_N), m/s^2, body FRD (3).
 
     q_NB: wxyz quaternion (need not be exactly unit); a_NB: kinematic acceleration of B
@@ -33,7 +33,7 @@ def specific_force(q_NB, a_NB):
     return _rotate_to_body(q_NB, a_NB[0], a_NB[1], a_NB[2] - GRAVITY)
 
 
-def reference_accelerometer(q_NB, a_NB):
+def reference_accelerometer(q_NB, a_NB) -> tuple[float, float, float]:
     """The reference simulator's accelerometer R_NB^T (a_NB + g_N), m/s^2, FRD (SPEC §2).
 
     (0, 0, +9.81) when level at rest; not the specific force once the body accelerates or
@@ -58,7 +58,7 @@ def _clamp(value, limit):
     return -limit if value < -limit else (limit if value > limit else value)
 
 
-def delta_velocity_step(q_old, q_new, a_NB, dt):
+def delta_velocity_step(q_old, q_new, a_NB, dt) -> tuple[float, float, float]:
     """Body-frame delta-velocity of one physics step, m/s, FRD (3): the integral over the step of
     the specific force f_B = R_NB^T (a_NB - g_N), by the trapezoid rule on the attitude,
     dt/2 (R(q_old)^T + R(q_new)^T) (a_NB - g_N).
@@ -75,7 +75,7 @@ def delta_velocity_step(q_old, q_new, a_NB, dt):
     return (h * (f0[0] + f1[0]), h * (f0[1] + f1[1]), h * (f0[2] + f1[2]))
 
 
-def imu_saturated(sample, params):
+def imu_saturated(sample, params) -> tuple[float, float]:
     """(accelerometer, gyro) 1.0 where any axis of the IMU `sample` (6) sits at its range limit
     (ImuParams.accel_limit, gyro_limit; gyro_limit 0: never), else 0.0; a NaN sample is not."""
     a_limit, g_limit = params.accel_limit, params.gyro_limit
@@ -89,7 +89,9 @@ def imu_saturated(sample, params):
 NO_IMU_BIAS = (0.0,) * 6
 
 
-def imu_measurement(q_NB, w_NB_B, a_NB, noise, params, fidelity=PHYSICAL, bias=NO_IMU_BIAS):
+def imu_measurement(
+    q_NB, w_NB_B, a_NB, noise, params, fidelity=PHYSICAL, bias=NO_IMU_BIAS
+) -> tuple[float, ...]:
     """Noisy IMU sample (f_B (3, m/s^2), gyro (3, rad/s)): 6 floats.
 
     noise: 6 unit-normal draws, 3 accelerometer then 3 gyro (SPEC §0.3 order).
@@ -106,7 +108,9 @@ def imu_measurement(q_NB, w_NB_B, a_NB, noise, params, fidelity=PHYSICAL, bias=N
     return imu_from_specific_force(f, w_NB_B, noise, params, fidelity, bias)
 
 
-def imu_from_specific_force(f_B, w_NB_B, noise, params, fidelity=PHYSICAL, bias=NO_IMU_BIAS):
+def imu_from_specific_force(
+    f_B, w_NB_B, noise, params, fidelity=PHYSICAL, bias=NO_IMU_BIAS
+) -> tuple[float, ...]:
     """Noisy IMU sample (6) of the specific force f_B (3, m/s^2, FRD) and the body rate w_NB_B
     (3, rad/s, FRD): each plus its bias and noise (as :func:`imu_measurement`), the accelerometer
     saturated per axis to +-accel_limit and, when ImuParams.gyro_limit > 0, the gyro to
@@ -143,17 +147,17 @@ def imu_from_specific_force(f_B, w_NB_B, noise, params, fidelity=PHYSICAL, bias=
     return sample
 
 
-def imu_initial_bias(params):
+def imu_initial_bias(params) -> list[float]:
     """The IMU bias at t = 0 (6: accelerometer m/s^2, gyro rad/s) from ImuParams."""
     return list(params.accel_bias) + list(params.gyro_bias)
 
 
-def imu_has_bias_walk(params):
+def imu_has_bias_walk(params) -> bool:
     """True iff ImuParams has a non-zero bias random walk (the IMU then needs a bias noise input)."""
     return any(s > 0 for s in list(params.accel_bias_walk_std) + list(params.gyro_bias_walk_std))
 
 
-def imu_bias_step(bias, noise, params):
+def imu_bias_step(bias, noise, params) -> list[float]:
     """The IMU bias (6) after one sample's random-walk step: bias + walk_std * noise.
 
     noise: 6 unit-normal draws, 3 accelerometer then 3 gyro; params: ImuParams (the
@@ -163,7 +167,9 @@ def imu_bias_step(bias, noise, params):
     return [b + s * n for b, s, n in zip(bias, walk, noise, strict=True)]
 
 
-def gps_measurement(p_NB, v_NB, random_walk, noise, params, fidelity=PHYSICAL):
+def gps_measurement(
+    p_NB, v_NB, random_walk, noise, params, fidelity=PHYSICAL
+) -> tuple[list[float], list[float], list[float]]:
     """Noisy GPS sample: (position (3, m), velocity (3, m/s), new random-walk bias (3, m)), NED.
 
     The bias first takes its step, rw += pos_random_walk_std * n_rw, then
@@ -186,7 +192,7 @@ def _float32_entries(values):
     return [np.float64(np.float32(value)) for value in values]
 
 
-def magnetometer_yaw(q_NB, noise, params, fidelity=PHYSICAL):
+def magnetometer_yaw(q_NB, noise, params, fidelity=PHYSICAL) -> float:
     """Noisy yaw sample, rad, wrapped to [-pi, pi): yaw(q_NB) + yaw_std * noise.
 
     noise: one unit-normal draw; params: MagParams; fidelity: with ``float32_estimator`` the
@@ -198,7 +204,7 @@ def magnetometer_yaw(q_NB, noise, params, fidelity=PHYSICAL):
     return yaw
 
 
-def baro_ground_effect(z_NB, params, floor_z=0.0):
+def baro_ground_effect(z_NB, params, floor_z=0.0) -> float | np.ndarray:
     """Ground-effect error of a barometer (m): ``ground_effect_error`` on the floor, fading
     linearly to 0 at ``ground_effect_height`` m above it, 0 higher up or when the height is 0.
 
@@ -211,7 +217,7 @@ def baro_ground_effect(z_NB, params, floor_z=0.0):
     return params.ground_effect_error * np.maximum(1.0 - above / params.ground_effect_height, 0.0)
 
 
-def baro_measurement(z_NB, bias, noise, params, floor_z=0.0):
+def baro_measurement(z_NB, bias, noise, params, floor_z=0.0) -> tuple[float, float]:
     """Noisy barometer sample: (height (m), new bias (m)).
 
     The bias first takes its random-walk step, bias += bias_walk_std * n_walk, then
@@ -225,7 +231,7 @@ def baro_measurement(z_NB, bias, noise, params, floor_z=0.0):
     return -z_NB + bias + ground + params.height_std * noise[1], bias
 
 
-def world_field(strength, declination, inclination):
+def world_field(strength, declination, inclination) -> tuple[float, float, float]:
     """The world magnetic field m_N (3-tuple, gauss, NED): strength (gauss), declination (rad,
     east of true north), inclination (rad, below the horizontal, positive in the northern
     hemisphere): strength (cos I cos D, cos I sin D, sin I)."""
@@ -237,7 +243,7 @@ def world_field(strength, declination, inclination):
     )
 
 
-def magnetometer_field(q_NB, m_N, hard_iron, noise, field_std):
+def magnetometer_field(q_NB, m_N, hard_iron, noise, field_std) -> tuple[float, float, float]:
     """Noisy 3-axis magnetometer sample m_B = R_NB^T m_N + hard_iron + field_std * noise (3-tuple,
     gauss, body FRD).
 

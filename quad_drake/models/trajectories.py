@@ -38,7 +38,7 @@ _HOLD, _LERP, _SLERP = 0, 1, 2
 _clock_table = np.zeros(1, dtype=np.float32)  # float32 clock after n physics steps, n = index
 
 
-def float32_clock(steps):
+def float32_clock(steps) -> float:
     """The reference's ``simulationTime`` (s) after `steps` physics steps (SPEC §0.2).
 
     A float32 that starts at 0 and adds 0.001f once per step, rounding every sum to float32:
@@ -54,7 +54,7 @@ def float32_clock(steps):
     return float(_clock_table[steps])
 
 
-def lookup_time(t, fidelity):
+def lookup_time(t, fidelity) -> float:
     """Time (s) at which a trajectory is looked up at simulation time t (s).
 
     t itself, or with ``fidelity.float32_clock`` the reference's float32 clock after the
@@ -185,7 +185,7 @@ class Trajectory:
     def __len__(self):
         return len(self._times)
 
-    def sample(self, t):
+    def sample(self, t) -> np.ndarray:
         """Reference (10,) at simulation time t (s): p, v, a = 0, yaw."""
         t = t + self.time_offset
         i = bisect.bisect_left(self._times, t) - 1  # largest index with t_i < t
@@ -222,12 +222,12 @@ class ConstantTrajectory:
         self._reference[0:3] = self.point
         self._reference[9] = self.yaw
 
-    def sample(self, t):
+    def sample(self, t) -> np.ndarray:
         """Reference (10,); the same at every time t (s)."""
         return self._reference.copy()
 
 
-def constant_trajectory(point, yaw=0.0, position_offset=(0.0, 0.0, 0.0)):
+def constant_trajectory(point, yaw=0.0, position_offset=(0.0, 0.0, 0.0)) -> ConstantTrajectory:
     """Constant set-point trajectory (SPEC §6 "non-file trajectories")."""
     return ConstantTrajectory(point, yaw, position_offset)
 
@@ -253,7 +253,7 @@ class FigureEight:
         self.center = tuple(float(c) + float(o) for c, o in zip(center, position_offset, strict=True))
         self.time_offset = float(time_offset)
 
-    def sample(self, t):
+    def sample(self, t) -> np.ndarray:
         """Reference (10,) at simulation time t (s)."""
         t = t + self.time_offset
         out = np.empty(REFERENCE_SIZE)
@@ -267,7 +267,7 @@ class FigureEight:
         return out
 
 
-def figure_eight(position_offset=(0.0, 0.0, 0.0), time_offset=0.0):
+def figure_eight(position_offset=(0.0, 0.0, 0.0), time_offset=0.0) -> FigureEight:
     """The default analytic figure eight (SPEC §6 formulas)."""
     return FigureEight(position_offset=position_offset, time_offset=time_offset)
 
@@ -294,7 +294,7 @@ def _parse_line(text, where):
     return values + [0.0] * (len(FILE_COLUMNS) - len(values))
 
 
-def load_trajectory_file(path, position_offset=(0.0, 0.0, 0.0), time_offset=0.0):
+def load_trajectory_file(path, position_offset=(0.0, 0.0, 0.0), time_offset=0.0) -> Trajectory:
     """Trajectory from a reference file (SPEC §6 format).
 
     One point per line, ``t, x, y, z, vx, vy, vz, yaw, pitch, roll, p, q, r``
@@ -337,7 +337,7 @@ def load_trajectory_file(path, position_offset=(0.0, 0.0, 0.0), time_offset=0.0)
     )
 
 
-def trajectory_from_config(cfg, where="trajectory"):
+def trajectory_from_config(cfg, where="trajectory") -> Trajectory | FigureEight | ConstantTrajectory:
     """Trajectory object (with ``sample(t)``) of a :class:`~quad_drake.config.TrajectoryConfig`.
 
     ``where`` is the config path used in error messages (e.g. ``vehicles.0.trajectory``).

@@ -49,7 +49,9 @@ TURBULENCE_STATES = 5
 """States of the three Dryden filters: u 1, v 2, w 2."""
 
 
-def dryden_low_altitude(altitude, wind_speed_6m):
+def dryden_low_altitude(
+    altitude, wind_speed_6m
+) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
     """(sigma_u, sigma_v, sigma_w) m/s and (L_u, L_v, L_w) m of MIL-F-8785C's low-altitude Dryden
     model at `altitude` m above ground (clamped to [10, 1000] ft) for the wind speed W20 at 6 m
     (20 ft), m/s."""
@@ -61,14 +63,14 @@ def dryden_low_altitude(altitude, wind_speed_6m):
     return (sigma_uv, sigma_uv, sigma_w), (length_uv, length_uv, h * FT)
 
 
-def turbulence_speed(config):
+def turbulence_speed(config) -> float:
     """V, m/s: the configured airspeed, else |mean wind| but at least MIN_TURBULENCE_SPEED."""
     if config.airspeed > 0.0:
         return config.airspeed
     return max(math.hypot(*config.mean), MIN_TURBULENCE_SPEED)
 
 
-def turbulence_intensity(config):
+def turbulence_intensity(config) -> float:
     """W20, m/s, of a WindConfig: its wind_speed_6m, else its level's (0 for ``none``)."""
     if config.turbulence == "none":
         return 0.0
@@ -114,7 +116,7 @@ class DrydenModel:
     speed: float
 
 
-def dryden_model(config, period):
+def dryden_model(config, period) -> DrydenModel | None:
     """The :class:`DrydenModel` of a WindConfig on the update `period` s, or None when its
     turbulence is ``none``."""
     from scipy.linalg import expm, solve_continuous_lyapunov  # noqa: PLC0415 (scipy's import, 0.2 s, only here)
@@ -152,21 +154,21 @@ def dryden_model(config, period):
     )
 
 
-def turbulence_start(noise, model):
+def turbulence_start(noise, model) -> np.ndarray:
     """(n, 5) filter states drawn from the stationary distribution: noise (n, 5) unit normals."""
     states = np.zeros(noise.shape)
     filter_rows(states, noise, 0.0 * model.phi, model.initial_gain)
     return states
 
 
-def turbulence_step(states, noise, model):
+def turbulence_step(states, noise, model) -> np.ndarray:
     """(n, 5) filter states one period later: Phi x + G n, noise (n, 5) unit normals."""
     stepped = states.copy()
     filter_rows(stepped, noise, model.phi, model.noise_gain)
     return stepped
 
 
-def turbulence_velocity(states, model):
+def turbulence_velocity(states, model) -> np.ndarray:
     """(n, 3) turbulence velocity, m/s, NED, of the (n, 5) filter states: (u, v, w) in the mean
     wind's axes turned by its heading into N (w is down)."""
     out = np.empty((len(states), 3))
@@ -174,7 +176,7 @@ def turbulence_velocity(states, model):
     return out
 
 
-def filter_rows(states, noise, phi, gain):
+def filter_rows(states, noise, phi, gain) -> None:
     """IN PLACE, row by row: states[i] = phi states[i] + gain noise[i] ((n, m) states and noise,
     (m, m) phi and gain). Summed entry by entry in a fixed order, so a row's result does not depend
     on n (a matrix product's rounding does); ``kernels.flight`` compiles this code."""
@@ -190,7 +192,7 @@ def filter_rows(states, noise, phi, gain):
             states[i, r] = row[r]
 
 
-def wind_rows(states, noise, phi, gain, output, cos_heading, sin_heading, steady, out):
+def wind_rows(states, noise, phi, gain, output, cos_heading, sin_heading, steady, out) -> None:
     """IN PLACE, the wind of n vehicles in one call: the filters step (:func:`filter_rows`), then
     out[i] = the NED turbulence velocity of states[i] (:func:`velocity_rows`) + steady (3, m/s,
     NED: the mean wind and the gusts, every vehicle's the same); ``kernels.flight`` compiles it."""
@@ -202,7 +204,7 @@ def wind_rows(states, noise, phi, gain, output, cos_heading, sin_heading, steady
         out[i, 2] += steady[2]
 
 
-def velocity_rows(states, output, cos_heading, sin_heading, out):
+def velocity_rows(states, output, cos_heading, sin_heading, out) -> None:
     """out (n, 3) = the NED turbulence velocity (m/s) of each row of states (n, 5): (u, v, w) =
     output states[i], turned by the mean wind's heading (cos, sin); entry by entry (as
     :func:`filter_rows`)."""
@@ -217,7 +219,7 @@ def velocity_rows(states, output, cos_heading, sin_heading, out):
         out[i, 2] = w
 
 
-def gust_velocity(time, gusts):
+def gust_velocity(time, gusts) -> np.ndarray:
     """(3,) m/s, NED: the sum at `time` s of the (1 - cos) gusts (GustConfig list), each
     amplitude/2 (1 - cos(2 pi (t - start) / duration)) along its normalised direction in
     [start, start + duration], 0 outside."""
@@ -236,6 +238,6 @@ def gust_velocity(time, gusts):
     return total
 
 
-def steady_wind(time, config):
+def steady_wind(time, config) -> np.ndarray:
     """(3,) m/s, NED: the mean wind plus the gusts of a WindConfig at `time` s (no turbulence)."""
     return np.asarray(config.mean, dtype=float) + gust_velocity(time, config.gusts)

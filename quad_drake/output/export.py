@@ -21,7 +21,7 @@ from .results import load_logs
 UNITS_FILE = "units.json"
 
 
-def export_csv(run_dir, out_dir=None):
+def export_csv(run_dir, out_dir=None) -> list[Path]:
     """Write ``<vehicle>.csv`` per vehicle of the run folder `run_dir` (which holds logs.npz)
     and their columns' units (UNITS_FILE) into `out_dir` (default: ``run_dir/csv``); returns
     the paths written, the units last."""

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 
-def to_json_ready(value):
+def to_json_ready(value) -> object:
     """Nested dicts/lists/tuples of JSON values: numpy -> Python, non-finite floats -> None,
     paths -> str, dict keys -> str."""
     if isinstance(value, dict):
@@ -31,12 +31,12 @@ def to_json_ready(value):
     return value
 
 
-def dumps_json(obj):
+def dumps_json(obj) -> str:
     """Indented strict JSON text of `obj` (after :func:`to_json_ready`), newline-terminated."""
     return json.dumps(to_json_ready(obj), indent=2, allow_nan=False) + "\n"
 
 
-def dump_json(path, obj):
+def dump_json(path, obj) -> Path:
     """Write `obj` as strict JSON to `path`, whole or not at all (``outdir.write_text_atomic``);
     returns the path."""
     from .outdir import write_text_atomic

@@ -42,7 +42,7 @@ REFERENCE_COLOR = Rgba(0.1, 0.1, 0.1, 1.0)
 ESTIMATE_COLOR = Rgba(0.85, 0.1, 0.6, 1.0)
 
 
-def ned_to_zup(p_ned, q_ned=None):
+def ned_to_zup(p_ned, q_ned=None) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Positions (..., 3) [and wxyz quaternions (..., 4)] from NED/FRD to Meshcat's z-up.
 
     The map is the rotation by pi about north: (x, y, z)_NED -> (x, -y, -z), i.e. x north,
@@ -71,7 +71,7 @@ def _rgba(color, alpha=1.0):
     return Rgba(*color, alpha)
 
 
-def add_quadrotor(meshcat, path, arm_length, color):
+def add_quadrotor(meshcat, path, arm_length, color) -> None:
     """A quadrotor in its FLU body frame at `path`: body, X arms, motors, rotor discs (front red)."""
     a = arm_length / math.sqrt(2.0)
     meshcat.SetObject(f"{path}/body", Box(0.6 * a, 0.45 * a, 0.05), _rgba(color))
@@ -127,7 +127,7 @@ def _tracks(result):
     return [_Track(vehicle, result.logs[vehicle]) for vehicle in (v.name for v in result.scenario.vehicles)]
 
 
-def frame_indices(times, fps=FPS):
+def frame_indices(times, fps=FPS) -> tuple[np.ndarray, np.ndarray]:
     """(frame times [s], log sample index per frame) at `fps` over the logged span from t = 0."""
     if times.size == 0:
         return np.zeros(0), np.zeros(0, dtype=int)
@@ -136,7 +136,7 @@ def frame_indices(times, fps=FPS):
     return frame_times, indices
 
 
-def build_scene(meshcat, result):
+def build_scene(meshcat, result) -> list[_Track]:
     """Add every vehicle's model and static paths; point the camera at the flight. -> tracks."""
     meshcat.Delete(ROOT)
     tracks = _tracks(result)
@@ -166,7 +166,7 @@ def _aim_camera(meshcat, tracks):
     meshcat.SetCameraPose(target + distance * np.array([-0.6, -0.6, 0.55]), target)
 
 
-def record(meshcat, tracks, times, fps=FPS):
+def record(meshcat, tracks, times, fps=FPS) -> None:
     """Record every track's poses at `fps` into meshcat's animation and publish it."""
     meshcat.StartRecording(frames_per_second=fps, set_visualizations_while_recording=False)
     frame_times, indices = frame_indices(times, fps)
@@ -185,7 +185,7 @@ def _css(rgba):
     return f"rgb({round(255 * rgba.r())}, {round(255 * rgba.g())}, {round(255 * rgba.b())})"
 
 
-def legend_html(result):
+def legend_html(result) -> str:
     """A fixed legend naming what the replay draws: each vehicle's colour (body and flown path),
     its nose, the reference and the estimate."""
     rows = []
@@ -222,7 +222,7 @@ OPEN_CONTROLS = """<script>
 """
 
 
-def replay_html(result, fps=FPS):
+def replay_html(result, fps=FPS) -> str:
     """The self-contained HTML text of a run's recording (Meshcat.StaticHtml), with a legend
     (:func:`legend_html`) and the controls open (:data:`OPEN_CONTROLS`)."""
     meshcat = _quiet_meshcat(MeshcatParams(host="localhost", port=0, show_stats_plot=False))
@@ -235,13 +235,13 @@ def replay_html(result, fps=FPS):
     return head + legend_html(result) + "\n" + OPEN_CONTROLS + body_end + tail
 
 
-def write_replay(result, path, fps=FPS):
+def write_replay(result, path, fps=FPS) -> Path:
     """Write replay.html (a Meshcat recording of the run, opens offline); -> path."""
     path = Path(path)
     return write_text_atomic(path, replay_html(result, fps))
 
 
-def show_live(result, meshcat=None, rate=1.0, wait_for_browser=60.0, block=True):
+def show_live(result, meshcat=None, rate=1.0, wait_for_browser=60.0, block=True) -> Meshcat:
     """Play a run in a live Meshcat at `rate` × real time, then leave a replayable recording.
 
     Prints the URL and waits up to `wait_for_browser` s for a browser to connect.

@@ -5,12 +5,13 @@ import contextlib
 import json
 import os
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
 from ..config.errors import ConfigError
 
 
-def check_output_dir(path, option="--out"):
+def check_output_dir(path, option="--out") -> Path:
     """Path of a usable output folder: an existing writable folder, or a new one whose parent
     is an existing writable folder (created later by whoever writes). Raises ConfigError (one
     line naming `option`) for a file, a missing parent or a folder that cannot be written.
@@ -29,7 +30,7 @@ def check_output_dir(path, option="--out"):
     return path
 
 
-def remove_stale(folder, patterns):
+def remove_stale(folder, patterns) -> None:
     """Delete the files of `folder` matching any glob pattern of `patterns` (what an earlier
     result left there that the one being written would not replace)."""
     for pattern in patterns:
@@ -37,7 +38,7 @@ def remove_stale(folder, patterns):
             stale.unlink()
 
 
-def is_result_folder(folder):
+def is_result_folder(folder) -> bool:
     """True when `folder` holds a run's or a campaign's results (a summary.json that is an
     object with a ``kind``, or a logs.npz): a folder to write results beside, not into."""
     folder = Path(folder)
@@ -51,7 +52,7 @@ def is_result_folder(folder):
 
 
 @contextlib.contextmanager
-def atomic_path(path):
+def atomic_path(path) -> Iterator[Path]:
     """Yield a temporary path beside `path` (same folder, same suffix, a hidden name) to write the
     whole file to; when the block ends without an exception, rename it over `path` (``os.replace``,
     atomic on one file system), else delete it. A full disk, a crash or Ctrl-C while writing so
@@ -71,14 +72,14 @@ def atomic_path(path):
         raise
 
 
-def write_text_atomic(path, text):
+def write_text_atomic(path, text) -> Path:
     """Write `text` (UTF-8) to `path` through :func:`atomic_path`; returns the path."""
     with atomic_path(path) as temporary:
         temporary.write_text(text, encoding="utf-8")
     return Path(path)
 
 
-def write_binary_atomic(path, write):
+def write_binary_atomic(path, write) -> Path:
     """Call ``write(file)`` on a binary file object whose content then replaces `path` whole
     (:func:`atomic_path`); returns the path. For ``np.savez_compressed``, ``figure.savefig``."""
     with atomic_path(path) as temporary, open(temporary, "wb") as f:
@@ -91,7 +92,7 @@ LOCK_NAME = ".quad_drake.lock"
 
 
 @contextlib.contextmanager
-def locked(folder):
+def locked(folder) -> Iterator[None]:
     """Hold an exclusive advisory lock on output folder `folder` (``fcntl.flock`` of its
     LOCK_NAME file; made with the folder when missing) while choosing and writing what several
     invocations share there (a run folder's name, index.html). Without ``fcntl`` (Windows) it

@@ -91,7 +91,7 @@ TOUCHDOWN_COLOR = "k"
 MEASURED_COLOR = "tab:orange"
 
 
-def shade_faults(fig, spans):
+def shade_faults(fig, spans) -> None:
     """Mark each fault span on every time panel of `fig` (``fig.time_axes``): red hatching between
     two red edges, no fill (a fill over the judged green band would turn brown); a zero-length
     span (one sample) is a vertical line. The first panel's legend names them."""
@@ -115,7 +115,7 @@ def shade_faults(fig, spans):
             ax.legend(loc="best", fontsize=7)
 
 
-def mark_events(fig, gusts, landings):
+def mark_events(fig, gusts, landings) -> None:
     """Mark the flight's events on every time panel of `fig`: each gust window (start, end, label)
     shaded blue, each touchdown (time s, label: ``report.touchdown_marks``) a dash-dotted line;
     the first panel's legend names them."""
@@ -692,7 +692,7 @@ def _measurement_figure(result, vehicle, panels):
     return fig
 
 
-def make_figures(result):
+def make_figures(result) -> dict[str, tuple[str, Figure]]:
     """Ordered {file stem: (caption, Figure)} for a SimulationResult (see the module doc)."""
     figures = {}
     judged = zip(judged_criteria(result.scenario), result.criteria, strict=True)
@@ -756,7 +756,7 @@ def make_figures(result):
     return figures
 
 
-def write_plots(result, run_dir):
+def write_plots(result, run_dir) -> list[tuple[str, Path]]:
     """Save every figure of `make_figures` as run_dir/<stem>.png; [(caption, path)] in order."""
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -768,7 +768,7 @@ def write_plots(result, run_dir):
     return written
 
 
-def write_run_artifacts(result, run_dir):
+def write_run_artifacts(result, run_dir) -> dict[str, object]:
     """PNG plots, replay.html (Meshcat) and report.html in run_dir; {kind: path}."""
     from .meshcat_animation import write_replay
 

@@ -45,12 +45,12 @@ code { background: #f2f2f2; padding: 0 3px; }
 """
 
 
-def esc(value):
+def esc(value) -> str:
     """HTML-escaped str(value)."""
     return html.escape(str(value))
 
 
-def num(value, digits=4):
+def num(value, digits=4) -> str:
     """A number with `digits` significant digits; "–" for None, "nan"/"inf" as such."""
     if value is None:
         return "–"
@@ -58,7 +58,7 @@ def num(value, digits=4):
     return f"{value:.{digits}g}" if math.isfinite(value) else str(value)
 
 
-def html_page(title, body):
+def html_page(title, body) -> str:
     """A complete HTML document with the shared inline style."""
     return (
         f'<!DOCTYPE html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n'
@@ -66,7 +66,7 @@ def html_page(title, body):
     )
 
 
-def html_table(header, rows):
+def html_table(header, rows) -> str:
     """HTML table; a row cell is HTML text, or (HTML text, css class)."""
     head = "".join(f"<th>{esc(h)}</th>" for h in header)
     lines = [f"<table>\n<tr>{head}</tr>"]
@@ -79,7 +79,7 @@ def html_table(header, rows):
     return "\n".join(lines) + "\n</table>"
 
 
-def verdict_cell(passed):
+def verdict_cell(passed) -> tuple[str, str]:
     """("PASS" | "FAIL", css class) of a verdict; ("–", "NONE") for None (nothing judged)."""
     if passed is None:
         return ("–", "NONE")
@@ -87,7 +87,7 @@ def verdict_cell(passed):
     return (word, word)
 
 
-def criterion_row(verdict):
+def criterion_row(verdict) -> list:
     """[criterion, kind, verdict, measured, required] cells (HTML-escaped) of a CriterionResult."""
     return [
         esc(verdict.description),
@@ -98,13 +98,13 @@ def criterion_row(verdict):
     ]
 
 
-def image_tag(path):
+def image_tag(path) -> str:
     """<img> of a PNG file, embedded as a data URI."""
     data = base64.b64encode(Path(path).read_bytes()).decode("ascii")
     return f'<img alt="{esc(Path(path).stem)}" src="data:image/png;base64,{data}">'
 
 
-def figures_html(plots):
+def figures_html(plots) -> list[str]:
     """<figure>s of [(caption, png path)]."""
     return [
         f"<figure><figcaption>{esc(caption)}</figcaption>{image_tag(png)}</figure>" for caption, png in plots
@@ -118,7 +118,7 @@ def _stats(values):
     return float(np.sqrt(np.mean(values * values))), float(np.max(np.abs(values)))
 
 
-def key_metrics(result):
+def key_metrics(result) -> list[tuple]:
     """[(vehicle, what, unit, rms, max |.|)] over the whole run, for the signals a run has."""
     rows = []
     for vehicle in (v.name for v in result.scenario.vehicles):
@@ -134,7 +134,7 @@ def _percent_within(error, sigma, multiple):
     return 100.0 * inside / total if total else float("nan")
 
 
-def ekf_consistency(result):
+def ekf_consistency(result) -> list[tuple]:
     """[(vehicle, state, unit, rms error, max |error|, % within ±σ, % within ±2σ)] per error state
     of each vehicle's estimator vocabulary."""
     rows = []
@@ -150,7 +150,7 @@ def ekf_consistency(result):
     return rows
 
 
-def estimator_health(result):
+def estimator_health(result) -> list[str]:
     """[health line] per vehicle with an estimator: gated samples, resets, covariance repairs."""
     lines = []
     for config in result.scenario.vehicles:
@@ -160,7 +160,7 @@ def estimator_health(result):
     return lines
 
 
-def write_report(result, path, plots=(), replay=None):
+def write_report(result, path, plots=(), replay=None) -> Path:
     """report.html for a SimulationResult: verdicts, metrics, plots [(caption, png)], config."""
     path = Path(path)
     scenario = result.scenario
@@ -248,7 +248,7 @@ def write_report(result, path, plots=(), replay=None):
     return write_text_atomic(path, html_page(f"quad_drake: {scenario.name}", "\n".join(parts)))
 
 
-def fault_spans(scenario):
+def fault_spans(scenario) -> list[tuple[float, float, str]]:
     """[(start, end, label)] s of the scenario's injected faults, for shading: a window fault's
     [start, end); a GPS outlier's sample at ``time`` (end = start); a GPS delay over the whole
     flight. Every vehicle's faults, labelled with the vehicle when there are several."""
@@ -266,7 +266,7 @@ def fault_spans(scenario):
     return spans
 
 
-def gust_spans(scenario):
+def gust_spans(scenario) -> list[tuple[float, float, str]]:
     """[(start, end, label)] s of the scenario's wind gusts, for shading: each gust's
     [start, start + duration], labelled with its peak and direction (NED) and, when there are
     several vehicles, the vehicle."""
@@ -282,7 +282,7 @@ def gust_spans(scenario):
     return spans
 
 
-def touchdowns(result):
+def touchdowns(result) -> dict[str, list[tuple[float, float]]]:
     """{vehicle: [(time s, descent speed m/s)]} of every touchdown after take-off
     (``V.TouchdownSpeed``, ``signals.touchdown_speeds``), in time order; vehicles without one
     left out."""
@@ -298,7 +298,7 @@ def touchdowns(result):
     return found
 
 
-def touchdown_marks(result):
+def touchdown_marks(result) -> list[tuple[float, str]]:
     """[(time s, label)] of the touchdowns worth marking: each vehicle's first (the landing) and
     its fastest when that is another; the label names the time and descent speed, the first's
     also how many more there were and how fast (a vehicle at rest on the floor touches it again
@@ -319,7 +319,7 @@ def touchdown_marks(result):
     return marks
 
 
-def events_html(result):
+def events_html(result) -> list[str]:
     """[a paragraph naming the gusts and the touchdowns (marked on the plots)], or []."""
     words = [f"{label} in [{start:g}, {end:g}] s" for start, end, label in gust_spans(result.scenario)]
     words += [label for _, label in touchdown_marks(result)]
@@ -328,7 +328,7 @@ def events_html(result):
     return [f"<p>Events (marked on the time plots): {esc('; '.join(words))}.</p>"]
 
 
-def faults_html(scenario):
+def faults_html(scenario) -> list[str]:
     """[a paragraph naming the injected faults and their windows (shaded on the plots)], or []."""
     spans = fault_spans(scenario)
     if not spans:
@@ -343,7 +343,7 @@ def faults_html(scenario):
 # ----- out/index.html ------------------------------------------------------------------------
 
 
-def find_summaries(out_dir):
+def find_summaries(out_dir) -> list[tuple[Path, dict]]:
     """[(folder, summary dict)] of every run and campaign folder under out_dir (any depth)
     whose summary.json has the supported format_version, sorted by folder."""
     found = []
@@ -365,7 +365,7 @@ def _links(folder, out_dir, names):
     )
 
 
-def find_tune_sessions(out_dir):
+def find_tune_sessions(out_dir) -> list[tuple[Path, dict]]:
     """[(folder, tune.json dict)] of every tune session folder under out_dir, sorted by folder."""
     found = []
     for path in sorted(Path(out_dir).rglob("tune.json")):
@@ -454,7 +454,7 @@ def _index_section(title, header, rows, hint):
     return [f"<h2>{esc(title)}</h2>", table]
 
 
-def write_index(out_dir):
+def write_index(out_dir) -> Path:
     """out_dir/index.html linking every run and campaign folder under out_dir (see find_summaries)."""
     out_dir = Path(out_dir)
     with locked(out_dir):  # concurrent invocations: the last one to write has seen every folder

@@ -50,10 +50,10 @@ class SimulationResult:
     compile_time: float = 0.0  # s, numba compiling kernels during this flight (first run after an install)
 
     @property
-    def passed(self):
+    def passed(self) -> bool:
         return all(r.passed for r in self.criteria)
 
-    def summary(self):
+    def summary(self) -> dict:
         """The summary.json dict: format, scenario, seed, verdicts with their text, timing."""
         return {
             "format_version": FORMAT_VERSION,
@@ -73,7 +73,7 @@ class SimulationResult:
         }
 
 
-def signals_from_logs(logs, scenario=None):
+def signals_from_logs(logs, scenario=None) -> Signals:
     """All vehicles' named signals from {vehicle: {log name: array}}.
 
     Estimator signals need the scenario (its vehicles' estimator vocabularies).
@@ -87,7 +87,7 @@ def signals_from_logs(logs, scenario=None):
     )
 
 
-def result_from_logs(scenario, times, logs, wall_time, runner=RUNNER):
+def result_from_logs(scenario, times, logs, wall_time, runner=RUNNER) -> SimulationResult:
     """SimulationResult of logged arrays: the signals derived, every judged criterion evaluated."""
     signals = signals_from_logs(logs, scenario)
     return SimulationResult(
@@ -100,7 +100,7 @@ RUN_ARTIFACTS = ("report.html", "replay.html", "*.png", "csv/*.csv")
 ``export.export_csv``): derived from the logs, so a new run in the folder removes the old ones."""
 
 
-def save_run(result, out_dir):
+def save_run(result, out_dir) -> Path:
     """Write logs.npz, config.yaml (resolved) and summary.json into out_dir, after removing an
     earlier run's RUN_ARTIFACTS there (a run without plots must not sit beside the old run's
     report); returns out_dir. Each file is written whole or not at all
@@ -118,7 +118,7 @@ def save_run(result, out_dir):
     return out_dir
 
 
-def variant_name(name, seed=None, overrides=()):
+def variant_name(name, seed=None, overrides=()) -> str:
     """The folder name of a scenario flown with ``--seed`` `seed` and ``--set`` `overrides`:
     `name` as it is, then ``-seed<seed>`` when a seed is given, then ``-set<6 hex digits>`` (a
     SHA-256 of the overrides in order) when there are any, e.g. ``11_gps_update-seed7-set3fa2c1``.
@@ -133,7 +133,7 @@ def variant_name(name, seed=None, overrides=()):
     return "-".join(parts)
 
 
-def claim_run_folder(out, name, scenario, replace=True):
+def claim_run_folder(out, name, scenario, replace=True) -> Path:
     """The folder under `out` a run of `scenario` is written to, claimed for it by its config.yaml.
 
     ``out/name`` when it is free, or (``replace``) holds a run of the same resolved config (the
@@ -166,7 +166,7 @@ def _claimable(folder, config, replace):
         return False
 
 
-def load_logs(run_dir):
+def load_logs(run_dir) -> tuple[np.ndarray, dict[str, dict[str, np.ndarray]]]:
     """(times, {vehicle: {log name: array}}) from a run folder's logs.npz.
 
     Raises ConfigError (one line) for a folder without logs, one whose summary.json is not a
@@ -189,7 +189,7 @@ def load_logs(run_dir):
         raise ConfigError(f"{path}: not a readable quad_drake log ({reason})") from None
 
 
-def read_summary(path, kind=None):
+def read_summary(path, kind=None) -> dict:
     """The dict of a summary.json of a supported format_version (and `kind`, when given).
 
     Raises ConfigError (one line) for a missing or unreadable file, an unknown format
@@ -212,7 +212,7 @@ def read_summary(path, kind=None):
     return summary
 
 
-def load_run(run_dir):
+def load_run(run_dir) -> SimulationResult:
     """SimulationResult of a run folder: logs loaded, signals re-derived and verdicts
     re-evaluated from its config.yaml (nothing is simulated); wall time from summary.json.
 

@@ -10,6 +10,7 @@ from pathlib import Path
 
 from ..config.errors import ConfigError, did_you_mean
 from ..config.loader import load_scenario
+from ..config.schema import ScenarioConfig
 from ..config.validation import check_seed_range
 from ..output.outdir import is_result_folder
 
@@ -19,12 +20,12 @@ SCENARIO_DIR = _PACKAGE / "scenarios" if (_PACKAGE / "scenarios").is_dir() else 
 editable install) the repository's top-level ``scenarios/``, their one source."""
 
 
-def bundled_scenarios():
+def bundled_scenarios() -> dict[str, Path]:
     """{name: path} of the bundled scenarios, ordered by name (01_intro first)."""
     return {p.stem: p for p in sorted(SCENARIO_DIR.glob("*.yaml"))}
 
 
-def resolve(name_or_path):
+def resolve(name_or_path) -> Path:
     """Path of a scenario given by bundled name or by a YAML file path; ConfigError if neither."""
     name = str(name_or_path)
     known = bundled_scenarios()
@@ -38,7 +39,7 @@ def resolve(name_or_path):
     raise ConfigError(f"unknown scenario {name!r}{did_you_mean(name, known)} (known: {', '.join(known)})")
 
 
-def run_folder_of(name_or_path):
+def run_folder_of(name_or_path) -> Path | None:
     """The run folder whose config.yaml `name_or_path` is (reproducing a run from its folder),
     or None for a bundled name or any other file."""
     path = Path(str(name_or_path))
@@ -47,7 +48,7 @@ def run_folder_of(name_or_path):
     return None
 
 
-def load(name_or_path, seed=None, overrides=()):
+def load(name_or_path, seed=None, overrides=()) -> ScenarioConfig:
     """Validated ScenarioConfig for a bundled name or a path, with ``dotted.key=value`` overrides.
 
     ``seed`` (when given, in [0, ``config.MAX_SEED``], else a ConfigError naming ``--seed``) is

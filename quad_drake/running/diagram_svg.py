@@ -8,7 +8,7 @@ from ..config.errors import ConfigError
 from .simulation import build_diagram
 
 
-def diagram_dot(scenario, max_depth=None):
+def diagram_dot(scenario, max_depth=None) -> str:
     """Graphviz source of the scenario's Diagram; max_depth None expands every sub-Diagram,
     1 shows each vehicle as one box, 0 the whole scenario as one."""
     if max_depth is not None and max_depth < 0:
@@ -17,7 +17,7 @@ def diagram_dot(scenario, max_depth=None):
     return diagram.GetGraphvizString(max_depth=max_depth)
 
 
-def write_diagram_svg(scenario, path, max_depth=None, dot=None):
+def write_diagram_svg(scenario, path, max_depth=None, dot=None) -> Path:
     """Render the scenario's Diagram to an SVG file with `dot -Tsvg`; -> path.
 
     Raises ConfigError (one line) when Graphviz is missing or fails.

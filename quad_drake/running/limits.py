@@ -37,7 +37,7 @@ FALLBACK_MEMORY = 8 << 30
 """Physical memory assumed where the platform does not tell (8 GiB)."""
 
 
-def physical_memory():
+def physical_memory() -> int:
     """Bytes of physical memory (``os.sysconf``), or :data:`FALLBACK_MEMORY`."""
     try:
         return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
@@ -45,22 +45,22 @@ def physical_memory():
         return FALLBACK_MEMORY
 
 
-def logged_values(scenario):
+def logged_values(scenario) -> int:
     """Values logged per sample over the scenario's vehicles."""
     return sum(sum(vehicle_log_widths(vehicle).values()) for vehicle in scenario.vehicles)
 
 
-def run_bytes(scenario):
+def run_bytes(scenario) -> float:
     """Estimated bytes one run of `scenario` holds (a float: inf for an absurd end_time)."""
     return scenario.end_time / LOG_PERIOD * logged_values(scenario) * 8.0 * LOG_COPIES
 
 
-def run_wall_s(scenario):
+def run_wall_s(scenario) -> float:
     """Estimated wall time of one run, s."""
     return scenario.end_time * len(scenario.vehicles) * WALL_PER_SIMULATED_S
 
 
-def size_text(nbytes):
+def size_text(nbytes) -> str:
     """``1.2 GiB``-style text of a byte count (``inf`` as such)."""
     if not math.isfinite(nbytes):
         return "an unbounded amount"
@@ -70,7 +70,7 @@ def size_text(nbytes):
     return f"{nbytes / 1024:.3g} KiB"
 
 
-def check_memory(nbytes, what, fix):
+def check_memory(nbytes, what, fix) -> None:
     """ConfigError (one line: `what` would take the estimate, the limit, then `fix`) when
     `nbytes` exceeds MEMORY_SHARE of the physical memory."""
     limit = MEMORY_SHARE * physical_memory()
@@ -81,7 +81,7 @@ def check_memory(nbytes, what, fix):
         )
 
 
-def check_run(scenario, at_once=1):
+def check_run(scenario, at_once=1) -> None:
     """Refuse (ConfigError) a run whose logs, times `at_once` runs held together, would not fit."""
     per_s = size_text(logged_values(scenario) * 8.0 * LOG_COPIES / LOG_PERIOD)
     what = f"{scenario.name}: end_time={scenario.end_time:g} s ({per_s} per simulated second"
@@ -89,7 +89,7 @@ def check_run(scenario, at_once=1):
     check_memory(run_bytes(scenario) * at_once, what, "shorten end_time")
 
 
-def cost_warnings(scenario):
+def cost_warnings(scenario) -> list[str]:
     """Lines saying what a long run will take (memory above WARN_BYTES, wall above WARN_WALL_S)."""
     nbytes, wall = run_bytes(scenario), run_wall_s(scenario)
     if nbytes > WARN_BYTES or wall > WARN_WALL_S:

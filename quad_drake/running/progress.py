@@ -38,6 +38,6 @@ class FlightProgress:
             self.stream.flush()
         self.shown = t
 
-    def close(self):
+    def close(self) -> None:
         if self.bar is not None:
             self.bar.close()

@@ -16,7 +16,7 @@ import time
 import numpy as np
 from pydrake.common import RandomGenerator
 from pydrake.systems.analysis import Simulator
-from pydrake.systems.framework import DiagramBuilder, EventStatus
+from pydrake.systems.framework import Diagram, DiagramBuilder, EventStatus, InputPort
 from pydrake.systems.primitives import (
     ConstantVectorSource,
     LogVectorOutput,
@@ -41,7 +41,7 @@ from ..models.faults import sensor_of
 from ..models.fidelity import PHYSICAL, fidelity_from_mode
 from ..models.rotations import quat_from_euler
 from ..models.trajectories import float32_clock, trajectory_from_config
-from ..output.results import result_from_logs
+from ..output.results import SimulationResult, result_from_logs
 from ..systems.controller import CascadeController
 from ..systems.estimators import build_estimator
 from ..systems.faults import GpsDelayCompensator, SensorFaults
@@ -53,7 +53,7 @@ from ..systems.wind import Wind
 from .limits import check_run
 
 
-def initial_state(vehicle):
+def initial_state(vehicle) -> np.ndarray:
     """13-vector (p, q wxyz, v, w) of a VehicleConfig's initial conditions."""
     yaw, pitch, roll = vehicle.initial_ypr
     return np.concatenate(
@@ -66,7 +66,7 @@ def initial_state(vehicle):
     )
 
 
-def add_tick_holds(builder, outputs, n=1):
+def add_tick_holds(builder, outputs, n=1) -> None:
     """Add the holds of ``error_sampling``'s tick logs (``errors_at_onboard_tick``) to `builder`
     and put their output ports in `outputs` (log name: port), which must hold ``state`` (n*13)
     and ``reference`` (n*10) of one vehicle (n = 1) or of a fleet's N copies (n = N).
@@ -110,7 +110,7 @@ def _never_sampled(builder, size, n):
     return builder.AddSystem(ConstantVectorSource(value.ravel())).get_output_port(0)
 
 
-def sensor_schedule(vehicle, sensor):
+def sensor_schedule(vehicle, sensor) -> tuple[float, float]:
     """(period, event time of the first sample) of a vehicle's sensor, s (see systems/sensors)."""
     if sensor == "imu":
         return c.ONBOARD_PERIOD, c.SENSOR_OFFSET
@@ -174,7 +174,7 @@ def _add_wind(builder, vehicle, plant, outputs, n, add):
         builder.Connect(source, plant.GetInputPort("wind"))
 
 
-def build_vehicle(vehicle, fidelity=PHYSICAL, *, seeds=None):
+def build_vehicle(vehicle, fidelity=PHYSICAL, *, seeds=None) -> Diagram:
     """The sub-Diagram of one VehicleConfig; its outputs are named as `vehicle_log_names`.
 
     fidelity: the scenario's :class:`~quad_drake.models.fidelity.Fidelity`, given to every system.
@@ -250,11 +250,11 @@ class SignalLog:
     def __init__(self, log, rows):
         self._log, self._rows = log, rows
 
-    def sample_times(self):
+    def sample_times(self) -> np.ndarray:
         """(n,) sample times, s."""
         return self._log.sample_times()
 
-    def data(self):
+    def data(self) -> np.ndarray:
         """(width, n): one column per sample, as VectorLog.data()."""
         return self._log.data()[self._rows]
 
@@ -268,14 +268,14 @@ class SignalLogger:
         self.sink, self.rows = sink, rows
         self._input_port = input_port
 
-    def FindLog(self, context):  # noqa: N802 (VectorLogSink's name)
+    def FindLog(self, context) -> SignalLog:  # noqa: N802 (VectorLogSink's name)
         return SignalLog(self.sink.FindLog(context), self.rows)
 
-    def get_input_port(self):
+    def get_input_port(self) -> InputPort:
         return self._input_port
 
 
-def build_diagram(scenario):
+def build_diagram(scenario) -> tuple[Diagram, dict[str, dict[str, SignalLogger]]]:
     """(Diagram, {vehicle name: {log name: SignalLogger}}) for a ScenarioConfig.
 
     Vehicles are sub-Diagrams named as in the config; all their exported signals go through
@@ -304,7 +304,7 @@ def build_diagram(scenario):
     return diagram, loggers
 
 
-def read_logs(loggers, context, n_samples):
+def read_logs(loggers, context, n_samples) -> tuple[np.ndarray, dict[str, dict[str, np.ndarray]]]:
     """(times (n,), {vehicle: {log name: (n, width)}}) of the samples at LOG_PERIOD k, k = 1..n,
     from the loggers of :func:`build_diagram` (they share one VectorLogSink)."""
     keep = slice(1, n_samples + 1)  # the reference's analyzer frames: t = 0 is not one
@@ -318,7 +318,7 @@ def read_logs(loggers, context, n_samples):
     return log.sample_times()[keep].copy(), logs
 
 
-def log_samples(scenario):
+def log_samples(scenario) -> int:
     """Log samples of a run of `scenario` (at t = LOG_PERIOD k, k = 1..samples): end_time /
     LOG_PERIOD, or with ``reference_log_samples`` the binary's count, the first k whose 5 ms
     frame ends with its float32 clock at or past end_time (SPEC §0.2: 5,001 in 25 s, 8,003 in
@@ -333,13 +333,13 @@ def log_samples(scenario):
     return k
 
 
-def flight_end(scenario):
+def flight_end(scenario) -> float:
     """s, the time a run of `scenario` flies to: end_time, or the time of its last log sample
     when that is later (``reference_log_samples``)."""
     return max(scenario.end_time, log_samples(scenario) * c.LOG_PERIOD)
 
 
-def available_signals(scenario):
+def available_signals(scenario) -> set[str]:
     """Names of every signal the scenario's criteria may refer to."""
     names = set()
     fidelity = fidelity_from_mode(scenario.fidelity)
@@ -349,7 +349,7 @@ def available_signals(scenario):
     return names
 
 
-def run(scenario, progress=None):
+def run(scenario, progress=None) -> SimulationResult:
     """SimulationResult of a ScenarioConfig simulated for end_time s with its seed, its criteria
     evaluated (:mod:`quad_drake.output.results`). The scenario is checked first as a loaded file is
     (``config.check_scenario``, ``limits.check_run``): ConfigError, nothing flown."""

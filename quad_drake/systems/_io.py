@@ -49,7 +49,7 @@ def discrete_group(system, initial, output=None) -> int:
     return int(index)
 
 
-def vector_reader(port):
+def vector_reader(port) -> Callable[[object], list[float]]:
     """``read(context) -> list of floats``: the current value of the vector input `port`."""
     if NANOBIND:
         evaluate = port.EvalBasicVector
@@ -69,13 +69,13 @@ def row_reader(port, n=1) -> Callable:
     return lambda context: evaluate(context).get_value().reshape(n, size)
 
 
-def entry_reader(port, index):
+def entry_reader(port, index) -> Callable[[object], float]:
     """``read(context) -> float``: entry `index` of the vector input `port`."""
     evaluate = port.EvalBasicVector
     return lambda context: evaluate(context).GetAtIndex(index)
 
 
-def entries_reader(port, start, stop):
+def entries_reader(port, start, stop) -> Callable[[object], list[float]]:
     """``read(context) -> list of floats``: entries [start, stop) of the vector input `port`
     (for a few entries: each costs ~0.15 us, the whole value as a list ~2 us)."""
     evaluate = port.EvalBasicVector
@@ -87,11 +87,11 @@ def entries_reader(port, start, stop):
     return read
 
 
-def scalar(discrete_state, group):
+def scalar(discrete_state, group) -> float:
     """Entry 0 of a discrete-state group (a DiscreteValues), as a float."""
     return discrete_state.get_vector(group).GetAtIndex(0)
 
 
-def set_scalar(discrete_state, group, value):
+def set_scalar(discrete_state, group, value) -> None:
     """Set entry 0 of a discrete-state group (a DiscreteValues) to the float `value`."""
     discrete_state.get_mutable_vector(group).SetAtIndex(0, value)

@@ -91,7 +91,7 @@ class CourseEstimator(LeafSystem):
         covariances[:] = course_filter.ekf_cov
 
 
-def add_course(builder, vehicle, fidelity, n):
+def add_course(builder, vehicle, fidelity, n) -> tuple[dict, dict]:
     """Add the course estimator of n vehicles to `builder` (the ``course`` kind's builder,
     ``estimation/registry.py``); (input ports by name, output ports by name). Its estimate starts
     at the vehicle's initial position, velocity and yaw."""

@@ -138,7 +138,7 @@ class PythonEstimator(LeafSystem):
         covariance[:] = custom.read_covariance(estimator, self._k)
 
 
-def add_custom(builder, vehicle, fidelity, n):
+def add_custom(builder, vehicle, fidelity, n) -> tuple[dict, dict]:
     """Add the custom estimator of n vehicles to `builder` (the ``custom`` kind's builder,
     ``estimation/registry.py``); (input ports by name, output ports by name)."""
     system = builder.AddNamedSystem(

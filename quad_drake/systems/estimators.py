@@ -386,7 +386,7 @@ def _estimator_diagram(builder, inputs, outputs, estimator):
     return diagram
 
 
-def add_ekf7(builder, vehicle, fidelity, n):
+def add_ekf7(builder, vehicle, fidelity, n) -> tuple[dict, dict]:
     """Add the CF + EKF7 + assembler of n vehicles to `builder` (the ``ekf7`` kind's builder,
     ``estimation/registry.py``); (input ports by name: ``imu`` and the measurement updates',
     output ports by name)."""
@@ -405,7 +405,7 @@ def add_ekf7(builder, vehicle, fidelity, n):
     return _wire_ekf7(builder, ekf_system, attitude_filter, assembler)
 
 
-def add_eskf(builder, vehicle, fidelity, n):
+def add_eskf(builder, vehicle, fidelity, n) -> tuple[dict, dict]:
     """Add the ESKF of n vehicles to `builder` (the ``eskf`` kind's builder); (input ports by
     name: ``imu`` and the measurement updates', output ports by name)."""
     system = builder.AddNamedSystem("eskf", Eskf(vehicle.estimator, fidelity, n=n, sensors=vehicle.sensors))

@@ -237,7 +237,7 @@ class Fusion:
         self.ports = tuple(update.measurement.port for update in updates)
         self._gps = next((u for u in updates if isinstance(u, GpsUpdate)), None)
 
-    def update_of(self, kind):
+    def update_of(self, kind) -> object | None:
         """This estimator's update of class `kind`, or None when the vehicle has no such sensor."""
         return next((u for u in self.updates if isinstance(u, kind)), None)
 

@@ -49,7 +49,7 @@ class Wind(LeafSystem):
             self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, SENSOR_OFFSET, self._update)
 
     @property
-    def model(self):
+    def model(self) -> wind.DrydenModel | None:
         """The :class:`~quad_drake.models.wind.DrydenModel`, or None without turbulence."""
         return self._model
 

@@ -45,16 +45,16 @@ class Score:
     in_band: dict  # statistic -> share of samples inside the target band
 
     @property
-    def feasible(self):
+    def feasible(self) -> bool:
         return self.pass_rate == 1.0
 
 
-def breakdown_score():
+def breakdown_score() -> Score:
     """Score of a candidate whose campaign broke down numerically (worse than any failing run)."""
     return Score(2 * INFEASIBLE + 1.0, math.nan, math.nan, 0.0, {})
 
 
-def band_distance(values, band):
+def band_distance(values, band) -> float:
     """Mean over samples of max(0, ln(low / v), ln(v / high)): 0 inside the band."""
     values = np.asarray(values, dtype=float)
     low, high = band
@@ -64,7 +64,7 @@ def band_distance(values, band):
     return float(np.mean(np.where(usable, distance, NONFINITE_DISTANCE)))
 
 
-def consistency_loss(statistics, runs, target_runs):
+def consistency_loss(statistics, runs, target_runs) -> tuple[float, dict[str, float]]:
     """(loss, {statistic: in-band share}) of a campaign's ``consistency`` rows of `runs` runs
     against the bands of a campaign of `target_runs` runs (the same realisations per run)."""
     if not statistics:
@@ -78,12 +78,12 @@ def consistency_loss(statistics, runs, target_runs):
     return float(np.mean(losses)), in_band
 
 
-def efficiency_ratio(row):
+def efficiency_ratio(row) -> float:
     """The RMSE / bound of an ``efficiency`` row the objective uses: PCRB where present, else hover."""
     return row["pcrb_efficiency"] if row["pcrb_efficiency"] is not None else row["efficiency"]
 
 
-def accuracy_loss(efficiency):
+def accuracy_loss(efficiency) -> float:
     """Mean over the bounded states of RMSE / bound - 1 (NaN when no state is bounded)."""
     ratios = [efficiency_ratio(r) for r in efficiency if efficiency_ratio(r) is not None]
     if not ratios:
@@ -92,13 +92,13 @@ def accuracy_loss(efficiency):
     return float(np.mean(ratios)) - 1.0
 
 
-def pass_rate(criteria):
+def pass_rate(criteria) -> float:
     """Share of runs passing every criterion, from a campaign's ``criteria`` rows (1 without any)."""
     rows = [r for r in criteria if r["criterion"] == "all criteria"]
     return rows[0]["rate"] if rows else 1.0
 
 
-def score(campaign, objective, target_runs):
+def score(campaign, objective, target_runs) -> Score:
     """Score of a CampaignResult under `objective` (OBJECTIVES); bands of `target_runs` runs."""
     if objective not in OBJECTIVES:
         raise ValueError(f"objective must be one of {OBJECTIVES}, got {objective!r}")

@@ -16,6 +16,7 @@ from pathlib import Path
 
 from .. import campaigns
 from ..config.loader import dump_scenario
+from ..config.schema import ScenarioConfig
 from ..output.jsonio import dump_json
 from ..output.outdir import write_binary_atomic, write_text_atomic
 from .objective import score
@@ -23,7 +24,7 @@ from .objective import score
 TUNED_SUFFIX = "_tuned"
 
 
-def tuned_scenario(scenario):
+def tuned_scenario(scenario) -> ScenarioConfig:
     """The tuned ScenarioConfig under its own name (``<name>_tuned``: its outputs do not
     overwrite the original's)."""
     name = scenario.name if scenario.name.endswith(TUNED_SUFFIX) else scenario.name + TUNED_SUFFIX
@@ -57,7 +58,7 @@ def _header(result):
     return lines
 
 
-def write_search(result, out_dir):
+def write_search(result, out_dir) -> list[Path]:
     """tuned.yaml (when a candidate finished), history.csv, objective.png, tune.json; the paths."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -144,7 +145,7 @@ def _campaign_stats(campaign, objective):
     }
 
 
-def summary(result):
+def summary(result) -> dict:
     """The tune.json dict."""
     s = result.problem.settings
     best = result.search.best
@@ -172,7 +173,7 @@ def summary(result):
     return data
 
 
-def before_after(result):
+def before_after(result) -> str:
     """The before/after table on the held-out seeds, as text."""
     s = result.problem.settings
     before, after = result.before, result.after
@@ -206,7 +207,7 @@ def before_after(result):
     return "\n".join(lines) + "\n"
 
 
-def write_holdout(result, out_dir):
+def write_holdout(result, out_dir) -> list[Path]:
     """before_after.txt, the two held-out campaign folders, tune.json updated; the paths."""
     out_dir = Path(out_dir)
     table = out_dir / "before_after.txt"
@@ -220,7 +221,7 @@ def write_holdout(result, out_dir):
     return [table, *folders]
 
 
-def write_page(result, out_dir):
+def write_page(result, out_dir) -> Path:
     """report.html of a tune session in out_dir: what was searched, start and tuned values, the
     objective plot, the held-out before/after table and links to its files; -> its path."""
     from ..output.report import esc, figures_html, html_page, html_table

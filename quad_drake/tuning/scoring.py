@@ -10,21 +10,23 @@ session's runner (a ``with`` block) are started once.
 """
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 from ..campaigns import InProcessRunner, ProcessPoolRunner, run_campaign
 from ..campaigns.runners import TaskFailed
+from ..campaigns.statistics import CampaignResult
 from ..estimation.custom import EstimatorRaised
-from .objective import breakdown_score, score
+from .objective import Score, breakdown_score, score
 
 
-def campaign_runner(scenario, jobs):
+def campaign_runner(scenario, jobs) -> InProcessRunner | ProcessPoolRunner:
     """The runner of the tuning campaigns: in this process for one job, else a process pool
     (use it as a context manager to keep its workers for the whole session)."""
     return InProcessRunner() if jobs == 1 else ProcessPoolRunner(jobs)
 
 
-def fly_campaign(scenario, first_seed, runs, runner, progress=False, run_command=None):
+def fly_campaign(scenario, first_seed, runs, runner, progress=False, run_command=None) -> CampaignResult:
     """CampaignResult of `runs` runs of `scenario` with seeds first_seed.. on `runner`
     (run_command: the command that flies one run alone, ``campaigns.campaign.one_run_command``).
 
@@ -42,7 +44,7 @@ def fly_campaign(scenario, first_seed, runs, runner, progress=False, run_command
     )
 
 
-def fleet_batch(runs, runner):
+def fleet_batch(runs, runner) -> int:
     """Runs per fleet batch for a campaign of `runs` on `runner` (one batch per worker)."""
     return math.ceil(runs / getattr(runner, "jobs", 1))
 
@@ -61,7 +63,7 @@ class CandidateTask:
     run_command: object = None
 
 
-def score_candidate(task):
+def score_candidate(task) -> Score:
     """Worker entry point: the Score of a CandidateTask, its campaign flown in this process. A
     run that broke down numerically is the candidate's fault (:func:`.objective.breakdown_score`);
     any other failure is raised."""
@@ -76,7 +78,7 @@ def score_candidate(task):
     return score(campaign, task.objective, task.target_runs)
 
 
-def score_candidates(tasks, runner):
+def score_candidates(tasks, runner) -> Iterator[tuple[int, Score]]:
     """Iterator of (index into tasks, Score) of CandidateTasks on `runner`, one candidate per
     task, in completion order; a failed candidate raises RuntimeError naming its campaign (a
     custom estimator that raised: its ``custom.EstimatorRaised``)."""

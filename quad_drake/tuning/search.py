@@ -14,6 +14,7 @@ generation at a time, which the caller may score at once (one candidate per work
 """
 
 import math
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
 import cma
@@ -41,29 +42,31 @@ class Evaluation:
 
 @dataclass
 class SearchResult:
+    """What a noise-parameter search evaluated, in order, and whether Ctrl-C cut it short."""
+
     history: list = field(default_factory=list)  # [Evaluation] in order
     interrupted: bool = False  # Ctrl-C stopped the search; history holds what finished
 
     @property
-    def best(self):
+    def best(self) -> Evaluation | None:
         """The Evaluation with the lowest loss (the earliest among equals), or None."""
         return min(self.history, key=lambda e: e.score.loss) if self.history else None
 
 
-def population_size(dims, budget):
+def population_size(dims, budget) -> int:
     """CMA-ES's default population 4 + 3 ln(n), made smaller on a small budget so that at
     least three generations fit (never below 4, or the budget left after the start)."""
     default = 4 + int(3 * math.log(dims))
     return max(2, min(default, max(4, (budget - 1) // 3), budget - 1))
 
 
-def one_at_a_time(evaluate):
+def one_at_a_time(evaluate) -> Callable[[list], Iterator[tuple[int, object]]]:
     """A generation evaluator for :func:`search` from a function of one x: the candidates
     scored in order, ``evaluate(x) -> Score`` each."""
     return lambda xs: ((i, evaluate(x)) for i, x in enumerate(xs))
 
 
-def search(evaluate, dims, budget, bound, seed=0, on_evaluation=None):
+def search(evaluate, dims, budget, bound, seed=0, on_evaluation=None) -> SearchResult:
     """SearchResult of up to `budget` candidates x in [-bound, bound]^dims.
 
     evaluate(xs) scores a generation: an iterator of (index into xs, Score), in any order (the

@@ -33,6 +33,8 @@ from .space import SEARCH_DECADES, apply, overrides, search_space
 
 @dataclass
 class TuneProblem:
+    """What ``quad-drake tune`` searches: the starting scenario, the parameters and the settings."""
+
     scenario: object  # ScenarioConfig as given (the start)
     space: list  # [space.Parameter]
     settings: TuneSettings
@@ -41,6 +43,8 @@ class TuneProblem:
 
 @dataclass
 class TuneResult:
+    """A finished (or interrupted) tuning: the search, the tuned scenario and its held-out check."""
+
     problem: TuneProblem
     search: object  # search.SearchResult
     tuned: object  # ScenarioConfig at the best candidate
@@ -57,7 +61,7 @@ def _check_count(value, option):
         raise ConfigError(f"tune: {option} must be >= 1, got {value}")
 
 
-def prepare(scenario, keys, settings, run_command=None):
+def prepare(scenario, keys, settings, run_command=None) -> TuneProblem:
     """TuneProblem; ConfigError (one line) for any bad input, before any run flies. run_command:
     the command that flies one run of `scenario` alone (``campaigns.campaign.one_run_command``),
     for the "reproduce with" hint of a failing run (a candidate's gets its values as ``--set``)."""
@@ -129,7 +133,7 @@ def _with_sets(run_command, texts):
     return run_command + "".join(f" --set {shlex.quote(text)}" for text in texts)
 
 
-def tune(problem, out_dir, progress=True):
+def tune(problem, out_dir, progress=True) -> TuneResult:
     """TuneResult; writes the outputs into out_dir (:func:`.output.write`)."""
     s, scenario, space = problem.settings, problem.scenario, problem.space
     with campaign_runner(scenario, s.jobs) as runner:
@@ -176,7 +180,7 @@ def tune(problem, out_dir, progress=True):
     return result
 
 
-def verdict(result):
+def verdict(result) -> tuple[bool, str]:
     """(passed, the line that explains the exit code) of a TuneResult with held-out campaigns:
     passed when the tuned scenario passes every criterion in every held-out run and its
     held-out loss is not above the start's."""

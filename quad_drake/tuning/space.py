@@ -14,6 +14,7 @@ import dataclasses
 from dataclasses import dataclass
 
 from ..config.errors import ConfigError, did_you_mean
+from ..config.schema import ScenarioConfig
 from ..config.validation import validate
 from ..estimation.registry import kind_of, vehicle_vocabulary
 
@@ -29,7 +30,7 @@ class Parameter:
     targets: tuple  # ((vehicle index, ("ekf", "q_vel_xy_std")), ...)
     starts: tuple  # start value per target: a float or a tuple of floats (a vector field)
 
-    def values(self, x):
+    def values(self, x) -> tuple:
         """Field value per target at log10 multiplier x."""
         scale = 10.0**x
         return tuple(
@@ -37,7 +38,7 @@ class Parameter:
             for start in self.starts
         )
 
-    def label(self, x):
+    def label(self, x) -> str:
         """The first target's value at x, as text (a vector as [a, b, c])."""
         value = self.values(x)[0]
         if isinstance(value, tuple):
@@ -45,7 +46,7 @@ class Parameter:
         return f"{value:.4g}"
 
 
-def tuned_vehicles(scenario):
+def tuned_vehicles(scenario) -> list[int]:
     """Indices of the vehicles a relative key tunes: those with an estimator of the first one's kind."""
     kinds = [(i, vehicle_vocabulary(v)) for i, v in enumerate(scenario.vehicles)]
     kinds = [(i, v.kind) for i, v in kinds if v is not None]
@@ -98,7 +99,7 @@ def _start(value, key):
     raise ConfigError(f"--params {key}: not a number or a list of numbers (got {value!r})")
 
 
-def parameter(scenario, key):
+def parameter(scenario, key) -> Parameter:
     """The Parameter of dotted `key` in `scenario`; ConfigError (one line) when it cannot be searched."""
     parts = key.split(".")
     if not key or any(not p for p in parts):
@@ -118,7 +119,7 @@ def parameter(scenario, key):
     return Parameter(key, tuple((i, path) for i in indices), tuple(starts))
 
 
-def default_keys(scenario):
+def default_keys(scenario) -> list[str]:
     """The default space: the tuned estimator kind's tuning keys (``estimation/registry.py``)
     whose start is not zero (a zero field, e.g. 11's q_pos_xy_std = 0, is switched off and cannot
     be scaled), less the measurement noise of a sensor the
@@ -135,7 +136,7 @@ def _is_on(value):
     return any(v > 0 for v in value) if isinstance(value, list) else value > 0
 
 
-def search_space(scenario, keys=None):
+def search_space(scenario, keys=None) -> list[Parameter]:
     """[Parameter] of `keys` (default: :func:`default_keys`); checks every key before any work."""
     keys = list(keys) if keys else default_keys(scenario)
     if len(set(keys)) != len(keys):
@@ -150,7 +151,7 @@ def search_space(scenario, keys=None):
     return space
 
 
-def overrides(space, x):
+def overrides(space, x) -> list[str]:
     """The ``--set`` texts that give a scenario the values of `space` at x (what :func:`apply`
     sets): ``vehicles.I.PATH=VALUE`` per target, VALUE a number or a ``[...]`` list."""
     texts = []
@@ -165,7 +166,7 @@ def overrides(space, x):
     return texts
 
 
-def apply(scenario, space, x):
+def apply(scenario, space, x) -> ScenarioConfig:
     """A validated copy of `scenario` with every Parameter of `space` at its log10 multiplier in x."""
     candidate = copy.deepcopy(scenario)
     for p, xi in zip(space, x, strict=True):

@@ -40,7 +40,7 @@ class BatchRecorder(LeafSystem):
         self.recorded = 0  # samples kept so far (the last one falls past end_time when rounding says so)
         self.DeclarePeriodicPublishEvent(c.LOG_PERIOD, 0.0, self._record)
 
-    def release_memory(self):
+    def release_memory(self) -> dict[str, dict[str, np.ndarray]]:
         """Hand over the logs and drop every reference to them (see
         ``systems.noise.NoiseStreamSource.release_memory``)."""
         logs, self.logs, self._inputs = self.logs, None, []
@@ -54,7 +54,7 @@ class BatchRecorder(LeafSystem):
                 log[k - 1] = evaluate(context).reshape(n, width)
 
 
-def build_fleet_diagram(scenario, seeds, make_sink=None):
+def build_fleet_diagram(scenario, seeds, make_sink=None) -> tuple[Diagram, LeafSystem]:
     """(Diagram, sink) of `scenario` flown by N = len(seeds) runs; the sink, a LeafSystem made
     by ``make_sink(signals, samples)`` (signals: ((vehicle, log name), width) per input port,
     samples: log samples of a run), takes every exported signal; default a BatchRecorder."""
@@ -79,7 +79,7 @@ def build_fleet_diagram(scenario, seeds, make_sink=None):
     return diagram, sink
 
 
-def release_memory(diagram, keep=None):
+def release_memory(diagram, keep=None) -> None:
     """Call ``release_memory()`` of every fleet system in `diagram` but `keep`: pydrake never
     frees a Diagram of Python systems, so a batch's large arrays must be dropped by hand
     (without it a campaign's workers grow by a batch's arrays per batch)."""
@@ -90,7 +90,7 @@ def release_memory(diagram, keep=None):
             system.release_memory()
 
 
-def fly(diagram, end_time):
+def fly(diagram, end_time) -> float:
     """Fly a fleet Diagram from t = 0 to end_time s; the wall time it took, s."""
     simulator = Simulator(diagram)
     start = time.perf_counter()
@@ -99,7 +99,7 @@ def fly(diagram, end_time):
     return time.perf_counter() - start
 
 
-def run_fleet(scenario, seeds):
+def run_fleet(scenario, seeds) -> tuple[np.ndarray, dict[str, dict[str, np.ndarray]], float]:
     """(times (samples,), {vehicle: {log name: (samples, N, width)}}, wall time s) of `scenario`
     flown by the runs with seeds `seeds` (N,) for end_time s, every exported signal kept (a
     campaign never needs these logs: it summarises its batches while they fly,

@@ -12,10 +12,13 @@ the tally of their series leave the worker.
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 from quad_drake.campaigns.fleet.diagram import build_fleet_diagram, fly, release_memory
 from quad_drake.campaigns.fleet.streaming import BatchSummarizer
 from quad_drake.campaigns.fleet.summaries import summary_bytes
-from quad_drake.campaigns.tally import fold_records
+from quad_drake.campaigns.records import RunRecord
+from quad_drake.campaigns.tally import FoldedRecords, fold_records
 from quad_drake.running.simulation import flight_end
 
 MAX_BATCH = 1000
@@ -34,7 +37,7 @@ class BatchTask:
     seeds: tuple
 
 
-def default_batch_size(scenario, runs, jobs=1):
+def default_batch_size(scenario, runs, jobs=1) -> int:
     """Runs per batch: at most what MAX_BATCH and BATCH_MEMORY allow, and the runs split evenly
     over the fewest rounds of `jobs` batches that hold them, so that no worker idles through a
     last round the others fly (3000 runs on 2 workers: 4 batches of 750, not 3 of 1000)."""
@@ -43,7 +46,7 @@ def default_batch_size(scenario, runs, jobs=1):
     return max(1, math.ceil(runs / (rounds * jobs)))
 
 
-def batches(scenario, runs, first_seed, batch_size):
+def batches(scenario, runs, first_seed, batch_size) -> list[BatchTask]:
     """The BatchTask tasks of `runs` runs, run i with seed first_seed + i, `batch_size` per batch."""
     return [
         BatchTask(
@@ -53,7 +56,7 @@ def batches(scenario, runs, first_seed, batch_size):
     ]
 
 
-def batch_logs(logs, j):
+def batch_logs(logs, j) -> dict[str, dict[str, np.ndarray]]:
     """{vehicle: {log name: (samples, width)}} of run j of a batch's logs (samples, N, width)."""
     return {
         vehicle: {name: data[:, j, :] for name, data in vehicle_logs.items()}
@@ -61,7 +64,7 @@ def batch_logs(logs, j):
     }
 
 
-def fly_batch(task):
+def fly_batch(task) -> list[RunRecord]:
     """Fly a BatchTask, summarised while it flies; the full RunRecord of each of its runs
     (with its NEES and NIS series), by index."""
     diagram, summarizer = build_fleet_diagram(
@@ -76,7 +79,7 @@ def fly_batch(task):
     return records
 
 
-def simulate_batch(task):
+def simulate_batch(task) -> FoldedRecords:
     """Worker entry point: :func:`fly_batch`, sent back as slim records and the tally of their
     series (``campaigns.tally.FoldedRecords``): a batch of 1000 runs of 11 sends about 2 MB,
     not the 120 MB of its series."""

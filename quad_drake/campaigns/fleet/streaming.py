@@ -11,6 +11,7 @@ from pydrake.systems.framework import LeafSystem
 
 from quad_drake import conventions as c
 from quad_drake.campaigns.fleet.summaries import CHUNK_SAMPLES, BatchSummary
+from quad_drake.campaigns.records import RunRecord
 
 
 class BatchSummarizer(LeafSystem):
@@ -64,11 +65,11 @@ class BatchSummarizer(LeafSystem):
                 buffer[0] = buffer[self._rows]
         self._rows = 0
 
-    def records(self, first_index, wall_time):
+    def records(self, first_index, wall_time) -> list[RunRecord]:
         """Fold what the chunk holds; the RunRecord of each run (``BatchSummary.records``)."""
         self._flush()
         return self.summary.records(first_index, wall_time)
 
-    def release_memory(self):
+    def release_memory(self) -> None:
         """Drop the chunk buffers and the summary (see ``systems.noise.NoiseStreamSource.release_memory``)."""
         self._buffers, self._inputs, self.summary = {}, [], None

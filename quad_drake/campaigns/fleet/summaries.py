@@ -41,7 +41,7 @@ CHUNK_SAMPLES = 200
 """Log samples per chunk (1 s of flight)."""
 
 
-def summary_bytes(scenario, runs, chunk=CHUNK_SAMPLES):
+def summary_bytes(scenario, runs, chunk=CHUNK_SAMPLES) -> int:
     """Bytes a batch of `runs` runs of `scenario` holds while it is summarised, to within the
     small per-run sums: the chunk of every exported signal (chunk + 1 samples), and per run
     its NEES at each sample and the stamp and NIS of each fresh GPS or magnetometer update."""
@@ -190,7 +190,7 @@ class BatchSummary:
         self._criteria = CriteriaStream(scenario, runs)
         self.samples = 0  # samples folded so far
 
-    def update(self, logs, has_previous):
+    def update(self, logs, has_previous) -> None:
         """Fold the next k samples: logs {vehicle: {name: (k (+1), N, w)}}; with has_previous,
         row 0 of every log is the sample before them (only used to judge freshness)."""
         skip = 1 if has_previous else 0
@@ -207,7 +207,7 @@ class BatchSummary:
             vehicle.update(first, times, vehicle_logs, signals, unsettled)
         self.samples += k
 
-    def records(self, first_index, wall_time):
+    def records(self, first_index, wall_time) -> list[RunRecord]:
         """The RunRecord of each run, index first_index + j (wall_time: the batch's, s, shared evenly)."""
         for vehicle in self._vehicles:
             vehicle.finish()
@@ -238,7 +238,7 @@ class BatchSummary:
         return records
 
 
-def summarize_logs(scenario, seeds, logs, chunk=CHUNK_SAMPLES):
+def summarize_logs(scenario, seeds, logs, chunk=CHUNK_SAMPLES) -> BatchSummary:
     """A BatchSummary of full logs {vehicle: {name: (n, N, w)}} fed `chunk` samples at a time
     (what a BatchSummarizer does while the batch flies); for tests and benchmarks."""
     n = next(iter(next(iter(logs.values())).values())).shape[0]
