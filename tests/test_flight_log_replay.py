@@ -195,8 +195,8 @@ def test_replay_writes_a_report_an_index_entry_and_reproduces_itself(quad_drake_
         ([LOGS[1], "--estimator", "{kind: ukf}"], "estimator.kind: 'ukf' is not one of ekf7, eskf"),
         ([LOGS[1], "--estimator", "{kind: eskf"], "--estimator '{kind: eskf': not valid YAML"),
         (
-            [LOGS[1], "--set", "ekf.mag_yaw_std=0"],
-            "ekf.mag_yaw_std: must be > 0, got 0.0 (--set ekf.mag_yaw_std=0)",
+            [LOGS[1], "--set", "estimator.mag_yaw_std=0"],
+            "estimator.mag_yaw_std: must be > 0, got 0.0 (--set estimator.mag_yaw_std=0)",
         ),
         (
             [LOGS[1], "--set", "fake_position_period=0.003"],

@@ -181,5 +181,18 @@ def test_replay_defaults_and_the_start_from_a_log_are_the_entry_s():
     started = eskf.started_from_log(config, 0.1, 0.2, 0.3)
     assert started.init_ypr == [0.3, 0.2, 0.1]
     assert eskf.assuming_gps_noise(started, 10.0, 1e3).gps_vel_std == [1e3] * 3
-    ekf7 = registry.KINDS["ekf7"]  # its parameters are the vehicle's ekf block: the entry keeps its config
-    assert ekf7.started_from_log(ekf7.replay_config(), 0.1, 0.2, 0.3) == registry.Ekf7EstimatorConfig()
+    ekf7 = registry.KINDS["ekf7"]  # its parameters are its config's, as the ESKF's are
+    config = ekf7.replay_config()
+    noise = registry.PX4_NOISE
+    assert (config.gps_pos_xy_std, config.gps_vel_z_std) == (noise["gps_pos_std"], noise["gps_vel_std"])
+    assert config.mag_yaw_std == noise["heading_std"] and config.baro.height_std == noise["baro_height_std"]
+    assert config.attitude_filter.tau == 0.5 and config != registry.Ekf7EstimatorConfig()
+    started = ekf7.started_from_log(config, 0.1, 0.2, 0.3)
+    assert started.init_state == [0.0] * 6 + [0.3]  # roll and pitch: the attitude filter finds them
+    faked = ekf7.assuming_gps_noise(started, 10.0, 1e3)
+    assert (faked.gps_pos_xy_std, faked.gps_pos_z_std, faked.gps_vel_xy_std, faked.gps_vel_z_std) == (
+        10.0,
+        10.0,
+        1e3,
+        1e3,
+    )
