@@ -151,10 +151,10 @@ def _name_the_default_kind(raw, keys):
     the field is the default kind's."""
     if len(keys) < 4 or keys[0] != "vehicles" or keys[2] != "estimator" or not keys[1].isdigit():
         return
-    vehicles = raw.get("vehicles")
-    if isinstance(vehicles, list) and int(keys[1]) < len(vehicles) and isinstance(vehicles[int(keys[1])], dict):
-        if vehicles[int(keys[1])].get("estimator") is None:
-            vehicles[int(keys[1])]["estimator"] = {"kind": DEFAULT_KIND}
+    vehicles, index = raw.get("vehicles"), int(keys[1])
+    vehicle = vehicles[index] if isinstance(vehicles, list) and index < len(vehicles) else None
+    if isinstance(vehicle, dict) and vehicle.get("estimator") is None:
+        vehicle["estimator"] = {"kind": DEFAULT_KIND}
 
 
 def _migrate_use_ideal_estimator(raw):
