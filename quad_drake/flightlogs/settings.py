@@ -200,7 +200,7 @@ def check_replay(config) -> ReplayConfig:
 def vehicle_for(
     config, initial_attitude, fake_position, baro_period=None, magnetometer=None
 ) -> VehicleConfig:
-    """The VehicleConfig whose estimator blocks ``systems.estimators.build_estimator`` reads:
+    """The VehicleConfig whose estimator ``systems.estimators.build_estimator`` builds:
     `config`'s, started at `initial_attitude` (roll, pitch, yaw rad) at rest at the origin, and
     with `fake_position` (a log without GPS) assuming the fake position's noise for its GPS input.
 
