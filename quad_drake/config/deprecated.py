@@ -11,12 +11,12 @@ file (:func:`migrate_ekf7_blocks`) and in a ``--set`` key (:func:`migrate_ekf7_o
 
 import warnings
 
-from ..estimation.registry import DEFAULT_KIND, KINDS
+from ..estimation.registry import DEFAULT_KIND, KINDS, Ekf7EstimatorConfig
 from .errors import ConfigError
 
 EKF7_BLOCKS = {"ekf": (), "attitude_filter": ("attitude_filter",)}
 """{the old block of a vehicle: its path below the vehicle's ``estimator``}."""
-EKF7_KIND = "ekf7"
+EKF7_KIND = Ekf7EstimatorConfig().kind
 
 
 def current_field_path(parts) -> tuple:
@@ -28,11 +28,14 @@ def current_field_path(parts) -> tuple:
     return parts
 
 
-def _raw_kind(estimator) -> str:
-    """The kind a raw ``estimator`` mapping names (its ``kind``, or the tag a dumped config
-    carries); the default kind when there is no block."""
-    if not isinstance(estimator, dict):
+def _raw_kind(estimator, where) -> str:
+    """The kind a raw ``estimator`` mapping (named `where`) names: its ``kind``, or the tag a
+    dumped config carries; the default kind when there is no block. ConfigError when it is not a
+    mapping."""
+    if estimator is None:
         return DEFAULT_KIND
+    if not isinstance(estimator, dict):
+        raise ConfigError(f"{where}: expected a mapping, got {estimator!r}")
     if "kind" in estimator:
         return estimator["kind"]
     by_tag = {f"!{kind.config_type.__name__}": name for name, kind in KINDS.items()}
@@ -67,7 +70,7 @@ def migrate_ekf7_blocks(holder, where) -> None:
             value = {}
         if not isinstance(value, dict):
             raise ConfigError(f"{old}: expected a mapping, got {value!r}")
-        kind = _raw_kind(holder.get("estimator"))
+        kind = _raw_kind(holder.get("estimator"), f"{prefix}estimator")
         if kind != EKF7_KIND:
             warnings.warn(
                 f"{old} is deprecated and ignored: it holds ekf7 parameters and {prefix}estimator is {kind}",
@@ -102,12 +105,15 @@ def migrate_ekf7_override(raw, keys, value, holder_depth) -> list:
         return [(keys, value)]
     holder = raw
     for key in keys[:holder_depth]:
-        holder = holder[int(key)] if isinstance(holder, list) and key.isdigit() else holder.get(key, {})
-        if not isinstance(holder, (dict, list)):
+        if isinstance(holder, list) and key.isdigit() and int(key) < len(holder):
+            holder = holder[int(key)]
+        elif isinstance(holder, dict):
+            holder = holder.get(key, {})
+        else:
             return [(keys, value)]  # apply_override says what is wrong
     head, old = keys[:holder_depth], ".".join(keys)
-    estimator = holder.get("estimator") if isinstance(holder, dict) else None
-    kind = _raw_kind(estimator)
+    where = ".".join([*head, "estimator"])
+    kind = _raw_kind(holder.get("estimator") if isinstance(holder, dict) else None, where)
     if kind != EKF7_KIND:
         warnings.warn(
             f"--set {old}: deprecated and ignored: it sets an ekf7 parameter and the estimator is {kind}",
