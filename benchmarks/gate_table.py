@@ -38,22 +38,33 @@ from quad_drake import campaigns  # noqa: E402
 from quad_drake.running import catalog  # noqa: E402
 
 MIXED = str(ROOT / "benchmarks" / "scenarios" / "gps_glitch_outage.yaml")
-GATES_OFF = ("vehicles.0.ekf.gps_gate_sigma=0", "vehicles.0.ekf.mag_gate_sigma=0")
-EKF7 = "vehicles.0.estimator={kind: ekf7}"
+GATES_OFF = ("vehicles.0.estimator.gps_gate_sigma=0", "vehicles.0.estimator.mag_gate_sigma=0")
+EKF7_11 = (
+    "vehicles.0.estimator={kind: ekf7, q_pos_xy_std: 0.0, q_pos_z_std: 0.0, q_vel_xy_std: 0.022,"
+    " q_vel_z_std: 0.067, q_yaw_std: 0.022, tilt_gyro_std: 0.5, tilt_velocity_time: 0.25,"
+    " tilt_yaw_time: 0.15, gps_pos_xy_std: 0.7, gps_pos_z_std: 2.0,"
+    " init_std: [0.001, 0.001, 0.001, 0.001, 0.001, 0.001, 0.001]}"
+)
+"""The EKF7 with 11_gps_update's tuning (as its file writes it), in place of an ESKF."""
+EKF7_FORMER = (
+    "vehicles.0.estimator={kind: ekf7, q_pos_xy_std: 0.05, q_vel_xy_std: 0.35, q_vel_z_std: 0.2,"
+    " q_yaw_std: 0.06, gps_pos_xy_std: 0.7, gps_pos_z_std: 2.0}"
+)
+"""The EKF7 with 11's former tuning (the fault scenarios' comparison), in place of an ESKF."""
 ESKF = "vehicles.0.estimator={kind: eskf}"
-REFERENCE_EKF = "vehicles.0.ekf={}"
-"""The reference's own QuadEstimatorEKF.txt values (the EkfParams defaults: Q 0.05 / 0.05 / 0.05 /
-0.1 / 0.05, GPS 1 m / 3 m / 0.1 m/s / 0.3 m/s, mag 0.1 rad)."""
+REFERENCE_EKF = "vehicles.0.estimator={kind: ekf7}"
+"""The reference's own QuadEstimatorEKF.txt values (the Ekf7EstimatorConfig defaults: Q 0.05 /
+0.05 / 0.05 / 0.1 / 0.05, GPS 1 m / 3 m / 0.1 m/s / 0.3 m/s, mag 0.1 rad)."""
 WRITE_UPS = {
     "seed 000 (QPosXY .01, QVelXY .1, QPosZ .05, QVelZ .1, QYaw .06)": (
-        "vehicles.0.ekf={q_pos_xy_std: 0.01, q_vel_xy_std: 0.1, q_pos_z_std: 0.05, q_vel_z_std: 0.1,"
-        " q_yaw_std: 0.06}"
+        "vehicles.0.estimator={kind: ekf7, q_pos_xy_std: 0.01, q_vel_xy_std: 0.1, q_pos_z_std: 0.05,"
+        " q_vel_z_std: 0.1, q_yaw_std: 0.06}"
     ),
     "seed 002 (QPosXY .001, QVelXY .2, QYaw .5)": (
-        "vehicles.0.ekf={q_pos_xy_std: 0.001, q_vel_xy_std: 0.2, q_yaw_std: 0.5}"
+        "vehicles.0.estimator={kind: ekf7, q_pos_xy_std: 0.001, q_vel_xy_std: 0.2, q_yaw_std: 0.5}"
     ),
     "seed 003 (QPosXY .1, QVelXY .25, QYaw .15)": (
-        "vehicles.0.ekf={q_pos_xy_std: 0.1, q_vel_xy_std: 0.25, q_yaw_std: 0.15}"
+        "vehicles.0.estimator={kind: ekf7, q_pos_xy_std: 0.1, q_vel_xy_std: 0.25, q_yaw_std: 0.15}"
     ),
 }
 """The EKF7 tunings the write-ups in ../shared/seeds report (001 and 004 give no values); the
@@ -67,7 +78,7 @@ class Row:
     overrides: tuple = ()
 
     def with_gates_off(self):
-        """The same row with every gate off (the EKF7's ``ekf`` block: its overrides set it last)."""
+        """The same row with every gate off (the EKF7's estimator fields: its overrides set them last)."""
         return Row(self.scenario, f"{self.label}, gates off", self.overrides + GATES_OFF)
 
 
@@ -93,9 +104,9 @@ TABLES = {
     ],
     "faults": lambda: [
         Row(MIXED, "outlier + 3 s outage, ESKF", (ESKF,)),
-        Row(MIXED, "outlier + 3 s outage, EKF7", (EKF7,)),
+        Row(MIXED, "outlier + 3 s outage, EKF7", (EKF7_11,)),
         Row("18_imu_dropout", "0.1 s IMU dropout, ESKF", ("vehicles.0.faults.0.end=10.1",)),
-        Row("18_imu_dropout", "0.1 s IMU dropout, EKF7", ("vehicles.0.faults.0.end=10.1", EKF7)),
+        Row("18_imu_dropout", "0.1 s IMU dropout, EKF7", ("vehicles.0.faults.0.end=10.1", EKF7_FORMER)),
     ],
 }
 

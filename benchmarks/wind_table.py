@@ -68,7 +68,7 @@ ROWS = (
         "3 m/s + moderate, drag",
         "delta-v, 16 g",
         EKF7_22,
-        ("vehicles.0.ekf.q_vel_z_std=0.075",),
+        ("vehicles.0.estimator.q_vel_z_std=0.075",),
     ),
     ("ESKF", "still air (11)", "last step", ESKF_11, ()),
     ("ESKF", "still air", "delta-v, 16 g", ESKF_11, REAL_IMU),

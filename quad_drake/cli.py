@@ -315,7 +315,7 @@ def _add_montecarlo_arguments(parser):
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        help="override a config field, e.g. vehicles.0.ekf.q_yaw_std=0.1",
+        help="override a config field, e.g. vehicles.0.estimator.q_yaw_std=0.1",
     )
     parser.add_argument("--out", default="out", help="output folder (default: out)")
     parser.add_argument(
@@ -344,7 +344,7 @@ def _add_tune_arguments(parser):
         "--params",
         nargs="+",
         metavar="KEY",
-        help="dotted config keys to search, e.g. ekf.q_vel_xy_std vehicles.0.ekf.q_yaw_std "
+        help="dotted config keys to search, e.g. estimator.q_vel_xy_std vehicles.0.estimator.q_yaw_std "
         "(default: the estimator's process- and measurement-noise fields)",
     )
     parser.add_argument(

@@ -59,11 +59,11 @@ def constant_q_ekf7():
     """--set overrides that give 11's EKF7 its tuning before the tilt-aware Q (README "Estimators"):
     a constant velocity and yaw Q wide enough for the whole flight, tilt term off, a small P0."""
     return [
-        "vehicles.0.ekf.tilt_gyro_std=0",
-        "vehicles.0.ekf.q_vel_xy_std=0.35",
-        "vehicles.0.ekf.q_vel_z_std=0.25",
-        "vehicles.0.ekf.q_yaw_std=0.06",
-        "vehicles.0.ekf.init_std=[0.02, 0.02, 0.05, 0.02, 0.02, 0.05, 0.01]",
+        "vehicles.0.estimator.tilt_gyro_std=0",
+        "vehicles.0.estimator.q_vel_xy_std=0.35",
+        "vehicles.0.estimator.q_vel_z_std=0.25",
+        "vehicles.0.estimator.q_yaw_std=0.06",
+        "vehicles.0.estimator.init_std=[0.02, 0.02, 0.05, 0.02, 0.02, 0.05, 0.01]",
     ]
 
 

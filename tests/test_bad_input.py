@@ -108,10 +108,10 @@ def test_an_unknown_signal_in_any_scenario_of_a_batch_is_reported_with_its_file_
             "gps.period: must be a whole multiple of the 2 ms onboard tick",
         ),
         (
-            "vehicles.0.ekf.q_vel_xy_std=1.0e+200",
+            "vehicles.0.estimator.q_vel_xy_std=1.0e+200",
             "q_vel_xy_std: a noise std must be 0 or within [1e-100, 1e+100]",
         ),
-        ("vehicles.0.ekf.gps_pos_xy_std=1e-200", "gps_pos_xy_std: a noise std must be 0 or within"),
+        ("vehicles.0.estimator.gps_pos_xy_std=1e-200", "gps_pos_xy_std: a noise std must be 0 or within"),
     ],
 )
 def test_values_that_would_hang_or_break_the_filter_are_refused(quad_drake_cli, override, message):
@@ -130,12 +130,14 @@ def test_the_reference_fidelity_on_an_error_state_ekf_is_refused(quad_drake_cli,
 def test_the_edges_of_the_accepted_noise_range_fly_without_a_traceback(quad_drake_cli, tmp_path):
     # Zero P0 and Q with the smallest accepted R, then the largest accepted Q: the filter's
     # covariance stays usable, so the flight ends with a verdict (0 or 1), never a traceback.
-    singular_once = ["vehicles.0.ekf.init_std=[0, 0, 0, 0, 0, 0, 0]"]
-    singular_once += [f"vehicles.0.ekf.q_{s}_std=0" for s in ("pos_xy", "pos_z", "vel_xy", "vel_z", "yaw")]
+    singular_once = ["vehicles.0.estimator.init_std=[0, 0, 0, 0, 0, 0, 0]"]
     singular_once += [
-        f"vehicles.0.ekf.{f}=1e-100" for f in ("gps_pos_xy_std", "gps_vel_z_std", "mag_yaw_std")
+        f"vehicles.0.estimator.q_{s}_std=0" for s in ("pos_xy", "pos_z", "vel_xy", "vel_z", "yaw")
     ]
-    huge_q = ["vehicles.0.ekf.q_vel_xy_std=1e100", "vehicles.0.ekf.q_yaw_std=1e100"]
+    singular_once += [
+        f"vehicles.0.estimator.{f}=1e-100" for f in ("gps_pos_xy_std", "gps_vel_z_std", "mag_yaw_std")
+    ]
+    huge_q = ["vehicles.0.estimator.q_vel_xy_std=1e100", "vehicles.0.estimator.q_yaw_std=1e100"]
     for overrides in (singular_once, huge_q):
         sets = [a for o in ["end_time=1.5", *overrides] for a in ("--set", o)]
         result = quad_drake_cli("run", "11_gps_update", *sets, "--no-plots", "--out", str(tmp_path))

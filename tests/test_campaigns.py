@@ -465,7 +465,7 @@ def test_a_failing_campaign_names_the_consistency_test_that_failed(tmp_path, cap
     # The EKF believes the magnetometer 10x better than it is: its NIS is ~100x its dof. Four
     # runs: two give Student's t interval 1 degree of freedom (12.7 standard errors each way),
     # too wide to show anything; four show it (NIS mag/dof 72.7 [44.6, 101]).
-    overconfident = ["--set", "end_time=1", "--set", "vehicles.0.ekf.mag_yaw_std=0.01"]
+    overconfident = ["--set", "end_time=1", "--set", "vehicles.0.estimator.mag_yaw_std=0.01"]
     argv = ["montecarlo", "10_mag_update", "--runs", "4", "--jobs", "1", *overconfident]
     code = cli.main([*argv, "--out", str(tmp_path), "--no-plots", "--quiet"])
     last = capsys.readouterr().out.strip().splitlines()[-1]

@@ -192,7 +192,7 @@ def test_bare_quad_drake_prints_the_help_with_the_exit_codes(quad_drake_cli):
             ["run", "01_intro", "--set", "criteria.0.signal=Quad.PosFolowErr"],
             "(did you mean 'Quad.PosFollowErr'",
         ),
-        (["tune", "11_gps_update", "--params", "ekf.q_yaw_sd"], "(did you mean 'q_yaw_std'"),
+        (["tune", "11_gps_update", "--params", "estimator.q_yaw_sd"], "(did you mean 'q_yaw_std'"),
     ],
 )
 def test_a_misspelt_name_gets_a_did_you_mean(quad_drake_cli, tmp_path, args, hint):

@@ -51,12 +51,12 @@ def test_yaml_merge_keys_copy_a_vehicle(tmp_path):
 
 def test_overrides_reach_nested_fields(tmp_path):
     scenario = load_scenario(
-        write(tmp_path, GOOD), ["vehicles.1.physics.mass=0.8", "seed=7", "vehicles.0.ekf.q_yaw_std=0.2"]
+        write(tmp_path, GOOD), ["vehicles.1.physics.mass=0.8", "seed=7", "vehicles.0.estimator.q_yaw_std=0.2"]
     )
     assert scenario.vehicles[1].physics.mass == 0.8
     assert scenario.vehicles[0].physics.mass == 0.5
     assert scenario.seed == 7
-    assert scenario.vehicles[0].ekf.q_yaw_std == 0.2
+    assert scenario.vehicles[0].estimator.q_yaw_std == 0.2
 
 
 @pytest.mark.parametrize(
@@ -72,14 +72,15 @@ def test_overrides_reach_nested_fields(tmp_path):
             "vehicles.0.sensors.gps.period: must be a whole multiple of",
         ),
         (["vehicles.0.sensors.imu.accel_std=[0.5, -1, 0]"], "vehicles.0.sensors.imu.accel_std: must be >= 0"),
-        (["vehicles.0.ekf.q_yaw_std=.nan"], "vehicles.0.ekf.q_yaw_std: must be finite"),
+        (["vehicles.0.estimator.q_yaw_std=.nan"], "vehicles.0.estimator.q_yaw_std: must be finite"),
         (
             ["vehicles.0.trajectory={kind: file, file: nowhere.txt}"],
             "vehicles.0.trajectory.file: no such trajectory file 'nowhere.txt'",
         ),
         (
-            ["vehicles.0.attitude_filter.variant=quaternionish"],
-            "vehicles.0.attitude_filter.variant: 'quaternionish' is not one of nonlinear, small_angle",
+            ["vehicles.0.estimator.attitude_filter.variant=quaternionish"],
+            "vehicles.0.estimator.attitude_filter.variant: 'quaternionish' is not one of nonlinear, "
+            "small_angle",
         ),
         (["vehicles.1.name=Quad1"], "vehicles: names must be unique"),
         (["vehicles.0.flies_on=estimate"], "vehicles.0.flies_on: estimate needs imu, gps and mag sensors"),
@@ -179,10 +180,10 @@ def test_sensor_periods_on_the_tick_are_accepted(tmp_path):
 @pytest.mark.parametrize(
     "override",
     [
-        "vehicles.0.ekf.q_vel_xy_std=1.0e+200",  # Q = std^2 dt overflows: P turns inf, then NaN
-        "vehicles.0.ekf.gps_pos_xy_std=1e-200",  # R underflows to 0: S = H P H^T + R singular with P0 = 0
-        "vehicles.0.ekf.mag_yaw_std=1e-101",
-        "vehicles.0.ekf.init_std=[0, 0, 0, 0, 0, 0, 1e101]",
+        "vehicles.0.estimator.q_vel_xy_std=1.0e+200",  # Q = std^2 dt overflows: P turns inf, then NaN
+        "vehicles.0.estimator.gps_pos_xy_std=1e-200",  # R underflows to 0: S = H P H^T + R singular, P0 = 0
+        "vehicles.0.estimator.mag_yaw_std=1e-101",
+        "vehicles.0.estimator.init_std=[0, 0, 0, 0, 0, 0, 1e101]",
         "vehicles.0.sensors.imu={accel_std: [0.5, 1e300, 1]}",
     ],
 )
@@ -193,14 +194,14 @@ def test_noise_stds_whose_square_is_no_usable_covariance_are_rejected(tmp_path, 
 
 def test_zero_noise_and_the_edges_of_the_noise_range_are_accepted(tmp_path):
     edges = [
-        "vehicles.0.ekf.q_yaw_std=0",
-        "vehicles.0.ekf.gps_pos_xy_std=1e-100",
-        "vehicles.0.ekf.q_vel_xy_std=1e100",
+        "vehicles.0.estimator.q_yaw_std=0",
+        "vehicles.0.estimator.gps_pos_xy_std=1e-100",
+        "vehicles.0.estimator.q_vel_xy_std=1e100",
     ]
-    ekf = load_scenario(write(tmp_path, GOOD), edges).vehicles[0].ekf
-    assert (ekf.q_yaw_std, ekf.gps_pos_xy_std, ekf.q_vel_xy_std) == (0, 1e-100, 1e100)
+    ekf7 = load_scenario(write(tmp_path, GOOD), edges).vehicles[0].estimator
+    assert (ekf7.q_yaw_std, ekf7.gps_pos_xy_std, ekf7.q_vel_xy_std) == (0, 1e-100, 1e100)
     with pytest.raises(ConfigError, match="dt_imu: must be <= 1.0"):
-        load_scenario(write(tmp_path, GOOD), ["vehicles.0.ekf.dt_imu=10"])
+        load_scenario(write(tmp_path, GOOD), ["vehicles.0.estimator.dt_imu=10"])
 
 
 def test_estimator_choice_loads_by_kind_with_one_line_errors(tmp_path):
@@ -222,11 +223,14 @@ def test_estimator_choice_loads_by_kind_with_one_line_errors(tmp_path):
     for text, message in (
         ("estimator: {kind: ukf}", "vehicles.0.estimator.kind: 'ukf' is not one of ekf7, eskf"),
         ("estimator: {gps_gate_sigma: 3}", "vehicles.0.estimator.kind: missing; one of ekf7, eskf"),
-        ("estimator: {kind: ekf7, gps_gate_sigma: 3}", "vehicles.0.estimator.gps_gate_sigma: unknown key"),
+        ("estimator: {kind: ekf7, accel_std: [1, 1, 1]}", "vehicles.0.estimator.accel_std: unknown key"),
         ("estimator: {kind: eskf, init_pos_std: [1, 1]}", "vehicles.0.estimator.init_pos_std: expected 3"),
         ("estimator: {kind: eskf, gyro_std: [1, -1, 1]}", "vehicles.0.estimator.gyro_std: must be >= 0"),
         ("estimator: eskf", "vehicles.0.estimator: expected a mapping"),
-        ("ekf: {q_vel_xy_std: 1.0e+200}", "vehicles.0.ekf.q_vel_xy_std: a noise std must be 0 or within"),
+        (
+            "estimator: {kind: ekf7, q_vel_xy_std: 1.0e+200}",
+            "vehicles.0.estimator.q_vel_xy_std: a noise std must be 0 or within",
+        ),
         (
             "estimator: {kind: eskf, accel_bias_rw_std: 1e200}",
             "vehicles.0.estimator.accel_bias_rw_std: a noise",
@@ -241,9 +245,10 @@ def test_estimator_choice_loads_by_kind_with_one_line_errors(tmp_path):
 
 def test_the_config_package_reexports_each_modules_names_from_where_they_live():
     import quad_drake.config as package
-    from quad_drake.config import errors, fields, loader, schema, validation
+    from quad_drake.config import deprecated, errors, fields, loader, schema, validation
 
     homes = {"errors": errors, "fields": fields, "schema": schema, "validation": validation, "loader": loader}
+    homes["deprecated"] = deprecated
     for module, names in package._EXPORTS.items():
         for name in names:
             assert getattr(package, name) is getattr(homes[module], name), name

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from quad_drake.config.schema import EkfParams
 from quad_drake.conventions import GRAVITY
 from quad_drake.estimation import ekf
+from quad_drake.estimation.registry import AttitudeFilterParams, Ekf7EstimatorConfig
 from quad_drake.models.rotations import wrap_to_pi
 
 DT = 0.002
@@ -28,7 +28,7 @@ def random_inputs(rng):
 
 
 def test_noise_matrices_and_initial_covariance_from_spec_defaults():
-    p = EkfParams()
+    p = Ekf7EstimatorConfig()
     np.testing.assert_allclose(ekf.process_noise(p), np.diag([5e-6] * 5 + [2e-5, 5e-6]), rtol=1e-12, atol=0)
     np.testing.assert_allclose(
         ekf.gps_noise(p), np.diag([1.0, 1.0, 9.0, 0.01, 0.01, 0.09]), rtol=1e-12, atol=0
@@ -38,7 +38,7 @@ def test_noise_matrices_and_initial_covariance_from_spec_defaults():
         ekf.initial_covariance(p), np.diag([0.01, 0.01, 0.09, 0.01, 0.01, 0.09, 0.0025]), rtol=1e-12, atol=0
     )
     np.testing.assert_array_equal(ekf.initial_state(p), [0, 0, -1, 0, 0, 0, 0])
-    q = ekf.process_noise(EkfParams(q_yaw_std=0.2, dt_imu=0.01))
+    q = ekf.process_noise(Ekf7EstimatorConfig(q_yaw_std=0.2, dt_imu=0.01))
     assert q[6, 6] == pytest.approx(0.04 * 0.01, rel=1e-12)
 
 
@@ -84,7 +84,7 @@ def test_predict_jacobian_equals_central_differences(dt):
 
 def test_predict_equals_its_parts_and_reuses_the_work_buffer():
     rng = np.random.default_rng(4)
-    Q = ekf.process_noise(EkfParams())
+    Q = ekf.process_noise(Ekf7EstimatorConfig())
     G_work = ekf.predict_jacobian(np.zeros(7), 0.0, 0.0, HOVER_F_B, DT)
     for _ in range(20):
         x, roll, pitch, f_B = random_inputs(rng)
@@ -102,7 +102,7 @@ def test_predict_equals_its_parts_and_reuses_the_work_buffer():
 
 def test_predict_with_yaw_is_predict_after_taking_the_attitude_yaw():
     rng = np.random.default_rng(5)
-    Q = ekf.process_noise(EkfParams())
+    Q = ekf.process_noise(Ekf7EstimatorConfig())
     G_work = ekf.predict_jacobian(np.zeros(7), 0.0, 0.0, HOVER_F_B, DT)
     for _ in range(20):
         x, roll, pitch, f_B = random_inputs(rng)
@@ -135,7 +135,7 @@ def test_joseph_update_equals_standard_form_for_optimal_gain():
 
 def test_updates_keep_covariance_symmetric_and_positive_definite():
     rng = np.random.default_rng(6)
-    p = EkfParams()
+    p = Ekf7EstimatorConfig()
     Q, R_gps, R_mag = ekf.process_noise(p), ekf.gps_noise(p), ekf.mag_noise(p)
     x, P = ekf.initial_state(p), ekf.initial_covariance(p)
     for k in range(3000):
@@ -153,7 +153,7 @@ def test_updates_keep_covariance_symmetric_and_positive_definite():
 def test_gps_update_is_kalman_update_with_position_velocity_rows():
     rng = np.random.default_rng(7)
     x, P = rng.normal(size=7), random_spd(rng, 7)
-    z, R = rng.normal(size=6), ekf.gps_noise(EkfParams())
+    z, R = rng.normal(size=6), ekf.gps_noise(Ekf7EstimatorConfig())
     H = np.hstack([np.eye(6), np.zeros((6, 1))])
     got = ekf.gps_update(x, P, z, R)
     want = ekf.kalman_update(x, P, z, H, R, H @ x)
@@ -165,7 +165,7 @@ def test_gps_update_is_kalman_update_with_position_velocity_rows():
 
 def test_mag_update_scalar_form_equals_kalman_update():
     rng = np.random.default_rng(8)
-    R = ekf.mag_noise(EkfParams())
+    R = ekf.mag_noise(Ekf7EstimatorConfig())
     for _ in range(50):
         x, P = rng.normal(size=7), random_spd(rng, 7)
         x[6] = rng.uniform(-1.0, 1.0)
@@ -180,7 +180,7 @@ def test_mag_update_scalar_form_equals_kalman_update():
 
 
 def test_mag_residual_goes_the_short_way_across_pi():
-    p = EkfParams()
+    p = Ekf7EstimatorConfig()
     x, P = ekf.initial_state(p), ekf.initial_covariance(p)  # P66 = 0.0025, R = 0.01
     x[6] = -3.1
     x_new, _, nis = ekf.mag_update(x, P, 3.1, ekf.mag_noise(p))
@@ -195,7 +195,7 @@ def test_mag_residual_goes_the_short_way_across_pi():
 
 
 def test_non_finite_measurements_are_skipped():
-    p = EkfParams()
+    p = Ekf7EstimatorConfig()
     x, P = ekf.initial_state(p), ekf.initial_covariance(p)
     for z in ([math.nan, 0, 0, 0, 0, 0], [0, 0, 0, 0, 0, math.inf]):
         x_new, P_new, nis = ekf.gps_update(x, P, z, ekf.gps_noise(p))
@@ -252,7 +252,7 @@ def test_nees_of_a_matched_filter_lies_in_the_chi2_band(seed):
     are correlated, so their count does not shrink it: 0.56 to 0.71 at 200 runs, measured at 20 seeds).
     The old fixed band 6.6-7.4 at 40 runs failed 5 of 20 other seeds; these hold at seeds 100-119
     (issue 28)."""
-    nees = run_nees(EkfParams(), EkfParams(), seed=seed)
+    nees = run_nees(Ekf7EstimatorConfig(), Ekf7EstimatorConfig(), seed=seed)
     runs, checks = nees.shape
     tail = FALSE_FAIL / 2 / checks
     low, high = chi2.ppf(tail, 7 * runs) / runs, chi2.ppf(1 - tail, 7 * runs) / runs
@@ -264,8 +264,8 @@ def test_nees_of_a_matched_filter_lies_in_the_chi2_band(seed):
 
 
 def test_nees_of_an_overconfident_filter_leaves_the_band():
-    truth = EkfParams()
-    overconfident = EkfParams(
+    truth = Ekf7EstimatorConfig()
+    overconfident = Ekf7EstimatorConfig(
         q_pos_xy_std=0.005,
         q_pos_z_std=0.005,
         q_vel_xy_std=0.005,
@@ -352,10 +352,8 @@ def test_tilt_process_noise_at_hover_is_g_squared_tilt_variance_on_the_horizonta
 
 
 def test_tilt_noise_from_params_is_off_by_default_and_adds_to_q():
-    from quad_drake.config.schema import AttitudeFilterParams
-
-    assert ekf.TiltNoise.from_params(EkfParams(), AttitudeFilterParams(), DT) is None
-    params = EkfParams(tilt_gyro_std=0.5)
+    assert ekf.TiltNoise.from_params(Ekf7EstimatorConfig(), AttitudeFilterParams(), DT) is None
+    params = Ekf7EstimatorConfig(tilt_gyro_std=0.5)
     tilt = ekf.TiltNoise.from_params(params, AttitudeFilterParams(tau=50.0), DT)
     assert tilt.variance(3.0) == ekf.tilt_variance(3.0, 0.5, 50.0, DT)
     Q = ekf.process_noise(params)

@@ -13,8 +13,6 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
 from quad_drake.config import (
-    AttitudeFilterParams,
-    EkfParams,
     GpsParams,
     ImuParams,
     MagParams,
@@ -24,7 +22,12 @@ from quad_drake.config import (
 from quad_drake.conventions import GRAVITY, NO_SAMPLE_STAMP
 from quad_drake.estimation import ekf, eskf, gating
 from quad_drake.estimation.complementary import complementary_update
-from quad_drake.estimation.registry import Ekf7EstimatorConfig, EskfEstimatorConfig, vocabulary_for
+from quad_drake.estimation.registry import (
+    AttitudeFilterParams,
+    Ekf7EstimatorConfig,
+    EskfEstimatorConfig,
+    vocabulary_for,
+)
 from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE
 from quad_drake.kernels import attitude as attitude_kernel
 from quad_drake.kernels import ekf7, fusion
@@ -92,7 +95,7 @@ def test_complementary_update_matches_the_scalar_filter(variant, reference_accel
 @pytest.mark.parametrize("reference_accelerometer", [False, True])
 def test_ekf7_predict_matches_the_scalar_step(reference_accelerometer):
     rng = np.random.default_rng(12)
-    params = EkfParams()
+    params = Ekf7EstimatorConfig()
     Q = ekf.process_noise(params)
     x, P = rng.normal(size=(N, 7)), random_covariances(rng, 7)
     attitude, f = random_attitudes(rng), specific_forces(rng)
@@ -163,7 +166,7 @@ def _never_sampled(width, count=N):
 
 def test_ekf7_tick_with_tilt_noise_matches_the_scalar_step():
     rng = np.random.default_rng(13)
-    params = EkfParams(tilt_gyro_std=0.5)
+    params = Ekf7EstimatorConfig(tilt_gyro_std=0.5)
     tilt = ekf.TiltNoise.from_params(params, AttitudeFilterParams(), DT)
     Q, t = ekf.process_noise(params), 7.3
     x, P = rng.normal(size=(N, 7)), random_covariances(rng, 7)
@@ -187,7 +190,7 @@ def test_ekf7_tick_fuses_the_magnetometer_only_on_a_quiet_tick():
     """Quiet (no fresh GPS, P healthy): the prediction then :func:`ekf7_mag_tick`; a fresh GPS
     sample (or an unhealthy P) leaves the mag step, the repair and the GPS to the caller."""
     rng = np.random.default_rng(16)
-    params = EkfParams()
+    params = Ekf7EstimatorConfig()
     Q, R_mag = ekf.process_noise(params), ekf.mag_noise(params)
     x, P = rng.normal(size=(N, 7)), random_covariances(rng, 7, scale=0.1)
     attitude, imu = random_attitudes(rng), np.column_stack([specific_forces(rng), gyro_samples(rng)])
@@ -252,7 +255,7 @@ def _check_update(batched, scalar, x, P, z, R):
 
 def test_ekf7_gps_and_mag_updates_match_the_scalar_updates():
     rng = np.random.default_rng(13)
-    params = EkfParams()
+    params = Ekf7EstimatorConfig()
     x, P = rng.normal(size=(N, 7)), random_covariances(rng, 7, scale=0.5)
     x[:, 6] = rng.uniform(-math.pi, math.pi, N)
     gps = x[:, 0:6] + rng.normal(size=(N, 6))
@@ -484,20 +487,25 @@ def fleet_and_scalar_estimators(vehicle, n, fidelity):
 
 VEHICLES = {
     "ekf7": (
-        VehicleConfig(sensors=SENSORS_GPS_MAG, ekf=EkfParams(gps_reset_timeout=RESET_TIMEOUT)),
+        VehicleConfig(
+            sensors=SENSORS_GPS_MAG, estimator=Ekf7EstimatorConfig(gps_reset_timeout=RESET_TIMEOUT)
+        ),
         PHYSICAL,
     ),
     "ekf7-reference-small-angle": (
         VehicleConfig(
             sensors=SENSORS_GPS_MAG,
-            ekf=EkfParams(gps_reset_timeout=RESET_TIMEOUT),
-            attitude_filter=AttitudeFilterParams(variant="small_angle", tau=0.5),
+            estimator=Ekf7EstimatorConfig(
+                gps_reset_timeout=RESET_TIMEOUT,
+                attitude_filter=AttitudeFilterParams(variant="small_angle", tau=0.5),
+            ),
         ),
         REFERENCE,
     ),
     "ekf7-tilt": (
         VehicleConfig(
-            sensors=SENSORS_GPS_MAG, ekf=EkfParams(gps_reset_timeout=RESET_TIMEOUT, tilt_gyro_std=0.5)
+            sensors=SENSORS_GPS_MAG,
+            estimator=Ekf7EstimatorConfig(gps_reset_timeout=RESET_TIMEOUT, tilt_gyro_std=0.5),
         ),
         PHYSICAL,
     ),

@@ -27,7 +27,7 @@ def test_the_gate_rejects_the_outlier_and_accepts_the_rest():
     assert gated[-1] == 1  # one sample rejected in 14 s: the outlier at 12.0 s
     assert np.all(gated[result.times < 12.0] == 0)
     assert result.signals["Quad.Est.E.Pos"].values.max() < 1.0
-    ungated = _run("13_gps_outlier", "vehicles.0.ekf.gps_gate_sigma=0", end_time=14.0)
+    ungated = _run("13_gps_outlier", "vehicles.0.estimator.gps_gate_sigma=0", end_time=14.0)
     assert ungated.signals["Quad.Est.GpsGated"].values[-1] == 0
     assert ungated.signals["Quad.Est.E.Pos"].values.max() > 1.0  # the 50 m sample is fused
 

@@ -34,12 +34,15 @@ def test_wilson_interval_matches_the_closed_form():
 
 
 def test_row_line_shows_the_figures_and_the_set_to_reproduce_it():
-    row = fault_table.Row("13_gps_outlier", "EKF7, gate off", ("vehicles.0.ekf.gps_gate_sigma=0",))
+    row = fault_table.Row("13_gps_outlier", "EKF7, gate off", ("vehicles.0.estimator.gps_gate_sigma=0",))
     line = fault_table.row_line(row, FIGURES)
     assert line.startswith("| 13_gps_outlier | EKF7, gate off | 50 (100–149) | 48/50 = 96 % [87, 99] | 2 |")
-    assert "| 44.91 | 48.68 | process pool (2 workers) | `--set vehicles.0.ekf.gps_gate_sigma=0` |" in line
+    assert (
+        "| 44.91 | 48.68 | process pool (2 workers) | `--set vehicles.0.estimator.gps_gate_sigma=0` |" in line
+    )
     quoted = fault_table.Row("12_gps_outage", "EKF7", (fault_table.EKF7,))
-    assert "`--set 'vehicles.0.estimator={kind: ekf7}'`" in fault_table.row_line(quoted, FIGURES)
+    assert f"`--set '{fault_table.EKF7}'`" in fault_table.row_line(quoted, FIGURES)
+    assert fault_table.EKF7.startswith("vehicles.0.estimator={kind: ekf7, q_pos_xy_std: 0.05,")
 
 
 def test_replace_table_rewrites_only_between_the_markers():

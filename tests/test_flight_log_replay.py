@@ -187,6 +187,22 @@ def test_replay_writes_a_report_an_index_entry_and_reproduces_itself(quad_drake_
     assert repeated["differences"] == summary["differences"]
 
 
+def test_the_ekf7s_old_blocks_of_a_replay_load_into_its_estimator(tmp_path):
+    with pytest.warns(
+        FutureWarning, match="--set ekf.mag_yaw_std is deprecated: write --set estimator.mag_yaw_std"
+    ):
+        config = load_replay(LOGS[1], None, ["ekf.mag_yaw_std=0.2"])
+    assert config.estimator.mag_yaw_std == 0.2
+    assert config.estimator.attitude_filter.tau == 0.5  # the rest stays the replay's default
+    old = tmp_path / "config.yaml"  # a config.yaml written before 0.3
+    old.write_text(
+        f"log: {LOGS[1]}\nestimator: {{kind: ekf7}}\nekf: {{mag_yaw_std: 0.2}}\nattitude_filter: {{tau: 2}}\n"
+    )
+    with pytest.warns(FutureWarning, match="ekf is deprecated: write its fields in estimator"):
+        config = load_replay(old)
+    assert (config.estimator.mag_yaw_std, config.estimator.attitude_filter.tau) == (0.2, 2.0)
+
+
 @pytest.mark.parametrize(
     "args, message",
     [
@@ -195,8 +211,8 @@ def test_replay_writes_a_report_an_index_entry_and_reproduces_itself(quad_drake_
         ([LOGS[1], "--estimator", "{kind: ukf}"], "estimator.kind: 'ukf' is not one of ekf7, eskf"),
         ([LOGS[1], "--estimator", "{kind: eskf"], "--estimator '{kind: eskf': not valid YAML"),
         (
-            [LOGS[1], "--set", "ekf.mag_yaw_std=0"],
-            "ekf.mag_yaw_std: must be > 0, got 0.0 (--set ekf.mag_yaw_std=0)",
+            [LOGS[1], "--set", "estimator.mag_yaw_std=0"],
+            "estimator.mag_yaw_std: must be > 0, got 0.0 (--set estimator.mag_yaw_std=0)",
         ),
         (
             [LOGS[1], "--set", "fake_position_period=0.003"],

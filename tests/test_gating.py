@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from scipy.stats import binom, chi2
 
-from quad_drake.config.schema import EkfParams
 from quad_drake.conventions import GRAVITY
 from quad_drake.estimation import ekf, gating
+from quad_drake.estimation.registry import Ekf7EstimatorConfig
 from quad_drake.estimation.vocabulary import DIAG, initial_diagnostics
 from quad_drake.kernels import ekf7, fusion
 
@@ -113,11 +113,11 @@ def test_a_consistently_over_confident_filter_widens_its_gate_and_an_outlier_nev
 
 
 def test_gates_off_accept_everything_and_never_reset():
-    off = gating.GpsGates.from_params(EkfParams(), enabled=False)
+    off = gating.GpsGates.from_params(Ekf7EstimatorConfig(), enabled=False)
     book = fresh_books(1)
     accepted, reset = gating.gps_gate_decisions(np.full((1, 3), 1e12), [30.0], book, off)
     assert accepted.all() and not reset.any()
-    assert gating.GpsGates.from_params(EkfParams(gps_gate_sigma=0.0)).thresholds == (math.inf,) * 3
+    assert gating.GpsGates.from_params(Ekf7EstimatorConfig(gps_gate_sigma=0.0)).thresholds == (math.inf,) * 3
 
 
 def test_reset_states_sets_values_and_drops_cross_covariance():
@@ -176,7 +176,7 @@ def _hover_run(seed, outlier_at=None, gate_sigma=5.0, seconds=30.0, tuning=CONSI
     Returns (max position error after 2 s (m), GPS samples with a gated group, GPS samples).
     """
     rng = np.random.default_rng(seed)
-    params = EkfParams(**tuning, gps_gate_sigma=gate_sigma, gps_gate_adaptation=0.0)
+    params = Ekf7EstimatorConfig(**tuning, gps_gate_sigma=gate_sigma, gps_gate_adaptation=0.0)
     Q, R = ekf.process_noise(params), ekf.gps_noise(params)
     gates = gating.GpsGates.from_params(params)
     x, P = ekf.initial_state(params)[None], np.diag([0.01] * 6 + [1e-6])[None]

@@ -1,5 +1,6 @@
-"""The estimator registry: every kind declared once, kind ``truth`` added by one entry, and the
-deprecated ``use_ideal_estimator`` rewritten into ``flies_on``."""
+"""The estimator registry: every kind declared once, kind ``truth`` added by one entry, the
+deprecated ``use_ideal_estimator`` rewritten into ``flies_on``, and the EKF7's deprecated ``ekf`` /
+``attitude_filter`` blocks rewritten into its estimator config."""
 
 import re
 import textwrap
@@ -128,6 +129,104 @@ def test_use_ideal_estimator_contradicting_flies_on_is_one_line(tmp_path):
     assert "\n" not in str(error.value)
 
 
+OLD_EKF7 = """
+    end_time: 1
+    vehicles:
+      - name: Quad
+        sensors: {{imu: {{}}, gps: {{}}, mag: {{}}, baro: {{}}}}
+        ekf: {{q_yaw_std: 0.3, init_std: [1, 1, 1, 1, 1, 1, 0.2], baro: {{gate_sigma: 0}}}}
+        attitude_filter: {{tau: 0.5}}
+        {extra}
+"""
+NEW_EKF7 = """
+    end_time: 1
+    vehicles:
+      - name: Quad
+        sensors: {imu: {}, gps: {}, mag: {}, baro: {}}
+        estimator:
+          kind: ekf7
+          q_yaw_std: 0.3
+          init_std: [1, 1, 1, 1, 1, 1, 0.2]
+          baro: {gate_sigma: 0}
+          attitude_filter: {tau: 0.5}
+"""
+
+
+def test_the_old_ekf_and_attitude_filter_blocks_load_into_the_ekf7_config_with_a_warning(tmp_path):
+    with pytest.warns(FutureWarning) as caught:
+        old = load_scenario(write(tmp_path, OLD_EKF7.format(extra="")))
+    messages = [str(w.message) for w in caught]
+    assert messages == [
+        "vehicles.0.ekf is deprecated: write its fields in vehicles.0.estimator "
+        "(vehicles.0.estimator: {kind: ekf7, ...})",
+        "vehicles.0.attitude_filter is deprecated: write its fields in vehicles.0.estimator.attitude_filter "
+        "(vehicles.0.estimator: {kind: ekf7, ...})",
+    ]
+    (tmp_path / "new").mkdir()
+    new = load_scenario(write(tmp_path / "new", NEW_EKF7))
+    assert old == new
+    assert (new.vehicles[0].estimator.q_yaw_std, new.vehicles[0].estimator.attitude_filter.tau) == (0.3, 0.5)
+    assert (
+        new.vehicles[0].estimator.baro.gate_sigma == 0.0 and new.vehicles[0].estimator.baro.height_std == 0.1
+    )
+
+
+def test_an_old_block_agreeing_with_the_estimator_loads_and_contradicting_it_is_one_line(tmp_path):
+    agreeing = "estimator: {kind: ekf7, q_yaw_std: 0.3, attitude_filter: {variant: small_angle}}"
+    with pytest.warns(FutureWarning, match="vehicles.0.ekf is deprecated"):
+        estimator = load_scenario(write(tmp_path, OLD_EKF7.format(extra=agreeing))).vehicles[0].estimator
+    assert (estimator.q_yaw_std, estimator.attitude_filter.variant, estimator.attitude_filter.tau) == (
+        0.3,
+        "small_angle",
+        0.5,
+    )
+    path = write(tmp_path, OLD_EKF7.format(extra="estimator: {kind: ekf7, q_yaw_std: 0.2}"))
+    with pytest.raises(
+        ConfigError, match=r"vehicles.0.ekf.q_yaw_std: contradicts vehicles.0.estimator.q_yaw_std"
+    ):
+        load_scenario(path)
+    from quad_drake.cli import main
+
+    assert main(["run", str(path), "--out", str(tmp_path / "out")]) == 2
+    assert not (tmp_path / "out").exists()
+
+
+def test_an_old_block_beside_another_kind_was_never_read_and_is_dropped_with_a_warning(tmp_path):
+    path = write(tmp_path, OLD_EKF7.format(extra="estimator: {kind: eskf}"))
+    with pytest.warns(
+        FutureWarning, match="vehicles.0.ekf is deprecated and ignored: .* vehicles.0.estimator is eskf"
+    ):
+        scenario = load_scenario(path)
+    assert scenario.vehicles[0].estimator == registry.EskfEstimatorConfig()
+
+
+def test_an_old_set_key_sets_the_ekf7_field_and_wins_over_the_file(tmp_path):
+    with pytest.warns(FutureWarning, match=r"--set vehicles.0.ekf.q_yaw_std is deprecated") as caught:
+        scenario = catalog.load("11_gps_update", None, ["vehicles.0.ekf.q_yaw_std=0.4"])
+    assert "write --set vehicles.0.estimator.q_yaw_std" in str(caught[0].message)
+    assert scenario.vehicles[0].estimator.q_yaw_std == 0.4  # the file says 0.022
+    assert scenario.vehicles[0].estimator.q_vel_z_std == 0.067  # the rest of the file's block stays
+    with pytest.warns(FutureWarning):
+        whole = catalog.load("01_intro", None, ["vehicles.0.ekf={q_yaw_std: 0.4, gps_gate_sigma: 0}"])
+    assert (whole.vehicles[0].estimator.q_yaw_std, whole.vehicles[0].estimator.gps_gate_sigma) == (0.4, 0.0)
+    with pytest.warns(FutureWarning):
+        tau = catalog.load("01_intro", None, ["vehicles.0.attitude_filter.tau=2"]).vehicles[0].estimator
+    assert tau.attitude_filter.tau == 2.0
+    with pytest.warns(FutureWarning, match="ignored: it sets an ekf7 parameter and the estimator is eskf"):
+        eskf = catalog.load("11_gps_update_eskf", None, ["vehicles.0.ekf.gps_gate_sigma=0"])
+    assert eskf.vehicles[0].estimator.gps_gate_sigma == 5.0
+    fresh = catalog.load("01_intro", None, ["vehicles.0.estimator.q_yaw_std=0.4"])  # names no kind: ekf7's
+    assert fresh.vehicles[0].estimator.q_yaw_std == 0.4
+
+
+def test_an_old_tuning_key_is_read_as_the_ekf7_field():
+    scenario = catalog.load("11_gps_update")
+    with pytest.warns(FutureWarning, match="--params ekf.q_yaw_std is deprecated: write estimator.q_yaw_std"):
+        (old,) = search_space(scenario, ["ekf.q_yaw_std"])
+    (new,) = search_space(scenario, ["estimator.q_yaw_std"])
+    assert old == new and new.targets == ((0, ("estimator", "q_yaw_std")),)
+
+
 def test_flies_on_estimate_needs_the_sensors_unless_the_kind_is_truth():
     assert VehicleConfig().flies_on == "truth"  # the reference's default
     with pytest.raises(ConfigError, match="flies_on: estimate needs imu, gps and mag sensors"):
@@ -181,5 +280,18 @@ def test_replay_defaults_and_the_start_from_a_log_are_the_entry_s():
     started = eskf.started_from_log(config, 0.1, 0.2, 0.3)
     assert started.init_ypr == [0.3, 0.2, 0.1]
     assert eskf.assuming_gps_noise(started, 10.0, 1e3).gps_vel_std == [1e3] * 3
-    ekf7 = registry.KINDS["ekf7"]  # its parameters are the vehicle's ekf block: the entry keeps its config
-    assert ekf7.started_from_log(ekf7.replay_config(), 0.1, 0.2, 0.3) == registry.Ekf7EstimatorConfig()
+    ekf7 = registry.KINDS["ekf7"]  # its parameters are its config's, as the ESKF's are
+    config = ekf7.replay_config()
+    noise = registry.PX4_NOISE
+    assert (config.gps_pos_xy_std, config.gps_vel_z_std) == (noise["gps_pos_std"], noise["gps_vel_std"])
+    assert config.mag_yaw_std == noise["heading_std"] and config.baro.height_std == noise["baro_height_std"]
+    assert config.attitude_filter.tau == 0.5 and config != registry.Ekf7EstimatorConfig()
+    started = ekf7.started_from_log(config, 0.1, 0.2, 0.3)
+    assert started.init_state == [0.0] * 6 + [0.3]  # roll and pitch: the attitude filter finds them
+    faked = ekf7.assuming_gps_noise(started, 10.0, 1e3)
+    assert (faked.gps_pos_xy_std, faked.gps_pos_z_std, faked.gps_vel_xy_std, faked.gps_vel_z_std) == (
+        10.0,
+        10.0,
+        1e3,
+        1e3,
+    )

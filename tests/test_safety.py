@@ -198,7 +198,7 @@ def test_a_vehicle_that_cannot_lift_off_fails_11(constant_q_ekf7, quad_drake_cli
     # without plots: the verdict lines are what is checked.)
     command = ["run", "11_gps_update", "--no-plots"]
     heavy = ["--set", "vehicles.0.physics.mass=2.0"]
-    sets = [arg for s in ["vehicles.0.ekf.gps_gate_sigma=0", *constant_q_ekf7] for arg in ("--set", s)]
+    sets = [arg for s in ["vehicles.0.estimator.gps_gate_sigma=0", *constant_q_ekf7] for arg in ("--set", s)]
     done = quad_drake_cli(*command, *heavy, *sets)
     assert done.returncode == 1, done.stderr
     assert "PASS: ABS(Quad.Est.E.Pos) was less than 1.000000 for at least 20.000000 seconds" in done.stdout

@@ -26,7 +26,9 @@ def test_control_scenarios_pass_with_other_seeds(name, seed):
 
 def test_small_angle_filter_fails_07_as_in_the_reference():
     result = run(
-        catalog.load("07_attitude_estimation", overrides=["vehicles.0.attitude_filter.variant=small_angle"])
+        catalog.load(
+            "07_attitude_estimation", overrides=["vehicles.0.estimator.attitude_filter.variant=small_angle"]
+        )
     )
     assert not result.passed
     # The nonlinear filter's error stays far below the threshold over the same manoeuvres.

@@ -53,11 +53,13 @@ def test_the_package_exports_every_public_name_from_its_module():
 
 
 def test_default_space_is_the_estimators_noise_fields_that_are_switched_on(load_scenario):
-    reference = load_scenario("11_gps_update", "vehicles.0.ekf={}")  # the reference's EKF values
+    reference = load_scenario(
+        "11_gps_update", "vehicles.0.estimator={kind: ekf7}"
+    )  # the reference's EKF values
     assert [p.key for p in space.search_space(reference)] == [
         k
         for k in EKF7_KEYS
-        if k != "ekf.tilt_gyro_std"  # off (0) in the reference
+        if k != "estimator.tilt_gyro_std"  # off (0) in the reference
     ]
     tuned_11 = space.search_space(load_scenario("11_gps_update"))  # q_pos_*_std = 0 there, tilt on
     assert [p.key for p in tuned_11] == [k for k in EKF7_KEYS if "q_pos" not in k]
@@ -65,9 +67,9 @@ def test_default_space_is_the_estimators_noise_fields_that_are_switched_on(load_
     assert [p.key for p in space.search_space(with_biases)] == list(ESKF_KEYS)
     no_bias = load_scenario("11_gps_update_eskf")  # estimate_biases: false there (its IMU has none)
     assert [p.key for p in space.search_space(no_bias)] == [k for k in ESKF_KEYS if "_bias_" not in k]
-    no_gps = load_scenario("10_mag_update", "vehicles.0.ekf={}")  # a magnetometer but no GPS
+    no_gps = load_scenario("10_mag_update", "vehicles.0.estimator={kind: ekf7}")  # a magnetometer but no GPS
     assert [p.key for p in space.search_space(no_gps)] == [
-        k for k in EKF7_KEYS if ".gps_" not in k and k != "ekf.tilt_gyro_std"
+        k for k in EKF7_KEYS if ".gps_" not in k and k != "estimator.tilt_gyro_std"
     ]
 
 
@@ -85,27 +87,30 @@ def test_a_multiplier_scales_scalars_and_whole_vectors_in_log_space(load_scenari
 def test_a_relative_key_tunes_every_vehicle_a_full_key_one(load_scenario):
     one = load_scenario("11_gps_update")
     second = dataclasses.replace(copy.deepcopy(one.vehicles[0]), name="Quad2")
-    second.ekf.q_yaw_std = 0.5
+    second.estimator.q_yaw_std = 0.5
     two = dataclasses.replace(one, vehicles=[one.vehicles[0], second])
-    (both,) = space.search_space(two, ["ekf.q_yaw_std"])
-    start = one.vehicles[0].ekf.q_yaw_std
+    (both,) = space.search_space(two, ["estimator.q_yaw_std"])
+    start = one.vehicles[0].estimator.q_yaw_std
     tuned = space.apply(two, [both], [1.0])
-    assert [v.ekf.q_yaw_std for v in tuned.vehicles] == pytest.approx([10 * start, 5.0], rel=1e-12)
-    (first,) = space.search_space(two, ["vehicles.0.ekf.q_yaw_std"])
+    assert [v.estimator.q_yaw_std for v in tuned.vehicles] == pytest.approx([10 * start, 5.0], rel=1e-12)
+    (first,) = space.search_space(two, ["vehicles.0.estimator.q_yaw_std"])
     one_tuned = space.apply(two, [first], [1.0]).vehicles
-    assert [v.ekf.q_yaw_std for v in one_tuned] == pytest.approx([10 * start, 0.5], rel=1e-12)
+    assert [v.estimator.q_yaw_std for v in one_tuned] == pytest.approx([10 * start, 0.5], rel=1e-12)
 
 
 @pytest.mark.parametrize(
     "keys, message",
     [
-        (["ekf.q_velo_std"], "unknown field 'q_velo_std' in vehicles.0.ekf"),
-        (["estimator.accel_std"], "unknown field 'accel_std' in vehicles.0.estimator (known: kind)"),
-        (["ekf.q_pos_xy_std"], "starts at 0"),  # 0 in 11: a multiplier cannot move it
+        (["estimator.q_velo_std"], "unknown field 'q_velo_std' in vehicles.0.estimator"),
+        (["estimator.accel_std"], "unknown field 'accel_std' in vehicles.0.estimator"),
+        (["estimator.q_pos_xy_std"], "starts at 0"),  # 0 in 11: a multiplier cannot move it
         (["flies_on"], "not a number"),
-        (["vehicles.3.ekf.q_yaw_std"], "vehicles.N.<field> with N in 0..0"),
-        (["ekf.q_yaw_std", "ekf.q_yaw_std"], "given twice"),
-        (["ekf.q_yaw_std", "vehicles.0.ekf.q_yaw_std"], "sets the same field as ekf.q_yaw_std"),
+        (["vehicles.3.estimator.q_yaw_std"], "vehicles.N.<field> with N in 0..0"),
+        (["estimator.q_yaw_std", "estimator.q_yaw_std"], "given twice"),
+        (
+            ["estimator.q_yaw_std", "vehicles.0.estimator.q_yaw_std"],
+            "sets the same field as estimator.q_yaw_std",
+        ),
         (["ekf..q_yaw_std"], "expected a dotted config key"),
     ],
 )
@@ -301,7 +306,7 @@ def nothing_flies(monkeypatch):
 @pytest.mark.parametrize(
     "args, message",
     [
-        (["--params", "ekf.q_velo_std"], "--params ekf.q_velo_std: unknown field 'q_velo_std'"),
+        (["--params", "estimator.q_velo_std"], "--params estimator.q_velo_std: unknown field 'q_velo_std'"),
         (["--budget", "0"], "--budget must be >= 1, got 0"),
         (["--seeds", "0"], "--seeds must be >= 1"),
         (["--jobs", "0"], "--jobs must be >= 1"),
@@ -342,7 +347,7 @@ def _history(folder):
 
 @pytest.mark.slow
 def test_tune_writes_a_runnable_tuned_yaml_and_is_deterministic(quad_drake_cli, tmp_path):
-    args = ["tune", "11_gps_update", *TINY, "--params", "ekf.q_vel_xy_std", "ekf.q_yaw_std"]
+    args = ["tune", "11_gps_update", *TINY, "--params", "estimator.q_vel_xy_std", "estimator.q_yaw_std"]
     args += [f"--set={s}" for s in SHORT_11]
     first = quad_drake_cli(*args, "--out", tmp_path / "a")
     assert first.returncode in (0, 1), first.stderr
@@ -359,12 +364,12 @@ def test_tune_writes_a_runnable_tuned_yaml_and_is_deterministic(quad_drake_cli, 
     tuned = load_scenario(folder / "tuned.yaml")
     assert tuned.name == "11_gps_update_tuned" and tuned.end_time == 2.0
     # history.csv, tune.json and tuned.yaml carry the same value, in full precision
-    assert tuned.vehicles[0].ekf.q_vel_xy_std == float(best["value.ekf.q_vel_xy_std"])
+    assert tuned.vehicles[0].estimator.q_vel_xy_std == float(best["value.estimator.q_vel_xy_std"])
     searched = {p["key"]: p["tuned"] for p in summary["parameters"]}
-    assert searched["ekf.q_vel_xy_std"] == tuned.vehicles[0].ekf.q_vel_xy_std
+    assert searched["estimator.q_vel_xy_std"] == tuned.vehicles[0].estimator.q_vel_xy_std
     assert "before" in (folder / "before_after.txt").read_text()
     page = (folder / "report.html").read_text()  # the session's page, linked from the index
-    assert "ekf.q_vel_xy_std" in page and 'href="holdout_after/report.html"' in page
+    assert "estimator.q_vel_xy_std" in page and 'href="holdout_after/report.html"' in page
     from quad_drake.output.report import write_index
 
     assert 'href="a/report.html">tune page</a>' in write_index(tmp_path).read_text()
@@ -394,8 +399,8 @@ def test_tune_works_for_the_eskf_and_a_fault_scenario(quad_drake_cli, tmp_path):
     )  # fmt: skip
     assert outlier.returncode in (0, 1), outlier.stderr
     rows = _history(tmp_path / "fault")
-    searched = {f"value.{k}" for k in EKF7_KEYS if k != "ekf.tilt_gyro_std"}  # 13: off
-    assert len(rows) == 3 and searched <= set(rows[0]) and "value.ekf.tilt_gyro_std" not in rows[0]
+    searched = {f"value.{k}" for k in EKF7_KEYS if k != "estimator.tilt_gyro_std"}  # 13: off
+    assert len(rows) == 3 and searched <= set(rows[0]) and "value.estimator.tilt_gyro_std" not in rows[0]
 
 
 @pytest.mark.slow

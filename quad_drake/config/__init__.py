@@ -3,6 +3,8 @@
 - :mod:`.errors`: :class:`ConfigError` (a user's mistake, one line) and the did-you-mean hint;
 - :mod:`.fields`: the field constructors whose metadata carries the value rules;
 - :mod:`.schema`: the scenario dataclasses (defaults, units), nothing else;
+- :mod:`.deprecated`: the EKF7's pre-0.3 ``ekf:`` / ``attitude_filter:`` blocks, rewritten into
+  its estimator config;
 - :mod:`.validation`: the raw YAML's shape, the field rules, the rules across fields;
 - :mod:`.loader`: YAML in and out, the only module that touches pydrake (Drake's typed YAML).
 
@@ -36,9 +38,6 @@ _EXPORTS = {
         "MagParams",
         "BaroParams",
         "SensorsConfig",
-        "ATTITUDE_FILTER_VARIANTS",
-        "AttitudeFilterParams",
-        "EkfParams",
         "FAULT_KINDS",
         "FaultConfig",
         "TURBULENCE_LEVELS",
@@ -53,6 +52,12 @@ _EXPORTS = {
         "CriterionConfig",
         "SafetyConfig",
         "ScenarioConfig",
+    ),
+    "deprecated": (
+        "EKF7_BLOCKS",
+        "current_field_path",
+        "migrate_ekf7_blocks",
+        "migrate_ekf7_override",
     ),
     "validation": (
         "NAME_PATTERNS",

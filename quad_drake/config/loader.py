@@ -10,7 +10,8 @@ from pathlib import Path
 import yaml
 from pydrake.common.yaml import yaml_dump, yaml_dump_typed, yaml_load_typed
 
-from ..estimation.registry import kind_of
+from ..estimation.registry import DEFAULT_KIND, kind_of
+from .deprecated import migrate_ekf7_blocks, migrate_ekf7_override
 from .errors import ConfigError, first_line
 from .schema import ScenarioConfig
 from .validation import check_node, check_scenario
@@ -118,9 +119,15 @@ def load_scenario(path, overrides=()) -> ScenarioConfig:
     if not isinstance(raw, dict):
         raise ConfigError(f"{path}: expected a mapping of fields at the top level, got {type(raw).__name__}")
     try:
+        vehicles = raw.get("vehicles")
+        for i, vehicle in enumerate(vehicles if isinstance(vehicles, list) else []):
+            if isinstance(vehicle, dict):
+                migrate_ekf7_blocks(vehicle, f"vehicles.{i}")
         for text in overrides:
             keys, value = parse_override(text)
-            apply_override(raw, keys, value, text)
+            for new_keys, new_value in migrate_ekf7_override(raw, keys, value, holder_depth=2):
+                _name_the_default_kind(raw, new_keys)
+                apply_override(raw, new_keys, new_value, text)
         _migrate_use_ideal_estimator(raw)
         message = check_node(raw, ScenarioConfig, "")
         if message:
@@ -136,6 +143,18 @@ def load_scenario(path, overrides=()) -> ScenarioConfig:
     except (RuntimeError, ValueError, TypeError) as e:
         raise ConfigError(f"{path}: {first_line(e)}") from None
     return scenario
+
+
+def _name_the_default_kind(raw, keys):
+    """Give a vehicle that names no estimator an ``estimator: {kind: <default>}`` block (in
+    place) before an override `keys` sets a field inside it (``vehicles.0.estimator.q_yaw_std``):
+    the field is the default kind's."""
+    if len(keys) < 4 or keys[0] != "vehicles" or keys[2] != "estimator" or not keys[1].isdigit():
+        return
+    vehicles, index = raw.get("vehicles"), int(keys[1])
+    vehicle = vehicles[index] if isinstance(vehicles, list) and index < len(vehicles) else None
+    if isinstance(vehicle, dict) and vehicle.get("estimator") is None:
+        vehicle["estimator"] = {"kind": DEFAULT_KIND}
 
 
 def _migrate_use_ideal_estimator(raw):

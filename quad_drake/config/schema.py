@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import List, Optional
 
-from ..estimation.registry import AidingParams, Ekf7EstimatorConfig, EstimatorConfig, GateParams
+from ..estimation.registry import Ekf7EstimatorConfig, EstimatorConfig
 from ..models.fidelity import FIDELITY_MODES
 from .fields import noise_stds, number, vector
 
@@ -158,43 +158,6 @@ class SensorsConfig:
     baro: Optional[BaroParams] = None
 
 
-ATTITUDE_FILTER_VARIANTS = ("nonlinear", "small_angle")
-
-
-@dataclass
-class AttitudeFilterParams:
-    """Complementary filter (SPEC §4 UpdateFromIMU)."""
-
-    variant: str = field(default="nonlinear", metadata={"choices": ATTITUDE_FILTER_VARIANTS})
-    tau: float = number(100.0, positive=True)  # s, accelerometer blend time constant
-
-
-@dataclass
-class EkfParams(AidingParams, GateParams):
-    """What the 7-state EKF assumes (SPEC §4); independent of the sensor truth."""
-
-    init_state: List[float] = vector(0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0)  # m, m/s, rad
-    init_std: List[float] = noise_stds(0.1, 0.1, 0.3, 0.1, 0.1, 0.3, 0.05)
-    # m/sqrt(s): Q = diag(std^2) * dt_imu
-    q_pos_xy_std: float = number(0.05, nonnegative=True, noise_std=True)
-    q_pos_z_std: float = number(0.05, nonnegative=True, noise_std=True)
-    q_vel_xy_std: float = number(0.05, nonnegative=True, noise_std=True)  # m/s/sqrt(s)
-    q_vel_z_std: float = number(0.1, nonnegative=True, noise_std=True)
-    q_yaw_std: float = number(0.05, nonnegative=True, noise_std=True)  # rad/sqrt(s)
-    gps_pos_xy_std: float = number(1.0, positive=True, noise_std=True)  # m
-    gps_pos_z_std: float = number(3.0, positive=True, noise_std=True)  # m
-    gps_vel_xy_std: float = number(0.1, positive=True, noise_std=True)  # m/s
-    gps_vel_z_std: float = number(0.3, positive=True, noise_std=True)  # m/s
-    mag_yaw_std: float = number(0.1, positive=True, noise_std=True)  # rad
-    # Tilt-aware Q (ekf.TiltNoise; 0 = off, the reference's constant Q): the gyro noise the attitude
-    # filter integrates, rad/s per IMU sample, and how long its roll/pitch error acts as white noise
-    # on the velocity and on the yaw, s.
-    tilt_gyro_std: float = number(0.0, nonnegative=True, noise_std=True)
-    tilt_velocity_time: float = number(0.25, nonnegative=True)  # s
-    tilt_yaw_time: float = number(0.15, nonnegative=True)  # s
-    dt_imu: float = number(0.002, positive=True, maximum=1.0)  # s, scales Q (a step, not a flight)
-
-
 FAULT_KINDS = (
     "gps_outage",
     "gps_outlier",
@@ -287,8 +250,8 @@ FLIES_ON = ("truth", "estimate")
 @dataclass
 class VehicleConfig:
     """One vehicle: its start (NED, FRD), physics, controller gains, trajectory, sensors, the
-    estimator it runs (``estimator``; the EKF7's parameters in ``attitude_filter`` and ``ekf``),
-    the state it flies on, its wind and its sensor faults."""
+    estimator it runs and what that assumes (``estimator``), the state it flies on, its wind and
+    its sensor faults."""
 
     name: str = field(default="Quad", metadata={"pattern": "vehicle"})
     initial_position: List[float] = vector(0.0, 0.0, -1.0)  # m, NED
@@ -299,8 +262,6 @@ class VehicleConfig:
     controller: ControllerParams = field(default_factory=ControllerParams)
     trajectory: TrajectoryConfig = field(default_factory=TrajectoryConfig)
     sensors: SensorsConfig = field(default_factory=SensorsConfig)
-    attitude_filter: AttitudeFilterParams = field(default_factory=AttitudeFilterParams)
-    ekf: EkfParams = field(default_factory=EkfParams)
     estimator: EstimatorConfig = field(default_factory=Ekf7EstimatorConfig)
     # What the controller flies on: the true state (the reference's default; the estimator runs
     # beside it and is judged) or the estimator's estimate (estimation/registry.py)

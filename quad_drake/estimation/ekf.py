@@ -49,7 +49,7 @@ H_MAG = _constant(np.eye(1, EKF_STATE_SIZE, YAW_INDEX))
 
 
 def initial_state(params) -> np.ndarray:
-    """x0 (7) from EkfParams.init_state."""
+    """x0 (7) from Ekf7EstimatorConfig.init_state."""
     return np.array(params.init_state, dtype=float)
 
 
@@ -370,7 +370,7 @@ def tilt_process_noise(attitude, f_B, w_B, variance, velocity_time, yaw_time, dt
 
 @dataclass(frozen=True)
 class TiltNoise:
-    """The EKF7's tilt-aware process noise: ``EkfParams`` ``tilt_gyro_std`` (rad/s per IMU sample,
+    """The EKF7's tilt-aware process noise: ``Ekf7EstimatorConfig`` ``tilt_gyro_std`` (rad/s per IMU sample,
     the gyro noise the attitude filter integrates), ``tilt_velocity_time`` and ``tilt_yaw_time``
     (s), the attitude filter's ``tau`` (s) and the filter step dt (s)."""
 
@@ -382,7 +382,7 @@ class TiltNoise:
 
     @classmethod
     def from_params(cls, params, attitude_filter, dt) -> "TiltNoise | None":
-        """The TiltNoise of EkfParams `params` and AttitudeFilterParams `attitude_filter`, or None
+        """The TiltNoise of Ekf7EstimatorConfig `params` and AttitudeFilterParams `attitude_filter`, or None
         when ``tilt_gyro_std`` is 0 (constant Q, as the reference)."""
         if params.tilt_gyro_std == 0.0:
             return None

@@ -27,7 +27,7 @@ cos I |m| (cos(yaw - D), -sin(yaw - D)), so
 
 is fused as the EKF7's yaw measurement with R the variance of the field noise carried through
 the heading's Jacobian (:func:`heading_jacobians`, :func:`heading_variances`); the share of the
-roll/pitch error (``EkfParams`` tilt noise, ``tilt_std``), slowly varying and common to many
+roll/pitch error (``Ekf7EstimatorConfig`` tilt noise, ``tilt_std``), slowly varying and common to many
 samples, floors the posterior yaw variance instead (:func:`floored_yaw_variance`). The EKF7's
 tilt comes from the complementary filter (0.07 rad RMS on 11) and the heading's sensitivity to it
 is about tan(inclination) = 2 at I = 1.1 rad: the tilt-compensated heading is a poor yaw sensor

@@ -58,7 +58,7 @@ class GateParams:
     """Gates and resets (``estimation/gating.py``) of an estimator: chi^2 gates on the GPS
     horizontal position, height and velocity apart and on the magnetometer; a GPS group
     rejected for its timeout is reset to the sample; after gps_regain_time s without GPS the
-    returning sample is fused or reset. The EKF7's ``ekf:`` block and the ESKF's config hold them."""
+    returning sample is fused or reset. The EKF7's and the ESKF's configs hold them."""
 
     gps_gate_sigma: float = number(5.0, nonnegative=True)  # sigma; each GPS group's gate, 0 = off
     mag_gate_sigma: float = number(5.0, nonnegative=True)  # sigma
@@ -73,22 +73,53 @@ class GateParams:
 class AidingParams:
     """What an estimator assumes of the aiding sensors (issue 32), each fused only when the vehicle
     carries it: a barometer (``sensors.baro``; ``estimation/baro.py``) and a 3-axis magnetometer
-    (``sensors.mag.three_axis``; ``estimation/mag3.py``). The EKF7's ``ekf:`` block and the ESKF's
-    config hold them."""
+    (``sensors.mag.three_axis``; ``estimation/mag3.py``). The EKF7's and the ESKF's configs hold
+    them."""
 
     baro: BaroFusionParams = field(default_factory=BaroFusionParams)
     mag_field: MagFieldFusionParams = field(default_factory=MagFieldFusionParams)
 
 
-@dataclass
-class Ekf7EstimatorConfig:
-    """The reference's estimator: complementary filter + 7-state EKF.
+ATTITUDE_FILTER_VARIANTS = ("nonlinear", "small_angle")
 
-    Its parameters are the vehicle's ``attitude_filter:`` and ``ekf:`` blocks (kept there so
-    the reference's scenarios read as before).
-    """
+
+@dataclass
+class AttitudeFilterParams:
+    """The EKF7's complementary attitude filter (SPEC §4 UpdateFromIMU)."""
+
+    variant: str = field(default="nonlinear", metadata={"choices": ATTITUDE_FILTER_VARIANTS})
+    tau: float = number(100.0, positive=True)  # s, accelerometer blend time constant
+
+
+@dataclass
+class Ekf7EstimatorConfig(AidingParams, GateParams):
+    """The reference's estimator (SPEC §4): a complementary attitude filter (``attitude_filter``)
+    and a 7-state EKF (x, y, z, vx, vy, vz, yaw; NED, rad), with what they assume, independent of
+    the sensor truth. (Before 0.3 these were the vehicle's ``ekf:`` and ``attitude_filter:``
+    blocks; ``config.deprecated`` still reads them.)"""
 
     kind: str = field(default="ekf7", metadata={"choices": ("ekf7",)})
+    init_state: List[float] = vector(0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0)  # m, m/s, rad
+    init_std: List[float] = noise_stds(0.1, 0.1, 0.3, 0.1, 0.1, 0.3, 0.05)
+    # m/sqrt(s): Q = diag(std^2) * dt_imu
+    q_pos_xy_std: float = number(0.05, nonnegative=True, noise_std=True)
+    q_pos_z_std: float = number(0.05, nonnegative=True, noise_std=True)
+    q_vel_xy_std: float = number(0.05, nonnegative=True, noise_std=True)  # m/s/sqrt(s)
+    q_vel_z_std: float = number(0.1, nonnegative=True, noise_std=True)
+    q_yaw_std: float = number(0.05, nonnegative=True, noise_std=True)  # rad/sqrt(s)
+    gps_pos_xy_std: float = number(1.0, positive=True, noise_std=True)  # m
+    gps_pos_z_std: float = number(3.0, positive=True, noise_std=True)  # m
+    gps_vel_xy_std: float = number(0.1, positive=True, noise_std=True)  # m/s
+    gps_vel_z_std: float = number(0.3, positive=True, noise_std=True)  # m/s
+    mag_yaw_std: float = number(0.1, positive=True, noise_std=True)  # rad
+    # Tilt-aware Q (ekf.TiltNoise; 0 = off, the reference's constant Q): the gyro noise the attitude
+    # filter integrates, rad/s per IMU sample, and how long its roll/pitch error acts as white noise
+    # on the velocity and on the yaw, s.
+    tilt_gyro_std: float = number(0.0, nonnegative=True, noise_std=True)
+    tilt_velocity_time: float = number(0.25, nonnegative=True)  # s
+    tilt_yaw_time: float = number(0.15, nonnegative=True)  # s
+    dt_imu: float = number(0.002, positive=True, maximum=1.0)  # s, scales Q (a step, not a flight)
+    attitude_filter: AttitudeFilterParams = field(default_factory=AttitudeFilterParams)
 
 
 @dataclass
@@ -194,17 +225,17 @@ def _physical_accelerometer_only(fidelity):
 
 
 _EKF7_TUNING = (
-    "ekf.q_pos_xy_std",
-    "ekf.q_pos_z_std",
-    "ekf.q_vel_xy_std",
-    "ekf.q_vel_z_std",
-    "ekf.q_yaw_std",
-    "ekf.tilt_gyro_std",
-    "ekf.gps_pos_xy_std",
-    "ekf.gps_pos_z_std",
-    "ekf.gps_vel_xy_std",
-    "ekf.gps_vel_z_std",
-    "ekf.mag_yaw_std",
+    "estimator.q_pos_xy_std",
+    "estimator.q_pos_z_std",
+    "estimator.q_vel_xy_std",
+    "estimator.q_vel_z_std",
+    "estimator.q_yaw_std",
+    "estimator.tilt_gyro_std",
+    "estimator.gps_pos_xy_std",
+    "estimator.gps_pos_z_std",
+    "estimator.gps_vel_xy_std",
+    "estimator.gps_vel_z_std",
+    "estimator.mag_yaw_std",
 )
 _ESKF_TUNING = (
     "estimator.accel_std",
@@ -232,6 +263,38 @@ PX4_NOISE = {
 on the logs; ``flightlogs/settings.py``)."""
 
 
+def _ekf7_replay_defaults() -> Ekf7EstimatorConfig:
+    """The EKF7 with PX4 EKF2's noise (:data:`PX4_NOISE`; the velocity's process noise is
+    EKF2_ACC_NOISE, 0.35 m/s^2 per 10 ms step, as a density), started at rest at the origin with
+    a wide prior, its attitude filter trusting the accelerometer within 0.5 s (a real gyro's bias
+    needs it sooner than a simulated one's 100 s)."""
+    return Ekf7EstimatorConfig(
+        init_state=[0.0] * 7,
+        init_std=[1.0, 1.0, 1.0, 0.5, 0.5, 0.5, 0.3],
+        q_vel_xy_std=0.035,  # m/s/sqrt(s)
+        q_vel_z_std=0.035,
+        gps_pos_xy_std=PX4_NOISE["gps_pos_std"],
+        gps_pos_z_std=PX4_NOISE["gps_pos_std"],
+        gps_vel_xy_std=PX4_NOISE["gps_vel_std"],
+        gps_vel_z_std=PX4_NOISE["gps_vel_std"],
+        mag_yaw_std=PX4_NOISE["heading_std"],
+        attitude_filter=AttitudeFilterParams(tau=0.5),
+        **px4_aiding_noise(),
+    )
+
+
+def _ekf7_started(config, roll, pitch, yaw) -> Ekf7EstimatorConfig:
+    """The EKF7 started at rest at the origin heading `yaw` (rad); its attitude filter starts
+    level and finds roll and pitch from the accelerometer."""
+    return dataclasses.replace(config, init_state=[0.0] * 6 + [yaw])
+
+
+def _ekf7_gps_noise(config, pos_std, vel_std) -> Ekf7EstimatorConfig:
+    return dataclasses.replace(
+        config, gps_pos_xy_std=pos_std, gps_pos_z_std=pos_std, gps_vel_xy_std=vel_std, gps_vel_z_std=vel_std
+    )
+
+
 def _eskf_replay_defaults():
     """The ESKF with PX4 EKF2's noise (:data:`PX4_NOISE`; bias walks EKF2_ACC_B_NOISE 0.003 m/s^3,
     EKF2_GYR_B_NOISE 0.001 rad/s^2), started at rest at the origin with a wide prior."""
@@ -253,7 +316,7 @@ def _eskf_replay_defaults():
     )
 
 
-def px4_aiding_noise():
+def px4_aiding_noise() -> dict:
     """The AidingParams fields with PX4 EKF2's barometer and field noise (:data:`PX4_NOISE`)."""
     return {
         "baro": BaroFusionParams(height_std=PX4_NOISE["baro_height_std"]),
@@ -342,6 +405,9 @@ KINDS = {
             tuning_keys=lambda config: _EKF7_TUNING,
             fidelity_problem=_any_fidelity,
             measurements=("yaw", "gps", "heading", "baro"),
+            replay_defaults=_ekf7_replay_defaults,
+            started_from_log=_ekf7_started,
+            assuming_gps_noise=_ekf7_gps_noise,
         ),
         EstimatorKind(
             name="eskf",

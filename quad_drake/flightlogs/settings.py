@@ -26,10 +26,8 @@ from pydrake.common.yaml import yaml_dump, yaml_dump_typed, yaml_load_typed
 
 from quad_drake.config import (
     PACKAGE_DIR,
-    AttitudeFilterParams,
     BaroParams,
     ConfigError,
-    EkfParams,
     GpsParams,
     ImuParams,
     MagParams,
@@ -44,21 +42,17 @@ from quad_drake.config import (
     parse_override,
     validate,
 )
+from quad_drake.config.deprecated import migrate_ekf7_blocks, migrate_ekf7_override
 from quad_drake.config.fields import number
 from quad_drake.estimation.registry import (
     DEFAULT_KIND,
     KINDS,
-    PX4_NOISE,
     AidingParams,
     Ekf7EstimatorConfig,
     EstimatorConfig,
-    px4_aiding_noise,
 )
 from quad_drake.models.fidelity import PHYSICAL
 
-GPS_POS_STD = PX4_NOISE["gps_pos_std"]  # m
-GPS_VEL_STD = PX4_NOISE["gps_vel_std"]  # m/s
-HEADING_STD = PX4_NOISE["heading_std"]  # rad
 LOG_DIR = PACKAGE_DIR / "data" / "flight_logs"
 """The bundled flight logs (package data): pyulog's test logs, BSD-3-Clause (README there)."""
 FAKE_VELOCITY_STD = 1e3
@@ -72,8 +66,6 @@ class ReplayConfig:
     name: str = field(default="", metadata={"pattern": "scenario"})  # default: the log's file stem
     log: str = ""  # the flight log file (.ulg or .csv)
     estimator: EstimatorConfig = field(default_factory=Ekf7EstimatorConfig)
-    attitude_filter: AttitudeFilterParams = field(default_factory=AttitudeFilterParams)  # ekf7's
-    ekf: EkfParams = field(default_factory=EkfParams)  # ekf7's
     mag_declination: Optional[float] = None  # rad, east of true north; None: the log's own
     # m: a log without GPS gets a zero position sample every fake_position_period s with this
     # std (PX4's EKF2_NOAID_NOISE), so the estimator's velocity, and its tilt, stay bounded; 0 = off
@@ -81,39 +73,23 @@ class ReplayConfig:
     fake_position_period: float = number(0.2, tick_multiple=1)  # s
 
 
-def default_estimator(kind):
+def default_estimator(kind) -> EstimatorConfig:
     """The replay's default estimator config of `kind` (its registry entry's ``replay_config``;
     PX4's noise, module docstring); an unknown kind: the EKF7's."""
     return KINDS.get(kind, KINDS[DEFAULT_KIND]).replay_config()
 
 
-def default_replay(kind=DEFAULT_KIND):
+def default_replay(kind=DEFAULT_KIND) -> "ReplayConfig":
     """ReplayConfig with the defaults of the module docstring for an estimator of `kind`."""
-    ekf = EkfParams(
-        init_state=[0.0] * 7,
-        init_std=[1.0, 1.0, 1.0, 0.5, 0.5, 0.5, 0.3],
-        q_vel_xy_std=0.035,  # m/s/sqrt(s): EKF2_ACC_NOISE (0.35 m/s^2 per 10 ms step) as a density
-        q_vel_z_std=0.035,
-        gps_pos_xy_std=GPS_POS_STD,
-        gps_pos_z_std=GPS_POS_STD,
-        gps_vel_xy_std=GPS_VEL_STD,
-        gps_vel_z_std=GPS_VEL_STD,
-        mag_yaw_std=HEADING_STD,
-        **px4_aiding_noise(),
-    )
-    return ReplayConfig(
-        estimator=default_estimator(kind),
-        attitude_filter=AttitudeFilterParams(tau=0.5),
-        ekf=ekf,
-    )
+    return ReplayConfig(estimator=default_estimator(kind))
 
 
-def bundled_logs():
+def bundled_logs() -> dict:
     """{name: path} of the flight logs shipped with the package (``quad_drake/data/flight_logs``)."""
     return {p.stem: p for p in sorted(LOG_DIR.glob("*.ulg"))}
 
 
-def resolve_log(name_or_path):
+def resolve_log(name_or_path) -> Path:
     """Path of a flight log given as a file path or a bundled log's name; ConfigError if neither."""
     path = Path(str(name_or_path))
     if path.is_file():
@@ -127,7 +103,7 @@ def resolve_log(name_or_path):
     )
 
 
-def load_replay(log, estimator=None, overrides=()):
+def load_replay(log, estimator=None, overrides=()) -> ReplayConfig:
     """Validated ReplayConfig of `log` (a flight log's path or bundled name, or the config.yaml of
     an earlier replay), an ``--estimator`` mapping (YAML text, e.g. ``{kind: eskf}``: the defaults
     of that kind with these fields changed) and ``--set`` overrides (``ekf.mag_yaw_std=0.2``,
@@ -138,6 +114,7 @@ def load_replay(log, estimator=None, overrides=()):
     chosen = estimator_mapping(estimator)
     if Path(str(log)).suffix in (".yaml", ".yml"):
         raw = _replay_file(Path(str(log)))
+        migrate_ekf7_blocks(raw, "")
         if chosen:
             kind = chosen.get("kind", raw["estimator"].get("kind"))
             base = raw["estimator"] if kind == raw["estimator"].get("kind") else _default_estimator_raw(kind)
@@ -150,7 +127,8 @@ def load_replay(log, estimator=None, overrides=()):
         raw["estimator"] = {**_untagged(raw["estimator"]), **chosen}
     for text in overrides:
         keys, value = parse_override(text)
-        apply_override(raw, keys, value, text)
+        for new_keys, new_value in migrate_ekf7_override(raw, keys, value, holder_depth=0):
+            apply_override(raw, new_keys, new_value, text)
     hints = list(overrides) + ([f"estimator={estimator}"] if estimator else [])
     try:
         message = check_node(raw, ReplayConfig, "")
@@ -185,7 +163,7 @@ def _replay_file(path):
     return raw
 
 
-def estimator_mapping(text):
+def estimator_mapping(text) -> dict:
     """The mapping of an ``--estimator`` YAML text ({} for None); ConfigError naming --estimator."""
     if text is None:
         return {}
@@ -202,7 +180,7 @@ def _untagged(mapping):
     return {k: v for k, v in mapping.items() if k != "_tag"}
 
 
-def check_replay(config):
+def check_replay(config) -> ReplayConfig:
     """`config` (a ReplayConfig) when every field keeps its rules; else ConfigError (one line)."""
     try:
         validate(dataclasses.replace(config, name=config.name or "replay"))
@@ -219,8 +197,10 @@ def check_replay(config):
     return config
 
 
-def vehicle_for(config, initial_attitude, fake_position, baro_period=None, magnetometer=None):
-    """The VehicleConfig whose estimator blocks ``systems.estimators.build_estimator`` reads:
+def vehicle_for(
+    config, initial_attitude, fake_position, baro_period=None, magnetometer=None
+) -> VehicleConfig:
+    """The VehicleConfig whose estimator ``systems.estimators.build_estimator`` builds:
     `config`'s, started at `initial_attitude` (roll, pitch, yaw rad) at rest at the origin, and
     with `fake_position` (a log without GPS) assuming the fake position's noise for its GPS input.
 
@@ -230,29 +210,21 @@ def vehicle_for(config, initial_attitude, fake_position, baro_period=None, magne
     and magnetometer (``earth_field.MagnetometerModel``: the 3-axis field with its world field
     and learned bias; None: no magnetometer) become the
     vehicle's ``sensors.baro`` and 3-axis ``sensors.mag``, and the model's figures its
-    ``mag_field`` (of every AidingParams block: the EKF7's ``ekf``, an AidingParams estimator's)."""
+    ``mag_field`` (an AidingParams estimator's: the EKF7's, the ESKF's)."""
     roll, pitch, yaw = initial_attitude
     kind = KINDS[config.estimator.kind]
-    ekf = dataclasses.replace(config.ekf, init_state=[0.0] * 6 + [yaw])
     estimator = kind.started_from_log(config.estimator, roll, pitch, yaw)
     if fake_position:
-        fake, still = config.fake_position_std, FAKE_VELOCITY_STD
-        ekf = dataclasses.replace(
-            ekf, gps_pos_xy_std=fake, gps_pos_z_std=fake, gps_vel_xy_std=still, gps_vel_z_std=still
-        )
-        estimator = kind.assuming_gps_noise(estimator, fake, still)
+        estimator = kind.assuming_gps_noise(estimator, config.fake_position_std, FAKE_VELOCITY_STD)
     sensors = SensorsConfig(imu=ImuParams(), gps=GpsParams(), mag=MagParams())  # what a playback streams
     fused = set(kind.measurements)
     if baro_period is not None and "baro" in fused:
         sensors.baro = BaroParams(period=baro_period)
     if magnetometer is not None and fused & {"heading", "field"}:
         sensors.mag = MagParams(three_axis=True)
-        ekf = _with_field(ekf, magnetometer)
         if isinstance(estimator, AidingParams):
             estimator = _with_field(estimator, magnetometer)
-    return VehicleConfig(
-        attitude_filter=config.attitude_filter, ekf=ekf, estimator=estimator, sensors=sensors
-    )
+    return VehicleConfig(estimator=estimator, sensors=sensors)
 
 
 def _with_field(params, magnetometer):
@@ -267,6 +239,6 @@ def _with_field(params, magnetometer):
     return dataclasses.replace(params, mag_field=field_params)
 
 
-def dump_replay(config):
+def dump_replay(config) -> str:
     """The resolved ReplayConfig as YAML text."""
     return yaml_dump_typed(config)

@@ -613,11 +613,10 @@ def _wind_figure(result, vehicle):
 
 def _field_assumed(config):
     """(m_N, hard iron) the vehicle's estimator assumes of a 3-axis magnetometer, or None."""
-    for block in (config.estimator, getattr(config, "ekf", None)):
-        params = getattr(block, "mag_field", None)
-        if params is not None:
-            return np.array(assumed_world_field(params)), np.asarray(params.hard_iron, dtype=float)
-    return None
+    params = getattr(config.estimator, "mag_field", None)
+    if params is None:
+        return None
+    return np.array(assumed_world_field(params)), np.asarray(params.hard_iron, dtype=float)
 
 
 def _measurement_panels(result, vehicle):

@@ -390,13 +390,14 @@ def add_ekf7(builder, vehicle, fidelity, n) -> tuple[dict, dict]:
     """Add the CF + EKF7 + assembler of n vehicles to `builder` (the ``ekf7`` kind's builder,
     ``estimation/registry.py``); (input ports by name: ``imu`` and the measurement updates',
     output ports by name)."""
-    tilt = ekf.TiltNoise.from_params(vehicle.ekf, vehicle.attitude_filter, ONBOARD_PERIOD)
-    ekf_system = builder.AddNamedSystem("ekf", Ekf(vehicle.ekf, fidelity, tilt, n=n, sensors=vehicle.sensors))
+    params = vehicle.estimator  # an Ekf7EstimatorConfig
+    tilt = ekf.TiltNoise.from_params(params, params.attitude_filter, ONBOARD_PERIOD)
+    ekf_system = builder.AddNamedSystem("ekf", Ekf(params, fidelity, tilt, n=n, sensors=vehicle.sensors))
     attitude_filter = builder.AddNamedSystem(
         "attitude_filter",
         ComplementaryFilter(
-            vehicle.attitude_filter,
-            initial_attitude=(0.0, 0.0, vehicle.ekf.init_state[6]),
+            params.attitude_filter,
+            initial_attitude=(0.0, 0.0, params.init_state[6]),
             fidelity=fidelity,
             n=n,
         ),

@@ -1,7 +1,8 @@
 """Pure: the search space of ``quad-drake tune`` — which config fields are searched and how.
 
-A :class:`Parameter` is one dotted config key (``ekf.q_vel_xy_std``, ``estimator.accel_std``,
-or ``vehicles.0.ekf.q_yaw_std`` for one vehicle). The search moves its log10 *multiplier* x
+A :class:`Parameter` is one dotted config key (``estimator.q_vel_xy_std``, ``estimator.accel_std``,
+or ``vehicles.0.estimator.q_yaw_std`` for one vehicle; a pre-0.3 ``ekf.X`` key is read as
+``estimator.X``, with a FutureWarning). The search moves its log10 *multiplier* x
 of the starting value: the field becomes ``start * 10**x`` with x in [-SEARCH_DECADES,
 SEARCH_DECADES]. So a scalar and a vector field (scaled as a whole, keeping the ratios of its
 axes) are searched alike, in log space, where noise standard deviations live; x = 0 is the
@@ -11,8 +12,10 @@ scenario as given. A key without a ``vehicles.N.`` prefix applies to every tuned
 
 import copy
 import dataclasses
+import warnings
 from dataclasses import dataclass
 
+from ..config.deprecated import current_field_path
 from ..config.errors import ConfigError, did_you_mean
 from ..config.schema import ScenarioConfig
 from ..config.validation import validate
@@ -26,8 +29,8 @@ SEARCH_DECADES = 1.0
 class Parameter:
     """One searched key: the (vehicle index, field path) targets it sets and their start values."""
 
-    key: str  # as the user gave it (or the default), e.g. "ekf.q_vel_xy_std"
-    targets: tuple  # ((vehicle index, ("ekf", "q_vel_xy_std")), ...)
+    key: str  # as the user gave it (or the default), e.g. "estimator.q_vel_xy_std"
+    targets: tuple  # ((vehicle index, ("estimator", "q_vel_xy_std")), ...)
     starts: tuple  # start value per target: a float or a tuple of floats (a vector field)
 
     def values(self, x) -> tuple:
@@ -103,7 +106,8 @@ def parameter(scenario, key) -> Parameter:
     """The Parameter of dotted `key` in `scenario`; ConfigError (one line) when it cannot be searched."""
     parts = key.split(".")
     if not key or any(not p for p in parts):
-        raise ConfigError(f"--params {key!r}: expected a dotted config key such as ekf.q_vel_xy_std")
+        raise ConfigError(f"--params {key!r}: expected a dotted config key such as estimator.q_vel_xy_std")
+    key, parts = _current_key(key, parts)
     if parts[0] == "vehicles":
         if len(parts) < 3 or not parts[1].isdigit() or int(parts[1]) >= len(scenario.vehicles):
             raise ConfigError(
@@ -117,6 +121,18 @@ def parameter(scenario, key) -> Parameter:
         where = f"vehicles.{i}"
         starts.append(_start(_field_value(scenario.vehicles[i], list(path), key, where), key))
     return Parameter(key, tuple((i, path) for i in indices), tuple(starts))
+
+
+def _current_key(key: str, parts: list) -> tuple[str, list]:
+    """(key, parts) as written today: a pre-0.3 ``ekf.X`` / ``attitude_filter.X`` (or
+    ``vehicles.N.`` ones) read as ``estimator.X`` (``config.deprecated``), with a FutureWarning."""
+    head = parts[:2] if parts[0] == "vehicles" else []
+    current = [*head, *current_field_path(parts[len(head) :])]
+    if current == parts:
+        return key, parts
+    new_key = ".".join(current)
+    warnings.warn(f"--params {key} is deprecated: write {new_key}", FutureWarning, stacklevel=3)
+    return new_key, current
 
 
 def default_keys(scenario) -> list[str]:

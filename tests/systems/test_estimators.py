@@ -9,8 +9,6 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
 from quad_drake.config import (
-    AttitudeFilterParams,
-    EkfParams,
     GpsParams,
     ImuParams,
     MagParams,
@@ -20,7 +18,12 @@ from quad_drake.config import (
 from quad_drake.conventions import ATTITUDE_FILTER_OFFSET, GRAVITY, NO_SAMPLE_STAMP, ONBOARD_PERIOD
 from quad_drake.estimation import ekf, eskf, gating
 from quad_drake.estimation.complementary import complementary_update
-from quad_drake.estimation.registry import Ekf7EstimatorConfig, EskfEstimatorConfig, vocabulary_for
+from quad_drake.estimation.registry import (
+    AttitudeFilterParams,
+    Ekf7EstimatorConfig,
+    EskfEstimatorConfig,
+    vocabulary_for,
+)
 from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, initial_diagnostics
 from quad_drake.models.fidelity import PHYSICAL, REFERENCE
 from quad_drake.models.rotations import quat_from_euler
@@ -50,7 +53,7 @@ class EkfFixture:
     def __init__(
         self, params=None, imu=LEVEL_IMU, attitude=(0.0, 0.0, 0.0), gps=NO_GPS, mag=NO_MAG, fidelity=PHYSICAL
     ):
-        self.params = params or EkfParams()
+        self.params = params or Ekf7EstimatorConfig()
         self.dut = Ekf(self.params, fidelity)
         self.context = self.dut.CreateDefaultContext()
         self.ports = {name: self.dut.GetInputPort(name) for name in ("imu", "attitude", "gps", "mag")}
@@ -151,7 +154,7 @@ def test_cf_rejects_an_unknown_variant():
 
 
 def test_ekf_port_sizes():
-    dut = Ekf(EkfParams())
+    dut = Ekf(Ekf7EstimatorConfig())
     assert [dut.GetInputPort(n).size() for n in ("imu", "gps", "mag", "attitude")] == [6, 7, 2, 3]
     sizes = [dut.GetOutputPort(n).size() for n in ("ekf_state", "covariance", "diagnostics")]
     assert sizes == [7, 49, DIAGNOSTICS_SIZE]
@@ -180,7 +183,7 @@ def test_ekf_stationary_ticks_grow_covariance_by_q():
 def test_ekf_takes_the_attitude_yaw_and_predicts_with_its_tilt():
     imu = [0.3, -0.2, -9.9, 0.0, 0.0, 0.0]
     attitude = (0.1, -0.2, 0.7)
-    f, r = EkfFixture(imu=imu, attitude=attitude), Replay(EkfParams(), imu, attitude)
+    f, r = EkfFixture(imu=imu, attitude=attitude), Replay(Ekf7EstimatorConfig(), imu, attitude)
     f.tick(3)
     r.predict(3)
     assert_matches(f, r)
@@ -190,7 +193,7 @@ def test_ekf_takes_the_attitude_yaw_and_predicts_with_its_tilt():
 
 def test_ekf_fuses_a_fresh_gps_stamp_exactly_once():
     z = [0.5, -0.3, -1.4, 0.2, 0.1, -0.1]
-    f, r = EkfFixture(gps=z + [0.1]), Replay(EkfParams())
+    f, r = EkfFixture(gps=z + [0.1]), Replay(Ekf7EstimatorConfig())
     f.tick()
     r.predict()
     nis = r.gps(z)
@@ -214,7 +217,7 @@ def test_ekf_fuses_mag_and_gps_samples_of_one_tick():
     # matters through the yaw wrap.)
     z, yaw = [0.5, -0.3, -1.4, 0.2, 0.1, -0.1], 0.3
     imu, attitude = [2.0, -1.0, -9.6, 0.0, 0.0, 0.0], (0.1, 0.05, 0.2)
-    f, r = EkfFixture(imu=imu, attitude=attitude), Replay(EkfParams(), imu, attitude)
+    f, r = EkfFixture(imu=imu, attitude=attitude), Replay(Ekf7EstimatorConfig(), imu, attitude)
     f.tick(10)
     r.predict(10)
     f.fix(gps=z + [0.1], mag=[yaw, 0.008])
@@ -230,7 +233,7 @@ def test_ekf_fuses_mag_and_gps_samples_of_one_tick():
 
 def test_ekf_skips_and_counts_non_finite_samples():
     z = [0.5, -0.3, -1.4, 0.2, 0.1, -0.1]
-    f, r = EkfFixture(gps=[math.nan] + z[1:] + [0.1], mag=[math.inf, 0.008]), Replay(EkfParams())
+    f, r = EkfFixture(gps=[math.nan] + z[1:] + [0.1], mag=[math.inf, 0.008]), Replay(Ekf7EstimatorConfig())
     f.tick(3)  # each stamp counted once
     r.predict(3)
     assert_matches(f, r)
@@ -255,7 +258,7 @@ def test_ekf_skips_and_counts_non_finite_samples():
 def test_ekf_mag_update_wraps_the_posterior_yaw():
     f = EkfFixture(attitude=(0.0, 0.0, -3.1), mag=[3.1, 0.008])
     f.tick()
-    r = Replay(EkfParams(), attitude=(0.0, 0.0, -3.1))
+    r = Replay(Ekf7EstimatorConfig(), attitude=(0.0, 0.0, -3.1))
     r.predict()
     r.mag(3.1)
     assert_matches(f, r)
@@ -343,7 +346,7 @@ def test_an_imu_dropout_is_dead_reckoned_on_the_running_mean_and_its_rate_report
 
 
 def test_ekf_gates_a_50_m_outlier_and_resets_the_horizontal_position_after_the_timeout():
-    params = EkfParams(gps_reset_timeout=0.25)
+    params = Ekf7EstimatorConfig(gps_reset_timeout=0.25)
     z = [50.0, 0.0, -1.0, 0.0, 0.0, 0.0]
     f = EkfFixture(params=params, gps=z + [0.1])
     f.tick()
@@ -385,7 +388,7 @@ def test_a_wrong_velocity_never_makes_the_ekf_refuse_a_good_position():
     # The graze the IMU missed: the EKF believes 5 m/s, the GPS says the vehicle stopped where the
     # EKF thinks it is. The velocity group is gated, the position fused (the joint 6-dof gate
     # refused both for 5 s); after gps_vel_reset_timeout s of rejection the velocity is reset.
-    params = EkfParams(
+    params = Ekf7EstimatorConfig(
         init_state=[0.0, 0.0, -1.0, 5.0, 0.0, 0.0, 0.0], init_std=[2.0] * 3 + [0.1] * 3 + [0.05]
     )
     z = [0.0, 0.0, -1.0, 0.0, 0.0, 0.0]
