@@ -323,14 +323,14 @@ def inject(x, P, dx):
     G differs from I only in its attitude block A = I + [dtheta]x / 2, so G P G^T is formed as
     rows 6:9 <- A P[6:9, :], then columns 6:9 <- P[:, 6:9] A^T.
     """
-    x = np.asarray(x).astype(np.float64)
+    x = np.array(x, dtype=float)
     x[0:6] += dx[0:6]
-    t0, t1, t2 = 0.5 * dx[6], 0.5 * dx[7], 0.5 * dx[8]
-    x[6], x[7], x[8], x[9] = injected_attitude((x[6], x[7], x[8], x[9]), dx[6:9])
+    t0, t1, t2 = (0.5 * float(c) for c in dx[6:9])
+    x[Q_IDX] = injected_attitude(tuple(x[Q_IDX].tolist()), dx[6:9])
     if dx.shape[0] == ERROR_SIZE_WITH_BIASES:
         x[10:16] += dx[9:15]
     A = np.array(((1.0, -t2, t1), (t2, 1.0, -t0), (-t1, t0, 1.0)))
-    P = np.asarray(P).astype(np.float64)
+    P = np.array(P, dtype=float)
     P[6:9, :] = A @ P[6:9, :]
     P[:, 6:9] = P[:, 6:9] @ A.T
     return x, P
@@ -386,8 +386,8 @@ def mag_update(x, P, yaw_meas, R_mag):
     yaw_meas = float(yaw_meas)
     if not math.isfinite(yaw_meas):
         return x, P, math.nan
-    x = np.asarray(x).astype(np.float64)
-    yaw, h_theta = yaw_and_jacobian(x[6:10])
+    x = np.asarray(x, dtype=float)
+    yaw, h_theta = yaw_and_jacobian(x[Q_IDX])
     b = P[:, 6:9] @ h_theta
     nu, S = mag_innovation(yaw_meas, yaw, float(b[6:9] @ h_theta), float(R_mag[0, 0]))
     K = b / S

@@ -153,18 +153,29 @@ def predict_with_yaw(
 # ----- magnetometer --------------------------------------------------------------------------------
 
 
-_mag_update = compiled(ekf.mag_update, mag_innovation=mag_innovation, wrap_to_pi=rotations.wrap_to_pi)
+@njit_cached
+def _mag_update_row(x, P, i, nu, S, p6):
+    """Vehicle i's magnetometer posterior IN PLACE: K = P[:, 6] / S, x += K nu (yaw wrapped),
+    P -= K P[6, :] + P[:, 6] K^T - S K K^T; p6: a 7-buffer."""
+    for a in range(7):
+        p6[a] = P[i, a, 6]
+    for a in range(7):
+        Ka = p6[a] / S
+        for b in range(7):
+            Kb = p6[b] / S
+            P[i, a, b] = P[i, a, b] - (Ka * p6[b] + Kb * p6[a]) + S * (Ka * Kb)
+        x[i, a] = x[i, a] + Ka * nu
+    x[i, 6] = rotations.wrap_to_pi(x[i, 6])
 
 
 @njit_cached
 def _mag_tick(x, P, mag, diagnostics, book, r, threshold):
-    R_mag = np.full((1, 1), r)
+    p6 = np.empty(7)
     for i in range(x.shape[0]):
         if fresh_mag(mag, book, diagnostics, i):
-            x_new, P_new, nis = _mag_update(x[i], P[i], mag[i, 0], R_mag)
-            if mag_gate(diagnostics, i, nis, mag[i, 1], threshold):
-                x[i] = x_new
-                P[i] = P_new
+            nu, S = mag_innovation(mag[i, 0], x[i, 6], P[i, 6, 6], r)
+            if mag_gate(diagnostics, i, nu * nu / S, mag[i, 1], threshold):
+                _mag_update_row(x, P, i, nu, S, p6)
 
 
 def mag_tick(filters, mag, R_mag, threshold) -> None:

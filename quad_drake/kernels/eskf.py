@@ -234,7 +234,30 @@ def predict_tick(filters, imu, estimate, model) -> np.ndarray:
 # ----- injection -----------------------------------------------------------------------------------
 
 
-_inject = compiled(eskf.inject, injected_attitude=_injected_attitude)
+@njit_cached
+def _inject_row(x, P, i, dx):
+    """The error dx (n,) injected into vehicle i IN PLACE on x and P (``eskf.inject``)."""
+    n = P.shape[1]
+    for k in range(6):
+        x[i, k] += dx[k]
+    q = _injected_attitude((x[i, 6], x[i, 7], x[i, 8], x[i, 9]), (dx[6], dx[7], dx[8]))
+    for k in range(4):
+        x[i, 6 + k] = q[k]
+    if n == _WITH_BIASES:
+        for k in range(6):
+            x[i, 10 + k] += dx[9 + k]
+    # P <- G P G^T: rows 6:9 <- A P[6:9, :], then columns 6:9 <- P[:, 6:9] A^T, A = I + [dtheta]x / 2
+    t0, t1, t2 = 0.5 * dx[6], 0.5 * dx[7], 0.5 * dx[8]
+    for c in range(n):
+        r6, r7, r8 = P[i, 6, c], P[i, 7, c], P[i, 8, c]
+        P[i, 6, c] = r6 - t2 * r7 + t1 * r8
+        P[i, 7, c] = t2 * r6 + r7 - t0 * r8
+        P[i, 8, c] = -t1 * r6 + t0 * r7 + r8
+    for r in range(n):
+        c6, c7, c8 = P[i, r, 6], P[i, r, 7], P[i, r, 8]
+        P[i, r, 6] = c6 - c7 * t2 + c8 * t1
+        P[i, r, 7] = c6 * t2 + c7 - c8 * t0
+        P[i, r, 8] = -c6 * t1 + c7 * t0 + c8
 
 
 @njit_cached
@@ -243,7 +266,7 @@ def correct(x, P, dx, fused) -> None:
     vehicles' (fused (N,) bool) nominal x[i] and P[i] (``eskf.inject``)."""
     for i in range(x.shape[0]):
         if fused[i]:
-            x[i], P[i] = _inject(x[i], P[i], dx[i])
+            _inject_row(x, P, i, dx[i])
 
 
 def inject(x, P, dx) -> tuple[np.ndarray, np.ndarray]:
@@ -269,23 +292,38 @@ def gps_update(x, P, gps_pv, R_gps, mask=None) -> tuple[np.ndarray, np.ndarray, 
 # ----- magnetometer --------------------------------------------------------------------------------
 
 
-_mag_update = compiled(
-    eskf.mag_update,
-    yaw_and_jacobian=compiled(eskf.yaw_and_jacobian, yaw_and_jacobian_of=_yaw_and_jacobian),
-    mag_innovation=mag_innovation,
-    inject=_inject,
-)
+@njit_cached
+def _mag_innovation_row(x, P, i, yaw_meas, r, b):
+    """(nu rad, S rad^2) of vehicle i's magnetometer yaw; b = P H^T into the n-buffer b."""
+    yaw, h = _yaw_and_jacobian(x[i, 6], x[i, 7], x[i, 8], x[i, 9])
+    for a in range(P.shape[1]):
+        b[a] = P[i, a, 6] * h[0] + P[i, a, 7] * h[1] + P[i, a, 8] * h[2]
+    return mag_innovation(yaw_meas, yaw, b[6] * h[0] + b[7] * h[1] + b[8] * h[2], r)
+
+
+@njit_cached
+def _mag_update_row(x, P, i, nu, S, b, K):
+    """Vehicle i's magnetometer posterior IN PLACE: K = b / S, P' = P - K b^T - b K^T + S K K^T,
+    then dx = K nu injected; K: an n-buffer."""
+    n = P.shape[1]
+    for a in range(n):
+        K[a] = b[a] / S
+    for a in range(n):
+        for c in range(n):
+            P[i, a, c] = P[i, a, c] - K[a] * b[c] - K[c] * b[a] + S * (K[a] * K[c])
+    for a in range(n):
+        K[a] *= nu
+    _inject_row(x, P, i, K)
 
 
 @njit_cached
 def _mag_tick(x, P, mag, diagnostics, book, r, threshold):
-    R_mag = np.full((1, 1), r)
+    b, K = np.empty(P.shape[1]), np.empty(P.shape[1])
     for i in range(x.shape[0]):
         if fresh_mag(mag, book, diagnostics, i):
-            x_new, P_new, nis = _mag_update(x[i], P[i], mag[i, 0], R_mag)
-            if mag_gate(diagnostics, i, nis, mag[i, 1], threshold):
-                x[i] = x_new
-                P[i] = P_new
+            nu, S = _mag_innovation_row(x, P, i, mag[i, 0], r, b)
+            if mag_gate(diagnostics, i, nu * nu / S, mag[i, 1], threshold):
+                _mag_update_row(x, P, i, nu, S, b, K)
 
 
 def mag_tick(filters, mag, R_mag, threshold) -> None:
