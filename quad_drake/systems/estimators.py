@@ -43,13 +43,12 @@ from quad_drake.conventions import (
     ONBOARD_PERIOD,
     STATE_SIZE,
 )
-from quad_drake.estimation import ekf, eskf, gating
+from quad_drake.estimation import ekf, gating
 from quad_drake.estimation.complementary import VARIANTS
 from quad_drake.estimation.registry import KINDS, kind_of, vocabulary_for
 from quad_drake.estimation.vocabulary import DIAGNOSTICS_SIZE, NIS_DOF
 from quad_drake.kernels import attitude as attitude_kernel
 from quad_drake.kernels import ekf7 as ekf7_kernel
-from quad_drake.kernels import eskf as eskf_kernel
 from quad_drake.kernels import fusion
 from quad_drake.kernels.imu_hold import HOLD_SIZE, initial_hold
 from quad_drake.models.fidelity import PHYSICAL
@@ -289,6 +288,11 @@ class Eskf(LeafSystem):
 
     def __init__(self, params, fidelity=PHYSICAL, n=1, sensors=GPS_AND_MAG):
         super().__init__()
+        # imported on first use: a run without an ESKF creates none of its numba dispatchers
+        from quad_drake.estimation import eskf
+        from quad_drake.kernels import eskf as eskf_kernel
+
+        self._predict_tick, self._write_estimate = eskf_kernel.predict_tick, eskf.write_estimate
         noise = eskf.NoiseModel.from_params(params)
         P0 = eskf.initial_covariance(params)
         Q_constant = eskf.noise_buffer(P0.shape[0], noise, ONBOARD_PERIOD)
@@ -342,9 +346,9 @@ class Eskf(LeafSystem):
         seam = self._fusion
         filters = seam.filters(discrete_state)
         estimate = discrete_state.get_mutable_value(self._estimate).reshape(self._n, STATE_SIZE)
-        healthy = eskf_kernel.predict_tick(filters, self._read_imu(context), estimate, self._model)
+        healthy = self._predict_tick(filters, self._read_imu(context), estimate, self._model)
         seam.fuse(context, discrete_state, filters, seam.read(context), healthy)
-        eskf.write_estimate(filters.x, estimate)
+        self._write_estimate(filters.x, estimate)
         discrete_state.get_mutable_value(self._bias)[:] = filters.x[:, 10:16].ravel()
 
 

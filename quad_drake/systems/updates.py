@@ -26,7 +26,6 @@ import numpy as np
 from quad_drake.estimation import baro, gating
 from quad_drake.estimation.measurements import measurements_of
 from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, NIS_DOF, initial_diagnostics
-from quad_drake.kernels import aiding as aiding_kernels
 from quad_drake.kernels import fusion
 from quad_drake.kernels.imu_hold import HOLD_SIZE, initial_hold
 from quad_drake.systems._io import discrete_group, row_reader
@@ -35,6 +34,14 @@ Groups = collections.namedtuple("Groups", ["x", "P", "diagnostics", "book", "hol
 """The discrete-state group indices of an estimator's filter: x (its state, n*width), P (n*k*k),
 diagnostics (n*``vocabulary.DIAGNOSTICS_SIZE``), book (n*``fusion.BOOK_SIZE``: the last GPS and
 magnetometer stamps seen, the GPS policy's book), hold (the IMU's running mean, ``imu_hold``)."""
+
+
+def _aiding_kernels():
+    """``quad_drake.kernels.aiding``, imported on first use: a vehicle without a barometer or a
+    3-axis magnetometer creates none of its numba dispatchers."""
+    from quad_drake.kernels import aiding
+
+    return aiding
 
 
 class Update:
@@ -127,15 +134,14 @@ class FieldUpdate(CorrectionUpdate):
 
     def __init__(self, measurement, correct, params, gate_sigma):
         super().__init__(measurement, correct)
+        aiding_kernels = _aiding_kernels()
         gate = gating.gate_threshold(NIS_DOF[measurement.nis], gate_sigma)
-        self._model = aiding_kernels.field_model(params, gate)
+        self._model, self._rows = aiding_kernels.field_model(params, gate), aiding_kernels.field_rows
 
     def fuse(self, context, discrete_state, filters, samples) -> None:
         f, dx = filters, self._dx
         mag = samples[self.measurement.port]
-        aiding_kernels.field_rows(
-            f.x, f.P, mag, f.book, fusion.MAG_SLOT, f.diagnostics, self._model, dx, self._fused
-        )
+        self._rows(f.x, f.P, mag, f.book, fusion.MAG_SLOT, f.diagnostics, self._model, dx, self._fused)
         self._apply(filters)
 
 
@@ -148,17 +154,17 @@ class HeadingUpdate(CorrectionUpdate):
 
     def __init__(self, measurement, correct, params, gate_sigma, tilt=None):
         super().__init__(measurement, correct)
+        aiding_kernels = _aiding_kernels()
         gate = gating.gate_threshold(NIS_DOF[measurement.nis], gate_sigma)
         self._model, self._tilt = aiding_kernels.heading_model(params, gate), tilt
+        self._rows = aiding_kernels.heading_rows
 
     def fuse(self, context, discrete_state, filters, samples) -> None:
         f, dx, model = filters, self._dx, self._model
         if self._tilt is not None:
             model = model._replace(tilt_var=model.tilt_var + self._tilt.variance(context.get_time()))
         mag, attitude = samples[self.measurement.port], samples["attitude"]
-        aiding_kernels.heading_rows(
-            f.x, f.P, mag, attitude, f.book, fusion.MAG_SLOT, f.diagnostics, model, dx, self._fused
-        )
+        self._rows(f.x, f.P, mag, attitude, f.book, fusion.MAG_SLOT, f.diagnostics, model, dx, self._fused)
         self._apply(filters)
 
 
@@ -174,7 +180,9 @@ class BaroUpdate(CorrectionUpdate):
         super().__init__(measurement, correct)
         gate = gating.gate_threshold(NIS_DOF[measurement.nis], gate_sigma)
         self._params = params
+        aiding_kernels = _aiding_kernels()
         self._model = aiding_kernels.baro_model(params, gps_z_std, gate, period)
+        self._rows = aiding_kernels.baro_rows
         self._book = self._no_gps = None
 
     def declare(self, system, n, k) -> None:
@@ -186,7 +194,7 @@ class BaroUpdate(CorrectionUpdate):
         f, dx = filters, self._dx
         book = discrete_state.get_mutable_value(self._book).reshape(f.x.shape[0], baro.BARO_BOOK_SIZE)
         gps = samples.get("gps", self._no_gps)
-        aiding_kernels.baro_rows(
+        self._rows(
             f.x, f.P, samples[self.measurement.port], gps, book, f.diagnostics, self._model, dx, self._fused
         )
         self._apply(filters)
