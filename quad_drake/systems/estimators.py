@@ -31,7 +31,7 @@ measured, and the controller then commands no body moment (``control.cascade``).
 """
 
 import numpy as np
-from pydrake.systems.framework import DiagramBuilder, LeafSystem
+from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 
 from quad_drake.config.schema import GpsParams, MagParams, SensorsConfig
 from quad_drake.conventions import (
@@ -419,7 +419,7 @@ def add_eskf(builder, vehicle, fidelity, n) -> tuple[dict, dict]:
     return inputs, {name: system.GetOutputPort(name) for name in names}
 
 
-def build_estimator(vehicle, fidelity=PHYSICAL, n=1):
+def build_estimator(vehicle, fidelity=PHYSICAL, n=1) -> Diagram:
     """The estimator sub-Diagram of n vehicles flying one VehicleConfig (``estimator.kind``),
     named ``estimator``.
 
