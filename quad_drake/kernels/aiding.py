@@ -15,7 +15,7 @@ the ESKF's error state; the tilt-compensated heading as the EKF7's yaw measureme
   latest baro sample) b_meas = h + z_gps, variance height_std² + gps_z_std², gated at the baro's
   gate; after ``reset_timeout`` s of rejected samples b = h + p_z, P_b = height_std² + P[2, 2];
 - field (ESKF), z = m_B - hard_iron (gauss): h(x) = R_hatᵀ m_N, H = [0 R_hatᵀ[m_N]x 0], R =
-  diag(field_std²), NIS 3 dof;
+  diag(field_std²), NIS 3 dof, the gain zero outside the attitude (``attitude_only``, the default);
 - heading (EKF7), z = atan2(-l_y, l_x) + D with l = Ry(pitch) Rx(roll) (m_B - hard_iron) (rad):
   h(x) = x[6], H = e_6, R = the heading's variance from the field noise, NIS 1 dof (logged as
   the magnetometer's), then P[6, 6] >= the heading's variance from the tilt error
@@ -159,7 +159,8 @@ def _fresh_field(mag, book, slot, diagnostics, i):
 
 
 @njit_cached
-def _field_rows(x, P, mag, book, slot, diagnostics, m_N, hard_iron, field_var, threshold, dx, fused):
+def _field_rows(x, P, mag, book, slot, diagnostics, model, dx, fused):
+    m_N, hard_iron, field_var, threshold, attitude_only = model
     for i in range(x.shape[0]):
         fused[i] = False
         if not _fresh_field(mag, book, slot, diagnostics, i):
@@ -172,7 +173,7 @@ def _field_rows(x, P, mag, book, slot, diagnostics, m_N, hard_iron, field_var, t
             continue
         diagnostics[i, _FIELD_NIS], diagnostics[i, _FIELD_NIS + 1] = nis, mag[i, 3]
         if nis <= threshold:
-            correction, P_new = _sequential_field_update(P[i], nu, H, field_var)
+            correction, P_new = _sequential_field_update(P[i], nu, H, field_var, attitude_only)
             P[i] = P_new
             dx[i] = correction
             fused[i] = True
@@ -185,17 +186,18 @@ def field_rows(x, P, mag, book, slot, diagnostics, model, dx, fused) -> None:
     16) nominal states (q_NB at 6..9), P (N, n, n), mag (N, 4: m_B gauss, stamp s), book[:, slot]
     the last field stamp seen; the corrections into dx (N, n), fused (N,). model:
     :func:`field_model`."""
-    m_N, hard_iron, field_var, threshold = model
-    _field_rows(x, P, mag, book, slot, diagnostics, m_N, hard_iron, field_var, threshold, dx, fused)
+    _field_rows(x, P, mag, book, slot, diagnostics, model, dx, fused)
 
 
 def field_model(params, gate_threshold) -> tuple:
-    """(m_N, hard_iron, field_var (3-tuples: gauss, gauss, gauss²), threshold) of MagFieldFusionParams."""
+    """(m_N, hard_iron, field_var (3-tuples: gauss, gauss, gauss²), threshold, attitude_only) of
+    MagFieldFusionParams."""
     return (
         tuple(float(v) for v in mag3.assumed_world_field(params)),
         tuple(float(v) for v in params.hard_iron),
         tuple(float(s) ** 2 for s in params.field_std),
         float(gate_threshold),
+        bool(params.attitude_only),
     )
 
 
