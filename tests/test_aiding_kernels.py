@@ -235,3 +235,60 @@ def test_a_disturbed_field_the_widened_gate_accepts_moves_only_the_attitude(atti
         np.testing.assert_allclose(np.diag(P_batch[0])[:6], np.diag(P)[:6], rtol=1e-12)
     else:  # the full gain carries the rotation into the position through the correlation
         assert np.linalg.norm(dx[0, :3]) > 0.5
+
+
+def _learnt_bias_under_a_gps_height_step(seed, params, step=-3.0, seconds=60.0):
+    """(bias m, filtered disagreement) of the baro bias filter (``aiding.baro_rows``) after `seconds`
+    s of a barometer reading the true 1 m height (0.1 m noise, 50 Hz) and a GPS height (2 m noise,
+    10 Hz) offset by `step` m (NED) from 5 s on. The filter's height takes the baro corrections and
+    its variance grows by 1e-4 m² between samples (a stand-in for its prediction)."""
+    rng = np.random.default_rng(seed)
+    x, P = np.zeros((1, 16)), np.eye(9)[None] * 0.01
+    x[0, 2] = -1.0
+    book, diagnostics = np.tile(baro.initial_book(params), (1, 1)), np.tile(initial_diagnostics(), (1, 1))
+    model = aiding.baro_model(params, 2.0, gating.gate_threshold(1, params.gate_sigma), 0.02)
+    dx, fused = np.zeros((1, 9)), np.zeros(1, dtype=bool)
+    gps = np.full((1, 7), -1.0)
+    for k in range(1, round(seconds / 0.02) + 1):
+        stamp = 0.02 * k
+        if k % 5 == 0:
+            offset = step if stamp >= 5.0 else 0.0
+            gps[0, :] = (0.0, 0.0, -1.0 + offset + rng.normal(0.0, 2.0), 0.0, 0.0, 0.0, stamp)
+        P[0, 2, 2] += 1e-4
+        sample = np.array([[1.0 + rng.normal(0.0, 0.1), stamp]])
+        aiding.baro_rows(x, P, sample, gps, book, diagnostics, model, dx, fused)
+        if fused[0]:
+            x[0, 2] += dx[0, 2]
+    return book[0, baro.BIAS], book[0, baro.DISAGREEMENT], book[0, baro.DISAGREEMENT_VAR]
+
+
+def test_a_gps_height_that_disagrees_with_the_barometer_does_not_feed_the_bias():
+    # the filtered disagreement catches a 3 m GPS height error within seconds: the bias (truly 0)
+    # stays near where the barometer and the GPS agreed; without the check it follows the GPS error
+    # and takes the baro-held height with it (seed 3 pinned; over seeds 0-19: |bias| <= 0.42 m and
+    # disagreement <= -1.19 checked, bias <= -2.0 m unchecked, |bias| <= 0.18 m without the step)
+    checked = baro.BaroFusionParams()
+    bias, ratio, _ = _learnt_bias_under_a_gps_height_step(3, checked)
+    assert abs(bias) < 0.5 and ratio < -1.0  # the GPS reads high: the disagreement is negative
+    unchecked = baro.BaroFusionParams(gps_check_time=0.0)
+    assert _learnt_bias_under_a_gps_height_step(3, unchecked)[0] < -1.5
+    # a consistent GPS height keeps feeding it: the disagreement stays inside its spread
+    bias, ratio, ratio_var = _learnt_bias_under_a_gps_height_step(3, checked, step=0.0)
+    assert abs(bias) < 0.2 and not baro.gps_height_disagrees(ratio, ratio_var, 5.0)
+
+
+def test_the_filtered_disagreement_has_the_spread_it_assumes():
+    # white unit innovations at 10 Hz, after a 10 s gap (an outage) and in steady state
+    rng = np.random.default_rng(0)
+    ratios = np.zeros(20000)
+    for run in range(ratios.size):
+        ratio, ratio_var = baro.filtered_disagreement(0.0, 0.0, rng.normal(0.0, 2.0), 4.0, 10.0, 5.0)
+        ratios[run] = ratio
+    assert np.std(ratios) == pytest.approx(math.sqrt(ratio_var), rel=0.05)
+    ratio, ratio_var, values = 0.0, 0.0, []
+    for innovation in rng.normal(0.0, 2.0, 40000):
+        ratio, ratio_var = baro.filtered_disagreement(ratio, ratio_var, innovation, 4.0, 0.1, 5.0)
+        values.append(ratio)
+    weight = 1.0 - math.exp(-0.1 / 5.0)
+    assert ratio_var == pytest.approx(weight / (2.0 - weight), rel=1e-9)
+    assert np.std(values[1000:]) == pytest.approx(math.sqrt(ratio_var), rel=0.1)
