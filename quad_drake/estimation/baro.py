@@ -35,9 +35,11 @@ each sample before fusion. Here the GPS height is the reference:
   no bias change but a GPS error (multipath, a wrong datum), and a bias that followed it would
   take the baro-held height, and the vehicle 1 m above the floor, 3 m down with it. Single
   samples cannot show it (the GPS height's 2 m noise puts 3 m inside any per-sample gate); their
-  filtered mean can, within about 2 s. PX4 makes the same choice with the barometer as its height
-  reference (``EKF2_HGT_REF``), ArduPilot by taking its height from the barometer
-  (``EK3_SRC1_POSZ``). A baro bias reset (below) starts the filtered value again at 0.
+  filtered mean can, within about 2 s. While it disagrees the filter does not fuse the GPS height
+  either, nor reset to it (``fusion.fuse_gps``): the barometer holds the height. PX4 makes the
+  same choice with the barometer as its height reference (``EKF2_HGT_REF``), ArduPilot by taking
+  its height from the barometer (``EK3_SRC1_POSZ``). A baro bias reset (below) starts the
+  filtered value again at 0.
 
 The bias error e_b = b - b_hat is common to every sample: fused one by one as independent, the
 samples would shrink P[2, 2] far below P_b (the dropped cross-covariance of b_hat and the
