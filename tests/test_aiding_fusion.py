@@ -157,16 +157,21 @@ def test_field_jacobian_matches_central_differences_of_the_error_state(seed):
     )
 
 
+@pytest.mark.parametrize("attitude_only", [True, False])
 @pytest.mark.parametrize("n", [15, 9])
-def test_sequential_field_update_equals_the_batch_oracle(n):
+def test_sequential_field_update_equals_the_batch_oracle(n, attitude_only):
     rng = np.random.default_rng(10 + n)
     x, P = random_nominal(rng), random_spd(rng, n, 0.01)
     field_var = np.array([2e-5, 3e-5, 1e-5])
     hard_iron = np.array([0.02, -0.01, 0.03])
     m_B = np.array(mag3.predicted_field(*x[6:10], *M_N)) + hard_iron + rng.normal(0, 0.01, 3)
-    expected_x, expected_P, expected_nis = mag3.eskf_field_update(x, P, m_B, M_N, hard_iron, field_var)
+    expected_x, expected_P, expected_nis = mag3.eskf_field_update(
+        x, P, m_B, M_N, hard_iron, field_var, attitude_only
+    )
     nu, H, S, nis = mag3.field_innovation(x[6:10], P, m_B, M_N, hard_iron, field_var)
-    dx, P_new = mag3.sequential_field_update(P, nu, H, field_var)
+    dx, P_new = mag3.sequential_field_update(P, nu, H, field_var, attitude_only)
+    if attitude_only:  # the field corrects the attitude alone
+        assert not dx[:6].any() and not dx[9:].any() and dx[6:9].any()
     x_new, P_new = eskf.inject(x, P_new, dx)
     np.testing.assert_allclose(x_new, expected_x, atol=1e-12)
     np.testing.assert_allclose(P_new, expected_P, atol=1e-12)

@@ -146,7 +146,7 @@ def test_field_rows_equal_the_batch_oracle_and_gate_a_disturbance():
     variance = np.square(FIELD.field_std)
     for i in range(3):
         x_oracle, P_oracle, nis = mag3.eskf_field_update(
-            x[i], P_before[i], mag[i, :3], M_N, FIELD.hard_iron, variance
+            x[i], P_before[i], mag[i, :3], M_N, FIELD.hard_iron, variance, FIELD.attitude_only
         )
         x_new, P_new = eskf.inject(x[i], P[i], dx[i])
         np.testing.assert_allclose(x_new, x_oracle, atol=1e-12)
@@ -184,3 +184,111 @@ def test_heading_rows_fuse_the_tilt_compensated_heading_as_the_ekf7_yaw():
         assert diagnostics[i, DIAG["mag_nis"]] == pytest.approx(nis, rel=1e-10)
     assert diagnostics[2, DIAG["nonfinite_samples"]] == 1
     np.testing.assert_array_equal(x[2], x_before[2])
+
+
+def _dead_reckoned(seconds, gyro_std):
+    """(x (16,), P (9, 9)) of a level hovering ESKF after `seconds` s without aiding (no GPS): its
+    attitude variance grown by gyro noise of gyro_std rad/s per 2 ms sample, its position and
+    velocity errors correlated with the tilt through the prediction (``eskf.predict``)."""
+    params = type("Params", (), {"accel_std": [0.5, 0.5, 1.5], "gyro_std": [gyro_std] * 3})
+    noise = eskf.NoiseModel(
+        np.square(params.accel_std), np.square(params.gyro_std), accel_bias_rate=0.0, gyro_bias_rate=0.0
+    )
+    x = eskf.initial_nominal((0.0, 0.0, -1.0), (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0))
+    P = np.eye(9) * 1e-6
+    for _ in range(round(seconds / 0.002)):
+        x, P = eskf.predict(x, P, (0.0, 0.0, -9.81), (0.0, 0.0, 0.0), 0.002, noise)
+    return np.asarray(x), P
+
+
+@pytest.mark.parametrize("attitude_only", [True, False])
+def test_a_disturbed_field_the_widened_gate_accepts_moves_only_the_attitude(attitude_only):
+    # 4 s without GPS at twice the simulated gyro noise: the tilt's sigma is ~0.09 rad and the
+    # position's error is correlated with it, so the 3-dof gate (5 sigma) accepts a disturbance of
+    # 0.03 gauss across the field (it looks like a rotation of ~0.06 rad)
+    x, P = _dead_reckoned(4.0, 1.0)
+    assert math.sqrt(P[6, 6]) > 0.08 and abs(P[0, 7]) / math.sqrt(P[0, 0] * P[7, 7]) > 0.5
+    params = mag3.MagFieldFusionParams(attitude_only=attitude_only)
+    m_N = mag3.assumed_world_field(params)
+    field = np.array(mag3.predicted_field(*x[6:10], *m_N))
+    across = np.cross(field, (0.0, 0.0, 1.0))
+    mag = np.zeros((1, 4))
+    mag[0, :3] = field + 0.03 * across / np.linalg.norm(across)
+    mag[0, 3] = 0.5
+    book, diagnostics = np.full((1, 4), -1.0), np.tile(initial_diagnostics(), (1, 1))
+    dx, fused = np.zeros((1, 9)), np.zeros(1, dtype=bool)
+    P_batch = P[None].copy()
+    aiding.field_rows(
+        x[None],
+        P_batch,
+        mag,
+        book,
+        1,
+        diagnostics,
+        aiding.field_model(params, gating.gate_threshold(3, 5.0)),
+        dx,
+        fused,
+    )
+    assert fused[0] and np.linalg.norm(dx[0, 6:9]) > 0.03  # accepted: the attitude turns
+    if attitude_only:
+        np.testing.assert_array_equal(dx[0, :6], 0.0)  # position and velocity keep their values
+        np.testing.assert_allclose(np.diag(P_batch[0])[:6], np.diag(P)[:6], rtol=1e-12)
+    else:  # the full gain carries the rotation into the position through the correlation
+        assert np.linalg.norm(dx[0, :3]) > 0.5
+
+
+def _learnt_bias_under_a_gps_height_step(seed, params, step=-3.0, seconds=60.0):
+    """(bias m, filtered disagreement) of the baro bias filter (``aiding.baro_rows``) after `seconds`
+    s of a barometer reading the true 1 m height (0.1 m noise, 50 Hz) and a GPS height (2 m noise,
+    10 Hz) offset by `step` m (NED) from 5 s on. The filter's height takes the baro corrections and
+    its variance grows by 1e-4 m² between samples (a stand-in for its prediction)."""
+    rng = np.random.default_rng(seed)
+    x, P = np.zeros((1, 16)), np.eye(9)[None] * 0.01
+    x[0, 2] = -1.0
+    book, diagnostics = np.tile(baro.initial_book(params), (1, 1)), np.tile(initial_diagnostics(), (1, 1))
+    model = aiding.baro_model(params, 2.0, gating.gate_threshold(1, params.gate_sigma), 0.02)
+    dx, fused = np.zeros((1, 9)), np.zeros(1, dtype=bool)
+    gps = np.full((1, 7), -1.0)
+    for k in range(1, round(seconds / 0.02) + 1):
+        stamp = 0.02 * k
+        if k % 5 == 0:
+            offset = step if stamp >= 5.0 else 0.0
+            gps[0, :] = (0.0, 0.0, -1.0 + offset + rng.normal(0.0, 2.0), 0.0, 0.0, 0.0, stamp)
+        P[0, 2, 2] += 1e-4
+        sample = np.array([[1.0 + rng.normal(0.0, 0.1), stamp]])
+        aiding.baro_rows(x, P, sample, gps, book, diagnostics, model, dx, fused)
+        if fused[0]:
+            x[0, 2] += dx[0, 2]
+    return book[0, baro.BIAS], book[0, baro.DISAGREEMENT], book[0, baro.DISAGREEMENT_VAR]
+
+
+def test_a_gps_height_that_disagrees_with_the_barometer_does_not_feed_the_bias():
+    # the filtered disagreement catches a 3 m GPS height error within seconds: the bias (truly 0)
+    # stays near where the barometer and the GPS agreed; without the check it follows the GPS error
+    # and takes the baro-held height with it (seed 3 pinned; over seeds 0-19: |bias| <= 0.42 m and
+    # disagreement <= -1.19 checked, bias <= -2.0 m unchecked, |bias| <= 0.18 m without the step)
+    checked = baro.BaroFusionParams()
+    bias, ratio, _ = _learnt_bias_under_a_gps_height_step(3, checked)
+    assert abs(bias) < 0.5 and ratio < -1.0  # the GPS reads high: the disagreement is negative
+    unchecked = baro.BaroFusionParams(gps_check_time=0.0)
+    assert _learnt_bias_under_a_gps_height_step(3, unchecked)[0] < -1.5
+    # a consistent GPS height keeps feeding it: the disagreement stays inside its spread
+    bias, ratio, ratio_var = _learnt_bias_under_a_gps_height_step(3, checked, step=0.0)
+    assert abs(bias) < 0.2 and not baro.gps_height_disagrees(ratio, ratio_var, 5.0)
+
+
+def test_the_filtered_disagreement_has_the_spread_it_assumes():
+    # white unit innovations at 10 Hz, after a 10 s gap (an outage) and in steady state
+    rng = np.random.default_rng(0)
+    ratios = np.zeros(20000)
+    for run in range(ratios.size):
+        ratio, ratio_var = baro.filtered_disagreement(0.0, 0.0, rng.normal(0.0, 2.0), 4.0, 10.0, 5.0)
+        ratios[run] = ratio
+    assert np.std(ratios) == pytest.approx(math.sqrt(ratio_var), rel=0.05)
+    ratio, ratio_var, values = 0.0, 0.0, []
+    for innovation in rng.normal(0.0, 2.0, 40000):
+        ratio, ratio_var = baro.filtered_disagreement(ratio, ratio_var, innovation, 4.0, 0.1, 5.0)
+        values.append(ratio)
+    weight = 1.0 - math.exp(-0.1 / 5.0)
+    assert ratio_var == pytest.approx(weight / (2.0 - weight), rel=1e-9)
+    assert np.std(values[1000:]) == pytest.approx(math.sqrt(ratio_var), rel=0.1)

@@ -221,3 +221,23 @@ def test_a_single_50_m_gps_outlier_no_longer_fails_the_1_m_criterion():
     gated_worst, gated, _ = _hover_run(7, outlier_at=outlier, gate_sigma=5.0, tuning=SCENARIO_11)
     assert gated == 1
     assert gated_worst < 1.0
+
+
+def test_a_withheld_gps_height_is_neither_fused_nor_reset_to():
+    # two EKF7s with the same prior and a GPS sample 3 m high: the one whose GPS height is withheld
+    # (its barometer disagrees, BaroUpdate.withholds_gps_height) keeps its height through a fused
+    # sample and through the 1 s height reset timeout; the other takes the height
+    params = Ekf7EstimatorConfig(gps_gate_adaptation=0.0)
+    R, gates = ekf.gps_noise(params), gating.GpsGates.from_params(params)
+    x = np.tile(ekf.initial_state(params), (2, 1))
+    P = np.tile(np.diag([0.01] * 6 + [1e-6]), (2, 1, 1))
+    diagnostics, book = np.tile(initial_diagnostics(), (2, 1)), np.tile(fusion.initial_book(), (2, 1))
+    withheld = np.array([True, False])
+    for k in range(1, 21):  # 2 s at 10 Hz: a 0.1 m offset is fused, then a 30 m one is rejected
+        offset = 0.1 if k < 5 else 30.0
+        gps = np.tile(np.r_[0.0, 0.0, -1.0 - offset, 0.0, 0.0, 0.0, 0.1 * k], (2, 1))
+        filters = fusion.Filters(x, P, diagnostics, book, hold=None)
+        fusion.fuse_gps(filters, gps, slice(None), ekf7.correct_gps, R, gates, withheld)
+    assert x[0, 2] == -1.0 and P[0, 2, 2] == 0.01  # the withheld height: untouched
+    assert x[1, 2] == pytest.approx(-31.0, abs=0.1)  # the other: reset to the GPS height after 1 s
+    assert diagnostics[1, DIAG["gps_resets"]] >= 1 and diagnostics[0, DIAG["gps_resets"]] == 0

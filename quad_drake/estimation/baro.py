@@ -26,7 +26,20 @@ each sample before fusion. Here the GPS height is the reference:
   baro; between samples its variance P_b grows by the random walk (bias_walk_std^2 per s). It is
   fed by the GPS, never by the filter's baro-aided height, so it does not learn the baro from
   itself; during a GPS outage it is frozen (the bias is unobservable without an absolute height)
-  and P_b grows.
+  and P_b grows;
+- a GPS height that disagrees with the barometer persistently is caught: every GPS height's
+  normalised bias innovation is low-pass filtered (time constant ``gps_check_time``,
+  :func:`filtered_disagreement`) and, while that filtered value lies beyond ``gate_sigma`` of its
+  own spread under a consistent GPS (:func:`gps_height_disagrees`), the GPS height does not feed
+  the bias. The bias is a slow random walk (7 mm/sqrt(s)); a GPS height 3 m off for a minute is
+  no bias change but a GPS error (multipath, a wrong datum), and a bias that followed it would
+  take the baro-held height, and the vehicle 1 m above the floor, 3 m down with it. Single
+  samples cannot show it (the GPS height's 2 m noise puts 3 m inside any per-sample gate); their
+  filtered mean can, within about 2 s. While it disagrees the filter does not fuse the GPS height
+  either, nor reset to it (``fusion.fuse_gps``): the barometer holds the height. PX4 makes the
+  same choice with the barometer as its height reference (``EKF2_HGT_REF``), ArduPilot by taking
+  its height from the barometer (``EK3_SRC1_POSZ``). A baro bias reset (below) starts the
+  filtered value again at 0.
 
 The bias error e_b = b - b_hat is common to every sample: fused one by one as independent, the
 samples would shrink P[2, 2] far below P_b (the dropped cross-covariance of b_hat and the
@@ -62,11 +75,13 @@ HEIGHT_INDEX = 2
 """Index of p_z (m, NED down) in the EKF7 state and in the ESKF error state."""
 
 BIAS, BIAS_VAR, LAST_HEIGHT, LAST_STAMP, REJECTED_SINCE, GPS_STAMP, DATUM_SET = range(7)
-BARO_BOOK_SIZE = 7
+DISAGREEMENT, DISAGREEMENT_VAR = 7, 8
+BARO_BOOK_SIZE = 9
 """Columns of a filter's baro book: bias estimate (m), its variance (m^2), the latest baro height
 (m, NaN when it was not finite) and its stamp (s; -1 before the first), when its current run of
-gate rejections began (s, NaN: none), the stamp of the last GPS sample seen (s, -1: none), and
-1 once a finite sample has set the datum (0 before)."""
+gate rejections began (s, NaN: none), the stamp of the last GPS sample seen (s, -1: none),
+1 once a finite sample has set the datum (0 before), and the filtered GPS-height disagreement and
+its variance under a consistent GPS (:func:`filtered_disagreement`, both 0 at first)."""
 
 
 @dataclass
@@ -81,6 +96,10 @@ class BaroFusionParams:
     # s of rejected baro before a bias reset, 0 = never (1 s as the GPS height's: a vehicle 1 m above
     # the floor cannot fly long on a height it cannot check)
     reset_timeout: float = number(1.0, nonnegative=True)
+    # s; the time constant of the filtered, normalised GPS-height disagreement with the barometer
+    # (:func:`filtered_disagreement`): while it is beyond gate_sigma of its own spread the GPS height
+    # does not feed the bias, 0 = off (the bias then follows a GPS height error)
+    gps_check_time: float = number(5.0, nonnegative=True)
 
 
 def initial_book(params) -> np.ndarray:
@@ -88,7 +107,7 @@ def initial_book(params) -> np.ndarray:
     book = np.empty(BARO_BOOK_SIZE)
     book[BIAS], book[BIAS_VAR] = params.bias_init, params.bias_init_std**2
     book[LAST_HEIGHT], book[LAST_STAMP], book[REJECTED_SINCE] = math.nan, -1.0, math.nan
-    book[GPS_STAMP], book[DATUM_SET] = -1.0, 0.0
+    book[GPS_STAMP], book[DATUM_SET], book[DISAGREEMENT], book[DISAGREEMENT_VAR] = -1.0, 0.0, 0.0, 0.0
     return book
 
 
@@ -164,6 +183,34 @@ def bias_from_gps(height, gps_z) -> float:
     """The bias measurement (m) of a baro height (m, up) and a GPS down position (m, NED) at one
     time: h - (-z)."""
     return height + gps_z
+
+
+def filtered_disagreement(
+    ratio, ratio_var, innovation, innovation_var, elapsed, time_constant
+) -> tuple[float, float]:
+    """(ratio', ratio_var'): the low-pass filtered normalised bias innovation after one GPS height,
+    and its variance under a consistent GPS.
+
+    ratio' = (1 - w) ratio + w innovation / sqrt(innovation_var), w = 1 - exp(-elapsed /
+    time_constant) (elapsed s since the previous GPS sample, time_constant s > 0): for a consistent
+    GPS the normalised innovations are white with unit variance, so ratio_var' = (1 - w)^2
+    ratio_var + w^2 (sqrt(w / (2 - w)) at 10 Hz in steady state; after an outage's long elapsed
+    time, one sample's spread, about 1). A GPS height offset that the bias cannot have taken (its
+    random walk allows bias_walk_std sqrt(t)) holds ratio' at offset / sqrt(innovation_var)
+    (PX4's bias estimator low-pass filters its signed innovation test ratio the same way)."""
+    weight = 1.0 - math.exp(-elapsed / time_constant)
+    keep = 1.0 - weight
+    return keep * ratio + weight * innovation / math.sqrt(
+        innovation_var
+    ), keep * keep * ratio_var + weight * weight
+
+
+def gps_height_disagrees(ratio, ratio_var, gate_sigma) -> bool:
+    """True when the filtered disagreement `ratio` of :func:`filtered_disagreement` lies beyond
+    gate_sigma (> 0) of its spread sqrt(ratio_var) under a consistent GPS: the GPS height and the
+    barometer disagree persistently, so the GPS height must not feed the bias (it would carry the
+    bias, and with it the baro-held height, along its error)."""
+    return ratio * ratio > gate_sigma * gate_sigma * ratio_var
 
 
 def bias_reset(height, p_z, height_var, p_z_var) -> tuple[float, float]:

@@ -18,6 +18,11 @@ tilt too; the yaw is seen through the horizontal component, strength cos I). The
 nu^T S^-1 nu gates the whole sample (S = H P H^T + R, 3 x 3, inverted in closed form); an
 accepted sample is fused one axis at a time (:func:`sequential_field_update`, PX4 fuses the axes
 one by one too), which with the diagonal R and H taken at the prior equals the batch update.
+By default (``attitude_only``) the gain is zero outside the attitude, as PX4 fuses the
+magnetometer into the attitude and field states only: the field measures the attitude, and a
+disturbed sample that passes the gate while the attitude variance is large (a GPS outage, when
+the position and the tilt are strongly correlated) must not move the position; the Joseph form
+keeps P the covariance of that sub-optimal update.
 
 **EKF7, the heading**: the EKF7 has no roll/pitch states; it levels the field with the attitude
 filter's roll and pitch, l = Ry(pitch) Rx(roll) m_B = Rz(yaw)^T m_N, whose horizontal part is
@@ -61,6 +66,10 @@ class MagFieldFusionParams:
     hard_iron: List[float] = vector(0.0, 0.0, 0.0)  # gauss, the calibrated body FRD offset, subtracted
     field_std: List[float] = noise_stds(0.005, 0.005, 0.005)  # gauss per sample, body x y z
     gate_sigma: float = number(5.0, nonnegative=True)  # sigma; the 3-dof field (ESKF) / heading (EKF7) gate
+    # ESKF: true, the field corrects only the attitude (PX4 fuses the magnetometer into attitude and
+    # field states only), so a disturbed sample the gate lets through cannot move position or
+    # velocity; false: every state correlated with the attitude (the full Kalman gain)
+    attitude_only: bool = True
     tilt_std: float = number(0.0, nonnegative=True)  # rad, EKF7: the roll/pitch error the heading carries
 
 
@@ -160,11 +169,18 @@ def field_innovation(
     return nu, H, S, nis
 
 
-def sequential_field_update(P, nu, H, field_var) -> tuple[np.ndarray, np.ndarray]:
+def sequential_field_update(P, nu, H, field_var, attitude_only) -> tuple[np.ndarray, np.ndarray]:
     """(dx (n,), P' (n x n)): the field innovation nu (3,) fused one axis at a time with the rows
     of H (3 x n, taken at the prior) and the diagonal noise field_var (3,): for each axis i the
     scalar Joseph update b = P h_i^T, S_i = h_i b + r_i, K = b / S_i, dx += K (nu_i - h_i dx),
     P <- P - K b^T - b K^T + S_i K K^T. Equal to the batch update with R = diag(field_var).
+
+    attitude_only: K's entries outside the attitude (error states 6..8) are set to 0 before they
+    are used, so the field corrects the attitude alone and position, velocity and biases keep
+    their values. The update above is the Joseph form, valid for any gain: P stays the covariance
+    of the (now sub-optimal) estimate, and the non-attitude rows keep their variances while their
+    cross-covariance with the attitude shrinks as (I - K H). Equal to the batch update with the
+    rows of K = P H^T S^-1 outside the attitude zeroed (:func:`eskf_field_update`).
     Loops over the entries (numba compiles it)."""
     n = P.shape[0]
     P = P.copy()
@@ -184,6 +200,8 @@ def sequential_field_update(P, nu, H, field_var) -> tuple[np.ndarray, np.ndarray
             residual -= H[axis, r] * dx[r]
         for r in range(n):
             k[r] = b[r] / s
+            if attitude_only and (r < ATTITUDE_START or r >= ATTITUDE_START + 3):
+                k[r] = 0.0
             dx[r] += k[r] * residual
         for r in range(n):
             for c in range(n):
@@ -191,10 +209,13 @@ def sequential_field_update(P, nu, H, field_var) -> tuple[np.ndarray, np.ndarray
     return dx, P
 
 
-def eskf_field_update(x, P, m_B, m_N, hard_iron, field_var) -> tuple[np.ndarray, np.ndarray, float]:
+def eskf_field_update(
+    x, P, m_B, m_N, hard_iron, field_var, attitude_only
+) -> tuple[np.ndarray, np.ndarray, float]:
     """Oracle: (x', P', nis) of the ESKF (nominal x (16,), P (9 or 15 square)) fusing a 3-axis
-    sample m_B (gauss) with the dense batch update: ``eskf.joseph_update`` with H of
-    :func:`field_jacobian` and R = diag(field_var), then ``eskf.inject``. A non-finite sample
+    sample m_B (gauss) with the dense batch update: K = P H^T S^-1 with H of :func:`field_jacobian`,
+    S = H P H^T + diag(field_var), K's rows outside the attitude zeroed when attitude_only, the
+    Joseph form P' = (I - K H) P (I - K H)^T + K R K^T, then ``eskf.inject``. A non-finite sample
     gives (x, P, nan)."""
     from quad_drake.estimation import eskf
 
@@ -206,9 +227,18 @@ def eskf_field_update(x, P, m_B, m_N, hard_iron, field_var) -> tuple[np.ndarray,
     h = np.array(predicted_field(q[0], q[1], q[2], q[3], m_N[0], m_N[1], m_N[2]))
     nu = m_B - np.asarray(hard_iron, dtype=float) - h
     H = field_jacobian(q, m_N, P.shape[0])
-    dx, P_new, nis = eskf.joseph_update(P, H, np.diag(np.asarray(field_var, dtype=float)), nu)
-    x_new, P_new = eskf.inject(x, P_new, dx)
-    return x_new, P_new, nis
+    R = np.diag(np.asarray(field_var, dtype=float))
+    S = H @ P @ H.T + R
+    K = P @ H.T @ np.linalg.inv(S)
+    if attitude_only:
+        attitude = slice(ATTITUDE_START, ATTITUDE_START + 3)
+        kept = K[attitude].copy()
+        K[:] = 0.0
+        K[attitude] = kept
+    I_KH = np.eye(P.shape[0]) - K @ H
+    P_new = I_KH @ P @ I_KH.T + K @ R @ K.T
+    x_new, P_new = eskf.inject(x, 0.5 * (P_new + P_new.T), K @ nu)
+    return x_new, P_new, float(nu @ np.linalg.solve(S, nu))
 
 
 def leveled_field(roll, pitch, mx, my, mz) -> tuple[float, float, float]:

@@ -13,9 +13,12 @@ the ESKF's error state; the tilt-compensated heading as the EKF7's yaw measureme
   its baro offset;
   the bias: P_b += walk² (t - t_last) at each sample; at each fresh GPS height (same stamp as the
   latest baro sample) b_meas = h + z_gps, variance height_std² + gps_z_std², gated at the baro's
-  gate; after ``reset_timeout`` s of rejected samples b = h + p_z, P_b = height_std² + P[2, 2];
+  gate, and not while the filtered normalised bias innovation (time constant ``gps_check_time``)
+  says the GPS height disagrees persistently (``baro.filtered_disagreement``,
+  ``baro.gps_height_disagrees``); after ``reset_timeout`` s of rejected samples b = h + p_z,
+  P_b = height_std² + P[2, 2] (and the filtered disagreement starts again at 0);
 - field (ESKF), z = m_B - hard_iron (gauss): h(x) = R_hatᵀ m_N, H = [0 R_hatᵀ[m_N]x 0], R =
-  diag(field_std²), NIS 3 dof;
+  diag(field_std²), NIS 3 dof, the gain zero outside the attitude (``attitude_only``, the default);
 - heading (EKF7), z = atan2(-l_y, l_x) + D with l = Ry(pitch) Rx(roll) (m_B - hard_iron) (rad):
   h(x) = x[6], H = e_6, R = the heading's variance from the field noise, NIS 1 dof (logged as
   the magnetometer's), then P[6, 6] >= the heading's variance from the tilt error
@@ -41,6 +44,7 @@ _BARO_NIS, _BARO_GATED, _BARO_RESETS = DIAG["baro_nis"], DIAG["baro_gated"], DIA
 _BARO_BIAS, _FIELD_NIS = DIAG["baro_bias"], DIAG["field_nis"]
 _BIAS, _BIAS_VAR, _LAST_HEIGHT, _LAST_STAMP = baro.BIAS, baro.BIAS_VAR, baro.LAST_HEIGHT, baro.LAST_STAMP
 _REJECTED_SINCE, _GPS_STAMP, _DATUM_SET = baro.REJECTED_SINCE, baro.GPS_STAMP, baro.DATUM_SET
+_DISAGREEMENT, _DISAGREEMENT_VAR = baro.DISAGREEMENT, baro.DISAGREEMENT_VAR
 _TOLERANCE = gating.STAMP_TOLERANCE  # s, stamps are sums of periods
 
 _scalar_correction = compiled(baro.scalar_correction)
@@ -50,6 +54,8 @@ _bias_predict = compiled(baro.bias_predict)
 _bias_update = compiled(baro.bias_update)
 _bias_from_gps = compiled(baro.bias_from_gps)
 _bias_reset = compiled(baro.bias_reset)
+_filtered_disagreement = compiled(baro.filtered_disagreement)
+_gps_height_disagrees = compiled(baro.gps_height_disagrees)
 _field_attitude_jacobian = compiled(mag3.field_attitude_jacobian, rotation_entries=rotations.rotation_entries)
 _field_innovation = compiled(
     mag3.field_innovation,
@@ -66,7 +72,7 @@ _wrap = rotations.wrap_to_pi
 
 @njit_cached
 def _baro_rows(x, P, baro_samples, gps, book, diagnostics, model, dx, fused):
-    height_var, gps_z_var, walk_std, threshold, reset_timeout, stamp_match = model
+    height_var, gps_z_var, walk_std, threshold, reset_timeout, stamp_match, check_time, check_sigma = model
     for i in range(x.shape[0]):
         fused[i] = False
         stamp = baro_samples[i, 1]
@@ -105,16 +111,30 @@ def _baro_rows(x, P, baro_samples, gps, book, diagnostics, model, dx, fused):
                             height, x[i, 2], height_var, P[i, 2, 2]
                         )
                         book[i, _REJECTED_SINCE] = math.nan
+                        book[i, _DISAGREEMENT] = book[i, _DISAGREEMENT_VAR] = 0.0
                         diagnostics[i, _BARO_RESETS] += 1.0
         gps_stamp = gps[i, 6]
         if gps_stamp != NO_SAMPLE_STAMP and gps_stamp != book[i, _GPS_STAMP]:
+            previous_gps = book[i, _GPS_STAMP]
             book[i, _GPS_STAMP] = gps_stamp
             matched = abs(gps_stamp - book[i, _LAST_STAMP]) <= stamp_match
             if matched and math.isfinite(gps[i, 2]) and math.isfinite(book[i, _LAST_HEIGHT]):
                 measured = _bias_from_gps(book[i, _LAST_HEIGHT], gps[i, 2])
                 variance = height_var + gps_z_var
                 innovation = measured - book[i, _BIAS]
-                if innovation * innovation <= threshold * (book[i, _BIAS_VAR] + variance):
+                agrees = True
+                if check_time > 0.0 and check_sigma > 0.0 and previous_gps != NO_SAMPLE_STAMP:
+                    ratio, ratio_var = _filtered_disagreement(
+                        book[i, _DISAGREEMENT],
+                        book[i, _DISAGREEMENT_VAR],
+                        innovation,
+                        book[i, _BIAS_VAR] + variance,
+                        gps_stamp - previous_gps,
+                        check_time,
+                    )
+                    book[i, _DISAGREEMENT], book[i, _DISAGREEMENT_VAR] = ratio, ratio_var
+                    agrees = not _gps_height_disagrees(ratio, ratio_var, check_sigma)
+                if agrees and innovation * innovation <= threshold * (book[i, _BIAS_VAR] + variance):
                     book[i, _BIAS], book[i, _BIAS_VAR] = _bias_update(
                         book[i, _BIAS], book[i, _BIAS_VAR], measured, variance
                     )
@@ -133,7 +153,8 @@ def baro_rows(x, P, baro_samples, gps, book, diagnostics, model, dx, fused) -> N
 def baro_model(params, gps_z_std, gate_threshold, baro_period) -> tuple:
     """The baro kernel's constants from BaroFusionParams: (height_var m², gps_z_var m², walk_std
     m/sqrt(s), the gate's NIS threshold, reset_timeout s, stamp_match s: half the baro period, the
-    largest stamp difference of a baro sample and a GPS sample taken as simultaneous)."""
+    largest stamp difference of a baro sample and a GPS sample taken as simultaneous, gps_check_time
+    s and the gate's sigma for the GPS-height disagreement check, 0 = off)."""
     return (
         float(params.height_std) ** 2,
         float(gps_z_std) ** 2,
@@ -141,6 +162,8 @@ def baro_model(params, gps_z_std, gate_threshold, baro_period) -> tuple:
         float(gate_threshold),
         float(params.reset_timeout),
         0.5 * float(baro_period),
+        float(params.gps_check_time),
+        float(params.gate_sigma),
     )
 
 
@@ -159,7 +182,8 @@ def _fresh_field(mag, book, slot, diagnostics, i):
 
 
 @njit_cached
-def _field_rows(x, P, mag, book, slot, diagnostics, m_N, hard_iron, field_var, threshold, dx, fused):
+def _field_rows(x, P, mag, book, slot, diagnostics, model, dx, fused):
+    m_N, hard_iron, field_var, threshold, attitude_only = model
     for i in range(x.shape[0]):
         fused[i] = False
         if not _fresh_field(mag, book, slot, diagnostics, i):
@@ -172,7 +196,7 @@ def _field_rows(x, P, mag, book, slot, diagnostics, m_N, hard_iron, field_var, t
             continue
         diagnostics[i, _FIELD_NIS], diagnostics[i, _FIELD_NIS + 1] = nis, mag[i, 3]
         if nis <= threshold:
-            correction, P_new = _sequential_field_update(P[i], nu, H, field_var)
+            correction, P_new = _sequential_field_update(P[i], nu, H, field_var, attitude_only)
             P[i] = P_new
             dx[i] = correction
             fused[i] = True
@@ -185,17 +209,18 @@ def field_rows(x, P, mag, book, slot, diagnostics, model, dx, fused) -> None:
     16) nominal states (q_NB at 6..9), P (N, n, n), mag (N, 4: m_B gauss, stamp s), book[:, slot]
     the last field stamp seen; the corrections into dx (N, n), fused (N,). model:
     :func:`field_model`."""
-    m_N, hard_iron, field_var, threshold = model
-    _field_rows(x, P, mag, book, slot, diagnostics, m_N, hard_iron, field_var, threshold, dx, fused)
+    _field_rows(x, P, mag, book, slot, diagnostics, model, dx, fused)
 
 
 def field_model(params, gate_threshold) -> tuple:
-    """(m_N, hard_iron, field_var (3-tuples: gauss, gauss, gauss²), threshold) of MagFieldFusionParams."""
+    """(m_N, hard_iron, field_var (3-tuples: gauss, gauss, gauss²), threshold, attitude_only) of
+    MagFieldFusionParams."""
     return (
         tuple(float(v) for v in mag3.assumed_world_field(params)),
         tuple(float(v) for v in params.hard_iron),
         tuple(float(s) ** 2 for s in params.field_std),
         float(gate_threshold),
+        bool(params.attitude_only),
     )
 
 

@@ -315,14 +315,20 @@ def gps_update(x, P, gps_pv, R_gps, correct, mask=None) -> tuple[np.ndarray, np.
     return x_new, P_new, nis, singular
 
 
-def fuse_gps(filters, gps, rows, correct, R, gates) -> None:
+GPS_HEIGHT_GROUP = gating.GPS_GROUPS.index("height")
+"""The column of the GPS height in ``gating.gps_gate_decisions``' (M, 3) decisions."""
+
+
+def fuse_gps(filters, gps, rows, correct, R, gates, height_withheld=None) -> None:
     """Fuse the fresh GPS samples of the vehicles ``rows`` through the gates (``gating``'s GPS policy).
 
     filters: the estimator's :class:`Filters`, x, P, diagnostics and book updated IN PLACE for
     those rows; gps (N, 7) the samples (p m, v m/s, stamp s); rows: int indices (or a full slice)
     of the vehicles whose sample is fresh; correct(x, P, dx, fused): how the estimator applies a
     correction (``ekf7.correct``, ``eskf.correct``; :func:`gps_update`); R (6, 6); gates a
-    ``gating.GpsGates``.
+    ``gating.GpsGates``; height_withheld (N,) bool or None: the vehicles whose GPS height is
+    neither fused nor reset to (it disagrees persistently with their barometer,
+    ``BaroUpdate.withholds_gps_height``).
 
     Per vehicle: the stamp is booked; a non-finite stamp or sample counts a non-finite sample and
     keeps (x, P); otherwise the joint 6-dof NIS of the prior and the stamp are logged, the groups
@@ -348,6 +354,9 @@ def fuse_gps(filters, gps, rows, correct, R, gates) -> None:
     policy_book = book[index, GPS_POLICY]
     accepted, reset = gating.gps_gate_decisions(gating.gps_group_nis(nu, S), s, policy_book, gates)
     book[index, GPS_POLICY] = policy_book
+    if height_withheld is not None:
+        withheld = height_withheld[index]
+        accepted[withheld, GPS_HEIGHT_GROUP] = reset[withheld, GPS_HEIGHT_GROUP] = False
     diagnostics[index[~accepted.all(axis=1)], DIAG["gps_gated"]] += 1.0
     diagnostics[index[reset.any(axis=1)], DIAG["gps_resets"]] += 1.0
     x_new, P_new, _, _ = gps_update(x_prior, P_prior, z_rows, R, correct, gating.component_mask(accepted))

@@ -76,6 +76,7 @@ class GpsUpdate(Update):
         super().__init__(measurement)
         self._R, self._gates, self._correct = R, gates, correct
         self._fresh_of = (None, None)  # (the tick's samples, its fresh flags): computed once a tick
+        self.height_check = None  # the BaroUpdate whose check withholds a disagreeing GPS height
 
     def fresh(self, samples, filters) -> np.ndarray:
         """(n,) bool: the vehicles with a fresh GPS sample this tick (``samples``: the tick's dict;
@@ -91,7 +92,10 @@ class GpsUpdate(Update):
         if gps_fresh.any():
             rows = slice(None) if gps_fresh.all() else np.flatnonzero(gps_fresh)
             gps = samples[self.measurement.port]
-            fusion.fuse_gps(filters, gps, rows, self._correct, self._R, self._gates)
+            withheld = None
+            if self.height_check is not None:
+                withheld = self.height_check.withholds_gps_height(discrete_state, filters.x.shape[0])
+            fusion.fuse_gps(filters, gps, rows, self._correct, self._R, self._gates, withheld)
         self._fresh_of = (None, None)
 
 
@@ -190,6 +194,17 @@ class BaroUpdate(CorrectionUpdate):
         self._book = discrete_group(system, np.tile(baro.initial_book(self._params), n))
         self._no_gps = np.tile(fusion.NO_GPS_SAMPLE, (n, 1))
 
+    def withholds_gps_height(self, discrete_state, n) -> np.ndarray:
+        """(n,) bool: the vehicles whose GPS height disagrees persistently with their barometer
+        (``baro.gps_height_disagrees`` of the book's filtered disagreement; all False with the
+        check off): their GPS height feeds neither the bias nor the filter's height."""
+        p = self._params
+        if p.gps_check_time <= 0.0 or p.gate_sigma <= 0.0:
+            return np.zeros(n, dtype=bool)
+        book = discrete_state.get_value(self._book).reshape(n, baro.BARO_BOOK_SIZE)
+        ratio, ratio_var = book[:, baro.DISAGREEMENT], book[:, baro.DISAGREEMENT_VAR]
+        return baro.gps_height_disagrees(ratio, ratio_var, p.gate_sigma)
+
     def fuse(self, context, discrete_state, filters, samples) -> None:
         f, dx = filters, self._dx
         book = discrete_state.get_mutable_value(self._book).reshape(f.x.shape[0], baro.BARO_BOOK_SIZE)
@@ -244,6 +259,8 @@ class Fusion:
         self.updates = updates
         self.ports = tuple(update.measurement.port for update in updates)
         self._gps = next((u for u in updates if isinstance(u, GpsUpdate)), None)
+        if self._gps is not None:
+            self._gps.height_check = self.update_of(BaroUpdate)
 
     def update_of(self, kind) -> object | None:
         """This estimator's update of class `kind`, or None when the vehicle has no such sensor."""
