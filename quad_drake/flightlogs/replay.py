@@ -126,6 +126,8 @@ class ReplayResult:
         elif self.log.mag_field is None:
             lines.append("The log has no magnetometer: the yaw is the gyro's alone.")
         else:
+            if self.log.mag_source:
+                lines.append(f"magnetometer: {self.log.mag_source}")
             lines += list(self.aiding.magnetometer.notes)
         if self.log.baro is not None and not self.aiding.baro_fused:
             lines.append(f"The log's barometer is not fused: kind {self.config.estimator.kind} takes none.")
