@@ -44,7 +44,13 @@ from quad_drake.flightlogs.schedule import (
     playback_streams,
     superseded_samples,
 )
-from quad_drake.flightlogs.settings import ReplayConfig, dump_replay, resolve_log, vehicle_for
+from quad_drake.flightlogs.settings import (
+    ReplayConfig,
+    dump_replay,
+    height_reference,
+    resolve_log,
+    vehicle_for,
+)
 from quad_drake.kernels import jit
 from quad_drake.models.fidelity import PHYSICAL
 from quad_drake.output.jsonio import dump_json
@@ -70,13 +76,15 @@ class Aiding:
     """How a replay aided its estimator: fake_position (a log without GPS, PX4's fake position
     throughout), magnetometer (``earth_field.MagnetometerModel`` or None), late_fix (s, the first
     fix before which zero samples stood in, or None), baro_fused (the log's barometer fused), gps_losses
-    ([(lost s, regained s)] of the GPS losses the estimator was aided over, ``aiding_gps``)."""
+    ([(lost s, regained s)] of the GPS losses the estimator was aided over, ``aiding_gps``),
+    baro_height_reference (the barometer was the height reference: the GPS height not fused)."""
 
     fake_position: bool = False
     magnetometer: object = None
     late_fix: float | None = None
     baro_fused: bool = False
     gps_losses: list = field(default_factory=list)
+    baro_height_reference: bool = False
 
 
 @dataclass
@@ -141,6 +149,12 @@ class ReplayResult:
             if self.log.mag_source:
                 lines.append(f"magnetometer: {self.log.mag_source}")
             lines += list(self.aiding.magnetometer.notes)
+        if self.aiding.baro_height_reference:
+            lines.append(
+                "The height reference is the barometer (PX4's EKF2_HGT_REF / EKF2_HGT_MODE 0, or "
+                "--set height_reference=baro): the GPS height is not fused (σ 1000 m), as PX4's; "
+                "--set height_reference=gps fuses it."
+            )
         if self.log.baro is not None and not self.aiding.baro_fused:
             lines.append(f"The log's barometer is not fused: kind {self.config.estimator.kind} takes none.")
         lines += self.warnings
@@ -296,11 +310,17 @@ def build_replay_diagram(log, config) -> tuple[Diagram, dict[str, VectorLogSink]
     )
     streams = playback_streams(log, gps, declination, hard_iron)
     baro_period = None if log.baro is None else baro_pairing_period(log.baro)
+    baro_reference = log.gps is not None and height_reference(config, log.parameters) == "baro"
     vehicle = vehicle_for(
-        config, initial_attitude(log, declination, hard_iron), fake, baro_period, magnetometer
+        config, initial_attitude(log, declination, hard_iron), fake, baro_period, magnetometer, baro_reference
     )
     diagram, sinks = _playback_diagram(streams, vehicle, config.name or "replay")
-    return diagram, sinks, Aiding(fake, magnetometer, late_fix, vehicle.sensors.baro is not None, losses)
+    baro_fused = vehicle.sensors.baro is not None
+    return (
+        diagram,
+        sinks,
+        Aiding(fake, magnetometer, late_fix, baro_fused, losses, baro_fused and baro_reference),
+    )
 
 
 def _playback_diagram(streams, vehicle, name):
