@@ -89,6 +89,8 @@ def test_px4s_preferred_magnetometer_is_chosen():
     assert mag_calibration.chosen_instance([10, 11], slots | {"CAL_MAG_PRIME": 11}) == 1
     assert mag_calibration.chosen_instance([10, 11], slots | {"CAL_MAG0_EN": 0}) == 1
     assert mag_calibration.chosen_instance([10, 11], slots) == 0
+    preferred = slots | {"CAL_MAG0_PRIO": 50, "CAL_MAG1_PRIO": 75}
+    assert mag_calibration.chosen_instance([10, 11], preferred, primary=10) == 0  # the primary EKF's
 
 
 def test_a_log_with_only_the_raw_sensor_mag_is_calibrated_as_px4_calibrated_it(tmp_path):

@@ -20,9 +20,11 @@ Before v1.12 the drivers applied the calibration themselves and ``sensor_mag`` i
 body field (measured on pyulog's ``sample_log_small.ulg``, v1.11.2: its ``sensor_mag`` equals its
 ``vehicle_magnetometer``), so :func:`is_raw` says which a log holds by its ``ver_sw_release``.
 
-Which magnetometer: the enabled one (``CAL_MAGn_EN`` not 0) of the highest priority
-(``CAL_MAGn_PRIO``, v1.12 on), else ``CAL_MAG_PRIME``'s device, else the first instance
-(:func:`chosen_instance`).
+Which magnetometer (:func:`chosen_instance`): the one PX4's primary estimator fused where the log
+says (``estimator_selector_status.mag_device_id`` at its start: with several EKF2 instances,
+``EKF2_MULTI_MAG``, the primary's need not be the highest priority), else the enabled one
+(``CAL_MAGn_EN`` not 0) of the highest priority (``CAL_MAGn_PRIO``, v1.12 on), else
+``CAL_MAG_PRIME``'s device, else the first instance.
 """
 
 import math
@@ -97,9 +99,11 @@ def slot_of(device_id, parameters) -> int | None:
     return None
 
 
-def chosen_instance(device_ids, parameters) -> int:
+def chosen_instance(device_ids, parameters, primary=None) -> int:
     """Index into `device_ids` (each instance's ``device_id``) of the magnetometer PX4 prefers
-    (module docstring)."""
+    (module docstring); primary: the device PX4's primary estimator fused, or None."""
+    if primary in device_ids:
+        return list(device_ids).index(primary)
     candidates = []
     for i, device in enumerate(device_ids):
         n = slot_of(device, parameters)

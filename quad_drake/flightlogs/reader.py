@@ -19,9 +19,10 @@ What is read from a PX4 ULog (``pyulog``, PX4's own reader):
   ``sensor_combined`` (older PX4, at ``timestamp + magnetometer_timestamp_relative``, each
   sample once): the body field in gauss, FRD, as PX4 calibrated it. Gauss stays (PX4's unit and
   the world field's of issue 32's magnetometer). A log with neither has its raw ``sensor_mag``
-  read: PX4's preferred instance, calibrated and rotated as the log's ``CAL_MAG*`` and
-  ``SENS_BOARD_*`` parameters say from PX4 v1.12 on (``flightlogs.mag_calibration``), as logged
-  before it (the drivers calibrated it); ``mag_source`` says which and how.
+  read: the instance PX4's primary estimator fused (else its preferred one), calibrated and
+  rotated as the log's ``CAL_MAG*`` and ``SENS_BOARD_*`` parameters say from PX4 v1.12 on
+  (``flightlogs.mag_calibration``), as logged before it (the drivers calibrated it);
+  ``mag_source`` says which and how.
 - barometer (optional): ``vehicle_air_data.baro_alt_meter``, else ``sensor_combined``'s when its
   ``baro_timestamp_relative`` marks it valid: pressure altitude, m, up.
 - GPS (optional): ``vehicle_gps_position`` (else ``sensor_gps``) samples with a 3D fix
@@ -182,6 +183,7 @@ ULOG_TOPICS = (
     "sensor_combined",
     "vehicle_magnetometer",
     "sensor_mag",
+    "estimator_selector_status",
     "vehicle_air_data",
     "vehicle_gps_position",
     "sensor_gps",
@@ -438,14 +440,16 @@ def _ulog_mag(path, topics, raw_mags, parameters, info):
     combined = _combined_samples(path, topics["sensor_combined"], "magnetometer", "magnetometer", fields)
     if combined is not None or not raw_mags:
         return combined, ""
-    return _raw_mag(path, raw_mags, parameters, info)
+    return _raw_mag(path, topics, raw_mags, parameters, info)
 
 
-def _raw_mag(path, raw_mags, parameters, info):
+def _raw_mag(path, topics, raw_mags, parameters, info):
     """(Samples, mag_source) of the preferred ``sensor_mag`` instance, calibrated as the log's
     parameters say where it is raw (``flightlogs.mag_calibration``)."""
     devices = [int(data["device_id"][0]) if "device_id" in data else 0 for data in raw_mags]
-    chosen = cal.chosen_instance(devices, parameters)
+    selector = topics.get("estimator_selector_status", {})
+    primary = int(selector["mag_device_id"][0]) if "mag_device_id" in selector else None
+    chosen = cal.chosen_instance(devices, parameters, primary)
     data = raw_mags[chosen]
     samples = _ulog_samples(path, "sensor_mag", data, _sample_times(data), ["x", "y", "z"])
     what = f"the raw sensor_mag (instance {chosen}, device {devices[chosen]})"
