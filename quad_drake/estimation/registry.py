@@ -21,7 +21,9 @@ to know of it:
 - for replaying a real flight controller's log (``flightlogs/``): ``replay_defaults()``, its
   config with PX4 EKF2's noise (:data:`PX4_NOISE`); ``started_from_log(config, roll, pitch,
   yaw)``, the config started at the log's first attitude; ``assuming_gps_noise(config, pos_std,
-  vel_std)``, the config assuming that GPS noise (a log without GPS gets fake positions).
+  vel_std)``, the config assuming that GPS noise (a log without GPS gets fake positions);
+  ``assuming_gps_height_noise(config, height_std)``, that GPS height noise alone (a log whose
+  height reference is its barometer: the GPS height is not fused).
 
 Adding an estimator is its config dataclass and one entry in :data:`KINDS`; its builder lives on
 the systems side (``tests/test_registry.py`` asserts it). Whether a kind runs under a scenario's
@@ -203,6 +205,8 @@ class EstimatorKind:
         config
     )
     assuming_gps_noise: Callable[[object, float, float], object] = lambda config, pos_std, vel_std: config
+    # the config assuming this GPS height noise (m) alone: a log whose height reference is its baro
+    assuming_gps_height_noise: Callable[[object, float], object] = lambda config, height_std: config
 
     def replay_config(self) -> object:
         """The kind's config for replaying a flight log (``replay_defaults``, else the defaults)."""
@@ -295,6 +299,10 @@ def _ekf7_gps_noise(config, pos_std, vel_std) -> Ekf7EstimatorConfig:
     )
 
 
+def _ekf7_gps_height_noise(config, height_std) -> Ekf7EstimatorConfig:
+    return dataclasses.replace(config, gps_pos_z_std=height_std)
+
+
 def _eskf_replay_defaults():
     """The ESKF with PX4 EKF2's noise (:data:`PX4_NOISE`; bias walks EKF2_ACC_B_NOISE 0.003 m/s^3,
     EKF2_GYR_B_NOISE 0.001 rad/s^2), started at rest at the origin with a wide prior."""
@@ -330,6 +338,10 @@ def _eskf_started(config, roll, pitch, yaw):
 
 def _eskf_gps_noise(config, pos_std, vel_std):
     return dataclasses.replace(config, gps_pos_std=[pos_std] * 3, gps_vel_std=[vel_std] * 3)
+
+
+def _eskf_gps_height_noise(config, height_std):
+    return dataclasses.replace(config, gps_pos_std=[*config.gps_pos_std[0:2], height_std])
 
 
 def _eskf_tuning(config):
@@ -408,6 +420,7 @@ KINDS = {
             replay_defaults=_ekf7_replay_defaults,
             started_from_log=_ekf7_started,
             assuming_gps_noise=_ekf7_gps_noise,
+            assuming_gps_height_noise=_ekf7_gps_height_noise,
         ),
         EstimatorKind(
             name="eskf",
@@ -420,6 +433,7 @@ KINDS = {
             replay_defaults=_eskf_replay_defaults,
             started_from_log=_eskf_started,
             assuming_gps_noise=_eskf_gps_noise,
+            assuming_gps_height_noise=_eskf_gps_height_noise,
         ),
         EstimatorKind(
             name="custom",

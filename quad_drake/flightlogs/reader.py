@@ -18,7 +18,11 @@ What is read from a PX4 ULog (``pyulog``, PX4's own reader):
 - magnetometer (optional): ``vehicle_magnetometer.magnetometer_ga``, else the field inside
   ``sensor_combined`` (older PX4, at ``timestamp + magnetometer_timestamp_relative``, each
   sample once): the body field in gauss, FRD, as PX4 calibrated it. Gauss stays (PX4's unit and
-  the world field's of issue 32's magnetometer).
+  the world field's of issue 32's magnetometer). A log with neither has its raw ``sensor_mag``
+  read: the instance PX4's primary estimator fused (else its preferred one), calibrated and
+  rotated as the log's ``CAL_MAG*`` and ``SENS_BOARD_*`` parameters say from PX4 v1.12 on
+  (``flightlogs.mag_calibration``), as logged before it (the drivers calibrated it);
+  ``mag_source`` says which and how.
 - barometer (optional): ``vehicle_air_data.baro_alt_meter``, else ``sensor_combined``'s when its
   ``baro_timestamp_relative`` marks it valid: pressure altitude, m, up.
 - GPS (optional): ``vehicle_gps_position`` (else ``sensor_gps``) samples with a 3D fix
@@ -77,6 +81,7 @@ from pathlib import Path
 
 import numpy as np
 
+import quad_drake.flightlogs.mag_calibration as cal
 from quad_drake.config.errors import ConfigError
 
 
@@ -111,7 +116,8 @@ class FlightLog:
     mid-message. truth_attitude: the simulator's q_NB (4, wxyz), truth_position: its p_N (3, m,
     GPS origin's frame; NaN without GPS) and v_N (3, m/s), or None (a real flight). heading: a
     yaw magnetometer's samples (1, rad) as an estimator received them (a CSV's ``heading`` rows,
-    e.g. a simulated run's), or None.
+    e.g. a simulated run's), or None. mag_source: where mag_field came from, when not from a
+    calibrated topic (the raw ``sensor_mag`` and its calibration; "" otherwise).
     """
 
     source: str
@@ -130,6 +136,7 @@ class FlightLog:
     truth_attitude: Samples | None = None
     truth_position: Samples | None = None
     heading: Samples | None = None
+    mag_source: str = ""
 
     @property
     def duration(self) -> float:
@@ -175,6 +182,8 @@ INVALID_RELATIVE_TIME = 2**31 - 1
 ULOG_TOPICS = (
     "sensor_combined",
     "vehicle_magnetometer",
+    "sensor_mag",
+    "estimator_selector_status",
     "vehicle_air_data",
     "vehicle_gps_position",
     "sensor_gps",
@@ -260,10 +269,12 @@ def read_ulog(path) -> FlightLog:
     except Exception as e:  # pyulog raises whatever its parser meets in a foreign file
         reason = str(e).splitlines()[0] if str(e) else type(e).__name__
         raise FlightLogError(f"{path}: not a readable ULog file ({reason})") from None
-    topics = {}
+    topics, raw_mags = {}, []
     for dataset in ulog.data_list:
         if dataset.multi_id == 0:
             topics[dataset.name] = dataset.data
+        if dataset.name == "sensor_mag":
+            raw_mags.append(dataset.data)
     if "sensor_combined" not in topics:
         raise FlightLogError(f"{path}: no sensor_combined topic (the IMU); cannot replay without it")
     combined = topics["sensor_combined"]
@@ -279,11 +290,12 @@ def read_ulog(path) -> FlightLog:
     parameters = dict(ulog.initial_parameters)
     declination = parameters.get("EKF2_MAG_DECL", parameters.get("ATT_MAG_DECL"))
     anchor = float(gps.times[0]) if gps is not None else start
+    mag_field, mag_source = _ulog_mag(path, topics, raw_mags, parameters, ulog.msg_info_dict)
     return FlightLog(
         source=str(path),
         imu=_after_start(imu, start, US),
         gps=_optional(gps, start, US),
-        mag_field=_optional(_ulog_mag(path, topics), start, US),
+        mag_field=_optional(mag_field, start, US),
         baro=_optional(_ulog_baro(path, topics), start, US),
         reference_attitude=_optional(_ulog_attitude(path, topics), start, US),
         reference_position=_optional(_ulog_local_position(path, topics, origin, anchor), start, US),
@@ -295,6 +307,7 @@ def read_ulog(path) -> FlightLog:
         truncated=ends_mid_message(path),
         truth_attitude=_optional(_ulog_truth_attitude(path, topics), start, US),
         truth_position=_optional(_ulog_truth_position(path, topics, origin, anchor), start, US),
+        mag_source=mag_source,
     )
 
 
@@ -417,12 +430,39 @@ def _combined_samples(path, combined, sensor, label, fields):
     return _ulog_samples(path, f"sensor_combined ({label})", combined, stamps, fields, rows)
 
 
-def _ulog_mag(path, topics):
+def _ulog_mag(path, topics, raw_mags, parameters, info):
+    """(Samples of the body field or None, mag_source): ``vehicle_magnetometer``, else
+    ``sensor_combined``'s field, else the raw ``sensor_mag`` (:func:`_raw_mag`)."""
     fields = [f"magnetometer_ga[{i}]" for i in range(3)]
     if "vehicle_magnetometer" in topics:
         data = topics["vehicle_magnetometer"]
-        return _ulog_samples(path, "vehicle_magnetometer", data, data["timestamp"], fields)
-    return _combined_samples(path, topics["sensor_combined"], "magnetometer", "magnetometer", fields)
+        return _ulog_samples(path, "vehicle_magnetometer", data, data["timestamp"], fields), ""
+    combined = _combined_samples(path, topics["sensor_combined"], "magnetometer", "magnetometer", fields)
+    if combined is not None or not raw_mags:
+        return combined, ""
+    return _raw_mag(path, topics, raw_mags, parameters, info)
+
+
+def _raw_mag(path, topics, raw_mags, parameters, info):
+    """(Samples, mag_source) of the preferred ``sensor_mag`` instance, calibrated as the log's
+    parameters say where it is raw (``flightlogs.mag_calibration``)."""
+    devices = [int(data["device_id"][0]) if "device_id" in data else 0 for data in raw_mags]
+    selector = topics.get("estimator_selector_status", {})
+    primary = int(selector["mag_device_id"][0]) if "mag_device_id" in selector else None
+    chosen = cal.chosen_instance(devices, parameters, primary)
+    data = raw_mags[chosen]
+    samples = _ulog_samples(path, "sensor_mag", data, _sample_times(data), ["x", "y", "z"])
+    what = f"the raw sensor_mag (instance {chosen}, device {devices[chosen]})"
+    raw = cal.is_raw(info.get("ver_sw_release"))
+    if raw is False:
+        return samples, f"{what}, calibrated by its driver (PX4 before v1.12): taken as logged"
+    try:
+        rotation, scale, offsets, description = cal.calibration(devices[chosen], parameters)
+    except cal.CalibrationError as e:
+        raise FlightLogError(f"{path}: sensor_mag cannot be calibrated: {e}") from None
+    field_B = cal.calibrated(samples.values, rotation, scale, offsets)
+    version = "" if raw else " (the log does not say its PX4 version: taken as v1.12 or later)"
+    return Samples(samples.times, field_B), f"{what}, calibrated here by {description}{version}"
 
 
 def _ulog_baro(path, topics):

@@ -35,14 +35,22 @@ from quad_drake.flightlogs import comparison, earth_field
 from quad_drake.flightlogs.checks import log_warnings
 from quad_drake.flightlogs.reader import Samples, read_flight_log
 from quad_drake.flightlogs.schedule import (
+    NO_AID_TIMEOUT,
     STAMPED,
     STREAM_WIDTHS,
     fake_position,
+    held_position,
     initial_attitude,
     playback_streams,
     superseded_samples,
 )
-from quad_drake.flightlogs.settings import ReplayConfig, dump_replay, resolve_log, vehicle_for
+from quad_drake.flightlogs.settings import (
+    ReplayConfig,
+    dump_replay,
+    height_reference,
+    resolve_log,
+    vehicle_for,
+)
 from quad_drake.kernels import jit
 from quad_drake.models.fidelity import PHYSICAL
 from quad_drake.output.jsonio import dump_json
@@ -67,13 +75,16 @@ RUNNER = "drake-replay"
 class Aiding:
     """How a replay aided its estimator: fake_position (a log without GPS, PX4's fake position
     throughout), magnetometer (``earth_field.MagnetometerModel`` or None), late_fix (s, the first
-    fix before which zero samples stood in, or None), fused (the NIS names of the sensors the
-    estimator fuses: ``registry.nis_sensors``)."""
+    fix before which zero samples stood in, or None), baro_fused (the log's barometer fused), gps_losses
+    ([(lost s, regained s)] of the GPS losses the estimator was aided over, ``aiding_gps``),
+    baro_height_reference (the barometer was the height reference: the GPS height not fused)."""
 
     fake_position: bool = False
     magnetometer: object = None
     late_fix: float | None = None
     baro_fused: bool = False
+    gps_losses: list = field(default_factory=list)
+    baro_height_reference: bool = False
 
 
 @dataclass
@@ -121,12 +132,29 @@ class ReplayResult:
                 "as its GPS samples (with the GPS noise it assumes), as PX4 holds a fake position "
                 "while not aided; the GPS from the fix on."
             )
+        for lost, regained in self.aiding.gps_losses:
+            lines.append(
+                f"The GPS was lost from {lost:.1f} s to {regained:.1f} s: the estimator dead-reckoned "
+                f"{NO_AID_TIMEOUT:g} s, then was given the last fix's horizontal position with zero "
+                f"horizontal velocity every {self.config.fake_position_period:g} s (height and vertical "
+                "velocity the barometer's where the log has one), fused as its GPS samples, as PX4 holds "
+                "its last position while not aided; then a regain: the built-in kinds fuse each GPS "
+                "group their gate accepts and reset to the others."
+            )
         if self.log.heading is not None:
             lines.append("The log's magnetometer is a yaw magnetometer (heading rows): fused as such.")
         elif self.log.mag_field is None:
             lines.append("The log has no magnetometer: the yaw is the gyro's alone.")
         else:
+            if self.log.mag_source:
+                lines.append(f"magnetometer: {self.log.mag_source}")
             lines += list(self.aiding.magnetometer.notes)
+        if self.aiding.baro_height_reference:
+            lines.append(
+                "The height reference is the barometer (PX4's EKF2_HGT_REF / EKF2_HGT_MODE 0, or "
+                "--set height_reference=baro): the GPS height is not fused (σ 1000 m), as PX4's; "
+                "--set height_reference=gps fuses it."
+            )
         if self.log.baro is not None and not self.aiding.baro_fused:
             lines.append(f"The log's barometer is not fused: kind {self.config.estimator.kind} takes none.")
         lines += self.warnings
@@ -223,29 +251,54 @@ def magnetometer_for(log, config) -> earth_field.MagnetometerModel | None:
     return model
 
 
-def aiding_gps(log, config) -> tuple[Samples, bool, float | None]:
-    """(GPS Samples to emit, fake position used, first fix s or None): the log's GPS; without one
-    PX4's fake position (``fake_position``) over the whole log; with a late first fix (after
-    LATE_FIX s) zero position and velocity samples every fake_position_period s before it, as
-    PX4 holds a fake position and zero velocity while not aided, then the GPS from its first fix
-    on (its origin: the first fix is at p_N = 0, so the switch is continuous)."""
+def aiding_gps(log, config) -> tuple[Samples, bool, float | None, list]:
+    """(GPS Samples to emit, fake position used, first fix s or None, losses [(lost s, regained
+    s)]): the log's GPS, with aiding where PX4 has none.
+
+    Without any GPS: PX4's fake position (``fake_position``) over the whole log. With a late first
+    fix (after LATE_FIX s): zero position and velocity samples every fake_position_period s before
+    it, as PX4 holds a fake position and zero velocity while not aided, then the GPS from its first
+    fix on (its origin: the first fix is at p_N = 0, so the switch is continuous). A loss (no
+    sample for more than NO_AID_TIMEOUT s after a fix, PX4's ``EKF2_NOAID_TOUT``): the estimator
+    dead-reckons for NO_AID_TIMEOUT s as PX4 does, then gets :func:`held_position` samples every
+    fake_position_period s (PX4 resets its velocity to zero and holds its last known position)
+    until the estimator's ``gps_regain_time`` before the regain, so that the returning GPS is a
+    regain (``estimation/gating.py``: each group fused where its gate accepts it and reset to it
+    where not, as PX4 resets to GNSS when it starts aiding again). Every kind, a user's included,
+    receives these samples on its GPS input."""
     if log.gps is None:
         fake = config.fake_position_std > 0
-        return (fake_position(log, config.fake_position_period) if fake else None), fake, None
+        return (fake_position(log, config.fake_position_period) if fake else None), fake, None, []
+    if config.fake_position_std <= 0:
+        return log.gps, False, None, []
+    period = config.fake_position_period
+    times, values = [log.gps.times], [log.gps.values]
     first_fix = float(log.gps.times[0])
-    if first_fix <= LATE_FIX or config.fake_position_std <= 0:
-        return log.gps, False, None
-    before = fake_position(log, config.fake_position_period)
-    before = Samples(before.times[before.times < first_fix], before.values[before.times < first_fix])
-    times = np.concatenate([before.times, log.gps.times])
-    return Samples(times, np.vstack([before.values, log.gps.values])), False, first_fix
+    late_fix = first_fix if first_fix > LATE_FIX else None
+    if late_fix is not None:
+        held = np.arange(period, first_fix - 1e-9, period)
+        times.append(held)
+        values.append(np.zeros((len(held), 6)))
+    losses = []
+    regain_margin = float(getattr(config.estimator, "gps_regain_time", 0.0)) + period
+    for i in np.flatnonzero(np.diff(log.gps.times) > NO_AID_TIMEOUT):
+        lost, regained = float(log.gps.times[i]), float(log.gps.times[i + 1])
+        losses.append((lost, regained))
+        held = np.arange(lost + NO_AID_TIMEOUT, regained - regain_margin + 1e-9, period)
+        times.append(held)
+        values.append(held_position(log, lost, log.gps.values[i, 0:3], held))
+    if len(times) == 1:
+        return log.gps, False, late_fix, losses
+    order = np.argsort(np.concatenate(times), kind="stable")
+    merged = Samples(np.concatenate(times)[order], np.vstack(values)[order])
+    return merged, False, late_fix, losses
 
 
 def build_replay_diagram(log, config) -> tuple[Diagram, dict[str, VectorLogSink], Aiding]:
     """(Diagram, {log name: VectorLogSink}, fake position used, MagnetometerModel or None, first
     fix s or None) replaying the FlightLog `log` through the estimator of the ReplayConfig
     `config` (module docstring)."""
-    gps, fake, late_fix = aiding_gps(log, config)
+    gps, fake, late_fix, losses = aiding_gps(log, config)
     magnetometer = magnetometer_for(log, config)
     declination, hard_iron = (
         (0.0, (0.0, 0.0, 0.0))
@@ -257,11 +310,17 @@ def build_replay_diagram(log, config) -> tuple[Diagram, dict[str, VectorLogSink]
     )
     streams = playback_streams(log, gps, declination, hard_iron)
     baro_period = None if log.baro is None else baro_pairing_period(log.baro)
+    baro_reference = log.gps is not None and height_reference(config, log.parameters) == "baro"
     vehicle = vehicle_for(
-        config, initial_attitude(log, declination, hard_iron), fake, baro_period, magnetometer
+        config, initial_attitude(log, declination, hard_iron), fake, baro_period, magnetometer, baro_reference
     )
     diagram, sinks = _playback_diagram(streams, vehicle, config.name or "replay")
-    return diagram, sinks, Aiding(fake, magnetometer, late_fix, vehicle.sensors.baro is not None)
+    baro_fused = vehicle.sensors.baro is not None
+    return (
+        diagram,
+        sinks,
+        Aiding(fake, magnetometer, late_fix, baro_fused, losses, baro_fused and baro_reference),
+    )
 
 
 def _playback_diagram(streams, vehicle, name):

@@ -33,6 +33,11 @@ HEADING_GRAVITY_WINDOW = 0.1
 """s of accelerometer samples averaged for gravity's direction at a field sample: long enough
 to average out motor vibration (a real 250 Hz IMU: 25 samples), short against the manoeuvres
 whose own acceleration no average removes."""
+NO_AID_TIMEOUT = 5.0
+"""s without a GPS sample after which PX4 EKF2 stops dead-reckoning and holds a fake position
+(``EKF2_NOAID_TOUT``, 5 s): a gap longer than this is a GPS loss (``aiding_gps``)."""
+BARO_SLOPE_WINDOW = 1.0
+"""s of barometer samples whose least-squares slope is a held position's vertical velocity."""
 TICK_TOLERANCE = 1e-6
 """Fraction of a tick by which a sample time may exceed a tick time and still be emitted at it
 (the sums that make tick and sample times round differently in their last bits)."""
@@ -138,6 +143,27 @@ def fake_position(log, period) -> Samples:
     not judged."""
     times = np.arange(period, log.duration + 1e-9, period)
     return Samples(times, np.zeros((len(times), 6)))
+
+
+def held_position(log, lost, position, times) -> np.ndarray:
+    """(m, 6) fake GPS samples (p_N m, v_N m/s) at `times` (s) of a GPS loss at `lost` (s): the
+    last fix's horizontal `position` with zero horizontal velocity (PX4's fake position); the
+    height and vertical velocity the barometer's (its change since the loss, and its slope over
+    the last BARO_SLOPE_WINDOW s: PX4's height follows the baro while the GPS is lost), or the last
+    fix's height and zero vertical velocity on a log without one."""
+    samples = np.zeros((len(times), 6))
+    samples[:, 0:3] = position
+    if log.baro is None:
+        return samples
+    baro_times, altitude = log.baro.times, log.baro.values[:, 0]
+    samples[:, 2] = position[2] - (
+        np.interp(times, baro_times, altitude) - np.interp(lost, baro_times, altitude)
+    )
+    for k, t in enumerate(times):
+        window = (baro_times > t - BARO_SLOPE_WINDOW) & (baro_times <= t)
+        if np.count_nonzero(window) >= 2:
+            samples[k, 5] = -np.polyfit(baro_times[window], altitude[window], 1)[0]
+    return samples
 
 
 def playback_streams(log, gps=None, declination=0.0, hard_iron=(0.0, 0.0, 0.0)) -> dict[str, Stream]:

@@ -57,6 +57,11 @@ LOG_DIR = PACKAGE_DIR / "data" / "flight_logs"
 """The bundled flight logs (package data): pyulog's test logs, BSD-3-Clause (README there)."""
 FAKE_VELOCITY_STD = 1e3
 """m/s: the velocity part of a fake position sample, so large that it carries no information."""
+UNFUSED_HEIGHT_STD = 1e3
+"""m: the GPS height noise of a replay whose height reference is the barometer, so large that the
+GPS height carries no information (neither to the filter nor to the baro's bias filter)."""
+HEIGHT_REFERENCES = ("log", "baro", "gps")
+"""``ReplayConfig.height_reference``: as the log's parameters say (:func:`height_reference`), or forced."""
 
 
 @dataclass
@@ -71,6 +76,9 @@ class ReplayConfig:
     # std (PX4's EKF2_NOAID_NOISE), so the estimator's velocity, and its tilt, stay bounded; 0 = off
     fake_position_std: float = number(10.0, nonnegative=True)
     fake_position_period: float = number(0.2, tick_multiple=1)  # s
+    # what the estimator's height follows on a log with GPS and a barometer: "log" as PX4's
+    # EKF2_HGT_REF / EKF2_HGT_MODE say (0: the baro, the GPS height then not fused), "baro", "gps"
+    height_reference: str = field(default="log", metadata={"choices": HEIGHT_REFERENCES})
 
 
 def default_estimator(kind) -> EstimatorConfig:
@@ -197,8 +205,18 @@ def check_replay(config) -> ReplayConfig:
     return config
 
 
+def height_reference(config, parameters) -> str:
+    """ "baro" or "gps": what the replay's height follows: `config`'s ``height_reference`` unless
+    "log", else PX4's ``EKF2_HGT_REF`` (v1.14 on) or ``EKF2_HGT_MODE`` (before) in the log's
+    `parameters` (0: the barometer), else the GPS."""
+    if config.height_reference != "log":
+        return config.height_reference
+    value = parameters.get("EKF2_HGT_REF", parameters.get("EKF2_HGT_MODE"))
+    return "baro" if value == 0 else "gps"
+
+
 def vehicle_for(
-    config, initial_attitude, fake_position, baro_period=None, magnetometer=None
+    config, initial_attitude, fake_position, baro_period=None, magnetometer=None, baro_reference=False
 ) -> VehicleConfig:
     """The VehicleConfig whose estimator ``systems.estimators.build_estimator`` builds:
     `config`'s, started at `initial_attitude` (roll, pitch, yaw rad) at rest at the origin, and
@@ -210,7 +228,9 @@ def vehicle_for(
     and magnetometer (``earth_field.MagnetometerModel``: the 3-axis field with its world field
     and learned bias; None: no magnetometer) become the
     vehicle's ``sensors.baro`` and 3-axis ``sensors.mag``, and the model's figures its
-    ``mag_field`` (an AidingParams estimator's: the EKF7's, the ESKF's)."""
+    ``mag_field`` (an AidingParams estimator's: the EKF7's, the ESKF's). baro_reference: the
+    barometer is the height reference (:func:`height_reference`): where the kind fuses the baro,
+    it assumes the GPS height noise UNFUSED_HEIGHT_STD, as PX4 then fuses no GPS height."""
     roll, pitch, yaw = initial_attitude
     kind = KINDS[config.estimator.kind]
     estimator = kind.started_from_log(config.estimator, roll, pitch, yaw)
@@ -220,6 +240,8 @@ def vehicle_for(
     fused = set(kind.measurements)
     if baro_period is not None and "baro" in fused:
         sensors.baro = BaroParams(period=baro_period)
+        if baro_reference and not fake_position:
+            estimator = kind.assuming_gps_height_noise(estimator, UNFUSED_HEIGHT_STD)
     if magnetometer is not None and fused & {"heading", "field"}:
         sensors.mag = MagParams(three_axis=True)
         if isinstance(estimator, AidingParams):
