@@ -104,7 +104,14 @@ def test_the_yaw_reset_keeps_roll_and_pitch():
 def test_the_reset_rule():
     limits = dict(max_yaw_var=0.01, disagreement_time=1.0, max_resets=3)
     reason = lambda t, since, var, aligned, resets: gsf.reset_reason(  # noqa: E731
-        t, since, var, aligned, resets, limits["max_yaw_var"], limits["disagreement_time"], limits["max_resets"]
+        t,
+        since,
+        var,
+        aligned,
+        resets,
+        limits["max_yaw_var"],
+        limits["disagreement_time"],
+        limits["max_resets"],
     )
     assert reason(5.0, math.nan, 0.02, False, 0) == gsf.NO_RESET  # not confident yet
     assert reason(5.0, math.nan, 0.005, False, 0) == gsf.ALIGN  # no magnetometer has aligned the yaw
