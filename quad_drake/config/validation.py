@@ -248,7 +248,7 @@ def _check_semantics(scenario):
         gsf = getattr(v.estimator, "gsf", None)
         gsf_on = gsf is not None and gsf.enabled
         if gsf_on and not v.sensors.gps:
-            raise ConfigError(f"vehicles.{i}.estimator.gsf: enabled needs a gps sensor (its velocity feeds it)")
+            raise ConfigError(f"vehicles.{i}.estimator.gsf: enabled needs a gps sensor (its velocity)")
         if v.flies_on == "estimate" and kind.builder is not None:
             if not (v.sensors.imu and v.sensors.gps and (v.sensors.mag or gsf_on)):
                 raise ConfigError(
