@@ -370,9 +370,7 @@ def _gsf_update(params, sensors, sensor_updates) -> updates.GsfUpdate | None:
         if isinstance(update, (updates.YawUpdate, updates.FieldUpdate)):
             stamp = NIS_COLUMNS[update.measurement.nis][1]
             columns = (stamp, DIAG["mag_gated"])
-    return updates.GsfUpdate(
-        MEASUREMENTS["gps"], params.gsf, ONBOARD_PERIOD, params.gps_vel_std[0], columns
-    )
+    return updates.GsfUpdate(MEASUREMENTS["gps"], params.gsf, ONBOARD_PERIOD, params.gps_vel_std[0], columns)
 
 
 def _gps_gates(params, fidelity) -> gating.GpsGates:
