@@ -631,6 +631,7 @@ def _gsf_figure(result, vehicle):
     for i, name in enumerate(weights):
         axes[1, 0].plot(t, _values(result, name), color=_color(i), lw=0.9, label=name.rsplit(".", 1)[-1])
     axes[1, 0].set_ylabel("weight")
+    axes[1, 0].set_ylim(-0.02, 1.05)
     axes[1, 0].legend(loc="upper right", fontsize=7, ncol=len(weights))
     axes[2, 0].step(t, _values(result, f"{vehicle}.Est.GsfResets"), where="post", color="tab:red")
     axes[2, 0].set_ylabel("yaw resets")
