@@ -107,6 +107,7 @@ def measure_alignment(args, flies_on):
     """The alignment row over the stratified headings (module docstring)."""
     own = len(catalog.load("26_gsf_yaw_alignment").criteria)
     totals = {"passes": 0, "runs": 0, "failed": [], "checks": [0] * len(CHECK_TIMES), "unsafe": 0}
+    totals["reasons"] = {}
     for k, heading in enumerate(headings(args.headings, args.seed)):
         seed = args.seed + k * args.runs_per_heading
         overrides = [
@@ -121,6 +122,8 @@ def measure_alignment(args, flies_on):
             totals[key] += part[key]
         totals["failed"] += [(round(math.degrees(heading), 1), s) for s in part["failed"]]
         totals["checks"] = [a + b for a, b in zip(totals["checks"], part["checks"], strict=True)]
+        for reason, count in part["reasons"].items():
+            totals["reasons"][reason] = totals["reasons"].get(reason, 0) + count
         print(f"  heading {math.degrees(heading):7.1f} deg: {part['passes']}/{part['runs']}", flush=True)
     return totals
 
@@ -192,7 +195,7 @@ def main():
                 f"T={t:g} s: {100 * c / figures['runs']:.1f} %"
                 for t, c in zip(CHECK_TIMES, figures["checks"], strict=True)
             )
-            print(f"    |yaw error| < 5 deg at T: {shares}; failed (heading, seed): {figures['failed'][:20]}")
+            print(f"    |yaw error| < 5 deg at T: {shares}; failed criteria: {figures.get('reasons')}")
         else:
             print(f"    failed seeds: {figures['failed'][:30]}; failed criteria: {figures['reasons']}")
 
