@@ -10,10 +10,11 @@ magnetometer and GPS updates, a gated outlier, a delayed GPS, both estimators) m
 
 import pytest
 
-from quad_drake.estimation import ekf, eskf
+from quad_drake.estimation import ekf, eskf, gsf
 from quad_drake.running import catalog, simulation
 
 ORACLES = {
+    gsf: ("initial_bank", "predict_bank", "fuse_velocity_bank", "gaussian_sum_yaw", "eskf_yaw_reset"),
     ekf: (
         "predict",
         "predict_with_yaw",
@@ -41,6 +42,7 @@ FLIGHTS = {
     "11_gps_update_eskf": (),
     "13_gps_outlier": ("vehicles.0.faults.0.time=1.5",),  # the outlier gated within the flight
     "14_gps_delay": (),
+    "26_gsf_yaw_alignment": (),  # the EKF-GSF started and fusing (its reset: tests/test_gsf.py)
 }
 
 

@@ -245,9 +245,16 @@ def _check_semantics(scenario):
         if v.trajectory.kind == "file":
             resolve_trajectory_file(v.trajectory.file, f"vehicles.{i}.trajectory.file")
         kind = kind_of(v.estimator)
+        gsf = getattr(v.estimator, "gsf", None)
+        gsf_on = gsf is not None and gsf.enabled
+        if gsf_on and not v.sensors.gps:
+            raise ConfigError(f"vehicles.{i}.estimator.gsf: enabled needs a gps sensor (its velocity)")
         if v.flies_on == "estimate" and kind.builder is not None:
-            if not (v.sensors.imu and v.sensors.gps and v.sensors.mag):
-                raise ConfigError(f"vehicles.{i}.flies_on: estimate needs imu, gps and mag sensors")
+            if not (v.sensors.imu and v.sensors.gps and (v.sensors.mag or gsf_on)):
+                raise ConfigError(
+                    f"vehicles.{i}.flies_on: estimate needs imu, gps and mag sensors "
+                    "(or, without a magnetometer, the estimator's gsf enabled)"
+                )
         if kind.builder and unfused_sensor(kind.measurements, v.sensors) == "mag":
             raise ConfigError(
                 f"vehicles.{i}.sensors.mag.three_axis: estimator kind {kind.name!r} takes the yaw "

@@ -48,9 +48,17 @@ from quad_drake.config.fields import noise_stds, number, vector
 from quad_drake.conventions import ONBOARD_PERIOD
 from quad_drake.estimation import custom
 from quad_drake.estimation.baro import BaroFusionParams
+from quad_drake.estimation.gsf import GsfParams
 from quad_drake.estimation.mag3 import MagFieldFusionParams
 from quad_drake.estimation.measurements import NIS_ORDER, measurements_of
-from quad_drake.estimation.vocabulary import EKF7, ESKF9, ESKF15, EstimatorVocabulary, euler_vocabulary
+from quad_drake.estimation.vocabulary import (
+    EKF7,
+    ESKF9,
+    ESKF15,
+    EstimatorVocabulary,
+    euler_vocabulary,
+    with_gsf,
+)
 from quad_drake.grading.course import StudentProblem, load_student_module, tuning_of
 from quad_drake.models.fidelity import Fidelity
 
@@ -145,6 +153,7 @@ class EskfEstimatorConfig(AidingParams, GateParams):
     gps_pos_std: List[float] = noise_stds(0.7, 0.7, 2.0)  # m
     gps_vel_std: List[float] = noise_stds(0.1, 0.1, 0.3)  # m/s
     mag_yaw_std: float = number(0.1, positive=True, noise_std=True)  # rad
+    gsf: GsfParams = field(default_factory=GsfParams)  # the EKF-GSF yaw estimator beside it (off)
 
 
 @dataclass
@@ -344,6 +353,12 @@ def _eskf_gps_height_noise(config, height_std):
     return dataclasses.replace(config, gps_pos_std=[*config.gps_pos_std[0:2], height_std])
 
 
+def _eskf_vocabulary(config):
+    """ESKF15 or ESKF9 (bias states or not), with the EKF-GSF's log when ``gsf.enabled``."""
+    vocabulary = ESKF15 if config.estimate_biases else ESKF9
+    return with_gsf(vocabulary, config.gsf.models) if config.gsf.enabled else vocabulary
+
+
 def _eskf_tuning(config):
     """The ESKF's noise fields; without bias states their random walks have no effect."""
     return _ESKF_TUNING if config.estimate_biases else tuple(k for k in _ESKF_TUNING if "_bias_" not in k)
@@ -425,7 +440,7 @@ KINDS = {
         EstimatorKind(
             name="eskf",
             config_type=EskfEstimatorConfig,
-            vocabulary=lambda config: ESKF15 if config.estimate_biases else ESKF9,
+            vocabulary=_eskf_vocabulary,
             builder="quad_drake.systems.estimators:add_eskf",
             tuning_keys=_eskf_tuning,
             fidelity_problem=_physical_accelerometer_only,

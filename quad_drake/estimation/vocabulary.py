@@ -19,6 +19,7 @@ Consumers (signals, consistency, plots, report, campaigns) read the vocabulary; 
 them knows an estimator's layout.
 """
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -190,6 +191,32 @@ ESKF15 = EstimatorVocabulary(
     extra_values=_bias_values,
 )
 """Error-state EKF with accelerometer and gyro bias states (15); NEES over the 9 navigation states."""
+
+
+def gsf_log_size(models) -> int:
+    """Width of the ``gsf`` log of an EKF-GSF yaw estimator of M = `models` hypotheses: the
+    Gaussian-sum yaw (rad, NaN before its first GPS sample), its std (rad), the resets of the main
+    filter's yaw so far, the M weights (``estimation/gsf.py``)."""
+    return 3 + models
+
+
+def with_gsf(vocabulary, models) -> EstimatorVocabulary:
+    """`vocabulary` with the ``gsf`` log of an EKF-GSF of M = `models` hypotheses beside it, read as
+    the values ``Est.GsfYaw`` (rad), ``Est.GsfYawStd`` (rad), ``Est.GsfYawErr`` (rad, GSF yaw minus
+    the true yaw, wrapped), ``Est.GsfResets`` and ``Est.GsfWeight<j>``."""
+    base_values = vocabulary.extra_values
+
+    def extra_values(logs):
+        values = dict(base_values(logs))
+        log = np.asarray(logs["gsf"], dtype=float)
+        values.update({"GsfYaw": log[..., 0], "GsfYawStd": log[..., 1], "GsfResets": log[..., 2]})
+        true_yaw = yaw_from_quats(np.asarray(error_truth(logs), dtype=float)[..., 3:7])
+        values["GsfYawErr"] = wrap_angles(log[..., 0] - true_yaw)
+        values.update({f"GsfWeight{j}": log[..., 3 + j] for j in range(models)})
+        return values
+
+    logs = dict(vocabulary.logs, gsf=gsf_log_size(models))
+    return dataclasses.replace(vocabulary, logs=logs, extra_values=extra_values)
 
 
 EULER_STATES = ("X", "Y", "Z", "VX", "VY", "VZ", "Roll", "Pitch", "Yaw")

@@ -611,6 +611,33 @@ def _wind_figure(result, vehicle):
     return fig
 
 
+def _gsf_figure(result, vehicle):
+    """The EKF-GSF yaw estimator beside `vehicle`'s estimator (``estimation/gsf.py``): top, the
+    true yaw, the GSF's yaw with its ±σ band and the estimator's yaw (rad); middle, the weights of
+    its hypotheses; bottom, the resets of the estimator's yaw to the GSF's."""
+    t = result.times
+    fig, axes = _figure(3, 1, height_per_row=2.0, title=f"{vehicle}: EKF-GSF yaw estimator")
+    true_yaw = _values(result, f"{vehicle}.Yaw")
+    gsf_yaw = _values(result, f"{vehicle}.Est.GsfYaw")
+    sigma = _values(result, f"{vehicle}.Est.GsfYawStd")
+    ax = axes[0, 0]
+    ax.plot(t, true_yaw, color="k", lw=1.4, label="true")
+    ax.plot(t, gsf_yaw, color="tab:orange", lw=1.0, label="GSF")
+    ax.fill_between(t, gsf_yaw - sigma, gsf_yaw + sigma, color="tab:orange", alpha=0.2, label="GSF ±σ")
+    ax.plot(t, _values(result, f"{vehicle}.Est.Yaw"), color="tab:blue", lw=0.8, ls="--", label="estimator")
+    ax.set_ylabel(_label("yaw", "rad"))
+    ax.legend(loc="upper right", fontsize=7, ncol=4)
+    weights = sorted(name for name in result.signals if name.startswith(f"{vehicle}.Est.GsfWeight"))
+    for i, name in enumerate(weights):
+        axes[1, 0].plot(t, _values(result, name), color=_color(i), lw=0.9, label=name.rsplit(".", 1)[-1])
+    axes[1, 0].set_ylabel("weight")
+    axes[1, 0].set_ylim(-0.02, 1.05)
+    axes[1, 0].legend(loc="upper right", fontsize=7, ncol=len(weights))
+    axes[2, 0].step(t, _values(result, f"{vehicle}.Est.GsfResets"), where="post", color="tab:red")
+    axes[2, 0].set_ylabel("yaw resets")
+    return fig
+
+
 def _field_assumed(config):
     """(m_N, hard iron) the vehicle's estimator assumes of a 3-axis magnetometer, or None."""
     params = getattr(config.estimator, "mag_field", None)
@@ -730,6 +757,12 @@ def make_figures(result) -> dict[str, tuple[str, Figure]]:
                     f"{vehicle}: measured vs true vs estimated",
                     _measurement_figure(result, vehicle, panels),
                 )
+    for vehicle in estimating[: FLEET_SIZE - 1]:
+        if f"{vehicle}.Est.GsfYaw" in result.signals:
+            figures[f"gsf_{vehicle}"] = (
+                f"{vehicle}: EKF-GSF yaw, weights and resets",
+                _gsf_figure(result, vehicle),
+            )
     windy = [
         v.name
         for v in result.scenario.vehicles

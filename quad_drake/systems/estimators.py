@@ -45,8 +45,9 @@ from quad_drake.conventions import (
 )
 from quad_drake.estimation import ekf, gating
 from quad_drake.estimation.complementary import VARIANTS
+from quad_drake.estimation.measurements import MEASUREMENTS
 from quad_drake.estimation.registry import KINDS, kind_of, vocabulary_for
-from quad_drake.estimation.vocabulary import DIAGNOSTICS_SIZE, NIS_DOF
+from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, NIS_COLUMNS, NIS_DOF, gsf_log_size
 from quad_drake.kernels import attitude as attitude_kernel
 from quad_drake.kernels import ekf7 as ekf7_kernel
 from quad_drake.kernels import fusion
@@ -320,12 +321,14 @@ class Eskf(LeafSystem):
         }  # fmt: skip
         self._n = n
         self._read_imu = row_reader(self.DeclareVectorInputPort("imu", n * IMU_SIZE), n)
+        sensor_updates = updates.build_updates(KINDS["eskf"].measurements, sensors, builders)
+        gsf = _gsf_update(params, sensors, sensor_updates)
         self._fusion = updates.Fusion(
             self,
             n,
             x0,
             P0,
-            updates.build_updates(KINDS["eskf"].measurements, sensors, builders),
+            sensor_updates if gsf is None else (gsf,) + sensor_updates,
             repairs=not fidelity.reference_estimator,
         )
         initial_estimate = np.zeros(STATE_SIZE)  # body rate 0 before the first sample
@@ -335,6 +338,8 @@ class Eskf(LeafSystem):
         declare_state_output(self, "covariance", groups.P, n * P0.size)
         declare_state_output(self, "diagnostics", groups.diagnostics, n * DIAGNOSTICS_SIZE)
         self._bias = discrete_group(self, n * 6, "imu_bias")
+        if gsf is not None:
+            declare_state_output(self, "gsf", gsf.log, n * gsf_log_size(params.gsf.models))
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, EKF_OFFSET, self._update)
 
     def measurement_ports(self) -> tuple:
@@ -346,10 +351,26 @@ class Eskf(LeafSystem):
         seam = self._fusion
         filters = seam.filters(discrete_state)
         estimate = discrete_state.get_mutable_value(self._estimate).reshape(self._n, STATE_SIZE)
-        healthy = self._predict_tick(filters, self._read_imu(context), estimate, self._model)
-        seam.fuse(context, discrete_state, filters, seam.read(context), healthy)
+        imu = self._read_imu(context)
+        healthy = self._predict_tick(filters, imu, estimate, self._model)
+        samples = seam.read(context)
+        samples["imu"] = imu
+        seam.fuse(context, discrete_state, filters, samples, healthy)
         self._write_estimate(filters.x, estimate)
         discrete_state.get_mutable_value(self._bias)[:] = filters.x[:, 10:16].ravel()
+
+
+def _gsf_update(params, sensors, sensor_updates) -> updates.GsfUpdate | None:
+    """The ESKF's EKF-GSF yaw estimator (``params.gsf``), fed by the GPS and told of the
+    magnetometer update among `sensor_updates`; None when it is off or the vehicle has no GPS."""
+    if not params.gsf.enabled or sensors.gps is None:
+        return None
+    columns = None
+    for update in sensor_updates:
+        if isinstance(update, (updates.YawUpdate, updates.FieldUpdate)):
+            stamp = NIS_COLUMNS[update.measurement.nis][1]
+            columns = (stamp, DIAG["mag_gated"])
+    return updates.GsfUpdate(MEASUREMENTS["gps"], params.gsf, ONBOARD_PERIOD, params.gps_vel_std[0], columns)
 
 
 def _gps_gates(params, fidelity) -> gating.GpsGates:
@@ -416,6 +437,7 @@ def add_eskf(builder, vehicle, fidelity, n) -> tuple[dict, dict]:
     system = builder.AddNamedSystem("eskf", Eskf(vehicle.estimator, fidelity, n=n, sensors=vehicle.sensors))
     inputs = {port: [system.GetInputPort(port)] for port in ("imu",) + system.measurement_ports()}
     names = ("estimated_state", "covariance", "diagnostics", "imu_bias")
+    names += ("gsf",) if system.HasOutputPort("gsf") else ()
     return inputs, {name: system.GetOutputPort(name) for name in names}
 
 

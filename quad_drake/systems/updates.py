@@ -23,6 +23,7 @@ import collections
 
 import numpy as np
 
+from quad_drake.conventions import NO_SAMPLE_STAMP
 from quad_drake.estimation import baro, gating
 from quad_drake.estimation.measurements import measurements_of
 from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, NIS_DOF, initial_diagnostics
@@ -215,6 +216,62 @@ class BaroUpdate(CorrectionUpdate):
         self._apply(filters)
 
 
+class GsfUpdate(Update):
+    """The EKF-GSF yaw estimator beside the ESKF (``estimation/gsf.py``, ``kernels/gsf.py``): not
+    a sensor of its own, it reads the tick's GPS (``samples["gps"]``, the GPS update's port) and
+    IMU (``samples["imu"]``) samples and the magnetometer's fate in ``diagnostics``, and may reset
+    the ESKF's yaw. It runs before the other updates: a vehicle whose magnetometer it has stopped
+    fusing (after a yaw emergency reset) gets a ``samples["mag"]`` without a fresh sample.
+
+    params: GsfParams; dt: s, the tick; gps_vel_std: m/s, the GPS velocity std the ESKF assumes;
+    mag_columns: the (stamp, gated count) ``diagnostics`` columns of the vehicle's magnetometer
+    update, or None without one. A book of its own (discrete-state group, ``kernels.gsf.book_size``
+    per vehicle) and the group :attr:`log` (n * ``vocabulary.gsf_log_size``: yaw rad, yaw std rad,
+    resets, weights), written each tick."""
+
+    def __init__(self, measurement, params, dt, gps_vel_std, mag_columns):
+        super().__init__(measurement)
+        from quad_drake.kernels import gsf as gsf_kernel  # imported on first use, as the aiding's
+
+        self._kernel = gsf_kernel
+        self._model = gsf_kernel.model(params, dt, gps_vel_std, mag_columns)
+        self._book = self.log = self._blocked = None
+
+    def declare(self, system, n, k) -> None:
+        """Declare the book and the log groups (no input port: the GPS update declares ``gps``)."""
+        models = self._model.models
+        self._book = discrete_group(system, np.tile(self._kernel.initial_book(models), n))
+        self.log = discrete_group(system, np.tile(gsf_log(self._kernel.initial_book(models), models), n))
+        self._blocked = np.zeros(n, dtype=bool)
+
+    def fuse(self, context, discrete_state, filters, samples) -> None:
+        n, kernel = filters.x.shape[0], self._kernel
+        book = discrete_state.get_mutable_value(self._book).reshape(n, -1)
+        gps = samples.get("gps")
+        if gps is None:
+            return
+        kernel.tick(filters, book, samples["imu"], gps, context.get_time(), self._model, self._blocked)
+        discrete_state.get_mutable_value(self.log)[:] = gsf_log(book, self._model.models).ravel()
+        if self._blocked.any() and "mag" in samples:
+            mag = samples["mag"].copy()
+            mag[self._blocked, -1] = NO_SAMPLE_STAMP
+            samples["mag"] = mag
+
+
+def gsf_log(book, models) -> np.ndarray:
+    """The GSF log rows (..., ``vocabulary.gsf_log_size(models)``) of GSF books (..., book size):
+    the Gaussian-sum yaw (rad), its std (rad), the resets so far and the M weights."""
+    from quad_drake.kernels import gsf as gsf_kernel
+
+    book = np.asarray(book, dtype=float)
+    head = np.stack(
+        (book[..., gsf_kernel.YAW], np.sqrt(book[..., gsf_kernel.YAW_VAR]), book[..., gsf_kernel.RESETS]),
+        axis=-1,
+    )
+    weights = book[..., gsf_kernel.HEADER + 12 * models : gsf_kernel.HEADER + 13 * models]
+    return np.concatenate((head, weights), axis=-1)
+
+
 def build_updates(declared, sensors, builders) -> tuple:
     """The :class:`Update` s of a vehicle's estimator: for each measurement of `declared` (the
     kind's ``measurements``) that `sensors` (the vehicle's SensorsConfig) carry, in order,
@@ -257,7 +314,7 @@ class Fusion:
         for update in updates:
             update.declare(system, n, self.k)
         self.updates = updates
-        self.ports = tuple(update.measurement.port for update in updates)
+        self.ports = tuple(dict.fromkeys(u.measurement.port for u in updates if u.read is not None))
         self._gps = next((u for u in updates if isinstance(u, GpsUpdate)), None)
         if self._gps is not None:
             self._gps.height_check = self.update_of(BaroUpdate)
@@ -279,7 +336,7 @@ class Fusion:
 
     def read(self, context) -> dict:
         """{port: (n, width) samples} of every update's input this tick."""
-        return {update.measurement.port: update.read(context) for update in self.updates}
+        return {u.measurement.port: u.read(context) for u in self.updates if u.read is not None}
 
     def fuse(self, context, discrete_state, filters, samples, healthy, updates=None) -> None:
         """The covariance check, then the updates (all, or `updates`), IN PLACE on `filters`.
