@@ -113,9 +113,8 @@ def _ekf7_tick(x, P, attitude, imu, gps, mag, diagnostics, book, Q, gains, R_mag
     """ekf7.tick with the scalar EKF's settings; (quiet, healthy)."""
     healthy = np.empty(x.shape[0], dtype=bool)
     filters = fusion.Filters(x, P, diagnostics, book, hold=np.zeros((x.shape[0], HOLD_SIZE)))
-    samples = ekf7.Samples(attitude=attitude, imu=imu, gps=gps, mag=mag)
     model = ekf7.Model(DT, Q, ekf.gravity_z(False), float(R_mag[0, 0]), float(threshold))
-    quiet = ekf7.tick(filters, samples, model, gains, healthy)
+    quiet = ekf7.tick(*filters, attitude, imu, gps, mag, *model, gains, healthy)
     return quiet, healthy
 
 
@@ -136,11 +135,7 @@ def test_the_running_mean_of_the_imu_bridges_a_dropout():
     mean = imu[0].copy()
     for k in range(ticks):
         before = attitude.copy()
-        attitude_kernel.tick(
-            attitude_kernel.Filters(attitude, rate, hold),
-            attitude_kernel.Samples(imu[k], np.zeros((count, 7))),
-            model,
-        )
+        attitude_kernel.tick(attitude, rate, hold, imu[k], np.zeros((count, 7)), *model)
         finite = np.isfinite(imu[k]).all(axis=1)
         if k:
             mean[finite] += weight * (imu[k][finite] - mean[finite])

@@ -225,9 +225,8 @@ def test_gps_and_magnetometer_match_scalar(fidelity):
     state = random_states(rng)
     walk = rng.normal(size=(N, 3))
     noise = rng.normal(size=(N, 9))
-    position, velocity, new_walk = kernels.gps_measurements(
-        state[:, 0:3], state[:, 7:10], walk, noise, gps, fidelity
-    )
+    new_walk, out = walk.copy(), np.full((N, 7), np.nan)
+    kernels.gps_samples(state, new_walk, noise, kernels.frozen(gps), kernels.frozen(fidelity), 0.3, out)
     rows = [
         sensor_models.gps_measurement(
             state[i, 0:3].tolist(),
@@ -239,8 +238,7 @@ def test_gps_and_magnetometer_match_scalar(fidelity):
         )
         for i in range(N)
     ]
-    close(position, [r[0] for r in rows])
-    close(velocity, [r[1] for r in rows])
+    close(out, [r[0] + r[1] + [0.3] for r in rows])
     close(new_walk, [r[2] for r in rows])
     yaw_noise = rng.normal(size=(N, 1)) * 5
     out = np.full((N, 2), np.nan)

@@ -20,11 +20,6 @@ from quad_drake.kernels import rotations
 from quad_drake.kernels.imu_hold import IMU_FINITE, IMU_MISSING, bridge_imu_row, hold_weight
 from quad_drake.kernels.jit import compiled, njit_cached
 
-Filters = collections.namedtuple("Filters", ["attitude", "rate", "hold"])
-"""N filters' arrays, updated IN PLACE each tick: attitude (N, 3) roll, pitch, yaw rad; rate (N, 3)
-the gyro sample rad/s (NaN while the IMU is out); hold (N, imu_hold.HOLD_SIZE)."""
-Samples = collections.namedtuple("Samples", ["imu", "ekf_state"])
-"""One tick's inputs: imu (N, 6: f_B m/s^2, w_B rad/s); ekf_state (N, 7), whose yaw is the prior yaw."""
 Model = collections.namedtuple("Model", ["dt", "tau", "nonlinear", "reference_accelerometer"])
 """The filter's constants: dt s, the blend time constant tau s, the variant (nonlinear: True for
 ``"nonlinear"``, ``complementary.is_nonlinear``) and the accelerometer's sign convention."""
@@ -54,9 +49,20 @@ def _update_rows(attitude, f_B, w_B, dt, tau, nonlinear, reference_accelerometer
 
 
 @njit_cached
-def _tick(attitude, rate, hold, imu, ekf_state, dt, tau, nonlinear, reference_accelerometer):
-    """:func:`tick` on the fields of its groups (numba runs a loop over flat arguments about a
-    third faster than over the fields of a namedtuple)."""
+def tick(attitude, rate, hold, imu, ekf_state, dt, tau, nonlinear, reference_accelerometer) -> None:
+    """One tick of N attitude filters IN PLACE (``systems.estimators.ComplementaryFilter``).
+
+    attitude (N, 3) roll, pitch, yaw rad; rate (N, 3) the gyro sample rad/s (NaN while the IMU is
+    out); hold (N, imu_hold.HOLD_SIZE): updated. imu (N, 6: f_B m/s^2, w_B rad/s); ekf_state (N,
+    7), whose yaw is the prior yaw: the tick's samples. dt ... reference_accelerometer: the
+    fields of the filter's :class:`Model` (``tick(attitude, rate, hold, imu, ekf_state,
+    *model)``: numba runs a loop over flat arguments about a third faster than over the fields
+    of a namedtuple). A vehicle takes :func:`complementary_update` and its gyro sample as rate;
+    over a non-finite IMU sample it takes the update with its running mean of the IMU
+    (``imu_hold.IMU_HOLD_TIME``) and a NaN rate (no rate measured: the controller then commands
+    no body moment); before its first finite sample it keeps its roll and pitch and takes the
+    prior yaw.
+    """
     weight = hold_weight(dt)
     for i in range(attitude.shape[0]):
         yaw = ekf_state[i, 6]
@@ -87,19 +93,6 @@ def complementary_update(attitude, f_B, w_B, dt, tau, variant, reference_acceler
 def model(dt, tau, variant, reference_accelerometer=False) -> Model:
     """The :class:`Model` of the step dt s, tau s, the variant name and the accelerometer convention."""
     return Model(float(dt), float(tau), complementary.is_nonlinear(variant), bool(reference_accelerometer))
-
-
-def tick(filters, samples, model) -> None:
-    """One tick of N attitude filters IN PLACE (``systems.estimators.ComplementaryFilter``).
-
-    filters: the :class:`Filters`, updated; samples: the tick's :class:`Samples`; model: the
-    :class:`Model`. A vehicle takes :func:`complementary_update` and its gyro sample as rate;
-    over a non-finite IMU sample it takes the update with its running mean of the IMU
-    (``imu_hold.IMU_HOLD_TIME``) and a NaN rate (no rate measured: the controller then commands
-    no body moment); before its first finite sample it keeps its roll and pitch and takes the
-    prior yaw.
-    """
-    _tick(*filters, *samples, *model)
 
 
 def round_to_float32(*arrays) -> None:

@@ -64,10 +64,6 @@ from quad_drake.kernels.imu_hold import (
 )
 from quad_drake.kernels.jit import compiled, njit_cached
 
-Samples = collections.namedtuple("Samples", ["attitude", "imu", "gps", "mag"])
-"""One tick's inputs of N vehicles: attitude (N, 3) roll, pitch, yaw rad (this tick's attitude
-filter), imu (N, 6: f_B m/s^2, w_B rad/s), gps (N, 7: p m, v m/s, stamp s), mag (N, 2: yaw rad,
-stamp s)."""
 Model = collections.namedtuple("Model", ["dt", "Q", "gravity_z", "r_mag", "mag_threshold"])
 """The filter's constants: dt s (the predict step), Q (7, 7) per step, gravity_z m/s^2
 (``ekf.gravity_z``), r_mag = R_mag[0, 0] rad^2, mag_threshold: the mag gate's NIS threshold."""
@@ -238,11 +234,29 @@ def gps_update(x, P, gps_pv, R_gps, mask=None) -> tuple[np.ndarray, np.ndarray, 
 
 
 @njit_cached
-def _tick(
-    x, P, diagnostics, book, hold, attitude, imu, gps, mag, dt, Q, gravity_z, r_mag, threshold, gains, healthy
-):
-    """:func:`tick` on the fields of its groups (numba runs a loop over flat arguments about a
-    third faster than over the fields of a namedtuple)."""
+def tick(
+    x, P, diagnostics, book, hold, attitude, imu, gps, mag,
+    dt, Q, gravity_z, r_mag, mag_threshold, gains, healthy,
+) -> bool:  # fmt: skip
+    """The prediction and, on a quiet tick, the magnetometer step of one EKF7 tick IN PLACE
+    (``systems.estimators.Ekf``), compiled as one call; True when the tick was quiet.
+
+    x, P, diagnostics, book, hold: the ``fusion.Filters`` fields (x (N, 7), P (N, 7, 7), ...),
+    updated; attitude (N, 3) roll, pitch, yaw rad (this tick's attitude filter), imu (N, 6: f_B
+    m/s^2, w_B rad/s), gps (N, 7: p m, v m/s, stamp s), mag (N, 2: yaw rad, stamp s): the tick's
+    samples; dt ... mag_threshold: the fields of the filter's :class:`Model` (``tick(*filters,
+    attitude, imu, gps, mag, *model, gains, healthy)``: numba runs a loop over flat arguments
+    about a third faster than over the fields of a namedtuple); gains: the tilt-aware Q's gains
+    (velocity, yaw) of this tick (``ekf.TiltNoise.gains``; :data:`NO_TILT`: off); healthy (N,)
+    bool: written with ``fusion.covariance_looks_healthy`` of the new P.
+
+    Prediction (module docstring) with f_B = imu[:, 0:3]. A non-finite IMU sample counts in
+    diagnostics and the vehicle dead-reckons on its running mean (``imu_hold``); a vehicle with
+    no mean yet, or a non-finite attitude (also counted), is not predicted. A quiet tick is one
+    where every P looks healthy and no vehicle has a fresh GPS sample (``fusion.fresh``): then
+    the tick ends here with :func:`mag_tick`. Otherwise the caller runs the repair, the mag step
+    and the measurement updates (``systems.updates.Fusion.fuse``).
+    """
     GP, M = np.empty((7, 7)), np.empty((7, 7))
     weight = hold_weight(dt)
     quiet = True
@@ -262,31 +276,8 @@ def _tick(
         if not healthy[i] or fresh(gps[i, 6], book[i, GPS_SLOT]):
             quiet = False
     if quiet:
-        _mag_tick(x, P, mag, diagnostics, book, r_mag, threshold)
+        _mag_tick(x, P, mag, diagnostics, book, r_mag, mag_threshold)
     return quiet
-
-
-def tick(filters, samples, model, tilt_gains, healthy) -> bool:
-    """The prediction and, on a quiet tick, the magnetometer step of one EKF7 tick IN PLACE
-    (``systems.estimators.Ekf``), compiled as one call; True when the tick was quiet.
-
-    filters: the ``fusion.Filters`` (x (N, 7), P (N, 7, 7), diagnostics, book, hold), updated;
-    samples: the tick's :class:`Samples`; model: the filter's :class:`Model`; tilt_gains: the
-    tilt-aware Q's gains (velocity, yaw) of this tick (``ekf.TiltNoise.gains``; :data:`NO_TILT`:
-    off); healthy (N,) bool: written with ``fusion.covariance_looks_healthy`` of the new P.
-
-    Prediction (module docstring) with f_B = imu[:, 0:3]. A non-finite IMU sample counts in
-    diagnostics and the vehicle dead-reckons on its running mean (``imu_hold``); a vehicle with
-    no mean yet, or a non-finite attitude (also counted), is not predicted. A quiet tick is one
-    where every P looks healthy and no vehicle has a fresh GPS sample (``fusion.fresh``): then
-    the tick ends here with :func:`mag_tick`. Otherwise the caller runs the repair, the mag step
-    and the measurement updates (``systems.updates.Fusion.fuse``).
-    """
-    f, s, m = filters, samples, model
-    return _tick(
-        f.x, f.P, f.diagnostics, f.book, f.hold, s.attitude, s.imu, s.gps, s.mag,
-        m.dt, m.Q, m.gravity_z, m.r_mag, m.mag_threshold, tilt_gains, healthy,
-    )  # fmt: skip
 
 
 # ----- the estimate in the ``state`` layout --------------------------------------------------------

@@ -19,12 +19,11 @@ import dataclasses
 
 import numpy as np
 
-from quad_drake.config.schema import ControllerParams, ImuParams, MagParams, PhysicsParams
+from quad_drake.config.schema import ControllerParams, GpsParams, ImuParams, MagParams, PhysicsParams
 from quad_drake.control import cascade
 from quad_drake.kernels.jit import compiled, njit_cached
 from quad_drake.models import dynamics, rotations, sensor_models, wind
-from quad_drake.models.fidelity import PHYSICAL, Fidelity
-from quad_drake.models.sensor_models import gps_measurement
+from quad_drake.models.fidelity import Fidelity
 
 # ----- parameters ------------------------------------------------------------
 
@@ -35,6 +34,7 @@ ControllerTuple = collections.namedtuple(
 PhysicsTuple = collections.namedtuple("PhysicsTuple", [f.name for f in dataclasses.fields(PhysicsParams)])
 ImuTuple = collections.namedtuple("ImuTuple", [f.name for f in dataclasses.fields(ImuParams)])
 MagTuple = collections.namedtuple("MagTuple", [f.name for f in dataclasses.fields(MagParams)])
+GpsTuple = collections.namedtuple("GpsTuple", [f.name for f in dataclasses.fields(GpsParams)])
 FidelityTuple = collections.namedtuple("FidelityTuple", [f.name for f in dataclasses.fields(Fidelity)])
 
 
@@ -47,7 +47,7 @@ def _plain(value):
 
 
 def frozen(params) -> tuple:
-    """The ControllerParams, PhysicsParams, ImuParams, MagParams or Fidelity `params` as a plain
+    """The ControllerParams, PhysicsParams, ImuParams, MagParams, GpsParams or Fidelity `params` as a plain
     tuple of its fields in order (numbers as floats, lists as tuples of floats), typed the same for
     every config so that numba's on-disk cache is reused. A compiled kernel makes it the namedtuple
     of its type above (``PhysicsTuple(*params)``), which the scalar functions read: numba's
@@ -217,13 +217,32 @@ def imu_bias_step(bias, noise, params) -> np.ndarray:
     return bias + walk * noise
 
 
-def gps_measurements(
-    p_NB, v_NB, random_walk, noise, params, fidelity=PHYSICAL
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(position (N, 3), velocity (N, 3), random walk (N, 3)) of
-    :func:`quad_drake.models.sensor_models.gps_measurement` (which runs here on the rows)."""
-    position, velocity, walk = gps_measurement(p_NB.T, v_NB.T, random_walk.T, noise.T, params, fidelity)
-    return np.stack(position, axis=1), np.stack(velocity, axis=1), np.stack(walk, axis=1)
+_gps_compiled = compiled(
+    sensor_models.gps_measurement, _float32_entries=compiled(sensor_models._float32_entries)
+)
+
+
+@njit_cached
+def gps_samples(state, walk, noise, params, fidelity, stamp, out) -> None:
+    """N :class:`~quad_drake.systems.sensors.Gps` samples into out (N, 7): p_N m, v_N m/s of
+    :func:`quad_drake.models.sensor_models.gps_measurement` (its code compiled, run per vehicle) of
+    p_NB, v_NB in state (N, 13), the random-walk bias walk (N, 3) m (stepped IN PLACE) and the
+    unit normal noise (N, 9: 3 walk, 3 position, 3 velocity), and `stamp` s. params, fidelity:
+    the :func:`frozen` GpsParams and Fidelity."""
+    gps, fidelity_tuple = GpsTuple(*params), FidelityTuple(*fidelity)
+    for i in range(state.shape[0]):
+        position, velocity, new_walk = _gps_compiled(
+            (state[i, 0], state[i, 1], state[i, 2]),
+            (state[i, 7], state[i, 8], state[i, 9]),
+            (walk[i, 0], walk[i, 1], walk[i, 2]),
+            (noise[i, 0], noise[i, 1], noise[i, 2], noise[i, 3], noise[i, 4], noise[i, 5], noise[i, 6],
+             noise[i, 7], noise[i, 8]),
+            gps,
+            fidelity_tuple,
+        )  # fmt: skip
+        for k in range(3):
+            out[i, k], out[i, 3 + k], walk[i, k] = position[k], velocity[k], new_walk[k]
+        out[i, 6] = stamp
 
 
 _wrap_compiled = compiled(rotations.wrap_to_pi)

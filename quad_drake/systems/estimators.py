@@ -104,19 +104,15 @@ class ComplementaryFilter(LeafSystem):
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, ATTITUDE_FILTER_OFFSET, self._update)
 
     def _update(self, context, discrete_state):
-        n = self._n
-        attitude, rate = (
-            discrete_state.get_mutable_value(self._attitude),
-            discrete_state.get_mutable_value(self._rate),
-        )
+        n, get = self._n, discrete_state.get_mutable_value
+        attitude, rate = get(self._attitude), get(self._rate)
         attitude_kernel.tick(
-            attitude_kernel.Filters(
-                attitude=attitude.reshape(n, ATTITUDE_SIZE),
-                rate=rate.reshape(n, 3),
-                hold=discrete_state.get_mutable_value(self._hold).reshape(n, HOLD_SIZE),
-            ),
-            attitude_kernel.Samples(imu=self._read_imu(context), ekf_state=self._read_ekf_state(context)),
-            self._model,
+            attitude.reshape(n, ATTITUDE_SIZE),
+            rate.reshape(n, 3),
+            get(self._hold).reshape(n, HOLD_SIZE),
+            self._read_imu(context),
+            self._read_ekf_state(context),
+            *self._model,
         )
         if self._float32:
             attitude_kernel.round_to_float32(attitude, rate)
@@ -219,14 +215,13 @@ class Ekf(LeafSystem):
         filters = seam.filters(discrete_state)
         samples = seam.read(context)
         samples["attitude"] = attitude = self._read_attitude(context)
-        tick_samples = ekf7_kernel.Samples(
-            attitude=attitude,
-            imu=self._read_imu(context),
-            gps=samples.get("gps", self._no_gps),
-            mag=self._no_yaw if self._yaw is None else samples["mag"],
-        )
+        gps = samples.get("gps", self._no_gps)
+        mag = self._no_yaw if self._yaw is None else samples["mag"]
         tilt_gains = ekf7_kernel.NO_TILT if self._tilt is None else self._tilt.gains(context.get_time())
-        if ekf7_kernel.tick(filters, tick_samples, self._model, tilt_gains, self._healthy):
+        quiet = ekf7_kernel.tick(
+            *filters, attitude, self._read_imu(context), gps, mag, *self._model, tilt_gains, self._healthy
+        )
+        if quiet:
             if self._after_quiet_tick:
                 seam.fuse(context, discrete_state, filters, samples, None, self._after_quiet_tick)
         else:  # a fresh GPS sample or an unhealthy P somewhere: the full step

@@ -125,15 +125,15 @@ class QuadrotorPlant(LeafSystem):
     def _step(self, context, discrete_state, column):
         """One physics step of every vehicle on the noise columns column..column + 3, in place;
         the first starts the motor lag from the commands and sets the started flag."""
-        n = self._n
+        n, get = self._n, discrete_state.get_mutable_value
         commands = self._read_commands(context)
-        forces = discrete_state.get_mutable_value(self._forces).reshape(n, NUM_MOTORS)
-        flag = discrete_state.get_mutable_value(self._started)
+        forces = get(self._forces).reshape(n, NUM_MOTORS)
+        flag = get(self._started)
         if not flag[0]:
             forces[:] = commands
             flag[0] = 1.0
         kernels.plant_steps(
-            discrete_state.get_mutable_value(self._state).reshape(n, STATE_SIZE),
+            get(self._state).reshape(n, STATE_SIZE),
             forces,
             commands,
             self._read_noise(context),
@@ -141,8 +141,8 @@ class QuadrotorPlant(LeafSystem):
             self._frozen_params,
             PHYSICS_PERIOD,
             self._frozen_fidelity,
-            discrete_state.get_mutable_value(self._acceleration).reshape(n, 3),
-            discrete_state.get_mutable_value(self._contacts).reshape(n, 3),
+            get(self._acceleration).reshape(n, 3),
+            get(self._contacts).reshape(n, 3),
             self._no_wind if self._read_wind is None else self._read_wind(context),
-            discrete_state.get_mutable_value(self._delta_v).reshape(n, 3),
+            get(self._delta_v).reshape(n, 3),
         )

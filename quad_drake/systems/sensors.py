@@ -97,9 +97,9 @@ class Imu(_Sensor):
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, SENSOR_OFFSET, self._sample)
 
     def _sample(self, context, discrete_state):
-        bias = self._bias_rows
+        n, get, bias = self._n, discrete_state.get_mutable_value, self._bias_rows
         if self._read_bias_noise is not None:
-            bias = discrete_state.get_mutable_value(self._bias).reshape(self._n, self.noise_size)
+            bias = get(self._bias).reshape(n, self.noise_size)
             bias[:] = kernels.imu_bias_step(bias, self._read_bias_noise(context), self._params)
         motion = self._read_acceleration(context)  # a_NB, or the delta-velocity
         kernels.imu_samples(
@@ -109,10 +109,10 @@ class Imu(_Sensor):
             self._frozen_params,
             self._frozen_fidelity,
             bias,
-            discrete_state.get_mutable_value(self._output).reshape(self._n, IMU_SIZE),
+            get(self._output).reshape(n, IMU_SIZE),
             motion,
             ONBOARD_PERIOD,
-            discrete_state.get_mutable_value(self._saturation).reshape(self._n, 2),
+            get(self._saturation).reshape(n, 2),
         )
 
 
@@ -125,15 +125,15 @@ class Gps(_Sensor):
     stamp = NO_SAMPLE_STAMP (consumers judge freshness by the stamp only). The random-walk
     position bias (m) is discrete state; the sample counter k is discrete state so stamps are
     exact multiples. With ``fidelity.float32_estimator`` p, v and the bias are rounded to float32.
-    The sample is ``sensor_models.gps_measurement`` run on the vehicles' columns
-    (``kernels.flight.gps_measurements``).
+    The sample is ``sensor_models.gps_measurement``'s compiled form (``kernels.flight.gps_samples``).
     """
 
     noise_size = 9
 
     def __init__(self, params, fidelity=PHYSICAL, n=1) -> None:
         super().__init__(self.noise_size, n)
-        self._params, self._fidelity = params, fidelity
+        self._params = params
+        self._frozen_params, self._frozen_fidelity = kernels.frozen(params), kernels.frozen(fidelity)
         self.noise_period = params.period
         initial = np.tile([0.0] * (GPS_SIZE - 1) + [NO_SAMPLE_STAMP], n)
         self._output = discrete_group(self, initial, "gps")
@@ -144,16 +144,18 @@ class Gps(_Sensor):
         )
 
     def _sample(self, context, discrete_state):
-        x = self._read_state(context)
-        walk = discrete_state.value(self._walk).reshape(self._n, 3)
-        count = float(discrete_state.value(self._count)[0]) + 1.0
-        position, velocity, walk = kernels.gps_measurements(
-            x[:, 0:3], x[:, 7:10], walk, self._read_noise(context), self._params, self._fidelity
+        n, get = self._n, discrete_state.get_mutable_value
+        count = get(self._count)
+        count[0] += 1.0
+        kernels.gps_samples(
+            self._read_state(context),
+            get(self._walk).reshape(n, 3),
+            self._read_noise(context),
+            self._frozen_params,
+            self._frozen_fidelity,
+            count[0] * self._params.period,
+            get(self._output).reshape(n, GPS_SIZE),
         )
-        stamps = np.full((self._n, 1), count * self._params.period)
-        discrete_state.set_value(self._output, np.concatenate([position, velocity, stamps], axis=1).ravel())
-        discrete_state.set_value(self._walk, walk.ravel())
-        discrete_state.set_value(self._count, np.array([count]))
 
 
 class Magnetometer(_Sensor):

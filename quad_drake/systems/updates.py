@@ -315,6 +315,15 @@ class Fusion:
             update.declare(system, n, self.k)
         self.updates = updates
         self.ports = tuple(dict.fromkeys(u.measurement.port for u in updates if u.read is not None))
+        g = self.groups  # (group, the shape of its view) of each Filters field, for filters()
+        self._views = (
+            (g.x, (n, self.width)),
+            (g.P, (n, self.k, self.k)),
+            (g.diagnostics, (n, DIAGNOSTICS_SIZE)),
+            (g.book, (n, fusion.BOOK_SIZE)),
+            (g.hold, (n, HOLD_SIZE)),
+        )
+        self._readers = tuple((u.measurement.port, u.read) for u in updates if u.read is not None)
         self._gps = next((u for u in updates if isinstance(u, GpsUpdate)), None)
         if self._gps is not None:
             self._gps.height_check = self.update_of(BaroUpdate)
@@ -324,19 +333,21 @@ class Fusion:
         return next((u for u in self.updates if isinstance(u, kind)), None)
 
     def filters(self, discrete_state) -> fusion.Filters:
-        """Writable (n, ...) views of x, P, diagnostics, the book and the hold."""
-        n, g = self.n, self.groups
+        """Writable (n, ...) views of x, P, diagnostics, the book and the hold (valid inside the
+        handler that takes them: Drake may hand the next one another DiscreteValues)."""
+        get = discrete_state.get_mutable_value
+        (x, x_shape), (P, P_shape), (diagnostics, d_shape), (book, b_shape), (hold, h_shape) = self._views
         return fusion.Filters(
-            x=discrete_state.get_mutable_value(g.x).reshape(n, self.width),
-            P=discrete_state.get_mutable_value(g.P).reshape(n, self.k, self.k),
-            diagnostics=discrete_state.get_mutable_value(g.diagnostics).reshape(n, DIAGNOSTICS_SIZE),
-            book=discrete_state.get_mutable_value(g.book).reshape(n, fusion.BOOK_SIZE),
-            hold=discrete_state.get_mutable_value(g.hold).reshape(n, HOLD_SIZE),
+            get(x).reshape(x_shape),
+            get(P).reshape(P_shape),
+            get(diagnostics).reshape(d_shape),
+            get(book).reshape(b_shape),
+            get(hold).reshape(h_shape),
         )
 
     def read(self, context) -> dict:
         """{port: (n, width) samples} of every update's input this tick."""
-        return {u.measurement.port: u.read(context) for u in self.updates if u.read is not None}
+        return {port: read(context) for port, read in self._readers}
 
     def fuse(self, context, discrete_state, filters, samples, healthy, updates=None) -> None:
         """The covariance check, then the updates (all, or `updates`), IN PLACE on `filters`.
