@@ -248,6 +248,21 @@ FLIES_ON = ("truth", "estimate")
 
 
 @dataclass
+class FailsafeConfig:
+    """The no-aiding failsafe of a vehicle that flies on its estimate (``quad_drake.control.failsafe``):
+    after ``no_aiding_timeout`` s without a fused GPS position the horizontal position is invalid and
+    the vehicle descends and lands instead of flying its trajectory on dead reckoning."""
+
+    no_aiding_timeout: float = number(5.0, positive=True)  # s, PX4's EKF2_NOAID_TOUT default
+    descent_rate: float = number(0.5, positive=True)  # m/s, down
+    brake: bool = True  # hold zero estimated horizontal velocity (False: zero acceleration, level)
+    resume_on_aiding: bool = True  # position valid again in flight: resume the trajectory (False: land)
+    landed_lag: float = number(0.3, positive=True)  # m, set-point below the estimate when on the ground
+    landed_speed: float = number(0.2, positive=True)  # m/s, |estimated vz| below it when on the ground
+    landed_time: float = number(0.5, positive=True)  # s, how long both hold before the motors idle
+
+
+@dataclass
 class VehicleConfig:
     """One vehicle: its start (NED, FRD), physics, controller gains, trajectory, sensors, the
     estimator it runs and what that assumes (``estimator``), the state it flies on, its wind and
@@ -271,6 +286,7 @@ class VehicleConfig:
     # the estimate's own motion since its stamp (quad_drake.estimation.delay_compensation)
     gps_delay_compensation: float = number(0.0, nonnegative=True)
     wind: Optional[WindConfig] = None  # none: still air (quad_drake.models.wind)
+    failsafe: Optional[FailsafeConfig] = None  # none: no no-aiding failsafe (quad_drake.control.failsafe)
 
 
 SAFETY_KINDS = ("floor", "room", "finite", "tracking")

@@ -9,7 +9,9 @@ criteria, ``quad_drake.judging.safety``):
 floor), ``FloorTouchdowns`` (touchdowns so far, after take-off), ``TouchdownSpeed`` (each touchdown's
 descent speed, m/s, at the sample that counts it: a landing or a crash) and ``WallContactSteps``
 (1 ms steps so far stopped at a wall or the ceiling). With wind, ``Wind.X/Y/Z`` (m/s, NED); with a
-range-limited IMU, ``IMU.AccelSaturated`` and ``IMU.GyroSaturated`` (saturated samples so far).
+range-limited IMU, ``IMU.AccelSaturated`` and ``IMU.GyroSaturated`` (saturated samples so far);
+with a no-aiding failsafe, ``Failsafe.PositionValid``, ``Failsafe.NoAidTime`` (s) and
+``Failsafe.Phase`` (:data:`FAILSAFE_SIGNALS`).
 
 Logs are sampled every LOG_PERIOD at t = 0.005 k (k >= 1), each value as it was
 just before the systems' updates at t. Sensor signals carry a ``fresh`` mask:
@@ -77,6 +79,8 @@ def key_unit(key) -> str:
         return "gauss"
     if key.startswith("Est.") and last in STATE_UNITS:
         return STATE_UNITS[last]
+    if key == "Failsafe.NoAidTime":
+        return "s"
     if last in ("Roll", "Pitch", "Yaw", "MagYaw", "MaxEuler"):
         return "rad"
     if key.startswith("Vel.") or last in ("VX", "VY", "VZ", "Vel"):
@@ -106,6 +110,7 @@ LOG_WIDTHS = {
     "baro": 2,
     "wind": 3,
     "imu_saturation": 2,
+    "failsafe": 3,
 }
 """Widths of the logs every vehicle may have; an estimator's come from its vocabulary."""
 COUNTER_SIGNALS = {
@@ -117,6 +122,11 @@ COUNTER_SIGNALS = {
     "baro_gated": "BaroGated",
     "baro_resets": "BaroResets",
 }
+
+FAILSAFE_SIGNALS = ("PositionValid", "NoAidTime", "Phase")
+"""``V.Failsafe.<name>`` of the no-aiding failsafe's status (``control.failsafe.STATUS``): 1 while
+the horizontal position is valid, s without position aiding, the phase (0 nominal, 1 descending,
+2 landed)."""
 
 
 def stamp_fresh(stamps) -> np.ndarray:
@@ -245,6 +255,9 @@ def vehicle_signals(name, logs, vocabulary=None) -> Signals:
         else:  # 3-axis: the body-frame field, gauss
             for i, axis in enumerate(AXES):
                 put(f"Mag.{axis}", lambda i=i: mag[..., i], mag_fresh)
+    if "failsafe" in logs:
+        for i, key in enumerate(FAILSAFE_SIGNALS):
+            put(f"Failsafe.{key}", lambda i=i: logs["failsafe"][..., i])
     if "baro" in logs:
         baro = logs["baro"]
         put("Baro.Height", lambda: baro[..., 0], functools.cache(lambda: stamp_fresh(baro[..., 1])))
@@ -323,6 +336,8 @@ def vehicle_log_widths(vehicle, fidelity=PHYSICAL) -> dict[str, int]:
     vocabulary = vehicle_vocabulary(vehicle)
     if vocabulary is not None:
         widths.update(vocabulary.log_widths())
+    if vehicle.failsafe is not None:
+        widths["failsafe"] = LOG_WIDTHS["failsafe"]
     return widths
 
 
