@@ -257,9 +257,8 @@ class FailsafeConfig:
     descent_rate: float = number(0.5, positive=True)  # m/s, down
     brake: bool = True  # hold zero estimated horizontal velocity (False: zero acceleration, level)
     resume_on_aiding: bool = True  # position valid again in flight: resume the trajectory (False: land)
-    landed_lag: float = number(0.3, positive=True)  # m, set-point below the estimate when on the ground
-    landed_speed: float = number(0.2, positive=True)  # m/s, |estimated vz| below it when on the ground
-    landed_time: float = number(0.5, positive=True)  # s, how long both hold before the motors idle
+    landed_lag: float = number(0.5, positive=True)  # m, the set-point below the estimate: on the ground
+    landed_time: float = number(1.0, positive=True)  # s, how long that holds before the motors idle
 
 
 @dataclass

@@ -26,10 +26,12 @@ where it was told). The horizontal position is **valid** while that time is at m
   where it is fused) and moves down at ``descent_rate`` m/s (feed-forward vz_ref = descent_rate);
   the yaw is held at the estimate's yaw at entry. When the position becomes valid again in flight
   and ``resume_on_aiding`` is set, the phase returns to NOMINAL (the mission resumes).
-- ``LANDED`` (2): the land detector (PX4's: commanded down, not moving) found the vehicle on the
-  ground: the height set-point is more than ``landed_lag`` m below the estimate and the
-  estimated vertical speed below ``landed_speed`` m/s for ``landed_time`` s in a row. The motors
-  go to idle (``systems/failsafe.py``) and the phase stays LANDED.
+- ``LANDED`` (2): the land detector (PX4's idea: commanded down, not descending) found the vehicle
+  on the ground: the descending height set-point has run more than ``landed_lag`` m below the
+  estimated height for ``landed_time`` s in a row (in the air the altitude loop follows it within
+  a few cm). The estimated vertical *speed* is not used: without position aiding it drifts by up
+  to 1.6 m/s while the barometer holds the height (measured on the ESKF resting on the floor). The
+  motors go to idle (``systems/failsafe.py``) and the phase stays LANDED.
 
 Memory layout per vehicle (:data:`MEMORY`), the supervisor's discrete state. Frames: p, v NED
 (m, m/s), z down; the reference layout is ``conventions.REFERENCE_SIZE`` (p, v, a feed-forward, yaw).
@@ -48,7 +50,7 @@ MEMORY = (
     "gps_resets",  # its count of resets to the GPS at that stamp
     "z_ref",  # m, NED down: the descent's height set-point
     "yaw_hold",  # rad, the yaw held while the failsafe flies
-    "still_since",  # s, since when the land detector's condition holds (NaN: it does not)
+    "below_since",  # s, since when the set-point is landed_lag below the estimate (NaN: it is not)
 )
 MEMORY_SIZE = len(MEMORY)
 STATUS = ("position_valid", "no_aiding_time", "phase")
@@ -71,7 +73,7 @@ def failsafe_step(memory, t, dt, gps_stamp, gps_gated, gps_resets, estimate, ref
     reference (p, v, a, yaw); params: a FailsafeConfig (or its frozen tuple). Returns the memory,
     the 10-entry reference for the controller and the :data:`STATUS` 3-tuple.
     """
-    phase, last_aided, seen_stamp, seen_gated, seen_resets, z_ref, yaw_hold, still_since = memory
+    phase, last_aided, seen_stamp, seen_gated, seen_resets, z_ref, yaw_hold, below_since = memory
     if gps_stamp >= 0.0 and gps_stamp != seen_stamp:
         if gps_gated == seen_gated or gps_resets > seen_resets:
             last_aided = gps_stamp
@@ -79,21 +81,21 @@ def failsafe_step(memory, t, dt, gps_stamp, gps_gated, gps_resets, estimate, ref
     no_aiding = t - last_aided
     valid = no_aiding <= params.no_aiding_timeout
 
-    px, py, pz, qw, qx, qy, qz, vx, vy, vz = estimate[0:10]
+    px, py, pz, qw, qx, qy, qz, vx, vy = estimate[0:9]
     if phase == NOMINAL and not valid:
-        phase, z_ref, still_since = DESCENDING, pz, math.nan
+        phase, z_ref, below_since = DESCENDING, pz, math.nan
         yaw_hold = math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
     elif phase == DESCENDING and valid and params.resume_on_aiding:
         phase = NOMINAL
     elif phase == DESCENDING:
         z_ref += params.descent_rate * dt
-        if z_ref - pz > params.landed_lag and abs(vz) < params.landed_speed:
-            if math.isnan(still_since):
-                still_since = t
-            elif t - still_since >= params.landed_time:
+        if z_ref - pz > params.landed_lag:
+            if math.isnan(below_since):
+                below_since = t
+            elif t - below_since >= params.landed_time:
                 phase = LANDED
         else:
-            still_since = math.nan
+            below_since = math.nan
 
     if phase == NOMINAL:
         command = reference
@@ -101,5 +103,5 @@ def failsafe_step(memory, t, dt, gps_stamp, gps_gated, gps_resets, estimate, ref
         hold_vx, hold_vy = (0.0, 0.0) if params.brake else (vx, vy)
         descent = params.descent_rate if phase == DESCENDING else 0.0
         command = (px, py, z_ref, hold_vx, hold_vy, descent, 0.0, 0.0, 0.0, yaw_hold)
-    memory = (phase, last_aided, seen_stamp, seen_gated, seen_resets, z_ref, yaw_hold, still_since)
+    memory = (phase, last_aided, seen_stamp, seen_gated, seen_resets, z_ref, yaw_hold, below_since)
     return memory, command, (1.0 if valid else 0.0, no_aiding, phase)
