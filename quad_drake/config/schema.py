@@ -348,6 +348,8 @@ class SafetyConfig:
     finite: bool = True  # the true state stays finite
     tracking: bool = True  # |Vehicle.PosFollowErr| <= tracking_bound
     tracking_bound: float = number(6.0, positive=True)  # m (quad_drake.judging.safety: why 6)
+    attitude: bool = True  # the true tilt stays within what the controller commands plus tilt_margin
+    tilt_margin: float = number(0.1, nonnegative=True)  # rad (quad_drake.judging.safety: why 0.1)
     landing_time: Optional[float] = None  # s, a documented landing: touchdowns from then on pass
     # m/s: with a landing_time, every touchdown's descent speed must stay below it (a landing,
     # not a crash: V.TouchdownSpeed); 0 = not judged

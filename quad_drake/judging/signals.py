@@ -5,7 +5,8 @@ Besides the reference's names, the aiding sensors' samples (issue 32): ``Baro.He
 fresh on each barometer sample) and, for a 3-axis magnetometer in place of ``MagYaw``,
 ``Mag.X``, ``Mag.Y``, ``Mag.Z`` (gauss, body FRD); and the truth of the flight (safety
 criteria, ``quad_drake.judging.safety``):
-``StateFinite`` (1 while all 13 state entries are finite), ``FloorContact`` (1 while on the
+``StateFinite`` (1 while all 13 state entries are finite), ``Tilt`` (rad, the body z axis from the
+vertical), ``FloorContact`` (1 while on the
 floor), ``FloorTouchdowns`` (touchdowns so far, after take-off), ``TouchdownSpeed`` (each touchdown's
 descent speed, m/s, at the sample that counts it: a landing or a crash) and ``WallContactSteps``
 (1 ms steps so far stopped at a wall or the ceiling). With wind, ``Wind.X/Y/Z`` (m/s, NED); with a
@@ -81,7 +82,7 @@ def key_unit(key) -> str:
         return STATE_UNITS[last]
     if key == "Failsafe.NoAidTime":
         return "s"
-    if last in ("Roll", "Pitch", "Yaw", "MagYaw", "MaxEuler"):
+    if last in ("Roll", "Pitch", "Yaw", "MagYaw", "MaxEuler", "Tilt"):
         return "rad"
     if key.startswith("Vel.") or last in ("VX", "VY", "VZ", "Vel"):
         return "m/s"
@@ -213,6 +214,7 @@ def vehicle_signals(name, logs, vocabulary=None) -> Signals:
         put(f"Omega.{axis}", lambda i=i: w[..., i])
     for i, key in enumerate(("Roll", "Pitch", "Yaw")):
         put(key, lambda i=i: euler()[i])
+    put("Tilt", lambda: tilt_angles(state[..., Q_SLICE]))
     put("StateFinite", lambda: np.isfinite(state).all(axis=-1).astype(float))
     if "contacts" in logs:
         contacts = logs["contacts"]
@@ -303,6 +305,14 @@ def _estimator_signals(put, logs, vocabulary, p, v, euler):
         put(f"Est.{key}", lambda counter=counter: diagnostics[..., DIAG[counter]])
     put("Est.BaroBias", lambda: diagnostics[..., DIAG["baro_bias"]])  # m; NaN without a barometer
     put("Est.BaroBiasStd", lambda: diagnostics[..., DIAG["baro_bias_std"]])
+
+
+def tilt_angles(quaternions) -> np.ndarray:
+    """rad in [0, pi]: the angle of the body z axis from the world's (down), acos R_NB[2, 2], of
+    quaternions (..., 4) wxyz (normalised here)."""
+    w, x, y, z = np.moveaxis(quaternions, -1, 0)
+    r22 = 1.0 - 2.0 * (x * x + y * y) / (w * w + x * x + y * y + z * z)
+    return np.arccos(np.clip(r22, -1.0, 1.0))
 
 
 def touchdown_speeds(touchdowns, vz) -> np.ndarray:
