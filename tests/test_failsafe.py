@@ -20,10 +20,11 @@ from quad_drake.running.simulation import run
 
 DT = 0.002
 HOVER = (0.0, 0.0, -1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+DEFAULTS = FailsafeConfig()
 TRAJECTORY = (1.0, 2.0, -1.0, 0.5, 0.0, 0.0, 0.0, 0.0, 0.0, 0.3)
 
 
-def _fly(memory, times, gps, estimate=HOVER, params=FailsafeConfig()):
+def _fly(memory, times, gps, estimate=HOVER, params=DEFAULTS):
     """Step the scalar supervisor at `times` with gps(t) -> (stamp, gated, resets); the last outputs."""
     for t in times:
         memory, command, status = failsafe_step(memory, t, DT, *gps(t), estimate, TRAJECTORY, params)
@@ -53,9 +54,13 @@ def test_the_phases_descend_land_and_idle():
     assert command[2] == HOVER[2] and command[6:9] == (0.0, 0.0, 0.0) and command[9] == 0.0
     # the vehicle stays at -1 m (on a table): the set-point runs landed_lag below it, then landed_time
     below = 1.01 + params.landed_lag / params.descent_rate
-    memory, command, status = _fly(memory, np.arange(1.01 + DT, below + 0.99, DT), lambda t: (-1.0, 0, 0), params=params)
+    memory, command, status = _fly(
+        memory, np.arange(1.01 + DT, below + 0.99, DT), lambda t: (-1.0, 0, 0), params=params
+    )
     assert status[2] == DESCENDING
-    memory, command, status = _fly(memory, np.arange(below + 1.0, below + 1.1, DT), lambda t: (-1.0, 0, 0), params=params)
+    memory, command, status = _fly(
+        memory, np.arange(below + 1.0, below + 1.1, DT), lambda t: (-1.0, 0, 0), params=params
+    )
     assert status[2] == LANDED and command[5] == 0.0
     # landed stays landed, even when the GPS comes back
     memory, command, status = _fly(memory, [20.0], lambda t: (19.9, 0.0, 0.0), params=params)
@@ -83,7 +88,9 @@ def test_the_kernel_is_the_scalar_step():
     gated, resets = np.zeros(n), np.zeros(n)
     for k in range(ticks):
         t = k * DT
-        fresh = (rng.random(n) < 0.05) & ((k < 100) | ((k > 300) & (np.arange(n) % 3 == 0)))  # lost, some regain
+        fresh = (rng.random(n) < 0.05) & (
+            (k < 100) | ((k > 300) & (np.arange(n) % 3 == 0))
+        )  # lost, some regain
         stamps = np.where(fresh, t, stamps)
         gated += fresh & (rng.random(n) < 0.3)
         resets += fresh & (rng.random(n) < 0.1)
@@ -91,10 +98,20 @@ def test_the_kernel_is_the_scalar_step():
         estimate[:, 2] = -1.0 + 0.001 * k * (np.arange(n) % 2)  # half of them do not descend
         reference = rng.normal(size=(n, 10))
         command, status = np.empty((n, 10)), np.empty((n, failsafe.STATUS_SIZE))
-        kernels.failsafe_steps(memory, t, DT, stamps, gated, resets, estimate, reference, frozen(params), command, status)
+        kernels.failsafe_steps(
+            memory, t, DT, stamps, gated, resets, estimate, reference, frozen(params), command, status
+        )
         for i in range(n):
             scalar[i], ref, flags = failsafe_step(
-                scalar[i], t, DT, stamps[i], gated[i], resets[i], tuple(estimate[i]), tuple(reference[i]), params
+                scalar[i],
+                t,
+                DT,
+                stamps[i],
+                gated[i],
+                resets[i],
+                tuple(estimate[i]),
+                tuple(reference[i]),
+                params,
             )
             np.testing.assert_allclose(command[i], ref, rtol=0, atol=1e-12)
             np.testing.assert_allclose(status[i], flags, rtol=0, atol=1e-12)

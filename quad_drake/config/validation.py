@@ -257,9 +257,7 @@ def _check_semantics(scenario):
         if problem:
             raise ConfigError(f"vehicles.{i}.estimator: {problem}")
         if v.failsafe is not None and not flies_on_estimate(v):
-            raise ConfigError(
-                f"vehicles.{i}.failsafe: needs a vehicle that flies on an estimator's estimate (flies_on: estimate)"
-            )
+            raise ConfigError(f"vehicles.{i}.failsafe: needs flies_on: estimate (it supervises the estimate)")
         if v.gps_delay_compensation > 0 and not (v.sensors.imu and v.sensors.gps):
             raise ConfigError(f"vehicles.{i}.gps_delay_compensation: needs imu and gps sensors")
         for j, fault in enumerate(v.faults):

@@ -43,7 +43,9 @@ class FailsafeSupervisor(LeafSystem):
         self._n = n
         self._params = frozen(params)
         self._read_estimate = row_reader(self.DeclareVectorInputPort("estimated_state", n * STATE_SIZE), n)
-        self._read_diagnostics = row_reader(self.DeclareVectorInputPort("diagnostics", n * DIAGNOSTICS_SIZE), n)
+        self._read_diagnostics = row_reader(
+            self.DeclareVectorInputPort("diagnostics", n * DIAGNOSTICS_SIZE), n
+        )
         self._read_reference = row_reader(self.DeclareVectorInputPort("reference", n * REFERENCE_SIZE), n)
         thrusts = self.DeclareVectorInputPort("motor_thrusts", n * NUM_MOTORS)
         self._memory = discrete_group(self, np.tile(failsafe.initial_memory(), n))
