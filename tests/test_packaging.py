@@ -313,8 +313,9 @@ def test_an_arrow_up_is_seen():
 
 def test_catalog_lists_the_bundled_scenarios_from_the_top_level_folder():
     scenarios = catalog.bundled_scenarios()
-    # 01-11, 11_gps_update_eskf, the faults 12-18, the air 19-22 (+ 22's eskf), baro and 3-axis mag 23-25
-    assert list(scenarios)[:2] == ["01_intro", "02_attitude_control"] and len(scenarios) == 27
+    # 01-11, 11_gps_update_eskf, the faults 12-18, the air 19-22 (+ 22's eskf), baro and 3-axis mag 23-25,
+    # the no-aiding failsafe 26
+    assert list(scenarios)[:2] == ["01_intro", "02_attitude_control"] and len(scenarios) == 28
     assert all(path.parent == REPO / "scenarios" for path in scenarios.values())
     assert not (PACKAGE / "scenarios").exists()  # one source: the wheel's copy is built from it
 

@@ -44,11 +44,11 @@ def test_every_vehicle_gets_floor_room_finite_and_closed_loop_ones_tracking():
         ("room", "Quad.WallContactSteps"),
         ("finite", "Quad.StateFinite"),
         ("tracking", "Quad.PosFollowErr"),
-        ("bound", "Quad.Tilt"),
+        ("attitude", "Quad.Tilt"),
         ("floor", "Open.FloorTouchdowns"),
         ("room", "Open.WallContactSteps"),
         ("finite", "Open.StateFinite"),
-        ("bound", "Open.Tilt"),
+        ("attitude", "Open.Tilt"),
     ]
     assert criteria[3].threshold == 6.0
     assert is_closed_loop(VehicleConfig()) and not is_closed_loop(scenario().vehicles[1])
@@ -150,7 +150,7 @@ def test_evaluate_criterion_dispatches_the_safety_kinds():
         "room": True,
         "finite": True,
         "tracking": False,
-        "bound": True,
+        "attitude": True,
     }
     assert verdicts["floor"].line == "FAIL: Quad touched the floor 1 time (first at 0.600 s)"
 

@@ -288,7 +288,7 @@ class VehicleConfig:
     failsafe: Optional[FailsafeConfig] = None  # none: no no-aiding failsafe (quad_drake.control.failsafe)
 
 
-SAFETY_KINDS = ("floor", "room", "finite", "tracking")
+SAFETY_KINDS = ("floor", "room", "finite", "tracking", "attitude")
 """Flight-safety criterion kinds (``quad_drake.judging.safety`` adds them to every scenario)."""
 CRITERION_KINDS = ("window", "sigma", "fleet_sigma", "bound", "recovery", *SAFETY_KINDS)
 
@@ -316,6 +316,7 @@ class CriterionConfig:
     room:   ``V.WallContactSteps`` stays 0 (never stopped by a wall or the ceiling).
     finite: ``V.StateFinite`` stays 1 (every true state entry finite).
     tracking: |``V.PosFollowErr``| <= ``threshold`` m at every sample.
+    attitude: ``V.Tilt`` < ``threshold`` rad on every sample in [start, end) s (judged as a bound).
     """
 
     kind: str = field(default="window", metadata={"choices": CRITERION_KINDS})

@@ -45,6 +45,7 @@ SAFETY_SIGNALS = {
     "room": "WallContactSteps",
     "finite": "StateFinite",
     "tracking": "PosFollowErr",
+    "attitude": "Tilt",
 }
 """The per-vehicle signal (``V.<name>``) each safety criterion judges."""
 
@@ -78,10 +79,10 @@ def attitude_criterion(vehicle, margin, end_time) -> CriterionConfig:
     """A vehicle that tilts beyond what its controller allows has not passed: its true tilt
     ``V.Tilt`` (rad, the body z axis from the vertical) stays below the cascade's largest commanded
     tilt (``control.cascade.max_commanded_tilt``) plus `margin` rad over the whole flight of
-    `end_time` s (a ``bound`` criterion)."""
+    `end_time` s (judged as a ``bound``; no plot of its own)."""
     return CriterionConfig(
-        kind="bound",
-        signal=f"{vehicle.name}.Tilt",
+        kind="attitude",
+        signal=f"{vehicle.name}.{SAFETY_SIGNALS['attitude']}",
         threshold=max_commanded_tilt(vehicle.controller) + margin,
         start=0.0,
         end=end_time + 1.0,
