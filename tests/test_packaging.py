@@ -385,7 +385,7 @@ def test_wheel_installed_outside_the_repo_lists_and_runs_the_bundled_scenarios(t
     assert Path(folder.stdout.strip()) == Path(where.stdout.strip()).parent / "scenarios", folder.stderr
     listed = _run(quad_drake_exe, "list", cwd=cwd, env=env)
     assert listed.returncode == 0, listed.stderr
-    assert len(listed.stdout.strip().splitlines()) == 27
+    assert len(listed.stdout.strip().splitlines()) == 28
 
     out = tmp_path / "out"
     ran = _run(quad_drake_exe, "run", "01_intro", "--no-plots", "--out", str(out), cwd=cwd, env=env)
