@@ -175,7 +175,8 @@ def test_summary_names_the_unit_of_every_column_and_the_column_of_every_criterio
     kinds = ["window", "sigma", "floor", "room", "finite", "tracking", "attitude", None]
     assert [c["kind"] for c in summary["criteria"]] == kinds
     assert [c["column"] for c in summary["criteria"]] == ["c1", "c2", "c3", "c4", "c5", "c6", "c7", "passed"]
-    assert [c["measured_unit"] for c in summary["criteria"]] == ["s", "s", "count", "s", "count", "m", "rad", None]
+    units = ["s", "s", "count", "s", "count", "m", "rad", None]
+    assert [c["measured_unit"] for c in summary["criteria"]] == units
     for criterion in summary["criteria"][:-1]:
         assert columns[f"{criterion['column']}.measured"] == criterion["measured_unit"]
         assert columns[f"{criterion['column']}.passed"] == ""
