@@ -64,7 +64,7 @@ def initial_memory() -> tuple:
     return (NOMINAL, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, math.nan)
 
 
-def failsafe_step(memory, t, dt, gps_stamp, gps_gated, gps_resets, estimate, reference, params):
+def failsafe_step(memory, t, dt, gps_stamp, gps_gated, gps_resets, estimate, reference, params) -> tuple:
     """One supervisor tick at t s (dt s since the last): (new memory, reference to fly, status).
 
     memory: :data:`MEMORY` tuple; gps_stamp (s, -1: none), gps_gated, gps_resets: the estimator's

@@ -18,7 +18,7 @@ _step_compiled = compiled(failsafe.failsafe_step)
 @njit_cached
 def failsafe_steps(
     memory, t, dt, gps_stamp, gps_gated, gps_resets, estimate, reference, params, command, status
-):
+) -> None:
     """:func:`~quad_drake.control.failsafe.failsafe_step` of N vehicles IN PLACE.
 
     memory (N, MEMORY_SIZE): replaced by the new memory; t, dt s (floats); gps_stamp, gps_gated,
