@@ -39,6 +39,9 @@ EKF_OFFSET = 2 * TICK_EPSILON
 CONTROLLER_OFFSET = 3 * TICK_EPSILON
 PLANT_OFFSET = 4 * TICK_EPSILON
 FAULT_LAG = 0.5 * TICK_EPSILON
+# the no-aiding failsafe supervisor (systems/failsafe.py, only on vehicles with a failsafe) fires
+# after the estimator and before the controller, which flies the reference it chose this tick
+FAILSAFE_OFFSET = 2.5 * TICK_EPSILON
 
 # ----- signal layouts ---------------------------------------------------------
 # `state` (13): p_NB (3, m), q_NB (4, wxyz), v_NB (3, m/s), w_NB_B (3, rad/s)

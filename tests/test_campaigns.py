@@ -132,7 +132,7 @@ def test_records_hold_the_consistency_series_of_a_run(sent):
     np.testing.assert_allclose(np.diff(stamps), 0.01, atol=1e-12)
     assert set(record.nis) == {("Quad", "mag")}  # no GPS on this vehicle
     assert record.nse["Quad"].shape == (7,)
-    assert len(record.criteria) == 2 + 4 and not record.passed  # 2 own, 4 safety; 10 s window in 1.5 s
+    assert len(record.criteria) == 2 + 5 and not record.passed  # 2 own, 5 safety; 10 s window in 1.5 s
 
 
 def test_saved_files_and_the_campaign_page(serial, tmp_path):
@@ -172,10 +172,11 @@ def test_summary_names_the_unit_of_every_column_and_the_column_of_every_criterio
     summary = strict_loads((out / "summary.json").read_text())
     columns = summary["columns"]
     assert list(columns) == header
-    kinds = ["window", "sigma", "floor", "room", "finite", "tracking", None]
+    kinds = ["window", "sigma", "floor", "room", "finite", "tracking", "attitude", None]
     assert [c["kind"] for c in summary["criteria"]] == kinds
-    assert [c["column"] for c in summary["criteria"]] == ["c1", "c2", "c3", "c4", "c5", "c6", "passed"]
-    assert [c["measured_unit"] for c in summary["criteria"]] == ["s", "s", "count", "s", "count", "m", None]
+    assert [c["column"] for c in summary["criteria"]] == ["c1", "c2", "c3", "c4", "c5", "c6", "c7", "passed"]
+    units = ["s", "s", "count", "s", "count", "m", "rad", None]
+    assert [c["measured_unit"] for c in summary["criteria"]] == units
     for criterion in summary["criteria"][:-1]:
         assert columns[f"{criterion['column']}.measured"] == criterion["measured_unit"]
         assert columns[f"{criterion['column']}.passed"] == ""

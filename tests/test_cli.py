@@ -17,7 +17,8 @@ def test_list_names_every_scenario_with_a_description():
     result = cli("list")
     assert result.returncode == 0
     lines = result.stdout.strip().splitlines()
-    assert len(lines) == 30  # 01-11, 11 eskf, faults 12-18, the air 19-22 (+ eskf), aiding 23-25, GSF 26-28
+    # 01-11, 11 eskf, faults 12-18, the air 19-22 (+ eskf), aiding 23-25, GSF 26-28, failsafe 29
+    assert len(lines) == 31
     assert lines[0].startswith("01_intro") and "hover" in lines[0].lower()
     names = [line.split()[0] for line in lines]
     columns = {len(line) - len(line[len(name) :].lstrip()) for line, name in zip(lines, names, strict=True)}

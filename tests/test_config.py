@@ -32,8 +32,8 @@ GOOD = """
 def test_every_bundled_scenario_loads_and_round_trips():
     paths = catalog.bundled_scenarios()
     # 12-18: the fault scenarios; 19-22: wind, drag and the IMU (22 with an _eskf twin); 23-25: the
-    # barometer and the 3-axis magnetometer; 26-28: the EKF-GSF
-    assert [n[:2] for n in paths if not n.endswith("_eskf")] == [f"{i:02d}" for i in range(1, 29)]
+    # barometer and the 3-axis magnetometer; 26-28: the EKF-GSF; 29: the no-aiding failsafe
+    assert [n[:2] for n in paths if not n.endswith("_eskf")] == [f"{i:02d}" for i in range(1, 30)]
     assert "11_gps_update_eskf" in paths
     for name, path in paths.items():
         scenario = load_scenario(path)

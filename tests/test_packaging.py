@@ -315,8 +315,8 @@ def test_an_arrow_up_is_seen():
 def test_catalog_lists_the_bundled_scenarios_from_the_top_level_folder():
     scenarios = catalog.bundled_scenarios()
     # 01-11, 11_gps_update_eskf, the faults 12-18, the air 19-22 (+ 22's eskf), baro and 3-axis mag 23-25,
-    # the EKF-GSF 26-28
-    assert list(scenarios)[:2] == ["01_intro", "02_attitude_control"] and len(scenarios) == 30
+    # the EKF-GSF 26-28, the no-aiding failsafe 29
+    assert list(scenarios)[:2] == ["01_intro", "02_attitude_control"] and len(scenarios) == 31
     assert all(path.parent == REPO / "scenarios" for path in scenarios.values())
     assert not (PACKAGE / "scenarios").exists()  # one source: the wheel's copy is built from it
 
@@ -386,7 +386,7 @@ def test_wheel_installed_outside_the_repo_lists_and_runs_the_bundled_scenarios(t
     assert Path(folder.stdout.strip()) == Path(where.stdout.strip()).parent / "scenarios", folder.stderr
     listed = _run(quad_drake_exe, "list", cwd=cwd, env=env)
     assert listed.returncode == 0, listed.stderr
-    assert len(listed.stdout.strip().splitlines()) == 30
+    assert len(listed.stdout.strip().splitlines()) == 31
 
     out = tmp_path / "out"
     ran = _run(quad_drake_exe, "run", "01_intro", "--no-plots", "--out", str(out), cwd=cwd, env=env)

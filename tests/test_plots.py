@@ -323,7 +323,7 @@ def test_report_html_renders_the_safety_criteria_from_their_text(tmp_path):
     logs["contacts"][:, 2] = np.where(result.times >= 2.0, 250.0, 0.0)
     result = result_from_logs(result.scenario, result.times, result.logs, wall_time=0.5)
     verdicts = {v.kind: v for v in result.criteria}
-    assert set(verdicts) == {"window", "floor", "room", "finite", "tracking"}
+    assert set(verdicts) == {"window", "floor", "room", "finite", "tracking", "attitude"}
     assert not verdicts["floor"].passed and not verdicts["room"].passed and not result.passed
     report = plots.write_report(result, tmp_path / "report.html").read_text()
     for line in (

@@ -57,7 +57,7 @@ def test_summary_is_strict_json_with_format_and_verdict_texts(fleet_run):
     summary = strict_loads((run_dir / "summary.json").read_text())
     assert summary["format_version"] == FORMAT_VERSION and summary["kind"] == "run"
     assert (summary["runner"], summary["scenario"], summary["seed"]) == (RUNNER, "09_predict_covariance", 0)
-    assert len(summary["criteria"]) == 4 + 10 * 4  # 4 fleet criteria, then 4 safety ones per vehicle
+    assert len(summary["criteria"]) == 4 + 10 * 5  # 4 fleet criteria, then 5 safety ones per vehicle
     for saved, verdict in zip(summary["criteria"], result.criteria, strict=True):
         assert saved["description"] == verdict.description and saved["trailing"] is None
     for saved, verdict in zip(summary["criteria"][:4], result.criteria[:4], strict=True):

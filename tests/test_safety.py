@@ -21,6 +21,7 @@ from quad_drake.judging.evaluation import (
     tracking_bound,
 )
 from quad_drake.judging.safety import is_closed_loop, safety_criteria
+from quad_drake.judging.signals import vehicle_signals
 from quad_drake.models.dynamics import on_floor, outside_room
 from quad_drake.models.rotations import quat_from_euler
 from quad_drake.systems.plant import QuadrotorPlant
@@ -43,9 +44,11 @@ def test_every_vehicle_gets_floor_room_finite_and_closed_loop_ones_tracking():
         ("room", "Quad.WallContactSteps"),
         ("finite", "Quad.StateFinite"),
         ("tracking", "Quad.PosFollowErr"),
+        ("attitude", "Quad.Tilt"),
         ("floor", "Open.FloorTouchdowns"),
         ("room", "Open.WallContactSteps"),
         ("finite", "Open.StateFinite"),
+        ("attitude", "Open.Tilt"),
     ]
     assert criteria[3].threshold == 6.0
     assert is_closed_loop(VehicleConfig()) and not is_closed_loop(scenario().vehicles[1])
@@ -55,7 +58,7 @@ def test_every_vehicle_gets_floor_room_finite_and_closed_loop_ones_tracking():
 
 def test_safety_switches_off_as_a_whole_or_check_by_check():
     assert safety_criteria(scenario(enabled=False)) == []
-    kinds = {c.kind for c in safety_criteria(scenario(tracking=False, room=False))}
+    kinds = {c.kind for c in safety_criteria(scenario(tracking=False, room=False, attitude=False))}
     assert kinds == {"floor", "finite"}
     bounded = safety_criteria(scenario(tracking_bound=2.5, landing_time=12.0))
     assert [c.threshold for c in bounded if c.kind == "tracking"] == [2.5]
@@ -135,6 +138,7 @@ def test_evaluate_criterion_dispatches_the_safety_kinds():
         "Quad.WallContactSteps": np.zeros(TIMES.size),
         "Quad.StateFinite": np.ones(TIMES.size),
         "Quad.PosFollowErr": np.full(TIMES.size, 6.5),
+        "Quad.Tilt": np.full(TIMES.size, 0.2),
     }
     verdicts = {
         c.kind: evaluate_criterion(c, TIMES, lambda name: (signals[name], None))
@@ -146,6 +150,7 @@ def test_evaluate_criterion_dispatches_the_safety_kinds():
         "room": True,
         "finite": True,
         "tracking": False,
+        "attitude": True,
     }
     assert verdicts["floor"].line == "FAIL: Quad touched the floor 1 time (first at 0.600 s)"
 
@@ -219,3 +224,27 @@ def test_room_predicates_on_the_floor_at_a_wall_and_for_a_non_finite_state():
     assert not outside_room(_state((29.99, -29.99, -39.99)), params)
     nan = _state((math.nan, math.nan, math.nan))
     assert not on_floor(nan, params) and not outside_room(nan, params)
+
+
+def test_the_attitude_criterion_fails_a_planted_tilt():
+    """The true tilt may not pass what the cascade commands (asin(sqrt 2 max_tilt), 81.9 deg for
+    0.7) plus safety.tilt_margin (0.1 rad): 85 deg passes, a roll to 95 deg fails, on one sample."""
+    s = scenario()
+    (criterion,) = [c for c in safety_criteria(s) if c.signal == "Quad.Tilt"]
+    assert criterion.threshold == pytest.approx(math.asin(math.sqrt(2.0) * 0.7) + 0.1)
+    assert [c.signal for c in safety_criteria(scenario(attitude=False)) if c.signal.endswith("Tilt")] == []
+
+    def verdict(roll_deg, pitch_deg=0.0):
+        state = np.zeros((TIMES.size, 13))
+        state[:, 3] = 1.0
+        state[100, 3:7] = quat_from_euler(math.radians(roll_deg), math.radians(pitch_deg), 0.7)
+        logs = {"state": state}
+        signals = vehicle_signals("Quad", logs)
+        tilt = signals["Quad.Tilt"].values
+        assert tilt[0] == 0.0 and tilt[100] == pytest.approx(math.radians(abs(roll_deg) + abs(pitch_deg)))
+        return evaluate_criterion(criterion, TIMES, lambda name: (signals[name].values, None)).passed
+
+    assert verdict(85.0) is True
+    assert verdict(95.0) is False
+    assert verdict(-95.0) is False
+    assert verdict(0.0, 120.0) is False

@@ -248,6 +248,20 @@ FLIES_ON = ("truth", "estimate")
 
 
 @dataclass
+class FailsafeConfig:
+    """The no-aiding failsafe of a vehicle that flies on its estimate (``quad_drake.control.failsafe``):
+    after ``no_aiding_timeout`` s without a fused GPS position the horizontal position is invalid and
+    the vehicle descends and lands instead of flying its trajectory on dead reckoning."""
+
+    no_aiding_timeout: float = number(5.0, positive=True)  # s, PX4's EKF2_NOAID_TOUT default
+    descent_rate: float = number(0.5, positive=True)  # m/s, down
+    brake: bool = True  # hold zero estimated horizontal velocity (False: zero acceleration, level)
+    resume_on_aiding: bool = True  # position valid again in flight: resume the trajectory (False: land)
+    landed_lag: float = number(0.5, positive=True)  # m, the set-point below the estimate: on the ground
+    landed_time: float = number(1.0, positive=True)  # s, how long that holds before the motors idle
+
+
+@dataclass
 class VehicleConfig:
     """One vehicle: its start (NED, FRD), physics, controller gains, trajectory, sensors, the
     estimator it runs and what that assumes (``estimator``), the state it flies on, its wind and
@@ -271,9 +285,10 @@ class VehicleConfig:
     # the estimate's own motion since its stamp (quad_drake.estimation.delay_compensation)
     gps_delay_compensation: float = number(0.0, nonnegative=True)
     wind: Optional[WindConfig] = None  # none: still air (quad_drake.models.wind)
+    failsafe: Optional[FailsafeConfig] = None  # none: no no-aiding failsafe (quad_drake.control.failsafe)
 
 
-SAFETY_KINDS = ("floor", "room", "finite", "tracking")
+SAFETY_KINDS = ("floor", "room", "finite", "tracking", "attitude")
 """Flight-safety criterion kinds (``quad_drake.judging.safety`` adds them to every scenario)."""
 CRITERION_KINDS = ("window", "sigma", "fleet_sigma", "bound", "recovery", *SAFETY_KINDS)
 
@@ -301,6 +316,7 @@ class CriterionConfig:
     room:   ``V.WallContactSteps`` stays 0 (never stopped by a wall or the ceiling).
     finite: ``V.StateFinite`` stays 1 (every true state entry finite).
     tracking: |``V.PosFollowErr``| <= ``threshold`` m at every sample.
+    attitude: ``V.Tilt`` < ``threshold`` rad on every sample in [start, end) s (judged as a bound).
     """
 
     kind: str = field(default="window", metadata={"choices": CRITERION_KINDS})
@@ -333,6 +349,8 @@ class SafetyConfig:
     finite: bool = True  # the true state stays finite
     tracking: bool = True  # |Vehicle.PosFollowErr| <= tracking_bound
     tracking_bound: float = number(6.0, positive=True)  # m (quad_drake.judging.safety: why 6)
+    attitude: bool = True  # the true tilt stays within what the controller commands plus tilt_margin
+    tilt_margin: float = number(0.1, nonnegative=True)  # rad (quad_drake.judging.safety: why 0.1)
     landing_time: Optional[float] = None  # s, a documented landing: touchdowns from then on pass
     # m/s: with a landing_time, every touchdown's descent speed must stay below it (a landing,
     # not a crash: V.TouchdownSpeed); 0 = not judged

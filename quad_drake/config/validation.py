@@ -11,7 +11,7 @@ from pathlib import Path
 
 from ..conventions import ONBOARD_PERIOD
 from ..estimation.measurements import unfused_sensor
-from ..estimation.registry import kind_of
+from ..estimation.registry import flies_on_estimate, kind_of
 from ..models.fidelity import fidelity_from_mode
 from .errors import ConfigError, did_you_mean
 from .schema import FAULT_KINDS, MAX_SEED, TRAJECTORY_DIR, ScenarioConfig
@@ -263,6 +263,8 @@ def _check_semantics(scenario):
         problem = kind.fidelity_problem(fidelity_from_mode(scenario.fidelity)) or kind.problem(v.estimator)
         if problem:
             raise ConfigError(f"vehicles.{i}.estimator: {problem}")
+        if v.failsafe is not None and not flies_on_estimate(v):
+            raise ConfigError(f"vehicles.{i}.failsafe: needs flies_on: estimate (it supervises the estimate)")
         if v.gps_delay_compensation > 0 and not (v.sensors.imu and v.sensors.gps):
             raise ConfigError(f"vehicles.{i}.gps_delay_compensation: needs imu and gps sensors")
         for j, fault in enumerate(v.faults):

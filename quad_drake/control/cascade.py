@@ -90,6 +90,14 @@ def _roll_pitch(ax, ay, thrust, R00, R01, R02, R10, R11, R12, R22, params):
     return (R10 * bx_dot - R00 * by_dot) / R22, (R11 * bx_dot - R01 * by_dot) / R22
 
 
+def max_commanded_tilt(params) -> float:
+    """rad, the largest tilt of the thrust axis from the vertical that :func:`roll_pitch_control` ever
+    commands: its targets for R02 and R12 are each clamped to +-max_tilt, so the horizontal part of
+    the body z axis is at most sqrt(2) max_tilt (capped at 1): asin(min(1, sqrt(2) max_tilt))
+    (81.9 deg for the default 0.7)."""
+    return math.asin(min(1.0, math.sqrt(2.0) * params.max_tilt))
+
+
 def roll_pitch_control(a_cmd_xy, thrust, R, params) -> tuple[float, float]:
     """Body roll/pitch rate commands (p, q), rad/s, that tilt the thrust toward a_cmd_xy.
 

@@ -50,7 +50,7 @@ MEASURED_UNITS = {
     "finite": "count",
 }
 """Unit of a CriterionResult's ``measured`` by kind ("count": touchdowns, non-finite samples); a
-``tracking`` or ``bound`` verdict measures its signal, in the signal's unit."""
+``tracking``, ``bound`` or ``attitude`` verdict measures its signal, in the signal's unit."""
 
 
 @dataclass(frozen=True)
@@ -820,7 +820,7 @@ class BoundFold(_Fold):
         if self.samples == 0:
             line = f"FAIL: ABS({name}) had no samples {span}"
             return CriterionResult(
-                "bound", name, False, line, math.nan, threshold, None, measured_text="no samples", **text
+                self.kind, name, False, line, math.nan, threshold, None, measured_text="no samples", **text
             )
         worst = float(self.worst[j])
         first_time = None if np.isnan(self.first_bad_time[j]) else float(self.first_bad_time[j])
@@ -834,7 +834,7 @@ class BoundFold(_Fold):
             line = f"PASS: ABS({name}) was less than {threshold:f} {span} (max {worst:f})"
             measured_text = f"max {_amount(worst, name, '.4g')}"
         return CriterionResult(
-            "bound",
+            self.kind,
             name,
             first_time is None,
             line,
@@ -846,6 +846,13 @@ class BoundFold(_Fold):
             series=series,
             **text,
         )
+
+
+class AttitudeFold(BoundFold):
+    """The attitude safety criterion of N runs: a :class:`BoundFold` on ``V.Tilt`` (rad) over the
+    flight (``judging.safety.attitude_criterion``), its verdicts of kind ``attitude``."""
+
+    kind = "attitude"
 
 
 def bound_threshold(times, values, threshold, start, end, name="x") -> CriterionResult:
@@ -1001,8 +1008,9 @@ def _criterion_fold(criterion, runs, vehicles):
             len(vehicles),
             runs,
         )
-    if kind == "bound":
-        return BoundFold(name, criterion.threshold, criterion.start, criterion.end, runs)
+    if kind in ("bound", "attitude"):
+        fold = BoundFold if kind == "bound" else AttitudeFold
+        return fold(name, criterion.threshold, criterion.start, criterion.end, runs)
     if kind == "recovery":
         return RecoveryFold(name, criterion.threshold, criterion.start, criterion.window, runs)
     if kind == "floor":

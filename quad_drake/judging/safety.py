@@ -15,6 +15,10 @@ pass (11 with a 2 kg vehicle: 97 % of the run on the floor, PASS). From a
   1 m at 4.4 m/s);
 - ``room``: never stopped by a wall or the ceiling (``V.WallContactSteps`` stays 0);
 - ``finite``: the true state stays finite (``V.StateFinite``);
+- ``attitude``: the true tilt ``V.Tilt`` stays below the largest tilt the cascade commands
+  (asin(sqrt 2 max_tilt), 81.9 deg for the default max_tilt 0.7) plus ``safety.tilt_margin``
+  (0.1 rad: the bank loop's overshoot; the bundled scenarios at their seeds tilt at most 78.7 deg,
+  05's Quad1); a vehicle that rolled over (beyond 90 deg) fails it;
 - ``tracking``, for closed-loop flights (position loops closed: kp_pos_xy > 0 and
   kp_pos_z > 0): the true tracking error |``V.PosFollowErr``| stays <= ``safety.tracking_bound``.
 
@@ -28,6 +32,7 @@ A scenario switches all of them off with ``safety: {enabled: false}`` or one by 
 """
 
 from quad_drake.config.schema import CriterionConfig
+from quad_drake.control.cascade import max_commanded_tilt
 
 
 def is_closed_loop(vehicle) -> bool:
@@ -40,6 +45,7 @@ SAFETY_SIGNALS = {
     "room": "WallContactSteps",
     "finite": "StateFinite",
     "tracking": "PosFollowErr",
+    "attitude": "Tilt",
 }
 """The per-vehicle signal (``V.<name>``) each safety criterion judges."""
 
@@ -64,7 +70,23 @@ def safety_criteria(scenario) -> list[CriterionConfig]:
         ]
         if safety.floor and safety.landing_time is not None and safety.max_touchdown_speed > 0:
             criteria.append(landing_criterion(vehicle.name, safety.max_touchdown_speed, scenario.end_time))
+        if safety.attitude:
+            criteria.append(attitude_criterion(vehicle, safety.tilt_margin, scenario.end_time))
     return criteria
+
+
+def attitude_criterion(vehicle, margin, end_time) -> CriterionConfig:
+    """A vehicle that tilts beyond what its controller allows has not passed: its true tilt
+    ``V.Tilt`` (rad, the body z axis from the vertical) stays below the cascade's largest commanded
+    tilt (``control.cascade.max_commanded_tilt``) plus `margin` rad over the whole flight of
+    `end_time` s (judged as a ``bound``; no plot of its own)."""
+    return CriterionConfig(
+        kind="attitude",
+        signal=f"{vehicle.name}.{SAFETY_SIGNALS['attitude']}",
+        threshold=max_commanded_tilt(vehicle.controller) + margin,
+        start=0.0,
+        end=end_time + 1.0,
+    )
 
 
 def landing_criterion(vehicle_name, max_speed, end_time) -> CriterionConfig:

@@ -5,11 +5,14 @@ Besides the reference's names, the aiding sensors' samples (issue 32): ``Baro.He
 fresh on each barometer sample) and, for a 3-axis magnetometer in place of ``MagYaw``,
 ``Mag.X``, ``Mag.Y``, ``Mag.Z`` (gauss, body FRD); and the truth of the flight (safety
 criteria, ``quad_drake.judging.safety``):
-``StateFinite`` (1 while all 13 state entries are finite), ``FloorContact`` (1 while on the
+``StateFinite`` (1 while all 13 state entries are finite), ``Tilt`` (rad, the body z axis from the
+vertical), ``FloorContact`` (1 while on the
 floor), ``FloorTouchdowns`` (touchdowns so far, after take-off), ``TouchdownSpeed`` (each touchdown's
 descent speed, m/s, at the sample that counts it: a landing or a crash) and ``WallContactSteps``
 (1 ms steps so far stopped at a wall or the ceiling). With wind, ``Wind.X/Y/Z`` (m/s, NED); with a
-range-limited IMU, ``IMU.AccelSaturated`` and ``IMU.GyroSaturated`` (saturated samples so far).
+range-limited IMU, ``IMU.AccelSaturated`` and ``IMU.GyroSaturated`` (saturated samples so far);
+with a no-aiding failsafe, ``Failsafe.PositionValid``, ``Failsafe.NoAidTime`` (s) and
+``Failsafe.Phase`` (:data:`FAILSAFE_SIGNALS`).
 
 Logs are sampled every LOG_PERIOD at t = 0.005 k (k >= 1), each value as it was
 just before the systems' updates at t. Sensor signals carry a ``fresh`` mask:
@@ -77,7 +80,9 @@ def key_unit(key) -> str:
         return "gauss"
     if key.startswith("Est.") and last in STATE_UNITS:
         return STATE_UNITS[last]
-    if last in ("Roll", "Pitch", "Yaw", "MagYaw", "MaxEuler"):
+    if key == "Failsafe.NoAidTime":
+        return "s"
+    if last in ("Roll", "Pitch", "Yaw", "MagYaw", "MaxEuler", "Tilt"):
         return "rad"
     if key.startswith("Vel.") or last in ("VX", "VY", "VZ", "Vel"):
         return "m/s"
@@ -106,6 +111,7 @@ LOG_WIDTHS = {
     "baro": 2,
     "wind": 3,
     "imu_saturation": 2,
+    "failsafe": 3,
 }
 """Widths of the logs every vehicle may have; an estimator's come from its vocabulary."""
 COUNTER_SIGNALS = {
@@ -117,6 +123,11 @@ COUNTER_SIGNALS = {
     "baro_gated": "BaroGated",
     "baro_resets": "BaroResets",
 }
+
+FAILSAFE_SIGNALS = ("PositionValid", "NoAidTime", "Phase")
+"""``V.Failsafe.<name>`` of the no-aiding failsafe's status (``control.failsafe.STATUS``): 1 while
+the horizontal position is valid, s without position aiding, the phase (0 nominal, 1 descending,
+2 landed)."""
 
 
 def stamp_fresh(stamps) -> np.ndarray:
@@ -203,6 +214,7 @@ def vehicle_signals(name, logs, vocabulary=None) -> Signals:
         put(f"Omega.{axis}", lambda i=i: w[..., i])
     for i, key in enumerate(("Roll", "Pitch", "Yaw")):
         put(key, lambda i=i: euler()[i])
+    put("Tilt", lambda: tilt_angles(state[..., Q_SLICE]))
     put("StateFinite", lambda: np.isfinite(state).all(axis=-1).astype(float))
     if "contacts" in logs:
         contacts = logs["contacts"]
@@ -245,6 +257,9 @@ def vehicle_signals(name, logs, vocabulary=None) -> Signals:
         else:  # 3-axis: the body-frame field, gauss
             for i, axis in enumerate(AXES):
                 put(f"Mag.{axis}", lambda i=i: mag[..., i], mag_fresh)
+    if "failsafe" in logs:
+        for i, key in enumerate(FAILSAFE_SIGNALS):
+            put(f"Failsafe.{key}", lambda i=i: logs["failsafe"][..., i])
     if "baro" in logs:
         baro = logs["baro"]
         put("Baro.Height", lambda: baro[..., 0], functools.cache(lambda: stamp_fresh(baro[..., 1])))
@@ -292,6 +307,14 @@ def _estimator_signals(put, logs, vocabulary, p, v, euler):
     put("Est.BaroBiasStd", lambda: diagnostics[..., DIAG["baro_bias_std"]])
 
 
+def tilt_angles(quaternions) -> np.ndarray:
+    """rad in [0, pi]: the angle of the body z axis from the world's (down), acos R_NB[2, 2], of
+    quaternions (..., 4) wxyz (normalised here)."""
+    w, x, y, z = np.moveaxis(quaternions, -1, 0)
+    r22 = 1.0 - 2.0 * (x * x + y * y) / (w * w + x * x + y * y + z * z)
+    return np.arccos(np.clip(r22, -1.0, 1.0))
+
+
 def touchdown_speeds(touchdowns, vz) -> np.ndarray:
     """The descent speed (m/s, down) of each touchdown at the sample that counts it, 0 elsewhere:
     ``vz`` at the sample before (the last one in the air, at most 5 ms before the contact; the
@@ -323,6 +346,8 @@ def vehicle_log_widths(vehicle, fidelity=PHYSICAL) -> dict[str, int]:
     vocabulary = vehicle_vocabulary(vehicle)
     if vocabulary is not None:
         widths.update(vocabulary.log_widths())
+    if vehicle.failsafe is not None:
+        widths["failsafe"] = LOG_WIDTHS["failsafe"]
     return widths
 
 

@@ -14,11 +14,14 @@ gets follows from what it logged, so a new scenario needs no plot code:
   (y / vy) error inside the first vehicle's ±sigma envelope (reference 09);
 - in wind: the wind at the vehicle, its steady part (mean + gusts) and its turbulence;
 - with a barometer, a 3-axis magnetometer or a faulted yaw magnetometer: the measurement
-  itself beside what the truth and the estimate make of it (height, body field, yaw).
+  itself beside what the truth and the estimate make of it (height, body field, yaw);
+- with a no-aiding failsafe: the time without position aiding against its timeout, the phase
+  and the position's validity, and the height it descends on.
 
 On every time panel: injected faults hatched red (hatching, not a fill, so a fault over a
 judged green band stays red and green), gust windows shaded blue, touchdowns as dash-dotted
-lines named with their time and descent speed in the first panel's legend.
+lines named with their time and descent speed in the first panel's legend, and the failsafe's
+phase changes the same way.
 """
 
 import math
@@ -37,7 +40,7 @@ from ..judging.signals import key_unit, signal_unit
 from ..models.sensor_models import world_field
 from ..models.wind import steady_wind
 from .outdir import write_binary_atomic
-from .report import fault_spans, gust_spans, touchdown_marks, write_report
+from .report import failsafe_marks, fault_spans, gust_spans, touchdown_marks, write_report
 
 __all__ = ["make_figures", "write_plots", "write_report", "write_run_artifacts"]
 
@@ -638,6 +641,35 @@ def _gsf_figure(result, vehicle):
     return fig
 
 
+def _failsafe_figure(result, vehicle):
+    """The no-aiding failsafe of `vehicle` (``V.Failsafe.*``, ``control.failsafe``): the time without
+    position aiding against its timeout, the phase with the position's validity, and the true
+    and estimated height the descent flies on."""
+    timeout = next(v for v in result.scenario.vehicles if v.name == vehicle).failsafe.no_aiding_timeout
+    t = result.times
+    fig, axes = _figure(3, 1, height_per_row=1.9, title=f"{vehicle}: position aiding and the failsafe")
+    ax = axes[0, 0]
+    ax.plot(
+        t, _values(result, f"{vehicle}.Failsafe.NoAidTime"), color="tab:blue", lw=1.0, label="no aiding for"
+    )
+    ax.axhline(timeout, color="tab:red", ls="--", lw=1.0, label=f"timeout {timeout:g} s")
+    ax.set_ylabel(_label("time without aiding", "s"))
+    ax.legend(loc="upper left", fontsize=7)
+    ax = axes[1, 0]
+    ax.step(t, _values(result, f"{vehicle}.Failsafe.Phase"), where="post", color="k", lw=1.2, label="phase")
+    ax.step(t, _values(result, f"{vehicle}.Failsafe.PositionValid"), where="post", color="tab:green", lw=1.0,
+            ls="--", label="position valid (1 / 0)")  # fmt: skip
+    ax.set_yticks([0, 1, 2], ["0 nominal", "1 descending", "2 landed"], fontsize=7)
+    ax.legend(loc="upper left", fontsize=7)
+    ax = axes[2, 0]
+    ax.plot(t, -_values(result, f"{vehicle}.Pos.Z"), color="k", lw=1.2, label="true")
+    if f"{vehicle}.Est.Z" in result.signals:
+        ax.plot(t, -_values(result, f"{vehicle}.Est.Z"), color="tab:orange", lw=1.0, label="estimate")
+    ax.set_ylabel(_label("height", "m"))
+    ax.legend(loc="upper left", fontsize=7)
+    return fig
+
+
 def _field_assumed(config):
     """(m_N, hard iron) the vehicle's estimator assumes of a 3-axis magnetometer, or None."""
     params = getattr(config.estimator, "mag_field", None)
@@ -773,6 +805,11 @@ def make_figures(result) -> dict[str, tuple[str, Figure]]:
             f"{vehicle}: wind, steady and turbulent parts",
             _wind_figure(result, vehicle),
         )
+    for vehicle in [v.name for v in result.scenario.vehicles if v.failsafe is not None][: FLEET_SIZE - 1]:
+        figures[f"failsafe_{vehicle}"] = (
+            f"{vehicle}: position aiding and the no-aiding failsafe",
+            _failsafe_figure(result, vehicle),
+        )
     figures["position"] = ("Position vs reference", _position_figure(result))
     figures["top_view"] = ("Top view of the paths", _top_view_figure(result))
     figures["attitude"] = ("Attitude and body rates", _attitude_figure(result))
@@ -780,7 +817,7 @@ def make_figures(result) -> dict[str, tuple[str, Figure]]:
     spans, gusts, landings = (
         fault_spans(result.scenario),
         gust_spans(result.scenario),
-        touchdown_marks(result),
+        touchdown_marks(result) + failsafe_marks(result),
     )
     for _, fig in figures.values():
         shade_faults(fig, spans)

@@ -319,10 +319,32 @@ def touchdown_marks(result) -> list[tuple[float, str]]:
     return marks
 
 
+def failsafe_marks(result) -> list[tuple[float, str]]:
+    """[(time s, label)] of each no-aiding failsafe phase change (``V.Failsafe.Phase``,
+    ``control.failsafe``): when the position was declared invalid and the vehicle began to
+    descend, landed (motors idle), or resumed its mission."""
+    several = len(result.scenario.vehicles) > 1
+    words = {
+        1.0: "position invalid: failsafe descent",
+        2.0: "failsafe: landed, motors idle",
+        0.0: "mission resumed",
+    }
+    marks = []
+    for vehicle in result.scenario.vehicles:
+        signal = result.signals.get(f"{vehicle.name}.Failsafe.Phase")
+        if signal is None:
+            continue
+        phase = signal.values
+        for k in np.flatnonzero(phase[1:] != phase[:-1]) + 1:
+            name = f"{vehicle.name} " if several else ""
+            marks.append((float(result.times[k]), f"{name}{words[float(phase[k])]} {result.times[k]:.2f} s"))
+    return marks
+
+
 def events_html(result) -> list[str]:
     """[a paragraph naming the gusts and the touchdowns (marked on the plots)], or []."""
     words = [f"{label} in [{start:g}, {end:g}] s" for start, end, label in gust_spans(result.scenario)]
-    words += [label for _, label in touchdown_marks(result)]
+    words += [label for _, label in touchdown_marks(result) + failsafe_marks(result)]
     if not words:
         return []
     return [f"<p>Events (marked on the time plots): {esc('; '.join(words))}.</p>"]

@@ -44,6 +44,7 @@ from ..models.trajectories import float32_clock, trajectory_from_config
 from ..output.results import SimulationResult, result_from_logs
 from ..systems.controller import CascadeController
 from ..systems.estimators import build_estimator
+from ..systems.failsafe import FailsafeSupervisor
 from ..systems.faults import GpsDelayCompensator, SensorFaults
 from ..systems.noise import NoiseStreamSource
 from ..systems.plant import QuadrotorPlant
@@ -174,6 +175,20 @@ def _add_wind(builder, vehicle, plant, outputs, n, add):
         builder.Connect(source, plant.GetInputPort("wind"))
 
 
+def _add_failsafe(builder, vehicle, trajectory, controller, plant, outputs, n):
+    """Put the vehicle's FailsafeSupervisor (n vehicles) between its trajectory and its controller
+    and between its controller and its plant, fed by the estimate and the estimator's diagnostics;
+    its status goes into `outputs` (``failsafe``). The logged ``reference`` stays the trajectory's."""
+    supervisor = builder.AddNamedSystem("failsafe", FailsafeSupervisor(vehicle.failsafe, n))
+    for name in ("estimated_state", "diagnostics"):
+        builder.Connect(outputs[name], supervisor.GetInputPort(name))
+    builder.Connect(trajectory.GetOutputPort("reference"), supervisor.GetInputPort("reference"))
+    builder.Connect(supervisor.GetOutputPort("reference"), controller.GetInputPort("reference"))
+    builder.Connect(controller.GetOutputPort("motor_thrusts"), supervisor.GetInputPort("motor_thrusts"))
+    builder.Connect(supervisor.GetOutputPort("motor_thrusts"), plant.GetInputPort("motor_thrusts"))
+    outputs["failsafe"] = supervisor.GetOutputPort("failsafe")
+
+
 def build_vehicle(vehicle, fidelity=PHYSICAL, *, seeds=None) -> Diagram:
     """The sub-Diagram of one VehicleConfig; its outputs are named as `vehicle_log_names`.
 
@@ -200,8 +215,6 @@ def build_vehicle(vehicle, fidelity=PHYSICAL, *, seeds=None) -> Diagram:
     )
     controller = add("controller", CascadeController(vehicle.controller, fidelity, n))
     trajectory = add("trajectory", TrajectorySource(trajectory_from_config(vehicle.trajectory), fidelity, n))
-    builder.Connect(controller.GetOutputPort("motor_thrusts"), plant.GetInputPort("motor_thrusts"))
-    builder.Connect(trajectory.GetOutputPort("reference"), controller.GetInputPort("reference"))
     outputs = {name: plant.GetOutputPort(name) for name in ("state", "motor_forces", "contacts")}
     outputs["reference"] = trajectory.GetOutputPort("reference")
     _add_wind(builder, vehicle, plant, outputs, n, add)
@@ -236,6 +249,11 @@ def build_vehicle(vehicle, fidelity=PHYSICAL, *, seeds=None) -> Diagram:
         if flies_on_estimate(vehicle):
             state_for_control = outputs["estimated_state"]
     builder.Connect(state_for_control, controller.GetInputPort("state"))
+    if vehicle.failsafe is None:
+        builder.Connect(trajectory.GetOutputPort("reference"), controller.GetInputPort("reference"))
+        builder.Connect(controller.GetOutputPort("motor_thrusts"), plant.GetInputPort("motor_thrusts"))
+    else:
+        _add_failsafe(builder, vehicle, trajectory, controller, plant, outputs, n)
 
     for name in vehicle_log_names(vehicle, fidelity):
         builder.ExportOutput(outputs[name], name)
