@@ -15,6 +15,7 @@ runs) against the 95 % chi² interval of a mean of `runs` NEES values per tick
 """
 
 import argparse
+import signal
 import tempfile
 import time
 
@@ -70,10 +71,15 @@ def main():
     args = parser.parse_args()
     started = time.process_time()
     results = []
-    with tempfile.TemporaryDirectory() as directory:
-        for seed in tqdm(range(args.first_seed, args.first_seed + args.runs), desc="runs"):
-            scenario = catalog.load(args.scenario, seed=seed, overrides=args.set)
-            results.append(one_run(scenario, directory))
+    signal.signal(signal.SIGTERM, signal.default_int_handler)  # a stopped campaign prints what it has
+    try:
+        with tempfile.TemporaryDirectory() as directory:
+            for seed in tqdm(range(args.first_seed, args.first_seed + args.runs), desc="runs"):
+                scenario = catalog.load(args.scenario, seed=seed, overrides=args.set)
+                results.append(one_run(scenario, directory))
+    except KeyboardInterrupt:
+        print(f"stopped: the table of the first {len(results)} of {args.runs} runs")
+    args.runs = len(results)
     n = results[0][1]
     runs = [r for r, _ in results]
     groups = [g for g, s in GROUPS.items() if s.stop <= n]

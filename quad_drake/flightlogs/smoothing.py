@@ -93,11 +93,18 @@ def smooth_pass(ticks: TickLogs, estimator) -> Smoothed:
     return smooth_eskf(eskf_pass(ticks, estimator))
 
 
+def log_ticks(tick_times, times) -> np.ndarray:
+    """Index of the tick whose update a log sample at each of `times` (s) shows: the last tick k
+    with t_k < t (a log publishes before the updates of its own time; log and tick times differ
+    by whole milliseconds)."""
+    index = np.searchsorted(tick_times, np.asarray(times) - 0.25 * ONBOARD_PERIOD) - 1
+    return np.clip(index, 0, len(tick_times) - 1)
+
+
 def smoothed_logs(ticks: TickLogs, smoothed: Smoothed, times) -> dict:
-    """{``smoothed_state``: (m, 16) nominal (p, v, q_NB, b_a, b_g), ``smoothed_sigma``: (m, n)}
-    sampled at the log times `times` (s; the tick whose update a log at t shows, t_k < t)."""
-    index = np.searchsorted(ticks.times, np.asarray(times) - 0.25 * ONBOARD_PERIOD) - 1
-    index = np.clip(index, 0, ticks.times.size - 1)
+    """{``smoothed_state``: (m, 16) nominal (p, v, q_NB, b_a, b_g), ``smoothed_sigma``: (m, n): dp
+    m, dv m/s, dtheta rad[, db_a m/s², db_g rad/s]} sampled at the log times `times` (s)."""
+    index = log_ticks(ticks.times, times)
     return {"smoothed_state": smoothed.x[index], "smoothed_sigma": smoothed.sigma()[index]}
 
 
