@@ -589,6 +589,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="output folder (default: out; for LOG = a replay folder's config.yaml, the folder above it)",
     )
     replay.add_argument("--no-plots", action="store_true", help="skip the plots, report.html and index.html")
+    replay.add_argument(
+        "--smooth",
+        action="store_true",
+        help="ESKF only: also the fixed-interval RTS smoother of the pass, in the logs (= --set smooth=true)",
+    )
     replay.set_defaults(func=cmd_replay)
     noise = sub.add_parser("noise-std", help="step 1: GPS-x and accel-x std devs from a run's logs")
     noise.add_argument("run_dir")

@@ -28,6 +28,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput, VectorLogSink
 
+from quad_drake.config.errors import ConfigError
 from quad_drake.conventions import LOG_PERIOD, ONBOARD_PERIOD
 from quad_drake.estimation.registry import vocabulary_for
 from quad_drake.estimation.vocabulary import EstimatorVocabulary, health_counts, health_line
@@ -59,6 +60,8 @@ biases from their initial σ), and a comparison should see them running, not sta
 LATE_FIX = 1.0
 """s: a first GPS fix later than this after the log's start is late: zero position and velocity
 samples stand in for it before (``aiding_gps``)."""
+TICKS = "ticks"
+"""Key of the per-tick sinks among a smoothed replay's sinks (``build_replay_diagram``)."""
 RUNNER = "drake-replay"
 """What produced a replay: the Drake Diagram of this module."""
 
@@ -242,9 +245,11 @@ def aiding_gps(log, config) -> tuple[Samples, bool, float | None]:
 
 
 def build_replay_diagram(log, config) -> tuple[Diagram, dict[str, VectorLogSink], Aiding]:
-    """(Diagram, {log name: VectorLogSink}, fake position used, MagnetometerModel or None, first
-    fix s or None) replaying the FlightLog `log` through the estimator of the ReplayConfig
-    `config` (module docstring)."""
+    """(Diagram, {log name: VectorLogSink}, Aiding) replaying the FlightLog `log` through the
+    estimator of the ReplayConfig `config` (module docstring); with ``config.smooth`` the sinks
+    also hold {TICKS: the per-tick sinks of ``smoothing.tick_sinks``}."""
+    if config.smooth and config.estimator.kind != "eskf":
+        raise ConfigError(f"smooth: the smoother runs over the ESKF only, not kind {config.estimator.kind}")
     gps, fake, late_fix = aiding_gps(log, config)
     magnetometer = magnetometer_for(log, config)
     declination, hard_iron = (
@@ -260,8 +265,9 @@ def build_replay_diagram(log, config) -> tuple[Diagram, dict[str, VectorLogSink]
     vehicle = vehicle_for(
         config, initial_attitude(log, declination, hard_iron), fake, baro_period, magnetometer
     )
-    diagram, sinks, _ = _playback_diagram(streams, vehicle, config.name or "replay")
-    return diagram, sinks, Aiding(fake, magnetometer, late_fix, vehicle.sensors.baro is not None)
+    diagram, sinks, ticks = _playback_diagram(streams, vehicle, config.name or "replay", config.smooth)
+    aiding = Aiding(fake, magnetometer, late_fix, vehicle.sensors.baro is not None)
+    return diagram, (sinks | {TICKS: ticks} if config.smooth else sinks), aiding
 
 
 def _playback_diagram(streams, vehicle, name, ticks=False):
@@ -331,7 +337,11 @@ def replay(config, log=None) -> ReplayResult:
     simulator.AdvanceTo(log.duration)
     compile_time = jit.compile_seconds() - compiled
     wall_time = time.perf_counter() - start - compile_time
+    ticks = sinks.pop(TICKS, None)
     times, logs = _read_sinks(sinks, context)
+    if ticks is not None:  # the smoothed pass, sampled as the other logs
+        tick_logs = smoothing.read_tick_sinks(ticks, context)
+        logs |= smoothing.smoothed_logs(tick_logs, smoothing.smooth_pass(tick_logs, config.estimator), times)
     result = ReplayResult(
         config,
         log,

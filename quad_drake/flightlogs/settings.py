@@ -71,6 +71,9 @@ class ReplayConfig:
     # std (PX4's EKF2_NOAID_NOISE), so the estimator's velocity, and its tilt, stay bounded; 0 = off
     fake_position_std: float = number(10.0, nonnegative=True)
     fake_position_period: float = number(0.2, tick_multiple=1)  # s
+    # the ESKF only: also the fixed-interval RTS smoother of the replayed pass (``flightlogs.smoothing``),
+    # logged as smoothed_state (16: p, v, q_NB, b_a, b_g) and smoothed_sigma (the error state's sigmas)
+    smooth: bool = False
 
 
 def default_estimator(kind) -> EstimatorConfig:
