@@ -11,7 +11,8 @@ runs) against the 95 % chi² interval of a mean of `runs` NEES values per tick
 (``consistency.chi2_band``) and the share of ticks whose ensemble mean lies inside that band.
 
     PYTHONPATH=$PWD python benchmarks/smoother_table.py --first-seed 5000 --runs 100
-    PYTHONPATH=$PWD python benchmarks/smoother_table.py --runs 30 --set vehicles.0.estimator.estimate_biases=true
+    PYTHONPATH=$PWD python benchmarks/smoother_table.py --runs 30 \\
+        --set vehicles.0.estimator.estimate_biases=true
 """
 
 import argparse
@@ -23,7 +24,7 @@ import numpy as np
 from scipy.stats import bootstrap
 from tqdm import tqdm
 
-from quad_drake.flightlogs.smoothing import errors_against, smooth_run
+from quad_drake.flightlogs.recording import errors_against, smooth_run
 from quad_drake.judging.consistency import chi2_band, per_dof_interval
 from quad_drake.running import catalog
 
@@ -90,11 +91,13 @@ def main():
         f"{length} ticks each, error state n = {n}); CPU {time.process_time() - started:.0f} s (user+sys)"
     )
     print(
-        f"NEES band per dof, 95 % chi² interval of the mean of {len(runs)} runs: 3 dof {band[0]:.3f}-{band[1]:.3f}, "
+        f"NEES band per dof, 95 % chi² interval of the mean of {len(runs)} runs: "
+        f"3 dof {band[0]:.3f}-{band[1]:.3f}, "
         f"{n} dof {per_dof_band(n, len(runs))[0]:.3f}-{per_dof_band(n, len(runs))[1]:.3f}\n"
     )
     print(
-        "| state | RMSE filter | RMSE smoother | ratio [95 % CI] | NEES/dof filter [95 % CI] | NEES/dof smoother [95 % CI] "
+        "| state | RMSE filter | RMSE smoother | ratio [95 % CI] | NEES/dof filter [95 % CI] "
+        "| NEES/dof smoother [95 % CI] "
         "| ticks in χ² band filter / smoother |"
     )
     print("|---|---|---|---|---|---|---|")

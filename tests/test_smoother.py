@@ -89,8 +89,8 @@ def test_a_fixed_transition_is_not_the_smoother_of_a_time_varying_model():
     can tell."""
     problem = constant_velocity_problem(np.random.default_rng(3))
     filtered = kalman_pass(*problem)
-    wrong = FilterPass(*(getattr(filtered, f) for f in ("x_predicted", "P_predicted", "x_updated", "P_updated")),
-                       np.roll(filtered.F, 1, axis=0))  # fmt: skip
+    f = filtered
+    wrong = FilterPass(f.x_predicted, f.P_predicted, f.x_updated, f.P_updated, np.roll(f.F, 1, axis=0))
     x, _ = batch_posterior(*problem)
     assert np.abs(rts(wrong).x - x).max() > 1e-3
 

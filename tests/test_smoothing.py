@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from quad_drake.conventions import ONBOARD_PERIOD
-from quad_drake.flightlogs.smoothing import errors_against, log_ticks, smooth_run
+from quad_drake.flightlogs.recording import errors_against, smooth_run
+from quad_drake.flightlogs.smoothing import log_ticks
 from quad_drake.judging.consistency import per_dof_interval, within_tolerance
 from quad_drake.running import catalog
 

@@ -26,7 +26,11 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput, ZeroOrderHold
 
 from quad_drake.conventions import EKF_OFFSET, LOG_PERIOD, NO_SAMPLE_STAMP, ONBOARD_PERIOD
+from quad_drake.estimation import eskf, smoother
 from quad_drake.estimation.registry import vocabulary_for
+from quad_drake.flightlogs import smoothing
+from quad_drake.flightlogs.reader import read_flight_log
+from quad_drake.flightlogs.replay import replay_as_flown
 from quad_drake.models.fidelity import fidelity_from_mode
 from quad_drake.running.simulation import build_vehicle
 
@@ -111,3 +115,46 @@ def write_run_csv(recorded, path) -> Path:
 
     write_text_atomic(path, "\n".join(run_csv_rows(recorded)) + "\n")
     return path
+
+
+@dataclass(frozen=True)
+class SmoothedRun:
+    """A simulated run smoothed: the :class:`RecordedRun`, the filter's smoothing.TickLogs replayed from
+    its CSV, the stored FilterPass and the Smoothed pass; truth (T, 13) the true state at each tick
+    (p, q_NB, v, w, the ``state`` layout)."""
+
+    recorded: object
+    ticks: smoothing.TickLogs
+    filtered: object  # smoother.FilterPass
+    smoothed: object  # smoother.Smoothed
+
+    @property
+    def truth(self) -> np.ndarray:
+        return self.recorded.truth[: self.filtered.x_updated.shape[0]]
+
+
+def smooth_run(scenario, directory, vehicle_index=0) -> SmoothedRun:
+    """Fly vehicle `vehicle_index` of a ScenarioConfig with an ESKF (:func:`record_run`), write
+    it as a replay CSV into `directory`, replay it through the same estimator tick by tick and
+    smooth that pass. Raises AssertionError if the replay's estimate is not the run's (to 1e-9)."""
+    recorded = record_run(scenario, vehicle_index)
+    log = read_flight_log(write_run_csv(recorded, Path(directory) / f"{scenario.name or 'run'}.csv"))
+    times, logs, ticks = replay_as_flown(log, recorded.vehicle, ticks=True)
+    m = len(times)
+    for name in ("estimated_state", "covariance"):
+        np.testing.assert_allclose(logs[name], recorded.logs[name][:m], rtol=0, atol=1e-9)
+    filtered = smoothing.eskf_pass(ticks, recorded.vehicle.estimator)
+    return SmoothedRun(recorded, ticks, filtered, smoother.smooth_eskf(filtered))
+
+
+def errors_against(x, truth, n) -> np.ndarray:
+    """(T, n) nominal x (T, 16) minus the true state (T, 13): dp (m), dv (m/s), dtheta (rad, world
+    axes, R_hat = Exp(dtheta) R_true) and, when n = 15, the biases (the simulated IMU has none)."""
+    parts = [
+        x[:, 0:3] - truth[:, 0:3],
+        x[:, 3:6] - truth[:, 7:10],
+        eskf.attitude_errors(x[:, 6:10], truth[:, 3:7]),
+    ]
+    if n == eskf.ERROR_SIZE_WITH_BIASES:
+        parts.append(x[:, 10:16])
+    return np.column_stack(parts)

@@ -25,8 +25,6 @@ from quad_drake.estimation.smoother import FilterPass, Smoothed, smooth_eskf
 
 TICK_OUTPUTS = ("estimated_state", "covariance", "imu_bias")
 """The ESKF outputs logged every tick for the smoother: together the nominal state and P."""
-SMOOTHED_LOGS = {"smoothed_state": 16, "smoothed_sigma": None}
-"""Log names the smoother adds (``smoothed_sigma``'s width is the error state's size)."""
 
 
 @dataclass(frozen=True)
@@ -106,52 +104,3 @@ def smoothed_logs(ticks: TickLogs, smoothed: Smoothed, times) -> dict:
     m, dv m/s, dtheta rad[, db_a m/s², db_g rad/s]} sampled at the log times `times` (s)."""
     index = log_ticks(ticks.times, times)
     return {"smoothed_state": smoothed.x[index], "smoothed_sigma": smoothed.sigma()[index]}
-
-
-@dataclass(frozen=True)
-class SmoothedRun:
-    """A simulated run smoothed: the ``recording.RecordedRun``, the filter's TickLogs replayed from
-    its CSV, the stored FilterPass and the Smoothed pass; truth (T, 13) the true state at each tick
-    (p, q_NB, v, w, the ``state`` layout)."""
-
-    recorded: object
-    ticks: TickLogs
-    filtered: FilterPass
-    smoothed: Smoothed
-
-    @property
-    def truth(self) -> np.ndarray:
-        return self.recorded.truth[: self.filtered.x_updated.shape[0]]
-
-
-def smooth_run(scenario, directory, vehicle_index=0) -> SmoothedRun:
-    """Fly vehicle `vehicle_index` of a ScenarioConfig with an ESKF (``recording.record_run``), write
-    it as a replay CSV into `directory`, replay it through the same estimator tick by tick and
-    smooth that pass. Raises AssertionError if the replay's estimate is not the run's (to 1e-9)."""
-    from pathlib import Path
-
-    from quad_drake.flightlogs.reader import read_flight_log
-    from quad_drake.flightlogs.recording import record_run, write_run_csv
-    from quad_drake.flightlogs.replay import replay_as_flown
-
-    recorded = record_run(scenario, vehicle_index)
-    log = read_flight_log(write_run_csv(recorded, Path(directory) / f"{scenario.name or 'run'}.csv"))
-    times, logs, ticks = replay_as_flown(log, recorded.vehicle, ticks=True)
-    m = len(times)
-    for name in ("estimated_state", "covariance"):
-        np.testing.assert_allclose(logs[name], recorded.logs[name][:m], rtol=0, atol=1e-9)
-    filtered = eskf_pass(ticks, recorded.vehicle.estimator)
-    return SmoothedRun(recorded, ticks, filtered, smooth_eskf(filtered))
-
-
-def errors_against(x, truth, n) -> np.ndarray:
-    """(T, n) nominal x (T, 16) minus the true state (T, 13): dp (m), dv (m/s), dtheta (rad, world
-    axes, R_hat = Exp(dtheta) R_true) and, when n = 15, the biases (the simulated IMU has none)."""
-    parts = [
-        x[:, 0:3] - truth[:, 0:3],
-        x[:, 3:6] - truth[:, 7:10],
-        eskf.attitude_errors(x[:, 6:10], truth[:, 3:7]),
-    ]
-    if n == eskf.ERROR_SIZE_WITH_BIASES:
-        parts.append(x[:, 10:16])
-    return np.column_stack(parts)
