@@ -81,6 +81,8 @@ def main():
     except KeyboardInterrupt:
         print(f"stopped: the table of the first {len(results)} of {args.runs} runs")
     args.runs = len(results)
+    if not results:
+        return
     n = results[0][1]
     runs = [r for r, _ in results]
     groups = [g for g, s in GROUPS.items() if s.stop <= n]
