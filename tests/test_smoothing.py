@@ -62,3 +62,45 @@ def test_the_smoother_is_consistent_and_better_than_the_filter(runs):
     assert within_tolerance((low, high)), (mean, low, high)
     assert 0.5 < mean < 2.0
     assert squares[1] < squares[0], squares
+
+
+def level_log(path, seconds=2.0):
+    """A CSV log of a vehicle at rest: level IMU every 2 ms, a GPS fix every 0.1 s."""
+    rows = ["time,sensor,v0,v1,v2,v3,v4,v5"]
+    rows += [f"{k * 0.002!r},imu,0.0,0.0,-9.81,0.0,0.0,0.0" for k in range(int(seconds / 0.002))]
+    rows += [f"{k * 0.1!r},gps_ned,0.0,0.0,0.0,0.0,0.0,0.0" for k in range(int(seconds / 0.1))]
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+@pytest.mark.slow
+def test_replay_smooth_adds_the_smoothed_logs_and_refuses_another_kind(tmp_path):
+    import subprocess
+    import sys
+
+    log = str(level_log(tmp_path / "level.csv"))
+
+    def cli(*args):
+        command = [
+            sys.executable,
+            "-m",
+            "quad_drake.cli",
+            "replay",
+            log,
+            "--no-plots",
+            "--out",
+            str(tmp_path),
+            *args,
+        ]
+        return subprocess.run(command, capture_output=True, text=True, timeout=600)
+
+    refused = cli("--smooth")
+    assert refused.returncode == 2 and "Traceback" not in refused.stderr
+    assert "the smoother runs over the ESKF only, not kind ekf7" in refused.stderr
+    done = cli("--estimator", "{kind: eskf}", "--smooth")
+    assert done.returncode == 0, done.stderr
+    (folder,) = [p for p in tmp_path.iterdir() if p.is_dir()]
+    logs = np.load(folder / "logs.npz")
+    state, sigma = logs["replay/smoothed_state"], logs["replay/smoothed_sigma"]
+    assert state.shape == (logs["replay/estimated_state"].shape[0], 16) and np.isfinite(sigma).all()
+    assert np.all(sigma[:, 0:3] > 0.0)
