@@ -150,6 +150,11 @@ def cmd_run(args) -> int:
                 )
             # a reproduction goes beside its run folder, never over it
             run_dir = claim_run_folder(out, folder, scenario, replace=source is None)
+            if args.smooth:
+                from .flightlogs.recording import smooth_vehicles
+
+                for line in smooth_vehicles(result, run_dir):
+                    print(line)
             run_dir = save_run(result, run_dir)  # logs first: nothing is lost if a plot fails
             if not args.no_plots:
                 from .output.plots import write_run_artifacts
@@ -553,6 +558,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--no-plots", action="store_true", help="skip plots, report.html, replay.html and index.html"
     )
     run_parser.add_argument(
+        "--smooth",
+        action="store_true",
+        help="also the fixed-interval RTS smoother of each ESKF vehicle: smoothed_state and smoothed_sigma "
+        "in logs.npz, the run written as a log (CSV) in its folder",
+    )
+    run_parser.add_argument(
         "--meshcat", action="store_true", help="also replay each flight live in Meshcat (opens a local URL)"
     )
     run_parser.set_defaults(func=cmd_run)
@@ -589,6 +600,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="output folder (default: out; for LOG = a replay folder's config.yaml, the folder above it)",
     )
     replay.add_argument("--no-plots", action="store_true", help="skip the plots, report.html and index.html")
+    replay.add_argument(
+        "--smooth",
+        action="store_true",
+        help="ESKF only: also the fixed-interval RTS smoother of the pass, in the logs (= --set smooth=true)",
+    )
     replay.set_defaults(func=cmd_replay)
     noise = sub.add_parser("noise-std", help="step 1: GPS-x and accel-x std devs from a run's logs")
     noise.add_argument("run_dir")

@@ -94,7 +94,8 @@ def replay_command(args) -> int:
     table over them (``replay_table.csv`` in the output folder). Exit code 0 when every log
     replayed; 2 when one could not (its line printed, the others replayed and saved)."""
     logs = expand_logs(args.log)
-    configs = [load_replay(log, args.estimator, args.set) for log in logs]  # every input before any run
+    overrides = [*args.set, *(["smooth=true"] if getattr(args, "smooth", False) else [])]
+    configs = [load_replay(log, args.estimator, overrides) for log in logs]  # every input before any run
     if len(configs) == 1:
         _replay_one(args, logs[0], configs[0])
         return 0
@@ -159,6 +160,7 @@ def _replay_one(args, log, config):
     out, reproduced = _out_folder(args, log)
     tuned = args.estimator and set(estimator_mapping(args.estimator)) != {"kind"}  # more than the kind
     overrides = ([f"--estimator={args.estimator}"] if tuned else []) + list(args.set)
+    overrides += ["smooth=true"] if config.smooth else []
     name = variant_name(f"{config.name or Path(config.log).stem}-{config.estimator.kind}", None, overrides)
     try:
         result = replay(config)

@@ -134,6 +134,26 @@ def _innovations_figure(result, path):
     return _save(fig, path)
 
 
+def _smoothed_figure(result, path):
+    """Our filtered and RTS-smoothed position and velocity, the smoother's ±2σ, the truth where logged."""
+    fig, axes = _figure(6, f"{result.config.name}: filter and RTS smoother (NED)")
+    state, smoothed = result.logs["estimated_state"], result.logs["smoothed_state"]
+    filtered = np.column_stack([state[:, 0:3], state[:, 7:10]])
+    sigma = result.logs["smoothed_sigma"][:, 0:6]
+    truth = result.log.truth_position
+    names = ("x [m]", "y [m]", "z [m]", "vx [m/s]", "vy [m/s]", "vz [m/s]")
+    for i, (ax, name) in enumerate(zip(axes, names, strict=True)):
+        ax.plot(result.times, filtered[:, i], label="filter", lw=1.0)
+        ax.plot(result.times, smoothed[:, i], label="smoother", lw=1.0)
+        low, high = smoothed[:, i] - 2 * sigma[:, i], smoothed[:, i] + 2 * sigma[:, i]
+        ax.fill_between(result.times, low, high, color="tab:orange", alpha=0.2, label="smoother ±2σ")
+        if truth is not None:
+            ax.plot(truth.times, truth.values[:, i], label="truth", lw=0.8, ls="--", color="k")
+        ax.set_ylabel(name)
+    axes[0].legend(loc="upper right")
+    return _save(fig, path)
+
+
 def write_plots(result, out_dir) -> list[tuple[str, Path]]:
     """[(caption, png path)] of the replay's figures, written into out_dir."""
     out_dir = Path(out_dir)
@@ -161,6 +181,9 @@ def write_plots(result, out_dir) -> list[tuple[str, Path]]:
                 result, position, title, out_dir / "position_differences.png"
             ))
         )  # fmt: skip
+    if "smoothed_state" in result.logs:
+        caption = "Filter and RTS smoother: position and velocity, the smoother's ±2σ"
+        plots.append((caption, _smoothed_figure(result, out_dir / "smoothed.png")))
     if result.nis:
         plots.append(("Innovations: NIS per sensor", _nis_figure(result, out_dir / "nis.png")))
     if result.innovations:

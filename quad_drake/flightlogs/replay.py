@@ -28,10 +28,11 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput, VectorLogSink
 
+from quad_drake.config.errors import ConfigError
 from quad_drake.conventions import LOG_PERIOD, ONBOARD_PERIOD
 from quad_drake.estimation.registry import vocabulary_for
 from quad_drake.estimation.vocabulary import EstimatorVocabulary, health_counts, health_line
-from quad_drake.flightlogs import comparison, earth_field
+from quad_drake.flightlogs import comparison, earth_field, smoothing
 from quad_drake.flightlogs.checks import log_warnings
 from quad_drake.flightlogs.reader import Samples, read_flight_log
 from quad_drake.flightlogs.schedule import (
@@ -67,6 +68,8 @@ biases from their initial σ), and a comparison should see them running, not sta
 LATE_FIX = 1.0
 """s: a first GPS fix later than this after the log's start is late: zero position and velocity
 samples stand in for it before (``aiding_gps``)."""
+TICKS = "ticks"
+"""Key of the per-tick sinks among a smoothed replay's sinks (``build_replay_diagram``)."""
 RUNNER = "drake-replay"
 """What produced a replay: the Drake Diagram of this module."""
 
@@ -295,9 +298,11 @@ def aiding_gps(log, config) -> tuple[Samples, bool, float | None, list]:
 
 
 def build_replay_diagram(log, config) -> tuple[Diagram, dict[str, VectorLogSink], Aiding]:
-    """(Diagram, {log name: VectorLogSink}, fake position used, MagnetometerModel or None, first
-    fix s or None) replaying the FlightLog `log` through the estimator of the ReplayConfig
-    `config` (module docstring)."""
+    """(Diagram, {log name: VectorLogSink}, Aiding) replaying the FlightLog `log` through the
+    estimator of the ReplayConfig `config` (module docstring); with ``config.smooth`` the sinks
+    also hold {TICKS: the per-tick sinks of ``smoothing.tick_sinks``}."""
+    if config.smooth and config.estimator.kind != "eskf":
+        raise ConfigError(f"smooth: the smoother runs over the ESKF only, not kind {config.estimator.kind}")
     gps, fake, late_fix, losses = aiding_gps(log, config)
     magnetometer = magnetometer_for(log, config)
     declination, hard_iron = (
@@ -314,20 +319,18 @@ def build_replay_diagram(log, config) -> tuple[Diagram, dict[str, VectorLogSink]
     vehicle = vehicle_for(
         config, initial_attitude(log, declination, hard_iron), fake, baro_period, magnetometer, baro_reference
     )
-    diagram, sinks = _playback_diagram(streams, vehicle, config.name or "replay")
+    diagram, sinks, ticks = _playback_diagram(streams, vehicle, config.name or "replay", config.smooth)
     baro_fused = vehicle.sensors.baro is not None
-    return (
-        diagram,
-        sinks,
-        Aiding(fake, magnetometer, late_fix, baro_fused, losses, baro_fused and baro_reference),
-    )
+    aiding = Aiding(fake, magnetometer, late_fix, baro_fused, losses, baro_fused and baro_reference)
+    return diagram, (sinks | {TICKS: ticks} if config.smooth else sinks), aiding
 
 
-def _playback_diagram(streams, vehicle, name):
-    """(Diagram, {log name: VectorLogSink}): a LogPlayback of `streams` feeding the estimator of
-    the VehicleConfig `vehicle` (``build_estimator``, one vehicle): ``imu``, ``gps``, ``mag`` (the
-    raw field for a 3-axis magnetometer, else the heading) and ``baro`` where it has that input;
-    every estimator and playback output logged every LOG_PERIOD."""
+def _playback_diagram(streams, vehicle, name, ticks=False):
+    """(Diagram, {log name: VectorLogSink}, {name: tick sink} or None): a LogPlayback of `streams`
+    feeding the estimator of the VehicleConfig `vehicle` (``build_estimator``, one vehicle):
+    ``imu``, ``gps``, ``mag`` (the raw field for a 3-axis magnetometer, else the heading) and
+    ``baro`` where it has that input; every estimator and playback output logged every LOG_PERIOD;
+    ticks: also the per-tick sinks of ``smoothing.tick_sinks`` (an ESKF's, for its smoother)."""
     builder = DiagramBuilder()
     playback = builder.AddNamedSystem("playback", LogPlayback(streams))
     estimator = builder.AddSystem(build_estimator(vehicle, PHYSICAL))
@@ -342,22 +345,25 @@ def _playback_diagram(streams, vehicle, name):
     for log_name, system in outputs:
         sinks[log_name] = LogVectorOutput(system.GetOutputPort(log_name), builder, publish_period=LOG_PERIOD)
         sinks[log_name].set_name(f"{log_name}_log")
+    tick = smoothing.tick_sinks(builder, estimator, playback) if ticks else None
     diagram = builder.Build()
     diagram.set_name(name)
-    return diagram, sinks
+    return diagram, sinks, tick
 
 
-def replay_as_flown(log, vehicle) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+def replay_as_flown(log, vehicle, ticks=False) -> tuple:
     """(times (n,) s, {log name: (n, width)}) of the FlightLog `log` replayed through the estimator
     of the VehicleConfig `vehicle` exactly as configured (its own initial state and noise; no
     replay defaults, no fake position): a simulated run's CSV (``flightlogs.recording``) replayed
-    through the run's own estimator reproduces the run's estimate."""
-    diagram, sinks = _playback_diagram(playback_streams(log), vehicle, "replay")
+    through the run's own estimator reproduces the run's estimate. ticks: a third item, the
+    ``smoothing.TickLogs`` of an ESKF (its pass tick by tick, for the smoother)."""
+    diagram, sinks, tick = _playback_diagram(playback_streams(log), vehicle, "replay", ticks)
     simulator = Simulator(diagram)
     context = simulator.get_mutable_context()
     simulator.Initialize()
     simulator.AdvanceTo(log.duration)
-    return _read_sinks(sinks, context)
+    times, logs = _read_sinks(sinks, context)
+    return (times, logs, smoothing.read_tick_sinks(tick, context)) if ticks else (times, logs)
 
 
 def replay(config, log=None) -> ReplayResult:
@@ -386,7 +392,11 @@ def replay(config, log=None) -> ReplayResult:
     simulator.AdvanceTo(log.duration)
     compile_time = jit.compile_seconds() - compiled
     wall_time = time.perf_counter() - start - compile_time
+    ticks = sinks.pop(TICKS, None)
     times, logs = _read_sinks(sinks, context)
+    if ticks is not None:  # the smoothed pass, sampled as the other logs
+        tick_logs = smoothing.read_tick_sinks(ticks, context)
+        logs |= smoothing.smoothed_logs(tick_logs, smoothing.smooth_pass(tick_logs, config.estimator), times)
     result = ReplayResult(
         config,
         log,

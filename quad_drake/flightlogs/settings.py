@@ -79,6 +79,9 @@ class ReplayConfig:
     # what the estimator's height follows on a log with GPS and a barometer: "log" as PX4's
     # EKF2_HGT_REF / EKF2_HGT_MODE say (0: the baro, the GPS height then not fused), "baro", "gps"
     height_reference: str = field(default="log", metadata={"choices": HEIGHT_REFERENCES})
+    # the ESKF only: also the fixed-interval RTS smoother of the replayed pass (``flightlogs.smoothing``),
+    # logged as smoothed_state (16: p, v, q_NB, b_a, b_g) and smoothed_sigma (the error state's sigmas)
+    smooth: bool = False
 
 
 def default_estimator(kind) -> EstimatorConfig:
