@@ -47,7 +47,8 @@ test: lint
 	$(BIN)/python -m pytest -n $(TEST_JOBS)
 
 # The manual into docs/_build/html, every warning an error (a broken link or anchor, a notebook
-# cell that raises); notebooks execute in their quick mode, cached in docs/_build/.jupyter_cache.
+# cell that raises); notebooks execute in their quick mode, kept in docs/_build/notebooks until
+# the notebook, the package or the interpreter change (tests/test_notebooks.py reads them there).
 DOCS_OUT ?= docs/_build/html
 docs: $(VENV)/.installed-docs
 	$(BIN)/python -m sphinx -b html -W --keep-going -q docs $(DOCS_OUT)

@@ -1,8 +1,13 @@
 """Shared fixtures: scenario loading, output folders, the command line in-process, and flights
 that several tests look at, simulated once per session."""
 
+import os
+import shutil
 import subprocess
+import sys
+import sysconfig
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
@@ -114,3 +119,39 @@ def process_pool():
 
     with ProcessPoolRunner(2) as pool:
         yield pool
+
+
+def run_process(*args, timeout=600, **kwargs):
+    """subprocess.run(args) with its output captured as text (`timeout` s at most)."""
+    return subprocess.run(args, capture_output=True, text=True, timeout=timeout, **kwargs)
+
+
+@pytest.fixture(scope="session")
+def installed_wheel(tmp_path_factory):
+    """The package as a user installs it: a wheel built from a copy of what the sdist holds (no
+    stale build/ or egg-info of the checkout leaks in), installed into a new venv that sees this
+    interpreter's site-packages (drake, numpy, ...) after its own, so the wheel's copy of
+    quad_drake wins (and numba caches its kernels beside it). A namespace: ``wheel``, ``venv``,
+    ``python``, ``exe`` (its quad-drake) and ``env`` (no PYTHONPATH, Agg plots)."""
+    folder = tmp_path_factory.mktemp("installed_wheel")
+    source = folder / "source"
+    for name in ("quad_drake", "scenarios"):
+        shutil.copytree(ROOT / name, source / name, ignore=shutil.ignore_patterns("__pycache__"))
+    for name in ("pyproject.toml", "README.md", "LICENSE"):
+        shutil.copy(ROOT / name, source)
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"} | {"MPLBACKEND": "Agg"}
+    wheels = folder / "wheels"
+    pip = [sys.executable, "-m", "pip"]
+    built = run_process(*pip, "wheel", source, "--no-deps", "-q", "-w", wheels, env=env)
+    assert built.returncode == 0, built.stderr
+    (wheel,) = wheels.glob("quad_drake-*.whl")
+    venv = folder / "venv"  # without a pip of its own: this interpreter's pip installs into it
+    assert run_process(sys.executable, "-m", "venv", "--without-pip", str(venv), env=env).returncode == 0
+    python = venv / "bin" / "python"
+    purelib = "import sysconfig; print(sysconfig.get_paths()['purelib'])"
+    site = run_process(str(python), "-c", purelib, env=env).stdout.strip()
+    Path(site, "parent_site.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
+    installed = run_process(*pip, "--python", python, "install", "--no-deps", "-q", wheel, env=env)
+    assert installed.returncode == 0, installed.stderr
+    exe = venv / "bin" / "quad-drake"
+    return SimpleNamespace(wheel=wheel, venv=venv, python=python, exe=exe, env=env)

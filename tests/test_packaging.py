@@ -3,10 +3,8 @@ outside the repository."""
 
 import ast
 import os
-import shutil
 import subprocess
 import sys
-import sysconfig
 import tomllib
 from pathlib import Path
 
@@ -343,35 +341,12 @@ def test_version_comes_from_one_place():
 
 
 @pytest.mark.slow
-def test_wheel_installed_outside_the_repo_lists_and_runs_the_bundled_scenarios(tmp_path):
-    # Build from a copy of what the sdist holds: no stale build/ or egg-info of the checkout leaks in.
-    source = tmp_path / "source"
-    for folder in ("quad_drake", "scenarios"):
-        shutil.copytree(REPO / folder, source / folder, ignore=shutil.ignore_patterns("__pycache__"))
-    for name in ("pyproject.toml", "README.md", "LICENSE"):
-        shutil.copy(REPO / name, source)
-    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"} | {"MPLBACKEND": "Agg"}
-    wheels = tmp_path / "wheels"
-    built = _run(
-        sys.executable, "-m", "pip", "wheel", str(source), "--no-deps", "-q", "-w", str(wheels), env=env
-    )
-    assert built.returncode == 0, built.stderr
-    (wheel,) = wheels.glob("quad_drake-*.whl")
-
-    # A fresh venv that sees this interpreter's site-packages (drake, numpy...) through a .pth
-    # line, after its own: the wheel's copy of quad_drake wins, the editable install never loads.
-    venv = tmp_path / "venv"
-    assert _run(sys.executable, "-m", "venv", str(venv), env=env).returncode == 0
-    python = venv / "bin" / "python"
-    purelib = "import sysconfig; print(sysconfig.get_paths()['purelib'])"
-    site = _run(str(python), "-c", purelib, env=env).stdout.strip()
-    Path(site, "parent_site.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
-    installed = _run(str(python), "-m", "pip", "install", "--no-deps", "-q", str(wheel), env=env)
-    assert installed.returncode == 0, installed.stderr
-
+def test_wheel_installed_outside_the_repo_lists_and_runs_the_bundled_scenarios(installed_wheel, tmp_path):
+    # The session's wheel, installed into a venv of its own (conftest).
+    python, env, venv = str(installed_wheel.python), installed_wheel.env, installed_wheel.venv
     cwd = tmp_path / "elsewhere"
     cwd.mkdir()
-    quad_drake_exe = str(venv / "bin" / "quad-drake")
+    quad_drake_exe = str(installed_wheel.exe)
 
     where = _run(str(python), "-c", "import quad_drake; print(quad_drake.__file__)", cwd=cwd, env=env)
     assert Path(where.stdout.strip()).is_relative_to(venv), where.stdout + where.stderr
