@@ -57,6 +57,8 @@ LOG_DIR = PACKAGE_DIR / "data" / "flight_logs"
 """The bundled flight logs (package data): pyulog's test logs, BSD-3-Clause (README there)."""
 FAKE_VELOCITY_STD = 1e3
 """m/s: the velocity part of a fake position sample, so large that it carries no information."""
+MAX_SENSOR_DELAY = 0.5
+"""s: the largest sensor delay a replay takes (PX4's EKF2_*_DELAY range ends at 300 ms)."""
 
 
 @dataclass
@@ -71,6 +73,15 @@ class ReplayConfig:
     # std (PX4's EKF2_NOAID_NOISE), so the estimator's velocity, and its tilt, stay bounded; 0 = off
     fake_position_std: float = number(10.0, nonnegative=True)
     fake_position_period: float = number(0.2, tick_multiple=1)  # s
+    # s: how long each sensor's samples took from measurement to the log (PX4's EKF2_GPS_DELAY,
+    # EKF2_MAG_DELAY, EKF2_BARO_DELAY): a sample logged at t is replayed as measured at t - delay
+    # (the replay reads the log ahead, as PX4 fuses on its delayed horizon); 0 = as logged
+    gps_delay: float = number(0.0, minimum=0.0, maximum=MAX_SENSOR_DELAY)
+    mag_delay: float = number(0.0, minimum=0.0, maximum=MAX_SENSOR_DELAY)
+    baro_delay: float = number(0.0, minimum=0.0, maximum=MAX_SENSOR_DELAY)
+    # true: the estimator's noise and the sensor delays are the log's own EKF2_* parameters where
+    # they map (``flightlogs.px4_parameters``; an ESKF only), instead of PX4's defaults
+    px4_parameters: bool = False
 
 
 def default_estimator(kind) -> EstimatorConfig:
@@ -192,6 +203,8 @@ def check_replay(config) -> ReplayConfig:
     problem = kind.fidelity_problem(PHYSICAL) or kind.problem(config.estimator)  # a replay is physical
     if problem:
         raise ConfigError(f"estimator: {problem}")
+    if config.px4_parameters and config.estimator.kind != "eskf":
+        raise ConfigError(f"px4_parameters: maps EKF2_* onto an ESKF only, not kind {config.estimator.kind!r}")
     if config.mag_declination is not None and not abs(config.mag_declination) <= math.pi:
         raise ConfigError(f"mag_declination: must be within [-pi, pi] rad, got {config.mag_declination}")
     return config
