@@ -36,6 +36,7 @@ from ..flightlogs.settings import load_replay, resolve_log
 from ..judging import innovations
 from .search import Evaluation, SearchResult
 from .session import _Progress
+from .settings import LogTuneSettings  # noqa: F401 (the settings' home; re-exported)
 
 SEARCH_DECADES = 2.0
 """Each noise is searched from 1/100 to 100 times its start (PX4's defaults lie that far from a
@@ -57,16 +58,6 @@ NOISE_FIELDS = {
 None for a scalar)."""
 DELAY_OF = {"gps": "gps_delay", "heading": "mag_delay", "field": "mag_delay", "baro": "baro_delay"}
 """A channel's sensor -> the ReplayConfig's delay field."""
-
-
-@dataclass(frozen=True)
-class LogTuneSettings:
-    """What ``quad-drake tune LOG ...`` was asked for."""
-
-    budget: int = 80  # replays of the search (candidates), the start included
-    train_fraction: float = 0.6  # of each log's length: tuned on [COMPARE_AFTER, f T), judged after
-    delays: bool = True  # search the sensor delays too
-    curve_points: int = 13  # points of each delay's objective curve (0: none)
 
 
 @dataclass(frozen=True)
