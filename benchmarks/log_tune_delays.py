@@ -26,8 +26,11 @@ CASES = ((0.0, 0.0), (0.05, 0.04), (0.1, 0.0), (0.2, 0.04))
 TRUE_NOISE = {"gps_pos_xy": 0.7, "gps_pos_z": 2.0, "gps_vel_xy": 0.1, "gps_vel_z": 0.3, "heading": 0.02}
 """The simulator's sensor noise (GpsParams defaults; the heading's set below)."""
 FLIGHT = ["end_time=20", "vehicles.0.sensors.mag.yaw_std=0.02"]
-REPLAY = ["estimator.accel_std=[0.5, 0.5, 1.5]", "estimator.gyro_std=[0.5, 0.5, 0.5]",
-          "estimator.estimate_biases=false"]
+REPLAY = [
+    "estimator.accel_std=[0.5, 0.5, 1.5]",
+    "estimator.gyro_std=[0.5, 0.5, 0.5]",
+    "estimator.estimate_biases=false",
+]
 """The replay's IMU noise is the simulator's (ImuParams defaults, no bias): not searched here."""
 DELAY_TOLERANCE = 0.020  # s
 NOISE_TOLERANCE = 0.25  # relative
@@ -67,8 +70,9 @@ def main():
                     true_text = f"{true:g}"
                 rows.append(f"| {label} | {name} | {true_text} | {shown} | {ok}/{len(values)} |")
                 print(rows[-1], flush=True)
-    table = "\n".join(["| case | quantity | true | recovered (per seed) | seeds within |",
-                       "|---|---|---|---|---|", *rows])
+    table = "\n".join(
+        ["| case | quantity | true | recovered (per seed) | seeds within |", "|---|---|---|---|---|", *rows]
+    )
     print(f"\n{table}\nCPU {time.process_time() - start:.0f} s (user+sys of this process)")
     if args.markdown:
         args.markdown.write_text(table + "\n")

@@ -53,24 +53,73 @@ class Px4Parameter:
 
 _IMU = f"x sqrt(10 ms / 2 ms) = x {PX4_PER_SAMPLE:.4f}: PX4's per 10 ms step, ours per 2 ms sample"
 MAPPING = (
-    Px4Parameter("EKF2_GPS_P_NOISE", "m", PX4_NOISE["gps_pos_std"], "estimator.gps_pos_std", 1.0,
-                 "1:1 (m); PX4's one value sets our x, y, z; out: the mean of our x and y"),
-    Px4Parameter("EKF2_GPS_V_NOISE", "m/s", PX4_NOISE["gps_vel_std"], "estimator.gps_vel_std", 1.0,
-                 "1:1 (m/s); PX4's one value sets our x, y, z; out: the mean of our x and y"),
-    Px4Parameter("EKF2_MAG_NOISE", "gauss", PX4_NOISE["mag_field_std"], "estimator.mag_field.field_std", 1.0,
-                 "1:1 (gauss) on each body axis"),
-    Px4Parameter("EKF2_HEAD_NOISE", "rad", PX4_NOISE["heading_std"], "estimator.mag_yaw_std", 1.0,
-                 "1:1 (rad), the yaw magnetometer's heading"),
-    Px4Parameter("EKF2_BARO_NOISE", "m", PX4_NOISE["baro_height_std"], "estimator.baro.height_std", 1.0,
-                 "1:1 (m)"),
-    Px4Parameter("EKF2_ACC_NOISE", "m/s^2", PX4_NOISE["accel_std"] / PX4_PER_SAMPLE, "estimator.accel_std",
-                 PX4_PER_SAMPLE, _IMU),
-    Px4Parameter("EKF2_GYR_NOISE", "rad/s", PX4_NOISE["gyro_std"] / PX4_PER_SAMPLE, "estimator.gyro_std",
-                 PX4_PER_SAMPLE, _IMU),
-    Px4Parameter("EKF2_ACC_B_NOISE", "m/s^3", 0.003, "estimator.accel_bias_rw_std", 1.0,
-                 "1:1 (our m/s^2/sqrt(s)), as the replay's defaults read it"),
-    Px4Parameter("EKF2_GYR_B_NOISE", "rad/s^2", 0.001, "estimator.gyro_bias_rw_std", 1.0,
-                 "1:1 (our rad/s/sqrt(s)), as the replay's defaults read it"),
+    Px4Parameter(
+        "EKF2_GPS_P_NOISE",
+        "m",
+        PX4_NOISE["gps_pos_std"],
+        "estimator.gps_pos_std",
+        1.0,
+        "1:1 (m); PX4's one value sets our x, y, z; out: the mean of our x and y",
+    ),
+    Px4Parameter(
+        "EKF2_GPS_V_NOISE",
+        "m/s",
+        PX4_NOISE["gps_vel_std"],
+        "estimator.gps_vel_std",
+        1.0,
+        "1:1 (m/s); PX4's one value sets our x, y, z; out: the mean of our x and y",
+    ),
+    Px4Parameter(
+        "EKF2_MAG_NOISE",
+        "gauss",
+        PX4_NOISE["mag_field_std"],
+        "estimator.mag_field.field_std",
+        1.0,
+        "1:1 (gauss) on each body axis",
+    ),
+    Px4Parameter(
+        "EKF2_HEAD_NOISE",
+        "rad",
+        PX4_NOISE["heading_std"],
+        "estimator.mag_yaw_std",
+        1.0,
+        "1:1 (rad), the yaw magnetometer's heading",
+    ),
+    Px4Parameter(
+        "EKF2_BARO_NOISE", "m", PX4_NOISE["baro_height_std"], "estimator.baro.height_std", 1.0, "1:1 (m)"
+    ),
+    Px4Parameter(
+        "EKF2_ACC_NOISE",
+        "m/s^2",
+        PX4_NOISE["accel_std"] / PX4_PER_SAMPLE,
+        "estimator.accel_std",
+        PX4_PER_SAMPLE,
+        _IMU,
+    ),
+    Px4Parameter(
+        "EKF2_GYR_NOISE",
+        "rad/s",
+        PX4_NOISE["gyro_std"] / PX4_PER_SAMPLE,
+        "estimator.gyro_std",
+        PX4_PER_SAMPLE,
+        _IMU,
+    ),
+    Px4Parameter(
+        "EKF2_ACC_B_NOISE",
+        "m/s^3",
+        0.003,
+        "estimator.accel_bias_rw_std",
+        1.0,
+        "1:1 (our m/s^2/sqrt(s)), as the replay's defaults read it",
+    ),
+    Px4Parameter(
+        "EKF2_GYR_B_NOISE",
+        "rad/s^2",
+        0.001,
+        "estimator.gyro_bias_rw_std",
+        1.0,
+        "1:1 (our rad/s/sqrt(s)), as the replay's defaults read it",
+    ),
     *(
         Px4Parameter(name, "ms", default, field, 1e-3, "ms -> s (x 0.001)")
         for name, default, field in (
@@ -138,8 +187,10 @@ def parameter_file(config, start=None, vehicle=1, component=1) -> str:
     one ``vehicle component name value type`` line each, after a comment stating PX4's default,
     the start's value (`start`, a ReplayConfig, when given), the value in our units and the
     conversion."""
-    lines = ["# PX4 EKF2 parameters written by quad-drake tune (QGroundControl parameter file)",
-             "# Vehicle-Id Component-Id Name Value Type"]
+    lines = [
+        "# PX4 EKF2 parameters written by quad-drake tune (QGroundControl parameter file)",
+        "# Vehicle-Id Component-Id Name Value Type",
+    ]
     start_values = to_parameters(start) if start is not None else {}
     for p in MAPPING:
         ours = our_value(p, config)

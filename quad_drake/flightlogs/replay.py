@@ -259,7 +259,9 @@ def delayed_log(log, config) -> object:
     delays["baro"] = config.baro_delay
     if not any(delays.values()):
         return log
-    return dataclasses.replace(log, **{name: measured_at(getattr(log, name), d) for name, d in delays.items()})
+    return dataclasses.replace(
+        log, **{name: measured_at(getattr(log, name), d) for name, d in delays.items()}
+    )
 
 
 def build_replay_diagram(log, config) -> tuple[Diagram, dict[str, VectorLogSink], Aiding]:

@@ -204,7 +204,9 @@ def check_replay(config) -> ReplayConfig:
     if problem:
         raise ConfigError(f"estimator: {problem}")
     if config.px4_parameters and config.estimator.kind != "eskf":
-        raise ConfigError(f"px4_parameters: maps EKF2_* onto an ESKF only, not kind {config.estimator.kind!r}")
+        raise ConfigError(
+            f"px4_parameters: maps EKF2_* onto an ESKF only, not kind {config.estimator.kind!r}"
+        )
     if config.mag_declination is not None and not abs(config.mag_declination) <= math.pi:
         raise ConfigError(f"mag_declination: must be within [-pi, pi] rad, got {config.mag_declination}")
     return config

@@ -145,7 +145,13 @@ def statistics_of(channel, z_or_nis, dof) -> ChannelStatistics | None:
         rho = autocorrelation(values)
     band = tuple(b / dof for b in chi2_band(dof, count))
     return ChannelStatistics(
-        channel, dof, count, per_dof, band, tuple(float(r) for r in rho), 1.96 / math.sqrt(count),
+        channel,
+        dof,
+        count,
+        per_dof,
+        band,
+        tuple(float(r) for r in rho),
+        1.96 / math.sqrt(count),
         ljung_box_p(rho, count),
     )
 
@@ -157,11 +163,15 @@ def channel_statistics(vocabulary, logs, assumed, window) -> dict[str, ChannelSt
     found = {}
     for channel, std in assumed.items():
         if channel in COMPONENT_CHANNELS:
-            stats = statistics_of(channel, normalised_innovations(vocabulary, logs, channel, std, window)[1],
-                                  len(COMPONENT_CHANNELS[channel][1]))
+            stats = statistics_of(
+                channel,
+                normalised_innovations(vocabulary, logs, channel, std, window)[1],
+                len(COMPONENT_CHANNELS[channel][1]),
+            )
         else:
-            stats = statistics_of(channel, nis_sequence(logs["diagnostics"], channel, window),
-                                  NIS_CHANNELS[channel])
+            stats = statistics_of(
+                channel, nis_sequence(logs["diagnostics"], channel, window), NIS_CHANNELS[channel]
+            )
         if stats is not None:
             found[channel] = stats
     return found

@@ -46,13 +46,20 @@ def _stem(log):
 
 def before_after(result) -> str:
     """The held-out table: per part and channel, NIS per dof [band] and max |ρ| (band), start -> tuned."""
-    lines = header(result) + ["", f"{'held-out part':34s} {'channel':11s} {'NIS/dof start -> tuned':>26s} "
-                              f"{'band':>15s} {'max|rho| start -> tuned':>24s} {'band':>6s}"]
+    lines = header(result) + [
+        "",
+        f"{'held-out part':34s} {'channel':11s} {'NIS/dof start -> tuned':>26s} "
+        f"{'band':>15s} {'max|rho| start -> tuned':>24s} {'band':>6s}",
+    ]
     for (label, before), (_, after) in zip(result.before, result.after, strict=True):
         for channel, a in after.items():
             b = before.get(channel)
             nis = f"{b.nis_per_dof:.3g} -> {a.nis_per_dof:.3g}" if b else f"- -> {a.nis_per_dof:.3g}"
-            rho = f"{b.max_autocorrelation:.2f} -> {a.max_autocorrelation:.2f}" if b else f"{a.max_autocorrelation:.2f}"
+            rho = (
+                f"{b.max_autocorrelation:.2f} -> {a.max_autocorrelation:.2f}"
+                if b
+                else f"{a.max_autocorrelation:.2f}"
+            )
             mark = "in" if a.in_band else "OUT"
             lines.append(
                 f"{label:34s} {channel:11s} {nis:>26s} [{a.band[0]:.3g}, {a.band[1]:.3g}] {mark:3s} "
@@ -68,15 +75,31 @@ def _history(result):
     channels = [d.name for d in space if not d.is_delay]
     text = io.StringIO(newline="")
     writer = csv.writer(text)
-    writer.writerow(["candidate", "stage", "loss", *[f"nis_per_dof.{c}" for c in channels],
-                     *[f"value.{d.name}" for d in space], "best_loss"])
+    writer.writerow(
+        [
+            "candidate",
+            "stage",
+            "loss",
+            *[f"nis_per_dof.{c}" for c in channels],
+            *[f"value.{d.name}" for d in space],
+            "best_loss",
+        ]
+    )
     best = float("inf")
     for e in result.search.history:
         best = min(best, e.score.loss)
         first = e.score.statistics[0] if e.score.statistics else {}
         nis = [first[c].nis_per_dof if c in first else "" for c in channels]
-        writer.writerow([e.index, e.generation, repr(e.score.loss), *nis,
-                         *[repr(v) for v in _values(result, e.x).values()], repr(best)])
+        writer.writerow(
+            [
+                e.index,
+                e.generation,
+                repr(e.score.loss),
+                *nis,
+                *[repr(v) for v in _values(result, e.x).values()],
+                repr(best),
+            ]
+        )
     return text.getvalue()
 
 
@@ -88,8 +111,13 @@ def _objective_plot(result, path):
     fig = Figure(figsize=(7, 3.4), layout="constrained")
     ax = fig.subplots()
     ax.plot(losses, "o", ms=3, color="tab:blue", label="candidate")
-    ax.step(range(len(losses)), [min(losses[: i + 1]) for i in range(len(losses))], where="post",
-            color="tab:red", label="best so far")
+    ax.step(
+        range(len(losses)),
+        [min(losses[: i + 1]) for i in range(len(losses))],
+        where="post",
+        color="tab:red",
+        label="best so far",
+    )
     ax.set_yscale("log")
     ax.set_xlabel("candidate (0 = the start; 1 = noise matched; then delay profiles, Powell)")
     ax.set_ylabel("loss: Σ (ln NIS/dof)² + Σ ρ_k² [-]")
@@ -122,9 +150,18 @@ def summary(result) -> dict:
 
     def stats(parts):
         return {
-            label: {c: {"nis_per_dof": s.nis_per_dof, "band": list(s.band), "in_band": s.in_band,
-                        "autocorrelation": list(s.autocorrelation), "white_band": s.white_band,
-                        "ljung_box_p": s.ljung_box_p, "count": s.count} for c, s in per.items()}
+            label: {
+                c: {
+                    "nis_per_dof": s.nis_per_dof,
+                    "band": list(s.band),
+                    "in_band": s.in_band,
+                    "autocorrelation": list(s.autocorrelation),
+                    "white_band": s.white_band,
+                    "ljung_box_p": s.ljung_box_p,
+                    "count": s.count,
+                }
+                for c, s in per.items()
+            }
             for label, per in parts
         }
 
@@ -140,8 +177,11 @@ def summary(result) -> dict:
         "parameters": [{"name": n, "start": start[n], "tuned": tuned[n]} for n in start],
     }
     if result.after:
-        data["holdout"] = {"before": stats(result.before), "after": stats(result.after),
-                           "passed": verdict(result)[0]}
+        data["holdout"] = {
+            "before": stats(result.before),
+            "after": stats(result.after),
+            "passed": verdict(result)[0],
+        }
     return data
 
 
@@ -154,8 +194,9 @@ def write(result, out_dir) -> list[Path]:
         return written
     comments = "".join(f"# {line}\n" for line in header(result))
     written.append(write_text_atomic(out_dir / "tuned.yaml", comments + dump_replay(result.tuned)))
-    written.append(write_text_atomic(out_dir / "px4_params.params",
-                                     parameter_file(result.tuned, result.problem.config)))
+    written.append(
+        write_text_atomic(out_dir / "px4_params.params", parameter_file(result.tuned, result.problem.config))
+    )
     written.append(_objective_plot(result, out_dir / "objective.png"))
     if result.curves:
         written.append(_delay_plot(result, out_dir / "delays.png"))
@@ -173,11 +214,16 @@ def write_page(result, out_dir) -> Path:
 
     parts = ["<h1>quad-drake tune (flight logs)</h1>"] + [f"<p>{esc(line)}</p>" for line in header(result)]
     links = ["tuned.yaml", "px4_params.params", "history.csv", "tune.json", "before_after.txt"]
-    parts.append("<p>" + " · ".join(f'<a href="{esc(p)}">{esc(p)}</a>' for p in links
-                                    if (out_dir / p).is_file()) + "</p>")
+    parts.append(
+        "<p>"
+        + " · ".join(f'<a href="{esc(p)}">{esc(p)}</a>' for p in links if (out_dir / p).is_file())
+        + "</p>"
+    )
     if result.after:
-        parts += ["<h2>Held-out: NIS per dof and innovation autocorrelation, start → tuned</h2>",
-                  f"<pre>{esc(before_after(result))}</pre>"]
+        parts += [
+            "<h2>Held-out: NIS per dof and innovation autocorrelation, start → tuned</h2>",
+            f"<pre>{esc(before_after(result))}</pre>",
+        ]
     figures = [("Loss per candidate", out_dir / "objective.png")]
     if (out_dir / "delays.png").is_file():
         figures.append(("Each delay's objective curve", out_dir / "delays.png"))

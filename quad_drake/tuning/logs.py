@@ -339,8 +339,13 @@ def tune_logs(problem, progress=True) -> LogTuneResult:
         x1 = matched(problem, x0, history[0].score)
         evaluate(x1, 1)
         x2 = profile_delays(problem, x1, lambda x: evaluate(x, 2), score_of)
-        minimize(evaluate, x2, method="Powell", bounds=[d.bounds for d in space],
-                 options={"xtol": 1e-3, "ftol": 1e-4, "maxfev": s.budget})
+        minimize(
+            evaluate,
+            x2,
+            method="Powell",
+            bounds=[d.bounds for d in space],
+            options={"xtol": 1e-3, "ftol": 1e-4, "maxfev": s.budget},
+        )
     except _BudgetSpent:
         pass
     except KeyboardInterrupt:
@@ -390,7 +395,9 @@ def holdout(problem, config) -> list:
             label = f"{_name(log)} after {end:.1f} s"
             judged.append((label, channel_statistics(config, log, (end, math.inf))))
     for log in problem.holdout_logs:
-        judged.append((f"{_name(log)} (held-out log)", channel_statistics(config, log, (COMPARE_AFTER, math.inf))))
+        judged.append(
+            (f"{_name(log)} (held-out log)", channel_statistics(config, log, (COMPARE_AFTER, math.inf)))
+        )
     return judged
 
 
@@ -411,5 +418,10 @@ def verdict(result) -> tuple[bool, str]:
     ]
     inside = sum(len(stats) for _, stats in result.after) - len(misses)
     if not misses:
-        return True, f"PASS: every fused channel's NIS per dof inside its band on the held-out part ({inside})"
-    return False, f"FAIL: {len(misses)} channel(s) outside their band on the held-out part: " + "; ".join(misses)
+        return (
+            True,
+            f"PASS: every fused channel's NIS per dof inside its band on the held-out part ({inside})",
+        )
+    return False, f"FAIL: {len(misses)} channel(s) outside their band on the held-out part: " + "; ".join(
+        misses
+    )
