@@ -8,10 +8,13 @@ defaults, the IMU noise set to the simulator's: it is not searched) and must rec
 within ±20 ms and each sensor noise std within ±25 %.
 
 Usage: ``python benchmarks/log_tune_delays.py [--seeds 2001 2002 2003 2004] [--budget 90]
-[--markdown table.md]``; prints ``case | quantity | true | recovered | seeds``.
+[--cases 0 1 2 3] [--cache DIR [--record-only]] [--markdown table.md]``; prints ``case | quantity |
+true | recovered | seeds``. On a busy machine: record each seed once into a cache (one process
+per seed with ``--record-only``), then one process per case.
 """
 
 import argparse
+import pickle
 import tempfile
 import time
 from pathlib import Path
@@ -36,6 +39,18 @@ DELAY_TOLERANCE = 0.020  # s
 NOISE_TOLERANCE = 0.25  # relative
 
 
+def recorded_run(seed, cache):
+    """The RecordedRun of `seed` (kept in, or read from, the folder `cache` when given)."""
+    path = None if cache is None else cache / f"seed{seed}.pkl"
+    if path is not None and path.is_file():
+        return pickle.loads(path.read_bytes())
+    record = record_run(catalog.load("11_gps_update_eskf", seed, FLIGHT))
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(pickle.dumps(record))
+    return record
+
+
 def recovered(record, seed, case, budget, folder):
     """{dimension: tuned value} of the log tuner on the run `record` written with `case`'s delays."""
     path = write_run_csv(record, Path(folder) / f"seed{seed}.csv", {"gps": case[0], "mag": case[1]})
@@ -48,13 +63,22 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, nargs="+", default=[2001, 2002, 2003, 2004])
     parser.add_argument("--budget", type=int, default=90)
+    parser.add_argument(
+        "--cases", type=int, nargs="+", default=list(range(len(CASES))), help="indices of CASES"
+    )
+    parser.add_argument("--cache", type=Path, help="folder keeping each seed's recorded run (pickle)")
+    parser.add_argument(
+        "--record-only", action="store_true", help="record the seeds into --cache, tune nothing"
+    )
     parser.add_argument("--markdown", type=Path)
     args = parser.parse_args()
     rows = []
     start = time.process_time()
     with tempfile.TemporaryDirectory() as folder:
-        records = {seed: record_run(catalog.load("11_gps_update_eskf", seed, FLIGHT)) for seed in args.seeds}
-        for case in CASES:
+        records = {seed: recorded_run(seed, args.cache) for seed in args.seeds}
+        if args.record_only:
+            return
+        for case in [CASES[i] for i in args.cases]:
             found = [recovered(records[seed], seed, case, args.budget, folder) for seed in args.seeds]
             label = f"GPS {1e3 * case[0]:.0f} ms, mag {1e3 * case[1]:.0f} ms"
             truth = {"gps_delay": case[0], "mag_delay": case[1], **TRUE_NOISE}

@@ -90,3 +90,14 @@ def test_a_delayed_gps_is_recovered_from_the_log_alone(tmp_path, seed):
     tuned = dataclasses.asdict(result.tuned)
     assert abs(tuned["gps_delay"] - 0.1) <= 0.02
     assert result.search.best.score.loss < result.search.history[0].score.loss
+
+
+def test_a_sensor_delay_replays_its_samples_as_measured_that_much_earlier():
+    from quad_drake.flightlogs.reader import Samples
+    from quad_drake.flightlogs.schedule import measured_at
+
+    samples = Samples(np.array([0.05, 0.1, 0.3]), np.array([[1.0], [2.0], [3.0]]))
+    shifted = measured_at(samples, 0.1)
+    np.testing.assert_allclose(shifted.times, [0.0, 0.2], rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(shifted.values, [[2.0], [3.0]])
+    assert measured_at(samples, 0.0) is samples and measured_at(None, 0.1) is None

@@ -192,12 +192,11 @@ def train_end(log, settings) -> float:
     return settings.train_fraction * log.duration
 
 
-def channel_statistics(config, log, window, whole=None) -> dict:
-    """{channel: ChannelStatistics} of the ReplayConfig `config` replaying `log` (or its `whole`
-    when given), judged over window (s)."""
+def channel_statistics(config, log, window) -> dict:
+    """{channel: ChannelStatistics} of the ReplayConfig `config` replaying `log`, judged over
+    window (s)."""
     result = replay(dataclasses.replace(config, name=config.name or "tune"), log)
-    stats = innovations.channel_statistics(result.vocabulary, result.logs, _judged(config, result), window)
-    return stats
+    return innovations.channel_statistics(result.vocabulary, result.logs, _judged(config, result), window)
 
 
 def _judged(config, result):
@@ -242,7 +241,10 @@ def prepare(log_names, holdout_names, overrides, settings) -> LogTuneProblem:
     if settings.delays:
         fields = sorted({DELAY_OF[c.split("_")[0] if c.startswith("gps") else c] for c in channels})
         space += [Dimension(f, getattr(first.config, f)) for f in fields]
-    return LogTuneProblem(first.config if config.px4_parameters else config, tuned_on, held, space, settings)
+    # the start: the config as loaded, or with px4_parameters the log's values written into it (and
+    # the option off, so that a candidate's values are not overwritten by the log's again)
+    start = dataclasses.replace(first.config, px4_parameters=False) if config.px4_parameters else config
+    return LogTuneProblem(start, tuned_on, held, space, settings)
 
 
 def _score(problem, config) -> LogScore:
