@@ -79,7 +79,11 @@ def main():
         if args.record_only:
             return
         for case in [CASES[i] for i in args.cases]:
-            found = [recovered(records[seed], seed, case, args.budget, folder) for seed in args.seeds]
+            found = []
+            for seed in args.seeds:
+                found.append(recovered(records[seed], seed, case, args.budget, folder))
+                shown = ", ".join(f"{k} {v:.4g}" for k, v in found[-1].items())
+                print(f"case {case} seed {seed}: {shown}", flush=True)
             label = f"GPS {1e3 * case[0]:.0f} ms, mag {1e3 * case[1]:.0f} ms"
             truth = {"gps_delay": case[0], "mag_delay": case[1], **TRUE_NOISE}
             for name, true in truth.items():

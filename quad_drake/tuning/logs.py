@@ -36,7 +36,6 @@ from ..flightlogs.settings import load_replay, resolve_log
 from ..judging import innovations
 from .search import Evaluation, SearchResult
 from .session import _Progress
-from .settings import LogTuneSettings  # noqa: F401 (the settings' home; re-exported)
 
 SEARCH_DECADES = 2.0
 """Each noise is searched from 1/100 to 100 times its start (PX4's defaults lie that far from a
@@ -90,7 +89,7 @@ class LogTuneProblem:
     logs: list  # [FlightLog] tuned on (their training part) and judged after it
     holdout_logs: list  # [FlightLog] judged whole, never tuned on
     space: list  # [Dimension]
-    settings: LogTuneSettings
+    settings: object  # settings.LogTuneSettings
 
 
 @dataclass(frozen=True)
