@@ -85,6 +85,8 @@ class Dimension:
 
 @dataclass
 class LogTuneProblem:
+    """What ``quad-drake tune LOG ...`` searches: the start, the logs, the coordinates, the settings."""
+
     config: object  # ReplayConfig as loaded (the start)
     logs: list  # [FlightLog] tuned on (their training part) and judged after it
     holdout_logs: list  # [FlightLog] judged whole, never tuned on
@@ -106,6 +108,9 @@ class LogScore:
 
 @dataclass
 class LogTuneResult:
+    """A finished (or interrupted) log tuning: the search, the tuned ReplayConfig, the delays'
+    curves and the held-out judgement of the start and the tuned values."""
+
     problem: LogTuneProblem
     search: SearchResult
     tuned: object = None  # ReplayConfig at the best candidate
@@ -155,7 +160,7 @@ def noise_of(config, channel) -> float:
     return float(value[indices[0]] if indices is not None else value)
 
 
-def apply(config, space, x):
+def apply(config, space, x) -> object:
     """A copy of the ReplayConfig `config` at the search coordinates x (one per Dimension)."""
     for d, xi in zip(space, x, strict=True):
         if d.is_delay:
