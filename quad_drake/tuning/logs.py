@@ -35,7 +35,7 @@ from ..flightlogs.replay import COMPARE_AFTER, replay
 from ..flightlogs.settings import load_replay, resolve_log
 from ..judging import innovations
 from .search import Evaluation, SearchResult
-from .session import _Progress
+from .session import CandidateProgress
 
 SEARCH_DECADES = 2.0
 """Each noise is searched from 1/100 to 100 times its start (PX4's defaults lie that far from a
@@ -316,7 +316,7 @@ def tune_logs(problem, progress=True) -> LogTuneResult:
     s, space = problem.settings, problem.space
     result = LogTuneResult(problem, SearchResult())
     history = result.search.history
-    bar = _Progress("logs", s.budget, progress)
+    bar = CandidateProgress("logs", s.budget, progress)
     cache = {}
 
     def key_of(x):
