@@ -311,7 +311,13 @@ def _add_jobs_argument(parser):
 
 def _add_montecarlo_arguments(parser):
     """Arguments of ``quad-drake montecarlo``."""
-    parser.add_argument("name", metavar="NAME", help="scenario name or YAML path")
+    parser.add_argument(
+        "name",
+        metavar="NAME",
+        nargs="+",
+        help="scenario name or YAML path; or flight logs (.ulg, .csv or a bundled log's name): "
+        "then the ESKF's noise and sensor delays are tuned on the logs' own innovations",
+    )
     parser.add_argument("--runs", type=int, default=100, help="number of runs (default: 100)")
     _add_jobs_argument(parser)
     parser.add_argument("--seed", type=int, help="first seed S; run i uses S+i (default: the scenario's)")
@@ -341,10 +347,16 @@ def _add_montecarlo_arguments(parser):
 
 def _add_tune_arguments(parser):
     """Arguments of ``quad-drake tune``."""
-    from .tuning.settings import OBJECTIVES, TuneSettings
+    from .tuning.settings import OBJECTIVES, LogTuneSettings, TuneSettings
 
     d = TuneSettings()
-    parser.add_argument("name", metavar="NAME", help="scenario name or YAML path")
+    parser.add_argument(
+        "name",
+        metavar="NAME",
+        nargs="+",
+        help="scenario name or YAML path; or flight logs (.ulg, .csv or a bundled log's name): "
+        "then the ESKF's noise and sensor delays are tuned on the logs' own innovations",
+    )
     parser.add_argument(
         "--params",
         nargs="+",
@@ -358,8 +370,8 @@ def _add_tune_arguments(parser):
     parser.add_argument(
         "--budget",
         type=int,
-        default=d.budget,
-        help=f"candidates to score, the start included (default: {d.budget})",
+        default=None,
+        help=f"candidates to score, the start included (default: {d.budget}; logs: {LogTuneSettings.budget})",
     )
     parser.add_argument(
         "--seeds",
@@ -387,6 +399,16 @@ def _add_tune_arguments(parser):
     )
     parser.add_argument("--out", help="output folder (default: out/NAME_tune)")
     parser.add_argument("--quiet", action="store_true", help="no progress output")
+    logs = parser.add_argument_group("flight logs")
+    logs.add_argument(
+        "--train-fraction",
+        type=float,
+        default=LogTuneSettings.train_fraction,
+        help="share of each log tuned on; the rest is held out (default: %(default)s)",
+    )
+    logs.add_argument("--holdout-logs", nargs="+", default=[], metavar="LOG", help="logs only judged")
+    logs.add_argument("--no-delays", action="store_true", help="keep the sensor delays as they start")
+    logs.add_argument("--no-curves", action="store_true", help="skip the delays' objective curves")
     return parser
 
 
@@ -471,12 +493,22 @@ def cmd_tune(args) -> int:
     history.csv, objective.png, tune.json, before_after.txt). Exit 0 when the tuned scenario
     passes every criterion in every held-out run and its held-out loss is not above the start's,
     1 otherwise; Ctrl-C keeps the best so far and exits 130."""
+    from .tuning.logs import is_log_name
+
+    logs = [is_log_name(name) for name in args.name]
+    if any(logs):
+        if not all(logs):
+            raise ConfigError(f"tune: give one scenario or flight logs, not both ({' '.join(args.name)})")
+        return cmd_tune_logs(args)
+    if len(args.name) > 1:
+        raise ConfigError(f"tune: one scenario at a time, got {' '.join(args.name)}")
+    args.name = args.name[0]
     from .tuning import TuneSettings, prepare, tune, verdict
     from .tuning.output import before_after
 
     settings = TuneSettings(
         objective=args.objective,
-        budget=args.budget,
+        budget=TuneSettings.budget if args.budget is None else args.budget,
         train_seed=args.seed,
         train_runs=args.seeds,
         holdout_seed=args.holdout_seed,
@@ -517,6 +549,39 @@ def cmd_tune(args) -> int:
     print(f"held-out campaigns in {result.holdout_time:.1f} s")
     passed, line = verdict(result)
     print(line)
+    return 0 if passed else 1
+
+
+def cmd_tune_logs(args) -> int:
+    """Tune the ESKF's noise and sensor delays on flight logs (``quad_drake.tuning.logs``); write
+    OUT (tuned.yaml, px4_params.params, history.csv, plots, before_after.txt, report.html). Exit 0
+    when every fused channel's NIS per dof lies inside its band on the held-out part, 1 otherwise;
+    Ctrl-C keeps the best so far and exits 130."""
+    from .tuning import log_output
+    from .tuning.logs import prepare, tune_logs, verdict
+    from .tuning.settings import LogTuneSettings
+
+    settings = LogTuneSettings(
+        budget=LogTuneSettings.budget if args.budget is None else args.budget,
+        train_fraction=args.train_fraction,
+        delays=not args.no_delays,
+        curve_points=0 if args.no_curves else LogTuneSettings.curve_points,
+    )
+    problem = prepare(args.name, args.holdout_logs, args.set, settings)
+    stem = Path(problem.logs[0].source).stem
+    out = check_output_dir("out") / f"{stem}_tune" if args.out is None else check_output_dir(args.out)
+    result = tune_logs(problem, progress=not args.quiet)
+    files = log_output.write(result, out)
+    if result.interrupted:
+        kept = "no candidate had finished"
+        if result.search.best is not None:
+            kept = f"kept the best of {len(result.search.history)} candidates in {out}/tuned.yaml"
+        print(f"quad-drake: interrupted; {kept} (held-out judgement skipped)", file=sys.stderr)
+        return 130
+    print(f"{len(result.search.history)} replays in {result.search_time:.1f} s")
+    print(f"saved {out}/: " + ", ".join(Path(f).name for f in files))
+    print(log_output.before_after(result), end="")
+    passed, _ = verdict(result)
     return 0 if passed else 1
 
 

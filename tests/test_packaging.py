@@ -108,6 +108,7 @@ PURE = (
     "quad_drake.flightlogs.reader",
     "quad_drake.flightlogs.mag_calibration",
     "quad_drake.flightlogs.schedule",
+    "quad_drake.flightlogs.px4_parameters",
     "quad_drake.grading.course",
     "quad_drake.grading.course_math",
     "quad_drake.grading.criteria",
@@ -257,6 +258,7 @@ FLOORS = (
         ("quad_drake.config", "quad_drake.models", "quad_drake.estimation", "quad_drake.control")
         + ("quad_drake.flightlogs.reader", "quad_drake.flightlogs.schedule")
         + ("quad_drake.flightlogs.settings", "quad_drake.flightlogs.mag_calibration")
+        + ("quad_drake.flightlogs.px4_parameters",)
         + ("quad_drake.grading.course", "quad_drake.grading.course_math", "quad_drake.grading.criteria")
         + ("quad_drake.grading.student_template",),
     ),

@@ -231,15 +231,22 @@ INNOVATION_NAMES = {"gps": POSITION_STATES, "mag": ("Yaw",)}
 """The components of each sensor's innovation: GPS p_N (m), v_N (m/s); magnetometer yaw (rad)."""
 
 
+def fresh_rows(samples, compare_after=0.0) -> np.ndarray:
+    """Indices of the log rows of a stamped sensor log (n, k+1: values, stamp) where a fresh,
+    finite sample stamped at or after compare_after s first shows (never row 0: the row before
+    it holds the estimate the sample is compared with)."""
+    stamps = samples[:, -1]
+    fresh = np.flatnonzero((np.diff(stamps, prepend=-math.inf) > 0) & (stamps >= max(compare_after, 0.0)))
+    return fresh[(fresh > 0) & np.isfinite(samples[fresh, :-1]).all(axis=1)]
+
+
 def innovations(logs, sensor, compare_after=0.0) -> tuple[np.ndarray, np.ndarray]:
     """(stamps (m,) s, innovations (m, k)) of each fresh `sensor` sample ("gps" or "mag") in the
     replay's logs from compare_after s on: the sample minus our estimate logged before it arrived
     (the prior to within one LOG_PERIOD, 5 ms; the yaw difference wrapped), in the order of
     :data:`INNOVATION_NAMES`. Empty when the log has no such samples."""
     samples, estimate = logs[sensor], logs["estimated_state"]
-    stamps = samples[:, -1]
-    fresh = np.flatnonzero((np.diff(stamps, prepend=-math.inf) > 0) & (stamps >= max(compare_after, 0.0)))
-    fresh = fresh[(fresh > 0) & np.isfinite(samples[fresh, :-1]).all(axis=1)]
+    fresh = fresh_rows(samples, compare_after)
     before = fresh - 1  # the row logged before the sample arrived
     if sensor == "gps":
         predicted = np.column_stack([estimate[before, 0:3], estimate[before, 7:10]])

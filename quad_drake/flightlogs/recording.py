@@ -13,7 +13,8 @@ at its tick time; each stamped sample once, at its stamp (the time it was measur
 ``mag`` (a 3-axis one) and ``baro``; the true state every tick as ``truth`` rows. The playback
 emits a sample at the first tick at or after its time with its time as its stamp, so a replay of
 the CSV feeds the estimator what it read in the run, tick for tick (a delayed sample, written
-later at its measurement time, is the format's open end for issue 39).
+later at its measurement time, is the format's open end; ``arrival_delays`` writes a sensor's
+samples at their arrival instead, as a flight controller logs a delayed sensor).
 """
 
 from dataclasses import dataclass
@@ -84,8 +85,13 @@ def record_run(scenario, vehicle_index=0) -> RecordedRun:
     return RecordedRun(vehicle, times, logs, tick_times, ticks, truth)
 
 
-def run_csv_rows(recorded) -> list[str]:
-    """The replay CSV rows of a RecordedRun (module docstring): header, then rows by kind."""
+def run_csv_rows(recorded, arrival_delays=None) -> list[str]:
+    """The replay CSV rows of a RecordedRun (module docstring): header, then rows by kind.
+
+    arrival_delays ({sensor: s}, e.g. ``{"gps": 0.1, "mag": 0.04}``): those sensors' samples are
+    written at the time they reached the flight controller, their stamp plus the delay, as a
+    flight controller logs a delayed sensor (the delay a replay's ``gps_delay`` etc. undoes)."""
+    arrival_delays = arrival_delays or {}
     rows = ["# a simulated run: the samples its estimator received", "time,sensor,v0,v1,v2,v3,v4,v5"]
     t = recorded.tick_times
     rows += _rows("imu", t, recorded.inputs["imu"])
@@ -96,7 +102,7 @@ def run_csv_rows(recorded) -> list[str]:
         stamps = samples[:, -1]
         fresh = (stamps != NO_SAMPLE_STAMP) & (np.diff(stamps, prepend=NO_SAMPLE_STAMP) != 0)
         kind = SENSOR_ROWS.get(sensor) or ("heading" if samples.shape[1] == 2 else "mag")
-        rows += _rows(kind, stamps[fresh], samples[fresh, :-1])
+        rows += _rows(kind, stamps[fresh] + arrival_delays.get(sensor, 0.0), samples[fresh, :-1])
     state = recorded.truth
     rows += _rows("truth", t, np.column_stack([state[:, 0:3], state[:, 7:10], state[:, 3:7]]))
     return rows
@@ -109,11 +115,12 @@ def _rows(kind, times, values):
     ]
 
 
-def write_run_csv(recorded, path) -> Path:
-    """Write a RecordedRun as a replay CSV at `path`; the path."""
+def write_run_csv(recorded, path, arrival_delays=None) -> Path:
+    """Write a RecordedRun as a replay CSV at `path` (arrival_delays: :func:`run_csv_rows`'s);
+    the path."""
     from quad_drake.output.outdir import write_text_atomic
 
-    write_text_atomic(path, "\n".join(run_csv_rows(recorded)) + "\n")
+    write_text_atomic(path, "\n".join(run_csv_rows(recorded, arrival_delays)) + "\n")
     return path
 
 

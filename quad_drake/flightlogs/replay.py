@@ -32,7 +32,7 @@ from quad_drake.config.errors import ConfigError
 from quad_drake.conventions import LOG_PERIOD, ONBOARD_PERIOD
 from quad_drake.estimation.registry import vocabulary_for
 from quad_drake.estimation.vocabulary import EstimatorVocabulary, health_counts, health_line
-from quad_drake.flightlogs import comparison, earth_field, smoothing
+from quad_drake.flightlogs import comparison, earth_field, px4_parameters, smoothing
 from quad_drake.flightlogs.checks import log_warnings
 from quad_drake.flightlogs.reader import Samples, read_flight_log
 from quad_drake.flightlogs.schedule import (
@@ -42,6 +42,7 @@ from quad_drake.flightlogs.schedule import (
     fake_position,
     held_position,
     initial_attitude,
+    measured_at,
     playback_streams,
     superseded_samples,
 )
@@ -144,6 +145,15 @@ class ReplayResult:
                 "its last position while not aided; then a regain: the built-in kinds fuse each GPS "
                 "group their gate accepts and reset to the others."
             )
+        if self.config.px4_parameters:
+            lines.append(
+                "The estimator's noise and the sensor delays are the log's own EKF2_* parameters "
+                "(PX4's default where the log has none; flightlogs/px4_parameters.py)."
+            )
+        delays = [(s, getattr(self.config, f"{s}_delay")) for s in ("gps", "mag", "baro")]
+        if any(d for _, d in delays):
+            shown = ", ".join(f"{s} {1e3 * d:g} ms" for s, d in delays)
+            lines.append(f"Sensor samples replayed as measured before they were logged: {shown}.")
         if self.log.heading is not None:
             lines.append("The log's magnetometer is a yaw magnetometer (heading rows): fused as such.")
         elif self.log.mag_field is None:
@@ -297,12 +307,27 @@ def aiding_gps(log, config) -> tuple[Samples, bool, float | None, list]:
     return merged, False, late_fix, losses
 
 
+def delayed_log(log, config) -> object:
+    """The FlightLog `log` with its GPS, magnetometer and barometer samples at the times they were
+    measured (``schedule.measured_at``: logged time less the ReplayConfig's gps_delay, mag_delay,
+    baro_delay); `log` itself when every delay is 0."""
+    delays = {"gps": config.gps_delay, "mag_field": config.mag_delay, "heading": config.mag_delay}
+    delays["baro"] = config.baro_delay
+    if not any(delays.values()):
+        return log
+    return dataclasses.replace(
+        log, **{name: measured_at(getattr(log, name), d) for name, d in delays.items()}
+    )
+
+
 def build_replay_diagram(log, config) -> tuple[Diagram, dict[str, VectorLogSink], Aiding]:
     """(Diagram, {log name: VectorLogSink}, Aiding) replaying the FlightLog `log` through the
-    estimator of the ReplayConfig `config` (module docstring); with ``config.smooth`` the sinks
-    also hold {TICKS: the per-tick sinks of ``smoothing.tick_sinks``}."""
+    estimator of the ReplayConfig `config` (module docstring), its sensors' samples at the times
+    they were measured (:func:`delayed_log`); with ``config.smooth`` the sinks also hold {TICKS:
+    the per-tick sinks of ``smoothing.tick_sinks``}."""
     if config.smooth and config.estimator.kind != "eskf":
         raise ConfigError(f"smooth: the smoother runs over the ESKF only, not kind {config.estimator.kind}")
+    log = delayed_log(log, config)
     gps, fake, late_fix, losses = aiding_gps(log, config)
     magnetometer = magnetometer_for(log, config)
     declination, hard_iron = (
@@ -374,6 +399,8 @@ def replay(config, log=None) -> ReplayResult:
     """
     log = read_flight_log(resolve_log(config.log)) if log is None else log
     warnings = log_warnings(log, COMPARE_AFTER)
+    if config.px4_parameters:
+        config = px4_parameters.from_parameters(config, log.parameters)
     if not config.name:
         config = dataclasses.replace(config, name=Path(log.source).stem)
     width = sum(vocabulary_for(config.estimator).log_widths().values())  # before anything is built

@@ -166,6 +166,16 @@ def held_position(log, lost, position, times) -> np.ndarray:
     return samples
 
 
+def measured_at(samples, delay) -> Samples | None:
+    """The Samples `samples` (or None) as measured: each logged time less `delay` (s, the sensor's
+    delay from measurement to log), those that would fall before the log's start dropped."""
+    if samples is None or delay == 0:
+        return samples
+    times = samples.times - delay
+    keep = times >= 0.0
+    return Samples(times[keep], samples.values[keep])
+
+
 def playback_streams(log, gps=None, declination=0.0, hard_iron=(0.0, 0.0, 0.0)) -> dict[str, Stream]:
     """{stream name: Stream} of a FlightLog for ``systems.playback.LogPlayback`` (module docstring).
 

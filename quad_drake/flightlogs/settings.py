@@ -62,6 +62,8 @@ UNFUSED_HEIGHT_STD = 1e3
 GPS height carries no information (neither to the filter nor to the baro's bias filter)."""
 HEIGHT_REFERENCES = ("log", "baro", "gps")
 """``ReplayConfig.height_reference``: as the log's parameters say (:func:`height_reference`), or forced."""
+MAX_SENSOR_DELAY = 0.5
+"""s: the largest sensor delay a replay takes (PX4's EKF2_*_DELAY range ends at 300 ms)."""
 
 
 @dataclass
@@ -82,6 +84,15 @@ class ReplayConfig:
     # the ESKF only: also the fixed-interval RTS smoother of the replayed pass (``flightlogs.smoothing``),
     # logged as smoothed_state (16: p, v, q_NB, b_a, b_g) and smoothed_sigma (the error state's sigmas)
     smooth: bool = False
+    # s: how long each sensor's samples took from measurement to the log (PX4's EKF2_GPS_DELAY,
+    # EKF2_MAG_DELAY, EKF2_BARO_DELAY): a sample logged at t is replayed as measured at t - delay
+    # (the replay reads the log ahead, as PX4 fuses on its delayed horizon); 0 = as logged
+    gps_delay: float = number(0.0, minimum=0.0, maximum=MAX_SENSOR_DELAY)
+    mag_delay: float = number(0.0, minimum=0.0, maximum=MAX_SENSOR_DELAY)
+    baro_delay: float = number(0.0, minimum=0.0, maximum=MAX_SENSOR_DELAY)
+    # true: the estimator's noise and the sensor delays are the log's own EKF2_* parameters where
+    # they map (``flightlogs.px4_parameters``; an ESKF only), instead of PX4's defaults
+    px4_parameters: bool = False
 
 
 def default_estimator(kind) -> EstimatorConfig:
@@ -203,6 +214,10 @@ def check_replay(config) -> ReplayConfig:
     problem = kind.fidelity_problem(PHYSICAL) or kind.problem(config.estimator)  # a replay is physical
     if problem:
         raise ConfigError(f"estimator: {problem}")
+    if config.px4_parameters and config.estimator.kind != "eskf":
+        raise ConfigError(
+            f"px4_parameters: maps EKF2_* onto an ESKF only, not kind {config.estimator.kind!r}"
+        )
     if config.mag_declination is not None and not abs(config.mag_declination) <= math.pi:
         raise ConfigError(f"mag_declination: must be within [-pi, pi] rad, got {config.mag_declination}")
     return config

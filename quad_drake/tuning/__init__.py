@@ -5,7 +5,9 @@
 - :mod:`.search`: CMA-ES over the multipliers, deterministic for a seed and a budget;
 - :mod:`.scoring`: the one function that flies a candidate's campaign (and its runner);
 - :mod:`.session`: checks, search, held-out before/after; :mod:`.output`: the files;
-- :mod:`.settings` (pure): what ``tune`` can be asked for, and its defaults.
+- :mod:`.settings` (pure): what ``tune`` can be asked for, and its defaults;
+- :mod:`.logs`, :mod:`.log_output`: ``tune LOG ...``, the ESKF's noise and sensor delays from
+  flight logs' own innovations (``judging.innovations``), no truth needed.
 """
 
 import importlib

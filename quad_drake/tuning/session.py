@@ -96,7 +96,7 @@ def prepare(scenario, keys, settings, run_command=None) -> TuneProblem:
     return TuneProblem(scenario, space, settings, run_command)
 
 
-class _Progress:
+class CandidateProgress:
     """One tick per candidate: a tqdm bar on a terminal, else one plain line per candidate."""
 
     def __init__(self, name, total, enabled, stream=None):
@@ -108,7 +108,7 @@ class _Progress:
         )
         self.lines = enabled and not terminal
 
-    def update(self, evaluation, best):
+    def update(self, evaluation, best) -> None:
         text = f"loss {evaluation.score.loss:.4g}, best {best.score.loss:.4g}"
         if self.bar is not None:
             self.bar.set_postfix_str(text, refresh=False)
@@ -121,7 +121,7 @@ class _Progress:
             )
             self.stream.flush()
 
-    def close(self):
+    def close(self) -> None:
         if self.bar is not None:
             self.bar.close()
 
@@ -152,7 +152,7 @@ def tune(problem, out_dir, progress=True) -> TuneResult:
             ]
             return score_candidates(tasks, runner)
 
-        bar = _Progress(scenario.name, s.budget, progress)
+        bar = CandidateProgress(scenario.name, s.budget, progress)
         start = time.perf_counter()
         try:
             found = search(evaluate, len(space), s.budget, SEARCH_DECADES, s.search_seed, bar.update)

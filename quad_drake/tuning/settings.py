@@ -20,3 +20,13 @@ class TuneSettings:
     jobs: int = 1
     search_seed: int = 0  # seeds CMA-ES's sampler
     holdout: bool = True  # fly the before/after comparison
+
+
+@dataclass(frozen=True)
+class LogTuneSettings:
+    """What ``quad-drake tune LOG ...`` was asked for."""
+
+    budget: int = 120  # replays of the search (candidates), the start included
+    train_fraction: float = 0.6  # of each log's length: tuned on [5 s, f T), judged after
+    delays: bool = True  # search the sensor delays too
+    curve_points: int = 13  # points of each delay's objective curve (0: none)

@@ -1,0 +1,433 @@
+"""``quad-drake tune LOG [LOG ...]``: an ESKF's noise and the sensor delays found from flight logs'
+own innovations, without truth.
+
+The objective (``judging.innovations``): per fused channel (GPS horizontal and vertical position and
+velocity, the heading or the 3-axis field, the barometer), the squared log of the NIS per dof plus
+the squared autocorrelations of the normalised innovations at lags 1..LAGS, summed over channels
+and training logs: 0 for a filter whose innovations are consistent and white.
+
+The search (:func:`tune_logs`): evaluation 0 is the start (the ReplayConfig as loaded: PX4's
+default noise, or with ``--set px4_parameters=true`` the log's own EKF2_* values); evaluation 1
+moves each channel's noise so that its NIS per dof would be 1 if the prior covariance were small
+beside the noise (R scaled by the NIS per dof: covariance matching); stage 2 profiles each delay
+(:func:`profile_delays`: the noise re-matched at each candidate delay, a coarse grid, then SciPy's
+bounded scalar search); stage 3 is SciPy's Powell
+(``scipy.optimize.minimize``, bounded, derivative-free: the loss is a replay) polishes every noise
+multiplier (log10, ±SEARCH_DECADES) and every sensor delay (0..MAX_DELAY) together until the
+budget of replays is spent or it converges. Each candidate is a replay of the training part of
+each training log, cut at ``train_fraction`` of its length (the replays stay short: a 20 s stretch
+replays in under 1 s of CPU). The held-out judgement replays every log whole with the start and
+the tuned values and judges the part after the training cut, and any ``holdout_logs`` whole.
+Ctrl-C keeps the best so far (its files are written, the held-out judgement skipped).
+"""
+
+import dataclasses
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import minimize, minimize_scalar
+
+from ..config.errors import ConfigError
+from ..flightlogs.reader import FlightLog, Samples, read_flight_log
+from ..flightlogs.replay import COMPARE_AFTER, replay
+from ..flightlogs.settings import load_replay, resolve_log
+from ..judging import innovations
+from .search import Evaluation, SearchResult
+from .session import CandidateProgress
+
+SEARCH_DECADES = 2.0
+"""Each noise is searched from 1/100 to 100 times its start (PX4's defaults lie that far from a
+simulator's noise: the bundled SITL log's barometer NIS per dof is 5e-4 at PX4's 3.5 m)."""
+MAX_DELAY = 0.3
+"""s: the largest sensor delay searched (PX4's EKF2_*_DELAY range ends at 300 ms)."""
+DELAY_UNIT = 0.1
+"""s per unit of the search's delay coordinate (so a delay and a decade of noise move alike)."""
+NOISE_FIELDS = {
+    "gps_pos_xy": ("gps_pos_std", (0, 1)),
+    "gps_pos_z": ("gps_pos_std", (2,)),
+    "gps_vel_xy": ("gps_vel_std", (0, 1)),
+    "gps_vel_z": ("gps_vel_std", (2,)),
+    "heading": ("mag_yaw_std", None),
+    "field": ("mag_field.field_std", (0, 1, 2)),
+    "baro": ("baro.height_std", None),
+}
+"""channel -> (the ESKF field below ``estimator`` that holds its noise, the vector's indices or
+None for a scalar)."""
+DELAY_OF = {"gps": "gps_delay", "heading": "mag_delay", "field": "mag_delay", "baro": "baro_delay"}
+"""A channel's sensor -> the ReplayConfig's delay field."""
+
+
+@dataclass(frozen=True)
+class Dimension:
+    """One searched coordinate: a channel's noise (log10 multiplier of its start) or a delay field
+    (x DELAY_UNIT s)."""
+
+    name: str  # a channel ("gps_vel_xy") or a delay field ("gps_delay")
+    start: float  # the start's noise (first component, its unit) or delay (s)
+
+    @property
+    def is_delay(self) -> bool:
+        return self.name.endswith("_delay")
+
+    @property
+    def bounds(self) -> tuple:
+        return (0.0, MAX_DELAY / DELAY_UNIT) if self.is_delay else (-SEARCH_DECADES, SEARCH_DECADES)
+
+    def x0(self) -> float:
+        return self.start / DELAY_UNIT if self.is_delay else 0.0
+
+    def value(self, x) -> float:
+        """The delay (s) or the noise (the start's first component scaled) at coordinate x."""
+        return float(x) * DELAY_UNIT if self.is_delay else self.start * 10.0 ** float(x)
+
+
+@dataclass
+class LogTuneProblem:
+    """What ``quad-drake tune LOG ...`` searches: the start, the logs, the coordinates, the settings."""
+
+    config: object  # ReplayConfig as loaded (the start)
+    logs: list  # [FlightLog] tuned on (their training part) and judged after it
+    holdout_logs: list  # [FlightLog] judged whole, never tuned on
+    space: list  # [Dimension]
+    settings: object  # settings.LogTuneSettings
+
+
+@dataclass(frozen=True)
+class LogScore:
+    """A candidate's loss and its channels' statistics per training log."""
+
+    loss: float
+    statistics: tuple  # ({channel: ChannelStatistics} per training log)
+
+    @property
+    def feasible(self) -> bool:
+        return math.isfinite(self.loss)
+
+
+@dataclass
+class LogTuneResult:
+    """A finished (or interrupted) log tuning: the search, the tuned ReplayConfig, the delays'
+    curves and the held-out judgement of the start and the tuned values."""
+
+    problem: LogTuneProblem
+    search: SearchResult
+    tuned: object = None  # ReplayConfig at the best candidate
+    search_time: float = 0.0  # s
+    curves: dict = field(default_factory=dict)  # delay field -> (delays s, losses)
+    before: list = field(default_factory=list)  # [(label, {channel: ChannelStatistics})] held out
+    after: list = field(default_factory=list)
+    interrupted: bool = False
+    files: list = field(default_factory=list)
+
+
+def is_log_name(name) -> bool:
+    """A ``tune`` argument names a flight log (not a scenario): a .ulg or .csv path, or a bundled
+    log's name."""
+    from ..flightlogs.settings import bundled_logs
+
+    return str(name).lower().endswith((".ulg", ".csv")) or str(name) in bundled_logs()
+
+
+def _get(node, path):
+    for part in path.split("."):
+        node = getattr(node, part)
+    return node
+
+
+def _set(node, path, value):
+    head, _, rest = path.partition(".")
+    if not rest:
+        return dataclasses.replace(node, **{head: value})
+    return dataclasses.replace(node, **{head: _set(getattr(node, head), rest, value)})
+
+
+def assumed_std(config) -> dict:
+    """{component channel: (k,) the std the ReplayConfig's ESKF assumes} (``judging.innovations``)."""
+    found = {}
+    for channel in innovations.COMPONENT_CHANNELS:
+        path, indices = NOISE_FIELDS[channel]
+        value = _get(config.estimator, path)
+        found[channel] = [value[i] for i in indices] if indices is not None else [value]
+    return found
+
+
+def noise_of(config, channel) -> float:
+    """The first component of a channel's noise in the ReplayConfig `config`."""
+    path, indices = NOISE_FIELDS[channel]
+    value = _get(config.estimator, path)
+    return float(value[indices[0]] if indices is not None else value)
+
+
+def apply(config, space, x) -> object:
+    """A copy of the ReplayConfig `config` at the search coordinates x (one per Dimension)."""
+    for d, xi in zip(space, x, strict=True):
+        if d.is_delay:
+            config = dataclasses.replace(config, **{d.name: d.value(xi)})
+            continue
+        path, indices = NOISE_FIELDS[d.name]
+        scale = 10.0 ** float(xi)
+        start = _get(config.estimator, path)
+        if indices is None:
+            value = start * scale
+        else:
+            value = list(start)
+            for i in indices:
+                value[i] = start[i] * scale
+        config = dataclasses.replace(config, estimator=_set(config.estimator, path, value))
+    return config
+
+
+def cut(log, end) -> FlightLog:
+    """The FlightLog `log` up to `end` s (every stream's samples at or before it)."""
+
+    def part(samples):
+        if samples is None:
+            return None
+        keep = samples.times <= end
+        return Samples(samples.times[keep], samples.values[keep])
+
+    names = [f.name for f in dataclasses.fields(log) if isinstance(getattr(log, f.name), Samples)]
+    return dataclasses.replace(log, **{name: part(getattr(log, name)) for name in names})
+
+
+def train_end(log, settings) -> float:
+    return settings.train_fraction * log.duration
+
+
+def channel_statistics(config, log, window) -> dict:
+    """{channel: ChannelStatistics} of the ReplayConfig `config` replaying `log`, judged over
+    window (s)."""
+    result = replay(dataclasses.replace(config, name=config.name or "tune"), log)
+    return innovations.channel_statistics(result.vocabulary, result.logs, _judged(config, result), window)
+
+
+def _judged(config, result):
+    """{channel: assumed std or None} of the channels a replay fused: GPS (unless fake), the heading
+    or the 3-axis field, the barometer where fused."""
+    judged = {}
+    if result.log.gps is not None and not result.fake_position:
+        judged |= {c: s for c, s in assumed_std(result.config).items() if c.startswith("gps_")}
+    if result.log.heading is not None:
+        judged["heading"] = assumed_std(result.config)["heading"]
+    elif result.log.mag_field is not None:
+        judged["field"] = None
+    if result.aiding.baro_fused:
+        judged["baro"] = None
+    return judged
+
+
+def prepare(log_names, holdout_names, overrides, settings) -> LogTuneProblem:
+    """LogTuneProblem of the logs (paths or bundled names) with ReplayConfig overrides (``--set``);
+    ConfigError (one line) for a missing or unreadable log or a bad setting, before any search."""
+    if settings.budget < 2:
+        raise ConfigError(f"tune: --budget must be >= 2 for logs, got {settings.budget}")
+    if not 0.0 < settings.train_fraction <= 1.0:
+        raise ConfigError(f"tune: --train-fraction must be in (0, 1], got {settings.train_fraction}")
+    paths = [resolve_log(n) for n in [*log_names, *holdout_names]]
+    config = load_replay(log_names[0], "{kind: eskf}", overrides)
+    logs = [read_flight_log(p) for p in paths]
+    tuned_on, held = logs[: len(log_names)], logs[len(log_names) :]
+    for log in tuned_on:
+        if train_end(log, settings) <= COMPARE_AFTER + 1.0:
+            raise ConfigError(
+                f"tune: {log.source}: its training part ends at {train_end(log, settings):.1f} s, "
+                f"within {COMPARE_AFTER + 1:g} s of the start; use a longer log or a larger --train-fraction"
+            )
+    if settings.train_fraction == 1.0 and not held:
+        raise ConfigError("tune: --train-fraction 1 leaves nothing held out; name --holdout-logs")
+    first = replay(config, cut(tuned_on[0], train_end(tuned_on[0], settings)))
+    channels = list(_judged(config, first))
+    if not channels:
+        raise ConfigError(f"tune: {tuned_on[0].source} fuses no aiding sensor; nothing to tune")
+    space = [Dimension(c, noise_of(first.config, c)) for c in channels]
+    if settings.delays:
+        fields = sorted({DELAY_OF[c.split("_")[0] if c.startswith("gps") else c] for c in channels})
+        space += [Dimension(f, getattr(first.config, f)) for f in fields]
+    # the start: the config as loaded, or with px4_parameters the log's values written into it (and
+    # the option off, so that a candidate's values are not overwritten by the log's again)
+    start = dataclasses.replace(first.config, px4_parameters=False) if config.px4_parameters else config
+    return LogTuneProblem(start, tuned_on, held, space, settings)
+
+
+def _score(problem, config) -> LogScore:
+    per_log = []
+    for log in problem.logs:
+        end = train_end(log, problem.settings)
+        per_log.append(channel_statistics(config, cut(log, end), (COMPARE_AFTER, end)))
+    return LogScore(innovations.loss(per_log), tuple(per_log))
+
+
+class _BudgetSpent(Exception):
+    """Raised inside the objective when the budget of replays is spent (ends the SciPy search)."""
+
+
+def matched(problem, x, score) -> np.ndarray:
+    """The coordinates x with each channel's noise scaled by sqrt of its NIS per dof (averaged over
+    the training logs) in `score`, the score of x (covariance matching: R scaled so that the NIS
+    per dof would be 1 were the prior covariance small beside it); the delays unchanged."""
+    x = np.array(x, dtype=float)
+    for i, d in enumerate(problem.space):
+        per_dof = [s[d.name].nis_per_dof for s in score.statistics if d.name in s]
+        good = [v for v in per_dof if math.isfinite(v) and v > 0]
+        if not d.is_delay and good:
+            x[i] = float(np.clip(x[i] + 0.5 * math.log10(np.mean(good)), *d.bounds))
+    return x
+
+
+GRID_STEP = 0.05
+"""s between the coarse grid's delays (each refined by a bounded scalar search within ±a step)."""
+
+
+def profile_delays(problem, x, evaluate, score_of) -> np.ndarray:
+    """x with each delay set where the profile loss is least: at each candidate delay the noise is
+    matched to it (:func:`matched`) before the loss is taken, so a delay is not judged against
+    noise inflated to hide the wrong one. A coarse grid (every GRID_STEP s), then SciPy's bounded
+    scalar search (``minimize_scalar``, to 2 ms) within a step of the grid's best."""
+    x = np.array(x, dtype=float)
+    for i, d in enumerate(problem.space):
+        if not d.is_delay:
+            continue
+
+        def profile(delay, x=x, i=i):
+            trial = np.array(x)
+            trial[i] = delay / DELAY_UNIT
+            evaluate(trial)
+            rematched = matched(problem, trial, score_of(trial))
+            return evaluate(rematched), rematched
+
+        grid = np.arange(0.0, MAX_DELAY + 1e-9, GRID_STEP)
+        losses = [profile(delay)[0] for delay in grid]
+        centre = float(grid[int(np.argmin(losses))])
+        found = minimize_scalar(
+            lambda delay: profile(delay)[0],
+            bounds=(max(0.0, centre - GRID_STEP), min(MAX_DELAY, centre + GRID_STEP)),
+            method="bounded",
+            options={"xatol": 0.002},
+        )
+        best = min([(found.fun, found.x), *zip(losses, grid, strict=True)])
+        x = profile(best[1])[1]
+    return x
+
+
+def tune_logs(problem, progress=True) -> LogTuneResult:
+    """LogTuneResult of the search, the delay curves and the held-out judgement (module docstring)."""
+    s, space = problem.settings, problem.space
+    result = LogTuneResult(problem, SearchResult())
+    history = result.search.history
+    bar = CandidateProgress("logs", s.budget, progress)
+    cache = {}
+
+    def key_of(x):
+        return tuple(round(float(v), 12) for v in x)
+
+    def evaluate(x, stage=3):
+        key = key_of(x)
+        if key in cache:
+            return cache[key].score.loss if math.isfinite(cache[key].score.loss) else 1e9
+        if len(history) >= s.budget:
+            raise _BudgetSpent
+        score = _score(problem, apply(problem.config, space, x))
+        evaluation = Evaluation(len(history), stage, key, score)
+        history.append(evaluation)
+        cache[key] = evaluation
+        bar.update(evaluation, result.search.best)
+        return score.loss if math.isfinite(score.loss) else 1e9
+
+    def score_of(x):
+        return cache[key_of(x)].score
+
+    start = time.perf_counter()
+    x0 = np.array([d.x0() for d in space])
+    try:
+        evaluate(x0, 0)
+        x1 = matched(problem, x0, history[0].score)
+        evaluate(x1, 1)
+        x2 = profile_delays(problem, x1, lambda x: evaluate(x, 2), score_of)
+        minimize(
+            evaluate,
+            x2,
+            method="Powell",
+            bounds=[d.bounds for d in space],
+            options={"xtol": 1e-3, "ftol": 1e-4, "maxfev": s.budget},
+        )
+    except _BudgetSpent:
+        pass
+    except KeyboardInterrupt:
+        result.interrupted = result.search.interrupted = True
+    finally:
+        bar.close()
+    result.search_time = time.perf_counter() - start
+    if result.search.best is None:
+        return result
+    result.tuned = apply(problem.config, space, result.search.best.x)
+    if result.interrupted:
+        return result
+    try:
+        result.curves = delay_curves(problem, result.search.best.x)
+        result.before, result.after = holdout(problem, problem.config), holdout(problem, result.tuned)
+    except KeyboardInterrupt:
+        result.interrupted = True
+        result.before, result.after = [], []
+    return result
+
+
+def delay_curves(problem, best_x) -> dict:
+    """{delay field: (delays (m,) s, losses (m,))}: the training loss along each delay with every
+    other coordinate at the best candidate's (the objective curves of the page)."""
+    points = problem.settings.curve_points
+    curves = {}
+    for i, d in enumerate(problem.space):
+        if not d.is_delay or points < 2:
+            continue
+        delays = np.linspace(0.0, MAX_DELAY, points)
+        losses = []
+        for delay in delays:
+            x = np.array(best_x, dtype=float)
+            x[i] = delay / DELAY_UNIT
+            losses.append(_score(problem, apply(problem.config, problem.space, x)).loss)
+        curves[d.name] = (delays, np.array(losses))
+    return curves
+
+
+def holdout(problem, config) -> list:
+    """[(label, {channel: ChannelStatistics})]: each tuned log's part after its training cut, then
+    each held-out log whole, replayed whole with the ReplayConfig `config`."""
+    judged = []
+    for log in problem.logs:
+        end = train_end(log, problem.settings)
+        if end < log.duration - 1.0:
+            label = f"{_name(log)} after {end:.1f} s"
+            judged.append((label, channel_statistics(config, log, (end, math.inf))))
+    for log in problem.holdout_logs:
+        judged.append(
+            (f"{_name(log)} (held-out log)", channel_statistics(config, log, (COMPARE_AFTER, math.inf)))
+        )
+    return judged
+
+
+def _name(log):
+    from pathlib import Path
+
+    return Path(log.source).stem
+
+
+def verdict(result) -> tuple[bool, str]:
+    """(passed, the line that explains the exit code): passed when every fused channel's NIS per
+    dof lies inside its χ² band on every held-out part after tuning."""
+    misses = [
+        f"{label}: {c} {s.nis_per_dof:.3g} outside [{s.band[0]:.3g}, {s.band[1]:.3g}]"
+        for label, stats in result.after
+        for c, s in stats.items()
+        if not s.in_band
+    ]
+    inside = sum(len(stats) for _, stats in result.after) - len(misses)
+    if not misses:
+        return (
+            True,
+            f"PASS: every fused channel's NIS per dof inside its band on the held-out part ({inside})",
+        )
+    return False, f"FAIL: {len(misses)} channel(s) outside their band on the held-out part: " + "; ".join(
+        misses
+    )

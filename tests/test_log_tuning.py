@@ -1,0 +1,103 @@
+"""``quad-drake tune LOG``: the innovation statistics, the PX4 parameter mapping both ways, a short
+delay recovery on a simulated run written as a log with a delayed GPS, and bad input."""
+
+import dataclasses
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from quad_drake.config.errors import ConfigError
+from quad_drake.flightlogs import px4_parameters as px4
+from quad_drake.flightlogs.settings import default_replay, load_replay
+from quad_drake.judging import innovations
+
+
+def test_white_consistent_innovations_are_judged_so_and_a_correlated_sequence_is_not():
+    rng = np.random.default_rng(5)
+    white = innovations.statistics_of("gps_vel_xy", rng.standard_normal((400, 2)), 2)
+    assert white.in_band and white.white and white.ljung_box_p > 0.01
+    assert innovations.channel_loss(white) < 0.05
+    ar = np.zeros((400, 2))
+    for k in range(1, 400):  # an AR(1) sequence: what a delay left out adds
+        ar[k] = 0.8 * ar[k - 1] + 0.6 * rng.standard_normal(2)
+    correlated = innovations.statistics_of("gps_vel_xy", ar, 2)
+    assert not correlated.white and correlated.autocorrelation[0] == pytest.approx(0.8, abs=0.1)
+    large = innovations.statistics_of("gps_vel_xy", 3.0 * rng.standard_normal((400, 2)), 2)
+    assert not large.in_band and innovations.channel_loss(large) > 4.0
+
+
+def test_px4_parameters_round_trip_through_a_replay_config_and_a_parameter_file():
+    rng = np.random.default_rng(3)
+    start = default_replay("eskf")
+    values = {p.name: float(p.default * rng.uniform(0.2, 5.0)) for p in px4.MAPPING}
+    config = px4.from_parameters(start, values)
+    back = px4.to_parameters(config)
+    assert back.keys() == values.keys()
+    for name, value in values.items():
+        assert back[name] == pytest.approx(value, rel=1e-12), name
+    assert config.gps_delay == pytest.approx(values["EKF2_GPS_DELAY"] * 1e-3, rel=1e-12)
+    assert config.estimator.accel_std[2] == pytest.approx(values["EKF2_ACC_NOISE"] * np.sqrt(5.0), rel=1e-12)
+    text = px4.parameter_file(config, start)
+    assert px4.read_parameter_file(text) == pytest.approx(back, rel=1e-12)
+    assert "PX4 default 0.5" in text and "ms -> s" in text
+    missing = px4.from_parameters(start, {})  # a log without them: PX4's defaults
+    assert px4.to_parameters(missing) == pytest.approx({p.name: p.default for p in px4.MAPPING}, rel=1e-12)
+
+
+def test_px4_parameters_are_an_eskf_option():
+    with pytest.raises(ConfigError, match="px4_parameters: maps EKF2_"):
+        load_replay("sitl_takeoff_land_gps", "{kind: ekf7}", ["px4_parameters=true"])
+
+
+@pytest.mark.parametrize(
+    "content, message",
+    [(None, "no such flight log file"), (b"not a ulog", "not a readable ULog file")],
+)
+def test_a_missing_or_unreadable_log_is_one_line_and_exit_2(tmp_path, content, message):
+    path = tmp_path / "flight.ulg"
+    if content is not None:
+        path.write_bytes(content)
+    done = subprocess.run(
+        [sys.executable, "-m", "quad_drake", "tune", str(path), "--out", str(tmp_path / "out")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 2
+    assert message in done.stderr and len(done.stderr.strip().splitlines()) == 1
+    assert "Traceback" not in done.stderr
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [3001, 3002])
+def test_a_delayed_gps_is_recovered_from_the_log_alone(tmp_path, seed):
+    """A 16 s run of 11_gps_update_eskf written with its GPS samples 100 ms late: the tuner,
+    starting from zero delay and PX4's noise, finds the delay within 20 ms (seeds not tuned on)."""
+    from quad_drake.flightlogs.recording import record_run, write_run_csv
+    from quad_drake.running import catalog
+    from quad_drake.tuning.logs import prepare, tune_logs
+    from quad_drake.tuning.settings import LogTuneSettings
+
+    record = record_run(catalog.load("11_gps_update_eskf", seed, ["end_time=16"]))
+    path = write_run_csv(record, tmp_path / "run.csv", {"gps": 0.1})
+    imu = ["estimator.accel_std=[0.5, 0.5, 1.5]", "estimator.gyro_std=[0.5, 0.5, 0.5]"]
+    settings = LogTuneSettings(budget=40, train_fraction=0.9, curve_points=0)
+    problem = prepare([str(path)], [], [*imu, "estimator.estimate_biases=false"], settings)
+    assert [d.name for d in problem.space if d.is_delay] == ["gps_delay", "mag_delay"]
+    result = tune_logs(problem, progress=False)
+    tuned = dataclasses.asdict(result.tuned)
+    assert abs(tuned["gps_delay"] - 0.1) <= 0.02
+    assert result.search.best.score.loss < result.search.history[0].score.loss
+
+
+def test_a_sensor_delay_replays_its_samples_as_measured_that_much_earlier():
+    from quad_drake.flightlogs.reader import Samples
+    from quad_drake.flightlogs.schedule import measured_at
+
+    samples = Samples(np.array([0.05, 0.1, 0.3]), np.array([[1.0], [2.0], [3.0]]))
+    shifted = measured_at(samples, 0.1)
+    np.testing.assert_allclose(shifted.times, [0.0, 0.2], rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(shifted.values, [[2.0], [3.0]])
+    assert measured_at(samples, 0.0) is samples and measured_at(None, 0.1) is None
