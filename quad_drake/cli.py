@@ -311,13 +311,7 @@ def _add_jobs_argument(parser):
 
 def _add_montecarlo_arguments(parser):
     """Arguments of ``quad-drake montecarlo``."""
-    parser.add_argument(
-        "name",
-        metavar="NAME",
-        nargs="+",
-        help="scenario name or YAML path; or flight logs (.ulg, .csv or a bundled log's name): "
-        "then the ESKF's noise and sensor delays are tuned on the logs' own innovations",
-    )
+    parser.add_argument("name", metavar="NAME", help="scenario name or YAML path")
     parser.add_argument("--runs", type=int, default=100, help="number of runs (default: 100)")
     _add_jobs_argument(parser)
     parser.add_argument("--seed", type=int, help="first seed S; run i uses S+i (default: the scenario's)")
