@@ -216,6 +216,10 @@ class EstimatorKind:
     assuming_gps_noise: Callable[[object, float, float], object] = lambda config, pos_std, vel_std: config
     # the config assuming this GPS height noise (m) alone: a log whose height reference is its baro
     assuming_gps_height_noise: Callable[[object, float], object] = lambda config, height_std: config
+    # a fixed-interval RTS smoother exists over its stored pass (``flightlogs.smoothing``)
+    smoothable: bool = False
+    # a log's EKF2_* parameters map onto its config (``flightlogs.px4_parameters``)
+    takes_px4_parameters: bool = False
 
     def replay_config(self) -> object:
         """The kind's config for replaying a flight log (``replay_defaults``, else the defaults)."""
@@ -449,6 +453,8 @@ KINDS = {
             started_from_log=_eskf_started,
             assuming_gps_noise=_eskf_gps_noise,
             assuming_gps_height_noise=_eskf_gps_height_noise,
+            smoothable=True,
+            takes_px4_parameters=True,
         ),
         EstimatorKind(
             name="custom",

@@ -28,7 +28,7 @@ from pydrake.systems.primitives import LogVectorOutput, ZeroOrderHold
 
 from quad_drake.conventions import EKF_OFFSET, LOG_PERIOD, NO_SAMPLE_STAMP, ONBOARD_PERIOD
 from quad_drake.estimation import eskf, smoother
-from quad_drake.estimation.registry import vocabulary_for
+from quad_drake.estimation.registry import KINDS, vocabulary_for
 from quad_drake.flightlogs import smoothing
 from quad_drake.flightlogs.reader import read_flight_log
 from quad_drake.flightlogs.replay import replay_as_flown
@@ -175,7 +175,7 @@ def smooth_vehicles(result, directory) -> list[str]:
     lines = []
     scenario = result.scenario
     for index, vehicle in enumerate(scenario.vehicles):
-        if vehicle.estimator is None or vehicle.estimator.kind != "eskf":
+        if vehicle.estimator is None or not KINDS[vehicle.estimator.kind].smoothable:
             lines.append(f"{vehicle.name}: not smoothed (the smoother runs over the ESKF only)")
             continue
         run = smooth_run(scenario, directory, index)

@@ -30,7 +30,7 @@ from pydrake.systems.primitives import LogVectorOutput, VectorLogSink
 
 from quad_drake.config.errors import ConfigError
 from quad_drake.conventions import LOG_PERIOD, ONBOARD_PERIOD
-from quad_drake.estimation.registry import vocabulary_for
+from quad_drake.estimation.registry import KINDS, vocabulary_for
 from quad_drake.estimation.vocabulary import EstimatorVocabulary, health_counts, health_line
 from quad_drake.flightlogs import comparison, earth_field, px4_parameters, smoothing
 from quad_drake.flightlogs.checks import log_warnings
@@ -325,7 +325,7 @@ def build_replay_diagram(log, config) -> tuple[Diagram, dict[str, VectorLogSink]
     estimator of the ReplayConfig `config` (module docstring), its sensors' samples at the times
     they were measured (:func:`delayed_log`); with ``config.smooth`` the sinks also hold {TICKS:
     the per-tick sinks of ``smoothing.tick_sinks``}."""
-    if config.smooth and config.estimator.kind != "eskf":
+    if config.smooth and not KINDS[config.estimator.kind].smoothable:
         raise ConfigError(f"smooth: the smoother runs over the ESKF only, not kind {config.estimator.kind}")
     log = delayed_log(log, config)
     gps, fake, late_fix, losses = aiding_gps(log, config)

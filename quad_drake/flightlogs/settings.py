@@ -214,7 +214,7 @@ def check_replay(config) -> ReplayConfig:
     problem = kind.fidelity_problem(PHYSICAL) or kind.problem(config.estimator)  # a replay is physical
     if problem:
         raise ConfigError(f"estimator: {problem}")
-    if config.px4_parameters and config.estimator.kind != "eskf":
+    if config.px4_parameters and not kind.takes_px4_parameters:
         raise ConfigError(
             f"px4_parameters: maps EKF2_* onto an ESKF only, not kind {config.estimator.kind!r}"
         )
