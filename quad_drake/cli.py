@@ -521,11 +521,7 @@ def cmd_tune(args) -> int:
         out = check_output_dir(args.out)
     result = tune(problem, out, progress=not args.quiet)
     if result.interrupted:
-        kept = "no candidate had finished"
-        if result.search.best is not None:
-            kept = f"kept the best of {len(result.search.history)} candidates in {out}/tuned.yaml"
-        print(f"quad-drake: interrupted; {kept} (held-out comparison skipped)", file=sys.stderr)
-        return 130
+        return _tune_interrupted(result, out, "held-out comparison skipped")
     best = result.search.best
     print(
         f"{len(result.search.history)} candidates in {result.search_time:.1f} s; best loss "
@@ -544,6 +540,16 @@ def cmd_tune(args) -> int:
     passed, line = verdict(result)
     print(line)
     return 0 if passed else 1
+
+
+def _tune_interrupted(result, out, skipped) -> int:
+    """Exit code 130 of a tuning interrupted by Ctrl-C, after one line on stderr: what was kept in
+    `out` (the best candidate's tuned.yaml, when one had finished) and what was `skipped`."""
+    kept = "no candidate had finished"
+    if result.search.best is not None:
+        kept = f"kept the best of {len(result.search.history)} candidates in {out}/tuned.yaml"
+    print(f"quad-drake: interrupted; {kept} ({skipped})", file=sys.stderr)
+    return 130
 
 
 def cmd_tune_logs(args) -> int:
@@ -567,11 +573,7 @@ def cmd_tune_logs(args) -> int:
     result = tune_logs(problem, progress=not args.quiet)
     files = log_output.write(result, out)
     if result.interrupted:
-        kept = "no candidate had finished"
-        if result.search.best is not None:
-            kept = f"kept the best of {len(result.search.history)} candidates in {out}/tuned.yaml"
-        print(f"quad-drake: interrupted; {kept} (held-out judgement skipped)", file=sys.stderr)
-        return 130
+        return _tune_interrupted(result, out, "held-out judgement skipped")
     print(f"{len(result.search.history)} replays in {result.search_time:.1f} s")
     print(f"saved {out}/: " + ", ".join(Path(f).name for f in files))
     print(log_output.before_after(result), end="")

@@ -133,25 +133,26 @@ MAPPING = (
 BY_NAME = {p.name: p for p in MAPPING}
 
 
-def _get(config, path):
+def field_at(config, path):
+    """The value of the dotted field `path` (e.g. ``"estimator.gps_pos_std"``) of the dataclass `config`."""
     node = config
     for part in path.split("."):
         node = getattr(node, part)
     return node
 
 
-def _set(config, path, value):
+def with_field(config, path, value):
     """A copy of the dataclass `config` with the dotted field `path` set to `value`."""
     head, _, rest = path.partition(".")
     if not rest:
         return dataclasses.replace(config, **{head: value})
-    return dataclasses.replace(config, **{head: _set(getattr(config, head), rest, value)})
+    return dataclasses.replace(config, **{head: with_field(getattr(config, head), rest, value)})
 
 
 def our_value(parameter, config) -> float:
     """The scalar our ReplayConfig `config` holds for `parameter`, in our units: a vector's
     horizontal mean for the GPS noises, its mean otherwise (IMU noise, the field's)."""
-    value = _get(config, parameter.field)
+    value = field_at(config, parameter.field)
     if isinstance(value, list):
         value = value[:2] if parameter.field.startswith("estimator.gps_") else value
         value = sum(value) / len(value)
@@ -168,8 +169,8 @@ def from_parameters(config, parameters) -> object:
     `parameters` ({name: value}, PX4's units; a missing name: PX4's default)."""
     for p in MAPPING:
         value = p.ours(parameters.get(p.name, p.default))
-        current = _get(config, p.field)
-        config = _set(config, p.field, [value] * len(current) if isinstance(current, list) else value)
+        current = field_at(config, p.field)
+        config = with_field(config, p.field, [value] * len(current) if isinstance(current, list) else value)
     return config
 
 

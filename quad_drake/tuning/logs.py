@@ -30,6 +30,7 @@ import numpy as np
 from scipy.optimize import minimize, minimize_scalar
 
 from ..config.errors import ConfigError
+from ..flightlogs.px4_parameters import field_at, with_field
 from ..flightlogs.reader import FlightLog, Samples, read_flight_log
 from ..flightlogs.replay import COMPARE_AFTER, replay
 from ..flightlogs.settings import load_replay, resolve_log
@@ -130,25 +131,12 @@ def is_log_name(name) -> bool:
     return str(name).lower().endswith((".ulg", ".csv")) or str(name) in bundled_logs()
 
 
-def _get(node, path):
-    for part in path.split("."):
-        node = getattr(node, part)
-    return node
-
-
-def _set(node, path, value):
-    head, _, rest = path.partition(".")
-    if not rest:
-        return dataclasses.replace(node, **{head: value})
-    return dataclasses.replace(node, **{head: _set(getattr(node, head), rest, value)})
-
-
 def assumed_std(config) -> dict:
     """{component channel: (k,) the std the ReplayConfig's ESKF assumes} (``judging.innovations``)."""
     found = {}
     for channel in innovations.COMPONENT_CHANNELS:
         path, indices = NOISE_FIELDS[channel]
-        value = _get(config.estimator, path)
+        value = field_at(config.estimator, path)
         found[channel] = [value[i] for i in indices] if indices is not None else [value]
     return found
 
@@ -156,7 +144,7 @@ def assumed_std(config) -> dict:
 def noise_of(config, channel) -> float:
     """The first component of a channel's noise in the ReplayConfig `config`."""
     path, indices = NOISE_FIELDS[channel]
-    value = _get(config.estimator, path)
+    value = field_at(config.estimator, path)
     return float(value[indices[0]] if indices is not None else value)
 
 
@@ -168,14 +156,14 @@ def apply(config, space, x) -> object:
             continue
         path, indices = NOISE_FIELDS[d.name]
         scale = 10.0 ** float(xi)
-        start = _get(config.estimator, path)
+        start = field_at(config.estimator, path)
         if indices is None:
             value = start * scale
         else:
             value = list(start)
             for i in indices:
                 value[i] = start[i] * scale
-        config = dataclasses.replace(config, estimator=_set(config.estimator, path, value))
+        config = dataclasses.replace(config, estimator=with_field(config.estimator, path, value))
     return config
 
 
