@@ -133,7 +133,7 @@ MAPPING = (
 BY_NAME = {p.name: p for p in MAPPING}
 
 
-def field_at(config, path):
+def field_at(config, path) -> object:
     """The value of the dotted field `path` (e.g. ``"estimator.gps_pos_std"``) of the dataclass `config`."""
     node = config
     for part in path.split("."):
@@ -141,7 +141,7 @@ def field_at(config, path):
     return node
 
 
-def with_field(config, path, value):
+def with_field(config, path, value) -> object:
     """A copy of the dataclass `config` with the dotted field `path` set to `value`."""
     head, _, rest = path.partition(".")
     if not rest:
