@@ -131,16 +131,24 @@ def height_innovation(p_z, P, height, bias, R) -> tuple[float, float]:
 
 def scalar_correction(P, index, sign, nu, S) -> tuple[np.ndarray, np.ndarray, float]:
     """(dx (n,), P' (n x n), nis) of a scalar measurement with H = sign * e_index (1 x n), innovation
-    nu and innovation variance S = P[index, index] + R: with b = P H^T = sign * P[:, index],
-    K = b / S, dx = K nu, P' = P - K b^T - b K^T + S K K^T (Joseph form), nis = nu^2 / S. Loops over
-    the entries (numba compiles it; numpy runs it as well)."""
+    nu and innovation variance S = P[index, index] + R (:func:`joseph_scalar` with b = P H^T =
+    sign * P[:, index]). Loops over the entries (numba compiles it; numpy runs it as well)."""
+    n = P.shape[0]
+    b = np.empty(n)
+    for i in range(n):
+        b[i] = sign * P[i, index]
+    return joseph_scalar(P, b, nu, S)
+
+
+def joseph_scalar(P, b, nu, S) -> tuple[np.ndarray, np.ndarray, float]:
+    """(dx (n,), P' (n x n), nis) of a scalar measurement of H (1 x n) given b = P H^T (n,), its
+    innovation nu and innovation variance S = H b + R: K = b / S, dx = K nu,
+    P' = P - K b^T - b K^T + S K K^T (Joseph form), nis = nu^2 / S."""
     n = P.shape[0]
     dx = np.empty(n)
-    b = np.empty(n)
     k = np.empty(n)
     P_new = np.empty((n, n))
     for i in range(n):
-        b[i] = sign * P[i, index]
         k[i] = b[i] / S
         dx[i] = k[i] * nu
     for i in range(n):
@@ -154,6 +162,43 @@ def height_correction(P, nu, S) -> tuple[np.ndarray, np.ndarray, float]:
     innovation nu (m) and innovation variance S (m^2) from :func:`height_innovation`
     (:func:`scalar_correction`)."""
     return scalar_correction(P, HEIGHT_INDEX, -1.0, nu, S)
+
+
+def bias_state_innovation(p_z, bias, P, height, R) -> tuple[float, float]:
+    """(nu (m), S (m^2)) of a baro height (m, up) against a filter that carries the baro bias in
+    its error state, last (the ESKF's, ``eskf.carries_baro_bias``), P (n x n): h(x) = -p_z + b,
+    H = -e_2 + e_(n-1), nu = height - (-p_z + bias), S = P22 - 2 P2b + Pbb + R (R = height_std^2:
+    the bias's uncertainty is in P, with its correlation with the height)."""
+    last = P.shape[0] - 1
+    S = P[HEIGHT_INDEX, HEIGHT_INDEX] - 2.0 * P[HEIGHT_INDEX, last] + P[last, last] + R
+    return height + p_z - bias, S
+
+
+def bias_state_correction(P, nu, S) -> tuple[np.ndarray, np.ndarray, float]:
+    """(dx (n,), P' (n x n), nis): the Joseph update of H = -e_2 + e_(n-1) (the baro bias last,
+    :func:`bias_state_innovation`) with innovation nu (m) and innovation variance S (m^2):
+    :func:`joseph_scalar` with b = P H^T = P[:, n-1] - P[:, 2]."""
+    n = P.shape[0]
+    b = np.empty(n)
+    for i in range(n):
+        b[i] = P[i, n - 1] - P[i, HEIGHT_INDEX]
+    return joseph_scalar(P, b, nu, S)
+
+
+def bias_state_reset(P, height_var) -> np.ndarray:
+    """P' (n x n) of a filter that carries the baro bias last after its bias is reset to a baro
+    height against the filter's own height, b = h + p_z (:func:`bias_reset`): the bias error is
+    then e_b = dp_z - n_baro, so its row and column take the height's (Cov(e_b, dx) = P[2, :])
+    and its variance P22 + height_var (m^2): the old bias's information is dropped, the height's
+    kept."""
+    n = P.shape[0]
+    last = n - 1
+    P_new = P.copy()
+    for j in range(n):
+        P_new[last, j] = P[HEIGHT_INDEX, j]
+        P_new[j, last] = P[HEIGHT_INDEX, j]
+    P_new[last, last] = P[HEIGHT_INDEX, HEIGHT_INDEX] + height_var
+    return P_new
 
 
 def floored_height_variance(p_zz, bias_var) -> float:

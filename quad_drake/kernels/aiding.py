@@ -34,7 +34,7 @@ import collections
 import math
 
 from quad_drake.conventions import NO_SAMPLE_STAMP
-from quad_drake.estimation import baro, gating, mag3
+from quad_drake.estimation import baro, eskf, gating, mag3
 from quad_drake.estimation.vocabulary import DIAG
 from quad_drake.kernels import rotations
 from quad_drake.kernels.jit import compiled, njit_cached
@@ -46,8 +46,13 @@ _BIAS, _BIAS_VAR, _LAST_HEIGHT, _LAST_STAMP = baro.BIAS, baro.BIAS_VAR, baro.LAS
 _REJECTED_SINCE, _GPS_STAMP, _DATUM_SET = baro.REJECTED_SINCE, baro.GPS_STAMP, baro.DATUM_SET
 _DISAGREEMENT, _DISAGREEMENT_VAR = baro.DISAGREEMENT, baro.DISAGREEMENT_VAR
 _TOLERANCE = gating.STAMP_TOLERANCE  # s, stamps are sums of periods
+_BARO_NOMINAL = eskf.BARO_BIAS_NOMINAL
 
-_scalar_correction = compiled(baro.scalar_correction)
+_joseph_scalar = compiled(baro.joseph_scalar)
+_scalar_correction = compiled(baro.scalar_correction, joseph_scalar=_joseph_scalar)
+_bias_state_innovation = compiled(baro.bias_state_innovation)
+_bias_state_correction = compiled(baro.bias_state_correction, joseph_scalar=_joseph_scalar)
+_bias_state_reset = compiled(baro.bias_state_reset)
 _height_innovation = compiled(baro.height_innovation)
 _floored_height_variance = compiled(baro.floored_height_variance)
 _bias_predict = compiled(baro.bias_predict)
@@ -71,14 +76,25 @@ _wrap = rotations.wrap_to_pi
 
 
 @njit_cached
+def _bias_of(x, P, book, i, in_state):
+    """(bias m, its variance m^2) of vehicle i: the filter's state (nominal x[i, 16], P's last
+    entry) when it carries the bias, else its baro book's scalar filter."""
+    if in_state:
+        last = P.shape[1] - 1
+        return x[i, _BARO_NOMINAL], P[i, last, last]
+    return book[i, _BIAS], book[i, _BIAS_VAR]
+
+
+@njit_cached
 def _baro_rows(x, P, baro_samples, gps, book, diagnostics, model, dx, fused):
-    height_var, gps_z_var, walk_std, threshold, reset_timeout, stamp_match, check_time, check_sigma = model
+    height_var, gps_z_var, walk_std, threshold, reset_timeout, stamp_match, check_time, check_sigma, state = model
+    in_state = state > 0.0
     for i in range(x.shape[0]):
         fused[i] = False
         stamp = baro_samples[i, 1]
         if stamp != NO_SAMPLE_STAMP and stamp != book[i, _LAST_STAMP]:
             previous = book[i, _LAST_STAMP]
-            if previous != NO_SAMPLE_STAMP and math.isfinite(stamp):
+            if not in_state and previous != NO_SAMPLE_STAMP and math.isfinite(stamp):
                 book[i, _BIAS_VAR] = _bias_predict(book[i, _BIAS_VAR], stamp - previous, walk_std)
             book[i, _LAST_STAMP] = stamp
             height = baro_samples[i, 0]
@@ -86,19 +102,30 @@ def _baro_rows(x, P, baro_samples, gps, book, diagnostics, model, dx, fused):
             if not (math.isfinite(height) and math.isfinite(stamp)):
                 diagnostics[i, _NONFINITE] += 1.0
             elif book[i, _DATUM_SET] == 0.0:  # the first finite sample sets the datum (module docstring)
-                book[i, _BIAS], book[i, _BIAS_VAR] = _bias_update(
-                    book[i, _BIAS], book[i, _BIAS_VAR], height + x[i, 2], height_var + P[i, 2, 2]
-                )
+                if in_state:  # the joint update, ungated: the prior bias is uninformative
+                    nu, S = _bias_state_innovation(x[i, 2], x[i, _BARO_NOMINAL], P[i], height, height_var)
+                    dx[i], P[i], _ = _bias_state_correction(P[i], nu, S)
+                    fused[i] = True
+                else:
+                    book[i, _BIAS], book[i, _BIAS_VAR] = _bias_update(
+                        book[i, _BIAS], book[i, _BIAS_VAR], height + x[i, 2], height_var + P[i, 2, 2]
+                    )
                 book[i, _DATUM_SET] = 1.0
             else:
-                nu, S = _height_innovation(x[i, 2], P[i], height, book[i, _BIAS], height_var)
+                if in_state:
+                    nu, S = _bias_state_innovation(x[i, 2], x[i, _BARO_NOMINAL], P[i], height, height_var)
+                else:
+                    nu, S = _height_innovation(x[i, 2], P[i], height, book[i, _BIAS], height_var)
                 nis = nu * nu / S
                 diagnostics[i, _BARO_NIS], diagnostics[i, _BARO_NIS + 1] = nis, stamp
                 if nis <= threshold:
-                    correction, P_new, _ = _scalar_correction(P[i], baro.HEIGHT_INDEX, -1.0, nu, S)
-                    P_new[2, 2] = _floored_height_variance(P_new[2, 2], book[i, _BIAS_VAR])
-                    P[i] = P_new
-                    dx[i] = correction
+                    if in_state:
+                        dx[i], P[i], _ = _bias_state_correction(P[i], nu, S)
+                    else:
+                        correction, P_new, _ = _scalar_correction(P[i], baro.HEIGHT_INDEX, -1.0, nu, S)
+                        P_new[2, 2] = _floored_height_variance(P_new[2, 2], book[i, _BIAS_VAR])
+                        P[i] = P_new
+                        dx[i] = correction
                     fused[i] = True
                     book[i, _REJECTED_SINCE] = math.nan
                 else:
@@ -107,9 +134,12 @@ def _baro_rows(x, P, baro_samples, gps, book, diagnostics, model, dx, fused):
                     if math.isnan(since):
                         book[i, _REJECTED_SINCE] = stamp
                     elif reset_timeout > 0.0 and stamp - since >= reset_timeout - _TOLERANCE:
-                        book[i, _BIAS], book[i, _BIAS_VAR] = _bias_reset(
-                            height, x[i, 2], height_var, P[i, 2, 2]
-                        )
+                        bias, bias_var = _bias_reset(height, x[i, 2], height_var, P[i, 2, 2])
+                        if in_state:
+                            x[i, _BARO_NOMINAL] = bias
+                            P[i] = _bias_state_reset(P[i], height_var)
+                        else:
+                            book[i, _BIAS], book[i, _BIAS_VAR] = bias, bias_var
                         book[i, _REJECTED_SINCE] = math.nan
                         book[i, _DISAGREEMENT] = book[i, _DISAGREEMENT_VAR] = 0.0
                         diagnostics[i, _BARO_RESETS] += 1.0
@@ -119,42 +149,47 @@ def _baro_rows(x, P, baro_samples, gps, book, diagnostics, model, dx, fused):
             book[i, _GPS_STAMP] = gps_stamp
             matched = abs(gps_stamp - book[i, _LAST_STAMP]) <= stamp_match
             if matched and math.isfinite(gps[i, 2]) and math.isfinite(book[i, _LAST_HEIGHT]):
+                bias, bias_var = _bias_of(x, P, book, i, in_state)
                 measured = _bias_from_gps(book[i, _LAST_HEIGHT], gps[i, 2])
                 variance = height_var + gps_z_var
-                innovation = measured - book[i, _BIAS]
+                innovation = measured - bias
                 agrees = True
                 if check_time > 0.0 and check_sigma > 0.0 and previous_gps != NO_SAMPLE_STAMP:
                     ratio, ratio_var = _filtered_disagreement(
                         book[i, _DISAGREEMENT],
                         book[i, _DISAGREEMENT_VAR],
                         innovation,
-                        book[i, _BIAS_VAR] + variance,
+                        bias_var + variance,
                         gps_stamp - previous_gps,
                         check_time,
                     )
                     book[i, _DISAGREEMENT], book[i, _DISAGREEMENT_VAR] = ratio, ratio_var
                     agrees = not _gps_height_disagrees(ratio, ratio_var, check_sigma)
-                if agrees and innovation * innovation <= threshold * (book[i, _BIAS_VAR] + variance):
+                if not in_state and agrees and innovation * innovation <= threshold * (bias_var + variance):
                     book[i, _BIAS], book[i, _BIAS_VAR] = _bias_update(
                         book[i, _BIAS], book[i, _BIAS_VAR], measured, variance
                     )
-        diagnostics[i, _BARO_BIAS] = book[i, _BIAS]
-        diagnostics[i, _BARO_BIAS + 1] = math.sqrt(book[i, _BIAS_VAR])
+        bias, bias_var = _bias_of(x, P, book, i, in_state)
+        diagnostics[i, _BARO_BIAS] = bias
+        diagnostics[i, _BARO_BIAS + 1] = math.sqrt(bias_var)
 
 
 def baro_rows(x, P, baro_samples, gps, book, diagnostics, model, dx, fused) -> None:
     """One tick of the barometer fusion of N filters (module docstring) IN PLACE on P (N, n, n),
-    book (N, ``baro.BARO_BOOK_SIZE``) and diagnostics; the corrections of the fused vehicles into
-    dx (N, n) and fused (N,). x (N, width): p_z is x[:, 2] in both estimators; baro_samples (N, 2:
-    height m, stamp s); gps (N, 7: p m, v m/s, stamp s); model: :func:`baro_model`."""
+    book (N, ``baro.BARO_BOOK_SIZE``) and diagnostics (and x's baro bias at a bias reset, when the
+    filter carries it); the corrections of the fused vehicles into dx (N, n) and fused (N,).
+    x (N, width): p_z is x[:, 2] in both estimators, the ESKF's baro bias x[:, 16]; baro_samples
+    (N, 2: height m, stamp s); gps (N, 7: p m, v m/s, stamp s); model: :func:`baro_model`."""
     _baro_rows(x, P, baro_samples, gps, book, diagnostics, model, dx, fused)
 
 
-def baro_model(params, gps_z_std, gate_threshold, baro_period) -> tuple:
+def baro_model(params, gps_z_std, gate_threshold, baro_period, bias_in_state=False) -> tuple:
     """The baro kernel's constants from BaroFusionParams: (height_var m², gps_z_var m², walk_std
     m/sqrt(s), the gate's NIS threshold, reset_timeout s, stamp_match s: half the baro period, the
     largest stamp difference of a baro sample and a GPS sample taken as simultaneous, gps_check_time
-    s and the gate's sigma for the GPS-height disagreement check, 0 = off)."""
+    s and the gate's sigma for the GPS-height disagreement check, 0 = off, and 1.0 when the filter
+    carries the bias in its state (`bias_in_state`: the ESKF, ``eskf.carries_baro_bias``), 0.0 when
+    the scalar filter in the book estimates it (the EKF7))."""
     return (
         float(params.height_std) ** 2,
         float(gps_z_std) ** 2,
@@ -164,6 +199,7 @@ def baro_model(params, gps_z_std, gate_threshold, baro_period) -> tuple:
         0.5 * float(baro_period),
         float(params.gps_check_time),
         float(params.gate_sigma),
+        1.0 if bias_in_state else 0.0,
     )
 
 

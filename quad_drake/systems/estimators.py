@@ -55,7 +55,7 @@ from quad_drake.kernels.imu_hold import HOLD_SIZE, initial_hold
 from quad_drake.models.fidelity import PHYSICAL
 from quad_drake.models.rotations import quat_from_euler_tuple
 from quad_drake.systems import updates
-from quad_drake.systems._io import declare_state_output, discrete_group, row_reader
+from quad_drake.systems._io import declare_block_output, declare_state_output, discrete_group, row_reader
 
 
 def _tiled(vector, n):
@@ -270,7 +270,9 @@ class Eskf(LeafSystem):
     sensor ``sensors`` lacks has no input port. Outputs (state ports):
     ``estimated_state`` (n*13: p, q_NB, v, body rate = gyro - gyro bias, NaN while the IMU is
     out), ``covariance`` (n*k*k, k = 15 with bias estimation, 9 without; error state dp, dv,
-    dtheta[, db_a, db_g]), ``diagnostics`` (n*``vocabulary.DIAGNOSTICS``), ``imu_bias`` (n*6: b_a
+    dtheta[, db_a, db_g]; with a barometer the filter also carries the baro bias, its error last
+    in P (``eskf.carries_baro_bias``), and this port gives P's leading k x k block: the bias and its
+    std are in ``diagnostics``), ``diagnostics`` (n*``vocabulary.DIAGNOSTICS``), ``imu_bias`` (n*6: b_a
     m/s^2, b_g rad/s).
 
     Each tick (ONBOARD_PERIOD, offset EKF_OFFSET; ``kernels/eskf.py``, whose module docstring
@@ -289,14 +291,6 @@ class Eskf(LeafSystem):
         from quad_drake.kernels import eskf as eskf_kernel
 
         self._predict_tick, self._write_estimate = eskf_kernel.predict_tick, eskf.write_estimate
-        noise = eskf.NoiseModel.from_params(params)
-        P0 = eskf.initial_covariance(params)
-        Q_constant = eskf.noise_buffer(P0.shape[0], noise, ONBOARD_PERIOD)
-        self._model = eskf_kernel.model(noise, Q_constant, ONBOARD_PERIOD)
-        yaw, pitch, roll = params.init_ypr
-        x0 = eskf.initial_nominal(
-            params.init_position, params.init_velocity, quat_from_euler_tuple(roll, pitch, yaw)
-        )
         correct = eskf_kernel.correct
         builders = {
             "yaw": lambda m: updates.YawUpdate(
@@ -311,13 +305,24 @@ class Eskf(LeafSystem):
             ),
             "baro": lambda m: updates.BaroUpdate(
                 m, correct, params.baro, _gate(params.baro.gate_sigma, fidelity), params.gps_pos_std[2],
-                float(sensors.baro.period),
+                float(sensors.baro.period), bias_in_state=True,
             ),
         }  # fmt: skip
         self._n = n
         self._read_imu = row_reader(self.DeclareVectorInputPort("imu", n * IMU_SIZE), n)
         sensor_updates = updates.build_updates(KINDS["eskf"].measurements, sensors, builders)
         gsf = _gsf_update(params, sensors, sensor_updates)
+        baro = any(isinstance(u, updates.BaroUpdate) for u in sensor_updates)  # its bias in the state
+        noise = eskf.NoiseModel.from_params(params)
+        P0 = eskf.initial_covariance(params, baro)
+        Q_constant = eskf.noise_buffer(P0.shape[0], noise, ONBOARD_PERIOD)
+        self._model = eskf_kernel.model(noise, Q_constant, ONBOARD_PERIOD)
+        yaw, pitch, roll = params.init_ypr
+        x0 = eskf.initial_nominal(
+            params.init_position, params.init_velocity, quat_from_euler_tuple(roll, pitch, yaw)
+        )
+        if baro:
+            x0 = np.append(x0, params.baro.bias_init)
         self._fusion = updates.Fusion(
             self,
             n,
@@ -330,7 +335,11 @@ class Eskf(LeafSystem):
         eskf.write_estimate(x0, initial_estimate)
         self._estimate = discrete_group(self, _tiled(initial_estimate, n), "estimated_state")
         groups = self._fusion.groups
-        declare_state_output(self, "covariance", groups.P, n * P0.size)
+        k = eskf.navigation_size(P0.shape[0])
+        if k == P0.shape[0]:
+            declare_state_output(self, "covariance", groups.P, n * P0.size)
+        else:  # the navigation block: the baro bias is logged in ``diagnostics`` (its estimate, its std)
+            declare_block_output(self, "covariance", groups.P, n, P0.shape[0], k)
         declare_state_output(self, "diagnostics", groups.diagnostics, n * DIAGNOSTICS_SIZE)
         self._bias = discrete_group(self, n * 6, "imu_bias")
         if gsf is not None:
