@@ -277,17 +277,20 @@ def ekf7_baro_update(x, P, height, bias, R) -> tuple[np.ndarray, np.ndarray, flo
     return ekf.kalman_update(x, P, z, H, np.array([[R]]), H @ x)
 
 
-def eskf_baro_update(x, P, height, bias, R) -> tuple[np.ndarray, np.ndarray, float]:
-    """Oracle: (x', P', nis) of the ESKF (nominal x (16,), P (9 or 15 square)) fusing a baro
-    height (m): ``eskf.joseph_update`` with :func:`height_jacobian`, then ``eskf.inject``.
-    A non-finite height gives (x, P, nan)."""
+def eskf_baro_update(x, P, height, R) -> tuple[np.ndarray, np.ndarray, float]:
+    """Oracle: (x', P', nis) of the ESKF that carries the baro bias (nominal x (17,): its bias at
+    ``eskf.BARO_BIAS_NOMINAL``; P (10 or 16 square), the bias error last) fusing a baro height (m):
+    ``eskf.joseph_update`` with H = :func:`height_jacobian` + e_(n-1), nu = height - (-p_z + b),
+    R (m^2) = height_std^2, then ``eskf.inject``. A non-finite height gives (x, P, nan)."""
     from quad_drake.estimation import eskf
 
     if not math.isfinite(height):
         return x, P, math.nan
     x = np.asarray(x, dtype=float)
-    H = height_jacobian(P.shape[0])
-    nu = np.array([height - bias - predicted_height(x[HEIGHT_INDEX])])
+    n = P.shape[0]
+    H = height_jacobian(n)
+    H[0, n - 1] = 1.0
+    nu = np.array([height - (predicted_height(x[HEIGHT_INDEX]) + x[eskf.BARO_BIAS_NOMINAL])])
     dx, P_new, nis = eskf.joseph_update(P, H, np.array([[R]]), nu)
     x_new, P_new = eskf.inject(x, P_new, dx)
     return x_new, P_new, nis
