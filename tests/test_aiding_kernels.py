@@ -37,7 +37,7 @@ def fresh_books(count):
 def test_baro_rows_fuse_as_the_pure_update_and_gate_the_outlier():
     rng = np.random.default_rng(0)
     x = np.stack([nominal(rng) for _ in range(N)])
-    P = np.stack([spd(rng, 15, 0.01) for _ in range(N)])
+    P = np.stack([spd(rng, 7, 0.01) for _ in range(N)])  # the EKF7's: its bias in the book
     P_before = P.copy()
     book, diagnostics = fresh_books(N)
     book[:, baro.LAST_STAMP] = 0.98  # the previous sample
@@ -47,7 +47,7 @@ def test_baro_rows_fuse_as_the_pure_update_and_gate_the_outlier():
     samples = np.column_stack((heights, np.full(N, 1.0)))
     gps = np.tile([0.0] * 6 + [-1.0], (N, 1))  # no GPS
     model = aiding.baro_model(PARAMS, 2.0, THRESHOLD, 0.02)
-    dx, fused = np.zeros((N, 15)), np.zeros(N, dtype=bool)
+    dx, fused = np.zeros((N, 7)), np.zeros(N, dtype=bool)
     aiding.baro_rows(x, P, samples, gps, book, diagnostics, model, dx, fused)
     assert fused.tolist() == [True, True, False, False]
     bias_var = 0.5**2 + 0.01**2 * 0.02  # grown over the 20 ms since the previous sample
@@ -59,12 +59,11 @@ def test_baro_rows_fuse_as_the_pure_update_and_gate_the_outlier():
         np.testing.assert_allclose(dx[i], expected_dx, rtol=0, atol=1e-12)
         np.testing.assert_allclose(P[i], expected_P, rtol=0, atol=1e-12)
         assert diagnostics[i, DIAG["baro_nis"]] == pytest.approx(nis, rel=1e-12)
-        # injected, the oracle's posterior (the floor commutes with the injection's G P G^T)
-        x_oracle, P_oracle, _ = baro.eskf_baro_update(x[i], P_before[i], heights[i], 0.2, 0.01)
+        # added (the EKF7's correction), the dense oracle's posterior, floored
+        x_oracle, P_oracle, _ = baro.ekf7_baro_update(x[i, :7], P_before[i], heights[i], 0.2, 0.01)
         P_oracle[2, 2] = bias_var
-        x_new, P_new = eskf.inject(x[i], P[i], dx[i])
-        np.testing.assert_allclose(x_new, x_oracle, atol=1e-12)
-        np.testing.assert_allclose(P_new, P_oracle, atol=1e-12)
+        np.testing.assert_allclose(x[i, :7] + dx[i], x_oracle, atol=1e-12)
+        np.testing.assert_allclose(P[i], P_oracle, atol=1e-12)
     np.testing.assert_array_equal(P[2:], P_before[2:])  # skipped and gated keep P
     assert diagnostics[2, DIAG["nonfinite_samples"]] == 1 and diagnostics[3, DIAG["baro_gated"]] == 1
     assert book[3, baro.REJECTED_SINCE] == 1.0 and math.isnan(book[0, baro.REJECTED_SINCE])
@@ -74,6 +73,69 @@ def test_baro_rows_fuse_as_the_pure_update_and_gate_the_outlier():
     aiding.baro_rows(x, P, samples, gps, book, diagnostics, model, dx, fused)
     assert not fused.any()
     np.testing.assert_array_equal(P, P_after)
+
+
+def test_baro_rows_with_the_bias_in_the_state_equal_the_eskf_oracle():
+    # the ESKF carries the bias (nominal x[:, 16], its error last in P): every tick of
+    # baro_rows, injected, is the dense oracle's update of H = -e_2 + e_last, to 1e-12; the first
+    # finite sample is fused ungated (the datum), an outlier gated, a non-finite sample skipped
+    rng = np.random.default_rng(5)
+    n = 16
+    x = np.stack([np.append(nominal(rng), 0.2) for _ in range(N)])
+    P = np.stack([spd(rng, n, 0.01) for _ in range(N)])
+    book, diagnostics = fresh_books(N)
+    book[1:, baro.LAST_STAMP] = 0.98  # vehicles 1-3 had their datum
+    book[1:, baro.DATUM_SET] = 1.0
+    heights = -x[:, 2] + np.array([25.0, 0.25, 0.0, 30.0])  # vehicle 0: a far datum, 3: an outlier
+    heights[2] = math.nan
+    samples = np.column_stack((heights, np.full(N, 1.0)))
+    gps = np.tile([0.0] * 6 + [-1.0], (N, 1))
+    model = aiding.baro_model(PARAMS, 2.0, THRESHOLD, 0.02, bias_in_state=True)
+    x_before, P_before, book_before = x.copy(), P.copy(), book.copy()
+    dx, fused = np.zeros((N, n)), np.zeros(N, dtype=bool)
+    aiding.baro_rows(x, P, samples, gps, book, diagnostics, model, dx, fused)
+    assert fused.tolist() == [True, True, False, False]
+    np.testing.assert_array_equal(x, x_before)  # the caller injects
+    for i in (0, 1):
+        x_oracle, P_oracle, nis = baro.eskf_baro_update(x_before[i], P_before[i], heights[i], 0.01)
+        x_new, P_new = eskf.inject(x[i], P[i], dx[i])
+        np.testing.assert_allclose(x_new, x_oracle, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(P_new, P_oracle, rtol=0, atol=1e-12)
+        assert diagnostics[i, DIAG["baro_bias_std"]] == pytest.approx(math.sqrt(P[i, n - 1, n - 1]))
+    assert diagnostics[1, DIAG["baro_nis"]] == pytest.approx(nis, rel=1e-12)
+    assert x_new[eskf.BARO_BIAS_NOMINAL] != 0.2
+    np.testing.assert_array_equal(book[:, baro.BIAS_VAR], book_before[:, baro.BIAS_VAR])  # not the book's
+    np.testing.assert_array_equal(P[2:], P_before[2:])
+    assert diagnostics[2, DIAG["nonfinite_samples"]] == 1 and diagnostics[3, DIAG["baro_gated"]] == 1
+
+
+def test_a_bias_state_reset_takes_the_height_and_the_gps_feeds_only_the_check():
+    n = 10
+    x = np.append(eskf.initial_nominal([0, 0, -1], [0, 0, 0], [1, 0, 0, 0]), 0.2)[None, :]
+    P = (np.eye(n) * 1e-4)[None]
+    P[0, 2, 9] = P[0, 9, 2] = 5e-5
+    book, diagnostics = fresh_books(1)
+    book[0, baro.LAST_STAMP], book[0, baro.DATUM_SET] = 0.0, 1.0
+    model = aiding.baro_model(PARAMS, 2.0, THRESHOLD, 0.02, bias_in_state=True)
+    dx, fused = np.zeros((1, n)), np.zeros(1, dtype=bool)
+    no_gps = np.array([[0.0] * 6 + [-1.0]])
+    for k in range(1, 7):  # a 5 m step, rejected for 0.1 s (reset_timeout), then reset
+        sample = np.array([[1.0 + 0.2 + 5.0, 0.02 * k]])
+        aiding.baro_rows(x, P, sample, no_gps, book, diagnostics, model, dx, fused)
+        assert not fused[0]
+    assert diagnostics[0, DIAG["baro_resets"]] == 1
+    assert x[0, eskf.BARO_BIAS_NOMINAL] == pytest.approx(5.2, abs=1e-12)  # b = h + p_z
+    np.testing.assert_array_equal(P[0, 9, :9], P[0, 2, :9])
+    assert P[0, 9, 9] == pytest.approx(1e-4 + 0.01)
+    # a GPS height stamped with the baro sample: the disagreement is filtered, the state is not touched
+    book[0, baro.GPS_STAMP] = 0.02
+    x_before, P_before = x.copy(), P.copy()
+    gps = np.array([[0.0, 0.0, -1.5, 0.0, 0.0, 0.0, 0.14]])
+    aiding.baro_rows(x, P, np.array([[6.2, 0.14]]), gps, book, diagnostics, model, dx, fused)
+    assert fused[0]  # the baro sample (the bias reset made it agree again)
+    np.testing.assert_array_equal(dx[0], 0.0)  # a zero innovation; the GPS height feeds no bias here
+    assert book[0, baro.BIAS] == PARAMS.bias_init and book[0, baro.GPS_STAMP] == 0.14
+    assert book[0, baro.DISAGREEMENT] != 0.0  # ... and the check still filters its disagreement
 
 
 def test_the_first_baro_sample_sets_the_datum_and_a_step_past_the_timeout_resets_the_bias():

@@ -178,14 +178,15 @@ def write_estimate(x, estimate) -> None:
 def predict_nominal(
     x, f_B, w_B, dt
 ) -> tuple[list[float], np.ndarray, np.ndarray, tuple[float, float, float]]:
-    """(x', R_hat, R_hat', u_N): nominal after one IMU step (list of 16), rotations before and after
+    """(x', R_hat, R_hat', u_N): nominal after one IMU step (a list), rotations before and after
     (3x3 arrays), and u_N = R_hat (f_B - b_a) (m/s^2, the specific force in N, a 3-tuple).
 
-    x: nominal (16); f_B: specific force (m/s^2, FRD); w_B: gyro (rad/s); dt: s
-    (:func:`nominal_step`).
+    x: nominal (16, or 17 with the baro bias, which the step keeps); f_B: specific force (m/s^2,
+    FRD); w_B: gyro (rad/s); dt: s (:func:`nominal_step`).
     """
-    x_new, r, r_next, u_N = nominal_step(tuple(x.tolist() if isinstance(x, np.ndarray) else x), f_B, w_B, dt)
-    return list(x_new), np.array(r).reshape(3, 3), np.array(r_next).reshape(3, 3), u_N
+    x = list(x.tolist() if isinstance(x, np.ndarray) else x)
+    x_new, r, r_next, u_N = nominal_step(tuple(x[:NOMINAL_SIZE]), f_B, w_B, dt)
+    return list(x_new) + x[NOMINAL_SIZE:], np.array(r).reshape(3, 3), np.array(r_next).reshape(3, 3), u_N
 
 
 def nominal_step(
