@@ -356,7 +356,13 @@ def eskf_params(estimate_biases, isotropic_gyro=True):
 
 @pytest.mark.parametrize(
     "estimate_biases, isotropic_gyro, baro",
-    [(True, True, False), (False, True, False), (True, False, False), (True, True, True), (False, True, True)],
+    [
+        (True, True, False),
+        (False, True, False),
+        (True, False, False),
+        (True, True, True),
+        (False, True, True),
+    ],
     ids=["15", "9", "15-aniso", "16-baro", "10-baro"],
 )
 def test_eskf_predict_matches_the_scalar_step(estimate_biases, isotropic_gyro, baro):
@@ -376,7 +382,8 @@ def test_eskf_predict_matches_the_scalar_step(estimate_biases, isotropic_gyro, b
 
 
 @pytest.mark.parametrize(
-    "estimate_biases, baro", [(True, False), (False, False), (True, True), (False, True)],
+    "estimate_biases, baro",
+    [(True, False), (False, False), (True, True), (False, True)],
     ids=["15", "9", "16-baro", "10-baro"],
 )
 def test_eskf_updates_and_injection_match_the_scalar_functions(estimate_biases, baro):

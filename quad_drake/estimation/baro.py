@@ -1,64 +1,67 @@
-"""Pure: barometer fusion for both estimators (EKF7 and ESKF), and the baro bias estimated beside them.
+"""Pure: barometer fusion for both estimators (EKF7 and ESKF), and their baro bias.
 
 Measurement (``sensor_models.baro_measurement``): the barometer reads the height h = -p_z + b
 (m, up; p_z the NED down position, b the baro's bias: its datum offset plus a slow drift).
 Both filters carry p_z at index :data:`HEIGHT_INDEX` of their state (EKF7: x = (p, v, yaw)) or
-error state (ESKF: dx = (dp, dv, dtheta, ...)), so one scalar update serves both:
+error state (ESKF: dx = (dp, dv, dtheta, ...)). They differ in where the bias lives.
 
-    z = h - b_hat,  h(x) = -p_z,  H = -e_2 (1 x n),  R = height_std^2,
-    nu = z - h(x),  S = H P H^T + R = P[2, 2] + R,  K = P H^T / S = -P[:, 2] / S,
-    dx = K nu,  P' = P - K b^T - b K^T + S K K^T  with b = P H^T  (Joseph form, scalar),
-    NIS = nu^2 / S (chi^2, 1 dof).
+**The ESKF: the bias is an error state** (its last entry, nominal x[16]; ``eskf.carries_baro_bias``),
+as PX4's EKF2 carries its height-sensor offsets in its state:
 
-The EKF7 adds dx to x; the ESKF injects it (``eskf.inject``: the height correlates with the
-attitude and the biases, so a baro sample also corrects them).
+    h(x) = -p_z + b,  H = -e_2 + e_(n-1) (1 x n),  R = height_std^2,
+    nu = h - (-p_z + b_hat),  S = H P H^T + R = P22 - 2 P2b + Pbb + R,  b = P H^T = P[:, n-1] - P[:, 2],
+    K = b / S,  dx = K nu,  P' = P - K b^T - b K^T + S K K^T  (Joseph form, scalar),
+    NIS = nu^2 / S (chi^2, 1 dof)
 
-**The baro bias: a scalar filter beside the estimator, not a state of it.** PX4 estimates the
-offset of a height sensor that is not its height reference the same way (``EKF/bias_estimator``,
-one ``BiasEstimator`` per height source): a 1-state Kalman filter whose estimate b_hat corrects
-each sample before fusion. Here the GPS height is the reference:
+(:func:`bias_state_innovation`, :func:`bias_state_correction`), then injected (``eskf.inject``:
+the height correlates with the attitude, the IMU biases and the baro bias, so one sample corrects
+them all). The bias takes its random walk in the prediction (Q = bias_walk_std^2 dt). The filter
+learns it from its own GPS height updates, through the covariance of height and bias the baro
+updates build: no separate filter, no double counting of the GPS, and the bias error, common to
+every baro sample, is in P with its correlations, so the height's variance is honest without a
+floor. During a GPS outage nothing observes the bias: its variance and the height's grow together.
+
+- the first finite sample sets the datum: it is fused ungated (the prior bias, ``bias_init`` of
+  variance ``bias_init_std^2``, is uninformative), so the bias takes h + p_z and the height
+  barely moves (PX4 sets its baro offset on the first sample too);
+- a baro sample rejected by its gate for ``reset_timeout`` s in a row (a pressure step: weather,
+  a door, a gust on the static port) resets the bias to the sample against the filter's height,
+  b = h + p_z (:func:`bias_reset`), whose error is then dp_z - n: the bias's row and column in P
+  take the height's and its variance P22 + height_std^2 (:func:`bias_state_reset`): the filter
+  keeps its height and takes the baro back with its new offset.
+
+**The EKF7: a scalar filter beside the estimator** (PX4's ``EKF/bias_estimator``, one
+``BiasEstimator`` per height source that is not the reference): a 1-state Kalman filter in the
+baro book whose estimate b_hat corrects each sample before the update of z = h - b_hat,
+h(x) = -p_z, H = -e_2, R = height_std^2 (:func:`height_innovation`, :func:`height_correction`):
 
 - the first finite sample is not fused: it sets the datum, b_meas = h + p_z of variance
-  height_std^2 + P[2, 2] against the filter's own height (PX4 sets its baro offset on the first
-  sample too), so a filter that starts at a known height needs no GPS to learn the offset;
+  height_std^2 + P[2, 2] against the filter's own height;
 - at every GPS sample stamped with the latest baro sample's time (20 ms and 100 ms periods are
   commensurate) it takes b_meas = h + z_gps of variance height_std^2 + gps_z_std^2, gated as the
-  baro; between samples its variance P_b grows by the random walk (bias_walk_std^2 per s). It is
-  fed by the GPS, never by the filter's baro-aided height, so it does not learn the baro from
-  itself; during a GPS outage it is frozen (the bias is unobservable without an absolute height)
-  and P_b grows;
-- a GPS height that disagrees with the barometer persistently is caught: every GPS height's
-  normalised bias innovation is low-pass filtered (time constant ``gps_check_time``,
-  :func:`filtered_disagreement`) and, while that filtered value lies beyond ``gate_sigma`` of its
-  own spread under a consistent GPS (:func:`gps_height_disagrees`), the GPS height does not feed
-  the bias. The bias is a slow random walk (7 mm/sqrt(s)); a GPS height 3 m off for a minute is
-  no bias change but a GPS error (multipath, a wrong datum), and a bias that followed it would
-  take the baro-held height, and the vehicle 1 m above the floor, 3 m down with it. Single
-  samples cannot show it (the GPS height's 2 m noise puts 3 m inside any per-sample gate); their
-  filtered mean can, within about 2 s. While it disagrees the filter does not fuse the GPS height
-  either, nor reset to it (``fusion.fuse_gps``): the barometer holds the height. PX4 makes the
-  same choice with the barometer as its height reference (``EKF2_HGT_REF``), ArduPilot by taking
-  its height from the barometer (``EK3_SRC1_POSZ``). A baro bias reset (below) starts the
-  filtered value again at 0.
+  baro; between samples its variance P_b grows by the random walk (bias_walk_std^2 per s);
+  during a GPS outage it is frozen;
+- the bias error e_b = b - b_hat is common to every sample: fused one by one as independent, the
+  samples would shrink P[2, 2] far below P_b (the cross-covariance the scalar filter drops). So
+  after each fusion the height variance is floored at P_b (:func:`floored_height_variance`). The
+  price, measured on 23's 10 s outage when the ESKF still fused this way (100 runs, seeds
+  7000-7099): the height over-confident (e^2/P 1.26) and the vertical velocity conservative
+  (0.78): the floor adds height uncertainty that no vertical velocity explains;
+- a reset as the ESKF's, b = h + p_z, P_b = height_std^2 + P[2, 2].
 
-The bias error e_b = b - b_hat is common to every sample: fused one by one as independent, the
-samples would shrink P[2, 2] far below P_b (the dropped cross-covariance of b_hat and the
-height). So after each fusion the height variance is floored at P_b
-(:func:`floored_height_variance`: raising one diagonal entry keeps P positive semi-definite;
-PX4's ``fixCovarianceErrors`` clamps variances per state too), and R is the white noise
-height_std^2 alone: P_b is already in P[2, 2] (PX4 adds it to R instead; both here counted it
-twice: baro NIS 0.45 per dof over 20 runs of 11, against 0.72 with R = height_std^2).
-
-Why not a 16th (ESKF) or 8th (EKF7) error state: one implementation for both filters, and their
-covariances, vocabularies, NEES and logs keep their size whether the barometer is on or off (a
-baro on/off comparison is over the same states). The price is the dropped cross-covariance,
-covered by the floor: measured on 11 (200 runs, README "Sensors") the height's e^2/P is 1.29
-with the barometer against 1.06 (EKF7) and 1.02 (ESKF) without.
-
-A baro sample rejected by its gate for ``reset_timeout`` s in a row (a pressure step: weather, a
-door, a gust on the static port) resets the bias to the sample against the filter's height,
-b = h - (-p_z), variance height_std^2 + P[2, 2]: the filter keeps its height and takes the baro
-back with its new offset (:func:`bias_reset`).
+**Both: a GPS height that disagrees with the barometer persistently is caught.** Every GPS
+height's normalised bias innovation, (h + z_gps - b_hat) / sqrt(P_b + height_std^2 +
+gps_z_std^2), is low-pass filtered (time constant ``gps_check_time``,
+:func:`filtered_disagreement`) and, while that filtered value lies beyond ``gate_sigma`` of its
+own spread under a consistent GPS (:func:`gps_height_disagrees`), the GPS height feeds neither
+the bias nor the filter's height, nor is reset to (``fusion.fuse_gps``): the barometer holds the
+height. The bias is a slow random walk (7 mm/sqrt(s)); a GPS height 3 m off for a minute is no
+bias change but a GPS error (multipath, a wrong datum), and a bias that followed it would take
+the baro-held height, and the vehicle 1 m above the floor, 3 m down with it. Single samples
+cannot show it (the GPS height's 2 m noise puts 3 m inside any per-sample gate); their filtered
+mean can, within about 2 s. PX4 makes the same choice with the barometer as its height
+reference (``EKF2_HGT_REF``), ArduPilot by taking its height from the barometer
+(``EK3_SRC1_POSZ``). A baro bias reset starts the filtered value again at 0.
 
 Every function works on plain floats and on a covariance array P (n x n), so
 ``kernels/`` compile them as they are (the code here, not a copy).
@@ -202,7 +205,7 @@ def bias_state_reset(P, height_var) -> np.ndarray:
 
 
 def floored_height_variance(p_zz, bias_var) -> float:
-    """The filter's height variance (m^2) after a baro fusion: at least the bias variance P_b.
+    """The EKF7's height variance (m^2) after a baro fusion: at least the bias variance P_b.
 
     A baro-corrected height is no better known than the bias that corrects it, and that bias
     error is common to every sample: fused one by one as if independent, samples would shrink

@@ -90,8 +90,6 @@ def _constant(array):
     return array
 
 
-
-
 def quat_exp(theta) -> tuple[float, float, float, float]:
     """Unit wxyz quaternion of the rotation vector theta (rad) as a 4-tuple."""
     tx, ty, tz = float(theta[0]), float(theta[1]), float(theta[2])

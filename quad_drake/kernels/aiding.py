@@ -3,11 +3,18 @@ each tick when the vehicle carries the sensor (``systems.estimators``; one imple
 single run and a fleet).
 
 The formulas are ``estimation/baro.py``'s and ``estimation/mag3.py``'s own code compiled by numba
-(each module's docstring carries the equations and the design: the baro bias as a scalar filter
-beside the estimator, fed by the GPS heights; the field as a 3-dof gated, axis-by-axis update of
-the ESKF's error state; the tilt-compensated heading as the EKF7's yaw measurement):
+(each module's docstring carries the equations and the design: the ESKF's baro bias as an error
+state, the EKF7's as a scalar filter beside it, fed by the GPS heights; the field as a 3-dof gated,
+axis-by-axis update of the ESKF's error state; the tilt-compensated heading as the EKF7's yaw
+measurement):
 
-- baro, z = h - b_hat (m):  h(x) = -p_z,  H = -e_2,  R = height_std²,  NIS 1 dof, then
+- baro, ESKF (``baro_model(..., bias_in_state=True)``), z = h (m): h(x) = -p_z + b (b the nominal
+  x[:, 16]), H = -e_2 + e_(n-1), R = height_std², NIS 1 dof; the first finite sample fused
+  ungated (the datum); after ``reset_timeout`` s of rejected samples b = h + p_z with the bias's
+  row and column of P set to the height's (``baro.bias_state_reset``); a GPS height stamped with
+  the latest baro sample feeds only the disagreement check below (the ESKF's own GPS update
+  learns the bias through P);
+- baro, EKF7, z = h - b_hat (m):  h(x) = -p_z,  H = -e_2,  R = height_std²,  NIS 1 dof, then
   P[2, 2] >= P_b (``baro.floored_height_variance``); the first finite sample is not fused: it sets the
   bias against the filter's height (b_meas = h + p_z, variance height_std² + P[2, 2]), as PX4 sets
   its baro offset;
@@ -15,8 +22,9 @@ the ESKF's error state; the tilt-compensated heading as the EKF7's yaw measureme
   latest baro sample) b_meas = h + z_gps, variance height_std² + gps_z_std², gated at the baro's
   gate, and not while the filtered normalised bias innovation (time constant ``gps_check_time``)
   says the GPS height disagrees persistently (``baro.filtered_disagreement``,
-  ``baro.gps_height_disagrees``); after ``reset_timeout`` s of rejected samples b = h + p_z,
-  P_b = height_std² + P[2, 2] (and the filtered disagreement starts again at 0);
+  ``baro.gps_height_disagrees``; the ESKF runs the same check); after ``reset_timeout`` s of
+  rejected samples b = h + p_z, P_b = height_std² + P[2, 2] (and the filtered disagreement starts
+  again at 0);
 - field (ESKF), z = m_B - hard_iron (gauss): h(x) = R_hatᵀ m_N, H = [0 R_hatᵀ[m_N]x 0], R =
   diag(field_std²), NIS 3 dof, the gain zero outside the attitude (``attitude_only``, the default);
 - heading (EKF7), z = atan2(-l_y, l_x) + D with l = Ry(pitch) Rx(roll) (m_B - hard_iron) (rad):
@@ -87,7 +95,8 @@ def _bias_of(x, P, book, i, in_state):
 
 @njit_cached
 def _baro_rows(x, P, baro_samples, gps, book, diagnostics, model, dx, fused):
-    height_var, gps_z_var, walk_std, threshold, reset_timeout, stamp_match, check_time, check_sigma, state = model
+    height_var, gps_z_var, walk_std, threshold, reset_timeout = model[:5]
+    stamp_match, check_time, check_sigma, state = model[5:]
     in_state = state > 0.0
     for i in range(x.shape[0]):
         fused[i] = False

@@ -187,7 +187,8 @@ def _predict_rows(x, P, f_B, w_B, dt, accel_var, gyro_var, isotropic_gyro, Q_con
 def predict(x, P, f_B, w_B, model) -> tuple[np.ndarray, np.ndarray]:
     """(x', P') after one IMU step (``eskf.predict`` per row): nominal step, P' = F P F^T symmetrised + Q.
 
-    x (N, 16 or 17); P (N, n, n), n = 9, 10, 15 or 16; f_B, w_B (N, 3); model: the :class:`Model` (:func:`model`).
+    x (N, 16 or 17); P (N, n, n), n = 9, 10, 15 or 16; f_B, w_B (N, 3); model: the :class:`Model`
+    (:func:`model`).
     """
     x, P = np.array(x, dtype=float), np.array(P, dtype=float)
     m = model
@@ -276,7 +277,8 @@ def correct(x, P, dx, fused) -> None:
 
 
 def inject(x, P, dx) -> tuple[np.ndarray, np.ndarray]:
-    """(x', P'): errors dx (N, n) injected into the nominal x (N, 16 or 17), P reset by G (``eskf.inject``)."""
+    """(x', P'): errors dx (N, n) injected into the nominal x (N, 16 or 17), P reset by G
+    (``eskf.inject``)."""
     x, P = np.array(x, dtype=float), np.array(P, dtype=float)
     correct(x, P, dx, np.ones(x.shape[0], dtype=np.bool_))
     return x, P
