@@ -78,7 +78,8 @@ def test_baro_rows_fuse_as_the_pure_update_and_gate_the_outlier():
 def test_baro_rows_with_the_bias_in_the_state_equal_the_eskf_oracle():
     # the ESKF carries the bias (nominal x[:, 16], its error last in P): every tick of
     # baro_rows, injected, is the dense oracle's update of H = -e_2 + e_last, to 1e-12; the first
-    # finite sample is fused ungated (the datum), an outlier gated, a non-finite sample skipped
+    # finite sample sets the datum (b = h + p_z, the height not moved), an outlier is gated, a
+    # non-finite sample skipped
     rng = np.random.default_rng(5)
     n = 16
     x = np.stack([np.append(nominal(rng), 0.2) for _ in range(N)])
@@ -94,16 +95,21 @@ def test_baro_rows_with_the_bias_in_the_state_equal_the_eskf_oracle():
     x_before, P_before, book_before = x.copy(), P.copy(), book.copy()
     dx, fused = np.zeros((N, n)), np.zeros(N, dtype=bool)
     aiding.baro_rows(x, P, samples, gps, book, diagnostics, model, dx, fused)
-    assert fused.tolist() == [True, True, False, False]
-    np.testing.assert_array_equal(x, x_before)  # the caller injects
-    for i in (0, 1):
-        x_oracle, P_oracle, nis = baro.eskf_baro_update(x_before[i], P_before[i], heights[i], 0.01)
-        x_new, P_new = eskf.inject(x[i], P[i], dx[i])
-        np.testing.assert_allclose(x_new, x_oracle, rtol=0, atol=1e-12)
-        np.testing.assert_allclose(P_new, P_oracle, rtol=0, atol=1e-12)
-        assert diagnostics[i, DIAG["baro_bias_std"]] == pytest.approx(math.sqrt(P[i, n - 1, n - 1]))
+    assert fused.tolist() == [False, True, False, False]
+    # vehicle 0: the datum, 25 m off: the bias takes it, the height stays
+    assert x[0, eskf.BARO_BIAS_NOMINAL] == pytest.approx(25.0, abs=1e-12) and book[0, baro.DATUM_SET] == 1
+    np.testing.assert_array_equal(x[0, :16], x_before[0, :16])
+    np.testing.assert_allclose(P[0], baro.bias_state_reset(P_before[0], 0.01), rtol=0, atol=1e-12)
+    # vehicle 1: fused (the caller injects)
+    np.testing.assert_array_equal(x[1], x_before[1])
+    x_oracle, P_oracle, nis = baro.eskf_baro_update(x_before[1], P_before[1], heights[1], 0.01)
+    x_new, P_new = eskf.inject(x[1], P[1], dx[1])
+    np.testing.assert_allclose(x_new, x_oracle, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(P_new, P_oracle, rtol=0, atol=1e-12)
     assert diagnostics[1, DIAG["baro_nis"]] == pytest.approx(nis, rel=1e-12)
-    assert x_new[eskf.BARO_BIAS_NOMINAL] != 0.2
+    assert x_new[eskf.BARO_BIAS_NOMINAL] != 0.2  # the bias is corrected with the height
+    for i in (0, 1):
+        assert diagnostics[i, DIAG["baro_bias_std"]] == pytest.approx(math.sqrt(P[i, n - 1, n - 1]))
     np.testing.assert_array_equal(book[:, baro.BIAS_VAR], book_before[:, baro.BIAS_VAR])  # not the book's
     np.testing.assert_array_equal(P[2:], P_before[2:])
     assert diagnostics[2, DIAG["nonfinite_samples"]] == 1 and diagnostics[3, DIAG["baro_gated"]] == 1

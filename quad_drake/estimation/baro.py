@@ -21,14 +21,15 @@ updates build: no separate filter, no double counting of the GPS, and the bias e
 every baro sample, is in P with its correlations, so the height's variance is honest without a
 floor. During a GPS outage nothing observes the bias: its variance and the height's grow together.
 
-- the first finite sample sets the datum: it is fused ungated (the prior bias, ``bias_init`` of
-  variance ``bias_init_std^2``, is uninformative), so the bias takes h + p_z and the height
-  barely moves (PX4 sets its baro offset on the first sample too);
+- the first finite sample sets the datum (PX4 sets its baro offset on the first sample too):
+  b = h + p_z against the filter's own height (:func:`bias_reset`), whose error is then
+  dp_z - n: the bias's row and column in P take the height's and its variance P22 +
+  height_std^2 (:func:`bias_state_reset`). The height is not moved: a datum hundreds of metres
+  off (a pressure altitude above sea level) fused as a measurement would drag the height by
+  P22 / S of it. ``bias_init`` and ``bias_init_std`` hold only until then;
 - a baro sample rejected by its gate for ``reset_timeout`` s in a row (a pressure step: weather,
-  a door, a gust on the static port) resets the bias to the sample against the filter's height,
-  b = h + p_z (:func:`bias_reset`), whose error is then dp_z - n: the bias's row and column in P
-  take the height's and its variance P22 + height_std^2 (:func:`bias_state_reset`): the filter
-  keeps its height and takes the baro back with its new offset.
+  a door, a gust on the static port) resets the bias the same way: the filter keeps its height
+  and takes the baro back with its new offset.
 
 **The EKF7: a scalar filter beside the estimator** (PX4's ``EKF/bias_estimator``, one
 ``BiasEstimator`` per height source that is not the reference): a 1-state Kalman filter in the

@@ -9,8 +9,8 @@ axis-by-axis update of the ESKF's error state; the tilt-compensated heading as t
 measurement):
 
 - baro, ESKF (``baro_model(..., bias_in_state=True)``), z = h (m): h(x) = -p_z + b (b the nominal
-  x[:, 16]), H = -e_2 + e_(n-1), R = height_std², NIS 1 dof; the first finite sample fused
-  ungated (the datum); after ``reset_timeout`` s of rejected samples b = h + p_z with the bias's
+  x[:, 16]), H = -e_2 + e_(n-1), R = height_std², NIS 1 dof; the first finite sample (the
+  datum), and any after ``reset_timeout`` s of rejected samples, set b = h + p_z with the bias's
   row and column of P set to the height's (``baro.bias_state_reset``); a GPS height stamped with
   the latest baro sample feeds only the disagreement check below (the ESKF's own GPS update
   learns the bias through P);
@@ -111,10 +111,9 @@ def _baro_rows(x, P, baro_samples, gps, book, diagnostics, model, dx, fused):
             if not (math.isfinite(height) and math.isfinite(stamp)):
                 diagnostics[i, _NONFINITE] += 1.0
             elif book[i, _DATUM_SET] == 0.0:  # the first finite sample sets the datum (module docstring)
-                if in_state:  # the joint update, ungated: the prior bias is uninformative
-                    nu, S = _bias_state_innovation(x[i, 2], x[i, _BARO_NOMINAL], P[i], height, height_var)
-                    dx[i], P[i], _ = _bias_state_correction(P[i], nu, S)
-                    fused[i] = True
+                if in_state:  # b = h + p_z, correlated with the height (the filter's height kept)
+                    x[i, _BARO_NOMINAL] = _bias_reset(height, x[i, 2], height_var, P[i, 2, 2])[0]
+                    P[i] = _bias_state_reset(P[i], height_var)
                 else:
                     book[i, _BIAS], book[i, _BIAS_VAR] = _bias_update(
                         book[i, _BIAS], book[i, _BIAS_VAR], height + x[i, 2], height_var + P[i, 2, 2]

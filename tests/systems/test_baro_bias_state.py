@@ -6,8 +6,9 @@ IMU, GPS and barometer samples drawn from the noise the filter assumes, and each
 own bias (a random walk of the assumed rate from a random datum); the GPS is out for the last
 4 s. Over the vehicles and the sampled times, the mean e^2/P of the height (Z) and the vertical
 velocity (VZ) must be that of a consistent filter. The scalar bias filter beside the ESKF with
-its height-variance floor (the model before the bias became a state) gave, in this test, Z 1.5
-and VZ 0.69 on the pinned seed (and over seeds 1-20: Z 1.28-1.96, VZ 0.66-0.74).
+its height-variance floor (the model before the bias became a state) gave, in this test, Z 1.49
+on the pinned seed (seeds 1-3: 1.40-1.61): over-confident; its VZ, 0.92-1.04, passed (in a hover
+the floor's dilution of the vertical velocity, which 23's flights show, does not).
 """
 
 import numpy as np
