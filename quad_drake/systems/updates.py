@@ -197,14 +197,14 @@ class BaroUpdate(CorrectionUpdate):
 
     def withholds_gps_height(self, discrete_state, n) -> np.ndarray:
         """(n,) bool: the vehicles whose GPS height disagrees persistently with their barometer
-        (``baro.gps_height_disagrees`` of the book's filtered disagreement; all False with the
+        (``baro.gps_height_disagrees`` of the book's accumulated evidence; all False with the
         check off): their GPS height feeds neither the bias nor the filter's height."""
         p = self._params
-        if p.gps_check_time <= 0.0 or p.gate_sigma <= 0.0:
+        if p.gps_check_offset <= 0.0:
             return np.zeros(n, dtype=bool)
         book = discrete_state.get_value(self._book).reshape(n, baro.BARO_BOOK_SIZE)
-        ratio, ratio_var = book[:, baro.DISAGREEMENT], book[:, baro.DISAGREEMENT_VAR]
-        return baro.gps_height_disagrees(ratio, ratio_var, p.gate_sigma)
+        high, low = book[:, baro.EVIDENCE_HIGH], book[:, baro.EVIDENCE_LOW]
+        return baro.gps_height_disagrees(high, low, p.gps_check_threshold)
 
     def fuse(self, context, discrete_state, filters, samples) -> None:
         f, dx = filters, self._dx
