@@ -241,7 +241,7 @@ class GsfUpdate(Update):
         """Declare the book and the log groups (no input port: the GPS update declares ``gps``)."""
         models = self._model.models
         self._book = discrete_group(system, np.tile(self._kernel.initial_book(models), n))
-        self.log = discrete_group(system, np.tile(gsf_log(self._kernel.initial_book(models), models), n))
+        self.log = discrete_group(system, np.tile(self._kernel.log_rows(self._kernel.initial_book(models), models), n))
         self._blocked = np.zeros(n, dtype=bool)
 
     def fuse(self, context, discrete_state, filters, samples) -> None:
@@ -250,26 +250,12 @@ class GsfUpdate(Update):
         gps = samples.get("gps")
         if gps is None:
             return
-        kernel.tick(filters, book, samples["imu"], gps, context.get_time(), self._model, self._blocked)
-        discrete_state.get_mutable_value(self.log)[:] = gsf_log(book, self._model.models).ravel()
+        log = discrete_state.get_mutable_value(self.log).reshape(n, -1)
+        kernel.tick(filters, book, log, samples["imu"], gps, context.get_time(), self._model, self._blocked)
         if self._blocked.any() and "mag" in samples:
             mag = samples["mag"].copy()
             mag[self._blocked, -1] = NO_SAMPLE_STAMP
             samples["mag"] = mag
-
-
-def gsf_log(book, models) -> np.ndarray:
-    """The GSF log rows (..., ``vocabulary.gsf_log_size(models)``) of GSF books (..., book size):
-    the Gaussian-sum yaw (rad), its std (rad), the resets so far and the M weights."""
-    from quad_drake.kernels import gsf as gsf_kernel
-
-    book = np.asarray(book, dtype=float)
-    head = np.stack(
-        (book[..., gsf_kernel.YAW], np.sqrt(book[..., gsf_kernel.YAW_VAR]), book[..., gsf_kernel.RESETS]),
-        axis=-1,
-    )
-    weights = book[..., gsf_kernel.HEADER + 12 * models : gsf_kernel.HEADER + 13 * models]
-    return np.concatenate((head, weights), axis=-1)
 
 
 def build_updates(declared, sensors, builders) -> tuple:
