@@ -96,7 +96,9 @@ def _gps_height_check(book, i, innovation, innovation_var, offset, threshold):
 
 @njit_cached
 def _baro_rows(x, P, baro_samples, gps, book, diagnostics, model, dx, fused):
-    height_var, gps_z_var, walk_std, threshold, reset_timeout, stamp_match, check_offset, check_threshold = model
+    height_var, gps_z_var, walk_std, threshold, reset_timeout, stamp_match, check_offset, check_threshold = (
+        model
+    )
     for i in range(x.shape[0]):
         fused[i] = False
         stamp = baro_samples[i, 1]

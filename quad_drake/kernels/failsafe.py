@@ -16,7 +16,9 @@ _step_compiled = compiled(failsafe.failsafe_step)
 
 
 @njit_cached
-def failsafe_steps(memory, t, dt, diagnostics, gps_columns, estimate, reference, params, command, status) -> None:
+def failsafe_steps(
+    memory, t, dt, diagnostics, gps_columns, estimate, reference, params, command, status
+) -> None:
     """:func:`~quad_drake.control.failsafe.failsafe_step` of N vehicles IN PLACE.
 
     memory (N, MEMORY_SIZE): replaced by the new memory; t, dt s (floats); diagnostics (N, k): the
@@ -39,8 +41,10 @@ def failsafe_steps(memory, t, dt, diagnostics, gps_columns, estimate, reference,
             reference[i, 0], reference[i, 1], reference[i, 2], reference[i, 3], reference[i, 4],
             reference[i, 5], reference[i, 6], reference[i, 7], reference[i, 8], reference[i, 9],
         )  # fmt: skip
-        stamp, gated, resets = diagnostics[i, stamp_column], diagnostics[i, gated_column], diagnostics[i, resets_column]
-        new, out, flags = _step_compiled(m, t, dt, stamp, gated, resets, x, ref, config)
+        stamp, gated = diagnostics[i, stamp_column], diagnostics[i, gated_column]
+        new, out, flags = _step_compiled(
+            m, t, dt, stamp, gated, diagnostics[i, resets_column], x, ref, config
+        )
         for k in range(8):
             memory[i, k] = new[k]
         for k in range(10):

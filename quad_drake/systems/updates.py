@@ -240,8 +240,9 @@ class GsfUpdate(Update):
     def declare(self, system, n, k) -> None:
         """Declare the book and the log groups (no input port: the GPS update declares ``gps``)."""
         models = self._model.models
-        self._book = discrete_group(system, np.tile(self._kernel.initial_book(models), n))
-        self.log = discrete_group(system, np.tile(self._kernel.log_rows(self._kernel.initial_book(models), models), n))
+        book = self._kernel.initial_book(models)
+        self._book = discrete_group(system, np.tile(book, n))
+        self.log = discrete_group(system, np.tile(self._kernel.log_rows(book, models), n))
         self._blocked = np.zeros(n, dtype=bool)
 
     def fuse(self, context, discrete_state, filters, samples) -> None:
