@@ -242,7 +242,7 @@ class GsfUpdate(Update):
         models = self._model.models
         book = self._kernel.initial_book(models)
         self._book = discrete_group(system, np.tile(book, n))
-        self.log = discrete_group(system, np.tile(self._kernel.log_rows(book, models), n))
+        self.log = discrete_group(system, np.tile(self._kernel.log_rows(book, models).ravel(), n))
         self._blocked = np.zeros(n, dtype=bool)
 
     def fuse(self, context, discrete_state, filters, samples) -> None:
