@@ -39,15 +39,15 @@ each sample before fusion. Here the GPS height is the reference:
   no bias change but a GPS error (multipath, a wrong datum), and a bias that followed it would
   take the baro-held height, and the vehicle 1 m above the floor, 3 m down with it. Single
   samples cannot show it to a gate (the GPS height's 2 m noise puts 3 m inside any per-sample
-  gate); their accumulated evidence does, in about 1.4 s for 3 m (a 5 s low-pass filtered mean of
+  gate); their accumulated evidence does, in 0.9-2.7 s for 3 m (a 5 s low-pass filtered mean of
   the normalised innovations, the earlier check, needed about 2 s and kept what the bias had
   learnt meanwhile). A side's sum is capped at twice the threshold, so a GPS height that comes
   right again is trusted again within a few seconds. While it disagrees the filter does not fuse
   the GPS height either, nor reset to it (``fusion.fuse_gps``): the barometer holds the height.
   PX4 makes the same choice with the barometer as its height reference (``EKF2_HGT_REF``, the GNSS
   height's offset then learnt by its own bias estimator), ArduPilot by taking its height from the
-  barometer (``EK3_SRC1_POSZ``) and correcting its origin's height with GNSS heights through a 5σ
-  innovation gate only. A baro bias reset (below) starts both sums again at 0.
+  barometer (``EK3_SRC1_POSZ``) and correcting its origin's height with GNSS heights through a
+  per-sample innovation gate only. A baro bias reset (below) starts both sums again at 0.
 
 The bias error e_b = b - b_hat is common to every sample: fused one by one as independent, the
 samples would shrink P[2, 2] far below P_b (the dropped cross-covariance of b_hat and the
