@@ -238,10 +238,11 @@ def test_a_disturbed_field_the_widened_gate_accepts_moves_only_the_attitude(atti
 
 
 def _learnt_bias_under_a_gps_height_step(seed, params, step=-3.0, seconds=60.0):
-    """(bias m, filtered disagreement) of the baro bias filter (``aiding.baro_rows``) after `seconds`
-    s of a barometer reading the true 1 m height (0.1 m noise, 50 Hz) and a GPS height (2 m noise,
-    10 Hz) offset by `step` m (NED) from 5 s on. The filter's height takes the baro corrections and
-    its variance grows by 1e-4 m² between samples (a stand-in for its prediction)."""
+    """(bias m, book) of the baro bias filter (``aiding.baro_rows``) after `seconds` s of a
+    barometer reading the true 1 m height (0.1 m noise, 50 Hz) and a GPS height (2 m noise, 10 Hz)
+    offset by `step` m (NED) from 5 s on, and the first time (s) the check disagreed (NaN: never).
+    The filter's height takes the baro corrections and its variance grows by 1e-4 m² between
+    samples (a stand-in for its prediction)."""
     rng = np.random.default_rng(seed)
     x, P = np.zeros((1, 16)), np.eye(9)[None] * 0.01
     x[0, 2] = -1.0
@@ -249,6 +250,7 @@ def _learnt_bias_under_a_gps_height_step(seed, params, step=-3.0, seconds=60.0):
     model = aiding.baro_model(params, 2.0, gating.gate_threshold(1, params.gate_sigma), 0.02)
     dx, fused = np.zeros((1, 9)), np.zeros(1, dtype=bool)
     gps = np.full((1, 7), -1.0)
+    caught = math.nan
     for k in range(1, round(seconds / 0.02) + 1):
         stamp = 0.02 * k
         if k % 5 == 0:
@@ -259,36 +261,40 @@ def _learnt_bias_under_a_gps_height_step(seed, params, step=-3.0, seconds=60.0):
         aiding.baro_rows(x, P, sample, gps, book, diagnostics, model, dx, fused)
         if fused[0]:
             x[0, 2] += dx[0, 2]
-    return book[0, baro.BIAS], book[0, baro.DISAGREEMENT], book[0, baro.DISAGREEMENT_VAR]
+        disagrees = baro.gps_height_disagrees(
+            book[0, baro.EVIDENCE_HIGH], book[0, baro.EVIDENCE_LOW], params.gps_check_threshold
+        )
+        if disagrees and math.isnan(caught):
+            caught = stamp
+    return book[0, baro.BIAS], book[0], caught
 
 
 def test_a_gps_height_that_disagrees_with_the_barometer_does_not_feed_the_bias():
-    # the filtered disagreement catches a 3 m GPS height error within seconds: the bias (truly 0)
-    # stays near where the barometer and the GPS agreed; without the check it follows the GPS error
-    # and takes the baro-held height with it (seed 3 pinned; over seeds 0-19: |bias| <= 0.42 m and
-    # disagreement <= -1.19 checked, bias <= -2.0 m unchecked, |bias| <= 0.18 m without the step)
+    # the accumulated evidence catches a 3 m GPS height error within seconds and restores the bias
+    # (truly 0) it had before; without the check the bias follows the GPS error and takes the
+    # baro-held height with it (seed 0 pinned; over seeds 1-20: caught after 0.9-2.7 s, |bias|
+    # <= 0.22 m checked, bias <= -2.0 m unchecked, |bias| <= 0.18 m and never caught without the
+    # step; the earlier filtered-mean check left |bias| up to 0.42 m)
     checked = baro.BaroFusionParams()
-    bias, ratio, _ = _learnt_bias_under_a_gps_height_step(3, checked)
-    assert abs(bias) < 0.5 and ratio < -1.0  # the GPS reads high: the disagreement is negative
-    unchecked = baro.BaroFusionParams(gps_check_time=0.0)
-    assert _learnt_bias_under_a_gps_height_step(3, unchecked)[0] < -1.5
-    # a consistent GPS height keeps feeding it: the disagreement stays inside its spread
-    bias, ratio, ratio_var = _learnt_bias_under_a_gps_height_step(3, checked, step=0.0)
-    assert abs(bias) < 0.2 and not baro.gps_height_disagrees(ratio, ratio_var, 5.0)
+    bias, book, caught = _learnt_bias_under_a_gps_height_step(0, checked)
+    assert abs(bias) < 0.3 and 5.0 < caught < 8.0
+    assert book[baro.EVIDENCE_LOW] > checked.gps_check_threshold  # the GPS reads high: low innovations
+    unchecked = baro.BaroFusionParams(gps_check_offset=0.0)
+    assert _learnt_bias_under_a_gps_height_step(0, unchecked)[0] < -1.5
+    # a consistent GPS height keeps feeding it and is never taken for a wrong one
+    bias, book, caught = _learnt_bias_under_a_gps_height_step(0, checked, step=0.0)
+    assert abs(bias) < 0.2 and math.isnan(caught)
 
 
-def test_the_filtered_disagreement_has_the_spread_it_assumes():
-    # white unit innovations at 10 Hz, after a 10 s gap (an outage) and in steady state
+def test_the_evidence_is_pages_cusum_of_the_offset_log_likelihood():
+    # under a consistent GPS each log-likelihood ratio has the mean -d²/2 and the spread d
+    # (d = offset / sigma); the evidence restarts at 0 below and stops at its cap above
     rng = np.random.default_rng(0)
-    ratios = np.zeros(20000)
-    for run in range(ratios.size):
-        ratio, ratio_var = baro.filtered_disagreement(0.0, 0.0, rng.normal(0.0, 2.0), 4.0, 10.0, 5.0)
-        ratios[run] = ratio
-    assert np.std(ratios) == pytest.approx(math.sqrt(ratio_var), rel=0.05)
-    ratio, ratio_var, values = 0.0, 0.0, []
-    for innovation in rng.normal(0.0, 2.0, 40000):
-        ratio, ratio_var = baro.filtered_disagreement(ratio, ratio_var, innovation, 4.0, 0.1, 5.0)
-        values.append(ratio)
-    weight = 1.0 - math.exp(-0.1 / 5.0)
-    assert ratio_var == pytest.approx(weight / (2.0 - weight), rel=1e-9)
-    assert np.std(values[1000:]) == pytest.approx(math.sqrt(ratio_var), rel=0.1)
+    ratios = baro.offset_log_likelihood(rng.normal(0.0, 2.0, 200000), 4.0, 2.0)
+    assert np.mean(ratios) == pytest.approx(-0.5, abs=0.01) and np.std(ratios) == pytest.approx(1.0, rel=0.01)
+    assert baro.offset_log_likelihood(3.0, 4.0, 2.0) == pytest.approx((6.0 - 2.0) / 4.0, rel=1e-12)
+    assert baro.accumulated_evidence(0.5, -1.0, 28.0) == 0.0
+    assert baro.accumulated_evidence(27.5, 1.0, 28.0) == 28.0
+    assert baro.accumulated_evidence(3.0, 1.5, 28.0) == 4.5
+    assert baro.gps_height_disagrees(14.5, 0.0, 14.0) and baro.gps_height_disagrees(0.0, 14.5, 14.0)
+    assert not baro.gps_height_disagrees(14.0, 13.0, 14.0)
