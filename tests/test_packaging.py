@@ -419,8 +419,14 @@ def test_make_run_installs_only_what_running_needs_and_make_test_runs_in_paralle
     assert run.returncode == 0, run.stderr
     assert "pip install -q -e .\n" in run.stdout and "[test]" not in run.stdout
     test = subprocess.run(["make", "-n", "test", f"VENV={venv}"], cwd=REPO, capture_output=True, text=True)
-    workers = "auto" if len(os.sched_getaffinity(0)) >= 4 else "0"  # as nproc: serial below 4 cores
+    cores = len(os.sched_getaffinity(0))  # as nproc: a worker per core from 4, two on 2 or 3, serial on 1
+    workers = "auto" if cores >= 4 else "2" if cores >= 2 else "0"
     assert "pip install -q -e '.[test]'" in test.stdout and f"pytest -n {workers}" in test.stdout
+    assert ("quad-drake warmup" in test.stdout) == (workers != "0")  # kernels compiled once, not per worker
     forced = ["make", "-n", "test", f"VENV={venv}", "TEST_JOBS=3"]
-    assert "pytest -n 3" in subprocess.run(forced, cwd=REPO, capture_output=True, text=True).stdout
+    forced = subprocess.run(forced, cwd=REPO, capture_output=True, text=True).stdout
+    assert "quad-drake warmup >/dev/null && " in forced and "pytest -n 3" in forced
+    serial = ["make", "-n", "test", f"VENV={venv}", "TEST_JOBS=0"]
+    serial = subprocess.run(serial, cwd=REPO, capture_output=True, text=True).stdout
+    assert "pytest -n 0" in serial and "warmup" not in serial
     assert "pytest-xdist" in (REPO / "pyproject.toml").read_text()
