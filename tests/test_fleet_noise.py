@@ -15,7 +15,9 @@ lag-1 autocorrelation and the correlations between channels (z of the difference
 fleet the vehicles' increments must be uncorrelated. Each noise term is tested alone (the others
 set to zero), so a wrong sigma of any one term changes its channel's increments by its full
 ratio: a 1.3x sigma in one sensor of the fleet path fails the variance test at p = 6e-50
-(planted in ``Magnetometer._sample`` for n > 1, 2026-12-06; it held at 20 other seeds).
+(planted in ``Magnetometer._sample`` for n > 1, 2026-12-06), and two vehicles drawing one stream
+fail the independence test (correlation 1.0 against a standard error below 0.1). Both tests
+pass at 20 other seeds (1-20, the fleet's from 100 times the seed).
 
 One end-to-end campaign pair (tests/test_fleet_equivalence.py) checks the wiring of whole
 vehicles (estimator, magnetometer and GPS) on top.
@@ -38,7 +40,7 @@ from quad_drake.systems.wind import Wind
 SEED = 7100  # per-vehicle seed; the fleet flies run seeds SEED .. SEED + FLEET - 1
 SAMPLES = 4000  # per path and channel
 FLEET = 20
-MIN_P_VALUE = 1e-4  # per test; about 150 tests, so a false alarm is below 2 %
+MIN_P_VALUE = 1e-4  # per test; 68 of them (34 channels, 2 tests each): a false alarm below 1 %
 MAX_Z = 4.5  # lag and cross correlations: |difference| / its standard error
 MAX_INDEPENDENT_SE = 6.0  # two vehicles' correlation / its standard error (190 pairs)
 
