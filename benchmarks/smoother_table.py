@@ -26,7 +26,8 @@ import numpy as np
 from scipy.stats import bootstrap
 from tqdm import tqdm
 
-from quad_drake.flightlogs.recording import errors_against, smooth_run
+from quad_drake.estimation.vocabulary import nominal_errors
+from quad_drake.flightlogs.recording import smooth_run
 from quad_drake.judging.consistency import chi2_band, per_dof_interval
 from quad_drake.running import catalog
 
@@ -56,12 +57,12 @@ def one_run(scenario, directory):
         ("filter", run.filtered.P_updated, run.filtered.x_updated),
         ("smoother", run.smoothed.P, run.smoothed.x),
     ):
-        e = errors_against(x, run.truth, n)
+        e = nominal_errors(x, run.truth, n)
         groups = {g: s for g, s in GROUPS.items() if s.stop <= n}
         out[name] = {
             "sq": {g: np.sum(e[:, s] ** 2, axis=1) for g, s in groups.items()},
             "var": {g: np.trace(P[:, s, s], axis1=1, axis2=2) for g, s in groups.items()},
-            "axes": (np.mean(e[:, 0:3] ** 2, axis=0), np.mean(np.diagonal(P, axis1=1, axis2=2)[:, 0:3], axis=0)),
+            "axes": (np.mean(e[:, 0:3] ** 2, axis=0), np.mean(np.diagonal(P, axis1=1, axis2=2), axis=0)[0:3]),
             "nees": {g: nees(e, P, s) for g, s in groups.items()} | {"all": nees(e, P, slice(0, n))},
         }
     return out, n
