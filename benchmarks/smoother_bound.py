@@ -174,7 +174,13 @@ def main():
             f"| {mid_ratio:.3f}, {np.sqrt(mid_var[1] / mid_var[0]):.3f} |"
         )
     print(f"\n3. the ESKF run itself (smooth_eskf), position σ ratio over {scenario.end_time:g} s:")
-    for name, ticks in (("the whole flight", slice(None)), ("its middle third", middle)):
+    edge = int(round(2.0 / ONBOARD_PERIOD))
+    for name, ticks in (
+        ("the whole flight", slice(None)),
+        ("its middle third", middle),
+        ("its first 2 s", slice(0, edge)),
+        ("its last 2 s", slice(steps - edge, steps)),
+    ):
         var_f = np.diagonal(run.filtered.P_updated[ticks], axis1=1, axis2=2)[:, 0:3].mean(axis=0)
         var_s = np.diagonal(run.smoothed.P[ticks], axis1=1, axis2=2)[:, 0:3].mean(axis=0)
         print(
