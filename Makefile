@@ -8,10 +8,10 @@ PYTHON ?= $(shell for v in 3.13 3.12; do \
 VENV ?= .venv
 BIN := $(VENV)/bin
 
-# Tests run in parallel (pytest-xdist) on machines with 4 cores or more; on fewer the campaign
-# tests' own process pools already fill the cores and xdist measured slower (README "Tests"),
-# so they run serially. `make test TEST_JOBS=N` chooses.
-TEST_JOBS ?= $(shell n=$$(nproc 2>/dev/null || echo 1); [ $$n -ge 4 ] && echo auto || echo 0)
+# Tests run in parallel (pytest-xdist): one worker per core on 4 cores or more, two on 2 or 3
+# (the same CPU as serial, measured paired, so about half the wall time on an idle machine;
+# docs/measurements/test_times.md), serially on one. `make test TEST_JOBS=N` chooses.
+TEST_JOBS ?= $(shell n=$$(nproc 2>/dev/null || echo 1); [ $$n -ge 4 ] && echo auto || { [ $$n -ge 2 ] && echo 2 || echo 0; })
 
 .PHONY: run test lint bench docs clean
 
@@ -43,8 +43,11 @@ lint: $(VENV)/.installed-test
 	$(BIN)/python -m ruff check .
 	$(BIN)/python -m ruff format --check .
 
+# With workers, numba's kernels are compiled once first (`quad-drake warmup`, about 6 s of CPU
+# when they are already in the cache): on an empty cache each worker would compile every kernel
+# it is the first to use, twice the compiling.
 test: lint
-	$(BIN)/python -m pytest -n $(TEST_JOBS)
+	$(if $(filter 0,$(TEST_JOBS)),,$(BIN)/quad-drake warmup >/dev/null && )$(BIN)/python -m pytest -n $(TEST_JOBS)
 
 # The manual into docs/_build/html, every warning an error (a broken link or anchor, a notebook
 # cell that raises); notebooks execute in their quick mode, kept in docs/_build/notebooks until

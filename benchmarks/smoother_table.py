@@ -5,7 +5,9 @@ replayed through the same ESKF tick by tick (its estimate checked equal to the r
 smoothed (``flightlogs.smoothing.smooth_run``) and both passes compared with the truth at every
 2 ms tick. Prints a markdown table, one row per state group (position, velocity, attitude, the
 IMU biases when estimated): the RMSE over all runs and ticks of the filter and of the smoother,
-their ratio with a 95 % bootstrap interval over runs, and each pass's NEES per dof: the mean
+their ratio with a 95 % bootstrap interval over runs, the ratio the filter's own model predicts
+for it (σ ratio: the square root of the smoother's mean error variance, the trace of its P block
+over runs and ticks, over the filter's), and each pass's NEES per dof: the mean
 over runs of each run's time-mean (``consistency.per_dof_interval``: Student's t interval over
 runs) against the 95 % chi² interval of a mean of `runs` NEES values per tick
 (``consistency.chi2_band``) and the share of ticks whose ensemble mean lies inside that band.
@@ -24,7 +26,8 @@ import numpy as np
 from scipy.stats import bootstrap
 from tqdm import tqdm
 
-from quad_drake.flightlogs.recording import errors_against, smooth_run
+from quad_drake.estimation.vocabulary import nominal_errors
+from quad_drake.flightlogs.recording import smooth_run
 from quad_drake.judging.consistency import chi2_band, per_dof_interval
 from quad_drake.running import catalog
 
@@ -54,10 +57,12 @@ def one_run(scenario, directory):
         ("filter", run.filtered.P_updated, run.filtered.x_updated),
         ("smoother", run.smoothed.P, run.smoothed.x),
     ):
-        e = errors_against(x, run.truth, n)
+        e = nominal_errors(x, run.truth, n)
         groups = {g: s for g, s in GROUPS.items() if s.stop <= n}
         out[name] = {
             "sq": {g: np.sum(e[:, s] ** 2, axis=1) for g, s in groups.items()},
+            "var": {g: np.trace(P[:, s, s], axis1=1, axis2=2) for g, s in groups.items()},
+            "axes": (np.mean(e[:, 0:3] ** 2, axis=0), np.mean(np.diagonal(P, axis1=1, axis2=2), axis=0)[0:3]),
             "nees": {g: nees(e, P, s) for g, s in groups.items()} | {"all": nees(e, P, slice(0, n))},
         }
     return out, n
@@ -98,11 +103,11 @@ def main():
         f"{n} dof {per_dof_band(n, len(runs))[0]:.3f}-{per_dof_band(n, len(runs))[1]:.3f}\n"
     )
     print(
-        "| state | RMSE filter | RMSE smoother | ratio [95 % CI] | NEES/dof filter [95 % CI] "
-        "| NEES/dof smoother [95 % CI] "
+        "| state | RMSE filter | RMSE smoother | ratio [95 % CI] | σ ratio of the model "
+        "| NEES/dof filter [95 % CI] | NEES/dof smoother [95 % CI] "
         "| ticks in χ² band filter / smoother |"
     )
-    print("|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|")
     for group in [*groups, "all"]:
         dof = n if group == "all" else 3
         cells = []
@@ -118,14 +123,16 @@ def main():
                 vectorized=True,
             ).confidence_interval
             ratio = rmse["smoother"] / rmse["filter"]
+            var = {p: np.mean([r[p]["var"][group][:length] for r in runs]) for p in ("filter", "smoother")}
             unit = UNITS[group]
             cells += [
                 f"{rmse['filter']:.4g} {unit}",
                 f"{rmse['smoother']:.4g} {unit}",
                 f"{ratio:.3f} [{ci.low:.3f}, {ci.high:.3f}]",
+                f"{np.sqrt(var['smoother'] / var['filter']):.3f}",
             ]
         else:
-            cells += ["", "", ""]
+            cells += ["", "", "", ""]
         low, high = per_dof_band(dof, len(runs))
         shares = []
         for p in ("filter", "smoother"):
@@ -136,6 +143,16 @@ def main():
             shares.append(f"{100 * np.mean((ensemble >= low) & (ensemble <= high)):.0f} %")
         cells.append(" / ".join(shares))
         print(f"| {group if group != 'all' else f'all {n} (NEES)'} | " + " | ".join(cells) + " |")
+
+    axes = {p: np.mean([r[p]["axes"] for r in runs], axis=0) for p in ("filter", "smoother")}
+    rmse_ratio = np.sqrt(axes["smoother"][0] / axes["filter"][0])
+    sigma_ratio = np.sqrt(axes["smoother"][1] / axes["filter"][1])
+    print(
+        f"\nposition per axis N, E, D: RMSE ratio {np.array2string(rmse_ratio, precision=3)}, "
+        f"σ ratio of the model {np.array2string(sigma_ratio, precision=3)}; σ filter "
+        f"{np.array2string(np.sqrt(axes['filter'][1]), precision=4)} m, σ smoother "
+        f"{np.array2string(np.sqrt(axes['smoother'][1]), precision=4)} m"
+    )
 
 
 if __name__ == "__main__":

@@ -133,14 +133,16 @@ def test_a_bias_state_reset_takes_the_height_and_the_gps_feeds_only_the_check():
     assert x[0, eskf.BARO_BIAS_NOMINAL] == pytest.approx(5.2, abs=1e-12)  # b = h + p_z
     np.testing.assert_array_equal(P[0, 9, :9], P[0, 2, :9])
     assert P[0, 9, 9] == pytest.approx(1e-4 + 0.01)
-    # a GPS height stamped with the baro sample: the disagreement is filtered, the bias is not fed
+    # a GPS height stamped with the baro sample: it feeds the check alone, the bias is not fed
     book[0, baro.GPS_STAMP] = 0.02
     gps = np.array([[0.0, 0.0, -1.5, 0.0, 0.0, 0.0, 0.14]])
     aiding.baro_rows(x, P, np.array([[6.2, 0.14]]), gps, book, diagnostics, model, dx, fused)
     assert fused[0]  # the baro sample (the bias reset made it agree again)
     np.testing.assert_array_equal(dx[0], 0.0)  # a zero innovation; the GPS height feeds no bias here
     assert book[0, baro.BIAS] == PARAMS.bias_init and book[0, baro.GPS_STAMP] == 0.14
-    assert book[0, baro.DISAGREEMENT] != 0.0  # ... and the check still filters its disagreement
+    # ... the check takes the bias state's innovation (here 0: no evidence), and books no bias to restore
+    assert book[0, baro.EVIDENCE_HIGH] == book[0, baro.EVIDENCE_LOW] == 0.0
+    assert book[0, baro.RUN_BIAS_HIGH] == book[0, baro.RUN_BIAS_LOW] == 0.0
 
 
 def test_the_first_baro_sample_sets_the_datum_and_a_step_past_the_timeout_resets_the_bias():
@@ -305,10 +307,11 @@ def test_a_disturbed_field_the_widened_gate_accepts_moves_only_the_attitude(atti
 
 
 def _learnt_bias_under_a_gps_height_step(seed, params, step=-3.0, seconds=60.0):
-    """(bias m, filtered disagreement) of the baro bias filter (``aiding.baro_rows``) after `seconds`
-    s of a barometer reading the true 1 m height (0.1 m noise, 50 Hz) and a GPS height (2 m noise,
-    10 Hz) offset by `step` m (NED) from 5 s on. The filter's height takes the baro corrections and
-    its variance grows by 1e-4 m² between samples (a stand-in for its prediction)."""
+    """(bias m, book) of the baro bias filter (``aiding.baro_rows``) after `seconds` s of a
+    barometer reading the true 1 m height (0.1 m noise, 50 Hz) and a GPS height (2 m noise, 10 Hz)
+    offset by `step` m (NED) from 5 s on, and the first time (s) the check disagreed (NaN: never).
+    The filter's height takes the baro corrections and its variance grows by 1e-4 m² between
+    samples (a stand-in for its prediction)."""
     rng = np.random.default_rng(seed)
     x, P = np.zeros((1, 16)), np.eye(9)[None] * 0.01
     x[0, 2] = -1.0
@@ -316,6 +319,7 @@ def _learnt_bias_under_a_gps_height_step(seed, params, step=-3.0, seconds=60.0):
     model = aiding.baro_model(params, 2.0, gating.gate_threshold(1, params.gate_sigma), 0.02)
     dx, fused = np.zeros((1, 9)), np.zeros(1, dtype=bool)
     gps = np.full((1, 7), -1.0)
+    caught = math.nan
     for k in range(1, round(seconds / 0.02) + 1):
         stamp = 0.02 * k
         if k % 5 == 0:
@@ -326,36 +330,67 @@ def _learnt_bias_under_a_gps_height_step(seed, params, step=-3.0, seconds=60.0):
         aiding.baro_rows(x, P, sample, gps, book, diagnostics, model, dx, fused)
         if fused[0]:
             x[0, 2] += dx[0, 2]
-    return book[0, baro.BIAS], book[0, baro.DISAGREEMENT], book[0, baro.DISAGREEMENT_VAR]
+        disagrees = baro.gps_height_disagrees(
+            book[0, baro.EVIDENCE_HIGH], book[0, baro.EVIDENCE_LOW], params.gps_check_threshold
+        )
+        if disagrees and math.isnan(caught):
+            caught = stamp
+    return book[0, baro.BIAS], book[0], caught
 
 
 def test_a_gps_height_that_disagrees_with_the_barometer_does_not_feed_the_bias():
-    # the filtered disagreement catches a 3 m GPS height error within seconds: the bias (truly 0)
-    # stays near where the barometer and the GPS agreed; without the check it follows the GPS error
-    # and takes the baro-held height with it (seed 3 pinned; over seeds 0-19: |bias| <= 0.42 m and
-    # disagreement <= -1.19 checked, bias <= -2.0 m unchecked, |bias| <= 0.18 m without the step)
+    # the accumulated evidence catches a 3 m GPS height error within seconds and restores the bias
+    # (truly 0) it had before; without the check the bias follows the GPS error and takes the
+    # baro-held height with it (seed 0 pinned; over seeds 1-20: caught after 0.9-2.7 s, |bias|
+    # <= 0.22 m checked, bias <= -2.0 m unchecked, |bias| <= 0.18 m and never caught without the
+    # step; the earlier filtered-mean check left |bias| up to 0.42 m)
     checked = baro.BaroFusionParams()
-    bias, ratio, _ = _learnt_bias_under_a_gps_height_step(3, checked)
-    assert abs(bias) < 0.5 and ratio < -1.0  # the GPS reads high: the disagreement is negative
-    unchecked = baro.BaroFusionParams(gps_check_time=0.0)
-    assert _learnt_bias_under_a_gps_height_step(3, unchecked)[0] < -1.5
-    # a consistent GPS height keeps feeding it: the disagreement stays inside its spread
-    bias, ratio, ratio_var = _learnt_bias_under_a_gps_height_step(3, checked, step=0.0)
-    assert abs(bias) < 0.2 and not baro.gps_height_disagrees(ratio, ratio_var, 5.0)
+    bias, book, caught = _learnt_bias_under_a_gps_height_step(0, checked)
+    assert abs(bias) < 0.3 and 5.0 < caught < 8.0
+    assert book[baro.EVIDENCE_LOW] > checked.gps_check_threshold  # the GPS reads high: low innovations
+    unchecked = baro.BaroFusionParams(gps_check_offset=0.0)
+    assert _learnt_bias_under_a_gps_height_step(0, unchecked)[0] < -1.5
+    # a consistent GPS height keeps feeding it and is never taken for a wrong one
+    bias, book, caught = _learnt_bias_under_a_gps_height_step(0, checked, step=0.0)
+    assert abs(bias) < 0.2 and math.isnan(caught)
 
 
-def test_the_filtered_disagreement_has_the_spread_it_assumes():
-    # white unit innovations at 10 Hz, after a 10 s gap (an outage) and in steady state
+def test_the_evidence_is_pages_cusum_of_the_offset_log_likelihood():
+    # under a consistent GPS each log-likelihood ratio has the mean -d²/2 and the spread d
+    # (d = offset / sigma); the evidence restarts at 0 below and stops at its cap above
     rng = np.random.default_rng(0)
-    ratios = np.zeros(20000)
-    for run in range(ratios.size):
-        ratio, ratio_var = baro.filtered_disagreement(0.0, 0.0, rng.normal(0.0, 2.0), 4.0, 10.0, 5.0)
-        ratios[run] = ratio
-    assert np.std(ratios) == pytest.approx(math.sqrt(ratio_var), rel=0.05)
-    ratio, ratio_var, values = 0.0, 0.0, []
-    for innovation in rng.normal(0.0, 2.0, 40000):
-        ratio, ratio_var = baro.filtered_disagreement(ratio, ratio_var, innovation, 4.0, 0.1, 5.0)
-        values.append(ratio)
-    weight = 1.0 - math.exp(-0.1 / 5.0)
-    assert ratio_var == pytest.approx(weight / (2.0 - weight), rel=1e-9)
-    assert np.std(values[1000:]) == pytest.approx(math.sqrt(ratio_var), rel=0.1)
+    ratios = baro.offset_log_likelihood(rng.normal(0.0, 2.0, 200000), 4.0, 2.0)
+    assert np.mean(ratios) == pytest.approx(-0.5, abs=0.01) and np.std(ratios) == pytest.approx(1.0, rel=0.01)
+    assert baro.offset_log_likelihood(3.0, 4.0, 2.0) == pytest.approx((6.0 - 2.0) / 4.0, rel=1e-12)
+    assert baro.accumulated_evidence(0.5, -1.0, 28.0) == 0.0
+    assert baro.accumulated_evidence(27.5, 1.0, 28.0) == 28.0
+    assert baro.accumulated_evidence(3.0, 1.5, 28.0) == 4.5
+    assert baro.gps_height_disagrees(14.5, 0.0, 14.0) and baro.gps_height_disagrees(0.0, 14.5, 14.0)
+    assert not baro.gps_height_disagrees(14.0, 13.0, 14.0)
+
+
+def test_the_eskf_check_withholds_the_gps_height_and_leaves_its_bias_state_alone():
+    # the ESKF's GPS update teaches its bias state between GPS heights (stand-in: +0.05 m each);
+    # the check, on the innovation against x[16] of variance P[9, 9] + R, fires on a GPS height 3 m
+    # off within 10-20 samples and stays fired; it restores nothing (the bias state, P and the
+    # book's scalar filter keep their values: module docstring of ``baro``)
+    x, P = np.zeros((1, 17)), np.eye(10)[None] * 0.01
+    x[0, 2] = -1.0
+    book, diagnostics = np.tile(baro.initial_book(PARAMS), (1, 1)), np.tile(initial_diagnostics(), (1, 1))
+    book[0, baro.DATUM_SET], book[0, baro.LAST_STAMP], book[0, baro.LAST_HEIGHT] = 1.0, 0.14, 1.0
+    model = aiding.baro_model(PARAMS, 2.0, THRESHOLD, 0.02, bias_in_state=True)
+    dx, fused = np.zeros((1, 10)), np.zeros(1, dtype=bool)
+    no_baro = np.array([[1.0, 0.14]])  # the same stamp: no new baro sample, P untouched
+    P_before, fired = P.copy(), []
+    for k in range(40):
+        gps = np.array([[0.0, 0.0, 2.0, 0.0, 0.0, 0.0, 0.14 + 1e-4 * (k + 1)]])  # 3 m low
+        aiding.baro_rows(x, P, no_baro, gps, book, diagnostics, model, dx, fused)
+        fired.append(
+            bool(baro.gps_height_disagrees(book[0, baro.EVIDENCE_HIGH], book[0, baro.EVIDENCE_LOW], 14.0))
+        )
+        x[0, eskf.BARO_BIAS_NOMINAL] += 0.05
+    assert 10 < fired.index(True) < 20 and all(fired[fired.index(True) :])
+    assert book[0, baro.EVIDENCE_HIGH] > 14.0 and book[0, baro.EVIDENCE_LOW] == 0.0  # the GPS reads low
+    assert x[0, eskf.BARO_BIAS_NOMINAL] == pytest.approx(0.05 * 40, abs=1e-12)
+    np.testing.assert_array_equal(P, P_before)
+    assert book[0, baro.BIAS] == PARAMS.bias_init and book[0, baro.BIAS_VAR] == PARAMS.bias_init_std**2

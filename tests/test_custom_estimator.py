@@ -48,21 +48,23 @@ def test_the_manual_example_flies_11(tmp_path, monkeypatch):
 
 
 @pytest.mark.slow
-def test_the_manual_example_flies_a_20_run_campaign_on_the_process_pool(tmp_path, monkeypatch, capsys):
+def test_the_manual_example_flies_a_campaign_on_the_process_pool(tmp_path, monkeypatch, capsys):
+    # Two runs per worker: each worker imports the user's file and flies more than one run of it
+    # (20 runs before 2026-12-06 flew the same path ten times per worker, 32 s CPU against 13).
     manual_estimator(tmp_path)
     monkeypatch.chdir(tmp_path)
     out = tmp_path / "out"
     code = main(
-        ["montecarlo", "11_gps_update", "--runs", "20", "--jobs", "2", "--no-plots", "--out", str(out),
+        ["montecarlo", "11_gps_update", "--runs", "4", "--jobs", "2", "--no-plots", "--out", str(out),
          "--set", "end_time=6", "--set", "criteria.0.window=4", "--set", custom_override("my_ekf.py:MyEkf")]
     )  # fmt: skip
     printed = capsys.readouterr().out
     assert code in (0, 1), printed  # 1: a consistency criterion failed (6 s flights start cautious)
     (summary,) = out.glob("*/summary.json")
     summary = json.loads(summary.read_text())
-    assert summary["runs"] == 20 and "process-pool" in printed
+    assert summary["runs"] == 4 and "process-pool" in printed
     every = summary["criteria"][-1]
-    assert every["criterion"] == "all criteria" and every["passes"] == 20, every  # each run flew and passed
+    assert every["criterion"] == "all criteria" and every["passes"] == 4, every  # each run flew and passed
 
 
 class MissingUpdateMag:

@@ -98,8 +98,9 @@ def test_the_kernel_is_the_scalar_step():
         estimate[:, 2] = -1.0 + 0.001 * k * (np.arange(n) % 2)  # half of them do not descend
         reference = rng.normal(size=(n, 10))
         command, status = np.empty((n, 10)), np.empty((n, failsafe.STATUS_SIZE))
+        diagnostics = np.column_stack((np.full(n, np.nan), stamps, gated, resets))  # read at (1, 2, 3)
         kernels.failsafe_steps(
-            memory, t, DT, stamps, gated, resets, estimate, reference, frozen(params), command, status
+            memory, t, DT, diagnostics, (1, 2, 3), estimate, reference, frozen(params), command, status
         )
         for i in range(n):
             scalar[i], ref, flags = failsafe_step(

@@ -149,8 +149,11 @@ def test_the_tick_resets_the_eskf_yaw_as_the_oracle_and_blocks_a_lying_magnetome
     gps = np.array([[0.0] * 6 + [0.1]])
     blocked = np.zeros(1, dtype=bool)
     x_before, P_before = x[0].copy(), P_main[0].copy()
-    gsf_kernel.tick(filters, book[None], imu, gps, 2.0, model, blocked)
+    log = np.full((1, 3 + M), np.nan)
+    gsf_kernel.tick(filters, book[None], log, imu, gps, 2.0, model, blocked)
     yaw, var = book[gsf_kernel.YAW], book[gsf_kernel.YAW_VAR]
+    weights = book[gsf_kernel.HEADER + 12 * M :]
+    np.testing.assert_array_equal(log[0], np.r_[yaw, np.sqrt(var), 1.0, weights])  # the tick's log row
     x_expected, P_expected = gsf.eskf_yaw_reset(x_before, P_before, yaw, var)
     np.testing.assert_allclose(x[0], x_expected, atol=TOL)
     np.testing.assert_allclose(P_main[0], P_expected, atol=TOL)

@@ -3,6 +3,7 @@ none, no cache (one warning) where nothing can be written; the first compile ann
 terminal."""
 
 import io
+import json
 import os
 import shutil
 import stat
@@ -198,7 +199,33 @@ def test_a_compile_is_not_announced_on_a_log(monkeypatch):
     assert log.getvalue() == ""
 
 
-AFTER_WARMUP = """
+KERNEL_SIGNATURES = """
+import gc, json, sys
+from numba.core.dispatcher import Dispatcher
+
+def kernel_signatures():
+    \"\"\"{module.qualname: [argument types]} of every quad_drake kernel this process called (compiled
+    or loaded from the cache): numba caches per function and argument types.\"\"\"
+    calls = {}
+    for d in gc.get_objects():
+        if isinstance(d, Dispatcher) and d.py_func.__module__.startswith("quad_drake"):
+            name = f"{d.py_func.__module__}.{d.py_func.__qualname__}"
+            calls.setdefault(name, set()).update(str(signature) for signature in d.signatures)
+    return {name: sorted(types) for name, types in calls.items() if types}
+"""
+
+WARMUP = (
+    KERNEL_SIGNATURES
+    + """
+from quad_drake.campaigns.warmup import warm_up_command
+assert warm_up_command() == 0
+print(json.dumps(kernel_signatures()))
+"""
+)
+
+AFTER_WARMUP = (
+    KERNEL_SIGNATURES
+    + """
 from quad_drake.running import catalog
 from quad_drake.kernels import jit
 from quad_drake.campaigns import run_campaign
@@ -209,33 +236,34 @@ run(catalog.load("25_baro_step", 3, ["end_time=0.5", "vehicles.0.estimator={kind
 run_campaign(catalog.load("19_windy_hover", 5, ["end_time=0.5"]), 3, progress=False, fleet_batch=3)  # a fleet
 run_campaign(catalog.load("24_mag3_disturbance", 1, ["end_time=0.5"]), 2, progress=False)
 print(f"compiled {jit.compile_seconds():.3f} s")
+print(json.dumps(kernel_signatures()))
 """
+)
 
 
 @pytest.mark.slow
 def test_after_quad_drake_warmup_no_flight_compiles(tmp_path):
-    """`quad-drake warmup` on an empty cache compiles every kernel a flight uses: a later process
-    flies other scenario lengths, seeds, estimators, fleet sizes and campaigns without compiling."""
-    env = {
-        **os.environ,
-        "NUMBA_CACHE_DIR": str(tmp_path / "cache"),
-        "PYTHONPATH": str(Path(quad_drake.__file__).parent.parent),  # the tree under test
-    }
-    warm = subprocess.run(
-        [sys.executable, "-m", "quad_drake", "warmup"], capture_output=True, text=True, env=env, timeout=900
-    )
-    assert warm.returncode == 0, warm.stderr
-    assert (
-        "numba compiled kernels for" in warm.stdout
-        and "every kernel a flight uses is in the cache" in warm.stdout
-    )
-    later = subprocess.run(
-        [sys.executable, "-c", AFTER_WARMUP],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=600,
-        cwd=tmp_path,
-    )
-    assert later.returncode == 0, later.stderr
-    assert later.stdout.strip().splitlines()[-1] == "compiled 0.000 s", later.stdout
+    """`quad-drake warmup` calls every kernel a flight uses with the argument types the flight
+    passes, so that on an empty cache it compiles them all: a later process flies other scenario
+    lengths, seeds, estimators, fleet sizes and campaigns calling no kernel with types the
+    warm-up did not call, and compiles nothing (every kernel it calls loads from the cache).
+
+    Both processes use the package's own cache (a kernel missing there is compiled by the warm-up,
+    once for the whole test session): that the warm-up called a kernel with the types proves it
+    compiles it on an empty cache (numba compiles on the first call per types, and caches what it
+    compiles: test_a_read_only_install... above), without compiling every kernel again here."""
+    env = {**os.environ, "PYTHONPATH": str(Path(quad_drake.__file__).parent.parent)}  # the tree under test
+    processes = []
+    for script in (WARMUP, AFTER_WARMUP):
+        done = subprocess.run(
+            [sys.executable, "-c", script], capture_output=True, text=True, env=env, timeout=900, cwd=tmp_path
+        )
+        assert done.returncode == 0, done.stderr
+        processes.append(done.stdout.strip().splitlines())
+    warm, later = processes
+    assert "every kernel a flight uses is in the cache" in "\n".join(warm)
+    assert later[-2] == "compiled 0.000 s", later
+    warmed, flown = json.loads(warm[-1]), json.loads(later[-1])
+    assert len(flown) > 20, flown  # every flight calls kernels: the census sees them
+    missing = {name: sorted(set(types) - set(warmed.get(name, ()))) for name, types in flown.items()}
+    assert not {name: types for name, types in missing.items() if types}, missing

@@ -388,11 +388,25 @@ def test_wheel_installed_outside_the_repo_lists_and_runs_the_bundled_scenarios(i
     )  # fmt: skip
     assert own.returncode == 0 and "PASS: ABS(Quad.Est.E.Pos)" in own.stdout, own.stdout + own.stderr
 
-    # The bundled flight logs are package data: both replay from the wheel (issue 33).
-    for log in ("real_auav_x21_attitude_flight", "sitl_takeoff_land_gps"):
-        replayed = _run(quad_drake_exe, "replay", log, "--no-plots", "--out", str(out), cwd=cwd, env=env)
-        assert replayed.returncode == 0 and "NIS mag (1 dof)" in replayed.stdout, replayed.stderr
-        assert (out / f"{log}-ekf7" / "summary.json").is_file()
+    # The bundled flight logs are package data: both are found by name and read from the wheel,
+    # and `replay` flies one of them there (both logs' replays are checked in-process in
+    # tests/test_flight_log_replay.py; the second replay from the wheel cost 22 s CPU).
+    logs = ("real_auav_x21_attitude_flight", "sitl_takeoff_land_gps")
+    read = (
+        "import sys; from quad_drake.flightlogs.settings import resolve_log; "
+        "from quad_drake.flightlogs.reader import read_flight_log\n"
+        "for name in sys.argv[1:]:\n"
+        "    path = resolve_log(name); log = read_flight_log(path)\n"
+        "    print(path, log.duration, ' '.join(log.sensors()))"
+    )
+    found = _run(str(python), "-c", read, *logs, cwd=cwd, env=env)
+    assert found.returncode == 0, found.stderr
+    for line in found.stdout.strip().splitlines():
+        path, duration, *sensors = line.split()
+        assert Path(path).is_relative_to(venv) and float(duration) > 30 and "mag" in sensors, line
+    replayed = _run(quad_drake_exe, "replay", logs[1], "--no-plots", "--out", str(out), cwd=cwd, env=env)
+    assert replayed.returncode == 0 and "NIS mag (1 dof)" in replayed.stdout, replayed.stderr
+    assert (out / f"{logs[1]}-ekf7" / "summary.json").is_file()
 
     for command in ([quad_drake_exe], [str(python), "-m", "quad_drake"]):
         version = _run(*command, "--version", cwd=cwd, env=env)
@@ -405,8 +419,14 @@ def test_make_run_installs_only_what_running_needs_and_make_test_runs_in_paralle
     assert run.returncode == 0, run.stderr
     assert "pip install -q -e .\n" in run.stdout and "[test]" not in run.stdout
     test = subprocess.run(["make", "-n", "test", f"VENV={venv}"], cwd=REPO, capture_output=True, text=True)
-    workers = "auto" if len(os.sched_getaffinity(0)) >= 4 else "0"  # as nproc: serial below 4 cores
+    cores = len(os.sched_getaffinity(0))  # as nproc: a worker per core from 4, two on 2 or 3, serial on 1
+    workers = "auto" if cores >= 4 else "2" if cores >= 2 else "0"
     assert "pip install -q -e '.[test]'" in test.stdout and f"pytest -n {workers}" in test.stdout
+    assert ("quad-drake warmup" in test.stdout) == (workers != "0")  # kernels compiled once, not per worker
     forced = ["make", "-n", "test", f"VENV={venv}", "TEST_JOBS=3"]
-    assert "pytest -n 3" in subprocess.run(forced, cwd=REPO, capture_output=True, text=True).stdout
+    forced = subprocess.run(forced, cwd=REPO, capture_output=True, text=True).stdout
+    assert "quad-drake warmup >/dev/null && " in forced and "pytest -n 3" in forced
+    serial = ["make", "-n", "test", f"VENV={venv}", "TEST_JOBS=0"]
+    serial = subprocess.run(serial, cwd=REPO, capture_output=True, text=True).stdout
+    assert "pytest -n 0" in serial and "warmup" not in serial
     assert "pytest-xdist" in (REPO / "pyproject.toml").read_text()

@@ -503,3 +503,70 @@ def test_a_fault_over_the_judged_band_stays_red_and_green_not_brown():
     assert near.mean() < 0.05, near.mean()
     assert np.mean(np.linalg.norm(region - band, axis=1) < 0.02) > 0.5  # the band still reads green
     assert np.mean(region[:, 0] - region[:, 1] > 0.25) > 0.03  # and the fault's hatching red
+
+
+def smoothed_eskf_result(smoothed=True, seed=5):
+    """A hand-made ESKF run (9 error states) whose estimate has a known σ, and with ``smoothed``
+    the logs ``quad-drake run --smooth`` adds: a smoothed nominal (p, v, q_NB, biases) whose
+    errors have half that σ, and that σ as ``smoothed_sigma``."""
+    from quad_drake.estimation.registry import EskfEstimatorConfig
+
+    base = make_result(seed=seed)
+    rng = np.random.default_rng(seed)
+    logs = dict(base.logs["Quad"])
+    for name in ("ekf_state", "attitude"):
+        del logs[name]
+    truth = logs["state"]
+    n = truth.shape[0]
+    sigma = np.array([0.1, 0.1, 0.3, 0.1, 0.1, 0.3, 0.05, 0.05, 0.05])
+    estimate = truth.copy()
+    estimate[:, 0:3] += rng.normal(size=(n, 3)) * sigma[0:3]
+    estimate[:, 7:10] += rng.normal(size=(n, 3)) * sigma[3:6]
+    logs["estimated_state"] = estimate
+    logs["covariance"] = np.tile(np.diag(sigma**2).ravel(), (n, 1))
+    logs["imu_bias"] = np.zeros((n, 6))
+    if smoothed:
+        nominal = np.column_stack([truth[:, 0:3], truth[:, 7:10], truth[:, 3:7], np.zeros((n, 6))])
+        nominal[:, 0:6] += rng.normal(size=(n, 6)) * sigma[0:6] / 2
+        logs["smoothed_state"] = nominal
+        logs["smoothed_sigma"] = np.tile(sigma / 2, (n, 1))
+    vehicle = base.scenario.vehicles[0]
+    vehicle.estimator = EskfEstimatorConfig(estimate_biases=False)
+    return result_from_logs(base.scenario, base.times, {"Quad": logs}, wall_time=0.5)
+
+
+def test_a_smoothed_run_draws_and_reports_the_smoother_beside_the_estimate(tmp_path):
+    from quad_drake.output.report import smoother_consistency
+
+    result = smoothed_eskf_result()
+    figures = plots.make_figures(result)
+    stems = list(figures)
+    assert stems.index("smoothed_errors_Quad") == stems.index("state_estimate_Quad") + 1
+    smoothed = result.logs["Quad"]["smoothed_state"]
+    states = figures["state_estimate_Quad"][1].axes
+    for i, ax in enumerate(states):  # x y z, then vx vy vz: the smoothed line beside the estimate
+        lines = {line.get_label(): line for line in ax.lines}
+        np.testing.assert_array_equal(lines["smoothed"].get_ydata(), smoothed[:, i])
+    errors = figures["smoothed_errors_Quad"][1].axes
+    assert [ax.get_title().split(":")[0] for ax in errors] == [
+        "X", "Y", "Z", "VX", "VY", "VZ", "AttN", "AttE", "AttD"
+    ]  # fmt: skip
+    truth = result.logs["Quad"]["state"]
+    z_lines = {line.get_label(): line for line in errors[2].lines}
+    np.testing.assert_allclose(
+        z_lines["smoother"].get_ydata(), smoothed[:, 2] - truth[:, 2], rtol=0, atol=1e-12
+    )
+    rows = {row[1]: row for row in smoother_consistency(result)}
+    assert list(rows) == ["X", "Y", "Z", "VX", "VY", "VZ", "AttN", "AttE", "AttD"]
+    _, _, unit, rms_filter, rms_smoother, one, two = rows["Z"]
+    assert unit == "m" and math.isclose(rms_filter, 0.3, rel_tol=0.05)
+    assert math.isclose(rms_smoother, 0.15, rel_tol=0.05) and 64 < one < 72 and 93 < two < 97
+    artifacts = plots.write_run_artifacts(result, tmp_path)
+    report = artifacts["report"].read_text()
+    assert "RTS smoother against the filter" in report and "smoothed_errors_Quad.png" in [
+        p.name for p in artifacts["plots"]
+    ]
+    plain = smoothed_eskf_result(smoothed=False)  # a run without --smooth: no smoother anywhere
+    assert "smoothed_errors_Quad" not in plots.make_figures(plain) and smoother_consistency(plain) == []
+    plain_states = plots.make_figures(plain)["state_estimate_Quad"][1].axes
+    assert "smoothed" not in {line.get_label() for ax in plain_states for line in ax.lines}

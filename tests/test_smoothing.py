@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from quad_drake.conventions import ONBOARD_PERIOD
-from quad_drake.flightlogs.recording import errors_against, smooth_run
+from quad_drake.estimation.vocabulary import nominal_errors
+from quad_drake.flightlogs.recording import smooth_run
 from quad_drake.flightlogs.smoothing import log_ticks
 from quad_drake.judging.consistency import per_dof_interval, within_tolerance
 from quad_drake.running import catalog
@@ -55,8 +56,8 @@ def test_the_smoother_is_consistent_and_better_than_the_filter(runs):
     n = runs[0].filtered.P_updated.shape[1]
     nees, squares = [], np.zeros(2)
     for run in runs:
-        e_filter = errors_against(run.filtered.x_updated, run.truth, n)
-        e_smooth = errors_against(run.smoothed.x, run.truth, n)
+        e_filter = nominal_errors(run.filtered.x_updated, run.truth, n)
+        e_smooth = nominal_errors(run.smoothed.x, run.truth, n)
         solved = np.linalg.solve(run.smoothed.P, e_smooth[:, :, None])[:, :, 0]
         nees.append(np.mean(np.einsum("ti,ti->t", e_smooth, solved)))
         squares += np.sum(e_filter[:, 0:3] ** 2), np.sum(e_smooth[:, 0:3] ** 2)

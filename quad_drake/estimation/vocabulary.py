@@ -131,19 +131,36 @@ def ekf7_errors(logs) -> np.ndarray:
 def eskf_errors(logs) -> np.ndarray:
     """(n, 9 or 15) estimate minus truth of the ESKF's error state ((n, N, 9 or 15) of a batch).
 
-    Against the truth of ``error_sampling.error_truth``. p, v from ``estimated_state``; the
-    attitude error dtheta with R_hat = Exp(dtheta) R_true (world axes); the IMU biases from
-    ``imu_bias`` against a true bias of zero (the simulated IMU has none), only when the
-    covariance has 15 states.
+    Against the truth of ``error_sampling.error_truth`` (:func:`nominal_errors` of the nominal the
+    logs hold: p, v, q_NB from ``estimated_state``, the biases from ``imu_bias``), the biases only
+    when the covariance has 15 states.
     """
-    state = np.asarray(error_truth(logs), dtype=float)
     estimate = np.asarray(logs["estimated_state"], dtype=float)
-    parts = [estimate[..., 0:3] - state[..., 0:3], estimate[..., 7:10] - state[..., 7:10]]
-    dtheta = attitude_errors(estimate[..., 3:7].reshape(-1, 4), state[..., 3:7].reshape(-1, 4))
-    parts.append(dtheta.reshape(state.shape[:-1] + (3,)))
-    if np.shape(logs["covariance"])[-1] == 15 * 15:
-        parts.append(np.asarray(logs["imu_bias"], dtype=float))
+    n = 15 if np.shape(logs["covariance"])[-1] == 15 * 15 else 9
+    bias = np.asarray(logs["imu_bias"], dtype=float) if n == 15 else np.zeros(estimate.shape[:-1] + (6,))
+    nominal = np.concatenate([estimate[..., 0:3], estimate[..., 7:10], estimate[..., 3:7], bias], axis=-1)
+    return nominal_errors(nominal, error_truth(logs), n)
+
+
+def nominal_errors(nominal, truth, n) -> np.ndarray:
+    """(..., n) an ESKF nominal (..., 16: p_N m, v_N m/s, q_NB wxyz, b_a m/s², b_g rad/s) minus the
+    true state (..., 13), in the ESKF's error state: dp (m), dv (m/s), the attitude error dtheta
+    with R_hat = Exp(dtheta) R_true (rad, world axes) and, when n = 15, the biases against a true
+    bias of zero (the simulated IMU has none)."""
+    nominal, truth = np.asarray(nominal, dtype=float), np.asarray(truth, dtype=float)
+    parts = [nominal[..., 0:3] - truth[..., 0:3], nominal[..., 3:6] - truth[..., 7:10]]
+    dtheta = attitude_errors(nominal[..., 6:10].reshape(-1, 4), truth[..., 3:7].reshape(-1, 4))
+    parts.append(dtheta.reshape(truth.shape[:-1] + (3,)))
+    if n == 15:
+        parts.append(nominal[..., 10:16])
     return np.concatenate(parts, axis=-1)
+
+
+def smoothed_errors(logs) -> np.ndarray:
+    """(m, n) the RTS smoother's ``smoothed_state`` (an ESKF nominal, ``flightlogs.smoothing``)
+    minus the truth of ``error_sampling.error_truth``, in the error state its ``smoothed_sigma``
+    (m, n) names (:func:`nominal_errors`)."""
+    return nominal_errors(logs["smoothed_state"], error_truth(logs), np.shape(logs["smoothed_sigma"])[-1])
 
 
 def _no_extra_values(logs):

@@ -27,8 +27,9 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput, ZeroOrderHold
 
 from quad_drake.conventions import EKF_OFFSET, LOG_PERIOD, NO_SAMPLE_STAMP, ONBOARD_PERIOD
-from quad_drake.estimation import eskf, smoother
+from quad_drake.estimation import smoother
 from quad_drake.estimation.registry import KINDS, vocabulary_for
+from quad_drake.estimation.vocabulary import nominal_errors
 from quad_drake.flightlogs import smoothing
 from quad_drake.flightlogs.reader import read_flight_log
 from quad_drake.flightlogs.replay import replay_as_flown
@@ -154,19 +155,6 @@ def smooth_run(scenario, directory, vehicle_index=0) -> SmoothedRun:
     return SmoothedRun(recorded, ticks, filtered, smoother.smooth_eskf(filtered))
 
 
-def errors_against(x, truth, n) -> np.ndarray:
-    """(T, n) nominal x (T, 16) minus the true state (T, 13): dp (m), dv (m/s), dtheta (rad, world
-    axes, R_hat = Exp(dtheta) R_true) and, when n = 15, the biases (the simulated IMU has none)."""
-    parts = [
-        x[:, 0:3] - truth[:, 0:3],
-        x[:, 3:6] - truth[:, 7:10],
-        eskf.attitude_errors(x[:, 6:10], truth[:, 3:7]),
-    ]
-    if n == eskf.ERROR_SIZE_WITH_BIASES:
-        parts.append(x[:, 10:16])
-    return np.column_stack(parts)
-
-
 def smooth_vehicles(result, directory) -> list[str]:
     """Smooth each ESKF vehicle of a ``SimulationResult`` IN PLACE (``quad-drake run --smooth``):
     its run flown again as a log into `directory` (:func:`smooth_run`; the estimate checked equal to
@@ -188,7 +176,7 @@ def smooth_vehicles(result, directory) -> list[str]:
         n = run.filtered.P_updated.shape[1]
         stats = []
         for x, P in ((run.filtered.x_updated, run.filtered.P_updated), (run.smoothed.x, run.smoothed.P)):
-            e = errors_against(x, run.truth, n)
+            e = nominal_errors(x, run.truth, n)
             nees = np.einsum("ti,ti->t", e, np.linalg.solve(P, e[:, :, None])[:, :, 0])
             stats.append((float(np.sqrt(np.mean(np.sum(e[:, 0:3] ** 2, axis=1)))), float(np.mean(nees)) / n))
         (rmse_f, nees_f), (rmse_s, nees_s) = stats

@@ -20,11 +20,14 @@ measurement):
   its baro offset;
   the bias: P_b += walk² (t - t_last) at each sample; at each fresh GPS height (same stamp as the
   latest baro sample) b_meas = h + z_gps, variance height_std² + gps_z_std², gated at the baro's
-  gate, and not while the filtered normalised bias innovation (time constant ``gps_check_time``)
-  says the GPS height disagrees persistently (``baro.filtered_disagreement``,
-  ``baro.gps_height_disagrees``; the ESKF runs the same check); after ``reset_timeout`` s of
-  rejected samples b = h + p_z, P_b = height_std² + P[2, 2] (and the filtered disagreement starts
-  again at 0);
+  gate, and not while the GPS-height check's accumulated evidence (Page's CUSUM of
+  ``baro.offset_log_likelihood``, ``baro.accumulated_evidence``) says the GPS height disagrees
+  persistently (``baro.gps_height_disagrees``); when it first says so the bias goes back to its
+  value before the disagreeing run began; after ``reset_timeout`` s of rejected samples
+  b = h + p_z, P_b = height_std² + P[2, 2] (and the evidence starts again at 0); the ESKF runs
+  the same check on its bias state (b̂ = x[:, 16], innovation variance P_bb + height_std² +
+  gps_z_std²) and, when it fires, withholds the GPS height but restores nothing (``baro``
+  module docstring);
 - field (ESKF), z = m_B - hard_iron (gauss): h(x) = R_hatᵀ m_N, H = [0 R_hatᵀ[m_N]x 0], R =
   diag(field_std²), NIS 3 dof, the gain zero outside the attitude (``attitude_only``, the default);
 - heading (EKF7), z = atan2(-l_y, l_x) + D with l = Ry(pitch) Rx(roll) (m_B - hard_iron) (rad):
@@ -52,7 +55,7 @@ _BARO_NIS, _BARO_GATED, _BARO_RESETS = DIAG["baro_nis"], DIAG["baro_gated"], DIA
 _BARO_BIAS, _FIELD_NIS = DIAG["baro_bias"], DIAG["field_nis"]
 _BIAS, _BIAS_VAR, _LAST_HEIGHT, _LAST_STAMP = baro.BIAS, baro.BIAS_VAR, baro.LAST_HEIGHT, baro.LAST_STAMP
 _REJECTED_SINCE, _GPS_STAMP, _DATUM_SET = baro.REJECTED_SINCE, baro.GPS_STAMP, baro.DATUM_SET
-_DISAGREEMENT, _DISAGREEMENT_VAR = baro.DISAGREEMENT, baro.DISAGREEMENT_VAR
+_EVIDENCE_HIGH, _EVIDENCE_LOW = baro.EVIDENCE_HIGH, baro.EVIDENCE_LOW
 _TOLERANCE = gating.STAMP_TOLERANCE  # s, stamps are sums of periods
 _BARO_NOMINAL = eskf.BARO_BIAS_NOMINAL
 
@@ -67,7 +70,8 @@ _bias_predict = compiled(baro.bias_predict)
 _bias_update = compiled(baro.bias_update)
 _bias_from_gps = compiled(baro.bias_from_gps)
 _bias_reset = compiled(baro.bias_reset)
-_filtered_disagreement = compiled(baro.filtered_disagreement)
+_offset_log_likelihood = compiled(baro.offset_log_likelihood)
+_accumulated_evidence = compiled(baro.accumulated_evidence)
 _gps_height_disagrees = compiled(baro.gps_height_disagrees)
 _field_attitude_jacobian = compiled(mag3.field_attitude_jacobian, rotation_entries=rotations.rotation_entries)
 _field_innovation = compiled(
@@ -94,9 +98,32 @@ def _bias_of(x, P, book, i, in_state):
 
 
 @njit_cached
+def _gps_height_check(book, i, in_state, innovation, innovation_var, offset, threshold):
+    """One GPS height through vehicle i's GPS-height check (``baro`` module docstring): both sides'
+    evidence accumulated. The EKF7's scalar filter (not `in_state`) books its bias when a side
+    starts a run and, on the sample that first passes `threshold`, goes back to the booked value
+    of the side that passed it; the ESKF's bias state is not restored (``baro`` module
+    docstring). True while the GPS height agrees with the barometer."""
+    was_disagreeing = _gps_height_disagrees(book[i, _EVIDENCE_HIGH], book[i, _EVIDENCE_LOW], threshold)
+    cap = 2.0 * threshold
+    for side in range(2):
+        sign = 1.0 if side == 0 else -1.0
+        column = _EVIDENCE_HIGH + side
+        if not in_state and book[i, column] == 0.0:  # a new run may start here: the bias before it
+            book[i, baro.RUN_BIAS_HIGH + side] = book[i, _BIAS]
+            book[i, baro.RUN_BIAS_VAR_HIGH + side] = book[i, _BIAS_VAR]
+        log_likelihood = _offset_log_likelihood(sign * innovation, innovation_var, offset)
+        book[i, column] = _accumulated_evidence(book[i, column], log_likelihood, cap)
+        if not in_state and not was_disagreeing and book[i, column] > threshold:
+            book[i, _BIAS] = book[i, baro.RUN_BIAS_HIGH + side]
+            book[i, _BIAS_VAR] = book[i, baro.RUN_BIAS_VAR_HIGH + side]
+    return not _gps_height_disagrees(book[i, _EVIDENCE_HIGH], book[i, _EVIDENCE_LOW], threshold)
+
+
+@njit_cached
 def _baro_rows(x, P, baro_samples, gps, book, diagnostics, model, dx, fused):
     height_var, gps_z_var, walk_std, threshold, reset_timeout = model[:5]
-    stamp_match, check_time, check_sigma, state = model[5:]
+    stamp_match, check_offset, check_threshold, state = model[5:]
     in_state = state > 0.0
     for i in range(x.shape[0]):
         fused[i] = False
@@ -149,11 +176,10 @@ def _baro_rows(x, P, baro_samples, gps, book, diagnostics, model, dx, fused):
                         else:
                             book[i, _BIAS], book[i, _BIAS_VAR] = bias, bias_var
                         book[i, _REJECTED_SINCE] = math.nan
-                        book[i, _DISAGREEMENT] = book[i, _DISAGREEMENT_VAR] = 0.0
+                        book[i, _EVIDENCE_HIGH] = book[i, _EVIDENCE_LOW] = 0.0
                         diagnostics[i, _BARO_RESETS] += 1.0
         gps_stamp = gps[i, 6]
         if gps_stamp != NO_SAMPLE_STAMP and gps_stamp != book[i, _GPS_STAMP]:
-            previous_gps = book[i, _GPS_STAMP]
             book[i, _GPS_STAMP] = gps_stamp
             matched = abs(gps_stamp - book[i, _LAST_STAMP]) <= stamp_match
             if matched and math.isfinite(gps[i, 2]) and math.isfinite(book[i, _LAST_HEIGHT]):
@@ -162,17 +188,10 @@ def _baro_rows(x, P, baro_samples, gps, book, diagnostics, model, dx, fused):
                 variance = height_var + gps_z_var
                 innovation = measured - bias
                 agrees = True
-                if check_time > 0.0 and check_sigma > 0.0 and previous_gps != NO_SAMPLE_STAMP:
-                    ratio, ratio_var = _filtered_disagreement(
-                        book[i, _DISAGREEMENT],
-                        book[i, _DISAGREEMENT_VAR],
-                        innovation,
-                        bias_var + variance,
-                        gps_stamp - previous_gps,
-                        check_time,
+                if check_offset > 0.0:
+                    agrees = _gps_height_check(
+                        book, i, in_state, innovation, bias_var + variance, check_offset, check_threshold
                     )
-                    book[i, _DISAGREEMENT], book[i, _DISAGREEMENT_VAR] = ratio, ratio_var
-                    agrees = not _gps_height_disagrees(ratio, ratio_var, check_sigma)
                 if not in_state and agrees and innovation * innovation <= threshold * (bias_var + variance):
                     book[i, _BIAS], book[i, _BIAS_VAR] = _bias_update(
                         book[i, _BIAS], book[i, _BIAS_VAR], measured, variance
@@ -194,10 +213,10 @@ def baro_rows(x, P, baro_samples, gps, book, diagnostics, model, dx, fused) -> N
 def baro_model(params, gps_z_std, gate_threshold, baro_period, bias_in_state=False) -> tuple:
     """The baro kernel's constants from BaroFusionParams: (height_var m², gps_z_var m², walk_std
     m/sqrt(s), the gate's NIS threshold, reset_timeout s, stamp_match s: half the baro period, the
-    largest stamp difference of a baro sample and a GPS sample taken as simultaneous, gps_check_time
-    s and the gate's sigma for the GPS-height disagreement check, 0 = off, and 1.0 when the filter
-    carries the bias in its state (`bias_in_state`: the ESKF, ``eskf.carries_baro_bias``), 0.0 when
-    the scalar filter in the book estimates it (the EKF7))."""
+    largest stamp difference of a baro sample and a GPS sample taken as simultaneous, the GPS-height
+    check's gps_check_offset m (0 = off) and gps_check_threshold, and 1.0 when the filter carries
+    the bias in its state (`bias_in_state`: the ESKF, ``eskf.carries_baro_bias``), 0.0 when the
+    scalar filter in the book estimates it (the EKF7))."""
     return (
         float(params.height_std) ** 2,
         float(gps_z_std) ** 2,
@@ -205,8 +224,8 @@ def baro_model(params, gps_z_std, gate_threshold, baro_period, bias_in_state=Fal
         float(gate_threshold),
         float(params.reset_timeout),
         0.5 * float(baro_period),
-        float(params.gps_check_time),
-        float(params.gate_sigma),
+        float(params.gps_check_offset),
+        float(params.gps_check_threshold),
         1.0 if bias_in_state else 0.0,
     )
 

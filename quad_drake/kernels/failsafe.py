@@ -17,14 +17,16 @@ _step_compiled = compiled(failsafe.failsafe_step)
 
 @njit_cached
 def failsafe_steps(
-    memory, t, dt, gps_stamp, gps_gated, gps_resets, estimate, reference, params, command, status
+    memory, t, dt, diagnostics, gps_columns, estimate, reference, params, command, status
 ) -> None:
     """:func:`~quad_drake.control.failsafe.failsafe_step` of N vehicles IN PLACE.
 
-    memory (N, MEMORY_SIZE): replaced by the new memory; t, dt s (floats); gps_stamp, gps_gated,
-    gps_resets (N,): the estimators' diagnostics; estimate (N, 13); reference (N, 10); params: the
-    ``kernels.flight.frozen`` FailsafeConfig; command (N, 10) and status (N, STATUS_SIZE): written.
+    memory (N, MEMORY_SIZE): replaced by the new memory; t, dt s (floats); diagnostics (N, k): the
+    estimators' diagnostics, read in place at gps_columns (3 ints: the GPS stamp, gated and resets
+    columns); estimate (N, 13); reference (N, 10); params: the ``kernels.flight.frozen``
+    FailsafeConfig; command (N, 10) and status (N, STATUS_SIZE): written.
     """
+    stamp_column, gated_column, resets_column = gps_columns
     config = FailsafeTuple(*params)
     for i in range(memory.shape[0]):
         m = (
@@ -39,7 +41,10 @@ def failsafe_steps(
             reference[i, 0], reference[i, 1], reference[i, 2], reference[i, 3], reference[i, 4],
             reference[i, 5], reference[i, 6], reference[i, 7], reference[i, 8], reference[i, 9],
         )  # fmt: skip
-        new, out, flags = _step_compiled(m, t, dt, gps_stamp[i], gps_gated[i], gps_resets[i], x, ref, config)
+        stamp, gated = diagnostics[i, stamp_column], diagnostics[i, gated_column]
+        new, out, flags = _step_compiled(
+            m, t, dt, stamp, gated, diagnostics[i, resets_column], x, ref, config
+        )
         for k in range(8):
             memory[i, k] = new[k]
         for k in range(10):

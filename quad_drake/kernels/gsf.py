@@ -69,6 +69,32 @@ def initial_book(models) -> np.ndarray:
     return book
 
 
+@njit_cached
+def _log_row(book, i, M, log):
+    """Vehicle i's log row (``vocabulary.gsf_log_size(M)``): the Gaussian-sum yaw (rad), its std
+    (rad), the resets so far and the M weights, written from its book row."""
+    log[i, 0], log[i, 1], log[i, 2] = book[i, YAW], math.sqrt(book[i, YAW_VAR]), book[i, RESETS]
+    w = HEADER + 12 * M
+    for j in range(M):
+        log[i, 3 + j] = book[i, w + j]
+
+
+@njit_cached
+def _log_rows(book, M, log):
+    for i in range(book.shape[0]):
+        _log_row(book, i, M, log)
+
+
+def log_rows(book, models) -> np.ndarray:
+    """The log rows (N, ``vocabulary.gsf_log_size(models)``) of GSF books (N, :func:`book_size`):
+    the Gaussian-sum yaw (rad), its std (rad), the resets so far and the M weights (what
+    :func:`tick` writes each tick)."""
+    book = np.atleast_2d(np.asarray(book, dtype=float))
+    log = np.empty((book.shape[0], 3 + models))
+    _log_rows(book, models, log)
+    return log
+
+
 def model(params, dt, gps_vel_std, mag_columns) -> Model:
     """The :class:`Model` of GsfParams `params`, the tick dt s, the GPS velocity std (m/s) the main
     filter assumes and the magnetometer's (stamp, gated) diagnostics columns, or None without one."""
@@ -229,7 +255,7 @@ def _reset_row(x, P, book, i):
 
 @njit_cached
 def _tick(
-    x, P, diagnostics, book, imu, gps, t, blocked, M, dt, accel_noise, gyro_noise, vel_var,
+    x, P, diagnostics, book, log, imu, gps, t, blocked, M, dt, accel_noise, gyro_noise, vel_var,
     max_yaw_var, yaw_disagreement, disagreement_time, max_resets, stamp_column, gated_column,
 ):  # fmt: skip
     log_likelihood = np.empty(M)
@@ -246,6 +272,7 @@ def _tick(
                 _start_row(book, i, M, gps[i, 3], gps[i, 4], vel_var)
                 _gaussian_sum_row(book, i, M)
             blocked[i] = book[i, MAG_BLOCKED] != 0.0
+            _log_row(book, i, M, log)
             continue
         imu_finite = True
         for k in range(6):
@@ -275,18 +302,20 @@ def _tick(
             if reason == _DISAGREE and stamp_column >= 0:
                 book[i, MAG_BLOCKED] = 1.0
         blocked[i] = book[i, MAG_BLOCKED] != 0.0
+        _log_row(book, i, M, log)
 
 
-def tick(filters, book, imu, gps, t, model, blocked) -> None:
+def tick(filters, book, log, imu, gps, t, model, blocked) -> None:
     """One tick of the N vehicles' GSFs IN PLACE on their ESKF ``fusion.Filters`` `filters` (x (N,
-    16), P (N, k, k), diagnostics) and GSF `book` (N, :func:`book_size`) (module docstring).
+    16), P (N, k, k), diagnostics) and GSF `book` (N, :func:`book_size`) (module docstring); each
+    vehicle's log row written into `log` (N, ``vocabulary.gsf_log_size``, :func:`log_rows`).
 
     imu (N, 6): f_B m/s^2, w_B rad/s (a non-finite sample is not predicted on); gps (N, 7): p,
     v_N m/s, stamp s; t: s, the tick time; model: :class:`Model`; blocked (N,) bool, written: the
     vehicles whose magnetometer is no longer fused."""
     m = model
     _tick(
-        filters.x, filters.P, filters.diagnostics, book, imu, gps, float(t), blocked, m.models, m.dt,
+        filters.x, filters.P, filters.diagnostics, book, log, imu, gps, float(t), blocked, m.models, m.dt,
         m.accel_noise, m.gyro_noise, m.vel_var, m.max_yaw_var, m.yaw_disagreement, m.disagreement_time,
         m.max_resets, m.mag_stamp_column, m.mag_gated_column,
     )  # fmt: skip

@@ -9,7 +9,9 @@ gets follows from what it logged, so a new scenario needs no plot code:
 - flight traces: position and attitude against the reference, motor thrusts, and
   the top view of the flown, reference and estimated paths;
 - for one or two vehicles with an estimator: true vs estimated attitude and
-  states, and every EKF error against its ±sigma;
+  states, and every EKF error against its ±sigma; with ``run --smooth`` (the logs'
+  ``smoothed_state``) the RTS-smoothed position and velocity beside the estimate and the
+  smoother's errors against its ±sigma beside the filter's;
 - for a fleet (three or more estimating vehicles): every vehicle's x / vx
   (y / vy) error inside the first vehicle's ±sigma envelope (reference 09);
 - in wind: the wind at the vehicle, its steady part (mean + gusts) and its turbulence;
@@ -34,6 +36,7 @@ from matplotlib.ticker import MaxNLocator
 
 from ..estimation.mag3 import assumed_world_field, predicted_field
 from ..estimation.registry import vehicle_vocabulary
+from ..estimation.vocabulary import smoothed_errors
 from ..judging.consistency import fleet_sigma_fraction
 from ..judging.evaluation import judged_criteria, sigma_share
 from ..judging.signals import key_unit, signal_unit
@@ -509,6 +512,7 @@ def _state_estimate_figure(result, vehicle):
         height_per_row=2.4,
         title=f"{vehicle}: true vs estimated position and velocity (NED)",
     )
+    smoothed = result.logs.get(vehicle, {}).get("smoothed_state")  # p, v first (run --smooth)
     for j, axis in enumerate("XYZ"):
         for row, (true_key, est_key, gps_key, unit) in enumerate(
             (
@@ -531,6 +535,8 @@ def _state_estimate_figure(result, vehicle):
                 ls="--",
                 label="estimated",
             )
+            if smoothed is not None:
+                ax.plot(result.times, smoothed[:, 3 * row + j], color="tab:orange", lw=1.0, label="smoothed")
             ax.set_ylabel(_label(("" if row == 0 else "v") + axis.lower(), unit))
     axes[0, 0].legend(loc="upper right", fontsize=7)
     return fig
@@ -559,6 +565,32 @@ def _estimate_errors_figure(result, vehicle):
     ax.set_ylabel(_label("error", "m"))
     ax.legend(loc="upper right", fontsize=7)
     axes[0, 0].legend(loc="upper right", fontsize=7)
+    return fig
+
+
+def _smoothed_errors_figure(result, vehicle):
+    """The RTS smoother's errors (est - true) of the 9 navigation states against its ±σ, beside the
+    filter's (``quad-drake run --smooth``: the logs' ``smoothed_state`` and ``smoothed_sigma``)."""
+    config = next(v for v in result.scenario.vehicles if v.name == vehicle)
+    keys = vehicle_vocabulary(config).state_names[:9]
+    logs = result.logs[vehicle]
+    errors, sigma = smoothed_errors(logs), logs["smoothed_sigma"]
+    title = f"{vehicle}: filter and RTS smoother errors (est - true), ±σ"
+    fig, axes = _figure(3, 3, width=12.0, height_per_row=2.2, title=title)
+    t = result.times
+    for i, (key, ax) in enumerate(zip(keys, axes.flat, strict=True)):
+        filter_sigma = _values(result, f"{vehicle}.Est.S.{key}")
+        band = (-sigma[:, i], sigma[:, i])
+        ax.fill_between(t, *band, color="tab:orange", alpha=0.25, lw=0, label="smoother ±σ")
+        ax.plot(t, filter_sigma, color="tab:blue", ls=":", lw=0.8, label="filter ±σ")
+        ax.plot(t, -filter_sigma, color="tab:blue", ls=":", lw=0.8)
+        ax.plot(t, _values(result, f"{vehicle}.Est.E.{key}"), color="tab:blue", lw=0.6, label="filter")
+        ax.plot(t, errors[:, i], color="tab:orange", lw=0.9, label="smoother")
+        within, total = sigma_share(errors[:, i], sigma[:, i])
+        inside = 100.0 * within / total if total else float("nan")
+        ax.set_title(f"{key}: smoother {inside:.0f} % within ±σ", fontsize=9, y=1.0)
+        ax.set_ylabel(_label(f"{key} error", signal_unit(f"{vehicle}.Est.E.{key}")))
+    axes[0, 0].legend(loc="upper right", fontsize=7, ncol=2)
     return fig
 
 
@@ -780,6 +812,12 @@ def make_figures(result) -> dict[str, tuple[str, Figure]]:
             figures[f"state_estimate_{vehicle}"] = (
                 f"{vehicle}: true vs estimated states",
                 _state_estimate_figure(result, vehicle),
+            )
+    for vehicle in estimating[: FLEET_SIZE - 1]:
+        if "smoothed_state" in result.logs.get(vehicle, {}):
+            figures[f"smoothed_errors_{vehicle}"] = (
+                f"{vehicle}: filter and RTS smoother errors against their ±σ",
+                _smoothed_errors_figure(result, vehicle),
             )
     if len(estimating) < FLEET_SIZE:
         for vehicle in estimating:

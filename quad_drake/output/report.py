@@ -18,7 +18,7 @@ import numpy as np
 from ..config.errors import ConfigError
 from ..config.loader import dump_scenario
 from ..estimation.registry import vehicle_vocabulary
-from ..estimation.vocabulary import health_counts, health_line
+from ..estimation.vocabulary import health_counts, health_line, smoothed_errors
 from ..judging.evaluation import sigma_share
 from .outdir import locked, write_text_atomic
 from .results import read_summary
@@ -150,6 +150,24 @@ def ekf_consistency(result) -> list[tuple]:
     return rows
 
 
+def smoother_consistency(result) -> list[tuple]:
+    """[(vehicle, state, unit, filter rms error, smoother rms error, smoother % within ±σ, ±2σ)] per
+    error state of each vehicle the run smoothed (``quad-drake run --smooth``: its logs hold
+    ``smoothed_state`` and ``smoothed_sigma``); the filter's error is its ``Est.E.<state>``."""
+    rows = []
+    for config in result.scenario.vehicles:
+        vehicle, logs = config.name, result.logs.get(config.name, {})
+        if "smoothed_state" not in logs:
+            continue
+        vocabulary = vehicle_vocabulary(config)
+        errors, sigma = smoothed_errors(logs), logs["smoothed_sigma"]
+        for i, (key, unit) in enumerate(zip(vocabulary.state_names, vocabulary.units, strict=True)):
+            within = [_percent_within(errors[:, i], sigma[:, i], k) for k in (1, 2)]
+            filtered = result.signals[f"{vehicle}.Est.E.{key}"].values
+            rows.append((vehicle, key, unit, _stats(filtered)[0], _stats(errors[:, i])[0], *within))
+    return rows
+
+
 def estimator_health(result) -> list[str]:
     """[health line] per vehicle with an estimator: gated samples, resets, covariance repairs."""
     lines = []
@@ -236,6 +254,24 @@ def write_report(result, path, plots=(), replay=None) -> Path:
                 ],
             )
         )
+    smoothed = smoother_consistency(result)
+    if smoothed:
+        parts.append(
+            "<h2>RTS smoother against the filter</h2>"
+            "<p>The fixed-interval Rauch–Tung–Striebel smoother of the ESKF's pass (<code>--smooth</code>): "
+            "the estimate given the whole flight, its errors against its own σ.</p>"
+        )
+        parts.append(
+            html_table(
+                ["vehicle", "state", "unit", "RMS error filter", "RMS error smoother",
+                 "smoother within ±σ [%]", "smoother within ±2σ [%]"],
+                [
+                    [esc(v), esc(k), esc(u), (num(f), "num"), (num(s), "num"), (num(a, 3), "num"),
+                     (num(b, 3), "num")]
+                    for v, k, u, f, s, a, b in smoothed
+                ],
+            )
+        )  # fmt: skip
     if plots:
         parts.append("<h2>Plots</h2>")
         parts.extend(figures_html(plots))

@@ -12,7 +12,7 @@ from quad_drake.kernels import failsafe as kernels
 from quad_drake.kernels.flight import frozen
 from quad_drake.systems._io import discrete_group, row_reader
 
-_GPS_COLUMNS = [DIAG["gps_stamp"], DIAG["gps_gated"], DIAG["gps_resets"]]
+_GPS_COLUMNS = (DIAG["gps_stamp"], DIAG["gps_gated"], DIAG["gps_resets"])
 
 
 class FailsafeSupervisor(LeafSystem):
@@ -66,14 +66,12 @@ class FailsafeSupervisor(LeafSystem):
 
     def _update(self, context, discrete_state):
         n = self._n
-        diagnostics = self._read_diagnostics(context)[:, _GPS_COLUMNS]
         kernels.failsafe_steps(
             discrete_state.get_mutable_value(self._memory).reshape(n, failsafe.MEMORY_SIZE),
             context.get_time(),
             ONBOARD_PERIOD,
-            np.ascontiguousarray(diagnostics[:, 0]),
-            np.ascontiguousarray(diagnostics[:, 1]),
-            np.ascontiguousarray(diagnostics[:, 2]),
+            self._read_diagnostics(context),
+            _GPS_COLUMNS,
             self._read_estimate(context),
             self._read_reference(context),
             self._params,
@@ -82,7 +80,8 @@ class FailsafeSupervisor(LeafSystem):
         )
 
     def _calc_thrusts(self, context, output):
-        thrusts = self._thrusts.Eval(context).reshape(self._n, NUM_MOTORS).copy()
+        output.SetFrom(self._thrusts.EvalBasicVector(context))
         phase = context.get_discrete_state(self._status).value().reshape(self._n, failsafe.STATUS_SIZE)[:, 2]
-        thrusts[phase == failsafe.LANDED] = 0.0
-        output.SetFromVector(thrusts.ravel())
+        landed = phase == failsafe.LANDED
+        if landed.any():
+            output.get_mutable_value().reshape(self._n, NUM_MOTORS)[landed] = 0.0

@@ -201,14 +201,14 @@ class BaroUpdate(CorrectionUpdate):
 
     def withholds_gps_height(self, discrete_state, n) -> np.ndarray:
         """(n,) bool: the vehicles whose GPS height disagrees persistently with their barometer
-        (``baro.gps_height_disagrees`` of the book's filtered disagreement; all False with the
+        (``baro.gps_height_disagrees`` of the book's accumulated evidence; all False with the
         check off): their GPS height feeds neither the bias nor the filter's height."""
         p = self._params
-        if p.gps_check_time <= 0.0 or p.gate_sigma <= 0.0:
+        if p.gps_check_offset <= 0.0:
             return np.zeros(n, dtype=bool)
         book = discrete_state.get_value(self._book).reshape(n, baro.BARO_BOOK_SIZE)
-        ratio, ratio_var = book[:, baro.DISAGREEMENT], book[:, baro.DISAGREEMENT_VAR]
-        return baro.gps_height_disagrees(ratio, ratio_var, p.gate_sigma)
+        high, low = book[:, baro.EVIDENCE_HIGH], book[:, baro.EVIDENCE_LOW]
+        return baro.gps_height_disagrees(high, low, p.gps_check_threshold)
 
     def fuse(self, context, discrete_state, filters, samples) -> None:
         f, dx = filters, self._dx
@@ -244,8 +244,9 @@ class GsfUpdate(Update):
     def declare(self, system, n, k) -> None:
         """Declare the book and the log groups (no input port: the GPS update declares ``gps``)."""
         models = self._model.models
-        self._book = discrete_group(system, np.tile(self._kernel.initial_book(models), n))
-        self.log = discrete_group(system, np.tile(gsf_log(self._kernel.initial_book(models), models), n))
+        book = self._kernel.initial_book(models)
+        self._book = discrete_group(system, np.tile(book, n))
+        self.log = discrete_group(system, np.tile(self._kernel.log_rows(book, models).ravel(), n))
         self._blocked = np.zeros(n, dtype=bool)
 
     def fuse(self, context, discrete_state, filters, samples) -> None:
@@ -254,26 +255,12 @@ class GsfUpdate(Update):
         gps = samples.get("gps")
         if gps is None:
             return
-        kernel.tick(filters, book, samples["imu"], gps, context.get_time(), self._model, self._blocked)
-        discrete_state.get_mutable_value(self.log)[:] = gsf_log(book, self._model.models).ravel()
+        log = discrete_state.get_mutable_value(self.log).reshape(n, -1)
+        kernel.tick(filters, book, log, samples["imu"], gps, context.get_time(), self._model, self._blocked)
         if self._blocked.any() and "mag" in samples:
             mag = samples["mag"].copy()
             mag[self._blocked, -1] = NO_SAMPLE_STAMP
             samples["mag"] = mag
-
-
-def gsf_log(book, models) -> np.ndarray:
-    """The GSF log rows (..., ``vocabulary.gsf_log_size(models)``) of GSF books (..., book size):
-    the Gaussian-sum yaw (rad), its std (rad), the resets so far and the M weights."""
-    from quad_drake.kernels import gsf as gsf_kernel
-
-    book = np.asarray(book, dtype=float)
-    head = np.stack(
-        (book[..., gsf_kernel.YAW], np.sqrt(book[..., gsf_kernel.YAW_VAR]), book[..., gsf_kernel.RESETS]),
-        axis=-1,
-    )
-    weights = book[..., gsf_kernel.HEADER + 12 * models : gsf_kernel.HEADER + 13 * models]
-    return np.concatenate((head, weights), axis=-1)
 
 
 def build_updates(declared, sensors, builders) -> tuple:
