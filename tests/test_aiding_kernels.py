@@ -350,18 +350,18 @@ def test_per_vehicle_settings_fuse_each_vehicle_as_its_own_model_alone():
             outputs += [P.copy(), dx, fused, diagnostics] + ([args[-1]] if kernel is aiding.baro_rows else [])
         return outputs
 
-    threshold = gating.gate_threshold(3, 5.0)
+    threshold, heading_threshold = gating.gate_threshold(3, 5.0), gating.gate_threshold(1, 5.0)
     together = run(
         slice(None),
         aiding.field_model(fields, threshold),
-        aiding.heading_model(fields, threshold),
+        aiding.heading_model(fields, heading_threshold),
         aiding.baro_model(PARAMS, gps_z_std, THRESHOLD, period, carried),
     )
     for i in range(N):
         alone = run(
             slice(i, i + 1),
             aiding.field_model(fields[i], threshold),
-            aiding.heading_model(fields[i], threshold),
+            aiding.heading_model(fields[i], heading_threshold),
             aiding.baro_model(PARAMS, gps_z_std[i], THRESHOLD, period[i], carried[i]),
         )
         for shared, own in zip(together, alone, strict=True):
