@@ -6,9 +6,11 @@ Copy i is replayed with its own magnetic declination (``mag_declination`` = the 
 so the k vehicles differ in a per-vehicle setting and the one Diagram runs the per-vehicle models
 (``registry.EstimatorKind.per_vehicle``), not the fleet's one model for n identical vehicles. Each
 figure is user + sys CPU (``time.process_time``, this process: the replay is single-threaded) over
-the replays of that row divided by k, after one warm-up replay (numba's compiled kernels loaded);
-``ratio`` is one by one over one Diagram, measured in the same run (a ratio that survives machine
-load). Every copy's estimate is checked equal between the two.
+the replays of that row divided by k, after one warm-up replay (numba's compiled kernels loaded):
+the replay and its judging, the log read once beforehand (``read``: what reading the ULog costs
+per log on top, in either path, as ``quad-drake replay`` reads each); ``ratio`` is one by one over
+one Diagram, measured in the same run (a ratio that survives machine load). Every copy's estimate
+is checked equal between the two.
 
     python benchmarks/bench_replay_many.py [--log sitl_takeoff_land_gps] [--copies 1 8 32] [--kinds eskf ekf7]
 """
@@ -34,9 +36,9 @@ DECLINATION_STEP = 1e-6
 vehicle has a setting of its own."""
 
 
-def copies(kind, log, k) -> list:
-    """k ReplayConfigs of the bundled `log` under `kind`'s defaults, each its own declination."""
-    flight = read_flight_log(resolve_log(log))
+def copies(kind, log, flight, k) -> list:
+    """k ReplayConfigs of the bundled `log` (its FlightLog `flight`) under `kind`'s defaults, each
+    its own declination."""
     declination = earth_field.magnetometer_model(flight).declination if flight.mag_field is not None else 0.0
     base = dataclasses.replace(default_replay(kind), log=log)
     return [
@@ -58,15 +60,16 @@ def main() -> None:
     parser.add_argument("--copies", type=int, nargs="+", default=[1, 8, 32])
     parser.add_argument("--kinds", nargs="+", default=["eskf", "ekf7"])
     args = parser.parse_args()
-    duration = read_flight_log(resolve_log(args.log)).duration
-    print(f"log {args.log} ({duration:.1f} s); CPU s per log (user + sys)")
+    read, flights = cpu_per_log(lambda: [read_flight_log(resolve_log(args.log)) for _ in range(3)], 3)
+    flight = flights[0]
+    print(f"log {args.log} ({flight.duration:.1f} s, read {read:.3f} s); CPU s per log (user + sys)")
     print(f"{'kind':5s} {'k':>4s} {'one by one':>11s} {'one Diagram':>12s} {'ratio':>6s}")
     for kind in args.kinds:
-        replay(copies(kind, args.log, 1)[0])  # warm-up: numba's kernels compiled or loaded
+        replay(copies(kind, args.log, flight, 1)[0], flight)  # warm-up: numba's kernels compiled or loaded
         for k in args.copies:
-            configs = copies(kind, args.log, k)
-            alone, separate = cpu_per_log(lambda c=configs: [replay(config) for config in c], k)
-            shared, together = cpu_per_log(lambda c=configs: replay_many(c), k)
+            configs = copies(kind, args.log, flight, k)
+            alone, separate = cpu_per_log(lambda c=configs: [replay(config, flight) for config in c], k)
+            shared, together = cpu_per_log(lambda c=configs: replay_many(c, [flight] * len(c)), k)
             assert all(r.logs_in_diagram == k for r in together)
             for a, b in zip(separate, together, strict=True):
                 np.testing.assert_array_equal(a.logs["estimated_state"], b.logs["estimated_state"])

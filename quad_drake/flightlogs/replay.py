@@ -412,18 +412,19 @@ def replay(config, log=None) -> ReplayResult:
     return _replay_together([_prepare(config, log)])[0]
 
 
-def replay_many(configs, together=True) -> list:
+def replay_many(configs, logs=None, together=True) -> list:
     """[ReplayResult, or the ConfigError of a log that cannot be replayed] of each ReplayConfig of
-    `configs`, in order. The logs whose vehicles can share one estimator
-    (``registry.sharing_problem``: the same kind and settings but for each log's start, GPS noise,
-    magnetic field and barometer) are replayed in one Diagram, one vehicle each: a LogPlayback of
-    n flights on the common 2 ms tick, each stream with samples where its own log has them, and
-    each vehicle's results cut at its own log's end. A smoothed replay, and every replay with
-    together=False, runs in a Diagram of its own. Each result equals its log replayed alone."""
+    `configs`, in order (each config's ``log`` file read unless `logs` gives its FlightLog).
+    The logs whose vehicles can share one estimator (``registry.sharing_problem``: the same
+    kind and settings but for each log's start, GPS noise, magnetic field and barometer) are
+    replayed in one Diagram, one vehicle each: a LogPlayback of n flights on the common 2 ms
+    tick, each stream with samples where its own log has them, and each vehicle's results
+    cut at its own log's end. A smoothed replay, and every replay with together=False, runs
+    in a Diagram of its own. Each result equals its log replayed alone."""
     outcomes, prepared = [None] * len(configs), []
     for k, config in enumerate(configs):
         try:
-            prepared.append((k, _prepare(config)))
+            prepared.append((k, _prepare(config, None if logs is None else logs[k])))
         except ConfigError as e:
             outcomes[k] = e
     groups = []
@@ -442,7 +443,7 @@ def replay_many(configs, together=True) -> list:
             if len(group) == 1:
                 results = [breakdown_error(group[0][1].config, e)]
             else:  # each alone, so that the error is its own log's
-                results = [replay_many([p.config], together=False)[0] for _, p in group]
+                results = [replay_many([p.config], [p.log], together=False)[0] for _, p in group]
         for (k, _), result in zip(group, results, strict=True):
             outcomes[k] = result
     return outcomes
