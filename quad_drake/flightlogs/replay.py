@@ -439,11 +439,11 @@ def replay_many(configs, logs=None, together=True) -> list:
     for group in groups:
         try:
             results = _replay_together([p for _, p in group])
-        except ArithmeticError as e:
-            if len(group) == 1:
-                results = [breakdown_error(group[0][1].config, e)]
-            else:  # each alone, so that the error is its own log's
+        except (ArithmeticError, ConfigError) as e:  # a breakdown, or more logs than memory holds
+            if len(group) > 1:  # each alone, so that an error is its own log's
                 results = [replay_many([p.config], [p.log], together=False)[0] for _, p in group]
+            else:
+                results = [e if isinstance(e, ConfigError) else breakdown_error(group[0][1].config, e)]
         for (k, _), result in zip(group, results, strict=True):
             outcomes[k] = result
     return outcomes
