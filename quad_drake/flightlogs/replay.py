@@ -503,9 +503,9 @@ def _replay_together(prepared) -> list[ReplayResult]:
         "replay a shorter stretch of the flight (e.g. cut into a CSV log)",
     )
     smooth = first.config.smooth
-    name = first.config.name or "replay" if n == 1 else "replays"
+    diagram_name = first.config.name or "replay" if n == 1 else "replays"
     diagram, sinks, ticks = _playback_diagram(
-        [p.streams for p in prepared], [p.vehicle for p in prepared], name, smooth
+        [p.streams for p in prepared], [p.vehicle for p in prepared], diagram_name, smooth
     )
     simulator = Simulator(diagram)
     context = simulator.get_mutable_context()
@@ -519,7 +519,7 @@ def _replay_together(prepared) -> list[ReplayResult]:
     results = []
     for i, p in enumerate(prepared):
         kept = times <= p.log.duration
-        own = {name: _vehicle_columns(data, i, n)[kept] for name, data in logs.items()}
+        own = {name: _vehicle_rows(data, i, n, kept) for name, data in logs.items()}
         if ticks is not None:  # the smoothed pass, sampled as the other logs (one log: smooth)
             tick_logs = smoothing.read_tick_sinks(ticks, context)
             own |= smoothing.smoothed_logs(
@@ -542,10 +542,11 @@ def _replay_together(prepared) -> list[ReplayResult]:
     return results
 
 
-def _vehicle_columns(data, i, n) -> np.ndarray:
-    """Vehicle i's columns (samples, width) of a log of n vehicles (samples, n width), a copy."""
+def _vehicle_rows(data, i, n, kept) -> np.ndarray:
+    """Vehicle i's samples `kept` ((samples,) bool) of a log of n vehicles (samples, n width): a
+    new (kept samples, width) array."""
     width = data.shape[1] // n
-    return data[:, i * width : (i + 1) * width].copy()
+    return data[kept, i * width : (i + 1) * width]
 
 
 def _read_sinks(sinks, context):
