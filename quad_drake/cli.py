@@ -666,6 +666,12 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="ESKF only: also the fixed-interval RTS smoother of the pass, in the logs (= --set smooth=true)",
     )
+    replay.add_argument(
+        "--separately",
+        action="store_true",
+        help="several logs: each in a Diagram of its own (default: one Diagram, a vehicle per log, "
+        "where the logs' estimator settings allow it)",
+    )
     replay.set_defaults(func=cmd_replay)
     noise = sub.add_parser("noise-std", help="step 1: GPS-x and accel-x std devs from a run's logs")
     noise.add_argument("run_dir")
