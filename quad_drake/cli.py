@@ -75,8 +75,8 @@ def _import_for_flights() -> None:
     object made so far into its permanent generation (``gc.freeze``): modules and their objects
     live as long as the process, so scanning them is wasted work (about 0.06 s of ``run``'s CPU:
     a third of its collections, and the full passes then skip the imported heap). Only where
-    this is the import (a fresh process): a process that imported them before (a test session
-    calling ``main``) is left as it is."""
+    this call is their import (a fresh ``quad-drake`` process, or the first run of a session that
+    had not imported them): a process that imported them before is left as it is."""
     module = f"{__package__}.running.simulation"
     if module in sys.modules:
         return
