@@ -247,14 +247,13 @@ class Ekf(LeafSystem):
         )
         # a quiet tick (no fresh GPS sample, every P healthy) fused the yaw in the compiled tick
         # and has no GPS sample to fuse: only the other updates run
-        self._yaw = self._fusion.update_of(updates.YawUpdate)
         self._after_quiet_tick = tuple(
             u for u in self._fusion.updates if not isinstance(u, (updates.YawUpdate, updates.GpsUpdate))
         )
-        self._no_gps, self._no_yaw = (
-            np.tile(fusion.NO_GPS_SAMPLE, (n, 1)),
-            np.tile(fusion.NO_MAG_SAMPLE, (n, 1)),
-        )
+        # the compiled tick's GPS and yaw samples, read straight from the updates' ports (a
+        # quiet tick then builds no samples dict); a sensor the vehicle lacks: no sample
+        self._read_gps = _reader_or(self._fusion.update_of(updates.GpsUpdate), fusion.NO_GPS_SAMPLE, n)
+        self._read_yaw = _reader_or(self._fusion.update_of(updates.YawUpdate), fusion.NO_MAG_SAMPLE, n)
         self._healthy = np.empty(n, dtype=bool)  # scratch of each tick's health check
         groups = self._fusion.groups
         declare_state_output(self, "ekf_state", groups.x, n * EKF_STATE_SIZE)
@@ -271,19 +270,25 @@ class Ekf(LeafSystem):
         sample or an unhealthy P, the health check and every update (``updates.Fusion.fuse``)."""
         seam = self._fusion
         filters = seam.filters(discrete_state)
-        samples = seam.read(context)
-        samples["attitude"] = attitude = self._read_attitude(context)
-        gps = samples.get("gps", self._no_gps)
-        mag = self._no_yaw if self._yaw is None else samples["mag"]
+        attitude = self._read_attitude(context)
         tilt_gains = ekf7_kernel.NO_TILT if self._tilt is None else self._tilt.gains(context.get_time())
         quiet = ekf7_kernel.tick(
-            *filters, attitude, self._read_imu(context), gps, mag, *self._model, tilt_gains, self._healthy
+            *filters,
+            attitude,
+            self._read_imu(context),
+            self._read_gps(context),
+            self._read_yaw(context),
+            *self._model,
+            tilt_gains,
+            self._healthy,
         )
-        if quiet:
-            if self._after_quiet_tick:
+        if not quiet or self._after_quiet_tick:
+            samples = seam.read(context)
+            samples["attitude"] = attitude
+            if quiet:
                 seam.fuse(context, discrete_state, filters, samples, None, self._after_quiet_tick)
-        else:  # a fresh GPS sample or an unhealthy P somewhere: the full step
-            seam.fuse(context, discrete_state, filters, samples, self._healthy)
+            else:  # a fresh GPS sample or an unhealthy P somewhere: the full step
+                seam.fuse(context, discrete_state, filters, samples, self._healthy)
         if self._float32:
             attitude_kernel.round_to_float32(filters.x, filters.P)
 
@@ -430,6 +435,15 @@ def _gsf_update(params, sensors, sensor_updates) -> updates.GsfUpdate | None:
             stamp = NIS_COLUMNS[update.measurement.nis][1]
             columns = (stamp, DIAG["mag_gated"])
     return updates.GsfUpdate(MEASUREMENTS["gps"], params.gsf, ONBOARD_PERIOD, params.gps_vel_std[0], columns)
+
+
+def _reader_or(update, no_sample, n):
+    """``read(context) -> (n, width)``: the samples of `update`'s input port, or (no such update:
+    the vehicle lacks the sensor) `no_sample` (a row) for each vehicle."""
+    if update is not None:
+        return update.read
+    rows = np.tile(no_sample, (n, 1))
+    return lambda context: rows
 
 
 def _gps_gates(params, fidelity) -> gating.GpsGates:

@@ -35,10 +35,11 @@ from quad_drake.kernels import fusion
 from quad_drake.kernels.imu_hold import HOLD_SIZE, initial_hold
 from quad_drake.systems._io import discrete_group, row_reader
 
-Groups = collections.namedtuple("Groups", ["x", "P", "diagnostics", "book", "hold"])
+Groups = collections.namedtuple("Groups", ["x", "P", "diagnostics", "book"])
 """The discrete-state group indices of an estimator's filter: x (its state, n*width), P (n*k*k),
 diagnostics (n*``vocabulary.DIAGNOSTICS_SIZE``), book (n*``fusion.BOOK_SIZE``: the last GPS and
-magnetometer stamps seen, the GPS policy's book), hold (the IMU's running mean, ``imu_hold``)."""
+magnetometer stamps seen and the GPS policy's book of the n vehicles, then n*``imu_hold.HOLD_SIZE``:
+their running means of the IMU; one group, so that a tick fetches one view for both)."""
 
 
 def _aiding_kernels():
@@ -305,8 +306,9 @@ class Fusion:
             x=discrete_group(system, np.broadcast_to(x0, (n, self.width)).ravel()),
             P=discrete_group(system, np.tile(P0.ravel(), n)),
             diagnostics=discrete_group(system, np.tile(initial_diagnostics(), n)),
-            book=discrete_group(system, np.tile(fusion.initial_book(), n)),
-            hold=discrete_group(system, np.tile(initial_hold(), n)),
+            book=discrete_group(
+                system, np.concatenate((np.tile(fusion.initial_book(), n), np.tile(initial_hold(), n)))
+            ),
         )
         for update in updates:
             update.declare(system, n, self.k)
@@ -317,8 +319,7 @@ class Fusion:
             (g.x, (n, self.width)),
             (g.P, (n, self.k, self.k)),
             (g.diagnostics, (n, DIAGNOSTICS_SIZE)),
-            (g.book, (n, fusion.BOOK_SIZE)),
-            (g.hold, (n, HOLD_SIZE)),
+            (g.book, (n, fusion.BOOK_SIZE), n * fusion.BOOK_SIZE, (n, HOLD_SIZE)),
         )
         self._readers = tuple((u.measurement.port, u.read) for u in updates if u.read is not None)
         self._gps = next((u for u in updates if isinstance(u, GpsUpdate)), None)
@@ -333,13 +334,14 @@ class Fusion:
         """Writable (n, ...) views of x, P, diagnostics, the book and the hold (valid inside the
         handler that takes them: Drake may hand the next one another DiscreteValues)."""
         get = discrete_state.get_mutable_value
-        (x, x_shape), (P, P_shape), (diagnostics, d_shape), (book, b_shape), (hold, h_shape) = self._views
+        (x, x_shape), (P, P_shape), (diagnostics, d_shape), (book, b_shape, split, h_shape) = self._views
+        book_and_hold = get(book)
         return fusion.Filters(
             get(x).reshape(x_shape),
             get(P).reshape(P_shape),
             get(diagnostics).reshape(d_shape),
-            get(book).reshape(b_shape),
-            get(hold).reshape(h_shape),
+            book_and_hold[:split].reshape(b_shape),
+            book_and_hold[split:].reshape(h_shape),
         )
 
     def read(self, context) -> dict:
