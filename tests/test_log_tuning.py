@@ -83,7 +83,7 @@ def test_a_delayed_gps_is_recovered_from_the_log_alone(tmp_path, seed):
     record = record_run(catalog.load("11_gps_update_eskf", seed, ["end_time=16"]))
     path = write_run_csv(record, tmp_path / "run.csv", {"gps": 0.1})
     imu = ["estimator.accel_std=[0.5, 0.5, 1.5]", "estimator.gyro_std=[0.5, 0.5, 0.5]"]
-    settings = LogTuneSettings(budget=40, train_fraction=0.9, curve_points=0)
+    settings = LogTuneSettings(budget=40, train_fraction=0.9, curve_points=0, imu_noise=False)
     problem = prepare([str(path)], [], [*imu, "estimator.estimate_biases=false"], settings)
     assert [d.name for d in problem.space if d.is_delay] == ["gps_delay", "mag_delay"]
     result = tune_logs(problem, progress=False)
