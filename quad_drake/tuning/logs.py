@@ -291,7 +291,8 @@ class _BudgetSpent(Exception):
 def matched(problem, x, score) -> np.ndarray:
     """The coordinates x with each channel's noise scaled by sqrt of its NIS per dof (averaged over
     the training logs) in `score`, the score of x (covariance matching: R scaled so that the NIS
-    per dof would be 1 were the prior covariance small beside it); the delays unchanged."""
+    per dof would be 1 were the prior covariance small beside it); the profiled coordinates (the
+    delays, the IMU noise) unchanged."""
     x = np.array(x, dtype=float)
     for i, d in enumerate(problem.space):
         per_dof = [s[d.name].nis_per_dof for s in score.statistics if d.name in s]
@@ -329,11 +330,11 @@ DELAY_TOLERANCE = 0.004
 def profile(problem, x, evaluate, score_of) -> np.ndarray:
     """x with each profiled coordinate (the IMU noise, then each delay) in turn set where the
     profile objective is least: at each candidate value the measurement noise is re-matched to it
-    (:func:`matched`, from the noise matched at the best value so far) before the objective is
-    taken, so that a delay is judged with the noise it implies. A coarse grid over the bounds
-    (``Dimension.grid_step``), the noise matched to convergence at its best (:func:`match_noise`),
-    then SciPy's bounded scalar search (``minimize_scalar``, to ``Dimension.tolerance``) within a
-    step of the grid's best."""
+    (one :func:`matched` step) before the objective is taken, so that a delay is judged with the
+    noise it implies. A coarse grid over the bounds (``Dimension.grid_step``; re-matched from x),
+    the noise matched to convergence at the grid's best (:func:`match_noise`), then SciPy's bounded
+    scalar search (``minimize_scalar``, to ``Dimension.tolerance``; re-matched from that noise)
+    within a step of the grid's best."""
     x = np.array(x, dtype=float)
     profiled = [i for i, d in enumerate(problem.space) if d.is_profiled]
     order = sorted(profiled, key=lambda i: problem.space[i].is_delay)
