@@ -426,6 +426,11 @@ def _add_tune_arguments(parser):
     )
     logs.add_argument("--holdout-logs", nargs="+", default=[], metavar="LOG", help="logs only judged")
     logs.add_argument("--no-delays", action="store_true", help="keep the sensor delays as they start")
+    logs.add_argument(
+        "--no-imu-noise",
+        action="store_true",
+        help="keep the IMU noise as it starts",
+    )
     logs.add_argument("--no-curves", action="store_true", help="skip the delays' objective curves")
     return parser
 
@@ -589,6 +594,7 @@ def cmd_tune_logs(args) -> int:
         budget=LogTuneSettings.budget if args.budget is None else args.budget,
         train_fraction=args.train_fraction,
         delays=not args.no_delays,
+        imu_noise=not args.no_imu_noise,
         curve_points=0 if args.no_curves else LogTuneSettings.curve_points,
     )
     problem = prepare(args.name, args.holdout_logs, args.set, settings)
