@@ -54,7 +54,9 @@ def recorded_run(seed, cache):
 def recovered(record, seed, case, budget, folder):
     """{dimension: tuned value} of the log tuner on the run `record` written with `case`'s delays."""
     path = write_run_csv(record, Path(folder) / f"seed{seed}.csv", {"gps": case[0], "mag": case[1]})
-    problem = prepare([str(path)], [], REPLAY, LogTuneSettings(budget=budget, curve_points=0))
+    problem = prepare(
+        [str(path)], [], REPLAY, LogTuneSettings(budget=budget, curve_points=0, imu_noise=False)
+    )
     result = tune_logs(problem, progress=False)
     return {d.name: d.value(x) for d, x in zip(problem.space, result.search.best.x, strict=True)}
 

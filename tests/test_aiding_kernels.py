@@ -394,3 +394,81 @@ def test_the_eskf_check_withholds_the_gps_height_and_leaves_its_bias_state_alone
     assert x[0, eskf.BARO_BIAS_NOMINAL] == pytest.approx(0.05 * 40, abs=1e-12)
     np.testing.assert_array_equal(P, P_before)
     assert book[0, baro.BIAS] == PARAMS.bias_init and book[0, baro.BIAS_VAR] == PARAMS.bias_init_std**2
+
+
+def test_per_vehicle_settings_fuse_each_vehicle_as_its_own_model_alone():
+    """One call over N vehicles, each with its own world field, hard iron, declination, GPS height
+    noise and barometer period (vehicle 3 without a barometer), equals each vehicle's call alone
+    with its own model, bit for bit (what a replay of N logs in one Diagram runs)."""
+    rng = np.random.default_rng(5)
+    fields = [
+        mag3.MagFieldFusionParams(declination=0.1 * i, inclination=1.0 + 0.05 * i, hard_iron=[0.01 * i, 0, 0])
+        for i in range(N)
+    ]
+    gps_z_std, period, carried = [0.5, 2.0, 10.0, 3.0], [0.02, 0.008, 0.04, 0.02], [True, True, True, False]
+    x16 = np.stack([nominal(rng) for _ in range(N)])
+    x7 = np.column_stack((x16[:, 0:6], rng.uniform(-1, 1, N)))
+    P15, P7 = (
+        np.stack([spd(rng, 15, 1e-3) for _ in range(N)]),
+        np.stack([spd(rng, 7, 0.01) for _ in range(N)]),
+    )
+    mag = np.full((N, 4), 0.5)  # each vehicle's field as its own model predicts it, plus noise
+    attitude = np.column_stack((rng.uniform(-0.3, 0.3, (N, 2)), x7[:, 6]))
+    for i, f in enumerate(fields):
+        m_N = mag3.assumed_world_field(f)
+        mag[i, :3] = (
+            mag3.predicted_field(*x16[i, 6:10], *m_N) + np.array(f.hard_iron) + rng.normal(0, 0.005, 3)
+        )
+        m = mag[i, :3] - f.hard_iron
+        x7[i, 6] = mag3.tilt_compensated_heading(attitude[i, 0], attitude[i, 1], *m, f.declination) + 0.05
+    attitude[:, 2] = x7[:, 6]
+    heights = np.column_stack((-x16[:, 2] + rng.normal(0, 0.1, N), np.full(N, 1.0)))
+    gps = np.column_stack((x16[:, 0:6] + rng.normal(0, 0.3, (N, 6)), np.full(N, 1.005)))
+
+    def run(rows, field_model, heading_model, baro_model):
+        state = [a[rows].copy() for a in (x16, P15, x7, P7)]
+        count = len(state[0])
+        outputs = []
+        for kernel, x, P, model, args in (
+            (aiding.field_rows, state[0], state[1], field_model, (mag[rows], np.full((count, 4), -1.0), 1)),
+            (
+                aiding.heading_rows,
+                state[2],
+                state[3],
+                heading_model,
+                (mag[rows], attitude[rows], np.full((count, 4), -1.0), 1),
+            ),
+            (
+                aiding.baro_rows,
+                state[0],
+                state[1],
+                baro_model,
+                (heights[rows], gps[rows], fresh_books(count)[0]),
+            ),
+        ):
+            diagnostics = np.tile(initial_diagnostics(), (count, 1))
+            dx, fused = np.zeros((count, P.shape[1])), np.zeros(count, dtype=bool)
+            kernel(x, P, *args, diagnostics, model, dx, fused)
+            outputs += [P.copy(), dx, fused, diagnostics] + ([args[-1]] if kernel is aiding.baro_rows else [])
+        return outputs
+
+    threshold, heading_threshold = gating.gate_threshold(3, 5.0), gating.gate_threshold(1, 5.0)
+    together = run(
+        slice(None),
+        aiding.field_model(fields, threshold),
+        aiding.heading_model(fields, heading_threshold),
+        aiding.baro_model(PARAMS, gps_z_std, THRESHOLD, period, carried),
+    )
+    for i in range(N):
+        alone = run(
+            slice(i, i + 1),
+            aiding.field_model(fields[i], threshold),
+            aiding.heading_model(fields[i], heading_threshold),
+            aiding.baro_model(PARAMS, gps_z_std[i], THRESHOLD, period[i], carried[i]),
+        )
+        for shared, own in zip(together, alone, strict=True):
+            np.testing.assert_array_equal(shared[i : i + 1], own)
+    assert together[2].all() and together[6].all()  # every field and heading fused
+    book = together[12]  # each barometer's first sample sets its datum; vehicle 3 has none
+    assert book[:, baro.DATUM_SET].tolist() == [1.0, 1.0, 1.0, 0.0]
+    np.testing.assert_array_equal(together[11][3], initial_diagnostics())  # as without an update

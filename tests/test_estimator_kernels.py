@@ -5,6 +5,7 @@ Tolerance: |batched - scalar| <= 1e-12 + 1e-12 |scalar| per entry (absolute for 
 relative for large ones), TOL below.
 """
 
+import dataclasses
 import math
 
 import numpy as np
@@ -23,9 +24,11 @@ from quad_drake.conventions import GRAVITY, NO_SAMPLE_STAMP
 from quad_drake.estimation import ekf, eskf, gating
 from quad_drake.estimation.complementary import complementary_update
 from quad_drake.estimation.registry import (
+    KINDS,
     AttitudeFilterParams,
     Ekf7EstimatorConfig,
     EskfEstimatorConfig,
+    sharing_problem,
     vocabulary_for,
 )
 from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE
@@ -476,11 +479,12 @@ def sensor_sequences(vehicle, reference_accelerometer):
     return {"imu": imu, "gps": gps, "mag": mag}
 
 
-def fleet_and_scalar_estimators(vehicle, n, fidelity):
-    """One Diagram holding the fleet estimator and n scalar ones, every input and output exported."""
+def fleet_and_scalar_estimators(vehicle, n, fidelity, own=None):
+    """One Diagram holding the fleet estimator and n scalar ones, every input and output exported;
+    own: n VehicleConfigs, one per vehicle (the fleet's built of them, each scalar of its own)."""
     builder = DiagramBuilder()
-    systems = {"fleet": build_estimator(vehicle, fidelity, n=n)}
-    systems.update({f"scalar{i}": build_estimator(vehicle, fidelity) for i in range(n)})
+    systems = {"fleet": build_estimator(own, fidelity) if own else build_estimator(vehicle, fidelity, n=n)}
+    systems.update({f"scalar{i}": build_estimator((own or [vehicle] * n)[i], fidelity) for i in range(n)})
     for tag, system in systems.items():
         system.set_name(tag)
         builder.AddSystem(system)
@@ -536,6 +540,40 @@ def test_an_estimator_sized_by_n_matches_n_sized_by_one_tick_by_tick(case):
     vehicle, fidelity = VEHICLES[case]
     n = 4
     diagram = fleet_and_scalar_estimators(vehicle, n, fidelity)
+    diagnostics = _fly_fleet_and_scalars(diagram, vehicle, n, fidelity)
+    assert diagnostics[0, DIAG["nonfinite_samples"]] >= 11  # the IMU burst and the NaN GPS sample
+    assert diagnostics[1, DIAG["nonfinite_samples"]] >= 1
+    if fidelity.reference_estimator:  # the reference's EKF: every sample fused, nothing reset
+        assert (diagnostics[:, [DIAG["gps_gated"], DIAG["mag_gated"], DIAG["gps_resets"]]] == 0).all()
+    else:
+        assert diagnostics[1, DIAG["gps_gated"]] >= 1
+        assert diagnostics[2, DIAG["gps_resets"]] == 1
+        assert diagnostics[2, DIAG["mag_gated"]] == 1
+    assert diagnostics[3, DIAG["nonfinite_samples"]] >= 25  # a NaN stamp is fresh on every tick
+
+
+@pytest.mark.parametrize("case", ["ekf7", "eskf15"])
+def test_an_estimator_of_vehicles_each_with_its_own_settings_matches_each_alone(case):
+    """n replayed logs in one estimator: each vehicle's start and GPS noise its own (the settings
+    ``registry.EstimatorKind.per_vehicle`` names), each equal tick by tick to its own alone."""
+    vehicle, fidelity = VEHICLES[case]
+    kind = KINDS[vehicle.estimator.kind]
+    own = []
+    for i in range(4):
+        estimator = kind.started_from_log(vehicle.estimator, 0.0, 0.0, 0.4 * i - 0.6)
+        if i % 2:
+            estimator = kind.assuming_gps_noise(estimator, 1.0 + i, 0.2 * i)
+        own.append(dataclasses.replace(vehicle, estimator=estimator))
+    assert sharing_problem(own) is None and len({repr(v) for v in own}) == 4
+    diagram = fleet_and_scalar_estimators(vehicle, 4, fidelity, own)
+    diagnostics = _fly_fleet_and_scalars(diagram, vehicle, 4, fidelity)
+    assert diagnostics[2, DIAG["gps_resets"]] == 1
+
+
+def _fly_fleet_and_scalars(diagram, vehicle, n, fidelity):
+    """Feed ``fleet_and_scalar_estimators``'s Diagram the n vehicles' sensor sequences tick by
+    tick, asserting the fleet's outputs equal the scalars' every tick; the fleet's final
+    diagnostics (n, width)."""
     context = diagram.CreateDefaultContext()
     simulator = Simulator(diagram, context)
     sequences = [sensor_sequences(i, fidelity.reference_accelerometer) for i in range(n)]
@@ -552,16 +590,7 @@ def test_an_estimator_sized_by_n_matches_n_sized_by_one_tick_by_tick(case):
             for i in range(n):
                 scalar = diagram.GetOutputPort(f"scalar{i}.{name}").Eval(context)
                 np.testing.assert_allclose(fleet[i], scalar, **TOL, err_msg=f"tick {k}, vehicle {i}, {name}")
-    diagnostics = diagram.GetOutputPort("fleet.diagnostics").Eval(context).reshape(n, -1)
-    assert diagnostics[0, DIAG["nonfinite_samples"]] >= 11  # the IMU burst and the NaN GPS sample
-    assert diagnostics[1, DIAG["nonfinite_samples"]] >= 1
-    if fidelity.reference_estimator:  # the reference's EKF: every sample fused, nothing reset
-        assert (diagnostics[:, [DIAG["gps_gated"], DIAG["mag_gated"], DIAG["gps_resets"]]] == 0).all()
-    else:
-        assert diagnostics[1, DIAG["gps_gated"]] >= 1
-        assert diagnostics[2, DIAG["gps_resets"]] == 1
-        assert diagnostics[2, DIAG["mag_gated"]] == 1
-    assert diagnostics[3, DIAG["nonfinite_samples"]] >= 25  # a NaN stamp is fresh on every tick
+    return diagram.GetOutputPort("fleet.diagnostics").Eval(context).reshape(n, -1)
 
 
 def test_estimator_port_sizes_sized_by_n_follow_the_vocabulary():

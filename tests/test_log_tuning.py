@@ -28,6 +28,19 @@ def test_white_consistent_innovations_are_judged_so_and_a_correlated_sequence_is
     assert not large.in_band and innovations.channel_loss(large) > 4.0
 
 
+def test_the_likelihood_prefers_the_smaller_of_two_consistent_innovation_variances():
+    """A noise inflated to hide a wrong delay makes the NIS consistent again (the consistency loss
+    cannot tell) but costs its ln s² in the likelihood the tuner minimises."""
+    z = np.random.default_rng(6).standard_normal((400, 2))
+    small = innovations.statistics_of("gps_vel_xy", z, 2, np.full((400, 2), 0.1))
+    inflated = innovations.statistics_of("gps_vel_xy", z, 2, np.full((400, 2), 0.2))
+    assert innovations.loss({"a": small}) == innovations.loss({"a": inflated})
+    difference = innovations.likelihood({"a": inflated}) - innovations.likelihood({"a": small})
+    assert difference == pytest.approx(2 * 2 * np.log(2.0), rel=1e-12)
+    nis_only = innovations.statistics_of("baro", z[:, 0] ** 2, 1)  # no innovation std: its loss
+    assert innovations.likelihood({"baro": nis_only}) == innovations.channel_loss(nis_only)
+
+
 def test_px4_parameters_round_trip_through_a_replay_config_and_a_parameter_file():
     rng = np.random.default_rng(3)
     start = default_replay("eskf")
@@ -71,24 +84,24 @@ def test_a_missing_or_unreadable_log_is_one_line_and_exit_2(tmp_path, content, m
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", [3001, 3002])
-def test_a_delayed_gps_is_recovered_from_the_log_alone(tmp_path, seed):
-    """A 16 s run of 11_gps_update_eskf written with its GPS samples 100 ms late: the tuner,
-    starting from zero delay and PX4's noise, finds the delay within 20 ms (seeds not tuned on)."""
+def test_a_delayed_gps_is_recovered_from_the_log_alone(tmp_path, seed=3001):
+    """A 16 s run of 11_gps_update_eskf written with its GPS samples 120 ms late (between the
+    profile's grid points): the tuner, starting from zero delay and PX4's noise, finds the delay
+    within 20 ms (a seed not tuned on; 3001 and 3002 checked: 116 and 119 ms)."""
     from quad_drake.flightlogs.recording import record_run, write_run_csv
     from quad_drake.running import catalog
     from quad_drake.tuning.logs import prepare, tune_logs
     from quad_drake.tuning.settings import LogTuneSettings
 
     record = record_run(catalog.load("11_gps_update_eskf", seed, ["end_time=16"]))
-    path = write_run_csv(record, tmp_path / "run.csv", {"gps": 0.1})
+    path = write_run_csv(record, tmp_path / "run.csv", {"gps": 0.12})
     imu = ["estimator.accel_std=[0.5, 0.5, 1.5]", "estimator.gyro_std=[0.5, 0.5, 0.5]"]
-    settings = LogTuneSettings(budget=40, train_fraction=0.9, curve_points=0)
+    settings = LogTuneSettings(budget=36, train_fraction=0.9, curve_points=0, imu_noise=False)
     problem = prepare([str(path)], [], [*imu, "estimator.estimate_biases=false"], settings)
     assert [d.name for d in problem.space if d.is_delay] == ["gps_delay", "mag_delay"]
     result = tune_logs(problem, progress=False)
     tuned = dataclasses.asdict(result.tuned)
-    assert abs(tuned["gps_delay"] - 0.1) <= 0.02
+    assert abs(tuned["gps_delay"] - 0.12) <= 0.02
     assert result.search.best.score.loss < result.search.history[0].score.loss
 
 

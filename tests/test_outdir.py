@@ -2,17 +2,20 @@
 exit 3 on a write error, concurrent invocations into one --out, reproductions beside the run."""
 
 import errno
+import io
 import json
 import os
 import subprocess
 import sys
 import threading
+import zipfile
 
 import numpy as np
 import pytest
 
+from quad_drake.output import results
 from quad_drake.output.outdir import atomic_path, is_result_folder, write_text_atomic
-from quad_drake.output.results import claim_run_folder, load_run, save_run, variant_name
+from quad_drake.output.results import claim_run_folder, load_run, save_run, savez_deflating, variant_name
 from quad_drake.running import catalog
 
 
@@ -44,7 +47,7 @@ def _full_disk(*args, **kwargs):
 def test_a_full_disk_keeps_the_earlier_run_whole(gps_flight, tmp_path, monkeypatch):
     run_dir = save_run(gps_flight, tmp_path / "11_gps_update")
     before = {p.name: p.read_bytes() for p in run_dir.iterdir()}
-    monkeypatch.setattr(np, "savez_compressed", _full_disk)
+    monkeypatch.setattr(results, "savez_deflating", _full_disk)
     with pytest.raises(OSError):
         save_run(gps_flight, run_dir)
     assert {p.name: p.read_bytes() for p in run_dir.iterdir()} == before
@@ -52,12 +55,33 @@ def test_a_full_disk_keeps_the_earlier_run_whole(gps_flight, tmp_path, monkeypat
 
 
 def test_a_write_error_is_one_line_and_exit_3(quad_drake_cli, tmp_path, monkeypatch):
-    monkeypatch.setattr(np, "savez_compressed", _full_disk)
+    monkeypatch.setattr(results, "savez_deflating", _full_disk)
     result = quad_drake_cli("run", "01_intro", "--no-plots", "--out", tmp_path / "out")
     assert result.returncode == 3
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and "No space left on device" in lines[0] and "Traceback" not in result.stderr
     assert not list((tmp_path / "out" / "01_intro").glob(".*tmp*"))  # no torn temporary left
+
+
+def test_logs_npz_compresses_what_deflate_shrinks_and_stores_the_rest():
+    rng = np.random.default_rng(3)
+    arrays = {
+        "times": np.arange(1, 5001) * 0.005,
+        "Quad/state": rng.standard_normal((5000, 13)),  # noise: deflate cannot shrink it
+        "Quad/diagnostics": np.where(np.arange(5000)[:, None] % 7 == 0, np.nan, np.zeros((5000, 17))),
+        "Quad/gps": np.repeat(rng.standard_normal((50, 7)), 100, axis=0).astype(np.float32),
+        "empty": np.zeros((0, 3)),
+    }
+    buffer = io.BytesIO()
+    savez_deflating(buffer, arrays)
+    kinds = {i.filename: i.compress_type for i in zipfile.ZipFile(io.BytesIO(buffer.getvalue())).infolist()}
+    assert kinds["Quad/state.npy"] == zipfile.ZIP_STORED
+    assert kinds["Quad/diagnostics.npy"] == kinds["Quad/gps.npy"] == zipfile.ZIP_DEFLATED
+    loaded = np.load(io.BytesIO(buffer.getvalue()))
+    assert sorted(loaded.files) == sorted(arrays)
+    for name, array in arrays.items():
+        assert loaded[name].dtype == array.dtype and loaded[name].shape == array.shape
+        np.testing.assert_array_equal(loaded[name], array)  # NaN where NaN, bit for bit elsewhere
 
 
 def test_folder_names_carry_the_seed_and_a_hash_of_the_overrides():

@@ -177,7 +177,8 @@ def reset_states(x, P, indices, values, covariance) -> tuple[np.ndarray, np.ndar
     """(x', P') of M filters with x[:, indices] = values, that block of P = covariance and no
     cross-covariance with the other states (a reset to a measurement).
 
-    x (M, n); P (M, n, n); indices: the m reset states; values (M, m); covariance (m, m).
+    x (M, n); P (M, n, n); indices: the m reset states; values (M, m); covariance (m, m), or
+    (M, m, m): each filter's own.
     Returns new arrays.
     """
     x = np.array(x, dtype=float)

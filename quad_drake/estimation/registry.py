@@ -23,7 +23,10 @@ to know of it:
   yaw)``, the config started at the log's first attitude; ``assuming_gps_noise(config, pos_std,
   vel_std)``, the config assuming that GPS noise (a log without GPS gets fake positions);
   ``assuming_gps_height_noise(config, height_std)``, that GPS height noise alone (a log whose
-  height reference is its barometer: the GPS height is not fused).
+  height reference is its barometer: the GPS height is not fused);
+- ``per_vehicle(config)``: the dotted config fields its system takes per vehicle, so that one
+  system sized by n replays n flight logs, each with its own start, GPS noise and magnetic field
+  (:func:`sharing_problem`); () for a kind whose n vehicles must fly one config.
 
 Adding an estimator is its config dataclass and one entry in :data:`KINDS`; its builder lives on
 the systems side (``tests/test_registry.py`` asserts it). Whether a kind runs under a scenario's
@@ -220,6 +223,8 @@ class EstimatorKind:
     smoothable: bool = False
     # a log's EKF2_* parameters map onto its config (``flightlogs.px4_parameters``)
     takes_px4_parameters: bool = False
+    # the dotted config fields its system takes per vehicle (:func:`sharing_problem`)
+    per_vehicle: Callable[[object], tuple] = lambda config: ()
 
     def replay_config(self) -> object:
         """The kind's config for replaying a flight log (``replay_defaults``, else the defaults)."""
@@ -357,6 +362,32 @@ def _eskf_gps_height_noise(config, height_std):
     return dataclasses.replace(config, gps_pos_std=[*config.gps_pos_std[0:2], height_std])
 
 
+MAG_FIELD_PER_VEHICLE = (
+    "mag_field.field_strength",
+    "mag_field.declination",
+    "mag_field.inclination",
+    "mag_field.hard_iron",
+)
+"""The magnetometer settings an AidingParams estimator takes per vehicle: each log's own world
+field (``flightlogs.earth_field``) and learned hard iron."""
+_EKF7_PER_VEHICLE = (
+    "init_state",
+    "gps_pos_xy_std",
+    "gps_pos_z_std",
+    "gps_vel_xy_std",
+    "gps_vel_z_std",
+    *MAG_FIELD_PER_VEHICLE,
+)
+
+
+def _eskf_per_vehicle(config) -> tuple:
+    """The ESKF's per-vehicle fields: its start, GPS noise (the velocity's not with the EKF-GSF,
+    which is built on one) and magnetic field."""
+    shared_by_gsf = ("gps_vel_std",) if not config.gsf.enabled else ()
+    start = ("init_position", "init_velocity", "init_ypr")
+    return (*start, "gps_pos_std", *shared_by_gsf, *MAG_FIELD_PER_VEHICLE)
+
+
 def _eskf_vocabulary(config):
     """ESKF15 or ESKF9 (bias states or not), with the EKF-GSF's log when ``gsf.enabled``."""
     vocabulary = ESKF15 if config.estimate_biases else ESKF9
@@ -440,6 +471,7 @@ KINDS = {
             started_from_log=_ekf7_started,
             assuming_gps_noise=_ekf7_gps_noise,
             assuming_gps_height_noise=_ekf7_gps_height_noise,
+            per_vehicle=lambda config: _EKF7_PER_VEHICLE,
         ),
         EstimatorKind(
             name="eskf",
@@ -455,6 +487,7 @@ KINDS = {
             assuming_gps_height_noise=_eskf_gps_height_noise,
             smoothable=True,
             takes_px4_parameters=True,
+            per_vehicle=_eskf_per_vehicle,
         ),
         EstimatorKind(
             name="custom",
@@ -535,3 +568,46 @@ def nis_sensors(vehicle) -> tuple:
     fuses; () when no estimator runs."""
     names = {m.nis for m in fused_measurements(vehicle)}
     return tuple(name for name in NIS_ORDER if name in names)
+
+
+def sharing_problem(vehicles) -> Optional[str]:
+    """None when the VehicleConfigs `vehicles` (one per vehicle) can share one estimator system
+    sized by their number, else why not (one line): all equal, or of one kind whose configs differ
+    only in the fields it takes per vehicle (``EstimatorKind.per_vehicle``) and whose sensors differ
+    only in the barometer (a vehicle may lack one; its period is its own)."""
+    first = vehicles[0]
+    if all(v == first for v in vehicles[1:]):
+        return None
+    kinds = sorted({v.estimator.kind for v in vehicles})
+    if len(kinds) > 1:
+        return f"estimator kinds {', '.join(kinds)} differ"
+    kind = kind_of(first.estimator)
+    if not kind.per_vehicle(first.estimator):
+        return f"estimator kind {kind.name!r} takes no per-vehicle settings: every vehicle needs one config"
+    shared = _shared_part(first.estimator, kind.per_vehicle(first.estimator))
+    for v in vehicles[1:]:
+        differing = _differing_field(shared, _shared_part(v.estimator, kind.per_vehicle(v.estimator)))
+        if differing:
+            return f"estimator.{differing} differs (kind {kind.name} takes it for all vehicles)"
+        if dataclasses.replace(v.sensors, baro=None) != dataclasses.replace(first.sensors, baro=None):
+            return "the sensors differ in more than the barometer"
+    return None
+
+
+def _shared_part(config, per_vehicle) -> object:
+    """`config` with its per-vehicle fields (dotted names) set to None: what all vehicles share."""
+    for dotted in per_vehicle:
+        head, _, rest = dotted.partition(".")
+        inner = None if not rest else _shared_part(getattr(config, head), (rest,))
+        config = dataclasses.replace(config, **{head: inner})
+    return config
+
+
+def _differing_field(a, b) -> str:
+    """The dotted name of the first field where the dataclasses a and b differ; "" when equal."""
+    for f in dataclasses.fields(a):
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        if x != y:
+            nested = _differing_field(x, y) if dataclasses.is_dataclass(x) and type(x) is type(y) else ""
+            return f.name + (f".{nested}" if nested else "")
+    return ""

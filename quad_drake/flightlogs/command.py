@@ -8,7 +8,7 @@ import math
 from pathlib import Path
 
 from quad_drake.config.errors import ConfigError
-from quad_drake.flightlogs.replay import COMPARE_AFTER, replay, save_replay
+from quad_drake.flightlogs.replay import COMPARE_AFTER, breakdown_error, replay, replay_many, save_replay
 from quad_drake.flightlogs.settings import estimator_mapping, load_replay
 from quad_drake.output.outdir import check_output_dir, is_result_folder, write_text_atomic
 from quad_drake.output.results import claim_run_folder, variant_name
@@ -91,24 +91,32 @@ def result_lines(result) -> list[str]:
 
 def replay_command(args) -> int:
     """Run ``quad-drake replay`` (README "Replaying flight logs"): one log, or each of many and one
-    table over them (``replay_table.csv`` in the output folder). Exit code 0 when every log
-    replayed; 2 when one could not (its line printed, the others replayed and saved)."""
+    table over them (``replay_table.csv`` in the output folder). Many logs whose settings allow it
+    are replayed in one Diagram, a vehicle each (``replay.replay_many``; ``--separately``: each in
+    its own). Exit code 0 when every log replayed; 2 when one could not (its line printed, the
+    others replayed and saved)."""
     logs = expand_logs(args.log)
     overrides = [*args.set, *(["smooth=true"] if getattr(args, "smooth", False) else [])]
     configs = [load_replay(log, args.estimator, overrides) for log in logs]  # every input before any run
     if len(configs) == 1:
-        _replay_one(args, logs[0], configs[0])
-        return 0
-    rows, failed = [], False
-    for log, config in zip(logs, configs, strict=True):
+        out, reproduced = _out_folder(args, logs[0])
         try:
-            result = _replay_one(args, log, config)
-        except ConfigError as e:  # a log that cannot be replayed: said, and the others go on
-            print(f"error: {e}")
-            rows.append(table_row(config, None, str(e)))
+            result = replay(configs[0])
+        except ArithmeticError as e:
+            raise breakdown_error(configs[0], e) from None
+        _report(args, logs[0], configs[0], result, out, reproduced)
+        return 0
+    folders = [_out_folder(args, log) for log in logs]
+    outcomes = replay_many(configs, together=not getattr(args, "separately", False))
+    rows, failed = [], False
+    for log, config, folder, outcome in zip(logs, configs, folders, outcomes, strict=True):
+        if isinstance(outcome, ConfigError):  # a log that cannot be replayed: said, and the others go on
+            print(f"error: {outcome}")
+            rows.append(table_row(config, None, str(outcome)))
             failed = True
             continue
-        rows.append(table_row(config, result))
+        _report(args, log, config, outcome, *folder)
+        rows.append(table_row(config, outcome))
     out = check_output_dir(args.out or "out")
     print_table(rows)
     path = save_table(rows, out / "replay_table.csv")
@@ -155,24 +163,18 @@ def save_table(rows, path) -> Path:
     return path
 
 
-def _replay_one(args, log, config):
-    """Replay one log (its config resolved), print its lines and save its folder; the ReplayResult."""
-    out, reproduced = _out_folder(args, log)
+def _report(args, log, config, result, out, reproduced):
+    """Print a replayed log's lines (its config resolved, its ReplayResult) and save its folder
+    into `out` (``_out_folder``'s)."""
     tuned = args.estimator and set(estimator_mapping(args.estimator)) != {"kind"}  # more than the kind
     overrides = ([f"--estimator={args.estimator}"] if tuned else []) + list(args.set)
     overrides += ["smooth=true"] if config.smooth else []
     name = variant_name(f"{config.name or Path(config.log).stem}-{config.estimator.kind}", None, overrides)
-    try:
-        result = replay(config)
-    except ArithmeticError as e:
-        raise ConfigError(
-            f"{config.log}: the replay broke down numerically ({type(e).__name__}: {e}); "
-            "check the noise and covariance settings"
-        ) from None
     sensors = ", ".join(["imu", *result.log.sensors()])
+    shared = f" (one Diagram of {result.logs_in_diagram} logs)" if result.logs_in_diagram > 1 else ""
     print(
         f"== replay {result.config.name} on {config.estimator.kind}: {result.log.duration:.1f} s of log "
-        f"({sensors}) in {result.wall_time:.2f} s"
+        f"({sensors}) in {result.wall_time:.2f} s{shared}"
     )
     for line in result_lines(result):
         print(line)
@@ -187,4 +189,3 @@ def _replay_one(args, log, config):
         print(f"open {write_index(out)}")
     else:
         print(f"saved {folder}/")
-    return result

@@ -11,6 +11,11 @@ log with a late first fix zero samples before it (:func:`aiding_gps`); the magne
 field is ``earth_field.magnetometer_model``'s. ``checks.log_warnings`` refuses a log that cannot
 be replayed and says what weakens one that can.
 
+Many logs are one Diagram (:func:`replay_many`): the LogPlayback of n flights and the estimator of
+n vehicles, one per log, each with its own log's settings (its start, GPS noise, magnetic field and
+barometer: ``registry.EstimatorKind.per_vehicle``), on the common 2 ms tick; each log's results
+cut at its own end equal its replay alone.
+
 :func:`replay` is the library call behind ``quad-drake replay``; :func:`save_replay` writes the
 run folder (``logs.npz``, ``config.yaml``, ``summary.json`` of kind ``"replay"``; the report and
 plots: ``flightlogs.page``). :func:`replay_as_flown` replays a log through a VehicleConfig's
@@ -25,12 +30,13 @@ from pathlib import Path
 
 import numpy as np
 from pydrake.systems.analysis import Simulator
-from pydrake.systems.framework import Diagram, DiagramBuilder
-from pydrake.systems.primitives import LogVectorOutput, VectorLogSink
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import LogVectorOutput
 
 from quad_drake.config.errors import ConfigError
+from quad_drake.config.schema import VehicleConfig
 from quad_drake.conventions import LOG_PERIOD, ONBOARD_PERIOD
-from quad_drake.estimation.registry import KINDS, vocabulary_for
+from quad_drake.estimation.registry import KINDS, sharing_problem, vocabulary_for
 from quad_drake.estimation.vocabulary import EstimatorVocabulary, health_counts, health_line
 from quad_drake.flightlogs import comparison, earth_field, px4_parameters, smoothing
 from quad_drake.flightlogs.checks import log_warnings
@@ -69,8 +75,6 @@ biases from their initial σ), and a comparison should see them running, not sta
 LATE_FIX = 1.0
 """s: a first GPS fix later than this after the log's start is late: zero position and velocity
 samples stand in for it before (``aiding_gps``)."""
-TICKS = "ticks"
-"""Key of the per-tick sinks among a smoothed replay's sinks (``build_replay_diagram``)."""
 RUNNER = "drake-replay"
 """What produced a replay: the Drake Diagram of this module."""
 
@@ -111,6 +115,7 @@ class ReplayResult:
     warnings: list = field(default_factory=list)  # checks.log_warnings: what weakens this replay
     truth: list = field(default_factory=list)  # [comparison.TruthError]; [] without a ground truth
     truth_nees: list = field(default_factory=list)  # [comparison.NeesSummary] of ours against it
+    logs_in_diagram: int = 1  # the logs replayed in its Diagram (replay_many); wall_time is the Diagram's
 
     @property
     def vocabulary(self) -> EstimatorVocabulary:
@@ -171,6 +176,11 @@ class ReplayResult:
         if self.log.baro is not None and not self.aiding.baro_fused:
             lines.append(f"The log's barometer is not fused: kind {self.config.estimator.kind} takes none.")
         lines += self.warnings
+        if self.logs_in_diagram > 1:
+            lines.append(
+                f"Replayed in one Diagram with {self.logs_in_diagram - 1} other logs (a vehicle each, "
+                "the same estimates as alone); the wall time is that Diagram's."
+            )
         if self.log.reference_attitude is None:
             lines.append("The log has no vehicle_attitude: nothing to compare the attitude with.")
         for stream, count in self.superseded.items():
@@ -197,6 +207,7 @@ class ReplayResult:
             "wall_time_s": round(self.wall_time, 3),
             "real_time_factor": round(self.log.duration / self.wall_time, 2) if self.wall_time > 0 else None,
             "compile_time_s": round(self.compile_time, 3),
+            "logs_in_diagram": self.logs_in_diagram,
             "differences": [_difference_dict(d) for d in self.attitude + self.position],
             "nis": [_nis_dict(s) for s in self.nis],
             "truth": [_truth_dict(e) for e in self.truth],
@@ -320,13 +331,12 @@ def delayed_log(log, config) -> object:
     )
 
 
-def build_replay_diagram(log, config) -> tuple[Diagram, dict[str, VectorLogSink], Aiding]:
-    """(Diagram, {log name: VectorLogSink}, Aiding) replaying the FlightLog `log` through the
-    estimator of the ReplayConfig `config` (module docstring), its sensors' samples at the times
-    they were measured (:func:`delayed_log`); with ``config.smooth`` the sinks also hold {TICKS:
-    the per-tick sinks of ``smoothing.tick_sinks``}."""
-    if config.smooth and not KINDS[config.estimator.kind].smoothable:
-        raise ConfigError(f"smooth: the smoother runs over the ESKF only, not kind {config.estimator.kind}")
+def replay_setup(log, config) -> tuple[dict, VehicleConfig, Aiding]:
+    """(playback streams, VehicleConfig, Aiding) of the FlightLog `log` replayed under the
+    ReplayConfig `config`: what its vehicle of a replay Diagram plays (``schedule.playback_streams``
+    of the log's samples at the times they were measured, :func:`delayed_log`, with the aiding of
+    :func:`aiding_gps`), the estimator it feeds (``settings.vehicle_for``: started at the log's first
+    attitude, the log's magnetic field and barometer period) and how it was aided."""
     log = delayed_log(log, config)
     gps, fake, late_fix, losses = aiding_gps(log, config)
     magnetometer = magnetometer_for(log, config)
@@ -344,21 +354,23 @@ def build_replay_diagram(log, config) -> tuple[Diagram, dict[str, VectorLogSink]
     vehicle = vehicle_for(
         config, initial_attitude(log, declination, hard_iron), fake, baro_period, magnetometer, baro_reference
     )
-    diagram, sinks, ticks = _playback_diagram(streams, vehicle, config.name or "replay", config.smooth)
     baro_fused = vehicle.sensors.baro is not None
     aiding = Aiding(fake, magnetometer, late_fix, baro_fused, losses, baro_fused and baro_reference)
-    return diagram, (sinks | {TICKS: ticks} if config.smooth else sinks), aiding
+    return streams, vehicle, aiding
 
 
-def _playback_diagram(streams, vehicle, name, ticks=False):
-    """(Diagram, {log name: VectorLogSink}, {name: tick sink} or None): a LogPlayback of `streams`
-    feeding the estimator of the VehicleConfig `vehicle` (``build_estimator``, one vehicle):
-    ``imu``, ``gps``, ``mag`` (the raw field for a 3-axis magnetometer, else the heading) and
-    ``baro`` where it has that input; every estimator and playback output logged every LOG_PERIOD;
-    ticks: also the per-tick sinks of ``smoothing.tick_sinks`` (an ESKF's, for its smoother)."""
+def _playback_diagram(streams, vehicles, name, ticks=False):
+    """(Diagram, {log name: VectorLogSink}, {name: tick sink} or None): a LogPlayback of n flights
+    (`streams`: each flight's) feeding the estimator of n vehicles (`vehicles`: each flight's
+    VehicleConfig, ``build_estimator`` of one, or of n that ``registry.sharing_problem`` lets share
+    it): ``imu``, ``gps``, ``mag`` (the raw field for a 3-axis magnetometer, else the heading) and
+    ``baro`` where it has that input; every estimator and playback output (n vehicles wide,
+    vehicle-major) logged every LOG_PERIOD; ticks: also the per-tick sinks of
+    ``smoothing.tick_sinks`` (an ESKF's, one flight, for its smoother)."""
     builder = DiagramBuilder()
     playback = builder.AddNamedSystem("playback", LogPlayback(streams))
-    estimator = builder.AddSystem(build_estimator(vehicle, PHYSICAL))
+    estimator = builder.AddSystem(build_estimator(vehicles[0] if len(vehicles) == 1 else vehicles, PHYSICAL))
+    vehicle = vehicles[0]  # the sensors all share but the barometer (sharing_problem)
     three_axis = vehicle.sensors.mag is not None and vehicle.sensors.mag.three_axis
     wiring = {"imu": "imu", "gps": "gps", "mag": "mag_field" if three_axis else "mag", "baro": "baro"}
     for port, stream in wiring.items():
@@ -366,7 +378,7 @@ def _playback_diagram(streams, vehicle, name, ticks=False):
             builder.Connect(playback.GetOutputPort(stream), estimator.GetInputPort(port))
     sinks = {}
     outputs = [(log_name, estimator) for log_name in vocabulary_for(vehicle.estimator).log_widths()]
-    outputs += [(log_name, playback) for log_name in streams]
+    outputs += [(log_name, playback) for log_name in streams[0]]
     for log_name, system in outputs:
         sinks[log_name] = LogVectorOutput(system.GetOutputPort(log_name), builder, publish_period=LOG_PERIOD)
         sinks[log_name].set_name(f"{log_name}_log")
@@ -382,7 +394,7 @@ def replay_as_flown(log, vehicle, ticks=False) -> tuple:
     replay defaults, no fake position): a simulated run's CSV (``flightlogs.recording``) replayed
     through the run's own estimator reproduces the run's estimate. ticks: a third item, the
     ``smoothing.TickLogs`` of an ESKF (its pass tick by tick, for the smoother)."""
-    diagram, sinks, tick = _playback_diagram(playback_streams(log), vehicle, "replay", ticks)
+    diagram, sinks, tick = _playback_diagram([playback_streams(log)], [vehicle], "replay", ticks)
     simulator = Simulator(diagram)
     context = simulator.get_mutable_context()
     simulator.Initialize()
@@ -397,46 +409,144 @@ def replay(config, log=None) -> ReplayResult:
 
     Raises reader.FlightLogError (a ConfigError, one line) for a log that cannot be replayed.
     """
+    return _replay_together([_prepare(config, log)])[0]
+
+
+def replay_many(configs, logs=None, together=True) -> list:
+    """[ReplayResult, or the ConfigError of a log that cannot be replayed] of each ReplayConfig of
+    `configs`, in order (each config's ``log`` file read unless `logs` gives its FlightLog).
+    The logs whose vehicles can share one estimator (``registry.sharing_problem``: the same
+    kind and settings but for each log's start, GPS noise, magnetic field and barometer) are
+    replayed in one Diagram, one vehicle each: a LogPlayback of n flights on the common 2 ms
+    tick, each stream with samples where its own log has them, and each vehicle's results
+    cut at its own log's end. A smoothed replay, and every replay with together=False, runs
+    in a Diagram of its own. Each result equals its log replayed alone."""
+    outcomes, prepared = [None] * len(configs), []
+    for k, config in enumerate(configs):
+        try:
+            prepared.append((k, _prepare(config, None if logs is None else logs[k])))
+        except ConfigError as e:
+            outcomes[k] = e
+    groups = []
+    for k, p in prepared:
+        home = None
+        if together and not p.config.smooth:
+            home = next((g for g in groups if _can_share(g[0][1], p)), None)
+        if home is None:
+            groups.append([(k, p)])
+        else:
+            home.append((k, p))
+    for group in groups:
+        try:
+            results = _replay_together([p for _, p in group])
+        except (ArithmeticError, ConfigError) as e:  # a breakdown, or more logs than memory holds
+            if len(group) > 1:  # each alone, so that an error is its own log's
+                results = [replay_many([p.config], [p.log], together=False)[0] for _, p in group]
+            else:
+                results = [e if isinstance(e, ConfigError) else breakdown_error(group[0][1].config, e)]
+        for (k, _), result in zip(group, results, strict=True):
+            outcomes[k] = result
+    return outcomes
+
+
+def breakdown_error(config, error) -> ConfigError:
+    """The one-line ConfigError of a replay of `config` that broke down numerically (`error`, an
+    ArithmeticError)."""
+    return ConfigError(
+        f"{config.log}: the replay broke down numerically ({type(error).__name__}: {error}); "
+        "check the noise and covariance settings"
+    )
+
+
+@dataclass(frozen=True)
+class _Prepared:
+    """A log ready to replay: its resolved config, FlightLog, warnings and ``replay_setup``."""
+
+    config: ReplayConfig
+    log: object
+    warnings: list
+    streams: dict
+    vehicle: VehicleConfig
+    aiding: Aiding
+
+
+def _prepare(config, log=None) -> _Prepared:
+    """The _Prepared replay of `config` (its log read unless `log` is given); a ConfigError (one
+    line) for a log that cannot be replayed."""
     log = read_flight_log(resolve_log(config.log)) if log is None else log
     warnings = log_warnings(log, COMPARE_AFTER)
     if config.px4_parameters:
         config = px4_parameters.from_parameters(config, log.parameters)
     if not config.name:
         config = dataclasses.replace(config, name=Path(log.source).stem)
-    width = sum(vocabulary_for(config.estimator).log_widths().values())  # before anything is built
+    if config.smooth and not KINDS[config.estimator.kind].smoothable:
+        raise ConfigError(f"smooth: the smoother runs over the ESKF only, not kind {config.estimator.kind}")
+    return _Prepared(config, log, warnings, *replay_setup(log, config))
+
+
+def _can_share(first, other) -> bool:
+    """True when the _Prepared `other` can be replayed in the Diagram of `first`."""
+    return not first.config.smooth and sharing_problem([first.vehicle, other.vehicle]) is None
+
+
+def _replay_together(prepared) -> list[ReplayResult]:
+    """The ReplayResults of the _Prepared logs `prepared` replayed in one Diagram, a vehicle each
+    (:func:`replay_many`), to the end of the longest; each cut at its own log's end and judged."""
+    n, first = len(prepared), prepared[0]
+    end = max(p.log.duration for p in prepared)
+    width = sum(vocabulary_for(first.config.estimator).log_widths().values())  # before anything is built
     width += sum(w + STAMPED[name] for name, w in STREAM_WIDTHS.items())
+    what = first.log.source if n == 1 else f"{n} logs in one Diagram"
     check_memory(
-        log.duration / LOG_PERIOD * width * 8.0 * LOG_COPIES,
-        f"{log.source}: a replay of {log.duration:g} s",
+        end / LOG_PERIOD * n * width * 8.0 * LOG_COPIES,
+        f"{what}: a replay of {end:g} s",
         "replay a shorter stretch of the flight (e.g. cut into a CSV log)",
     )
-    diagram, sinks, aiding = build_replay_diagram(log, config)
+    smooth = first.config.smooth
+    diagram_name = first.config.name or "replay" if n == 1 else "replays"
+    diagram, sinks, ticks = _playback_diagram(
+        [p.streams for p in prepared], [p.vehicle for p in prepared], diagram_name, smooth
+    )
     simulator = Simulator(diagram)
     context = simulator.get_mutable_context()
     compiled = jit.compile_seconds()
     start = time.perf_counter()
     simulator.Initialize()
-    simulator.AdvanceTo(log.duration)
+    simulator.AdvanceTo(end)
     compile_time = jit.compile_seconds() - compiled
     wall_time = time.perf_counter() - start - compile_time
-    ticks = sinks.pop(TICKS, None)
     times, logs = _read_sinks(sinks, context)
-    if ticks is not None:  # the smoothed pass, sampled as the other logs
-        tick_logs = smoothing.read_tick_sinks(ticks, context)
-        logs |= smoothing.smoothed_logs(tick_logs, smoothing.smooth_pass(tick_logs, config.estimator), times)
-    result = ReplayResult(
-        config,
-        log,
-        times,
-        logs,
-        wall_time,
-        aiding.fake_position,
-        compile_time=compile_time,
-        aiding=aiding,
-        warnings=warnings,
-    )
-    _judge(result)
-    return result
+    results = []
+    for i, p in enumerate(prepared):
+        kept = times <= p.log.duration
+        own = {name: _vehicle_rows(data, i, n, kept) for name, data in logs.items()}
+        if ticks is not None:  # the smoothed pass, sampled as the other logs (one log: smooth)
+            tick_logs = smoothing.read_tick_sinks(ticks, context)
+            own |= smoothing.smoothed_logs(
+                tick_logs, smoothing.smooth_pass(tick_logs, p.config.estimator), times[kept]
+            )
+        result = ReplayResult(
+            p.config,
+            p.log,
+            times[kept].copy(),
+            own,
+            wall_time,
+            p.aiding.fake_position,
+            compile_time=compile_time,
+            aiding=p.aiding,
+            warnings=p.warnings,
+            logs_in_diagram=n,
+        )
+        _judge(result)
+        results.append(result)
+    return results
+
+
+def _vehicle_rows(data, i, n, kept) -> np.ndarray:
+    """Vehicle i's samples `kept` ((samples,) bool) of a log of n vehicles (samples, n width): a
+    new (kept samples, width) array."""
+    width = data.shape[1] // n
+    return data[kept, i * width : (i + 1) * width]
 
 
 def _read_sinks(sinks, context):

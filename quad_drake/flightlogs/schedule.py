@@ -75,6 +75,23 @@ def first_ticks(times, period=ONBOARD_PERIOD) -> np.ndarray:
     return np.ceil(np.asarray(times, dtype=float) / period - TICK_TOLERANCE).astype(np.int64)
 
 
+def output_changes(per_vehicle) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(ticks (m,), vehicles (m,), rows (m, width)) of one stream of n flights (`per_vehicle`: each
+    flight's :class:`Stream`): every change of a vehicle's output, sorted by tick (stable, so
+    vehicle-ordered within a tick). A vehicle's output changes at each tick where a sample of it
+    is first due, to the latest sample due then (an earlier one at the same tick is superseded)."""
+    ticks, vehicles, rows = [], [], []
+    for i, stream in enumerate(per_vehicle):
+        first = stream.first_tick
+        latest = np.flatnonzero(np.append(first[1:] != first[:-1], True)) if len(first) else np.zeros(0, int)
+        ticks.append(first[latest])
+        vehicles.append(np.full(len(latest), i))
+        rows.append(stream.rows[latest])
+    ticks = np.concatenate(ticks)
+    order = np.argsort(ticks, kind="stable")
+    return ticks[order], np.concatenate(vehicles)[order], np.concatenate(rows)[order]
+
+
 def superseded_samples(times, period=ONBOARD_PERIOD) -> int:
     """How many samples are never emitted: followed by another before their tick."""
     ticks = first_ticks(times, period)

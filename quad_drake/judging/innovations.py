@@ -61,6 +61,7 @@ class ChannelStatistics:
     autocorrelation: tuple  # LAGS values
     white_band: float  # 1.96 / sqrt(count)
     ljung_box_p: float
+    log_variance: float = math.nan  # mean of ln s² over samples and components (component channels)
 
     @property
     def in_band(self) -> bool:
@@ -76,10 +77,13 @@ class ChannelStatistics:
         return float(np.max(np.abs(self.autocorrelation)))
 
 
-def normalised_innovations(vocabulary, logs, channel, assumed_std, window) -> tuple[np.ndarray, np.ndarray]:
-    """(stamps (m,) s, z (m, k)) of a component channel in a replay's logs: each fresh sample
-    stamped inside window = (start, end) s, its innovation over sqrt(prior σ² + assumed_std²)
-    (assumed_std: (k,) the std the filter assumed per component, in the sensor's unit)."""
+def normalised_innovations(
+    vocabulary, logs, channel, assumed_std, window
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(stamps (m,) s, z (m, k), s (m, k)) of a component channel in a replay's logs: each fresh
+    sample stamped inside window = (start, end) s, its innovation ν over s = sqrt(prior σ² +
+    assumed_std²), the innovation's std in the sensor's unit (assumed_std: (k,) the std the filter
+    assumed per component)."""
     sensor, states, columns = COMPONENT_CHANNELS[channel]
     samples = np.asarray(logs[sensor], dtype=float)
     rows = fresh_rows(samples, window[0])
@@ -97,7 +101,7 @@ def normalised_innovations(vocabulary, logs, channel, assumed_std, window) -> tu
     else:  # the yaw's σ (the ESKF's rotation error about D, the EKF7's yaw)
         sigma = attitude_sigmas(vocabulary, covariance, euler_from_quats(estimate[before, 3:7])[2])[:, 2:3]
     s = np.sqrt(sigma**2 + np.asarray(assumed_std, dtype=float) ** 2)
-    return samples[rows, -1], nu / s
+    return samples[rows, -1], nu / s, s
 
 
 def nis_sequence(diagnostics, channel, window) -> np.ndarray:
@@ -130,9 +134,10 @@ def ljung_box_p(rho, count) -> float:
     return float(chi2.sf(q, len(rho)))
 
 
-def statistics_of(channel, z_or_nis, dof) -> ChannelStatistics | None:
-    """ChannelStatistics of a channel's normalised innovations z (m, k) (dof = k), or of a NIS
-    channel's NIS sequence (m,) with its dof; None with fewer than LAGS + 2 samples."""
+def statistics_of(channel, z_or_nis, dof, innovation_std=None) -> ChannelStatistics | None:
+    """ChannelStatistics of a channel's normalised innovations z (m, k) (dof = k) with their
+    innovation std s (m, k) where known, or of a NIS channel's NIS sequence (m,) with its dof;
+    None with fewer than LAGS + 2 samples."""
     values = np.asarray(z_or_nis, dtype=float)
     count = len(values)
     if count < LAGS + 2:
@@ -153,6 +158,7 @@ def statistics_of(channel, z_or_nis, dof) -> ChannelStatistics | None:
         tuple(float(r) for r in rho),
         1.96 / math.sqrt(count),
         ljung_box_p(rho, count),
+        math.nan if innovation_std is None else float(np.mean(2.0 * np.log(innovation_std))),
     )
 
 
@@ -163,11 +169,8 @@ def channel_statistics(vocabulary, logs, assumed, window) -> dict[str, ChannelSt
     found = {}
     for channel, std in assumed.items():
         if channel in COMPONENT_CHANNELS:
-            stats = statistics_of(
-                channel,
-                normalised_innovations(vocabulary, logs, channel, std, window)[1],
-                len(COMPONENT_CHANNELS[channel][1]),
-            )
+            _, z, s = normalised_innovations(vocabulary, logs, channel, std, window)
+            stats = statistics_of(channel, z, len(COMPONENT_CHANNELS[channel][1]), s)
         else:
             stats = statistics_of(
                 channel, nis_sequence(logs["diagnostics"], channel, window), NIS_CHANNELS[channel]
@@ -193,6 +196,29 @@ def channel_loss(stats) -> float:
 def loss(statistics) -> float:
     """Σ over channels of :func:`channel_loss` ({channel: ChannelStatistics}, or a list of such
     dicts, one per log: summed over them)."""
-    if isinstance(statistics, dict):
-        statistics = [statistics]
-    return float(sum(channel_loss(s) for per_log in statistics for s in per_log.values()))
+    return float(sum(channel_loss(s) for s in _each(statistics)))
+
+
+def channel_likelihood(stats) -> float:
+    """A component channel's mean negative log-likelihood per sample, dof·(NIS per dof + mean
+    ln s²) (the Gaussian's, less its constant dof·ln 2π): Σ over its components of z² + ln s²,
+    least for the innovations that are both consistent and smallest; a NIS channel (no innovation
+    std known) its :func:`channel_loss`."""
+    if not math.isfinite(stats.log_variance):
+        return channel_loss(stats)
+    if not (math.isfinite(stats.nis_per_dof) and stats.nis_per_dof > 0):
+        return NONFINITE_TERM
+    return stats.dof * (stats.nis_per_dof + stats.log_variance)
+
+
+def likelihood(statistics) -> float:
+    """Σ over channels of :func:`channel_likelihood` (statistics as :func:`loss` takes them): what
+    ``quad-drake tune LOG`` minimises. Unlike :func:`loss` it does not fall when a wrong delay is
+    hidden under a larger noise: the larger innovation variance costs its ln s²."""
+    return float(sum(channel_likelihood(s) for s in _each(statistics)))
+
+
+def _each(statistics):
+    """The ChannelStatistics of a {channel: ChannelStatistics} or a list of such dicts."""
+    for per_log in [statistics] if isinstance(statistics, dict) else statistics:
+        yield from per_log.values()

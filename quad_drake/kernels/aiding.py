@@ -38,11 +38,17 @@ measurement):
 Each ``*_rows`` kernel works IN PLACE on P (N, n, n), the diagnostics and the book, and writes
 the correction dx (N, n) of the vehicles it fused (``fused`` (N,) bool): the caller adds it
 (EKF7, ``kernels.ekf7.correct``) or injects it (ESKF, ``kernels.eskf.correct``). A non-finite
-sample is counted and skipped. Pure: numba and numpy, no pydrake.
+sample is counted and skipped. The settings a vehicle has of its own (the world field, hard iron
+and declination of its magnetometer; its GPS height noise, barometer period and whether it
+carries a barometer: replayed flight logs, each with its own) are per-vehicle arrays in the
+models, one row per vehicle or a single row for all (:func:`per_vehicle`). Pure: numba and
+numpy, no pydrake.
 """
 
 import collections
 import math
+
+import numpy as np
 
 from quad_drake.conventions import NO_SAMPLE_STAMP
 from quad_drake.estimation import baro, eskf, gating, mag3
@@ -87,6 +93,18 @@ _floored_yaw_variance = compiled(mag3.floored_yaw_variance)
 _wrap = rotations.wrap_to_pi
 
 
+def per_vehicle(values, vectors=False) -> np.ndarray:
+    """A model's per-vehicle setting as a float array: (rows,) of scalars, or (rows, k) of vectors
+    (``vectors``); one row per vehicle, or one row that every vehicle takes (``_row``)."""
+    return np.ascontiguousarray(np.array(values, dtype=float, ndmin=2 if vectors else 1))
+
+
+@njit_cached
+def _row(setting, i):
+    """The row of vehicle i in a per-vehicle setting: its own, or the only one."""
+    return i if setting.shape[0] > 1 else 0
+
+
 @njit_cached
 def _bias_of(x, P, book, i, in_state):
     """(bias m, its variance m^2) of vehicle i: the filter's state (nominal x[i, 16], P's last
@@ -122,11 +140,14 @@ def _gps_height_check(book, i, in_state, innovation, innovation_var, offset, thr
 
 @njit_cached
 def _baro_rows(x, P, baro_samples, gps, book, diagnostics, model, dx, fused):
-    height_var, gps_z_var, walk_std, threshold, reset_timeout = model[:5]
-    stamp_match, check_offset, check_threshold, state = model[5:]
+    height_var, gps_z_vars, walk_std, threshold, reset_timeout, stamp_matches = model[:6]
+    check_offset, check_threshold, carried, state = model[6:]
     in_state = state > 0.0
     for i in range(x.shape[0]):
         fused[i] = False
+        if not carried[_row(carried, i)]:  # a vehicle without a barometer: as if it had no update
+            continue
+        gps_z_var, stamp_match = gps_z_vars[_row(gps_z_vars, i)], stamp_matches[_row(stamp_matches, i)]
         stamp = baro_samples[i, 1]
         if stamp != NO_SAMPLE_STAMP and stamp != book[i, _LAST_STAMP]:
             previous = book[i, _LAST_STAMP]
@@ -210,22 +231,26 @@ def baro_rows(x, P, baro_samples, gps, book, diagnostics, model, dx, fused) -> N
     _baro_rows(x, P, baro_samples, gps, book, diagnostics, model, dx, fused)
 
 
-def baro_model(params, gps_z_std, gate_threshold, baro_period, bias_in_state=False) -> tuple:
-    """The baro kernel's constants from BaroFusionParams: (height_var m², gps_z_var m², walk_std
-    m/sqrt(s), the gate's NIS threshold, reset_timeout s, stamp_match s: half the baro period, the
-    largest stamp difference of a baro sample and a GPS sample taken as simultaneous, the GPS-height
-    check's gps_check_offset m (0 = off) and gps_check_threshold, and 1.0 when the filter carries
-    the bias in its state (`bias_in_state`: the ESKF, ``eskf.carries_baro_bias``), 0.0 when the
-    scalar filter in the book estimates it (the EKF7))."""
+def baro_model(params, gps_z_std, gate_threshold, baro_period, carried=True, bias_in_state=False) -> tuple:
+    """The baro kernel's constants from BaroFusionParams: (height_var m², gps_z_var m² per vehicle,
+    walk_std m/sqrt(s), the gate's NIS threshold, reset_timeout s, stamp_match s per vehicle: half
+    the baro period, the largest stamp difference of a baro sample and a GPS sample taken as
+    simultaneous, the GPS-height check's gps_check_offset m (0 = off) and gps_check_threshold,
+    carried per vehicle: 0 for a vehicle without a barometer, whose row the kernel leaves as it is,
+    and 1.0 when the filter carries the bias in its state (`bias_in_state`: the ESKF,
+    ``eskf.carries_baro_bias``), 0.0 when the scalar filter in the book estimates it (the EKF7)).
+    gps_z_std (m), baro_period (s) and carried: one value for every vehicle or one per vehicle
+    (:func:`per_vehicle`)."""
     return (
         float(params.height_std) ** 2,
-        float(gps_z_std) ** 2,
+        per_vehicle(gps_z_std) ** 2,
         float(params.bias_walk_std),
         float(gate_threshold),
         float(params.reset_timeout),
-        0.5 * float(baro_period),
+        0.5 * per_vehicle(baro_period),
         float(params.gps_check_offset),
         float(params.gps_check_threshold),
+        np.array(carried, dtype=np.bool_, ndmin=1),
         1.0 if bias_in_state else 0.0,
     )
 
@@ -246,13 +271,16 @@ def _fresh_field(mag, book, slot, diagnostics, i):
 
 @njit_cached
 def _field_rows(x, P, mag, book, slot, diagnostics, model, dx, fused):
-    m_N, hard_iron, field_var, threshold, attitude_only = model
+    world_fields, hard_irons, field_var, threshold, attitude_only = model
     for i in range(x.shape[0]):
         fused[i] = False
         if not _fresh_field(mag, book, slot, diagnostics, i):
             continue
         q = (x[i, 6], x[i, 7], x[i, 8], x[i, 9])
         m_B = (mag[i, 0], mag[i, 1], mag[i, 2])
+        w, h = _row(world_fields, i), _row(hard_irons, i)
+        m_N = (world_fields[w, 0], world_fields[w, 1], world_fields[w, 2])
+        hard_iron = (hard_irons[h, 0], hard_irons[h, 1], hard_irons[h, 2])
         nu, H, _, nis = _field_innovation(q, P[i], m_B, m_N, hard_iron, field_var)
         if math.isnan(nis):
             diagnostics[i, _NONFINITE] += 1.0
@@ -276,24 +304,36 @@ def field_rows(x, P, mag, book, slot, diagnostics, model, dx, fused) -> None:
 
 
 def field_model(params, gate_threshold) -> tuple:
-    """(m_N, hard_iron, field_var (3-tuples: gauss, gauss, gauss²), threshold, attitude_only) of
-    MagFieldFusionParams."""
+    """(m_N (rows, 3) gauss NED, hard_iron (rows, 3) gauss FRD, field_var (3-tuple, gauss²),
+    threshold, attitude_only) of MagFieldFusionParams: one, or a sequence of one per vehicle that
+    differ only in their world field and hard iron (:func:`per_vehicle`; the others' figures are
+    the first's)."""
+    each = _each(params)
+    first = each[0]
     return (
-        tuple(float(v) for v in mag3.assumed_world_field(params)),
-        tuple(float(v) for v in params.hard_iron),
-        tuple(float(s) ** 2 for s in params.field_std),
+        per_vehicle([mag3.assumed_world_field(p) for p in each], vectors=True),
+        per_vehicle([p.hard_iron for p in each], vectors=True),
+        tuple(float(s) ** 2 for s in first.field_std),
         float(gate_threshold),
-        bool(params.attitude_only),
+        bool(first.attitude_only),
     )
+
+
+def _each(params) -> tuple:
+    """A model's MagFieldFusionParams as a tuple: one per vehicle, or the one of all."""
+    return tuple(params) if isinstance(params, (list, tuple)) else (params,)
 
 
 @njit_cached
 def _heading_rows(x, P, mag, attitude, book, slot, diagnostics, model, dx, fused):
-    hard_iron, field_var, declination, tilt_var, threshold = model
+    hard_irons, field_var, declinations, tilt_var, threshold = model
     for i in range(x.shape[0]):
         fused[i] = False
         if not _fresh_field(mag, book, slot, diagnostics, i):
             continue
+        h = _row(hard_irons, i)
+        hard_iron = (hard_irons[h, 0], hard_irons[h, 1], hard_irons[h, 2])
+        declination = declinations[_row(declinations, i)]
         mx, my, mz = mag[i, 0] - hard_iron[0], mag[i, 1] - hard_iron[1], mag[i, 2] - hard_iron[2]
         roll, pitch = attitude[i, 0], attitude[i, 1]
         heading = _heading(roll, pitch, mx, my, mz, declination)
@@ -326,16 +366,19 @@ def heading_rows(x, P, mag, attitude, book, slot, diagnostics, model, dx, fused)
 HeadingModel = collections.namedtuple(
     "HeadingModel", ["hard_iron", "field_var", "declination", "tilt_var", "threshold"]
 )
-"""The heading kernel's constants: hard_iron (3, gauss), field_var (3, gauss²), declination rad,
-tilt_var rad² (the attitude's roll/pitch error variance), threshold (the gate's NIS threshold)."""
+"""The heading kernel's constants: hard_iron (rows, 3) gauss, field_var (3, gauss²), declination
+(rows,) rad, tilt_var rad² (the attitude's roll/pitch error variance), threshold (the gate's NIS
+threshold); rows: one per vehicle or one for all (:func:`per_vehicle`)."""
 
 
 def heading_model(params, gate_threshold) -> HeadingModel:
-    """The :class:`HeadingModel` of MagFieldFusionParams and a gate's NIS threshold."""
+    """The :class:`HeadingModel` of MagFieldFusionParams (one, or one per vehicle that differ only in
+    their hard iron and declination, as :func:`field_model`'s) and a gate's NIS threshold."""
+    each = _each(params)
     return HeadingModel(
-        tuple(float(v) for v in params.hard_iron),
-        tuple(float(s) ** 2 for s in params.field_std),
-        float(params.declination),
-        float(params.tilt_std) ** 2,
+        per_vehicle([p.hard_iron for p in each], vectors=True),
+        tuple(float(s) ** 2 for s in each[0].field_std),
+        per_vehicle([p.declination for p in each]),
+        float(each[0].tilt_std) ** 2,
         float(gate_threshold),
     )

@@ -189,7 +189,8 @@ def repaired_covariance(P, fallback) -> tuple[np.ndarray, np.ndarray]:
 @njit_cached
 def _joseph_row(x, P, z, R, i, comps, m, P_out, dx, work):
     """The update of vehicle i with the m GPS components comps[:m] (indices into (p, v); H = those
-    rows of [I6 0]): the correction into dx[i] and P' into P_out[i]; returns (nis, singular). A
+    rows of [I6 0]) and its noise R[i] (6, 6): the correction into dx[i] and P' into P_out[i];
+    returns (nis, singular). A
     singular S (an exactly zero pivot, as LAPACK's gesv) leaves them as they are.
 
     [K^T | S^-1 nu] = S^-1 [H P | nu] by Gaussian elimination with partial pivoting;
@@ -201,7 +202,7 @@ def _joseph_row(x, P, z, R, i, comps, m, P_out, dx, work):
         ca = comps[a]
         nu[a] = z[i, ca] - x[i, ca]
         for b in range(m):
-            S[a, b] = P[i, ca, comps[b]] + R[ca, comps[b]]
+            S[a, b] = P[i, ca, comps[b]] + R[i, ca, comps[b]]
         for c in range(n):
             X[a, c] = P[i, ca, c]
         X[a, n] = nu[a]
@@ -246,7 +247,7 @@ def _joseph_row(x, P, z, R, i, comps, m, P_out, dx, work):
         for j in range(m):
             value = 0.0
             for k in range(m):
-                value += K[r, k] * R[comps[k], comps[j]]
+                value += K[r, k] * R[i, comps[k], comps[j]]
             KR[r, j] = value
     for r in range(n):  # P' = T (I - K H)^T + KR K^T
         for c in range(n):
@@ -292,8 +293,8 @@ def joseph_rows(
     x, P, gps_pv, R_gps, mask=None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, bool]:
     """(dx (N, n), P' (N, n, n), nis (N,), fused (N,) bool, singular) of GPS samples gps_pv (N, 6:
-    p m, v m/s) with R_gps (6, 6) on x (N, width), P (N, n, n): the Joseph update of the module
-    docstring.
+    p m, v m/s) with R_gps (6, 6; or (N, 6, 6), each vehicle's own) on x (N, width), P (N, n, n):
+    the Joseph update of the module docstring.
 
     mask (N, 6) bool, optional: the components each vehicle fuses (default all six). A vehicle
     with none, a non-finite fused component or a singular S is not fused: P kept, dx = 0, NaN
@@ -301,12 +302,13 @@ def joseph_rows(
     """
     z = np.asarray(gps_pv, dtype=float)
     mask = np.ones((len(z), 6), dtype=bool) if mask is None else np.ascontiguousarray(mask, dtype=bool)
-    return _joseph_rows(x, P, z, R_gps, mask)
+    R = np.ascontiguousarray(np.broadcast_to(np.asarray(R_gps, dtype=float), (len(z), 6, 6)))
+    return _joseph_rows(x, P, z, R, mask)
 
 
 def gps_update(x, P, gps_pv, R_gps, correct, mask=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
     """(x', P', nis (N,), singular) of the Joseph update (:func:`joseph_rows`) of GPS samples gps_pv
-    (N, 6) with R_gps (6, 6) on x (N, width), P (N, n, n), the correction applied by the
+    (N, 6) with R_gps (6, 6, or (N, 6, 6)) on x (N, width), P (N, n, n), the correction applied by the
     estimator's ``correct(x, P, dx, fused)`` (IN PLACE on the new arrays: added for the EKF7,
     injected for the ESKF). mask as :func:`joseph_rows`'; an unfused vehicle keeps (x, P)."""
     dx, P_new, nis, fused, singular = joseph_rows(x, P, gps_pv, R_gps, mask)
@@ -325,10 +327,10 @@ def fuse_gps(filters, gps, rows, correct, R, gates, height_withheld=None) -> Non
     filters: the estimator's :class:`Filters`, x, P, diagnostics and book updated IN PLACE for
     those rows; gps (N, 7) the samples (p m, v m/s, stamp s); rows: int indices (or a full slice)
     of the vehicles whose sample is fresh; correct(x, P, dx, fused): how the estimator applies a
-    correction (``ekf7.correct``, ``eskf.correct``; :func:`gps_update`); R (6, 6); gates a
-    ``gating.GpsGates``; height_withheld (N,) bool or None: the vehicles whose GPS height is
-    neither fused nor reset to (it disagrees persistently with their barometer,
-    ``BaroUpdate.withholds_gps_height``).
+    correction (``ekf7.correct``, ``eskf.correct``; :func:`gps_update`); R (6, 6), or (N, 6, 6):
+    each vehicle's own; gates a ``gating.GpsGates``; height_withheld (N,) bool or None: the
+    vehicles whose GPS height is neither fused nor reset to (it disagrees persistently with their
+    barometer, ``BaroUpdate.withholds_gps_height``).
 
     Per vehicle: the stamp is booked; a non-finite stamp or sample counts a non-finite sample and
     keeps (x, P); otherwise the joint 6-dof NIS of the prior and the stamp are logged, the groups
@@ -347,6 +349,7 @@ def fuse_gps(filters, gps, rows, correct, R, gates, height_withheld=None) -> Non
         return
     index, s, z_rows = index[valid], s[valid], z_rows[valid]
     x_prior, P_prior = x[index], P[index]
+    R = R if R.ndim == 2 else R[index]  # (6, 6) or (M, 6, 6): each fused vehicle's own
     nu = z_rows - x_prior[:, 0:6]
     S = P_prior[:, 0:6, 0:6] + R
     diagnostics[index, DIAG["gps_nis"]] = gating.innovation_nis(nu, S)
@@ -364,8 +367,8 @@ def fuse_gps(filters, gps, rows, correct, R, gates, height_withheld=None) -> Non
         due = reset[:, g]
         if due.any():
             idx = list(components)
-            x_new[due], P_new[due] = gating.reset_states(
-                x_new[due], P_new[due], idx, z_rows[due][:, idx], R[np.ix_(idx, idx)]
-            )
+            noise = R[np.ix_(idx, idx)] if R.ndim == 2 else R[due][:, idx][:, :, idx]
+            values = z_rows[due][:, idx]
+            x_new[due], P_new[due] = gating.reset_states(x_new[due], P_new[due], idx, values, noise)
     x[index] = x_new
     P[index] = P_new

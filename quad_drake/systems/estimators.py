@@ -1,13 +1,16 @@
 """Estimator LeafSystems and the estimator sub-Diagrams a vehicle's config chooses.
 
 Every system here is sized by n vehicles (default 1, a single run; a fleet flies n runs of one
-VehicleConfig at once): its ports carry the n per-vehicle vectors vehicle-major (vehicle i at
-[i k, (i + 1) k)), and a single run and a fleet execute the same code: the compiled kernels over
-(n, ...) views of the ports and discrete state, ``kernels/attitude.py``, ``kernels/ekf7.py`` and
-``kernels/eskf.py`` (each estimator's equations in its module docstring), with
-``kernels/fusion.py`` for what they share. Each estimator system holds its measurement updates
-(``systems/updates.py``: one object per sensor, built once from the vehicle) and supplies only
-its prediction and how a correction is applied.
+VehicleConfig at once; a replay of n flight logs runs n vehicles, each with the settings of its
+own log: the params and sensors given as a sequence of n, which differ only in what the kind
+takes per vehicle, ``registry.EstimatorKind.per_vehicle``: the start, the GPS noise, the
+magnetic field, the barometer's period and presence): its ports carry the n per-vehicle vectors
+vehicle-major (vehicle i at [i k, (i + 1) k)), and a single run and a fleet execute the same
+code: the compiled kernels over (n, ...) views of the ports and discrete state,
+``kernels/attitude.py``, ``kernels/ekf7.py`` and ``kernels/eskf.py`` (each estimator's equations
+in its module docstring), with ``kernels/fusion.py`` for what they share. Each estimator system
+holds its measurement updates (``systems/updates.py``: one object per sensor, built once from
+the vehicle) and supplies only its prediction and how a correction is applied.
 
 Every estimator is a sub-Diagram (:func:`build_estimator`) with the input ``imu``, one input
 per measurement it fuses that the vehicle carries (``gps``, ``mag``, ``baro``) and the outputs
@@ -30,6 +33,8 @@ running mean of the IMU and report the body rate in ``estimated_state`` as NaN: 
 measured, and the controller then commands no body moment (``control.cascade``).
 """
 
+import dataclasses
+
 import numpy as np
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 
@@ -46,7 +51,7 @@ from quad_drake.conventions import (
 from quad_drake.estimation import ekf, gating
 from quad_drake.estimation.complementary import VARIANTS
 from quad_drake.estimation.measurements import MEASUREMENTS
-from quad_drake.estimation.registry import KINDS, kind_of, vocabulary_for
+from quad_drake.estimation.registry import KINDS, kind_of, sharing_problem, vocabulary_for
 from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, NIS_COLUMNS, NIS_DOF, gsf_log_size
 from quad_drake.kernels import attitude as attitude_kernel
 from quad_drake.kernels import ekf7 as ekf7_kernel
@@ -59,7 +64,59 @@ from quad_drake.systems._io import declare_block_output, declare_state_output, d
 
 
 def _tiled(vector, n):
-    return np.tile(np.asarray(vector, dtype=float), n)
+    """The n vehicles' rows of `vector`, vehicle-major: (k,) for all, or (n, k) each its own."""
+    vector = np.asarray(vector, dtype=float)
+    return np.broadcast_to(vector, (n, vector.shape[-1])).ravel()
+
+
+def _per_vehicle(settings, n) -> tuple:
+    """(shared, each) of an estimator system's `settings` (its params or its sensors), given once
+    for its n vehicles or as a sequence of n, one per vehicle (``registry.sharing_problem`` says
+    how they may differ): the first, whose shared figures every vehicle takes, and the sequence
+    (None when given once)."""
+    if not isinstance(settings, (list, tuple)):
+        return settings, None
+    if len(settings) != n:
+        raise ValueError(f"{len(settings)} per-vehicle settings for {n} vehicles")
+    return settings[0], tuple(settings)
+
+
+def _stacked(value_of, shared, each) -> np.ndarray:
+    """value_of(shared) as an array, or (n, ...) the stack of value_of of each vehicle's settings."""
+    if each is None:
+        return np.asarray(value_of(shared), dtype=float)
+    return np.stack([np.asarray(value_of(s), dtype=float) for s in each])
+
+
+def _mag_field(params, each):
+    """The MagFieldFusionParams of the vehicles: one for all, or a tuple of each vehicle's."""
+    return params.mag_field if each is None else tuple(p.mag_field for p in each)
+
+
+def _carried(sensors, each_sensors):
+    """The SensorsConfig an estimator system builds its updates of: `sensors`, with per-vehicle
+    sensors the first's with the barometer of the first vehicle that carries one."""
+    if each_sensors is None:
+        return sensors
+    return dataclasses.replace(sensors, baro=next((s.baro for s in each_sensors if s.baro is not None), None))
+
+
+def _baro_update(
+    measurement, correct, params, each, fidelity, gps_z_std_of, sensors, each_sensors, bias_in_state=False
+):
+    """The BaroUpdate of an estimator system: its params' barometer fusion and gate; per vehicle
+    (``each``, ``each_sensors``: None when one for all) the GPS height noise gps_z_std_of(params)
+    m, the barometer's period s and whether it carries one; bias_in_state: the estimator carries
+    the baro bias in its state (the ESKF)."""
+    gps_z_std = gps_z_std_of(params) if each is None else [gps_z_std_of(p) for p in each]
+    period, carried = float(sensors.baro.period), True
+    if each_sensors is not None:
+        period = [float((s.baro or sensors.baro).period) for s in each_sensors]
+        carried = [s.baro is not None for s in each_sensors]
+    gate = _gate(params.baro.gate_sigma, fidelity)
+    return updates.BaroUpdate(
+        measurement, correct, params.baro, gate, gps_z_std, period, carried, bias_in_state
+    )
 
 
 GPS_AND_MAG = SensorsConfig(gps=GpsParams(), mag=MagParams())
@@ -75,6 +132,7 @@ class ComplementaryFilter(LeafSystem):
     """n complementary roll/pitch filters with gyro-integrated yaw (SPEC §4 UpdateFromIMU).
 
     Every port carries the n vehicles' vectors vehicle-major (vehicle i at [i k, (i + 1) k)).
+    initial_attitude: (3,) rad for all vehicles, or (n, 3) each its own.
     Inputs: ``imu`` (n*6: f_B specific force m/s^2, w_NB_B rad/s; FRD), ``ekf_state`` (n*7; index
     6 is the EKF posterior yaw, rad, used as the prior yaw). Outputs (state ports): ``attitude``
     (n*3: roll, pitch, yaw, rad), ``body_rate`` (n*3: the gyro sample, rad/s; NaN while the IMU
@@ -147,11 +205,16 @@ class Ekf(LeafSystem):
     ``baro`` (n*2: height m up, stamp s), a 3-axis magnetometer makes ``mag`` n*4 (m_B gauss FRD,
     stamp s, fused as the tilt-compensated heading); each is fused after the GPS through its gate
     (``kernels/aiding.py``). Corrections are added, the yaw wrapped (``kernels.ekf7.correct``;
-    the GPS's without the wrap, ``kernels.ekf7.correct_gps``).
+    the GPS's without the wrap, ``kernels.ekf7.correct_gps``). params and sensors: one for all n
+    vehicles, or a sequence of n (module docstring): the initial state, the GPS noise, the
+    magnetic field and the barometer each vehicle's own.
     """
 
     def __init__(self, params, fidelity=PHYSICAL, tilt=None, n=1, sensors=GPS_AND_MAG):
         super().__init__()
+        params, each = _per_vehicle(params, n)
+        sensors, each_sensors = _per_vehicle(sensors, n)
+        sensors = _carried(sensors, each_sensors)
         self._float32 = fidelity.float32_estimator
         self._tilt = tilt
         R_mag = ekf.mag_noise(params)
@@ -167,14 +230,14 @@ class Ekf(LeafSystem):
         builders = {
             "yaw": lambda m: updates.YawUpdate(m, ekf7_kernel.mag_tick, R_mag, mag_threshold),
             "gps": lambda m: updates.GpsUpdate(
-                m, ekf.gps_noise(params), _gps_gates(params, fidelity), ekf7_kernel.correct_gps
+                m, _stacked(ekf.gps_noise, params, each), _gps_gates(params, fidelity),
+                ekf7_kernel.correct_gps,
             ),
             "heading": lambda m: updates.HeadingUpdate(
-                m, correct, params.mag_field, _gate(params.mag_field.gate_sigma, fidelity), tilt
+                m, correct, _mag_field(params, each), _gate(params.mag_field.gate_sigma, fidelity), tilt
             ),
-            "baro": lambda m: updates.BaroUpdate(
-                m, correct, params.baro, _gate(params.baro.gate_sigma, fidelity), params.gps_pos_z_std,
-                float(sensors.baro.period),
+            "baro": lambda m: _baro_update(
+                m, correct, params, each, fidelity, lambda p: p.gps_pos_z_std, sensors, each_sensors
             ),
         }  # fmt: skip
         self._read_imu = row_reader(self.DeclareVectorInputPort("imu", n * IMU_SIZE), n)
@@ -182,21 +245,20 @@ class Ekf(LeafSystem):
         self._fusion = updates.Fusion(
             self,
             n,
-            ekf.initial_state(params),
+            _stacked(ekf.initial_state, params, each),
             ekf.initial_covariance(params),
             updates.build_updates(KINDS["ekf7"].measurements, sensors, builders),
             repairs=not fidelity.reference_estimator,
         )
         # a quiet tick (no fresh GPS sample, every P healthy) fused the yaw in the compiled tick
         # and has no GPS sample to fuse: only the other updates run
-        self._yaw = self._fusion.update_of(updates.YawUpdate)
         self._after_quiet_tick = tuple(
             u for u in self._fusion.updates if not isinstance(u, (updates.YawUpdate, updates.GpsUpdate))
         )
-        self._no_gps, self._no_yaw = (
-            np.tile(fusion.NO_GPS_SAMPLE, (n, 1)),
-            np.tile(fusion.NO_MAG_SAMPLE, (n, 1)),
-        )
+        # the compiled tick's GPS and yaw samples, read straight from the updates' ports (a
+        # quiet tick then builds no samples dict); a sensor the vehicle lacks: no sample
+        self._read_gps = _reader_or(self._fusion.update_of(updates.GpsUpdate), fusion.NO_GPS_SAMPLE, n)
+        self._read_yaw = _reader_or(self._fusion.update_of(updates.YawUpdate), fusion.NO_MAG_SAMPLE, n)
         self._healthy = np.empty(n, dtype=bool)  # scratch of each tick's health check
         groups = self._fusion.groups
         declare_state_output(self, "ekf_state", groups.x, n * EKF_STATE_SIZE)
@@ -213,19 +275,25 @@ class Ekf(LeafSystem):
         sample or an unhealthy P, the health check and every update (``updates.Fusion.fuse``)."""
         seam = self._fusion
         filters = seam.filters(discrete_state)
-        samples = seam.read(context)
-        samples["attitude"] = attitude = self._read_attitude(context)
-        gps = samples.get("gps", self._no_gps)
-        mag = self._no_yaw if self._yaw is None else samples["mag"]
+        attitude = self._read_attitude(context)
         tilt_gains = ekf7_kernel.NO_TILT if self._tilt is None else self._tilt.gains(context.get_time())
         quiet = ekf7_kernel.tick(
-            *filters, attitude, self._read_imu(context), gps, mag, *self._model, tilt_gains, self._healthy
+            *filters,
+            attitude,
+            self._read_imu(context),
+            self._read_gps(context),
+            self._read_yaw(context),
+            *self._model,
+            tilt_gains,
+            self._healthy,
         )
-        if quiet:
-            if self._after_quiet_tick:
+        if not quiet or self._after_quiet_tick:
+            samples = seam.read(context)
+            samples["attitude"] = attitude
+            if quiet:
                 seam.fuse(context, discrete_state, filters, samples, None, self._after_quiet_tick)
-        else:  # a fresh GPS sample or an unhealthy P somewhere: the full step
-            seam.fuse(context, discrete_state, filters, samples, self._healthy)
+            else:  # a fresh GPS sample or an unhealthy P somewhere: the full step
+                seam.fuse(context, discrete_state, filters, samples, self._healthy)
         if self._float32:
             attitude_kernel.round_to_float32(filters.x, filters.P)
 
@@ -281,11 +349,15 @@ class Eskf(LeafSystem):
     sample through the gates and resets of :class:`Ekf`; P is checked as there. The updates are
     the ``eskf`` kind's ``measurements`` that ``sensors`` carry (as :class:`Ekf`'s: a 3-axis
     magnetometer's field vector and the baro height after the GPS); corrections are injected
-    (``kernels.eskf.correct``).
+    (``kernels.eskf.correct``). params and sensors: one for all n vehicles, or a sequence of n
+    (module docstring), as :class:`Ekf`'s.
     """
 
     def __init__(self, params, fidelity=PHYSICAL, n=1, sensors=GPS_AND_MAG):
         super().__init__()
+        params, each = _per_vehicle(params, n)
+        sensors, each_sensors = _per_vehicle(sensors, n)
+        sensors = _carried(sensors, each_sensors)
         # imported on first use: a run without an ESKF creates none of its numba dispatchers
         from quad_drake.estimation import eskf
         from quad_drake.kernels import eskf as eskf_kernel
@@ -298,14 +370,14 @@ class Eskf(LeafSystem):
                 gating.gate_threshold(NIS_DOF["mag"], _gate(params.mag_gate_sigma, fidelity)),
             ),
             "gps": lambda m: updates.GpsUpdate(
-                m, eskf.gps_noise(params), _gps_gates(params, fidelity), correct
+                m, _stacked(eskf.gps_noise, params, each), _gps_gates(params, fidelity), correct
             ),
             "field": lambda m: updates.FieldUpdate(
-                m, correct, params.mag_field, _gate(params.mag_field.gate_sigma, fidelity)
+                m, correct, _mag_field(params, each), _gate(params.mag_field.gate_sigma, fidelity)
             ),
-            "baro": lambda m: updates.BaroUpdate(
-                m, correct, params.baro, _gate(params.baro.gate_sigma, fidelity), params.gps_pos_std[2],
-                float(sensors.baro.period), bias_in_state=True,
+            "baro": lambda m: _baro_update(
+                m, correct, params, each, fidelity, lambda p: p.gps_pos_std[2], sensors, each_sensors,
+                bias_in_state=True,
             ),
         }  # fmt: skip
         self._n = n
@@ -317,12 +389,14 @@ class Eskf(LeafSystem):
         P0 = eskf.initial_covariance(params, baro)
         Q_constant = eskf.noise_buffer(P0.shape[0], noise, ONBOARD_PERIOD)
         self._model = eskf_kernel.model(noise, Q_constant, ONBOARD_PERIOD)
-        yaw, pitch, roll = params.init_ypr
-        x0 = eskf.initial_nominal(
-            params.init_position, params.init_velocity, quat_from_euler_tuple(roll, pitch, yaw)
-        )
-        if baro:
-            x0 = np.append(x0, params.baro.bias_init)
+
+        def initial_nominal(p):
+            yaw, pitch, roll = p.init_ypr
+            attitude = quat_from_euler_tuple(roll, pitch, yaw)
+            x = eskf.initial_nominal(p.init_position, p.init_velocity, attitude)
+            return np.append(x, p.baro.bias_init) if baro else x
+
+        x0 = _stacked(initial_nominal, params, each)
         self._fusion = updates.Fusion(
             self,
             n,
@@ -331,9 +405,9 @@ class Eskf(LeafSystem):
             sensor_updates if gsf is None else (gsf,) + sensor_updates,
             repairs=not fidelity.reference_estimator,
         )
-        initial_estimate = np.zeros(STATE_SIZE)  # body rate 0 before the first sample
-        eskf.write_estimate(x0, initial_estimate)
-        self._estimate = discrete_group(self, _tiled(initial_estimate, n), "estimated_state")
+        initial_estimate = np.zeros((n, STATE_SIZE))  # body rate 0 before the first sample
+        eskf.write_estimate(np.broadcast_to(x0, (n, x0.shape[-1])), initial_estimate)
+        self._estimate = discrete_group(self, initial_estimate.ravel(), "estimated_state")
         groups = self._fusion.groups
         k = eskf.navigation_size(P0.shape[0])
         if k == P0.shape[0]:
@@ -377,6 +451,15 @@ def _gsf_update(params, sensors, sensor_updates) -> updates.GsfUpdate | None:
     return updates.GsfUpdate(MEASUREMENTS["gps"], params.gsf, ONBOARD_PERIOD, params.gps_vel_std[0], columns)
 
 
+def _reader_or(update, no_sample, n):
+    """``read(context) -> (n, width)``: the samples of `update`'s input port, or (no such update:
+    the vehicle lacks the sensor) `no_sample` (a row) for each vehicle."""
+    if update is not None:
+        return update.read
+    rows = np.tile(no_sample, (n, 1))
+    return lambda context: rows
+
+
 def _gps_gates(params, fidelity) -> gating.GpsGates:
     """The GPS gates and resets of an estimator's params; none under ``fidelity.reference_estimator``."""
     return gating.GpsGates.from_params(params, enabled=not fidelity.reference_estimator)
@@ -415,18 +498,27 @@ def _estimator_diagram(builder, inputs, outputs, estimator):
     return diagram
 
 
+def _estimators_and_sensors(vehicle) -> tuple:
+    """(estimator config, SensorsConfig) of a VehicleConfig, or (tuples of them) of a sequence of
+    VehicleConfigs, one per vehicle."""
+    if isinstance(vehicle, (list, tuple)):
+        return tuple(v.estimator for v in vehicle), tuple(v.sensors for v in vehicle)
+    return vehicle.estimator, vehicle.sensors
+
+
 def add_ekf7(builder, vehicle, fidelity, n) -> tuple[dict, dict]:
     """Add the CF + EKF7 + assembler of n vehicles to `builder` (the ``ekf7`` kind's builder,
-    ``estimation/registry.py``); (input ports by name: ``imu`` and the measurement updates',
-    output ports by name)."""
-    params = vehicle.estimator  # an Ekf7EstimatorConfig
+    ``estimation/registry.py``; vehicle: a VehicleConfig, or a sequence of n, one per vehicle);
+    (input ports by name: ``imu`` and the measurement updates', output ports by name)."""
+    estimators, sensors = _estimators_and_sensors(vehicle)  # Ekf7EstimatorConfig(s)
+    params, each = _per_vehicle(estimators, n)
     tilt = ekf.TiltNoise.from_params(params, params.attitude_filter, ONBOARD_PERIOD)
-    ekf_system = builder.AddNamedSystem("ekf", Ekf(params, fidelity, tilt, n=n, sensors=vehicle.sensors))
+    ekf_system = builder.AddNamedSystem("ekf", Ekf(estimators, fidelity, tilt, n=n, sensors=sensors))
     attitude_filter = builder.AddNamedSystem(
         "attitude_filter",
         ComplementaryFilter(
             params.attitude_filter,
-            initial_attitude=(0.0, 0.0, params.init_state[6]),
+            initial_attitude=_stacked(lambda p: (0.0, 0.0, p.init_state[6]), params, each),
             fidelity=fidelity,
             n=n,
         ),
@@ -436,9 +528,11 @@ def add_ekf7(builder, vehicle, fidelity, n) -> tuple[dict, dict]:
 
 
 def add_eskf(builder, vehicle, fidelity, n) -> tuple[dict, dict]:
-    """Add the ESKF of n vehicles to `builder` (the ``eskf`` kind's builder); (input ports by
-    name: ``imu`` and the measurement updates', output ports by name)."""
-    system = builder.AddNamedSystem("eskf", Eskf(vehicle.estimator, fidelity, n=n, sensors=vehicle.sensors))
+    """Add the ESKF of n vehicles to `builder` (the ``eskf`` kind's builder; vehicle as
+    :func:`add_ekf7`'s); (input ports by name: ``imu`` and the measurement updates', output ports
+    by name)."""
+    estimators, sensors = _estimators_and_sensors(vehicle)
+    system = builder.AddNamedSystem("eskf", Eskf(estimators, fidelity, n=n, sensors=sensors))
     inputs = {port: [system.GetInputPort(port)] for port in ("imu",) + system.measurement_ports()}
     names = ("estimated_state", "covariance", "diagnostics", "imu_bias")
     names += ("gsf",) if system.HasOutputPort("gsf") else ()
@@ -447,7 +541,9 @@ def add_eskf(builder, vehicle, fidelity, n) -> tuple[dict, dict]:
 
 def build_estimator(vehicle, fidelity=PHYSICAL, n=1) -> Diagram:
     """The estimator sub-Diagram of n vehicles flying one VehicleConfig (``estimator.kind``),
-    named ``estimator``.
+    named ``estimator``; or of a sequence of VehicleConfigs, one per vehicle (n = their number),
+    that may differ only in what their kind takes per vehicle (``registry.sharing_problem``;
+    ValueError with its reason otherwise): n replayed flight logs, each with its own settings.
 
     fidelity: the scenario's Fidelity (the EKF7 follows the reference's accelerometer reading;
     whether a kind runs under it is checked when the scenario loads,
@@ -456,11 +552,18 @@ def build_estimator(vehicle, fidelity=PHYSICAL, n=1) -> Diagram:
     ``gps`` n*7, ``mag`` n*2 or n*4, ``baro`` n*2), exported; outputs as
     ``vocabulary_for(vehicle.estimator).log_widths()``, each n times as wide, vehicle-major.
     """
+    if isinstance(vehicle, (list, tuple)):
+        problem = sharing_problem(vehicle) if vehicle else "no vehicles"
+        if problem:
+            raise ValueError(f"these vehicles cannot share one estimator: {problem}")
+        n = len(vehicle)
+        vehicle = vehicle[0] if all(v == vehicle[0] for v in vehicle) else tuple(vehicle)
     if n < 1:
         raise ValueError(f"an estimator needs at least one vehicle, got n = {n}")
-    kind = kind_of(vehicle.estimator)
+    first = vehicle[0] if isinstance(vehicle, tuple) else vehicle
+    kind = kind_of(first.estimator)
     if kind.builder is None:
         raise ValueError(f"estimator kind {kind.name!r} runs no estimator")
     builder = DiagramBuilder()
     inputs, outputs = kind.build_function()(builder, vehicle, fidelity, n)
-    return _estimator_diagram(builder, inputs, outputs, vehicle.estimator)
+    return _estimator_diagram(builder, inputs, outputs, first.estimator)

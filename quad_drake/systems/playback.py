@@ -10,6 +10,7 @@ import numpy as np
 from pydrake.systems.framework import LeafSystem
 
 from quad_drake.conventions import ONBOARD_PERIOD, SENSOR_OFFSET
+from quad_drake.flightlogs.schedule import output_changes
 from quad_drake.systems._io import discrete_group, scalar, set_scalar
 
 
@@ -32,8 +33,11 @@ class LogPlayback(LeafSystem):
     sample due at tick k (t_k = k ONBOARD_PERIOD), its latest due sample. A stamp is the sample's
     own time (s since its log's first IMU sample), so consumers see each sample fresh once. Before
     a stream's first sample its output is zero with stamp NO_SAMPLE_STAMP; a sensor a log lacks
-    never samples. The tick counter k and each (vehicle, stream)'s next sample index are discrete
-    state.
+    never samples. The flights may differ in length and in each stream's sample times: all play
+    on the common tick, each vehicle's samples at its own ticks, and a flight past its end emits
+    nothing more. Each stream's changes over the n flights are one schedule sorted by tick
+    (``schedule.output_changes``), so a tick costs a search per stream, not a loop over the vehicles; the
+    tick counter k and each stream's next change are discrete state.
     """
 
     def __init__(self, flights):
@@ -43,31 +47,26 @@ class LogPlayback(LeafSystem):
         if any(list(f) != names for f in flights):
             raise ValueError("every flight of a LogPlayback needs the same streams")
         self._n = len(flights)
-        self._streams = [[flight[name] for flight in flights] for name in names]  # [stream][vehicle]
+        per_stream = [[flight[name] for flight in flights] for name in names]  # [stream][vehicle]
+        self._schedules = [output_changes(per_vehicle) for per_vehicle in per_stream]
         self._widths = [flights[0][name].width for name in names]
         self._outputs = [
             discrete_group(self, np.concatenate([s.initial() for s in per_vehicle]), name)
-            for name, per_vehicle in zip(names, self._streams, strict=True)
+            for name, per_vehicle in zip(names, per_stream, strict=True)
         ]
-        self._next = discrete_group(self, len(names) * self._n)  # next sample index, [stream][vehicle]
+        self._next = discrete_group(self, len(names))  # each stream's next change in its schedule
         self._tick = discrete_group(self, 1)
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, SENSOR_OFFSET, self._emit)
 
     def _emit(self, context, discrete_state):
         tick = scalar(discrete_state, self._tick)
         following = discrete_state.get_mutable_value(self._next)
-        for j, per_vehicle in enumerate(self._streams):
-            width = self._widths[j]
-            output = None
-            for i, stream in enumerate(per_vehicle):
-                slot = j * self._n + i
-                start = int(following[slot])
-                if start == len(stream.first_tick) or stream.first_tick[start] > tick:
-                    continue
-                due = start + int(np.searchsorted(stream.first_tick[start:], tick, side="right"))
-                if due > start:
-                    if output is None:
-                        output = discrete_state.get_mutable_value(self._outputs[j])
-                    output[i * width : (i + 1) * width] = stream.rows[due - 1]
-                    following[slot] = due
+        for j, (ticks, vehicles, rows) in enumerate(self._schedules):
+            start = int(following[j])
+            if start == len(ticks) or ticks[start] > tick:
+                continue
+            end = start + int(np.searchsorted(ticks[start:], tick, side="right"))
+            output = discrete_state.get_mutable_value(self._outputs[j]).reshape(self._n, self._widths[j])
+            output[vehicles[start:end]] = rows[start:end]  # at most one change per vehicle and tick
+            following[j] = end
         set_scalar(discrete_state, self._tick, tick + 1.0)

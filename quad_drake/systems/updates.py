@@ -9,7 +9,11 @@ estimator supplies only its prediction and how a correction is applied (``correc
 fused)``: added for the EKF7, ``kernels.ekf7.correct``; injected for the ESKF,
 ``kernels.eskf.correct``) and the measurement models that depend on its state (the yaw
 update's compiled step). Everything is sized by n vehicles (a single run: n = 1; a fleet: n runs
-of one VehicleConfig) and works IN PLACE on (n, ...) views of the discrete state.
+of one VehicleConfig; a replay of n flight logs: n vehicles, each with the settings of its own
+log, ``registry.EstimatorKind.per_vehicle``) and works IN PLACE on (n, ...) views of the discrete
+state. A per-vehicle setting is given once for all vehicles or once per vehicle: the GPS noise
+(6, 6) or (n, 6, 6), the magnetometer's field params one or a sequence of n, the barometer's
+GPS height noise, period and whether the vehicle carries one a scalar or (n,).
 
 Each tick, after the estimator's prediction, :meth:`Fusion.fuse` checks the covariance (every
 vehicle whose per-tick check failed or that has a fresh GPS sample: the full check and repair,
@@ -31,10 +35,11 @@ from quad_drake.kernels import fusion
 from quad_drake.kernels.imu_hold import HOLD_SIZE, initial_hold
 from quad_drake.systems._io import discrete_group, row_reader
 
-Groups = collections.namedtuple("Groups", ["x", "P", "diagnostics", "book", "hold"])
+Groups = collections.namedtuple("Groups", ["x", "P", "diagnostics", "book"])
 """The discrete-state group indices of an estimator's filter: x (its state, n*width), P (n*k*k),
 diagnostics (n*``vocabulary.DIAGNOSTICS_SIZE``), book (n*``fusion.BOOK_SIZE``: the last GPS and
-magnetometer stamps seen, the GPS policy's book), hold (the IMU's running mean, ``imu_hold``)."""
+magnetometer stamps seen and the GPS policy's book of the n vehicles, then n*``imu_hold.HOLD_SIZE``:
+their running means of the IMU; one group, so that a tick fetches one view for both)."""
 
 
 def _aiding_kernels():
@@ -71,7 +76,7 @@ class Update:
 class GpsUpdate(Update):
     """The GPS (p_N m, v_N m/s): the Joseph update of the groups the gates accept, the resets of
     ``estimation/gating.py`` (``fusion.fuse_gps``); NIS 6 dof in ``gps_nis``; book column
-    ``fusion.GPS_SLOT`` and the GPS policy's columns."""
+    ``fusion.GPS_SLOT`` and the GPS policy's columns. R: (6, 6), or (n, 6, 6) per vehicle."""
 
     def __init__(self, measurement, R, gates, correct):
         super().__init__(measurement)
@@ -135,7 +140,8 @@ class CorrectionUpdate(Update):
 class FieldUpdate(CorrectionUpdate):
     """The ESKF's 3-axis magnetometer field (m_B gauss, ``estimation/mag3.py``): 3 dof, gated,
     axis by axis (``kernels.aiding.field_rows``); NIS in ``field_nis``; book column
-    ``fusion.MAG_SLOT`` (the magnetometer's last stamp)."""
+    ``fusion.MAG_SLOT`` (the magnetometer's last stamp). params: MagFieldFusionParams, or one per
+    vehicle (their world field and hard iron each vehicle's own, ``aiding.field_model``)."""
 
     def __init__(self, measurement, correct, params, gate_sigma):
         super().__init__(measurement, correct)
@@ -155,7 +161,8 @@ class HeadingUpdate(CorrectionUpdate):
     with the roll and pitch of ``samples["attitude"]`` (the attitude filter's): 1 dof, gated
     (``kernels.aiding.heading_rows``); NIS in ``mag_nis``; book column ``fusion.MAG_SLOT``.
     tilt: the EKF7's ``ekf.TiltNoise`` or None (its roll/pitch error variance at the context time
-    then adds to the heading's)."""
+    then adds to the heading's). params: MagFieldFusionParams, or one per vehicle (their hard
+    iron and declination each vehicle's own, ``aiding.heading_model``)."""
 
     def __init__(self, measurement, correct, params, gate_sigma, tilt=None):
         super().__init__(measurement, correct)
@@ -180,17 +187,21 @@ class BaroUpdate(CorrectionUpdate):
     the GPS-height check).
 
     params: BaroFusionParams; gps_z_std: m, the GPS height noise the estimator assumes; period: s,
-    the barometer's sample period; bias_in_state: True when the estimator carries the bias in its
-    state (the ESKF: its last error entry, so the update corrects the height and the bias
-    together), False when a scalar filter in the book estimates it from the GPS heights of
-    ``samples["gps"]`` (the EKF7)."""
+    the barometer's sample period; carried: whether the vehicle has a barometer (one without: its
+    row untouched, as without this update). gps_z_std, period and carried: one for all vehicles or
+    (n,) per vehicle. bias_in_state: True when the estimator carries the bias in its state (the
+    ESKF: its last error entry, so the update corrects the height and the bias together), False
+    when a scalar filter in the book estimates it from the GPS heights of ``samples["gps"]`` (the
+    EKF7)."""
 
-    def __init__(self, measurement, correct, params, gate_sigma, gps_z_std, period, bias_in_state=False):
+    def __init__(
+        self, measurement, correct, params, gate_sigma, gps_z_std, period, carried=True, bias_in_state=False
+    ):
         super().__init__(measurement, correct)
         gate = gating.gate_threshold(NIS_DOF[measurement.nis], gate_sigma)
         self._params = params
         aiding_kernels = _aiding_kernels()
-        self._model = aiding_kernels.baro_model(params, gps_z_std, gate, period, bias_in_state)
+        self._model = aiding_kernels.baro_model(params, gps_z_std, gate, period, carried, bias_in_state)
         self._rows = aiding_kernels.baro_rows
         self._book = self._no_gps = None
 
@@ -286,21 +297,24 @@ def build_updates(declared, sensors, builders) -> tuple:
 class Fusion:
     """An estimator system's filter state and measurement updates (module docstring).
 
-    system: the LeafSystem (n vehicles); x0 (width), P0 (k, k): one vehicle's initial state and
-    covariance, also the fallback of a covariance reset; updates: from :func:`build_updates`;
-    repairs: False switches the covariance repair off (``fidelity.reference_estimator``).
-    Declares the groups of :class:`Groups` (``groups``) and the updates' ports.
+    system: the LeafSystem (n vehicles); x0 (width), or (n, width) each vehicle's own: the initial
+    state; P0 (k, k): the initial covariance, also the fallback of a covariance reset; updates:
+    from :func:`build_updates`; repairs: False switches the covariance repair off
+    (``fidelity.reference_estimator``). Declares the groups of :class:`Groups` (``groups``) and
+    the updates' ports.
     """
 
     def __init__(self, system, n, x0, P0, updates, repairs):
-        self.n, self.width, self.k = n, len(x0), P0.shape[0]
+        x0 = np.asarray(x0, dtype=float)
+        self.n, self.width, self.k = n, x0.shape[-1], P0.shape[0]
         self._P0, self._repairs = P0, repairs
         self.groups = Groups(
-            x=discrete_group(system, np.tile(np.asarray(x0, dtype=float), n)),
+            x=discrete_group(system, np.broadcast_to(x0, (n, self.width)).ravel()),
             P=discrete_group(system, np.tile(P0.ravel(), n)),
             diagnostics=discrete_group(system, np.tile(initial_diagnostics(), n)),
-            book=discrete_group(system, np.tile(fusion.initial_book(), n)),
-            hold=discrete_group(system, np.tile(initial_hold(), n)),
+            book=discrete_group(
+                system, np.concatenate((np.tile(fusion.initial_book(), n), np.tile(initial_hold(), n)))
+            ),
         )
         for update in updates:
             update.declare(system, n, self.k)
@@ -311,8 +325,7 @@ class Fusion:
             (g.x, (n, self.width)),
             (g.P, (n, self.k, self.k)),
             (g.diagnostics, (n, DIAGNOSTICS_SIZE)),
-            (g.book, (n, fusion.BOOK_SIZE)),
-            (g.hold, (n, HOLD_SIZE)),
+            (g.book, (n, fusion.BOOK_SIZE), n * fusion.BOOK_SIZE, (n, HOLD_SIZE)),
         )
         self._readers = tuple((u.measurement.port, u.read) for u in updates if u.read is not None)
         self._gps = next((u for u in updates if isinstance(u, GpsUpdate)), None)
@@ -327,13 +340,14 @@ class Fusion:
         """Writable (n, ...) views of x, P, diagnostics, the book and the hold (valid inside the
         handler that takes them: Drake may hand the next one another DiscreteValues)."""
         get = discrete_state.get_mutable_value
-        (x, x_shape), (P, P_shape), (diagnostics, d_shape), (book, b_shape), (hold, h_shape) = self._views
+        (x, x_shape), (P, P_shape), (diagnostics, d_shape), (book, b_shape, split, h_shape) = self._views
+        book_and_hold = get(book)
         return fusion.Filters(
             get(x).reshape(x_shape),
             get(P).reshape(P_shape),
             get(diagnostics).reshape(d_shape),
-            get(book).reshape(b_shape),
-            get(hold).reshape(h_shape),
+            book_and_hold[:split].reshape(b_shape),
+            book_and_hold[split:].reshape(h_shape),
         )
 
     def read(self, context) -> dict:

@@ -2,7 +2,8 @@
 
 - ``tuned.yaml``: the tuned ReplayConfig (replay it: ``quad-drake replay DIR/tuned.yaml``);
 - ``px4_params.params``: the tuned values as PX4 EKF2 parameters (``flightlogs.px4_parameters``);
-- ``history.csv``: one row per candidate (stage, loss, per channel NIS per dof, values);
+- ``history.csv``: one row per candidate (stage, loss, consistency loss, per channel NIS per dof,
+  values);
 - ``objective.png``: the loss per candidate; ``delays.png``: each delay's objective curve;
 - ``before_after.txt``: per held-out part and channel, NIS per dof and the largest lag
   autocorrelation, start -> tuned; ``tune.json``; ``report.html``: the page.
@@ -30,7 +31,8 @@ def header(result) -> list[str]:
         f"{len(result.search.history)} of {s.budget} replays"
         + (" (interrupted: best so far)" if result.interrupted else ""),
         f"trained on the first {100 * s.train_fraction:g} % of each log; best loss {best.score.loss:.4g} at "
-        f"candidate {best.index} (start {result.search.history[0].score.loss:.4g})",
+        f"candidate {best.index} (start {result.search.history[0].score.loss:.4g}); its consistency loss "
+        f"{best.score.consistency:.4g} (start {result.search.history[0].score.consistency:.4g})",
     ]
     start, tuned = _values(result, result.search.history[0].x), _values(result, best.x)
     for name in start:
@@ -80,6 +82,7 @@ def _history(result):
             "candidate",
             "stage",
             "loss",
+            "consistency",
             *[f"nis_per_dof.{c}" for c in channels],
             *[f"value.{d.name}" for d in space],
             "best_loss",
@@ -95,6 +98,7 @@ def _history(result):
                 e.index,
                 e.generation,
                 repr(e.score.loss),
+                repr(e.score.consistency),
                 *nis,
                 *[repr(v) for v in _values(result, e.x).values()],
                 repr(best),
@@ -118,9 +122,9 @@ def _objective_plot(result, path):
         color="tab:red",
         label="best so far",
     )
-    ax.set_yscale("log")
-    ax.set_xlabel("candidate (0 = the start; 1 = noise matched; then delay profiles, Powell)")
-    ax.set_ylabel("loss: Σ (ln NIS/dof)² + Σ ρ_k² [-]")
+    ax.set_yscale("symlog", linthresh=1.0)
+    ax.set_xlabel("candidate (0 = the start; then noise matched, delay profiles, Powell)")
+    ax.set_ylabel("loss: -log-likelihood of the innovations [-]")
     ax.legend(fontsize=8)
     return write_binary_atomic(path, FigureCanvasAgg(fig).print_png)
 
@@ -136,7 +140,6 @@ def _delay_plot(result, path):
     for ax, (name, (delays, losses)) in zip(axes, curves.items(), strict=True):
         ax.plot(1e3 * delays, losses, "o-", color="tab:blue")
         ax.axvline(1e3 * tuned[name], color="tab:red", ls="--", label=f"tuned {1e3 * tuned[name]:.0f} ms")
-        ax.set_yscale("log")
         ax.set_xlabel(f"{name} [ms] (the other values tuned)")
         ax.set_ylabel("training loss [-]")
         ax.legend(fontsize=8)
@@ -168,12 +171,17 @@ def summary(result) -> dict:
     data = {
         "logs": [log.source for log in result.problem.logs],
         "holdout_logs": [log.source for log in result.problem.holdout_logs],
-        "settings": {k: getattr(result.problem.settings, k) for k in ("budget", "train_fraction", "delays")},
+        "settings": {
+            k: getattr(result.problem.settings, k)
+            for k in ("budget", "train_fraction", "delays", "imu_noise")
+        },
         "candidates": len(result.search.history),
         "interrupted": result.interrupted,
         "search_time_s": result.search_time,
         "start_loss": result.search.history[0].score.loss,
         "best_loss": best.score.loss,
+        "start_consistency": result.search.history[0].score.consistency,
+        "best_consistency": best.score.consistency,
         "parameters": [{"name": n, "start": start[n], "tuned": tuned[n]} for n in start],
     }
     if result.after:

@@ -2,19 +2,30 @@
 own innovations, without truth.
 
 The objective (``judging.innovations``): per fused channel (GPS horizontal and vertical position and
-velocity, the heading or the 3-axis field, the barometer), the squared log of the NIS per dof plus
-the squared autocorrelations of the normalised innovations at lags 1..LAGS, summed over channels
-and training logs: 0 for a filter whose innovations are consistent and white.
+velocity, the heading or the 3-axis field, the barometer), the innovations' negative
+log-likelihood per sample, Σ z² + ln s² over the channel's components (s the innovation's std the
+filter assumed), summed over channels and training logs (:func:`innovations.likelihood`); a
+channel whose replay logs only the filter's NIS (the 3-axis field, the barometer) adds instead
+its squared log of the NIS per dof plus the squared autocorrelations of its NIS at lags 1..LAGS
+(:func:`innovations.loss`, also reported as each candidate's ``consistency``: 0 for a filter whose
+innovations are consistent and white). The likelihood is what makes a delay identifiable: a wrong
+delay adds the vehicle's motion over the error to the innovations, and a noise inflated to hide it
+brings the NIS per dof back to 1 and the autocorrelation down (the consistency loss then barely
+prefers the right delay) but costs its larger ln s².
 
 The search (:func:`tune_logs`): evaluation 0 is the start (the ReplayConfig as loaded: PX4's
-default noise, or with ``--set px4_parameters=true`` the log's own EKF2_* values); evaluation 1
-moves each channel's noise so that its NIS per dof would be 1 if the prior covariance were small
-beside the noise (R scaled by the NIS per dof: covariance matching); stage 2 profiles each delay
-(:func:`profile_delays`: the noise re-matched at each candidate delay, a coarse grid, then SciPy's
-bounded scalar search); stage 3 is SciPy's Powell
-(``scipy.optimize.minimize``, bounded, derivative-free: the loss is a replay) polishes every noise
-multiplier (log10, ±SEARCH_DECADES) and every sensor delay (0..MAX_DELAY) together until the
-budget of replays is spent or it converges. Each candidate is a replay of the training part of
+default noise, or with ``--set px4_parameters=true`` the log's own EKF2_* values); stage 1 moves
+each channel's noise so that its NIS per dof would be 1 if the prior covariance were small beside
+the noise (R scaled by the NIS per dof: covariance matching), repeated until each NIS per dof is
+within MATCH_TOLERANCE of 1 (:func:`match_noise`); stage 2 profiles the IMU's noise
+(PX4's EKF2_ACC_NOISE and EKF2_GYR_NOISE; ``LogTuneSettings.imu_noise``), then each delay
+(:func:`profile`: the measurement noise re-matched at each candidate value, a coarse grid, the
+noise matched to convergence at the grid's best, then SciPy's bounded scalar search within a grid
+step);
+stage 3 re-matches the noise at the delays found; stage 4 is SciPy's Powell
+(``scipy.optimize.minimize``, bounded, derivative-free: the objective is a replay) polishing every
+noise multiplier (log10, ±SEARCH_DECADES) and every sensor delay (0..MAX_DELAY) together until
+the budget of replays is spent or it converges. Each candidate is a replay of the training part of
 each training log, cut at ``train_fraction`` of its length (the replays stay short: a 20 s stretch
 replays in under 1 s of CPU). The held-out judgement replays every log whole with the start and
 the tuned values and judges the part after the training cut, and any ``holdout_logs`` whole.
@@ -53,9 +64,14 @@ NOISE_FIELDS = {
     "heading": ("mag_yaw_std", None),
     "field": ("mag_field.field_std", (0, 1, 2)),
     "baro": ("baro.height_std", None),
+    "accel": ("accel_std", (0, 1, 2)),
+    "gyro": ("gyro_std", (0, 1, 2)),
 }
-"""channel -> (the ESKF field below ``estimator`` that holds its noise, the vector's indices or
-None for a scalar)."""
+"""channel, or the IMU's accelerometer or gyro -> (the ESKF field below ``estimator`` that holds
+its noise, the vector's indices or None for a scalar)."""
+PROCESS_NOISE = ("accel", "gyro")
+"""The IMU's noise (one multiplier per vector, PX4's EKF2_ACC_NOISE and EKF2_GYR_NOISE): no
+channel's NIS sets it, so it is profiled like a delay (:func:`profile`)."""
 DELAY_OF = {"gps": "gps_delay", "heading": "mag_delay", "field": "mag_delay", "baro": "baro_delay"}
 """A channel's sensor -> the ReplayConfig's delay field."""
 
@@ -73,8 +89,24 @@ class Dimension:
         return self.name.endswith("_delay")
 
     @property
+    def is_profiled(self) -> bool:
+        """Set by a profile (:func:`profile`) rather than by covariance matching."""
+        return self.is_delay or self.name in PROCESS_NOISE
+
+    @property
     def bounds(self) -> tuple:
         return (0.0, MAX_DELAY / DELAY_UNIT) if self.is_delay else (-SEARCH_DECADES, SEARCH_DECADES)
+
+    @property
+    def grid_step(self) -> float:
+        """The profile's coarse grid step in the coordinate (GRID_STEP s of delay, a decade of IMU
+        noise)."""
+        return GRID_STEP / DELAY_UNIT if self.is_delay else 1.0
+
+    @property
+    def tolerance(self) -> float:
+        """The profile's bounded scalar search tolerance in the coordinate."""
+        return DELAY_TOLERANCE / DELAY_UNIT if self.is_delay else 0.02
 
     def x0(self) -> float:
         return self.start / DELAY_UNIT if self.is_delay else 0.0
@@ -97,9 +129,12 @@ class LogTuneProblem:
 
 @dataclass(frozen=True)
 class LogScore:
-    """A candidate's loss and its channels' statistics per training log."""
+    """A candidate's loss (the objective searched, :func:`innovations.likelihood`), its consistency
+    loss (:func:`innovations.loss`: 0 when consistent and white) and its channels' statistics per
+    training log."""
 
     loss: float
+    consistency: float
     statistics: tuple  # ({channel: ChannelStatistics} per training log)
 
     @property
@@ -230,6 +265,8 @@ def prepare(log_names, holdout_names, overrides, settings) -> LogTuneProblem:
     if not channels:
         raise ConfigError(f"tune: {tuned_on[0].source} fuses no aiding sensor; nothing to tune")
     space = [Dimension(c, noise_of(first.config, c)) for c in channels]
+    if settings.imu_noise:
+        space += [Dimension(name, noise_of(first.config, name)) for name in PROCESS_NOISE]
     if settings.delays:
         fields = sorted({DELAY_OF[c.split("_")[0] if c.startswith("gps") else c] for c in channels})
         space += [Dimension(f, getattr(first.config, f)) for f in fields]
@@ -244,7 +281,7 @@ def _score(problem, config) -> LogScore:
     for log in problem.logs:
         end = train_end(log, problem.settings)
         per_log.append(channel_statistics(config, cut(log, end), (COMPARE_AFTER, end)))
-    return LogScore(innovations.loss(per_log), tuple(per_log))
+    return LogScore(innovations.likelihood(per_log), innovations.loss(per_log), tuple(per_log))
 
 
 class _BudgetSpent(Exception):
@@ -254,48 +291,77 @@ class _BudgetSpent(Exception):
 def matched(problem, x, score) -> np.ndarray:
     """The coordinates x with each channel's noise scaled by sqrt of its NIS per dof (averaged over
     the training logs) in `score`, the score of x (covariance matching: R scaled so that the NIS
-    per dof would be 1 were the prior covariance small beside it); the delays unchanged."""
+    per dof would be 1 were the prior covariance small beside it); the profiled coordinates (the
+    delays, the IMU noise) unchanged."""
     x = np.array(x, dtype=float)
     for i, d in enumerate(problem.space):
         per_dof = [s[d.name].nis_per_dof for s in score.statistics if d.name in s]
         good = [v for v in per_dof if math.isfinite(v) and v > 0]
-        if not d.is_delay and good:
+        if not d.is_profiled and good:
             x[i] = float(np.clip(x[i] + 0.5 * math.log10(np.mean(good)), *d.bounds))
+    return x
+
+
+MATCH_TOLERANCE = 0.1
+"""Covariance matching stops when every channel's NIS per dof is within this of 1 (relative)."""
+MATCH_ITERATIONS = 3
+"""At most this many matching steps (each a replay) in :func:`match_noise`."""
+
+
+def match_noise(problem, x, evaluate, score_of) -> np.ndarray:
+    """x with its noise matched (:func:`matched`) until every channel's NIS per dof on every training
+    log is within MATCH_TOLERANCE of 1, at most MATCH_ITERATIONS replays; x evaluated already."""
+    for _ in range(MATCH_ITERATIONS):
+        score = score_of(x)
+        per_dof = [s.nis_per_dof for per_log in score.statistics for s in per_log.values()]
+        if all(math.isfinite(v) and abs(v - 1.0) <= MATCH_TOLERANCE for v in per_dof):
+            break
+        x = matched(problem, x, score)
+        evaluate(x)
     return x
 
 
 GRID_STEP = 0.05
 """s between the coarse grid's delays (each refined by a bounded scalar search within ±a step)."""
+DELAY_TOLERANCE = 0.004
+"""s: the bounded scalar search's tolerance on a delay."""
 
 
-def profile_delays(problem, x, evaluate, score_of) -> np.ndarray:
-    """x with each delay set where the profile loss is least: at each candidate delay the noise is
-    matched to it (:func:`matched`) before the loss is taken, so a delay is not judged against
-    noise inflated to hide the wrong one. A coarse grid (every GRID_STEP s), then SciPy's bounded
-    scalar search (``minimize_scalar``, to 2 ms) within a step of the grid's best."""
+def profile(problem, x, evaluate, score_of) -> np.ndarray:
+    """x with each profiled coordinate (the IMU noise, then each delay) in turn set where the
+    profile objective is least: at each candidate value the measurement noise is re-matched to it
+    (one :func:`matched` step) before the objective is taken, so that a delay is judged with the
+    noise it implies. A coarse grid over the bounds (``Dimension.grid_step``; re-matched from x),
+    the noise matched to convergence at the grid's best (:func:`match_noise`), then SciPy's bounded
+    scalar search (``minimize_scalar``, to ``Dimension.tolerance``; re-matched from that noise)
+    within a step of the grid's best."""
     x = np.array(x, dtype=float)
-    for i, d in enumerate(problem.space):
-        if not d.is_delay:
-            continue
+    profiled = [i for i, d in enumerate(problem.space) if d.is_profiled]
+    order = sorted(profiled, key=lambda i: problem.space[i].is_delay)
+    for i in order:
+        d = problem.space[i]
+        tried = {}  # coordinate -> (objective, the re-matched coordinates)
 
-        def profile(delay, x=x, i=i):
-            trial = np.array(x)
-            trial[i] = delay / DELAY_UNIT
+        def at(value, base, i=i, tried=tried):
+            trial = np.array(base)
+            trial[i] = value
             evaluate(trial)
             rematched = matched(problem, trial, score_of(trial))
-            return evaluate(rematched), rematched
+            tried[float(value)] = (evaluate(rematched), rematched)
+            return tried[float(value)][0]
 
-        grid = np.arange(0.0, MAX_DELAY + 1e-9, GRID_STEP)
-        losses = [profile(delay)[0] for delay in grid]
-        centre = float(grid[int(np.argmin(losses))])
-        found = minimize_scalar(
-            lambda delay: profile(delay)[0],
-            bounds=(max(0.0, centre - GRID_STEP), min(MAX_DELAY, centre + GRID_STEP)),
+        low, high = d.bounds
+        for value in np.arange(low, high + 1e-9, d.grid_step):
+            at(value, x)
+        centre = min(tried, key=lambda k: tried[k][0])
+        base = match_noise(problem, tried[centre][1], evaluate, score_of)
+        minimize_scalar(
+            lambda value, base=base: at(value, base),
+            bounds=(max(low, centre - d.grid_step), min(high, centre + d.grid_step)),
             method="bounded",
-            options={"xatol": 0.002},
+            options={"xatol": d.tolerance},
         )
-        best = min([(found.fun, found.x), *zip(losses, grid, strict=True)])
-        x = profile(best[1])[1]
+        x = min([(evaluate(base), base), *tried.values()], key=lambda pair: pair[0])[1]
     return x
 
 
@@ -310,7 +376,7 @@ def tune_logs(problem, progress=True) -> LogTuneResult:
     def key_of(x):
         return tuple(round(float(v), 12) for v in x)
 
-    def evaluate(x, stage=3):
+    def evaluate(x, stage):
         key = key_of(x)
         if key in cache:
             return cache[key].score.loss if math.isfinite(cache[key].score.loss) else 1e9
@@ -330,12 +396,12 @@ def tune_logs(problem, progress=True) -> LogTuneResult:
     x0 = np.array([d.x0() for d in space])
     try:
         evaluate(x0, 0)
-        x1 = matched(problem, x0, history[0].score)
-        evaluate(x1, 1)
-        x2 = profile_delays(problem, x1, lambda x: evaluate(x, 2), score_of)
+        x1 = match_noise(problem, x0, lambda x: evaluate(x, 1), score_of)
+        x2 = profile(problem, x1, lambda x: evaluate(x, 2), score_of)
+        x3 = match_noise(problem, x2, lambda x: evaluate(x, 3), score_of)
         minimize(
-            evaluate,
-            x2,
+            lambda x: evaluate(x, 4),
+            x3,
             method="Powell",
             bounds=[d.bounds for d in space],
             options={"xtol": 1e-3, "ftol": 1e-4, "maxfev": s.budget},

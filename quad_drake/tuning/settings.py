@@ -26,7 +26,8 @@ class TuneSettings:
 class LogTuneSettings:
     """What ``quad-drake tune LOG ...`` was asked for."""
 
-    budget: int = 120  # replays of the search (candidates), the start included
+    budget: int = 200  # replays of the search (candidates), the start included
     train_fraction: float = 0.6  # of each log's length: tuned on [5 s, f T), judged after
     delays: bool = True  # search the sensor delays too
+    imu_noise: bool = True  # search the IMU's accelerometer and gyro noise too
     curve_points: int = 13  # points of each delay's objective curve (0: none)
