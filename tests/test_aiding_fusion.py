@@ -49,34 +49,47 @@ def test_height_correction_equals_the_dense_ekf7_update(seed):
     assert P_new[2, 2] < P[2, 2]  # the height variance shrinks
 
 
-@pytest.mark.parametrize("n", [15, 9])
-def test_height_correction_injected_equals_the_eskf_oracle_and_the_jacobian_is_minus_e2(n):
+@pytest.mark.parametrize("n", [16, 10])
+def test_bias_state_correction_injected_equals_the_eskf_oracle_and_the_jacobian(n):
     rng = np.random.default_rng(n)
-    x, P = random_nominal(rng), random_spd(rng, n, 0.01)
-    height, bias, bias_var, height_var = -x[2] + 0.3, 0.1, 0.02, 0.01
-    expected_x, expected_P, expected_nis = baro.eskf_baro_update(x, P, height, bias, height_var + bias_var)
-    nu, S = baro.height_innovation(x[2], P, height, bias, height_var + bias_var)
-    dx, P_new, nis = baro.height_correction(P, nu, S)
+    x, P = np.append(random_nominal(rng), 0.1), random_spd(rng, n, 0.01)
+    height, height_var = -x[2] + 0.3, 0.01
+    expected_x, expected_P, expected_nis = baro.eskf_baro_update(x, P, height, height_var)
+    nu, S = baro.bias_state_innovation(x[2], x[eskf.BARO_BIAS_NOMINAL], P, height, height_var)
+    dx, P_new, nis = baro.bias_state_correction(P, nu, S)
     x_new, P_new = eskf.inject(x, P_new, dx)
     np.testing.assert_allclose(x_new, expected_x, atol=1e-12)
     np.testing.assert_allclose(P_new, expected_P, atol=1e-12)
     assert nis == pytest.approx(expected_nis, rel=1e-12)
-    # H against central differences of h(x (+) dx) = -(p_z + dp_z)
+    assert x_new[eskf.BARO_BIAS_NOMINAL] != x[eskf.BARO_BIAS_NOMINAL]  # the bias is corrected too
+    # H = -e_2 + e_(n-1) against central differences of h(x (+) dx) = -(p_z + dp_z) + (b + db)
     H = baro.height_jacobian(n)
+    H[0, n - 1] = 1.0
     for j in range(n):
         d = np.zeros(n)
         d[j] = 1e-6
-        plus = baro.predicted_height(x[2] + d[2])
-        minus = baro.predicted_height(x[2] - d[2])
+        plus = baro.predicted_height(x[2] + d[2]) + x[eskf.BARO_BIAS_NOMINAL] + d[n - 1]
+        minus = baro.predicted_height(x[2] - d[2]) + x[eskf.BARO_BIAS_NOMINAL] - d[n - 1]
         assert (plus - minus) / 2e-6 == pytest.approx(H[0, j], abs=1e-9)
+
+
+def test_bias_state_reset_correlates_the_new_bias_with_the_height():
+    rng = np.random.default_rng(1)
+    P = random_spd(rng, 10, 0.01)
+    P_new = baro.bias_state_reset(P, 0.01)
+    np.testing.assert_array_equal(P_new[9, :9], P[2, :9])
+    np.testing.assert_array_equal(P_new[:9, 9], P[2, :9])
+    assert P_new[9, 9] == pytest.approx(P[2, 2] + 0.01)
+    np.testing.assert_array_equal(P_new[:9, :9], P[:9, :9])
+    assert np.linalg.eigvalsh(P_new).min() > 0.0  # e_b = dp_z - n_baro: a valid covariance
 
 
 def test_non_finite_baro_height_is_skipped_by_the_oracles():
     P = np.eye(7)
     x = np.zeros(7)
     assert math.isnan(baro.ekf7_baro_update(x, P, math.nan, 0.0, 0.01)[2])
-    x16, P9 = eskf.initial_nominal([0, 0, -1], [0, 0, 0], [1, 0, 0, 0]), np.eye(9)
-    assert math.isnan(baro.eskf_baro_update(x16, P9, math.nan, 0.0, 0.01)[2])
+    x17, P10 = np.append(eskf.initial_nominal([0, 0, -1], [0, 0, 0], [1, 0, 0, 0]), 0.0), np.eye(10)
+    assert math.isnan(baro.eskf_baro_update(x17, P10, math.nan, 0.01)[2])
 
 
 def test_baro_nis_is_chi2_one_dof_when_consistent():

@@ -37,7 +37,7 @@ def fresh_books(count):
 def test_baro_rows_fuse_as_the_pure_update_and_gate_the_outlier():
     rng = np.random.default_rng(0)
     x = np.stack([nominal(rng) for _ in range(N)])
-    P = np.stack([spd(rng, 15, 0.01) for _ in range(N)])
+    P = np.stack([spd(rng, 7, 0.01) for _ in range(N)])  # the EKF7's: its bias in the book
     P_before = P.copy()
     book, diagnostics = fresh_books(N)
     book[:, baro.LAST_STAMP] = 0.98  # the previous sample
@@ -47,7 +47,7 @@ def test_baro_rows_fuse_as_the_pure_update_and_gate_the_outlier():
     samples = np.column_stack((heights, np.full(N, 1.0)))
     gps = np.tile([0.0] * 6 + [-1.0], (N, 1))  # no GPS
     model = aiding.baro_model(PARAMS, 2.0, THRESHOLD, 0.02)
-    dx, fused = np.zeros((N, 15)), np.zeros(N, dtype=bool)
+    dx, fused = np.zeros((N, 7)), np.zeros(N, dtype=bool)
     aiding.baro_rows(x, P, samples, gps, book, diagnostics, model, dx, fused)
     assert fused.tolist() == [True, True, False, False]
     bias_var = 0.5**2 + 0.01**2 * 0.02  # grown over the 20 ms since the previous sample
@@ -59,12 +59,11 @@ def test_baro_rows_fuse_as_the_pure_update_and_gate_the_outlier():
         np.testing.assert_allclose(dx[i], expected_dx, rtol=0, atol=1e-12)
         np.testing.assert_allclose(P[i], expected_P, rtol=0, atol=1e-12)
         assert diagnostics[i, DIAG["baro_nis"]] == pytest.approx(nis, rel=1e-12)
-        # injected, the oracle's posterior (the floor commutes with the injection's G P G^T)
-        x_oracle, P_oracle, _ = baro.eskf_baro_update(x[i], P_before[i], heights[i], 0.2, 0.01)
+        # added (the EKF7's correction), the dense oracle's posterior, floored
+        x_oracle, P_oracle, _ = baro.ekf7_baro_update(x[i, :7], P_before[i], heights[i], 0.2, 0.01)
         P_oracle[2, 2] = bias_var
-        x_new, P_new = eskf.inject(x[i], P[i], dx[i])
-        np.testing.assert_allclose(x_new, x_oracle, atol=1e-12)
-        np.testing.assert_allclose(P_new, P_oracle, atol=1e-12)
+        np.testing.assert_allclose(x[i, :7] + dx[i], x_oracle, atol=1e-12)
+        np.testing.assert_allclose(P[i], P_oracle, atol=1e-12)
     np.testing.assert_array_equal(P[2:], P_before[2:])  # skipped and gated keep P
     assert diagnostics[2, DIAG["nonfinite_samples"]] == 1 and diagnostics[3, DIAG["baro_gated"]] == 1
     assert book[3, baro.REJECTED_SINCE] == 1.0 and math.isnan(book[0, baro.REJECTED_SINCE])
@@ -74,6 +73,76 @@ def test_baro_rows_fuse_as_the_pure_update_and_gate_the_outlier():
     aiding.baro_rows(x, P, samples, gps, book, diagnostics, model, dx, fused)
     assert not fused.any()
     np.testing.assert_array_equal(P, P_after)
+
+
+def test_baro_rows_with_the_bias_in_the_state_equal_the_eskf_oracle():
+    # the ESKF carries the bias (nominal x[:, 16], its error last in P): every tick of
+    # baro_rows, injected, is the dense oracle's update of H = -e_2 + e_last, to 1e-12; the first
+    # finite sample sets the datum (b = h + p_z, the height not moved), an outlier is gated, a
+    # non-finite sample skipped
+    rng = np.random.default_rng(5)
+    n = 16
+    x = np.stack([np.append(nominal(rng), 0.2) for _ in range(N)])
+    P = np.stack([spd(rng, n, 0.01) for _ in range(N)])
+    book, diagnostics = fresh_books(N)
+    book[1:, baro.LAST_STAMP] = 0.98  # vehicles 1-3 had their datum
+    book[1:, baro.DATUM_SET] = 1.0
+    heights = -x[:, 2] + np.array([25.0, 0.25, 0.0, 30.0])  # vehicle 0: a far datum, 3: an outlier
+    heights[2] = math.nan
+    samples = np.column_stack((heights, np.full(N, 1.0)))
+    gps = np.tile([0.0] * 6 + [-1.0], (N, 1))
+    model = aiding.baro_model(PARAMS, 2.0, THRESHOLD, 0.02, bias_in_state=True)
+    x_before, P_before, book_before = x.copy(), P.copy(), book.copy()
+    dx, fused = np.zeros((N, n)), np.zeros(N, dtype=bool)
+    aiding.baro_rows(x, P, samples, gps, book, diagnostics, model, dx, fused)
+    assert fused.tolist() == [False, True, False, False]
+    # vehicle 0: the datum, 25 m off: the bias takes it, the height stays
+    assert x[0, eskf.BARO_BIAS_NOMINAL] == pytest.approx(25.0, abs=1e-12) and book[0, baro.DATUM_SET] == 1
+    np.testing.assert_array_equal(x[0, :16], x_before[0, :16])
+    np.testing.assert_allclose(P[0], baro.bias_state_reset(P_before[0], 0.01), rtol=0, atol=1e-12)
+    # vehicle 1: fused (the caller injects)
+    np.testing.assert_array_equal(x[1], x_before[1])
+    x_oracle, P_oracle, nis = baro.eskf_baro_update(x_before[1], P_before[1], heights[1], 0.01)
+    x_new, P_new = eskf.inject(x[1], P[1], dx[1])
+    np.testing.assert_allclose(x_new, x_oracle, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(P_new, P_oracle, rtol=0, atol=1e-12)
+    assert diagnostics[1, DIAG["baro_nis"]] == pytest.approx(nis, rel=1e-12)
+    assert x_new[eskf.BARO_BIAS_NOMINAL] != 0.2  # the bias is corrected with the height
+    for i in (0, 1):
+        assert diagnostics[i, DIAG["baro_bias_std"]] == pytest.approx(math.sqrt(P[i, n - 1, n - 1]))
+    np.testing.assert_array_equal(book[:, baro.BIAS_VAR], book_before[:, baro.BIAS_VAR])  # not the book's
+    np.testing.assert_array_equal(P[2:], P_before[2:])
+    assert diagnostics[2, DIAG["nonfinite_samples"]] == 1 and diagnostics[3, DIAG["baro_gated"]] == 1
+
+
+def test_a_bias_state_reset_takes_the_height_and_the_gps_feeds_only_the_check():
+    n = 10
+    x = np.append(eskf.initial_nominal([0, 0, -1], [0, 0, 0], [1, 0, 0, 0]), 0.2)[None, :]
+    P = (np.eye(n) * 1e-4)[None]
+    P[0, 2, 9] = P[0, 9, 2] = 5e-5
+    book, diagnostics = fresh_books(1)
+    book[0, baro.LAST_STAMP], book[0, baro.DATUM_SET] = 0.0, 1.0
+    model = aiding.baro_model(PARAMS, 2.0, THRESHOLD, 0.02, bias_in_state=True)
+    dx, fused = np.zeros((1, n)), np.zeros(1, dtype=bool)
+    no_gps = np.array([[0.0] * 6 + [-1.0]])
+    for k in range(1, 7):  # a 5 m step, rejected for 0.1 s (reset_timeout), then reset
+        sample = np.array([[1.0 + 0.2 + 5.0, 0.02 * k]])
+        aiding.baro_rows(x, P, sample, no_gps, book, diagnostics, model, dx, fused)
+        assert not fused[0]
+    assert diagnostics[0, DIAG["baro_resets"]] == 1
+    assert x[0, eskf.BARO_BIAS_NOMINAL] == pytest.approx(5.2, abs=1e-12)  # b = h + p_z
+    np.testing.assert_array_equal(P[0, 9, :9], P[0, 2, :9])
+    assert P[0, 9, 9] == pytest.approx(1e-4 + 0.01)
+    # a GPS height stamped with the baro sample: it feeds the check alone, the bias is not fed
+    book[0, baro.GPS_STAMP] = 0.02
+    gps = np.array([[0.0, 0.0, -1.5, 0.0, 0.0, 0.0, 0.14]])
+    aiding.baro_rows(x, P, np.array([[6.2, 0.14]]), gps, book, diagnostics, model, dx, fused)
+    assert fused[0]  # the baro sample (the bias reset made it agree again)
+    np.testing.assert_array_equal(dx[0], 0.0)  # a zero innovation; the GPS height feeds no bias here
+    assert book[0, baro.BIAS] == PARAMS.bias_init and book[0, baro.GPS_STAMP] == 0.14
+    # ... the check takes the bias state's innovation (here 0: no evidence), and books no bias to restore
+    assert book[0, baro.EVIDENCE_HIGH] == book[0, baro.EVIDENCE_LOW] == 0.0
+    assert book[0, baro.RUN_BIAS_HIGH] == book[0, baro.RUN_BIAS_LOW] == 0.0
 
 
 def test_the_first_baro_sample_sets_the_datum_and_a_step_past_the_timeout_resets_the_bias():
@@ -298,6 +367,33 @@ def test_the_evidence_is_pages_cusum_of_the_offset_log_likelihood():
     assert baro.accumulated_evidence(3.0, 1.5, 28.0) == 4.5
     assert baro.gps_height_disagrees(14.5, 0.0, 14.0) and baro.gps_height_disagrees(0.0, 14.5, 14.0)
     assert not baro.gps_height_disagrees(14.0, 13.0, 14.0)
+
+
+def test_the_eskf_check_withholds_the_gps_height_and_leaves_its_bias_state_alone():
+    # the ESKF's GPS update teaches its bias state between GPS heights (stand-in: +0.05 m each);
+    # the check, on the innovation against x[16] of variance P[9, 9] + R, fires on a GPS height 3 m
+    # off within 10-20 samples and stays fired; it restores nothing (the bias state, P and the
+    # book's scalar filter keep their values: module docstring of ``baro``)
+    x, P = np.zeros((1, 17)), np.eye(10)[None] * 0.01
+    x[0, 2] = -1.0
+    book, diagnostics = np.tile(baro.initial_book(PARAMS), (1, 1)), np.tile(initial_diagnostics(), (1, 1))
+    book[0, baro.DATUM_SET], book[0, baro.LAST_STAMP], book[0, baro.LAST_HEIGHT] = 1.0, 0.14, 1.0
+    model = aiding.baro_model(PARAMS, 2.0, THRESHOLD, 0.02, bias_in_state=True)
+    dx, fused = np.zeros((1, 10)), np.zeros(1, dtype=bool)
+    no_baro = np.array([[1.0, 0.14]])  # the same stamp: no new baro sample, P untouched
+    P_before, fired = P.copy(), []
+    for k in range(40):
+        gps = np.array([[0.0, 0.0, 2.0, 0.0, 0.0, 0.0, 0.14 + 1e-4 * (k + 1)]])  # 3 m low
+        aiding.baro_rows(x, P, no_baro, gps, book, diagnostics, model, dx, fused)
+        fired.append(
+            bool(baro.gps_height_disagrees(book[0, baro.EVIDENCE_HIGH], book[0, baro.EVIDENCE_LOW], 14.0))
+        )
+        x[0, eskf.BARO_BIAS_NOMINAL] += 0.05
+    assert 10 < fired.index(True) < 20 and all(fired[fired.index(True) :])
+    assert book[0, baro.EVIDENCE_HIGH] > 14.0 and book[0, baro.EVIDENCE_LOW] == 0.0  # the GPS reads low
+    assert x[0, eskf.BARO_BIAS_NOMINAL] == pytest.approx(0.05 * 40, abs=1e-12)
+    np.testing.assert_array_equal(P, P_before)
+    assert book[0, baro.BIAS] == PARAMS.bias_init and book[0, baro.BIAS_VAR] == PARAMS.bias_init_std**2
 
 
 def test_per_vehicle_settings_fuse_each_vehicle_as_its_own_model_alone():

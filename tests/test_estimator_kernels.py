@@ -344,11 +344,12 @@ def test_covariance_health_matches_the_scalar_checks(n):
 # ----- error-state EKF -----------------------------------------------------------------------------
 
 
-def random_nominal(rng, count=N):
+def random_nominal(rng, count=N, baro=False):
+    """(count, 16) nominals, or (count, 17) with a baro bias."""
     q = rng.normal(size=(count, 4))
     q /= np.linalg.norm(q, axis=1, keepdims=True)
     x = np.column_stack([rng.normal(size=(count, 6)), q, rng.normal(scale=0.05, size=(count, 6))])
-    return x
+    return np.column_stack([x, rng.normal(size=count)]) if baro else x
 
 
 def eskf_params(estimate_biases, isotropic_gyro=True):
@@ -357,16 +358,22 @@ def eskf_params(estimate_biases, isotropic_gyro=True):
 
 
 @pytest.mark.parametrize(
-    "estimate_biases, isotropic_gyro",
-    [(True, True), (False, True), (True, False)],
-    ids=["15", "9", "15-aniso"],
+    "estimate_biases, isotropic_gyro, baro",
+    [
+        (True, True, False),
+        (False, True, False),
+        (True, False, False),
+        (True, True, True),
+        (False, True, True),
+    ],
+    ids=["15", "9", "15-aniso", "16-baro", "10-baro"],
 )
-def test_eskf_predict_matches_the_scalar_step(estimate_biases, isotropic_gyro):
+def test_eskf_predict_matches_the_scalar_step(estimate_biases, isotropic_gyro, baro):
     rng = np.random.default_rng(16)
     params = eskf_params(estimate_biases, isotropic_gyro)
     noise = eskf.NoiseModel.from_params(params)
-    n = eskf.initial_covariance(params).shape[0]
-    x, P = random_nominal(rng), random_covariances(rng, n, scale=0.3)
+    n = eskf.initial_covariance(params, baro).shape[0]
+    x, P = random_nominal(rng, baro=baro), random_covariances(rng, n, scale=0.3)
     f, w = specific_forces(rng), gyro_samples(rng)
     x_new, P_new = eskf_kernel.predict(
         x, P, f, w, eskf_kernel.model(noise, eskf.noise_buffer(n, noise, DT), DT)
@@ -377,12 +384,16 @@ def test_eskf_predict_matches_the_scalar_step(estimate_biases, isotropic_gyro):
         np.testing.assert_allclose(P_new[i], P_ref, **TOL)
 
 
-@pytest.mark.parametrize("estimate_biases", [True, False], ids=["15", "9"])
-def test_eskf_updates_and_injection_match_the_scalar_functions(estimate_biases):
+@pytest.mark.parametrize(
+    "estimate_biases, baro",
+    [(True, False), (False, False), (True, True), (False, True)],
+    ids=["15", "9", "16-baro", "10-baro"],
+)
+def test_eskf_updates_and_injection_match_the_scalar_functions(estimate_biases, baro):
     rng = np.random.default_rng(17)
     params = eskf_params(estimate_biases)
-    n = eskf.initial_covariance(params).shape[0]
-    x, P = random_nominal(rng), random_covariances(rng, n, scale=0.2)
+    n = eskf.initial_covariance(params, baro).shape[0]
+    x, P = random_nominal(rng, baro=baro), random_covariances(rng, n, scale=0.2)
     dx = rng.normal(scale=0.1, size=(N, n))
     dx[:3, 6:9] = 1e-14  # the small-angle branch of quat_exp
     x_new, P_new = eskf_kernel.inject(x, P, dx)

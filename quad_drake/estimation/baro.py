@@ -1,72 +1,88 @@
-"""Pure: barometer fusion for both estimators (EKF7 and ESKF), and the baro bias estimated beside them.
+"""Pure: barometer fusion for both estimators (EKF7 and ESKF), and their baro bias.
 
 Measurement (``sensor_models.baro_measurement``): the barometer reads the height h = -p_z + b
 (m, up; p_z the NED down position, b the baro's bias: its datum offset plus a slow drift).
 Both filters carry p_z at index :data:`HEIGHT_INDEX` of their state (EKF7: x = (p, v, yaw)) or
-error state (ESKF: dx = (dp, dv, dtheta, ...)), so one scalar update serves both:
+error state (ESKF: dx = (dp, dv, dtheta, ...)). They differ in where the bias lives.
 
-    z = h - b_hat,  h(x) = -p_z,  H = -e_2 (1 x n),  R = height_std^2,
-    nu = z - h(x),  S = H P H^T + R = P[2, 2] + R,  K = P H^T / S = -P[:, 2] / S,
-    dx = K nu,  P' = P - K b^T - b K^T + S K K^T  with b = P H^T  (Joseph form, scalar),
-    NIS = nu^2 / S (chi^2, 1 dof).
+**The ESKF: the bias is an error state** (its last entry, nominal x[16]; ``eskf.carries_baro_bias``),
+as PX4's EKF2 carries its height-sensor offsets in its state:
 
-The EKF7 adds dx to x; the ESKF injects it (``eskf.inject``: the height correlates with the
-attitude and the biases, so a baro sample also corrects them).
+    h(x) = -p_z + b,  H = -e_2 + e_(n-1) (1 x n),  R = height_std^2,
+    nu = h - (-p_z + b_hat),  S = H P H^T + R = P22 - 2 P2b + Pbb + R,  b = P H^T = P[:, n-1] - P[:, 2],
+    K = b / S,  dx = K nu,  P' = P - K b^T - b K^T + S K K^T  (Joseph form, scalar),
+    NIS = nu^2 / S (chi^2, 1 dof)
 
-**The baro bias: a scalar filter beside the estimator, not a state of it.** PX4 estimates the
-offset of a height sensor that is not its height reference the same way (``EKF/bias_estimator``,
-one ``BiasEstimator`` per height source): a 1-state Kalman filter whose estimate b_hat corrects
-each sample before fusion. Here the GPS height is the reference:
+(:func:`bias_state_innovation`, :func:`bias_state_correction`), then injected (``eskf.inject``:
+the height correlates with the attitude, the IMU biases and the baro bias, so one sample corrects
+them all). The bias takes its random walk in the prediction (Q = bias_walk_std^2 dt). The filter
+learns it from its own GPS height updates, through the covariance of height and bias the baro
+updates build: no separate filter, no double counting of the GPS, and the bias error, common to
+every baro sample, is in P with its correlations, so the height's variance is honest without a
+floor. During a GPS outage nothing observes the bias: its variance and the height's grow together.
+
+- the first finite sample sets the datum (PX4 sets its baro offset on the first sample too):
+  b = h + p_z against the filter's own height (:func:`bias_reset`), whose error is then
+  dp_z - n: the bias's row and column in P take the height's and its variance P22 +
+  height_std^2 (:func:`bias_state_reset`). The height is not moved: a datum hundreds of metres
+  off (a pressure altitude above sea level) fused as a measurement would drag the height by
+  P22 / S of it. ``bias_init`` and ``bias_init_std`` hold only until then;
+- a baro sample rejected by its gate for ``reset_timeout`` s in a row (a pressure step: weather,
+  a door, a gust on the static port) resets the bias the same way: the filter keeps its height
+  and takes the baro back with its new offset.
+
+**The EKF7: a scalar filter beside the estimator** (PX4's ``EKF/bias_estimator``, one
+``BiasEstimator`` per height source that is not the reference): a 1-state Kalman filter in the
+baro book whose estimate b_hat corrects each sample before the update of z = h - b_hat,
+h(x) = -p_z, H = -e_2, R = height_std^2 (:func:`height_innovation`, :func:`height_correction`):
 
 - the first finite sample is not fused: it sets the datum, b_meas = h + p_z of variance
-  height_std^2 + P[2, 2] against the filter's own height (PX4 sets its baro offset on the first
-  sample too), so a filter that starts at a known height needs no GPS to learn the offset;
+  height_std^2 + P[2, 2] against the filter's own height;
 - at every GPS sample stamped with the latest baro sample's time (20 ms and 100 ms periods are
   commensurate) it takes b_meas = h + z_gps of variance height_std^2 + gps_z_std^2, gated as the
   baro; between samples its variance P_b grows by the random walk (bias_walk_std^2 per s). It is
   fed by the GPS, never by the filter's baro-aided height, so it does not learn the baro from
   itself; during a GPS outage it is frozen (the bias is unobservable without an absolute height)
   and P_b grows;
-- a GPS height that disagrees with the barometer persistently is caught sample by sample, by
-  Page's CUSUM test on the bias innovations (:func:`offset_log_likelihood`,
-  :func:`accumulated_evidence`): each GPS height adds the log-likelihood ratio of "the GPS height
-  is off by +gps_check_offset m" (and, for the other side, -gps_check_offset m) against "it is
-  right", given the innovation's spread; a side's sum restarts at 0 whenever it would go negative
-  and, once it passes ``gps_check_threshold`` (:func:`gps_height_disagrees`), the GPS height feeds
-  neither the bias nor the filter's height, and the bias goes back to its value before the first
-  sample of that run (the CUSUM's change-point estimate: what the disagreeing samples taught it
-  is undone). The bias is a slow random walk (7 mm/sqrt(s)); a GPS height 3 m off for a minute is
-  no bias change but a GPS error (multipath, a wrong datum), and a bias that followed it would
-  take the baro-held height, and the vehicle 1 m above the floor, 3 m down with it. Single
-  samples cannot show it to a gate (the GPS height's 2 m noise puts 3 m inside any per-sample
-  gate); their accumulated evidence does, in 0.9-2.7 s for 3 m (a 5 s low-pass filtered mean of
-  the normalised innovations, the earlier check, needed about 2 s and kept what the bias had
-  learnt meanwhile). A side's sum is capped at twice the threshold, so a GPS height that comes
-  right again is trusted again within a few seconds. While it disagrees the filter does not fuse
-  the GPS height either, nor reset to it (``fusion.fuse_gps``): the barometer holds the height.
-  PX4 makes the same choice with the barometer as its height reference (``EKF2_HGT_REF``, the GNSS
-  height's offset then learnt by its own bias estimator), ArduPilot by taking its height from the
-  barometer (``EK3_SRC1_POSZ``) and correcting its origin's height with GNSS heights through a
-  per-sample innovation gate only. A baro bias reset (below) starts both sums again at 0.
+- the bias error e_b = b - b_hat is common to every sample: fused one by one as independent, the
+  samples would shrink P[2, 2] far below P_b (the cross-covariance the scalar filter drops). So
+  after each fusion the height variance is floored at P_b (:func:`floored_height_variance`). The
+  price, measured on 23's 10 s outage when the ESKF still fused this way (100 runs, seeds
+  7000-7099): the height over-confident (e^2/P 1.26) and the vertical velocity conservative
+  (0.78): the floor adds height uncertainty that no vertical velocity explains;
+- a reset as the ESKF's, b = h + p_z, P_b = height_std^2 + P[2, 2].
 
-The bias error e_b = b - b_hat is common to every sample: fused one by one as independent, the
-samples would shrink P[2, 2] far below P_b (the dropped cross-covariance of b_hat and the
-height). So after each fusion the height variance is floored at P_b
-(:func:`floored_height_variance`: raising one diagonal entry keeps P positive semi-definite;
-PX4's ``fixCovarianceErrors`` clamps variances per state too), and R is the white noise
-height_std^2 alone: P_b is already in P[2, 2] (PX4 adds it to R instead; both here counted it
-twice: baro NIS 0.45 per dof over 20 runs of 11, against 0.72 with R = height_std^2).
+**Both: a GPS height that disagrees with the barometer persistently is caught** sample by sample,
+by Page's CUSUM test on the bias innovations h + z_gps - b_hat, of variance P_b + height_std^2 +
+gps_z_std^2 (P_b the book's for the EKF7, the bias's diagonal entry of P for the ESKF):
+(:func:`offset_log_likelihood`, :func:`accumulated_evidence`): each GPS height adds the
+log-likelihood ratio of "the GPS height is off by +gps_check_offset m" (and, for the other side,
+-gps_check_offset m) against "it is right", given the innovation's spread; a side's sum restarts
+at 0 whenever it would go negative and, once it passes ``gps_check_threshold``
+(:func:`gps_height_disagrees`), the GPS height feeds neither the bias nor the filter's height,
+and the bias goes back to its value before the first sample of that run (the CUSUM's
+change-point estimate: what the disagreeing samples taught it is undone). The bias is a slow
+random walk (7 mm/sqrt(s)); a GPS height 3 m off for a minute is no bias change but a GPS error
+(multipath, a wrong datum), and a bias that followed it would take the baro-held height, and the
+vehicle 1 m above the floor, 3 m down with it. Single samples cannot show it to a gate (the GPS
+height's 2 m noise puts 3 m inside any per-sample gate); their accumulated evidence does, in
+0.9-2.7 s for 3 m. A side's sum is capped at twice the threshold, so a GPS height that comes
+right again is trusted again within a few seconds. While it disagrees the filter does not fuse
+the GPS height either, nor reset to it (``fusion.fuse_gps``): the barometer holds the height.
+PX4 makes the same choice with the barometer as its height reference (``EKF2_HGT_REF``, the GNSS
+height's offset then learnt by its own bias estimator), ArduPilot by taking its height from the
+barometer (``EK3_SRC1_POSZ``) and correcting its origin's height with GNSS heights through a
+per-sample innovation gate only. A baro bias reset (above) starts both sums again at 0.
 
-Why not a 16th (ESKF) or 8th (EKF7) error state: one implementation for both filters, and their
-covariances, vocabularies, NEES and logs keep their size whether the barometer is on or off (a
-baro on/off comparison is over the same states). The price is the dropped cross-covariance,
-covered by the floor: measured on 11 (200 runs, README "Sensors") the height's e^2/P is 1.29
-with the barometer against 1.06 (EKF7) and 1.02 (ESKF) without.
-
-A baro sample rejected by its gate for ``reset_timeout`` s in a row (a pressure step: weather, a
-door, a gust on the static port) resets the bias to the sample against the filter's height,
-b = h - (-p_z), variance height_std^2 + P[2, 2]: the filter keeps its height and takes the baro
-back with its new offset (:func:`bias_reset`).
+The restore is the EKF7's alone: its scalar filter takes back its bias and its variance P_b (the
+book's). The ESKF's bias is one entry of a joint state: the disagreeing GPS heights it fused moved
+the height and the bias together, through their covariance, and shrank P, so moving the nominal
+bias back alone would leave it where P and the height do not say it is (and a proper undo would
+need a copy of the state and P from the start of each run). Nor is there much to undo: the ESKF
+learns the bias from its GPS height updates slowly, through the covariance, and on the 3 m GPS
+height step (100 runs, seeds 7000-7099) restoring the nominal bias with P kept changed the median
+largest height error by under 1 mm (0.117 against 0.118 m). So when the check fires the ESKF
+withholds the GPS height and restores nothing.
 
 Every function works on plain floats and on a covariance array P (n x n), so
 ``kernels/`` compile them as they are (the code here, not a copy).
@@ -145,16 +161,24 @@ def height_innovation(p_z, P, height, bias, R) -> tuple[float, float]:
 
 def scalar_correction(P, index, sign, nu, S) -> tuple[np.ndarray, np.ndarray, float]:
     """(dx (n,), P' (n x n), nis) of a scalar measurement with H = sign * e_index (1 x n), innovation
-    nu and innovation variance S = P[index, index] + R: with b = P H^T = sign * P[:, index],
-    K = b / S, dx = K nu, P' = P - K b^T - b K^T + S K K^T (Joseph form), nis = nu^2 / S. Loops over
-    the entries (numba compiles it; numpy runs it as well)."""
+    nu and innovation variance S = P[index, index] + R (:func:`joseph_scalar` with b = P H^T =
+    sign * P[:, index]). Loops over the entries (numba compiles it; numpy runs it as well)."""
+    n = P.shape[0]
+    b = np.empty(n)
+    for i in range(n):
+        b[i] = sign * P[i, index]
+    return joseph_scalar(P, b, nu, S)
+
+
+def joseph_scalar(P, b, nu, S) -> tuple[np.ndarray, np.ndarray, float]:
+    """(dx (n,), P' (n x n), nis) of a scalar measurement of H (1 x n) given b = P H^T (n,), its
+    innovation nu and innovation variance S = H b + R: K = b / S, dx = K nu,
+    P' = P - K b^T - b K^T + S K K^T (Joseph form), nis = nu^2 / S."""
     n = P.shape[0]
     dx = np.empty(n)
-    b = np.empty(n)
     k = np.empty(n)
     P_new = np.empty((n, n))
     for i in range(n):
-        b[i] = sign * P[i, index]
         k[i] = b[i] / S
         dx[i] = k[i] * nu
     for i in range(n):
@@ -170,8 +194,45 @@ def height_correction(P, nu, S) -> tuple[np.ndarray, np.ndarray, float]:
     return scalar_correction(P, HEIGHT_INDEX, -1.0, nu, S)
 
 
+def bias_state_innovation(p_z, bias, P, height, R) -> tuple[float, float]:
+    """(nu (m), S (m^2)) of a baro height (m, up) against a filter that carries the baro bias in
+    its error state, last (the ESKF's, ``eskf.carries_baro_bias``), P (n x n): h(x) = -p_z + b,
+    H = -e_2 + e_(n-1), nu = height - (-p_z + bias), S = P22 - 2 P2b + Pbb + R (R = height_std^2:
+    the bias's uncertainty is in P, with its correlation with the height)."""
+    last = P.shape[0] - 1
+    S = P[HEIGHT_INDEX, HEIGHT_INDEX] - 2.0 * P[HEIGHT_INDEX, last] + P[last, last] + R
+    return height + p_z - bias, S
+
+
+def bias_state_correction(P, nu, S) -> tuple[np.ndarray, np.ndarray, float]:
+    """(dx (n,), P' (n x n), nis): the Joseph update of H = -e_2 + e_(n-1) (the baro bias last,
+    :func:`bias_state_innovation`) with innovation nu (m) and innovation variance S (m^2):
+    :func:`joseph_scalar` with b = P H^T = P[:, n-1] - P[:, 2]."""
+    n = P.shape[0]
+    b = np.empty(n)
+    for i in range(n):
+        b[i] = P[i, n - 1] - P[i, HEIGHT_INDEX]
+    return joseph_scalar(P, b, nu, S)
+
+
+def bias_state_reset(P, height_var) -> np.ndarray:
+    """P' (n x n) of a filter that carries the baro bias last after its bias is reset to a baro
+    height against the filter's own height, b = h + p_z (:func:`bias_reset`): the bias error is
+    then e_b = dp_z - n_baro, so its row and column take the height's (Cov(e_b, dx) = P[2, :])
+    and its variance P22 + height_var (m^2): the old bias's information is dropped, the height's
+    kept."""
+    n = P.shape[0]
+    last = n - 1
+    P_new = P.copy()
+    for j in range(n):
+        P_new[last, j] = P[HEIGHT_INDEX, j]
+        P_new[j, last] = P[HEIGHT_INDEX, j]
+    P_new[last, last] = P[HEIGHT_INDEX, HEIGHT_INDEX] + height_var
+    return P_new
+
+
 def floored_height_variance(p_zz, bias_var) -> float:
-    """The filter's height variance (m^2) after a baro fusion: at least the bias variance P_b.
+    """The EKF7's height variance (m^2) after a baro fusion: at least the bias variance P_b.
 
     A baro-corrected height is no better known than the bias that corrects it, and that bias
     error is common to every sample: fused one by one as if independent, samples would shrink
@@ -245,17 +306,20 @@ def ekf7_baro_update(x, P, height, bias, R) -> tuple[np.ndarray, np.ndarray, flo
     return ekf.kalman_update(x, P, z, H, np.array([[R]]), H @ x)
 
 
-def eskf_baro_update(x, P, height, bias, R) -> tuple[np.ndarray, np.ndarray, float]:
-    """Oracle: (x', P', nis) of the ESKF (nominal x (16,), P (9 or 15 square)) fusing a baro
-    height (m): ``eskf.joseph_update`` with :func:`height_jacobian`, then ``eskf.inject``.
-    A non-finite height gives (x, P, nan)."""
+def eskf_baro_update(x, P, height, R) -> tuple[np.ndarray, np.ndarray, float]:
+    """Oracle: (x', P', nis) of the ESKF that carries the baro bias (nominal x (17,): its bias at
+    ``eskf.BARO_BIAS_NOMINAL``; P (10 or 16 square), the bias error last) fusing a baro height (m):
+    ``eskf.joseph_update`` with H = :func:`height_jacobian` + e_(n-1), nu = height - (-p_z + b),
+    R (m^2) = height_std^2, then ``eskf.inject``. A non-finite height gives (x, P, nan)."""
     from quad_drake.estimation import eskf
 
     if not math.isfinite(height):
         return x, P, math.nan
     x = np.asarray(x, dtype=float)
-    H = height_jacobian(P.shape[0])
-    nu = np.array([height - bias - predicted_height(x[HEIGHT_INDEX])])
+    n = P.shape[0]
+    H = height_jacobian(n)
+    H[0, n - 1] = 1.0
+    nu = np.array([height - (predicted_height(x[HEIGHT_INDEX]) + x[eskf.BARO_BIAS_NOMINAL])])
     dx, P_new, nis = eskf.joseph_update(P, H, np.array([[R]]), nu)
     x_new, P_new = eskf.inject(x, P_new, dx)
     return x_new, P_new, nis

@@ -11,6 +11,13 @@ axes: dtheta[2] is the heading error, dtheta[0:2] the tilt), b = b_hat + db. Wit
 estimation off the error state is the first 9 entries and the biases stay at their initial
 values (``n = 9``); every function takes the error dimension from P.
 
+With a barometer the filter also carries the baro bias (m: the barometer reads h = -p_z + b_baro
++ noise; ``estimation/baro.py``): its nominal at :data:`BARO_BIAS_NOMINAL` (x has 17 floats) and
+its error db_baro LAST in dx (``n = 10`` or ``16``, :func:`carries_baro_bias`), a random walk of
+``baro.bias_walk_std`` (Q = walk^2 dt), untouched by the transition (F = I on it) and the
+attitude reset. The filter's height and the bias it corrects the barometer with are then
+correlated in P, as PX4's EKF2 carries its height-sensor offsets in its state.
+
 Prediction over one IMU period dt with the sample (f_B, w_B) held over it:
 a = R_hat (f_B - b_a) + g_N;  p += v dt + a dt^2 / 2;  v += a dt;  q = q (x) Exp((w_B - b_g) dt).
 Error dynamics (first order; tested against central differences of this nominal model):
@@ -52,19 +59,35 @@ from quad_drake.estimation.ekf import mag_innovation
 from quad_drake.models.rotations import quat_product, rotation_entries
 
 NOMINAL_SIZE = 16
+BARO_BIAS_NOMINAL = 16
+"""Index of the baro bias (m) in the nominal of a filter that carries it (x then has 17 floats)."""
 P_IDX, V_IDX, Q_IDX, BA_IDX, BG_IDX = slice(0, 3), slice(3, 6), slice(6, 10), slice(10, 13), slice(13, 16)
 ERROR_SIZE_WITH_BIASES, ERROR_SIZE_NAVIGATION = 15, 9
+ERROR_SIZES_WITH_BARO = (ERROR_SIZE_NAVIGATION + 1, ERROR_SIZE_WITH_BIASES + 1)
+"""Error sizes of a filter that carries the baro bias (its error last): 10 and 16."""
 GPS_STATES = tuple(range(6))
 """Error-state indices the GPS measures (dp, dv)."""
+
+
+def estimates_imu_biases(n) -> bool:
+    """True when an error state of size n carries the IMU biases db_a, db_g (entries 9:15)."""
+    return n >= ERROR_SIZE_WITH_BIASES
+
+
+def carries_baro_bias(n) -> bool:
+    """True when an error state of size n carries the baro bias (its last entry, n - 1)."""
+    return n == ERROR_SIZE_NAVIGATION + 1 or n == ERROR_SIZE_WITH_BIASES + 1
+
+
+def navigation_size(n) -> int:
+    """The size (9 or 15) of an error state of size n without its baro bias: what the
+    ``covariance`` output, the vocabulary and the NEES see."""
+    return n - 1 if carries_baro_bias(n) else n
 
 
 def _constant(array):
     array.flags.writeable = False
     return array
-
-
-H_GPS_15 = _constant(np.eye(6, 15))
-H_GPS_9 = _constant(np.eye(6, 9))
 
 
 def quat_exp(theta) -> tuple[float, float, float, float]:
@@ -153,14 +176,15 @@ def write_estimate(x, estimate) -> None:
 def predict_nominal(
     x, f_B, w_B, dt
 ) -> tuple[list[float], np.ndarray, np.ndarray, tuple[float, float, float]]:
-    """(x', R_hat, R_hat', u_N): nominal after one IMU step (list of 16), rotations before and after
+    """(x', R_hat, R_hat', u_N): nominal after one IMU step (a list), rotations before and after
     (3x3 arrays), and u_N = R_hat (f_B - b_a) (m/s^2, the specific force in N, a 3-tuple).
 
-    x: nominal (16); f_B: specific force (m/s^2, FRD); w_B: gyro (rad/s); dt: s
-    (:func:`nominal_step`).
+    x: nominal (16, or 17 with the baro bias, which the step keeps); f_B: specific force (m/s^2,
+    FRD); w_B: gyro (rad/s); dt: s (:func:`nominal_step`).
     """
-    x_new, r, r_next, u_N = nominal_step(tuple(x.tolist() if isinstance(x, np.ndarray) else x), f_B, w_B, dt)
-    return list(x_new), np.array(r).reshape(3, 3), np.array(r_next).reshape(3, 3), u_N
+    x = list(x.tolist() if isinstance(x, np.ndarray) else x)
+    x_new, r, r_next, u_N = nominal_step(tuple(x[:NOMINAL_SIZE]), f_B, w_B, dt)
+    return list(x_new) + x[NOMINAL_SIZE:], np.array(r).reshape(3, 3), np.array(r_next).reshape(3, 3), u_N
 
 
 def nominal_step(
@@ -209,6 +233,7 @@ class NoiseModel:
     gyro_var: np.ndarray  # (3,) (rad/s)^2 per IMU sample
     accel_bias_rate: float  # (m/s^2)^2 / s, bias random walk
     gyro_bias_rate: float  # (rad/s)^2 / s
+    baro_bias_rate: float = 0.0  # m^2 / s, the baro bias's random walk (used when the filter carries it)
 
     @classmethod
     def from_params(cls, params) -> "NoiseModel":
@@ -217,6 +242,7 @@ class NoiseModel:
             _constant(np.square(np.asarray(params.gyro_std, dtype=float))),
             float(params.accel_bias_rw_std) ** 2,
             float(params.gyro_bias_rw_std) ** 2,
+            float(params.baro.bias_walk_std) ** 2,
         )
 
 
@@ -231,7 +257,8 @@ def fill_transition(F, R, R_next, u_N, dt) -> np.ndarray:
     """Write the attitude-dependent blocks of the error transition into F (from transition_buffer).
 
     R, R_next: R_hat before and after the step; u_N = R (f_B - b_a) (m/s^2). Scalar writes of
-    -[u]x dt and -[u]x dt^2/2 (12 entries), numpy writes of the bias blocks when n = 15.
+    -[u]x dt and -[u]x dt^2/2 (12 entries), numpy writes of the bias blocks when the IMU biases
+    are estimated (the baro bias's row and column stay the identity's).
     """
     u0, u1, u2 = u_N
     h = 0.5 * dt * dt
@@ -242,7 +269,7 @@ def fill_transition(F, R, R_next, u_N, dt) -> np.ndarray:
         F[row + 1, 8] = u0 * scale
         F[row + 2, 6] = u1 * scale
         F[row + 2, 7] = -u0 * scale
-    if F.shape[0] == ERROR_SIZE_WITH_BIASES:
+    if estimates_imu_biases(F.shape[0]):
         np.multiply(R, -h, out=F[0:3, 9:12])
         np.multiply(R, -dt, out=F[3:6, 9:12])
         np.multiply(R_next, -dt, out=F[6:9, 12:15])
@@ -250,19 +277,21 @@ def fill_transition(F, R, R_next, u_N, dt) -> np.ndarray:
 
 
 def transition(R, R_next, u_N, dt, n) -> np.ndarray:
-    """Error transition F (n x n, n = 15 or 9) of one IMU step (see the module docstring)."""
+    """Error transition F (n x n, n = 9, 10, 15 or 16) of one IMU step (see the module docstring)."""
     return fill_transition(transition_buffer(n, dt), R, R_next, u_N, dt)
 
 
 def noise_buffer(n, noise, dt) -> np.ndarray:
-    """An n x n Q with the attitude-independent blocks filled: bias random walks, and the gyro's
-    when its noise is the same on every axis (then R diag R^T = var I)."""
+    """An n x n Q with the attitude-independent blocks filled: bias random walks (the IMU's, the
+    baro's), and the gyro's when its noise is the same on every axis (then R diag R^T = var I)."""
     Q = np.zeros((n, n))
     if noise.gyro_var[0] == noise.gyro_var[1] == noise.gyro_var[2]:
         Q[6:9, 6:9] = np.eye(3) * (noise.gyro_var[0] * dt * dt)
-    if n == ERROR_SIZE_WITH_BIASES:
+    if estimates_imu_biases(n):
         Q[9:12, 9:12] = np.eye(3) * (noise.accel_bias_rate * dt)
         Q[12:15, 12:15] = np.eye(3) * (noise.gyro_bias_rate * dt)
+    if carries_baro_bias(n):
+        Q[n - 1, n - 1] = noise.baro_bias_rate * dt
     return Q
 
 
@@ -324,7 +353,8 @@ def joseph_update(P, H, R_meas, nu) -> tuple[np.ndarray, np.ndarray, float]:
 
 
 def inject(x, P, dx) -> tuple[np.ndarray, np.ndarray]:
-    """(x', P'): the error dx (n) injected into the nominal x (16) and P reset by G (module docstring).
+    """(x', P'): the error dx (n) injected into the nominal x (16, or 17 with the baro bias) and P
+    reset by G (module docstring).
 
     G differs from I only in its attitude block A = I + [dtheta]x / 2, so G P G^T is formed as
     rows 6:9 <- A P[6:9, :], then columns 6:9 <- P[:, 6:9] A^T.
@@ -333,8 +363,10 @@ def inject(x, P, dx) -> tuple[np.ndarray, np.ndarray]:
     x[0:6] += dx[0:6]
     t0, t1, t2 = (0.5 * float(c) for c in dx[6:9])
     x[Q_IDX] = injected_attitude(tuple(x[Q_IDX].tolist()), dx[6:9])
-    if dx.shape[0] == ERROR_SIZE_WITH_BIASES:
+    if estimates_imu_biases(dx.shape[0]):
         x[10:16] += dx[9:15]
+    if carries_baro_bias(dx.shape[0]):
+        x[BARO_BIAS_NOMINAL] += dx[-1]
     A = np.array(((1.0, -t2, t1), (t2, 1.0, -t0), (-t1, t0, 1.0)))
     P = np.array(P, dtype=float)
     P[6:9, :] = A @ P[6:9, :]
@@ -359,7 +391,7 @@ def gps_update(x, P, gps_pv, R_gps) -> tuple[np.ndarray, np.ndarray, float]:
     if not np.isfinite(z).all():
         return x, P, math.nan
     x = np.asarray(x, dtype=float)
-    H = H_GPS_15 if P.shape[0] == ERROR_SIZE_WITH_BIASES else H_GPS_9
+    H = np.eye(6, P.shape[0])
     dx, P_new, nis = joseph_update(P, H, R_gps, z - x[0:6])
     if math.isnan(nis):
         return x, P, nis
@@ -415,9 +447,12 @@ def mag_noise(params) -> np.ndarray:
     return np.array([[params.mag_yaw_std**2]])
 
 
-def initial_covariance(params) -> np.ndarray:
-    """P0 (15 or 9 square) = diag(init_std^2) of (p, v, theta[, b_a, b_g])."""
+def initial_covariance(params, baro=False) -> np.ndarray:
+    """P0 (9, 10, 15 or 16 square) = diag(init_std^2) of (p, v, theta[, b_a, b_g][, b_baro]);
+    baro: True for a filter that carries the baro bias (``params.baro.bias_init_std``)."""
     std = list(params.init_pos_std) + list(params.init_vel_std) + list(params.init_att_std)
     if params.estimate_biases:
         std += list(params.init_accel_bias_std) + list(params.init_gyro_bias_std)
+    if baro:
+        std.append(params.baro.bias_init_std)
     return np.diag(np.square(std))

@@ -3,11 +3,18 @@ each tick when the vehicle carries the sensor (``systems.estimators``; one imple
 single run and a fleet).
 
 The formulas are ``estimation/baro.py``'s and ``estimation/mag3.py``'s own code compiled by numba
-(each module's docstring carries the equations and the design: the baro bias as a scalar filter
-beside the estimator, fed by the GPS heights; the field as a 3-dof gated, axis-by-axis update of
-the ESKF's error state; the tilt-compensated heading as the EKF7's yaw measurement):
+(each module's docstring carries the equations and the design: the ESKF's baro bias as an error
+state, the EKF7's as a scalar filter beside it, fed by the GPS heights; the field as a 3-dof gated,
+axis-by-axis update of the ESKF's error state; the tilt-compensated heading as the EKF7's yaw
+measurement):
 
-- baro, z = h - b_hat (m):  h(x) = -p_z,  H = -e_2,  R = height_std²,  NIS 1 dof, then
+- baro, ESKF (``baro_model(..., bias_in_state=True)``), z = h (m): h(x) = -p_z + b (b the nominal
+  x[:, 16]), H = -e_2 + e_(n-1), R = height_std², NIS 1 dof; the first finite sample (the
+  datum), and any after ``reset_timeout`` s of rejected samples, set b = h + p_z with the bias's
+  row and column of P set to the height's (``baro.bias_state_reset``); a GPS height stamped with
+  the latest baro sample feeds only the disagreement check below (the ESKF's own GPS update
+  learns the bias through P);
+- baro, EKF7, z = h - b_hat (m):  h(x) = -p_z,  H = -e_2,  R = height_std²,  NIS 1 dof, then
   P[2, 2] >= P_b (``baro.floored_height_variance``); the first finite sample is not fused: it sets the
   bias against the filter's height (b_meas = h + p_z, variance height_std² + P[2, 2]), as PX4 sets
   its baro offset;
@@ -17,7 +24,10 @@ the ESKF's error state; the tilt-compensated heading as the EKF7's yaw measureme
   ``baro.offset_log_likelihood``, ``baro.accumulated_evidence``) says the GPS height disagrees
   persistently (``baro.gps_height_disagrees``); when it first says so the bias goes back to its
   value before the disagreeing run began; after ``reset_timeout`` s of rejected samples
-  b = h + p_z, P_b = height_std² + P[2, 2] (and the evidence starts again at 0);
+  b = h + p_z, P_b = height_std² + P[2, 2] (and the evidence starts again at 0); the ESKF runs
+  the same check on its bias state (b̂ = x[:, 16], innovation variance P_bb + height_std² +
+  gps_z_std²) and, when it fires, withholds the GPS height but restores nothing (``baro``
+  module docstring);
 - field (ESKF), z = m_B - hard_iron (gauss): h(x) = R_hatᵀ m_N, H = [0 R_hatᵀ[m_N]x 0], R =
   diag(field_std²), NIS 3 dof, the gain zero outside the attitude (``attitude_only``, the default);
 - heading (EKF7), z = atan2(-l_y, l_x) + D with l = Ry(pitch) Rx(roll) (m_B - hard_iron) (rad):
@@ -41,7 +51,7 @@ import math
 import numpy as np
 
 from quad_drake.conventions import NO_SAMPLE_STAMP
-from quad_drake.estimation import baro, gating, mag3
+from quad_drake.estimation import baro, eskf, gating, mag3
 from quad_drake.estimation.vocabulary import DIAG
 from quad_drake.kernels import rotations
 from quad_drake.kernels.jit import compiled, njit_cached
@@ -53,8 +63,13 @@ _BIAS, _BIAS_VAR, _LAST_HEIGHT, _LAST_STAMP = baro.BIAS, baro.BIAS_VAR, baro.LAS
 _REJECTED_SINCE, _GPS_STAMP, _DATUM_SET = baro.REJECTED_SINCE, baro.GPS_STAMP, baro.DATUM_SET
 _EVIDENCE_HIGH, _EVIDENCE_LOW = baro.EVIDENCE_HIGH, baro.EVIDENCE_LOW
 _TOLERANCE = gating.STAMP_TOLERANCE  # s, stamps are sums of periods
+_BARO_NOMINAL = eskf.BARO_BIAS_NOMINAL
 
-_scalar_correction = compiled(baro.scalar_correction)
+_joseph_scalar = compiled(baro.joseph_scalar)
+_scalar_correction = compiled(baro.scalar_correction, joseph_scalar=_joseph_scalar)
+_bias_state_innovation = compiled(baro.bias_state_innovation)
+_bias_state_correction = compiled(baro.bias_state_correction, joseph_scalar=_joseph_scalar)
+_bias_state_reset = compiled(baro.bias_state_reset)
 _height_innovation = compiled(baro.height_innovation)
 _floored_height_variance = compiled(baro.floored_height_variance)
 _bias_predict = compiled(baro.bias_predict)
@@ -91,22 +106,33 @@ def _row(setting, i):
 
 
 @njit_cached
-def _gps_height_check(book, i, innovation, innovation_var, offset, threshold):
+def _bias_of(x, P, book, i, in_state):
+    """(bias m, its variance m^2) of vehicle i: the filter's state (nominal x[i, 16], P's last
+    entry) when it carries the bias, else its baro book's scalar filter."""
+    if in_state:
+        last = P.shape[1] - 1
+        return x[i, _BARO_NOMINAL], P[i, last, last]
+    return book[i, _BIAS], book[i, _BIAS_VAR]
+
+
+@njit_cached
+def _gps_height_check(book, i, in_state, innovation, innovation_var, offset, threshold):
     """One GPS height through vehicle i's GPS-height check (``baro`` module docstring): both sides'
-    evidence accumulated (a side starting a run books the bias before it); on the sample that first
-    passes `threshold` the bias goes back to the booked value of the side that passed it. True
-    while the GPS height agrees with the barometer."""
+    evidence accumulated. The EKF7's scalar filter (not `in_state`) books its bias when a side
+    starts a run and, on the sample that first passes `threshold`, goes back to the booked value
+    of the side that passed it; the ESKF's bias state is not restored (``baro`` module
+    docstring). True while the GPS height agrees with the barometer."""
     was_disagreeing = _gps_height_disagrees(book[i, _EVIDENCE_HIGH], book[i, _EVIDENCE_LOW], threshold)
     cap = 2.0 * threshold
     for side in range(2):
         sign = 1.0 if side == 0 else -1.0
         column = _EVIDENCE_HIGH + side
-        if book[i, column] == 0.0:  # a new run may start here: the bias before it
+        if not in_state and book[i, column] == 0.0:  # a new run may start here: the bias before it
             book[i, baro.RUN_BIAS_HIGH + side] = book[i, _BIAS]
             book[i, baro.RUN_BIAS_VAR_HIGH + side] = book[i, _BIAS_VAR]
         log_likelihood = _offset_log_likelihood(sign * innovation, innovation_var, offset)
         book[i, column] = _accumulated_evidence(book[i, column], log_likelihood, cap)
-        if not was_disagreeing and book[i, column] > threshold:
+        if not in_state and not was_disagreeing and book[i, column] > threshold:
             book[i, _BIAS] = book[i, baro.RUN_BIAS_HIGH + side]
             book[i, _BIAS_VAR] = book[i, baro.RUN_BIAS_VAR_HIGH + side]
     return not _gps_height_disagrees(book[i, _EVIDENCE_HIGH], book[i, _EVIDENCE_LOW], threshold)
@@ -115,7 +141,8 @@ def _gps_height_check(book, i, innovation, innovation_var, offset, threshold):
 @njit_cached
 def _baro_rows(x, P, baro_samples, gps, book, diagnostics, model, dx, fused):
     height_var, gps_z_vars, walk_std, threshold, reset_timeout, stamp_matches = model[:6]
-    check_offset, check_threshold, carried = model[6:]
+    check_offset, check_threshold, carried, state = model[6:]
+    in_state = state > 0.0
     for i in range(x.shape[0]):
         fused[i] = False
         if not carried[_row(carried, i)]:  # a vehicle without a barometer: as if it had no update
@@ -124,7 +151,7 @@ def _baro_rows(x, P, baro_samples, gps, book, diagnostics, model, dx, fused):
         stamp = baro_samples[i, 1]
         if stamp != NO_SAMPLE_STAMP and stamp != book[i, _LAST_STAMP]:
             previous = book[i, _LAST_STAMP]
-            if previous != NO_SAMPLE_STAMP and math.isfinite(stamp):
+            if not in_state and previous != NO_SAMPLE_STAMP and math.isfinite(stamp):
                 book[i, _BIAS_VAR] = _bias_predict(book[i, _BIAS_VAR], stamp - previous, walk_std)
             book[i, _LAST_STAMP] = stamp
             height = baro_samples[i, 0]
@@ -132,19 +159,29 @@ def _baro_rows(x, P, baro_samples, gps, book, diagnostics, model, dx, fused):
             if not (math.isfinite(height) and math.isfinite(stamp)):
                 diagnostics[i, _NONFINITE] += 1.0
             elif book[i, _DATUM_SET] == 0.0:  # the first finite sample sets the datum (module docstring)
-                book[i, _BIAS], book[i, _BIAS_VAR] = _bias_update(
-                    book[i, _BIAS], book[i, _BIAS_VAR], height + x[i, 2], height_var + P[i, 2, 2]
-                )
+                if in_state:  # b = h + p_z, correlated with the height (the filter's height kept)
+                    x[i, _BARO_NOMINAL] = _bias_reset(height, x[i, 2], height_var, P[i, 2, 2])[0]
+                    P[i] = _bias_state_reset(P[i], height_var)
+                else:
+                    book[i, _BIAS], book[i, _BIAS_VAR] = _bias_update(
+                        book[i, _BIAS], book[i, _BIAS_VAR], height + x[i, 2], height_var + P[i, 2, 2]
+                    )
                 book[i, _DATUM_SET] = 1.0
             else:
-                nu, S = _height_innovation(x[i, 2], P[i], height, book[i, _BIAS], height_var)
+                if in_state:
+                    nu, S = _bias_state_innovation(x[i, 2], x[i, _BARO_NOMINAL], P[i], height, height_var)
+                else:
+                    nu, S = _height_innovation(x[i, 2], P[i], height, book[i, _BIAS], height_var)
                 nis = nu * nu / S
                 diagnostics[i, _BARO_NIS], diagnostics[i, _BARO_NIS + 1] = nis, stamp
                 if nis <= threshold:
-                    correction, P_new, _ = _scalar_correction(P[i], baro.HEIGHT_INDEX, -1.0, nu, S)
-                    P_new[2, 2] = _floored_height_variance(P_new[2, 2], book[i, _BIAS_VAR])
-                    P[i] = P_new
-                    dx[i] = correction
+                    if in_state:
+                        dx[i], P[i], _ = _bias_state_correction(P[i], nu, S)
+                    else:
+                        correction, P_new, _ = _scalar_correction(P[i], baro.HEIGHT_INDEX, -1.0, nu, S)
+                        P_new[2, 2] = _floored_height_variance(P_new[2, 2], book[i, _BIAS_VAR])
+                        P[i] = P_new
+                        dx[i] = correction
                     fused[i] = True
                     book[i, _REJECTED_SINCE] = math.nan
                 else:
@@ -153,9 +190,12 @@ def _baro_rows(x, P, baro_samples, gps, book, diagnostics, model, dx, fused):
                     if math.isnan(since):
                         book[i, _REJECTED_SINCE] = stamp
                     elif reset_timeout > 0.0 and stamp - since >= reset_timeout - _TOLERANCE:
-                        book[i, _BIAS], book[i, _BIAS_VAR] = _bias_reset(
-                            height, x[i, 2], height_var, P[i, 2, 2]
-                        )
+                        bias, bias_var = _bias_reset(height, x[i, 2], height_var, P[i, 2, 2])
+                        if in_state:
+                            x[i, _BARO_NOMINAL] = bias
+                            P[i] = _bias_state_reset(P[i], height_var)
+                        else:
+                            book[i, _BIAS], book[i, _BIAS_VAR] = bias, bias_var
                         book[i, _REJECTED_SINCE] = math.nan
                         book[i, _EVIDENCE_HIGH] = book[i, _EVIDENCE_LOW] = 0.0
                         diagnostics[i, _BARO_RESETS] += 1.0
@@ -164,36 +204,41 @@ def _baro_rows(x, P, baro_samples, gps, book, diagnostics, model, dx, fused):
             book[i, _GPS_STAMP] = gps_stamp
             matched = abs(gps_stamp - book[i, _LAST_STAMP]) <= stamp_match
             if matched and math.isfinite(gps[i, 2]) and math.isfinite(book[i, _LAST_HEIGHT]):
+                bias, bias_var = _bias_of(x, P, book, i, in_state)
                 measured = _bias_from_gps(book[i, _LAST_HEIGHT], gps[i, 2])
                 variance = height_var + gps_z_var
-                innovation = measured - book[i, _BIAS]
+                innovation = measured - bias
                 agrees = True
                 if check_offset > 0.0:
                     agrees = _gps_height_check(
-                        book, i, innovation, book[i, _BIAS_VAR] + variance, check_offset, check_threshold
+                        book, i, in_state, innovation, bias_var + variance, check_offset, check_threshold
                     )
-                if agrees and innovation * innovation <= threshold * (book[i, _BIAS_VAR] + variance):
+                if not in_state and agrees and innovation * innovation <= threshold * (bias_var + variance):
                     book[i, _BIAS], book[i, _BIAS_VAR] = _bias_update(
                         book[i, _BIAS], book[i, _BIAS_VAR], measured, variance
                     )
-        diagnostics[i, _BARO_BIAS] = book[i, _BIAS]
-        diagnostics[i, _BARO_BIAS + 1] = math.sqrt(book[i, _BIAS_VAR])
+        bias, bias_var = _bias_of(x, P, book, i, in_state)
+        diagnostics[i, _BARO_BIAS] = bias
+        diagnostics[i, _BARO_BIAS + 1] = math.sqrt(bias_var)
 
 
 def baro_rows(x, P, baro_samples, gps, book, diagnostics, model, dx, fused) -> None:
     """One tick of the barometer fusion of N filters (module docstring) IN PLACE on P (N, n, n),
-    book (N, ``baro.BARO_BOOK_SIZE``) and diagnostics; the corrections of the fused vehicles into
-    dx (N, n) and fused (N,). x (N, width): p_z is x[:, 2] in both estimators; baro_samples (N, 2:
-    height m, stamp s); gps (N, 7: p m, v m/s, stamp s); model: :func:`baro_model`."""
+    book (N, ``baro.BARO_BOOK_SIZE``) and diagnostics (and x's baro bias at a bias reset, when the
+    filter carries it); the corrections of the fused vehicles into dx (N, n) and fused (N,).
+    x (N, width): p_z is x[:, 2] in both estimators, the ESKF's baro bias x[:, 16]; baro_samples
+    (N, 2: height m, stamp s); gps (N, 7: p m, v m/s, stamp s); model: :func:`baro_model`."""
     _baro_rows(x, P, baro_samples, gps, book, diagnostics, model, dx, fused)
 
 
-def baro_model(params, gps_z_std, gate_threshold, baro_period, carried=True) -> tuple:
+def baro_model(params, gps_z_std, gate_threshold, baro_period, carried=True, bias_in_state=False) -> tuple:
     """The baro kernel's constants from BaroFusionParams: (height_var m², gps_z_var m² per vehicle,
     walk_std m/sqrt(s), the gate's NIS threshold, reset_timeout s, stamp_match s per vehicle: half
     the baro period, the largest stamp difference of a baro sample and a GPS sample taken as
     simultaneous, the GPS-height check's gps_check_offset m (0 = off) and gps_check_threshold,
-    carried per vehicle: 0 for a vehicle without a barometer, whose row the kernel leaves as it is).
+    carried per vehicle: 0 for a vehicle without a barometer, whose row the kernel leaves as it is,
+    and 1.0 when the filter carries the bias in its state (`bias_in_state`: the ESKF,
+    ``eskf.carries_baro_bias``), 0.0 when the scalar filter in the book estimates it (the EKF7)).
     gps_z_std (m), baro_period (s) and carried: one value for every vehicle or one per vehicle
     (:func:`per_vehicle`)."""
     return (
@@ -206,6 +251,7 @@ def baro_model(params, gps_z_std, gate_threshold, baro_period, carried=True) -> 
         float(params.gps_check_offset),
         float(params.gps_check_threshold),
         np.array(carried, dtype=np.bool_, ndmin=1),
+        1.0 if bias_in_state else 0.0,
     )
 
 

@@ -3,7 +3,9 @@
 Nominal state, per vehicle (``estimation/eskf.py``): x = (p_N (3, m), v_N (3, m/s), q_NB (4,
 wxyz), b_a (3, m/s^2, body), b_g (3, rad/s, body)), NED world N, FRD body B. Error state
 dx = (dp, dv, dtheta (rad, world axes), db_a, db_g), n = 15 entries (9 without bias
-estimation), truth = nominal (+) error; covariance P (n x n) of dx.
+estimation), truth = nominal (+) error; covariance P (n x n) of dx. With a barometer the nominal
+has a 17th float, the baro bias (m), and dx a last entry, its error (n = 16 or 10;
+``eskf.carries_baro_bias``): F = I and Q = walk² dt on it, injected as b_baro += db_baro.
 
 Prediction over dt with the IMU sample (f_B m/s^2, w_B rad/s) held over the step
 (``eskf.nominal_step``), R = R(q) before and R' after the step (``rotations.rotation_entries``):
@@ -35,7 +37,7 @@ loops over the blocks' nonzeros, whose reference oracles are ``eskf.predict`` (w
 ``eskf.joseph_update`` (matrix form, tested to 1e-12 on seeded random inputs in
 ``tests/test_estimator_kernels.py``; no simulation calls them, ``tests/test_oracles.py``).
 
-Shapes: x (N, 16), P (N, n, n), f_B, w_B (N, 3), imu (N, 6), estimate (N, 13). A non-finite
+Shapes: x (N, 16 or 17), P (N, n, n), f_B, w_B (N, 3), imu (N, 6), estimate (N, 13). A non-finite
 measurement leaves its vehicle's (x, P) unchanged and gives NaN NIS. Pure: numba and numpy, no
 pydrake.
 """
@@ -58,6 +60,8 @@ isotropic_gyro (the gyro's Q block is then constant), Q_constant (n, n): ``eskf.
 
 _NONFINITE = DIAG["nonfinite_samples"]
 _WITH_BIASES = eskf.ERROR_SIZE_WITH_BIASES
+_BARO_SIZES = eskf.ERROR_SIZES_WITH_BARO
+_BARO_NOMINAL = eskf.BARO_BIAS_NOMINAL
 _quat_exp = compiled(eskf.quat_exp)
 _quat_normalized = compiled(eskf.quat_normalized)
 _nominal_step = compiled(
@@ -144,7 +148,7 @@ def _predict_row(x, P, i, f_B, w_B, dt, accel_var, gyro_var, isotropic_gyro, Q_c
             A[2, a, b] = R[a, b] * -h
             A[3, a, b] = R[a, b] * -dt
             A[4, a, b] = R_next[a, b] * -dt
-    biases = n == _WITH_BIASES
+    biases = n >= _WITH_BIASES
     _apply_transition(P[i], FP, A, dt, biases)  # F P
     _apply_transition(FP.T, M, A, dt, biases)  # F (F P)^T = (F P F^T)^T: symmetrised below
     for r in range(n):  # P' = sym(F P F^T) + Q, Q's constant blocks
@@ -183,7 +187,8 @@ def _predict_rows(x, P, f_B, w_B, dt, accel_var, gyro_var, isotropic_gyro, Q_con
 def predict(x, P, f_B, w_B, model) -> tuple[np.ndarray, np.ndarray]:
     """(x', P') after one IMU step (``eskf.predict`` per row): nominal step, P' = F P F^T symmetrised + Q.
 
-    x (N, 16); P (N, n, n), n = 15 or 9; f_B, w_B (N, 3); model: the :class:`Model` (:func:`model`).
+    x (N, 16 or 17); P (N, n, n), n = 9, 10, 15 or 16; f_B, w_B (N, 3); model: the :class:`Model`
+    (:func:`model`).
     """
     x, P = np.array(x, dtype=float), np.array(P, dtype=float)
     m = model
@@ -215,7 +220,7 @@ def _predict_tick(
 
 
 def predict_tick(filters, imu, estimate, model) -> np.ndarray:
-    """The prediction of one ESKF tick IN PLACE on the ``fusion.Filters`` `filters` (x (N, 16), P
+    """The prediction of one ESKF tick IN PLACE on the ``fusion.Filters`` `filters` (x (N, 16 or 17), P
     (N, n, n), diagnostics, book, hold) (``systems.estimators.Eskf``).
 
     A vehicle takes :func:`predict` with its IMU sample imu (N, 6) and :class:`Model` `model`, and
@@ -243,9 +248,11 @@ def _inject_row(x, P, i, dx):
     q = _injected_attitude((x[i, 6], x[i, 7], x[i, 8], x[i, 9]), (dx[6], dx[7], dx[8]))
     for k in range(4):
         x[i, 6 + k] = q[k]
-    if n == _WITH_BIASES:
+    if n >= _WITH_BIASES:
         for k in range(6):
             x[i, 10 + k] += dx[9 + k]
+    if n == _BARO_SIZES[0] or n == _BARO_SIZES[1]:
+        x[i, _BARO_NOMINAL] += dx[n - 1]
     # P <- G P G^T: rows 6:9 <- A P[6:9, :], then columns 6:9 <- P[:, 6:9] A^T, A = I + [dtheta]x / 2
     t0, t1, t2 = 0.5 * dx[6], 0.5 * dx[7], 0.5 * dx[8]
     for c in range(n):
@@ -270,7 +277,8 @@ def correct(x, P, dx, fused) -> None:
 
 
 def inject(x, P, dx) -> tuple[np.ndarray, np.ndarray]:
-    """(x', P'): errors dx (N, n) injected into the nominal x (N, 16), P reset by G (``eskf.inject``)."""
+    """(x', P'): errors dx (N, n) injected into the nominal x (N, 16 or 17), P reset by G
+    (``eskf.inject``)."""
     x, P = np.array(x, dtype=float), np.array(P, dtype=float)
     correct(x, P, dx, np.ones(x.shape[0], dtype=np.bool_))
     return x, P

@@ -60,7 +60,7 @@ from quad_drake.kernels.imu_hold import HOLD_SIZE, initial_hold
 from quad_drake.models.fidelity import PHYSICAL
 from quad_drake.models.rotations import quat_from_euler_tuple
 from quad_drake.systems import updates
-from quad_drake.systems._io import declare_state_output, discrete_group, row_reader
+from quad_drake.systems._io import declare_block_output, declare_state_output, discrete_group, row_reader
 
 
 def _tiled(vector, n):
@@ -101,17 +101,22 @@ def _carried(sensors, each_sensors):
     return dataclasses.replace(sensors, baro=next((s.baro for s in each_sensors if s.baro is not None), None))
 
 
-def _baro_update(measurement, correct, params, each, fidelity, gps_z_std_of, sensors, each_sensors):
+def _baro_update(
+    measurement, correct, params, each, fidelity, gps_z_std_of, sensors, each_sensors, bias_in_state=False
+):
     """The BaroUpdate of an estimator system: its params' barometer fusion and gate; per vehicle
     (``each``, ``each_sensors``: None when one for all) the GPS height noise gps_z_std_of(params)
-    m, the barometer's period s and whether it carries one."""
+    m, the barometer's period s and whether it carries one; bias_in_state: the estimator carries
+    the baro bias in its state (the ESKF)."""
     gps_z_std = gps_z_std_of(params) if each is None else [gps_z_std_of(p) for p in each]
     period, carried = float(sensors.baro.period), True
     if each_sensors is not None:
         period = [float((s.baro or sensors.baro).period) for s in each_sensors]
         carried = [s.baro is not None for s in each_sensors]
     gate = _gate(params.baro.gate_sigma, fidelity)
-    return updates.BaroUpdate(measurement, correct, params.baro, gate, gps_z_std, period, carried)
+    return updates.BaroUpdate(
+        measurement, correct, params.baro, gate, gps_z_std, period, carried, bias_in_state
+    )
 
 
 GPS_AND_MAG = SensorsConfig(gps=GpsParams(), mag=MagParams())
@@ -333,7 +338,9 @@ class Eskf(LeafSystem):
     sensor ``sensors`` lacks has no input port. Outputs (state ports):
     ``estimated_state`` (n*13: p, q_NB, v, body rate = gyro - gyro bias, NaN while the IMU is
     out), ``covariance`` (n*k*k, k = 15 with bias estimation, 9 without; error state dp, dv,
-    dtheta[, db_a, db_g]), ``diagnostics`` (n*``vocabulary.DIAGNOSTICS``), ``imu_bias`` (n*6: b_a
+    dtheta[, db_a, db_g]; with a barometer the filter also carries the baro bias, its error last
+    in P (``eskf.carries_baro_bias``), and this port gives P's leading k x k block: the bias and its
+    std are in ``diagnostics``), ``diagnostics`` (n*``vocabulary.DIAGNOSTICS``), ``imu_bias`` (n*6: b_a
     m/s^2, b_g rad/s).
 
     Each tick (ONBOARD_PERIOD, offset EKF_OFFSET; ``kernels/eskf.py``, whose module docstring
@@ -356,17 +363,6 @@ class Eskf(LeafSystem):
         from quad_drake.kernels import eskf as eskf_kernel
 
         self._predict_tick, self._write_estimate = eskf_kernel.predict_tick, eskf.write_estimate
-        noise = eskf.NoiseModel.from_params(params)
-        P0 = eskf.initial_covariance(params)
-        Q_constant = eskf.noise_buffer(P0.shape[0], noise, ONBOARD_PERIOD)
-        self._model = eskf_kernel.model(noise, Q_constant, ONBOARD_PERIOD)
-
-        def initial_nominal(p):
-            yaw, pitch, roll = p.init_ypr
-            attitude = quat_from_euler_tuple(roll, pitch, yaw)
-            return eskf.initial_nominal(p.init_position, p.init_velocity, attitude)
-
-        x0 = _stacked(initial_nominal, params, each)
         correct = eskf_kernel.correct
         builders = {
             "yaw": lambda m: updates.YawUpdate(
@@ -380,13 +376,27 @@ class Eskf(LeafSystem):
                 m, correct, _mag_field(params, each), _gate(params.mag_field.gate_sigma, fidelity)
             ),
             "baro": lambda m: _baro_update(
-                m, correct, params, each, fidelity, lambda p: p.gps_pos_std[2], sensors, each_sensors
+                m, correct, params, each, fidelity, lambda p: p.gps_pos_std[2], sensors, each_sensors,
+                bias_in_state=True,
             ),
         }  # fmt: skip
         self._n = n
         self._read_imu = row_reader(self.DeclareVectorInputPort("imu", n * IMU_SIZE), n)
         sensor_updates = updates.build_updates(KINDS["eskf"].measurements, sensors, builders)
         gsf = _gsf_update(params, sensors, sensor_updates)
+        baro = any(isinstance(u, updates.BaroUpdate) for u in sensor_updates)  # its bias in the state
+        noise = eskf.NoiseModel.from_params(params)
+        P0 = eskf.initial_covariance(params, baro)
+        Q_constant = eskf.noise_buffer(P0.shape[0], noise, ONBOARD_PERIOD)
+        self._model = eskf_kernel.model(noise, Q_constant, ONBOARD_PERIOD)
+
+        def initial_nominal(p):
+            yaw, pitch, roll = p.init_ypr
+            attitude = quat_from_euler_tuple(roll, pitch, yaw)
+            x = eskf.initial_nominal(p.init_position, p.init_velocity, attitude)
+            return np.append(x, p.baro.bias_init) if baro else x
+
+        x0 = _stacked(initial_nominal, params, each)
         self._fusion = updates.Fusion(
             self,
             n,
@@ -399,7 +409,11 @@ class Eskf(LeafSystem):
         eskf.write_estimate(np.broadcast_to(x0, (n, x0.shape[-1])), initial_estimate)
         self._estimate = discrete_group(self, initial_estimate.ravel(), "estimated_state")
         groups = self._fusion.groups
-        declare_state_output(self, "covariance", groups.P, n * P0.size)
+        k = eskf.navigation_size(P0.shape[0])
+        if k == P0.shape[0]:
+            declare_state_output(self, "covariance", groups.P, n * P0.size)
+        else:  # the navigation block: the baro bias is logged in ``diagnostics`` (its estimate, its std)
+            declare_block_output(self, "covariance", groups.P, n, P0.shape[0], k)
         declare_state_output(self, "diagnostics", groups.diagnostics, n * DIAGNOSTICS_SIZE)
         self._bias = discrete_group(self, n * 6, "imu_bias")
         if gsf is not None:

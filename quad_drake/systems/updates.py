@@ -181,21 +181,27 @@ class HeadingUpdate(CorrectionUpdate):
 
 
 class BaroUpdate(CorrectionUpdate):
-    """The barometer's height (m up, ``estimation/baro.py``) against its bias filter, which the GPS
-    heights of ``samples["gps"]`` feed: 1 dof, gated (``kernels.aiding.baro_rows``); NIS in
-    ``baro_nis``; a book of its own (discrete-state group, ``baro.BARO_BOOK_SIZE`` per vehicle).
+    """The barometer's height (m up, ``estimation/baro.py``) against the baro bias: 1 dof, gated
+    (``kernels.aiding.baro_rows``); NIS in ``baro_nis``; a book of its own (discrete-state group,
+    ``baro.BARO_BOOK_SIZE`` per vehicle: the latest sample, the datum, the gate's rejections and
+    the GPS-height check).
 
-    params: BaroFusionParams; gps_z_std: m, the GPS height noise the estimator assumes (the bias
-    filter's reference); period: s, the barometer's sample period; carried: whether the vehicle
-    has a barometer (one without: its row untouched, as without this update). gps_z_std, period
-    and carried: one for all vehicles or (n,) per vehicle."""
+    params: BaroFusionParams; gps_z_std: m, the GPS height noise the estimator assumes; period: s,
+    the barometer's sample period; carried: whether the vehicle has a barometer (one without: its
+    row untouched, as without this update). gps_z_std, period and carried: one for all vehicles or
+    (n,) per vehicle. bias_in_state: True when the estimator carries the bias in its state (the
+    ESKF: its last error entry, so the update corrects the height and the bias together), False
+    when a scalar filter in the book estimates it from the GPS heights of ``samples["gps"]`` (the
+    EKF7)."""
 
-    def __init__(self, measurement, correct, params, gate_sigma, gps_z_std, period, carried=True):
+    def __init__(
+        self, measurement, correct, params, gate_sigma, gps_z_std, period, carried=True, bias_in_state=False
+    ):
         super().__init__(measurement, correct)
         gate = gating.gate_threshold(NIS_DOF[measurement.nis], gate_sigma)
         self._params = params
         aiding_kernels = _aiding_kernels()
-        self._model = aiding_kernels.baro_model(params, gps_z_std, gate, period, carried)
+        self._model = aiding_kernels.baro_model(params, gps_z_std, gate, period, carried, bias_in_state)
         self._rows = aiding_kernels.baro_rows
         self._book = self._no_gps = None
 
