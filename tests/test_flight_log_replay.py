@@ -198,7 +198,10 @@ def test_the_ekf7s_old_blocks_of_a_replay_load_into_its_estimator(tmp_path):
     old.write_text(
         f"log: {LOGS[1]}\nestimator: {{kind: ekf7}}\nekf: {{mag_yaw_std: 0.2}}\nattitude_filter: {{tau: 2}}\n"
     )
-    with pytest.warns(FutureWarning, match="ekf is deprecated: write its fields in estimator"):
+    with (
+        pytest.warns(FutureWarning, match="ekf is deprecated: write its fields in estimator"),
+        pytest.warns(FutureWarning, match="attitude_filter is deprecated: write its fields in estimator"),
+    ):
         config = load_replay(old)
     assert (config.estimator.mag_yaw_std, config.estimator.attitude_filter.tau) == (0.2, 2.0)
 

@@ -173,7 +173,10 @@ def test_the_old_ekf_and_attitude_filter_blocks_load_into_the_ekf7_config_with_a
 
 def test_an_old_block_agreeing_with_the_estimator_loads_and_contradicting_it_is_one_line(tmp_path):
     agreeing = "estimator: {kind: ekf7, q_yaw_std: 0.3, attitude_filter: {variant: small_angle}}"
-    with pytest.warns(FutureWarning, match="vehicles.0.ekf is deprecated"):
+    with (
+        pytest.warns(FutureWarning, match="vehicles.0.ekf is deprecated"),
+        pytest.warns(FutureWarning, match="vehicles.0.attitude_filter is deprecated"),
+    ):
         estimator = load_scenario(write(tmp_path, OLD_EKF7.format(extra=agreeing))).vehicles[0].estimator
     assert (estimator.q_yaw_std, estimator.attitude_filter.variant, estimator.attitude_filter.tau) == (
         0.3,
@@ -193,8 +196,14 @@ def test_an_old_block_agreeing_with_the_estimator_loads_and_contradicting_it_is_
 
 def test_an_old_block_beside_another_kind_was_never_read_and_is_dropped_with_a_warning(tmp_path):
     path = write(tmp_path, OLD_EKF7.format(extra="estimator: {kind: eskf}"))
-    with pytest.warns(
-        FutureWarning, match="vehicles.0.ekf is deprecated and ignored: .* vehicles.0.estimator is eskf"
+    with (
+        pytest.warns(
+            FutureWarning, match="vehicles.0.ekf is deprecated and ignored: .* vehicles.0.estimator is eskf"
+        ),
+        pytest.warns(
+            FutureWarning,
+            match="vehicles.0.attitude_filter is deprecated and ignored: .* vehicles.0.estimator is eskf",
+        ),
     ):
         scenario = load_scenario(path)
     assert scenario.vehicles[0].estimator == registry.EskfEstimatorConfig()
