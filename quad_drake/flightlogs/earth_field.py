@@ -7,11 +7,17 @@ EKF2 learned and stored as parameters (``EKF2_MAGBIAS_X/Y/Z``, gauss, body FRD),
 hard iron the replay subtracts (:func:`learned_bias`). The world field m_N (strength,
 declination, inclination) comes from, in order:
 
-- the declination: as PX4 chose it: with a fix and ``EKF2_DECL_TYPE`` bit 0 set (its default,
-  7; PX4 then looks the declination up at the fix and only saves it to ``EKF2_MAG_DECL`` at
-  disarm), the World Magnetic Model at the first fix; else the log's own (PX4's parameter
-  ``EKF2_MAG_DECL`` / ``ATT_MAG_DECL``, a CSV's ``declination`` row); else the model at the
-  first fix; else 0;
+- the declination: as PX4 chose it. With a fix and ``EKF2_DECL_TYPE`` bit 0 set (its default,
+  7), PX4 fuses its parameter ``EKF2_MAG_DECL`` until the fix and its own geo library's value
+  from the fix on, and with bit 1 set it saves that value to ``EKF2_MAG_DECL`` at disarm: a
+  saved parameter within SAVED_DECLINATION_TOLERANCE of the World Magnetic Model at the fix is
+  PX4's own library's value for this place (saved on an earlier flight here), so it is taken,
+  PX4's value both before and after its fix; otherwise (not saved, or saved elsewhere) the World
+  Magnetic Model at the first fix. PX4's library is a coarse table of the model, a few tenths of
+  a degree off it, and a simulator takes its field from that table: on pyulog's SITL log with
+  ground truth the saved 2.98° puts our yaw 0.7 mrad RMS from the truth, the model's 3.13° 2.7
+  mrad. Without bit 0: the log's own (PX4's parameter ``EKF2_MAG_DECL`` / ``ATT_MAG_DECL``, a
+  CSV's ``declination`` row); else the model at the first fix; else 0;
 - the strength and inclination: the log's own field, as PX4 EKF2 initialises its earth-field
   states from the measured field at alignment: the median strength over the log, and the median
   inclination against the accelerometer's gravity (mean over HEADING_GRAVITY_WINDOW before each
@@ -32,6 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from quad_drake.flightlogs.schedule import gravity_directions
+from quad_drake.models.rotations import wrap_to_pi
 
 WMM_MODELS = {
     2010: "wmm/WMM_2010.COF",
@@ -46,6 +53,12 @@ EARTH_FIELD_STRENGTH = (0.22, 0.67)
 INCLINATION_MISMATCH = math.radians(10.0)
 """rad: a log's field inclination farther than this from the model's at the fix is flagged (the
 model is good to well under 1°; a mounted magnetometer near motors and wires is often 5° off)."""
+SAVED_DECLINATION_TOLERANCE = math.radians(1.0)
+"""rad: a saved ``EKF2_MAG_DECL`` this close to the World Magnetic Model at the fix is PX4's own
+geo library's value for the place (its table's error against the model is a few tenths of a
+degree; a declination saved a few hundred km away differs by more)."""
+DECL_USE_GEO, DECL_SAVE = 1, 2
+"""``EKF2_DECL_TYPE`` bits: look the declination up at the fix; save it to ``EKF2_MAG_DECL``."""
 ALIGNMENT_TIME = 1.0
 """s from the first field sample over which the field's inclination is measured (before take-off)."""
 
@@ -138,8 +151,22 @@ def magnetometer_model(log, current_year=None) -> MagnetometerModel:
                 f"{math.degrees(abs(inclination - wmm[1])):.0f}° from the Earth's there: the "
                 "magnetometer is disturbed or its rotation wrong; its yaw cannot be trusted"
             )
-    looks_up = int(log.parameters.get("EKF2_DECL_TYPE", 0)) & 1 or log.mag_declination is None
-    if wmm is not None and looks_up:
+    declination_type = int(log.parameters.get("EKF2_DECL_TYPE", 0))
+    looks_up = declination_type & DECL_USE_GEO or log.mag_declination is None
+    saved_here = (
+        wmm is not None
+        and log.mag_declination is not None
+        and declination_type & DECL_USE_GEO
+        and declination_type & DECL_SAVE
+        and abs(wrap_to_pi(log.mag_declination - wmm[0])) <= SAVED_DECLINATION_TOLERANCE
+    )
+    if saved_here:
+        declination = log.mag_declination
+        notes.append(
+            f"magnetometer: declination {math.degrees(declination):.2f}° (the log's EKF2_MAG_DECL: "
+            "PX4's own look-up saved at this place, what it fuses before and after its fix)"
+        )
+    elif wmm is not None and looks_up:
         declination = wmm[0]
         notes.append(f"magnetometer: declination {math.degrees(declination):.2f}° (WMM at the first fix)")
     elif log.mag_declination is not None:
