@@ -26,7 +26,12 @@ from quad_drake.judging.evaluation import (
     state_finite,
     tracking_bound,
 )
-from quad_drake.judging.safety import dead_reckoning_windows, is_closed_loop, safety_criteria
+from quad_drake.judging.safety import (
+    dead_reckoning_windows,
+    is_closed_loop,
+    labelled_safety_criteria,
+    safety_criteria,
+)
 from quad_drake.judging.signals import vehicle_signals
 from quad_drake.models.dynamics import on_floor, outside_room
 from quad_drake.models.rotations import quat_from_euler
@@ -111,6 +116,18 @@ def test_tracking_is_judged_around_a_gps_outage_not_during_it():
     # the GPS back too late to judge a recovery (flight ends within 3 s): only the bound before
     assert [c.kind for c in tracking_of(outage_scenario((10.0, 23.0)))] == ["bound"]
     assert tracking_of(outage_scenario((10.0, 15.0), tracking=False)) == []
+    # a campaign table counts the split pair as the tracking it stands for
+    labelled = labelled_safety_criteria(outage_scenario((10.0, 15.0), landing_time=20.0))
+    assert [kind for kind, _ in labelled] == [
+        "floor",
+        "room",
+        "finite",
+        "tracking",
+        "tracking",
+        "landing",
+        "attitude",
+    ]
+    assert [c for _, c in labelled] == safety_criteria(outage_scenario((10.0, 15.0), landing_time=20.0))
 
 
 def test_a_dead_reckoned_excursion_passes_and_a_flyaway_fails():

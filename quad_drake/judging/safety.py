@@ -69,28 +69,38 @@ SAFETY_SIGNALS = {
 
 def safety_criteria(scenario) -> list[CriterionConfig]:
     """The flight-safety CriterionConfigs of `scenario`, vehicle by vehicle ([] when disabled)."""
+    return [criterion for _, criterion in labelled_safety_criteria(scenario)]
+
+
+def labelled_safety_criteria(scenario) -> list[tuple[str, CriterionConfig]]:
+    """(what it guards, CriterionConfig) per flight-safety criterion of `scenario`, in the order of
+    :func:`safety_criteria`: ``floor``, ``room``, ``finite``, ``tracking`` (also the ``bound`` and
+    ``recovery`` that judge the tracking around a GPS outage), ``landing``, ``attitude``; what a
+    campaign table counts its failures by."""
     safety = scenario.safety
     if not safety.enabled:
         return []
-    criteria = []
+    labelled = []
     for vehicle in scenario.vehicles:
         wanted = (
             ("floor", safety.floor, {"landing_time": safety.landing_time}),
             ("room", safety.room, {}),
             ("finite", safety.finite, {}),
         )
-        criteria += [
-            CriterionConfig(kind=kind, signal=f"{vehicle.name}.{SAFETY_SIGNALS[kind]}", **fields)
+        labelled += [
+            (kind, CriterionConfig(kind=kind, signal=f"{vehicle.name}.{SAFETY_SIGNALS[kind]}", **fields))
             for kind, enabled, fields in wanted
             if enabled
         ]
         if safety.tracking and is_closed_loop(vehicle):
-            criteria += tracking_criteria(vehicle, safety, scenario.end_time)
+            labelled += [("tracking", c) for c in tracking_criteria(vehicle, safety, scenario.end_time)]
         if safety.floor and safety.landing_time is not None and safety.max_touchdown_speed > 0:
-            criteria.append(landing_criterion(vehicle.name, safety.max_touchdown_speed, scenario.end_time))
+            labelled.append(
+                ("landing", landing_criterion(vehicle.name, safety.max_touchdown_speed, scenario.end_time))
+            )
         if safety.attitude:
-            criteria.append(attitude_criterion(vehicle, safety.tilt_margin, scenario.end_time))
-    return criteria
+            labelled.append(("attitude", attitude_criterion(vehicle, safety.tilt_margin, scenario.end_time)))
+    return labelled
 
 
 def dead_reckoning_windows(vehicle, recovery_time) -> list[tuple[float, float]]:
