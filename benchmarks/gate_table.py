@@ -35,6 +35,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from quad_drake import campaigns  # noqa: E402
+from quad_drake.judging.safety import labelled_safety_criteria  # noqa: E402
 from quad_drake.running import catalog  # noqa: E402
 
 MIXED = str(ROOT / "benchmarks" / "scenarios" / "gps_glitch_outage.yaml")
@@ -122,9 +123,12 @@ def measure(row, runs, seed, batch):
     scenario = catalog.load(row.scenario, None, list(row.overrides))
     result = campaigns.run_campaign(scenario, runs, seed=seed, fleet_batch=batch, progress=False)
     failed = {kind: 0 for kind in ("floor", "room", "tracking")}
+    guards = [None] * len(scenario.criteria) + [kind for kind, _ in labelled_safety_criteria(scenario)]
     for record in result.records:
         for kind in failed:
-            failed[kind] += any(c["kind"] == kind and not c["passed"] for c in record.criteria)
+            failed[kind] += any(
+                g == kind and not c["passed"] for g, c in zip(guards, record.criteria, strict=True)
+            )
     return sum(record.passed for record in result.records), failed
 
 

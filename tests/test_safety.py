@@ -10,7 +10,13 @@ from pydrake.systems.analysis import Simulator
 
 from quad_drake.config.errors import ConfigError
 from quad_drake.config.loader import load_scenario
-from quad_drake.config.schema import PhysicsParams, ScenarioConfig, VehicleConfig
+from quad_drake.config.schema import (
+    CriterionConfig,
+    FaultConfig,
+    PhysicsParams,
+    ScenarioConfig,
+    VehicleConfig,
+)
 from quad_drake.conventions import GRAVITY
 from quad_drake.judging.evaluation import (
     evaluate_criterion,
@@ -20,7 +26,12 @@ from quad_drake.judging.evaluation import (
     state_finite,
     tracking_bound,
 )
-from quad_drake.judging.safety import is_closed_loop, safety_criteria
+from quad_drake.judging.safety import (
+    dead_reckoning_windows,
+    is_closed_loop,
+    labelled_safety_criteria,
+    safety_criteria,
+)
 from quad_drake.judging.signals import vehicle_signals
 from quad_drake.models.dynamics import on_floor, outside_room
 from quad_drake.models.rotations import quat_from_euler
@@ -65,6 +76,81 @@ def test_safety_switches_off_as_a_whole_or_check_by_check():
     assert {c.landing_time for c in bounded if c.kind == "floor"} == {12.0}
 
 
+def outage_scenario(*outages, flies_on="estimate", end_time=25.0, **safety):
+    """One closed-loop vehicle flying on `flies_on` with a gps_outage fault per (start, end) s."""
+    vehicle = VehicleConfig(name="Quad", flies_on=flies_on)
+    vehicle.faults = [FaultConfig(kind="gps_outage", start=a, end=b) for a, b in outages]
+    vehicle.faults.append(FaultConfig(kind="mag_outage", start=0.0, end=25.0))  # not the GPS: ignored
+    s = ScenarioConfig(end_time=end_time, vehicles=[vehicle])
+    s.safety = dataclasses.replace(s.safety, **safety)
+    return s
+
+
+def tracking_of(scenario):
+    return [c for c in safety_criteria(scenario) if c.signal == "Quad.PosFollowErr"]
+
+
+def test_tracking_is_judged_around_a_gps_outage_not_during_it():
+    pos = "Quad.PosFollowErr"
+    assert tracking_of(outage_scenario((10.0, 15.0))) == [
+        CriterionConfig(kind="bound", signal=pos, threshold=6.0, start=0.0, end=10.0),
+        CriterionConfig(kind="recovery", signal=pos, threshold=6.0, start=15.0, window=3.0),
+    ]
+    # a vehicle flying on the truth does not dead-reckon: the whole flight, as without an outage
+    assert tracking_of(outage_scenario((10.0, 15.0), flies_on="truth")) == [
+        CriterionConfig(kind="tracking", signal=pos, threshold=6.0)
+    ]
+    assert tracking_of(outage_scenario()) == [CriterionConfig(kind="tracking", signal=pos, threshold=6.0)]
+    # two outages: judged between them from `recovery` s after the first; the bound and time move
+    two = tracking_of(
+        outage_scenario((12.0, 14.0), (4.0, 6.0), tracking_bound=4.0, tracking_recovery_time=2.0)
+    )
+    assert [(c.kind, c.start, c.end, c.window, c.threshold) for c in two] == [
+        ("bound", 0.0, 4.0, 1.0, 4.0),
+        ("bound", 8.0, 12.0, 1.0, 4.0),
+        ("recovery", 14.0, 0.0, 2.0, 4.0),
+    ]
+    # outages closer than the recovery time merge; one at take-off has no window before it
+    assert dead_reckoning_windows(outage_scenario((0.0, 2.0), (4.0, 6.0)).vehicles[0], 3.0) == [(0.0, 6.0)]
+    assert [c.kind for c in tracking_of(outage_scenario((0.0, 2.0), (4.0, 6.0)))] == ["recovery"]
+    # the GPS back too late to judge a recovery (flight ends within 3 s): only the bound before
+    assert [c.kind for c in tracking_of(outage_scenario((10.0, 23.0)))] == ["bound"]
+    assert tracking_of(outage_scenario((10.0, 15.0), tracking=False)) == []
+    # a campaign table counts the split pair as the tracking it stands for
+    labelled = labelled_safety_criteria(outage_scenario((10.0, 15.0), landing_time=20.0))
+    assert [kind for kind, _ in labelled] == [
+        "floor",
+        "room",
+        "finite",
+        "tracking",
+        "tracking",
+        "landing",
+        "attitude",
+    ]
+    assert [c for _, c in labelled] == safety_criteria(outage_scenario((10.0, 15.0), landing_time=20.0))
+
+
+def test_a_dead_reckoned_excursion_passes_and_a_flyaway_fails():
+    """The old rule (|PosFollowErr| <= 6 m over the whole flight) failed a vehicle whose estimate
+    drifted 9 m during the outage and came back; the split rule passes it and still fails one that
+    is still lost 3 s after the GPS returned."""
+    times = 0.005 * np.arange(1, 5001)  # 25 s
+    outage = (times >= 10.0) & (times < 15.0)
+    drifted = np.where(outage, 9.0, 3.0)
+    flyaway = np.where(times >= 10.0, 9.0, 3.0)
+    flyaway[times >= 19.0] = 3.0  # back only 4 s after the GPS returned
+
+    def verdicts(error):
+        return [
+            evaluate_criterion(c, times, lambda name: (error, None)).passed
+            for c in tracking_of(outage_scenario((10.0, 15.0)))
+        ]
+
+    assert verdicts(drifted) == [True, True]
+    assert not tracking_bound(times, drifted, 6.0).passed  # what the whole-flight bound said
+    assert verdicts(flyaway) == [True, False]
+
+
 def test_safety_config_from_yaml_and_its_errors(tmp_path):
     path = tmp_path / "s.yaml"
     path.write_text("end_time: 1.0\nsafety: {tracking_bound: 3.0, floor: false}\n")
@@ -73,6 +159,8 @@ def test_safety_config_from_yaml_and_its_errors(tmp_path):
     assert load_scenario(path, ["safety.enabled=false"]).safety.enabled is False
     with pytest.raises(ConfigError, match=r"s\.yaml: safety\.tracking_bound: must be > 0, got -1"):
         load_scenario(path, ["safety.tracking_bound=-1"])
+    with pytest.raises(ConfigError, match=r"s\.yaml: safety\.tracking_recovery_time: must be > 0, got 0"):
+        load_scenario(path, ["safety.tracking_recovery_time=0"])
     with pytest.raises(ConfigError, match=r"s\.yaml: safety\.landing_time: must be >= 0, got -2"):
         load_scenario(path, ["safety.landing_time=-2.0"])
     with pytest.raises(ConfigError, match=r"safety\.ceiling: unknown key"):

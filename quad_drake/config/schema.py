@@ -315,7 +315,8 @@ class CriterionConfig:
             ``landing_time`` s (None: the whole run), and V leaves the floor at all.
     room:   ``V.WallContactSteps`` stays 0 (never stopped by a wall or the ceiling).
     finite: ``V.StateFinite`` stays 1 (every true state entry finite).
-    tracking: |``V.PosFollowErr``| <= ``threshold`` m at every sample.
+    tracking: |``V.PosFollowErr``| <= ``threshold`` m at every sample (around a GPS outage the
+            safety rule judges the same signal with ``bound`` and ``recovery`` criteria).
     attitude: ``V.Tilt`` < ``threshold`` rad on every sample in [start, end) s (judged as a bound).
     """
 
@@ -340,7 +341,8 @@ class SafetyConfig:
     """Flight-safety criteria judged on every vehicle's true flight (``quad_drake.judging.safety``).
 
     ``enabled: false`` switches them all off; each check can be switched off alone.
-    tracking applies to vehicles whose position loops are closed (kp_pos_xy, kp_pos_z > 0).
+    tracking applies to vehicles whose position loops are closed (kp_pos_xy, kp_pos_z > 0), and
+    not while the position of a vehicle flying on its estimate dead-reckons through a GPS outage.
     """
 
     enabled: bool = True
@@ -349,6 +351,9 @@ class SafetyConfig:
     finite: bool = True  # the true state stays finite
     tracking: bool = True  # |Vehicle.PosFollowErr| <= tracking_bound
     tracking_bound: float = number(6.0, positive=True)  # m (quad_drake.judging.safety: why 6)
+    # s: where a vehicle flying on its estimate has a GPS outage, the tracking is judged before it
+    # and from this long after it, not during it (quad_drake.judging.safety: why 3)
+    tracking_recovery_time: float = number(3.0, positive=True)
     attitude: bool = True  # the true tilt stays within what the controller commands plus tilt_margin
     tilt_margin: float = number(0.1, nonnegative=True)  # rad (quad_drake.judging.safety: why 0.1)
     landing_time: Optional[float] = None  # s, a documented landing: touchdowns from then on pass
