@@ -166,7 +166,13 @@ def _baro_rows(x, P, baro_samples, gps, book, diagnostics, model, dx, fused):
                     P[i] = _bias_state_reset(P[i], height_var)
                 else:
                     book[i, _BIAS], book[i, _BIAS_VAR] = _first_datum(
-                        book[i, _BIAS], book[i, _BIAS_VAR], height, x[i, 2], height_var, P[i, 2, 2], from_first_sample
+                        book[i, _BIAS],
+                        book[i, _BIAS_VAR],
+                        height,
+                        x[i, 2],
+                        height_var,
+                        P[i, 2, 2],
+                        from_first_sample,
                     )
                 book[i, _DATUM_SET] = 1.0
             else:
