@@ -169,6 +169,30 @@ def test_the_first_baro_sample_sets_the_datum_and_a_step_past_the_timeout_resets
     assert book[0, baro.BIAS] == pytest.approx(datum + 5.0, abs=1e-9)  # b = h + p_z at the reset
 
 
+def test_a_flight_logs_datum_hundreds_of_metres_up_is_set_by_the_first_sample_and_never_gated():
+    """A log's barometer reads a pressure altitude (here 300 m over the datum of the filter's
+    height, PX4's 3.5 m noise, the 1 m prior): with the replay's datum_from_first_sample the first
+    sample sets b = h + p_z, P_b = height_std^2 + P[2, 2] (the ESKF's rule), and every later sample
+    fuses; fused against the prior the datum would move 1 / 14.3 of the way and the baro be gated
+    until its reset."""
+    params = baro.BaroFusionParams(height_std=3.5, datum_from_first_sample=True)
+    x, P = np.array([[0.0, 0.0, -1.0] + [0.0] * 4]), np.eye(7)[None] * 0.04
+    book, diagnostics = np.tile(baro.initial_book(params), (1, 1)), np.tile(initial_diagnostics(), (1, 1))
+    model = aiding.baro_model(params, 1000.0, THRESHOLD, 0.02)
+    gps = np.array([[0.0] * 6 + [-1.0]])
+    dx, fused = np.zeros((1, 7)), np.zeros(1, dtype=bool)
+    rng = np.random.default_rng(3)
+    for k in range(1, 101):  # 2 s of samples at 50 Hz, the vehicle still 1 m up
+        sample = np.array([[301.0 + 0.1 * rng.normal(), 0.02 * k]])
+        aiding.baro_rows(x, P, sample, gps, book, diagnostics, model, dx, fused)
+        if k == 1:
+            expected = baro.bias_reset(sample[0, 0], -1.0, 3.5**2, 0.04)
+            assert (book[0, baro.BIAS], book[0, baro.BIAS_VAR]) == expected
+            assert expected == baro.first_datum(0.0, 1.0, sample[0, 0], -1.0, 3.5**2, 0.04, True)
+        assert fused[0] == (k > 1), k
+    assert diagnostics[0, DIAG["baro_gated"]] == 0 and diagnostics[0, DIAG["baro_resets"]] == 0
+
+
 def test_baro_bias_learns_from_simultaneous_gps_heights_only():
     x, P = np.zeros((2, 7)), np.tile(np.eye(7) * 0.04, (2, 1, 1))
     x[:, 2] = -1.0

@@ -294,6 +294,7 @@ def test_replay_defaults_and_the_start_from_a_log_are_the_entry_s():
     noise = registry.PX4_NOISE
     assert (config.gps_pos_xy_std, config.gps_vel_z_std) == (noise["gps_pos_std"], noise["gps_vel_std"])
     assert config.mag_yaw_std == noise["heading_std"] and config.baro.height_std == noise["baro_height_std"]
+    assert config.baro.datum_from_first_sample  # a log's baro datum: its first sample, as PX4's offset
     assert config.attitude_filter.tau == 0.5 and config != registry.Ekf7EstimatorConfig()
     started = ekf7.started_from_log(config, 0.1, 0.2, 0.3)
     assert started.init_state == [0.0] * 6 + [0.3]  # roll and pitch: the attitude filter finds them

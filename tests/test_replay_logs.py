@@ -194,6 +194,27 @@ def test_the_log_s_barometer_and_3_axis_field_are_fused(truth_replay):
     assert truth_replay.aiding.baro_fused and truth_replay.aiding.magnetometer is not None
 
 
+@pytest.mark.slow
+def test_the_ekf7_takes_a_log_s_baro_datum_from_its_first_sample():
+    """The SITL log's barometer reads 488 m: its first sample sets the EKF7's datum (b = h + p_z,
+    as PX4 and the ESKF set theirs), so no sample is gated and the bias is never reset; fused
+    against the 1 m prior (as a simulated barometer's) the datum moved 7 % of the way and the
+    barometer was gated until its reset after 1 s."""
+    from quad_drake.estimation.vocabulary import DIAG
+
+    counts = {}
+    for first_sample in (True, False):
+        # a baro block replaces the replay's whole default one: PX4's 3.5 m noise spelt out
+        flag = str(first_sample).lower()
+        estimator = f"{{kind: ekf7, baro: {{height_std: 3.5, datum_from_first_sample: {flag}}}}}"
+        result = replay(load_replay(str(TRUTH_LOG), estimator))
+        diagnostics = np.asarray(result.logs["diagnostics"])[-1]
+        counts[first_sample] = (diagnostics[DIAG["baro_gated"]], diagnostics[DIAG["baro_resets"]])
+        assert diagnostics[DIAG["baro_bias"]] == pytest.approx(488.1, abs=0.2)
+    assert counts[True] == (0, 0)
+    assert counts[False][0] > 10 and counts[False][1] == 1
+
+
 def test_many_logs_replay_into_one_table_and_a_bad_one_is_said(quad_drake_cli, tmp_path):
     bad = _imu_csv(tmp_path / "slow.csv", 9.0)
     out = tmp_path / "out"

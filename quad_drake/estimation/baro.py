@@ -37,7 +37,14 @@ baro book whose estimate b_hat corrects each sample before the update of z = h -
 h(x) = -p_z, H = -e_2, R = height_std^2 (:func:`height_innovation`, :func:`height_correction`):
 
 - the first finite sample is not fused: it sets the datum, b_meas = h + p_z of variance
-  height_std^2 + P[2, 2] against the filter's own height;
+  height_std^2 + P[2, 2] against the filter's own height (:func:`first_datum`). Where the prior
+  describes the barometer (a simulated one, whose bias starts at ``BaroParams.bias`` within
+  ``bias_init_std`` of ``bias_init``) b_meas is fused against it; where no prior knows the datum
+  (``datum_from_first_sample``: a flight log's barometer reads a pressure altitude, hundreds of
+  metres above sea level) b_meas is taken as it is, the ESKF's rule and PX4's: b = h + p_z,
+  P_b = height_std^2 + P[2, 2] (:func:`bias_reset`). Fused against a 1 m prior with PX4's 3.5 m
+  baro noise, a 300 m datum would move only 7 % of the way, and the baro would then be rejected
+  by its gate for ``reset_timeout`` s until a reset set it;
 - at every GPS sample stamped with the latest baro sample's time (20 ms and 100 ms periods are
   commensurate) it takes b_meas = h + z_gps of variance height_std^2 + gps_z_std^2, gated as the
   baro; between samples its variance P_b grows by the random walk (bias_walk_std^2 per s). It is
@@ -129,6 +136,10 @@ class BaroFusionParams:
     # (14: with the default offset and a 2 m GPS height noise, Siegmund's approximation puts a
     # consistent GPS's two sums past it about once in 4e6 samples, some 100 h at 10 Hz)
     gps_check_threshold: float = number(14.0, positive=True)
+    # true: the first finite sample sets the EKF7's bias, b = h + p_z (:func:`first_datum`; a flight
+    # log's barometer, whose datum no prior knows); false: it is fused against bias_init ±
+    # bias_init_std. The ESKF sets its datum from its first sample either way (module docstring)
+    datum_from_first_sample: bool = False
 
 
 def initial_book(params) -> np.ndarray:
@@ -291,6 +302,16 @@ def bias_reset(height, p_z, height_var, p_z_var) -> tuple[float, float]:
     """(bias, bias_var) of a bias reset to a baro height (m) against the filter's p_z (m, NED)
     of variance p_z_var: b = h + p_z, variance height_var + p_z_var."""
     return height + p_z, height_var + p_z_var
+
+
+def first_datum(bias, bias_var, height, p_z, height_var, p_z_var, from_first_sample) -> tuple[float, float]:
+    """(bias, bias_var) of the EKF7's scalar bias filter after its first finite baro height (m)
+    against the filter's p_z (m, NED) of variance p_z_var (m^2): the datum b_meas = h + p_z of
+    variance height_var + p_z_var, taken as it is when `from_first_sample` (:func:`bias_reset`, the
+    ESKF's rule), else fused against the prior (bias m, bias_var m^2) (:func:`bias_update`)."""
+    if from_first_sample:
+        return bias_reset(height, p_z, height_var, p_z_var)
+    return bias_update(bias, bias_var, height + p_z, height_var + p_z_var)
 
 
 def ekf7_baro_update(x, P, height, bias, R) -> tuple[np.ndarray, np.ndarray, float]:

@@ -343,9 +343,11 @@ def _eskf_replay_defaults():
 
 
 def px4_aiding_noise() -> dict:
-    """The AidingParams fields with PX4 EKF2's barometer and field noise (:data:`PX4_NOISE`)."""
+    """The AidingParams fields with PX4 EKF2's barometer and field noise (:data:`PX4_NOISE`), the
+    baro's datum set by its first sample as PX4 sets its baro offset (a log's barometer reads a
+    pressure altitude that no prior knows: ``baro.first_datum``)."""
     return {
-        "baro": BaroFusionParams(height_std=PX4_NOISE["baro_height_std"]),
+        "baro": BaroFusionParams(height_std=PX4_NOISE["baro_height_std"], datum_from_first_sample=True),
         "mag_field": MagFieldFusionParams(field_std=[PX4_NOISE["mag_field_std"]] * 3),
     }
 

@@ -16,8 +16,9 @@ measurement):
   learns the bias through P);
 - baro, EKF7, z = h - b_hat (m):  h(x) = -p_z,  H = -e_2,  R = height_std²,  NIS 1 dof, then
   P[2, 2] >= P_b (``baro.floored_height_variance``); the first finite sample is not fused: it sets the
-  bias against the filter's height (b_meas = h + p_z, variance height_std² + P[2, 2]), as PX4 sets
-  its baro offset;
+  bias against the filter's height (b_meas = h + p_z, variance height_std² + P[2, 2]; fused
+  against the prior, or taken as it is with ``datum_from_first_sample``, as PX4 sets its baro
+  offset: ``baro.first_datum``);
   the bias: P_b += walk² (t - t_last) at each sample; at each fresh GPS height (same stamp as the
   latest baro sample) b_meas = h + z_gps, variance height_std² + gps_z_std², gated at the baro's
   gate, and not while the GPS-height check's accumulated evidence (Page's CUSUM of
@@ -76,6 +77,7 @@ _bias_predict = compiled(baro.bias_predict)
 _bias_update = compiled(baro.bias_update)
 _bias_from_gps = compiled(baro.bias_from_gps)
 _bias_reset = compiled(baro.bias_reset)
+_first_datum = compiled(baro.first_datum, bias_reset=_bias_reset, bias_update=_bias_update)
 _offset_log_likelihood = compiled(baro.offset_log_likelihood)
 _accumulated_evidence = compiled(baro.accumulated_evidence)
 _gps_height_disagrees = compiled(baro.gps_height_disagrees)
@@ -141,8 +143,8 @@ def _gps_height_check(book, i, in_state, innovation, innovation_var, offset, thr
 @njit_cached
 def _baro_rows(x, P, baro_samples, gps, book, diagnostics, model, dx, fused):
     height_var, gps_z_vars, walk_std, threshold, reset_timeout, stamp_matches = model[:6]
-    check_offset, check_threshold, carried, state = model[6:]
-    in_state = state > 0.0
+    check_offset, check_threshold, carried, state, datum_from_first_sample = model[6:]
+    in_state, from_first_sample = state > 0.0, datum_from_first_sample > 0.0
     for i in range(x.shape[0]):
         fused[i] = False
         if not carried[_row(carried, i)]:  # a vehicle without a barometer: as if it had no update
@@ -163,8 +165,14 @@ def _baro_rows(x, P, baro_samples, gps, book, diagnostics, model, dx, fused):
                     x[i, _BARO_NOMINAL] = _bias_reset(height, x[i, 2], height_var, P[i, 2, 2])[0]
                     P[i] = _bias_state_reset(P[i], height_var)
                 else:
-                    book[i, _BIAS], book[i, _BIAS_VAR] = _bias_update(
-                        book[i, _BIAS], book[i, _BIAS_VAR], height + x[i, 2], height_var + P[i, 2, 2]
+                    book[i, _BIAS], book[i, _BIAS_VAR] = _first_datum(
+                        book[i, _BIAS],
+                        book[i, _BIAS_VAR],
+                        height,
+                        x[i, 2],
+                        height_var,
+                        P[i, 2, 2],
+                        from_first_sample,
                     )
                 book[i, _DATUM_SET] = 1.0
             else:
@@ -238,7 +246,8 @@ def baro_model(params, gps_z_std, gate_threshold, baro_period, carried=True, bia
     simultaneous, the GPS-height check's gps_check_offset m (0 = off) and gps_check_threshold,
     carried per vehicle: 0 for a vehicle without a barometer, whose row the kernel leaves as it is,
     and 1.0 when the filter carries the bias in its state (`bias_in_state`: the ESKF,
-    ``eskf.carries_baro_bias``), 0.0 when the scalar filter in the book estimates it (the EKF7)).
+    ``eskf.carries_baro_bias``), 0.0 when the scalar filter in the book estimates it (the EKF7)),
+    and 1.0 when the EKF7's first sample sets its datum as it is (``datum_from_first_sample``).
     gps_z_std (m), baro_period (s) and carried: one value for every vehicle or one per vehicle
     (:func:`per_vehicle`)."""
     return (
@@ -252,6 +261,7 @@ def baro_model(params, gps_z_std, gate_threshold, baro_period, carried=True, bia
         float(params.gps_check_threshold),
         np.array(carried, dtype=np.bool_, ndmin=1),
         1.0 if bias_in_state else 0.0,
+        1.0 if params.datum_from_first_sample else 0.0,
     )
 
 
