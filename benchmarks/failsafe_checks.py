@@ -9,9 +9,17 @@ python benchmarks/failsafe_checks.py batch
     a fleet run in a batch of 8 and alone: bit-identical logs (no cross-vehicle mixing)
 python benchmarks/failsafe_checks.py noise
     Drake's RandomSource against the fleet's NoiseStreamSource: distribution and redraw times
+python benchmarks/failsafe_checks.py compare FLEET_RUN POOL_RUN [POOL_RUN ...]
+    two campaigns of the same scenario (saved `quad-drake montecarlo` folders; a side may be
+    several folders, e.g. chunks of seeds): per criterion (matched by its text) the pass counts
+    with their Clopper-Pearson intervals and Fisher's exact p, and the run summaries' medians
+    with the Mann-Whitney p, over the seeds both sides flew
 """
 
 import argparse
+import csv
+import json
+from pathlib import Path
 
 import numpy as np
 
@@ -121,11 +129,69 @@ def noise():
         )
 
 
+SUMMARIES = (
+    "Quad.Est.E.Pos.rms",
+    "Quad.Est.E.Z.max",
+    "Quad.Est.E.Yaw.rms",
+    "Quad.PosFollowErr.max",
+    "Quad.NEES.mean",
+    "Quad.NIS.gps.mean",
+)
+"""The run summaries (runs.csv columns) whose distributions `compare` sets side by side."""
+
+
+def _campaign_runs(folders) -> tuple[dict[str, np.ndarray], list[str]]:
+    """(one array per runs.csv column, the criteria's texts) of saved campaign folders; a
+    criterion's pass column is named by its text (``|Quad.Est.E.Z| < 0.5 m ...``), so campaigns
+    whose criteria come in another order match."""
+    rows, texts = [], []
+    for folder in folders:
+        criteria = json.loads((Path(folder) / "summary.json").read_text())["criteria"]
+        names = {f"{c['column']}.passed": c["criterion"] for c in criteria}
+        texts += [t for t in names.values() if t not in texts]
+        with open(Path(folder) / "runs.csv", newline="") as f:
+            rows += [{names.get(k, k): v for k, v in row.items()} for row in csv.DictReader(f)]
+    return {key: np.array([float(row[key]) for row in rows]) for key in rows[0]}, texts
+
+
+def compare(fleet_folder, pool_folders):
+    from scipy import stats
+
+    from quad_drake.judging.consistency import binomial_interval
+
+    (fleet, fleet_criteria), (pool, pool_criteria) = (
+        _campaign_runs([fleet_folder]),
+        _campaign_runs(pool_folders),
+    )
+    seeds = np.intersect1d(fleet["seed"], pool["seed"])
+    fleet = {k: v[np.isin(fleet["seed"], seeds)] for k, v in fleet.items()}
+    pool = {k: v[np.isin(pool["seed"], seeds)] for k, v in pool.items()}
+    n = len(seeds)
+    print(f"{n} seeds both sides flew ({int(seeds.min())}-{int(seeds.max())})")
+    print("| criterion | fleet | per-vehicle pool | Fisher's exact p |\n|---|---|---|---|")
+    criteria = [text for text in fleet_criteria if text in pool_criteria]
+    for name in [*criteria, "passed"]:
+        a, b = int(fleet[name].sum()), int(pool[name].sum())
+        cells = [
+            f"{k}/{n} [{100 * lo:.1f}, {100 * hi:.1f}]"
+            for k in (a, b)
+            for lo, hi in [binomial_interval(k, n)]
+        ]
+        p = stats.fisher_exact([[a, n - a], [b, n - b]])[1]
+        print(f"| {'all criteria' if name == 'passed' else name} | {cells[0]} | {cells[1]} | {p:.3g} |")
+    print("| run summary (median) | fleet | per-vehicle pool | Mann-Whitney p |")
+    for name in SUMMARIES:
+        x, y = fleet[name][np.isfinite(fleet[name])], pool[name][np.isfinite(pool[name])]
+        p = stats.mannwhitneyu(x, y).pvalue
+        print(f"| {name} | {np.median(x):.4g} | {np.median(y):.4g} | {p:.3g} |")
+
+
 def main():
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("what", choices=("walls", "tracking", "batch", "noise"))
+    parser.add_argument("what", choices=("walls", "tracking", "batch", "noise", "compare"))
+    parser.add_argument("folders", nargs="*", help="compare: the fleet's campaign folder, then the pool's")
     parser.add_argument("--seed", type=int, default=1000)
     parser.add_argument("--runs", type=int, default=40)
     parser.add_argument("--set", action="append", default=[], dest="overrides")
@@ -136,6 +202,10 @@ def main():
         tracking(args.seed, args.runs)
     elif args.what == "batch":
         batch()
+    elif args.what == "compare":
+        if len(args.folders) < 2:
+            parser.error("compare needs the fleet's campaign folder and at least one of the pool's")
+        compare(args.folders[0], args.folders[1:])
     else:
         noise()
 
