@@ -157,8 +157,8 @@ def installed_wheel(tmp_path_factory):
     # numba's on-disk cache of the checkout's kernels (what `quad-drake warmup` compiled; `make test`
     # runs it first), copied beside the wheel's modules: numba 0.68 loads a kernel from it only
     # where the module's source has the content hash it was compiled from, so the wheel compiles
-    # only what the checkout has not (a fresh install compiling them cost this session's wheel
-    # test 9 to 18 s of CPU; what a first run compiles is tests/test_jit.py's concern).
+    # only what the checkout has not (compiling them again cost the wheel test about 27 s of its
+    # 45 s of CPU; what a first run compiles is tests/test_jit.py's concern).
     for cached in (ROOT / "quad_drake").rglob("__pycache__/*.nb[ic]"):
         beside = Path(site, "quad_drake", cached.relative_to(ROOT / "quad_drake"))
         beside.parent.mkdir(parents=True, exist_ok=True)
