@@ -32,7 +32,7 @@ def first_seconds(log, seconds):
 
 CUT = (20.0, 14.0)
 """s of each bundled log replayed by the bit-for-bit test (of 69 s and 31 s; the SITL log's first
-fix at 9.2 s and its barometer inside): the replays whole took 22 s of CPU for the two kinds."""
+fix at 9.2 s and its barometer inside): the replays of the whole logs took 16 s of CPU for the two kinds."""
 
 
 @pytest.mark.slow
