@@ -508,9 +508,8 @@ def _replay_together(prepared) -> list[ReplayResult]:
     (:func:`replay_many`), to the end of the longest; each cut at its own log's end and judged."""
     n, first = len(prepared), prepared[0]
     end = max(p.log.duration for p in prepared)
-    what = first.log.source if n == 1 else f"{n} logs in one Diagram"
     if n > 1:  # each log alone passed it in _prepare
-        _check_replay_memory(first.config, end, n, what)
+        _check_replay_memory(first.config, end, n, f"{n} logs in one Diagram")
     smooth = first.config.smooth
     diagram_name = first.config.name or "replay" if n == 1 else "replays"
     diagram, sinks, ticks = _playback_diagram(
