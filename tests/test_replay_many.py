@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from quad_drake.config import MagParams, SensorsConfig, VehicleConfig
+from quad_drake.config.errors import ConfigError
 from quad_drake.estimation.registry import Ekf7EstimatorConfig, EskfEstimatorConfig, sharing_problem
 from quad_drake.flightlogs.reader import Samples, read_flight_log
 from quad_drake.flightlogs.replay import replay, replay_many
@@ -21,12 +22,13 @@ TRUTH_LOG = Path(__file__).parent / "data" / "flight_logs" / "sitl_ground_truth.
 
 
 def first_seconds(log, seconds):
-    """The FlightLog `log` cut to its samples at t <= `seconds` (every timestamped signal)."""
+    """The FlightLog `log` cut to its samples at t <= `seconds` (every timestamped signal; one with
+    none left is None, as in a log without it)."""
     cut = {}
     for name, value in vars(log).items():
         if isinstance(value, Samples):
             kept = value.times <= seconds
-            cut[name] = Samples(value.times[kept], value.values[kept])
+            cut[name] = Samples(value.times[kept], value.values[kept]) if kept.any() else None
     return dataclasses.replace(log, **cut)
 
 
@@ -99,3 +101,24 @@ def test_many_logs_replay_in_one_diagram_unless_separately(quad_drake_cli, tmp_p
     assert tables[()] == tables[("--separately",)] and len(tables[()].splitlines()) == 3
     for together, separately in zip(estimates[()], estimates[("--separately",)], strict=True):
         np.testing.assert_array_equal(together, separately)
+
+
+def test_logs_that_fit_alone_but_not_together_replay_each_alone(monkeypatch):
+    """The memory rule (``limits.check_memory``) before anything is built: each log alone in
+    ``_prepare``, the logs of one Diagram together; too many for one Diagram replay each alone."""
+    from quad_drake.flightlogs import replay as replay_module
+    from quad_drake.running import limits
+
+    configs = [dataclasses.replace(default_replay("ekf7"), log=name) for name in BUNDLED]
+    logs = [first_seconds(read_flight_log(resolve_log(n)), 12.0) for n in BUNDLED]
+    estimates = []
+    monkeypatch.setattr(replay_module, "check_memory", lambda nbytes, *args: estimates.append(nbytes))
+    replay_many(configs, logs)  # each log alone, then the two together
+    alone = max(estimates[0:2])
+    assert len(estimates) == 3 and estimates[2] == pytest.approx(2 * alone, rel=1e-3)
+    monkeypatch.undo()
+    monkeypatch.setattr(limits, "physical_memory", lambda: int(2 * 1.5 * alone))  # half of it: 1.5 logs
+    assert [r.logs_in_diagram for r in replay_many(configs, logs)] == [1, 1]
+    monkeypatch.setattr(limits, "physical_memory", lambda: int(2 * 0.5 * alone))
+    refused = replay_many(configs, logs)
+    assert all(isinstance(e, ConfigError) and "would take about" in str(e) for e in refused), refused
