@@ -67,7 +67,7 @@ def test_px4_parameters_are_an_eskf_option():
     [(None, "no such flight log file"), (b"not a ulog", "not a readable ULog file")],
 )
 def test_a_missing_or_unreadable_log_is_one_line_and_exit_2(quad_drake_cli, tmp_path, content, message):
-    # In this process (a new one cost 2.5 s of CPU to import drake; `python -m quad_drake`'s exit
+    # In this process (a new one cost about 2 s of CPU to import drake; `python -m quad_drake`'s exit
     # code on a bad log is checked in tests/test_flight_log_replay.py): a traceback fails the test.
     path = tmp_path / "flight.ulg"
     if content is not None:
@@ -82,10 +82,10 @@ def test_a_missing_or_unreadable_log_is_one_line_and_exit_2(quad_drake_cli, tmp_
 def test_a_delayed_gps_is_recovered_from_the_log_alone(tmp_path, seed=3001):
     """A 16 s run of 11_gps_update_eskf written with its GPS samples 120 ms late (between the
     profile's grid points): the tuner, starting from zero delay and PX4's noise, finds the delay
-    within 20 ms (a seed not tuned on; 3001 and 3002 checked: 116 and 119 ms). A budget of 24
-    replays holds the GPS delay's grid and bounded search (the 12 more of a budget of 36 profiled
-    the magnetometer's delay, not asserted here): the best of the first 24 was within 8.2 ms of
-    120 ms at 3001 and at each of the seeds 3003-3022."""
+    within 20 ms (a seed not tuned on; with a budget of 36, 3001 and 3002 gave 116 and 119 ms). A
+    budget of 24 replays holds the GPS delay's grid and bounded search (the 12 more of 36 profiled
+    the magnetometer's delay, not asserted here): 112 ms at 3001, and within 8.2 ms of 120 ms at
+    each of the seeds 3003-3022 too."""
     from quad_drake.flightlogs.recording import record_run, write_run_csv
     from quad_drake.running import catalog
     from quad_drake.tuning.logs import prepare, tune_logs
