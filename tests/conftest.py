@@ -131,8 +131,9 @@ def installed_wheel(tmp_path_factory):
     """The package as a user installs it: a wheel built from a copy of what the sdist holds (no
     stale build/ or egg-info of the checkout leaks in), installed into a new venv that sees this
     interpreter's site-packages (drake, numpy, ...) after its own, so the wheel's copy of
-    quad_drake wins (and numba caches its kernels beside it). A namespace: ``wheel``, ``venv``,
-    ``python``, ``exe`` (its quad-drake) and ``env`` (no PYTHONPATH, Agg plots)."""
+    quad_drake wins (and numba caches its kernels beside it, starting from the checkout's
+    cache). A namespace: ``wheel``, ``venv``, ``python``, ``exe`` (its quad-drake) and ``env``
+    (no PYTHONPATH, Agg plots)."""
     folder = tmp_path_factory.mktemp("installed_wheel")
     source = folder / "source"
     for name in ("quad_drake", "scenarios"):
@@ -153,5 +154,14 @@ def installed_wheel(tmp_path_factory):
     Path(site, "parent_site.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
     installed = run_process(*pip, "--python", python, "install", "--no-deps", "-q", wheel, env=env)
     assert installed.returncode == 0, installed.stderr
+    # numba's on-disk cache of the checkout's kernels (what `quad-drake warmup` compiled; `make test`
+    # runs it first), copied beside the wheel's modules: numba 0.68 loads a kernel from it only
+    # where the module's source has the content hash it was compiled from, so the wheel compiles
+    # only what the checkout has not (compiling them again cost the wheel test about 27 s of its
+    # 45 s of CPU; what a first run compiles is tests/test_jit.py's concern).
+    for cached in (ROOT / "quad_drake").rglob("__pycache__/*.nb[ic]"):
+        beside = Path(site, "quad_drake", cached.relative_to(ROOT / "quad_drake"))
+        beside.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(cached, beside)
     exe = venv / "bin" / "quad-drake"
     return SimpleNamespace(wheel=wheel, venv=venv, python=python, exe=exe, env=env)

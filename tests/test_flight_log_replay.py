@@ -24,6 +24,7 @@ import sys
 import numpy as np
 import pytest
 
+from quad_drake.flightlogs import replay as replay_module
 from quad_drake.flightlogs.replay import COMPARE_AFTER, replay
 from quad_drake.flightlogs.settings import LOG_DIR, load_replay
 
@@ -243,10 +244,17 @@ def test_a_bad_log_in_a_new_process_exits_2_with_one_line(tmp_path):
     )
 
 
-def test_a_replay_that_would_not_fit_in_memory_is_refused_before_it_runs(quad_drake_cli, tmp_path):
+def test_a_replay_that_would_not_fit_in_memory_is_refused_before_it_runs(
+    quad_drake_cli, tmp_path, monkeypatch
+):
     path = tmp_path / "year.csv"
     rows = [f"{0.004 * k},imu,0,0,-9.8,0,0,0" for k in range(100)] + ["3.2e7,imu,0,0,-9.8,0,0,0"]  # a year
     path.write_text("\n".join(rows) + "\n", encoding="utf-8")
+
+    def no_setup(*args):  # the year's playback streams alone are GiBs and a minute of CPU
+        raise AssertionError("the replay was set up before its memory was checked")
+
+    monkeypatch.setattr(replay_module, "replay_setup", no_setup)
     result = quad_drake_cli("replay", path, "--out", tmp_path / "out")
     assert result.returncode == 2 and result.stdout == ""
     assert f"{path}: a replay of 3.2e+07 s would take about" in result.stderr

@@ -11,21 +11,40 @@ import numpy as np
 import pytest
 
 from quad_drake.config import MagParams, SensorsConfig, VehicleConfig
+from quad_drake.config.errors import ConfigError
 from quad_drake.estimation.registry import Ekf7EstimatorConfig, EskfEstimatorConfig, sharing_problem
+from quad_drake.flightlogs.reader import Samples, read_flight_log
 from quad_drake.flightlogs.replay import replay, replay_many
-from quad_drake.flightlogs.settings import default_replay
+from quad_drake.flightlogs.settings import default_replay, resolve_log
 
 BUNDLED = ("real_auav_x21_attitude_flight", "sitl_takeoff_land_gps")
 TRUTH_LOG = Path(__file__).parent / "data" / "flight_logs" / "sitl_ground_truth.ulg"
+
+
+def first_seconds(log, seconds):
+    """The FlightLog `log` cut to its samples at t <= `seconds` (every timestamped signal; one with
+    none left is None, as in a log without it)."""
+    cut = {}
+    for name, value in vars(log).items():
+        if isinstance(value, Samples):
+            kept = value.times <= seconds
+            cut[name] = Samples(value.times[kept], value.values[kept]) if kept.any() else None
+    return dataclasses.replace(log, **cut)
+
+
+CUT = (20.0, 14.0)
+"""s of each bundled log replayed by the bit-for-bit test (of 69 s and 31 s; the SITL log's first
+fix at 9.2 s and its barometer inside): the replays of the whole logs took 16 s of CPU for the two kinds."""
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("kind", ["eskf", "ekf7"])
 def test_the_bundled_logs_in_one_diagram_equal_each_alone_bit_for_bit(kind):
     configs = [dataclasses.replace(default_replay(kind), log=name) for name in BUNDLED]
-    together = replay_many(configs)
-    for config, shared in zip(configs, together, strict=True):
-        alone = replay(config)
+    logs = [first_seconds(read_flight_log(resolve_log(n)), t) for n, t in zip(BUNDLED, CUT, strict=True)]
+    together = replay_many(configs, logs)
+    for config, log, shared in zip(configs, logs, together, strict=True):
+        alone = replay(config, log)
         assert shared.logs_in_diagram == 2 and alone.logs_in_diagram == 1
         np.testing.assert_array_equal(shared.times, alone.times)  # each cut at its own log's end
         assert set(shared.logs) == set(alone.logs)
@@ -34,7 +53,7 @@ def test_the_bundled_logs_in_one_diagram_equal_each_alone_bit_for_bit(kind):
         assert [d.rms for d in shared.attitude] == [d.rms for d in alone.attitude]
     # the two logs differ in every per-vehicle setting: start, GPS noise (one fake), field, barometer
     sitl = together[1]
-    assert sitl.aiding.baro_fused and not together[0].aiding.baro_fused
+    assert sitl.aiding.baro_fused and not together[0].aiding.baro_fused and sitl.aiding.late_fix > 9
     assert together[0].fake_position and not sitl.fake_position
 
 
@@ -82,3 +101,24 @@ def test_many_logs_replay_in_one_diagram_unless_separately(quad_drake_cli, tmp_p
     assert tables[()] == tables[("--separately",)] and len(tables[()].splitlines()) == 3
     for together, separately in zip(estimates[()], estimates[("--separately",)], strict=True):
         np.testing.assert_array_equal(together, separately)
+
+
+def test_logs_that_fit_alone_but_not_together_replay_each_alone(monkeypatch):
+    """The memory rule (``limits.check_memory``) before anything is built: each log alone in
+    ``_prepare``, the logs of one Diagram together; too many for one Diagram replay each alone."""
+    from quad_drake.flightlogs import replay as replay_module
+    from quad_drake.running import limits
+
+    configs = [dataclasses.replace(default_replay("ekf7"), log=name) for name in BUNDLED]
+    logs = [first_seconds(read_flight_log(resolve_log(n)), 12.0) for n in BUNDLED]
+    estimates = []
+    monkeypatch.setattr(replay_module, "check_memory", lambda nbytes, *args: estimates.append(nbytes))
+    replay_many(configs, logs)  # each log alone, then the two together
+    alone = max(estimates[0:2])
+    assert len(estimates) == 3 and estimates[2] == pytest.approx(2 * alone, rel=1e-3)
+    monkeypatch.undo()
+    monkeypatch.setattr(limits, "physical_memory", lambda: int(2 * 1.5 * alone))  # half of it: 1.5 logs
+    assert [r.logs_in_diagram for r in replay_many(configs, logs)] == [1, 1]
+    monkeypatch.setattr(limits, "physical_memory", lambda: int(2 * 0.5 * alone))
+    refused = replay_many(configs, logs)
+    assert all(isinstance(e, ConfigError) and "would take about" in str(e) for e in refused), refused

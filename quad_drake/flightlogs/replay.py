@@ -481,7 +481,21 @@ def _prepare(config, log=None) -> _Prepared:
         config = dataclasses.replace(config, name=Path(log.source).stem)
     if config.smooth and not KINDS[config.estimator.kind].smoothable:
         raise ConfigError(f"smooth: the smoother runs over the ESKF only, not kind {config.estimator.kind}")
+    _check_replay_memory(config, log.duration, 1, log.source)  # before its streams are built
     return _Prepared(config, log, warnings, *replay_setup(log, config))
+
+
+def _check_replay_memory(config, end, n, what) -> None:
+    """Refuse (ConfigError, one line) a replay of `n` logs in one Diagram to `end` (s) whose logged
+    signals would not fit in memory (``limits.check_memory``): the estimator of `config`'s outputs
+    and every playback stream with its stamp, every LOG_PERIOD, for each log. `what` names it."""
+    width = sum(vocabulary_for(config.estimator).log_widths().values())
+    width += sum(w + STAMPED[name] for name, w in STREAM_WIDTHS.items())
+    check_memory(
+        end / LOG_PERIOD * n * width * 8.0 * LOG_COPIES,
+        f"{what}: a replay of {end:g} s",
+        "replay a shorter stretch of the flight (e.g. cut into a CSV log)",
+    )
 
 
 def _can_share(first, other) -> bool:
@@ -494,14 +508,8 @@ def _replay_together(prepared) -> list[ReplayResult]:
     (:func:`replay_many`), to the end of the longest; each cut at its own log's end and judged."""
     n, first = len(prepared), prepared[0]
     end = max(p.log.duration for p in prepared)
-    width = sum(vocabulary_for(first.config.estimator).log_widths().values())  # before anything is built
-    width += sum(w + STAMPED[name] for name, w in STREAM_WIDTHS.items())
-    what = first.log.source if n == 1 else f"{n} logs in one Diagram"
-    check_memory(
-        end / LOG_PERIOD * n * width * 8.0 * LOG_COPIES,
-        f"{what}: a replay of {end:g} s",
-        "replay a shorter stretch of the flight (e.g. cut into a CSV log)",
-    )
+    if n > 1:  # each log alone passed it in _prepare
+        _check_replay_memory(first.config, end, n, f"{n} logs in one Diagram")
     smooth = first.config.smooth
     diagram_name = first.config.name or "replay" if n == 1 else "replays"
     diagram, sinks, ticks = _playback_diagram(
