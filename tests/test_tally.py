@@ -6,6 +6,7 @@ slim records (no per-sample arrays)."""
 
 import dataclasses
 import itertools
+import warnings
 
 import numpy as np
 import pytest
@@ -281,6 +282,18 @@ def test_a_campaign_keeps_slim_records(flown):
         for f in dataclasses.fields(full):
             if f.name not in ("nees", "nis", "times", "nse", "nees_mean", "nis_mean"):
                 assert getattr(kept, f.name) == getattr(full, f.name), f.name
+
+
+def test_a_series_without_samples_slims_to_nan_without_a_warning():
+    """A flight too short for a sensor's first fresh update (`quad-drake warmup` flies 0.3 s) has
+    an empty NIS series: its mean is NaN, and numpy's "Mean of empty slice" is not printed."""
+    record = RunRecord(
+        0, 100, True, [], {}, {"A": np.array([])}, {}, {("A", "baro"): (np.array([]),) * 2}, 0.1
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        kept = slim(record)
+    assert np.isnan(kept.nees_mean["A"]) and np.isnan(kept.nis_mean[("A", "baro")])
 
 
 def test_folded_batches_give_the_rows_and_the_slim_records(scenario):

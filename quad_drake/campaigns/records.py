@@ -1,6 +1,7 @@
 """What one run of a campaign sends back: a small :class:`RunRecord`, never the logs."""
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -68,16 +69,22 @@ class RunRecord:
     nis_mean: dict = field(default_factory=dict)  # (vehicle, sensor) -> mean of its NIS (slim record)
 
 
+def _time_mean(values) -> float:
+    """The mean of a statistic's samples; NaN where a NaN sample is among them or there are none
+    (a flight too short for any fresh update of that sensor: not a warning, no samples to judge)."""
+    return float(np.mean(values)) if len(values) else math.nan
+
+
 def slim(record) -> RunRecord:
     """The RunRecord a campaign keeps: no per-sample series, their time means instead (a NaN
-    sample makes its mean NaN)."""
+    sample makes its mean NaN, and so does a series without samples)."""
     return dataclasses.replace(
         record,
         nees={},
         nis={},
         times=None,
-        nees_mean={vehicle: float(np.mean(values)) for vehicle, values in record.nees.items()},
-        nis_mean={key: float(np.mean(values)) for key, (_, values) in record.nis.items()},
+        nees_mean={vehicle: _time_mean(values) for vehicle, values in record.nees.items()},
+        nis_mean={key: _time_mean(values) for key, (_, values) in record.nis.items()},
     )
 
 
