@@ -239,6 +239,7 @@ class Ekf(LeafSystem):
             "baro": lambda m: _baro_update(
                 m, correct, params, each, fidelity, lambda p: p.gps_pos_z_std, sensors, each_sensors
             ),
+            "no_aid": lambda m: updates.NoAidUpdate(m, correct),
         }  # fmt: skip
         self._read_imu = row_reader(self.DeclareVectorInputPort("imu", n * IMU_SIZE), n)
         self._read_attitude = row_reader(self.DeclareVectorInputPort("attitude", n * ATTITUDE_SIZE), n)
@@ -379,6 +380,7 @@ class Eskf(LeafSystem):
                 m, correct, params, each, fidelity, lambda p: p.gps_pos_std[2], sensors, each_sensors,
                 bias_in_state=True,
             ),
+            "no_aid": lambda m: updates.NoAidUpdate(m, correct),
         }  # fmt: skip
         self._n = n
         self._read_imu = row_reader(self.DeclareVectorInputPort("imu", n * IMU_SIZE), n)
