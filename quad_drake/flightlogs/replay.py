@@ -87,7 +87,8 @@ class Aiding:
     throughout), magnetometer (``earth_field.MagnetometerModel`` or None), late_fix (s, the first
     fix before which zero samples stood in, or None), baro_fused (the log's barometer fused), gps_losses
     ([(lost s, regained s)] of the GPS losses the estimator was aided over, ``aiding_gps``),
-    baro_height_reference (the barometer was the height reference: the GPS height not fused)."""
+    baro_height_reference (the barometer was the height reference: the GPS height not fused),
+    no_aid_at_rest (the no-aiding samples given on the estimator's own input, at rest and not)."""
 
     fake_position: bool = False
     magnetometer: object = None
@@ -95,6 +96,7 @@ class Aiding:
     baro_fused: bool = False
     gps_losses: list = field(default_factory=list)
     baro_height_reference: bool = False
+    no_aid_at_rest: tuple | None = None  # (samples at rest, samples not) on the no_aid input; None: none
 
 
 @dataclass
@@ -129,19 +131,36 @@ class ReplayResult:
             "The reference is the flight controller's own estimate (PX4), another estimator and not "
             "the truth: a difference is the two estimators' disagreement."
         ]
+        c = self.config
+        rested = self.aiding.no_aid_at_rest
+        if rested is not None:
+            fused = (
+                f"PX4's no-aiding samples every {c.fake_position_period:g} s: at rest ({rested[0]} samples; "
+                f"PX4's land-detector test on the IMU) a fake position with σ = {c.rest_position_std:g} m "
+                f"and a zero velocity with σ = {c.rest_velocity_std:g} m/s, else ({rested[1]}) the fake "
+                f"position with σ = {c.fake_position_std:g} m (EKF2_NOAID_NOISE), fused with these σ "
+                "(a custom estimator: by its update_no_aid where it has one, else as its GPS samples "
+                "with its own GPS noise)"
+            )
+        elif self.fake_position:
+            fused = (
+                f"PX4's fake position (0 m every {c.fake_position_period:g} s, with σ = "
+                f"{c.fake_position_std:g} m where the kind takes it, else with its own GPS noise)"
+            )
+        else:
+            fused = (
+                f"zero position and velocity every {c.fake_position_period:g} s, fused as its GPS "
+                "samples (with the GPS noise it assumes)"
+            )
         if self.fake_position:
             lines.append(
-                "The log has no GPS: the estimator was given PX4's fake position (0 m every "
-                f"{self.config.fake_position_period:g} s, for the built-in kinds with σ = "
-                f"{self.config.fake_position_std:g} m; a custom estimator fuses it with its own GPS "
-                "noise); its horizontal position is not compared and its GPS NIS not judged."
+                f"The log has no GPS: the estimator was given {fused}; its horizontal position is not "
+                "compared and its GPS NIS not judged."
             )
         if self.aiding.late_fix is not None:
             lines.append(
                 f"The first GPS fix came at {self.aiding.late_fix:.1f} s: before it the estimator was "
-                f"given zero position and velocity every {self.config.fake_position_period:g} s, fused "
-                "as its GPS samples (with the GPS noise it assumes), as PX4 holds a fake position "
-                "while not aided; the GPS from the fix on."
+                f"given {fused}, as PX4 while not aided; the GPS from the fix on."
             )
         for lost, regained in self.aiding.gps_losses:
             lines.append(
@@ -378,7 +397,11 @@ def replay_setup(log, config) -> tuple[dict, VehicleConfig, Aiding]:
         config, initial_attitude(log, declination, hard_iron), fake, baro_period, magnetometer, baro_reference
     )
     baro_fused = vehicle.sensors.baro is not None
-    aiding = Aiding(fake, magnetometer, late_fix, baro_fused, losses, baro_fused and baro_reference)
+    rested = None
+    if no_aid is not None:
+        resting = int(np.count_nonzero(np.isfinite(no_aid.values[:, 9])))
+        rested = (resting, len(no_aid) - resting)
+    aiding = Aiding(fake, magnetometer, late_fix, baro_fused, losses, baro_fused and baro_reference, rested)
     return streams, vehicle, aiding
 
 
