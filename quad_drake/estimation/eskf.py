@@ -437,6 +437,29 @@ def mag_update(x, P, yaw_meas, R_mag) -> tuple[np.ndarray, np.ndarray, float]:
     return x_new, P_new, nu * nu / S
 
 
+def uncorrelate_unobservable_accel_bias(x, P, tilt) -> None:
+    """PX4 EKF2's accelerometer-bias inhibition, IN PLACE on P (N, n, n) of filters carrying the
+    biases (n >= 15; x (N, 16+) their nominal states, q_NB at 6..9): the bias of a body axis whose
+    angle to the vertical exceeds `tilt` (rad; |R_NB[2, axis]| <= cos tilt) is not learned: its
+    row and column of P are zeroed but for its variance, so no update moves it (K's row is
+    P's row times H^T S^-1) and it takes no part in the next prediction's correlations. A level
+    axis's bias and the tilt about the other horizontal axis move the accelerometer alike: on a
+    still vehicle the split between them is the priors', which PX4 leaves to the tilt."""
+    w, qx, qy, qz = x[:, 6], x[:, 7], x[:, 8], x[:, 9]
+    down = np.column_stack(
+        (2.0 * (qx * qz - w * qy), 2.0 * (qy * qz + w * qx), w * w - qx * qx - qy * qy + qz * qz)
+    )
+    inhibited = np.abs(down) <= math.cos(tilt)
+    for axis in range(3):
+        rows = np.flatnonzero(inhibited[:, axis])
+        if len(rows):
+            k = 9 + axis
+            variance = P[rows, k, k]
+            P[rows, k, :] = 0.0
+            P[rows, :, k] = 0.0
+            P[rows, k, k] = variance
+
+
 def gps_noise(params) -> np.ndarray:
     """R_gps (6x6) = diag(gps_pos_std^2, gps_vel_std^2), m^2 and (m/s)^2."""
     return np.diag(np.square(list(params.gps_pos_std) + list(params.gps_vel_std)))

@@ -364,6 +364,8 @@ class Eskf(LeafSystem):
         from quad_drake.kernels import eskf as eskf_kernel
 
         self._predict_tick, self._write_estimate = eskf_kernel.predict_tick, eskf.write_estimate
+        self._uncorrelate_accel_bias = eskf.uncorrelate_unobservable_accel_bias
+        self._bias_learning_tilt = params.accel_bias_learning_tilt if params.estimate_biases else 0.0
         correct = eskf_kernel.correct
         builders = {
             "yaw": lambda m: updates.YawUpdate(
@@ -433,6 +435,8 @@ class Eskf(LeafSystem):
         estimate = discrete_state.get_mutable_value(self._estimate).reshape(self._n, STATE_SIZE)
         imu = self._read_imu(context)
         healthy = self._predict_tick(filters, imu, estimate, self._model)
+        if self._bias_learning_tilt > 0.0:
+            self._uncorrelate_accel_bias(filters.x, filters.P, self._bias_learning_tilt)
         samples = seam.read(context)
         samples["imu"] = imu
         seam.fuse(context, discrete_state, filters, samples, healthy)
