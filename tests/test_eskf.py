@@ -183,3 +183,25 @@ def test_write_estimate_puts_p_q_v_in_the_state_layout_and_keeps_the_body_rate()
         eskf.write_estimate(row_x, row)
     eskf.write_estimate(batch_x, batch)
     np.testing.assert_array_equal(batch, expected)  # the batched form is the scalar one row by row
+
+
+def test_a_level_axis_accelerometer_bias_is_not_learned_as_px4s():
+    """PX4's accelerometer-bias inhibition (``eskf.uncorrelate_unobservable_accel_bias``): on a
+    level vehicle the x and y biases lose every correlation (no update can move them), z keeps
+    its (the kept block unchanged); pitched 90° nose up, x is the vertical axis."""
+    from quad_drake.estimation.eskf import uncorrelate_unobservable_accel_bias
+
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(2, 15, 15))
+    P = A @ A.transpose(0, 2, 1) + 15 * np.eye(15)
+    x = np.zeros((2, 16))
+    x[0, 6] = 1.0  # level
+    x[1, 6:10] = (math.cos(math.pi / 4), 0.0, math.sin(math.pi / 4), 0.0)  # pitched up 90°
+    before = P.copy()
+    uncorrelate_unobservable_accel_bias(x, P, math.radians(15.0))
+    for i, inhibited in enumerate(((9, 10), (10, 11))):
+        for k in inhibited:
+            assert np.count_nonzero(P[i, k]) == 1 and P[i, k, k] == before[i, k, k]
+            assert np.count_nonzero(P[i, :, k]) == 1
+        others = [j for j in range(15) if j not in inhibited]
+        np.testing.assert_array_equal(P[i][np.ix_(others, others)], before[i][np.ix_(others, others)])
