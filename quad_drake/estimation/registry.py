@@ -154,8 +154,9 @@ class EskfEstimatorConfig(AidingParams, GateParams):
     accel_bias_rw_std: float = number(0.001, nonnegative=True, noise_std=True)  # m/s^2/sqrt(s)
     gyro_bias_rw_std: float = number(0.0001, nonnegative=True, noise_std=True)  # rad/s/sqrt(s)
     # rad: > 0 learns the accelerometer bias of a body axis only while that axis is within this
-    # angle of the vertical (PX4 EKF2's 15°: the bias of a level axis cannot be told from a tilt),
-    # its covariance row uncorrelated otherwise (``eskf.uncorrelate_unobservable_accel_bias``); 0 = off
+    # angle of the vertical and the vehicle does not manoeuvre hard (PX4 EKF2's inhibition, at
+    # 15° = 0.2618: a level axis's bias cannot be told from a tilt), its covariance row
+    # uncorrelated otherwise (``eskf.uncorrelate_unobservable_accel_bias``); 0 = off
     accel_bias_learning_tilt: float = number(0.0, minimum=0.0, maximum=1.5)
     gps_pos_std: List[float] = noise_stds(0.7, 0.7, 2.0)  # m
     gps_vel_std: List[float] = noise_stds(0.1, 0.1, 0.3)  # m/s
@@ -325,11 +326,6 @@ def _ekf7_gps_height_noise(config, height_std) -> Ekf7EstimatorConfig:
     return dataclasses.replace(config, gps_pos_z_std=height_std)
 
 
-PX4_ACCEL_BIAS_LEARNING_TILT = math.radians(15.0)
-"""rad: PX4 EKF2 learns an accelerometer axis's bias only within 15° of the vertical
-(``Ekf::updateIMUBiasInhibit``: |R_NB[2, axis]| > cos 15°)."""
-
-
 def _eskf_replay_defaults():
     """The ESKF with PX4 EKF2's noise (:data:`PX4_NOISE`; bias walks EKF2_ACC_B_NOISE 0.003 m/s^3,
     EKF2_GYR_B_NOISE 0.001 rad/s^2), started at rest at the origin with a wide prior."""
@@ -344,7 +340,6 @@ def _eskf_replay_defaults():
         gyro_std=[PX4_NOISE["gyro_std"]] * 3,
         accel_bias_rw_std=0.003,
         gyro_bias_rw_std=0.001,
-        accel_bias_learning_tilt=PX4_ACCEL_BIAS_LEARNING_TILT,
         gps_pos_std=[PX4_NOISE["gps_pos_std"]] * 3,
         gps_vel_std=[PX4_NOISE["gps_vel_std"]] * 3,
         mag_yaw_std=PX4_NOISE["heading_std"],
