@@ -72,3 +72,11 @@ def test_no_aid_samples_carry_pxs_std_at_rest_and_in_flight():
     np.testing.assert_array_equal(samples.values[:, 0:6], 0.0)
     np.testing.assert_array_equal(samples.values[0, 6:], [0.01, 0.01, math.inf, 0.2, 0.2, 0.2])
     np.testing.assert_array_equal(samples.values[1, 6:], [10.0, 10.0, math.inf] + [math.inf] * 3)
+
+
+def test_a_scenario_cannot_carry_no_aiding_samples():
+    from quad_drake.config.errors import ConfigError
+    from quad_drake.running import catalog
+
+    with pytest.raises(ConfigError, match="sensors.no_aid: only a flight log's replay"):
+        catalog.load("11_gps_update", None, ["vehicles.0.sensors.no_aid=true"])
