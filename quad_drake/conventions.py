@@ -79,3 +79,7 @@ SQRT2 = math.sqrt(2.0)
 MAG_FIELD_SIZE = 4
 # `baro` (2): pressure height (m, up, above the datum z_N = 0), stamp (s, -1 = none yet)
 BARO_SIZE = 2
+# `no_aid` (13): a replay's no-aiding sample (PX4's fake position / zero velocity while not GPS-aided):
+# p_N (3, m), v_N (3, m/s), the std of each of those six (m, m/s; inf = that component not
+# fused), stamp (s, -1 = none yet)
+NO_AID_SIZE = 13

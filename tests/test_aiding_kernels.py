@@ -2,6 +2,7 @@
 pure functions they compile (estimation/baro.py, estimation/mag3.py) and their dense oracles,
 to 1e-12; the gates, the bias filter's GPS updates and resets, non-finite samples."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -218,12 +219,14 @@ FIELD = mag3.MagFieldFusionParams(
 )
 
 
-def test_field_rows_equal_the_batch_oracle_and_gate_a_disturbance():
+@pytest.mark.parametrize("corrects_tilt", [True, False])
+def test_field_rows_equal_the_batch_oracle_and_gate_a_disturbance(corrects_tilt):
     rng = np.random.default_rng(1)
     x = np.stack([nominal(rng) for _ in range(N)])
     P = np.stack([spd(rng, 15, 1e-3) for _ in range(N)])
     P_before = P.copy()
-    model = aiding.field_model(FIELD, gating.gate_threshold(3, 5.0))
+    field = dataclasses.replace(FIELD, corrects_tilt=corrects_tilt)
+    model = aiding.field_model(field, gating.gate_threshold(3, 5.0))
     mag = np.empty((N, 4))
     for i in range(N):
         mag[i, :3] = (
@@ -239,8 +242,10 @@ def test_field_rows_equal_the_batch_oracle_and_gate_a_disturbance():
     variance = np.square(FIELD.field_std)
     for i in range(3):
         x_oracle, P_oracle, nis = mag3.eskf_field_update(
-            x[i], P_before[i], mag[i, :3], M_N, FIELD.hard_iron, variance, FIELD.attitude_only
+            x[i], P_before[i], mag[i, :3], M_N, FIELD.hard_iron, variance, FIELD.attitude_only, corrects_tilt
         )
+        if not corrects_tilt:  # the heading alone: no correction of the tilt about N and E
+            np.testing.assert_array_equal(dx[i, 6:8], 0.0)
         x_new, P_new = eskf.inject(x[i], P[i], dx[i])
         np.testing.assert_allclose(x_new, x_oracle, atol=1e-12)
         np.testing.assert_allclose(P_new, P_oracle, atol=1e-12)

@@ -364,3 +364,67 @@ def test_an_estimator_raising_in_a_tune_is_exit_4_and_its_hint_carries_the_candi
     assert "--set vehicles.0.estimator.params.q_vel_std=" in line and line.endswith(
         "in a candidate of the tune"
     )
+
+
+NO_AID_ESTIMATOR = '''
+import numpy as np
+
+
+class Recording:
+    """A do-nothing estimator that books what the adapter hands it."""
+
+    state_names = ("X", "Y", "Z")
+
+    def __init__(self):
+        self.calls = []
+
+    def predict(self, dt, accel, gyro):
+        pass
+
+    def update_gps(self, position, velocity):
+        self.calls.append(("gps", position, velocity))
+
+    def update_mag(self, yaw):
+        pass
+
+    def estimate(self):
+        return np.zeros(9)
+
+    def covariance(self):
+        return np.eye(3)
+
+
+class RecordingNoAid(Recording):
+    def update_no_aid(self, position, velocity, std):
+        self.calls.append(("no_aid", position, velocity, std))
+'''
+
+
+@pytest.mark.parametrize("own_method", [True, False])
+def test_a_replays_no_aiding_samples_reach_update_no_aid_with_their_std_else_update_gps(tmp_path, own_method):
+    """A replay's no-aiding samples (PX4's fake position / zero velocity while not GPS-aided) on
+    the ``no_aid`` input: ``update_no_aid(position, velocity, std)`` once per sample where the
+    estimator has it, else ``update_gps`` (its own GPS noise), as the replay's note says."""
+    from pydrake.systems.analysis import Simulator
+
+    from quad_drake.config import GpsParams, ImuParams, SensorsConfig
+    from quad_drake.estimation.registry import CustomEstimatorConfig
+    from quad_drake.systems.custom_estimator import PythonEstimator
+
+    (tmp_path / "recording.py").write_text(NO_AID_ESTIMATOR)
+    name = "RecordingNoAid" if own_method else "Recording"
+    config = CustomEstimatorConfig(factory=f"{tmp_path / 'recording.py'}:{name}")
+    sensors = SensorsConfig(imu=ImuParams(), gps=GpsParams(), no_aid=True)
+    system = PythonEstimator(config, sensors)
+    context = system.CreateDefaultContext()
+    system.GetInputPort("imu").FixValue(context, [0.0, 0.0, -9.81, 0.0, 0.0, 0.0])
+    system.GetInputPort("gps").FixValue(context, [0.0] * 6 + [-1.0])
+    std = [0.01, 0.01, np.inf, 0.2, 0.2, 0.2]
+    system.GetInputPort("no_aid").FixValue(context, [1.0, 2.0, 0.0, 0.0, 0.0, 0.0] + std + [0.1])
+    Simulator(system, context).AdvanceTo(0.1)  # 50 ticks, one no-aiding sample
+    (estimator,) = context.get_abstract_state(0).get_value()
+    (call,) = estimator.calls
+    assert call[0] == ("no_aid" if own_method else "gps")
+    np.testing.assert_array_equal(call[1], [1.0, 2.0, 0.0])
+    if own_method:
+        np.testing.assert_array_equal(call[3], std)

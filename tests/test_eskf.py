@@ -183,3 +183,46 @@ def test_write_estimate_puts_p_q_v_in_the_state_layout_and_keeps_the_body_rate()
         eskf.write_estimate(row_x, row)
     eskf.write_estimate(batch_x, batch)
     np.testing.assert_array_equal(batch, expected)  # the batched form is the scalar one row by row
+
+
+def test_a_level_axis_accelerometer_bias_is_not_learned_as_px4s():
+    """PX4's accelerometer-bias inhibition (``eskf.uncorrelate_unobservable_accel_bias``): on a
+    level vehicle the x and y biases lose every correlation (no update can move them), z keeps
+    its (the kept block unchanged); pitched 90° nose up, x is the vertical axis."""
+    from quad_drake.estimation.eskf import uncorrelate_unobservable_accel_bias
+
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(2, 15, 15))
+    P = A @ A.transpose(0, 2, 1) + 15 * np.eye(15)
+    x = np.zeros((2, 16))
+    x[0, 6] = 1.0  # level
+    x[1, 6:10] = (math.cos(math.pi / 4), 0.0, math.sin(math.pi / 4), 0.0)  # pitched up 90°
+    before = P.copy()
+    uncorrelate_unobservable_accel_bias(x, P, math.radians(15.0))
+    for i, inhibited in enumerate(((9, 10), (10, 11))):
+        for k in inhibited:
+            assert np.count_nonzero(P[i, k]) == 1 and P[i, k, k] == before[i, k, k]
+            assert np.count_nonzero(P[i, :, k]) == 1
+        others = [j for j in range(15) if j not in inhibited]
+        np.testing.assert_array_equal(P[i][np.ix_(others, others)], before[i][np.ix_(others, others)])
+
+
+def test_no_accelerometer_bias_is_learned_while_the_vehicle_manoeuvres_hard():
+    """PX4's manoeuvre levels (``eskf.manoeuvre_levels``: peak-held, decaying with EKF2_ABL_TAU):
+    a 5 rad/s spin inhibits every axis of a vertical-axis-up vehicle, and 0.5 s of quiet later
+    (decayed below EKF2_ABL_GYRLIM 3 rad/s, 5 e^-1 = 1.84) only the level axes stay inhibited."""
+    from quad_drake.estimation.eskf import manoeuvre_levels, uncorrelate_unobservable_accel_bias
+
+    x = np.zeros((1, 16))
+    x[0, 6] = 1.0
+    levels = np.zeros((1, 2))
+    manoeuvre_levels(levels, np.array([[0.0, 0.0, -GRAVITY, 5.0, 0.0, 0.0]]), 0.002)
+    P = np.ones((1, 15, 15)) + np.eye(15)
+    uncorrelate_unobservable_accel_bias(x, P, math.radians(15.0), levels)
+    assert all(np.count_nonzero(P[0, k]) == 1 for k in (9, 10, 11))
+    for _ in range(250):  # 0.5 s at rest
+        manoeuvre_levels(levels, np.array([[0.0, 0.0, -GRAVITY, 0.0, 0.0, 0.0]]), 0.002)
+    assert levels[0, 0] == pytest.approx(5.0 * (1.0 - 0.002 / 0.5) ** 250) and levels[0, 0] < 3.0
+    P = np.ones((1, 15, 15)) + np.eye(15)
+    uncorrelate_unobservable_accel_bias(x, P, math.radians(15.0), levels)
+    assert [np.count_nonzero(P[0, k]) == 1 for k in (9, 10, 11)] == [True, True, False]

@@ -270,7 +270,9 @@ def test_the_streams_have_the_simulated_sensors_layouts(sitl_log, real_log):
         "mag": 2,
         "mag_field": 4,
         "baro": 2,
+        "no_aid": 13,  # the estimators' no_aid input: none here (no no-aiding samples given)
     }
+    assert len(streams["no_aid"].rows) == 0
     assert streams["gps"].rows[:, -1] == pytest.approx(sitl_log.gps.times)  # the stamp is the sample's time
     assert streams["mag"].initial().tolist() == [0.0, NO_SAMPLE_STAMP]
     empty = playback_streams(real_log)

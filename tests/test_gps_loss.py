@@ -37,8 +37,9 @@ def _synthetic_log(with_baro):
 def test_a_loss_longer_than_px4s_timeout_is_held_until_a_regain(with_baro):
     log = _synthetic_log(with_baro)
     config = load_replay(SITL, "{kind: eskf}")  # gps_regain_time 1 s, fake_position_period 0.2 s
-    gps, fake, late_fix, losses = aiding_gps(log, config)
-    assert (fake, late_fix, losses) == (False, None, [(10.0, 22.0)])  # the 3 s gap is dead-reckoned
+    gps, no_aid, fake, late_fix, losses = aiding_gps(log, config, separate=True)
+    # the 3 s gap is dead-reckoned; a fix at 0.2 s is not late: no no-aiding samples
+    assert (no_aid, fake, late_fix, losses) == (None, False, None, [(10.0, 22.0)])
     held = ~np.isin(gps.times, log.gps.times)
     np.testing.assert_allclose(gps.times[held], np.arange(15.0, 20.8 + 1e-9, 0.2))  # to regain - 1 s - 0.2
     np.testing.assert_array_equal(gps.values[held][:, [0, 1, 3, 4]], np.tile([10.0, 0.0, 0.0, 0.0], (30, 1)))
@@ -56,7 +57,7 @@ def test_no_loss_and_no_aiding_leave_the_gps_as_logged():
     short = dataclasses.replace(log, gps=Samples(log.gps.times[log.gps.times < 10.0], log.gps.values[:49]))
     assert aiding_gps(short, config)[0] is short.gps
     off = dataclasses.replace(config, fake_position_std=0.0)
-    assert aiding_gps(log, off) == (log.gps, False, None, [])
+    assert aiding_gps(log, off) == (log.gps, None, False, None, [])
 
 
 @pytest.fixture(scope="module")

@@ -156,6 +156,10 @@ class SensorsConfig:
     gps: Optional[GpsParams] = None
     mag: Optional[MagParams] = None
     baro: Optional[BaroParams] = None
+    # a replay's no-aiding samples (PX4's fake position / zero velocity while not GPS-aided, each
+    # with its own std) on the estimator's ``no_aid`` input; only a flight log's replay supplies
+    # them (``flightlogs.replay``), so a scenario's vehicle never carries them
+    no_aid: bool = False
 
 
 FAULT_KINDS = (

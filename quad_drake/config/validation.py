@@ -255,6 +255,11 @@ def _check_semantics(scenario):
                     f"vehicles.{i}.flies_on: estimate needs imu, gps and mag sensors "
                     "(or, without a magnetometer, the estimator's gsf enabled)"
                 )
+        if v.sensors.no_aid:
+            raise ConfigError(
+                f"vehicles.{i}.sensors.no_aid: only a flight log's replay supplies no-aiding samples "
+                "(quad-drake replay); a simulated vehicle has none"
+            )
         if kind.builder and unfused_sensor(kind.measurements, v.sensors) == "mag":
             raise ConfigError(
                 f"vehicles.{i}.sensors.mag.three_axis: estimator kind {kind.name!r} takes the yaw "

@@ -21,7 +21,11 @@ estimator per vehicle (``params``: numbers). The object it returns has:
   ``mag_innovation(yaw)`` -> (nu (1,), S (1, 1)): the innovation the next update would use.
   With them the workbench gates the sample as it gates its own estimators (a chi^2 gate of
   ``gate_sigma`` sigma, 0 = off; a gated sample is counted and not fused) and reports its NIS;
-  without them NIS is NaN and every sample is fused.
+  without them NIS is NaN and every sample is fused;
+- optionally ``update_no_aid(position, velocity, std)``: a replay's no-aiding sample (PX4's fake
+  position and zero velocity while not GPS-aided, ``flightlogs.schedule.no_aid_samples``), std
+  (6,) the m and m/s of each component, inf where it is not fused; without it the sample goes to
+  ``update_gps`` (your GPS noise).
 
 The adapter (``systems/custom_estimator.py``) adds what the bundled estimators do around the
 filter: it fuses each GPS and magnetometer sample once (by its stamp), skips and counts

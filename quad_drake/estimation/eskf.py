@@ -437,6 +437,53 @@ def mag_update(x, P, yaw_meas, R_mag) -> tuple[np.ndarray, np.ndarray, float]:
     return x_new, P_new, nu * nu / S
 
 
+ACCEL_BIAS_LEARNING_TAU = 0.5
+"""s: the decay of the peak-held manoeuvre levels (PX4 EKF2's ``EKF2_ABL_TAU``)."""
+ACCEL_BIAS_LEARNING_GYRO_LIMIT = 3.0
+"""rad/s: above this peak-held rate no accelerometer bias is learned (PX4's ``EKF2_ABL_GYRLIM``)."""
+ACCEL_BIAS_LEARNING_ACCEL_LIMIT = 25.0
+"""m/s^2: the same of the specific force's magnitude (PX4's ``EKF2_ABL_ACCLIM``)."""
+
+
+def manoeuvre_levels(levels, imu, dt) -> None:
+    """PX4 EKF2's manoeuvre levels IN PLACE: levels (N, 2) the peak-held |w_B| (rad/s) and |f_B|
+    (m/s^2) of each vehicle, each max(this sample's, the last decayed by 1 - dt / ACCEL_BIAS_LEARNING_TAU);
+    imu (N, 6: f_B, w_B) this tick's samples (a non-finite one leaves the level decaying); dt s."""
+    decay = 1.0 - min(dt / ACCEL_BIAS_LEARNING_TAU, 1.0)
+    now = np.column_stack((np.linalg.norm(imu[:, 3:6], axis=1), np.linalg.norm(imu[:, 0:3], axis=1)))
+    levels[:] = np.fmax(now, decay * levels)
+
+
+def uncorrelate_unobservable_accel_bias(x, P, tilt, levels=None) -> None:
+    """PX4 EKF2's accelerometer-bias inhibition (``Ekf::updateIMUBiasInhibit``), IN PLACE on P
+    (N, n, n) of filters carrying the biases (n >= 15; x (N, 16+) their nominal states, q_NB at
+    6..9): the bias of a body axis whose angle to the vertical exceeds `tilt` (rad; |R_NB[2, axis]|
+    <= cos tilt), and every axis's while the vehicle manoeuvres hard (levels (N, 2) of
+    :func:`manoeuvre_levels` above ACCEL_BIAS_LEARNING_GYRO_LIMIT or
+    ACCEL_BIAS_LEARNING_ACCEL_LIMIT; None: not checked), is not learned: its row and column of P
+    are zeroed but for its variance, so no update moves it (K's row is P's row times H^T S^-1) and
+    it takes no part in the next prediction's correlations. A level axis's bias and the tilt about
+    the other horizontal axis move the accelerometer alike: on a still vehicle the split between
+    them is the priors', which PX4 leaves to the tilt."""
+    w, qx, qy, qz = x[:, 6], x[:, 7], x[:, 8], x[:, 9]
+    down_z = w * w - qx * qx - qy * qy + qz * qz
+    down = np.column_stack((2.0 * (qx * qz - w * qy), 2.0 * (qy * qz + w * qx), down_z))  # R_NB[2, :]
+    inhibited = np.abs(down) <= math.cos(tilt)
+    if levels is not None:
+        high = (levels[:, 0] > ACCEL_BIAS_LEARNING_GYRO_LIMIT) | (
+            levels[:, 1] > ACCEL_BIAS_LEARNING_ACCEL_LIMIT
+        )
+        inhibited |= high[:, None]
+    for axis in range(3):
+        rows = np.flatnonzero(inhibited[:, axis])
+        if len(rows):
+            k = 9 + axis
+            variance = P[rows, k, k]
+            P[rows, k, :] = 0.0
+            P[rows, :, k] = 0.0
+            P[rows, k, k] = variance
+
+
 def gps_noise(params) -> np.ndarray:
     """R_gps (6x6) = diag(gps_pos_std^2, gps_vel_std^2), m^2 and (m/s)^2."""
     return np.diag(np.square(list(params.gps_pos_std) + list(params.gps_vel_std)))

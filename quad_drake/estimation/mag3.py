@@ -70,6 +70,10 @@ class MagFieldFusionParams:
     # field states only), so a disturbed sample the gate lets through cannot move position or
     # velocity; false: every state correlated with the attitude (the full Kalman gain)
     attitude_only: bool = True
+    # ESKF: false, the field corrects the heading alone (its gain on the tilt errors about N and E
+    # zeroed), as PX4 fuses it on the ground (``fuseMag(..., update_tilt=false)`` unless in 3-D
+    # mode in flight, where its own field states absorb a field it does not know)
+    corrects_tilt: bool = True
     tilt_std: float = number(0.0, nonnegative=True)  # rad, EKF7: the roll/pitch error the heading carries
 
 
@@ -169,7 +173,9 @@ def field_innovation(
     return nu, H, S, nis
 
 
-def sequential_field_update(P, nu, H, field_var, attitude_only) -> tuple[np.ndarray, np.ndarray]:
+def sequential_field_update(
+    P, nu, H, field_var, attitude_only, corrects_tilt=True
+) -> tuple[np.ndarray, np.ndarray]:
     """(dx (n,), P' (n x n)): the field innovation nu (3,) fused one axis at a time with the rows
     of H (3 x n, taken at the prior) and the diagonal noise field_var (3,): for each axis i the
     scalar Joseph update b = P h_i^T, S_i = h_i b + r_i, K = b / S_i, dx += K (nu_i - h_i dx),
@@ -180,7 +186,9 @@ def sequential_field_update(P, nu, H, field_var, attitude_only) -> tuple[np.ndar
     their values. The update above is the Joseph form, valid for any gain: P stays the covariance
     of the (now sub-optimal) estimate, and the non-attitude rows keep their variances while their
     cross-covariance with the attitude shrinks as (I - K H). Equal to the batch update with the
-    rows of K = P H^T S^-1 outside the attitude zeroed (:func:`eskf_field_update`).
+    rows of K = P H^T S^-1 outside the attitude zeroed (:func:`eskf_field_update`). Not
+    corrects_tilt: K's entries of the tilt errors (about N and E, states 6 and 7) set to 0 too,
+    so the field corrects the heading alone (PX4's ``update_tilt`` false).
     Loops over the entries (numba compiles it)."""
     n = P.shape[0]
     P = P.copy()
@@ -202,6 +210,8 @@ def sequential_field_update(P, nu, H, field_var, attitude_only) -> tuple[np.ndar
             k[r] = b[r] / s
             if attitude_only and (r < ATTITUDE_START or r >= ATTITUDE_START + 3):
                 k[r] = 0.0
+            if not corrects_tilt and (r == ATTITUDE_START or r == ATTITUDE_START + 1):
+                k[r] = 0.0
             dx[r] += k[r] * residual
         for r in range(n):
             for c in range(n):
@@ -210,7 +220,7 @@ def sequential_field_update(P, nu, H, field_var, attitude_only) -> tuple[np.ndar
 
 
 def eskf_field_update(
-    x, P, m_B, m_N, hard_iron, field_var, attitude_only
+    x, P, m_B, m_N, hard_iron, field_var, attitude_only, corrects_tilt=True
 ) -> tuple[np.ndarray, np.ndarray, float]:
     """Oracle: (x', P', nis) of the ESKF (nominal x (16,), P (9 or 15 square)) fusing a 3-axis
     sample m_B (gauss) with the dense batch update: K = P H^T S^-1 with H of :func:`field_jacobian`,
@@ -229,15 +239,25 @@ def eskf_field_update(
     H = field_jacobian(q, m_N, P.shape[0])
     R = np.diag(np.asarray(field_var, dtype=float))
     S = H @ P @ H.T + R
-    K = P @ H.T @ np.linalg.inv(S)
+    keep = np.ones(P.shape[0], dtype=bool)
     if attitude_only:
-        attitude = slice(ATTITUDE_START, ATTITUDE_START + 3)
-        kept = K[attitude].copy()
-        K[:] = 0.0
-        K[attitude] = kept
-    I_KH = np.eye(P.shape[0]) - K @ H
-    P_new = I_KH @ P @ I_KH.T + K @ R @ K.T
-    x_new, P_new = eskf.inject(x, 0.5 * (P_new + P_new.T), K @ nu)
+        keep[:] = False
+        keep[ATTITUDE_START : ATTITUDE_START + 3] = True
+    if not corrects_tilt:  # the tilt is observed: axis by axis (PX4's order) differs from the batch
+        keep[ATTITUDE_START : ATTITUDE_START + 2] = False
+        P_new, dx = P.copy(), np.zeros(P.shape[0])
+        for axis in range(3):
+            h = H[axis]
+            K = np.where(keep, P_new @ h / (h @ P_new @ h + R[axis, axis]), 0.0)
+            dx += K * (nu[axis] - h @ dx)
+            I_KH = np.eye(P.shape[0]) - np.outer(K, h)
+            P_new = I_KH @ P_new @ I_KH.T + R[axis, axis] * np.outer(K, K)
+    else:
+        K = np.where(keep[:, None], P @ H.T @ np.linalg.inv(S), 0.0)
+        I_KH = np.eye(P.shape[0]) - K @ H
+        P_new = I_KH @ P @ I_KH.T + K @ R @ K.T
+        dx = K @ nu
+    x_new, P_new = eskf.inject(x, 0.5 * (P_new + P_new.T), dx)
     return x_new, P_new, float(nu @ np.linalg.solve(S, nu))
 
 

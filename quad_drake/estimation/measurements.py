@@ -15,7 +15,7 @@ and the updates it runs all read that list.
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from quad_drake.conventions import BARO_SIZE, GPS_SIZE, MAG_FIELD_SIZE, MAG_SIZE
+from quad_drake.conventions import BARO_SIZE, GPS_SIZE, MAG_FIELD_SIZE, MAG_SIZE, NO_AID_SIZE
 
 
 @dataclass(frozen=True)
@@ -50,6 +50,9 @@ MEASUREMENTS = {
         # a 3-axis magnetometer (m_B gauss) as the field vector (ESKF)
         Measurement("field", "mag", MAG_FIELD_SIZE, "field", _three_axis),
         Measurement("baro", "baro", BARO_SIZE, "baro", lambda s: s.baro is not None),
+        # a replay's no-aiding sample (PX4's fake position / zero velocity while not GPS-aided):
+        # p, v with a std per component (inf: not fused); no NIS of its own (logged nowhere)
+        Measurement("no_aid", "no_aid", NO_AID_SIZE, "", lambda s: bool(s.no_aid)),
     )
 }
 """Every measurement update the package knows, by name."""

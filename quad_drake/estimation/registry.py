@@ -153,6 +153,11 @@ class EskfEstimatorConfig(AidingParams, GateParams):
     gyro_std: List[float] = noise_stds(0.5, 0.5, 0.5)  # rad/s per IMU sample
     accel_bias_rw_std: float = number(0.001, nonnegative=True, noise_std=True)  # m/s^2/sqrt(s)
     gyro_bias_rw_std: float = number(0.0001, nonnegative=True, noise_std=True)  # rad/s/sqrt(s)
+    # rad: > 0 learns the accelerometer bias of a body axis only while that axis is within this
+    # angle of the vertical and the vehicle does not manoeuvre hard (PX4 EKF2's inhibition, at
+    # 15° = 0.2618: a level axis's bias cannot be told from a tilt), its covariance row
+    # uncorrelated otherwise (``eskf.uncorrelate_unobservable_accel_bias``); 0 = off
+    accel_bias_learning_tilt: float = number(0.0, minimum=0.0, maximum=1.5)
     gps_pos_std: List[float] = noise_stds(0.7, 0.7, 2.0)  # m
     gps_vel_std: List[float] = noise_stds(0.1, 0.1, 0.3)  # m/s
     mag_yaw_std: float = number(0.1, positive=True, noise_std=True)  # rad
@@ -468,7 +473,7 @@ KINDS = {
             builder="quad_drake.systems.estimators:add_ekf7",
             tuning_keys=lambda config: _EKF7_TUNING,
             fidelity_problem=_any_fidelity,
-            measurements=("yaw", "gps", "heading", "baro"),
+            measurements=("yaw", "gps", "no_aid", "heading", "baro"),
             replay_defaults=_ekf7_replay_defaults,
             started_from_log=_ekf7_started,
             assuming_gps_noise=_ekf7_gps_noise,
@@ -482,7 +487,7 @@ KINDS = {
             builder="quad_drake.systems.estimators:add_eskf",
             tuning_keys=_eskf_tuning,
             fidelity_problem=_physical_accelerometer_only,
-            measurements=("yaw", "gps", "field", "baro"),
+            measurements=("yaw", "gps", "no_aid", "field", "baro"),
             replay_defaults=_eskf_replay_defaults,
             started_from_log=_eskf_started,
             assuming_gps_noise=_eskf_gps_noise,
@@ -500,7 +505,7 @@ KINDS = {
             fidelity_problem=_any_fidelity,
             problem=_custom_problem,
             locate=_custom_located,
-            measurements=("yaw", "gps"),
+            measurements=("yaw", "gps", "no_aid"),
             relative=_custom_relative,
         ),
         EstimatorKind(

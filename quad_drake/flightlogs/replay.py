@@ -45,10 +45,12 @@ from quad_drake.flightlogs.schedule import (
     NO_AID_TIMEOUT,
     STAMPED,
     STREAM_WIDTHS,
+    NoAidNoise,
     fake_position,
     held_position,
     initial_attitude,
     measured_at,
+    no_aid_samples,
     playback_streams,
     superseded_samples,
 )
@@ -85,7 +87,8 @@ class Aiding:
     throughout), magnetometer (``earth_field.MagnetometerModel`` or None), late_fix (s, the first
     fix before which zero samples stood in, or None), baro_fused (the log's barometer fused), gps_losses
     ([(lost s, regained s)] of the GPS losses the estimator was aided over, ``aiding_gps``),
-    baro_height_reference (the barometer was the height reference: the GPS height not fused)."""
+    baro_height_reference (the barometer was the height reference: the GPS height not fused),
+    no_aid_at_rest (the no-aiding samples given on the estimator's own input, at rest and not)."""
 
     fake_position: bool = False
     magnetometer: object = None
@@ -93,6 +96,7 @@ class Aiding:
     baro_fused: bool = False
     gps_losses: list = field(default_factory=list)
     baro_height_reference: bool = False
+    no_aid_at_rest: tuple | None = None  # (samples at rest, samples not) on the no_aid input; None: none
 
 
 @dataclass
@@ -127,19 +131,36 @@ class ReplayResult:
             "The reference is the flight controller's own estimate (PX4), another estimator and not "
             "the truth: a difference is the two estimators' disagreement."
         ]
+        c = self.config
+        rested = self.aiding.no_aid_at_rest
+        if rested is not None:
+            fused = (
+                f"PX4's no-aiding samples every {c.fake_position_period:g} s: at rest ({rested[0]} samples; "
+                f"PX4's land-detector test on the IMU) a fake position with σ = {c.rest_position_std:g} m "
+                f"and a zero velocity with σ = {c.rest_velocity_std:g} m/s, else ({rested[1]}) the fake "
+                f"position with σ = {c.fake_position_std:g} m (EKF2_NOAID_NOISE), fused with these σ "
+                "(a custom estimator: by its update_no_aid where it has one, else as its GPS samples "
+                "with its own GPS noise)"
+            )
+        elif self.fake_position:
+            fused = (
+                f"PX4's fake position (0 m every {c.fake_position_period:g} s, with σ = "
+                f"{c.fake_position_std:g} m where the kind takes it, else with its own GPS noise)"
+            )
+        else:
+            fused = (
+                f"zero position and velocity every {c.fake_position_period:g} s, fused as its GPS "
+                "samples (with the GPS noise it assumes)"
+            )
         if self.fake_position:
             lines.append(
-                "The log has no GPS: the estimator was given PX4's fake position (0 m every "
-                f"{self.config.fake_position_period:g} s, for the built-in kinds with σ = "
-                f"{self.config.fake_position_std:g} m; a custom estimator fuses it with its own GPS "
-                "noise); its horizontal position is not compared and its GPS NIS not judged."
+                f"The log has no GPS: the estimator was given {fused}; its horizontal position is not "
+                "compared and its GPS NIS not judged."
             )
         if self.aiding.late_fix is not None:
             lines.append(
                 f"The first GPS fix came at {self.aiding.late_fix:.1f} s: before it the estimator was "
-                f"given zero position and velocity every {self.config.fake_position_period:g} s, fused "
-                "as its GPS samples (with the GPS noise it assumes), as PX4 holds a fake position "
-                "while not aided; the GPS from the fix on."
+                f"given {fused}, as PX4 while not aided; the GPS from the fix on."
             )
         for lost, regained in self.aiding.gps_losses:
             lines.append(
@@ -275,34 +296,43 @@ def magnetometer_for(log, config) -> earth_field.MagnetometerModel | None:
     return model
 
 
-def aiding_gps(log, config) -> tuple[Samples, bool, float | None, list]:
-    """(GPS Samples to emit, fake position used, first fix s or None, losses [(lost s, regained
-    s)]): the log's GPS, with aiding where PX4 has none.
+def aiding_gps(log, config, separate=False) -> tuple[Samples, Samples | None, bool, float | None, list]:
+    """(GPS Samples to emit, no-aiding Samples or None, fake position used, first fix s or None,
+    losses [(lost s, regained s)]): the log's GPS, with aiding where PX4 has none.
 
-    Without any GPS: PX4's fake position (``fake_position``) over the whole log. With a late first
-    fix (after LATE_FIX s): zero position and velocity samples every fake_position_period s before
-    it, as PX4 holds a fake position and zero velocity while not aided, then the GPS from its first
-    fix on (its origin: the first fix is at p_N = 0, so the switch is continuous). A loss (no
-    sample for more than NO_AID_TIMEOUT s after a fix, PX4's ``EKF2_NOAID_TOUT``): the estimator
-    dead-reckons for NO_AID_TIMEOUT s as PX4 does, then gets :func:`held_position` samples every
+    Without any GPS: PX4's fake position over the whole log (every fake_position_period s). With
+    a late first fix (after LATE_FIX s): those samples before it, as PX4 holds a fake position and
+    a zero velocity while not aided, then the GPS from its first fix on (its origin: the first
+    fix is at p_N = 0, so the switch is continuous). `separate` (the estimator fuses the
+    ``no_aid`` measurement): these are ``schedule.no_aid_samples``, each with PX4's own std
+    (:func:`no_aid_noise`: at rest a tight fake position and a zero velocity, else the fake
+    position at ``fake_position_std``), the second item; else zero position and velocity samples
+    merged into the GPS (fused with the GPS noise the estimator assumes). A loss (no sample for
+    more than NO_AID_TIMEOUT s after a fix, PX4's ``EKF2_NOAID_TOUT``): the estimator dead-reckons
+    for NO_AID_TIMEOUT s as PX4 does, then gets :func:`held_position` samples in its GPS every
     fake_position_period s (PX4 resets its velocity to zero and holds its last known position)
     until the estimator's ``gps_regain_time`` before the regain, so that the returning GPS is a
     regain (``estimation/gating.py``: each group fused where its gate accepts it and reset to it
-    where not, as PX4 resets to GNSS when it starts aiding again). Every kind, a user's included,
-    receives these samples on its GPS input."""
-    if log.gps is None:
-        fake = config.fake_position_std > 0
-        return (fake_position(log, config.fake_position_period) if fake else None), fake, None, []
-    if config.fake_position_std <= 0:
-        return log.gps, False, None, []
+    where not, as PX4 resets to GNSS when it starts aiding again)."""
     period = config.fake_position_period
+    if config.fake_position_std <= 0:
+        return log.gps, None, False, None, []
+    if log.gps is None:
+        times = np.arange(period, log.duration + 1e-9, period)
+        if separate:
+            return None, no_aid_samples(log.imu, times, no_aid_noise(log, config)), True, None, []
+        return fake_position(log, period), None, True, None, []
     times, values = [log.gps.times], [log.gps.values]
     first_fix = float(log.gps.times[0])
     late_fix = first_fix if first_fix > LATE_FIX else None
+    no_aid = None
     if late_fix is not None:
         held = np.arange(period, first_fix - 1e-9, period)
-        times.append(held)
-        values.append(np.zeros((len(held), 6)))
+        if separate:
+            no_aid = no_aid_samples(log.imu, held, no_aid_noise(log, config))
+        else:
+            times.append(held)
+            values.append(np.zeros((len(held), 6)))
     losses = []
     regain_margin = float(getattr(config.estimator, "gps_regain_time", 0.0)) + period
     for i in np.flatnonzero(np.diff(log.gps.times) > NO_AID_TIMEOUT):
@@ -312,10 +342,21 @@ def aiding_gps(log, config) -> tuple[Samples, bool, float | None, list]:
         times.append(held)
         values.append(held_position(log, lost, log.gps.values[i, 0:3], held))
     if len(times) == 1:
-        return log.gps, False, late_fix, losses
+        return log.gps, no_aid, False, late_fix, losses
     order = np.argsort(np.concatenate(times), kind="stable")
     merged = Samples(np.concatenate(times)[order], np.vstack(values)[order])
-    return merged, False, late_fix, losses
+    return merged, no_aid, False, late_fix, losses
+
+
+def no_aid_noise(log, config) -> NoAidNoise:
+    """The ``schedule.NoAidNoise`` of a replay: PX4's fake position at ``fake_position_std``
+    (``EKF2_NOAID_NOISE``) in flight and ``rest_position_std`` at rest, its zero velocity at
+    ``rest_velocity_std``; the height fused at ``fake_position_std`` only on a log without a
+    barometer (PX4's height is then the barometer's)."""
+    height_std = config.fake_position_std if log.baro is None else math.inf
+    return NoAidNoise(
+        config.fake_position_std, config.rest_position_std, config.rest_velocity_std, height_std
+    )
 
 
 def delayed_log(log, config) -> object:
@@ -338,7 +379,8 @@ def replay_setup(log, config) -> tuple[dict, VehicleConfig, Aiding]:
     :func:`aiding_gps`), the estimator it feeds (``settings.vehicle_for``: started at the log's first
     attitude, the log's magnetic field and barometer period) and how it was aided."""
     log = delayed_log(log, config)
-    gps, fake, late_fix, losses = aiding_gps(log, config)
+    separate = "no_aid" in KINDS[config.estimator.kind].measurements
+    gps, no_aid, fake, late_fix, losses = aiding_gps(log, config, separate)
     magnetometer = magnetometer_for(log, config)
     declination, hard_iron = (
         (0.0, (0.0, 0.0, 0.0))
@@ -348,14 +390,18 @@ def replay_setup(log, config) -> tuple[dict, VehicleConfig, Aiding]:
             magnetometer.hard_iron,
         )
     )
-    streams = playback_streams(log, gps, declination, hard_iron)
+    streams = playback_streams(log, gps, declination, hard_iron, no_aid)
     baro_period = None if log.baro is None else baro_pairing_period(log.baro)
     baro_reference = log.gps is not None and height_reference(config, log.parameters) == "baro"
     vehicle = vehicle_for(
         config, initial_attitude(log, declination, hard_iron), fake, baro_period, magnetometer, baro_reference
     )
     baro_fused = vehicle.sensors.baro is not None
-    aiding = Aiding(fake, magnetometer, late_fix, baro_fused, losses, baro_fused and baro_reference)
+    rested = None
+    if no_aid is not None:
+        resting = int(np.count_nonzero(np.isfinite(no_aid.values[:, 9])))
+        rested = (resting, len(no_aid) - resting)
+    aiding = Aiding(fake, magnetometer, late_fix, baro_fused, losses, baro_fused and baro_reference, rested)
     return streams, vehicle, aiding
 
 
@@ -373,6 +419,7 @@ def _playback_diagram(streams, vehicles, name, ticks=False):
     vehicle = vehicles[0]  # the sensors all share but the barometer (sharing_problem)
     three_axis = vehicle.sensors.mag is not None and vehicle.sensors.mag.three_axis
     wiring = {"imu": "imu", "gps": "gps", "mag": "mag_field" if three_axis else "mag", "baro": "baro"}
+    wiring["no_aid"] = "no_aid"
     for port, stream in wiring.items():
         if estimator.HasInputPort(port):
             builder.Connect(playback.GetOutputPort(stream), estimator.GetInputPort(port))

@@ -65,9 +65,9 @@ class Stream:
         return value
 
 
-STREAM_WIDTHS = {"imu": 6, "gps": 6, "mag": 1, "mag_field": 3, "baro": 1}
+STREAM_WIDTHS = {"imu": 6, "gps": 6, "mag": 1, "mag_field": 3, "baro": 1, "no_aid": 12}
 """Values per sample of each stream (before the stamp): the port layouts of the module docstring."""
-STAMPED = {"imu": False, "gps": True, "mag": True, "mag_field": True, "baro": True}
+STAMPED = {"imu": False, "gps": True, "mag": True, "mag_field": True, "baro": True, "no_aid": True}
 
 
 def first_ticks(times, period=ONBOARD_PERIOD) -> np.ndarray:
@@ -162,6 +162,76 @@ def fake_position(log, period) -> Samples:
     return Samples(times, np.zeros((len(times), 6)))
 
 
+AT_REST_GYRO = math.radians(3.0)
+"""rad/s: a gyro rate above this is motion (PX4's land detector, ``GYRO_NORM_MAX`` 3°/s)."""
+AT_REST_GYRO_VIBRATION = 0.02
+"""rad/s: the low-passed change of the gyro rate from one IMU sample to the next above which the
+vehicle moves (PX4's land detector, ``GYRO_VIBE_METRIC_MAX``)."""
+AT_REST_ACCEL_VIBRATION = 1.2
+"""m/s^2: the same of the specific force (PX4's land detector, ``ACCEL_VIBE_METRIC_MAX``)."""
+AT_REST_VIBRATION_GAIN = 0.01
+"""The vibration metrics' first-order low-pass gain per IMU sample (PX4's ``VehicleIMU``)."""
+AT_REST_TIME = 1.0
+"""s without motion before the vehicle is at rest (PX4's land detector)."""
+
+
+def at_rest(imu, times) -> np.ndarray:
+    """(m,) bool: the vehicle at rest at each of `times` (s), from the log's IMU Samples alone
+    (PX4's land detector's test, ``vehicle_land_detected.at_rest``, which EKF2 takes as
+    ``vehicle_at_rest``): no IMU sample in the AT_REST_TIME s before t, nor since the log's start,
+    with a gyro rate above AT_REST_GYRO or a vibration metric (the low-passed sample-to-sample
+    change of the gyro rate or of the specific force) above AT_REST_GYRO_VIBRATION or
+    AT_REST_ACCEL_VIBRATION. PX4 also requires its landed state, which a log's IMU alone cannot
+    tell; a flying multirotor's motors and control shake its IMU above these limits."""
+    from scipy.signal import lfilter
+
+    imu_times, values = imu.times, imu.values
+    gain = AT_REST_VIBRATION_GAIN
+
+    def vibration(signal):
+        change = np.linalg.norm(np.diff(signal, axis=0, prepend=signal[:1]), axis=1)
+        return lfilter([gain], [1.0, gain - 1.0], change)
+
+    moving = np.linalg.norm(values[:, 3:6], axis=1) > AT_REST_GYRO
+    moving |= vibration(values[:, 3:6]) > AT_REST_GYRO_VIBRATION
+    moving |= vibration(values[:, 0:3]) > AT_REST_ACCEL_VIBRATION
+    moving[0] = True  # nothing is known before the first sample: rest is proven over AT_REST_TIME
+    last_moving = np.maximum.accumulate(np.where(moving, imu_times, -np.inf))
+    index = np.searchsorted(imu_times, times, side="right") - 1
+    before_start = index < 0
+    index = np.maximum(index, 0)
+    return ~before_start & (np.asarray(times, dtype=float) - last_moving[index] >= AT_REST_TIME)
+
+
+@dataclass(frozen=True)
+class NoAidNoise:
+    """The stds of PX4 EKF2's no-aiding samples (``no_aid_samples``): position_std (m, the fake
+    position in flight, ``EKF2_NOAID_NOISE``), rest_position_std (m, the fake position at rest),
+    rest_velocity_std (m/s, the zero velocity at rest), height_std (m, the fake position's height
+    or inf: PX4 fuses none, its height is the barometer's)."""
+
+    position_std: float
+    rest_position_std: float
+    rest_velocity_std: float
+    height_std: float = math.inf
+
+
+def no_aid_samples(imu, times, noise) -> Samples:
+    """No-aiding Samples (m, 12: p_N m, v_N m/s, then the std of each of the six, inf = not
+    fused) at `times` (s), PX4 EKF2's while it has no position aiding: a fake position at the
+    origin (horizontal, and the height at noise.height_std) every sample, with noise.position_std
+    (``EKF2_NOAID_NOISE``); at rest (:func:`at_rest` of the log's IMU Samples `imu`) with
+    noise.rest_position_std, and a zero velocity (3 axes) with noise.rest_velocity_std (PX4's zero
+    velocity update). noise: a :class:`NoAidNoise`."""
+    times = np.asarray(times, dtype=float)
+    resting = at_rest(imu, times)
+    values = np.zeros((len(times), 12))
+    values[:, 6:8] = np.where(resting, noise.rest_position_std, noise.position_std)[:, None]
+    values[:, 8] = noise.height_std
+    values[:, 9:12] = np.where(resting, noise.rest_velocity_std, math.inf)[:, None]
+    return Samples(times, values)
+
+
 def held_position(log, lost, position, times) -> np.ndarray:
     """(m, 6) fake GPS samples (p_N m, v_N m/s) at `times` (s) of a GPS loss at `lost` (s): the
     last fix's horizontal `position` with zero horizontal velocity (PX4's fake position); the
@@ -193,18 +263,22 @@ def measured_at(samples, delay) -> Samples | None:
     return Samples(times[keep], samples.values[keep])
 
 
-def playback_streams(log, gps=None, declination=0.0, hard_iron=(0.0, 0.0, 0.0)) -> dict[str, Stream]:
+def playback_streams(
+    log, gps=None, declination=0.0, hard_iron=(0.0, 0.0, 0.0), no_aid=None
+) -> dict[str, Stream]:
     """{stream name: Stream} of a FlightLog for ``systems.playback.LogPlayback`` (module docstring).
 
-    gps: the GPS Samples to emit (default: the log's own); a sensor the log lacks has a stream
-    with no samples (its output never carries one). declination (rad) and hard_iron (gauss, FRD):
-    the yaw-only heading's (:func:`heading_samples`).
+    gps: the GPS Samples to emit (default: the log's own); no_aid: the no-aiding Samples
+    (:func:`no_aid_samples`) or None; a sensor the log lacks has a stream with no samples (its
+    output never carries one). declination (rad) and hard_iron (gauss, FRD): the yaw-only
+    heading's (:func:`heading_samples`).
     """
     sources = {
         "imu": log.imu,
         "gps": log.gps if gps is None else gps,
         "mag_field": log.mag_field,
         "baro": log.baro,
+        "no_aid": no_aid,
     }
     streams = {}
     for name, samples in sources.items():

@@ -78,6 +78,12 @@ class ReplayConfig:
     # std (PX4's EKF2_NOAID_NOISE), so the estimator's velocity, and its tilt, stay bounded; 0 = off
     fake_position_std: float = number(10.0, nonnegative=True)
     fake_position_period: float = number(0.2, tick_multiple=1)  # s
+    # while not GPS-aided and at rest (``schedule.at_rest``: PX4's test on the log's IMU), the
+    # fake position's std (m) and a zero velocity's (m/s), as PX4 EKF2 fuses them on the ground
+    # (``controlFakePosFusion``: 0.01 m; ``controlZeroVelocityUpdate``: 0.2 m/s); the built-in
+    # kinds and a custom estimator with ``update_no_aid`` fuse each sample with its own std
+    rest_position_std: float = number(0.01, positive=True)
+    rest_velocity_std: float = number(0.2, positive=True)
     # what the estimator's height follows on a log with GPS and a barometer: "log" as PX4's
     # EKF2_HGT_REF / EKF2_HGT_MODE say (0: the baro, the GPS height then not fused), "baro", "gps"
     height_reference: str = field(default="log", metadata={"choices": HEIGHT_REFERENCES})
@@ -238,7 +244,9 @@ def vehicle_for(
 ) -> VehicleConfig:
     """The VehicleConfig whose estimator ``systems.estimators.build_estimator`` builds:
     `config`'s, started at `initial_attitude` (roll, pitch, yaw rad) at rest at the origin, and
-    with `fake_position` (a log without GPS) assuming the fake position's noise for its GPS input.
+    with `fake_position` (a log without GPS) assuming the fake position's noise for its GPS input
+    where its kind takes no ``no_aid`` input (which then carries the fake samples, each with its
+    own std: ``sensors.no_aid``).
 
     The log's aiding sensors, where the estimator's kind fuses them (its
     ``EstimatorKind.measurements``: ``baro``, ``heading`` or ``field``): baro_period (s, the
@@ -252,9 +260,10 @@ def vehicle_for(
     roll, pitch, yaw = initial_attitude
     kind = KINDS[config.estimator.kind]
     estimator = kind.started_from_log(config.estimator, roll, pitch, yaw)
-    if fake_position:
+    no_aid = "no_aid" in kind.measurements  # the fake samples come on their own input, with their std
+    if fake_position and not no_aid:
         estimator = kind.assuming_gps_noise(estimator, config.fake_position_std, FAKE_VELOCITY_STD)
-    sensors = SensorsConfig(imu=ImuParams(), gps=GpsParams(), mag=MagParams())  # what a playback streams
+    sensors = SensorsConfig(imu=ImuParams(), gps=GpsParams(), mag=MagParams(), no_aid=no_aid)
     fused = set(kind.measurements)
     if baro_period is not None and "baro" in fused:
         sensors.baro = BaroParams(period=baro_period)

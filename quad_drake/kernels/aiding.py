@@ -30,7 +30,8 @@ measurement):
   gps_z_std²) and, when it fires, withholds the GPS height but restores nothing (``baro``
   module docstring);
 - field (ESKF), z = m_B - hard_iron (gauss): h(x) = R_hatᵀ m_N, H = [0 R_hatᵀ[m_N]x 0], R =
-  diag(field_std²), NIS 3 dof, the gain zero outside the attitude (``attitude_only``, the default);
+  diag(field_std²), NIS 3 dof, the gain zero outside the attitude (``attitude_only``, the default)
+  and on the tilt too without ``corrects_tilt`` (PX4's on the ground: the heading alone);
 - heading (EKF7), z = atan2(-l_y, l_x) + D with l = Ry(pitch) Rx(roll) (m_B - hard_iron) (rad):
   h(x) = x[6], H = e_6, R = the heading's variance from the field noise, NIS 1 dof (logged as
   the magnetometer's), then P[6, 6] >= the heading's variance from the tilt error
@@ -281,7 +282,7 @@ def _fresh_field(mag, book, slot, diagnostics, i):
 
 @njit_cached
 def _field_rows(x, P, mag, book, slot, diagnostics, model, dx, fused):
-    world_fields, hard_irons, field_var, threshold, attitude_only = model
+    world_fields, hard_irons, field_var, threshold, attitude_only, corrects_tilt = model
     for i in range(x.shape[0]):
         fused[i] = False
         if not _fresh_field(mag, book, slot, diagnostics, i):
@@ -297,7 +298,7 @@ def _field_rows(x, P, mag, book, slot, diagnostics, model, dx, fused):
             continue
         diagnostics[i, _FIELD_NIS], diagnostics[i, _FIELD_NIS + 1] = nis, mag[i, 3]
         if nis <= threshold:
-            correction, P_new = _sequential_field_update(P[i], nu, H, field_var, attitude_only)
+            correction, P_new = _sequential_field_update(P[i], nu, H, field_var, attitude_only, corrects_tilt)
             P[i] = P_new
             dx[i] = correction
             fused[i] = True
@@ -315,9 +316,9 @@ def field_rows(x, P, mag, book, slot, diagnostics, model, dx, fused) -> None:
 
 def field_model(params, gate_threshold) -> tuple:
     """(m_N (rows, 3) gauss NED, hard_iron (rows, 3) gauss FRD, field_var (3-tuple, gauss²),
-    threshold, attitude_only) of MagFieldFusionParams: one, or a sequence of one per vehicle that
-    differ only in their world field and hard iron (:func:`per_vehicle`; the others' figures are
-    the first's)."""
+    threshold, attitude_only, corrects_tilt) of MagFieldFusionParams: one, or a sequence of
+    one per vehicle that differ only in their world field and hard iron (:func:`per_vehicle`;
+    the others' figures are the first's)."""
     each = _each(params)
     first = each[0]
     return (
@@ -326,6 +327,7 @@ def field_model(params, gate_threshold) -> tuple:
         tuple(float(s) ** 2 for s in first.field_std),
         float(gate_threshold),
         bool(first.attitude_only),
+        bool(first.corrects_tilt),
     )
 
 

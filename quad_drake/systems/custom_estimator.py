@@ -10,6 +10,7 @@ from pydrake.systems.framework import LeafSystem
 from quad_drake.conventions import (
     EKF_OFFSET,
     IMU_SIZE,
+    NO_SAMPLE_STAMP,
     ONBOARD_PERIOD,
     STATE_SIZE,
 )
@@ -28,7 +29,7 @@ class PythonEstimator(LeafSystem):
     Inputs and outputs as the bundled estimators' (vehicle-major): ``imu`` (n*6: f_B m/s^2,
     w_NB_B rad/s) and one per measurement of the ``custom`` kind that `sensors` (a SensorsConfig)
     carry (``estimation/measurements.py``): ``mag`` (n*2: yaw rad, stamp s), ``gps`` (n*7: p_N m,
-    v_N m/s, stamp s);
+    v_N m/s, stamp s), ``no_aid`` (n*13: a replay's no-aiding samples, :meth:`_fuse_no_aid`);
     ``estimated_state`` (n*13: p_N, q_NB from the estimate's roll, pitch, yaw, v_N, body rate =
     the gyro sample, NaN while the IMU is out), ``covariance`` (n*k*k over the estimator's
     ``state_names``), ``diagnostics`` (n*``vocabulary.DIAGNOSTICS``).
@@ -66,6 +67,7 @@ class PythonEstimator(LeafSystem):
         self._readers = {
             m.name: row_reader(self.DeclareVectorInputPort(m.port, n * m.width), n) for m in self.measurements
         }
+        self._no_aid_stamp = discrete_group(self, np.full(n, NO_SAMPLE_STAMP))
         self.DeclarePeriodicUnrestrictedUpdateEvent(ONBOARD_PERIOD, EKF_OFFSET, self._update)
 
     @staticmethod
@@ -92,6 +94,19 @@ class PythonEstimator(LeafSystem):
             return
         custom.call(estimator, f"update_{sensor}", *sample)
 
+    @staticmethod
+    def _fuse_no_aid(estimator, sample, diagnostics):
+        """One fresh no-aiding sample (``estimation/custom.py``): ``update_no_aid(position,
+        velocity, std)`` where the estimator has it (std (6,): m, m/s; inf = not fused), else
+        ``update_gps(position, velocity)`` with its own GPS noise; a non-finite one counted."""
+        position, velocity, std = sample[0:3].copy(), sample[3:6].copy(), sample[6:12].copy()
+        if not (math.isfinite(sample[-1]) and np.isfinite(sample[0:6]).all()):
+            diagnostics[DIAG["nonfinite_samples"]] += 1
+        elif hasattr(estimator, "update_no_aid"):
+            custom.call(estimator, "update_no_aid", position, velocity, std)
+        else:
+            custom.call(estimator, "update_gps", position, velocity)
+
     def _update(self, context, state):
         estimators = state.get_mutable_abstract_state(self._objects).get_mutable_value()
         discrete = state.get_mutable_discrete_state()
@@ -102,6 +117,8 @@ class PythonEstimator(LeafSystem):
         imu = self._read_imu(context)
         mag = self._readers["yaw"](context) if "yaw" in self._readers else None
         gps = self._readers["gps"](context) if "gps" in self._readers else None
+        no_aid = self._readers["no_aid"](context) if "no_aid" in self._readers else None
+        no_aid_stamps = discrete.get_mutable_value(self._no_aid_stamp)
         for i, estimator in enumerate(estimators):
             rows = (
                 imu[i],
@@ -113,15 +130,18 @@ class PythonEstimator(LeafSystem):
                 last_imu[i],
             )
             try:
-                self._step(estimator, *rows)
+                self._step(estimator, *rows, None if no_aid is None else no_aid[i], no_aid_stamps[i : i + 1])
             except custom.EstimatorProblem as e:
                 raise custom.in_flight(
                     e, self._vehicle, self._config.factory, i, context.get_time()
                 ) from None
 
-    def _step(self, estimator, imu, gps, mag, estimate, covariance, diagnostics, last_imu):
-        """One tick of one estimator; its rows of the inputs (gps, mag: None where the vehicle
-        carries no such sensor), and of the state, updated in place."""
+    def _step(
+        self, estimator, imu, gps, mag, estimate, covariance, diagnostics, last_imu, no_aid, no_aid_seen
+    ):
+        """One tick of one estimator; its rows of the inputs (gps, mag, no_aid: None where the
+        vehicle carries no such sensor), and of the state (no_aid_seen (1,): the last no-aiding
+        stamp), updated in place."""
         body_rate = imu[3:6]
         if np.isfinite(imu).all():
             last_imu[:] = imu
@@ -134,6 +154,9 @@ class PythonEstimator(LeafSystem):
         if gps is not None and gps[6] > diagnostics[DIAG["gps_stamp"]] + gating.STAMP_TOLERANCE:
             sample = (gps[0:3].copy(), gps[3:6].copy())
             self._fuse(estimator, "gps", sample, gps[6], diagnostics, self._gps_threshold)
+        if no_aid is not None and no_aid[-1] != no_aid_seen[0]:
+            no_aid_seen[0] = no_aid[-1]
+            self._fuse_no_aid(estimator, no_aid, diagnostics)
         self._write_estimate(estimate, custom.read_estimate(estimator), body_rate)
         covariance[:] = custom.read_covariance(estimator, self._k)
 

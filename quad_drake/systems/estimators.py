@@ -239,6 +239,7 @@ class Ekf(LeafSystem):
             "baro": lambda m: _baro_update(
                 m, correct, params, each, fidelity, lambda p: p.gps_pos_z_std, sensors, each_sensors
             ),
+            "no_aid": lambda m: updates.NoAidUpdate(m, correct),
         }  # fmt: skip
         self._read_imu = row_reader(self.DeclareVectorInputPort("imu", n * IMU_SIZE), n)
         self._read_attitude = row_reader(self.DeclareVectorInputPort("attitude", n * ATTITUDE_SIZE), n)
@@ -363,6 +364,9 @@ class Eskf(LeafSystem):
         from quad_drake.kernels import eskf as eskf_kernel
 
         self._predict_tick, self._write_estimate = eskf_kernel.predict_tick, eskf.write_estimate
+        self._uncorrelate_accel_bias = eskf.uncorrelate_unobservable_accel_bias
+        self._manoeuvre_levels = eskf.manoeuvre_levels
+        self._bias_learning_tilt = params.accel_bias_learning_tilt if params.estimate_biases else 0.0
         correct = eskf_kernel.correct
         builders = {
             "yaw": lambda m: updates.YawUpdate(
@@ -379,6 +383,7 @@ class Eskf(LeafSystem):
                 m, correct, params, each, fidelity, lambda p: p.gps_pos_std[2], sensors, each_sensors,
                 bias_in_state=True,
             ),
+            "no_aid": lambda m: updates.NoAidUpdate(m, correct),
         }  # fmt: skip
         self._n = n
         self._read_imu = row_reader(self.DeclareVectorInputPort("imu", n * IMU_SIZE), n)
@@ -416,6 +421,8 @@ class Eskf(LeafSystem):
             declare_block_output(self, "covariance", groups.P, n, P0.shape[0], k)
         declare_state_output(self, "diagnostics", groups.diagnostics, n * DIAGNOSTICS_SIZE)
         self._bias = discrete_group(self, n * 6, "imu_bias")
+        if self._bias_learning_tilt > 0.0:  # the peak-held |w_B|, |f_B| (eskf.manoeuvre_levels)
+            self._manoeuvre = discrete_group(self, n * 2)
         if gsf is not None:
             declare_state_output(self, "gsf", gsf.log, n * gsf_log_size(params.gsf.models))
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, EKF_OFFSET, self._update)
@@ -431,6 +438,10 @@ class Eskf(LeafSystem):
         estimate = discrete_state.get_mutable_value(self._estimate).reshape(self._n, STATE_SIZE)
         imu = self._read_imu(context)
         healthy = self._predict_tick(filters, imu, estimate, self._model)
+        if self._bias_learning_tilt > 0.0:  # PX4's accelerometer-bias inhibition
+            levels = discrete_state.get_mutable_value(self._manoeuvre).reshape(self._n, 2)
+            self._manoeuvre_levels(levels, imu, ONBOARD_PERIOD)
+            self._uncorrelate_accel_bias(filters.x, filters.P, self._bias_learning_tilt, levels)
         samples = seam.read(context)
         samples["imu"] = imu
         seam.fuse(context, discrete_state, filters, samples, healthy)

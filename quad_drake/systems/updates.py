@@ -231,6 +231,46 @@ class BaroUpdate(CorrectionUpdate):
         self._apply(filters)
 
 
+class NoAidUpdate(CorrectionUpdate):
+    """A replay's no-aiding sample (PX4's fake position and zero velocity while not GPS-aided,
+    ``flightlogs.schedule.no_aid_samples``): p_N (m) and v_N (m/s) with a std of their own per
+    component (inf: that component not fused), the Joseph update of the components it carries
+    (``fusion.joseph_rows``, H = those rows of [I6 0], R = diag(std²)), ungated as PX4's; the
+    correction applied by the estimator's ``correct``. No NIS of its own; a book of its own
+    (discrete-state group, the last stamp per vehicle). A non-finite sample is counted and skipped."""
+
+    def __init__(self, measurement, correct):
+        super().__init__(measurement, correct)
+        self._book = None
+
+    def declare(self, system, n, k) -> None:
+        super().declare(system, n, k)
+        self._book = discrete_group(system, np.full(n, NO_SAMPLE_STAMP))
+
+    def fuse(self, context, discrete_state, filters, samples) -> None:
+        samples_now = samples[self.measurement.port]
+        seen = discrete_state.get_mutable_value(self._book)
+        stamps = samples_now[:, -1]
+        fresh = fusion.fresh(stamps, seen)
+        if not fresh.any():
+            return
+        seen[fresh] = stamps[fresh]
+        rows = np.flatnonzero(fresh)
+        z, std = samples_now[rows, 0:6], samples_now[rows, 6:12]
+        mask = np.isfinite(std) & (std > 0.0)
+        finite = np.isfinite(stamps[rows]) & np.isfinite(np.where(mask, z, 0.0)).all(axis=1)
+        filters.diagnostics[rows[~finite], DIAG["nonfinite_samples"]] += 1.0
+        rows, z, std, mask = rows[finite], z[finite], std[finite], mask[finite]
+        if len(rows) == 0:
+            return
+        R = np.zeros((len(rows), 6, 6))
+        R[:, range(6), range(6)] = np.where(mask, std, 1.0) ** 2
+        x, P = filters.x[rows], filters.P[rows]
+        dx, P_new, _, fused, _ = fusion.joseph_rows(x, P, z, R, mask)
+        self._correct(x, P_new, dx, fused)
+        filters.x[rows], filters.P[rows] = x, P_new
+
+
 class GsfUpdate(Update):
     """The EKF-GSF yaw estimator beside the ESKF (``estimation/gsf.py``, ``kernels/gsf.py``): not
     a sensor of its own, it reads the tick's GPS (``samples["gps"]``, the GPS update's port) and
