@@ -43,9 +43,9 @@ lint: $(VENV)/.installed-test
 	$(BIN)/python -m ruff check .
 	$(BIN)/python -m ruff format --check .
 
-# With workers, numba's kernels are compiled once first (`quad-drake warmup`, about 6 s of CPU
-# when they are already in the cache): on an empty cache each worker would compile every kernel
-# it is the first to use, twice the compiling.
+# With workers, numba's kernels are compiled once first (`quad-drake warmup`; about 2 s of CPU
+# when an earlier warm-up's stamp says the kernels' sources are unchanged): on an empty cache each
+# worker would compile every kernel it is the first to use, twice the compiling.
 test: lint
 	$(if $(filter 0,$(TEST_JOBS)),,$(BIN)/quad-drake warmup >/dev/null && )$(BIN)/python -m pytest -n $(TEST_JOBS)
 

@@ -615,7 +615,7 @@ def cmd_warmup(args) -> int:
     """Compile every numba kernel into the on-disk cache (``quad_drake.warmup``)."""
     from .campaigns.warmup import warm_up_command
 
-    return warm_up_command()
+    return warm_up_command(force=args.force)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -726,11 +726,15 @@ def build_parser() -> argparse.ArgumentParser:
     export.add_argument("run_dir", metavar="RUN_DIR")
     export.add_argument("--out", help="folder for the CSV files (default: RUN_DIR/csv)")
     export.set_defaults(func=cmd_export)
-    sub.add_parser(
+    warmup = sub.add_parser(
         "warmup",
         help="compile every numba kernel into the on-disk cache now (a minute or two, once per install), "
         "so that no later run, campaign or fleet pauses to compile",
-    ).set_defaults(func=cmd_warmup)
+    )
+    warmup.add_argument(
+        "--force", action="store_true", help="fly the warm-up even where an earlier one's stamp is current"
+    )
+    warmup.set_defaults(func=cmd_warmup)
     return parser
 
 

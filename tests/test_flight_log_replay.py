@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 
 from quad_drake.flightlogs import replay as replay_module
-from quad_drake.flightlogs.replay import COMPARE_AFTER, replay
+from quad_drake.flightlogs.replay import COMPARE_AFTER, replay, replay_many
 from quad_drake.flightlogs.settings import LOG_DIR, load_replay
 
 LOGS = ("real_auav_x21_attitude_flight", "sitl_takeoff_land_gps")
@@ -41,8 +41,15 @@ ROWS = {  # (log, kind): {state: RMS bound}, module docstring; measured in docs/
 
 @pytest.fixture(scope="module")
 def replays():
-    """{(log, kind): ReplayResult} of both bundled logs on both estimators."""
-    return {(log, kind): replay(load_replay(log, f"{{kind: {kind}}}")) for log in LOGS for kind in KINDS}
+    """{(log, kind): ReplayResult} of both bundled logs on both estimators: a kind's two logs in one
+    Diagram (``replay_many``: each result equals its log's replay alone bit for bit,
+    tests/test_replay_many.py)."""
+    results = {}
+    for kind in KINDS:
+        together = replay_many([load_replay(log, f"{{kind: {kind}}}") for log in LOGS])
+        assert all(r.logs_in_diagram == len(LOGS) for r in together), together
+        results.update({(log, kind): result for log, result in zip(LOGS, together, strict=True)})
+    return results
 
 
 def _by_state(differences):

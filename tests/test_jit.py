@@ -201,6 +201,7 @@ def test_a_compile_is_not_announced_on_a_log(monkeypatch):
 
 KERNEL_SIGNATURES = """
 import gc, json, sys
+from pathlib import Path
 from numba.core.dispatcher import Dispatcher
 
 def kernel_signatures():
@@ -218,7 +219,11 @@ WARMUP = (
     KERNEL_SIGNATURES
     + """
 from quad_drake.campaigns.warmup import warm_up_command
-assert warm_up_command() == 0
+assert warm_up_command(force=True) == 0  # flies even where an earlier warm-up left its stamp
+from quad_drake.campaigns.warmup import STAMP_NAME, stamp_is_current
+from quad_drake.kernels import jit
+stamp = json.loads((Path(jit.cache_stamp_dir()) / STAMP_NAME).read_text())
+print("stamp", stamp_is_current(Path(jit.cache_stamp_dir()) / STAMP_NAME), len(stamp["sources"]))
 print(json.dumps(kernel_signatures()))
 """
 )
@@ -262,8 +267,46 @@ def test_after_quad_drake_warmup_no_flight_compiles(tmp_path):
         processes.append(done.stdout.strip().splitlines())
     warm, later = processes
     assert "every kernel a flight uses is in the cache" in "\n".join(warm)
+    stamp_line = warm[-2].split()  # the warm-up's stamp: current, naming the kernels' source files
+    assert stamp_line[:2] == ["stamp", "True"] and int(stamp_line[2]) > 10, warm[-2]
     assert later[-2] == "compiled 0.000 s", later
     warmed, flown = json.loads(warm[-1]), json.loads(later[-1])
     assert len(flown) > 20, flown  # every flight calls kernels: the census sees them
     missing = {name: sorted(set(types) - set(warmed.get(name, ()))) for name, types in flown.items()}
     assert not {name: types for name, types in missing.items() if types}, missing
+
+
+def test_a_current_warm_up_stamp_flies_nothing_and_a_changed_kernel_source_flies_again(
+    tmp_path, monkeypatch, capsys
+):
+    from quad_drake.campaigns import warmup
+
+    kernel = tmp_path / "kernel.py"
+    kernel.write_text("def f(x):\n    return x\n")
+    monkeypatch.setattr(jit, "cache_stamp_dir", lambda: str(tmp_path))
+    stamp = tmp_path / warmup.STAMP_NAME
+    stamp.write_text(json.dumps(warmup.cache_stamp([str(kernel)])))
+    assert warmup.stamp_is_current(stamp)
+
+    def no_flight(*args, **kwargs):
+        raise AssertionError("a current stamp flies nothing")
+
+    monkeypatch.setattr(warmup.catalog, "load", no_flight)
+    assert warmup.warm_up_command() == 0
+    assert "nothing to fly" in capsys.readouterr().out
+    with pytest.raises(AssertionError, match="flies nothing"):  # --force flies
+        warmup.warm_up_command(force=True)
+
+    for other in ({"numba": "0.1"}, {"python": "2.7"}, {"package": "/elsewhere"}, {"sources": {}}):
+        stamp.write_text(json.dumps({**warmup.cache_stamp([str(kernel)]), **other}))
+        assert not warmup.stamp_is_current(stamp)
+    stamp.write_text(json.dumps(warmup.cache_stamp([str(kernel)])))
+    kernel.write_text("def f(x):\n    return 2 * x\n")  # numba compiles it again: the warm-up flies again
+    assert not warmup.stamp_is_current(stamp)
+    kernel.unlink()
+    assert not warmup.stamp_is_current(stamp)
+    for saved in ({"numba": numba.__version__}, "not a stamp", [1]):
+        stamp.write_text(json.dumps(saved))
+        assert not warmup.stamp_is_current(stamp)
+    stamp.write_text("{")
+    assert not warmup.stamp_is_current(stamp)

@@ -76,31 +76,15 @@ def level_log(path, seconds=2.0):
     return path
 
 
-@pytest.mark.slow
-def test_replay_smooth_adds_the_smoothed_logs_and_refuses_another_kind(tmp_path):
-    import subprocess
-    import sys
-
-    log = str(level_log(tmp_path / "level.csv"))
-
-    def cli(*args):
-        command = [
-            sys.executable,
-            "-m",
-            "quad_drake.cli",
-            "replay",
-            log,
-            "--no-plots",
-            "--out",
-            str(tmp_path),
-            *args,
-        ]
-        return subprocess.run(command, capture_output=True, text=True, timeout=600)
-
-    refused = cli("--smooth")
+def test_replay_smooth_adds_the_smoothed_logs_and_refuses_another_kind(tmp_path, quad_drake_cli):
+    # In this process (the console script's main(); a new interpreter per call cost about 2 s of
+    # CPU): a traceback or another exit code fails it as it fails the command.
+    log = level_log(tmp_path / "level.csv")
+    command = ("replay", log, "--no-plots", "--out", tmp_path)
+    refused = quad_drake_cli(*command, "--smooth")
     assert refused.returncode == 2 and "Traceback" not in refused.stderr
     assert "the smoother runs over the ESKF only, not kind ekf7" in refused.stderr
-    done = cli("--estimator", "{kind: eskf}", "--smooth")
+    done = quad_drake_cli(*command, "--estimator", "{kind: eskf}", "--smooth")
     assert done.returncode == 0, done.stderr
     (folder,) = [p for p in tmp_path.iterdir() if p.is_dir()]
     logs = np.load(folder / "logs.npz")

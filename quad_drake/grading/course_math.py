@@ -15,21 +15,19 @@ def quaternion_from_euler(roll, pitch, yaw) -> np.ndarray:
     cr, sr = np.cos(0.5 * roll), np.sin(0.5 * roll)
     cp, sp = np.cos(0.5 * pitch), np.sin(0.5 * pitch)
     cy, sy = np.cos(0.5 * yaw), np.sin(0.5 * yaw)
-    return np.stack(
-        [
-            cr * cp * cy + sr * sp * sy,
-            sr * cp * cy - cr * sp * sy,
-            cr * sp * cy + sr * cp * sy,
-            cr * cp * sy - sr * sp * cy,
-        ],
-        axis=-1,
-    )
+    q = np.empty(np.shape(cr * cp * cy) + (4,))
+    q[..., 0] = cr * cp * cy + sr * sp * sy
+    q[..., 1] = sr * cp * cy - cr * sp * sy
+    q[..., 2] = cr * sp * cy + sr * cp * sy
+    q[..., 3] = cr * cp * sy - sr * sp * cy
+    return q
 
 
 def euler_from_quaternion(q) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(roll, pitch, yaw), each (...) rad, of (..., 4) wxyz quaternions (``Roll() Pitch() Yaw()``,
     SPEC §0.1)."""
-    w, x, y, z = np.moveaxis(np.asarray(q, dtype=float), -1, 0)
+    q = np.asarray(q, dtype=float)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     roll = np.arctan2(2 * (y * z + w * x), w * w - x * x - y * y + z * z)
     pitch = np.arcsin(np.clip(-2 * (x * z - w * y), -1.0, 1.0))
     yaw = np.arctan2(2 * (x * y + w * z), w * w + x * x - y * y - z * z)
@@ -43,19 +41,16 @@ def integrate_body_rate(q, gyro, dt) -> np.ndarray:
     angle = np.linalg.norm(rotation, axis=-1)
     half = 0.5 * angle
     scale = np.where(angle > 1e-12, np.sin(half) / np.where(angle > 1e-12, angle, 1.0), 0.5)
-    dq = np.concatenate([np.cos(half)[..., None], rotation * scale[..., None]], axis=-1)
-    w1, x1, y1, z1 = np.moveaxis(np.asarray(q, dtype=float), -1, 0)
-    w2, x2, y2, z2 = np.moveaxis(dq, -1, 0)
-    out = np.stack(
-        [
-            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
-        ],
-        axis=-1,
-    )
-    return out / np.linalg.norm(out, axis=-1, keepdims=True)
+    q = np.asarray(q, dtype=float)
+    w1, x1, y1, z1 = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    w2 = np.cos(half)
+    x2, y2, z2 = (rotation[..., i] * scale for i in range(3))
+    out = np.empty(np.broadcast_shapes(q.shape, rotation.shape[:-1] + (4,)))
+    out[..., 0] = w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2
+    out[..., 1] = w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2
+    out[..., 2] = w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2
+    out[..., 3] = w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2
+    return out / np.sqrt(np.sum(out * out, axis=-1, keepdims=True))
 
 
 def rotation_matrix(roll, pitch, yaw) -> np.ndarray:
@@ -63,17 +58,16 @@ def rotation_matrix(roll, pitch, yaw) -> np.ndarray:
     cr, sr = np.cos(roll), np.sin(roll)
     cp, sp = np.cos(pitch), np.sin(pitch)
     cy, sy = np.cos(yaw), np.sin(yaw)
-    rows = [
-        [cp * cy, sr * sp * cy - cr * sy, cr * sp * cy + sr * sy],
-        [cp * sy, sr * sp * sy + cr * cy, cr * sp * sy - sr * cy],
-        [-sp, sr * cp, cr * cp],
-    ]
-    return np.stack([np.stack(row, axis=-1) for row in rows], axis=-2)
+    R = np.empty(np.shape(cr * cp * cy) + (3, 3))
+    R[..., 0, 0], R[..., 0, 1], R[..., 0, 2] = cp * cy, sr * sp * cy - cr * sy, cr * sp * cy + sr * sy
+    R[..., 1, 0], R[..., 1, 1], R[..., 1, 2] = cp * sy, sr * sp * sy + cr * cy, cr * sp * sy - sr * cy
+    R[..., 2, 0], R[..., 2, 1], R[..., 2, 2] = -sp, sr * cp, cr * cp
+    return R
 
 
 def rotate(matrices, vectors) -> np.ndarray:
     """(..., 3) M v of (..., 3, 3) matrices and (..., 3) vectors."""
-    return np.einsum("...ij,...j->...i", matrices, vectors)
+    return (np.asarray(matrices) @ np.asarray(vectors)[..., None])[..., 0]
 
 
 def update(ekf_state, ekf_cov, z, H, R, z_from_x) -> tuple[np.ndarray, np.ndarray]:

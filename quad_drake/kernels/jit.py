@@ -97,6 +97,26 @@ def private_directory(path) -> bool:
     return stat.S_ISDIR(status.st_mode) and owned and not status.st_mode & (stat.S_IWGRP | stat.S_IWOTH)
 
 
+KERNEL_SOURCES: set[str] = set()
+"""The source files of every function :func:`njit_cached` has compiled in this process: the files
+numba keys its cache by (it compiles a kernel again when its file changes)."""
+
+
+def cache_stamp_dir() -> str | None:
+    """Where a note about this process's kernel cache may be kept beside numba's own files:
+    ``$NUMBA_CACHE_DIR`` (or the fallback) when numba caches there, else the package's
+    ``kernels/__pycache__`` when it can be written; None where neither is known."""
+    if numba.config.CACHE_DIR:
+        return numba.config.CACHE_DIR
+    folder = os.path.join(os.path.dirname(os.path.abspath(__file__)), "__pycache__")
+    return folder if os.path.isdir(folder) and os.access(folder, os.W_OK) else None
+
+
+def uncached() -> bool:
+    """True when a kernel of this process could not be cached (:func:`njit_cached` warned)."""
+    return _warned
+
+
 def njit_cached(function) -> Callable:
     """``numba.njit(cache=True)(function)``, cached under :func:`fallback_cache_dir` where numba
     can write none of its own cache directories, and uncached (one warning per process) where
@@ -104,6 +124,7 @@ def njit_cached(function) -> Callable:
     whether a cache can be written (it raises RuntimeError at decoration when it cannot);
     compiling stays lazy (on first call)."""
     global _warned
+    KERNEL_SOURCES.add(os.path.abspath(function.__code__.co_filename))
     try:
         return numba.njit(cache=True)(function)
     except RuntimeError:
