@@ -331,3 +331,22 @@ def test_a_px4_position_far_from_the_gps_is_not_compared_and_said(tmp_path, sitl
     np.testing.assert_allclose(log.reference_position.values[kept], sitl_log.reference_position.values[kept])
     (warning,) = [w for w in log_warnings(log) if "from the GPS" in w]
     assert f"{log.gps_mismatches} of PX4's {len(log.reference_position)} positions" in warning
+
+
+def _gps_first_half_then_away(ulog):
+    # The GPS logged over the first half only; PX4 then 500 m north of where the GPS left it.
+    data = ulog.get_dataset("vehicle_gps_position").data
+    half = len(data["timestamp"]) // 2
+    for name in data:
+        data[name] = data[name][:half]
+    position = ulog.get_dataset("vehicle_local_position").data
+    position["x"][position["timestamp"] > data["timestamp"][-1] + 1_000_000] += 500.0
+
+
+def test_px4_positions_after_the_last_gps_sample_are_not_judged_against_it(tmp_path):
+    # PX4 flies on after the log's last GPS sample (a VTOL's 1174 s log with 6.5 s of GPS): the
+    # GPS track says nothing there, so nothing is taken for an edited origin.
+    log = read_flight_log(_edited_ulog(tmp_path, _gps_first_half_then_away))
+    after = log.reference_position.times > log.gps.times[-1] + 5.0
+    assert log.gps_mismatches == 0
+    assert np.isfinite(log.reference_position.values[after, 0]).sum() > 100

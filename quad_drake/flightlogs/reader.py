@@ -41,8 +41,9 @@ What is read from a PX4 ULog (``pyulog``, PX4's own reader):
   with GPS and PX4's global origin (``xy_global``). The height is moved by PX4's ``ref_alt``
   where it has a global one (``z_global``), else by PX4's own height at the replay's origin
   time (the first fix, or t = 0 without GPS: our estimate's z = 0 there), so a height PX4 marks
-  valid is compared whether or not PX4 had a global origin. A sample that puts PX4's horizontal
-  position more than GPS_MISMATCH from the GPS at that time (an origin edited in the file, e.g.
+  valid is compared whether or not PX4 had a global origin. A sample (valid, global, within the
+  GPS samples' time span) that puts PX4's horizontal position more than GPS_MISMATCH from the
+  GPS at that time (an origin edited in the file, e.g.
   a location scrubbed in some topics and not in others, or a corrupted sample) is no position in
   the GPS's frame: its x, y, z are NaN; ``gps_mismatches`` counts them.
 - the magnetic declination (rad, east of true north): PX4's parameter ``EKF2_MAG_DECL`` or
@@ -542,7 +543,9 @@ def _ulog_local_position(path, topics, origin, anchor, gps):
     if known.any() and gps is not None:
         track = np.column_stack([np.interp(times, gps.times, gps.values[:, i]) for i in (0, 1)])
         distance = np.linalg.norm(values[:, 0:2] + offsets[:, 0:2] - track, axis=1)
-        mismatched = known & ~(distance <= GPS_MISMATCH)
+        horizontal = (_field(path, topic, data, "xy_valid") > 0) & xy_global
+        during_gps = (times >= gps.times[0]) & (times <= gps.times[-1])
+        mismatched = known & horizontal & during_gps & ~(distance <= GPS_MISMATCH)
         known &= ~mismatched
         offsets[mismatched] = np.nan
     z_valid = _field(path, topic, data, "z_valid") > 0
