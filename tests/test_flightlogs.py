@@ -307,3 +307,48 @@ def test_the_nis_of_a_consistent_filter_is_in_its_band():
     assert summary.single_share == pytest.approx(0.95, abs=0.01)
     diagnostics[:, 0] *= 3.0  # innovations larger than the filter predicts
     assert not comparison.nis_summary(diagnostics, "gps").in_band
+
+
+def _scrub_every_other_origin(ulog):
+    # A location scrubbed in some topics' samples and not in others (a public log's edit): PX4's
+    # origin 10 degrees north in every other vehicle_local_position sample, the GPS untouched.
+    ulog.get_dataset("vehicle_local_position").data["ref_lat"][::2] += 10.0
+
+
+def test_a_px4_position_far_from_the_gps_is_not_compared_and_said(tmp_path, sitl_log):
+    from quad_drake.flightlogs.checks import log_warnings
+
+    assert sitl_log.gps_mismatches == 0
+    log = read_flight_log(_edited_ulog(tmp_path, _scrub_every_other_origin))
+    edited = np.zeros(len(log.reference_position), dtype=bool)
+    edited[::2] = True  # the first sample is at the log's start, as in sitl_log (same topic, same cut)
+    honest = np.isfinite(sitl_log.reference_position.values[:, 0])
+    assert log.gps_mismatches == (honest & edited).sum() > 100
+    for axis in (0, 2):
+        np.testing.assert_array_equal(
+            np.isfinite(log.reference_position.values[:, axis]),
+            np.isfinite(sitl_log.reference_position.values[:, axis]) & ~(honest & edited),
+        )
+    kept = honest & ~edited
+    np.testing.assert_allclose(log.reference_position.values[kept], sitl_log.reference_position.values[kept])
+    (warning,) = [w for w in log_warnings(log) if "from the GPS" in w]
+    assert f"{log.gps_mismatches} of PX4's {len(log.reference_position)} positions" in warning
+
+
+def _gps_first_half_then_away(ulog):
+    # The GPS logged over the first half only; PX4 then 500 m north of where the GPS left it.
+    data = ulog.get_dataset("vehicle_gps_position").data
+    half = len(data["timestamp"]) // 2
+    for name in data:
+        data[name] = data[name][:half]
+    position = ulog.get_dataset("vehicle_local_position").data
+    position["x"][position["timestamp"] > data["timestamp"][-1] + 1_000_000] += 500.0
+
+
+def test_px4_positions_after_the_last_gps_sample_are_not_judged_against_it(tmp_path):
+    # PX4 flies on after the log's last GPS sample (a VTOL's 1174 s log with 6.5 s of GPS): the
+    # GPS track says nothing there, so nothing is taken for an edited origin.
+    log = read_flight_log(_edited_ulog(tmp_path, _gps_first_half_then_away))
+    after = log.reference_position.times > log.gps.times[-1] + 5.0
+    assert log.gps_mismatches == 0
+    assert np.isfinite(log.reference_position.values[after, 0]).sum() > 100

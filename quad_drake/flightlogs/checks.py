@@ -9,12 +9,14 @@ and returns one line per weakness where it still can:
 - an IMU slower than PX4_IMU_RATE (EKF2's own prediction rate) or with gaps longer than IMU_GAP:
   a warning with the rate or the gaps;
 - a file that ends mid-message (``FlightLog.truncated``): a warning with how much was replayed;
-- a log that leaves less than SHORT_COMPARISON s to compare: a warning.
+- a log that leaves less than SHORT_COMPARISON s to compare: a warning;
+- PX4 positions far from the GPS (``FlightLog.gps_mismatches``: an edited origin or a corrupted
+  sample): a warning that they are not compared.
 """
 
 import numpy as np
 
-from quad_drake.flightlogs.reader import FlightLogError
+from quad_drake.flightlogs.reader import GPS_MISMATCH, FlightLogError
 
 MIN_IMU_RATE = 50.0
 """Hz: below it a replay cannot follow a multirotor's attitude (exit 2)."""
@@ -62,4 +64,10 @@ def log_warnings(log, compare_after=0.0) -> list[str]:
         )
     if log.truncated:
         warnings.append(f"The file ends mid-message (cut short): replayed its first {log.duration:.1f} s.")
+    if log.gps_mismatches:
+        warnings.append(
+            f"warning: {log.gps_mismatches} of PX4's {len(log.reference_position)} positions lie more than "
+            f"{GPS_MISMATCH:g} m from the GPS through PX4's own origin (ref_lat, ref_lon): an origin edited "
+            "in the file (a scrubbed location?) or corrupted samples; their x, y and z are not compared."
+        )
     return warnings

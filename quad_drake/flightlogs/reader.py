@@ -41,7 +41,11 @@ What is read from a PX4 ULog (``pyulog``, PX4's own reader):
   with GPS and PX4's global origin (``xy_global``). The height is moved by PX4's ``ref_alt``
   where it has a global one (``z_global``), else by PX4's own height at the replay's origin
   time (the first fix, or t = 0 without GPS: our estimate's z = 0 there), so a height PX4 marks
-  valid is compared whether or not PX4 had a global origin.
+  valid is compared whether or not PX4 had a global origin. A sample (valid, global, within the
+  GPS samples' time span) that puts PX4's horizontal position more than GPS_MISMATCH from the
+  GPS at that time (an origin edited in the file, e.g.
+  a location scrubbed in some topics and not in others, or a corrupted sample) is no position in
+  the GPS's frame: its x, y, z are NaN; ``gps_mismatches`` counts them.
 - the magnetic declination (rad, east of true north): PX4's parameter ``EKF2_MAG_DECL`` or
   ``ATT_MAG_DECL`` (degrees), None when the log has neither (``flightlogs.earth_field`` then
   takes it from the World Magnetic Model at the first fix).
@@ -113,7 +117,8 @@ class FlightLog:
     when the log does not say. start_time: the first IMU sample's time in the log's own clock
     (s), t = 0 here. parameters: the flight controller's parameters by name ({} for a CSV).
     fix_date: decimal year (UTC) of the first GPS fix, or None. truncated: the file ends
-    mid-message. truth_attitude: the simulator's q_NB (4, wxyz), truth_position: its p_N (3, m,
+    mid-message. gps_mismatches: PX4 positions farther than GPS_MISMATCH from the GPS (module
+    docstring), not compared. truth_attitude: the simulator's q_NB (4, wxyz), truth_position: its p_N (3, m,
     GPS origin's frame; NaN without GPS) and v_N (3, m/s), or None (a real flight). heading: a
     yaw magnetometer's samples (1, rad) as an estimator received them (a CSV's ``heading`` rows,
     e.g. a simulated run's), or None. mag_source: where mag_field came from, when not from a
@@ -133,6 +138,7 @@ class FlightLog:
     parameters: dict = field(default_factory=dict)
     fix_date: float | None = None
     truncated: bool = False
+    gps_mismatches: int = 0
     truth_attitude: Samples | None = None
     truth_position: Samples | None = None
     heading: Samples | None = None
@@ -194,6 +200,9 @@ ULOG_TOPICS = (
     "vehicle_global_position_groundtruth",
 )
 US = 1e-6
+GPS_MISMATCH = 100.0
+"""m: PX4's horizontal position, moved into the GPS frame by PX4's origin, this far from the GPS
+at the same time is not in the GPS's frame (a healthy PX4 estimate stays metres from its GPS)."""
 """s per microsecond (ULog timestamps)."""
 
 
@@ -291,6 +300,7 @@ def read_ulog(path) -> FlightLog:
     declination = parameters.get("EKF2_MAG_DECL", parameters.get("ATT_MAG_DECL"))
     anchor = float(gps.times[0]) if gps is not None else start
     mag_field, mag_source = _ulog_mag(path, topics, raw_mags, parameters, ulog.msg_info_dict)
+    reference_position, gps_mismatches = _ulog_local_position(path, topics, origin, anchor, gps)
     return FlightLog(
         source=str(path),
         imu=_after_start(imu, start, US),
@@ -298,13 +308,14 @@ def read_ulog(path) -> FlightLog:
         mag_field=_optional(mag_field, start, US),
         baro=_optional(_ulog_baro(path, topics), start, US),
         reference_attitude=_optional(_ulog_attitude(path, topics), start, US),
-        reference_position=_optional(_ulog_local_position(path, topics, origin, anchor), start, US),
+        reference_position=_optional(reference_position, start, US),
         origin=origin,
         mag_declination=None if declination is None else math.radians(float(declination)),
         start_time=start * US,
         parameters=parameters,
         fix_date=_fix_date(topics),
         truncated=ends_mid_message(path),
+        gps_mismatches=gps_mismatches,
         truth_attitude=_optional(_ulog_truth_attitude(path, topics), start, US),
         truth_position=_optional(_ulog_truth_position(path, topics, origin, anchor), start, US),
         mag_source=mag_source,
@@ -509,13 +520,14 @@ def _ulog_attitude(path, topics):
     return _ulog_samples(path, "vehicle_attitude", data, _sample_times(data), fields)
 
 
-def _ulog_local_position(path, topics, origin, anchor):
-    """PX4's position and velocity in the replay's origin frame, NaN where invalid (module
-    docstring), or None without ``vehicle_local_position``. anchor: µs, the replay's origin time
-    (the first fix, else the first IMU sample)."""
+def _ulog_local_position(path, topics, origin, anchor, gps):
+    """(PX4's position and velocity in the replay's origin frame, NaN where invalid (module
+    docstring), or None without ``vehicle_local_position``; the number of samples far from
+    the GPS). anchor: µs, the replay's origin time (the first fix, else the first
+    IMU sample). gps: the GPS Samples (µs, NED m from `origin`), or None."""
     topic = "vehicle_local_position"
     if topic not in topics:
-        return None
+        return None, 0
     data = topics[topic]
     times = np.asarray(_sample_times(data), dtype=float)
     _checked(f"{path}: {topic}", times, np.zeros((len(times), 1)), "µs")  # time only: NaN marks invalid
@@ -527,6 +539,15 @@ def _ulog_local_position(path, topics, origin, anchor):
     offsets = np.full((len(times), 3), np.nan)
     if known.any():
         offsets[known] = _to_local(reference[known, 0], reference[known, 1], reference[known, 2], origin)
+    mismatched = np.zeros(len(times), dtype=bool)
+    if known.any() and gps is not None:
+        track = np.column_stack([np.interp(times, gps.times, gps.values[:, i]) for i in (0, 1)])
+        distance = np.linalg.norm(values[:, 0:2] + offsets[:, 0:2] - track, axis=1)
+        horizontal = (_field(path, topic, data, "xy_valid") > 0) & xy_global
+        during_gps = (times >= gps.times[0]) & (times <= gps.times[-1])
+        mismatched = known & horizontal & during_gps & ~(distance <= GPS_MISMATCH)
+        known &= ~mismatched
+        offsets[mismatched] = np.nan
     z_valid = _field(path, topic, data, "z_valid") > 0
     z = values[:, 2].copy()
     values[:, 0:3] += offsets
@@ -540,7 +561,8 @@ def _ulog_local_position(path, topics, origin, anchor):
         ([5], _field(path, topic, data, "v_z_valid") > 0),
     ):
         values[np.ix_(~flag, columns)] = np.nan
-    return Samples(times, values)
+    values[mismatched, 0:3] = np.nan
+    return Samples(times, values), int(mismatched.sum())
 
 
 # ----- CSV -------------------------------------------------------------------------------------
