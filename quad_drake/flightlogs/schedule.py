@@ -216,16 +216,18 @@ class NoAidNoise:
     height_std: float = math.inf
 
 
-def no_aid_samples(imu, times, noise) -> Samples:
+def no_aid_samples(imu, times, noise, position=(0.0, 0.0, 0.0)) -> Samples:
     """No-aiding Samples (m, 12: p_N m, v_N m/s, then the std of each of the six, inf = not
-    fused) at `times` (s), PX4 EKF2's while it has no position aiding: a fake position at the
-    origin (horizontal, and the height at noise.height_std) every sample, with noise.position_std
+    fused) at `times` (s), PX4 EKF2's while it has no position aiding: a fake position at
+    `position` (p_N m: the origin before a first fix, the last fix's after a GPS loss; its
+    horizontal part, and its height at noise.height_std) every sample, with noise.position_std
     (``EKF2_NOAID_NOISE``); at rest (:func:`at_rest` of the log's IMU Samples `imu`) with
     noise.rest_position_std, and a zero velocity (3 axes) with noise.rest_velocity_std (PX4's zero
     velocity update). noise: a :class:`NoAidNoise`."""
     times = np.asarray(times, dtype=float)
     resting = at_rest(imu, times)
     values = np.zeros((len(times), 12))
+    values[:, 0:3] = position
     values[:, 6:8] = np.where(resting, noise.rest_position_std, noise.position_std)[:, None]
     values[:, 8] = noise.height_std
     values[:, 9:12] = np.where(resting, noise.rest_velocity_std, math.inf)[:, None]
@@ -233,11 +235,12 @@ def no_aid_samples(imu, times, noise) -> Samples:
 
 
 def held_position(log, lost, position, times) -> np.ndarray:
-    """(m, 6) fake GPS samples (p_N m, v_N m/s) at `times` (s) of a GPS loss at `lost` (s): the
-    last fix's horizontal `position` with zero horizontal velocity (PX4's fake position); the
-    height and vertical velocity the barometer's (its change since the loss, and its slope over
-    the last BARO_SLOPE_WINDOW s: PX4's height follows the baro while the GPS is lost), or the last
-    fix's height and zero vertical velocity on a log without one."""
+    """(m, 6) fake GPS samples (p_N m, v_N m/s) at `times` (s) of a GPS loss at `lost` (s), for a
+    kind that fuses no ``no_aid`` input (:func:`no_aid_samples` otherwise): the last fix's
+    horizontal `position` with zero horizontal velocity (PX4's fake position); the height and
+    vertical velocity the barometer's (its change since the loss, and its slope over the last
+    BARO_SLOPE_WINDOW s: PX4's height follows the baro while the GPS is lost), or the last fix's
+    height and zero vertical velocity on a log without one."""
     samples = np.zeros((len(times), 6))
     samples[:, 0:3] = position
     if log.baro is None:
