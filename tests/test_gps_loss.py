@@ -4,9 +4,8 @@ flight; at rest its rest σ and a zero velocity) for every kind that fuses it, m
 (zero horizontal velocity, the barometer's height) only for the others; the GPS switched back in
 as a regain (``flightlogs.replay.aiding_gps``)."""
 
-import math
-
 import dataclasses
+import math
 
 import numpy as np
 import pytest
