@@ -342,7 +342,7 @@ def aiding_gps(log, config, separate=False) -> tuple[Samples, Samples | None, bo
     if log.gps is None:
         times = np.arange(period, log.duration + 1e-9, period)
         if separate:
-            return None, no_aid_samples(log.imu, times, noise), True, None, []
+            return None, no_aid_samples(log.imu, times, noise, landed=log.landed), True, None, []
         return fake_position(log, period), None, True, None, []
     times, values = [log.gps.times], [log.gps.values]
     first_fix = float(log.gps.times[0])
@@ -351,7 +351,7 @@ def aiding_gps(log, config, separate=False) -> tuple[Samples, Samples | None, bo
     if late_fix is not None:
         held = np.arange(period, first_fix - 1e-9, period)
         if separate:
-            no_aid.append(no_aid_samples(log.imu, held, noise))
+            no_aid.append(no_aid_samples(log.imu, held, noise, landed=log.landed))
         else:
             times.append(held)
             values.append(np.zeros((len(held), 6)))
@@ -361,7 +361,7 @@ def aiding_gps(log, config, separate=False) -> tuple[Samples, Samples | None, bo
         losses.append((lost, regained))
         held = np.arange(lost + NO_AID_TIMEOUT, regained - period + 1e-9, period)
         if separate:
-            no_aid.append(no_aid_samples(log.imu, held, noise, log.gps.values[i, 0:3]))
+            no_aid.append(no_aid_samples(log.imu, held, noise, log.gps.values[i, 0:3], log.landed))
         else:
             times.append(held)
             values.append(held_position(log, lost, log.gps.values[i, 0:3], held))
