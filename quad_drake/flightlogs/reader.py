@@ -32,6 +32,8 @@ What is read from a PX4 ULog (``pyulog``, PX4's own reader):
   ...). The position becomes NED metres from the first fix (the local origin) with
   ``pymap3d.geodetic2ned`` on the WGS84 ellipsoid; the altitudes are taken as heights above it:
   the geoid's offset is constant over a flight and cancels.
+- PX4's land detector (optional): ``vehicle_land_detected.landed`` (1 landed, 0 in the air), which
+  the no-aiding samples' rest test requires where logged (``schedule.at_rest``).
 - PX4's own estimate, the reference of the comparison (optional): ``vehicle_attitude.q`` (wxyz,
   body FRD to NED; at ``timestamp_sample`` where logged) and ``vehicle_local_position``
   (x, y, z, vx, vy, vz in NED about PX4's origin ``ref_lat``, ``ref_lon``, ``ref_alt``), moved
