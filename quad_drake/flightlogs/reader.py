@@ -32,6 +32,8 @@ What is read from a PX4 ULog (``pyulog``, PX4's own reader):
   ...). The position becomes NED metres from the first fix (the local origin) with
   ``pymap3d.geodetic2ned`` on the WGS84 ellipsoid; the altitudes are taken as heights above it:
   the geoid's offset is constant over a flight and cancels.
+- PX4's land detector (optional): ``vehicle_land_detected.landed`` (1 landed, 0 in the air), which
+  the no-aiding samples' rest test requires where logged (``schedule.at_rest``).
 - PX4's own estimate, the reference of the comparison (optional): ``vehicle_attitude.q`` (wxyz,
   body FRD to NED; at ``timestamp_sample`` where logged) and ``vehicle_local_position``
   (x, y, z, vx, vy, vz in NED about PX4's origin ``ref_lat``, ``ref_lon``, ``ref_alt``), moved
@@ -122,7 +124,9 @@ class FlightLog:
     GPS origin's frame; NaN without GPS) and v_N (3, m/s), or None (a real flight). heading: a
     yaw magnetometer's samples (1, rad) as an estimator received them (a CSV's ``heading`` rows,
     e.g. a simulated run's), or None. mag_source: where mag_field came from, when not from a
-    calibrated topic (the raw ``sensor_mag`` and its calibration; "" otherwise).
+    calibrated topic (the raw ``sensor_mag`` and its calibration; "" otherwise). landed: PX4's
+    land detector's ``vehicle_land_detected.landed`` (1, 1 landed / 0 in the air) as logged, or
+    None.
     """
 
     source: str
@@ -143,6 +147,7 @@ class FlightLog:
     truth_position: Samples | None = None
     heading: Samples | None = None
     mag_source: str = ""
+    landed: Samples | None = None
 
     @property
     def duration(self) -> float:
@@ -198,6 +203,7 @@ ULOG_TOPICS = (
     "vehicle_attitude_groundtruth",
     "vehicle_local_position_groundtruth",
     "vehicle_global_position_groundtruth",
+    "vehicle_land_detected",
 )
 US = 1e-6
 GPS_MISMATCH = 100.0
@@ -319,6 +325,7 @@ def read_ulog(path) -> FlightLog:
         truth_attitude=_optional(_ulog_truth_attitude(path, topics), start, US),
         truth_position=_optional(_ulog_truth_position(path, topics, origin, anchor), start, US),
         mag_source=mag_source,
+        landed=_optional(_ulog_landed(path, topics), start, US),
     )
 
 
@@ -481,6 +488,14 @@ def _ulog_baro(path, topics):
         data = topics["vehicle_air_data"]
         return _ulog_samples(path, "vehicle_air_data", data, data["timestamp"], ["baro_alt_meter"])
     return _combined_samples(path, topics["sensor_combined"], "baro", "barometer", ["baro_alt_meter"])
+
+
+def _ulog_landed(path, topics):
+    """Samples of PX4's land detector's ``landed`` (1 or 0), or None where the log lacks it."""
+    if "vehicle_land_detected" not in topics:
+        return None
+    data = topics["vehicle_land_detected"]
+    return _ulog_samples(path, "vehicle_land_detected", data, data["timestamp"], ["landed"])
 
 
 def _ulog_gps(path, topics):

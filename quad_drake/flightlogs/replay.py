@@ -162,14 +162,32 @@ class ReplayResult:
                 f"The first GPS fix came at {self.aiding.late_fix:.1f} s: before it the estimator was "
                 f"given {fused}, as PX4 while not aided; the GPS from the fix on."
             )
+        separate = "no_aid" in KINDS[c.estimator.kind].measurements
         for lost, regained in self.aiding.gps_losses:
+            if separate:
+                height = (
+                    "its height the barometer's, not fused"
+                    if self.log.baro is not None
+                    else f"its height with σ = {c.fake_position_std:g} m"
+                )
+                held = (
+                    f"PX4's no-aiding samples every {c.fake_position_period:g} s: the last fix's "
+                    f"horizontal position with σ = {c.fake_position_std:g} m (EKF2_NOAID_NOISE; at rest "
+                    f"σ = {c.rest_position_std:g} m and a zero velocity with σ = {c.rest_velocity_std:g} "
+                    f"m/s), {height}, fused with these σ on its no-aiding input (a custom estimator: by "
+                    "its update_no_aid where it has one, else as its GPS samples with its own GPS noise)"
+                )
+            else:
+                held = (
+                    f"the last fix's horizontal position with zero horizontal velocity every "
+                    f"{c.fake_position_period:g} s (height and vertical velocity the barometer's where "
+                    "the log has one), fused as its GPS samples with the GPS noise it assumes"
+                )
             lines.append(
                 f"The GPS was lost from {lost:.1f} s to {regained:.1f} s: the estimator dead-reckoned "
-                f"{NO_AID_TIMEOUT:g} s, then was given the last fix's horizontal position with zero "
-                f"horizontal velocity every {self.config.fake_position_period:g} s (height and vertical "
-                "velocity the barometer's where the log has one), fused as its GPS samples, as PX4 holds "
-                "its last position while not aided; then a regain: the built-in kinds fuse each GPS "
-                "group their gate accepts and reset to the others."
+                f"{NO_AID_TIMEOUT:g} s, then was given {held}, as PX4 holds its last position while "
+                "not aided; then a regain: the built-in kinds fuse each GPS group their gate accepts "
+                "and reset to the others."
             )
         if self.config.px4_parameters:
             lines.append(
@@ -309,38 +327,50 @@ def aiding_gps(log, config, separate=False) -> tuple[Samples, Samples | None, bo
     position at ``fake_position_std``), the second item; else zero position and velocity samples
     merged into the GPS (fused with the GPS noise the estimator assumes). A loss (no sample for
     more than NO_AID_TIMEOUT s after a fix, PX4's ``EKF2_NOAID_TOUT``): the estimator dead-reckons
-    for NO_AID_TIMEOUT s as PX4 does, then gets :func:`held_position` samples in its GPS every
-    fake_position_period s (PX4 resets its velocity to zero and holds its last known position)
-    until the estimator's ``gps_regain_time`` before the regain, so that the returning GPS is a
-    regain (``estimation/gating.py``: each group fused where its gate accepts it and reset to it
-    where not, as PX4 resets to GNSS when it starts aiding again)."""
+    for NO_AID_TIMEOUT s as PX4 does, then is held at the last fix's horizontal position every
+    fake_position_period s until a period before the regain: `separate`, by no-aiding samples
+    there (PX4's fake position with its σ, ``EKF2_NOAID_NOISE`` in flight, and at rest its rest
+    σ and the zero velocity; the height the barometer's where the log has one), no GPS sample in
+    the loss, so that the returning GPS ends an outage of the whole loss, a regain
+    (``estimation/gating.py``: each group fused where its gate accepts it and reset to it where
+    not, as PX4 resets to GNSS when it starts aiding again); else :func:`held_position` samples
+    merged into the GPS."""
     period = config.fake_position_period
     if config.fake_position_std <= 0:
         return log.gps, None, False, None, []
+    noise = no_aid_noise(log, config)
     if log.gps is None:
         times = np.arange(period, log.duration + 1e-9, period)
         if separate:
-            return None, no_aid_samples(log.imu, times, no_aid_noise(log, config)), True, None, []
+            return None, no_aid_samples(log.imu, times, noise, landed=log.landed), True, None, []
         return fake_position(log, period), None, True, None, []
     times, values = [log.gps.times], [log.gps.values]
     first_fix = float(log.gps.times[0])
     late_fix = first_fix if first_fix > LATE_FIX else None
-    no_aid = None
+    no_aid = []
     if late_fix is not None:
         held = np.arange(period, first_fix - 1e-9, period)
         if separate:
-            no_aid = no_aid_samples(log.imu, held, no_aid_noise(log, config))
+            no_aid.append(no_aid_samples(log.imu, held, noise, landed=log.landed))
         else:
             times.append(held)
             values.append(np.zeros((len(held), 6)))
     losses = []
-    regain_margin = float(getattr(config.estimator, "gps_regain_time", 0.0)) + period
     for i in np.flatnonzero(np.diff(log.gps.times) > NO_AID_TIMEOUT):
         lost, regained = float(log.gps.times[i]), float(log.gps.times[i + 1])
         losses.append((lost, regained))
-        held = np.arange(lost + NO_AID_TIMEOUT, regained - regain_margin + 1e-9, period)
-        times.append(held)
-        values.append(held_position(log, lost, log.gps.values[i, 0:3], held))
+        held = np.arange(lost + NO_AID_TIMEOUT, regained - period + 1e-9, period)
+        if separate:
+            no_aid.append(no_aid_samples(log.imu, held, noise, log.gps.values[i, 0:3], log.landed))
+        else:
+            times.append(held)
+            values.append(held_position(log, lost, log.gps.values[i, 0:3], held))
+    no_aid = [s for s in no_aid if len(s)]
+    no_aid = (
+        Samples(np.concatenate([s.times for s in no_aid]), np.vstack([s.values for s in no_aid]))
+        if no_aid
+        else None
+    )
     if len(times) == 1:
         return log.gps, no_aid, False, late_fix, losses
     order = np.argsort(np.concatenate(times), kind="stable")

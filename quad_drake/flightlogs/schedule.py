@@ -175,14 +175,16 @@ AT_REST_TIME = 1.0
 """s without motion before the vehicle is at rest (PX4's land detector)."""
 
 
-def at_rest(imu, times) -> np.ndarray:
-    """(m,) bool: the vehicle at rest at each of `times` (s), from the log's IMU Samples alone
-    (PX4's land detector's test, ``vehicle_land_detected.at_rest``, which EKF2 takes as
+def at_rest(imu, times, landed=None) -> np.ndarray:
+    """(m,) bool: the vehicle at rest at each of `times` (s), from the log's IMU Samples (PX4's
+    land detector's test, ``vehicle_land_detected.at_rest``, which EKF2 takes as
     ``vehicle_at_rest``): no IMU sample in the AT_REST_TIME s before t, nor since the log's start,
     with a gyro rate above AT_REST_GYRO or a vibration metric (the low-passed sample-to-sample
     change of the gyro rate or of the specific force) above AT_REST_GYRO_VIBRATION or
-    AT_REST_ACCEL_VIBRATION. PX4 also requires its landed state, which a log's IMU alone cannot
-    tell; a flying multirotor's motors and control shake its IMU above these limits."""
+    AT_REST_ACCEL_VIBRATION; and landed: PX4 fuses its rest σ only when not in the air, so where
+    the log has PX4's land detector (`landed`: Samples of ``landed``, 1 or 0, or None) its last
+    value at t (its first before it) must be 1. Without it the IMU alone decides: a flying
+    multirotor's motors shake its IMU above these limits, a simulator's IMU need not."""
     from scipy.signal import lfilter
 
     imu_times, values = imu.times, imu.values
@@ -200,7 +202,11 @@ def at_rest(imu, times) -> np.ndarray:
     index = np.searchsorted(imu_times, times, side="right") - 1
     before_start = index < 0
     index = np.maximum(index, 0)
-    return ~before_start & (np.asarray(times, dtype=float) - last_moving[index] >= AT_REST_TIME)
+    resting = ~before_start & (np.asarray(times, dtype=float) - last_moving[index] >= AT_REST_TIME)
+    if landed is not None:
+        last = np.maximum(np.searchsorted(landed.times, times, side="right") - 1, 0)
+        resting &= landed.values[last, 0] > 0.5
+    return resting
 
 
 @dataclass(frozen=True)
@@ -216,16 +222,19 @@ class NoAidNoise:
     height_std: float = math.inf
 
 
-def no_aid_samples(imu, times, noise) -> Samples:
+def no_aid_samples(imu, times, noise, position=(0.0, 0.0, 0.0), landed=None) -> Samples:
     """No-aiding Samples (m, 12: p_N m, v_N m/s, then the std of each of the six, inf = not
-    fused) at `times` (s), PX4 EKF2's while it has no position aiding: a fake position at the
-    origin (horizontal, and the height at noise.height_std) every sample, with noise.position_std
+    fused) at `times` (s), PX4 EKF2's while it has no position aiding: a fake position at
+    `position` (p_N m: the origin before a first fix, the last fix's after a GPS loss; its
+    horizontal part, and its height at noise.height_std) every sample, with noise.position_std
     (``EKF2_NOAID_NOISE``); at rest (:func:`at_rest` of the log's IMU Samples `imu`) with
     noise.rest_position_std, and a zero velocity (3 axes) with noise.rest_velocity_std (PX4's zero
-    velocity update). noise: a :class:`NoAidNoise`."""
+    velocity update); landed: the log's land detector for :func:`at_rest`, or None. noise: a
+    :class:`NoAidNoise`."""
     times = np.asarray(times, dtype=float)
-    resting = at_rest(imu, times)
+    resting = at_rest(imu, times, landed)
     values = np.zeros((len(times), 12))
+    values[:, 0:3] = position
     values[:, 6:8] = np.where(resting, noise.rest_position_std, noise.position_std)[:, None]
     values[:, 8] = noise.height_std
     values[:, 9:12] = np.where(resting, noise.rest_velocity_std, math.inf)[:, None]
@@ -233,11 +242,12 @@ def no_aid_samples(imu, times, noise) -> Samples:
 
 
 def held_position(log, lost, position, times) -> np.ndarray:
-    """(m, 6) fake GPS samples (p_N m, v_N m/s) at `times` (s) of a GPS loss at `lost` (s): the
-    last fix's horizontal `position` with zero horizontal velocity (PX4's fake position); the
-    height and vertical velocity the barometer's (its change since the loss, and its slope over
-    the last BARO_SLOPE_WINDOW s: PX4's height follows the baro while the GPS is lost), or the last
-    fix's height and zero vertical velocity on a log without one."""
+    """(m, 6) fake GPS samples (p_N m, v_N m/s) at `times` (s) of a GPS loss at `lost` (s), for a
+    kind that fuses no ``no_aid`` input (:func:`no_aid_samples` otherwise): the last fix's
+    horizontal `position` with zero horizontal velocity (PX4's fake position); the height and
+    vertical velocity the barometer's (its change since the loss, and its slope over the last
+    BARO_SLOPE_WINDOW s: PX4's height follows the baro while the GPS is lost), or the last fix's
+    height and zero vertical velocity on a log without one."""
     samples = np.zeros((len(times), 6))
     samples[:, 0:3] = position
     if log.baro is None:

@@ -64,6 +64,15 @@ def test_at_rest_is_a_second_without_motion_on_the_imu():
     np.testing.assert_array_equal(rest, [False, True, False, False, True])
 
 
+def test_at_rest_also_needs_the_logs_land_detector_to_say_landed_where_it_has_one():
+    times = np.arange(0.0, 4.0, 0.004)
+    imu = Samples(times, np.tile([0.0, 0.0, -GRAVITY, 0.0, 0.0, 0.0], (len(times), 1)))
+    landed = Samples(np.array([2.0, 3.0]), np.array([[1.0], [0.0]]))  # in the air from 3 s
+    checked = [0.5, 1.5, 2.9, 3.0, 3.3]  # 1.5: before the detector's first sample, its first value
+    np.testing.assert_array_equal(at_rest(imu, checked), [False, True, True, True, True])
+    np.testing.assert_array_equal(at_rest(imu, checked, landed), [False, True, True, False, False])
+
+
 def test_no_aid_samples_carry_pxs_std_at_rest_and_in_flight():
     times = np.arange(0.0, 4.0, 0.004)
     values = np.tile([0.0, 0.0, -GRAVITY, 0.0, 0.0, 0.0], (len(times), 1))
