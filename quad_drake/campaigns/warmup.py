@@ -9,10 +9,10 @@ path, so every kernel is called with the argument types a later run passes it (p
 batched), the campaigns' NEES and bound kernels included: a later process flies any of them,
 longer, with other seeds or fleet sizes, without compiling (tested).
 
-A warm-up leaves a stamp beside numba's cache (:data:`STAMP_NAME`: numba's and Python's
-versions, the machine and the SHA-256 of every source file a kernel is compiled from, the files
-numba keys its cache by); a later warm-up whose stamp still matches flies nothing, since every
-kernel is in the cache already (``--force`` flies anyway).
+A warm-up leaves a stamp beside numba's cache (:data:`STAMP_NAME`, one per Python: numba's and
+Python's versions, the machine and the SHA-256 of every source file a kernel is compiled from,
+the files numba keys its cache by); a later warm-up whose stamp still matches flies nothing,
+since every kernel is in the cache already (``--force`` flies anyway).
 """
 
 import hashlib
@@ -35,8 +35,9 @@ VARIANTS = (("24_mag3_disturbance", ("vehicles.0.estimator={kind: ekf7}",)),)
 kernels no bundled scenario calls (the EKF7's heading from a 3-axis magnetometer)."""
 
 
-STAMP_NAME = "quad_drake-warmup.json"
-"""The warm-up's stamp, in :func:`quad_drake.kernels.jit.cache_stamp_dir`."""
+STAMP_NAME = f"quad_drake-warmup.{sys.implementation.cache_tag}.json"
+"""The warm-up's stamp, in :func:`quad_drake.kernels.jit.cache_stamp_dir`: one per Python (numba
+caches per Python too), so two Pythons on one checkout keep each its own."""
 
 
 def cache_stamp(sources) -> dict:
