@@ -57,6 +57,7 @@ from quad_drake.flightlogs.schedule import (
 from quad_drake.flightlogs.settings import (
     ReplayConfig,
     dump_replay,
+    fuses_no_aid,
     height_reference,
     resolve_log,
     vehicle_for,
@@ -162,9 +163,8 @@ class ReplayResult:
                 f"The first GPS fix came at {self.aiding.late_fix:.1f} s: before it the estimator was "
                 f"given {fused}, as PX4 while not aided; the GPS from the fix on."
             )
-        separate = "no_aid" in KINDS[c.estimator.kind].measurements
         for lost, regained in self.aiding.gps_losses:
-            if separate:
+            if fuses_no_aid(c):
                 height = (
                     "its height the barometer's, not fused"
                     if self.log.baro is not None
@@ -409,8 +409,7 @@ def replay_setup(log, config) -> tuple[dict, VehicleConfig, Aiding]:
     :func:`aiding_gps`), the estimator it feeds (``settings.vehicle_for``: started at the log's first
     attitude, the log's magnetic field and barometer period) and how it was aided."""
     log = delayed_log(log, config)
-    separate = "no_aid" in KINDS[config.estimator.kind].measurements
-    gps, no_aid, fake, late_fix, losses = aiding_gps(log, config, separate)
+    gps, no_aid, fake, late_fix, losses = aiding_gps(log, config, fuses_no_aid(config))
     magnetometer = magnetometer_for(log, config)
     declination, hard_iron = (
         (0.0, (0.0, 0.0, 0.0))

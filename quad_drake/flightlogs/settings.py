@@ -239,6 +239,13 @@ def height_reference(config, parameters) -> str:
     return "baro" if value == 0 else "gps"
 
 
+def fuses_no_aid(config) -> bool:
+    """True when the estimator kind of the ReplayConfig `config` takes PX4's no-aiding samples on
+    their own input (its ``measurements`` name ``no_aid``), each with its own std; otherwise they
+    are merged into its GPS samples."""
+    return "no_aid" in KINDS[config.estimator.kind].measurements
+
+
 def vehicle_for(
     config, initial_attitude, fake_position, baro_period=None, magnetometer=None, baro_reference=False
 ) -> VehicleConfig:
@@ -260,7 +267,7 @@ def vehicle_for(
     roll, pitch, yaw = initial_attitude
     kind = KINDS[config.estimator.kind]
     estimator = kind.started_from_log(config.estimator, roll, pitch, yaw)
-    no_aid = "no_aid" in kind.measurements  # the fake samples come on their own input, with their std
+    no_aid = fuses_no_aid(config)  # the fake samples come on their own input, with their std
     if fake_position and not no_aid:
         estimator = kind.assuming_gps_noise(estimator, config.fake_position_std, FAKE_VELOCITY_STD)
     sensors = SensorsConfig(imu=ImuParams(), gps=GpsParams(), mag=MagParams(), no_aid=no_aid)

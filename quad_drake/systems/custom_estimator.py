@@ -18,6 +18,7 @@ from quad_drake.estimation import custom, gating
 from quad_drake.estimation.measurements import measurements_of
 from quad_drake.estimation.registry import KINDS, vocabulary_for
 from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, initial_diagnostics
+from quad_drake.kernels import fusion
 from quad_drake.models.rotations import quat_from_euler_tuple
 from quad_drake.systems._io import discrete_group, row_reader
 
@@ -154,7 +155,7 @@ class PythonEstimator(LeafSystem):
         if gps is not None and gps[6] > diagnostics[DIAG["gps_stamp"]] + gating.STAMP_TOLERANCE:
             sample = (gps[0:3].copy(), gps[3:6].copy())
             self._fuse(estimator, "gps", sample, gps[6], diagnostics, self._gps_threshold)
-        if no_aid is not None and no_aid[-1] != no_aid_seen[0]:
+        if no_aid is not None and fusion.fresh(no_aid[-1], no_aid_seen[0]):
             no_aid_seen[0] = no_aid[-1]
             self._fuse_no_aid(estimator, no_aid, diagnostics)
         self._write_estimate(estimate, custom.read_estimate(estimator), body_rate)
