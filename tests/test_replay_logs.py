@@ -152,6 +152,15 @@ def test_the_bias_px4s_estimator_had_learned_at_the_start_is_subtracted():
         "magnetometer: PX4's estimator's learned bias at the log's start (estimator_sensor_bias) = "
         "(0.0280, -0.0024, -0.0608) G subtracted"
     ]
+    # the replay subtracts it only when asked (off by default: measured mixed), and says so
+    from quad_drake.flightlogs.replay import magnetometer_for
+    from quad_drake.flightlogs.settings import default_replay
+
+    config = default_replay("eskf")
+    assert magnetometer_for(learned, config).hard_iron == (0.0, -0.033, 0.0)
+    assert any("not subtracted" in n for n in magnetometer_for(learned, config).notes)
+    asked = dataclasses.replace(config, estimator_mag_bias=True)
+    assert magnetometer_for(learned, asked).hard_iron == model.hard_iron
 
 
 @pytest.fixture(scope="module")

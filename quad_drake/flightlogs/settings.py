@@ -99,6 +99,10 @@ class ReplayConfig:
     # true: the estimator's noise and the sensor delays are the log's own EKF2_* parameters where
     # they map (``flightlogs.px4_parameters``; an ESKF only), instead of PX4's defaults
     px4_parameters: bool = False
+    # true: the field also less the magnetometer bias PX4's estimator had learned by the log's start
+    # (``FlightLog.estimator_mag_bias``, on top of ``EKF2_MAGBIAS_*``); off by default: on the two
+    # logs that hold one it moves the yaw 5-10 % nearer PX4's and some roll, pitch, x farther
+    estimator_mag_bias: bool = False
 
 
 def default_estimator(kind) -> EstimatorConfig:
