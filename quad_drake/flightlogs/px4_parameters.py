@@ -174,6 +174,18 @@ def from_parameters(config, parameters) -> object:
     return config
 
 
+def log_delays(config, parameters) -> object:
+    """A copy of the ReplayConfig `config` with each sensor delay left None (its default) set from
+    a log's `parameters`: its ``EKF2_*_DELAY`` in s where it holds one (PX4 takes each sample as
+    measured that long before its stamp: PX4-Autopilot ``EstimatorInterface::setGpsData`` and the
+    magnetometer's and barometer's alike), else 0 (a CSV, another estimator's log: as logged)."""
+    for p in MAPPING:
+        if p.field.endswith("_delay") and field_at(config, p.field) is None:
+            value = p.ours(parameters[p.name]) if p.name in parameters else 0.0
+            config = with_field(config, p.field, value)
+    return config
+
+
 def vertical_note(config) -> list[str]:
     """Comment lines for what PX4 has no parameter for: our tuned vertical GPS noise."""
     est = config.estimator

@@ -564,6 +564,7 @@ def _prepare(config, log=None) -> _Prepared:
     warnings = log_warnings(log, COMPARE_AFTER)
     if config.px4_parameters:
         config = px4_parameters.from_parameters(config, log.parameters)
+    config = px4_parameters.log_delays(config, log.parameters)
     if not config.name:
         config = dataclasses.replace(config, name=Path(log.source).stem)
     if config.smooth and not KINDS[config.estimator.kind].smoothable:
