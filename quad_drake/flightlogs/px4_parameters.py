@@ -160,8 +160,9 @@ def our_value(parameter, config) -> float:
 
 
 def to_parameters(config) -> dict[str, float]:
-    """{EKF2 name: value in PX4's units} of a ReplayConfig with an ESKF (every MAPPING row)."""
-    return {p.name: p.theirs(our_value(p, config)) for p in MAPPING}
+    """{EKF2 name: value in PX4's units} of a ReplayConfig with an ESKF (every MAPPING row but a
+    sensor delay left None: the log's own, no value of the config's)."""
+    return {p.name: p.theirs(our_value(p, config)) for p in MAPPING if field_at(config, p.field) is not None}
 
 
 def from_parameters(config, parameters) -> object:
