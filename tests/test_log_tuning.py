@@ -57,6 +57,20 @@ def test_px4_parameters_round_trip_through_a_replay_config_and_a_parameter_file(
     assert px4.to_parameters(missing) == pytest.approx({p.name: p.default for p in px4.MAPPING}, rel=1e-12)
 
 
+def test_the_sensor_delays_default_to_the_logs_own():
+    start = default_replay("eskf")
+    assert (start.gps_delay, start.mag_delay, start.baro_delay) == (None, None, None)
+    ulog = px4.log_delays(start, {"EKF2_GPS_DELAY": 110.0, "EKF2_MAG_DELAY": 20.0})
+    assert (ulog.gps_delay, ulog.mag_delay, ulog.baro_delay) == (0.11, 0.02, 0.0)
+    csv = px4.log_delays(start, {})  # a CSV, another estimator's log: as logged
+    assert (csv.gps_delay, csv.mag_delay, csv.baro_delay) == (0.0, 0.0, 0.0)
+    chosen = load_replay("sitl_takeoff_land_gps", "{kind: eskf}", ["gps_delay=0"])  # the log as logged
+    assert px4.log_delays(chosen, {"EKF2_GPS_DELAY": 110.0}).gps_delay == 0.0
+    assert "EKF2_GPS_DELAY" not in px4.to_parameters(start)  # left to the log: not written
+    with pytest.raises(ConfigError, match=r"gps_delay: must be within \[0, 0.5\] s"):
+        load_replay("sitl_takeoff_land_gps", "{kind: eskf}", ["gps_delay=0.6"])
+
+
 def test_px4_parameters_are_an_eskf_option():
     with pytest.raises(ConfigError, match="px4_parameters: maps EKF2_"):
         load_replay("sitl_takeoff_land_gps", "{kind: ekf7}", ["px4_parameters=true"])

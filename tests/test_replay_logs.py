@@ -131,6 +131,38 @@ def test_the_magnetometer_is_taken_as_px4_calibrated_it():
     assert 0.45 < model.field_strength < 0.52 and 1.0 < model.inclination < 1.2
 
 
+def test_the_bias_px4s_estimator_had_learned_at_the_start_is_subtracted():
+    import dataclasses
+
+    # the bundled SITL log (PX4 v1.15): its primary EKF2's estimator_sensor_bias, valid, for the
+    # fused magnetometer, learned nothing in the simulator
+    sitl = read_flight_log(SITL)
+    assert sitl.estimator_mag_bias == (0.0, 0.0, 0.0)
+    assert read_flight_log(REAL).estimator_mag_bias is None  # attitude_estimator_q: no such topic
+    # a log from PX4 v1.13 on has no EKF2_MAGBIAS_* parameters: the bias state at the log's start
+    # is what PX4 subtracts, on top of a saved parameter where an older log has one
+    learned = dataclasses.replace(
+        sitl,
+        estimator_mag_bias=(0.028, -0.0024, -0.0608),
+        parameters=sitl.parameters | {"EKF2_MAGBIAS_Y": -0.033},
+    )
+    model = earth_field.magnetometer_model(learned)
+    assert model.hard_iron == pytest.approx((0.028, -0.0354, -0.0608), abs=1e-12)
+    assert [n for n in model.notes if "estimator_sensor_bias" in n] == [
+        "magnetometer: PX4's estimator's learned bias at the log's start (estimator_sensor_bias) = "
+        "(0.0280, -0.0024, -0.0608) G subtracted"
+    ]
+    # the replay subtracts it only when asked (off by default: measured mixed), and says so
+    from quad_drake.flightlogs.replay import magnetometer_for
+    from quad_drake.flightlogs.settings import default_replay
+
+    config = default_replay("eskf")
+    assert magnetometer_for(learned, config).hard_iron == (0.0, -0.033, 0.0)
+    assert any("not subtracted" in n for n in magnetometer_for(learned, config).notes)
+    asked = dataclasses.replace(config, estimator_mag_bias=True)
+    assert magnetometer_for(learned, asked).hard_iron == model.hard_iron
+
+
 @pytest.fixture(scope="module")
 def truth_replay():
     return replay(load_replay(str(TRUTH_LOG), "{kind: eskf}"))

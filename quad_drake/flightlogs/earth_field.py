@@ -3,9 +3,12 @@ field it is fused against.
 
 The logged field (``vehicle_magnetometer`` or ``sensor_combined``'s) is already corrected by
 PX4's calibration (``CAL_MAG*`` offsets and scales); what PX4 subtracts on top is the bias its
-EKF2 learned and stored as parameters (``EKF2_MAGBIAS_X/Y/Z``, gauss, body FRD), so that is the
-hard iron the replay subtracts (:func:`learned_bias`). The world field m_N (strength,
-declination, inclination) comes from, in order:
+EKF2 learned: before v1.13 stored as parameters (``EKF2_MAGBIAS_X/Y/Z``, gauss, body FRD,
+subtracted before the estimator sees the field), and in every version its estimator's own bias
+state, which the log holds from its first sample (``FlightLog.estimator_mag_bias``: the logger
+starts at arming, after the estimator has learned on the ground). Their sum is the hard iron the
+replay subtracts (:func:`learned_bias`); the replay's ESKF does not learn it further in flight.
+The world field m_N (strength, declination, inclination) comes from, in order:
 
 - the declination: as PX4 chose it. With a fix and ``EKF2_DECL_TYPE`` bit 0 set (its default,
   7), PX4 fuses its parameter ``EKF2_MAG_DECL`` until the fix and its own geo library's value
@@ -94,10 +97,13 @@ def world_field(latitude, longitude, altitude, year) -> tuple[float, float, floa
     return math.radians(result.d), math.radians(result.i), result.f / NANOTESLA_PER_GAUSS
 
 
-def learned_bias(parameters) -> tuple[float, ...]:
-    """(3-tuple gauss, FRD) PX4 EKF2's learned magnetometer bias ``EKF2_MAGBIAS_X/Y/Z``; zeros
-    when the log does not hold them."""
-    return tuple(float(parameters.get(f"EKF2_MAGBIAS_{axis}", 0.0)) for axis in "XYZ")
+def learned_bias(parameters, estimator_bias=None) -> tuple[float, ...]:
+    """(3-tuple gauss, FRD) PX4 EKF2's learned magnetometer bias: the parameters
+    ``EKF2_MAGBIAS_X/Y/Z`` (zeros where the log does not hold them) plus `estimator_bias`, its
+    estimator's bias state at the log's start (3, gauss; None: none logged)."""
+    saved = [float(parameters.get(f"EKF2_MAGBIAS_{axis}", 0.0)) for axis in "XYZ"]
+    state = (0.0, 0.0, 0.0) if estimator_bias is None else estimator_bias
+    return tuple(s + float(b) for s, b in zip(saved, state, strict=True))
 
 
 def measured_field(log, hard_iron) -> tuple[float, float]:
@@ -115,12 +121,19 @@ def measured_field(log, hard_iron) -> tuple[float, float]:
 def magnetometer_model(log, current_year=None) -> MagnetometerModel:
     """MagnetometerModel of a FlightLog with a magnetometer (module docstring). current_year:
     decimal year used when the log has a fix but no UTC time (default: the newest model's epoch)."""
-    hard_iron = learned_bias(log.parameters)
+    hard_iron = learned_bias(log.parameters, log.estimator_mag_bias)
     notes = []
-    if any(hard_iron):
+    saved = learned_bias(log.parameters)
+    if any(saved):
         notes.append(
             "magnetometer: PX4's learned bias EKF2_MAGBIAS_X/Y/Z = "
-            f"({hard_iron[0]:.4f}, {hard_iron[1]:.4f}, {hard_iron[2]:.4f}) G subtracted"
+            f"({saved[0]:.4f}, {saved[1]:.4f}, {saved[2]:.4f}) G subtracted"
+        )
+    if log.estimator_mag_bias is not None and any(log.estimator_mag_bias):
+        state = log.estimator_mag_bias
+        notes.append(
+            "magnetometer: PX4's estimator's learned bias at the log's start (estimator_sensor_bias) = "
+            f"({state[0]:.4f}, {state[1]:.4f}, {state[2]:.4f}) G subtracted"
         )
     strength, inclination = measured_field(log, hard_iron)
     notes.append(

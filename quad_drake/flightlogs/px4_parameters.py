@@ -160,8 +160,9 @@ def our_value(parameter, config) -> float:
 
 
 def to_parameters(config) -> dict[str, float]:
-    """{EKF2 name: value in PX4's units} of a ReplayConfig with an ESKF (every MAPPING row)."""
-    return {p.name: p.theirs(our_value(p, config)) for p in MAPPING}
+    """{EKF2 name: value in PX4's units} of a ReplayConfig with an ESKF (every MAPPING row but a
+    sensor delay left None: the log's own, no value of the config's)."""
+    return {p.name: p.theirs(our_value(p, config)) for p in MAPPING if field_at(config, p.field) is not None}
 
 
 def from_parameters(config, parameters) -> object:
@@ -171,6 +172,18 @@ def from_parameters(config, parameters) -> object:
         value = p.ours(parameters.get(p.name, p.default))
         current = field_at(config, p.field)
         config = with_field(config, p.field, [value] * len(current) if isinstance(current, list) else value)
+    return config
+
+
+def log_delays(config, parameters) -> object:
+    """A copy of the ReplayConfig `config` with each sensor delay left None (its default) set from
+    a log's `parameters`: its ``EKF2_*_DELAY`` in s where it holds one (PX4 takes each sample as
+    measured that long before its stamp: PX4-Autopilot ``EstimatorInterface::setGpsData`` and the
+    magnetometer's and barometer's alike), else 0 (a CSV, another estimator's log: as logged)."""
+    for p in MAPPING:
+        if p.field.endswith("_delay") and field_at(config, p.field) is None:
+            value = p.ours(parameters[p.name]) if p.name in parameters else 0.0
+            config = with_field(config, p.field, value)
     return config
 
 

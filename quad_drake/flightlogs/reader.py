@@ -53,6 +53,9 @@ What is read from a PX4 ULog (``pyulog``, PX4's own reader):
   takes it from the World Magnetic Model at the first fix).
 - PX4's parameters (``parameters``: the initial values, e.g. ``EKF2_MAGBIAS_*``), and the UTC
   time of the first GPS fix (``time_utc_usec``) when logged, for the world field's date.
+- the magnetometer bias PX4's primary estimator had learned by the log's start (optional):
+  ``estimator_sensor_bias.mag_bias`` at its first sample, where valid and for the fused
+  magnetometer, as ``estimator_mag_bias`` (what PX4 v1.13 on keeps instead of ``EKF2_MAGBIAS_*``).
 - the simulator's ground truth (a SITL log; optional): ``vehicle_attitude_groundtruth.q`` (wxyz,
   body FRD to NED) as ``truth_attitude``; ``vehicle_global_position_groundtruth`` (lat, lon,
   horizontal) moved into the GPS origin's frame, ``vehicle_local_position_groundtruth``'s z
@@ -126,7 +129,9 @@ class FlightLog:
     e.g. a simulated run's), or None. mag_source: where mag_field came from, when not from a
     calibrated topic (the raw ``sensor_mag`` and its calibration; "" otherwise). landed: PX4's
     land detector's ``vehicle_land_detected.landed`` (1, 1 landed / 0 in the air) as logged, or
-    None.
+    None. estimator_mag_bias: the magnetometer bias (3, gauss, FRD) PX4's primary estimator had
+    learned by the log's first sample (``estimator_sensor_bias.mag_bias``, :func:`_ulog_estimator_mag_bias`),
+    or None.
     """
 
     source: str
@@ -148,6 +153,7 @@ class FlightLog:
     heading: Samples | None = None
     mag_source: str = ""
     landed: Samples | None = None
+    estimator_mag_bias: tuple | None = None
 
     @property
     def duration(self) -> float:
@@ -195,6 +201,7 @@ ULOG_TOPICS = (
     "vehicle_magnetometer",
     "sensor_mag",
     "estimator_selector_status",
+    "estimator_sensor_bias",
     "vehicle_air_data",
     "vehicle_gps_position",
     "sensor_gps",
@@ -284,12 +291,14 @@ def read_ulog(path) -> FlightLog:
     except Exception as e:  # pyulog raises whatever its parser meets in a foreign file
         reason = str(e).splitlines()[0] if str(e) else type(e).__name__
         raise FlightLogError(f"{path}: not a readable ULog file ({reason})") from None
-    topics, raw_mags = {}, []
+    topics, raw_mags, sensor_biases = {}, [], {}
     for dataset in ulog.data_list:
         if dataset.multi_id == 0:
             topics[dataset.name] = dataset.data
         if dataset.name == "sensor_mag":
             raw_mags.append(dataset.data)
+        if dataset.name == "estimator_sensor_bias":
+            sensor_biases[dataset.multi_id] = dataset.data
     if "sensor_combined" not in topics:
         raise FlightLogError(f"{path}: no sensor_combined topic (the IMU); cannot replay without it")
     combined = topics["sensor_combined"]
@@ -326,6 +335,7 @@ def read_ulog(path) -> FlightLog:
         truth_position=_optional(_ulog_truth_position(path, topics, origin, anchor), start, US),
         mag_source=mag_source,
         landed=_optional(_ulog_landed(path, topics), start, US),
+        estimator_mag_bias=_ulog_estimator_mag_bias(topics, sensor_biases),
     )
 
 
@@ -459,6 +469,32 @@ def _ulog_mag(path, topics, raw_mags, parameters, info):
     if combined is not None or not raw_mags:
         return combined, ""
     return _raw_mag(path, topics, raw_mags, parameters, info)
+
+
+def _ulog_estimator_mag_bias(topics, sensor_biases):
+    """(3-tuple gauss, FRD) the magnetometer bias PX4's primary EKF2 instance
+    (``estimator_selector_status.primary_instance`` at its first sample, else instance 0) had
+    learned by its first ``estimator_sensor_bias`` sample, or None: no such topic or field, the
+    bias marked invalid (``mag_bias_valid`` 0: its variance outside (0, 0.1] G^2), or learned for
+    another magnetometer than the fused one (``mag_device_id`` against ``vehicle_magnetometer``'s
+    ``device_id``).
+
+    PX4's EKF2 fuses ``vehicle_magnetometer`` less this bias state (its 3-axis field model is
+    h = R^T m_N + b); the logger starts at arming, long after the estimator started learning, and
+    from v1.13 on the bias is no longer saved as ``EKF2_MAGBIAS_*`` (the sensors module writes a
+    stable one into ``CAL_MAGn_*OFF`` at disarm, for the next boot): the first sample is what the
+    flight began with (PX4-Autopilot ``src/modules/ekf2/EKF2.cpp``, ``PublishSensorBias``)."""
+    selector = topics.get("estimator_selector_status", {})
+    primary = int(selector["primary_instance"][0]) if "primary_instance" in selector else 0
+    data = sensor_biases.get(primary)
+    if data is None or "mag_bias[0]" not in data:
+        return None
+    if "mag_bias_valid" in data and not data["mag_bias_valid"][0]:
+        return None
+    fused = topics.get("vehicle_magnetometer", {})
+    if "mag_device_id" in data and "device_id" in fused and data["mag_device_id"][0] != fused["device_id"][0]:
+        return None
+    return tuple(float(data[f"mag_bias[{axis}]"][0]) for axis in range(3))
 
 
 def _raw_mag(path, topics, raw_mags, parameters, info):

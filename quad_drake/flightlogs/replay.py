@@ -301,10 +301,21 @@ def baro_pairing_period(baro) -> float:
 
 def magnetometer_for(log, config) -> earth_field.MagnetometerModel | None:
     """The ``earth_field.MagnetometerModel`` of the log's magnetometer (``--set mag_declination``
-    overriding its declination), or None without one."""
+    overriding its declination; the bias PX4's estimator had learned by the log's start subtracted
+    only with ``--set estimator_mag_bias=true``), or None without one."""
     if log.mag_field is None:
         return None
-    model = earth_field.magnetometer_model(log)
+    learned = log.estimator_mag_bias
+    if config.estimator_mag_bias or learned is None or not any(learned):
+        model = earth_field.magnetometer_model(log)
+    else:
+        model = earth_field.magnetometer_model(dataclasses.replace(log, estimator_mag_bias=None))
+        note = (
+            "magnetometer: PX4's estimator had learned a bias of "
+            f"({learned[0]:.4f}, {learned[1]:.4f}, {learned[2]:.4f}) G by the log's start "
+            "(estimator_sensor_bias): not subtracted (--set estimator_mag_bias=true subtracts it)"
+        )
+        model = dataclasses.replace(model, notes=model.notes + (note,))
     if config.mag_declination is not None:
         note = (
             f"magnetometer: declination {math.degrees(config.mag_declination):.2f}° (--set mag_declination)"
@@ -553,6 +564,7 @@ def _prepare(config, log=None) -> _Prepared:
     warnings = log_warnings(log, COMPARE_AFTER)
     if config.px4_parameters:
         config = px4_parameters.from_parameters(config, log.parameters)
+    config = px4_parameters.log_delays(config, log.parameters)
     if not config.name:
         config = dataclasses.replace(config, name=Path(log.source).stem)
     if config.smooth and not KINDS[config.estimator.kind].smoothable:

@@ -64,6 +64,8 @@ HEIGHT_REFERENCES = ("log", "baro", "gps")
 """``ReplayConfig.height_reference``: as the log's parameters say (:func:`height_reference`), or forced."""
 MAX_SENSOR_DELAY = 0.5
 """s: the largest sensor delay a replay takes (PX4's EKF2_*_DELAY range ends at 300 ms)."""
+SENSOR_DELAYS = ("gps_delay", "mag_delay", "baro_delay")
+"""The ReplayConfig's sensor delay fields (s; None: the log's own, ``px4_parameters.log_delays``)."""
 
 
 @dataclass
@@ -92,13 +94,19 @@ class ReplayConfig:
     smooth: bool = False
     # s: how long each sensor's samples took from measurement to the log (PX4's EKF2_GPS_DELAY,
     # EKF2_MAG_DELAY, EKF2_BARO_DELAY): a sample logged at t is replayed as measured at t - delay
-    # (the replay reads the log ahead, as PX4 fuses on its delayed horizon); 0 = as logged
-    gps_delay: float = number(0.0, minimum=0.0, maximum=MAX_SENSOR_DELAY)
-    mag_delay: float = number(0.0, minimum=0.0, maximum=MAX_SENSOR_DELAY)
-    baro_delay: float = number(0.0, minimum=0.0, maximum=MAX_SENSOR_DELAY)
+    # (the replay reads the log ahead, as PX4 fuses on its delayed horizon); 0 = as logged; None
+    # (the default): the log's own EKF2_*_DELAY where it holds one (PX4 takes each sample as
+    # measured that long before its stamp), else 0 (a CSV; another estimator's log)
+    gps_delay: Optional[float] = None
+    mag_delay: Optional[float] = None
+    baro_delay: Optional[float] = None
     # true: the estimator's noise and the sensor delays are the log's own EKF2_* parameters where
     # they map (``flightlogs.px4_parameters``; an ESKF only), instead of PX4's defaults
     px4_parameters: bool = False
+    # true: the field also less the magnetometer bias PX4's estimator had learned by the log's start
+    # (``FlightLog.estimator_mag_bias``, on top of ``EKF2_MAGBIAS_*``); off by default: on the two
+    # logs that hold one it moves the yaw 5-10 % nearer PX4's and some roll, pitch, x farther
+    estimator_mag_bias: bool = False
 
 
 def default_estimator(kind) -> EstimatorConfig:
@@ -226,6 +234,11 @@ def check_replay(config) -> ReplayConfig:
         )
     if config.mag_declination is not None and not abs(config.mag_declination) <= math.pi:
         raise ConfigError(f"mag_declination: must be within [-pi, pi] rad, got {config.mag_declination}")
+    for name in SENSOR_DELAYS:
+        delay = getattr(config, name)
+        if delay is not None and not 0.0 <= delay <= MAX_SENSOR_DELAY:
+            bounds = f"[0, {MAX_SENSOR_DELAY:g}] s (or null: the log's own)"
+            raise ConfigError(f"{name}: must be within {bounds}, got {delay}")
     return config
 
 

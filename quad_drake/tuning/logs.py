@@ -41,7 +41,7 @@ import numpy as np
 from scipy.optimize import minimize, minimize_scalar
 
 from ..config.errors import ConfigError
-from ..flightlogs.px4_parameters import field_at, with_field
+from ..flightlogs.px4_parameters import field_at, log_delays, with_field
 from ..flightlogs.reader import FlightLog, Samples, read_flight_log
 from ..flightlogs.replay import COMPARE_AFTER, replay
 from ..flightlogs.settings import load_replay, resolve_log
@@ -270,9 +270,14 @@ def prepare(log_names, holdout_names, overrides, settings) -> LogTuneProblem:
     if settings.delays:
         fields = sorted({DELAY_OF[c.split("_")[0] if c.startswith("gps") else c] for c in channels})
         space += [Dimension(f, getattr(first.config, f)) for f in fields]
-    # the start: the config as loaded, or with px4_parameters the log's values written into it (and
-    # the option off, so that a candidate's values are not overwritten by the log's again)
-    start = dataclasses.replace(first.config, px4_parameters=False) if config.px4_parameters else config
+    # the start: the config as loaded with the first log's sensor delays where left to the log
+    # (``px4_parameters.log_delays``, as its replay took them), or with px4_parameters the log's
+    # values written into it (and the option off, so that a candidate's values are not overwritten
+    # by the log's again)
+    if config.px4_parameters:
+        start = dataclasses.replace(first.config, px4_parameters=False)
+    else:
+        start = log_delays(config, tuned_on[0].parameters)
     return LogTuneProblem(start, tuned_on, held, space, settings)
 
 
