@@ -6,8 +6,10 @@ PX4's calibration (``CAL_MAG*`` offsets and scales); what PX4 subtracts on top i
 EKF2 learned: before v1.13 stored as parameters (``EKF2_MAGBIAS_X/Y/Z``, gauss, body FRD,
 subtracted before the estimator sees the field), and in every version its estimator's own bias
 state, which the log holds from its first sample (``FlightLog.estimator_mag_bias``: the logger
-starts at arming, after the estimator has learned on the ground). Their sum is the hard iron the
-replay subtracts (:func:`learned_bias`); the replay's ESKF does not learn it further in flight.
+starts at arming, after the estimator has learned on the ground). The replay subtracts the
+parameters, and the state too only where asked (``ReplayConfig.estimator_mag_bias``, off by
+default: measured mixed); :func:`learned_bias` sums what is subtracted. The replay's ESKF does not
+learn the bias further in flight.
 The world field m_N (strength, declination, inclination) comes from, in order:
 
 - the declination: as PX4 chose it. With a fix and ``EKF2_DECL_TYPE`` bit 0 set (its default,
