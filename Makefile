@@ -45,9 +45,13 @@ lint: $(VENV)/.installed-test
 
 # With workers, numba's kernels are compiled once first (`quad-drake warmup`; about 2 s of CPU
 # when an earlier warm-up's stamp says the kernels' sources are unchanged): on an empty cache each
-# worker would compile every kernel it is the first to use, twice the compiling.
+# worker would compile every kernel it is the first to use, twice the compiling. Byte code is
+# written (the checkout's __pycache__ folders, git-ignored) even where PYTHONDONTWRITEBYTECODE is
+# set: without it every pytest process rewrites every test module's asserts again (3-4 s of CPU
+# per process, three processes with two workers) and every quad-drake a test starts compiles the
+# package's modules again.
 test: lint
-	$(if $(filter 0,$(TEST_JOBS)),,$(BIN)/quad-drake warmup >/dev/null && )$(BIN)/python -m pytest -n $(TEST_JOBS)
+	$(if $(filter 0,$(TEST_JOBS)),,$(BIN)/quad-drake warmup >/dev/null && )PYTHONDONTWRITEBYTECODE= $(BIN)/python -m pytest -n $(TEST_JOBS)
 
 # The manual into docs/_build/html, every warning an error (a broken link or anchor, a notebook
 # cell that raises); notebooks execute in their quick mode, kept in docs/_build/notebooks until

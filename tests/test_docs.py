@@ -64,6 +64,24 @@ def test_no_page_cites_an_issue_number_a_reader_cannot_resolve():
         assert cited == [], f"{page.relative_to(ROOT)}: {cited}"
 
 
+def test_a_docstring_is_made_rst_safe_the_same_way_call_after_call():
+    """docs/_ext/plain_docstrings.py parses every docstring of the package (thousands per build)
+    with one set of docutils settings: a warning in one parse must not leak into the next."""
+    pytest.importorskip("docutils", reason="the docs extra is missing (pip install -e '.[docs]')")
+    sys.path.insert(0, str(DOCS / "_ext"))
+    try:
+        import plain_docstrings
+    finally:
+        sys.path.remove(str(DOCS / "_ext"))
+    for _ in range(2):
+        assert not plain_docstrings.parses_cleanly("an *unclosed emphasis")
+        assert not plain_docstrings.parses_cleanly("a line\n  indented\nunindented")  # a quote cut short
+        assert plain_docstrings.parses_cleanly("plain prose with ``code``")
+    assert plain_docstrings.rst_safe("The norm |v| of ``a|b``.") == "The norm \\|v\\| of ``a|b``."
+    broken = "Summary with *one star.\n\n  indented rest\n"
+    assert plain_docstrings.rst_safe(broken) == "Summary with \\*one star.\n\n::\n\n    indented rest\n"
+
+
 class _Links(HTMLParser):
     """The ids and the link targets (href, src) of one HTML page."""
 

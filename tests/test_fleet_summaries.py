@@ -41,6 +41,13 @@ def batch(request):
     return (scenario, *run_fleet(scenario, SEEDS))
 
 
+@pytest.fixture(scope="module")
+def per_run_records(batch):
+    """The per-run functions' records of `batch` (each run's full logs), what the fast paths must
+    equal: made once per scenario for the four tests that compare with them."""
+    return _per_run_records(*batch)
+
+
 def close(actual, expected, where):
     """Equal to RTOL (relative), NaN where NaN; anything but numbers exactly equal."""
     if isinstance(expected, dict):
@@ -73,21 +80,21 @@ def _same_records(actual, expected):
                 close(getattr(fast, field.name), getattr(slow, field.name), f"run {j} {field.name}")
 
 
-def test_streamed_batch_records_equal_the_per_run_functions(batch):
-    scenario, times, logs, wall = batch
-    expected = _per_run_records(scenario, times, logs, wall)
+def test_streamed_batch_records_equal_the_per_run_functions(batch, per_run_records):
+    scenario = batch[0]
+    expected = per_run_records
     if vehicle_vocabulary(scenario.vehicles[0]) is not None and scenario.name.startswith("11"):
         assert expected[0].nees and expected[0].pcrb and expected[0].nis  # the fields compared are filled
     _same_records(fly_batch(BatchTask(scenario, 10, SEEDS)), expected)
 
 
 @pytest.mark.parametrize("chunk", [1, 7, 10_000])
-def test_any_chunk_size_gives_the_same_records(batch, chunk):
+def test_any_chunk_size_gives_the_same_records(batch, per_run_records, chunk):
     """BatchSummary fed the full logs chunk by chunk (row 0: the sample before) gives the
     whole-log records."""
-    scenario, times, logs, wall = batch
+    scenario, _, logs, wall = batch
     summary = summarize_logs(scenario, SEEDS, logs, chunk)
-    _same_records(summary.records(10, wall), _per_run_records(scenario, times, logs, wall))
+    _same_records(summary.records(10, wall), per_run_records)
 
 
 def test_a_pcrb_stream_gives_the_whole_log_bound_for_any_split():

@@ -435,6 +435,7 @@ def test_make_run_installs_only_what_running_needs_and_make_test_runs_in_paralle
     workers = "auto" if cores >= 4 else "2" if cores >= 2 else "0"
     assert "pip install -q -e '.[test]'" in test.stdout and f"pytest -n {workers}" in test.stdout
     assert ("quad-drake warmup" in test.stdout) == (workers != "0")  # kernels compiled once, not per worker
+    assert f"PYTHONDONTWRITEBYTECODE= {venv}/bin/python -m pytest" in test.stdout  # asserts rewritten once
     forced = ["make", "-n", "test", f"VENV={venv}", "TEST_JOBS=3"]
     forced = subprocess.run(forced, cwd=REPO, capture_output=True, text=True).stdout
     assert "quad-drake warmup >/dev/null && " in forced and "pytest -n 3" in forced
