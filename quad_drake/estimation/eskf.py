@@ -503,3 +503,64 @@ def initial_covariance(params, baro=False) -> np.ndarray:
     if baro:
         std.append(params.baro.bias_init_std)
     return np.diag(np.square(std))
+
+
+GRAVITY_UPDATE_PERIOD = 0.010
+"""s: PX4 EKF2's update period (``EKF2_PREDICT_US``), at which it fuses the gravity vector: a
+filter updating every dt fuses it with the variance gravity_std^2 GRAVITY_UPDATE_PERIOD / dt,
+the same information per second (:func:`gravity_variance`)."""
+GRAVITY_GATE = 0.25
+"""sigma: PX4 EKF2's innovation gate of the gravity vector (``Ekf::controlGravityFusion``)."""
+GRAVITY_ACCEL_BAND = (0.9 * GRAVITY, 1.1 * GRAVITY)
+"""m/s^2: the peak-held |f_B| (:func:`manoeuvre_levels`) within which the accelerometer is taken
+as gravity (PX4's 0.9 g to 1.1 g)."""
+
+
+def predicted_gravity(x, n) -> tuple[np.ndarray, np.ndarray]:
+    """(h (M, 3), H (M, 3, n)): the direction of -g in the body frame through the estimates x
+    (M, 16+), h = R_hat^T (0, 0, -1) (unit, FRD), and its Jacobian against the error state of
+    size n, H = R_hat^T [(0, 0, -1)]x on the attitude error (row i: -R[1, i], R[0, i], 0; the
+    tilt only), zero elsewhere."""
+    r = rotation_entries(x[:, 6], x[:, 7], x[:, 8], x[:, 9])  # R_NB row-major, each (M,)
+    H = np.zeros((x.shape[0], 3, n))
+    H[:, :, 6] = -np.column_stack(r[3:6])
+    H[:, :, 7] = np.column_stack(r[0:3])
+    return -np.column_stack(r[6:9]), H
+
+
+def gravity_update(x, P, f_B, var, gate_var) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """PX4 EKF2's gravity-vector fusion (``Ekf::controlGravityFusion``, its ``EKF2_IMU_CTRL`` bit
+    2) of M filters: (dx (M, n), P' (M, n, n), fused (M,) bool), the errors to inject
+    (``kernels.eskf.correct``) and the covariance after the update; x (M, 16+), P (M, n, n).
+
+    The measurement is the unit vector of the accelerometer's reading less its bias, f_B (M, 3)
+    m/s^2 body FRD, read as the direction of -g (:func:`predicted_gravity`), each axis fused in
+    turn with the variance `var` (unit vector^2, per update) as PX4 fuses its three in turn,
+    linearised once (Joseph form). The sample is rejected whole (fused False, dx 0, P unchanged)
+    when an axis's innovation exceeds :data:`GRAVITY_GATE` sigma of its innovation variance
+    with `gate_var` (PX4's per-update variance: the gate stays PX4's where `var` is rescaled to
+    another update rate, :func:`gravity_variance`)."""
+    x, P, f_B = np.asarray(x, dtype=float), np.asarray(P, dtype=float), np.asarray(f_B, dtype=float)
+    n = P.shape[1]
+    if n >= ERROR_SIZE_WITH_BIASES:
+        f_B = f_B - x[:, BA_IDX]
+    h, H = predicted_gravity(x, n)
+    nu = f_B / np.linalg.norm(f_B, axis=1)[:, None] - h
+    S0 = np.einsum("mij,mjk,mik->mi", H, P, H)
+    fused = np.all(nu * nu <= GRAVITY_GATE**2 * (S0 + gate_var), axis=1) & np.isfinite(nu).all(axis=1)
+    dx, P_new = np.zeros((x.shape[0], n)), P.copy()
+    eye = np.eye(n)
+    for axis in range(3):
+        h_axis, Pm = H[fused, axis], P_new[fused]
+        Ph = np.einsum("mij,mj->mi", Pm, h_axis)
+        K = Ph / (np.einsum("mi,mi->m", h_axis, Ph) + var)[:, None]
+        dx[fused] += K * (nu[fused, axis] - np.einsum("mi,mi->m", h_axis, dx[fused]))[:, None]
+        A = eye - np.einsum("mi,mj->mij", K, h_axis)
+        P_new[fused] = A @ Pm @ np.transpose(A, (0, 2, 1)) + var * np.einsum("mi,mj->mij", K, K)
+    return dx, P_new, fused
+
+
+def gravity_variance(gravity_std, dt) -> float:
+    """(unit vector)^2: the variance of one gravity update every dt s for PX4's std per its
+    10 ms update (:data:`GRAVITY_UPDATE_PERIOD`)."""
+    return gravity_std**2 * GRAVITY_UPDATE_PERIOD / dt
