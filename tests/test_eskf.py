@@ -208,24 +208,47 @@ def test_a_level_axis_accelerometer_bias_is_not_learned_as_px4s():
 
 
 def test_no_accelerometer_bias_is_learned_while_the_vehicle_manoeuvres_hard():
-    """PX4's manoeuvre levels (``eskf.manoeuvre_levels``: peak-held, decaying with EKF2_ABL_TAU):
-    a 5 rad/s spin inhibits every axis of a vertical-axis-up vehicle, and 0.5 s of quiet later
-    (decayed below EKF2_ABL_GYRLIM 3 rad/s, 5 e^-1 = 1.84) only the level axes stay inhibited."""
-    from quad_drake.estimation.eskf import manoeuvre_levels, uncorrelate_unobservable_accel_bias
+    """PX4's manoeuvre levels (``eskf.manoeuvre_levels``: on the IMU summed over PX4's 10 ms
+    update, peak-held, decaying with EKF2_ABL_TAU): a 5 rad/s spin inhibits every axis of a
+    vertical-axis-up vehicle once a 10 ms period is summed (not before), and 0.5 s of quiet later
+    (50 periods, decayed below EKF2_ABL_GYRLIM 3 rad/s: 5 x 0.98^50 = 1.82) only the level axes
+    stay inhibited."""
+    from quad_drake.estimation.eskf import (
+        MANOEUVRE_SIZE,
+        manoeuvre_levels,
+        uncorrelate_unobservable_accel_bias,
+    )
 
     x = np.zeros((1, 16))
     x[0, 6] = 1.0
-    levels = np.zeros((1, 2))
-    manoeuvre_levels(levels, np.array([[0.0, 0.0, -GRAVITY, 5.0, 0.0, 0.0]]), 0.002)
+    state = np.zeros((1, MANOEUVRE_SIZE))
+    spin = np.array([[0.0, 0.0, -GRAVITY, 5.0, 0.0, 0.0]])
+    for _ in range(5):  # 10 ms of 2 ms ticks
+        assert state[0, 0] == 0.0
+        manoeuvre_levels(state, spin, 0.002)
+    assert state[0, 0] == pytest.approx(5.0) and state[0, 1] == pytest.approx(GRAVITY)
     P = np.ones((1, 15, 15)) + np.eye(15)
-    uncorrelate_unobservable_accel_bias(x, P, math.radians(15.0), levels)
+    uncorrelate_unobservable_accel_bias(x, P, math.radians(15.0), state[:, 0:2])
     assert all(np.count_nonzero(P[0, k]) == 1 for k in (9, 10, 11))
     for _ in range(250):  # 0.5 s at rest
-        manoeuvre_levels(levels, np.array([[0.0, 0.0, -GRAVITY, 0.0, 0.0, 0.0]]), 0.002)
-    assert levels[0, 0] == pytest.approx(5.0 * (1.0 - 0.002 / 0.5) ** 250) and levels[0, 0] < 3.0
+        manoeuvre_levels(state, np.array([[0.0, 0.0, -GRAVITY, 0.0, 0.0, 0.0]]), 0.002)
+    assert state[0, 0] == pytest.approx(5.0 * (1.0 - 0.010 / 0.5) ** 50) and state[0, 0] < 3.0
     P = np.ones((1, 15, 15)) + np.eye(15)
-    uncorrelate_unobservable_accel_bias(x, P, math.radians(15.0), levels)
+    uncorrelate_unobservable_accel_bias(x, P, math.radians(15.0), state[:, 0:2])
     assert [np.count_nonzero(P[0, k]) == 1 for k in (9, 10, 11)] == [True, True, False]
+
+
+def test_the_manoeuvre_levels_see_the_mean_of_a_period_not_each_sample():
+    """PX4 sums its IMU over its 10 ms update before the levels see it: a vibration of +-3 m/s^2
+    about gravity that alternates sample by sample leaves the level of |f_B| at g (within the
+    0.9-1.1 g band of the gravity fusion), where the peak of single samples would be g + 3."""
+    state = np.zeros((1, eskf.MANOEUVRE_SIZE))
+    for tick in range(50):
+        f_z = -GRAVITY + (3.0 if tick % 2 else -3.0)
+        eskf.manoeuvre_levels(state, np.array([[0.0, 0.0, f_z, 0.0, 0.0, 0.0]]), 0.002)
+    assert state[0, 1] < GRAVITY + 3.0 * 0.2 + 1e-9
+    low, high = eskf.GRAVITY_ACCEL_BAND
+    assert low < state[0, 1] < high
 
 
 def test_the_gravity_vectors_jacobian_matches_central_differences():

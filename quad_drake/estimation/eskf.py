@@ -445,13 +445,32 @@ ACCEL_BIAS_LEARNING_ACCEL_LIMIT = 25.0
 """m/s^2: the same of the specific force's magnitude (PX4's ``EKF2_ABL_ACCLIM``)."""
 
 
-def manoeuvre_levels(levels, imu, dt) -> None:
-    """PX4 EKF2's manoeuvre levels IN PLACE: levels (N, 2) the peak-held |w_B| (rad/s) and |f_B|
-    (m/s^2) of each vehicle, each max(this sample's, the last decayed by 1 - dt / ACCEL_BIAS_LEARNING_TAU);
-    imu (N, 6: f_B, w_B) this tick's samples (a non-finite one leaves the level decaying); dt s."""
-    decay = 1.0 - min(dt / ACCEL_BIAS_LEARNING_TAU, 1.0)
-    now = np.column_stack((np.linalg.norm(imu[:, 3:6], axis=1), np.linalg.norm(imu[:, 0:3], axis=1)))
-    levels[:] = np.fmax(now, decay * levels)
+MANOEUVRE_SIZE = 9
+"""Floats per vehicle of :func:`manoeuvre_levels`' state: the levels (|w_B| rad/s, |f_B| m/s^2),
+then the sums over the current update period of w_B dt (3), f_B dt (3) and dt (1)."""
+
+
+def manoeuvre_levels(state, imu, dt) -> None:
+    """PX4 EKF2's manoeuvre levels IN PLACE on state (N, :data:`MANOEUVRE_SIZE`); imu (N, 6: f_B,
+    w_B) this tick's samples, dt s. PX4 computes them on its delayed IMU, the samples summed over
+    its update period (:data:`PX4_UPDATE_PERIOD`, 10 ms): each vehicle's finite samples are summed
+    tick by tick (a non-finite one is left out), and once a period is summed the magnitudes of the
+    mean rate and specific force over it update the levels (state[:, 0:2], the peak-held |w_B| and
+    |f_B|): each max(the mean's, the level decayed by 1 - period / ACCEL_BIAS_LEARNING_TAU), as
+    ``Ekf::updateIMUBiasInhibit``. A vehicle's levels hold between its updates."""
+    finite = np.isfinite(imu).all(axis=1)
+    state[finite, 2:5] += imu[finite, 3:6] * dt
+    state[finite, 5:8] += imu[finite, 0:3] * dt
+    state[finite, 8] += dt
+    due = np.flatnonzero(state[:, 8] >= PX4_UPDATE_PERIOD - 1e-9)
+    if len(due) == 0:
+        return
+    span = state[due, 8]
+    mean_rate = np.linalg.norm(state[due, 2:5], axis=1) / span
+    mean_force = np.linalg.norm(state[due, 5:8], axis=1) / span
+    decay = 1.0 - np.minimum(span / ACCEL_BIAS_LEARNING_TAU, 1.0)
+    state[due, 0:2] = np.fmax(np.column_stack((mean_rate, mean_force)), decay[:, None] * state[due, 0:2])
+    state[due, 2:] = 0.0
 
 
 def uncorrelate_unobservable_accel_bias(x, P, tilt, levels=None) -> None:
@@ -505,10 +524,11 @@ def initial_covariance(params, baro=False) -> np.ndarray:
     return np.diag(np.square(std))
 
 
-GRAVITY_UPDATE_PERIOD = 0.010
-"""s: PX4 EKF2's update period (``EKF2_PREDICT_US``), at which it fuses the gravity vector: a
-filter updating every dt fuses it with the variance gravity_std^2 GRAVITY_UPDATE_PERIOD / dt,
-the same information per second (:func:`gravity_variance`)."""
+PX4_UPDATE_PERIOD = 0.010
+"""s: PX4 EKF2's update period (``EKF2_PREDICT_US``): its delayed IMU sums the samples over it
+(:func:`manoeuvre_levels`), and it fuses the gravity vector once per period: a filter updating
+every dt fuses it with the variance gravity_std^2 PX4_UPDATE_PERIOD / dt, the same information
+per second (:func:`gravity_variance`)."""
 GRAVITY_GATE = 0.25
 """sigma: PX4 EKF2's innovation gate of the gravity vector (``Ekf::controlGravityFusion``)."""
 GRAVITY_ACCEL_BAND = (0.9 * GRAVITY, 1.1 * GRAVITY)
@@ -562,5 +582,5 @@ def gravity_update(x, P, f_B, var, gate_var) -> tuple[np.ndarray, np.ndarray, np
 
 def gravity_variance(gravity_std, dt) -> float:
     """(unit vector)^2: the variance of one gravity update every dt s for PX4's std per its
-    10 ms update (:data:`GRAVITY_UPDATE_PERIOD`)."""
-    return gravity_std**2 * GRAVITY_UPDATE_PERIOD / dt
+    10 ms update (:data:`PX4_UPDATE_PERIOD`)."""
+    return gravity_std**2 * PX4_UPDATE_PERIOD / dt

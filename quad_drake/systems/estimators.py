@@ -429,7 +429,7 @@ class Eskf(LeafSystem):
         declare_state_output(self, "diagnostics", groups.diagnostics, n * DIAGNOSTICS_SIZE)
         self._bias = discrete_group(self, n * 6, "imu_bias")
         if self._bias_learning_tilt > 0.0 or self._gravity is not None:  # the peak-held |w_B|, |f_B|
-            self._manoeuvre = discrete_group(self, n * 2)  # (eskf.manoeuvre_levels)
+            self._manoeuvre = discrete_group(self, n * eskf.MANOEUVRE_SIZE)  # (eskf.manoeuvre_levels)
         if gsf is not None:
             declare_state_output(self, "gsf", gsf.log, n * gsf_log_size(params.gsf.models))
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, EKF_OFFSET, self._update)
@@ -446,8 +446,9 @@ class Eskf(LeafSystem):
         imu = self._read_imu(context)
         healthy = self._predict_tick(filters, imu, estimate, self._model)
         if self._bias_learning_tilt > 0.0 or self._gravity is not None:
-            levels = discrete_state.get_mutable_value(self._manoeuvre).reshape(self._n, 2)
-            self._manoeuvre_levels(levels, imu, ONBOARD_PERIOD)
+            manoeuvre = discrete_state.get_mutable_value(self._manoeuvre).reshape(self._n, -1)
+            self._manoeuvre_levels(manoeuvre, imu, ONBOARD_PERIOD)
+            levels = manoeuvre[:, 0:2]
         if self._bias_learning_tilt > 0.0:  # PX4's accelerometer-bias inhibition
             self._uncorrelate_accel_bias(filters.x, filters.P, self._bias_learning_tilt, levels)
         samples = seam.read(context)
