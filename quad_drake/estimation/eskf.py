@@ -44,9 +44,10 @@ Two kinds of function. The scalar formulas (:func:`nominal_step`, :func:`quat_ex
 ``rotations.rotation_entries`` and ``ekf.mag_innovation``) are plain float arithmetic whose own
 code the running implementation, ``kernels/eskf.py``, compiles: they exist once. The matrix forms
 (``predict``, ``predict_nominal``, ``transition``, ``process_noise``, ``joseph_update``, ``inject``,
-``gps_update``, ``mag_update``) are REFERENCE ORACLES of the kernel's sparse loops, which single
-runs and fleets both execute: the kernel is tested against them on seeded random inputs to 1e-12
-(``tests/test_estimator_kernels.py``) and no simulation calls them (``tests/test_oracles.py``).
+``gps_update``, ``mag_update``, ``gravity_update``, ``manoeuvre_levels``) are REFERENCE ORACLES of
+the kernel's sparse loops, which single runs and fleets both execute: the kernel is tested
+against them on seeded random inputs to 1e-12 (``tests/test_estimator_kernels.py``) and no
+simulation calls them (``tests/test_oracles.py``).
 """
 
 import math

@@ -366,14 +366,15 @@ class Eskf(LeafSystem):
 
         self._predict_tick, self._write_estimate = eskf_kernel.predict_tick, eskf.write_estimate
         self._uncorrelate_accel_bias = eskf.uncorrelate_unobservable_accel_bias
-        self._manoeuvre_levels = eskf.manoeuvre_levels
+        self._manoeuvre_tick = eskf_kernel.manoeuvre_tick
+        self._levels_timing = (eskf.PX4_UPDATE_PERIOD, eskf.ACCEL_BIAS_LEARNING_TAU)
         self._bias_learning_tilt = params.accel_bias_learning_tilt if params.estimate_biases else 0.0
         self._gravity = None  # (var per tick, PX4's var per update, aiding timeout s, |f| band) if fused
         if params.gravity_std > 0.0:
             var = eskf.gravity_variance(params.gravity_std, ONBOARD_PERIOD)
             timeout = params.gravity_aiding_timeout
-            self._gravity = (var, params.gravity_std**2, timeout, eskf.GRAVITY_ACCEL_BAND)
-        self._gravity_update, self._correct = eskf.gravity_update, eskf_kernel.correct
+            self._gravity = (var, params.gravity_std**2, timeout, eskf.GRAVITY_ACCEL_BAND, eskf.GRAVITY_GATE)
+        self._gravity_tick = eskf_kernel.gravity_tick
         correct = eskf_kernel.correct
         builders = {
             "yaw": lambda m: updates.YawUpdate(
@@ -447,7 +448,9 @@ class Eskf(LeafSystem):
         healthy = self._predict_tick(filters, imu, estimate, self._model)
         if self._bias_learning_tilt > 0.0 or self._gravity is not None:
             manoeuvre = discrete_state.get_mutable_value(self._manoeuvre).reshape(self._n, -1)
-            self._manoeuvre_levels(manoeuvre, imu, ONBOARD_PERIOD)
+            self._manoeuvre_tick(
+                manoeuvre, imu, ONBOARD_PERIOD, *self._levels_timing
+            )  # eskf.manoeuvre_levels
             levels = manoeuvre[:, 0:2]
         if self._bias_learning_tilt > 0.0:  # PX4's accelerometer-bias inhibition
             self._uncorrelate_accel_bias(filters.x, filters.P, self._bias_learning_tilt, levels)
@@ -460,21 +463,16 @@ class Eskf(LeafSystem):
         discrete_state.get_mutable_value(self._bias)[:] = filters.x[:, 10:16].ravel()
 
     def _fuse_gravity(self, filters, imu, levels, now):
-        """PX4's gravity-vector fusion (``eskf.gravity_update``) IN PLACE on the vehicles not aided
-        horizontally (no GPS sample seen for the aiding timeout) whose peak-held |f_B| lies in
-        ``eskf.GRAVITY_ACCEL_BAND`` and whose IMU sample is finite."""
-        var, gate_var, timeout, (low, high) = self._gravity
+        """PX4's gravity-vector fusion (``kernels.eskf.gravity_tick``, ``eskf.gravity_update``
+        compiled) IN PLACE on the vehicles not aided horizontally (no GPS sample seen for the
+        aiding timeout) whose peak-held |f_B| lies in ``eskf.GRAVITY_ACCEL_BAND`` and whose IMU
+        sample is finite."""
+        var, gate_var, timeout, (low, high), gate = self._gravity
         last_gps = filters.book[:, fusion.GPS_SLOT]
         unaided = (last_gps == NO_SAMPLE_STAMP) | (now - last_gps > timeout)
-        rows = np.flatnonzero(
-            unaided & (levels[:, 1] > low) & (levels[:, 1] < high) & np.isfinite(imu[:, 0:3]).all(axis=1)
-        )
-        if len(rows) == 0:
-            return
-        x, P = filters.x[rows], filters.P[rows]
-        dx, P_new, fused = self._gravity_update(x, P, imu[rows, 0:3], var, gate_var)
-        self._correct(x, P_new, dx, fused)
-        filters.x[rows], filters.P[rows] = x, P_new
+        active = unaided & (levels[:, 1] > low) & (levels[:, 1] < high) & np.isfinite(imu[:, 0:3]).all(axis=1)
+        if active.any():
+            self._gravity_tick(filters.x, filters.P, imu[:, 0:3], active, var, gate_var, gate)
 
 
 def _gsf_update(params, sensors, sensor_updates) -> updates.GsfUpdate | None:
