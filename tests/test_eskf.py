@@ -208,21 +208,81 @@ def test_a_level_axis_accelerometer_bias_is_not_learned_as_px4s():
 
 
 def test_no_accelerometer_bias_is_learned_while_the_vehicle_manoeuvres_hard():
-    """PX4's manoeuvre levels (``eskf.manoeuvre_levels``: peak-held, decaying with EKF2_ABL_TAU):
-    a 5 rad/s spin inhibits every axis of a vertical-axis-up vehicle, and 0.5 s of quiet later
-    (decayed below EKF2_ABL_GYRLIM 3 rad/s, 5 e^-1 = 1.84) only the level axes stay inhibited."""
-    from quad_drake.estimation.eskf import manoeuvre_levels, uncorrelate_unobservable_accel_bias
+    """PX4's manoeuvre levels (``eskf.manoeuvre_levels``: on the IMU summed over PX4's 10 ms
+    update, peak-held, decaying with EKF2_ABL_TAU): a 5 rad/s spin inhibits every axis of a
+    vertical-axis-up vehicle once a 10 ms period is summed (not before), and 0.5 s of quiet later
+    (50 periods, decayed below EKF2_ABL_GYRLIM 3 rad/s: 5 x 0.98^50 = 1.82) only the level axes
+    stay inhibited."""
+    from quad_drake.estimation.eskf import (
+        MANOEUVRE_SIZE,
+        manoeuvre_levels,
+        uncorrelate_unobservable_accel_bias,
+    )
 
     x = np.zeros((1, 16))
     x[0, 6] = 1.0
-    levels = np.zeros((1, 2))
-    manoeuvre_levels(levels, np.array([[0.0, 0.0, -GRAVITY, 5.0, 0.0, 0.0]]), 0.002)
+    state = np.zeros((1, MANOEUVRE_SIZE))
+    spin = np.array([[0.0, 0.0, -GRAVITY, 5.0, 0.0, 0.0]])
+    for _ in range(5):  # 10 ms of 2 ms ticks
+        assert state[0, 0] == 0.0
+        manoeuvre_levels(state, spin, 0.002)
+    assert state[0, 0] == pytest.approx(5.0) and state[0, 1] == pytest.approx(GRAVITY)
     P = np.ones((1, 15, 15)) + np.eye(15)
-    uncorrelate_unobservable_accel_bias(x, P, math.radians(15.0), levels)
+    uncorrelate_unobservable_accel_bias(x, P, math.radians(15.0), state[:, 0:2])
     assert all(np.count_nonzero(P[0, k]) == 1 for k in (9, 10, 11))
     for _ in range(250):  # 0.5 s at rest
-        manoeuvre_levels(levels, np.array([[0.0, 0.0, -GRAVITY, 0.0, 0.0, 0.0]]), 0.002)
-    assert levels[0, 0] == pytest.approx(5.0 * (1.0 - 0.002 / 0.5) ** 250) and levels[0, 0] < 3.0
+        manoeuvre_levels(state, np.array([[0.0, 0.0, -GRAVITY, 0.0, 0.0, 0.0]]), 0.002)
+    assert state[0, 0] == pytest.approx(5.0 * (1.0 - 0.010 / 0.5) ** 50) and state[0, 0] < 3.0
     P = np.ones((1, 15, 15)) + np.eye(15)
-    uncorrelate_unobservable_accel_bias(x, P, math.radians(15.0), levels)
+    uncorrelate_unobservable_accel_bias(x, P, math.radians(15.0), state[:, 0:2])
     assert [np.count_nonzero(P[0, k]) == 1 for k in (9, 10, 11)] == [True, True, False]
+
+
+def test_the_manoeuvre_levels_see_the_mean_of_a_period_not_each_sample():
+    """PX4 sums its IMU over its 10 ms update before the levels see it: a vibration of +-3 m/s^2
+    about gravity that alternates sample by sample leaves the level of |f_B| at g (within the
+    0.9-1.1 g band of the gravity fusion), where the peak of single samples would be g + 3."""
+    state = np.zeros((1, eskf.MANOEUVRE_SIZE))
+    for tick in range(50):
+        f_z = -GRAVITY + (3.0 if tick % 2 else -3.0)
+        eskf.manoeuvre_levels(state, np.array([[0.0, 0.0, f_z, 0.0, 0.0, 0.0]]), 0.002)
+    assert state[0, 1] < GRAVITY + 3.0 * 0.2 + 1e-9
+    low, high = eskf.GRAVITY_ACCEL_BAND
+    assert low < state[0, 1] < high
+
+
+def test_the_gravity_vectors_jacobian_matches_central_differences():
+    """``eskf.predicted_gravity``: h = R^T (0, 0, -1) and its H against the attitude error
+    (R = Exp(dtheta) R_hat), by central differences at random attitudes; no yaw column."""
+    rng = np.random.default_rng(11)
+    for _ in range(5):
+        x = random_nominal(rng)
+        h, H = eskf.predicted_gravity(x[None], 15)
+        np.testing.assert_allclose(h[0], rotation_from_quat(x[6:10]).T @ [0.0, 0.0, -1.0], atol=1e-14)
+        step = 1e-6
+        for j in range(15):
+            dx = np.zeros(15)
+            dx[j] = step
+            up = eskf.predicted_gravity(boxplus(x, dx)[None], 15)[0][0]
+            down = eskf.predicted_gravity(boxplus(x, -dx)[None], 15)[0][0]
+            np.testing.assert_allclose(H[0, :, j], (up - down) / (2 * step), atol=1e-8)
+        assert not H[0, :, 8].any()
+
+
+def test_the_gravity_vector_pulls_the_tilt_to_the_accelerometers_and_gates_a_far_one():
+    """``eskf.gravity_update`` (PX4's gravity fusion): a level estimate and the accelerometer of a
+    vehicle rolled 50 mrad: the roll error moves toward +50 mrad and the yaw not (an uncorrelated
+    P), the covariance shrinks; the same estimate and a reading 30° off is rejected whole (beyond
+    the 0.25 sigma gate) and keeps x and P; a filter without the bias states reads f_B as it is."""
+    x = np.tile(eskf.initial_nominal(np.zeros(3), np.zeros(3), [1.0, 0.0, 0.0, 0.0]), (2, 1))
+    P = np.tile(np.diag([1.0] * 6 + [0.01] * 3 + [1e-4] * 6), (2, 1, 1))
+    rolled = rotation_from_quat(quat_from_euler(0.05, 0.0, 0.0)).T @ [0.0, 0.0, -GRAVITY]
+    far = rotation_from_quat(quat_from_euler(math.radians(30.0), 0.0, 0.0)).T @ [0.0, 0.0, -GRAVITY]
+    dx, P_new, fused = eskf.gravity_update(x, P, np.stack([rolled, far]), 1.0, 1.0)
+    assert fused.tolist() == [True, False]
+    assert 0.0 < dx[0, 6] < 0.05 and abs(dx[0, 7]) < 1e-12 and dx[0, 8] == 0.0
+    assert P_new[0, 6, 6] < P[0, 6, 6] and P_new[0, 8, 8] == P[0, 8, 8]
+    assert not dx[1].any()
+    np.testing.assert_array_equal(P_new[1], P[1])
+    dx9, _, _ = eskf.gravity_update(x[:1], P[:1, :9, :9], rolled[None], 1.0, 1.0)
+    np.testing.assert_allclose(dx9[0, 6:9], dx[0, 6:9], rtol=1e-6)

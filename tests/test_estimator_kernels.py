@@ -409,6 +409,50 @@ def test_eskf_updates_and_injection_match_the_scalar_functions(estimate_biases, 
     _check_update(eskf_kernel.mag_update, eskf.mag_update, x, P, yaw, eskf.mag_noise(params))
 
 
+@pytest.mark.parametrize("n, baro", [(15, False), (9, False), (16, True)], ids=["15", "9", "16-baro"])
+def test_eskf_gravity_fusion_matches_the_scalar_update(n, baro):
+    """``kernels.eskf.gravity_tick`` against ``eskf.gravity_update`` then ``eskf.inject`` row by
+    row: near-level attitudes and forces (some beyond the gate: rejected, x and P kept), a row not
+    active untouched."""
+    rng = np.random.default_rng(23)
+    x = random_nominal(rng, baro=baro)
+    for i in range(N):
+        roll, pitch = rng.normal(scale=0.1, size=2)
+        x[i, 6:10] = quat_from_euler_tuple(roll, pitch, rng.uniform(-math.pi, math.pi))
+    P = random_covariances(rng, n, scale=0.05)
+    f_B = specific_forces(rng)
+    active = np.ones(N, dtype=bool)
+    active[5] = False
+    x_new, P_new = x.copy(), P.copy()
+    fused = eskf_kernel.gravity_tick(x_new, P_new, f_B, active, 5.0, 1.0, eskf.GRAVITY_GATE)
+    assert 0 < fused.sum() < N - 1 and not fused[5]
+    for i in range(N):
+        if not active[i]:
+            np.testing.assert_array_equal(x_new[i], x[i])
+            np.testing.assert_array_equal(P_new[i], P[i])
+            continue
+        dx, P_ref, ok = eskf.gravity_update(x[i : i + 1], P[i : i + 1], f_B[i : i + 1], 5.0, 1.0)
+        assert ok[0] == fused[i]
+        x_ref, P_ref = eskf.inject(x[i], P_ref[0], dx[0])
+        np.testing.assert_allclose(x_new[i], x_ref, **TOL)
+        np.testing.assert_allclose(P_new[i], P_ref, **TOL)
+
+
+def test_eskf_manoeuvre_levels_compiled_match_the_scalar_levels():
+    """``kernels.eskf.manoeuvre_tick`` against ``eskf.manoeuvre_levels`` over 40 ticks of random
+    samples, one vehicle's with a non-finite sample."""
+    rng = np.random.default_rng(29)
+    state, reference = np.zeros((N, eskf.MANOEUVRE_SIZE)), np.zeros((N, eskf.MANOEUVRE_SIZE))
+    for tick in range(40):
+        imu = np.column_stack([specific_forces(rng), gyro_samples(rng)])
+        if tick == 7:
+            imu[3, 4] = math.nan
+        eskf_kernel.manoeuvre_tick(state, imu, DT, eskf.PX4_UPDATE_PERIOD, eskf.ACCEL_BIAS_LEARNING_TAU)
+        eskf.manoeuvre_levels(reference, imu, DT)
+        np.testing.assert_allclose(state, reference, **TOL)
+    assert (state[:, 1] > 0.0).all() and (state[4:, 0] > 0.0).all()  # gyro_samples: rows 0-3 still
+
+
 def test_gps_updates_on_a_singular_innovation_covariance_behave_as_the_scalar_ones():
     rng = np.random.default_rng(18)
     x, P = random_nominal(rng, 3), random_covariances(rng, 9, count=3)

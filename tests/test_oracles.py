@@ -35,6 +35,8 @@ ORACLES = {
         "inject",
         "gps_update",
         "mag_update",
+        "gravity_update",
+        "manoeuvre_levels",
     ),
 }
 FLIGHTS = {

@@ -44,9 +44,10 @@ Two kinds of function. The scalar formulas (:func:`nominal_step`, :func:`quat_ex
 ``rotations.rotation_entries`` and ``ekf.mag_innovation``) are plain float arithmetic whose own
 code the running implementation, ``kernels/eskf.py``, compiles: they exist once. The matrix forms
 (``predict``, ``predict_nominal``, ``transition``, ``process_noise``, ``joseph_update``, ``inject``,
-``gps_update``, ``mag_update``) are REFERENCE ORACLES of the kernel's sparse loops, which single
-runs and fleets both execute: the kernel is tested against them on seeded random inputs to 1e-12
-(``tests/test_estimator_kernels.py``) and no simulation calls them (``tests/test_oracles.py``).
+``gps_update``, ``mag_update``, ``gravity_update``, ``manoeuvre_levels``) are REFERENCE ORACLES of
+the kernel's sparse loops, which single runs and fleets both execute: the kernel is tested
+against them on seeded random inputs to 1e-12 (``tests/test_estimator_kernels.py``) and no
+simulation calls them (``tests/test_oracles.py``).
 """
 
 import math
@@ -445,13 +446,32 @@ ACCEL_BIAS_LEARNING_ACCEL_LIMIT = 25.0
 """m/s^2: the same of the specific force's magnitude (PX4's ``EKF2_ABL_ACCLIM``)."""
 
 
-def manoeuvre_levels(levels, imu, dt) -> None:
-    """PX4 EKF2's manoeuvre levels IN PLACE: levels (N, 2) the peak-held |w_B| (rad/s) and |f_B|
-    (m/s^2) of each vehicle, each max(this sample's, the last decayed by 1 - dt / ACCEL_BIAS_LEARNING_TAU);
-    imu (N, 6: f_B, w_B) this tick's samples (a non-finite one leaves the level decaying); dt s."""
-    decay = 1.0 - min(dt / ACCEL_BIAS_LEARNING_TAU, 1.0)
-    now = np.column_stack((np.linalg.norm(imu[:, 3:6], axis=1), np.linalg.norm(imu[:, 0:3], axis=1)))
-    levels[:] = np.fmax(now, decay * levels)
+MANOEUVRE_SIZE = 9
+"""Floats per vehicle of :func:`manoeuvre_levels`' state: the levels (|w_B| rad/s, |f_B| m/s^2),
+then the sums over the current update period of w_B dt (3), f_B dt (3) and dt (1)."""
+
+
+def manoeuvre_levels(state, imu, dt) -> None:
+    """PX4 EKF2's manoeuvre levels IN PLACE on state (N, :data:`MANOEUVRE_SIZE`); imu (N, 6: f_B,
+    w_B) this tick's samples, dt s. PX4 computes them on its delayed IMU, the samples summed over
+    its update period (:data:`PX4_UPDATE_PERIOD`, 10 ms): each vehicle's finite samples are summed
+    tick by tick (a non-finite one is left out), and once a period is summed the magnitudes of the
+    mean rate and specific force over it update the levels (state[:, 0:2], the peak-held |w_B| and
+    |f_B|): each max(the mean's, the level decayed by 1 - period / ACCEL_BIAS_LEARNING_TAU), as
+    ``Ekf::updateIMUBiasInhibit``. A vehicle's levels hold between its updates."""
+    finite = np.isfinite(imu).all(axis=1)
+    state[finite, 2:5] += imu[finite, 3:6] * dt
+    state[finite, 5:8] += imu[finite, 0:3] * dt
+    state[finite, 8] += dt
+    due = np.flatnonzero(state[:, 8] >= PX4_UPDATE_PERIOD - 1e-9)
+    if len(due) == 0:
+        return
+    span = state[due, 8]
+    mean_rate = np.linalg.norm(state[due, 2:5], axis=1) / span
+    mean_force = np.linalg.norm(state[due, 5:8], axis=1) / span
+    decay = 1.0 - np.minimum(span / ACCEL_BIAS_LEARNING_TAU, 1.0)
+    state[due, 0:2] = np.fmax(np.column_stack((mean_rate, mean_force)), decay[:, None] * state[due, 0:2])
+    state[due, 2:] = 0.0
 
 
 def uncorrelate_unobservable_accel_bias(x, P, tilt, levels=None) -> None:
@@ -503,3 +523,65 @@ def initial_covariance(params, baro=False) -> np.ndarray:
     if baro:
         std.append(params.baro.bias_init_std)
     return np.diag(np.square(std))
+
+
+PX4_UPDATE_PERIOD = 0.010
+"""s: PX4 EKF2's update period (``EKF2_PREDICT_US``): its delayed IMU sums the samples over it
+(:func:`manoeuvre_levels`), and it fuses the gravity vector once per period: a filter updating
+every dt fuses it with the variance gravity_std^2 PX4_UPDATE_PERIOD / dt, the same information
+per second (:func:`gravity_variance`)."""
+GRAVITY_GATE = 0.25
+"""sigma: PX4 EKF2's innovation gate of the gravity vector (``Ekf::controlGravityFusion``)."""
+GRAVITY_ACCEL_BAND = (0.9 * GRAVITY, 1.1 * GRAVITY)
+"""m/s^2: the peak-held |f_B| (:func:`manoeuvre_levels`) within which the accelerometer is taken
+as gravity (PX4's 0.9 g to 1.1 g)."""
+
+
+def predicted_gravity(x, n) -> tuple[np.ndarray, np.ndarray]:
+    """(h (M, 3), H (M, 3, n)): the direction of -g in the body frame through the estimates x
+    (M, 16+), h = R_hat^T (0, 0, -1) (unit, FRD), and its Jacobian against the error state of
+    size n, H = R_hat^T [(0, 0, -1)]x on the attitude error (row i: -R[1, i], R[0, i], 0; the
+    tilt only), zero elsewhere."""
+    r = rotation_entries(x[:, 6], x[:, 7], x[:, 8], x[:, 9])  # R_NB row-major, each (M,)
+    H = np.zeros((x.shape[0], 3, n))
+    H[:, :, 6] = -np.column_stack(r[3:6])
+    H[:, :, 7] = np.column_stack(r[0:3])
+    return -np.column_stack(r[6:9]), H
+
+
+def gravity_update(x, P, f_B, var, gate_var) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """PX4 EKF2's gravity-vector fusion (``Ekf::controlGravityFusion``, its ``EKF2_IMU_CTRL`` bit
+    2) of M filters: (dx (M, n), P' (M, n, n), fused (M,) bool), the errors to inject
+    (``kernels.eskf.correct``) and the covariance after the update; x (M, 16+), P (M, n, n).
+
+    The measurement is the unit vector of the accelerometer's reading less its bias, f_B (M, 3)
+    m/s^2 body FRD, read as the direction of -g (:func:`predicted_gravity`), each axis fused in
+    turn with the variance `var` (unit vector^2, per update) as PX4 fuses its three in turn,
+    linearised once (Joseph form). The sample is rejected whole (fused False, dx 0, P unchanged)
+    when an axis's innovation exceeds :data:`GRAVITY_GATE` sigma of its innovation variance
+    with `gate_var` (PX4's per-update variance: the gate stays PX4's where `var` is rescaled to
+    another update rate, :func:`gravity_variance`)."""
+    x, P, f_B = np.asarray(x, dtype=float), np.asarray(P, dtype=float), np.asarray(f_B, dtype=float)
+    n = P.shape[1]
+    if n >= ERROR_SIZE_WITH_BIASES:
+        f_B = f_B - x[:, BA_IDX]
+    h, H = predicted_gravity(x, n)
+    nu = f_B / np.linalg.norm(f_B, axis=1)[:, None] - h
+    S0 = np.einsum("mij,mjk,mik->mi", H, P, H)
+    fused = np.all(nu * nu <= GRAVITY_GATE**2 * (S0 + gate_var), axis=1) & np.isfinite(nu).all(axis=1)
+    dx, P_new = np.zeros((x.shape[0], n)), P.copy()
+    eye = np.eye(n)
+    for axis in range(3):
+        h_axis, Pm = H[fused, axis], P_new[fused]
+        Ph = np.einsum("mij,mj->mi", Pm, h_axis)
+        K = Ph / (np.einsum("mi,mi->m", h_axis, Ph) + var)[:, None]
+        dx[fused] += K * (nu[fused, axis] - np.einsum("mi,mi->m", h_axis, dx[fused]))[:, None]
+        A = eye - np.einsum("mi,mj->mij", K, h_axis)
+        P_new[fused] = A @ Pm @ np.transpose(A, (0, 2, 1)) + var * np.einsum("mi,mj->mij", K, K)
+    return dx, P_new, fused
+
+
+def gravity_variance(gravity_std, dt) -> float:
+    """(unit vector)^2: the variance of one gravity update every dt s for PX4's std per its
+    10 ms update (:data:`PX4_UPDATE_PERIOD`)."""
+    return gravity_std**2 * PX4_UPDATE_PERIOD / dt

@@ -158,6 +158,12 @@ class EskfEstimatorConfig(AidingParams, GateParams):
     # 15° = 0.2618: a level axis's bias cannot be told from a tilt), its covariance row
     # uncorrelated otherwise (``eskf.uncorrelate_unobservable_accel_bias``); 0 = off
     accel_bias_learning_tilt: float = number(0.0, minimum=0.0, maximum=1.5)
+    # > 0: PX4 EKF2's gravity-vector fusion (EKF2_IMU_CTRL bit 2) while not aided horizontally
+    # (no GPS sample for gravity_aiding_timeout s): the accelerometer's direction as a measurement
+    # of the tilt while its peak-held magnitude is within 0.9-1.1 g, this std (PX4's
+    # EKF2_GRAV_NOISE, of the unit vector per PX4's 10 ms update; ``eskf.gravity_update``); 0 = off
+    gravity_std: float = number(0.0, nonnegative=True, noise_std=True)
+    gravity_aiding_timeout: float = number(5.0, positive=True)  # s (PX4's EKF2_NOAID_TOUT)
     gps_pos_std: List[float] = noise_stds(0.7, 0.7, 2.0)  # m
     gps_vel_std: List[float] = noise_stds(0.1, 0.1, 0.3)  # m/s
     mag_yaw_std: float = number(0.1, positive=True, noise_std=True)  # rad
@@ -288,6 +294,9 @@ PX4_NOISE = {
 }
 """PX4 EKF2's default noise, what a replay of a real flight controller's log assumes (not tuned
 on the logs; ``flightlogs/settings.py``)."""
+PX4_GRAVITY_STD = 1.0
+"""PX4 EKF2's ``EKF2_GRAV_NOISE`` default: the gravity vector's std (of the unit vector, per its
+10 ms update; PX4 documents it in m/s^2 and fuses it on the unit vector)."""
 
 
 def _ekf7_replay_defaults() -> Ekf7EstimatorConfig:
@@ -340,6 +349,7 @@ def _eskf_replay_defaults():
         gyro_std=[PX4_NOISE["gyro_std"]] * 3,
         accel_bias_rw_std=0.003,
         gyro_bias_rw_std=0.001,
+        gravity_std=PX4_GRAVITY_STD,
         gps_pos_std=[PX4_NOISE["gps_pos_std"]] * 3,
         gps_vel_std=[PX4_NOISE["gps_vel_std"]] * 3,
         mag_yaw_std=PX4_NOISE["heading_std"],

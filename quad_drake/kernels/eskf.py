@@ -346,3 +346,86 @@ def mag_update(x, P, yaw_meas, R_mag) -> tuple[np.ndarray, np.ndarray, np.ndarra
     """(x', P', nis) after magnetometer yaws (N,) rad with R_mag (1, 1) (``eskf.mag_update`` per row):
     :func:`mag_tick` with every sample fresh and no gate (``fusion.mag_update``)."""
     return fusion.mag_update(mag_tick, x, P, yaw_meas, R_mag)
+
+
+# ----- gravity vector ------------------------------------------------------------------------------
+
+
+@njit_cached
+def _gravity_row(x, P, i, f_B, var, gate_var, gate, dx, Ph, K, Ah):
+    """PX4's gravity fusion of vehicle i IN PLACE (``eskf.gravity_update``, its sparse form: H has
+    two non-zero columns per axis, 6 and 7, -R[1, axis] and R[0, axis]); dx, Ph, K, Ah (n,)
+    scratch. Returns whether the sample was fused (within the gate on every axis)."""
+    n = P.shape[1]
+    f0, f1, f2 = f_B[0], f_B[1], f_B[2]
+    if n >= _WITH_BIASES:
+        f0, f1, f2 = f0 - x[i, 10], f1 - x[i, 11], f2 - x[i, 12]
+    norm = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
+    r = rotations.rotation_entries(x[i, 6], x[i, 7], x[i, 8], x[i, 9])
+    nu = (f0 / norm + r[6], f1 / norm + r[7], f2 / norm + r[8])  # z - h, h = -R[2, :]
+    for axis in range(3):
+        a, b = -r[3 + axis], r[axis]
+        s0 = a * a * P[i, 6, 6] + 2.0 * a * b * P[i, 6, 7] + b * b * P[i, 7, 7]
+        if not nu[axis] * nu[axis] <= gate * gate * (s0 + gate_var):
+            return False
+    for k in range(n):
+        dx[k] = 0.0
+    for axis in range(3):
+        a, b = -r[3 + axis], r[axis]
+        for k in range(n):
+            Ph[k] = a * P[i, k, 6] + b * P[i, k, 7]
+        s = a * Ph[6] + b * Ph[7] + var
+        residual = nu[axis] - (a * dx[6] + b * dx[7])
+        for k in range(n):
+            K[k] = Ph[k] / s
+            dx[k] += K[k] * residual
+        # Joseph: A = P - K Ph^T (P symmetric: h P = Ph^T), then A - (A h^T) K^T + var K K^T
+        for r_ in range(n):
+            for c in range(n):
+                P[i, r_, c] -= K[r_] * Ph[c]
+        for r_ in range(n):
+            Ah[r_] = a * P[i, r_, 6] + b * P[i, r_, 7]
+        for r_ in range(n):
+            for c in range(n):
+                P[i, r_, c] += -Ah[r_] * K[c] + var * K[r_] * K[c]
+    _inject_row(x, P, i, dx)
+    return True
+
+
+@njit_cached
+def gravity_tick(x, P, f_B, active, var, gate_var, gate):
+    """PX4's gravity-vector fusion IN PLACE on the vehicles `active` (N,) bool of x (N, 16+), P
+    (N, n, n) with their accelerometer samples f_B (N, 3) m/s^2: ``eskf.gravity_update`` per row,
+    the errors injected (``eskf.inject``). Returns fused (N,) bool."""
+    n = P.shape[1]
+    dx, Ph, K, Ah = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    fused = np.zeros(x.shape[0], dtype=np.bool_)
+    for i in range(x.shape[0]):
+        if active[i]:
+            fused[i] = _gravity_row(x, P, i, f_B[i], var, gate_var, gate, dx, Ph, K, Ah)
+    return fused
+
+
+@njit_cached
+def manoeuvre_tick(state, imu, dt, period, tau):
+    """``eskf.manoeuvre_levels`` compiled, IN PLACE on state (N, ``eskf.MANOEUVRE_SIZE``) with
+    this tick's imu (N, 6) over dt s; period: PX4's update (s), tau: the levels' decay time (s)."""
+    for i in range(state.shape[0]):
+        finite = True
+        for k in range(6):
+            if not math.isfinite(imu[i, k]):
+                finite = False
+        if finite:
+            for k in range(3):
+                state[i, 2 + k] += imu[i, 3 + k] * dt
+                state[i, 5 + k] += imu[i, k] * dt
+            state[i, 8] += dt
+        span = state[i, 8]
+        if span >= period - 1e-9:
+            rate = math.sqrt(state[i, 2] ** 2 + state[i, 3] ** 2 + state[i, 4] ** 2) / span
+            force = math.sqrt(state[i, 5] ** 2 + state[i, 6] ** 2 + state[i, 7] ** 2) / span
+            decay = 1.0 - min(span / tau, 1.0)
+            state[i, 0] = max(rate, decay * state[i, 0])
+            state[i, 1] = max(force, decay * state[i, 1])
+            for k in range(2, 9):
+                state[i, k] = 0.0
