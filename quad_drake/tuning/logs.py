@@ -48,6 +48,7 @@ from ..flightlogs.settings import load_replay, resolve_log
 from ..judging import innovations
 from .search import Evaluation, SearchResult
 from .session import CandidateProgress
+from .settings import LOG_SPLITS
 
 SEARCH_DECADES = 2.0
 """Each noise is searched from 1/100 to 100 times its start (PX4's defaults lie that far from a
@@ -215,15 +216,48 @@ def cut(log, end) -> FlightLog:
     return dataclasses.replace(log, **{name: part(getattr(log, name)) for name in names})
 
 
+SPLIT_BLOCK = 4.0
+"""s: the blocks of the interleaved split (``LogTuneSettings.split == "blocks"``): the first
+``train_fraction`` of each block from COMPARE_AFTER on is tuned on, the rest held out, so that both
+parts hold every phase of a flight longer than a block (the bundled SITL log sits on the ground
+until 19 s and flies 19-26 s: the tail split's training part, 5-18.7 s, held no flight at all)."""
+
+
+def split(log, settings) -> tuple[tuple, tuple]:
+    """(training windows, held-out windows) of `log`, each ((start, end), ...) s from COMPARE_AFTER on
+    (:func:`innovations.inside`): ``settings.split`` "tail" tunes on [COMPARE_AFTER, f T) and holds
+    out [f T, T) (none where f T is within 1 s of the end); "blocks" cuts the log into SPLIT_BLOCK
+    blocks and tunes on the first share f of each, holding out the rest (the last block's open to the
+    end)."""
+    f, duration = settings.train_fraction, log.duration
+    if settings.split == "tail":
+        end = f * duration
+        return ((COMPARE_AFTER, end),), (((end, math.inf),) if end < duration - 1.0 else ())
+    starts = np.arange(COMPARE_AFTER, duration, SPLIT_BLOCK)
+    training = tuple((float(a), float(min(a + f * SPLIT_BLOCK, duration))) for a in starts)
+    held = [
+        (a + f * SPLIT_BLOCK, a + SPLIT_BLOCK if a + SPLIT_BLOCK < duration else math.inf)
+        for a in starts
+        if a + f * SPLIT_BLOCK < min(a + SPLIT_BLOCK, duration)
+    ]
+    return training, tuple((float(a), float(b)) for a, b in held)
+
+
 def train_end(log, settings) -> float:
-    return settings.train_fraction * log.duration
+    """s: where a candidate's replay of `log` stops (its last training window's end)."""
+    return split(log, settings)[0][-1][1]
 
 
-def channel_statistics(config, log, window) -> dict:
+def training_length(log, settings) -> float:
+    """s of `log` tuned on (its training windows' total)."""
+    return float(sum(end - start for start, end in split(log, settings)[0]))
+
+
+def channel_statistics(config, log, windows) -> dict:
     """{channel: ChannelStatistics} of the ReplayConfig `config` replaying `log`, judged over
-    window (s)."""
+    windows (((start, end), ...) s)."""
     result = replay(dataclasses.replace(config, name=config.name or "tune"), log)
-    return innovations.channel_statistics(result.vocabulary, result.logs, _judged(config, result), window)
+    return innovations.channel_statistics(result.vocabulary, result.logs, _judged(config, result), windows)
 
 
 def _judged(config, result):
@@ -252,11 +286,13 @@ def prepare(log_names, holdout_names, overrides, settings) -> LogTuneProblem:
     config = load_replay(log_names[0], "{kind: eskf}", overrides)
     logs = [read_flight_log(p) for p in paths]
     tuned_on, held = logs[: len(log_names)], logs[len(log_names) :]
+    if settings.split not in LOG_SPLITS:
+        raise ConfigError(f"tune: --split must be one of {', '.join(LOG_SPLITS)}, got {settings.split!r}")
     for log in tuned_on:
-        if train_end(log, settings) <= COMPARE_AFTER + 1.0:
+        if log.duration <= COMPARE_AFTER + 1.0 or training_length(log, settings) <= 1.0:
             raise ConfigError(
-                f"tune: {log.source}: its training part ends at {train_end(log, settings):.1f} s, "
-                f"within {COMPARE_AFTER + 1:g} s of the start; use a longer log or a larger --train-fraction"
+                f"tune: {log.source}: its training part from {COMPARE_AFTER:g} s on is under 1 s; "
+                "use a longer log or a larger --train-fraction"
             )
     if settings.train_fraction == 1.0 and not held:
         raise ConfigError("tune: --train-fraction 1 leaves nothing held out; name --holdout-logs")
@@ -279,8 +315,8 @@ def prepare(log_names, holdout_names, overrides, settings) -> LogTuneProblem:
 def _score(problem, config) -> LogScore:
     per_log = []
     for log in problem.logs:
-        end = train_end(log, problem.settings)
-        per_log.append(channel_statistics(config, cut(log, end), (COMPARE_AFTER, end)))
+        training, _ = split(log, problem.settings)
+        per_log.append(channel_statistics(config, cut(log, train_end(log, problem.settings)), training))
     return LogScore(innovations.likelihood(per_log), innovations.loss(per_log), tuple(per_log))
 
 
@@ -446,19 +482,25 @@ def delay_curves(problem, best_x) -> dict:
 
 
 def holdout(problem, config) -> list:
-    """[(label, {channel: ChannelStatistics})]: each tuned log's part after its training cut, then
-    each held-out log whole, replayed whole with the ReplayConfig `config`."""
+    """[(label, {channel: ChannelStatistics})]: each tuned log's held-out windows (:func:`split`),
+    then each held-out log whole, replayed whole with the ReplayConfig `config`."""
     judged = []
     for log in problem.logs:
-        end = train_end(log, problem.settings)
-        if end < log.duration - 1.0:
-            label = f"{_name(log)} after {end:.1f} s"
-            judged.append((label, channel_statistics(config, log, (end, math.inf))))
+        _, held = split(log, problem.settings)
+        if held:
+            judged.append((_held_label(log, problem.settings, held), channel_statistics(config, log, held)))
     for log in problem.holdout_logs:
         judged.append(
-            (f"{_name(log)} (held-out log)", channel_statistics(config, log, (COMPARE_AFTER, math.inf)))
+            (f"{_name(log)} (held-out log)", channel_statistics(config, log, ((COMPARE_AFTER, math.inf),)))
         )
     return judged
+
+
+def _held_label(log, settings, held) -> str:
+    if settings.split == "tail":
+        return f"{_name(log)} after {held[0][0]:.1f} s"
+    share = 100 * (1 - settings.train_fraction)
+    return f"{_name(log)} held-out blocks (last {share:g} % of each {SPLIT_BLOCK:g} s)"
 
 
 def _name(log):
