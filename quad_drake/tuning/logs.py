@@ -18,7 +18,8 @@ default noise, or with ``--set px4_parameters=true`` the log's own EKF2_* values
 each channel's noise so that its NIS per dof would be 1 if the prior covariance were small beside
 the noise (R scaled by the NIS per dof: covariance matching), repeated until each NIS per dof is
 within MATCH_TOLERANCE of 1 (:func:`match_noise`); stage 2 profiles the IMU's noise
-(PX4's EKF2_ACC_NOISE and EKF2_GYR_NOISE; ``LogTuneSettings.imu_noise``), then each delay
+(PX4's EKF2_ACC_NOISE, body x-y and z apart, and EKF2_GYR_NOISE; ``LogTuneSettings.imu_noise``),
+then each delay
 (:func:`profile`: the measurement noise re-matched at each candidate value, a coarse grid, the
 noise matched to convergence at the grid's best, then SciPy's bounded scalar search within a grid
 step);
@@ -65,14 +66,20 @@ NOISE_FIELDS = {
     "heading": ("mag_yaw_std", None),
     "field": ("mag_field.field_std", (0, 1, 2)),
     "baro": ("baro.height_std", None),
-    "accel": ("accel_std", (0, 1, 2)),
+    "accel_xy": ("accel_std", (0, 1)),
+    "accel_z": ("accel_std", (2,)),
     "gyro": ("gyro_std", (0, 1, 2)),
 }
 """channel, or the IMU's accelerometer or gyro -> (the ESKF field below ``estimator`` that holds
 its noise, the vector's indices or None for a scalar)."""
-PROCESS_NOISE = ("accel", "gyro")
-"""The IMU's noise (one multiplier per vector, PX4's EKF2_ACC_NOISE and EKF2_GYR_NOISE): no
-channel's NIS sets it, so it is profiled like a delay (:func:`profile`)."""
+PROCESS_NOISE = ("accel_xy", "accel_z", "gyro")
+"""The IMU's noise (PX4's EKF2_ACC_NOISE and EKF2_GYR_NOISE): no channel's NIS sets it, so it is
+profiled like a delay (:func:`profile`). The accelerometer's body x-y and z axes have a multiplier
+each: the horizontal and the vertical velocity's prediction error differ (the bundled SITL log's
+touchdown stops the vehicle without the IMU sensing it, a 0.7 m/s vertical step that one multiplier
+for all three axes could only absorb by making the horizontal prior variance 16 times the
+horizontal velocity innovations' variance, their NIS per dof 0.05-0.08); PX4's one EKF2_ACC_NOISE
+is written as their mean (``px4_parameters.our_value``)."""
 DELAY_OF = {"gps": "gps_delay", "heading": "mag_delay", "field": "mag_delay", "baro": "baro_delay"}
 """A channel's sensor -> the ReplayConfig's delay field."""
 
