@@ -25,7 +25,7 @@ noise matched to convergence at the grid's best, then SciPy's bounded scalar sea
 step);
 stage 3 re-matches the noise at the delays found; stage 4 is SciPy's Powell
 (``scipy.optimize.minimize``, bounded, derivative-free: the objective is a replay) polishing every
-noise multiplier (log10, ±SEARCH_DECADES) and every sensor delay (0..MAX_DELAY) together until
+noise multiplier (log10, -DECADES_DOWN..+DECADES_UP) and every sensor delay (0..MAX_DELAY) together until
 the budget of replays is spent or it converges. Each candidate is a replay of the training part of
 each training log, cut at ``train_fraction`` of its length (the replays stay short: a 20 s stretch
 replays in under 1 s of CPU). The held-out judgement replays every log whole with the start and
@@ -51,9 +51,14 @@ from .search import Evaluation, SearchResult
 from .session import CandidateProgress
 from .settings import LOG_SPLITS
 
-SEARCH_DECADES = 2.0
-"""Each noise is searched from 1/100 to 100 times its start (PX4's defaults lie that far from a
-simulator's noise: the bundled SITL log's barometer NIS per dof is 5e-4 at PX4's 3.5 m)."""
+DECADES_DOWN = 3.0
+"""Each noise is searched down to 1/1000 of its start: PX4's defaults lie that far above a
+simulator's noise (the bundled SITL log's barometer NIS per dof is 5e-4 at PX4's 3.5 m; its GPS
+horizontal velocity innovations, RMS 0.0025 m/s, are under 1 % of PX4's 0.3 m/s, so the former
+floor at 1/100, 0.003 m/s, held their NIS per dof at 0.05-0.4, and the gyro's sat on it too)."""
+DECADES_UP = 2.0
+"""... and up to 100 times its start (a real flight's vibration and interference: the IMU noise
+of a log without GPS ran to this bound already, where nothing observes it)."""
 MAX_DELAY = 0.3
 """s: the largest sensor delay searched (PX4's EKF2_*_DELAY range ends at 300 ms)."""
 DELAY_UNIT = 0.1
@@ -103,7 +108,7 @@ class Dimension:
 
     @property
     def bounds(self) -> tuple:
-        return (0.0, MAX_DELAY / DELAY_UNIT) if self.is_delay else (-SEARCH_DECADES, SEARCH_DECADES)
+        return (0.0, MAX_DELAY / DELAY_UNIT) if self.is_delay else (-DECADES_DOWN, DECADES_UP)
 
     @property
     def grid_step(self) -> float:
