@@ -138,3 +138,23 @@ def test_the_default_split_tunes_and_judges_on_the_bundled_sitl_flight_alike():
     assert all(end - start == pytest.approx(0.6 * SPLIT_BLOCK, abs=1e-12) for start, end in training[:-1])
     stamps = np.arange(5.0, log.duration, 0.01)
     assert not np.any(innovations.inside(stamps, training) & innovations.inside(stamps, held))
+
+
+def test_the_search_sets_the_accelerometer_s_axes_apart_and_reaches_a_simulator_s_noise():
+    """On the bundled SITL log one multiplier for the accelerometer's three axes left the horizontal
+    velocity's prior variance 16 times its innovations' variance (NIS per dof 0.05-0.08), the
+    vertical needing the larger noise; and its GPS horizontal velocity innovations (RMS 0.0025 m/s)
+    lie under the former floor, 1/100 of PX4's 0.3 m/s."""
+    from quad_drake.tuning.logs import apply, prepare
+    from quad_drake.tuning.settings import LogTuneSettings
+
+    problem = prepare(["sitl_takeoff_land_gps"], [], [], LogTuneSettings(budget=10))
+    names = [d.name for d in problem.space]
+    assert {"accel_xy", "accel_z", "gyro"} <= set(names) and "accel" not in names
+    x = np.zeros(len(names))
+    x[names.index("accel_z")] = 1.0
+    start = problem.config.estimator.accel_std
+    tuned = apply(problem.config, problem.space, x).estimator.accel_std
+    assert tuned == pytest.approx([start[0], start[1], 10.0 * start[2]], rel=1e-12)
+    velocity = problem.space[names.index("gps_vel_xy")]
+    assert velocity.value(velocity.bounds[0]) < 0.0025 / 2 and velocity.value(velocity.bounds[1]) >= 30.0
