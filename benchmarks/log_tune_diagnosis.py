@@ -14,7 +14,9 @@ the log has PX4's land detector):
   assumed r would give with the prior as replayed, had r been r̂ (the best any measurement noise
   can do without changing the prior),
 - the logged values' quantum q (the smallest nonzero step between samples) and the uniform
-  quantisation std q / sqrt(12).
+  quantisation std q / sqrt(12);
+
+and the replay's innovation-gate counts (GPS, magnetometer, barometer samples rejected).
 
 The field and the barometer are judged on the filter's own NIS (no innovation logged): only the
 NIS per dof, its band and autocorrelation.
@@ -30,6 +32,7 @@ import math
 
 import numpy as np
 
+from quad_drake.estimation.vocabulary import DIAG
 from quad_drake.flightlogs.reader import read_flight_log
 from quad_drake.flightlogs.replay import replay
 from quad_drake.flightlogs.settings import load_replay, resolve_log
@@ -104,6 +107,9 @@ def main():
         "delays gps/mag/baro "
         f"{result.config.gps_delay:.3f}/{result.config.mag_delay:.3f}/{result.config.baro_delay:.3f} s"
     )
+    last = np.asarray(result.logs["diagnostics"], dtype=float)[-1]
+    counts = {name: int(last[DIAG[name]]) for name in ("gps_gated", "gps_resets", "mag_gated", "baro_gated")}
+    print("the whole replay's gate counts: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
     for label, windows, landed in parts(log, settings):
         print(f"{label} {' '.join(f'{a:.1f}-{b:.1f}' for a, b in windows)} s")
         for channel in judged:
