@@ -509,10 +509,10 @@ def holdout(problem, config) -> list:
 
 
 def _held_label(log, settings, held) -> str:
+    """A held-out part's label: "NAME after T s" (the tail split) or "NAME held-out blocks"."""
     if settings.split == "tail":
         return f"{_name(log)} after {held[0][0]:.1f} s"
-    share = 100 * (1 - settings.train_fraction)
-    return f"{_name(log)} held-out blocks (last {share:g} % of each {SPLIT_BLOCK:g} s)"
+    return f"{_name(log)} held-out blocks"
 
 
 def _name(log):
