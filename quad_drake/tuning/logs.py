@@ -26,10 +26,11 @@ step);
 stage 3 re-matches the noise at the delays found; stage 4 is SciPy's Powell
 (``scipy.optimize.minimize``, bounded, derivative-free: the objective is a replay) polishing every
 noise multiplier (log10, -DECADES_DOWN..+DECADES_UP) and every sensor delay (0..MAX_DELAY) together until
-the budget of replays is spent or it converges. Each candidate is a replay of the training part of
-each training log, cut at ``train_fraction`` of its length (the replays stay short: a 20 s stretch
-replays in under 1 s of CPU). The held-out judgement replays every log whole with the start and
-the tuned values and judges the part after the training cut, and any ``holdout_logs`` whole.
+the budget of replays is spent or it converges. Each candidate replays each training log up to
+its last training window's end and is scored on its training windows (:func:`split`: interleaved
+4 s blocks, the first ``train_fraction`` of each tuned on, or the log's first share; a 20 s
+stretch replays in under 1 s of CPU). The held-out judgement replays every log whole with the
+start and the tuned values and judges its held-out windows, and any ``holdout_logs`` whole.
 Ctrl-C keeps the best so far (its files are written, the held-out judgement skipped).
 """
 
