@@ -81,11 +81,11 @@ its noise, the vector's indices or None for a scalar)."""
 PROCESS_NOISE = ("accel_xy", "accel_z", "gyro")
 """The IMU's noise (PX4's EKF2_ACC_NOISE and EKF2_GYR_NOISE): no channel's NIS sets it, so it is
 profiled like a delay (:func:`profile`). The accelerometer's body x-y and z axes have a multiplier
-each: the horizontal and the vertical velocity's prediction error differ (the bundled SITL log's
-touchdown stops the vehicle without the IMU sensing it, a 0.7 m/s vertical step that one multiplier
-for all three axes could only absorb by making the horizontal prior variance 16 times the
-horizontal velocity innovations' variance, their NIS per dof 0.05-0.08); PX4's one EKF2_ACC_NOISE
-is written as their mean (``px4_parameters.our_value``)."""
+each: the horizontal and the vertical velocity's prediction errors differ (on the bundled SITL log
+one multiplier for all three settled at 0.85 m/s² per sample, the vertical velocity, stopped at
+the touchdown without the IMU sensing it, asking for a large one, and the horizontal velocity's
+prior variance was then 16 times its innovations' variance: NIS per dof 0.05-0.08); PX4's one
+EKF2_ACC_NOISE is written as their mean (``px4_parameters.our_value``)."""
 DELAY_OF = {"gps": "gps_delay", "heading": "mag_delay", "field": "mag_delay", "baro": "baro_delay"}
 """A channel's sensor -> the ReplayConfig's delay field."""
 
