@@ -55,7 +55,7 @@ from .settings import LOG_SPLITS
 DECADES_DOWN = 3.0
 """Each noise is searched down to 1/1000 of its start: PX4's defaults lie that far above a
 simulator's noise (the bundled SITL log's barometer NIS per dof is 5e-4 at PX4's 3.5 m; its GPS
-horizontal velocity innovations, RMS 0.0025 m/s, are under 1 % of PX4's 0.3 m/s, so the former
+horizontal velocity innovations, RMS 0.0026 m/s, are under 1 % of PX4's 0.3 m/s, so the former
 floor at 1/100, 0.003 m/s, held their NIS per dof at 0.05-0.4, and the gyro's sat on it too)."""
 DECADES_UP = 2.0
 """... and up to 100 times its start (a real flight's vibration and interference: the IMU noise
