@@ -365,7 +365,7 @@ def _add_montecarlo_arguments(parser):
 
 def _add_tune_arguments(parser):
     """Arguments of ``quad-drake tune``."""
-    from .tuning.settings import OBJECTIVES, LogTuneSettings, TuneSettings
+    from .tuning.settings import LOG_SPLITS, OBJECTIVES, LogTuneSettings, TuneSettings
 
     d = TuneSettings()
     parser.add_argument(
@@ -422,7 +422,15 @@ def _add_tune_arguments(parser):
         "--train-fraction",
         type=float,
         default=LogTuneSettings.train_fraction,
-        help="share of each log tuned on; the rest is held out (default: %(default)s)",
+        help="share tuned on (of each --split block, or of each log); the rest is held out "
+        "(default: %(default)s)",
+    )
+    logs.add_argument(
+        "--split",
+        choices=LOG_SPLITS,
+        default=LogTuneSettings.split,
+        help="blocks: the first share of each 4 s block tuned on, the rest held out (every flight phase "
+        "in both parts); tail: the log's first share tuned on, its tail held out (default: %(default)s)",
     )
     logs.add_argument("--holdout-logs", nargs="+", default=[], metavar="LOG", help="logs only judged")
     logs.add_argument("--no-delays", action="store_true", help="keep the sensor delays as they start")
@@ -593,6 +601,7 @@ def cmd_tune_logs(args) -> int:
     settings = LogTuneSettings(
         budget=LogTuneSettings.budget if args.budget is None else args.budget,
         train_fraction=args.train_fraction,
+        split=args.split,
         delays=not args.no_delays,
         imu_noise=not args.no_imu_noise,
         curve_points=0 if args.no_curves else LogTuneSettings.curve_points,

@@ -127,3 +127,48 @@ def test_a_sensor_delay_replays_its_samples_as_measured_that_much_earlier():
     np.testing.assert_allclose(shifted.times, [0.0, 0.2], rtol=0, atol=1e-15)
     np.testing.assert_array_equal(shifted.values, [[2.0], [3.0]])
     assert measured_at(samples, 0.0) is samples and measured_at(None, 0.1) is None
+
+
+def test_the_default_split_tunes_and_judges_on_the_bundled_sitl_flight_alike():
+    """The bundled SITL log stands on the ground until 19 s and flies 19-26 s: the log's first 60 %
+    (``--split tail``, the only split until 2026-12-06) tuned on the ground alone (5-18.7 s) and
+    judged on the whole flight. The default's interleaved blocks put moving GPS samples in both
+    parts, and its windows tile [5 s, end) with the training share of each block."""
+    from quad_drake.flightlogs.reader import read_flight_log
+    from quad_drake.flightlogs.settings import resolve_log
+    from quad_drake.tuning.logs import SPLIT_BLOCK, split
+    from quad_drake.tuning.settings import LogTuneSettings
+
+    log = read_flight_log(resolve_log("sitl_takeoff_land_gps"))
+    moving = log.gps.times[np.abs(log.gps.values[:, 5]) > 0.3]  # climbing or descending
+    assert len(moving) > 60
+    training, held = split(log, LogTuneSettings())
+    assert innovations.inside(moving, training).sum() >= 20 and innovations.inside(moving, held).sum() >= 20
+    tail_training, tail_held = split(log, LogTuneSettings(split="tail"))
+    assert not innovations.inside(moving, tail_training).any()  # what the blocks mend
+    edges = sorted([*training, *held])
+    assert edges[0][0] == 5.0 and edges[-1][1] >= log.duration
+    assert all(a[1] == pytest.approx(b[0], abs=1e-12) for a, b in zip(edges, edges[1:], strict=False))
+    assert all(end - start == pytest.approx(0.6 * SPLIT_BLOCK, abs=1e-12) for start, end in training[:-1])
+    stamps = np.arange(5.0, log.duration, 0.01)
+    assert not np.any(innovations.inside(stamps, training) & innovations.inside(stamps, held))
+
+
+def test_the_search_sets_the_accelerometer_s_axes_apart_and_reaches_a_simulator_s_noise():
+    """On the bundled SITL log one multiplier for the accelerometer's three axes left the horizontal
+    velocity's prior variance 16 times its innovations' variance (NIS per dof 0.05-0.08), the
+    vertical needing the larger noise; and its GPS horizontal velocity innovations (RMS 0.0026 m/s)
+    lie under the former floor, 1/100 of PX4's 0.3 m/s."""
+    from quad_drake.tuning.logs import apply, prepare
+    from quad_drake.tuning.settings import LogTuneSettings
+
+    problem = prepare(["sitl_takeoff_land_gps"], [], [], LogTuneSettings(budget=10))
+    names = [d.name for d in problem.space]
+    assert {"accel_xy", "accel_z", "gyro"} <= set(names) and "accel" not in names
+    x = np.zeros(len(names))
+    x[names.index("accel_z")] = 1.0
+    start = problem.config.estimator.accel_std
+    tuned = apply(problem.config, problem.space, x).estimator.accel_std
+    assert tuned == pytest.approx([start[0], start[1], 10.0 * start[2]], rel=1e-12)
+    velocity = problem.space[names.index("gps_vel_xy")]
+    assert velocity.value(velocity.bounds[0]) < 0.0026 / 2 and velocity.value(velocity.bounds[1]) >= 30.0

@@ -77,17 +77,28 @@ class ChannelStatistics:
         return float(np.max(np.abs(self.autocorrelation)))
 
 
+def inside(stamps, windows) -> np.ndarray:
+    """(m,) bool: each stamp (s) inside one of `windows`, ((start, end), ...) s (start included, end
+    not): the parts of a log a statistic is taken over (one window, or a tuning's interleaved
+    training or held-out blocks)."""
+    stamps = np.asarray(stamps, dtype=float)
+    keep = np.zeros(len(stamps), dtype=bool)
+    for start, end in windows:
+        keep |= (stamps >= start) & (stamps < end)
+    return keep
+
+
 def normalised_innovations(
-    vocabulary, logs, channel, assumed_std, window
+    vocabulary, logs, channel, assumed_std, windows
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(stamps (m,) s, z (m, k), s (m, k)) of a component channel in a replay's logs: each fresh
-    sample stamped inside window = (start, end) s, its innovation ν over s = sqrt(prior σ² +
-    assumed_std²), the innovation's std in the sensor's unit (assumed_std: (k,) the std the filter
-    assumed per component)."""
+    sample stamped inside one of `windows` (((start, end), ...) s, :func:`inside`), its innovation ν
+    over s = sqrt(prior σ² + assumed_std²), the innovation's std in the sensor's unit (assumed_std:
+    (k,) the std the filter assumed per component)."""
     sensor, states, columns = COMPONENT_CHANNELS[channel]
     samples = np.asarray(logs[sensor], dtype=float)
-    rows = fresh_rows(samples, window[0])
-    rows = rows[samples[rows, -1] < window[1]]
+    rows = fresh_rows(samples, min((start for start, _ in windows), default=math.inf))
+    rows = rows[inside(samples[rows, -1], windows)]
     before = rows - 1
     estimate = np.asarray(logs["estimated_state"], dtype=float)
     if sensor == "gps":
@@ -104,11 +115,11 @@ def normalised_innovations(
     return samples[rows, -1], nu / s, s
 
 
-def nis_sequence(diagnostics, channel, window) -> np.ndarray:
-    """(m,) the filter's own NIS of a NIS channel's fresh samples stamped inside window (s)."""
+def nis_sequence(diagnostics, channel, windows) -> np.ndarray:
+    """(m,) the filter's own NIS of a NIS channel's fresh samples stamped inside one of `windows`
+    (((start, end), ...) s)."""
     stamps, values = fresh_nis(diagnostics, channel)
-    keep = (stamps >= window[0]) & (stamps < window[1]) & np.isfinite(values)
-    return values[keep]
+    return values[inside(stamps, windows) & np.isfinite(values)]
 
 
 def autocorrelation(z, lags=LAGS) -> np.ndarray:
@@ -162,18 +173,20 @@ def statistics_of(channel, z_or_nis, dof, innovation_std=None) -> ChannelStatist
     )
 
 
-def channel_statistics(vocabulary, logs, assumed, window) -> dict[str, ChannelStatistics]:
-    """{channel: ChannelStatistics} of a replay's logs over window = (start, end) s. assumed:
+def channel_statistics(vocabulary, logs, assumed, windows) -> dict[str, ChannelStatistics]:
+    """{channel: ChannelStatistics} of a replay's logs over windows = ((start, end), ...) s (the
+    samples of every window in one sequence: under a white filter's hypothesis two samples of
+    different windows are uncorrelated too, so the whiteness judgement holds). assumed:
     {component channel: (k,) std the filter assumed}; a channel absent from `assumed` (the
     component ones) or without samples in the window (the NIS ones) is left out."""
     found = {}
     for channel, std in assumed.items():
         if channel in COMPONENT_CHANNELS:
-            _, z, s = normalised_innovations(vocabulary, logs, channel, std, window)
+            _, z, s = normalised_innovations(vocabulary, logs, channel, std, windows)
             stats = statistics_of(channel, z, len(COMPONENT_CHANNELS[channel][1]), s)
         else:
             stats = statistics_of(
-                channel, nis_sequence(logs["diagnostics"], channel, window), NIS_CHANNELS[channel]
+                channel, nis_sequence(logs["diagnostics"], channel, windows), NIS_CHANNELS[channel]
             )
         if stats is not None:
             found[channel] = stats

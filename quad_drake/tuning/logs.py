@@ -18,17 +18,19 @@ default noise, or with ``--set px4_parameters=true`` the log's own EKF2_* values
 each channel's noise so that its NIS per dof would be 1 if the prior covariance were small beside
 the noise (R scaled by the NIS per dof: covariance matching), repeated until each NIS per dof is
 within MATCH_TOLERANCE of 1 (:func:`match_noise`); stage 2 profiles the IMU's noise
-(PX4's EKF2_ACC_NOISE and EKF2_GYR_NOISE; ``LogTuneSettings.imu_noise``), then each delay
+(PX4's EKF2_ACC_NOISE, body x-y and z apart, and EKF2_GYR_NOISE; ``LogTuneSettings.imu_noise``),
+then each delay
 (:func:`profile`: the measurement noise re-matched at each candidate value, a coarse grid, the
 noise matched to convergence at the grid's best, then SciPy's bounded scalar search within a grid
 step);
 stage 3 re-matches the noise at the delays found; stage 4 is SciPy's Powell
 (``scipy.optimize.minimize``, bounded, derivative-free: the objective is a replay) polishing every
-noise multiplier (log10, ±SEARCH_DECADES) and every sensor delay (0..MAX_DELAY) together until
-the budget of replays is spent or it converges. Each candidate is a replay of the training part of
-each training log, cut at ``train_fraction`` of its length (the replays stay short: a 20 s stretch
-replays in under 1 s of CPU). The held-out judgement replays every log whole with the start and
-the tuned values and judges the part after the training cut, and any ``holdout_logs`` whole.
+noise multiplier (log10, -DECADES_DOWN..+DECADES_UP) and every sensor delay (0..MAX_DELAY) together until
+the budget of replays is spent or it converges. Each candidate replays each training log up to
+its last training window's end and is scored on its training windows (:func:`split`: interleaved
+4 s blocks, the first ``train_fraction`` of each tuned on, or the log's first share; a 20 s
+stretch replays in under 1 s of CPU). The held-out judgement replays every log whole with the
+start and the tuned values and judges its held-out windows, and any ``holdout_logs`` whole.
 Ctrl-C keeps the best so far (its files are written, the held-out judgement skipped).
 """
 
@@ -48,10 +50,16 @@ from ..flightlogs.settings import load_replay, resolve_log
 from ..judging import innovations
 from .search import Evaluation, SearchResult
 from .session import CandidateProgress
+from .settings import LOG_SPLITS
 
-SEARCH_DECADES = 2.0
-"""Each noise is searched from 1/100 to 100 times its start (PX4's defaults lie that far from a
-simulator's noise: the bundled SITL log's barometer NIS per dof is 5e-4 at PX4's 3.5 m)."""
+DECADES_DOWN = 3.0
+"""Each noise is searched down to 1/1000 of its start: PX4's defaults lie that far above a
+simulator's noise (the bundled SITL log's barometer NIS per dof is 5e-4 at PX4's 3.5 m; its GPS
+horizontal velocity innovations, RMS 0.0026 m/s, are under 1 % of PX4's 0.3 m/s, so the former
+floor at 1/100, 0.003 m/s, held their NIS per dof at 0.05-0.4, and the gyro's sat on it too)."""
+DECADES_UP = 2.0
+"""... and up to 100 times its start (a real flight's vibration and interference: the IMU noise
+of a log without GPS ran to this bound already, where nothing observes it)."""
 MAX_DELAY = 0.3
 """s: the largest sensor delay searched (PX4's EKF2_*_DELAY range ends at 300 ms)."""
 DELAY_UNIT = 0.1
@@ -64,14 +72,20 @@ NOISE_FIELDS = {
     "heading": ("mag_yaw_std", None),
     "field": ("mag_field.field_std", (0, 1, 2)),
     "baro": ("baro.height_std", None),
-    "accel": ("accel_std", (0, 1, 2)),
+    "accel_xy": ("accel_std", (0, 1)),
+    "accel_z": ("accel_std", (2,)),
     "gyro": ("gyro_std", (0, 1, 2)),
 }
 """channel, or the IMU's accelerometer or gyro -> (the ESKF field below ``estimator`` that holds
 its noise, the vector's indices or None for a scalar)."""
-PROCESS_NOISE = ("accel", "gyro")
-"""The IMU's noise (one multiplier per vector, PX4's EKF2_ACC_NOISE and EKF2_GYR_NOISE): no
-channel's NIS sets it, so it is profiled like a delay (:func:`profile`)."""
+PROCESS_NOISE = ("accel_xy", "accel_z", "gyro")
+"""The IMU's noise (PX4's EKF2_ACC_NOISE and EKF2_GYR_NOISE): no channel's NIS sets it, so it is
+profiled like a delay (:func:`profile`). The accelerometer's body x-y and z axes have a multiplier
+each: the horizontal and the vertical velocity's prediction errors differ (on the bundled SITL log
+one multiplier for all three settled at 0.85 m/s² per sample, the vertical velocity, stopped at
+the touchdown without the IMU sensing it, asking for a large one, and the horizontal velocity's
+prior variance was then 16 times its innovations' variance: NIS per dof 0.05-0.08); PX4's one
+EKF2_ACC_NOISE is written as their mean (``px4_parameters.our_value``)."""
 DELAY_OF = {"gps": "gps_delay", "heading": "mag_delay", "field": "mag_delay", "baro": "baro_delay"}
 """A channel's sensor -> the ReplayConfig's delay field."""
 
@@ -95,7 +109,7 @@ class Dimension:
 
     @property
     def bounds(self) -> tuple:
-        return (0.0, MAX_DELAY / DELAY_UNIT) if self.is_delay else (-SEARCH_DECADES, SEARCH_DECADES)
+        return (0.0, MAX_DELAY / DELAY_UNIT) if self.is_delay else (-DECADES_DOWN, DECADES_UP)
 
     @property
     def grid_step(self) -> float:
@@ -215,15 +229,48 @@ def cut(log, end) -> FlightLog:
     return dataclasses.replace(log, **{name: part(getattr(log, name)) for name in names})
 
 
+SPLIT_BLOCK = 4.0
+"""s: the blocks of the interleaved split (``LogTuneSettings.split == "blocks"``): the first
+``train_fraction`` of each block from COMPARE_AFTER on is tuned on, the rest held out, so that both
+parts hold every phase of a flight longer than a block (the bundled SITL log sits on the ground
+until 19 s and flies 19-26 s: the tail split's training part, 5-18.7 s, held no flight at all)."""
+
+
+def split(log, settings) -> tuple[tuple, tuple]:
+    """(training windows, held-out windows) of `log`, each ((start, end), ...) s from COMPARE_AFTER on
+    (:func:`innovations.inside`): ``settings.split`` "tail" tunes on [COMPARE_AFTER, f T) and holds
+    out [f T, T) (none where f T is within 1 s of the end); "blocks" cuts the log into SPLIT_BLOCK
+    blocks and tunes on the first share f of each, holding out the rest (the last block's open to the
+    end)."""
+    f, duration = settings.train_fraction, log.duration
+    if settings.split == "tail":
+        end = f * duration
+        return ((COMPARE_AFTER, end),), (((end, math.inf),) if end < duration - 1.0 else ())
+    starts = np.arange(COMPARE_AFTER, duration, SPLIT_BLOCK)
+    training = tuple((float(a), float(min(a + f * SPLIT_BLOCK, duration))) for a in starts)
+    held = [
+        (a + f * SPLIT_BLOCK, a + SPLIT_BLOCK if a + SPLIT_BLOCK < duration else math.inf)
+        for a in starts
+        if a + f * SPLIT_BLOCK < min(a + SPLIT_BLOCK, duration)
+    ]
+    return training, tuple((float(a), float(b)) for a, b in held)
+
+
 def train_end(log, settings) -> float:
-    return settings.train_fraction * log.duration
+    """s: where a candidate's replay of `log` stops (its last training window's end)."""
+    return split(log, settings)[0][-1][1]
 
 
-def channel_statistics(config, log, window) -> dict:
+def training_length(log, settings) -> float:
+    """s of `log` tuned on (its training windows' total)."""
+    return float(sum(end - start for start, end in split(log, settings)[0]))
+
+
+def channel_statistics(config, log, windows) -> dict:
     """{channel: ChannelStatistics} of the ReplayConfig `config` replaying `log`, judged over
-    window (s)."""
+    windows (((start, end), ...) s)."""
     result = replay(dataclasses.replace(config, name=config.name or "tune"), log)
-    return innovations.channel_statistics(result.vocabulary, result.logs, _judged(config, result), window)
+    return innovations.channel_statistics(result.vocabulary, result.logs, _judged(config, result), windows)
 
 
 def _judged(config, result):
@@ -252,11 +299,13 @@ def prepare(log_names, holdout_names, overrides, settings) -> LogTuneProblem:
     config = load_replay(log_names[0], "{kind: eskf}", overrides)
     logs = [read_flight_log(p) for p in paths]
     tuned_on, held = logs[: len(log_names)], logs[len(log_names) :]
+    if settings.split not in LOG_SPLITS:
+        raise ConfigError(f"tune: --split must be one of {', '.join(LOG_SPLITS)}, got {settings.split!r}")
     for log in tuned_on:
-        if train_end(log, settings) <= COMPARE_AFTER + 1.0:
+        if log.duration <= COMPARE_AFTER + 1.0 or training_length(log, settings) <= 1.0:
             raise ConfigError(
-                f"tune: {log.source}: its training part ends at {train_end(log, settings):.1f} s, "
-                f"within {COMPARE_AFTER + 1:g} s of the start; use a longer log or a larger --train-fraction"
+                f"tune: {log.source}: its training part from {COMPARE_AFTER:g} s on is under 1 s; "
+                "use a longer log or a larger --train-fraction"
             )
     if settings.train_fraction == 1.0 and not held:
         raise ConfigError("tune: --train-fraction 1 leaves nothing held out; name --holdout-logs")
@@ -284,8 +333,8 @@ def prepare(log_names, holdout_names, overrides, settings) -> LogTuneProblem:
 def _score(problem, config) -> LogScore:
     per_log = []
     for log in problem.logs:
-        end = train_end(log, problem.settings)
-        per_log.append(channel_statistics(config, cut(log, end), (COMPARE_AFTER, end)))
+        training, _ = split(log, problem.settings)
+        per_log.append(channel_statistics(config, cut(log, train_end(log, problem.settings)), training))
     return LogScore(innovations.likelihood(per_log), innovations.loss(per_log), tuple(per_log))
 
 
@@ -451,19 +500,25 @@ def delay_curves(problem, best_x) -> dict:
 
 
 def holdout(problem, config) -> list:
-    """[(label, {channel: ChannelStatistics})]: each tuned log's part after its training cut, then
-    each held-out log whole, replayed whole with the ReplayConfig `config`."""
+    """[(label, {channel: ChannelStatistics})]: each tuned log's held-out windows (:func:`split`),
+    then each held-out log whole, replayed whole with the ReplayConfig `config`."""
     judged = []
     for log in problem.logs:
-        end = train_end(log, problem.settings)
-        if end < log.duration - 1.0:
-            label = f"{_name(log)} after {end:.1f} s"
-            judged.append((label, channel_statistics(config, log, (end, math.inf))))
+        _, held = split(log, problem.settings)
+        if held:
+            judged.append((_held_label(log, problem.settings, held), channel_statistics(config, log, held)))
     for log in problem.holdout_logs:
         judged.append(
-            (f"{_name(log)} (held-out log)", channel_statistics(config, log, (COMPARE_AFTER, math.inf)))
+            (f"{_name(log)} (held-out log)", channel_statistics(config, log, ((COMPARE_AFTER, math.inf),)))
         )
     return judged
+
+
+def _held_label(log, settings, held) -> str:
+    """A held-out part's label: "NAME after T s" (the tail split) or "NAME held-out blocks"."""
+    if settings.split == "tail":
+        return f"{_name(log)} after {held[0][0]:.1f} s"
+    return f"{_name(log)} held-out blocks"
 
 
 def _name(log):

@@ -22,12 +22,18 @@ class TuneSettings:
     holdout: bool = True  # fly the before/after comparison
 
 
+LOG_SPLITS = ("blocks", "tail")
+"""How ``tune LOG`` splits a log into its training and held-out parts (``tuning.logs.split``):
+interleaved blocks (each block's first share tuned on), or the log's first share and its tail."""
+
+
 @dataclass(frozen=True)
 class LogTuneSettings:
     """What ``quad-drake tune LOG ...`` was asked for."""
 
     budget: int = 200  # replays of the search (candidates), the start included
-    train_fraction: float = 0.6  # of each log's length: tuned on [5 s, f T), judged after
+    train_fraction: float = 0.6  # share tuned on: of each split block, or of the log ("tail")
+    split: str = "blocks"  # one of LOG_SPLITS (``tuning.logs.split``)
     delays: bool = True  # search the sensor delays too
     imu_noise: bool = True  # search the IMU's accelerometer and gyro noise too
     curve_points: int = 13  # points of each delay's objective curve (0: none)
