@@ -45,7 +45,6 @@ from quad_drake.conventions import (
     EKF_OFFSET,
     EKF_STATE_SIZE,
     IMU_SIZE,
-    NO_SAMPLE_STAMP,
     ONBOARD_PERIOD,
     STATE_SIZE,
 )
@@ -369,12 +368,6 @@ class Eskf(LeafSystem):
         self._manoeuvre_tick = eskf_kernel.manoeuvre_tick
         self._levels_timing = (eskf.PX4_UPDATE_PERIOD, eskf.ACCEL_BIAS_LEARNING_TAU)
         self._bias_learning_tilt = params.accel_bias_learning_tilt if params.estimate_biases else 0.0
-        self._gravity = None  # (var per tick, PX4's var per update, aiding timeout s, |f| band) if fused
-        if params.gravity_std > 0.0:
-            var = eskf.gravity_variance(params.gravity_std, ONBOARD_PERIOD)
-            timeout = params.gravity_aiding_timeout
-            self._gravity = (var, params.gravity_std**2, timeout, eskf.GRAVITY_ACCEL_BAND, eskf.GRAVITY_GATE)
-        self._gravity_tick = eskf_kernel.gravity_tick
         correct = eskf_kernel.correct
         builders = {
             "yaw": lambda m: updates.YawUpdate(
@@ -410,12 +403,14 @@ class Eskf(LeafSystem):
             return np.append(x, p.baro.bias_init) if baro else x
 
         x0 = _stacked(initial_nominal, params, each)
+        gravity = _gravity_update(params)
+        self._levels = self._bias_learning_tilt > 0.0 or gravity is not None  # peak-held |w_B|, |f_B|
         self._fusion = updates.Fusion(
             self,
             n,
             x0,
             P0,
-            sensor_updates if gsf is None else (gsf,) + sensor_updates,
+            ((gsf,) if gsf else ()) + sensor_updates + ((gravity,) if gravity else ()),
             repairs=not fidelity.reference_estimator,
         )
         initial_estimate = np.zeros((n, STATE_SIZE))  # body rate 0 before the first sample
@@ -429,8 +424,8 @@ class Eskf(LeafSystem):
             declare_block_output(self, "covariance", groups.P, n, P0.shape[0], k)
         declare_state_output(self, "diagnostics", groups.diagnostics, n * DIAGNOSTICS_SIZE)
         self._bias = discrete_group(self, n * 6, "imu_bias")
-        if self._bias_learning_tilt > 0.0 or self._gravity is not None:  # the peak-held |w_B|, |f_B|
-            self._manoeuvre = discrete_group(self, n * eskf.MANOEUVRE_SIZE)  # (eskf.manoeuvre_levels)
+        if self._levels:  # the peak-held |w_B|, |f_B| (eskf.manoeuvre_levels)
+            self._manoeuvre = discrete_group(self, n * eskf.MANOEUVRE_SIZE)
         if gsf is not None:
             declare_state_output(self, "gsf", gsf.log, n * gsf_log_size(params.gsf.models))
         self.DeclarePeriodicDiscreteUpdateEvent(ONBOARD_PERIOD, EKF_OFFSET, self._update)
@@ -446,33 +441,34 @@ class Eskf(LeafSystem):
         estimate = discrete_state.get_mutable_value(self._estimate).reshape(self._n, STATE_SIZE)
         imu = self._read_imu(context)
         healthy = self._predict_tick(filters, imu, estimate, self._model)
-        if self._bias_learning_tilt > 0.0 or self._gravity is not None:
-            manoeuvre = discrete_state.get_mutable_value(self._manoeuvre).reshape(self._n, -1)
-            self._manoeuvre_tick(
-                manoeuvre, imu, ONBOARD_PERIOD, *self._levels_timing
-            )  # eskf.manoeuvre_levels
-            levels = manoeuvre[:, 0:2]
-        if self._bias_learning_tilt > 0.0:  # PX4's accelerometer-bias inhibition
-            self._uncorrelate_accel_bias(filters.x, filters.P, self._bias_learning_tilt, levels)
         samples = seam.read(context)
         samples["imu"] = imu
+        if self._levels:
+            manoeuvre = discrete_state.get_mutable_value(self._manoeuvre).reshape(self._n, -1)
+            self._manoeuvre_tick(manoeuvre, imu, ONBOARD_PERIOD, *self._levels_timing)  # manoeuvre_levels
+            samples["manoeuvre"] = manoeuvre[:, 0:2]  # read by updates.GravityUpdate
+        if self._bias_learning_tilt > 0.0:  # PX4's accelerometer-bias inhibition
+            self._uncorrelate_accel_bias(filters.x, filters.P, self._bias_learning_tilt, samples["manoeuvre"])
         seam.fuse(context, discrete_state, filters, samples, healthy)
-        if self._gravity is not None:  # after the sensors, as PX4's controlFusionModes orders them
-            self._fuse_gravity(filters, imu, levels, context.get_time())
         self._write_estimate(filters.x, estimate)
         discrete_state.get_mutable_value(self._bias)[:] = filters.x[:, 10:16].ravel()
 
-    def _fuse_gravity(self, filters, imu, levels, now):
-        """PX4's gravity-vector fusion (``kernels.eskf.gravity_tick``, ``eskf.gravity_update``
-        compiled) IN PLACE on the vehicles not aided horizontally (no GPS sample seen for the
-        aiding timeout) whose peak-held |f_B| lies in ``eskf.GRAVITY_ACCEL_BAND`` and whose IMU
-        sample is finite."""
-        var, gate_var, timeout, (low, high), gate = self._gravity
-        last_gps = filters.book[:, fusion.GPS_SLOT]
-        unaided = (last_gps == NO_SAMPLE_STAMP) | (now - last_gps > timeout)
-        active = unaided & (levels[:, 1] > low) & (levels[:, 1] < high) & np.isfinite(imu[:, 0:3]).all(axis=1)
-        if active.any():
-            self._gravity_tick(filters.x, filters.P, imu[:, 0:3], active, var, gate_var, gate)
+
+def _gravity_update(params) -> updates.GravityUpdate | None:
+    """The ESKF's gravity-vector fusion while not aided (``params.gravity_std``), or None: off."""
+    if params.gravity_std <= 0.0:
+        return None
+    from quad_drake.estimation import eskf
+    from quad_drake.kernels import eskf as eskf_kernel
+
+    return updates.GravityUpdate(
+        eskf_kernel.gravity_tick,
+        eskf.gravity_variance(params.gravity_std, ONBOARD_PERIOD),
+        params.gravity_std**2,
+        params.gravity_aiding_timeout,
+        eskf.GRAVITY_ACCEL_BAND,
+        eskf.GRAVITY_GATE,
+    )
 
 
 def _gsf_update(params, sensors, sensor_updates) -> updates.GsfUpdate | None:

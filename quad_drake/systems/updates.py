@@ -316,6 +316,37 @@ class GsfUpdate(Update):
             samples["mag"] = mag
 
 
+class GravityUpdate(Update):
+    """PX4 EKF2's gravity-vector fusion (``EKF2_IMU_CTRL`` bit 2), an ESKF's: the accelerometer's
+    direction as a measurement of the tilt (``kernels.eskf.gravity_tick``: ``eskf.gravity_update``
+    compiled) for each vehicle not aided horizontally (no GPS sample seen for `timeout` s) whose
+    peak-held specific-force magnitude lies in `band` (m/s^2; PX4's 0.9-1.1 g) and whose IMU
+    sample is finite. It reads no port of its own: the estimator puts this tick's IMU sample
+    (``samples["imu"]``, (n, IMU_SIZE): f_B m/s^2 first) and the peak-held levels
+    (``samples["manoeuvre"]``, (n, 2): |w_B| rad/s, |f_B| m/s^2; ``eskf.manoeuvre_levels``) into
+    the samples. Placed after the sensors' updates, as PX4's ``controlFusionModes`` orders them.
+
+    gravity_tick: the compiled update; var: the measurement variance per tick (of the unit
+    vector); gate_var: PX4's variance per its 10 ms update, for the innovation gate `gate`
+    (standard deviations)."""
+
+    def __init__(self, gravity_tick, var, gate_var, timeout, band, gate):
+        super().__init__(None)
+        self._tick, self._var, self._gate_var, self._gate = gravity_tick, var, gate_var, gate
+        self._timeout, (self._low, self._high) = timeout, band
+
+    def declare(self, system, n, k) -> None:
+        """Nothing to declare: the IMU is the estimator's own input."""
+
+    def fuse(self, context, discrete_state, filters, samples) -> None:
+        f_B, levels = samples["imu"][:, 0:3], samples["manoeuvre"][:, 1]
+        last_gps = filters.book[:, fusion.GPS_SLOT]
+        unaided = (last_gps == NO_SAMPLE_STAMP) | (context.get_time() - last_gps > self._timeout)
+        active = unaided & (levels > self._low) & (levels < self._high) & np.isfinite(f_B).all(axis=1)
+        if active.any():
+            self._tick(filters.x, filters.P, f_B, active, self._var, self._gate_var, self._gate)
+
+
 def build_updates(declared, sensors, builders) -> tuple:
     """The :class:`Update` s of a vehicle's estimator: for each measurement of `declared` (the
     kind's ``measurements``) that `sensors` (the vehicle's SensorsConfig) carry, in order,
