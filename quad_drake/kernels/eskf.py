@@ -393,7 +393,7 @@ def _gravity_row(x, P, i, f_B, var, gate_var, gate, dx, Ph, K, Ah):
 
 
 @njit_cached
-def gravity_tick(x, P, f_B, active, var, gate_var, gate):
+def gravity_tick(x, P, f_B, active, var, gate_var, gate) -> np.ndarray:
     """PX4's gravity-vector fusion IN PLACE on the vehicles `active` (N,) bool of x (N, 16+), P
     (N, n, n) with their accelerometer samples f_B (N, 3) m/s^2: ``eskf.gravity_update`` per row,
     the errors injected (``eskf.inject``). Returns fused (N,) bool."""
@@ -407,7 +407,7 @@ def gravity_tick(x, P, f_B, active, var, gate_var, gate):
 
 
 @njit_cached
-def manoeuvre_tick(state, imu, dt, period, tau):
+def manoeuvre_tick(state, imu, dt, period, tau) -> None:
     """``eskf.manoeuvre_levels`` compiled, IN PLACE on state (N, ``eskf.MANOEUVRE_SIZE``) with
     this tick's imu (N, 6) over dt s; period: PX4's update (s), tau: the levels' decay time (s)."""
     for i in range(state.shape[0]):
