@@ -411,27 +411,41 @@ def test_eskf_updates_and_injection_match_the_scalar_functions(estimate_biases, 
 
 @pytest.mark.parametrize("n, baro", [(15, False), (9, False), (16, True)], ids=["15", "9", "16-baro"])
 def test_eskf_gravity_fusion_matches_the_scalar_update(n, baro):
-    """``kernels.eskf.gravity_tick`` against ``eskf.gravity_update`` then ``eskf.inject`` row by
-    row: near-level attitudes and forces (some beyond the gate: rejected, x and P kept), a row not
-    active untouched."""
+    """``kernels.eskf.gravity_tick`` against ``eskf.gravity_fusion_active`` (which vehicles) then
+    ``eskf.gravity_update`` and ``eskf.inject`` row by row: near-level attitudes and forces (some
+    beyond the gate: rejected, x and P kept); rows left out by each of the conditions (aided by a
+    recent GPS sample, the peak-held force out of the band or NaN, a non-finite sample) untouched,
+    rows whose GPS sample is older than the timeout or never came fused."""
     rng = np.random.default_rng(23)
     x = random_nominal(rng, baro=baro)
     for i in range(N):
         roll, pitch = rng.normal(scale=0.1, size=2)
         x[i, 6:10] = quat_from_euler_tuple(roll, pitch, rng.uniform(-math.pi, math.pi))
     P = random_covariances(rng, n, scale=0.05)
-    f_B = specific_forces(rng)
-    active = np.ones(N, dtype=bool)
-    active[5] = False
+    imu = np.column_stack([specific_forces(rng), gyro_samples(rng)])
+    now, timeout, band = 30.0, 5.0, eskf.GRAVITY_ACCEL_BAND
+    book = np.tile(fusion.initial_book(), (N, 1))  # every vehicle: no GPS sample yet
+    book[1, fusion.GPS_SLOT] = now - 1.0  # aided
+    book[2, fusion.GPS_SLOT] = now - timeout - 0.5  # its GPS lost: unaided
+    book[3, fusion.GPS_SLOT] = now - timeout  # just aided (PX4: more than the timeout)
+    levels = np.column_stack([rng.uniform(0.0, 1.0, N), np.full(N, GRAVITY)])
+    levels[4, 1], levels[5, 1], levels[6, 1] = 1.2 * GRAVITY, band[0], math.nan  # out, on the edge, NaN
+    imu[7, 1] = math.nan
+    active = eskf.gravity_fusion_active(
+        book[:, fusion.GPS_SLOT], now, timeout, levels[:, 1], band, imu[:, 0:3]
+    )
+    assert not active[[1, 3, 4, 5, 6, 7]].any() and active[[0, 2]].all()
     x_new, P_new = x.copy(), P.copy()
-    fused = eskf_kernel.gravity_tick(x_new, P_new, f_B, active, 5.0, 1.0, eskf.GRAVITY_GATE)
-    assert 0 < fused.sum() < N - 1 and not fused[5]
+    fused = eskf_kernel.gravity_tick(
+        x_new, P_new, imu, levels, book, now, timeout, *band, 5.0, 1.0, eskf.GRAVITY_GATE
+    )
+    assert 0 < fused.sum() < active.sum() and not fused[~active].any()
     for i in range(N):
         if not active[i]:
             np.testing.assert_array_equal(x_new[i], x[i])
             np.testing.assert_array_equal(P_new[i], P[i])
             continue
-        dx, P_ref, ok = eskf.gravity_update(x[i : i + 1], P[i : i + 1], f_B[i : i + 1], 5.0, 1.0)
+        dx, P_ref, ok = eskf.gravity_update(x[i : i + 1], P[i : i + 1], imu[i : i + 1, 0:3], 5.0, 1.0)
         assert ok[0] == fused[i]
         x_ref, P_ref = eskf.inject(x[i], P_ref[0], dx[0])
         np.testing.assert_allclose(x_new[i], x_ref, **TOL)

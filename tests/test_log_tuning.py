@@ -2,6 +2,7 @@
 delay recovery on a simulated run written as a log with a delayed GPS, and bad input."""
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -55,6 +56,46 @@ def test_px4_parameters_round_trip_through_a_replay_config_and_a_parameter_file(
     assert "PX4 default 0.5" in text and "ms -> s" in text
     missing = px4.from_parameters(start, {})  # a log without them: PX4's defaults
     assert px4.to_parameters(missing) == pytest.approx({p.name: p.default for p in px4.MAPPING}, rel=1e-12)
+
+
+def test_px4_s_gravity_fusion_parameters_map_onto_the_eskf_s_gravity_std():
+    """EKF2_GRAV_NOISE is the std of the unit vector f/|f| (g0): our gravity_std 1:1, not x 9.81;
+    EKF2_IMU_CTRL bit 2 clear turns the fusion off (gravity_std 0), which writes no
+    EKF2_GRAV_NOISE but a comment to clear the bit; a log without either: PX4's defaults (on, 1.0)."""
+    start = default_replay("eskf")
+    grav = px4.BY_NAME["EKF2_GRAV_NOISE"]
+    assert (grav.default, grav.unit, grav.switch.name, grav.switch.bit, grav.switch.default) == (
+        1.0,
+        "g0",
+        "EKF2_IMU_CTRL",
+        2,
+        7,
+    )
+    assert px4.from_parameters(start, {"EKF2_GRAV_NOISE": 0.5}).estimator.gravity_std == 0.5
+    assert (
+        px4.from_parameters(start, {"EKF2_GRAV_NOISE": 0.5, "EKF2_IMU_CTRL": 7}).estimator.gravity_std == 0.5
+    )
+    assert px4.from_parameters(start, {}).estimator.gravity_std == 1.0
+    for bits in (0, 1, 3, 8 + 3):  # bit 2 clear, whatever the others
+        off = px4.from_parameters(start, {"EKF2_GRAV_NOISE": 0.5, "EKF2_IMU_CTRL": bits})
+        assert off.estimator.gravity_std == 0.0
+    assert px4.from_parameters(start, {"EKF2_IMU_CTRL": 4}).estimator.gravity_std == 1.0
+    assert "EKF2_GRAV_NOISE" not in px4.to_parameters(off) and "EKF2_IMU_CTRL" not in px4.to_parameters(off)
+    text = px4.parameter_file(off, start)
+    assert "EKF2_GRAV_NOISE" not in px4.read_parameter_file(text)
+    assert "clear bit 2 of EKF2_IMU_CTRL" in text
+    on = px4.from_parameters(start, {"EKF2_GRAV_NOISE": 0.25})
+    assert px4.read_parameter_file(px4.parameter_file(on, start))["EKF2_GRAV_NOISE"] == 0.25
+    # a bundled PX4 v1.14+ log holds both (PX4's defaults): its px4_parameters replay keeps the fusion
+    replay_config = load_replay("sitl_takeoff_land_gps", "{kind: eskf}", ["px4_parameters=true"])
+    assert replay_config.px4_parameters
+    from quad_drake.flightlogs.reader import read_flight_log
+    from quad_drake.flightlogs.settings import resolve_log
+
+    parameters = read_flight_log(resolve_log("sitl_takeoff_land_gps")).parameters
+    assert (parameters["EKF2_GRAV_NOISE"], parameters["EKF2_IMU_CTRL"]) == (1.0, 7)
+    assert px4.from_parameters(replay_config, parameters).estimator.gravity_std == 1.0
+    assert px4.from_parameters(replay_config, parameters | {"EKF2_IMU_CTRL": 3}).estimator.gravity_std == 0.0
 
 
 def test_the_sensor_delays_default_to_the_logs_own():
@@ -152,6 +193,28 @@ def test_the_default_split_tunes_and_judges_on_the_bundled_sitl_flight_alike():
     assert all(end - start == pytest.approx(0.6 * SPLIT_BLOCK, abs=1e-12) for start, end in training[:-1])
     stamps = np.arange(5.0, log.duration, 0.01)
     assert not np.any(innovations.inside(stamps, training) & innovations.inside(stamps, held))
+
+
+@pytest.mark.parametrize(
+    "how, trained_on, held_label",
+    [
+        ("tail", "the first 60 % of each log", "sitl_takeoff_land_gps after 16.3 s"),
+        ("blocks", "the first 60 % of each 4 s block of each log", "sitl_takeoff_land_gps held-out blocks"),
+    ],
+)
+def test_one_function_words_the_split_for_the_header_and_the_held_out_labels(how, trained_on, held_label):
+    """``tuning.logs.split_text`` gives both texts of a split (the header's training part, the
+    held-out part's label), as the header and the before/after table printed them."""
+    from types import SimpleNamespace
+
+    from quad_drake.tuning.logs import split_text
+    from quad_drake.tuning.settings import LogTuneSettings
+
+    settings = LogTuneSettings(split=how)
+    log = SimpleNamespace(source="/logs/sitl_takeoff_land_gps.ulg", duration=27.2)
+    held = ((16.32, math.inf),) if how == "tail" else ((7.4, 9.0), (11.4, 13.0))
+    assert split_text(settings) == trained_on
+    assert split_text(settings, log, held) == held_label
 
 
 def test_the_search_sets_the_accelerometer_s_axes_apart_and_reaches_a_simulator_s_noise():

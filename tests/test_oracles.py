@@ -36,6 +36,7 @@ ORACLES = {
         "gps_update",
         "mag_update",
         "gravity_update",
+        "gravity_fusion_active",
         "manoeuvre_levels",
     ),
 }

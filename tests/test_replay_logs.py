@@ -157,10 +157,21 @@ def test_the_bias_px4s_estimator_had_learned_at_the_start_is_subtracted():
     from quad_drake.flightlogs.settings import default_replay
 
     config = default_replay("eskf")
-    assert magnetometer_for(learned, config).hard_iron == (0.0, -0.033, 0.0)
-    assert any("not subtracted" in n for n in magnetometer_for(learned, config).notes)
+    kept = earth_field.magnetometer_model(learned, subtract_estimator_bias=False)
+    assert magnetometer_for(learned, config) == kept
+    assert kept.hard_iron == (0.0, -0.033, 0.0)
+    # the model of the log without the bias, and one last note that the bias was left in
+    unlearned = earth_field.magnetometer_model(dataclasses.replace(learned, estimator_mag_bias=None))
+    assert dataclasses.replace(kept, notes=kept.notes[:-1]) == unlearned
+    assert kept.notes[-1] == (
+        "magnetometer: PX4's estimator had learned a bias of (0.0280, -0.0024, -0.0608) G by the log's "
+        "start (estimator_sensor_bias): not subtracted (--set estimator_mag_bias=true subtracts it)"
+    )
+    assert earth_field.magnetometer_model(
+        sitl, subtract_estimator_bias=False
+    ) == earth_field.magnetometer_model(sitl)
     asked = dataclasses.replace(config, estimator_mag_bias=True)
-    assert magnetometer_for(learned, asked).hard_iron == model.hard_iron
+    assert magnetometer_for(learned, asked) == model
 
 
 @pytest.fixture(scope="module")

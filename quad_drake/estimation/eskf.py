@@ -44,7 +44,8 @@ Two kinds of function. The scalar formulas (:func:`nominal_step`, :func:`quat_ex
 ``rotations.rotation_entries`` and ``ekf.mag_innovation``) are plain float arithmetic whose own
 code the running implementation, ``kernels/eskf.py``, compiles: they exist once. The matrix forms
 (``predict``, ``predict_nominal``, ``transition``, ``process_noise``, ``joseph_update``, ``inject``,
-``gps_update``, ``mag_update``, ``gravity_update``, ``manoeuvre_levels``) are REFERENCE ORACLES of
+``gps_update``, ``mag_update``, ``gravity_update``, ``gravity_fusion_active``,
+``manoeuvre_levels``) are REFERENCE ORACLES of
 the kernel's sparse loops, which single runs and fleets both execute: the kernel is tested
 against them on seeded random inputs to 1e-12 (``tests/test_estimator_kernels.py``) and no
 simulation calls them (``tests/test_oracles.py``).
@@ -55,7 +56,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from quad_drake.conventions import GRAVITY
+from quad_drake.conventions import GRAVITY, NO_SAMPLE_STAMP
 from quad_drake.estimation.ekf import mag_innovation
 from quad_drake.models.rotations import quat_product, rotation_entries
 
@@ -579,6 +580,17 @@ def gravity_update(x, P, f_B, var, gate_var) -> tuple[np.ndarray, np.ndarray, np
         A = eye - np.einsum("mi,mj->mij", K, h_axis)
         P_new[fused] = A @ Pm @ np.transpose(A, (0, 2, 1)) + var * np.einsum("mi,mj->mij", K, K)
     return dx, P_new, fused
+
+
+def gravity_fusion_active(last_gps, now, timeout, levels, band, f_B) -> np.ndarray:
+    """(M,) bool: the filters the gravity fusion (:func:`gravity_update`) applies to this tick,
+    PX4's conditions: not aided horizontally (last_gps (M,), the last GPS stamp seen, s, is
+    ``NO_SAMPLE_STAMP`` or more than `timeout` s before `now` s), the peak-held |f_B| `levels`
+    (M,) m/s^2 (:func:`manoeuvre_levels`) strictly within `band` (low, high) m/s^2
+    (:data:`GRAVITY_ACCEL_BAND`) and the accelerometer sample f_B (M, 3) finite."""
+    last_gps, levels, f_B = np.asarray(last_gps), np.asarray(levels), np.asarray(f_B)
+    unaided = (last_gps == NO_SAMPLE_STAMP) | (now - last_gps > timeout)
+    return unaided & (levels > band[0]) & (levels < band[1]) & np.isfinite(f_B).all(axis=1)
 
 
 def gravity_variance(gravity_std, dt) -> float:

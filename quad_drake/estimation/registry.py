@@ -295,8 +295,9 @@ PX4_NOISE = {
 """PX4 EKF2's default noise, what a replay of a real flight controller's log assumes (not tuned
 on the logs; ``flightlogs/settings.py``)."""
 PX4_GRAVITY_STD = 1.0
-"""PX4 EKF2's ``EKF2_GRAV_NOISE`` default: the gravity vector's std (of the unit vector, per its
-10 ms update; PX4 documents it in m/s^2 and fuses it on the unit vector)."""
+"""PX4 EKF2's ``EKF2_GRAV_NOISE`` default: the gravity vector's std (of the unit vector f/|f|,
+per its 10 ms update; PX4's parameter reference states g0, older ones m/s^2, and fuses it on the
+unit vector: a fraction of g, ``gravity_std`` 1:1, ``flightlogs.px4_parameters``)."""
 
 
 def _ekf7_replay_defaults() -> Ekf7EstimatorConfig:

@@ -120,10 +120,15 @@ def measured_field(log, hard_iron) -> tuple[float, float]:
     return strength, float(np.arcsin(np.clip(np.median(sines), -1.0, 1.0)))
 
 
-def magnetometer_model(log, current_year=None) -> MagnetometerModel:
+def magnetometer_model(log, current_year=None, subtract_estimator_bias=True) -> MagnetometerModel:
     """MagnetometerModel of a FlightLog with a magnetometer (module docstring). current_year:
-    decimal year used when the log has a fix but no UTC time (default: the newest model's epoch)."""
-    hard_iron = learned_bias(log.parameters, log.estimator_mag_bias)
+    decimal year used when the log has a fix but no UTC time (default: the newest model's epoch).
+    subtract_estimator_bias: the bias PX4's estimator had learned by the log's start
+    (``log.estimator_mag_bias``, gauss) is part of the hard iron; False: it is not (the replay's
+    ``estimator_mag_bias: false``), and a last note says so where the log holds one."""
+    state = log.estimator_mag_bias
+    learned = state is not None and any(state)
+    hard_iron = learned_bias(log.parameters, state if subtract_estimator_bias else None)
     notes = []
     saved = learned_bias(log.parameters)
     if any(saved):
@@ -131,8 +136,7 @@ def magnetometer_model(log, current_year=None) -> MagnetometerModel:
             "magnetometer: PX4's learned bias EKF2_MAGBIAS_X/Y/Z = "
             f"({saved[0]:.4f}, {saved[1]:.4f}, {saved[2]:.4f}) G subtracted"
         )
-    if log.estimator_mag_bias is not None and any(log.estimator_mag_bias):
-        state = log.estimator_mag_bias
+    if learned and subtract_estimator_bias:
         notes.append(
             "magnetometer: PX4's estimator's learned bias at the log's start (estimator_sensor_bias) = "
             f"({state[0]:.4f}, {state[1]:.4f}, {state[2]:.4f}) G subtracted"
@@ -190,4 +194,10 @@ def magnetometer_model(log, current_year=None) -> MagnetometerModel:
     else:
         declination = 0.0
         notes.append("magnetometer: declination 0 (no parameter, no fix): yaw is magnetic, as PX4's then")
+    if learned and not subtract_estimator_bias:
+        notes.append(
+            "magnetometer: PX4's estimator had learned a bias of "
+            f"({state[0]:.4f}, {state[1]:.4f}, {state[2]:.4f}) G by the log's start "
+            "(estimator_sensor_bias): not subtracted (--set estimator_mag_bias=true subtracts it)"
+        )
     return MagnetometerModel(strength, declination, inclination, hard_iron, tuple(notes))

@@ -18,13 +18,24 @@ and one velocity noise set all three axes here, and a tuned vector writes its ho
 (PX4 has no separate vertical GPS noise parameter: the vertical value is stated in a comment);
 the delays are ms in PX4 and s here. Parameters with no ESKF field (EKF2_HEAD_NOISE maps to
 the yaw magnetometer's ``mag_yaw_std``, used only by a heading-only log) are in the table too.
+
+The gravity-vector fusion: ``EKF2_GRAV_NOISE`` (PX4's default 1.0, unit g0) is the std PX4 fuses
+on the accelerometer's unit vector f/|f| per 10 ms update (``Ekf::controlGravityFusion``), a
+fraction of g, the quantity our ``estimator.gravity_std`` is (``eskf.gravity_update``): 1:1, not
+x 9.81 (the ESKF rescales its variance to its 2 ms tick itself, ``eskf.gravity_variance``). Bit 2
+of ``EKF2_IMU_CTRL`` (PX4's default 7: bits 0, 1 the gyro and accelerometer bias estimation, 2
+the gravity fusion) switches it: clear, ``gravity_std`` is 0 (off). A log from PX4 before v1.14
+holds neither parameter (PX4 had no gravity fusion then) and gets PX4's defaults, as every
+missing parameter does: the fusion on at 1.0, the replay's ESKF's own default. Out, gravity_std
+0 writes no EKF2_GRAV_NOISE (PX4 takes no 0: it floors the std at 0.01) but a comment to clear
+the bit; EKF2_IMU_CTRL itself is not written (its other bits are PX4's bias estimation's).
 """
 
 import dataclasses
 import math
 from dataclasses import dataclass
 
-from quad_drake.estimation.registry import PX4_NOISE, PX4_PER_SAMPLE
+from quad_drake.estimation.registry import PX4_GRAVITY_STD, PX4_NOISE, PX4_PER_SAMPLE
 
 PX4_DEFAULT_DELAYS_MS = {"EKF2_GPS_DELAY": 110.0, "EKF2_MAG_DELAY": 0.0, "EKF2_BARO_DELAY": 0.0}
 """PX4's defaults of the sensor delays (ms; PX4's parameter reference)."""
@@ -33,9 +44,29 @@ PARAMETER_TYPE_REAL = 9
 
 
 @dataclass(frozen=True)
+class Px4Switch:
+    """A bit of a PX4 bitmask parameter that switches a fusion on: `name` (e.g. EKF2_IMU_CTRL),
+    `bit` (0 = least significant) and PX4's `default` of the whole bitmask."""
+
+    name: str
+    bit: int
+    default: int
+
+    def on(self, parameters) -> bool:
+        """Whether the bit is set in `parameters` ({name: value}; a missing name: PX4's default)."""
+        return bool(int(parameters.get(self.name, self.default)) >> self.bit & 1)
+
+
+IMU_CTRL_GRAVITY = Px4Switch("EKF2_IMU_CTRL", 2, 7)
+"""``EKF2_IMU_CTRL`` bit 2, PX4's gravity-vector fusion (default 7: bits 0-2 all set; PX4's
+parameter reference, ``src/modules/ekf2/module.yaml``)."""
+
+
+@dataclass(frozen=True)
 class Px4Parameter:
     """One EKF2 parameter: its name, unit, PX4's default, the ReplayConfig field it maps to
-    (a dotted path below the ReplayConfig) and the factor ours = PX4's * factor."""
+    (a dotted path below the ReplayConfig) and the factor ours = PX4's * factor; `switch`: the
+    bitmask bit that turns it on (clear: the field is 0, off), or None."""
 
     name: str
     unit: str
@@ -43,12 +74,17 @@ class Px4Parameter:
     field: str  # dotted path in the ReplayConfig, e.g. "estimator.gps_pos_std" or "gps_delay"
     factor: float  # ours = value * factor
     conversion: str  # the conversion in words
+    switch: Px4Switch | None = None
 
     def ours(self, value) -> float:
         return float(value) * self.factor
 
     def theirs(self, ours) -> float:
         return float(ours) / self.factor
+
+    def off(self, ours) -> bool:
+        """Whether our value `ours` is the switched-off fusion (0 with a switch): not a value PX4 takes."""
+        return self.switch is not None and ours == 0.0
 
 
 _IMU = f"x sqrt(10 ms / 2 ms) = x {PX4_PER_SAMPLE:.4f}: PX4's per 10 ms step, ours per 2 ms sample"
@@ -120,6 +156,16 @@ MAPPING = (
         1.0,
         "1:1 (our rad/s/sqrt(s)), as the replay's defaults read it",
     ),
+    Px4Parameter(
+        "EKF2_GRAV_NOISE",
+        "g0",
+        PX4_GRAVITY_STD,
+        "estimator.gravity_std",
+        1.0,
+        "1:1, of the unit vector f/|f| per PX4's 10 ms update (g0, not x 9.81); "
+        "EKF2_IMU_CTRL bit 2 clear: 0, off",
+        IMU_CTRL_GRAVITY,
+    ),
     *(
         Px4Parameter(name, "ms", default, field, 1e-3, "ms -> s (x 0.001)")
         for name, default, field in (
@@ -161,15 +207,22 @@ def our_value(parameter, config) -> float:
 
 def to_parameters(config) -> dict[str, float]:
     """{EKF2 name: value in PX4's units} of a ReplayConfig with an ESKF (every MAPPING row but a
-    sensor delay left None: the log's own, no value of the config's)."""
-    return {p.name: p.theirs(our_value(p, config)) for p in MAPPING if field_at(config, p.field) is not None}
+    sensor delay left None, the log's own, and a switched fusion that is off: no value of the
+    config's)."""
+    return {
+        p.name: p.theirs(our_value(p, config))
+        for p in MAPPING
+        if field_at(config, p.field) is not None and not p.off(our_value(p, config))
+    }
 
 
 def from_parameters(config, parameters) -> object:
     """A copy of the ReplayConfig `config` (an ESKF) with every MAPPING field set from
-    `parameters` ({name: value}, PX4's units; a missing name: PX4's default)."""
+    `parameters` ({name: value}, PX4's units; a missing name: PX4's default): 0 (off) where the
+    row's switch bit is clear."""
     for p in MAPPING:
-        value = p.ours(parameters.get(p.name, p.default))
+        on = p.switch is None or p.switch.on(parameters)
+        value = p.ours(parameters.get(p.name, p.default)) if on else 0.0
         current = field_at(config, p.field)
         config = with_field(config, p.field, [value] * len(current) if isinstance(current, list) else value)
     return config
@@ -208,6 +261,12 @@ def parameter_file(config, start=None, vehicle=1, component=1) -> str:
     start_values = to_parameters(start) if start is not None else {}
     for p in MAPPING:
         ours = our_value(p, config)
+        if p.off(ours):
+            lines.append(
+                f"# {p.name} [{p.unit}]: off here ({p.field} 0): not written; clear bit {p.switch.bit} "
+                f"of {p.switch.name} in PX4 (not written either: its other bits are PX4's own settings)"
+            )
+            continue
         value = p.theirs(ours)
         was = f"; start {start_values[p.name]:.6g}" if p.name in start_values else ""
         lines.append(

@@ -305,17 +305,7 @@ def magnetometer_for(log, config) -> earth_field.MagnetometerModel | None:
     only with ``--set estimator_mag_bias=true``), or None without one."""
     if log.mag_field is None:
         return None
-    learned = log.estimator_mag_bias
-    if config.estimator_mag_bias or learned is None or not any(learned):
-        model = earth_field.magnetometer_model(log)
-    else:
-        model = earth_field.magnetometer_model(dataclasses.replace(log, estimator_mag_bias=None))
-        note = (
-            "magnetometer: PX4's estimator had learned a bias of "
-            f"({learned[0]:.4f}, {learned[1]:.4f}, {learned[2]:.4f}) G by the log's start "
-            "(estimator_sensor_bias): not subtracted (--set estimator_mag_bias=true subtracts it)"
-        )
-        model = dataclasses.replace(model, notes=model.notes + (note,))
+    model = earth_field.magnetometer_model(log, subtract_estimator_bias=config.estimator_mag_bias)
     if config.mag_declination is not None:
         note = (
             f"magnetometer: declination {math.degrees(config.mag_declination):.2f}° (--set mag_declination)"

@@ -47,6 +47,7 @@ import math
 
 import numpy as np
 
+from quad_drake.conventions import NO_SAMPLE_STAMP
 from quad_drake.estimation import eskf
 from quad_drake.estimation.vocabulary import DIAG
 from quad_drake.kernels import fusion, rotations
@@ -393,16 +394,33 @@ def _gravity_row(x, P, i, f_B, var, gate_var, gate, dx, Ph, K, Ah):
 
 
 @njit_cached
-def gravity_tick(x, P, f_B, active, var, gate_var, gate) -> np.ndarray:
-    """PX4's gravity-vector fusion IN PLACE on the vehicles `active` (N,) bool of x (N, 16+), P
-    (N, n, n) with their accelerometer samples f_B (N, 3) m/s^2: ``eskf.gravity_update`` per row,
-    the errors injected (``eskf.inject``). Returns fused (N,) bool."""
-    n = P.shape[1]
-    dx, Ph, K, Ah = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
-    fused = np.zeros(x.shape[0], dtype=np.bool_)
-    for i in range(x.shape[0]):
-        if active[i]:
-            fused[i] = _gravity_row(x, P, i, f_B[i], var, gate_var, gate, dx, Ph, K, Ah)
+def gravity_tick(
+    x, P, imu, levels, book, now, timeout, band_low, band_high, var, gate_var, gate
+) -> np.ndarray:
+    """PX4's gravity-vector fusion IN PLACE on the vehicles of x (N, 16+), P (N, n, n) that it
+    applies to this tick (``eskf.gravity_fusion_active``): not aided horizontally (the last GPS
+    stamp of their book (N, ``fusion.BOOK_SIZE``) is ``NO_SAMPLE_STAMP`` or more than `timeout` s
+    before `now` s), their peak-held |f_B| (levels (N, 2): |w_B| rad/s, |f_B| m/s^2; column 1)
+    strictly within (band_low, band_high) m/s^2 and their accelerometer sample (imu (N, 6+):
+    f_B m/s^2 first) finite. Each such row: ``eskf.gravity_update`` with var, gate_var, gate, the
+    errors injected (``eskf.inject``). An aided tick allocates and computes nothing but the test.
+    Returns fused (N,) bool."""
+    N = x.shape[0]
+    fused = np.zeros(N, dtype=np.bool_)
+    scratch = np.empty((0, 0))
+    for i in range(N):
+        last_gps = book[i, fusion.GPS_SLOT]
+        if last_gps != NO_SAMPLE_STAMP and not now - last_gps > timeout:
+            continue
+        if not (band_low < levels[i, 1] < band_high):
+            continue
+        if not (math.isfinite(imu[i, 0]) and math.isfinite(imu[i, 1]) and math.isfinite(imu[i, 2])):
+            continue
+        if scratch.shape[0] == 0:
+            scratch = np.empty((4, P.shape[1]))  # dx, Ph, K, Ah
+        fused[i] = _gravity_row(
+            x, P, i, imu[i, 0:3], var, gate_var, gate, scratch[0], scratch[1], scratch[2], scratch[3]
+        )
     return fused
 
 

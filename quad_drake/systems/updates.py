@@ -339,12 +339,22 @@ class GravityUpdate(Update):
         """Nothing to declare: the IMU is the estimator's own input."""
 
     def fuse(self, context, discrete_state, filters, samples) -> None:
-        f_B, levels = samples["imu"][:, 0:3], samples["manoeuvre"][:, 1]
-        last_gps = filters.book[:, fusion.GPS_SLOT]
-        unaided = (last_gps == NO_SAMPLE_STAMP) | (context.get_time() - last_gps > self._timeout)
-        active = unaided & (levels > self._low) & (levels < self._high) & np.isfinite(f_B).all(axis=1)
-        if active.any():
-            self._tick(filters.x, filters.P, f_B, active, self._var, self._gate_var, self._gate)
+        """The kernel tests each vehicle (unaided, in the band, finite) and fuses those it passes:
+        an aided tick costs one call."""
+        self._tick(
+            filters.x,
+            filters.P,
+            samples["imu"],
+            samples["manoeuvre"],
+            filters.book,
+            context.get_time(),
+            self._timeout,
+            self._low,
+            self._high,
+            self._var,
+            self._gate_var,
+            self._gate,
+        )
 
 
 def build_updates(declared, sensors, builders) -> tuple:

@@ -17,7 +17,7 @@ from ..flightlogs.px4_parameters import parameter_file
 from ..flightlogs.settings import dump_replay
 from ..output.jsonio import dump_json
 from ..output.outdir import write_binary_atomic, write_text_atomic
-from .logs import SPLIT_BLOCK, verdict
+from .logs import split_text, verdict
 
 
 def _values(result, x):
@@ -30,7 +30,7 @@ def header(result) -> list[str]:
         f"quad-drake tune {' '.join(_stem(log) for log in result.problem.logs)}: "
         f"{len(result.search.history)} of {s.budget} replays"
         + (" (interrupted: best so far)" if result.interrupted else ""),
-        f"trained on {_split_text(s)}; best loss {best.score.loss:.4g} at "
+        f"trained on {split_text(s)}; best loss {best.score.loss:.4g} at "
         f"candidate {best.index} (start {result.search.history[0].score.loss:.4g}); its consistency loss "
         f"{best.score.consistency:.4g} (start {result.search.history[0].score.consistency:.4g})",
     ]
@@ -40,12 +40,6 @@ def header(result) -> list[str]:
         scale = 1e3 if unit else 1.0
         lines.append(f"{name}: {scale * start[name]:.4g} -> {scale * tuned[name]:.4g} {unit}".rstrip())
     return lines
-
-
-def _split_text(settings) -> str:
-    if settings.split == "tail":
-        return f"the first {100 * settings.train_fraction:g} % of each log"
-    return f"the first {100 * settings.train_fraction:g} % of each {SPLIT_BLOCK:g} s block of each log"
 
 
 def _stem(log):

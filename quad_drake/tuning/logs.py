@@ -506,7 +506,7 @@ def holdout(problem, config) -> list:
     for log in problem.logs:
         _, held = split(log, problem.settings)
         if held:
-            judged.append((_held_label(log, problem.settings, held), channel_statistics(config, log, held)))
+            judged.append((split_text(problem.settings, log, held), channel_statistics(config, log, held)))
     for log in problem.holdout_logs:
         judged.append(
             (f"{_name(log)} (held-out log)", channel_statistics(config, log, ((COMPARE_AFTER, math.inf),)))
@@ -514,11 +514,16 @@ def holdout(problem, config) -> list:
     return judged
 
 
-def _held_label(log, settings, held) -> str:
-    """A held-out part's label: "NAME after T s" (the tail split) or "NAME held-out blocks"."""
-    if settings.split == "tail":
-        return f"{_name(log)} after {held[0][0]:.1f} s"
-    return f"{_name(log)} held-out blocks"
+def split_text(settings, log=None, held=()) -> str:
+    """The split ``settings.split`` in words, both of its texts in one place: without a log, the
+    part tuned on ("the first 70 % of each log"; "the first 70 % of each 4 s block of each log");
+    with a log and its held-out windows `held` (:func:`split`), the label of that log's held-out
+    part ("NAME after 13.1 s"; "NAME held-out blocks")."""
+    tail = settings.split == "tail"
+    if log is None:
+        share = f"the first {100 * settings.train_fraction:g} % of each"
+        return f"{share} log" if tail else f"{share} {SPLIT_BLOCK:g} s block of each log"
+    return f"{_name(log)} after {held[0][0]:.1f} s" if tail else f"{_name(log)} held-out blocks"
 
 
 def _name(log):
