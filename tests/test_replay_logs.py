@@ -310,3 +310,24 @@ def test_many_logs_replay_into_one_table_and_a_bad_one_is_said(quad_drake_cli, t
     assert table[1].startswith("sitl_ground_truth,eskf,10.") and "n/a: PX4 marks it invalid" in table[1]
     assert table[2].startswith("slow,eskf,,n/a: not replayed")
     assert (out / "sitl_ground_truth-eskf" / "summary.json").is_file()
+
+
+def test_an_imu_dropout_is_bridged_by_the_mean_of_the_samples_before_it():
+    from quad_drake.flightlogs.reader import Samples
+    from quad_drake.flightlogs.schedule import bridged_imu
+
+    times = np.concatenate([np.arange(20) * 0.005, [0.45, 0.455, 0.46]])  # a 0.355 s dropout after 0.095 s
+    values = np.zeros((len(times), 6))
+    values[:20, 0] = np.where(np.arange(20) % 2, 3.0, -1.0)  # a vibrating accelerometer, mean 1 m/s^2
+    values[:20, 5] = np.arange(20) * 0.01
+    values[19, 2] = 5.0  # the last sample before the gap swings farther still
+    imu = Samples(times, values)
+    bridged, count = bridged_imu(imu, 0.047)
+    assert count == 1
+    np.testing.assert_array_equal(bridged.times, times)
+    window = values[10:20]  # the samples within 0.047 s before the gap (t >= 0.048 s), the last included
+    np.testing.assert_allclose(bridged.values[19], window.mean(axis=0), rtol=0, atol=1e-15)
+    assert bridged.values[19, 0] == 1.0 and bridged.values[19, 2] == 0.5
+    np.testing.assert_array_equal(np.delete(bridged.values, 19, axis=0), np.delete(values, 19, axis=0))
+    assert bridged_imu(imu, 0.0) == (imu, 0)  # off: the last sample held, as before
+    assert bridged_imu(imu, 0.4) == (imu, 0)  # no interval longer than the window

@@ -46,6 +46,7 @@ from quad_drake.flightlogs.schedule import (
     STAMPED,
     STREAM_WIDTHS,
     NoAidNoise,
+    bridged_imu,
     fake_position,
     held_position,
     initial_attitude,
@@ -440,13 +441,22 @@ def delayed_log(log, config) -> object:
     )
 
 
+def played_log(log, config) -> object:
+    """The FlightLog `log` as its replay plays it: its sensors at the times they were measured
+    (:func:`delayed_log`) and its IMU bridged over the logger's dropouts (``schedule.bridged_imu``
+    with the ReplayConfig's ``imu_gap_bridge``)."""
+    log = delayed_log(log, config)
+    imu, bridged = bridged_imu(log.imu, config.imu_gap_bridge)
+    return log if not bridged else dataclasses.replace(log, imu=imu)
+
+
 def replay_setup(log, config) -> tuple[dict, VehicleConfig, Aiding]:
     """(playback streams, VehicleConfig, Aiding) of the FlightLog `log` replayed under the
     ReplayConfig `config`: what its vehicle of a replay Diagram plays (``schedule.playback_streams``
     of the log's samples at the times they were measured, :func:`delayed_log`, with the aiding of
     :func:`aiding_gps`), the estimator it feeds (``settings.vehicle_for``: started at the log's first
     attitude, the log's magnetic field and barometer period) and how it was aided."""
-    log = delayed_log(log, config)
+    log = played_log(log, config)
     gps, no_aid, fake, late_fix, losses = aiding_gps(log, config, fuses_no_aid(config))
     magnetometer = magnetometer_for(log, config)
     declination, hard_iron = (

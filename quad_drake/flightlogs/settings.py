@@ -51,6 +51,7 @@ from quad_drake.estimation.registry import (
     Ekf7EstimatorConfig,
     EstimatorConfig,
 )
+from quad_drake.flightlogs.schedule import IMU_BRIDGE_WINDOW
 from quad_drake.models.fidelity import PHYSICAL
 
 LOG_DIR = PACKAGE_DIR / "data" / "flight_logs"
@@ -112,6 +113,10 @@ class ReplayConfig:
     # where the log holds its variances; a kind with bias states only (the ESKF). Off by default:
     # mixed across the logs measured (docs/measurements/replay.md)
     px4_start_biases: bool = False
+    # s: over an IMU gap longer than this (a logger's dropout), the mean of the samples within this
+    # window before it is held instead of the last raw sample (``schedule.bridged_imu``); 0 = the
+    # last sample held
+    imu_gap_bridge: float = number(IMU_BRIDGE_WINDOW, nonnegative=True)
 
 
 def default_estimator(kind) -> EstimatorConfig:
