@@ -453,9 +453,10 @@ def played_log(log, config) -> object:
 def replay_setup(log, config) -> tuple[dict, VehicleConfig, Aiding]:
     """(playback streams, VehicleConfig, Aiding) of the FlightLog `log` replayed under the
     ReplayConfig `config`: what its vehicle of a replay Diagram plays (``schedule.playback_streams``
-    of the log's samples at the times they were measured, :func:`delayed_log`, with the aiding of
-    :func:`aiding_gps`), the estimator it feeds (``settings.vehicle_for``: started at the log's first
-    attitude, the log's magnetic field and barometer period) and how it was aided."""
+    of the log's samples at the times they were measured, its IMU bridged over dropouts,
+    :func:`played_log`, with the aiding of :func:`aiding_gps`), the estimator it feeds
+    (``settings.vehicle_for``: started at the log's first attitude, the log's magnetic field and
+    barometer period, and PX4's start biases where asked) and how it was aided."""
     log = played_log(log, config)
     gps, no_aid, fake, late_fix, losses = aiding_gps(log, config, fuses_no_aid(config))
     magnetometer = magnetometer_for(log, config)
