@@ -289,6 +289,14 @@ def test_replay_defaults_and_the_start_from_a_log_are_the_entry_s():
     started = eskf.started_from_log(config, 0.1, 0.2, 0.3)
     assert started.init_ypr == [0.3, 0.2, 0.1]
     assert eskf.assuming_gps_noise(started, 10.0, 1e3).gps_vel_std == [1e3] * 3
+    from quad_drake.flightlogs.reader import ImuBiasStart
+
+    biases = ImuBiasStart((0.01, -0.02, 0.03), (0.001, 0.002, -0.003), (0.013, 0.014, 0.004), None)
+    warm = eskf.started_with_biases(started, biases)
+    assert (warm.init_accel_bias, warm.init_gyro_bias) == ([0.01, -0.02, 0.03], [0.001, 0.002, -0.003])
+    assert warm.init_accel_bias_std == [0.013, 0.014, 0.004]  # PX4's stds where logged
+    assert warm.init_gyro_bias_std == started.init_gyro_bias_std  # else the config's
+    assert registry.KINDS["ekf7"].started_with_biases is None  # no bias states to start
     ekf7 = registry.KINDS["ekf7"]  # its parameters are its config's, as the ESKF's are
     config = ekf7.replay_config()
     noise = registry.PX4_NOISE

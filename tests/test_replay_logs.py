@@ -174,6 +174,52 @@ def test_the_bias_px4s_estimator_had_learned_at_the_start_is_subtracted():
     assert magnetometer_for(learned, asked) == model
 
 
+def test_the_imu_biases_px4s_estimator_had_learned_at_the_start_can_start_the_eskf():
+    import dataclasses
+
+    from quad_drake.config import ConfigError
+    from quad_drake.flightlogs.reader import ImuBiasStart
+    from quad_drake.flightlogs.replay import replay_setup
+    from quad_drake.flightlogs.settings import default_replay
+
+    # the bundled SITL log's primary EKF2 started with the log: its biases ~0 (below 1e-8) with
+    # PX4's switch-on variances (EKF2_ABIAS_INIT 0.2 m/s^2, EKF2_GBIAS_INIT 0.1 rad/s, float32)
+    sitl = read_flight_log(SITL)
+    start = sitl.estimator_imu_bias
+    assert start.accel == pytest.approx((0.0,) * 3, abs=1e-8) and start.gyro == pytest.approx(
+        (0.0,) * 3, abs=1e-8
+    )
+    assert start.accel_std == pytest.approx((0.2,) * 3, rel=1e-6)
+    assert start.gyro_std == pytest.approx((0.1,) * 3, rel=1e-3)
+    assert read_flight_log(REAL).estimator_imu_bias is None  # attitude_estimator_q: no such topic
+    learned = dataclasses.replace(
+        sitl, estimator_imu_bias=ImuBiasStart((-0.006, -0.018, 0.004), (0.0012, 0.0014, -0.0003))
+    )
+    config = dataclasses.replace(default_replay("eskf"), log="sitl_takeoff_land_gps")
+    _, vehicle, _ = replay_setup(learned, config)
+    assert vehicle.estimator.init_accel_bias == [0.0, 0.0, 0.0]  # off by default
+    _, vehicle, _ = replay_setup(learned, dataclasses.replace(config, px4_start_biases=True))
+    e = vehicle.estimator
+    assert (e.init_accel_bias, e.init_gyro_bias) == ([-0.006, -0.018, 0.004], [0.0012, 0.0014, -0.0003])
+    assert e.init_accel_bias_std == config.estimator.init_accel_bias_std  # no variances: the config's
+    with pytest.raises(ConfigError, match="px4_start_biases: starts the IMU bias states of an ESKF"):
+        load_replay("sitl_takeoff_land_gps", "{kind: ekf7}", ["px4_start_biases=true"])
+
+
+def test_the_eskf_nominal_starts_at_each_vehicles_own_biases():
+    import dataclasses
+
+    from quad_drake.estimation.registry import EskfEstimatorConfig
+    from quad_drake.systems.estimators import Eskf
+
+    first = EskfEstimatorConfig()
+    second = dataclasses.replace(first, init_accel_bias=[0.1, -0.2, 0.3], init_gyro_bias=[0.01, 0.02, -0.03])
+    system = Eskf([first, second], n=2)
+    x = system._fusion.groups.x
+    nominal = system.CreateDefaultContext().get_discrete_state(x).get_value().reshape(2, -1)
+    np.testing.assert_array_equal(nominal[:, 10:16], [[0.0] * 6, [0.1, -0.2, 0.3, 0.01, 0.02, -0.03]])
+
+
 @pytest.fixture(scope="module")
 def truth_replay():
     return replay(load_replay(str(TRUTH_LOG), "{kind: eskf}"))
@@ -275,3 +321,24 @@ def test_many_logs_replay_into_one_table_and_a_bad_one_is_said(quad_drake_cli, t
     assert table[1].startswith("sitl_ground_truth,eskf,10.") and "n/a: PX4 marks it invalid" in table[1]
     assert table[2].startswith("slow,eskf,,n/a: not replayed")
     assert (out / "sitl_ground_truth-eskf" / "summary.json").is_file()
+
+
+def test_an_imu_dropout_is_bridged_by_the_mean_of_the_samples_before_it():
+    from quad_drake.flightlogs.reader import Samples
+    from quad_drake.flightlogs.schedule import bridged_imu
+
+    times = np.concatenate([np.arange(20) * 0.005, [0.45, 0.455, 0.46]])  # a 0.355 s dropout after 0.095 s
+    values = np.zeros((len(times), 6))
+    values[:20, 0] = np.where(np.arange(20) % 2, 3.0, -1.0)  # a vibrating accelerometer, mean 1 m/s^2
+    values[:20, 5] = np.arange(20) * 0.01
+    values[19, 2] = 5.0  # the last sample before the gap swings farther still
+    imu = Samples(times, values)
+    bridged, count = bridged_imu(imu, 0.047)
+    assert count == 1
+    np.testing.assert_array_equal(bridged.times, times)
+    window = values[10:20]  # the samples within 0.047 s before the gap (t >= 0.048 s), the last included
+    np.testing.assert_allclose(bridged.values[19], window.mean(axis=0), rtol=0, atol=1e-15)
+    assert bridged.values[19, 0] == 1.0 and bridged.values[19, 2] == 0.5
+    np.testing.assert_array_equal(np.delete(bridged.values, 19, axis=0), np.delete(values, 19, axis=0))
+    assert bridged_imu(imu, 0.0) == (imu, 0)  # off: the last sample held, as before
+    assert bridged_imu(imu, 0.4) == (imu, 0)  # no interval longer than the window

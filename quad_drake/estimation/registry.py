@@ -23,7 +23,9 @@ to know of it:
   yaw)``, the config started at the log's first attitude; ``assuming_gps_noise(config, pos_std,
   vel_std)``, the config assuming that GPS noise (a log without GPS gets fake positions);
   ``assuming_gps_height_noise(config, height_std)``, that GPS height noise alone (a log whose
-  height reference is its barometer: the GPS height is not fused);
+  height reference is its barometer: the GPS height is not fused); ``started_with_biases(config,
+  biases)``, the config started from the IMU biases (and their stds where logged) PX4's estimator
+  had learned by the log's start (``reader.ImuBiasStart``), None for a kind without bias states;
 - ``per_vehicle(config)``: the dotted config fields its system takes per vehicle, so that one
   system sized by n replays n flight logs, each with its own start, GPS noise and magnetic field
   (:func:`sharing_problem`); () for a kind whose n vehicles must fly one config.
@@ -143,6 +145,8 @@ class EskfEstimatorConfig(AidingParams, GateParams):
     init_position: List[float] = vector(0.0, 0.0, -1.0)  # m, NED
     init_velocity: List[float] = vector(0.0, 0.0, 0.0)  # m/s
     init_ypr: List[float] = vector(0.0, 0.0, 0.0)  # rad, yaw pitch roll
+    init_accel_bias: List[float] = vector(0.0, 0.0, 0.0)  # m/s^2, body FRD (the nominal's start)
+    init_gyro_bias: List[float] = vector(0.0, 0.0, 0.0)  # rad/s, body FRD
     init_pos_std: List[float] = noise_stds(0.1, 0.1, 0.3)  # m
     init_vel_std: List[float] = noise_stds(0.1, 0.1, 0.3)  # m/s
     init_att_std: List[float] = noise_stds(0.05, 0.05, 0.05)  # rad, about N, E, D
@@ -228,6 +232,8 @@ class EstimatorKind:
         config
     )
     assuming_gps_noise: Callable[[object, float, float], object] = lambda config, pos_std, vel_std: config
+    # the config started from the IMU biases PX4's estimator had at the log's start; None: no bias states
+    started_with_biases: Optional[Callable[[object, object], object]] = None
     # the config assuming this GPS height noise (m) alone: a log whose height reference is its baro
     assuming_gps_height_noise: Callable[[object, float], object] = lambda config, height_std: config
     # a fixed-interval RTS smoother exists over its stored pass (``flightlogs.smoothing``)
@@ -372,6 +378,17 @@ def _eskf_started(config, roll, pitch, yaw):
     return dataclasses.replace(config, init_ypr=[yaw, pitch, roll])
 
 
+def _eskf_started_with_biases(config, biases):
+    """The ESKF started from `biases` (``flightlogs.reader.ImuBiasStart``): its nominal biases
+    PX4's, and their stds PX4's where the log holds its variances (else the config's)."""
+    changes = {"init_accel_bias": list(biases.accel), "init_gyro_bias": list(biases.gyro)}
+    if biases.accel_std is not None:
+        changes["init_accel_bias_std"] = list(biases.accel_std)
+    if biases.gyro_std is not None:
+        changes["init_gyro_bias_std"] = list(biases.gyro_std)
+    return dataclasses.replace(config, **changes)
+
+
 def _eskf_gps_noise(config, pos_std, vel_std):
     return dataclasses.replace(config, gps_pos_std=[pos_std] * 3, gps_vel_std=[vel_std] * 3)
 
@@ -402,7 +419,7 @@ def _eskf_per_vehicle(config) -> tuple:
     """The ESKF's per-vehicle fields: its start, GPS noise (the velocity's not with the EKF-GSF,
     which is built on one) and magnetic field."""
     shared_by_gsf = ("gps_vel_std",) if not config.gsf.enabled else ()
-    start = ("init_position", "init_velocity", "init_ypr")
+    start = ("init_position", "init_velocity", "init_ypr", "init_accel_bias", "init_gyro_bias")
     return (*start, "gps_pos_std", *shared_by_gsf, *MAG_FIELD_PER_VEHICLE)
 
 
@@ -501,6 +518,7 @@ KINDS = {
             measurements=("yaw", "gps", "no_aid", "field", "baro"),
             replay_defaults=_eskf_replay_defaults,
             started_from_log=_eskf_started,
+            started_with_biases=_eskf_started_with_biases,
             assuming_gps_noise=_eskf_gps_noise,
             assuming_gps_height_noise=_eskf_gps_height_noise,
             smoothable=True,

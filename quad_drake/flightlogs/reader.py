@@ -56,6 +56,9 @@ What is read from a PX4 ULog (``pyulog``, PX4's own reader):
 - the magnetometer bias PX4's primary estimator had learned by the log's start (optional):
   ``estimator_sensor_bias.mag_bias`` at its first sample, where valid and for the fused
   magnetometer, as ``estimator_mag_bias`` (what PX4 v1.13 on keeps instead of ``EKF2_MAGBIAS_*``).
+- the IMU biases the same estimator had learned by then (optional): ``estimator_sensor_bias``'s
+  ``accel_bias`` and ``gyro_bias`` at its first sample, where valid, with their stds where it
+  logs their variances (v1.12 on), as ``estimator_imu_bias`` (:class:`ImuBiasStart`).
 - the simulator's ground truth (a SITL log; optional): ``vehicle_attitude_groundtruth.q`` (wxyz,
   body FRD to NED) as ``truth_attitude``; ``vehicle_global_position_groundtruth`` (lat, lon,
   horizontal) moved into the GPS origin's frame, ``vehicle_local_position_groundtruth``'s z
@@ -131,7 +134,8 @@ class FlightLog:
     land detector's ``vehicle_land_detected.landed`` (1, 1 landed / 0 in the air) as logged, or
     None. estimator_mag_bias: the magnetometer bias (3, gauss, FRD) PX4's primary estimator had
     learned by the log's first sample (``estimator_sensor_bias.mag_bias``, :func:`_ulog_estimator_mag_bias`),
-    or None.
+    or None. estimator_imu_bias: the IMU biases PX4's primary estimator had learned by the log's
+    first sample (:class:`ImuBiasStart`, :func:`_ulog_estimator_imu_bias`), or None.
     """
 
     source: str
@@ -154,6 +158,7 @@ class FlightLog:
     mag_source: str = ""
     landed: Samples | None = None
     estimator_mag_bias: tuple | None = None
+    estimator_imu_bias: "ImuBiasStart | None" = None
 
     @property
     def duration(self) -> float:
@@ -336,6 +341,7 @@ def read_ulog(path) -> FlightLog:
         mag_source=mag_source,
         landed=_optional(_ulog_landed(path, topics), start, US),
         estimator_mag_bias=_ulog_estimator_mag_bias(topics, sensor_biases),
+        estimator_imu_bias=_ulog_estimator_imu_bias(topics, sensor_biases),
     )
 
 
@@ -471,6 +477,54 @@ def _ulog_mag(path, topics, raw_mags, parameters, info):
     return _raw_mag(path, topics, raw_mags, parameters, info)
 
 
+@dataclass(frozen=True)
+class ImuBiasStart:
+    """The IMU biases PX4's estimator had learned by a log's first sample (body FRD): accel
+    (3, m/s^2) and gyro (3, rad/s), each subtracted from its sensor's reading as the ESKF's
+    nominal biases are; accel_std (3, m/s^2) and gyro_std (3, rad/s): the square roots of PX4's
+    variances of them, or None where the log does not hold them (PX4 before v1.12) or holds a
+    variance that is not positive."""
+
+    accel: tuple
+    gyro: tuple
+    accel_std: tuple | None = None
+    gyro_std: tuple | None = None
+
+
+def _primary_estimator(topics) -> int:
+    """PX4's primary EKF2 instance at the log's start (``estimator_selector_status``), else 0."""
+    selector = topics.get("estimator_selector_status", {})
+    return int(selector["primary_instance"][0]) if "primary_instance" in selector else 0
+
+
+def _ulog_estimator_imu_bias(topics, sensor_biases):
+    """ImuBiasStart of PX4's primary EKF2 instance (:func:`_primary_estimator`) at its first
+    ``estimator_sensor_bias`` sample, or None: no such topic or fields, or either bias marked
+    invalid (``accel_bias_valid``, ``gyro_bias_valid``). The logger starts at arming, long after
+    the estimator started learning (PX4-Autopilot ``src/modules/ekf2/EKF2.cpp``,
+    ``PublishSensorBias``): what the flight began with."""
+    data = sensor_biases.get(_primary_estimator(topics))
+    if data is None or "accel_bias[0]" not in data or "gyro_bias[0]" not in data:
+        return None
+    if any(f"{s}_bias_valid" in data and not data[f"{s}_bias_valid"][0] for s in ("accel", "gyro")):
+        return None
+
+    def first(name):
+        return tuple(float(data[f"{name}[{axis}]"][0]) for axis in range(3))
+
+    def std(sensor):
+        name = f"{sensor}_bias_variance"
+        if f"{name}[0]" not in data:
+            return None
+        variance = np.array(first(name))
+        return tuple(float(s) for s in np.sqrt(variance)) if np.all(variance > 0.0) else None
+
+    accel, gyro = first("accel_bias"), first("gyro_bias")
+    if not all(math.isfinite(b) for b in accel + gyro):
+        return None
+    return ImuBiasStart(accel, gyro, std("accel"), std("gyro"))
+
+
 def _ulog_estimator_mag_bias(topics, sensor_biases):
     """(3-tuple gauss, FRD) the magnetometer bias PX4's primary EKF2 instance
     (``estimator_selector_status.primary_instance`` at its first sample, else instance 0) had
@@ -484,9 +538,7 @@ def _ulog_estimator_mag_bias(topics, sensor_biases):
     from v1.13 on the bias is no longer saved as ``EKF2_MAGBIAS_*`` (the sensors module writes a
     stable one into ``CAL_MAGn_*OFF`` at disarm, for the next boot): the first sample is what the
     flight began with (PX4-Autopilot ``src/modules/ekf2/EKF2.cpp``, ``PublishSensorBias``)."""
-    selector = topics.get("estimator_selector_status", {})
-    primary = int(selector["primary_instance"][0]) if "primary_instance" in selector else 0
-    data = sensor_biases.get(primary)
+    data = sensor_biases.get(_primary_estimator(topics))
     if data is None or "mag_bias[0]" not in data:
         return None
     if "mag_bias_valid" in data and not data["mag_bias_valid"][0]:

@@ -46,6 +46,7 @@ from quad_drake.flightlogs.schedule import (
     STAMPED,
     STREAM_WIDTHS,
     NoAidNoise,
+    bridged_imu,
     fake_position,
     held_position,
     initial_attitude,
@@ -194,6 +195,8 @@ class ReplayResult:
                 "The estimator's noise and the sensor delays are the log's own EKF2_* parameters "
                 "(PX4's default where the log has none; flightlogs/px4_parameters.py)."
             )
+        if self.config.px4_start_biases:
+            lines.append(start_biases_note(self.log.estimator_imu_bias))
         delays = [(s, getattr(self.config, f"{s}_delay")) for s in ("gps", "mag", "baro")]
         if any(d for _, d in delays):
             shown = ", ".join(f"{s} {1e3 * d:g} ms" for s, d in delays)
@@ -297,6 +300,31 @@ def baro_pairing_period(baro) -> float:
     height finds the baro sample before it (at most one interval older)."""
     interval = float(np.median(np.diff(baro.times))) if len(baro) > 1 else ONBOARD_PERIOD
     return ONBOARD_PERIOD * math.ceil(2.0 * interval / ONBOARD_PERIOD - 1e-9)
+
+
+def start_biases_note(biases) -> str:
+    """The console line of a replay started from PX4's IMU biases (``--set px4_start_biases=true``):
+    `biases` (``reader.ImuBiasStart``), or None where the log holds none."""
+    if biases is None:
+        return (
+            "px4_start_biases: the log holds no valid estimator_sensor_bias: the IMU biases started "
+            "from the estimator's own start."
+        )
+
+    def triple(values, digits):
+        return "(" + ", ".join(f"{v:.{digits}f}" for v in values) + ")"
+
+    stds = (
+        f", their σ {triple(biases.accel_std, 4)} m/s² and {triple(biases.gyro_std, 5)} rad/s "
+        "(PX4's variances)"
+        if biases.accel_std is not None and biases.gyro_std is not None
+        else ""
+    )
+    return (
+        "The IMU biases started from those PX4's estimator had learned by the log's start "
+        f"(estimator_sensor_bias): accelerometer {triple(biases.accel, 4)} m/s², gyro "
+        f"{triple(biases.gyro, 5)} rad/s{stds}."
+    )
 
 
 def magnetometer_for(log, config) -> earth_field.MagnetometerModel | None:
@@ -403,13 +431,23 @@ def delayed_log(log, config) -> object:
     )
 
 
+def played_log(log, config) -> object:
+    """The FlightLog `log` as its replay plays it: its sensors at the times they were measured
+    (:func:`delayed_log`) and its IMU bridged over the logger's dropouts (``schedule.bridged_imu``
+    with the ReplayConfig's ``imu_gap_bridge``)."""
+    log = delayed_log(log, config)
+    imu, bridged = bridged_imu(log.imu, config.imu_gap_bridge)
+    return log if not bridged else dataclasses.replace(log, imu=imu)
+
+
 def replay_setup(log, config) -> tuple[dict, VehicleConfig, Aiding]:
     """(playback streams, VehicleConfig, Aiding) of the FlightLog `log` replayed under the
     ReplayConfig `config`: what its vehicle of a replay Diagram plays (``schedule.playback_streams``
-    of the log's samples at the times they were measured, :func:`delayed_log`, with the aiding of
-    :func:`aiding_gps`), the estimator it feeds (``settings.vehicle_for``: started at the log's first
-    attitude, the log's magnetic field and barometer period) and how it was aided."""
-    log = delayed_log(log, config)
+    of the log's samples at the times they were measured, its IMU bridged over dropouts,
+    :func:`played_log`, with the aiding of :func:`aiding_gps`), the estimator it feeds
+    (``settings.vehicle_for``: started at the log's first attitude, the log's magnetic field and
+    barometer period, and PX4's start biases where asked) and how it was aided."""
+    log = played_log(log, config)
     gps, no_aid, fake, late_fix, losses = aiding_gps(log, config, fuses_no_aid(config))
     magnetometer = magnetometer_for(log, config)
     declination, hard_iron = (
@@ -424,7 +462,13 @@ def replay_setup(log, config) -> tuple[dict, VehicleConfig, Aiding]:
     baro_period = None if log.baro is None else baro_pairing_period(log.baro)
     baro_reference = log.gps is not None and height_reference(config, log.parameters) == "baro"
     vehicle = vehicle_for(
-        config, initial_attitude(log, declination, hard_iron), fake, baro_period, magnetometer, baro_reference
+        config,
+        initial_attitude(log, declination, hard_iron),
+        fake,
+        baro_period,
+        magnetometer,
+        baro_reference,
+        log.estimator_imu_bias if config.px4_start_biases else None,
     )
     baro_fused = vehicle.sensors.baro is not None
     rested = None

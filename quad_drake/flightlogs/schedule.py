@@ -36,6 +36,9 @@ whose own acceleration no average removes."""
 NO_AID_TIMEOUT = 5.0
 """s without a GPS sample after which PX4 EKF2 stops dead-reckoning and holds a fake position
 (``EKF2_NOAID_TOUT``, 5 s): a gap longer than this is a GPS loss (``aiding_gps``)."""
+IMU_BRIDGE_WINDOW = 0.05
+"""s: the default of ``ReplayConfig.imu_gap_bridge`` (:func:`bridged_imu`): over an IMU gap longer
+than this (a logger's dropout), the mean of the samples within this window before it is held."""
 BARO_SLOPE_WINDOW = 1.0
 """s of barometer samples whose least-squares slope is a held position's vertical velocity."""
 TICK_TOLERANCE = 1e-6
@@ -271,6 +274,26 @@ def measured_at(samples, delay) -> Samples | None:
     times = samples.times - delay
     keep = times >= 0.0
     return Samples(times[keep], samples.values[keep])
+
+
+def bridged_imu(imu, window) -> tuple[Samples, int]:
+    """(IMU Samples, gaps bridged): `imu` (6: f_B m/s^2, w_B rad/s) with the last sample before
+    each interval longer than `window` s (a dropout of the logger, which PX4's estimator did not
+    have) replaced by the mean of the samples within `window` s before that interval (it
+    included): the playback holds a sample until the next one, and one raw sample of a vibrating
+    vehicle (a real multirotor's accelerometer swings by several m/s^2 from sample to sample)
+    held over a long gap integrates its vibration into the velocity and the attitude, where the
+    mean holds the vehicle's motion at the gap. window 0: `imu` as it is."""
+    if window <= 0.0 or len(imu) < 2:
+        return imu, 0
+    gaps = np.flatnonzero(np.diff(imu.times) > window)
+    if len(gaps) == 0:
+        return imu, 0
+    values = imu.values.copy()
+    for i in gaps:
+        first = int(np.searchsorted(imu.times, imu.times[i] - window, side="left"))
+        values[i] = imu.values[first : i + 1].mean(axis=0)
+    return Samples(imu.times, values), len(gaps)
 
 
 def playback_streams(

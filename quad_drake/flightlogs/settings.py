@@ -51,6 +51,7 @@ from quad_drake.estimation.registry import (
     Ekf7EstimatorConfig,
     EstimatorConfig,
 )
+from quad_drake.flightlogs.schedule import IMU_BRIDGE_WINDOW
 from quad_drake.models.fidelity import PHYSICAL
 
 LOG_DIR = PACKAGE_DIR / "data" / "flight_logs"
@@ -107,6 +108,15 @@ class ReplayConfig:
     # (``FlightLog.estimator_mag_bias``, on top of ``EKF2_MAGBIAS_*``); off by default: on the two
     # logs that hold one it moves the yaw 5-10 % nearer PX4's and some roll, pitch, x farther
     estimator_mag_bias: bool = False
+    # true: the estimator's IMU biases start at those PX4's primary estimator had learned by the
+    # log's start (``FlightLog.estimator_imu_bias``: estimator_sensor_bias), their stds at PX4's
+    # where the log holds its variances; a kind with bias states only (the ESKF). Off by default:
+    # mixed across the logs measured (docs/measurements/replay.md)
+    px4_start_biases: bool = False
+    # s: over an IMU gap longer than this (a logger's dropout), the mean of the samples within this
+    # window before it is held instead of the last raw sample (``schedule.bridged_imu``); 0 = the
+    # last sample held
+    imu_gap_bridge: float = number(IMU_BRIDGE_WINDOW, nonnegative=True)
 
 
 def default_estimator(kind) -> EstimatorConfig:
@@ -232,6 +242,10 @@ def check_replay(config) -> ReplayConfig:
         raise ConfigError(
             f"px4_parameters: maps EKF2_* onto an ESKF only, not kind {config.estimator.kind!r}"
         )
+    if config.px4_start_biases and kind.started_with_biases is None:
+        raise ConfigError(
+            f"px4_start_biases: starts the IMU bias states of an ESKF, not kind {config.estimator.kind!r}"
+        )
     if config.mag_declination is not None and not abs(config.mag_declination) <= math.pi:
         raise ConfigError(f"mag_declination: must be within [-pi, pi] rad, got {config.mag_declination}")
     for name in SENSOR_DELAYS:
@@ -260,7 +274,13 @@ def fuses_no_aid(config) -> bool:
 
 
 def vehicle_for(
-    config, initial_attitude, fake_position, baro_period=None, magnetometer=None, baro_reference=False
+    config,
+    initial_attitude,
+    fake_position,
+    baro_period=None,
+    magnetometer=None,
+    baro_reference=False,
+    imu_biases=None,
 ) -> VehicleConfig:
     """The VehicleConfig whose estimator ``systems.estimators.build_estimator`` builds:
     `config`'s, started at `initial_attitude` (roll, pitch, yaw rad) at rest at the origin, and
@@ -276,10 +296,14 @@ def vehicle_for(
     vehicle's ``sensors.baro`` and 3-axis ``sensors.mag``, and the model's figures its
     ``mag_field`` (an AidingParams estimator's: the EKF7's, the ESKF's). baro_reference: the
     barometer is the height reference (:func:`height_reference`): where the kind fuses the baro,
-    it assumes the GPS height noise UNFUSED_HEIGHT_STD, as PX4 then fuses no GPS height."""
+    it assumes the GPS height noise UNFUSED_HEIGHT_STD, as PX4 then fuses no GPS height.
+    imu_biases: the IMU biases to start from (``reader.ImuBiasStart``; a kind with
+    ``started_with_biases``), or None: the config's own start."""
     roll, pitch, yaw = initial_attitude
     kind = KINDS[config.estimator.kind]
     estimator = kind.started_from_log(config.estimator, roll, pitch, yaw)
+    if imu_biases is not None:
+        estimator = kind.started_with_biases(estimator, imu_biases)
     no_aid = fuses_no_aid(config)  # the fake samples come on their own input, with their std
     if fake_position and not no_aid:
         estimator = kind.assuming_gps_noise(estimator, config.fake_position_std, FAKE_VELOCITY_STD)

@@ -399,7 +399,9 @@ class Eskf(LeafSystem):
         def initial_nominal(p):
             yaw, pitch, roll = p.init_ypr
             attitude = quat_from_euler_tuple(roll, pitch, yaw)
-            x = eskf.initial_nominal(p.init_position, p.init_velocity, attitude)
+            x = eskf.initial_nominal(
+                p.init_position, p.init_velocity, attitude, p.init_accel_bias, p.init_gyro_bias
+            )
             return np.append(x, p.baro.bias_init) if baro else x
 
         x0 = _stacked(initial_nominal, params, each)
