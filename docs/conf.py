@@ -22,7 +22,14 @@ author = "the quad_drake authors"
 copyright = "quad_drake authors, BSD-3-Clause"
 release = version = quad_drake.__version__
 
-extensions = ["myst_nb", "autoapi.extension", "sphinxarg.ext", "plain_docstrings", "executed_notebooks"]
+extensions = [
+    "myst_nb",
+    "autoapi.extension",
+    "sphinxarg.ext",
+    "plain_docstrings",
+    "executed_notebooks",
+    "site_navigation",
+]
 exclude_patterns = ["_build", "jupyter_execute", "**.ipynb_checkpoints"]
 html_theme = "furo"
 html_title = f"quad_drake {release}"
