@@ -157,16 +157,22 @@ def newest_source_time():
 
 @pytest.fixture(scope="module")
 def built_manual():
-    """docs/_build/html, built by ``sphinx-build -W`` (as ``make docs``) unless it is newer than every
-    source (CI runs ``make docs`` just before the tests)."""
+    """docs/_build/html, built by ``sphinx-build -W`` (as ``make docs``) unless its last build is
+    newer than every source (CI runs ``make docs`` just before the tests). Sphinx builds on its
+    previous build there: it reads again the pages whose source changed and writes every page
+    again (docs/_ext/site_navigation.py). A failed build leaves no previous build behind, so the
+    next one reads every page again and repeats every warning."""
     pytest.importorskip("sphinx", reason="the docs extra is missing (pip install -e '.[docs]')")
-    index = HTML / "index.html"
-    if index.is_file() and index.stat().st_mtime > newest_source_time():
+    last_build = HTML / ".buildinfo"  # Sphinx writes it at the end of each build
+    if last_build.is_file() and last_build.stat().st_mtime > newest_source_time():
         return HTML
     build = subprocess.run(
         [sys.executable, "-m", "sphinx", "-b", "html", "-W", "--keep-going", "-q", str(DOCS), str(HTML)],
         cwd=ROOT, capture_output=True, text=True,
     )  # fmt: skip
+    if build.returncode != 0:
+        last_build.unlink(missing_ok=True)
+        shutil.rmtree(HTML / ".doctrees", ignore_errors=True)  # Sphinx's environment: read it all again
     assert build.returncode == 0, build.stderr[-4000:]
     return HTML
 

@@ -73,8 +73,21 @@ def _mark_current(reference):
         node = node.parent
 
 
-def _forget(app, env):
-    app.site_navigation = None  # read again after this build's reading phase
+def _note_removed(app, env, added, changed, removed):
+    app.site_changed = bool(removed)
+    return []
+
+
+def _note_read(app, env, docnames):
+    app.site_changed = app.site_changed or bool(docnames)
+
+
+def _every_page_when_the_site_changed(app, env):
+    """Sphinx writes again only the pages it read again, but every page shows the site tree (and
+    may link into a page that changed): when any page was read again or removed, every page is
+    written again (the warnings of the writing, missing references, come from all of them)."""
+    app.site_navigation = None  # resolved again from this build's environment
+    return sorted(env.found_docs) if app.site_changed else []
 
 
 def _fast_site_tree(app, pagename, templatename, context, doctree):
@@ -94,6 +107,8 @@ def _fast_site_tree(app, pagename, templatename, context, doctree):
 
 
 def setup(app):
-    app.connect("env-updated", _forget)
+    app.connect("env-get-outdated", _note_removed)
+    app.connect("env-before-read-docs", _note_read)
+    app.connect("env-updated", _every_page_when_the_site_changed)
     app.connect("html-page-context", _fast_site_tree, priority=400)  # Furo's handler: 500
     return {"parallel_read_safe": True, "parallel_write_safe": True}
