@@ -65,4 +65,4 @@ bench: $(VENV)/.installed
 	$(BIN)/python benchmarks/bench_closed_loop.py
 
 clean:
-	rm -rf $(VENV) out build dist *.egg-info docs/_build docs/gallery
+	rm -rf $(VENV) out build dist *.egg-info docs/_build docs/gallery docs/api

@@ -22,7 +22,15 @@ author = "the quad_drake authors"
 copyright = "quad_drake authors, BSD-3-Clause"
 release = version = quad_drake.__version__
 
-extensions = ["myst_nb", "autoapi.extension", "sphinxarg.ext", "plain_docstrings", "executed_notebooks"]
+extensions = [
+    "myst_nb",
+    "autoapi.extension",
+    "sphinxarg.ext",
+    "plain_docstrings",
+    "executed_notebooks",
+    "site_navigation",
+    "api_pages",
+]
 exclude_patterns = ["_build", "jupyter_execute", "**.ipynb_checkpoints"]
 html_theme = "furo"
 html_title = f"quad_drake {release}"
@@ -32,8 +40,8 @@ nitpicky = False  # docstrings name numpy/pydrake types that have no inventory o
 myst_heading_anchors = 3
 myst_enable_extensions = ["dollarmath", "colon_fence"]
 # Set here, not written by myst at start-up: such a value reads as a changed configuration, and
-# Sphinx then re-reads every page. (Furo's pygments_dark_style still does so under Sphinx 9: a
-# rebuild re-reads the pages, about 50 s of CPU, but the notebooks come from their cache.)
+# Sphinx then re-reads every page. (Sphinx 9 also reports Furo's pygments_dark_style as changed
+# on each rebuild, registered after the comparison, but that re-reads nothing.)
 myst_update_mathjax = False
 
 # The API reference: every module of the package, walked from the source tree.
@@ -41,7 +49,10 @@ autoapi_dirs = [str(ROOT / "quad_drake")]
 autoapi_root = "api"
 autoapi_add_toctree_entry = False  # index.md places it
 autoapi_options = ["members", "undoc-members", "show-inheritance", "show-module-summary", "imported-members"]
-autoapi_keep_files = False
+# The API pages' sources stay in docs/api/ between builds: autoapi reads the package again only
+# when a module's text changed, and api_pages (_ext/) keeps the time stamp of each source whose
+# text did not, so a rebuild reads again only what changed (site_navigation then writes every page).
+autoapi_keep_files = True
 autoapi_python_class_content = "both"
 # A module's docstring naming a sibling module by its short name (`plots`) can match two modules
 # of the package; autoapi's import-resolution notes are about re-exports, not the manual.

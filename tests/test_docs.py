@@ -7,6 +7,8 @@ does) when a page, notebook or module is newer than the built site: CI runs ``ma
 before the tests, so there they read that build; elsewhere a broken page, link or notebook fails
 here as it fails the build."""
 
+import importlib
+import io
 import re
 import shutil
 import subprocess
@@ -64,15 +66,20 @@ def test_no_page_cites_an_issue_number_a_reader_cannot_resolve():
         assert cited == [], f"{page.relative_to(ROOT)}: {cited}"
 
 
+def docs_extension(name):
+    """The Sphinx extension docs/_ext/`name`.py, imported."""
+    sys.path.insert(0, str(DOCS / "_ext"))
+    try:
+        return importlib.import_module(name)
+    finally:
+        sys.path.remove(str(DOCS / "_ext"))
+
+
 def test_a_docstring_is_made_rst_safe_the_same_way_call_after_call():
     """docs/_ext/plain_docstrings.py parses every docstring of the package (thousands per build)
     with one set of docutils settings: a warning in one parse must not leak into the next."""
     pytest.importorskip("docutils", reason="the docs extra is missing (pip install -e '.[docs]')")
-    sys.path.insert(0, str(DOCS / "_ext"))
-    try:
-        import plain_docstrings
-    finally:
-        sys.path.remove(str(DOCS / "_ext"))
+    plain_docstrings = docs_extension("plain_docstrings")
     for _ in range(2):
         assert not plain_docstrings.parses_cleanly("an *unclosed emphasis")
         assert not plain_docstrings.parses_cleanly("a line\n  indented\nunindented")  # a quote cut short
@@ -80,6 +87,48 @@ def test_a_docstring_is_made_rst_safe_the_same_way_call_after_call():
     assert plain_docstrings.rst_safe("The norm |v| of ``a|b``.") == "The norm \\|v\\| of ``a|b``."
     broken = "Summary with *one star.\n\n  indented rest\n"
     assert plain_docstrings.rst_safe(broken) == "Summary with \\*one star.\n\n::\n\n    indented rest\n"
+
+
+SMALL_SITE = {
+    "index.rst": "Home\n====\n\n.. toctree::\n   :caption: Guide\n\n   guide/run\n   guide/deep/page\n   "
+    "Outside <https://example.org>\n\n.. toctree::\n   :hidden:\n\n   api/index\n",
+    "guide/run.rst": "Run\n===\n\nA section\n---------\n\nText.\n\nAnother\n-------\n\nText.\n",
+    "guide/deep/page.rst": "Deep page\n=========\n\nText.\n\nSecond title\n============\n\nText.\n",
+    "api/index.rst": "API\n===\n\n.. toctree::\n\n   mod/index\n   ../guide/run\n",
+    "api/mod/index.rst": "A module\n========\n\nFunctions\n---------\n\n.. py:function:: f(x)\n\n   Text.\n",
+}
+
+
+def test_the_site_tree_resolved_once_renders_every_page_as_sphinx_does(tmp_path):
+    """docs/_ext/site_navigation.py resolves the sidebar's site tree once per build: a small site
+    (captions, a hidden toctree, an external link, pages two folders deep, a page listed twice,
+    a page with two titles) built with it and without it gives the same bytes on every page."""
+    pytest.importorskip("furo", reason="the docs extra is missing (pip install -e '.[docs]')")
+    from sphinx.testing.util import SphinxTestApp
+
+    site_navigation = docs_extension("site_navigation")
+
+    for name, text in SMALL_SITE.items():
+        (tmp_path / "src" / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / "src" / name).write_text(text, encoding="utf-8")
+    built = {}
+    for extensions in ([], ["site_navigation"]):
+        conf = f"extensions = {extensions!r}\nhtml_theme = 'furo'\n"
+        (tmp_path / "src" / "conf.py").write_text(conf, encoding="utf-8")
+        warnings = io.StringIO()
+        build = tmp_path / f"build{len(extensions)}"
+        app = SphinxTestApp(srcdir=tmp_path / "src", builddir=build, warning=warnings)
+        try:
+            app.build()
+        finally:
+            app.cleanup()  # docutils' global registrations, for the next build in this process
+        assert app.statuscode == 0 and warnings.getvalue() == ""
+        built[len(extensions)] = {p.relative_to(app.outdir): p.read_bytes() for p in build.rglob("*.html")}
+    assert isinstance(app.site_navigation, site_navigation.SiteNavigation)  # the second build used it
+    assert {Path(name).with_suffix(".html") for name in SMALL_SITE} < built[1].keys() == built[0].keys()
+    for page, html in built[0].items():
+        assert built[1][page] == html, page
+    assert b'class="toctree-l2 current current-page"' in built[1][Path("api/mod/index.html")]
 
 
 class _Links(HTMLParser):
@@ -108,16 +157,22 @@ def newest_source_time():
 
 @pytest.fixture(scope="module")
 def built_manual():
-    """docs/_build/html, built by ``sphinx-build -W`` (as ``make docs``) unless it is newer than every
-    source (CI runs ``make docs`` just before the tests)."""
+    """docs/_build/html, built by ``sphinx-build -W`` (as ``make docs``) unless its last build is
+    newer than every source (CI runs ``make docs`` just before the tests). Sphinx builds on its
+    previous build there: it reads again the pages whose source changed and writes every page
+    again (docs/_ext/site_navigation.py). A failed build leaves no previous build behind, so the
+    next one reads every page again and repeats every warning."""
     pytest.importorskip("sphinx", reason="the docs extra is missing (pip install -e '.[docs]')")
-    index = HTML / "index.html"
-    if index.is_file() and index.stat().st_mtime > newest_source_time():
+    last_build = HTML / ".buildinfo"  # Sphinx writes it at the end of each build
+    if last_build.is_file() and last_build.stat().st_mtime > newest_source_time():
         return HTML
     build = subprocess.run(
         [sys.executable, "-m", "sphinx", "-b", "html", "-W", "--keep-going", "-q", str(DOCS), str(HTML)],
         cwd=ROOT, capture_output=True, text=True,
     )  # fmt: skip
+    if build.returncode != 0:
+        last_build.unlink(missing_ok=True)
+        shutil.rmtree(HTML / ".doctrees", ignore_errors=True)  # Sphinx's environment: read it all again
     assert build.returncode == 0, build.stderr[-4000:]
     return HTML
 
