@@ -213,3 +213,22 @@ def test_a_delay_whose_grid_the_budget_cannot_hold_is_not_profiled(monkeypatch):
     assert result.tuned.baro_delay == 0.0 and "not profiled" in result.kept["baro_delay"]
     assert all(e.x[2] == 0.0 for e in result.search.history)  # not one replay spent on its grid
     assert abs(result.tuned.gps_delay - 0.12) <= 0.02 and "gps_delay" not in result.kept
+
+
+def test_every_barometer_update_is_judged_whatever_its_delay():
+    """The bundled SITL log's barometer samples come in pairs 4 ms apart; the replay's diagnostics,
+    logged every 5 ms, show one NIS per log period, so at a barometer delay of 2 ms (and 292 ms)
+    half of the samples were never judged. The tuner's replays log the diagnostics every 2 ms
+    tick (``innovations.UPDATE_DIAGNOSTICS``)."""
+    import math
+
+    from quad_drake.flightlogs.reader import read_flight_log
+    from quad_drake.flightlogs.settings import resolve_log
+    from quad_drake.tuning.logs import channel_statistics, cut
+
+    log = read_flight_log(resolve_log("sitl_takeoff_land_gps"))
+    config = dataclasses.replace(load_replay("sitl_takeoff_land_gps", "{kind: eskf}", []), baro_delay=0.002)
+    measured = log.baro.times - config.baro_delay
+    statistics = channel_statistics(config, cut(log, 12.0), ((5.0, math.inf),))
+    assert np.diff(log.baro.times)[:2] == pytest.approx([0.004, 0.096], abs=1e-9)
+    assert statistics["baro"].count == np.count_nonzero((measured >= 5.0) & (measured <= 12.0 - 0.002)) == 140
