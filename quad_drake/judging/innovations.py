@@ -191,7 +191,7 @@ def channel_statistics(vocabulary, logs, assumed, windows) -> dict[str, ChannelS
         if channel in COMPONENT_CHANNELS:
             _, z, s = normalised_innovations(vocabulary, logs, channel, std, windows)
             stats = statistics_of(channel, z, len(COMPONENT_CHANNELS[channel][1]), s)
-        else:  # every update's NIS where the replay logged them (``replay.UPDATE_DIAGNOSTICS``)
+        else:  # every update's NIS where the replay logged them (UPDATE_DIAGNOSTICS)
             diagnostics = logs.get(UPDATE_DIAGNOSTICS, logs["diagnostics"])
             stats = statistics_of(channel, nis_sequence(diagnostics, channel, windows), NIS_CHANNELS[channel])
         if stats is not None:
