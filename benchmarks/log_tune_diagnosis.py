@@ -18,8 +18,9 @@ the log has PX4's land detector):
 
 and the replay's innovation-gate counts (GPS, magnetometer, barometer samples rejected).
 
-The field and the barometer are judged on the filter's own NIS (no innovation logged): only the
-NIS per dof, its band and autocorrelation.
+The field and the barometer are judged on the filter's own NIS (no innovation logged; every
+update's, from the diagnostics logged every 2 ms tick as the tuner judges them): only the NIS per
+dof, its band and autocorrelation.
 
 Usage::
 
@@ -99,7 +100,7 @@ def main():
     settings = LogTuneSettings(train_fraction=args.train_fraction, split=args.split)
     log = read_flight_log(resolve_log(args.log))
     config = load_replay(args.config or args.log, "{kind: eskf}" if not args.config else None)
-    result = replay(dataclasses.replace(config, name=config.name or "diagnosis"), log)
+    result = replay(dataclasses.replace(config, name=config.name or "diagnosis"), log, every_update=True)
     judged = _judged(config, result)
     stds = assumed_std(result.config)
     print(f"{log.source}: {log.duration:.1f} s, split {args.split}; config {args.config or 'start'}")
@@ -126,7 +127,7 @@ def main():
                     zk, sk = z[keep, k], s[keep, k]
                     print(row(f"{channel}:{state}", zk, zk * sk, sk, r, logged))
             else:
-                stamps, values = innovations.fresh_nis(result.logs["diagnostics"], channel)
+                stamps, values = innovations.fresh_nis(result.logs[innovations.UPDATE_DIAGNOSTICS], channel)
                 keep = innovations.inside(stamps, windows) & np.isfinite(values)
                 if landed is not None:
                     keep &= landed_at(log, stamps) == landed

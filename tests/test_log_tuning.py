@@ -235,3 +235,63 @@ def test_the_search_sets_the_accelerometer_s_axes_apart_and_reaches_a_simulator_
     assert tuned == pytest.approx([start[0], start[1], 10.0 * start[2]], rel=1e-12)
     velocity = problem.space[names.index("gps_vel_xy")]
     assert velocity.value(velocity.bounds[0]) < 0.0026 / 2 and velocity.value(velocity.bounds[1]) >= 30.0
+
+
+def _synthetic_problem(monkeypatch, objective, budget):
+    """A LogTuneProblem over the barometer's noise and the GPS and barometer delays whose loss is
+    objective(config) (no replay: ``_score`` replaced), nothing held out."""
+    from quad_drake.tuning import logs
+    from quad_drake.tuning.settings import LogTuneSettings
+
+    start = dataclasses.replace(default_replay("eskf"), gps_delay=0.0, baro_delay=0.0)
+    monkeypatch.setattr(logs, "_score", lambda problem, config: logs.LogScore(objective(config), 0.0, ({},)))
+    space = [logs.Dimension("baro", 3.5), logs.Dimension("gps_delay", 0.0), logs.Dimension("baro_delay", 0.0)]
+    return logs.LogTuneProblem(start, [], [], space, LogTuneSettings(budget=budget, curve_points=0))
+
+
+def test_a_delay_least_at_the_end_of_the_range_is_kept_at_the_start_and_said_so(monkeypatch):
+    """On x500v2_v6xrt the barometer delay's objective fell all the way to 300 ms (PX4's largest
+    EKF2_BARO_DELAY), through the GPS height alone: no minimum inside the range, no estimate. The
+    search took the grid point where its budget ran out (200 ms) or would have taken 300 ms."""
+    from quad_drake.tuning.logs import tune_logs
+
+    problem = _synthetic_problem(monkeypatch, lambda c: 100.0 * (c.gps_delay - 0.12) ** 2 - c.baro_delay, 80)
+    result = tune_logs(problem, progress=False)
+    assert abs(result.tuned.gps_delay - 0.12) <= 0.004 and result.tuned.baro_delay == 0.0
+    assert list(result.kept) == ["baro_delay"] and "least at 300 ms" in result.kept["baro_delay"]
+    least = min(result.search.history, key=lambda e: e.score.loss)  # a grid point at 300 ms
+    assert least.x[2] == pytest.approx(3.0) and result.best.x[2] == 0.0
+    assert not any(e.generation == 4 and e.x[2] != 0.0 for e in result.search.history)  # Powell leaves it
+
+
+def test_a_delay_whose_grid_the_budget_cannot_hold_is_not_profiled(monkeypatch):
+    """A grid cut by the budget left the delay at the last grid point tried (x500v2_v6xrt at budget
+    100: its barometer delay at 200 ms, the objective still falling): now a profile starts only
+    with the replays for its whole grid left (17: 7 delays every 50 ms, each re-matched, then 3
+    matchings; the GPS delay's profile leaves fewer of the 20)."""
+    from quad_drake.tuning.logs import tune_logs
+
+    problem = _synthetic_problem(monkeypatch, lambda c: 100.0 * (c.gps_delay - 0.12) ** 2 - c.baro_delay, 20)
+    result = tune_logs(problem, progress=False)
+    assert result.tuned.baro_delay == 0.0 and "not profiled" in result.kept["baro_delay"]
+    assert all(e.x[2] == 0.0 for e in result.search.history)  # not one replay spent on its grid
+    assert abs(result.tuned.gps_delay - 0.12) <= 0.02 and "gps_delay" not in result.kept
+
+
+def test_every_barometer_update_is_judged_whatever_its_delay():
+    """The bundled SITL log's barometer samples come in pairs 4 ms apart; the replay's diagnostics,
+    logged every 5 ms, show one NIS per log period, so at a barometer delay of 2 ms (and 292 ms)
+    half of the samples were never judged. The tuner's replays log the diagnostics every 2 ms
+    tick (``innovations.UPDATE_DIAGNOSTICS``)."""
+    import math
+
+    from quad_drake.flightlogs.reader import read_flight_log
+    from quad_drake.flightlogs.settings import resolve_log
+    from quad_drake.tuning.logs import channel_statistics, cut
+
+    log = read_flight_log(resolve_log("sitl_takeoff_land_gps"))
+    config = dataclasses.replace(load_replay("sitl_takeoff_land_gps", "{kind: eskf}", []), baro_delay=0.002)
+    measured = log.baro.times - config.baro_delay
+    statistics = channel_statistics(config, cut(log, 12.0), ((5.0, math.inf),))
+    assert np.diff(log.baro.times)[:2] == pytest.approx([0.004, 0.096], abs=1e-9)
+    assert statistics["baro"].count == np.count_nonzero((measured >= 5.0) & (measured <= 12.0 - 0.002)) == 140

@@ -63,6 +63,7 @@ from quad_drake.flightlogs.settings import (
     resolve_log,
     vehicle_for,
 )
+from quad_drake.judging.innovations import UPDATE_DIAGNOSTICS
 from quad_drake.kernels import jit
 from quad_drake.models.fidelity import PHYSICAL
 from quad_drake.output.jsonio import dump_json
@@ -479,14 +480,16 @@ def replay_setup(log, config) -> tuple[dict, VehicleConfig, Aiding]:
     return streams, vehicle, aiding
 
 
-def _playback_diagram(streams, vehicles, name, ticks=False):
-    """(Diagram, {log name: VectorLogSink}, {name: tick sink} or None): a LogPlayback of n flights
+def _playback_diagram(streams, vehicles, name, ticks=False, every_update=False):
+    """(Diagram, {log name: VectorLogSink}, {name: tick sink} or None, the UPDATE_DIAGNOSTICS sink
+    or None): a LogPlayback of n flights
     (`streams`: each flight's) feeding the estimator of n vehicles (`vehicles`: each flight's
     VehicleConfig, ``build_estimator`` of one, or of n that ``registry.sharing_problem`` lets share
     it): ``imu``, ``gps``, ``mag`` (the raw field for a 3-axis magnetometer, else the heading) and
     ``baro`` where it has that input; every estimator and playback output (n vehicles wide,
     vehicle-major) logged every LOG_PERIOD; ticks: also the per-tick sinks of
-    ``smoothing.tick_sinks`` (an ESKF's, one flight, for its smoother)."""
+    ``smoothing.tick_sinks`` (an ESKF's, one flight, for its smoother); every_update: also the
+    estimator's ``diagnostics`` every ONBOARD_PERIOD (``innovations.UPDATE_DIAGNOSTICS``)."""
     builder = DiagramBuilder()
     playback = builder.AddNamedSystem("playback", LogPlayback(streams))
     estimator = builder.AddSystem(build_estimator(vehicles[0] if len(vehicles) == 1 else vehicles, PHYSICAL))
@@ -504,9 +507,15 @@ def _playback_diagram(streams, vehicles, name, ticks=False):
         sinks[log_name] = LogVectorOutput(system.GetOutputPort(log_name), builder, publish_period=LOG_PERIOD)
         sinks[log_name].set_name(f"{log_name}_log")
     tick = smoothing.tick_sinks(builder, estimator, playback) if ticks else None
+    updates = None
+    if every_update:
+        updates = LogVectorOutput(
+            estimator.GetOutputPort("diagnostics"), builder, publish_period=ONBOARD_PERIOD
+        )
+        updates.set_name(f"{UPDATE_DIAGNOSTICS}_log")
     diagram = builder.Build()
     diagram.set_name(name)
-    return diagram, sinks, tick
+    return diagram, sinks, tick, updates
 
 
 def replay_as_flown(log, vehicle, ticks=False) -> tuple:
@@ -515,7 +524,7 @@ def replay_as_flown(log, vehicle, ticks=False) -> tuple:
     replay defaults, no fake position): a simulated run's CSV (``flightlogs.recording``) replayed
     through the run's own estimator reproduces the run's estimate. ticks: a third item, the
     ``smoothing.TickLogs`` of an ESKF (its pass tick by tick, for the smoother)."""
-    diagram, sinks, tick = _playback_diagram([playback_streams(log)], [vehicle], "replay", ticks)
+    diagram, sinks, tick, _ = _playback_diagram([playback_streams(log)], [vehicle], "replay", ticks)
     simulator = Simulator(diagram)
     context = simulator.get_mutable_context()
     simulator.Initialize()
@@ -524,13 +533,15 @@ def replay_as_flown(log, vehicle, ticks=False) -> tuple:
     return (times, logs, smoothing.read_tick_sinks(tick, context)) if ticks else (times, logs)
 
 
-def replay(config, log=None) -> ReplayResult:
+def replay(config, log=None, every_update=False) -> ReplayResult:
     """ReplayResult of the ReplayConfig `config` (its ``log`` file read unless the FlightLog `log`
     is given): the flight replayed to its last IMU sample, compared with the log's own estimate.
+    every_update: its logs also hold the estimator's diagnostics every ONBOARD_PERIOD
+    (``innovations.UPDATE_DIAGNOSTICS``: every fresh update's NIS, for ``quad-drake tune LOG``).
 
     Raises reader.FlightLogError (a ConfigError, one line) for a log that cannot be replayed.
     """
-    return _replay_together([_prepare(config, log)])[0]
+    return _replay_together([_prepare(config, log)], every_update)[0]
 
 
 def replay_many(configs, logs=None, together=True) -> list:
@@ -625,17 +636,18 @@ def _can_share(first, other) -> bool:
     return not first.config.smooth and sharing_problem([first.vehicle, other.vehicle]) is None
 
 
-def _replay_together(prepared) -> list[ReplayResult]:
+def _replay_together(prepared, every_update=False) -> list[ReplayResult]:
     """The ReplayResults of the _Prepared logs `prepared` replayed in one Diagram, a vehicle each
-    (:func:`replay_many`), to the end of the longest; each cut at its own log's end and judged."""
+    (:func:`replay_many`), to the end of the longest; each cut at its own log's end and judged
+    (every_update: :func:`replay`)."""
     n, first = len(prepared), prepared[0]
     end = max(p.log.duration for p in prepared)
     if n > 1:  # each log alone passed it in _prepare
         _check_replay_memory(first.config, end, n, f"{n} logs in one Diagram")
     smooth = first.config.smooth
     diagram_name = first.config.name or "replay" if n == 1 else "replays"
-    diagram, sinks, ticks = _playback_diagram(
-        [p.streams for p in prepared], [p.vehicle for p in prepared], diagram_name, smooth
+    diagram, sinks, ticks, updates = _playback_diagram(
+        [p.streams for p in prepared], [p.vehicle for p in prepared], diagram_name, smooth, every_update
     )
     simulator = Simulator(diagram)
     context = simulator.get_mutable_context()
@@ -646,10 +658,16 @@ def _replay_together(prepared) -> list[ReplayResult]:
     compile_time = jit.compile_seconds() - compiled
     wall_time = time.perf_counter() - start - compile_time
     times, logs = _read_sinks(sinks, context)
+    if updates is not None:
+        update_times, update_logs = _read_sinks({UPDATE_DIAGNOSTICS: updates}, context)
     results = []
     for i, p in enumerate(prepared):
         kept = times <= p.log.duration
         own = {name: _vehicle_rows(data, i, n, kept) for name, data in logs.items()}
+        if updates is not None:
+            own[UPDATE_DIAGNOSTICS] = _vehicle_rows(
+                update_logs[UPDATE_DIAGNOSTICS], i, n, update_times <= p.log.duration
+            )
         if ticks is not None:  # the smoothed pass, sampled as the other logs (one log: smooth)
             tick_logs = smoothing.read_tick_sinks(ticks, context)
             own |= smoothing.smoothed_logs(

@@ -45,6 +45,11 @@ COMPONENT_CHANNELS = {
 NIS_CHANNELS = {"field": 3, "baro": 1}
 """channel -> dof: judged on the filter's own NIS."""
 CHANNELS = (*COMPONENT_CHANNELS, *NIS_CHANNELS)
+UPDATE_DIAGNOSTICS = "update_diagnostics"
+"""The log name of an estimator's ``diagnostics`` logged every 2 ms tick (``replay(...,
+every_update=True)``): each fresh update's NIS, where the 5 ms LOG_PERIOD log shows only the last
+of the updates within one of its periods (the bundled SITL log's barometer samples come in pairs
+4 ms apart: at a barometer delay of 2 ms, or of 292 ms, half of them were never judged)."""
 
 
 @dataclass(frozen=True)
@@ -178,16 +183,17 @@ def channel_statistics(vocabulary, logs, assumed, windows) -> dict[str, ChannelS
     samples of every window in one sequence: under a white filter's hypothesis two samples of
     different windows are uncorrelated too, so the whiteness judgement holds). assumed:
     {component channel: (k,) std the filter assumed}; a channel absent from `assumed` (the
-    component ones) or without samples in the window (the NIS ones) is left out."""
+    component ones) or without samples in the window (the NIS ones) is left out. The NIS channels
+    are read from ``logs[UPDATE_DIAGNOSTICS]`` where present, else from the LOG_PERIOD
+    ``diagnostics`` (which shows one of two updates within 5 ms)."""
     found = {}
     for channel, std in assumed.items():
         if channel in COMPONENT_CHANNELS:
             _, z, s = normalised_innovations(vocabulary, logs, channel, std, windows)
             stats = statistics_of(channel, z, len(COMPONENT_CHANNELS[channel][1]), s)
-        else:
-            stats = statistics_of(
-                channel, nis_sequence(logs["diagnostics"], channel, windows), NIS_CHANNELS[channel]
-            )
+        else:  # every update's NIS where the replay logged them (UPDATE_DIAGNOSTICS)
+            diagnostics = logs.get(UPDATE_DIAGNOSTICS, logs["diagnostics"])
+            stats = statistics_of(channel, nis_sequence(diagnostics, channel, windows), NIS_CHANNELS[channel])
         if stats is not None:
             found[channel] = stats
     return found

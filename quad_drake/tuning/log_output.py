@@ -25,7 +25,7 @@ def _values(result, x):
 
 
 def header(result) -> list[str]:
-    s, best = result.problem.settings, result.search.best
+    s, best = result.problem.settings, result.best
     lines = [
         f"quad-drake tune {' '.join(_stem(log) for log in result.problem.logs)}: "
         f"{len(result.search.history)} of {s.budget} replays"
@@ -39,6 +39,7 @@ def header(result) -> list[str]:
         unit = "ms" if name.endswith("_delay") else ""
         scale = 1e3 if unit else 1.0
         lines.append(f"{name}: {scale * start[name]:.4g} -> {scale * tuned[name]:.4g} {unit}".rstrip())
+    lines += [f"{name} kept as it was: {why}" for name, why in result.kept.items()]
     return lines
 
 
@@ -136,7 +137,7 @@ def _delay_plot(result, path):
     curves = result.curves
     fig = Figure(figsize=(7, 2.8 * len(curves)), layout="constrained")
     axes = fig.subplots(len(curves), 1, squeeze=False)[:, 0]
-    tuned = _values(result, result.search.best.x)
+    tuned = _values(result, result.best.x)
     for ax, (name, (delays, losses)) in zip(axes, curves.items(), strict=True):
         ax.plot(1e3 * delays, losses, "o-", color="tab:blue")
         ax.axvline(1e3 * tuned[name], color="tab:red", ls="--", label=f"tuned {1e3 * tuned[name]:.0f} ms")
@@ -147,7 +148,7 @@ def _delay_plot(result, path):
 
 
 def summary(result) -> dict:
-    best = result.search.best
+    best = result.best
     start = _values(result, result.search.history[0].x)
     tuned = _values(result, best.x)
 
@@ -183,6 +184,7 @@ def summary(result) -> dict:
         "start_consistency": result.search.history[0].score.consistency,
         "best_consistency": best.score.consistency,
         "parameters": [{"name": n, "start": start[n], "tuned": tuned[n]} for n in start],
+        "kept": dict(result.kept),
     }
     if result.after:
         data["holdout"] = {
@@ -198,7 +200,7 @@ def write(result, out_dir) -> list[Path]:
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     written = [write_text_atomic(out_dir / "history.csv", _history(result))]
-    if result.search.best is None:
+    if result.best is None:
         return written
     comments = "".join(f"# {line}\n" for line in header(result))
     written.append(write_text_atomic(out_dir / "tuned.yaml", comments + dump_replay(result.tuned)))

@@ -23,9 +23,12 @@ then each delay
 (:func:`profile`: the measurement noise re-matched at each candidate value, a coarse grid, the
 noise matched to convergence at the grid's best, then SciPy's bounded scalar search within a grid
 step);
-stage 3 re-matches the noise at the delays found; stage 4 is SciPy's Powell
+a profile that cannot say where its coordinate belongs (too few replays left for its grid, or a
+delay whose objective is least at MAX_DELAY) keeps the coordinate as it was and says why
+(``LogTuneResult.kept``); stage 3 re-matches the noise at the delays found; stage 4 is SciPy's Powell
 (``scipy.optimize.minimize``, bounded, derivative-free: the objective is a replay) polishing every
-noise multiplier (log10, -DECADES_DOWN..+DECADES_UP) and every sensor delay (0..MAX_DELAY) together until
+noise multiplier (log10, -DECADES_DOWN..+DECADES_UP) and every sensor delay (0..MAX_DELAY) but the
+kept ones together until
 the budget of replays is spent or it converges. Each candidate replays each training log up to
 its last training window's end and is scored on its training windows (:func:`split`: interleaved
 4 s blocks, the first ``train_fraction`` of each tuned on, or the log's first share; a 20 s
@@ -170,6 +173,17 @@ class LogTuneResult:
     after: list = field(default_factory=list)
     interrupted: bool = False
     files: list = field(default_factory=list)
+    kept: dict = field(default_factory=dict)  # profiled coordinate -> why its profile did not set it
+
+    @property
+    def best(self):
+        """The tuned Evaluation: the least loss among those whose kept coordinates (``kept``) are at
+        the start's values (a kept delay's grid points were replayed too, and the least of them
+        would otherwise stand as the tuning); None before any."""
+        history = self.search.history
+        kept = [i for i, d in enumerate(self.problem.space) if d.name in self.kept]
+        eligible = [e for e in history if all(e.x[i] == history[0].x[i] for i in kept)]
+        return min(eligible, key=lambda e: e.score.loss) if eligible else None
 
 
 def is_log_name(name) -> bool:
@@ -269,7 +283,7 @@ def training_length(log, settings) -> float:
 def channel_statistics(config, log, windows) -> dict:
     """{channel: ChannelStatistics} of the ReplayConfig `config` replaying `log`, judged over
     windows (((start, end), ...) s)."""
-    result = replay(dataclasses.replace(config, name=config.name or "tune"), log)
+    result = replay(dataclasses.replace(config, name=config.name or "tune"), log, every_update=True)
     return innovations.channel_statistics(result.vocabulary, result.logs, _judged(config, result), windows)
 
 
@@ -381,19 +395,43 @@ DELAY_TOLERANCE = 0.004
 """s: the bounded scalar search's tolerance on a delay."""
 
 
-def profile(problem, x, evaluate, score_of) -> np.ndarray:
+def grid_of(d) -> np.ndarray:
+    """The profile's coarse grid of the Dimension `d`: its bounds every ``grid_step``."""
+    low, high = d.bounds
+    return np.arange(low, high + 1e-9, d.grid_step)
+
+
+def grid_cost(d) -> int:
+    """Replays a profile of the Dimension `d` needs before its refinement: each grid point and its
+    re-match, then the matching at the grid's best (:func:`profile`)."""
+    return 2 * len(grid_of(d)) + MATCH_ITERATIONS
+
+
+def profile(problem, x, evaluate, score_of, replays_left, kept) -> np.ndarray:
     """x with each profiled coordinate (the IMU noise, then each delay) in turn set where the
     profile objective is least: at each candidate value the measurement noise is re-matched to it
     (one :func:`matched` step) before the objective is taken, so that a delay is judged with the
     noise it implies. A coarse grid over the bounds (``Dimension.grid_step``; re-matched from x),
     the noise matched to convergence at the grid's best (:func:`match_noise`), then SciPy's bounded
     scalar search (``minimize_scalar``, to ``Dimension.tolerance``; re-matched from that noise)
-    within a step of the grid's best."""
+    within a step of the grid's best.
+
+    A coordinate keeps its value in x, the reason put in `kept` ({name: why}), where its profile
+    cannot say where it belongs: when fewer replays are left (``replays_left()``) than its grid
+    needs (:func:`grid_cost`; a grid cut by the budget would leave the coordinate at the last grid
+    point tried, wherever the objective was still falling), and for a delay whose grid is least
+    at MAX_DELAY, the end of PX4's range (the objective still falling there: no minimum inside
+    the range, so no estimate of the delay; on x500v2_v6xrt the barometer's own innovations were
+    flat in its delay and only the GPS height preferred ever larger ones). The start's delays are
+    the log's own EKF2_*_DELAY."""
     x = np.array(x, dtype=float)
     profiled = [i for i, d in enumerate(problem.space) if d.is_profiled]
     order = sorted(profiled, key=lambda i: problem.space[i].is_delay)
     for i in order:
         d = problem.space[i]
+        if replays_left() < grid_cost(d):
+            kept[d.name] = f"not profiled: {replays_left()} replays left, its grid needs {grid_cost(d)}"
+            continue
         tried = {}  # coordinate -> (objective, the re-matched coordinates)
 
         def at(value, base, i=i, tried=tried):
@@ -405,9 +443,16 @@ def profile(problem, x, evaluate, score_of) -> np.ndarray:
             return tried[float(value)][0]
 
         low, high = d.bounds
-        for value in np.arange(low, high + 1e-9, d.grid_step):
+        for value in grid_of(d):
             at(value, x)
         centre = min(tried, key=lambda k: tried[k][0])
+        if d.is_delay and centre >= high - 1e-9:
+            along = ", ".join(f"{tried[float(v)][0]:.4g}" for v in grid_of(d))
+            kept[d.name] = (
+                f"not identified: least at {1e3 * d.value(high):g} ms, the end of the range searched "
+                f"(objective every {1e3 * GRID_STEP:g} ms from 0: {along})"
+            )
+            continue
         base = match_noise(problem, tried[centre][1], evaluate, score_of)
         minimize_scalar(
             lambda value, base=base: at(value, base),
@@ -451,13 +496,21 @@ def tune_logs(problem, progress=True) -> LogTuneResult:
     try:
         evaluate(x0, 0)
         x1 = match_noise(problem, x0, lambda x: evaluate(x, 1), score_of)
-        x2 = profile(problem, x1, lambda x: evaluate(x, 2), score_of)
+        left = lambda: s.budget - len(history)  # noqa: E731
+        x2 = profile(problem, x1, lambda x: evaluate(x, 2), score_of, left, result.kept)
         x3 = match_noise(problem, x2, lambda x: evaluate(x, 3), score_of)
+        free = [i for i, d in enumerate(space) if d.name not in result.kept]  # the kept stay as they are
+
+        def polished(x_free):
+            x = x3.copy()
+            x[free] = x_free
+            return evaluate(x, 4)
+
         minimize(
-            lambda x: evaluate(x, 4),
-            x3,
+            polished,
+            x3[free],
             method="Powell",
-            bounds=[d.bounds for d in space],
+            bounds=[space[i].bounds for i in free],
             options={"xtol": 1e-3, "ftol": 1e-4, "maxfev": s.budget},
         )
     except _BudgetSpent:
@@ -467,13 +520,13 @@ def tune_logs(problem, progress=True) -> LogTuneResult:
     finally:
         bar.close()
     result.search_time = time.perf_counter() - start
-    if result.search.best is None:
+    if result.best is None:
         return result
-    result.tuned = apply(problem.config, space, result.search.best.x)
+    result.tuned = apply(problem.config, space, result.best.x)
     if result.interrupted:
         return result
     try:
-        result.curves = delay_curves(problem, result.search.best.x)
+        result.curves = delay_curves(problem, result.best.x)
         result.before, result.after = holdout(problem, problem.config), holdout(problem, result.tuned)
     except KeyboardInterrupt:
         result.interrupted = True
