@@ -176,7 +176,7 @@ class LogTuneResult:
     kept: dict = field(default_factory=dict)  # profiled coordinate -> why its profile did not set it
 
     @property
-    def best(self):
+    def best(self) -> Evaluation | None:
         """The tuned Evaluation: the least loss among those whose kept coordinates (``kept``) are at
         the start's values (a kept delay's grid points were replayed too, and the least of them
         would otherwise stand as the tuning); None before any."""
