@@ -496,8 +496,11 @@ def tune_logs(problem, progress=True) -> LogTuneResult:
     try:
         evaluate(x0, 0)
         x1 = match_noise(problem, x0, lambda x: evaluate(x, 1), score_of)
-        left = lambda: s.budget - len(history)  # noqa: E731
-        x2 = profile(problem, x1, lambda x: evaluate(x, 2), score_of, left, result.kept)
+
+        def replays_left():
+            return s.budget - len(history)
+
+        x2 = profile(problem, x1, lambda x: evaluate(x, 2), score_of, replays_left, result.kept)
         x3 = match_noise(problem, x2, lambda x: evaluate(x, 3), score_of)
         free = [i for i, d in enumerate(space) if d.name not in result.kept]  # the kept stay as they are
 
