@@ -100,7 +100,7 @@ def main():
     settings = LogTuneSettings(train_fraction=args.train_fraction, split=args.split)
     log = read_flight_log(resolve_log(args.log))
     config = load_replay(args.config or args.log, "{kind: eskf}" if not args.config else None)
-    result = replay(dataclasses.replace(config, name=config.name or "diagnosis"), log, every_update=True)
+    result = replay(dataclasses.replace(config, name=config.name or "diagnosis"), log)
     judged = _judged(config, result)
     stds = assumed_std(result.config)
     print(f"{log.source}: {log.duration:.1f} s, split {args.split}; config {args.config or 'start'}")

@@ -109,7 +109,8 @@ class ReplayResult:
     config: ReplayConfig
     log: object  # reader.FlightLog (declination as replayed)
     times: np.ndarray  # (n,) s, log samples LOG_PERIOD k, k >= 1
-    logs: dict  # log name -> (n, width): the estimator's outputs and the playback's
+    logs: dict  # log name -> (n, width): the estimator's outputs and the playback's; and
+    # UPDATE_DIAGNOSTICS -> (m, width): the estimator's diagnostics every ONBOARD_PERIOD (its own times)
     wall_time: float  # s
     fake_position: bool  # a log without GPS, given PX4's fake position
     attitude: list = field(default_factory=list)  # [comparison.StateDifference] roll, pitch, yaw
@@ -480,16 +481,17 @@ def replay_setup(log, config) -> tuple[dict, VehicleConfig, Aiding]:
     return streams, vehicle, aiding
 
 
-def _playback_diagram(streams, vehicles, name, ticks=False, every_update=False):
-    """(Diagram, {log name: VectorLogSink}, {name: tick sink} or None, the UPDATE_DIAGNOSTICS sink
-    or None): a LogPlayback of n flights
+def _playback_diagram(streams, vehicles, name, ticks=False):
+    """(Diagram, {log name: VectorLogSink}, {name: tick sink} or None, the UPDATE_DIAGNOSTICS sink):
+    a LogPlayback of n flights
     (`streams`: each flight's) feeding the estimator of n vehicles (`vehicles`: each flight's
     VehicleConfig, ``build_estimator`` of one, or of n that ``registry.sharing_problem`` lets share
     it): ``imu``, ``gps``, ``mag`` (the raw field for a 3-axis magnetometer, else the heading) and
     ``baro`` where it has that input; every estimator and playback output (n vehicles wide,
     vehicle-major) logged every LOG_PERIOD; ticks: also the per-tick sinks of
-    ``smoothing.tick_sinks`` (an ESKF's, one flight, for its smoother); every_update: also the
-    estimator's ``diagnostics`` every ONBOARD_PERIOD (``innovations.UPDATE_DIAGNOSTICS``)."""
+    ``smoothing.tick_sinks`` (an ESKF's, one flight, for its smoother); and the estimator's
+    ``diagnostics`` every ONBOARD_PERIOD (``innovations.UPDATE_DIAGNOSTICS``: every update's NIS,
+    which the LOG_PERIOD log can miss)."""
     builder = DiagramBuilder()
     playback = builder.AddNamedSystem("playback", LogPlayback(streams))
     estimator = builder.AddSystem(build_estimator(vehicles[0] if len(vehicles) == 1 else vehicles, PHYSICAL))
@@ -507,12 +509,8 @@ def _playback_diagram(streams, vehicles, name, ticks=False, every_update=False):
         sinks[log_name] = LogVectorOutput(system.GetOutputPort(log_name), builder, publish_period=LOG_PERIOD)
         sinks[log_name].set_name(f"{log_name}_log")
     tick = smoothing.tick_sinks(builder, estimator, playback) if ticks else None
-    updates = None
-    if every_update:
-        updates = LogVectorOutput(
-            estimator.GetOutputPort("diagnostics"), builder, publish_period=ONBOARD_PERIOD
-        )
-        updates.set_name(f"{UPDATE_DIAGNOSTICS}_log")
+    updates = LogVectorOutput(estimator.GetOutputPort("diagnostics"), builder, publish_period=ONBOARD_PERIOD)
+    updates.set_name(f"{UPDATE_DIAGNOSTICS}_log")
     diagram = builder.Build()
     diagram.set_name(name)
     return diagram, sinks, tick, updates
@@ -533,15 +531,16 @@ def replay_as_flown(log, vehicle, ticks=False) -> tuple:
     return (times, logs, smoothing.read_tick_sinks(tick, context)) if ticks else (times, logs)
 
 
-def replay(config, log=None, every_update=False) -> ReplayResult:
+def replay(config, log=None) -> ReplayResult:
     """ReplayResult of the ReplayConfig `config` (its ``log`` file read unless the FlightLog `log`
     is given): the flight replayed to its last IMU sample, compared with the log's own estimate.
-    every_update: its logs also hold the estimator's diagnostics every ONBOARD_PERIOD
-    (``innovations.UPDATE_DIAGNOSTICS``: every fresh update's NIS, for ``quad-drake tune LOG``).
+    Its logs also hold the estimator's diagnostics every ONBOARD_PERIOD
+    (``innovations.UPDATE_DIAGNOSTICS``: every fresh update's NIS, which its NIS summaries and
+    ``quad-drake tune LOG`` judge).
 
     Raises reader.FlightLogError (a ConfigError, one line) for a log that cannot be replayed.
     """
-    return _replay_together([_prepare(config, log)], every_update)[0]
+    return _replay_together([_prepare(config, log)])[0]
 
 
 def replay_many(configs, logs=None, together=True) -> list:
@@ -621,11 +620,13 @@ def _prepare(config, log=None) -> _Prepared:
 def _check_replay_memory(config, end, n, what) -> None:
     """Refuse (ConfigError, one line) a replay of `n` logs in one Diagram to `end` (s) whose logged
     signals would not fit in memory (``limits.check_memory``): the estimator of `config`'s outputs
-    and every playback stream with its stamp, every LOG_PERIOD, for each log. `what` names it."""
-    width = sum(vocabulary_for(config.estimator).log_widths().values())
-    width += sum(w + STAMPED[name] for name, w in STREAM_WIDTHS.items())
+    and every playback stream with its stamp, every LOG_PERIOD, and its diagnostics every
+    ONBOARD_PERIOD, for each log. `what` names it."""
+    widths = vocabulary_for(config.estimator).log_widths()
+    width = sum(widths.values()) + sum(w + STAMPED[name] for name, w in STREAM_WIDTHS.items())
+    every_update = widths["diagnostics"] * LOG_PERIOD / ONBOARD_PERIOD  # UPDATE_DIAGNOSTICS
     check_memory(
-        end / LOG_PERIOD * n * width * 8.0 * LOG_COPIES,
+        end / LOG_PERIOD * n * (width + every_update) * 8.0 * LOG_COPIES,
         f"{what}: a replay of {end:g} s",
         "replay a shorter stretch of the flight (e.g. cut into a CSV log)",
     )
@@ -636,10 +637,9 @@ def _can_share(first, other) -> bool:
     return not first.config.smooth and sharing_problem([first.vehicle, other.vehicle]) is None
 
 
-def _replay_together(prepared, every_update=False) -> list[ReplayResult]:
+def _replay_together(prepared) -> list[ReplayResult]:
     """The ReplayResults of the _Prepared logs `prepared` replayed in one Diagram, a vehicle each
-    (:func:`replay_many`), to the end of the longest; each cut at its own log's end and judged
-    (every_update: :func:`replay`)."""
+    (:func:`replay_many`), to the end of the longest; each cut at its own log's end and judged."""
     n, first = len(prepared), prepared[0]
     end = max(p.log.duration for p in prepared)
     if n > 1:  # each log alone passed it in _prepare
@@ -647,7 +647,7 @@ def _replay_together(prepared, every_update=False) -> list[ReplayResult]:
     smooth = first.config.smooth
     diagram_name = first.config.name or "replay" if n == 1 else "replays"
     diagram, sinks, ticks, updates = _playback_diagram(
-        [p.streams for p in prepared], [p.vehicle for p in prepared], diagram_name, smooth, every_update
+        [p.streams for p in prepared], [p.vehicle for p in prepared], diagram_name, smooth
     )
     simulator = Simulator(diagram)
     context = simulator.get_mutable_context()
@@ -658,16 +658,14 @@ def _replay_together(prepared, every_update=False) -> list[ReplayResult]:
     compile_time = jit.compile_seconds() - compiled
     wall_time = time.perf_counter() - start - compile_time
     times, logs = _read_sinks(sinks, context)
-    if updates is not None:
-        update_times, update_logs = _read_sinks({UPDATE_DIAGNOSTICS: updates}, context)
+    update_times, update_logs = _read_sinks({UPDATE_DIAGNOSTICS: updates}, context)
     results = []
     for i, p in enumerate(prepared):
         kept = times <= p.log.duration
         own = {name: _vehicle_rows(data, i, n, kept) for name, data in logs.items()}
-        if updates is not None:
-            own[UPDATE_DIAGNOSTICS] = _vehicle_rows(
-                update_logs[UPDATE_DIAGNOSTICS], i, n, update_times <= p.log.duration
-            )
+        own[UPDATE_DIAGNOSTICS] = _vehicle_rows(
+            update_logs[UPDATE_DIAGNOSTICS], i, n, update_times <= p.log.duration
+        )
         if ticks is not None:  # the smoothed pass, sampled as the other logs (one log: smooth)
             tick_logs = smoothing.read_tick_sinks(ticks, context)
             own |= smoothing.smoothed_logs(
@@ -726,7 +724,8 @@ def _judge(result):
         reason = "n/a: the log has no vehicle_attitude"
         result.attitude = [comparison.unavailable(s, reason) for s in comparison.ATTITUDE_STATES]
     judged = ["mag", "field", "baro"] + ([] if result.fake_position else ["gps"])
-    summaries = [comparison.nis_summary(result.logs["diagnostics"], s, COMPARE_AFTER) for s in judged]
+    every_update = result.logs[UPDATE_DIAGNOSTICS]  # the LOG_PERIOD log can miss one of two close updates
+    summaries = [comparison.nis_summary(every_update, s, COMPARE_AFTER) for s in judged]
     result.nis = [s for s in summaries if s is not None]
     result.innovations = {
         s.sensor: comparison.innovations(result.logs, s.sensor, COMPARE_AFTER)
@@ -740,11 +739,13 @@ def _judge(result):
 
 
 def save_replay(result, out_dir) -> Path:
-    """Write logs.npz (``times`` and ``replay/<log name>``), config.yaml (the resolved
-    ReplayConfig) and summary.json into out_dir; returns out_dir."""
+    """Write logs.npz (``times`` and ``replay/<log name>``, every log sampled at those times: not
+    UPDATE_DIAGNOSTICS, whose NIS summary.json holds), config.yaml (the resolved ReplayConfig) and
+    summary.json into out_dir; returns out_dir."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    arrays = {"times": result.times} | {f"replay/{name}": data for name, data in result.logs.items()}
+    sampled = {name: data for name, data in result.logs.items() if name != UPDATE_DIAGNOSTICS}
+    arrays = {"times": result.times} | {f"replay/{name}": data for name, data in sampled.items()}
     write_binary_atomic(out_dir / "logs.npz", lambda f: np.savez_compressed(f, **arrays))
     write_text_atomic(out_dir / "config.yaml", dump_replay(result.config))
     dump_json(out_dir / "summary.json", result.summary())

@@ -46,8 +46,8 @@ NIS_CHANNELS = {"field": 3, "baro": 1}
 """channel -> dof: judged on the filter's own NIS."""
 CHANNELS = (*COMPONENT_CHANNELS, *NIS_CHANNELS)
 UPDATE_DIAGNOSTICS = "update_diagnostics"
-"""The log name of an estimator's ``diagnostics`` logged every 2 ms tick (``replay(...,
-every_update=True)``): each fresh update's NIS, where the 5 ms LOG_PERIOD log shows only the last
+"""The log name of an estimator's ``diagnostics`` logged every 2 ms tick (every replay's): each
+fresh update's NIS, where the 5 ms LOG_PERIOD log shows only the last
 of the updates within one of its periods (the bundled SITL log's barometer samples come in pairs
 4 ms apart: at a barometer delay of 2 ms, or of 292 ms, half of them were never judged)."""
 

@@ -283,7 +283,7 @@ def training_length(log, settings) -> float:
 def channel_statistics(config, log, windows) -> dict:
     """{channel: ChannelStatistics} of the ReplayConfig `config` replaying `log`, judged over
     windows (((start, end), ...) s)."""
-    result = replay(dataclasses.replace(config, name=config.name or "tune"), log, every_update=True)
+    result = replay(dataclasses.replace(config, name=config.name or "tune"), log)
     return innovations.channel_statistics(result.vocabulary, result.logs, _judged(config, result), windows)
 
 
