@@ -5,18 +5,16 @@ includehidden=True)`` on every page). Sphinx resolves that tree again for each p
 way deep-copies the full table of contents of every page it lists (an API page's lists every
 function and class) only to keep their titles: with 180 pages, 40 % of the manual's build. The
 tree differs from page to page in two things only: its links are relative to the page, and the
-branch that leads to the page has the class ``current``. So it is resolved once, with each link
-still naming its document, and each page gets a copy with its own links and ``current`` branch,
-rendered as Sphinx renders it: the same HTML (tests/test_docs.py builds a small site both ways
-and compares every page). Any other ``toctree(...)`` call of a template goes to Sphinx as before.
-
-Furo then rewrote that tree on every page with BeautifulSoup (a checkbox for each branch, checked
-on the page's own branch, and ``current-page`` on its entry): as long again. So the tree is
-rendered once, and rewritten by Furo once, with a mark (a private-use character, a letter and a
-number: no title or link has one) in place of each link and of each ``current``, ``checked`` and
-``current-page`` a page may get; each page's text is these two with its own values in place of
-the marks. Furo's ``get_navigation_tree`` is given, for a page, the text made for it; any other
-text goes to Furo's own function.
+branch that leads to the page has the class ``current``. Furo then rewrites the tree's HTML on
+every page with BeautifulSoup (a checkbox for each branch, checked on the page's own branch, and
+``current-page`` on its entry): as long again. So the tree is resolved once, with each link still
+naming its document, rendered by Sphinx once and rewritten by Furo once, with a mark (a
+private-use character, a letter and a number: no title or link has one) in place of each link and
+of each ``current``, ``checked`` and ``current-page`` a page may get; each page's two texts are
+these with its own values in place of the marks: the same HTML (tests/test_docs.py builds a small
+site both ways and compares every page, and the tree's text with Sphinx's, page by page). Furo's
+``get_navigation_tree`` is given, for a page, the text made for it (any other text goes to Furo's
+own function); any other ``toctree(...)`` call of a template goes to Sphinx as before.
 
 Since every page shows the tree, a build that read a page again (or lost one) writes every page
 again, not only those it read: a title or a page may have changed, and so may a link's target.
