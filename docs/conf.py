@@ -15,6 +15,10 @@ ROOT = DOCS.parent
 sys.path.insert(0, str(ROOT))  # the CLI reference imports quad_drake.cli from this checkout
 sys.path.insert(0, str(DOCS / "_ext"))
 
+from astroid import nodes  # noqa: E402
+from astroid.brain.brain_numpy_ndarray import _looks_like_numpy_ndarray  # noqa: E402
+from astroid.manager import AstroidManager  # noqa: E402
+
 import quad_drake  # noqa: E402
 
 project = "quad_drake"
@@ -53,6 +57,29 @@ autoapi_options = ["members", "undoc-members", "show-inheritance", "show-module-
 # when a module's text changed, and api_pages (_ext/) keeps the time stamp of each source whose
 # text did not, so a rebuild reads again only what changed (site_navigation then writes every page).
 autoapi_keep_files = True
+
+
+class _PackageAndStandardLibrary(set):
+    """astroid's ``module_denylist`` (it asks ``modname in`` it): every module outside the package
+    and the standard library. autoapi's astroid infers assigned values, decorators and base classes
+    and so followed the package's imports into numba, numpy, matplotlib, yaml and pydrake (43 of
+    numba's files alone), a third of the manual's build, for one thing the pages showed: numba's
+    docstrings of ``event.Listener.on_start``/``on_end``, inherited by kernels.jit.CompileNotice's
+    methods (which name another parameter). Every other page is the same (test_times.md)."""
+
+    def __contains__(self, modname):
+        top = modname.partition(".")[0]
+        return top not in sys.stdlib_module_names and top != "quad_drake" or super().__contains__(modname)
+
+
+AstroidManager.brain["module_denylist"] = _PackageAndStandardLibrary(AstroidManager.brain["module_denylist"])
+# astroid's numpy plug-in answers for any attribute named ``ndarray`` (``np.ndarray``, in the
+# annotations of the package's dataclasses) with a class it parses anew each time from a 150-line
+# text: 78 times a build, 7 of its profiled seconds. Without it, as for the rest of numpy, astroid
+# infers nothing there (the same pages).
+for _transform, _predicate in list(AstroidManager.brain["_transform"].transforms[nodes.Attribute]):
+    if _predicate is _looks_like_numpy_ndarray:
+        AstroidManager().unregister_transform(nodes.Attribute, _transform, _predicate)
 autoapi_python_class_content = "both"
 # A module's docstring naming a sibling module by its short name (`plots`) can match two modules
 # of the package; autoapi's import-resolution notes are about re-exports, not the manual.

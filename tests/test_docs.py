@@ -90,19 +90,21 @@ def test_a_docstring_is_made_rst_safe_the_same_way_call_after_call():
 
 
 SMALL_SITE = {
-    "index.rst": "Home\n====\n\n.. toctree::\n   :caption: Guide\n\n   guide/run\n   guide/deep/page\n   "
-    "Outside <https://example.org>\n\n.. toctree::\n   :hidden:\n\n   api/index\n",
+    "index.rst": "Home\n====\n\n.. toctree::\n   :caption: Guide\n\n   guide/run\n   guide/deep/page\n"
+    "   guide/r&d\n   Outside <https://example.org>\n\n.. toctree::\n   :hidden:\n\n   api/index\n",
     "guide/run.rst": "Run\n===\n\nA section\n---------\n\nText.\n\nAnother\n-------\n\nText.\n",
     "guide/deep/page.rst": "Deep page\n=========\n\nText.\n\nSecond title\n============\n\nText.\n",
+    "guide/r&d.rst": "R&D <notes>\n============\n\nText.\n",
     "api/index.rst": "API\n===\n\n.. toctree::\n\n   mod/index\n   ../guide/run\n",
     "api/mod/index.rst": "A module\n========\n\nFunctions\n---------\n\n.. py:function:: f(x)\n\n   Text.\n",
 }
 
 
 def test_the_site_tree_resolved_once_renders_every_page_as_sphinx_does(tmp_path):
-    """docs/_ext/site_navigation.py resolves the sidebar's site tree once per build: a small site
-    (captions, a hidden toctree, an external link, pages two folders deep, a page listed twice,
-    a page with two titles) built with it and without it gives the same bytes on every page."""
+    """docs/_ext/site_navigation.py resolves the sidebar's site tree, and Furo's rewriting of it,
+    once per build: a small site (captions, a hidden toctree, an external link, pages two folders
+    deep, a page listed twice, a page with two titles, a name and a title to escape) built with it
+    and without it gives the same bytes on every page."""
     pytest.importorskip("furo", reason="the docs extra is missing (pip install -e '.[docs]')")
     from sphinx.testing.util import SphinxTestApp
 
@@ -120,11 +122,16 @@ def test_the_site_tree_resolved_once_renders_every_page_as_sphinx_does(tmp_path)
         app = SphinxTestApp(srcdir=tmp_path / "src", builddir=build, warning=warnings)
         try:
             app.build()
+            if extensions:  # the text a template's toctree() gets: Sphinx's own, page by page
+                for docname in sorted(app.env.found_docs):
+                    sphinx_tree = app.builder._get_local_toctree(docname, **site_navigation.SITE_TREE)
+                    assert app.site_navigation.html_for(docname) == sphinx_tree, docname
         finally:
             app.cleanup()  # docutils' global registrations, for the next build in this process
         assert app.statuscode == 0 and warnings.getvalue() == ""
         built[len(extensions)] = {p.relative_to(app.outdir): p.read_bytes() for p in build.rglob("*.html")}
     assert isinstance(app.site_navigation, site_navigation.SiteNavigation)  # the second build used it
+    assert app.site_navigation.furo.count("toctree-checkbox") > 0  # ... and its Furo text
     assert {Path(name).with_suffix(".html") for name in SMALL_SITE} < built[1].keys() == built[0].keys()
     for page, html in built[0].items():
         assert built[1][page] == html, page

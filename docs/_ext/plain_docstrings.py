@@ -45,8 +45,11 @@ def parses_cleanly(text):
     return not any(m["level"] >= docutils.utils.Reporter.WARNING_LEVEL for m in messages)
 
 
+@functools.cache
 def rst_safe(docstring):
-    """The docstring as RST that renders what its author wrote (see the module docstring)."""
+    """The docstring as RST that renders what its author wrote (see the module docstring). Kept
+    per text: with ``imported-members`` a function re-exported by its package is an object of each
+    module that shows it, with the same docstring."""
     escaped = escape_bars(docstring)
     if parses_cleanly(escaped):
         return summary_on_one_line(escaped)
