@@ -16,7 +16,6 @@ sys.path.insert(0, str(ROOT))  # the CLI reference imports quad_drake.cli from t
 sys.path.insert(0, str(DOCS / "_ext"))
 
 from astroid import nodes  # noqa: E402
-from astroid.brain.brain_numpy_ndarray import _looks_like_numpy_ndarray  # noqa: E402
 from astroid.manager import AstroidManager  # noqa: E402
 
 import quad_drake  # noqa: E402
@@ -77,7 +76,13 @@ AstroidManager.brain["module_denylist"] = _PackageAndStandardLibrary(AstroidMana
 # annotations of the package's dataclasses) with a class it parses anew each time from a 150-line
 # text: 78 times a build, 7 of its profiled seconds. Without it, as for the rest of numpy, astroid
 # infers nothing there (the same pages).
-for _transform, _predicate in list(AstroidManager.brain["_transform"].transforms[nodes.Attribute]):
+try:  # astroid's private names: where a later astroid lacks them, the plug-in stays (slower)
+    from astroid.brain.brain_numpy_ndarray import _looks_like_numpy_ndarray
+
+    _attribute_transforms = list(AstroidManager.brain["_transform"].transforms[nodes.Attribute])
+except (ImportError, KeyError, AttributeError):
+    _attribute_transforms = []
+for _transform, _predicate in _attribute_transforms:
     if _predicate is _looks_like_numpy_ndarray:
         AstroidManager().unregister_transform(nodes.Attribute, _transform, _predicate)
 autoapi_python_class_content = "both"
