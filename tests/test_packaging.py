@@ -390,13 +390,15 @@ def test_wheel_installed_outside_the_repo_lists_and_runs_the_bundled_scenarios(i
     )  # fmt: skip
     assert traj.returncode in (0, 1) and "Traceback" not in traj.stderr, traj.stderr
 
-    # The manual's own estimator, copied into a new file outside the repository, flies 11.
+    # The manual's own estimator, copied into a new file outside the repository, flies 11: 6 s of
+    # it, the window 4 s, as the manual's campaign of it (the whole 25 s passes in-process,
+    # tests/test_custom_estimator.py::test_the_manual_example_flies_11; here 2.4 s of CPU against 5.5).
     from test_custom_estimator import custom_override, manual_estimator
 
     manual_estimator(cwd)
     own = _run(
-        quad_drake_exe, "run", "11_gps_update", "--no-plots", "--out", str(out),
-        "--set", custom_override("my_ekf.py:MyEkf"), cwd=cwd, env=env,
+        quad_drake_exe, "run", "11_gps_update", "--no-plots", "--out", str(out), "--set", "end_time=6",
+        "--set", "criteria.0.window=4", "--set", custom_override("my_ekf.py:MyEkf"), cwd=cwd, env=env,
     )  # fmt: skip
     assert own.returncode == 0 and "PASS: ABS(Quad.Est.E.Pos)" in own.stdout, own.stdout + own.stderr
 
