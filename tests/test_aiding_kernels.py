@@ -35,6 +35,31 @@ def fresh_books(count):
     return np.tile(baro.initial_book(PARAMS), (count, 1)), np.tile(initial_diagnostics(), (count, 1))
 
 
+def _as_input(values):
+    """A sensor sample as a flight hands it to a kernel: a read-only float64 array (a Drake input
+    port's value). The kernels are then called with the argument types ``quad-drake warmup``
+    compiled into numba's cache (a writable array is another signature: compiling the three for
+    it cost about 6 s of CPU in a fresh clone)."""
+    values = np.array(values, dtype=float)
+    values.setflags(write=False)
+    return values
+
+
+def baro_rows(x, P, samples, gps, *rest):
+    """aiding.baro_rows with the barometer and GPS samples as a flight passes them."""
+    aiding.baro_rows(x, P, _as_input(samples), _as_input(gps), *rest)
+
+
+def field_rows(x, P, mag, *rest):
+    """aiding.field_rows with the magnetometer sample as a flight passes it."""
+    aiding.field_rows(x, P, _as_input(mag), *rest)
+
+
+def heading_rows(x, P, mag, attitude, *rest):
+    """aiding.heading_rows with the magnetometer sample and the attitude as a flight passes them."""
+    aiding.heading_rows(x, P, _as_input(mag), _as_input(attitude), *rest)
+
+
 def test_baro_rows_fuse_as_the_pure_update_and_gate_the_outlier():
     rng = np.random.default_rng(0)
     x = np.stack([nominal(rng) for _ in range(N)])
@@ -49,7 +74,7 @@ def test_baro_rows_fuse_as_the_pure_update_and_gate_the_outlier():
     gps = np.tile([0.0] * 6 + [-1.0], (N, 1))  # no GPS
     model = aiding.baro_model(PARAMS, 2.0, THRESHOLD, 0.02)
     dx, fused = np.zeros((N, 7)), np.zeros(N, dtype=bool)
-    aiding.baro_rows(x, P, samples, gps, book, diagnostics, model, dx, fused)
+    baro_rows(x, P, samples, gps, book, diagnostics, model, dx, fused)
     assert fused.tolist() == [True, True, False, False]
     bias_var = 0.5**2 + 0.01**2 * 0.02  # grown over the 20 ms since the previous sample
     for i in (0, 1):
@@ -71,7 +96,7 @@ def test_baro_rows_fuse_as_the_pure_update_and_gate_the_outlier():
     np.testing.assert_allclose(diagnostics[:, DIAG["baro_bias_std"]], math.sqrt(bias_var))
     # the same stamp again is not fresh: nothing moves
     P_after = P.copy()
-    aiding.baro_rows(x, P, samples, gps, book, diagnostics, model, dx, fused)
+    baro_rows(x, P, samples, gps, book, diagnostics, model, dx, fused)
     assert not fused.any()
     np.testing.assert_array_equal(P, P_after)
 
@@ -95,7 +120,7 @@ def test_baro_rows_with_the_bias_in_the_state_equal_the_eskf_oracle():
     model = aiding.baro_model(PARAMS, 2.0, THRESHOLD, 0.02, bias_in_state=True)
     x_before, P_before, book_before = x.copy(), P.copy(), book.copy()
     dx, fused = np.zeros((N, n)), np.zeros(N, dtype=bool)
-    aiding.baro_rows(x, P, samples, gps, book, diagnostics, model, dx, fused)
+    baro_rows(x, P, samples, gps, book, diagnostics, model, dx, fused)
     assert fused.tolist() == [False, True, False, False]
     # vehicle 0: the datum, 25 m off: the bias takes it, the height stays
     assert x[0, eskf.BARO_BIAS_NOMINAL] == pytest.approx(25.0, abs=1e-12) and book[0, baro.DATUM_SET] == 1
@@ -128,7 +153,7 @@ def test_a_bias_state_reset_takes_the_height_and_the_gps_feeds_only_the_check():
     no_gps = np.array([[0.0] * 6 + [-1.0]])
     for k in range(1, 7):  # a 5 m step, rejected for 0.1 s (reset_timeout), then reset
         sample = np.array([[1.0 + 0.2 + 5.0, 0.02 * k]])
-        aiding.baro_rows(x, P, sample, no_gps, book, diagnostics, model, dx, fused)
+        baro_rows(x, P, sample, no_gps, book, diagnostics, model, dx, fused)
         assert not fused[0]
     assert diagnostics[0, DIAG["baro_resets"]] == 1
     assert x[0, eskf.BARO_BIAS_NOMINAL] == pytest.approx(5.2, abs=1e-12)  # b = h + p_z
@@ -137,7 +162,7 @@ def test_a_bias_state_reset_takes_the_height_and_the_gps_feeds_only_the_check():
     # a GPS height stamped with the baro sample: it feeds the check alone, the bias is not fed
     book[0, baro.GPS_STAMP] = 0.02
     gps = np.array([[0.0, 0.0, -1.5, 0.0, 0.0, 0.0, 0.14]])
-    aiding.baro_rows(x, P, np.array([[6.2, 0.14]]), gps, book, diagnostics, model, dx, fused)
+    baro_rows(x, P, np.array([[6.2, 0.14]]), gps, book, diagnostics, model, dx, fused)
     assert fused[0]  # the baro sample (the bias reset made it agree again)
     np.testing.assert_array_equal(dx[0], 0.0)  # a zero innovation; the GPS height feeds no bias here
     assert book[0, baro.BIAS] == PARAMS.bias_init and book[0, baro.GPS_STAMP] == 0.14
@@ -152,10 +177,10 @@ def test_the_first_baro_sample_sets_the_datum_and_a_step_past_the_timeout_resets
     model = aiding.baro_model(PARAMS, 2.0, THRESHOLD, 0.02)
     gps = np.array([[0.0] * 6 + [-1.0]])
     dx, fused = np.zeros((1, 7)), np.zeros(1, dtype=bool)
-    aiding.baro_rows(x, P, np.array([[math.nan, 0.0]]), gps, book, diagnostics, model, dx, fused)
+    baro_rows(x, P, np.array([[math.nan, 0.0]]), gps, book, diagnostics, model, dx, fused)
     assert not fused[0] and diagnostics[0, DIAG["nonfinite_samples"]] == 1  # a non-finite sample: no datum
     assert book[0, baro.DATUM_SET] == 0.0 and book[0, baro.BIAS] == 0.2
-    aiding.baro_rows(x, P, np.array([[1.5, 0.02]]), gps, book, diagnostics, model, dx, fused)
+    baro_rows(x, P, np.array([[1.5, 0.02]]), gps, book, diagnostics, model, dx, fused)
     assert not fused[0]  # the first finite sample is the datum: b against the filter's height, not fused
     expected = baro.bias_update(0.2, 0.25 + 0.01**2 * 0.02, 1.5 + -1.0, 0.01 + 0.04)
     assert (book[0, baro.BIAS], book[0, baro.BIAS_VAR]) == pytest.approx(expected, rel=1e-12)
@@ -163,7 +188,7 @@ def test_the_first_baro_sample_sets_the_datum_and_a_step_past_the_timeout_resets
     # a 5 m step from 0.04 s: rejected from 0.04 s, the bias reset at 0.14 s (reset_timeout 0.1 s)
     for k in range(2, 9):
         sample = np.array([[1.0 + datum + 5.0, 0.02 * k]])
-        aiding.baro_rows(x, P, sample, gps, book, diagnostics, model, dx, fused)
+        baro_rows(x, P, sample, gps, book, diagnostics, model, dx, fused)
         assert fused[0] == (k == 8), k
     assert diagnostics[0, DIAG["baro_resets"]] == 1
     assert diagnostics[0, DIAG["baro_gated"]] == 6  # 0.04 .. 0.14 s
@@ -185,7 +210,7 @@ def test_a_flight_logs_datum_hundreds_of_metres_up_is_set_by_the_first_sample_an
     rng = np.random.default_rng(3)
     for k in range(1, 101):  # 2 s of samples at 50 Hz, the vehicle still 1 m up
         sample = np.array([[301.0 + 0.1 * rng.normal(), 0.02 * k]])
-        aiding.baro_rows(x, P, sample, gps, book, diagnostics, model, dx, fused)
+        baro_rows(x, P, sample, gps, book, diagnostics, model, dx, fused)
         if k == 1:
             expected = baro.bias_reset(sample[0, 0], -1.0, 3.5**2, 0.04)
             assert (book[0, baro.BIAS], book[0, baro.BIAS_VAR]) == expected
@@ -204,7 +229,7 @@ def test_baro_bias_learns_from_simultaneous_gps_heights_only():
     dx, fused = np.zeros((2, 7)), np.zeros(2, dtype=bool)
     samples = np.array([[1.5, 0.1], [1.5, 0.1]])
     gps = np.array([[0, 0, -1.1, 0, 0, 0, 0.1], [0, 0, -1.1, 0, 0, 0, 0.3]])  # vehicle 1: stale baro
-    aiding.baro_rows(x, P, samples, gps, book, diagnostics, model, dx, fused)
+    baro_rows(x, P, samples, gps, book, diagnostics, model, dx, fused)
     prior_var = 0.25 + 0.01**2 * 0.02
     bias, var = baro.bias_update(0.2, prior_var, baro.bias_from_gps(1.5, -1.1), 0.01 + 4.0)
     assert book[0, baro.BIAS] == pytest.approx(bias, rel=1e-12)
@@ -236,7 +261,7 @@ def test_field_rows_equal_the_batch_oracle_and_gate_a_disturbance(corrects_tilt)
     mag[3, :3] += [0.3, 0.0, 0.0]  # a disturbance
     book, diagnostics = np.full((N, 4), -1.0), np.tile(initial_diagnostics(), (N, 1))
     dx, fused = np.zeros((N, 15)), np.zeros(N, dtype=bool)
-    aiding.field_rows(x, P, mag, book, 1, diagnostics, model, dx, fused)
+    field_rows(x, P, mag, book, 1, diagnostics, model, dx, fused)
     assert fused.tolist() == [True, True, True, False]
     assert diagnostics[3, DIAG["mag_gated"]] == 1 and (book[:, 1] == 0.5).all()
     variance = np.square(FIELD.field_std)
@@ -268,7 +293,7 @@ def test_heading_rows_fuse_the_tilt_compensated_heading_as_the_ekf7_yaw():
     model = aiding.heading_model(FIELD, gating.gate_threshold(1, 5.0))
     book, diagnostics = np.full((N, 4), -1.0), np.tile(initial_diagnostics(), (N, 1))
     dx, fused = np.zeros((N, 7)), np.zeros(N, dtype=bool)
-    aiding.heading_rows(x, P, mag, attitude, book, 1, diagnostics, model, dx, fused)
+    heading_rows(x, P, mag, attitude, book, 1, diagnostics, model, dx, fused)
     assert fused.tolist() == [True, True, False, True]
     ekf7.correct(x, P, dx, fused)
     for i in (0, 1, 3):
@@ -316,7 +341,7 @@ def test_a_disturbed_field_the_widened_gate_accepts_moves_only_the_attitude(atti
     book, diagnostics = np.full((1, 4), -1.0), np.tile(initial_diagnostics(), (1, 1))
     dx, fused = np.zeros((1, 9)), np.zeros(1, dtype=bool)
     P_batch = P[None].copy()
-    aiding.field_rows(
+    field_rows(
         x[None],
         P_batch,
         mag,
@@ -356,7 +381,7 @@ def _learnt_bias_under_a_gps_height_step(seed, params, step=-3.0, seconds=60.0):
             gps[0, :] = (0.0, 0.0, -1.0 + offset + rng.normal(0.0, 2.0), 0.0, 0.0, 0.0, stamp)
         P[0, 2, 2] += 1e-4
         sample = np.array([[1.0 + rng.normal(0.0, 0.1), stamp]])
-        aiding.baro_rows(x, P, sample, gps, book, diagnostics, model, dx, fused)
+        baro_rows(x, P, sample, gps, book, diagnostics, model, dx, fused)
         if fused[0]:
             x[0, 2] += dx[0, 2]
         disagrees = baro.gps_height_disagrees(
@@ -413,7 +438,7 @@ def test_the_eskf_check_withholds_the_gps_height_and_leaves_its_bias_state_alone
     P_before, fired = P.copy(), []
     for k in range(40):
         gps = np.array([[0.0, 0.0, 2.0, 0.0, 0.0, 0.0, 0.14 + 1e-4 * (k + 1)]])  # 3 m low
-        aiding.baro_rows(x, P, no_baro, gps, book, diagnostics, model, dx, fused)
+        baro_rows(x, P, no_baro, gps, book, diagnostics, model, dx, fused)
         fired.append(
             bool(baro.gps_height_disagrees(book[0, baro.EVIDENCE_HIGH], book[0, baro.EVIDENCE_LOW], 14.0))
         )
@@ -459,16 +484,16 @@ def test_per_vehicle_settings_fuse_each_vehicle_as_its_own_model_alone():
         count = len(state[0])
         outputs = []
         for kernel, x, P, model, args in (
-            (aiding.field_rows, state[0], state[1], field_model, (mag[rows], np.full((count, 4), -1.0), 1)),
+            (field_rows, state[0], state[1], field_model, (mag[rows], np.full((count, 4), -1.0), 1)),
             (
-                aiding.heading_rows,
+                heading_rows,
                 state[2],
                 state[3],
                 heading_model,
                 (mag[rows], attitude[rows], np.full((count, 4), -1.0), 1),
             ),
             (
-                aiding.baro_rows,
+                baro_rows,
                 state[0],
                 state[1],
                 baro_model,
@@ -478,7 +503,7 @@ def test_per_vehicle_settings_fuse_each_vehicle_as_its_own_model_alone():
             diagnostics = np.tile(initial_diagnostics(), (count, 1))
             dx, fused = np.zeros((count, P.shape[1])), np.zeros(count, dtype=bool)
             kernel(x, P, *args, diagnostics, model, dx, fused)
-            outputs += [P.copy(), dx, fused, diagnostics] + ([args[-1]] if kernel is aiding.baro_rows else [])
+            outputs += [P.copy(), dx, fused, diagnostics] + ([args[-1]] if kernel is baro_rows else [])
         return outputs
 
     threshold, heading_threshold = gating.gate_threshold(3, 5.0), gating.gate_threshold(1, 5.0)

@@ -1,4 +1,6 @@
-"""The command-line contract, run as a user runs it: a subprocess."""
+"""The command-line contract: ``main()`` in this process, what the console script runs (the
+``quad_drake_cli`` fixture), and a real subprocess where the process itself is under test (an
+exit status through a new interpreter, the modules it imports, the working folder it inherits)."""
 
 import json
 import subprocess
@@ -13,8 +15,8 @@ def cli(*args, cwd=None):
     )
 
 
-def test_list_names_every_scenario_with_a_description():
-    result = cli("list")
+def test_list_names_every_scenario_with_a_description(quad_drake_cli):
+    result = quad_drake_cli("list")
     assert result.returncode == 0
     lines = result.stdout.strip().splitlines()
     # 01-11, 11 eskf, faults 12-18, the air 19-22 (+ eskf), aiding 23-25, GSF 26-28, failsafe 29
@@ -40,8 +42,8 @@ def test_the_run_table_fits_a_long_scenario_name():
     assert len({len(header), *map(len, lines)}) == 1 and header.index("seed") == lines[0].index("    0") + 1
 
 
-def test_run_prints_reference_lines_and_writes_results(tmp_path):
-    result = cli("run", "01_intro", "02_attitude_control", "--out", str(tmp_path), "--no-plots")
+def test_run_prints_reference_lines_and_writes_results(quad_drake_cli, tmp_path):
+    result = quad_drake_cli("run", "01_intro", "02_attitude_control", "--out", str(tmp_path), "--no-plots")
     assert result.returncode == 0, result.stderr
     expected = "PASS: ABS(Quad.PosFollowErr) was less than 0.500000 for at least 0.800000 seconds"
     assert expected in result.stdout
@@ -55,11 +57,11 @@ def test_run_prints_reference_lines_and_writes_results(tmp_path):
     assert [s["scenario"] for s in summaries] == ["01_intro", "02_attitude_control"]
 
 
-def test_run_accepts_a_yaml_path_seed_and_overrides(tmp_path):
+def test_run_accepts_a_yaml_path_seed_and_overrides(quad_drake_cli, tmp_path):
     from quad_drake.running import catalog
 
     path = catalog.bundled_scenarios()["01_intro"]
-    result = cli(
+    result = quad_drake_cli(
         "run", str(path), "--seed", "9", "--set", "end_time=0.5", "--out", str(tmp_path), "--no-plots"
     )
     from quad_drake.output.results import variant_name
@@ -73,9 +75,9 @@ def test_run_accepts_a_yaml_path_seed_and_overrides(tmp_path):
 
 
 @pytest.mark.slow
-def test_noise_std_measures_the_configured_noise(tmp_path):
-    assert cli("run", "06_sensor_noise", "--out", str(tmp_path), "--no-plots").returncode == 0
-    result = cli("noise-std", str(tmp_path / "06_sensor_noise"))
+def test_noise_std_measures_the_configured_noise(quad_drake_cli, tmp_path):
+    assert quad_drake_cli("run", "06_sensor_noise", "--out", str(tmp_path), "--no-plots").returncode == 0
+    result = quad_drake_cli("noise-std", str(tmp_path / "06_sensor_noise"))
     assert result.returncode == 0, result.stderr
     values = dict(line.split(": ") for line in result.stdout.strip().splitlines())
     assert abs(float(values["Quad.GPS.X"]) - 0.7) < 0.15  # ~100 samples: 4 standard errors
@@ -120,17 +122,19 @@ def test_bad_input_in_a_new_process_exits_2_with_one_line():
     assert len(result.stderr.strip().splitlines()) == 1
 
 
-def test_malformed_trajectory_file_names_file_and_line(tmp_path):
+def test_malformed_trajectory_file_names_file_and_line(quad_drake_cli, tmp_path):
     bad = tmp_path / "bad.txt"
     bad.write_text("0, 0, 0, -1\n1, 0, zero, -1\n")
-    result = cli("run", "01_intro", "--set", f"vehicles.0.trajectory={{kind: file, file: {bad}}}")
+    result = quad_drake_cli("run", "01_intro", "--set", f"vehicles.0.trajectory={{kind: file, file: {bad}}}")
     assert result.returncode == 2
     assert f"{bad}:2" in result.stderr and "Traceback" not in result.stderr
 
 
 @pytest.mark.slow
-def test_run_writes_plots_report_replay_and_index(tmp_path):
-    result = cli("run", "09_predict_covariance", "01_intro", "--set", "end_time=0.3", "--out", str(tmp_path))
+def test_run_writes_plots_report_replay_and_index(quad_drake_cli, tmp_path):
+    result = quad_drake_cli(
+        "run", "09_predict_covariance", "01_intro", "--set", "end_time=0.3", "--out", str(tmp_path)
+    )
     assert result.returncode in (0, 1), result.stderr  # short runs may fail a criterion
     assert "Traceback" not in result.stderr
     from quad_drake.output.results import variant_name

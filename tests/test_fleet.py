@@ -67,10 +67,11 @@ def test_noiseless_fleet_flies_every_vehicle_as_the_per_vehicle_diagram(name, ov
     "name, end_time, overrides",
     [
         ("11_gps_update", 3, ()),
-        ("12_gps_outage", 10.5, ()),
-        ("16_mag_disturbance", 10.5, ()),
-        ("18_imu_dropout", 10.2, ()),
-        ("14_gps_delay", 10.5, ()),
+        # the faults moved from 10 s to 2 s (bundled: 10 s), each begun and ended in the flight
+        ("12_gps_outage", 4.5, ("vehicles.0.faults.0.start=2", "vehicles.0.faults.0.end=4")),
+        ("16_mag_disturbance", 3, ("vehicles.0.faults.0.start=2", "vehicles.0.faults.0.end=2.5")),
+        ("18_imu_dropout", 2.2, ("vehicles.0.faults.0.start=2", "vehicles.0.faults.0.end=2.02")),
+        ("14_gps_delay", 5, ()),
         ("14_gps_delay", 3, ("vehicles.0.gps_delay_compensation=0",)),
         ("14_gps_delay", 3, ("vehicles.0.estimator={kind: ekf7}",)),
     ],

@@ -105,19 +105,23 @@ def _close(a, b, tol=1e-12):
     return abs(a - b) <= tol
 
 
+ONE_ESTIMATING_VEHICLE = [
+    "criterion_1",
+    "criterion_2",
+    "estimate_errors_Quad",
+    "attitude_estimate_Quad",
+    "state_estimate_Quad",
+    "position",
+    "top_view",
+    "attitude",
+    "thrust",
+]
+"""The figures of :func:`make_result`'s run (one estimating vehicle, a window and a sigma criterion)."""
+
+
 def test_figure_set_of_one_estimating_vehicle():
     result = make_result()
-    assert list(plots.make_figures(result)) == [
-        "criterion_1",
-        "criterion_2",
-        "estimate_errors_Quad",
-        "attitude_estimate_Quad",
-        "state_estimate_Quad",
-        "position",
-        "top_view",
-        "attitude",
-        "thrust",
-    ]
+    assert list(plots.make_figures(result)) == ONE_ESTIMATING_VEHICLE
 
 
 def test_figure_set_without_estimator_and_of_a_fleet():
@@ -211,12 +215,12 @@ def test_criterion_rows_of_window_and_sigma_criteria():
 
 def test_run_artifacts_are_self_contained(tmp_path):
     result = make_result(end_time=25.0)
-    written = plots.write_plots(result, tmp_path)  # its CPU time: benchmarks/bench_plots.py
-    artifacts = plots.write_run_artifacts(result, tmp_path)
-    assert [p.name for p in artifacts["plots"]] == [p.name for _, p in written]
+    artifacts = plots.write_run_artifacts(result, tmp_path)  # the plots' CPU: benchmarks/bench_plots.py
+    assert [p.name for p in artifacts["plots"]] == [f"{stem}.png" for stem in ONE_ESTIMATING_VEHICLE]
+    assert sorted(artifacts["plots"]) == sorted(tmp_path.glob("*.png"))
     assert all(p.stat().st_size > 10_000 for p in artifacts["plots"])
     report = artifacts["report"].read_text()
-    assert report.count("data:image/png;base64,") == len(written)
+    assert report.count("data:image/png;base64,") == len(artifacts["plots"])
     assert not re.search(r"(src|href)=\"(https?:)?//", report)  # nothing fetched from the network
     assert 'href="replay.html"' in report
     for verdict in result.criteria:
@@ -567,6 +571,7 @@ def test_a_smoothed_run_draws_and_reports_the_smoother_beside_the_estimate(tmp_p
         p.name for p in artifacts["plots"]
     ]
     plain = smoothed_eskf_result(smoothed=False)  # a run without --smooth: no smoother anywhere
-    assert "smoothed_errors_Quad" not in plots.make_figures(plain) and smoother_consistency(plain) == []
-    plain_states = plots.make_figures(plain)["state_estimate_Quad"][1].axes
+    plain_figures = plots.make_figures(plain)
+    assert "smoothed_errors_Quad" not in plain_figures and smoother_consistency(plain) == []
+    plain_states = plain_figures["state_estimate_Quad"][1].axes
     assert "smoothed" not in {line.get_label() for ax in plain_states for line in ax.lines}
