@@ -481,17 +481,18 @@ def replay_setup(log, config) -> tuple[dict, VehicleConfig, Aiding]:
     return streams, vehicle, aiding
 
 
-def _playback_diagram(streams, vehicles, name, ticks=False):
-    """(Diagram, {log name: VectorLogSink}, {name: tick sink} or None, the UPDATE_DIAGNOSTICS sink):
-    a LogPlayback of n flights
+def _playback_diagram(streams, vehicles, name, ticks=False, every_update=True):
+    """(Diagram, {log name: VectorLogSink}, {name: tick sink} or None, the UPDATE_DIAGNOSTICS sink
+    or None): a LogPlayback of n flights
     (`streams`: each flight's) feeding the estimator of n vehicles (`vehicles`: each flight's
     VehicleConfig, ``build_estimator`` of one, or of n that ``registry.sharing_problem`` lets share
     it): ``imu``, ``gps``, ``mag`` (the raw field for a 3-axis magnetometer, else the heading) and
     ``baro`` where it has that input; every estimator and playback output (n vehicles wide,
     vehicle-major) logged every LOG_PERIOD; ticks: also the per-tick sinks of
-    ``smoothing.tick_sinks`` (an ESKF's, one flight, for its smoother); and the estimator's
-    ``diagnostics`` every ONBOARD_PERIOD (``innovations.UPDATE_DIAGNOSTICS``: every update's NIS,
-    which the LOG_PERIOD log can miss)."""
+    ``smoothing.tick_sinks`` (an ESKF's, one flight, for its smoother); every_update: the
+    estimator's ``diagnostics`` every ONBOARD_PERIOD (``innovations.UPDATE_DIAGNOSTICS``: every
+    update's NIS, which the LOG_PERIOD log can miss; a replay judges them, a run-as-log replay does
+    not)."""
     builder = DiagramBuilder()
     playback = builder.AddNamedSystem("playback", LogPlayback(streams))
     estimator = builder.AddSystem(build_estimator(vehicles[0] if len(vehicles) == 1 else vehicles, PHYSICAL))
@@ -509,8 +510,11 @@ def _playback_diagram(streams, vehicles, name, ticks=False):
         sinks[log_name] = LogVectorOutput(system.GetOutputPort(log_name), builder, publish_period=LOG_PERIOD)
         sinks[log_name].set_name(f"{log_name}_log")
     tick = smoothing.tick_sinks(builder, estimator, playback) if ticks else None
-    updates = LogVectorOutput(estimator.GetOutputPort("diagnostics"), builder, publish_period=ONBOARD_PERIOD)
-    updates.set_name(f"{UPDATE_DIAGNOSTICS}_log")
+    updates = None
+    if every_update:
+        diagnostics = estimator.GetOutputPort("diagnostics")
+        updates = LogVectorOutput(diagnostics, builder, publish_period=ONBOARD_PERIOD)
+        updates.set_name(f"{UPDATE_DIAGNOSTICS}_log")
     diagram = builder.Build()
     diagram.set_name(name)
     return diagram, sinks, tick, updates
@@ -522,7 +526,7 @@ def replay_as_flown(log, vehicle, ticks=False) -> tuple:
     replay defaults, no fake position): a simulated run's CSV (``flightlogs.recording``) replayed
     through the run's own estimator reproduces the run's estimate. ticks: a third item, the
     ``smoothing.TickLogs`` of an ESKF (its pass tick by tick, for the smoother)."""
-    diagram, sinks, tick, _ = _playback_diagram([playback_streams(log)], [vehicle], "replay", ticks)
+    diagram, sinks, tick, _ = _playback_diagram([playback_streams(log)], [vehicle], "replay", ticks, False)
     simulator = Simulator(diagram)
     context = simulator.get_mutable_context()
     simulator.Initialize()
