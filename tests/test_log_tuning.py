@@ -202,19 +202,19 @@ def test_the_default_split_tunes_and_judges_on_the_bundled_sitl_flight_alike():
         ("blocks", "the first 60 % of each 4 s block of each log", "sitl_takeoff_land_gps held-out blocks"),
     ],
 )
-def test_one_function_words_the_split_for_the_header_and_the_held_out_labels(how, trained_on, held_label):
-    """``tuning.logs.split_text`` gives both texts of a split (the header's training part, the
+def test_the_split_is_worded_in_one_place_for_the_header_and_the_held_out_labels(how, trained_on, held_label):
+    """``tuning.logs`` words both texts of a split side by side (the header's training part, the
     held-out part's label), as the header and the before/after table printed them."""
     from types import SimpleNamespace
 
-    from quad_drake.tuning.logs import split_text
+    from quad_drake.tuning.logs import held_out_label, trained_part_text
     from quad_drake.tuning.settings import LogTuneSettings
 
     settings = LogTuneSettings(split=how)
     log = SimpleNamespace(source="/logs/sitl_takeoff_land_gps.ulg", duration=27.2)
     held = ((16.32, math.inf),) if how == "tail" else ((7.4, 9.0), (11.4, 13.0))
-    assert split_text(settings) == trained_on
-    assert split_text(settings, log, held) == held_label
+    assert trained_part_text(settings) == trained_on
+    assert held_out_label(settings, log, held) == held_label
 
 
 def test_the_search_sets_the_accelerometer_s_axes_apart_and_reaches_a_simulator_s_noise():

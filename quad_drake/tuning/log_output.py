@@ -17,7 +17,7 @@ from ..flightlogs.px4_parameters import parameter_file
 from ..flightlogs.settings import dump_replay
 from ..output.jsonio import dump_json
 from ..output.outdir import write_binary_atomic, write_text_atomic
-from .logs import split_text, verdict
+from .logs import trained_part_text, verdict
 
 
 def _values(result, x):
@@ -30,7 +30,7 @@ def header(result) -> list[str]:
         f"quad-drake tune {' '.join(_stem(log) for log in result.problem.logs)}: "
         f"{len(result.search.history)} of {s.budget} replays"
         + (" (interrupted: best so far)" if result.interrupted else ""),
-        f"trained on {split_text(s)}; best loss {best.score.loss:.4g} at "
+        f"trained on {trained_part_text(s)}; best loss {best.score.loss:.4g} at "
         f"candidate {best.index} (start {result.search.history[0].score.loss:.4g}); its consistency loss "
         f"{best.score.consistency:.4g} (start {result.search.history[0].score.consistency:.4g})",
     ]

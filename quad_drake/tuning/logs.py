@@ -41,6 +41,7 @@ import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 from scipy.optimize import minimize, minimize_scalar
@@ -562,29 +563,39 @@ def holdout(problem, config) -> list:
     for log in problem.logs:
         _, held = split(log, problem.settings)
         if held:
-            judged.append((split_text(problem.settings, log, held), channel_statistics(config, log, held)))
+            judged.append(
+                (held_out_label(problem.settings, log, held), channel_statistics(config, log, held))
+            )
     for log in problem.holdout_logs:
         judged.append(
-            (f"{_name(log)} (held-out log)", channel_statistics(config, log, ((COMPARE_AFTER, math.inf),)))
+            (
+                f"{log_label(log)} (held-out log)",
+                channel_statistics(config, log, ((COMPARE_AFTER, math.inf),)),
+            )
         )
     return judged
 
 
-def split_text(settings, log=None, held=()) -> str:
-    """The split ``settings.split`` in words, both of its texts in one place: without a log, the
-    part tuned on ("the first 70 % of each log"; "the first 70 % of each 4 s block of each log");
-    with a log and its held-out windows `held` (:func:`split`), the label of that log's held-out
-    part ("NAME after 13.1 s"; "NAME held-out blocks")."""
-    tail = settings.split == "tail"
-    if log is None:
-        share = f"the first {100 * settings.train_fraction:g} % of each"
-        return f"{share} log" if tail else f"{share} {SPLIT_BLOCK:g} s block of each log"
-    return f"{_name(log)} after {held[0][0]:.1f} s" if tail else f"{_name(log)} held-out blocks"
+def trained_part_text(settings) -> str:
+    """The part of each log the split ``settings.split`` tunes on, in words ("the first 70 % of
+    each log"; "the first 70 % of each 4 s block of each log"); its held-out part's label is
+    :func:`held_out_label`, beside it."""
+    share = f"the first {100 * settings.train_fraction:g} % of each"
+    return f"{share} log" if settings.split == "tail" else f"{share} {SPLIT_BLOCK:g} s block of each log"
 
 
-def _name(log):
-    from pathlib import Path
+def held_out_label(settings, log, held) -> str:
+    """The label of `log`'s held-out part under the split ``settings.split``, its windows `held`
+    (:func:`split`): "NAME after 13.1 s"; "NAME held-out blocks"."""
+    return (
+        f"{log_label(log)} after {held[0][0]:.1f} s"
+        if settings.split == "tail"
+        else f"{log_label(log)} held-out blocks"
+    )
 
+
+def log_label(log) -> str:
+    """A log's name in the tables: its file's stem."""
     return Path(log.source).stem
 
 
