@@ -425,7 +425,8 @@ class Eskf(LeafSystem):
         else:  # the navigation block: the baro bias is logged in ``diagnostics`` (its estimate, its std)
             declare_block_output(self, "covariance", groups.P, n, P0.shape[0], k)
         declare_state_output(self, "diagnostics", groups.diagnostics, n * DIAGNOSTICS_SIZE)
-        self._bias = discrete_group(self, n * 6, "imu_bias")
+        nominal_biases = np.broadcast_to(x0, (n, x0.shape[-1]))[:, 10:16]  # the start, before the first tick
+        self._bias = discrete_group(self, nominal_biases.ravel(), "imu_bias")
         if self._levels:  # the peak-held |w_B|, |f_B| (eskf.manoeuvre_levels)
             self._manoeuvre = discrete_group(self, n * eskf.MANOEUVRE_SIZE)
         if gsf is not None:
