@@ -180,7 +180,9 @@ class LogTuneResult:
     def best(self) -> Evaluation | None:
         """The tuned Evaluation: the least loss among those whose kept coordinates (``kept``) are at
         the start's values (a kept delay's grid points were replayed too, and the least of them
-        would otherwise stand as the tuning); None before any."""
+        would otherwise stand as the tuning); None before any. The one best of a log tuning: its
+        progress, files and held-out judgement all use it (``search.best`` is the scenario
+        tuner's, which keeps no coordinate)."""
         history = self.search.history
         kept = [i for i, d in enumerate(self.problem.space) if d.name in self.kept]
         eligible = [e for e in history if all(e.x[i] == history[0].x[i] for i in kept)]
@@ -486,7 +488,7 @@ def tune_logs(problem, progress=True) -> LogTuneResult:
         evaluation = Evaluation(len(history), stage, key, score)
         history.append(evaluation)
         cache[key] = evaluation
-        bar.update(evaluation, result.search.best)
+        bar.update(evaluation, result.best)  # the tuning's best, as the files will say
         return score.loss if math.isfinite(score.loss) else 1e9
 
     def score_of(x):
