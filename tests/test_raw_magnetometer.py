@@ -78,6 +78,14 @@ def test_the_calibration_is_offsets_then_scale_then_rotation():
         mag_calibration.calibrated(raw, rotation, scale, offsets), [[-0.55, 1.05, 0.0]], atol=1e-15
     )
     assert description == "CAL_MAG2 (offsets, scale, CAL_MAG2_ROT 2)"
+    compensated = {**parameters, "CAL_MAG_COMP_TYP": 2, "CAL_MAG2_YCOMP": -0.25}  # PX4's current type
+    *_, said = mag_calibration.calibration(7, compensated)
+    assert said == (
+        "CAL_MAG2 (offsets, scale, CAL_MAG2_ROT 2); its power compensation (CAL_MAG_COMP_TYP 2, "
+        "CAL_MAG2_X/Y/ZCOMP 0, -0.25, 0) not applied: a replay plays no thrust or current"
+    )
+    *_, said = mag_calibration.calibration(7, {**parameters, "CAL_MAG_COMP_TYP": 2})  # no coefficient
+    assert said == description
     board = {"CAL_MAG0_ID": 5, "CAL_MAG0_ROT": -1, "SENS_BOARD_ROT": 4, "SENS_BOARD_Z_OFF": 90.0}
     rotation, *_ = mag_calibration.calibration(5, board)  # internal: the board's yaw 180, then its 90° trim
     np.testing.assert_allclose(rotation @ [1.0, 0.0, 0.0], [0.0, -1.0, 0.0], atol=1e-15)

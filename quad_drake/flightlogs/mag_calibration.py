@@ -14,7 +14,8 @@ magnetometer's ``CAL_MAGn_ROT`` (>= 0), an internal one's (``CAL_MAGn_ROT`` = -1
 stands for the Euler angles of PX4's ``rot_lookup`` (:data:`PX4_ROTATIONS`, roll, pitch, yaw in
 degrees, R = Rz(yaw) Ry(pitch) Rx(roll)). The calibration slot n is the one whose
 ``CAL_MAGn_ID`` is the sensor's ``device_id``. Power compensation (``CAL_MAG_COMP_TYP``) is not
-applied: it needs the motors' thrust or current, which a replay does not play.
+applied: it needs the motors' thrust or current, which a replay does not play; where the log sets
+it (a type and a nonzero ``CAL_MAGn_X/Y/ZCOMP``), the calibration's description says so.
 
 Before v1.12 the drivers applied the calibration themselves and ``sensor_mag`` is already the
 body field (measured on pyulog's ``sample_log_small.ulg``, v1.11.2: its ``sensor_mag`` equals its
@@ -140,7 +141,15 @@ def calibration(device_id, parameters) -> tuple[np.ndarray, np.ndarray, np.ndarr
         board = int(parameters.get("SENS_BOARD_ROT", 0))
         rotation = rotation_from_euler(*trim) @ rotation_matrix(board)
         where = f"internal: SENS_BOARD_ROT {board}"
-    return rotation, scale, offsets, f"CAL_MAG{n} (offsets, scale, {where})"
+    description = f"CAL_MAG{n} (offsets, scale, {where})"
+    compensation = [value(f"{axis}COMP") for axis in "XYZ"]
+    kind = int(parameters.get("CAL_MAG_COMP_TYP", 0))
+    if kind and any(compensation):
+        description += (
+            f"; its power compensation (CAL_MAG_COMP_TYP {kind}, CAL_MAG{n}_X/Y/ZCOMP "
+            f"{', '.join(f'{c:g}' for c in compensation)}) not applied: a replay plays no thrust or current"
+        )
+    return rotation, scale, offsets, description
 
 
 def calibrated(raw, rotation, scale, offsets) -> np.ndarray:

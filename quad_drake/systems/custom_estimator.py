@@ -30,7 +30,7 @@ class PythonEstimator(LeafSystem):
     The objects advance in place: each tick is a discrete update (of the outputs' discrete state)
     that steps the context's own objects, not an unrestricted update of a copy. Drake copies a
     Python value with ``copy.deepcopy`` into its update buffer and back at every unrestricted
-    update (drake#18740), which cost about a quarter of a custom estimator's flight, twice per
+    update (drake#18740), which cost a quarter to a third of a custom estimator's flight, twice per
     2 ms tick. A context's objects are still its own: ``CreateDefaultContext`` and
     ``Context.Clone`` deep-copy them, so any number of contexts fly independently. Computing a
     tick is taking it, so only a Simulator (which applies each update it computes, once) steps
