@@ -165,42 +165,15 @@ def test_the_adapter_fuses_each_sample_once_gates_and_counts(tmp_path):
 
 
 def test_each_context_flies_its_own_estimator_objects(tmp_path):
-    # The objects advance in place (no deep copy per tick), yet each context holds its own: two
-    # contexts of one system fly alike without touching each other, and a clone made mid-flight
-    # goes on from where it was cloned while its original goes on unchanged.
-    from pydrake.systems.analysis import Simulator
+    # The objects advance in place (no deep copy per tick), yet each context holds its own.
+    from conftest import assert_each_context_flies_its_own
 
     from quad_drake.systems.custom_estimator import PythonEstimator
 
     manual_estimator(tmp_path)
     factory = f"{tmp_path / 'my_ekf.py'}:MyEkf"
     vehicle = catalog.load("11_gps_update", None, [custom_override(factory)]).vehicles[0]
-    system = PythonEstimator(vehicle.estimator, vehicle.sensors, n=2)
-
-    def context_with_inputs():
-        context = system.CreateDefaultContext()
-        system.GetInputPort("imu").FixValue(context, np.tile([0.1, -0.2, -9.7, 0.05, 0.0, 0.2], 2))
-        system.GetInputPort("gps").FixValue(context, np.tile([0.5, 0.0, -1.0, 0.1, 0.0, 0.0, 0.05], 2))
-        system.GetInputPort("mag").FixValue(context, np.tile([0.35, 0.05], 2))
-        return context
-
-    def flown(context, until):
-        Simulator(system, context).AdvanceTo(until)
-        return system.GetOutputPort("estimated_state").Eval(context).copy()
-
-    first = context_with_inputs()
-    start = system.GetOutputPort("estimated_state").Eval(first).copy()
-    at_end = flown(first, 0.1)
-    assert not np.array_equal(at_end, start)
-    second = context_with_inputs()
-    np.testing.assert_array_equal(system.GetOutputPort("estimated_state").Eval(second), start)
-    np.testing.assert_array_equal(flown(second, 0.1), at_end)
-    halfway = context_with_inputs()
-    at_half = flown(halfway, 0.05)
-    clone = halfway.Clone()
-    np.testing.assert_array_equal(flown(clone, 0.1), at_end)
-    np.testing.assert_array_equal(system.GetOutputPort("estimated_state").Eval(halfway), at_half)
-    np.testing.assert_array_equal(flown(halfway, 0.1), at_end)
+    assert_each_context_flies_its_own(PythonEstimator(vehicle.estimator, vehicle.sensors, n=2))
 
 
 def test_check_runs_one_step_of_each_method(tmp_path):

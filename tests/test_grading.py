@@ -185,10 +185,8 @@ def test_the_starting_file_flies_and_changes_nothing_it_should_not():
 
 
 def test_each_context_flies_its_own_course_filter():
-    # The filter's state is the context's (discrete state), not the system's: a second context
-    # flown after the first starts where the first did and ends where it ended, and a clone made
-    # mid-flight goes on from where it was cloned.
-    from pydrake.systems.analysis import Simulator
+    # The filter's state is the context's (discrete state), not the system's.
+    from conftest import assert_each_context_flies_its_own
 
     from quad_drake.estimation.registry import CourseEstimatorConfig
     from quad_drake.systems.course_estimator import CourseEstimator
@@ -196,30 +194,4 @@ def test_each_context_flies_its_own_course_filter():
     system = CourseEstimator(
         CourseEstimatorConfig(module=str(CORRECT)), [0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.3], n=2
     )
-
-    def context_with_inputs():
-        context = system.CreateDefaultContext()
-        system.GetInputPort("imu").FixValue(context, np.tile([0.1, -0.2, -9.7, 0.05, 0.0, 0.2], 2))
-        system.GetInputPort("gps").FixValue(context, np.tile([0.5, 0.0, -1.0, 0.1, 0.0, 0.0, 0.05], 2))
-        system.GetInputPort("mag").FixValue(context, np.tile([0.35, 0.05], 2))
-        return context
-
-    def flown(context, until):
-        Simulator(system, context).AdvanceTo(until)
-        return system.GetOutputPort("estimated_state").Eval(context), system.GetOutputPort("covariance").Eval(
-            context
-        )
-
-    first = context_with_inputs()
-    start = system.GetOutputPort("estimated_state").Eval(first).copy()
-    state_at_end, cov_at_end = flown(first, 0.1)
-    second = context_with_inputs()
-    np.testing.assert_array_equal(system.GetOutputPort("estimated_state").Eval(second), start)
-    np.testing.assert_array_equal(flown(second, 0.1)[0], state_at_end)
-    np.testing.assert_array_equal(flown(second, 0.1)[1], cov_at_end)
-    assert not np.array_equal(state_at_end, start)
-    halfway = context_with_inputs()
-    flown(halfway, 0.05)
-    clone = halfway.Clone()
-    np.testing.assert_array_equal(flown(clone, 0.1)[0], state_at_end)
-    np.testing.assert_array_equal(flown(halfway, 0.1)[0], state_at_end)
+    assert_each_context_flies_its_own(system)
