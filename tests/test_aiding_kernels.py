@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 import pytest
+from conftest import as_flight_input
 
 from quad_drake.estimation import baro, ekf, eskf, gating, mag3
 from quad_drake.estimation.vocabulary import DIAG, initial_diagnostics
@@ -35,29 +36,19 @@ def fresh_books(count):
     return np.tile(baro.initial_book(PARAMS), (count, 1)), np.tile(initial_diagnostics(), (count, 1))
 
 
-def _as_input(values):
-    """A sensor sample as a flight hands it to a kernel: a read-only float64 array (a Drake input
-    port's value). The kernels are then called with the argument types ``quad-drake warmup``
-    compiled into numba's cache (a writable array is another signature: compiling the three for
-    it cost about 6 s of CPU in a fresh clone)."""
-    values = np.array(values, dtype=float)
-    values.setflags(write=False)
-    return values
-
-
 def baro_rows(x, P, samples, gps, *rest):
     """aiding.baro_rows with the barometer and GPS samples as a flight passes them."""
-    aiding.baro_rows(x, P, _as_input(samples), _as_input(gps), *rest)
+    aiding.baro_rows(x, P, as_flight_input(samples), as_flight_input(gps), *rest)
 
 
 def field_rows(x, P, mag, *rest):
     """aiding.field_rows with the magnetometer sample as a flight passes it."""
-    aiding.field_rows(x, P, _as_input(mag), *rest)
+    aiding.field_rows(x, P, as_flight_input(mag), *rest)
 
 
 def heading_rows(x, P, mag, attitude, *rest):
     """aiding.heading_rows with the magnetometer sample and the attitude as a flight passes them."""
-    aiding.heading_rows(x, P, _as_input(mag), _as_input(attitude), *rest)
+    aiding.heading_rows(x, P, as_flight_input(mag), as_flight_input(attitude), *rest)
 
 
 def test_baro_rows_fuse_as_the_pure_update_and_gate_the_outlier():

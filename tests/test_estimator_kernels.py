@@ -10,6 +10,7 @@ import math
 
 import numpy as np
 import pytest
+from conftest import as_flight_input
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
@@ -112,21 +113,12 @@ def test_ekf7_predict_matches_the_scalar_step(reference_accelerometer):
         np.testing.assert_allclose(P_new[i], P_ref, **TOL)
 
 
-def _input(values):
-    """A kernel's input as a flight hands it over: a read-only float64 copy (a Drake input port's
-    value), so the kernel runs with the argument types ``quad-drake warmup`` compiled into numba's
-    cache (a writable array is another signature, compiled again in a fresh clone)."""
-    values = np.array(values, dtype=float)
-    values.setflags(write=False)
-    return values
-
-
 def _ekf7_tick(x, P, attitude, imu, gps, mag, diagnostics, book, Q, gains, R_mag, threshold=9.0):
     """ekf7.tick with the scalar EKF's settings; (quiet, healthy)."""
     healthy = np.empty(x.shape[0], dtype=bool)
     filters = fusion.Filters(x, P, diagnostics, book, hold=np.zeros((x.shape[0], HOLD_SIZE)))
     model = ekf7.Model(DT, Q, ekf.gravity_z(False), float(R_mag[0, 0]), float(threshold))
-    inputs = (_input(attitude), _input(imu), _input(gps), _input(mag))
+    inputs = (as_flight_input(attitude), as_flight_input(imu), as_flight_input(gps), as_flight_input(mag))
     quiet = ekf7.tick(*filters, *inputs, *model, gains, healthy)
     return quiet, healthy
 
@@ -148,7 +140,8 @@ def test_the_running_mean_of_the_imu_bridges_a_dropout():
     mean = imu[0].copy()
     for k in range(ticks):
         before = attitude.copy()
-        attitude_kernel.tick(attitude, rate, hold, _input(imu[k]), _input(np.zeros((count, 7))), *model)
+        no_gps = as_flight_input(np.zeros((count, 7)))
+        attitude_kernel.tick(attitude, rate, hold, as_flight_input(imu[k]), no_gps, *model)
         finite = np.isfinite(imu[k]).all(axis=1)
         if k:
             mean[finite] += weight * (imu[k][finite] - mean[finite])
@@ -230,7 +223,8 @@ def test_ekf7_tick_fuses_the_magnetometer_only_on_a_quiet_tick():
         ekf7.NO_TILT,
         R_mag,
     )
-    ekf7.mag_tick(fusion.Filters(x_ref, P_ref, diagnostics_ref, book_ref, None), _input(mag), R_mag, 9.0)
+    reference = fusion.Filters(x_ref, P_ref, diagnostics_ref, book_ref, None)
+    ekf7.mag_tick(reference, as_flight_input(mag), R_mag, 9.0)
     assert quiet and healthy.all()
     np.testing.assert_array_equal(x_new, x_ref)
     np.testing.assert_array_equal(P_new, P_ref)
@@ -496,7 +490,7 @@ def test_gps_updates_on_a_singular_innovation_covariance_behave_as_the_scalar_on
 def test_ekf7_estimated_state_matches_the_scalar_assembly():
     rng = np.random.default_rng(20)
     attitude, x, rate = (
-        _input(a) for a in (random_attitudes(rng), rng.normal(size=(N, 7)), rng.normal(size=(N, 3)))
+        as_flight_input(a) for a in (random_attitudes(rng), rng.normal(size=(N, 7)), rng.normal(size=(N, 3)))
     )
     estimate = ekf7.estimated_state(attitude, x, rate)
     for i in range(N):

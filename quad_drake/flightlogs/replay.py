@@ -526,7 +526,9 @@ def replay_as_flown(log, vehicle, ticks=False) -> tuple:
     replay defaults, no fake position): a simulated run's CSV (``flightlogs.recording``) replayed
     through the run's own estimator reproduces the run's estimate. ticks: a third item, the
     ``smoothing.TickLogs`` of an ESKF (its pass tick by tick, for the smoother)."""
-    diagram, sinks, tick, _ = _playback_diagram([playback_streams(log)], [vehicle], "replay", ticks, False)
+    diagram, sinks, tick, _ = _playback_diagram(
+        [playback_streams(log)], [vehicle], "replay", ticks, every_update=False
+    )
     simulator = Simulator(diagram)
     context = simulator.get_mutable_context()
     simulator.Initialize()
@@ -628,9 +630,9 @@ def _check_replay_memory(config, end, n, what) -> None:
     ONBOARD_PERIOD, for each log. `what` names it."""
     widths = vocabulary_for(config.estimator).log_widths()
     width = sum(widths.values()) + sum(w + STAMPED[name] for name, w in STREAM_WIDTHS.items())
-    every_update = widths["diagnostics"] * LOG_PERIOD / ONBOARD_PERIOD  # UPDATE_DIAGNOSTICS
+    width += widths["diagnostics"] * LOG_PERIOD / ONBOARD_PERIOD  # UPDATE_DIAGNOSTICS, per LOG_PERIOD
     check_memory(
-        end / LOG_PERIOD * n * (width + every_update) * 8.0 * LOG_COPIES,
+        end / LOG_PERIOD * n * width * 8.0 * LOG_COPIES,
         f"{what}: a replay of {end:g} s",
         "replay a shorter stretch of the flight (e.g. cut into a CSV log)",
     )

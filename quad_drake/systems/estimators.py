@@ -415,8 +415,9 @@ class Eskf(LeafSystem):
             ((gsf,) if gsf else ()) + sensor_updates + ((gravity,) if gravity else ()),
             repairs=not fidelity.reference_estimator,
         )
+        start = np.broadcast_to(x0, (n, x0.shape[-1]))  # each vehicle's nominal before the first tick
         initial_estimate = np.zeros((n, STATE_SIZE))  # body rate 0 before the first sample
-        eskf.write_estimate(np.broadcast_to(x0, (n, x0.shape[-1])), initial_estimate)
+        eskf.write_estimate(start, initial_estimate)
         self._estimate = discrete_group(self, initial_estimate.ravel(), "estimated_state")
         groups = self._fusion.groups
         k = eskf.navigation_size(P0.shape[0])
@@ -425,8 +426,7 @@ class Eskf(LeafSystem):
         else:  # the navigation block: the baro bias is logged in ``diagnostics`` (its estimate, its std)
             declare_block_output(self, "covariance", groups.P, n, P0.shape[0], k)
         declare_state_output(self, "diagnostics", groups.diagnostics, n * DIAGNOSTICS_SIZE)
-        nominal_biases = np.broadcast_to(x0, (n, x0.shape[-1]))[:, 10:16]  # the start, before the first tick
-        self._bias = discrete_group(self, nominal_biases.ravel(), "imu_bias")
+        self._bias = discrete_group(self, start[:, 10:16].ravel(), "imu_bias")
         if self._levels:  # the peak-held |w_B|, |f_B| (eskf.manoeuvre_levels)
             self._manoeuvre = discrete_group(self, n * eskf.MANOEUVRE_SIZE)
         if gsf is not None:
