@@ -24,7 +24,7 @@ Architecture, floor by floor (a module imports its own floor or lower ones; no f
 
 - ``conventions``: the shared constants;
 - pure (numpy, scipy; no pydrake but the YAML of ``config.loader``): ``config`` (errors, fields,
-  schema, validation, loader), ``models`` (rotations, dynamics, sensor models, trajectories,
+  schema, validation, saved, loader), ``models`` (rotations, dynamics, sensor models, trajectories,
   wind, faults, fidelity, random streams, accuracy bounds), ``estimation``, ``control`` and the
   reading of flight logs (``flightlogs.reader``, ``flightlogs.schedule``);
 - ``kernels``: the pure functions compiled by numba (``kernels.jit``), in (n, ...) array form;

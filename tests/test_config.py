@@ -244,11 +244,11 @@ def test_estimator_choice_loads_by_kind_with_one_line_errors(tmp_path):
 
 
 def test_the_config_package_reexports_each_modules_names_from_where_they_live():
-    import quad_drake.config as package
-    from quad_drake.config import deprecated, errors, fields, loader, schema, validation
+    import importlib
 
-    homes = {"errors": errors, "fields": fields, "schema": schema, "validation": validation, "loader": loader}
-    homes["deprecated"] = deprecated
+    import quad_drake.config as package
+
+    homes = {module: importlib.import_module(f"quad_drake.config.{module}") for module in package._EXPORTS}
     for module, names in package._EXPORTS.items():
         for name in names:
             assert getattr(package, name) is getattr(homes[module], name), name

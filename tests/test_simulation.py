@@ -6,6 +6,7 @@ from pydrake.common import RandomGenerator
 from pydrake.systems.analysis import Simulator
 
 from quad_drake import conventions as c
+from quad_drake.config.saved import SAVED_MARK
 from quad_drake.control.cascade import cascade_step
 from quad_drake.judging.signals import vehicle_log_names
 from quad_drake.models.dynamics import motor_lag_step
@@ -121,7 +122,8 @@ def test_results_save_and_reload(tmp_path):
     times, logs = load_logs(tmp_path)
     np.testing.assert_array_equal(times, result.times)
     np.testing.assert_array_equal(logs["Quad"]["covariance"], result.logs["Quad"]["covariance"])
-    assert (tmp_path / "config.yaml").read_text().startswith("name: 10_mag_update")
+    mark, first_setting = (tmp_path / "config.yaml").read_text().splitlines()[:2]
+    assert mark.startswith(SAVED_MARK) and first_setting == "name: 10_mag_update"
     assert '"passed"' in (tmp_path / "summary.json").read_text()
 
 

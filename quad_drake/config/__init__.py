@@ -6,6 +6,7 @@
 - :mod:`.deprecated`: the EKF7's pre-0.3 ``ekf:`` / ``attitude_filter:`` blocks, rewritten into
   its estimator config;
 - :mod:`.validation`: the raw YAML's shape, the field rules, the rules across fields;
+- :mod:`.saved`: a saved configuration (a run's ``config.yaml``) and the settings it lacks;
 - :mod:`.loader`: YAML in and out, the only module that touches pydrake (Drake's typed YAML).
 
 ``from quad_drake.config import load_scenario`` keeps working: this package re-exports its
@@ -79,6 +80,17 @@ _EXPORTS = {
         "load_scenario",
         "override_hint",
         "dump_scenario",
+        "dump_resolved",
+        "warn_of_absent_settings",
+    ),
+    "saved": (
+        "SAVED_MARK",
+        "SavedConfigWarning",
+        "saved_header",
+        "has_saved_mark",
+        "is_saved_config",
+        "absent_settings",
+        "absent_settings_line",
     ),
 }
 """{module: the public names it defines}, re-exported here on first use."""

@@ -10,9 +10,18 @@ from pathlib import Path
 import yaml
 from pydrake.common.yaml import yaml_dump, yaml_dump_typed, yaml_load_typed
 
+from .. import __version__
 from ..estimation.registry import DEFAULT_KIND, kind_of
 from .deprecated import migrate_ekf7_blocks, migrate_ekf7_override
 from .errors import ConfigError, first_line
+from .saved import (
+    SavedConfigWarning,
+    absent_settings,
+    absent_settings_line,
+    has_saved_mark,
+    is_saved_config,
+    saved_header,
+)
 from .schema import ScenarioConfig
 from .validation import check_node, check_scenario
 
@@ -109,7 +118,8 @@ def load_scenario(path, overrides=()) -> ScenarioConfig:
     if not path.is_file():
         raise ConfigError(f"{path}: no such scenario file")
     try:
-        raw = load_yaml(path.read_text())
+        text = path.read_text()
+        raw = load_yaml(text)
     except yaml.YAMLError as e:
         raise ConfigError(f"{path}: not valid YAML: {first_line(e)}") from None
     except (OSError, UnicodeDecodeError) as e:
@@ -142,7 +152,18 @@ def load_scenario(path, overrides=()) -> ScenarioConfig:
         raise ConfigError(f"{path}: {e}{override_hint(str(e), overrides)}") from None
     except (RuntimeError, ValueError, TypeError) as e:
         raise ConfigError(f"{path}: {first_line(e)}") from None
+    warn_of_absent_settings(path, text, raw, scenario)
     return scenario
+
+
+def warn_of_absent_settings(path, text, raw, config) -> None:
+    """A SavedConfigWarning (one line) when the file `path` (its YAML `text`) is a saved
+    configuration (``config.saved``) and its data `raw` (after ``--set``) leaves out settings of
+    the `config` loaded from it: they took today's defaults."""
+    if is_saved_config(path, text):
+        absent = absent_settings(raw, config, nulls_written=has_saved_mark(text))
+        if absent:
+            warnings.warn(absent_settings_line(path, absent), SavedConfigWarning, stacklevel=3)
 
 
 def _name_the_default_kind(raw, keys):
@@ -201,4 +222,55 @@ def dump_scenario(scenario, folder=None) -> str:
             for v in scenario.vehicles
         ]
         scenario = dataclasses.replace(scenario, vehicles=vehicles)
-    return yaml_dump_typed(scenario)
+    return dump_resolved(scenario)
+
+
+class _SavedDumper(yaml.SafeDumper):
+    """PyYAML's dumper writing a saved configuration as Drake's ``yaml_dump_typed`` does: block
+    mappings in field order, a list of scalars on one line, a Union member's mapping under its
+    ``!Name`` tag (the ``_tag`` of :func:`load_yaml`'s data)."""
+
+    def represent_dict(self, data):
+        items = [(k, v) for k, v in data.items() if k != "_tag"]
+        tag = f"!{data['_tag']}" if "_tag" in data else "tag:yaml.org,2002:map"
+        return self.represent_mapping(tag, items, flow_style=False)
+
+    def represent_list(self, data):
+        flat = all(not isinstance(item, (dict, list)) for item in data)
+        return self.represent_sequence("tag:yaml.org,2002:seq", data, flow_style=flat)
+
+
+_SavedDumper.add_representer(dict, _SavedDumper.represent_dict)
+_SavedDumper.add_representer(list, _SavedDumper.represent_list)
+
+
+def dump_resolved(config) -> str:
+    """`config` (a scenario's or a replay's dataclass) as the text of a saved configuration
+    (``config.saved``): the mark naming this version, then every setting in field order. Drake's
+    ``yaml_dump_typed`` leaves out a field whose value is None; here it is written ``null``, so
+    that a later quad_drake can tell a setting saved as None from one added since."""
+    data = _with_nulls(load_yaml(yaml_dump_typed(config)), config)
+    body = yaml.dump(data, Dumper=_SavedDumper, sort_keys=False, allow_unicode=True, width=100)
+    return saved_header(__version__) + body
+
+
+def _with_nulls(raw, config):
+    """The raw mapping `raw` of the dataclass `config` with its fields in field order and each
+    field whose value is None given as None (recursively into nested dataclasses and lists)."""
+    ordered = {"_tag": raw["_tag"]} if "_tag" in raw else {}
+    for field in dataclasses.fields(config):
+        value = getattr(config, field.name)
+        if field.name not in raw:
+            if value is None:
+                ordered[field.name] = None
+            continue
+        given = raw[field.name]
+        if dataclasses.is_dataclass(value) and isinstance(given, dict):
+            given = _with_nulls(given, value)
+        elif isinstance(value, list) and isinstance(given, list):
+            given = [
+                _with_nulls(g, v) if dataclasses.is_dataclass(v) and isinstance(g, dict) else g
+                for v, g in zip(value, given, strict=True)
+            ]
+        ordered[field.name] = given
+    return ordered

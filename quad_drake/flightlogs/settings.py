@@ -44,6 +44,7 @@ from quad_drake.config import (
 )
 from quad_drake.config.deprecated import migrate_ekf7_blocks, migrate_ekf7_override
 from quad_drake.config.fields import number
+from quad_drake.config.loader import dump_resolved, warn_of_absent_settings
 from quad_drake.estimation.registry import (
     DEFAULT_KIND,
     KINDS,
@@ -158,8 +159,10 @@ def load_replay(log, estimator=None, overrides=()) -> ReplayConfig:
     Raises ConfigError (one line naming the file, ``--estimator``, ``--set`` or the field).
     """
     chosen = estimator_mapping(estimator)
+    saved = None  # (path, text) of an earlier replay's config.yaml
     if Path(str(log)).suffix in (".yaml", ".yml"):
-        raw = _replay_file(Path(str(log)))
+        saved = Path(str(log)), _replay_text(Path(str(log)))
+        raw = _replay_file(*saved)
         migrate_ekf7_blocks(raw, "")
         if chosen:
             kind = chosen.get("kind", raw["estimator"].get("kind"))
@@ -188,6 +191,8 @@ def load_replay(log, estimator=None, overrides=()) -> ReplayConfig:
     except (RuntimeError, ValueError, TypeError) as e:
         raise ConfigError(first_line(e)) from None
     resolve_log(config.log)
+    if saved is not None:
+        warn_of_absent_settings(*saved, raw, config)
     located = KINDS[config.estimator.kind].locate(config.estimator, Path.cwd())  # a custom factory's file
     return dataclasses.replace(config, estimator=located)
 
@@ -196,12 +201,19 @@ def _default_estimator_raw(kind):
     return load_yaml(yaml_dump_typed(default_replay(kind if kind in KINDS else DEFAULT_KIND)))["estimator"]
 
 
-def _replay_file(path):
-    """The raw mapping of a replay's config.yaml (ConfigError naming the file when unreadable)."""
+def _replay_text(path):
+    """The text of a replay's config.yaml (ConfigError naming the file when unreadable)."""
     try:
-        raw = load_yaml(path.read_text(encoding="utf-8"))
+        return path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as e:
         raise ConfigError(f"{path}: cannot read ({e})") from None
+
+
+def _replay_file(path, text):
+    """The raw mapping of a replay's config.yaml `path`, its `text` (ConfigError naming the file
+    when it is not one)."""
+    try:
+        raw = load_yaml(text)
     except yaml.YAMLError as e:
         raise ConfigError(f"{path}: not valid YAML: {first_line(e)}") from None
     if not isinstance(raw, dict) or "log" not in raw:
@@ -333,5 +345,5 @@ def _with_field(params, magnetometer):
 
 
 def dump_replay(config) -> str:
-    """The resolved ReplayConfig as YAML text."""
-    return yaml_dump_typed(config)
+    """The resolved ReplayConfig as a saved configuration's text (``config.loader.dump_resolved``)."""
+    return dump_resolved(config)
