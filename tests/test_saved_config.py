@@ -2,8 +2,10 @@
 settings an earlier one's file lacks (quad_drake/config/saved.py) instead of flying them silently
 with its own defaults."""
 
+import dataclasses
 import warnings
 
+import numpy as np
 import pytest
 from pydrake.common.yaml import yaml_dump_typed
 
@@ -30,6 +32,13 @@ def test_a_saved_scenario_names_every_setting_and_loads_back_equal(name, tmp_pat
         assert absent_settings(load_yaml(text), scenario) == []  # null ones included
         (tmp_path / "config.yaml").write_text(text)
         assert load_scenario(tmp_path / "config.yaml") == scenario
+
+
+@pytest.mark.parametrize("text", ["1e3", "-2.5E-3", "yes", "null", "~", "0x10", "12:30", "a: b"])
+def test_a_saved_text_that_reads_as_another_type_unquoted_stays_text(text, tmp_path):
+    scenario = dataclasses.replace(catalog.load("01_intro"), description=text)
+    (tmp_path / "config.yaml").write_text(dump_scenario(scenario))
+    assert load_scenario(tmp_path / "config.yaml").description == text
 
 
 @pytest.mark.parametrize("kind", ["ekf7", "eskf"])
@@ -78,3 +87,11 @@ def test_run_flies_an_old_run_folders_config_and_says_in_one_line_what_it_lacked
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert load_scenario(folder / "config.yaml").end_time == 1.5
+
+
+def test_a_numpy_number_left_in_a_field_is_saved_as_the_number_it_is(tmp_path):
+    scenario = dataclasses.replace(catalog.load("01_intro"), end_time=np.float64(1.5))
+    text = dump_scenario(scenario)
+    assert "\nend_time: 1.5\n" in text
+    (tmp_path / "config.yaml").write_text(text)
+    assert load_scenario(tmp_path / "config.yaml").end_time == 1.5

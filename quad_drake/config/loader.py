@@ -7,6 +7,7 @@ import re
 import warnings
 from pathlib import Path
 
+import numpy as np
 import yaml
 from pydrake.common.yaml import yaml_dump, yaml_dump_typed, yaml_load_typed
 
@@ -59,12 +60,10 @@ def _tagged_mapping(loader, tag, node):
     return {**loader.construct_mapping(node, deep=True), "_tag": tag}
 
 
+_EXPONENT_FLOAT = re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$")
+"""YAML 1.2's exponent forms of a float (``1e9``, ``-3e2``, ``1.e3``), which YAML 1.1 reads as text."""
 _Loader.add_multi_constructor("!", _tagged_mapping)
-_Loader.add_implicit_resolver(
-    "tag:yaml.org,2002:float",
-    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
-    list("-+0123456789."),
-)
+_Loader.add_implicit_resolver("tag:yaml.org,2002:float", _EXPONENT_FLOAT, list("-+0123456789."))
 
 
 def load_yaml(text) -> object:
@@ -242,35 +241,41 @@ class _SavedDumper(yaml.SafeDumper):
 
 _SavedDumper.add_representer(dict, _SavedDumper.represent_dict)
 _SavedDumper.add_representer(list, _SavedDumper.represent_list)
+_SavedDumper.add_representer(tuple, _SavedDumper.represent_list)
+# A numpy scalar a computation left in a field (a tuned value) is written as the Python number it is.
+_SavedDumper.add_multi_representer(np.generic, lambda dumper, data: dumper.represent_data(data.item()))
+# A text such as "1e3" is quoted, as :class:`_Loader` would read it unquoted as a number.
+_SavedDumper.add_implicit_resolver("tag:yaml.org,2002:float", _EXPONENT_FLOAT, list("-+0123456789."))
 
 
 def dump_resolved(config) -> str:
     """`config` (a scenario's or a replay's dataclass) as the text of a saved configuration
     (``config.saved``): the mark naming this version, then every setting in field order. Drake's
     ``yaml_dump_typed`` leaves out a field whose value is None; here it is written ``null``, so
-    that a later quad_drake can tell a setting saved as None from one added since."""
-    data = _with_nulls(load_yaml(yaml_dump_typed(config)), config)
+    that a later quad_drake can tell a setting saved as None from one added since. Drake's text
+    gives only the structure (which mappings carry a Union member's tag); the values are the
+    dataclass's own, so that a text such as ``1e3``, which Drake writes unquoted and
+    :func:`load_yaml` would read as a number, is written quoted."""
+    data = _saved_data(load_yaml(yaml_dump_typed(config)), config)
     body = yaml.dump(data, Dumper=_SavedDumper, sort_keys=False, allow_unicode=True, width=100)
     return saved_header(__version__) + body
 
 
-def _with_nulls(raw, config):
-    """The raw mapping `raw` of the dataclass `config` with its fields in field order and each
-    field whose value is None given as None (recursively into nested dataclasses and lists)."""
-    ordered = {"_tag": raw["_tag"]} if "_tag" in raw else {}
+def _saved_data(raw, config):
+    """The data of the dataclass `config` as a mapping in field order: each field's own value
+    (None included), a nested dataclass (alone or in a list) as such a mapping under the
+    ``_tag`` that `raw`, Drake's dump of it read back, gives it."""
+    data = {"_tag": raw["_tag"]} if isinstance(raw, dict) and "_tag" in raw else {}
     for field in dataclasses.fields(config):
         value = getattr(config, field.name)
-        if field.name not in raw:
-            if value is None:
-                ordered[field.name] = None
-            continue
-        given = raw[field.name]
-        if dataclasses.is_dataclass(value) and isinstance(given, dict):
-            given = _with_nulls(given, value)
-        elif isinstance(value, list) and isinstance(given, list):
-            given = [
-                _with_nulls(g, v) if dataclasses.is_dataclass(v) and isinstance(g, dict) else g
-                for v, g in zip(value, given, strict=True)
+        given = raw.get(field.name) if isinstance(raw, dict) else None
+        if dataclasses.is_dataclass(value):
+            value = _saved_data(given, value)
+        elif isinstance(value, list):
+            items = given if isinstance(given, list) and len(given) == len(value) else [None] * len(value)
+            value = [
+                _saved_data(g, v) if dataclasses.is_dataclass(v) else v
+                for v, g in zip(value, items, strict=True)
             ]
-        ordered[field.name] = given
-    return ordered
+        data[field.name] = value
+    return data
