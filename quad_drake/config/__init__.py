@@ -81,7 +81,6 @@ _EXPORTS = {
         "override_hint",
         "dump_scenario",
         "dump_resolved",
-        "warn_of_absent_settings",
     ),
     "saved": (
         "SAVED_MARK",
@@ -91,6 +90,7 @@ _EXPORTS = {
         "is_saved_config",
         "absent_settings",
         "absent_settings_line",
+        "warn_of_absent_settings",
     ),
 }
 """{module: the public names it defines}, re-exported here on first use."""

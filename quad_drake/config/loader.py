@@ -15,14 +15,7 @@ from .. import __version__
 from ..estimation.registry import DEFAULT_KIND, kind_of
 from .deprecated import migrate_ekf7_blocks, migrate_ekf7_override
 from .errors import ConfigError, first_line
-from .saved import (
-    SavedConfigWarning,
-    absent_settings,
-    absent_settings_line,
-    has_saved_mark,
-    is_saved_config,
-    saved_header,
-)
+from .saved import saved_header, warn_of_absent_settings
 from .schema import ScenarioConfig
 from .validation import check_node, check_scenario
 
@@ -153,16 +146,6 @@ def load_scenario(path, overrides=()) -> ScenarioConfig:
         raise ConfigError(f"{path}: {first_line(e)}") from None
     warn_of_absent_settings(path, text, raw, scenario)
     return scenario
-
-
-def warn_of_absent_settings(path, text, raw, config) -> None:
-    """A SavedConfigWarning (one line) when the file `path` (its YAML `text`) is a saved
-    configuration (``config.saved``) and its data `raw` (after ``--set``) leaves out settings of
-    the `config` loaded from it: they took today's defaults."""
-    if is_saved_config(path, text):
-        absent = absent_settings(raw, config, nulls_written=has_saved_mark(text))
-        if absent:
-            warnings.warn(absent_settings_line(path, absent), SavedConfigWarning, stacklevel=3)
 
 
 def _name_the_default_kind(raw, keys):

@@ -14,6 +14,7 @@ file that carries the mark, or a run folder's ``config.yaml`` written before the
 """
 
 import dataclasses
+import warnings
 from pathlib import Path
 
 SAVED_MARK = "# written by quad_drake"
@@ -85,3 +86,13 @@ def absent_settings_line(path, absent) -> str:
         f"{path}: saved by an earlier quad_drake (or edited): {len(absent)} setting(s) it does not give "
         f"take today's defaults, so it may not fly as the saved run did: {shown}{more}"
     )
+
+
+def warn_of_absent_settings(path, text, raw, config) -> None:
+    """A SavedConfigWarning (one line) when the file `path` (its YAML `text`) is a saved
+    configuration and its data `raw` (after ``--set``) leaves out settings of the `config` loaded
+    from it: they took today's defaults. The loaders call it once a file has loaded."""
+    if is_saved_config(path, text):
+        absent = absent_settings(raw, config, nulls_written=has_saved_mark(text))
+        if absent:
+            warnings.warn(absent_settings_line(path, absent), SavedConfigWarning, stacklevel=3)

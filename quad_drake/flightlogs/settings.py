@@ -44,7 +44,8 @@ from quad_drake.config import (
 )
 from quad_drake.config.deprecated import migrate_ekf7_blocks, migrate_ekf7_override
 from quad_drake.config.fields import number
-from quad_drake.config.loader import dump_resolved, warn_of_absent_settings
+from quad_drake.config.loader import dump_resolved
+from quad_drake.config.saved import warn_of_absent_settings
 from quad_drake.estimation.registry import (
     DEFAULT_KIND,
     KINDS,
