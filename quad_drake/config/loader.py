@@ -248,17 +248,15 @@ def _saved_data(raw, config):
     """The data of the dataclass `config` as a mapping in field order: each field's own value
     (None included), a nested dataclass (alone or in a list) as such a mapping under the
     ``_tag`` that `raw`, Drake's dump of it read back, gives it."""
-    data = {"_tag": raw["_tag"]} if isinstance(raw, dict) and "_tag" in raw else {}
+    data = {"_tag": raw["_tag"]} if "_tag" in raw else {}
     for field in dataclasses.fields(config):
         value = getattr(config, field.name)
-        given = raw.get(field.name) if isinstance(raw, dict) else None
         if dataclasses.is_dataclass(value):
-            value = _saved_data(given, value)
+            value = _saved_data(raw[field.name], value)
         elif isinstance(value, list):
-            items = given if isinstance(given, list) and len(given) == len(value) else [None] * len(value)
             value = [
                 _saved_data(g, v) if dataclasses.is_dataclass(v) else v
-                for v, g in zip(value, items, strict=True)
+                for v, g in zip(value, raw[field.name], strict=True)
             ]
         data[field.name] = value
     return data

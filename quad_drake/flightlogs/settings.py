@@ -162,8 +162,8 @@ def load_replay(log, estimator=None, overrides=()) -> ReplayConfig:
     chosen = estimator_mapping(estimator)
     saved = None  # (path, text) of an earlier replay's config.yaml
     if Path(str(log)).suffix in (".yaml", ".yml"):
-        saved = Path(str(log)), _replay_text(Path(str(log)))
-        raw = _replay_file(*saved)
+        raw, text = _replay_file(Path(str(log)))
+        saved = Path(str(log)), text
         migrate_ekf7_blocks(raw, "")
         if chosen:
             kind = chosen.get("kind", raw["estimator"].get("kind"))
@@ -202,24 +202,19 @@ def _default_estimator_raw(kind):
     return load_yaml(yaml_dump_typed(default_replay(kind if kind in KINDS else DEFAULT_KIND)))["estimator"]
 
 
-def _replay_text(path):
-    """The text of a replay's config.yaml (ConfigError naming the file when unreadable)."""
+def _replay_file(path):
+    """(raw mapping, text) of a replay's config.yaml (ConfigError naming the file when unreadable
+    or not one)."""
     try:
-        return path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8")
+        raw = load_yaml(text)
     except (OSError, UnicodeDecodeError) as e:
         raise ConfigError(f"{path}: cannot read ({e})") from None
-
-
-def _replay_file(path, text):
-    """The raw mapping of a replay's config.yaml `path`, its `text` (ConfigError naming the file
-    when it is not one)."""
-    try:
-        raw = load_yaml(text)
     except yaml.YAMLError as e:
         raise ConfigError(f"{path}: not valid YAML: {first_line(e)}") from None
     if not isinstance(raw, dict) or "log" not in raw:
         raise ConfigError(f"{path}: not a replay's config.yaml (no log: field)")
-    return raw
+    return raw, text
 
 
 def estimator_mapping(text) -> dict:
