@@ -3,6 +3,7 @@ one line), the playback schedule, the tilt-compensated heading and the compariso
 
 import math
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -333,6 +334,36 @@ def test_a_px4_position_far_from_the_gps_is_not_compared_and_said(tmp_path, sitl
     np.testing.assert_allclose(log.reference_position.values[kept], sitl_log.reference_position.values[kept])
     (warning,) = [w for w in log_warnings(log) if "from the GPS" in w]
     assert f"{log.gps_mismatches} of PX4's {len(log.reference_position)} positions" in warning
+
+
+ROBOTO = Path(__file__).parent / "data" / "flight_logs" / "roboto_raw_mag.ulg"
+
+
+def test_px4s_imu_failover_is_read_and_said_in_one_warning(sitl_log):
+    # The roboto log (a real PX4 v1.12.3 flight) clips its accelerometer at 2.3 s and PX4 fails
+    # over: sensor_selection moves sensor_combined from IMU 4259850 to 3932170 and back and again,
+    # estimator_selector_status its primary EKF2 instance 1 -> 0 -> 2 -> 1 -> 0, all within 40 ms.
+    from quad_drake.flightlogs.checks import log_warnings
+
+    log = read_flight_log(ROBOTO)
+    first, second = (4259850, 4325386), (3932170, 3932170)  # (accelerometer, gyro) device ids
+    assert [(before, after) for _, before, after in log.imu_switches] == [
+        (first, second), (second, first), (first, second)
+    ]  # fmt: skip
+    instances = [(before, after) for _, before, after in log.estimator_switches]
+    assert instances == [(1, 0), (0, 2), (2, 1), (1, 0)]
+    selection = ULog(str(ROBOTO), ["sensor_selection"]).get_dataset("sensor_selection").data["timestamp"]
+    selection = selection * 1e-6 - log.start_time
+    np.testing.assert_allclose([t for t, _, _ in log.imu_switches], selection[[1, 3, 4]], atol=1e-9)
+    assert 2.41 < log.imu_switches[0][0] < log.estimator_switches[0][0] < 2.42
+    (warning,) = [w for w in log_warnings(log) if w.startswith("PX4 switched")]
+    said = "the IMU sensor_combined carries 3 time(s) (first at 2.41 s: accelerometer 4259850 -> 3932170)"
+    assert said in warning
+    assert "its primary EKF2 instance 4 time(s) (first at 2.41 s: 1 -> 0)" in warning
+    assert "\n" not in warning
+    # A log without a switch (the SITL log: one sensor_selection sample, no selector) says nothing.
+    assert sitl_log.imu_switches == sitl_log.estimator_switches == ()
+    assert not [w for w in log_warnings(sitl_log) if w.startswith("PX4 switched")]
 
 
 def _gps_first_half_then_away(ulog):

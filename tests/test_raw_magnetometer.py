@@ -4,8 +4,8 @@ fused as the 3-axis field.
 
 ``tests/data/flight_logs/roboto_raw_mag.ulg`` is 6 s of a real PX4 v1.12.3 flight (MPL-2.0, the
 licence file beside it) holding both the raw ``sensor_mag`` and PX4's own calibrated
-``vehicle_magnetometer``: the raw-only log is that file with ``vehicle_magnetometer`` removed, and
-PX4's calibration is the reference the one here is held to.
+``vehicle_magnetometer``: the raw-only log is that file with ``vehicle_magnetometer`` removed
+(:func:`_raw_only`), and PX4's calibration is the reference the one here is held to.
 """
 
 from pathlib import Path
@@ -20,12 +20,17 @@ from quad_drake.flightlogs.reader import FlightLogError, read_flight_log
 RAW_MAG_LOG = Path(__file__).parent / "data" / "flight_logs" / "roboto_raw_mag.ulg"
 EXTERNAL_DEVICE = 396809
 """The roboto log's external magnetometer: CAL_MAG1, priority 75 against the internal one's 50."""
+INTERNAL_DEVICE = 396825
+"""Its internal magnetometer (CAL_MAG0), the one PX4's primary estimator fused at the start."""
 
 
-def _without(tmp_path, topic, edit=None):
-    """The fixture written without `topic` (and `edit`(ulog) applied), its path."""
+def _raw_only(tmp_path, edit=None, selector=False):
+    """The fixture as a raw-only log (``vehicle_magnetometer`` removed; and, unless `selector`,
+    ``estimator_selector_status``, whose magnetometer would decide: without it the priority
+    does, the external one), `edit`(ulog) applied; its path."""
     ulog = ULog(str(RAW_MAG_LOG))
-    ulog.data_list[:] = [d for d in ulog.data_list if d.name != topic]
+    removed = {"vehicle_magnetometer"} | (set() if selector else {"estimator_selector_status"})
+    ulog.data_list[:] = [d for d in ulog.data_list if d.name not in removed]
     if edit is not None:
         edit(ulog)
     path = tmp_path / "raw_only.ulg"
@@ -104,7 +109,7 @@ def test_px4s_preferred_magnetometer_is_chosen():
 def test_a_log_with_only_the_raw_sensor_mag_is_calibrated_as_px4_calibrated_it(tmp_path):
     with_px4s = read_flight_log(RAW_MAG_LOG)
     assert with_px4s.mag_source == ""  # vehicle_magnetometer first
-    log = read_flight_log(_without(tmp_path, "vehicle_magnetometer"))
+    log = read_flight_log(_raw_only(tmp_path))
     assert log.mag_source == (
         f"the raw sensor_mag (instance 1, device {EXTERNAL_DEVICE}), calibrated here by CAL_MAG1 "
         "(offsets, scale, CAL_MAG1_ROT 0)"
@@ -118,13 +123,25 @@ def test_a_log_with_only_the_raw_sensor_mag_is_calibrated_as_px4_calibrated_it(t
     ours_error = np.median(np.linalg.norm(log.mag_field.values - at_ours, axis=1))
     raw_error = np.median(np.linalg.norm(raw_values - at_ours, axis=1))
     assert ours_error < 0.02 and raw_error > 0.1  # gauss (measured 0.012 and 0.145); the field is 0.50 G
+    # With PX4's estimator selector logged, the magnetometer its primary EKF2 instance fused at the
+    # start (mag_device_id): the internal one, on the board's rotation.
+    primary = read_flight_log(_raw_only(tmp_path, selector=True))
+    assert primary.mag_source == (
+        f"the raw sensor_mag (instance 0, device {INTERNAL_DEVICE}), calibrated here by CAL_MAG0 "
+        "(offsets, scale, internal: SENS_BOARD_ROT 0)"
+    )
+    times, px4 = _px4_field(INTERNAL_DEVICE)
+    raw_times = _raw_field(INTERNAL_DEVICE)[0]
+    raw_times = raw_times[raw_times * 1e-6 >= primary.start_time]
+    at_ours = np.column_stack([np.interp(raw_times, times, px4[:, i]) for i in range(3)])
+    assert np.median(np.linalg.norm(primary.mag_field.values - at_ours, axis=1)) < 0.02
 
 
 def test_a_log_before_px4_v1_12_takes_sensor_mag_as_its_driver_calibrated_it(tmp_path):
     def release_1_11(ulog):
         ulog.msg_info_dict["ver_sw_release"] = 0x010B02FF
 
-    log = read_flight_log(_without(tmp_path, "vehicle_magnetometer", release_1_11))
+    log = read_flight_log(_raw_only(tmp_path, release_1_11))
     assert log.mag_source.endswith("calibrated by its driver (PX4 before v1.12): taken as logged")
     np.testing.assert_array_equal(log.mag_field.values, _raw_field(EXTERNAL_DEVICE)[1][-len(log.mag_field) :])
 
@@ -134,7 +151,7 @@ def test_a_raw_magnetometer_without_its_calibration_slot_is_one_line(tmp_path):
         for n in range(4):
             ulog.initial_parameters.pop(f"CAL_MAG{n}_ID", None)
 
-    path = _without(tmp_path, "vehicle_magnetometer", no_slot)
+    path = _raw_only(tmp_path, no_slot)
     with pytest.raises(FlightLogError) as error:
         read_flight_log(path)
     reason = "no CAL_MAGn_ID is its device_id 396825"
@@ -147,7 +164,7 @@ def test_the_raw_field_is_fused_by_the_eskf(tmp_path):
     from quad_drake.flightlogs.replay import replay
     from quad_drake.flightlogs.settings import load_replay
 
-    path = _without(tmp_path, "vehicle_magnetometer")
+    path = _raw_only(tmp_path)
     result = replay(load_replay(path, "{kind: eskf}"))
     notes = result.notes()
     assert any(n.startswith("magnetometer: the raw sensor_mag (instance 1") for n in notes)

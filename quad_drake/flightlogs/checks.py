@@ -11,7 +11,10 @@ and returns one line per weakness where it still can:
 - a file that ends mid-message (``FlightLog.truncated``): a warning with how much was replayed;
 - a log that leaves less than SHORT_COMPARISON s to compare: a warning;
 - PX4 positions far from the GPS (``FlightLog.gps_mismatches``: an edited origin or a corrupted
-  sample): a warning that they are not compared.
+  sample): a warning that they are not compared;
+- PX4 switching the IMU that ``sensor_combined`` carries, or its primary EKF2 instance, within
+  the replayed stretch (``FlightLog.imu_switches``, ``estimator_switches``: a failover): a
+  warning that the figures after the first switch compare estimates on different sensors.
 """
 
 import numpy as np
@@ -70,4 +73,34 @@ def log_warnings(log, compare_after=0.0) -> list[str]:
             f"{GPS_MISMATCH:g} m from the GPS through PX4's own origin (ref_lat, ref_lon): an origin edited "
             "in the file (a scrubbed location?) or corrupted samples; their x, y and z are not compared."
         )
+    switches = _switches_warning(log)
+    if switches:
+        warnings.append(switches)
     return warnings
+
+
+def _switches_warning(log) -> str:
+    """One line on PX4's changes of IMU and of primary estimator within the log (a failover), or
+    "" where there are none."""
+    parts, consequences = [], []
+    if log.imu_switches:
+        time, before, after = log.imu_switches[0]
+        parts.append(
+            f"the IMU sensor_combined carries {len(log.imu_switches)} time(s) (first at {time:.2f} s: "
+            f"accelerometer {before[0]} -> {after[0]})"
+        )
+        consequences.append("the replay fuses another IMU with the biases it learned on the first")
+    if log.estimator_switches:
+        time, before, after = log.estimator_switches[0]
+        parts.append(
+            f"its primary EKF2 instance {len(log.estimator_switches)} time(s) (first at {time:.2f} s: "
+            f"{before} -> {after})"
+        )
+        consequences.append("PX4's estimate is another instance's, built on its own sensors from the start")
+    if not parts:
+        return ""
+    first = min(switches[0][0] for switches in (log.imu_switches, log.estimator_switches) if switches)
+    return (
+        f"PX4 switched {' and '.join(parts)}: from {first:.2f} s on {' and '.join(consequences)}; "
+        "the figures after it do not compare like with like."
+    )

@@ -56,6 +56,11 @@ What is read from a PX4 ULog (``pyulog``, PX4's own reader):
 - the magnetometer bias PX4's primary estimator had learned by the log's start (optional):
   ``estimator_sensor_bias.mag_bias`` at its first sample, where valid and for the fused
   magnetometer, as ``estimator_mag_bias`` (what PX4 v1.13 on keeps instead of ``EKF2_MAGBIAS_*``).
+- PX4's changes of IMU and of estimator within the replayed stretch (optional): the IMU
+  ``sensor_combined`` carries, ``sensor_selection``'s ``accel_device_id`` and ``gyro_device_id``
+  (PX4's sensors module switches it on a sensor's failure), as ``imu_switches``, and the primary
+  EKF2 instance, ``estimator_selector_status.primary_instance``, as ``estimator_switches``; each
+  a change from one logged sample to the next, timed at the sample that shows it.
 - the IMU biases the same estimator had learned by then (optional): ``estimator_sensor_bias``'s
   ``accel_bias`` and ``gyro_bias`` at its first sample, where valid, with their stds where it
   logs their variances (v1.12 on), as ``estimator_imu_bias`` (:class:`ImuBiasStart`).
@@ -136,6 +141,10 @@ class FlightLog:
     learned by the log's first sample (``estimator_sensor_bias.mag_bias``, :func:`_ulog_estimator_mag_bias`),
     or None. estimator_imu_bias: the IMU biases PX4's primary estimator had learned by the log's
     first sample (:class:`ImuBiasStart`, :func:`_ulog_estimator_imu_bias`), or None.
+    imu_switches: each change of the IMU ``sensor_combined`` carries within the replayed stretch,
+    (t s, (accelerometer, gyro) device ids before, after), :func:`_ulog_switches`; ()
+    where none or not logged (a CSV). estimator_switches: each change of PX4's primary EKF2
+    instance, (t s, instance before, after), the same way.
     """
 
     source: str
@@ -159,6 +168,8 @@ class FlightLog:
     landed: Samples | None = None
     estimator_mag_bias: tuple | None = None
     estimator_imu_bias: "ImuBiasStart | None" = None
+    imu_switches: tuple = ()
+    estimator_switches: tuple = ()
 
     @property
     def duration(self) -> float:
@@ -216,6 +227,7 @@ ULOG_TOPICS = (
     "vehicle_local_position_groundtruth",
     "vehicle_global_position_groundtruth",
     "vehicle_land_detected",
+    "sensor_selection",
 )
 US = 1e-6
 GPS_MISMATCH = 100.0
@@ -342,6 +354,29 @@ def read_ulog(path) -> FlightLog:
         landed=_optional(_ulog_landed(path, topics), start, US),
         estimator_mag_bias=_ulog_estimator_mag_bias(topics, sensor_biases),
         estimator_imu_bias=_ulog_estimator_imu_bias(topics, sensor_biases),
+        imu_switches=_ulog_switches(topics, "sensor_selection", ("accel_device_id", "gyro_device_id"), imu),
+        estimator_switches=_ulog_switches(topics, "estimator_selector_status", ("primary_instance",), imu),
+    )
+
+
+def _ulog_switches(topics, topic, fields, imu) -> tuple:
+    """((t s, before, after), ...): each change of `fields` (before and after: a tuple of their
+    int values, or the one value where `fields` has one) of `topic` from one logged sample to the
+    next, timed at the sample that shows it, s after the first sample of the Samples `imu` (µs;
+    changes outside the IMU's stretch left out); () where the log lacks the topic or a field."""
+    data = topics.get(topic, {})
+    if not fields or any(name not in data for name in fields):
+        return ()
+    values = np.column_stack([np.asarray(data[name], dtype=np.int64) for name in fields])
+    times = np.asarray(data["timestamp"], dtype=float)
+    changed = np.flatnonzero(np.any(values[1:] != values[:-1], axis=1)) + 1
+    first, last = float(imu.times[0]), float(imu.times[-1])
+
+    def value(row):
+        return tuple(int(v) for v in values[row]) if len(fields) > 1 else int(values[row, 0])
+
+    return tuple(
+        (float((times[i] - first) * US), value(i - 1), value(i)) for i in changed if first <= times[i] <= last
     )
 
 
