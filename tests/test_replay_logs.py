@@ -65,6 +65,26 @@ def test_an_imu_below_px4s_rate_or_with_gaps_is_replayed_with_a_warning(tmp_path
         checks.log_warnings(read_flight_log(_imu_csv(tmp_path / "slower.csv", 40.0)))
 
 
+def test_a_switch_of_gyro_alone_or_of_estimator_alone_is_said_as_such(tmp_path):
+    # The roboto log's failover, both topics at once, is tests/test_flightlogs.py's; here each alone.
+    import dataclasses
+
+    log = read_flight_log(_imu_csv(tmp_path / "imu.csv", 200.0, seconds=12.0))
+    assert checks.log_warnings(log) == []
+    gyro = dataclasses.replace(log, imu_switches=((3.5, (7, 8), (7, 9)), (6.0, (7, 9), (7, 8))))
+    assert checks.log_warnings(gyro) == [
+        "PX4 switched the IMU sensor_combined carries 2 time(s) (first at 3.50 s: gyro 8 -> 9): from "
+        "3.50 s on the replay fuses another IMU with the biases it learned on the first; the figures "
+        "after it do not compare like with like."
+    ]
+    instance = dataclasses.replace(log, estimator_switches=((4.25, 0, 1),))
+    assert checks.log_warnings(instance) == [
+        "PX4 switched its primary EKF2 instance 1 time(s) (first at 4.25 s: 0 -> 1): from 4.25 s on "
+        "PX4's estimate is another instance's, built on its own sensors from the start; the figures "
+        "after it do not compare like with like."
+    ]
+
+
 def test_a_state_not_compared_says_why():
     times = np.arange(0.0, 20.0, 0.005)
     ref_times = np.arange(0.0, 20.0, 0.1)

@@ -85,9 +85,10 @@ def _switches_warning(log) -> str:
     parts, consequences = [], []
     if log.imu_switches:
         time, before, after = log.imu_switches[0]
+        sensor, axis = ("accelerometer", 0) if before[0] != after[0] else ("gyro", 1)
         parts.append(
             f"the IMU sensor_combined carries {len(log.imu_switches)} time(s) (first at {time:.2f} s: "
-            f"accelerometer {before[0]} -> {after[0]})"
+            f"{sensor} {before[axis]} -> {after[axis]})"
         )
         consequences.append("the replay fuses another IMU with the biases it learned on the first")
     if log.estimator_switches:
