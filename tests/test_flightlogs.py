@@ -26,6 +26,7 @@ from quad_drake.models.rotations import euler_from_quats, rotation_from_euler
 
 REAL = LOG_DIR / "real_auav_x21_attitude_flight.ulg"
 SITL = LOG_DIR / "sitl_takeoff_land_gps.ulg"
+ROBOTO = Path(__file__).parent / "data" / "flight_logs" / "roboto_raw_mag.ulg"  # MPL-2.0, see beside it
 
 
 @pytest.fixture(scope="module")
@@ -334,9 +335,6 @@ def test_a_px4_position_far_from_the_gps_is_not_compared_and_said(tmp_path, sitl
     np.testing.assert_allclose(log.reference_position.values[kept], sitl_log.reference_position.values[kept])
     (warning,) = [w for w in log_warnings(log) if "from the GPS" in w]
     assert f"{log.gps_mismatches} of PX4's {len(log.reference_position)} positions" in warning
-
-
-ROBOTO = Path(__file__).parent / "data" / "flight_logs" / "roboto_raw_mag.ulg"
 
 
 def test_px4s_imu_failover_is_read_and_said_in_one_warning(sitl_log):

@@ -365,7 +365,7 @@ def _ulog_switches(topics, topic, fields, imu) -> tuple:
     next, timed at the sample that shows it, s after the first sample of the Samples `imu` (µs;
     changes outside the IMU's stretch left out); () where the log lacks the topic or a field."""
     data = topics.get(topic, {})
-    if not fields or any(name not in data for name in fields):
+    if any(name not in data for name in fields):
         return ()
     values = np.column_stack([np.asarray(data[name], dtype=np.int64) for name in fields])
     times = np.asarray(data["timestamp"], dtype=float)
