@@ -364,6 +364,25 @@ def test_px4s_imu_failover_is_read_and_said_in_one_warning(sitl_log):
     assert not [w for w in log_warnings(sitl_log) if w.startswith("PX4 switched")]
 
 
+def test_clipped_imu_samples_are_read_and_said(sitl_log, real_log):
+    # The roboto log flags two accelerometer samples at its range (y at 2.30 s, z at 2.32 s), the
+    # violent motion before PX4's failover; the SITL log logs the flags, none set; the real AUAV
+    # flight (older PX4) none at all.
+    from quad_drake.flightlogs.checks import log_warnings
+
+    log = read_flight_log(ROBOTO)
+    np.testing.assert_array_equal(log.imu_clipping.values, [[2, 0], [4, 0]])  # bit 1: y, bit 2: z
+    data = ULog(str(ROBOTO), ["sensor_combined"]).get_dataset("sensor_combined").data
+    flagged = np.flatnonzero(data["accelerometer_clipping"])
+    np.testing.assert_allclose(log.imu_clipping.times, log.imu.times[flagged], rtol=0, atol=0)
+    (warning,) = [w for w in log_warnings(log) if w.startswith("The log flags the IMU as clipped")]
+    assert warning.startswith(
+        "The log flags the IMU as clipped: the accelerometer on 2 sample(s) (first at 2.30 s; axes y, z). "
+    )
+    assert sitl_log.imu_clipping is None and real_log.imu_clipping is None
+    assert not [w for w in log_warnings(sitl_log) + log_warnings(real_log) if "clipped" in w]
+
+
 def _gps_first_half_then_away(ulog):
     # The GPS logged over the first half only; PX4 then 500 m north of where the GPS left it.
     data = ulog.get_dataset("vehicle_gps_position").data

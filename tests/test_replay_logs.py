@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from quad_drake.flightlogs import checks, comparison, earth_field
-from quad_drake.flightlogs.reader import FlightLogError, read_flight_log
+from quad_drake.flightlogs.reader import FlightLogError, Samples, read_flight_log
 from quad_drake.flightlogs.replay import COMPARE_AFTER, replay
 from quad_drake.flightlogs.settings import LOG_DIR, load_replay
 
@@ -82,6 +82,21 @@ def test_a_switch_of_gyro_alone_or_of_estimator_alone_is_said_as_such(tmp_path):
         "PX4 switched its primary EKF2 instance 1 time(s) (first at 4.25 s: 0 -> 1): from 4.25 s on "
         "PX4's estimate is another instance's, built on its own sensors from the start; the figures "
         "after it do not compare like with like."
+    ]
+
+
+def test_a_gyro_clipped_alone_is_said_as_such(tmp_path):
+    import dataclasses
+
+    log = read_flight_log(_imu_csv(tmp_path / "imu.csv", 200.0, seconds=12.0))
+    assert log.imu_clipping is None  # a CSV carries no flags
+    clipped = dataclasses.replace(
+        log, imu_clipping=Samples(np.array([4.0, 4.5]), np.array([[0.0, 1.0], [0.0, 5.0]]))
+    )
+    assert checks.log_warnings(clipped) == [
+        "The log flags the IMU as clipped: the gyro on 2 sample(s) (first at 4.00 s; axes x, z). The "
+        "replay fuses those samples as logged (PX4 raises a clipped accelerometer axis's noise and learns "
+        "no bias on it): the estimates can part there."
     ]
 
 

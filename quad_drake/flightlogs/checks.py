@@ -12,6 +12,8 @@ and returns one line per weakness where it still can:
 - a log that leaves less than SHORT_COMPARISON s to compare: a warning;
 - PX4 positions far from the GPS (``FlightLog.gps_mismatches``: an edited origin or a corrupted
   sample): a warning that they are not compared;
+- IMU samples the log flags as clipped (``FlightLog.imu_clipping``): a warning with how many and
+  the first, since the replay fuses them as logged;
 - PX4 switching the IMU that ``sensor_combined`` carries, or its primary EKF2 instance, within
   the replayed stretch (``FlightLog.imu_switches``, ``estimator_switches``: a failover): a
   warning that the figures after the first switch compare estimates on different sensors.
@@ -73,10 +75,33 @@ def log_warnings(log, compare_after=0.0) -> list[str]:
             f"{GPS_MISMATCH:g} m from the GPS through PX4's own origin (ref_lat, ref_lon): an origin edited "
             "in the file (a scrubbed location?) or corrupted samples; their x, y and z are not compared."
         )
+    clipping = _clipping_warning(log)
+    if clipping:
+        warnings.append(clipping)
     switches = _switches_warning(log)
     if switches:
         warnings.append(switches)
     return warnings
+
+
+def _clipping_warning(log) -> str:
+    """One line on the IMU samples the log flags as clipped, or "" where none is."""
+    if log.imu_clipping is None:
+        return ""
+    flags = log.imu_clipping.values.astype(int)
+    parts = []
+    for column, sensor in enumerate(("accelerometer", "gyro")):
+        rows = np.flatnonzero(flags[:, column])
+        if rows.size:
+            axes = np.bitwise_or.reduce(flags[rows, column])
+            names = ", ".join(axis for bit, axis in enumerate("xyz") if axes & (1 << bit))
+            first = log.imu_clipping.times[rows[0]]
+            parts.append(f"the {sensor} on {rows.size} sample(s) (first at {first:.2f} s; axes {names})")
+    return (
+        f"The log flags the IMU as clipped: {' and '.join(parts)}. The replay fuses those samples as "
+        "logged (PX4 raises a clipped accelerometer axis's noise and learns no bias on it): the "
+        "estimates can part there."
+    )
 
 
 def _switches_warning(log) -> str:

@@ -56,6 +56,9 @@ What is read from a PX4 ULog (``pyulog``, PX4's own reader):
 - the magnetometer bias PX4's primary estimator had learned by the log's start (optional):
   ``estimator_sensor_bias.mag_bias`` at its first sample, where valid and for the fused
   magnetometer, as ``estimator_mag_bias`` (what PX4 v1.13 on keeps instead of ``EKF2_MAGBIAS_*``).
+- the IMU's clipping flags (optional): ``sensor_combined.accelerometer_clipping`` and
+  ``gyro_clipping`` (bit i: axis i at the sensor's range, PX4 v1.12 on), the flagged samples only,
+  as ``imu_clipping``.
 - PX4's changes of IMU and of estimator within the replayed stretch (optional): the IMU
   ``sensor_combined`` carries, ``sensor_selection``'s ``accel_device_id`` and ``gyro_device_id``
   (PX4's sensors module switches it on a sensor's failure), as ``imu_switches``, and the primary
@@ -141,6 +144,9 @@ class FlightLog:
     learned by the log's first sample (``estimator_sensor_bias.mag_bias``, :func:`_ulog_estimator_mag_bias`),
     or None. estimator_imu_bias: the IMU biases PX4's primary estimator had learned by the log's
     first sample (:class:`ImuBiasStart`, :func:`_ulog_estimator_imu_bias`), or None.
+    imu_clipping: the IMU samples the log flags as clipped (2: the accelerometer's and the gyro's
+    bitmask, bit i = axis i; 0 where a sensor's flags are not logged), at the IMU samples' times,
+    or None where none is flagged or no flags are logged (:func:`_ulog_imu_clipping`).
     imu_switches: each change of the IMU ``sensor_combined`` carries within the replayed stretch,
     (t s, (accelerometer, gyro) device ids before, after), :func:`_ulog_switches`; ()
     where none or not logged (a CSV). estimator_switches: each change of PX4's primary EKF2
@@ -168,6 +174,7 @@ class FlightLog:
     landed: Samples | None = None
     estimator_mag_bias: tuple | None = None
     estimator_imu_bias: "ImuBiasStart | None" = None
+    imu_clipping: Samples | None = None
     imu_switches: tuple = ()
     estimator_switches: tuple = ()
 
@@ -354,9 +361,26 @@ def read_ulog(path) -> FlightLog:
         landed=_optional(_ulog_landed(path, topics), start, US),
         estimator_mag_bias=_ulog_estimator_mag_bias(topics, sensor_biases),
         estimator_imu_bias=_ulog_estimator_imu_bias(topics, sensor_biases),
+        imu_clipping=_optional(_ulog_imu_clipping(combined, imu), start, US),
         imu_switches=_ulog_switches(topics, "sensor_selection", ("accel_device_id", "gyro_device_id"), imu),
         estimator_switches=_ulog_switches(topics, "estimator_selector_status", ("primary_instance",), imu),
     )
+
+
+CLIPPING_FIELDS = ("accelerometer_clipping", "gyro_clipping")
+"""``sensor_combined``'s clipping bitmasks (bit i: axis i of that sensor at its range)."""
+
+
+def _ulog_imu_clipping(combined, imu):
+    """Samples (µs, the IMU samples' times) of the (accelerometer, gyro) clipping bitmasks of the
+    flagged IMU samples, or None where none is flagged or the log has no clipping flags."""
+    if not any(name in combined for name in CLIPPING_FIELDS):
+        return None
+    flags = np.column_stack(
+        [np.asarray(combined.get(name, np.zeros(len(imu))), dtype=np.int64) for name in CLIPPING_FIELDS]
+    )
+    flagged = np.flatnonzero(np.any(flags != 0, axis=1))
+    return Samples(imu.times[flagged], flags[flagged].astype(float)) if flagged.size else None
 
 
 def _ulog_switches(topics, topic, fields, imu) -> tuple:
