@@ -41,10 +41,20 @@ def test_the_readme_is_a_front_door_of_at_most_300_lines():
     assert "make run" in readme and "make test" in readme and "](docs/11_estimate_errors.png)" in readme
 
 
-def test_the_scenario_reference_has_one_row_per_bundled_scenario():
+def test_the_scenario_reference_has_one_row_per_bundled_scenario_with_its_criteria():
+    # The criteria column counts what a run of the scenario judges today (its own criteria and the
+    # flight-safety ones of each vehicle): a criterion added to every scenario shows here.
+    from quad_drake.judging.evaluation import judged_criteria
+
     page = (DOCS / "reference" / "scenarios.md").read_text(encoding="utf-8")
-    rows = [line.split("|")[1].strip() for line in RESULTS_TABLE.search(page).group(1).splitlines()[2:]]
-    assert rows == list(catalog.bundled_scenarios())
+    rows = [
+        [c.strip() for c in line.split("|")[1:-1]]
+        for line in RESULTS_TABLE.search(page).group(1).splitlines()[2:]
+    ]
+    assert [row[0] for row in rows] == list(catalog.bundled_scenarios())
+    for name, _, criteria, result, *_ in rows:
+        judged = len(judged_criteria(catalog.load(name)))
+        assert (criteria, result) == (f"{judged}/{judged}", "PASS"), name
 
 
 def test_the_criteria_reference_has_a_row_per_criterion_kind():
