@@ -70,6 +70,25 @@ def test_a_measurement_page_says_when_and_how_it_was_measured(page):
     assert re.search(r"`(quad-drake |python |nice )[^`]*`|```bash", text), "no command"
 
 
+def test_every_module_path_the_manual_names_exists():
+    # Paths of the package's files (quad_drake/x.py, or sub/x.py of one of its subpackages) in the
+    # README and the manual's pages; the measurement pages are dated records and may name a module
+    # as it was then.
+    package = ROOT / "quad_drake"
+    subpackages = {p.name for p in package.iterdir() if (p / "__init__.py").is_file()}
+    missing = []
+    for page in [ROOT / "README.md", *PAGES]:
+        if "measurements" in page.parts:
+            continue
+        text = page.read_text(encoding="utf-8")
+        paths = re.findall(r"\bquad_drake/([\w/]+\.py)", text)
+        paths += [path for path, first in re.findall(r"`((\w+)/[\w/]*\.py)`", text) if first in subpackages]
+        for path in paths:
+            if not (package / path).is_file():
+                missing.append(f"{page.relative_to(ROOT)}: {path}")
+    assert missing == []
+
+
 def test_no_page_cites_an_issue_number_a_reader_cannot_resolve():
     for page in [ROOT / "README.md", *PAGES]:
         cited = re.findall(r"\bissues? \d+", page.read_text(encoding="utf-8"), flags=re.I)
