@@ -75,19 +75,13 @@ def log_warnings(log, compare_after=0.0) -> list[str]:
             f"{GPS_MISMATCH:g} m from the GPS through PX4's own origin (ref_lat, ref_lon): an origin edited "
             "in the file (a scrubbed location?) or corrupted samples; their x, y and z are not compared."
         )
-    clipping = _clipping_warning(log)
-    if clipping:
-        warnings.append(clipping)
-    switches = _switches_warning(log)
-    if switches:
-        warnings.append(switches)
-    return warnings
+    return warnings + _clipping_warning(log) + _switches_warning(log)
 
 
-def _clipping_warning(log) -> str:
-    """One line on the IMU samples the log flags as clipped, or "" where none is."""
+def _clipping_warning(log) -> list[str]:
+    """[one line] on the IMU samples the log flags as clipped, or [] where none is."""
     if log.imu_clipping is None:
-        return ""
+        return []
     flags = log.imu_clipping.values.astype(int)
     parts = []
     for column, sensor in enumerate(("accelerometer", "gyro")):
@@ -97,16 +91,16 @@ def _clipping_warning(log) -> str:
             names = ", ".join(axis for bit, axis in enumerate("xyz") if axes & (1 << bit))
             first = log.imu_clipping.times[rows[0]]
             parts.append(f"the {sensor} on {rows.size} sample(s) (first at {first:.2f} s; axes {names})")
-    return (
+    return [
         f"The log flags the IMU as clipped: {' and '.join(parts)}. The replay fuses those samples as "
         "logged (PX4 raises a clipped accelerometer axis's noise and learns no bias on it): the "
         "estimates can part there."
-    )
+    ]
 
 
-def _switches_warning(log) -> str:
-    """One line on PX4's changes of IMU and of primary estimator within the log (a failover), or
-    "" where there are none."""
+def _switches_warning(log) -> list[str]:
+    """[one line] on PX4's changes of IMU and of primary estimator within the log (a failover), or
+    [] where there are none."""
     parts, consequences = [], []
     if log.imu_switches:
         time, before, after = log.imu_switches[0]
@@ -124,9 +118,9 @@ def _switches_warning(log) -> str:
         )
         consequences.append("PX4's estimate is another instance's, built on its own sensors from the start")
     if not parts:
-        return ""
+        return []
     first = min(switches[0][0] for switches in (log.imu_switches, log.estimator_switches) if switches)
-    return (
+    return [
         f"PX4 switched {' and '.join(parts)}: from {first:.2f} s on {' and '.join(consequences)}; "
         "the figures after it do not compare like with like."
-    )
+    ]
