@@ -40,7 +40,6 @@ Memory layout per vehicle (:data:`MEMORY`), the supervisor's discrete state. Fra
 import math
 
 NOMINAL, DESCENDING, LANDED = 0.0, 1.0, 2.0
-PHASE_NAMES = {NOMINAL: "nominal", DESCENDING: "descending", LANDED: "landed"}
 
 MEMORY = (
     "phase",  # NOMINAL, DESCENDING or LANDED

@@ -67,8 +67,6 @@ P_IDX, V_IDX, Q_IDX, BA_IDX, BG_IDX = slice(0, 3), slice(3, 6), slice(6, 10), sl
 ERROR_SIZE_WITH_BIASES, ERROR_SIZE_NAVIGATION = 15, 9
 ERROR_SIZES_WITH_BARO = (ERROR_SIZE_NAVIGATION + 1, ERROR_SIZE_WITH_BIASES + 1)
 """Error sizes of a filter that carries the baro bias (its error last): 10 and 16."""
-GPS_STATES = tuple(range(6))
-"""Error-state indices the GPS measures (dp, dv)."""
 
 
 def estimates_imu_biases(n) -> bool:

@@ -78,8 +78,6 @@ def initial_diagnostics() -> np.ndarray:
 
 
 STATE_LOG_SIZE = 13
-ESTIMATED_VALUES = ("X", "Y", "Z", "VX", "VY", "VZ", "Roll", "Pitch", "Yaw")
-"""Values every estimator has (``Est.<name>``), read from ``estimated_state``."""
 
 
 @dataclass(frozen=True)
@@ -93,7 +91,7 @@ class EstimatorVocabulary:
     nees_states: tuple  # indices of the entries the NEES is taken over
     logs: dict  # estimator-specific log name -> width, besides the three common outputs
     errors: Callable  # (logs {name: (n, w)}) -> (n, len(state_names)) estimate minus truth (also (n, N, w))
-    extra_values: Callable  # (logs) -> {name: (n,)} estimated values beyond ESTIMATED_VALUES (also (n, N))
+    extra_values: Callable  # (logs) -> {name: (n,)} estimated values beyond EULER_STATES (also (n, N))
 
     @property
     def size(self) -> int:

@@ -44,7 +44,6 @@ COMPONENT_CHANNELS = {
 """channel -> (sensor log, the states its components measure, their innovation columns)."""
 NIS_CHANNELS = {"field": 3, "baro": 1}
 """channel -> dof: judged on the filter's own NIS."""
-CHANNELS = (*COMPONENT_CHANNELS, *NIS_CHANNELS)
 UPDATE_DIAGNOSTICS = "update_diagnostics"
 """The log name of an estimator's ``diagnostics`` logged every 2 ms tick (every replay's): each
 fresh update's NIS, where the 5 ms LOG_PERIOD log shows only the last
