@@ -79,6 +79,10 @@ SQRT2 = math.sqrt(2.0)
 MAG_FIELD_SIZE = 4
 # `baro` (2): pressure height (m, up, above the datum z_N = 0), stamp (s, -1 = none yet)
 BARO_SIZE = 2
+# `gps_accuracy` (4): a replay's GPS receiver's own accuracy of each sample, as it reports it (PX4's
+# eph, epv, s_variance_m_s): horizontal position (m), vertical position (m), speed (m/s) std, then
+# the GPS sample's stamp (s, -1 = none yet)
+GPS_ACCURACY_SIZE = 4
 # `no_aid` (13): a replay's no-aiding sample (PX4's fake position / zero velocity while not GPS-aided):
 # p_N (3, m), v_N (3, m/s), the std of each of those six (m, m/s; inf = that component not
 # fused), stamp (s, -1 = none yet)

@@ -254,3 +254,10 @@ def test_the_config_package_reexports_each_modules_names_from_where_they_live():
             assert getattr(package, name) is getattr(homes[module], name), name
     with pytest.raises(AttributeError, match="no attribute 'nothing_here'"):
         package.nothing_here  # noqa: B018
+
+
+@pytest.mark.parametrize("sensor, what", [("no_aid", "no-aiding samples"), ("gps_accuracy", "accuracy")])
+def test_what_only_a_replay_supplies_is_refused_on_a_simulated_vehicle(tmp_path, sensor, what):
+    expected = rf"vehicles\.0\.sensors\.{sensor}: only a flight log's replay .*{what}"
+    with pytest.raises(ConfigError, match=expected):
+        load_scenario(write(tmp_path, GOOD), [f"vehicles.0.sensors.{sensor}=true"])

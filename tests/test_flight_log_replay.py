@@ -308,3 +308,60 @@ def test_your_own_estimator_replays_too(quad_drake_cli, tmp_path, monkeypatch):
     assert rms["Roll"] < 0.02 and rms["X"] < 0.05  # the README's EKF7-like example, untuned here
     assert f"factory: {tmp_path / 'my_ekf.py'}:MyEkf" in (folder / "config.yaml").read_text()
     assert quad_drake_cli("replay", LOGS[1], "--estimator", "{kind: truth}").returncode == 2
+
+
+def test_the_receivers_accuracy_is_a_std_above_the_estimators_own_as_px4_fuses_it():
+    from quad_drake.kernels.fusion import RECEIVER_POSITION_CAP, receiver_noise
+
+    R = np.diag(np.square([0.5, 0.5, 0.7, 0.3, 0.3, 0.4]))  # the estimator's own: floors
+    gps = np.array([[0.0] * 6 + [2.0]] * 5)
+    accuracy = np.array(
+        [
+            [2.8, 4.9, 0.25, 2.0],  # above the position floors, below the speed's
+            [0.3, 0.4, 0.6, 2.0],  # below the position floors, above the speed's
+            [25.0, 40.0, 0.1, 2.0],  # a position accuracy counts up to the cap
+            [2.8, 4.9, 0.6, 1.9],  # another sample's accuracy: the estimator's own
+            [np.nan, 4.9, 0.6, 2.0],  # not reported: the estimator's own
+        ]
+    )
+    fused = np.sqrt(np.diagonal(receiver_noise(R, gps, accuracy), axis1=1, axis2=2))
+    cap = RECEIVER_POSITION_CAP
+    expected = [
+        [2.8, 2.8, 4.9, 0.3, 0.3, 0.4],
+        [0.5, 0.5, 0.7, 0.6, 0.6, 0.6],
+        [cap, cap, cap, 0.3, 0.3, 0.4],
+        [0.5, 0.5, 0.7, 0.3, 0.3, 0.4],
+        [0.5, 0.5, 0.7, 0.3, 0.3, 0.4],
+    ]
+    np.testing.assert_allclose(fused, expected, rtol=1e-12)
+    per_vehicle = np.stack([R, 4.0 * R, R, R, R])  # each vehicle's own floors
+    assert np.sqrt(receiver_noise(per_vehicle, gps, accuracy)[1, 0, 0]) == pytest.approx(1.0)
+
+
+def test_each_gps_sample_is_fused_with_the_receivers_accuracy(replays):
+    # The bundled SITL log's receiver reports 2.97 m after its fix, settling below the replay's
+    # 0.5 m within seconds: fused with it (the default), the first samples count for less than
+    # with the estimator's own 0.5 m alone, and nothing before the fix moves.
+    from quad_drake.estimation.vocabulary import DIAG
+    from quad_drake.judging.innovations import UPDATE_DIAGNOSTICS
+
+    with_accuracy = replays[LOGS[1], "eskf"]
+    without = replay(load_replay(LOGS[1], "{kind: eskf}", ["gps_receiver_accuracy=false"]))
+    assert any("the receiver's reported accuracy (medians:" in line for line in with_accuracy.notes())
+    assert not any("receiver's reported accuracy" in line for line in without.notes())
+    fix = with_accuracy.aiding.late_fix
+    before = with_accuracy.times < fix
+    np.testing.assert_array_equal(
+        with_accuracy.logs["estimated_state"][before], without.logs["estimated_state"][before]
+    )
+    after = ~before
+    moved = with_accuracy.logs["estimated_state"][after, 0:3] - without.logs["estimated_state"][after, 0:3]
+    assert np.abs(moved).max() > 0.003  # m: measured 9 mm
+
+    def first_gps_nis(result, count=5):
+        updates = result.logs[UPDATE_DIAGNOSTICS]
+        stamps, first = np.unique(updates[:, DIAG["gps_stamp"]], return_index=True)
+        fused = first[stamps > 0][:count]
+        return updates[fused, DIAG["gps_nis"]]
+
+    assert (first_gps_nis(with_accuracy) < first_gps_nis(without)).all()

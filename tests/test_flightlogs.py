@@ -52,6 +52,18 @@ def test_the_real_flight_reads_as_an_attitude_only_log(real_log):
     assert len(real_log.reference_attitude) > 6000
 
 
+def test_the_gps_receivers_reported_accuracy_is_read_with_each_fix(sitl_log):
+    data = ULog(str(SITL), ["vehicle_gps_position"]).get_dataset("vehicle_gps_position").data
+    fixed = data["fix_type"] >= 3
+    accuracy = sitl_log.gps_accuracy
+    np.testing.assert_array_equal(accuracy.times, sitl_log.gps.times)
+    expected = np.column_stack([data[name][fixed] for name in ("eph", "epv", "s_variance_m_s")])
+    np.testing.assert_array_equal(accuracy.values, expected)
+    # the SITL receiver's accuracy as it settles after the fix (m, m, m/s)
+    assert accuracy.values[0].tolist() == pytest.approx([2.97, 3.07, 0.25], abs=0.01)
+    assert accuracy.values[-1].tolist() == pytest.approx([0.30, 0.40, 0.25], abs=0.01)
+
+
 def test_the_accelerometer_reads_the_physical_specific_force(sitl_log):
     # On the ground before take-off: f_B = R^T (a - g) = (0, 0, -9.81), the package's convention.
     resting = sitl_log.imu.values[sitl_log.imu.times < 5.0, 0:3].mean(axis=0)
@@ -97,6 +109,7 @@ def csv_rows(log):
     streams = [
         ("imu", log.imu.times, log.imu.values),
         ("gps", log.gps.times, gps),
+        ("gps_accuracy", log.gps_accuracy.times, log.gps_accuracy.values),
         ("mag", log.mag_field.times, log.mag_field.values),
         ("baro", log.baro.times, log.baro.values),
         ("attitude", log.reference_attitude.times, log.reference_attitude.values),
@@ -273,8 +286,11 @@ def test_the_streams_have_the_simulated_sensors_layouts(sitl_log, real_log):
         "mag_field": 4,
         "baro": 2,
         "no_aid": 13,  # the estimators' no_aid input: none here (no no-aiding samples given)
+        "gps_accuracy": 4,  # the estimators' gps_accuracy input: none here (none given)
     }
-    assert len(streams["no_aid"].rows) == 0
+    assert len(streams["no_aid"].rows) == 0 and len(streams["gps_accuracy"].rows) == 0
+    given = playback_streams(sitl_log, gps_accuracy=sitl_log.gps_accuracy)["gps_accuracy"]
+    assert given.rows[:, -1] == pytest.approx(sitl_log.gps.times)  # each describes its GPS sample
     assert streams["gps"].rows[:, -1] == pytest.approx(sitl_log.gps.times)  # the stamp is the sample's time
     assert streams["mag"].initial().tolist() == [0.0, NO_SAMPLE_STAMP]
     empty = playback_streams(real_log)

@@ -160,6 +160,11 @@ class SensorsConfig:
     # with its own std) on the estimator's ``no_aid`` input; only a flight log's replay supplies
     # them (``flightlogs.replay``), so a scenario's vehicle never carries them
     no_aid: bool = False
+    # a replay's GPS receiver reports each sample's accuracy (PX4's eph, epv, s_variance_m_s) on the
+    # estimator's ``gps_accuracy`` input, and the built-in kinds fuse each sample with the larger of
+    # it and their own GPS noise (``kernels.fusion.receiver_noise``); only a flight log's replay
+    # supplies it (``flightlogs.replay``)
+    gps_accuracy: bool = False
 
 
 FAULT_KINDS = (

@@ -255,6 +255,11 @@ def _check_semantics(scenario):
                     f"vehicles.{i}.flies_on: estimate needs imu, gps and mag sensors "
                     "(or, without a magnetometer, the estimator's gsf enabled)"
                 )
+        if v.sensors.gps_accuracy:
+            raise ConfigError(
+                f"vehicles.{i}.sensors.gps_accuracy: only a flight log's replay supplies a GPS "
+                "receiver's reported accuracy (quad-drake replay); a simulated GPS reports none"
+            )
         if v.sensors.no_aid:
             raise ConfigError(
                 f"vehicles.{i}.sensors.no_aid: only a flight log's replay supplies no-aiding samples "

@@ -238,6 +238,9 @@ class EstimatorKind:
     assuming_gps_height_noise: Callable[[object, float], object] = lambda config, height_std: config
     # a fixed-interval RTS smoother exists over its stored pass (``flightlogs.smoothing``)
     smoothable: bool = False
+    # its GPS update fuses each sample with the receiver's reported accuracy where a replay gives it
+    # (``sensors.gps_accuracy``: ``systems.updates.GpsUpdate``, ``kernels.fusion.receiver_noise``)
+    fuses_gps_accuracy: bool = False
     # a log's EKF2_* parameters map onto its config (``flightlogs.px4_parameters``)
     takes_px4_parameters: bool = False
     # the dotted config fields its system takes per vehicle (:func:`sharing_problem`)
@@ -506,6 +509,7 @@ KINDS = {
             started_from_log=_ekf7_started,
             assuming_gps_noise=_ekf7_gps_noise,
             assuming_gps_height_noise=_ekf7_gps_height_noise,
+            fuses_gps_accuracy=True,
             per_vehicle=lambda config: _EKF7_PER_VEHICLE,
         ),
         EstimatorKind(
@@ -522,6 +526,7 @@ KINDS = {
             assuming_gps_noise=_eskf_gps_noise,
             assuming_gps_height_noise=_eskf_gps_height_noise,
             smoothable=True,
+            fuses_gps_accuracy=True,
             takes_px4_parameters=True,
             per_vehicle=_eskf_per_vehicle,
         ),

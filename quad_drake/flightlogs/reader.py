@@ -125,25 +125,28 @@ class FlightLog:
     """One recorded flight in ``quad_drake``'s units and frames (module docstring).
 
     imu: f_B specific force (3, m/s^2) and w_NB_B (3, rad/s), FRD. gps: p_N (3, m, NED from the
-    first fix) and v_N (3, m/s, NED), or None. mag_field: the body field (3, gauss, FRD), or None.
-    baro: pressure altitude (1, m, up), or None. reference_attitude: PX4's q_NB (4, wxyz), or
-    None. reference_position: PX4's p_N (3, m) and v_N (3, m/s) in the replay's origin frame, NaN
-    where invalid (x, y always without GPS), or None. origin: (latitude deg, longitude deg,
-    altitude m) of the first GPS fix, or None. mag_declination: rad, east of true north, None
-    when the log does not say. start_time: the first IMU sample's time in the log's own clock
-    (s), t = 0 here. parameters: the flight controller's parameters by name ({} for a CSV).
+    first fix) and v_N (3, m/s, NED), or None. gps_accuracy: the receiver's reported accuracy of
+    each GPS sample, at its times (3: horizontal and vertical position m, speed m/s std; PX4's eph,
+    epv, s_variance_m_s), or None where the log has none (a CSV). mag_field: the body field (3,
+    gauss, FRD), or None. baro: pressure altitude (1, m, up), or None. reference_attitude: PX4's
+    q_NB (4, wxyz), or None. reference_position: PX4's p_N (3, m) and v_N (3, m/s) in the replay's
+    origin frame, NaN where invalid (x, y always without GPS), or None. origin: (latitude deg,
+    longitude deg, altitude m) of the first GPS fix, or None. mag_declination: rad, east of true
+    north, None when the log does not say. start_time: the first IMU sample's time in the log's own
+    clock (s), t = 0 here. parameters: the flight controller's parameters by name ({} for a CSV).
     fix_date: decimal year (UTC) of the first GPS fix, or None. truncated: the file ends
     mid-message. gps_mismatches: PX4 positions farther than GPS_MISMATCH from the GPS (module
-    docstring), not compared. truth_attitude: the simulator's q_NB (4, wxyz), truth_position: its p_N (3, m,
-    GPS origin's frame; NaN without GPS) and v_N (3, m/s), or None (a real flight). heading: a
-    yaw magnetometer's samples (1, rad) as an estimator received them (a CSV's ``heading`` rows,
-    e.g. a simulated run's), or None. mag_source: where mag_field came from, when not from a
-    calibrated topic (the raw ``sensor_mag`` and its calibration; "" otherwise). landed: PX4's
-    land detector's ``vehicle_land_detected.landed`` (1, 1 landed / 0 in the air) as logged, or
-    None. estimator_mag_bias: the magnetometer bias (3, gauss, FRD) PX4's primary estimator had
-    learned by the log's first sample (``estimator_sensor_bias.mag_bias``, :func:`_ulog_estimator_mag_bias`),
-    or None. estimator_imu_bias: the IMU biases PX4's primary estimator had learned by the log's
-    first sample (:class:`ImuBiasStart`, :func:`_ulog_estimator_imu_bias`), or None.
+    docstring), not compared. truth_attitude: the simulator's q_NB (4, wxyz), truth_position: its
+    p_N (3, m, GPS origin's frame; NaN without GPS) and v_N (3, m/s), or None (a real flight).
+    heading: a yaw magnetometer's samples (1, rad) as an estimator received them (a CSV's
+    ``heading`` rows, e.g. a simulated run's), or None. mag_source: where mag_field came from, when
+    not from a calibrated topic (the raw ``sensor_mag`` and its calibration; "" otherwise). landed:
+    PX4's land detector's ``vehicle_land_detected.landed`` (1, 1 landed / 0 in the air) as logged,
+    or None. estimator_mag_bias: the magnetometer bias (3, gauss, FRD) PX4's primary estimator had
+    learned by the log's first sample (``estimator_sensor_bias.mag_bias``,
+    :func:`_ulog_estimator_mag_bias`), or None. estimator_imu_bias: the IMU biases PX4's primary
+    estimator had learned by the log's first sample (:class:`ImuBiasStart`,
+    :func:`_ulog_estimator_imu_bias`), or None.
     imu_clipping: the IMU samples the log flags as clipped (2: the accelerometer's and the gyro's
     bitmask, bit i = axis i; 0 where a sensor's flags are not logged), at the IMU samples' times,
     or None where none is flagged or no flags are logged (:func:`_ulog_imu_clipping`).
@@ -156,6 +159,7 @@ class FlightLog:
     source: str
     imu: Samples
     gps: Samples | None = None
+    gps_accuracy: Samples | None = None
     mag_field: Samples | None = None
     baro: Samples | None = None
     reference_attitude: Samples | None = None
@@ -193,6 +197,8 @@ CSV_SENSORS = {
     "imu": ("f_x", "f_y", "f_z", "w_x", "w_y", "w_z"),  # m/s^2 specific force, rad/s; FRD
     "gps": ("latitude", "longitude", "altitude", "v_n", "v_e", "v_d"),  # deg, deg, m (up), m/s NED
     "gps_ned": ("x", "y", "z", "v_n", "v_e", "v_d"),  # m NED about the log's origin, m/s NED (no geodetic)
+    # the receiver's reported accuracy of the GPS sample of the same time: m, m, m/s std
+    "gps_accuracy": ("horizontal", "vertical", "speed"),
     "mag": ("b_x", "b_y", "b_z"),  # gauss, FRD
     "heading": ("yaw",),  # rad, a yaw magnetometer's sample as the estimator received it
     "baro": ("altitude",),  # m, pressure altitude, up
@@ -334,7 +340,7 @@ def read_ulog(path) -> FlightLog:
         [f"accelerometer_m_s2[{i}]" for i in range(3)] + [f"gyro_rad[{i}]" for i in range(3)],
     )
     start = float(imu.times[0])
-    gps, origin = _ulog_gps(path, topics)
+    gps, origin, gps_accuracy = _ulog_gps(path, topics)
     parameters = dict(ulog.initial_parameters)
     declination = parameters.get("EKF2_MAG_DECL", parameters.get("ATT_MAG_DECL"))
     anchor = float(gps.times[0]) if gps is not None else start
@@ -344,6 +350,7 @@ def read_ulog(path) -> FlightLog:
         source=str(path),
         imu=_after_start(imu, start, US),
         gps=_optional(gps, start, US),
+        gps_accuracy=_optional(gps_accuracy, start, US),
         mag_field=_optional(mag_field, start, US),
         baro=_optional(_ulog_baro(path, topics), start, US),
         reference_attitude=_optional(_ulog_attitude(path, topics), start, US),
@@ -645,15 +652,25 @@ def _ulog_landed(path, topics):
     return _ulog_samples(path, "vehicle_land_detected", data, data["timestamp"], ["landed"])
 
 
+GPS_ACCURACY_FIELDS = ("eph", "epv", "s_variance_m_s")
+"""The GPS topic's accuracy of each sample as the receiver reports it: horizontal and vertical
+position (m) and speed (m/s) std (PX4's hacc, vacc, sacc)."""
+
+
 def _ulog_gps(path, topics):
-    """(Samples of p_N, v_N in the local frame, origin) of the 3D fixes, or (None, None)."""
+    """(Samples of p_N, v_N in the local frame, origin, Samples of the receiver's accuracy at the
+    same times (``GPS_ACCURACY_FIELDS``) or None where the topic lacks them) of the 3D fixes, or
+    (None, None, None)."""
     topic = next((t for t in ("vehicle_gps_position", "sensor_gps") if t in topics), None)
     if topic is None:
-        return None, None
+        return None, None, None
     data = topics[topic]
     fixed = np.flatnonzero(_field(path, topic, data, "fix_type") >= GPS_3D_FIX)
     if fixed.size == 0:
-        return None, None
+        return None, None, None
+    accuracy = None
+    if all(name in data for name in GPS_ACCURACY_FIELDS):
+        accuracy = _ulog_samples(path, topic, data, data["timestamp"], list(GPS_ACCURACY_FIELDS), fixed)
     if "latitude_deg" in data:
         geodetic = ["latitude_deg", "longitude_deg", "altitude_msl_m"]
         scales = (1.0, 1.0, 1.0)
@@ -663,7 +680,7 @@ def _ulog_gps(path, topics):
     raw = _ulog_samples(path, topic, data, data["timestamp"], fields, fixed)
     values = raw.values.copy()
     values[:, 0:3] *= scales
-    return _geodetic_gps(raw.times, values)
+    return *_geodetic_gps(raw.times, values), accuracy
 
 
 def _geodetic_gps(times, values):
@@ -759,6 +776,7 @@ def read_csv(path) -> FlightLog:
         source=str(path),
         imu=_after_start(parsed["imu"], start),
         gps=_optional(gps, start),
+        gps_accuracy=_optional(parsed.get("gps_accuracy"), start),
         mag_field=_optional(parsed.get("mag"), start),
         baro=_optional(parsed.get("baro"), start),
         reference_attitude=_optional(parsed.get("attitude"), start),

@@ -65,6 +65,7 @@ from quad_drake.flightlogs.settings import (
 )
 from quad_drake.judging.innovations import UPDATE_DIAGNOSTICS
 from quad_drake.kernels import jit
+from quad_drake.kernels.fusion import RECEIVER_POSITION_CAP
 from quad_drake.models.fidelity import PHYSICAL
 from quad_drake.output.jsonio import dump_json
 from quad_drake.output.outdir import write_binary_atomic, write_text_atomic
@@ -199,6 +200,16 @@ class ReplayResult:
             )
         if self.config.px4_start_biases:
             lines.append(start_biases_note(self.log.estimator_imu_bias))
+        accuracy = self.log.gps_accuracy
+        if c.gps_receiver_accuracy and KINDS[c.estimator.kind].fuses_gps_accuracy and accuracy is not None:
+            eph, epv, sacc = np.median(accuracy.values, axis=0)
+            lines.append(
+                "Each GPS sample fused as PX4 fuses it: each std the larger of the estimator's own GPS "
+                "noise and the receiver's reported accuracy (medians: horizontal position "
+                f"{eph:.2f} m, vertical {epv:.2f} m, speed {sacc:.2f} m/s; a position's counted up to "
+                f"{RECEIVER_POSITION_CAP:g} m); --set gps_receiver_accuracy=false fuses the "
+                "estimator's own alone."
+            )
         delays = [(s, getattr(self.config, f"{s}_delay")) for s in ("gps", "mag", "baro")]
         if any(d for _, d in delays):
             shown = ", ".join(f"{s} {1e3 * d:g} ms" for s, d in delays)
@@ -425,6 +436,7 @@ def delayed_log(log, config) -> object:
     measured (``schedule.measured_at``: logged time less the ReplayConfig's gps_delay, mag_delay,
     baro_delay); `log` itself when every delay is 0."""
     delays = {"gps": config.gps_delay, "mag_field": config.mag_delay, "heading": config.mag_delay}
+    delays["gps_accuracy"] = config.gps_delay
     delays["baro"] = config.baro_delay
     if not any(delays.values()):
         return log
@@ -460,7 +472,8 @@ def replay_setup(log, config) -> tuple[dict, VehicleConfig, Aiding]:
             magnetometer.hard_iron,
         )
     )
-    streams = playback_streams(log, gps, declination, hard_iron, no_aid)
+    accuracy = log.gps_accuracy if config.gps_receiver_accuracy else None
+    streams = playback_streams(log, gps, declination, hard_iron, no_aid, accuracy)
     baro_period = None if log.baro is None else baro_pairing_period(log.baro)
     baro_reference = log.gps is not None and height_reference(config, log.parameters) == "baro"
     vehicle = vehicle_for(
@@ -499,7 +512,7 @@ def _playback_diagram(streams, vehicles, name, ticks=False, every_update=True):
     vehicle = vehicles[0]  # the sensors all share but the barometer (sharing_problem)
     three_axis = vehicle.sensors.mag is not None and vehicle.sensors.mag.three_axis
     wiring = {"imu": "imu", "gps": "gps", "mag": "mag_field" if three_axis else "mag", "baro": "baro"}
-    wiring["no_aid"] = "no_aid"
+    wiring.update(no_aid="no_aid", gps_accuracy="gps_accuracy")
     for port, stream in wiring.items():
         if estimator.HasInputPort(port):
             builder.Connect(playback.GetOutputPort(stream), estimator.GetInputPort(port))

@@ -9,7 +9,9 @@ earlier one is superseded (counted by :func:`superseded_samples`).
 The streams have the simulated sensors' port layouts (``conventions``): ``imu`` (6: f_B m/s^2,
 w_NB_B rad/s, FRD; no stamp, a new sample every tick it changes), ``gps`` (7: p_N m, v_N m/s,
 stamp s), ``mag`` (2: yaw rad, stamp s), plus the raw sensors a later estimator may fuse:
-``mag_field`` (4: field_B gauss, FRD, stamp s) and ``baro`` (2: pressure altitude m, up, stamp s).
+``mag_field`` (4: field_B gauss, FRD, stamp s), ``baro`` (2: pressure altitude m, up, stamp s) and
+``gps_accuracy`` (4: the GPS receiver's reported accuracy of each GPS sample, horizontal and
+vertical position m and speed m/s std, and the GPS sample's stamp s).
 
 The yaw-only ``mag`` sample the estimators take today is the tilt-compensated heading of
 :func:`tilt_compensated_heading`: the logged field rotated into the level frame by the roll
@@ -68,9 +70,9 @@ class Stream:
         return value
 
 
-STREAM_WIDTHS = {"imu": 6, "gps": 6, "mag": 1, "mag_field": 3, "baro": 1, "no_aid": 12}
+STREAM_WIDTHS = {"imu": 6, "gps": 6, "gps_accuracy": 3, "mag": 1, "mag_field": 3, "baro": 1, "no_aid": 12}
 """Values per sample of each stream (before the stamp): the port layouts of the module docstring."""
-STAMPED = {"imu": False, "gps": True, "mag": True, "mag_field": True, "baro": True, "no_aid": True}
+STAMPED = {name: name != "imu" for name in STREAM_WIDTHS}
 
 
 def first_ticks(times, period=ONBOARD_PERIOD) -> np.ndarray:
@@ -297,18 +299,20 @@ def bridged_imu(imu, window) -> tuple[Samples, int]:
 
 
 def playback_streams(
-    log, gps=None, declination=0.0, hard_iron=(0.0, 0.0, 0.0), no_aid=None
+    log, gps=None, declination=0.0, hard_iron=(0.0, 0.0, 0.0), no_aid=None, gps_accuracy=None
 ) -> dict[str, Stream]:
     """{stream name: Stream} of a FlightLog for ``systems.playback.LogPlayback`` (module docstring).
 
     gps: the GPS Samples to emit (default: the log's own); no_aid: the no-aiding Samples
-    (:func:`no_aid_samples`) or None; a sensor the log lacks has a stream with no samples (its
-    output never carries one). declination (rad) and hard_iron (gauss, FRD): the yaw-only
-    heading's (:func:`heading_samples`).
+    (:func:`no_aid_samples`) or None; gps_accuracy: the receiver's accuracy Samples to emit, or
+    None (none emitted; the log's own ``gps_accuracy`` is emitted only when given); a sensor the
+    log lacks has a stream with no samples (its output never carries one). declination (rad) and
+    hard_iron (gauss, FRD): the yaw-only heading's (:func:`heading_samples`).
     """
     sources = {
         "imu": log.imu,
         "gps": log.gps if gps is None else gps,
+        "gps_accuracy": gps_accuracy,
         "mag_field": log.mag_field,
         "baro": log.baro,
         "no_aid": no_aid,

@@ -119,6 +119,11 @@ class ReplayConfig:
     # window before it is held instead of the last raw sample (``schedule.bridged_imu``); 0 = the
     # last sample held
     imu_gap_bridge: float = number(IMU_BRIDGE_WINDOW, nonnegative=True)
+    # true: where the log's GPS reports each sample's accuracy (eph, epv, s_variance_m_s), the
+    # built-in kinds fuse the sample as PX4 EKF2 does, each std the larger of the receiver's and
+    # their own GPS noise (which PX4's EKF2_GPS_P_NOISE, EKF2_GPS_V_NOISE are: floors); false: their
+    # own GPS noise alone (``kernels.fusion.receiver_noise``)
+    gps_receiver_accuracy: bool = True
 
 
 def default_estimator(kind) -> EstimatorConfig:
@@ -315,8 +320,11 @@ def vehicle_for(
     no_aid = fuses_no_aid(config)  # the fake samples come on their own input, with their std
     if fake_position and not no_aid:
         estimator = kind.assuming_gps_noise(estimator, config.fake_position_std, FAKE_VELOCITY_STD)
-    sensors = SensorsConfig(imu=ImuParams(), gps=GpsParams(), mag=MagParams(), no_aid=no_aid)
     fused = set(kind.measurements)
+    accuracy = config.gps_receiver_accuracy and kind.fuses_gps_accuracy
+    sensors = SensorsConfig(
+        imu=ImuParams(), gps=GpsParams(), mag=MagParams(), no_aid=no_aid, gps_accuracy=accuracy
+    )
     if baro_period is not None and "baro" in fused:
         sensors.baro = BaroParams(period=baro_period)
         if baro_reference and not fake_position:

@@ -231,7 +231,7 @@ class Ekf(LeafSystem):
             "yaw": lambda m: updates.YawUpdate(m, ekf7_kernel.mag_tick, R_mag, mag_threshold),
             "gps": lambda m: updates.GpsUpdate(
                 m, _stacked(ekf.gps_noise, params, each), _gps_gates(params, fidelity),
-                ekf7_kernel.correct_gps,
+                ekf7_kernel.correct_gps, sensors.gps_accuracy,
             ),
             "heading": lambda m: updates.HeadingUpdate(
                 m, correct, _mag_field(params, each), _gate(params.mag_field.gate_sigma, fidelity), tilt
@@ -375,7 +375,8 @@ class Eskf(LeafSystem):
                 gating.gate_threshold(NIS_DOF["mag"], _gate(params.mag_gate_sigma, fidelity)),
             ),
             "gps": lambda m: updates.GpsUpdate(
-                m, _stacked(eskf.gps_noise, params, each), _gps_gates(params, fidelity), correct
+                m, _stacked(eskf.gps_noise, params, each), _gps_gates(params, fidelity), correct,
+                sensors.gps_accuracy,
             ),
             "field": lambda m: updates.FieldUpdate(
                 m, correct, _mag_field(params, each), _gate(params.mag_field.gate_sigma, fidelity)

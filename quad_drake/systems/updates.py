@@ -27,7 +27,7 @@ import collections
 
 import numpy as np
 
-from quad_drake.conventions import NO_SAMPLE_STAMP
+from quad_drake.conventions import GPS_ACCURACY_SIZE, NO_SAMPLE_STAMP
 from quad_drake.estimation import baro, gating
 from quad_drake.estimation.measurements import measurements_of
 from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, NIS_DOF, initial_diagnostics
@@ -55,8 +55,11 @@ class Update:
 
     measurement: its ``measurements.Measurement`` (port, width, NIS columns). :meth:`declare`
     declares its input port (and a book of its own, if any) on the system; :meth:`fuse` fuses
-    this tick's fresh samples of the n vehicles IN PLACE.
+    this tick's fresh samples of the n vehicles IN PLACE. extra_ports: the names of the input ports
+    it declared beyond its measurement's (the GPS receiver's accuracy).
     """
+
+    extra_ports = ()
 
     def __init__(self, measurement):
         self.measurement = measurement
@@ -76,13 +79,25 @@ class Update:
 class GpsUpdate(Update):
     """The GPS (p_N m, v_N m/s): the Joseph update of the groups the gates accept, the resets of
     ``estimation/gating.py`` (``fusion.fuse_gps``); NIS 6 dof in ``gps_nis``; book column
-    ``fusion.GPS_SLOT`` and the GPS policy's columns. R: (6, 6), or (n, 6, 6) per vehicle."""
+    ``fusion.GPS_SLOT`` and the GPS policy's columns. R: (6, 6), or (n, 6, 6) per vehicle.
+    receiver_accuracy: the vehicle's GPS reports each sample's accuracy (``sensors.gps_accuracy``,
+    a replay's): a second input, ``gps_accuracy`` (n*``GPS_ACCURACY_SIZE``), and each sample fused
+    with ``fusion.receiver_noise`` of R and its accuracy, as PX4 fuses it."""
 
-    def __init__(self, measurement, R, gates, correct):
+    def __init__(self, measurement, R, gates, correct, receiver_accuracy=False):
         super().__init__(measurement)
         self._R, self._gates, self._correct = R, gates, correct
+        self._receiver_accuracy = receiver_accuracy
+        self._read_accuracy = None
         self._fresh_of = (None, None)  # (the tick's samples, its fresh flags): computed once a tick
         self.height_check = None  # the BaroUpdate whose check withholds a disagreeing GPS height
+
+    def declare(self, system, n, k) -> None:
+        super().declare(system, n, k)
+        if self._receiver_accuracy:
+            port = system.DeclareVectorInputPort("gps_accuracy", n * GPS_ACCURACY_SIZE)
+            self._read_accuracy = row_reader(port, n)
+            self.extra_ports = ("gps_accuracy",)
 
     def fresh(self, samples, filters) -> np.ndarray:
         """(n,) bool: the vehicles with a fresh GPS sample this tick (``samples``: the tick's dict;
@@ -101,7 +116,10 @@ class GpsUpdate(Update):
             withheld = None
             if self.height_check is not None:
                 withheld = self.height_check.withholds_gps_height(discrete_state, filters.x.shape[0])
-            fusion.fuse_gps(filters, gps, rows, self._correct, self._R, self._gates, withheld)
+            R = self._R
+            if self._read_accuracy is not None:
+                R = fusion.receiver_noise(R, gps, self._read_accuracy(context))
+            fusion.fuse_gps(filters, gps, rows, self._correct, R, self._gates, withheld)
         self._fresh_of = (None, None)
 
 
@@ -402,7 +420,8 @@ class Fusion:
         for update in updates:
             update.declare(system, n, self.k)
         self.updates = updates
-        self.ports = tuple(dict.fromkeys(u.measurement.port for u in updates if u.read is not None))
+        read = [u for u in updates if u.read is not None]
+        self.ports = tuple(dict.fromkeys(port for u in read for port in (u.measurement.port, *u.extra_ports)))
         g = self.groups  # (group, the shape of its view) of each Filters field, for filters()
         self._views = (
             (g.x, (n, self.width)),

@@ -314,6 +314,10 @@ def prepare(log_names, holdout_names, overrides, settings) -> LogTuneProblem:
         raise ConfigError(f"tune: --train-fraction must be in (0, 1], got {settings.train_fraction}")
     paths = [resolve_log(n) for n in [*log_names, *holdout_names]]
     config = load_replay(log_names[0], "{kind: eskf}", overrides)
+    if not any(o.partition("=")[0].strip() == "gps_receiver_accuracy" for o in overrides):
+        # the search is over the GPS noise the filter fuses: the receiver's reported accuracy,
+        # which a replay puts above it by default (as PX4), would hide every value below it
+        config = dataclasses.replace(config, gps_receiver_accuracy=False)
     logs = [read_flight_log(p) for p in paths]
     tuned_on, held = logs[: len(log_names)], logs[len(log_names) :]
     if settings.split not in LOG_SPLITS:
