@@ -51,6 +51,11 @@ def test_px4_parameters_round_trip_through_a_replay_config_and_a_parameter_file(
         assert back[name] == pytest.approx(value, rel=1e-12), name
     assert config.gps_delay == pytest.approx(values["EKF2_GPS_DELAY"] * 1e-3, rel=1e-12)
     assert config.estimator.accel_std[2] == pytest.approx(values["EKF2_ACC_NOISE"] * np.sqrt(5.0), rel=1e-12)
+    # PX4's one GPS noise sets the horizontal and, 1.5 times it, the vertical (as PX4 fuses them)
+    position, velocity = values["EKF2_GPS_P_NOISE"], values["EKF2_GPS_V_NOISE"]
+    assert config.estimator.gps_pos_std == pytest.approx([position, position, 1.5 * position], rel=1e-12)
+    assert config.estimator.gps_vel_std == pytest.approx([velocity, velocity, 1.5 * velocity], rel=1e-12)
+    assert start.estimator.gps_pos_std == [0.5, 0.5, 0.75] and start.estimator.gps_vel_std == [0.3, 0.3, 0.45]
     text = px4.parameter_file(config, start)
     assert px4.read_parameter_file(text) == pytest.approx(back, rel=1e-12)
     assert "PX4 default 0.5" in text and "ms -> s" in text

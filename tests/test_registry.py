@@ -285,7 +285,8 @@ def test_every_builder_lives_on_the_systems_side():
 def test_replay_defaults_and_the_start_from_a_log_are_the_entry_s():
     eskf = registry.KINDS["eskf"]
     config = eskf.replay_config()
-    assert config.gps_pos_std == [registry.PX4_NOISE["gps_pos_std"]] * 3
+    # PX4's GPS noise: the vertical 1.5 times the horizontal, as PX4 fuses it
+    assert (config.gps_pos_std, config.gps_vel_std) == ([0.5, 0.5, 0.75], [0.3, 0.3, 0.45])
     started = eskf.started_from_log(config, 0.1, 0.2, 0.3)
     assert started.init_ypr == [0.3, 0.2, 0.1]
     assert eskf.assuming_gps_noise(started, 10.0, 1e3).gps_vel_std == [1e3] * 3
@@ -300,7 +301,8 @@ def test_replay_defaults_and_the_start_from_a_log_are_the_entry_s():
     ekf7 = registry.KINDS["ekf7"]  # its parameters are its config's, as the ESKF's are
     config = ekf7.replay_config()
     noise = registry.PX4_NOISE
-    assert (config.gps_pos_xy_std, config.gps_vel_z_std) == (noise["gps_pos_std"], noise["gps_vel_std"])
+    assert (config.gps_pos_xy_std, config.gps_pos_z_std) == (noise["gps_pos_std"], 0.75)
+    assert (config.gps_vel_xy_std, config.gps_vel_z_std) == (noise["gps_vel_std"], 0.45)
     assert config.mag_yaw_std == noise["heading_std"] and config.baro.height_std == noise["baro_height_std"]
     assert config.baro.datum_from_first_sample  # a log's baro datum: its first sample, as PX4's offset
     assert config.attitude_filter.tau == 0.5 and config != registry.Ekf7EstimatorConfig()

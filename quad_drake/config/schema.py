@@ -162,7 +162,7 @@ class SensorsConfig:
     no_aid: bool = False
     # a replay's GPS receiver reports each sample's accuracy (PX4's eph, epv, s_variance_m_s) on the
     # estimator's ``gps_accuracy`` input, and the built-in kinds fuse each sample with the larger of
-    # it and their own GPS noise (``kernels.fusion.receiver_noise``); only a flight log's replay
+    # it and their own GPS noise (``estimation.measurements.receiver_noise``); only a flight log's replay
     # supplies it (``flightlogs.replay``)
     gps_accuracy: bool = False
 

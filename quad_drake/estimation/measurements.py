@@ -1,4 +1,5 @@
-"""Pure: the measurements an estimator can fuse, and which of them a vehicle's estimator fuses.
+"""Pure: the measurements an estimator can fuse, which of them a vehicle's estimator fuses, and
+the noise a GPS sample is fused with where its receiver reports its accuracy.
 
 A :class:`Measurement` is what the package knows of one kind of measurement update before any
 system exists: the estimator input it reads (``port``, one vehicle's ``width``), the NIS and
@@ -10,10 +11,15 @@ update per name (``systems/updates.py``) and refuses a name it has no update for
 :func:`measurements_of` is the one answer to "what does this vehicle's estimator fuse": the
 estimator's input ports, its NIS columns (:func:`nis_sensors`, read by the campaigns' tables)
 and the updates it runs all read that list.
+
+:func:`receiver_noise` is PX4 EKF2's rule for a GNSS sample: each std no less than the receiver's
+reported accuracy, the estimator's own noise the floor.
 """
 
 from collections.abc import Callable
 from dataclasses import dataclass
+
+import numpy as np
 
 from quad_drake.conventions import BARO_SIZE, GPS_SIZE, MAG_FIELD_SIZE, MAG_SIZE, NO_AID_SIZE
 
@@ -78,3 +84,42 @@ def unfused_sensor(declared, sensors) -> str | None:
     fused = {m.port for m in measurements_of(declared, sensors)}
     missing = carried - fused - {"baro"}
     return min(missing) if missing else None
+
+
+# ----- the GPS noise a sample is fused with ---------------------------------------------------------
+
+PX4_GPS_VERTICAL_RATIO = 1.5
+"""PX4 EKF2 fuses the GPS height with a std of at least 1.5 ``EKF2_GPS_P_NOISE`` and the vertical
+velocity at 1.5 times the horizontal's (``controlGnssHeightFusion``, ``updateGnssVel``: "a
+typical ratio of vacc/hacc"); a replay's defaults take the same (``registry.px4_gps_noise``)."""
+RECEIVER_POSITION_CAP = 10.0
+"""m: the largest receiver position accuracy :func:`receiver_noise` takes (PX4's ``EKF2_NOAID_NOISE``
+default: PX4 caps the GPS position's noise there while the GPS is its only position aiding)."""
+
+
+def receiver_noise(R, gps, accuracy) -> np.ndarray:
+    """(N, 6, 6): the GPS noise each vehicle's sample is fused with when its receiver reports its
+    accuracy, as PX4 EKF2 fuses a GNSS sample (``updateGnssPos``, ``updateGnssVel``,
+    ``controlGnssHeightFusion``): each component's std the larger of the estimator's own (`R`'s
+    diagonal: its floor, as PX4's ``EKF2_GPS_P_NOISE`` and ``EKF2_GPS_V_NOISE`` are) and the
+    receiver's: the horizontal position's (eph, m) on x and y, the vertical's (epv, m) on z, the
+    speed's (sacc, m/s) on the horizontal velocity and :data:`PX4_GPS_VERTICAL_RATIO` times it
+    on the vertical; a position accuracy counts up to :data:`RECEIVER_POSITION_CAP`.
+
+    R (6, 6) or (N, 6, 6); gps (N, 7) the samples (p, v, stamp s); accuracy (N, 4) the receiver's
+    (``conventions.GPS_ACCURACY_SIZE``: eph m, epv m, sacc m/s, the stamp of the sample they
+    describe). A vehicle whose accuracy's stamp is not its sample's, or whose accuracy is not
+    finite, keeps R.
+    """
+    R = np.array(np.broadcast_to(R, (gps.shape[0], 6, 6)))
+    reported = (accuracy[:, 3] == gps[:, 6]) & np.isfinite(accuracy[:, 0:3]).all(axis=1)
+    if reported.any():
+        eph, epv, sacc = accuracy[reported, 0], accuracy[reported, 1], accuracy[reported, 2]
+        eph, epv = np.minimum(eph, RECEIVER_POSITION_CAP), np.minimum(epv, RECEIVER_POSITION_CAP)
+        vertical_speed = PX4_GPS_VERTICAL_RATIO * sacc
+        receiver = np.column_stack([eph, eph, epv, sacc, sacc, vertical_speed]) ** 2
+        diagonal = np.arange(6)
+        R_reported = R[reported]
+        R_reported[:, diagonal, diagonal] = np.maximum(R_reported[:, diagonal, diagonal], receiver)
+        R[reported] = R_reported
+    return R

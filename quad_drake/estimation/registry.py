@@ -55,7 +55,7 @@ from quad_drake.estimation import custom
 from quad_drake.estimation.baro import BaroFusionParams
 from quad_drake.estimation.gsf import GsfParams
 from quad_drake.estimation.mag3 import MagFieldFusionParams
-from quad_drake.estimation.measurements import NIS_ORDER, measurements_of
+from quad_drake.estimation.measurements import NIS_ORDER, PX4_GPS_VERTICAL_RATIO, measurements_of
 from quad_drake.estimation.vocabulary import (
     EKF7,
     ESKF9,
@@ -239,7 +239,7 @@ class EstimatorKind:
     # a fixed-interval RTS smoother exists over its stored pass (``flightlogs.smoothing``)
     smoothable: bool = False
     # its GPS update fuses each sample with the receiver's reported accuracy where a replay gives it
-    # (``sensors.gps_accuracy``: ``systems.updates.GpsUpdate``, ``kernels.fusion.receiver_noise``)
+    # (``sensors.gps_accuracy``: ``systems.updates.GpsUpdate``, ``estimation.measurements.receiver_noise``)
     fuses_gps_accuracy: bool = False
     # a log's EKF2_* parameters map onto its config (``flightlogs.px4_parameters``)
     takes_px4_parameters: bool = False
@@ -303,6 +303,22 @@ PX4_NOISE = {
 }
 """PX4 EKF2's default noise, what a replay of a real flight controller's log assumes (not tuned
 on the logs; ``flightlogs/settings.py``)."""
+
+
+def px4_gps_noise(position_std, velocity_std) -> tuple[list, list]:
+    """(position std [x, y, z] m, velocity std [vx, vy, vz] m/s) of PX4's one GPS position and one
+    velocity noise (``EKF2_GPS_P_NOISE``, ``EKF2_GPS_V_NOISE``): horizontal as given, vertical
+    ``measurements.PX4_GPS_VERTICAL_RATIO`` times it, as PX4 fuses them."""
+
+    def vertical(std):  # to 12 digits: 0.45, not 1.5 * 0.3 = 0.44999999999999996, in a saved config
+        return float(f"{PX4_GPS_VERTICAL_RATIO * std:.12g}")
+
+    position = [position_std, position_std, vertical(position_std)]
+    return position, [velocity_std, velocity_std, vertical(velocity_std)]
+
+
+PX4_GPS_POSITION_STD, PX4_GPS_VELOCITY_STD = px4_gps_noise(PX4_NOISE["gps_pos_std"], PX4_NOISE["gps_vel_std"])
+"""The replay's GPS noise per axis (m; m/s): PX4's defaults, the vertical 1.5 times the horizontal."""
 PX4_GRAVITY_STD = 1.0
 """PX4 EKF2's ``EKF2_GRAV_NOISE`` default: the gravity vector's std (of the unit vector f/|f|,
 per its 10 ms update; PX4's parameter reference states g0, older ones m/s^2, and fuses it on the
@@ -319,10 +335,10 @@ def _ekf7_replay_defaults() -> Ekf7EstimatorConfig:
         init_std=[1.0, 1.0, 1.0, 0.5, 0.5, 0.5, 0.3],
         q_vel_xy_std=0.035,  # m/s/sqrt(s)
         q_vel_z_std=0.035,
-        gps_pos_xy_std=PX4_NOISE["gps_pos_std"],
-        gps_pos_z_std=PX4_NOISE["gps_pos_std"],
-        gps_vel_xy_std=PX4_NOISE["gps_vel_std"],
-        gps_vel_z_std=PX4_NOISE["gps_vel_std"],
+        gps_pos_xy_std=PX4_GPS_POSITION_STD[0],
+        gps_pos_z_std=PX4_GPS_POSITION_STD[2],
+        gps_vel_xy_std=PX4_GPS_VELOCITY_STD[0],
+        gps_vel_z_std=PX4_GPS_VELOCITY_STD[2],
         mag_yaw_std=PX4_NOISE["heading_std"],
         attitude_filter=AttitudeFilterParams(tau=0.5),
         **px4_aiding_noise(),
@@ -360,8 +376,8 @@ def _eskf_replay_defaults():
         accel_bias_rw_std=0.003,
         gyro_bias_rw_std=0.001,
         gravity_std=PX4_GRAVITY_STD,
-        gps_pos_std=[PX4_NOISE["gps_pos_std"]] * 3,
-        gps_vel_std=[PX4_NOISE["gps_vel_std"]] * 3,
+        gps_pos_std=list(PX4_GPS_POSITION_STD),
+        gps_vel_std=list(PX4_GPS_VELOCITY_STD),
         mag_yaw_std=PX4_NOISE["heading_std"],
         **px4_aiding_noise(),
     )

@@ -14,8 +14,9 @@ conversion. Both directions use it:
 The conversions: the IMU noise is per 10 ms prediction step in PX4 and per 2 ms sample here, of
 equal density (x sqrt(10 ms / 2 ms), ``registry.PX4_PER_SAMPLE``); the bias noises are read 1:1,
 as the replay's defaults read them (``registry._eskf_replay_defaults``); PX4's one GPS position
-and one velocity noise set all three axes here, and a tuned vector writes its horizontal mean
-(PX4 has no separate vertical GPS noise parameter: the vertical value is stated in a comment);
+and one velocity noise set the horizontal axes here and 1.5 times them the vertical, as PX4 fuses
+them (``registry.px4_gps_noise``), and a tuned vector writes its horizontal mean (PX4 has no
+separate vertical GPS noise parameter: the vertical value is stated in a comment);
 the delays are ms in PX4 and s here. Parameters with no ESKF field (EKF2_HEAD_NOISE maps to
 the yaw magnetometer's ``mag_yaw_std``, used only by a heading-only log) are in the table too.
 
@@ -35,7 +36,7 @@ import dataclasses
 import math
 from dataclasses import dataclass
 
-from quad_drake.estimation.registry import PX4_GRAVITY_STD, PX4_NOISE, PX4_PER_SAMPLE
+from quad_drake.estimation.registry import PX4_GRAVITY_STD, PX4_NOISE, PX4_PER_SAMPLE, px4_gps_noise
 
 PX4_DEFAULT_DELAYS_MS = {"EKF2_GPS_DELAY": 110.0, "EKF2_MAG_DELAY": 0.0, "EKF2_BARO_DELAY": 0.0}
 """PX4's defaults of the sensor delays (ms; PX4's parameter reference)."""
@@ -95,7 +96,7 @@ MAPPING = (
         PX4_NOISE["gps_pos_std"],
         "estimator.gps_pos_std",
         1.0,
-        "1:1 (m); PX4's one value sets our x, y, z; out: the mean of our x and y",
+        "1:1 (m); PX4's one value sets our x, y and 1.5 times it our z; out: the mean of our x and y",
     ),
     Px4Parameter(
         "EKF2_GPS_V_NOISE",
@@ -103,7 +104,7 @@ MAPPING = (
         PX4_NOISE["gps_vel_std"],
         "estimator.gps_vel_std",
         1.0,
-        "1:1 (m/s); PX4's one value sets our x, y, z; out: the mean of our x and y",
+        "1:1 (m/s); PX4's one value sets our x, y and 1.5 times it our z; out: the mean of our x and y",
     ),
     Px4Parameter(
         "EKF2_MAG_NOISE",
@@ -224,7 +225,13 @@ def from_parameters(config, parameters) -> object:
         on = p.switch is None or p.switch.on(parameters)
         value = p.ours(parameters.get(p.name, p.default)) if on else 0.0
         current = field_at(config, p.field)
-        config = with_field(config, p.field, [value] * len(current) if isinstance(current, list) else value)
+        if p.field == "estimator.gps_pos_std":
+            value = px4_gps_noise(value, 0.0)[0]
+        elif p.field == "estimator.gps_vel_std":
+            value = px4_gps_noise(0.0, value)[1]
+        elif isinstance(current, list):
+            value = [value] * len(current)
+        config = with_field(config, p.field, value)
     return config
 
 
@@ -245,7 +252,8 @@ def vertical_note(config) -> list[str]:
     est = config.estimator
     return [
         f"vertical GPS noise tuned to {est.gps_pos_std[2]:.4g} m and {est.gps_vel_std[2]:.4g} m/s: "
-        "PX4 has no separate parameter for it (not written)"
+        "PX4 has no separate parameter for it (not written; PX4 fuses 1.5 times the horizontal values "
+        "written there)"
     ]
 
 

@@ -36,6 +36,7 @@ from pydrake.systems.primitives import LogVectorOutput
 from quad_drake.config.errors import ConfigError
 from quad_drake.config.schema import VehicleConfig
 from quad_drake.conventions import LOG_PERIOD, ONBOARD_PERIOD
+from quad_drake.estimation.measurements import RECEIVER_POSITION_CAP
 from quad_drake.estimation.registry import KINDS, sharing_problem, vocabulary_for
 from quad_drake.estimation.vocabulary import EstimatorVocabulary, health_counts, health_line
 from quad_drake.flightlogs import comparison, earth_field, px4_parameters, smoothing
@@ -65,7 +66,6 @@ from quad_drake.flightlogs.settings import (
 )
 from quad_drake.judging.innovations import UPDATE_DIAGNOSTICS
 from quad_drake.kernels import jit
-from quad_drake.kernels.fusion import RECEIVER_POSITION_CAP
 from quad_drake.models.fidelity import PHYSICAL
 from quad_drake.output.jsonio import dump_json
 from quad_drake.output.outdir import write_binary_atomic, write_text_atomic

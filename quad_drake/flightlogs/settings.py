@@ -6,7 +6,9 @@ one-line ConfigError naming the field), from :func:`default_replay` plus the com
 the results as ``config.yaml``.
 
 The defaults are PX4 EKF2's own (``EKF2_GYR_NOISE`` 0.015 rad/s, ``EKF2_ACC_NOISE`` 0.35 m/s^2 at
-its 10 ms prediction step, ``EKF2_GPS_P_NOISE`` 0.5 m, ``EKF2_GPS_V_NOISE`` 0.3 m/s,
+its 10 ms prediction step, ``EKF2_GPS_P_NOISE`` 0.5 m, ``EKF2_GPS_V_NOISE`` 0.3 m/s horizontally and
+1.5 times them vertically, as PX4 fuses them, each GPS sample at no less than its receiver's
+reported accuracy,
 ``EKF2_HEAD_NOISE`` 0.3 rad, ``EKF2_ACC_B_NOISE`` 0.003 m/s^3, ``EKF2_GYR_B_NOISE`` 0.001 rad/s^2,
 ``EKF2_BARO_NOISE`` 3.5 m, ``EKF2_MAG_NOISE`` 0.05 gauss for the 3-axis field),
 not tuned on these logs: the IMU noise is re-expressed per 2 ms sample with the same density
@@ -122,7 +124,7 @@ class ReplayConfig:
     # true: where the log's GPS reports each sample's accuracy (eph, epv, s_variance_m_s), the
     # built-in kinds fuse the sample as PX4 EKF2 does, each std the larger of the receiver's and
     # their own GPS noise (which PX4's EKF2_GPS_P_NOISE, EKF2_GPS_V_NOISE are: floors); false: their
-    # own GPS noise alone (``kernels.fusion.receiver_noise``)
+    # own GPS noise alone (``estimation.measurements.receiver_noise``)
     gps_receiver_accuracy: bool = True
 
 

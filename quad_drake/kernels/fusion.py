@@ -317,39 +317,6 @@ def gps_update(x, P, gps_pv, R_gps, correct, mask=None) -> tuple[np.ndarray, np.
     return x_new, P_new, nis, singular
 
 
-RECEIVER_POSITION_CAP = 10.0
-"""m: the largest receiver position accuracy :func:`receiver_noise` takes (PX4's ``EKF2_NOAID_NOISE``
-default: PX4 caps the GPS position's noise there while the GPS is its only position aiding)."""
-
-
-def receiver_noise(R, gps, accuracy) -> np.ndarray:
-    """(N, 6, 6): the GPS noise each vehicle's sample is fused with when its receiver reports its
-    accuracy, as PX4 EKF2 fuses a GNSS sample (``updateGnssPos``, ``updateGnssVel``,
-    ``controlGnssHeightFusion``): each component's std the larger of the estimator's own (`R`'s
-    diagonal: its floor, as PX4's ``EKF2_GPS_P_NOISE`` and ``EKF2_GPS_V_NOISE`` are) and the
-    receiver's, the horizontal position's (eph, m) on x and y, the vertical's (epv, m) on z, the
-    speed's (sacc, m/s) on each velocity; a position accuracy counts up to
-    :data:`RECEIVER_POSITION_CAP`.
-
-    R (6, 6) or (N, 6, 6); gps (N, 7) the samples (p, v, stamp s); accuracy (N, 4) the receiver's
-    (``conventions.GPS_ACCURACY_SIZE``: eph m, epv m, sacc m/s, the stamp of the sample they
-    describe). A vehicle whose accuracy's stamp is not its sample's, or whose accuracy is not
-    finite, keeps R. (PX4 also fuses the vertical velocity at 1.5 times its speed noise and the
-    height at no less than 1.5 EKF2_GPS_P_NOISE; here the estimator's own z stds stand for those.)
-    """
-    R = np.array(np.broadcast_to(R, (gps.shape[0], 6, 6)))
-    reported = (accuracy[:, 3] == gps[:, 6]) & np.isfinite(accuracy[:, 0:3]).all(axis=1)
-    if reported.any():
-        eph, epv, sacc = accuracy[reported, 0], accuracy[reported, 1], accuracy[reported, 2]
-        eph, epv = np.minimum(eph, RECEIVER_POSITION_CAP), np.minimum(epv, RECEIVER_POSITION_CAP)
-        receiver = np.column_stack([eph, eph, epv, sacc, sacc, sacc]) ** 2
-        diagonal = np.arange(6)
-        R_reported = R[reported]
-        R_reported[:, diagonal, diagonal] = np.maximum(R_reported[:, diagonal, diagonal], receiver)
-        R[reported] = R_reported
-    return R
-
-
 GPS_HEIGHT_GROUP = gating.GPS_GROUPS.index("height")
 """The column of the GPS height in ``gating.gps_gate_decisions``' (M, 3) decisions."""
 

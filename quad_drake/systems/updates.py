@@ -29,7 +29,7 @@ import numpy as np
 
 from quad_drake.conventions import GPS_ACCURACY_SIZE, NO_SAMPLE_STAMP
 from quad_drake.estimation import baro, gating
-from quad_drake.estimation.measurements import measurements_of
+from quad_drake.estimation.measurements import measurements_of, receiver_noise
 from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, NIS_DOF, initial_diagnostics
 from quad_drake.kernels import fusion
 from quad_drake.kernels.imu_hold import HOLD_SIZE, initial_hold
@@ -82,7 +82,7 @@ class GpsUpdate(Update):
     ``fusion.GPS_SLOT`` and the GPS policy's columns. R: (6, 6), or (n, 6, 6) per vehicle.
     receiver_accuracy: the vehicle's GPS reports each sample's accuracy (``sensors.gps_accuracy``,
     a replay's): a second input, ``gps_accuracy`` (n*``GPS_ACCURACY_SIZE``), and each sample fused
-    with ``fusion.receiver_noise`` of R and its accuracy, as PX4 fuses it."""
+    with ``measurements.receiver_noise`` of R and its accuracy, as PX4 fuses it."""
 
     def __init__(self, measurement, R, gates, correct, receiver_accuracy=False):
         super().__init__(measurement)
@@ -118,7 +118,7 @@ class GpsUpdate(Update):
                 withheld = self.height_check.withholds_gps_height(discrete_state, filters.x.shape[0])
             R = self._R
             if self._read_accuracy is not None:
-                R = fusion.receiver_noise(R, gps, self._read_accuracy(context))
+                R = receiver_noise(R, gps, self._read_accuracy(context))
             fusion.fuse_gps(filters, gps, rows, self._correct, R, self._gates, withheld)
         self._fresh_of = (None, None)
 
