@@ -28,7 +28,7 @@ import pytest
 from quad_drake.flightlogs import comparison
 from quad_drake.flightlogs import replay as replay_module
 from quad_drake.flightlogs.replay import COMPARE_AFTER, replay, replay_many
-from quad_drake.flightlogs.schedule import superseded_samples
+from quad_drake.flightlogs.schedule import fused_by_px4, superseded_samples
 from quad_drake.flightlogs.settings import LOG_DIR, load_replay
 
 LOGS = ("real_auav_x21_attitude_flight", "sitl_takeoff_land_gps")
@@ -79,9 +79,15 @@ def test_before_a_late_fix_the_estimate_is_held_as_px4_holds_it(replays):
     for kind in KINDS:
         result = replays[LOGS[1], kind]
         fix = result.aiding.late_fix
-        # logged at 9.18 s, measured the log's EKF2_GPS_DELAY (110 ms) before, as PX4 takes it
-        assert fix == pytest.approx(9.18 - 0.11, abs=0.02)
-        assert any(f"first GPS fix came at {fix:.1f} s" in line for line in result.notes())
+        # the first fix logged at 9.18 s, the first PX4's estimator fused at 9.8 s (its flags), each
+        # measured the log's EKF2_GPS_DELAY (110 ms) before its time in the log, as PX4 takes it
+        assert result.log.gps.times[0] == pytest.approx(9.18, abs=0.01)
+        assert result.log.px4_gps_fusion.times[1] == pytest.approx(9.8, abs=0.01)
+        first_fused = result.log.gps.times[result.log.gps.times >= result.log.px4_gps_fusion.times[1]][0]
+        assert fix == pytest.approx(first_fused - 0.11, abs=1e-9)
+        assert any(f"first GPS fix fused came at {fix:.1f} s" in line for line in result.notes())
+        kept, logged = result.aiding.gps_kept_as_px4
+        assert logged == len(result.log.gps) and kept == np.count_nonzero(result.log.gps.times >= first_fused)
         before = result.times < fix
         state = result.logs["estimated_state"][before]
         # on the ground before the fix (PX4 holds 0): no dead-reckoning drift (was z = -3 m, -0.7 m/s)
@@ -129,7 +135,7 @@ def test_the_nis_judges_every_update_not_one_per_log_period(replays, log, kind):
     played = {
         "mag": result.log.mag_field,
         "field": result.log.mag_field,
-        "gps": result.log.gps,
+        "gps": fused_by_px4(result.log).gps,  # the fixes PX4's estimator fused
         "baro": result.log.baro,
     }
     for s in result.nis:
@@ -193,7 +199,8 @@ def test_a_csv_log_replays_as_its_ulog(replays, tmp_path):
 
     path = tmp_path / "sitl.csv"
     path.write_text("\n".join(csv_rows(read_flight_log(LOG_DIR / f"{LOGS[1]}.ulg"))) + "\n", encoding="utf-8")
-    ulog = replays[LOGS[1], "ekf7"]
+    # a CSV does not record which fixes PX4 fused: the ULog replayed with every fix, as the CSV is
+    ulog = replay(load_replay(LOGS[1], "{kind: ekf7}", ["gps_where_px4_fused=false"]))
     # a CSV holds no EKF2_GPS_DELAY: the delay the ULog's replay took from its parameters is set
     result = replay(load_replay(path, None, [f"gps_delay={ulog.config.gps_delay!r}"]))
     np.testing.assert_allclose(result.logs["estimated_state"], ulog.logs["estimated_state"], atol=1e-6)

@@ -1,6 +1,7 @@
 """Flight logs, pure parts: the ULog and CSV readers (units and frames once, bad logs refused in
 one line), the playback schedule, the tilt-compensated heading and the comparison statistics."""
 
+import dataclasses
 import math
 import re
 from pathlib import Path
@@ -62,6 +63,36 @@ def test_the_gps_receivers_reported_accuracy_is_read_with_each_fix(sitl_log):
     # the SITL receiver's accuracy as it settles after the fix (m, m, m/s)
     assert accuracy.values[0].tolist() == pytest.approx([2.97, 3.07, 0.25], abs=0.01)
     assert accuracy.values[-1].tolist() == pytest.approx([0.30, 0.40, 0.25], abs=0.01)
+
+
+def test_whether_px4s_estimator_fused_the_gps_is_read_from_its_control_flags(sitl_log):
+    data = ULog(str(SITL), ["estimator_status"]).get_dataset("estimator_status").data
+    fused = (data["control_mode_flags"].astype(np.int64) >> 2) & 1
+    on = data["timestamp"][np.argmax(fused > 0)] * 1e-6 - sitl_log.start_time  # s after the first IMU sample
+    record = sitl_log.px4_gps_fusion
+    assert record.times.tolist() == pytest.approx([0.0, on], abs=1e-6)  # s, of µs stamps
+    assert record.values[:, 0].tolist() == [0.0, 1.0] and 9.7 < record.times[1] < 9.9
+
+
+def test_only_the_fixes_px4s_estimator_fused_are_kept():
+    from quad_drake.flightlogs.reader import FlightLog
+    from quad_drake.flightlogs.schedule import fused_by_px4
+
+    imu = Samples(np.arange(0.0, 12.0, 0.5), np.zeros((24, 6)))
+    gps = Samples(np.arange(1.0, 11.0), np.arange(60.0).reshape(10, 6))
+    accuracy = Samples(gps.times, np.arange(30.0).reshape(10, 3))
+    record = Samples(np.array([0.0, 5.0, 8.0]), np.array([[0.0], [1.0], [0.0]]))  # fused over [5, 8)
+    log = FlightLog("x", imu, gps=gps, gps_accuracy=accuracy, px4_gps_fusion=record)
+    kept = fused_by_px4(log)
+    assert kept.gps.times.tolist() == [5.0, 6.0, 7.0] and kept.gps_accuracy.times.tolist() == [5.0, 6.0, 7.0]
+    np.testing.assert_array_equal(kept.gps.values, gps.values[4:7])
+    np.testing.assert_array_equal(kept.gps_accuracy.values, accuracy.values[4:7])
+    never = fused_by_px4(dataclasses.replace(log, px4_gps_fusion=Samples(np.zeros(1), np.zeros((1, 1)))))
+    assert never.gps is None and never.gps_accuracy is None
+    always = dataclasses.replace(log, px4_gps_fusion=Samples(np.zeros(1), np.ones((1, 1))))
+    assert fused_by_px4(always) is always
+    unrecorded = dataclasses.replace(log, px4_gps_fusion=None)  # a CSV: every fix
+    assert fused_by_px4(unrecorded) is unrecorded
 
 
 def test_the_accelerometer_reads_the_physical_specific_force(sitl_log):

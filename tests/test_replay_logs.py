@@ -9,6 +9,7 @@ by pyulog's ``ULog.write_ulog``; the replay reads it as the whole file (measured
 equal).
 """
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -386,3 +387,22 @@ def test_an_imu_dropout_is_bridged_by_the_mean_of_the_samples_before_it():
     np.testing.assert_array_equal(np.delete(bridged.values, 19, axis=0), np.delete(values, 19, axis=0))
     assert bridged_imu(imu, 0.0) == (imu, 0)  # off: the last sample held, as before
     assert bridged_imu(imu, 0.4) == (imu, 0)  # no interval longer than the window
+
+
+def test_a_log_whose_gps_px4_never_fused_replays_unaided_as_px4_ran(truth_replay):
+    # roboto_test and sample_log_small log 3D fixes their PX4 never fused (its GNSS checks did not
+    # pass: estimator_status.control_mode_flags bit 2 clear throughout): replayed as PX4 ran, with
+    # no GPS, PX4's no-aiding samples throughout, judged as a log without GPS
+    log = read_flight_log(TRUTH_LOG)
+    unfused = dataclasses.replace(log, px4_gps_fusion=Samples(np.zeros(1), np.zeros((1, 1))))
+    result = replay(load_replay(TRUTH_LOG, "{kind: eskf}"), unfused)
+    assert result.fake_position and result.aiding.gps_kept_as_px4 == (0, len(log.gps))
+    notes = result.notes()
+    assert any(f"fused 0 of the log's {len(log.gps)} GPS fixes" in line for line in notes)
+    assert any(line.startswith("No GPS fix was fused:") for line in notes)
+    assert not any("receiver's reported accuracy" in line for line in notes)
+    position = {d.state: d for d in result.position}
+    assert position["X"].reason == "n/a: no GPS, so no common horizontal frame"
+    assert "gps" not in {s.sensor for s in result.nis} and "gps" in {s.sensor for s in truth_replay.nis}
+    followed = replay(load_replay(TRUTH_LOG, "{kind: eskf}", ["gps_where_px4_fused=false"]), unfused)
+    assert not followed.fake_position and followed.aiding.gps_kept_as_px4 is None

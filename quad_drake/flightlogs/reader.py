@@ -59,6 +59,9 @@ What is read from a PX4 ULog (``pyulog``, PX4's own reader):
 - the IMU's clipping flags (optional): ``sensor_combined.accelerometer_clipping`` and
   ``gyro_clipping`` (bit i: axis i at the sensor's range, PX4 v1.12 on), the flagged samples only,
   as ``imu_clipping``.
+- whether PX4's primary estimator fused the GPS (optional): ``estimator_status.control_mode_flags``
+  bit 2, as ``px4_gps_fusion`` (PX4 starts fusing GNSS only once its quality checks have passed
+  for a while, ``EKF2_GPS_CHECK``, ``EKF2_REQ_EPH`` ...: a log's fixes need not have been fused).
 - PX4's changes of IMU and of estimator within the replayed stretch (optional): the IMU
   ``sensor_combined`` carries, ``sensor_selection``'s ``accel_device_id`` and ``gyro_device_id``
   (PX4's sensors module switches it on a sensor's failure), as ``imu_switches``, and the primary
@@ -153,7 +156,9 @@ class FlightLog:
     imu_switches: each change of the IMU ``sensor_combined`` carries within the replayed stretch,
     (t s, (accelerometer, gyro) device ids before, after), :func:`_ulog_switches`; ()
     where none or not logged (a CSV). estimator_switches: each change of PX4's primary EKF2
-    instance, (t s, instance before, after), the same way.
+    instance, (t s, instance before, after), the same way. px4_gps_fusion: whether PX4's primary
+    estimator fused GNSS (1, 0) from t = 0 on, each change at its time (:func:`_ulog_px4_gps_fusion`),
+    or None where not logged (a CSV).
     """
 
     source: str
@@ -181,6 +186,7 @@ class FlightLog:
     imu_clipping: Samples | None = None
     imu_switches: tuple = ()
     estimator_switches: tuple = ()
+    px4_gps_fusion: Samples | None = None
 
     @property
     def duration(self) -> float:
@@ -241,12 +247,16 @@ ULOG_TOPICS = (
     "vehicle_global_position_groundtruth",
     "vehicle_land_detected",
     "sensor_selection",
+    "estimator_status",
 )
 US = 1e-6
+"""s per microsecond (ULog timestamps)."""
 GPS_MISMATCH = 100.0
 """m: PX4's horizontal position, moved into the GPS frame by PX4's origin, this far from the GPS
 at the same time is not in the GPS's frame (a healthy PX4 estimate stays metres from its GPS)."""
-"""s per microsecond (ULog timestamps)."""
+CS_GPS_BIT = 2
+"""Bit of ``estimator_status.control_mode_flags`` set while PX4's EKF2 fuses GNSS measurements
+(``filter_control_status_u``'s ``gps``, ``gnss_pos`` in later versions; every version's bit 2)."""
 
 
 def read_flight_log(path) -> FlightLog:
@@ -321,7 +331,7 @@ def read_ulog(path) -> FlightLog:
     except Exception as e:  # pyulog raises whatever its parser meets in a foreign file
         reason = str(e).splitlines()[0] if str(e) else type(e).__name__
         raise FlightLogError(f"{path}: not a readable ULog file ({reason})") from None
-    topics, raw_mags, sensor_biases = {}, [], {}
+    topics, raw_mags, sensor_biases, statuses = {}, [], {}, {}
     for dataset in ulog.data_list:
         if dataset.multi_id == 0:
             topics[dataset.name] = dataset.data
@@ -329,6 +339,8 @@ def read_ulog(path) -> FlightLog:
             raw_mags.append(dataset.data)
         if dataset.name == "estimator_sensor_bias":
             sensor_biases[dataset.multi_id] = dataset.data
+        if dataset.name == "estimator_status":
+            statuses[dataset.multi_id] = dataset.data
     if "sensor_combined" not in topics:
         raise FlightLogError(f"{path}: no sensor_combined topic (the IMU); cannot replay without it")
     combined = topics["sensor_combined"]
@@ -371,7 +383,25 @@ def read_ulog(path) -> FlightLog:
         imu_clipping=_optional(_ulog_imu_clipping(combined, imu), start, US),
         imu_switches=_ulog_switches(topics, "sensor_selection", ("accel_device_id", "gyro_device_id"), imu),
         estimator_switches=_ulog_switches(topics, "estimator_selector_status", ("primary_instance",), imu),
+        px4_gps_fusion=_ulog_px4_gps_fusion(topics, statuses, start),
     )
+
+
+def _ulog_px4_gps_fusion(topics, statuses, start):
+    """Samples (s after `start`, µs in the log's clock) of whether PX4's primary EKF2 instance
+    (:func:`_primary_estimator`) fused GNSS (1) or not (0), from its ``estimator_status``'s
+    ``control_mode_flags`` bit :data:`CS_GPS_BIT`: its value at `start` (the last sample at or
+    before it, else the first) at t = 0, then each change; None without the topic or field."""
+    data = statuses.get(_primary_estimator(topics))
+    if data is None or "control_mode_flags" not in data or len(data["timestamp"]) == 0:
+        return None
+    times = np.asarray(data["timestamp"], dtype=float)
+    fused = (np.asarray(data["control_mode_flags"], dtype=np.int64) >> CS_GPS_BIT) & 1
+    first = max(int(np.searchsorted(times, start, side="right")) - 1, 0)
+    changed = first + 1 + np.flatnonzero(fused[first + 1 :] != fused[first:-1])
+    rows = np.concatenate(([first], changed))
+    relative = np.concatenate(([0.0], (times[changed] - start) * US))
+    return Samples(relative, fused[rows, None].astype(float))
 
 
 CLIPPING_FIELDS = ("accelerometer_clipping", "gyro_clipping")

@@ -49,6 +49,7 @@ from quad_drake.flightlogs.schedule import (
     NoAidNoise,
     bridged_imu,
     fake_position,
+    fused_by_px4,
     held_position,
     initial_attitude,
     measured_at,
@@ -92,7 +93,9 @@ class Aiding:
     fix before which zero samples stood in, or None), baro_fused (the log's barometer fused), gps_losses
     ([(lost s, regained s)] of the GPS losses the estimator was aided over, ``aiding_gps``),
     baro_height_reference (the barometer was the height reference: the GPS height not fused),
-    no_aid_at_rest (the no-aiding samples given on the estimator's own input, at rest and not)."""
+    no_aid_at_rest (the no-aiding samples given on the estimator's own input, at rest and not),
+    gps_kept_as_px4 ((GPS samples fused, GPS samples in the log) where PX4's estimator fused only
+    some or none of them and the replay followed it, ``schedule.fused_by_px4``; None otherwise)."""
 
     fake_position: bool = False
     magnetometer: object = None
@@ -101,6 +104,7 @@ class Aiding:
     gps_losses: list = field(default_factory=list)
     baro_height_reference: bool = False
     no_aid_at_rest: tuple | None = None  # (samples at rest, samples not) on the no_aid input; None: none
+    gps_kept_as_px4: tuple | None = None  # (GPS samples fused, in the log) where PX4 fused some or none
 
 
 @dataclass
@@ -157,14 +161,22 @@ class ReplayResult:
                 f"zero position and velocity every {c.fake_position_period:g} s, fused as its GPS "
                 "samples (with the GPS noise it assumes)"
             )
-        if self.fake_position:
+        kept_as_px4 = self.aiding.gps_kept_as_px4
+        if kept_as_px4 is not None:
             lines.append(
-                f"The log has no GPS: the estimator was given {fused}; its horizontal position is not "
+                f"PX4's estimator fused {kept_as_px4[0]} of the log's {kept_as_px4[1]} GPS fixes "
+                "(estimator_status.control_mode_flags; PX4 fuses GNSS once its quality checks have "
+                "passed), and so does the replay; --set gps_where_px4_fused=false fuses every fix."
+            )
+        if self.fake_position:
+            none = "The log has no GPS" if kept_as_px4 is None else "No GPS fix was fused"
+            lines.append(
+                f"{none}: the estimator was given {fused}; its horizontal position is not "
                 "compared and its GPS NIS not judged."
             )
         if self.aiding.late_fix is not None:
             lines.append(
-                f"The first GPS fix came at {self.aiding.late_fix:.1f} s: before it the estimator was "
+                f"The first GPS fix fused came at {self.aiding.late_fix:.1f} s: before it the estimator was "
                 f"given {fused}, as PX4 while not aided; the GPS from the fix on."
             )
         for lost, regained in self.aiding.gps_losses:
@@ -201,7 +213,8 @@ class ReplayResult:
         if self.config.px4_start_biases:
             lines.append(start_biases_note(self.log.estimator_imu_bias))
         accuracy = self.log.gps_accuracy
-        if c.gps_receiver_accuracy and KINDS[c.estimator.kind].fuses_gps_accuracy and accuracy is not None:
+        fuses_accuracy = c.gps_receiver_accuracy and KINDS[c.estimator.kind].fuses_gps_accuracy
+        if fuses_accuracy and accuracy is not None and not self.fake_position:
             eph, epv, sacc = np.median(accuracy.values, axis=0)
             lines.append(
                 "Each GPS sample fused as PX4 fuses it: each std the larger of the estimator's own GPS "
@@ -446,9 +459,12 @@ def delayed_log(log, config) -> object:
 
 
 def played_log(log, config) -> object:
-    """The FlightLog `log` as its replay plays it: its sensors at the times they were measured
-    (:func:`delayed_log`) and its IMU bridged over the logger's dropouts (``schedule.bridged_imu``
-    with the ReplayConfig's ``imu_gap_bridge``)."""
+    """The FlightLog `log` as its replay plays it: its GPS where PX4's estimator fused it
+    (``schedule.fused_by_px4``, with the ReplayConfig's ``gps_where_px4_fused``), its sensors at
+    the times they were measured (:func:`delayed_log`) and its IMU bridged over the logger's
+    dropouts (``schedule.bridged_imu`` with its ``imu_gap_bridge``)."""
+    if config.gps_where_px4_fused:
+        log = fused_by_px4(log)
     log = delayed_log(log, config)
     imu, bridged = bridged_imu(log.imu, config.imu_gap_bridge)
     return log if not bridged else dataclasses.replace(log, imu=imu)
@@ -461,7 +477,9 @@ def replay_setup(log, config) -> tuple[dict, VehicleConfig, Aiding]:
     :func:`played_log`, with the aiding of :func:`aiding_gps`), the estimator it feeds
     (``settings.vehicle_for``: started at the log's first attitude, the log's magnetic field and
     barometer period, and PX4's start biases where asked) and how it was aided."""
+    logged_gps = 0 if log.gps is None else len(log.gps)
     log = played_log(log, config)
+    kept_gps = 0 if log.gps is None else len(log.gps)
     gps, no_aid, fake, late_fix, losses = aiding_gps(log, config, fuses_no_aid(config))
     magnetometer = magnetometer_for(log, config)
     declination, hard_iron = (
@@ -490,7 +508,10 @@ def replay_setup(log, config) -> tuple[dict, VehicleConfig, Aiding]:
     if no_aid is not None:
         resting = int(np.count_nonzero(np.isfinite(no_aid.values[:, 9])))
         rested = (resting, len(no_aid) - resting)
-    aiding = Aiding(fake, magnetometer, late_fix, baro_fused, losses, baro_fused and baro_reference, rested)
+    kept_as_px4 = (kept_gps, logged_gps) if kept_gps < logged_gps and config.gps_where_px4_fused else None
+    aiding = Aiding(
+        fake, magnetometer, late_fix, baro_fused, losses, baro_fused and baro_reference, rested, kept_as_px4
+    )
     return streams, vehicle, aiding
 
 
@@ -633,7 +654,26 @@ def _prepare(config, log=None) -> _Prepared:
     if config.smooth and not KINDS[config.estimator.kind].smoothable:
         raise ConfigError(f"smooth: the smoother runs over the ESKF only, not kind {config.estimator.kind}")
     _check_replay_memory(config, log.duration, 1, log.source)  # before its streams are built
-    return _Prepared(config, log, warnings, *replay_setup(log, config))
+    streams, vehicle, aiding = replay_setup(log, config)
+    if aiding.gps_kept_as_px4 is not None and aiding.gps_kept_as_px4[0] == 0:
+        log = judged_without_gps(log)
+    return _Prepared(config, log, warnings, streams, vehicle, aiding)
+
+
+def judged_without_gps(log) -> object:
+    """The FlightLog `log` as a replay that fused none of its GPS fixes is judged: as a log without
+    GPS (``reader``'s rule there): no horizontal frame in common with PX4's, and PX4's height taken
+    relative to its own at t = 0, where the estimate's height starts at 0 (not in the first fix's
+    altitude frame, which neither estimator fused)."""
+    reference = log.reference_position
+    if reference is not None:
+        values = reference.values.copy()
+        values[:, 0:2] = np.nan
+        valid = np.isfinite(values[:, 2])
+        if valid.any():
+            values[:, 2] -= np.interp(0.0, reference.times[valid], values[valid, 2])
+        reference = Samples(reference.times, values)
+    return dataclasses.replace(log, gps=None, gps_accuracy=None, reference_position=reference)
 
 
 def _check_replay_memory(config, end, n, what) -> None:

@@ -22,6 +22,7 @@ accelerometer sees gravity plus the vehicle's own acceleration, and a tilt error
 heading error of about dθ tan(inclination), twice dθ at a 63° inclination).
 """
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -276,6 +277,27 @@ def measured_at(samples, delay) -> Samples | None:
     times = samples.times - delay
     keep = times >= 0.0
     return Samples(times[keep], samples.values[keep])
+
+
+def fused_by_px4(log) -> object:
+    """The FlightLog `log` with only the GPS samples (and their receiver accuracies) that fall where
+    PX4's estimator fused GNSS (``log.px4_gps_fusion`` at the sample's logged time); its GPS None
+    where it fused none; `log` itself where the log does not record it (a CSV, an older ULog)."""
+    record = log.px4_gps_fusion
+    if record is None or log.gps is None:
+        return log
+
+    def kept(samples):
+        if samples is None:
+            return None
+        at = np.maximum(np.searchsorted(record.times, samples.times, side="right") - 1, 0)
+        keep = record.values[at, 0] > 0.5
+        return Samples(samples.times[keep], samples.values[keep]) if keep.any() else None
+
+    gps = kept(log.gps)
+    if gps is not None and len(gps) == len(log.gps):
+        return log
+    return dataclasses.replace(log, gps=gps, gps_accuracy=kept(log.gps_accuracy) if gps is not None else None)
 
 
 def bridged_imu(imu, window) -> tuple[Samples, int]:

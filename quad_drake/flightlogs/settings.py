@@ -126,6 +126,11 @@ class ReplayConfig:
     # their own GPS noise (which PX4's EKF2_GPS_P_NOISE, EKF2_GPS_V_NOISE are: floors); false: their
     # own GPS noise alone (``estimation.measurements.receiver_noise``)
     gps_receiver_accuracy: bool = True
+    # true: the log's GPS is fused only where PX4's estimator fused it (``FlightLog.px4_gps_fusion``,
+    # its control flags: PX4 fuses GNSS only once its quality checks have passed), a log whose GPS
+    # PX4 never fused replayed as one without GPS; false: every 3D fix; a log that does not record
+    # it (a CSV): every 3D fix
+    gps_where_px4_fused: bool = True
 
 
 def default_estimator(kind) -> EstimatorConfig:
