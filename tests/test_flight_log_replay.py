@@ -343,32 +343,3 @@ def test_the_receivers_accuracy_is_a_std_above_the_estimators_own_as_px4_fuses_i
     np.testing.assert_allclose(fused, expected, rtol=1e-12)
     per_vehicle = np.stack([R, 4.0 * R, R, R, R])  # each vehicle's own floors
     assert np.sqrt(receiver_noise(per_vehicle, gps, accuracy)[1, 0, 0]) == pytest.approx(1.0)
-
-
-def test_each_gps_sample_is_fused_with_the_receivers_accuracy(replays):
-    # The bundled SITL log's receiver reports 2.97 m after its fix, settling below the replay's
-    # 0.5 m within seconds: fused with it (the default), the first samples count for less than
-    # with the estimator's own 0.5 m alone, and nothing before the fix moves.
-    from quad_drake.estimation.vocabulary import DIAG
-    from quad_drake.judging.innovations import UPDATE_DIAGNOSTICS
-
-    with_accuracy = replays[LOGS[1], "eskf"]
-    without = replay(load_replay(LOGS[1], "{kind: eskf}", ["gps_receiver_accuracy=false"]))
-    assert any("the receiver's reported accuracy (medians:" in line for line in with_accuracy.notes())
-    assert not any("receiver's reported accuracy" in line for line in without.notes())
-    fix = with_accuracy.aiding.late_fix
-    before = with_accuracy.times < fix
-    np.testing.assert_array_equal(
-        with_accuracy.logs["estimated_state"][before], without.logs["estimated_state"][before]
-    )
-    after = ~before
-    moved = with_accuracy.logs["estimated_state"][after, 0:3] - without.logs["estimated_state"][after, 0:3]
-    assert np.abs(moved).max() > 0.003  # m: measured 9 mm
-
-    def first_gps_nis(result, count=5):
-        updates = result.logs[UPDATE_DIAGNOSTICS]
-        stamps, first = np.unique(updates[:, DIAG["gps_stamp"]], return_index=True)
-        fused = first[stamps > 0][:count]
-        return updates[fused, DIAG["gps_nis"]]
-
-    assert (first_gps_nis(with_accuracy) < first_gps_nis(without)).all()

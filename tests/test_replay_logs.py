@@ -406,3 +406,32 @@ def test_a_log_whose_gps_px4_never_fused_replays_unaided_as_px4_ran(truth_replay
     assert "gps" not in {s.sensor for s in result.nis} and "gps" in {s.sensor for s in truth_replay.nis}
     followed = replay(load_replay(TRUTH_LOG, "{kind: eskf}", ["gps_where_px4_fused=false"]), unfused)
     assert not followed.fake_position and followed.aiding.gps_kept_as_px4 is None
+
+
+def test_each_gps_sample_is_fused_with_the_receivers_accuracy(truth_replay):
+    # The SITL ground-truth log's receiver reports 2.85 m at its fix (8.4 s), 1.7 m at its end,
+    # above the replay's 0.5 m: fused with it (the default), the first samples count for less than
+    # with the estimator's own 0.5 m alone, and nothing before the fix moves.
+    from quad_drake.estimation.vocabulary import DIAG
+    from quad_drake.judging.innovations import UPDATE_DIAGNOSTICS
+
+    with_accuracy = truth_replay
+    without = replay(load_replay(str(TRUTH_LOG), "{kind: eskf}", ["gps_receiver_accuracy=false"]))
+    assert any("the receiver's reported accuracy (medians:" in line for line in with_accuracy.notes())
+    assert not any("receiver's reported accuracy" in line for line in without.notes())
+    fix = with_accuracy.aiding.late_fix
+    before = with_accuracy.times < fix
+    np.testing.assert_array_equal(
+        with_accuracy.logs["estimated_state"][before], without.logs["estimated_state"][before]
+    )
+    after = ~before
+    moved = with_accuracy.logs["estimated_state"][after, 0:3] - without.logs["estimated_state"][after, 0:3]
+    assert np.abs(moved).max() > 5e-4  # m: measured 1.3 mm
+
+    def first_gps_nis(result, count=5):
+        updates = result.logs[UPDATE_DIAGNOSTICS]
+        stamps, first = np.unique(updates[:, DIAG["gps_stamp"]], return_index=True)
+        fused = first[stamps > 0][:count]
+        return updates[fused, DIAG["gps_nis"]]
+
+    assert (first_gps_nis(with_accuracy) < first_gps_nis(without)).all()
