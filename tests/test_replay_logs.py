@@ -435,3 +435,20 @@ def test_each_gps_sample_is_fused_with_the_receivers_accuracy(truth_replay):
         return updates[fused, DIAG["gps_nis"]]
 
     assert (first_gps_nis(with_accuracy) < first_gps_nis(without)).all()
+
+
+def test_a_fix_measured_before_the_log_began_is_not_counted_as_one_px4_left_unfused():
+    # A delay drops a fix logged within it of the start (measured before t = 0); where PX4's
+    # estimator fused every fix the replay says nothing of PX4's choice.
+    from quad_drake.flightlogs.replay import replay_setup
+
+    log = read_flight_log(TRUTH_LOG)
+    early = Samples(np.concatenate(([0.05], log.gps.times)), np.vstack([log.gps.values[:1], log.gps.values]))
+    every = dataclasses.replace(
+        log, gps=early, gps_accuracy=None, px4_gps_fusion=Samples(np.zeros(1), np.ones((1, 1)))
+    )
+    config = load_replay(TRUTH_LOG, "{kind: eskf}", ["gps_delay=0.11", "mag_delay=0", "baro_delay=0"])
+    assert replay_setup(every, config)[2].gps_kept_as_px4 is None
+    after = dataclasses.replace(every, px4_gps_fusion=Samples(np.array([0.0, 9.0]), np.array([[0.0], [1.0]])))
+    kept = int(np.count_nonzero(early.times >= 9.0))
+    assert replay_setup(after, config)[2].gps_kept_as_px4 == (kept, len(early))

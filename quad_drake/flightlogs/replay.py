@@ -477,9 +477,12 @@ def replay_setup(log, config) -> tuple[dict, VehicleConfig, Aiding]:
     :func:`played_log`, with the aiding of :func:`aiding_gps`), the estimator it feeds
     (``settings.vehicle_for``: started at the log's first attitude, the log's magnetic field and
     barometer period, and PX4's start biases where asked) and how it was aided."""
-    logged_gps = 0 if log.gps is None else len(log.gps)
+    kept_as_px4 = None
+    if config.gps_where_px4_fused and log.gps is not None:
+        fused = fused_by_px4(log).gps  # counted before the delays (which drop a fix measured before t = 0)
+        if fused is not log.gps:
+            kept_as_px4 = (0 if fused is None else len(fused), len(log.gps))
     log = played_log(log, config)
-    kept_gps = 0 if log.gps is None else len(log.gps)
     gps, no_aid, fake, late_fix, losses = aiding_gps(log, config, fuses_no_aid(config))
     magnetometer = magnetometer_for(log, config)
     declination, hard_iron = (
@@ -508,7 +511,6 @@ def replay_setup(log, config) -> tuple[dict, VehicleConfig, Aiding]:
     if no_aid is not None:
         resting = int(np.count_nonzero(np.isfinite(no_aid.values[:, 9])))
         rested = (resting, len(no_aid) - resting)
-    kept_as_px4 = (kept_gps, logged_gps) if kept_gps < logged_gps and config.gps_where_px4_fused else None
     aiding = Aiding(
         fake, magnetometer, late_fix, baro_fused, losses, baro_fused and baro_reference, rested, kept_as_px4
     )
