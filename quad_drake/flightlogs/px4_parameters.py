@@ -34,6 +34,7 @@ the bit; EKF2_IMU_CTRL itself is not written (its other bits are PX4's bias esti
 
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from quad_drake.estimation.registry import PX4_GRAVITY_STD, PX4_NOISE, PX4_PER_SAMPLE, px4_gps_noise
@@ -67,7 +68,8 @@ parameter reference, ``src/modules/ekf2/module.yaml``)."""
 class Px4Parameter:
     """One EKF2 parameter: its name, unit, PX4's default, the ReplayConfig field it maps to
     (a dotted path below the ReplayConfig) and the factor ours = PX4's * factor; `switch`: the
-    bitmask bit that turns it on (clear: the field is 0, off), or None."""
+    bitmask bit that turns it on (clear: the field is 0, off), or None; `per_axis`: our vector
+    field's axes from our value (default: the value on each axis)."""
 
     name: str
     unit: str
@@ -76,6 +78,7 @@ class Px4Parameter:
     factor: float  # ours = value * factor
     conversion: str  # the conversion in words
     switch: Px4Switch | None = None
+    per_axis: Callable[[float], list] | None = None
 
     def ours(self, value) -> float:
         return float(value) * self.factor
@@ -97,6 +100,7 @@ MAPPING = (
         "estimator.gps_pos_std",
         1.0,
         "1:1 (m); PX4's one value sets our x, y and 1.5 times it our z; out: the mean of our x and y",
+        per_axis=lambda value: px4_gps_noise(value, 0.0)[0],
     ),
     Px4Parameter(
         "EKF2_GPS_V_NOISE",
@@ -105,6 +109,7 @@ MAPPING = (
         "estimator.gps_vel_std",
         1.0,
         "1:1 (m/s); PX4's one value sets our x, y and 1.5 times it our z; out: the mean of our x and y",
+        per_axis=lambda value: px4_gps_noise(0.0, value)[1],
     ),
     Px4Parameter(
         "EKF2_MAG_NOISE",
@@ -225,10 +230,8 @@ def from_parameters(config, parameters) -> object:
         on = p.switch is None or p.switch.on(parameters)
         value = p.ours(parameters.get(p.name, p.default)) if on else 0.0
         current = field_at(config, p.field)
-        if p.field == "estimator.gps_pos_std":
-            value = px4_gps_noise(value, 0.0)[0]
-        elif p.field == "estimator.gps_vel_std":
-            value = px4_gps_noise(0.0, value)[1]
+        if p.per_axis is not None:
+            value = p.per_axis(value)
         elif isinstance(current, list):
             value = [value] * len(current)
         config = with_field(config, p.field, value)
