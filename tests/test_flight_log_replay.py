@@ -199,8 +199,7 @@ def test_a_csv_log_replays_as_its_ulog(replays, tmp_path):
 
     path = tmp_path / "sitl.csv"
     path.write_text("\n".join(csv_rows(read_flight_log(LOG_DIR / f"{LOGS[1]}.ulg"))) + "\n", encoding="utf-8")
-    # a CSV does not record which fixes PX4 fused: the ULog replayed with every fix, as the CSV is
-    ulog = replay(load_replay(LOGS[1], "{kind: ekf7}", ["gps_where_px4_fused=false"]))
+    ulog = replays[LOGS[1], "ekf7"]  # the CSV's gps_fused rows: PX4's record of the fixes it fused
     # a CSV holds no EKF2_GPS_DELAY: the delay the ULog's replay took from its parameters is set
     result = replay(load_replay(path, None, [f"gps_delay={ulog.config.gps_delay!r}"]))
     np.testing.assert_allclose(result.logs["estimated_state"], ulog.logs["estimated_state"], atol=1e-6)

@@ -141,6 +141,7 @@ def csv_rows(log):
         ("imu", log.imu.times, log.imu.values),
         ("gps", log.gps.times, gps),
         ("gps_accuracy", log.gps_accuracy.times, log.gps_accuracy.values),
+        ("gps_fused", log.px4_gps_fusion.times, log.px4_gps_fusion.values),
         ("mag", log.mag_field.times, log.mag_field.values),
         ("baro", log.baro.times, log.baro.values),
         ("attitude", log.reference_attitude.times, log.reference_attitude.values),
@@ -171,13 +172,20 @@ def test_a_csv_log_reads_as_the_same_flight(sitl_log, sitl_csv):
 
     assert log.sensors() == sitl_log.sensors() and log.fix_date == sitl_log.fix_date
     assert log.mag_declination == magnetometer_model(sitl_log).declination  # the row csv_rows wrote
-    for name in ("imu", "mag_field", "baro", "reference_attitude"):
+    for name in ("imu", "mag_field", "baro", "reference_attitude", "gps_accuracy", "px4_gps_fusion"):
         ours, theirs = getattr(log, name), getattr(sitl_log, name)
         assert ours.times == pytest.approx(theirs.times, abs=1e-12)
         assert ours.values == pytest.approx(theirs.values, abs=1e-12)
     assert log.gps.values == pytest.approx(sitl_log.gps.values, abs=1e-6)  # geodetic and back
     assert log.origin == pytest.approx(sitl_log.origin, abs=1e-6)  # ned2geodetic and back
     np.testing.assert_allclose(log.reference_position.values, sitl_log.reference_position.values)
+    # gps_fused rows before the first IMU row give the value at the start: the last of them
+    rows = [line for line in sitl_csv.read_text(encoding="utf-8").splitlines() if ",gps_fused," not in line]
+    on = float(sitl_log.px4_gps_fusion.times[1])
+    early = sitl_csv.parent / "early.csv"
+    early.write_text("\n".join([*rows, "-5.0,gps_fused,1", "-1.0,gps_fused,0", f"{on!r},gps_fused,1"]) + "\n")
+    record = read_flight_log(early).px4_gps_fusion
+    assert record.values[:, 0].tolist() == [0.0, 1.0] and record.times.tolist() == [0.0, on]
 
 
 def test_a_csv_gps_sample_north_of_the_first_is_that_far_north(tmp_path):

@@ -157,8 +157,8 @@ class FlightLog:
     (t s, (accelerometer, gyro) device ids before, after), :func:`_ulog_switches`; ()
     where none or not logged (a CSV). estimator_switches: each change of PX4's primary EKF2
     instance, (t s, instance before, after), the same way. px4_gps_fusion: whether PX4's primary
-    estimator fused GNSS (1, 0) from t = 0 on, each change at its time (:func:`_ulog_px4_gps_fusion`),
-    or None where not logged (a CSV).
+    estimator fused GNSS (1, 0) from t = 0 on, each change at its time (:func:`_ulog_px4_gps_fusion`;
+    a CSV's ``gps_fused`` rows), or None where not recorded.
     """
 
     source: str
@@ -205,6 +205,8 @@ CSV_SENSORS = {
     "gps_ned": ("x", "y", "z", "v_n", "v_e", "v_d"),  # m NED about the log's origin, m/s NED (no geodetic)
     # the receiver's reported accuracy of the GPS sample of the same time: m, m, m/s std
     "gps_accuracy": ("horizontal", "vertical", "speed"),
+    # whether the flight controller's estimator fused the GPS from this time on: 1 or 0 (PX4's)
+    "gps_fused": ("fused",),
     "mag": ("b_x", "b_y", "b_z"),  # gauss, FRD
     "heading": ("yaw",),  # rad, a yaw magnetometer's sample as the estimator received it
     "baro": ("altitude",),  # m, pressure altitude, up
@@ -395,13 +397,18 @@ def _ulog_px4_gps_fusion(topics, statuses, start):
     data = statuses.get(_primary_estimator(topics))
     if data is None or "control_mode_flags" not in data or len(data["timestamp"]) == 0:
         return None
-    times = np.asarray(data["timestamp"], dtype=float)
     fused = (np.asarray(data["control_mode_flags"], dtype=np.int64) >> CS_GPS_BIT) & 1
+    return _changes_from(np.asarray(data["timestamp"], dtype=float), fused, start, US)
+
+
+def _changes_from(times, flags, start, scale=1.0):
+    """Samples of a flag's value at `start` (the last of `times` at or before it, else the first)
+    at t = 0, then each change after it, at (time - start) * scale."""
     first = max(int(np.searchsorted(times, start, side="right")) - 1, 0)
-    changed = first + 1 + np.flatnonzero(fused[first + 1 :] != fused[first:-1])
+    changed = first + 1 + np.flatnonzero(flags[first + 1 :] != flags[first:-1])
     rows = np.concatenate(([first], changed))
-    relative = np.concatenate(([0.0], (times[changed] - start) * US))
-    return Samples(relative, fused[rows, None].astype(float))
+    relative = np.concatenate(([0.0], (times[changed] - start) * scale))
+    return Samples(relative, np.asarray(flags, dtype=float)[rows, None])
 
 
 CLIPPING_FIELDS = ("accelerometer_clipping", "gyro_clipping")
@@ -818,7 +825,15 @@ def read_csv(path) -> FlightLog:
         heading=_optional(parsed.get("heading"), start),
         truth_position=_optional(_part(parsed.get("truth"), slice(0, 6)), start),
         truth_attitude=_optional(_part(parsed.get("truth"), slice(6, 10)), start),
+        px4_gps_fusion=_csv_gps_fused(parsed.get("gps_fused"), start),
     )
+
+
+def _csv_gps_fused(samples, start):
+    """A CSV's ``gps_fused`` rows as ``FlightLog.px4_gps_fusion`` (:func:`_changes_from`), or None."""
+    if samples is None:
+        return None
+    return _changes_from(samples.times, (samples.values[:, 0] > 0.5).astype(np.int64), start)
 
 
 def _part(samples, columns):

@@ -282,7 +282,7 @@ def measured_at(samples, delay) -> Samples | None:
 def fused_by_px4(log) -> object:
     """The FlightLog `log` with only the GPS samples (and their receiver accuracies) that fall where
     PX4's estimator fused GNSS (``log.px4_gps_fusion`` at the sample's logged time); its GPS None
-    where it fused none; `log` itself where the log does not record it (a CSV, an older ULog)."""
+    where it fused none; `log` itself where the log does not record it (a CSV without ``gps_fused`` rows)."""
     record = log.px4_gps_fusion
     if record is None or log.gps is None:
         return log

@@ -129,7 +129,7 @@ class ReplayConfig:
     # true: the log's GPS is fused only where PX4's estimator fused it (``FlightLog.px4_gps_fusion``,
     # its control flags: PX4 fuses GNSS only once its quality checks have passed), a log whose GPS
     # PX4 never fused replayed as one without GPS; false: every 3D fix; a log that does not record
-    # it (a CSV): every 3D fix
+    # it (a CSV without gps_fused rows): every 3D fix
     gps_where_px4_fused: bool = True
 
 
