@@ -459,12 +459,9 @@ def delayed_log(log, config) -> object:
 
 
 def played_log(log, config) -> object:
-    """The FlightLog `log` as its replay plays it: its GPS where PX4's estimator fused it
-    (``schedule.fused_by_px4``, with the ReplayConfig's ``gps_where_px4_fused``), its sensors at
-    the times they were measured (:func:`delayed_log`) and its IMU bridged over the logger's
-    dropouts (``schedule.bridged_imu`` with its ``imu_gap_bridge``)."""
-    if config.gps_where_px4_fused:
-        log = fused_by_px4(log)
+    """The FlightLog `log` as its replay plays it: its sensors at the times they were measured
+    (:func:`delayed_log`) and its IMU bridged over the logger's dropouts (``schedule.bridged_imu``
+    with the ReplayConfig's ``imu_gap_bridge``)."""
     log = delayed_log(log, config)
     imu, bridged = bridged_imu(log.imu, config.imu_gap_bridge)
     return log if not bridged else dataclasses.replace(log, imu=imu)
@@ -473,16 +470,16 @@ def played_log(log, config) -> object:
 def replay_setup(log, config) -> tuple[dict, VehicleConfig, Aiding]:
     """(playback streams, VehicleConfig, Aiding) of the FlightLog `log` replayed under the
     ReplayConfig `config`: what its vehicle of a replay Diagram plays (``schedule.playback_streams``
-    of the log's samples at the times they were measured, its IMU bridged over dropouts,
+    of the GPS fixes PX4's estimator fused, ``schedule.fused_by_px4`` with ``gps_where_px4_fused``,
+    and the log's samples at the times they were measured, its IMU bridged over dropouts,
     :func:`played_log`, with the aiding of :func:`aiding_gps`), the estimator it feeds
     (``settings.vehicle_for``: started at the log's first attitude, the log's magnetic field and
     barometer period, and PX4's start biases where asked) and how it was aided."""
+    fused = fused_by_px4(log) if config.gps_where_px4_fused else log  # PX4's fixes, before the delays
     kept_as_px4 = None
-    if config.gps_where_px4_fused and log.gps is not None:
-        fused = fused_by_px4(log).gps  # counted before the delays (which drop a fix measured before t = 0)
-        if fused is not log.gps:
-            kept_as_px4 = (0 if fused is None else len(fused), len(log.gps))
-    log = played_log(log, config)
+    if fused.gps is not log.gps:  # (counted here: a delay drops a fix measured before t = 0)
+        kept_as_px4 = (0 if fused.gps is None else len(fused.gps), len(log.gps))
+    log = played_log(fused, config)
     gps, no_aid, fake, late_fix, losses = aiding_gps(log, config, fuses_no_aid(config))
     magnetometer = magnetometer_for(log, config)
     declination, hard_iron = (

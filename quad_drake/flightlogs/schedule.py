@@ -210,9 +210,15 @@ def at_rest(imu, times, landed=None) -> np.ndarray:
     index = np.maximum(index, 0)
     resting = ~before_start & (np.asarray(times, dtype=float) - last_moving[index] >= AT_REST_TIME)
     if landed is not None:
-        last = np.maximum(np.searchsorted(landed.times, times, side="right") - 1, 0)
-        resting &= landed.values[last, 0] > 0.5
+        resting &= flag_at(landed, times)
     return resting
+
+
+def flag_at(record, times) -> np.ndarray:
+    """(len(times),) bool: a logged 1/0 flag's Samples `record` (e.g. PX4's ``landed``) at each of
+    `times` (s): its latest sample at or before the time, the first before the first."""
+    latest = np.maximum(np.searchsorted(record.times, times, side="right") - 1, 0)
+    return record.values[latest, 0] > 0.5
 
 
 @dataclass(frozen=True)
@@ -290,8 +296,7 @@ def fused_by_px4(log) -> object:
     def kept(samples):
         if samples is None:
             return None
-        at = np.maximum(np.searchsorted(record.times, samples.times, side="right") - 1, 0)
-        keep = record.values[at, 0] > 0.5
+        keep = flag_at(record, samples.times)
         return Samples(samples.times[keep], samples.values[keep]) if keep.any() else None
 
     gps = kept(log.gps)
