@@ -90,6 +90,25 @@ def test_a_sample_after_an_outage_is_fused_or_reset_never_gated():
     assert not reset.any()
 
 
+def test_where_the_gps_is_the_height_reference_a_sample_after_a_gap_resets_the_height():
+    # PX4 stops its GNSS height fusion after GPS_HEIGHT_TIMEOUT without a sample and restarts it
+    # at the next with a height reset; tested once per 10 ms update, so a 1 Hz receiver's
+    # 1.008 s spacing restarts nothing. Accepted or not; never where the barometer is the reference.
+    no_regain = gating.GpsGates(GATES.thresholds, GATES.reset_timeouts, 0.0)
+    nis = np.array([[1.0, 1.0, 1.0], [1.0, 1e4, 1.0], [1.0, 1.0, 1.0]])
+    restart = np.array([True, True, False])
+    book = fresh_books(3)
+    gating.gps_gate_decisions(np.ones((3, 3)), [5.0] * 3, book, no_regain, restart)
+    for stamp in (6.0, 7.008):  # 1.0 and 1.008 s later
+        accepted, reset = gating.gps_gate_decisions(np.ones((3, 3)), [stamp] * 3, book, no_regain, restart)
+        assert accepted.all() and not reset.any()
+    accepted, reset = gating.gps_gate_decisions(nis, [8.1] * 3, book, no_regain, restart)  # 1.092 s
+    assert accepted.tolist() == [[True] * 3, [True, False, True], [True] * 3]
+    assert reset.tolist() == [[False, True, False], [False, True, False], [False] * 3]
+    _, reset = gating.gps_gate_decisions(nis, [10.1] * 3, book, no_regain)  # None: no filter restarts
+    assert not reset.any()
+
+
 def test_a_consistently_over_confident_filter_widens_its_gate_and_an_outlier_never_does():
     adaptive = gating.GpsGates(GATES.thresholds, GATES.reset_timeouts, GATES.regain_time, 0.1)
     threshold = GATES.thresholds[0]

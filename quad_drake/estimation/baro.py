@@ -91,6 +91,19 @@ height step (100 runs, seeds 7000-7099) restoring the nominal bias with P kept c
 largest height error by under 1 mm (0.117 against 0.118 m). So when the check fires the ESKF
 withholds the GPS height and restores nothing.
 
+**Both: a GPS height reset moves the bias with the height** (``fusion.fuse_gps``; PX4's
+``resetVerticalPositionTo`` / ``resetAltitudeTo`` in ``ekf_helper.cpp``: ``_baro_b_est.setBias(
+_baro_b_est.getBias() + delta_z)``): the height's step dz (m, NED down) is added to the bias,
+b' = b + dz (:func:`moved_bias`), so the baro innovation h - (-p_z + b) is what it was and the
+barometer does not pull the height back to where the reset took it from (it would: with the GPS
+height's variance in P22 the next baro samples carry most of their innovation into the height).
+The bias's variance and (the ESKF's) its covariances with the states other than the height are
+kept, as PX4 keeps its bias estimator's variance; the height's are the reset's
+(``gating.reset_states``). The exact propagation of the ESKF's reset (e_z' = -n, e_b' = e_b - e_z
+- n for the sample's error n: the bias's variance grows by the height's innovation variance) was
+measured farther from PX4's vertical velocity on x500v2_v6xrt (vz 0.204 against 0.185 m/s RMS;
+``docs/measurements/replay.md``), and the EKF7's b + dz with P_b + R likewise (0.742 against 0.598).
+
 Every function works on plain floats and on a covariance array P (n x n), so
 ``kernels/`` compile them as they are (the code here, not a copy).
 """
@@ -240,6 +253,14 @@ def bias_state_reset(P, height_var) -> np.ndarray:
         P_new[j, last] = P[HEIGHT_INDEX, j]
     P_new[last, last] = P[HEIGHT_INDEX, HEIGHT_INDEX] + height_var
     return P_new
+
+
+def moved_bias(bias, step) -> float:
+    """The baro bias (m) after a GPS height reset moved the filter's height by `step` (m, NED
+    down): bias + step, so the baro innovation is what it was (module docstring; PX4's
+    ``_baro_b_est.setBias(_baro_b_est.getBias() + delta_z)``). Its variance is kept, as PX4's.
+    Works on floats and element-wise on arrays."""
+    return bias + step
 
 
 def floored_height_variance(p_zz, bias_var) -> float:

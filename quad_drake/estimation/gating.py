@@ -23,8 +23,12 @@ the filter, not the sensor, once it outlasts the glitches the timeout is sized f
 velocity it cannot check; the horizontal position waits 5 s, longer than a multipath step).
 After ``regain_time`` s without a finite GPS sample (an outage) the returning sample is never
 gated: each group is fused if its gate accepts it and reset to it otherwise (PX4's reset to
-GNSS on regained aiding). A reset sets the group's states to the measurement with the
-measurement's covariance and no cross-covariance (ArduPilot's reset to GPS).
+GNSS on regained aiding). Where the GPS is the height reference (PX4's ``EKF2_HGT_REF`` GNSS;
+the estimator's ``gps_height_restart``) a sample that comes more than :data:`GPS_HEIGHT_TIMEOUT`
+after the previous finite one resets the height to it whether its gate accepts it or not: PX4
+stops fusing the GNSS height when its samples stop and restarts it at the next with a height
+reset. A reset sets the group's states to the measurement with the measurement's covariance and
+no cross-covariance (ArduPilot's reset to GPS); a reset group is not fused.
 
 Covariance health (PX4 ``fixCovarianceErrors``): P must be finite, symmetric and positive
 semi-definite. :func:`repaired_covariance` symmetrises, clips negative eigenvalues to zero,
@@ -35,6 +39,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+
+from quad_drake.estimation.eskf import PX4_UPDATE_PERIOD
 
 COVARIANCE_OK, COVARIANCE_REPAIRED, COVARIANCE_RESET = 0, 1, 2
 """Outcomes of :func:`repaired_covariance`: untouched, eigenvalues clipped, replaced by the fallback."""
@@ -50,6 +56,16 @@ GPS_BOOK_SIZE = 1 + 2 * len(GPS_GROUPS)
 """Columns of a filter's GPS book (:func:`gps_gate_decisions`)."""
 STAMP_TOLERANCE = 1e-9
 """s: stamps are sums of sensor periods, so 0.5 s of 10 Hz samples may read 0.49999999999999994."""
+GPS_HEIGHT_TIMEOUT = 1.0
+"""s without a GPS sample after which PX4 EKF2 stops fusing the GNSS height, and restarts it at
+the next sample with a reset of the height to it where the GNSS is its height reference
+(``EKF2_HGT_REF`` 1): PX4-Autopilot ``src/modules/ekf2/EKF/aid_sources/gnss/gnss_height_control.cpp``,
+``controlGnssHeightFusion`` ("stopping GNSS height fusion, no data" after 2 ``GNSS_MAX_INTERVAL``,
+0.5 s in ``common.h``; "starting GNSS height fusion, resetting height"). PX4 tests it once per
+filter update (``eskf.PX4_UPDATE_PERIOD``, 10 ms), so a sample less than one update late was never
+missed: :func:`gps_gate_decisions` restarts after gaps longer than the sum (a 1 Hz receiver's
+1.000-1.008 s spacing restarts nothing; on x500v2_v6xrt PX4's height reset counter steps at the
+fixes after its longer gaps)."""
 
 
 def false_alarm_probability(gate_sigma) -> float:
@@ -121,21 +137,25 @@ def gps_group_nis(nu, S) -> np.ndarray:
     return out
 
 
-def gps_gate_decisions(group_nis, stamps, book, gates) -> tuple[np.ndarray, np.ndarray]:
+def gps_gate_decisions(group_nis, stamps, book, gates, height_restart=None) -> tuple[np.ndarray, np.ndarray]:
     """What to do with M finite GPS samples: (accepted (M, 3), reset (M, 3)); updates book IN PLACE.
 
     group_nis (M, 3) from :func:`gps_group_nis` of the prior; stamps (M,) s, the samples'
     measurement times; book (M, GPS_BOOK_SIZE), per filter: the stamp of its previous finite GPS
     sample (s; its start time before the first), then per group when its current run of
     rejections began (s, NaN: none) and its running mean of NIS/dof over accepted samples
-    (1 at the start); gates a :class:`GpsGates`.
+    (1 at the start); gates a :class:`GpsGates`; height_restart (M,) bool or None (none): the
+    filters whose GPS is their height reference, whose height is reset to a sample that comes more
+    than GPS_HEIGHT_TIMEOUT + PX4_UPDATE_PERIOD s after their previous one (PX4's restart of its
+    GNSS height fusion, :data:`GPS_HEIGHT_TIMEOUT`), accepted or not.
 
     A group passes when its NIS is within its threshold times max(1, running mean): a filter
     whose innovations have been consistently larger than its covariance says widens its own gate
     (never below the chi^2 gate), so an over-confident but working filter keeps fusing; the
     mean moves only with accepted samples, so outliers and steps that the gate rejects never
-    widen it. A group is fused where accepted, reset where ``reset`` (rejected after its
-    timeout, or at a sample that ends an outage longer than regain_time), kept otherwise.
+    widen it. A group is reset where ``reset`` (rejected after its timeout, rejected at a sample
+    that ends an outage longer than regain_time, or the height at a restart), else fused where
+    accepted, else kept.
     """
     stamps = np.asarray(stamps, dtype=float)[:, None]
     since, mean = book[:, GPS_REJECTED_SINCE], book[:, GPS_NIS_MEAN]
@@ -147,6 +167,9 @@ def gps_gate_decisions(group_nis, stamps, book, gates) -> tuple[np.ndarray, np.n
     gap = stamps - book[:, GPS_LAST_SAMPLE : GPS_LAST_SAMPLE + 1]
     outage = (gates.regain_time > 0.0) & (gap > gates.regain_time)  # (M, 1)
     reset = ~accepted & (timed_out | outage)
+    if height_restart is not None:
+        late = gap[:, 0] > GPS_HEIGHT_TIMEOUT + PX4_UPDATE_PERIOD
+        reset[:, GPS_GROUPS.index("height")] |= np.asarray(height_restart, dtype=bool) & late
     since[reset] = math.nan
     weight = gates.consistency_weight
     book[:, GPS_NIS_MEAN] = np.where(accepted, (1.0 - weight) * mean + weight * group_nis / dof, mean)

@@ -22,8 +22,9 @@ to know of it:
   config with PX4 EKF2's noise (:data:`PX4_NOISE`); ``started_from_log(config, roll, pitch,
   yaw)``, the config started at the log's first attitude; ``assuming_gps_noise(config, pos_std,
   vel_std)``, the config assuming that GPS noise (a log without GPS gets fake positions);
-  ``assuming_gps_height_noise(config, height_std)``, that GPS height noise alone (a log whose
-  height reference is its barometer: the GPS height is not fused); ``started_with_biases(config,
+  ``assuming_baro_height_reference(config, height_std)``, the config of a log whose height
+  reference is its barometer: that GPS height noise (the GPS height not fused) and no GPS height
+  restart (``gps_height_restart``); ``started_with_biases(config,
   biases)``, the config started from the IMU biases (and their stds where logged) PX4's estimator
   had learned by the log's start (``reader.ImuBiasStart``), None for a kind without bias states;
 - ``per_vehicle(config)``: the dotted config fields its system takes per vehicle, so that one
@@ -73,7 +74,8 @@ class GateParams:
     """Gates and resets (``estimation/gating.py``) of an estimator: chi^2 gates on the GPS
     horizontal position, height and velocity apart and on the magnetometer; a GPS group
     rejected for its timeout is reset to the sample; after gps_regain_time s without GPS the
-    returning sample is fused or reset. The EKF7's and the ESKF's configs hold them."""
+    returning sample is fused or reset; with gps_height_restart a GPS sample after a gap resets
+    the height. The EKF7's and the ESKF's configs hold them."""
 
     gps_gate_sigma: float = number(5.0, nonnegative=True)  # sigma; each GPS group's gate, 0 = off
     mag_gate_sigma: float = number(5.0, nonnegative=True)  # sigma
@@ -82,6 +84,11 @@ class GateParams:
     gps_vel_reset_timeout: float = number(0.5, nonnegative=True)  # s of rejected velocity, 0 = never
     gps_regain_time: float = number(1.0, nonnegative=True)  # s without GPS that make an outage, 0 = off
     gps_gate_adaptation: float = number(0.1, nonnegative=True, maximum=1.0)  # weight of a sample's NIS/dof
+    # the GPS is the height reference (PX4's EKF2_HGT_REF 1): a GPS sample more than
+    # gating.GPS_HEIGHT_TIMEOUT (1 s) after the previous one resets the height to it, accepted or not,
+    # and the baro bias moves with it (PX4's restart of its GNSS height fusion); a replay takes it
+    # from the log's parameters
+    gps_height_restart: bool = False
 
 
 @dataclass
@@ -234,8 +241,8 @@ class EstimatorKind:
     assuming_gps_noise: Callable[[object, float, float], object] = lambda config, pos_std, vel_std: config
     # the config started from the IMU biases PX4's estimator had at the log's start; None: no bias states
     started_with_biases: Optional[Callable[[object, object], object]] = None
-    # the config assuming this GPS height noise (m) alone: a log whose height reference is its baro
-    assuming_gps_height_noise: Callable[[object, float], object] = lambda config, height_std: config
+    # the config of a log whose height reference is its baro: this GPS height noise (m), no height restart
+    assuming_baro_height_reference: Callable[[object, float], object] = lambda config, height_std: config
     # a fixed-interval RTS smoother exists over its stored pass (``flightlogs.smoothing``)
     smoothable: bool = False
     # its GPS update fuses each sample with the receiver's reported accuracy where a replay gives it
@@ -329,7 +336,8 @@ def _ekf7_replay_defaults() -> Ekf7EstimatorConfig:
     """The EKF7 with PX4 EKF2's noise (:data:`PX4_NOISE`; the velocity's process noise is
     EKF2_ACC_NOISE, 0.35 m/s^2 per 10 ms step, as a density), started at rest at the origin with
     a wide prior, its attitude filter trusting the accelerometer within 0.5 s (a real gyro's bias
-    needs it sooner than a simulated one's 100 s)."""
+    needs it sooner than a simulated one's 100 s); the GPS its height reference, as PX4's default
+    EKF2_HGT_REF (a log whose parameter names the barometer: ``assuming_baro_height_reference``)."""
     return Ekf7EstimatorConfig(
         init_state=[0.0] * 7,
         init_std=[1.0, 1.0, 1.0, 0.5, 0.5, 0.5, 0.3],
@@ -341,6 +349,7 @@ def _ekf7_replay_defaults() -> Ekf7EstimatorConfig:
         gps_vel_z_std=PX4_GPS_VELOCITY_STD[2],
         mag_yaw_std=PX4_NOISE["heading_std"],
         attitude_filter=AttitudeFilterParams(tau=0.5),
+        gps_height_restart=True,
         **px4_aiding_noise(),
     )
 
@@ -357,13 +366,14 @@ def _ekf7_gps_noise(config, pos_std, vel_std) -> Ekf7EstimatorConfig:
     )
 
 
-def _ekf7_gps_height_noise(config, height_std) -> Ekf7EstimatorConfig:
-    return dataclasses.replace(config, gps_pos_z_std=height_std)
+def _ekf7_baro_height_reference(config, height_std) -> Ekf7EstimatorConfig:
+    return dataclasses.replace(config, gps_pos_z_std=height_std, gps_height_restart=False)
 
 
 def _eskf_replay_defaults():
     """The ESKF with PX4 EKF2's noise (:data:`PX4_NOISE`; bias walks EKF2_ACC_B_NOISE 0.003 m/s^3,
-    EKF2_GYR_B_NOISE 0.001 rad/s^2), started at rest at the origin with a wide prior."""
+    EKF2_GYR_B_NOISE 0.001 rad/s^2), started at rest at the origin with a wide prior; the GPS its
+    height reference, as the EKF7's (:func:`_ekf7_replay_defaults`)."""
     return EskfEstimatorConfig(
         init_position=[0.0, 0.0, 0.0],
         init_pos_std=[1.0, 1.0, 1.0],
@@ -379,6 +389,7 @@ def _eskf_replay_defaults():
         gps_pos_std=list(PX4_GPS_POSITION_STD),
         gps_vel_std=list(PX4_GPS_VELOCITY_STD),
         mag_yaw_std=PX4_NOISE["heading_std"],
+        gps_height_restart=True,
         **px4_aiding_noise(),
     )
 
@@ -412,8 +423,10 @@ def _eskf_gps_noise(config, pos_std, vel_std):
     return dataclasses.replace(config, gps_pos_std=[pos_std] * 3, gps_vel_std=[vel_std] * 3)
 
 
-def _eskf_gps_height_noise(config, height_std):
-    return dataclasses.replace(config, gps_pos_std=[*config.gps_pos_std[0:2], height_std])
+def _eskf_baro_height_reference(config, height_std):
+    return dataclasses.replace(
+        config, gps_pos_std=[*config.gps_pos_std[0:2], height_std], gps_height_restart=False
+    )
 
 
 MAG_FIELD_PER_VEHICLE = (
@@ -426,6 +439,7 @@ MAG_FIELD_PER_VEHICLE = (
 field (``flightlogs.earth_field``) and learned hard iron."""
 _EKF7_PER_VEHICLE = (
     "init_state",
+    "gps_height_restart",
     "gps_pos_xy_std",
     "gps_pos_z_std",
     "gps_vel_xy_std",
@@ -439,7 +453,7 @@ def _eskf_per_vehicle(config) -> tuple:
     which is built on one) and magnetic field."""
     shared_by_gsf = ("gps_vel_std",) if not config.gsf.enabled else ()
     start = ("init_position", "init_velocity", "init_ypr", "init_accel_bias", "init_gyro_bias")
-    return (*start, "gps_pos_std", *shared_by_gsf, *MAG_FIELD_PER_VEHICLE)
+    return (*start, "gps_pos_std", "gps_height_restart", *shared_by_gsf, *MAG_FIELD_PER_VEHICLE)
 
 
 def _eskf_vocabulary(config):
@@ -524,7 +538,7 @@ KINDS = {
             replay_defaults=_ekf7_replay_defaults,
             started_from_log=_ekf7_started,
             assuming_gps_noise=_ekf7_gps_noise,
-            assuming_gps_height_noise=_ekf7_gps_height_noise,
+            assuming_baro_height_reference=_ekf7_baro_height_reference,
             fuses_gps_accuracy=True,
             per_vehicle=lambda config: _EKF7_PER_VEHICLE,
         ),
@@ -540,7 +554,7 @@ KINDS = {
             started_from_log=_eskf_started,
             started_with_biases=_eskf_started_with_biases,
             assuming_gps_noise=_eskf_gps_noise,
-            assuming_gps_height_noise=_eskf_gps_height_noise,
+            assuming_baro_height_reference=_eskf_baro_height_reference,
             smoothable=True,
             fuses_gps_accuracy=True,
             takes_px4_parameters=True,

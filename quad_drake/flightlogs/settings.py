@@ -335,7 +335,7 @@ def vehicle_for(
     if baro_period is not None and "baro" in fused:
         sensors.baro = BaroParams(period=baro_period)
         if baro_reference and not fake_position:
-            estimator = kind.assuming_gps_height_noise(estimator, UNFUSED_HEIGHT_STD)
+            estimator = kind.assuming_baro_height_reference(estimator, UNFUSED_HEIGHT_STD)
     if magnetometer is not None and fused & {"heading", "field"}:
         sensors.mag = MagParams(three_axis=True)
         if isinstance(estimator, AidingParams):

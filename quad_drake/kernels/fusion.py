@@ -25,7 +25,7 @@ import math
 import numpy as np
 
 from quad_drake.conventions import NO_SAMPLE_STAMP
-from quad_drake.estimation import ekf, gating
+from quad_drake.estimation import baro, ekf, gating
 from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE
 from quad_drake.kernels import rotations
 from quad_drake.kernels.jit import compiled, njit_cached
@@ -321,7 +321,9 @@ GPS_HEIGHT_GROUP = gating.GPS_GROUPS.index("height")
 """The column of the GPS height in ``gating.gps_gate_decisions``' (M, 3) decisions."""
 
 
-def fuse_gps(filters, gps, rows, correct, R, gates, height_withheld=None) -> None:
+def fuse_gps(
+    filters, gps, rows, correct, R, gates, height_withheld=None, height_restart=None, baro_bias=None
+) -> np.ndarray:
     """Fuse the fresh GPS samples of the vehicles ``rows`` through the gates (``gating``'s GPS policy).
 
     filters: the estimator's :class:`Filters`, x, P, diagnostics and book updated IN PLACE for
@@ -330,15 +332,23 @@ def fuse_gps(filters, gps, rows, correct, R, gates, height_withheld=None) -> Non
     correction (``ekf7.correct``, ``eskf.correct``; :func:`gps_update`); R (6, 6), or (N, 6, 6):
     each vehicle's own; gates a ``gating.GpsGates``; height_withheld (N,) bool or None: the
     vehicles whose GPS height is neither fused nor reset to (it disagrees persistently with their
-    barometer, ``BaroUpdate.withholds_gps_height``).
+    barometer, ``BaroUpdate.withholds_gps_height``); height_restart (N,) bool or None: the vehicles
+    whose GPS is their height reference (``gating.gps_gate_decisions``); baro_bias: the index in x
+    of a baro bias the filter carries in its state, its error last in P (the ESKF's,
+    ``eskf.BARO_BIAS_NOMINAL``), or None.
 
     Per vehicle: the stamp is booked; a non-finite stamp or sample counts a non-finite sample and
     keeps (x, P); otherwise the joint 6-dof NIS of the prior and the stamp are logged, the groups
-    the gates accept are fused in one update, and the groups ``gating.gps_gate_decisions`` resets
-    are set to the sample; ``gps_gated`` counts the samples with a rejected group, ``gps_resets``
-    those with a reset.
+    the gates accept and ``gating.gps_gate_decisions`` does not reset are fused in one update,
+    and the groups it resets are set to the sample; ``gps_gated`` counts the samples with a
+    rejected group, ``gps_resets`` those with a reset. A height reset moves a baro bias in the
+    state with the height (``baro.moved_bias``).
+
+    Returns (N,) each vehicle's height step dz (m, NED down) by a reset, NaN where its height was
+    not reset: what a baro bias outside the state must follow (``baro.moved_bias``).
     """
     x, P, diagnostics, book = filters.x, filters.P, filters.diagnostics, filters.book
+    steps = np.full(x.shape[0], math.nan)
     s = gps[rows, 6]
     book[rows, GPS_SLOT] = s
     index = np.arange(x.shape[0])[rows]
@@ -346,7 +356,7 @@ def fuse_gps(filters, gps, rows, correct, R, gates, height_withheld=None) -> Non
     valid = np.isfinite(s) & np.isfinite(z_rows).all(axis=1)
     diagnostics[index[~valid], DIAG["nonfinite_samples"]] += 1.0
     if not valid.any():
-        return
+        return steps
     index, s, z_rows = index[valid], s[valid], z_rows[valid]
     x_prior, P_prior = x[index], P[index]
     R = R if R.ndim == 2 else R[index]  # (6, 6) or (M, 6, 6): each fused vehicle's own
@@ -355,20 +365,28 @@ def fuse_gps(filters, gps, rows, correct, R, gates, height_withheld=None) -> Non
     diagnostics[index, DIAG["gps_nis"]] = gating.innovation_nis(nu, S)
     diagnostics[index, DIAG["gps_stamp"]] = s
     policy_book = book[index, GPS_POLICY]
-    accepted, reset = gating.gps_gate_decisions(gating.gps_group_nis(nu, S), s, policy_book, gates)
+    restart = None if height_restart is None else height_restart[index]
+    accepted, reset = gating.gps_gate_decisions(gating.gps_group_nis(nu, S), s, policy_book, gates, restart)
     book[index, GPS_POLICY] = policy_book
     if height_withheld is not None:
         withheld = height_withheld[index]
         accepted[withheld, GPS_HEIGHT_GROUP] = reset[withheld, GPS_HEIGHT_GROUP] = False
     diagnostics[index[~accepted.all(axis=1)], DIAG["gps_gated"]] += 1.0
     diagnostics[index[reset.any(axis=1)], DIAG["gps_resets"]] += 1.0
-    x_new, P_new, _, _ = gps_update(x_prior, P_prior, z_rows, R, correct, gating.component_mask(accepted))
+    fused = gating.component_mask(accepted & ~reset)
+    x_new, P_new, _, _ = gps_update(x_prior, P_prior, z_rows, R, correct, fused)
     for g, components in enumerate(gating.GPS_GROUP_COMPONENTS):
         due = reset[:, g]
         if due.any():
             idx = list(components)
             noise = R[np.ix_(idx, idx)] if R.ndim == 2 else R[due][:, idx][:, :, idx]
             values = z_rows[due][:, idx]
+            if g == GPS_HEIGHT_GROUP:
+                step = values[:, 0] - x_new[due, baro.HEIGHT_INDEX]
+                steps[index[due]] = step
+                if baro_bias is not None:  # the bias in the state moves with the height
+                    x_new[due, baro_bias] = baro.moved_bias(x_new[due, baro_bias], step)
             x_new[due], P_new[due] = gating.reset_states(x_new[due], P_new[due], idx, values, noise)
     x[index] = x_new
     P[index] = P_new
+    return steps

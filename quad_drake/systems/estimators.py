@@ -231,7 +231,7 @@ class Ekf(LeafSystem):
             "yaw": lambda m: updates.YawUpdate(m, ekf7_kernel.mag_tick, R_mag, mag_threshold),
             "gps": lambda m: updates.GpsUpdate(
                 m, _stacked(ekf.gps_noise, params, each), _gps_gates(params, fidelity),
-                ekf7_kernel.correct_gps, sensors.gps_accuracy,
+                ekf7_kernel.correct_gps, sensors.gps_accuracy, _height_restart(params, each, fidelity),
             ),
             "heading": lambda m: updates.HeadingUpdate(
                 m, correct, _mag_field(params, each), _gate(params.mag_field.gate_sigma, fidelity), tilt
@@ -376,7 +376,7 @@ class Eskf(LeafSystem):
             ),
             "gps": lambda m: updates.GpsUpdate(
                 m, _stacked(eskf.gps_noise, params, each), _gps_gates(params, fidelity), correct,
-                sensors.gps_accuracy,
+                sensors.gps_accuracy, _height_restart(params, each, fidelity),
             ),
             "field": lambda m: updates.FieldUpdate(
                 m, correct, _mag_field(params, each), _gate(params.mag_field.gate_sigma, fidelity)
@@ -500,6 +500,13 @@ def _reader_or(update, no_sample, n):
 def _gps_gates(params, fidelity) -> gating.GpsGates:
     """The GPS gates and resets of an estimator's params; none under ``fidelity.reference_estimator``."""
     return gating.GpsGates.from_params(params, enabled=not fidelity.reference_estimator)
+
+
+def _height_restart(params, each, fidelity) -> np.ndarray:
+    """``gps_height_restart`` of the vehicles (one for all, or (n,)); off under
+    ``fidelity.reference_estimator`` (no resets)."""
+    restart = _stacked(lambda p: p.gps_height_restart, params, each).astype(bool)
+    return restart & (not fidelity.reference_estimator)
 
 
 def _wire_ekf7(builder, ekf_system, attitude_filter, assembler):

@@ -28,7 +28,7 @@ import collections
 import numpy as np
 
 from quad_drake.conventions import GPS_ACCURACY_SIZE, NO_SAMPLE_STAMP
-from quad_drake.estimation import baro, gating
+from quad_drake.estimation import baro, eskf, gating
 from quad_drake.estimation.measurements import measurements_of, receiver_noise
 from quad_drake.estimation.vocabulary import DIAG, DIAGNOSTICS_SIZE, NIS_DOF, initial_diagnostics
 from quad_drake.kernels import fusion
@@ -82,15 +82,20 @@ class GpsUpdate(Update):
     ``fusion.GPS_SLOT`` and the GPS policy's columns. R: (6, 6), or (n, 6, 6) per vehicle.
     receiver_accuracy: the vehicle's GPS reports each sample's accuracy (``sensors.gps_accuracy``,
     a replay's): a second input, ``gps_accuracy`` (n*``GPS_ACCURACY_SIZE``), and each sample fused
-    with ``measurements.receiver_noise`` of R and its accuracy, as PX4 fuses it."""
+    with ``measurements.receiver_noise`` of R and its accuracy, as PX4 fuses it. height_restart:
+    bool, or (n,) per vehicle: the GPS is the height reference, its height reset to a sample after
+    a gap (``gating.GPS_HEIGHT_TIMEOUT``). The vehicle's :class:`BaroUpdate`, where it has one
+    (``baro``), withholds a GPS height that disagrees with its barometer, and its bias follows a
+    height reset (in the state: ``fusion.fuse_gps``; in its book: :meth:`BaroUpdate.follow_height_resets`)."""
 
-    def __init__(self, measurement, R, gates, correct, receiver_accuracy=False):
+    def __init__(self, measurement, R, gates, correct, receiver_accuracy=False, height_restart=False):
         super().__init__(measurement)
         self._R, self._gates, self._correct = R, gates, correct
         self._receiver_accuracy = receiver_accuracy
+        self._height_restart = np.asarray(height_restart, dtype=bool)
         self._read_accuracy = None
         self._fresh_of = (None, None)  # (the tick's samples, its fresh flags): computed once a tick
-        self.height_check = None  # the BaroUpdate whose check withholds a disagreeing GPS height
+        self.baro = None  # the vehicle's BaroUpdate (set by Fusion), or None
 
     def declare(self, system, n, k) -> None:
         super().declare(system, n, k)
@@ -113,13 +118,21 @@ class GpsUpdate(Update):
         if gps_fresh.any():
             rows = slice(None) if gps_fresh.all() else np.flatnonzero(gps_fresh)
             gps = samples[self.measurement.port]
-            withheld = None
-            if self.height_check is not None:
-                withheld = self.height_check.withholds_gps_height(discrete_state, filters.x.shape[0])
+            n = filters.x.shape[0]
+            withheld = bias_index = None
+            if self.baro is not None:
+                withheld = self.baro.withholds_gps_height(discrete_state, n)
+                bias_index = self.baro.bias_index
+            restart = None
+            if self._height_restart.any():
+                restart = np.broadcast_to(self._height_restart, (n,))
             R = self._R
             if self._read_accuracy is not None:
                 R = receiver_noise(R, gps, self._read_accuracy(context))
-            fusion.fuse_gps(filters, gps, rows, self._correct, R, self._gates, withheld)
+            gates, correct = self._gates, self._correct
+            steps = fusion.fuse_gps(filters, gps, rows, correct, R, gates, withheld, restart, bias_index)
+            if self.baro is not None and bias_index is None:
+                self.baro.follow_height_resets(discrete_state, steps)
         self._fresh_of = (None, None)
 
 
@@ -222,6 +235,8 @@ class BaroUpdate(CorrectionUpdate):
         self._model = aiding_kernels.baro_model(params, gps_z_std, gate, period, carried, bias_in_state)
         self._rows = aiding_kernels.baro_rows
         self._book = self._no_gps = None
+        # the index in x of the bias the estimator carries in its state, None: in the book
+        self.bias_index = eskf.BARO_BIAS_NOMINAL if bias_in_state else None
 
     def declare(self, system, n, k) -> None:
         super().declare(system, n, k)
@@ -238,6 +253,14 @@ class BaroUpdate(CorrectionUpdate):
         book = discrete_state.get_value(self._book).reshape(n, baro.BARO_BOOK_SIZE)
         high, low = book[:, baro.EVIDENCE_HIGH], book[:, baro.EVIDENCE_LOW]
         return baro.gps_height_disagrees(high, low, p.gps_check_threshold)
+
+    def follow_height_resets(self, discrete_state, steps) -> None:
+        """Move the book's bias of each vehicle whose height a GPS reset moved by steps (n,) (m, NED
+        down; NaN: none): ``baro.moved_bias``, the barometer's innovation kept, as PX4's."""
+        moved = np.isfinite(steps)
+        if moved.any():
+            book = discrete_state.get_mutable_value(self._book).reshape(len(steps), baro.BARO_BOOK_SIZE)
+            book[moved, baro.BIAS] = baro.moved_bias(book[moved, baro.BIAS], steps[moved])
 
     def fuse(self, context, discrete_state, filters, samples) -> None:
         f, dx = filters, self._dx
@@ -432,7 +455,7 @@ class Fusion:
         self._readers = tuple((u.measurement.port, u.read) for u in updates if u.read is not None)
         self._gps = next((u for u in updates if isinstance(u, GpsUpdate)), None)
         if self._gps is not None:
-            self._gps.height_check = self.update_of(BaroUpdate)
+            self._gps.baro = self.update_of(BaroUpdate)
 
     def update_of(self, kind) -> object | None:
         """This estimator's update of class `kind`, or None when the vehicle has no such sensor."""

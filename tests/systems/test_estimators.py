@@ -9,6 +9,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
 from quad_drake.config import (
+    BaroParams,
     GpsParams,
     ImuParams,
     MagParams,
@@ -369,6 +370,49 @@ def test_ekf_gates_a_50_m_outlier_and_resets_the_horizontal_position_after_the_t
     f.fix(gps=z + [0.5])  # consistent with the new estimate: fused
     f.tick()
     assert f.output("diagnostics")[DIAG["gps_gated"]] == 4.0
+
+
+@pytest.mark.parametrize("kind", ["ekf7", "eskf"])
+@pytest.mark.parametrize("restart", [True, False])
+def test_a_gps_sample_after_a_gap_resets_the_height_and_the_barometer_keeps_it(kind, restart):
+    # the GPS the height reference (gps_height_restart): a fix 2 s after the last (beyond PX4's
+    # 1 s GNSS height timeout) 2 m above the estimate resets the height to it although its gate
+    # accepts it, and the baro bias moves with it: the next baro samples (same height as before)
+    # leave it there. Off: the fix is fused, the height moves part of the way.
+    sensors = SensorsConfig(imu=ImuParams(), gps=GpsParams(), mag=MagParams(), baro=BaroParams())
+    if kind == "ekf7":
+        dut = Ekf(Ekf7EstimatorConfig(gps_height_restart=restart), sensors=sensors)
+    else:
+        dut = Eskf(EskfEstimatorConfig(gps_height_restart=restart), sensors=sensors)
+    context = dut.CreateDefaultContext()
+    ports = {port.get_name(): port for port in (dut.get_input_port(i) for i in range(dut.num_input_ports()))}
+    ports["imu"].FixValue(context, LEVEL_IMU)
+    if "attitude" in ports:
+        ports["attitude"].FixValue(context, [0.0, 0.0, 0.0])
+    ports["mag"].FixValue(context, NO_MAG)
+    simulator = Simulator(dut, context)
+    state = "ekf_state" if kind == "ekf7" else "estimated_state"
+    for stamp in np.arange(1, 11) * 0.1:  # 1 s of 10 Hz fixes and 50 Hz baro at 1 m
+        ports["gps"].FixValue(context, [0.0, 0.0, -1.0, 0.0, 0.0, 0.0, stamp])
+        for k in range(5):
+            ports["baro"].FixValue(context, [1.0, stamp - 0.08 + 0.02 * k])
+            simulator.AdvanceTo(stamp - 0.08 + 0.02 * k + 0.5 * DT)
+    before = dut.GetOutputPort(state).Eval(context)[2]
+    bias = dut.GetOutputPort("diagnostics").Eval(context)[DIAG["baro_bias"]]
+    ports["gps"].FixValue(context, [0.0, 0.0, -3.0, 0.0, 0.0, 0.0, 3.0])  # 2 s later, 2 m up
+    simulator.AdvanceTo(3.0 + 0.5 * DT)
+    after = dut.GetOutputPort(state).Eval(context)[2]
+    diagnostics = dut.GetOutputPort("diagnostics").Eval(context)
+    assert diagnostics[DIAG["gps_gated"]] == 0.0  # the gate accepts it
+    if not restart:
+        assert after > -2.9 and diagnostics[DIAG["gps_resets"]] == 0.0
+        return
+    assert after == -3.0 and diagnostics[DIAG["gps_resets"]] == 1.0
+    assert diagnostics[DIAG["baro_bias"]] == pytest.approx(bias + (-3.0 - before), abs=1e-12)  # PX4's
+    for k in range(1, 26):  # 0.5 s more of the barometer at 1 m
+        ports["baro"].FixValue(context, [1.0, 3.0 + 0.02 * k])
+        simulator.AdvanceTo(3.0 + 0.02 * k + 0.5 * DT)
+    assert dut.GetOutputPort(state).Eval(context)[2] == pytest.approx(-3.0, abs=0.05)
 
 
 def test_the_reference_estimator_fuses_every_sample_as_the_binary_does():
