@@ -37,7 +37,7 @@ DIAGNOSTICS = (
     "nonfinite_samples",  # count of non-finite IMU, GPS or magnetometer samples skipped
     "gps_gated",  # count of GPS samples rejected by the innovation gate
     "mag_gated",  # count of magnetometer samples rejected by the innovation gate
-    "gps_resets",  # count of resets to the GPS after continuous rejection
+    "gps_resets",  # count of GPS samples a group was reset to (rejected too long, a regain, a height restart)
     "covariance_repairs",  # count of covariance repairs (indefinite) or resets (non-finite)
     # the aiding sensors (issue 32; NaN NIS and -1 stamps without them): estimation/baro.py, mag3.py
     "baro_nis",  # NIS of the last fresh barometer height (1 dof)
