@@ -25,6 +25,7 @@ import sys
 import numpy as np
 import pytest
 
+from quad_drake.estimation.vocabulary import DIAG
 from quad_drake.flightlogs import comparison
 from quad_drake.flightlogs import replay as replay_module
 from quad_drake.flightlogs.replay import COMPARE_AFTER, replay, replay_many
@@ -189,9 +190,10 @@ def test_the_estimator_is_the_same_sub_diagram_a_simulated_vehicle_flies(replays
         for name, width in vocabulary_for(result.config.estimator).log_widths().items():
             assert result.logs[name].shape == (len(result.times), width)
         assert result.logs["gps"].shape[1] == 7 and result.logs["mag"].shape[1] == 2
-        # nothing gated or repaired; one GPS reset: the height to the first fix, PX4's start of its
-        # GNSS height fusion (the log's EKF2_HGT_REF: the GPS; gating.GPS_HEIGHT_TIMEOUT)
-        assert result.logs["diagnostics"][-1, 5:9].tolist() == [0, 0, 1, 0]
+        assert result.logs["diagnostics"][-1, 5:9].tolist() == [0, 0, 0, 0]  # nothing gated or reset
+        # one GPS height restart: at the first fix, PX4's start of its GNSS height fusion (the log's
+        # EKF2_HGT_REF: the GPS; gating.height_restarts)
+        assert result.logs["diagnostics"][-1, DIAG["gps_height_restarts"]] == 1
 
 
 def test_a_csv_log_replays_as_its_ulog(replays, tmp_path):

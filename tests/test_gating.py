@@ -96,13 +96,17 @@ def test_where_the_gps_is_the_height_reference_a_sample_after_a_gap_resets_the_h
     # 1.008 s spacing restarts nothing. Accepted or not; never where the barometer is the reference.
     no_regain = gating.GpsGates(GATES.thresholds, GATES.reset_timeouts, 0.0)
     nis = np.array([[1.0, 1.0, 1.0], [1.0, 1e4, 1.0], [1.0, 1.0, 1.0]])
-    restart = np.array([True, True, False])
+    reference = np.array([True, True, False])
     book = fresh_books(3)
-    gating.gps_gate_decisions(np.ones((3, 3)), [5.0] * 3, book, no_regain, restart)
+    assert gating.height_restarts([5.0] * 3, book, reference).tolist() == [True, True, False]  # the first
+    gating.gps_gate_decisions(np.ones((3, 3)), [5.0] * 3, book, no_regain)
     for stamp in (6.0, 7.008):  # 1.0 and 1.008 s later
-        accepted, reset = gating.gps_gate_decisions(np.ones((3, 3)), [stamp] * 3, book, no_regain, restart)
-        assert accepted.all() and not reset.any()
-    accepted, reset = gating.gps_gate_decisions(nis, [8.1] * 3, book, no_regain, restart)  # 1.092 s
+        restarted = gating.height_restarts([stamp] * 3, book, reference)
+        accepted, reset = gating.gps_gate_decisions(np.ones((3, 3)), [stamp] * 3, book, no_regain, restarted)
+        assert not restarted.any() and accepted.all() and not reset.any()
+    restarted = gating.height_restarts([8.1] * 3, book, reference)  # 1.092 s later
+    assert restarted.tolist() == [True, True, False]
+    accepted, reset = gating.gps_gate_decisions(nis, [8.1] * 3, book, no_regain, restarted)
     assert accepted.tolist() == [[True] * 3, [True, False, True], [True] * 3]
     assert reset.tolist() == [[False, True, False], [False, True, False], [False] * 3]
     _, reset = gating.gps_gate_decisions(nis, [10.1] * 3, book, no_regain)  # None: no filter restarts

@@ -137,17 +137,28 @@ def gps_group_nis(nu, S) -> np.ndarray:
     return out
 
 
-def gps_gate_decisions(group_nis, stamps, book, gates, height_restart=None) -> tuple[np.ndarray, np.ndarray]:
+def height_restarts(stamps, book, height_reference) -> np.ndarray:
+    """(M,) bool: the M finite GPS samples at which PX4 restarts its GNSS height fusion with a reset
+    of the height to the sample: the filter's GPS is its height reference (height_reference (M,)
+    bool, ``gps_height_restart``) and the sample comes more than GPS_HEIGHT_TIMEOUT +
+    PX4_UPDATE_PERIOD s after the filter's previous one (its book's, as :func:`gps_gate_decisions`
+    reads it, before that call books this sample): PX4 tests the timeout once per 10 ms filter
+    update, so a 1 Hz receiver's 1.000-1.008 s spacing restarts nothing (:data:`GPS_HEIGHT_TIMEOUT`).
+    The first sample after the start is one (PX4 starts its GNSS height fusion with a reset)."""
+    gap = np.asarray(stamps, dtype=float) - book[:, GPS_LAST_SAMPLE]
+    return np.asarray(height_reference, dtype=bool) & (gap > GPS_HEIGHT_TIMEOUT + PX4_UPDATE_PERIOD)
+
+
+def gps_gate_decisions(group_nis, stamps, book, gates, restarted=None) -> tuple[np.ndarray, np.ndarray]:
     """What to do with M finite GPS samples: (accepted (M, 3), reset (M, 3)); updates book IN PLACE.
 
     group_nis (M, 3) from :func:`gps_group_nis` of the prior; stamps (M,) s, the samples'
     measurement times; book (M, GPS_BOOK_SIZE), per filter: the stamp of its previous finite GPS
     sample (s; its start time before the first), then per group when its current run of
     rejections began (s, NaN: none) and its running mean of NIS/dof over accepted samples
-    (1 at the start); gates a :class:`GpsGates`; height_restart (M,) bool or None (none): the
-    filters whose GPS is their height reference, whose height is reset to a sample that comes more
-    than GPS_HEIGHT_TIMEOUT + PX4_UPDATE_PERIOD s after their previous one (PX4's restart of its
-    GNSS height fusion, :data:`GPS_HEIGHT_TIMEOUT`), accepted or not.
+    (1 at the start); gates a :class:`GpsGates`; restarted (M,) bool or None (none): the samples
+    at which the filter restarts its GPS height (:func:`height_restarts`), whose height is reset to
+    them, accepted or not.
 
     A group passes when its NIS is within its threshold times max(1, running mean): a filter
     whose innovations have been consistently larger than its covariance says widens its own gate
@@ -167,9 +178,8 @@ def gps_gate_decisions(group_nis, stamps, book, gates, height_restart=None) -> t
     gap = stamps - book[:, GPS_LAST_SAMPLE : GPS_LAST_SAMPLE + 1]
     outage = (gates.regain_time > 0.0) & (gap > gates.regain_time)  # (M, 1)
     reset = ~accepted & (timed_out | outage)
-    if height_restart is not None:
-        late = gap[:, 0] > GPS_HEIGHT_TIMEOUT + PX4_UPDATE_PERIOD
-        reset[:, GPS_GROUPS.index("height")] |= np.asarray(height_restart, dtype=bool) & late
+    if restarted is not None:
+        reset[:, GPS_GROUPS.index("height")] |= np.asarray(restarted, dtype=bool)
     since[reset] = math.nan
     weight = gates.consistency_weight
     book[:, GPS_NIS_MEAN] = np.where(accepted, (1.0 - weight) * mean + weight * group_nis / dof, mean)

@@ -37,7 +37,7 @@ DIAGNOSTICS = (
     "nonfinite_samples",  # count of non-finite IMU, GPS or magnetometer samples skipped
     "gps_gated",  # count of GPS samples rejected by the innovation gate
     "mag_gated",  # count of magnetometer samples rejected by the innovation gate
-    "gps_resets",  # count of GPS samples a group was reset to (rejected too long, a regain, a height restart)
+    "gps_resets",  # count of GPS samples a group its gate rejected was reset to (rejected too long, a regain)
     "covariance_repairs",  # count of covariance repairs (indefinite) or resets (non-finite)
     # the aiding sensors (issue 32; NaN NIS and -1 stamps without them): estimation/baro.py, mag3.py
     "baro_nis",  # NIS of the last fresh barometer height (1 dof)
@@ -48,6 +48,7 @@ DIAGNOSTICS = (
     "baro_resets",  # count of baro bias resets after continuous rejection
     "baro_bias",  # m, the baro bias estimate (the scalar filter beside the estimator)
     "baro_bias_std",  # m, its standard deviation
+    "gps_height_restarts",  # count of GPS samples the height restarted at (gating.height_restarts)
 )
 """Names of the ``diagnostics`` entries, common to every estimator."""
 DIAGNOSTICS_SIZE = len(DIAGNOSTICS)
@@ -60,6 +61,7 @@ COUNTERS = (
     "covariance_repairs",
     "baro_gated",
     "baro_resets",
+    "gps_height_restarts",
 )
 NIS_DOF = {"gps": 6, "mag": 1, "baro": 1, "field": 3}
 """Degrees of freedom of each sensor's NIS (GPS p and v, magnetometer yaw or the EKF7's
@@ -307,5 +309,8 @@ def health_line(vehicle, kind, counts) -> str:
     )
     if counts.get("baro_gated", 0) or counts.get("baro_resets", 0):
         text += f", {counts['baro_gated']} baro samples gated, {counts['baro_resets']} baro bias resets"
+    if counts.get("gps_height_restarts", 0):
+        restarts = counts["gps_height_restarts"]
+        text += f", {restarts} GPS height restarts (the GPS the height reference, after a gap in its samples)"
     alarm = counts["covariance_repairs"] > 0 or counts["gps_resets"] > 0
     return ("WARNING: " if alarm else "") + text

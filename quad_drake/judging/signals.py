@@ -39,7 +39,8 @@ Estimator signals come from the logs every estimator exports (``estimated_state`
 - ``Est.GpsNIS`` (fresh on each GPS sample), ``Est.MagNIS`` (the yaw, or the EKF7's
   tilt-compensated heading), ``Est.BaroNIS`` and ``Est.FieldNIS`` (the ESKF's 3-axis field), and
   the counters ``Est.NonFinite``, ``Est.GpsGated``, ``Est.MagGated``, ``Est.GpsResets``,
-  ``Est.CovRepairs``, ``Est.BaroGated``, ``Est.BaroResets`` (cumulative counts); ``Est.BaroBias``
+  ``Est.CovRepairs``, ``Est.BaroGated``, ``Est.BaroResets``, ``Est.GpsHeightRestarts``
+  (cumulative counts); ``Est.BaroBias``
   and ``Est.BaroBiasStd`` (m, the baro bias estimate and its standard deviation, NaN without a
   barometer).
 """
@@ -122,6 +123,7 @@ COUNTER_SIGNALS = {
     "covariance_repairs": "CovRepairs",
     "baro_gated": "BaroGated",
     "baro_resets": "BaroResets",
+    "gps_height_restarts": "GpsHeightRestarts",
 }
 
 FAILSAFE_SIGNALS = ("PositionValid", "NoAidTime", "Phase")

@@ -341,8 +341,10 @@ def fuse_gps(
     keeps (x, P); otherwise the joint 6-dof NIS of the prior and the stamp are logged, the groups
     the gates accept and ``gating.gps_gate_decisions`` does not reset are fused in one update,
     and the groups it resets are set to the sample; ``gps_gated`` counts the samples with a
-    rejected group, ``gps_resets`` those with a reset. A height reset moves a baro bias in the
-    state with the height (``baro.moved_bias``).
+    rejected group, ``gps_resets`` those with a group reset to a sample its gate rejected (a filter
+    that had lost the GPS), ``gps_height_restarts`` those at which the height restarted
+    (``gating.height_restarts``; PX4's routine start of its GNSS height fusion). A height reset
+    moves a baro bias in the state with the height (``baro.moved_bias``).
 
     Returns (N,) each vehicle's height step dz (m, NED down) by a reset, NaN where its height was
     not reset: what a baro bias outside the state must follow (``baro.moved_bias``).
@@ -365,14 +367,22 @@ def fuse_gps(
     diagnostics[index, DIAG["gps_nis"]] = gating.innovation_nis(nu, S)
     diagnostics[index, DIAG["gps_stamp"]] = s
     policy_book = book[index, GPS_POLICY]
-    restart = None if height_restart is None else height_restart[index]
-    accepted, reset = gating.gps_gate_decisions(gating.gps_group_nis(nu, S), s, policy_book, gates, restart)
+    restarted = (
+        None if height_restart is None else gating.height_restarts(s, policy_book, height_restart[index])
+    )
+    accepted, reset = gating.gps_gate_decisions(gating.gps_group_nis(nu, S), s, policy_book, gates, restarted)
     book[index, GPS_POLICY] = policy_book
     if height_withheld is not None:
         withheld = height_withheld[index]
         accepted[withheld, GPS_HEIGHT_GROUP] = reset[withheld, GPS_HEIGHT_GROUP] = False
+        if restarted is not None:
+            restarted &= ~withheld
     diagnostics[index[~accepted.all(axis=1)], DIAG["gps_gated"]] += 1.0
-    diagnostics[index[reset.any(axis=1)], DIAG["gps_resets"]] += 1.0
+    recovered = reset.copy()  # the resets of a filter that had lost the GPS: not the restarts
+    if restarted is not None:
+        recovered[restarted, GPS_HEIGHT_GROUP] &= ~accepted[restarted, GPS_HEIGHT_GROUP]
+        diagnostics[index[restarted], DIAG["gps_height_restarts"]] += 1.0
+    diagnostics[index[recovered.any(axis=1)], DIAG["gps_resets"]] += 1.0
     fused = gating.component_mask(accepted & ~reset)
     x_new, P_new, _, _ = gps_update(x_prior, P_prior, z_rows, R, correct, fused)
     for g, components in enumerate(gating.GPS_GROUP_COMPONENTS):
