@@ -63,7 +63,7 @@ the next sample with a reset of the height to it where the GNSS is its height re
 ``controlGnssHeightFusion`` ("stopping GNSS height fusion, no data" after 2 ``GNSS_MAX_INTERVAL``,
 0.5 s in ``common.h``; "starting GNSS height fusion, resetting height"). PX4 tests it once per
 filter update (``eskf.PX4_UPDATE_PERIOD``, 10 ms), so a sample less than one update late was never
-missed: :func:`gps_gate_decisions` restarts after gaps longer than the sum (a 1 Hz receiver's
+missed: :func:`height_restarts` restarts after gaps longer than the sum (a 1 Hz receiver's
 1.000-1.008 s spacing restarts nothing; on x500v2_v6xrt PX4's height reset counter steps at the
 fixes after its longer gaps)."""
 

@@ -333,7 +333,7 @@ def fuse_gps(
     each vehicle's own; gates a ``gating.GpsGates``; height_withheld (N,) bool or None: the
     vehicles whose GPS height is neither fused nor reset to (it disagrees persistently with their
     barometer, ``BaroUpdate.withholds_gps_height``); height_restart (N,) bool or None: the vehicles
-    whose GPS is their height reference (``gating.gps_gate_decisions``); baro_bias: the index in x
+    whose GPS is their height reference (``gating.height_restarts``); baro_bias: the index in x
     of a baro bias the filter carries in its state, its error last in P (the ESKF's,
     ``eskf.BARO_BIAS_NOMINAL``), or None.
 
