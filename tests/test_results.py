@@ -7,6 +7,8 @@ import numpy as np
 import pytest
 
 from quad_drake.config.errors import ConfigError
+from quad_drake.estimation.vocabulary import DIAG
+from quad_drake.output.export import export_csv
 from quad_drake.output.jsonio import dump_json, to_json_ready
 from quad_drake.output.report import find_summaries, write_index
 from quad_drake.output.results import FORMAT_VERSION, RUNNER, load_run, save_run
@@ -78,6 +80,23 @@ def test_an_unknown_format_version_is_refused(sensor_run, tmp_path):
     dump_json(run_dir / "summary.json", summary)
     with pytest.raises(ConfigError, match="format_version None is not supported"):
         load_run(run_dir)
+
+
+def test_a_run_saved_before_a_diagnostics_entry_was_appended_loads_and_exports(sensor_run, tmp_path):
+    # An earlier quad_drake wrote the diagnostics without the entries appended since (the GPS height
+    # restarts): the run loads, exports and reports with them at their value before any update.
+    result, saved = sensor_run
+    run_dir = shutil.copytree(saved, tmp_path / "older")
+    with np.load(run_dir / "logs.npz") as data:
+        logs = {key: data[key] for key in data.files}
+    restarts = DIAG["gps_height_restarts"]
+    logs["Quad/diagnostics"] = logs["Quad/diagnostics"][:, :restarts]  # the width before it
+    np.savez(run_dir / "logs.npz", **logs)
+    loaded = load_run(run_dir)
+    assert (loaded.signals["Quad.Est.GpsHeightRestarts"].values == 0.0).all()
+    for name, signal in result.signals.items():
+        np.testing.assert_array_equal(loaded.signals[name].values, signal.values, err_msg=name)
+    assert [p.name for p in export_csv(run_dir, tmp_path / "csv")][0] == "Quad.csv"
 
 
 def test_a_folder_without_logs_or_summary_is_refused(sensor_run, tmp_path):

@@ -79,6 +79,20 @@ def initial_diagnostics() -> np.ndarray:
     return values
 
 
+def completed_diagnostics(logged) -> np.ndarray:
+    """A ``diagnostics`` log (m, k) as today's layout (m, DIAGNOSTICS_SIZE): a run saved by an
+    earlier quad_drake has fewer columns, the entries appended to :data:`DIAGNOSTICS` since
+    (``gps_height_restarts``), which that version never counted: each is given its value before
+    the first update (:func:`initial_diagnostics`; a counter 0). A log of today's width is returned
+    as it is."""
+    logged = np.asarray(logged, dtype=float)
+    width = logged.shape[-1]
+    if width >= DIAGNOSTICS_SIZE:
+        return logged
+    missing = np.broadcast_to(initial_diagnostics()[width:], (*logged.shape[:-1], DIAGNOSTICS_SIZE - width))
+    return np.concatenate([logged, missing], axis=-1)
+
+
 STATE_LOG_SIZE = 13
 
 

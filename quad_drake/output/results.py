@@ -26,6 +26,7 @@ import numpy as np
 from ..config.errors import ConfigError
 from ..config.loader import dump_scenario, load_scenario
 from ..estimation.registry import vehicle_vocabulary
+from ..estimation.vocabulary import completed_diagnostics
 from ..judging.signals import Signals, vehicle_signals
 from ..judging.verdicts import evaluate_criteria
 from .jsonio import dump_json
@@ -209,7 +210,10 @@ def load_logs(run_dir) -> tuple[np.ndarray, dict[str, dict[str, np.ndarray]]]:
             for key in data.files:
                 if key != "times":
                     vehicle, name = key.split("/", 1)
-                    logs.setdefault(vehicle, {})[name] = data[key]
+                    logged = data[key]  # an earlier version's diagnostics completed to today's layout
+                    logs.setdefault(vehicle, {})[name] = (
+                        completed_diagnostics(logged) if name == "diagnostics" else logged
+                    )
             return data["times"], logs
     except (OSError, EOFError, KeyError, ValueError, zipfile.BadZipFile) as e:
         reason = str(e).splitlines()[0] if str(e) else type(e).__name__
