@@ -264,3 +264,28 @@ def test_a_withheld_gps_height_is_neither_fused_nor_reset_to():
     assert x[0, 2] == -1.0 and P[0, 2, 2] == 0.01  # the withheld height: untouched
     assert x[1, 2] == pytest.approx(-31.0, abs=0.1)  # the other: reset to the GPS height after 1 s
     assert diagnostics[1, DIAG["gps_resets"]] >= 1 and diagnostics[0, DIAG["gps_resets"]] == 0
+
+
+def test_a_restart_moves_the_baro_bias_and_a_reset_to_a_rejected_height_does_not():
+    # the EKF7 (its baro bias in the barometer's book: fuse_gps returns the steps it must follow),
+    # its GPS the height reference: a 30 m GPS height step is rejected and reset to after the 1 s
+    # timeout with no step returned (the barometer stays the independent check, estimation/baro.py);
+    # a sample 2 m lower after a 2 s gap restarts the height, and its step is returned
+    params = Ekf7EstimatorConfig(gps_gate_adaptation=0.0)
+    R, gates = ekf.gps_noise(params), gating.GpsGates.from_params(params)
+    x, P = ekf.initial_state(params)[None].copy(), np.diag([0.01] * 6 + [1e-6])[None].copy()
+    diagnostics, book = initial_diagnostics()[None], fusion.initial_book()[None]
+    steps = []
+    for stamp in [0.1 * k for k in range(1, 21)] + [4.0]:  # 2 s at 10 Hz, then one after a 2 s gap
+        height = -1.0 if stamp < 0.5 else -31.0 if stamp < 4.0 else -29.0
+        filters = fusion.Filters(x, P, diagnostics, book, hold=None)
+        prior = x[0, 2]
+        step = fusion.fuse_gps(filters, np.r_[0.0, 0.0, height, 0.0, 0.0, 0.0, stamp][None], slice(None),
+                               ekf7.correct_gps, R, gates, height_restart=np.array([True]))  # fmt: skip
+        steps.append((stamp, prior, step[0]))
+    assert diagnostics[0, DIAG["gps_resets"]] >= 1  # the rejected height was reset to
+    assert all(math.isnan(step) for stamp, _, step in steps if stamp < 4.0)  # never moving the bias
+    assert diagnostics[0, DIAG["gps_height_restarts"]] == 1  # the sample after the gap
+    stamp, prior, step = steps[-1]
+    assert prior == pytest.approx(-31.0, abs=0.1) and step == pytest.approx(-29.0 - prior, abs=1e-12)
+    assert x[0, 2] == -29.0

@@ -91,9 +91,10 @@ height step (100 runs, seeds 7000-7099) restoring the nominal bias with P kept c
 largest height error by under 1 mm (0.117 against 0.118 m). So when the check fires the ESKF
 withholds the GPS height and restores nothing.
 
-**Both: a GPS height reset moves the bias with the height** (``fusion.fuse_gps``; PX4's
-``resetVerticalPositionTo`` / ``resetAltitudeTo`` in ``ekf_helper.cpp``: ``_baro_b_est.setBias(
-_baro_b_est.getBias() + delta_z)``): the height's step dz (m, NED down) is added to the bias,
+**Both: a GPS height restart moves the bias with the height** (``fusion.fuse_gps``,
+``gating.height_restarts``; PX4's ``resetVerticalPositionTo`` / ``resetAltitudeTo`` in
+``ekf_helper.cpp``: ``_baro_b_est.setBias(_baro_b_est.getBias() + delta_z)``): the height's step
+dz (m, NED down) is added to the bias,
 b' = b + dz (:func:`moved_bias`), so the baro innovation h - (-p_z + b) is what it was and the
 barometer does not pull the height back to where the reset took it from (it would: with the GPS
 height's variance in P22 the next baro samples carry most of their innovation into the height).
@@ -103,6 +104,11 @@ kept, as PX4 keeps its bias estimator's variance; the height's are the reset's
 - n for the sample's error n: the bias's variance grows by the height's innovation variance) was
 measured farther from PX4's vertical velocity on x500v2_v6xrt (vz 0.204 against 0.185 m/s RMS;
 ``docs/measurements/replay.md``), and the EKF7's b + dz with P_b + R likewise (0.742 against 0.598).
+A reset to a GPS height the gate rejected (after its timeout, or at a regain) leaves the bias
+where it is, unlike PX4, which moves it at every vertical reset: such a height is the suspect one
+(a step, multipath), and the barometer, unmoved, is then the independent check that pulls the
+height back or makes the GPS height withheld (:func:`gps_height_disagrees`), instead of
+following a wrong GPS height into the floor.
 
 Every function works on plain floats and on a covariance array P (n x n), so
 ``kernels/`` compile them as they are (the code here, not a copy).

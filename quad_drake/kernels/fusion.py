@@ -343,11 +343,12 @@ def fuse_gps(
     and the groups it resets are set to the sample; ``gps_gated`` counts the samples with a
     rejected group, ``gps_resets`` those with a group reset to a sample its gate rejected (a filter
     that had lost the GPS), ``gps_height_restarts`` those at which the height restarted
-    (``gating.height_restarts``; PX4's routine start of its GNSS height fusion). A height reset
-    moves a baro bias in the state with the height (``baro.moved_bias``).
+    (``gating.height_restarts``; PX4's routine start of its GNSS height fusion). A height restart
+    moves a baro bias in the state with the height (``baro.moved_bias``); a reset to a rejected
+    height does not (``estimation/baro.py``).
 
-    Returns (N,) each vehicle's height step dz (m, NED down) by a reset, NaN where its height was
-    not reset: what a baro bias outside the state must follow (``baro.moved_bias``).
+    Returns (N,) each vehicle's height step dz (m, NED down) by a restart, NaN where its height was
+    not restarted: what a baro bias outside the state must follow (``baro.moved_bias``).
     """
     x, P, diagnostics, book = filters.x, filters.P, filters.diagnostics, filters.book
     steps = np.full(x.shape[0], math.nan)
@@ -391,11 +392,12 @@ def fuse_gps(
             idx = list(components)
             noise = R[np.ix_(idx, idx)] if R.ndim == 2 else R[due][:, idx][:, :, idx]
             values = z_rows[due][:, idx]
-            if g == GPS_HEIGHT_GROUP:
-                step = values[:, 0] - x_new[due, baro.HEIGHT_INDEX]
-                steps[index[due]] = step
-                if baro_bias is not None:  # the bias in the state moves with the height
-                    x_new[due, baro_bias] = baro.moved_bias(x_new[due, baro_bias], step)
+            if g == GPS_HEIGHT_GROUP and restarted is not None and (restarted & due).any():
+                moved = restarted & due  # a restart moves the baro bias with the height (baro.py)
+                step = z_rows[moved, 2] - x_new[moved, baro.HEIGHT_INDEX]
+                steps[index[moved]] = step
+                if baro_bias is not None:  # the bias in the state
+                    x_new[moved, baro_bias] = baro.moved_bias(x_new[moved, baro_bias], step)
             x_new[due], P_new[due] = gating.reset_states(x_new[due], P_new[due], idx, values, noise)
     x[index] = x_new
     P[index] = P_new
