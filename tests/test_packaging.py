@@ -334,11 +334,14 @@ def test_catalog_lists_the_bundled_scenarios_from_the_top_level_folder():
 
 
 def test_the_wheel_lists_every_package_and_ships_the_scenarios_as_package_data():
-    """pyproject lists its packages (the top-level scenarios/ is mapped into the package), so a new
-    subpackage must be listed too."""
+    """pyproject lists its packages (the top-level scenarios/ is mapped into the package; each
+    folder of data files under quad_drake/data/ is a package of data alone), so a new subpackage
+    or data folder must be listed too."""
     setuptools = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]
     packages = {".".join(p.parent.relative_to(REPO).parts) for p in PACKAGE.rglob("__init__.py")}
-    assert set(setuptools["packages"]) == packages | {"quad_drake.scenarios"}
+    data = {".".join(p.relative_to(REPO).parts) for p in (PACKAGE / "data").iterdir() if p.is_dir()}
+    assert set(setuptools["packages"]) == packages | data | {"quad_drake.scenarios"}
+    assert set(setuptools["package-data"]) == data | {"quad_drake.scenarios"}  # every data folder ships
     assert setuptools["package-dir"] == {"quad_drake.scenarios": "scenarios"}
     assert setuptools["package-data"]["quad_drake.scenarios"] == ["*.yaml"]
 
