@@ -194,6 +194,12 @@ def test_the_estimator_is_the_same_sub_diagram_a_simulated_vehicle_flies(replays
         # one GPS height restart: at the first fix, PX4's start of its GNSS height fusion (the log's
         # EKF2_HGT_REF: the GPS; gating.height_restarts)
         assert result.logs["diagnostics"][-1, DIAG["gps_height_restarts"]] == 1
+        assert any(
+            n.startswith("The GPS is the height reference") and "at 1 fix," in n for n in result.notes()
+        )
+    assert not load_replay(
+        LOGS[1], overrides=["estimator.gps_height_restart=false"]
+    ).estimator.gps_height_restart
 
 
 def test_a_csv_log_replays_as_its_ulog(replays, tmp_path):

@@ -36,6 +36,7 @@ from pydrake.systems.primitives import LogVectorOutput
 from quad_drake.config.errors import ConfigError
 from quad_drake.config.schema import VehicleConfig
 from quad_drake.conventions import LOG_PERIOD, ONBOARD_PERIOD
+from quad_drake.estimation.gating import GPS_HEIGHT_TIMEOUT
 from quad_drake.estimation.measurements import RECEIVER_POSITION_CAP
 from quad_drake.estimation.registry import KINDS, sharing_problem, vocabulary_for
 from quad_drake.estimation.vocabulary import EstimatorVocabulary, health_counts, health_line
@@ -222,6 +223,15 @@ class ReplayResult:
                 f"{eph:.2f} m, vertical {epv:.2f} m, speed {sacc:.2f} m/s; a position's counted up to "
                 f"{RECEIVER_POSITION_CAP:g} m); --set gps_receiver_accuracy=false fuses the "
                 "estimator's own alone."
+            )
+        restarts = health_counts(self.logs["diagnostics"])["gps_height_restarts"]
+        if restarts:
+            lines.append(
+                f"The GPS is the height reference (the log's EKF2_HGT_REF): the height was restarted at "
+                f"{restarts} fix{'es' if restarts > 1 else ''}, each reset to a fix that came more than "
+                f"{GPS_HEIGHT_TIMEOUT:g} s after the previous one (or after the start), as PX4 restarts "
+                "its GNSS height fusion; --set estimator.gps_height_restart=false fuses every fix's "
+                "height instead."
             )
         delays = [(s, getattr(self.config, f"{s}_delay")) for s in ("gps", "mag", "baro")]
         if any(d for _, d in delays):
