@@ -11,6 +11,13 @@ PHYSICS_PERIOD = 0.001
 ONBOARD_PERIOD = 0.002
 """Tick of IMU, attitude filter, EKF and controller, s (500 Hz)."""
 
+PX4_UPDATE_PERIOD = 0.010
+"""s: PX4 EKF2's update period (``EKF2_PREDICT_US``): its delayed IMU sums the samples over it
+(``eskf.manoeuvre_levels``), it fuses the gravity vector once per period (a filter updating every
+dt fuses it with the variance gravity_std^2 PX4_UPDATE_PERIOD / dt, the same information per
+second: ``eskf.gravity_variance``), and it tests its sensor timeouts once per period
+(``gating.height_restarts``)."""
+
 LOG_PERIOD = 0.005
 """Logger sampling period, s, as the reference's 5 ms analyzer frames."""
 

@@ -21,7 +21,7 @@ from quad_drake.config import (
     SensorsConfig,
     VehicleConfig,
 )
-from quad_drake.conventions import GRAVITY, NO_SAMPLE_STAMP
+from quad_drake.conventions import GRAVITY, NO_SAMPLE_STAMP, PX4_UPDATE_PERIOD
 from quad_drake.estimation import ekf, eskf, gating
 from quad_drake.estimation.complementary import complementary_update
 from quad_drake.estimation.registry import (
@@ -465,7 +465,7 @@ def test_eskf_manoeuvre_levels_compiled_match_the_scalar_levels():
         imu = np.column_stack([specific_forces(rng), gyro_samples(rng)])
         if tick == 7:
             imu[3, 4] = math.nan
-        eskf_kernel.manoeuvre_tick(state, imu, DT, eskf.PX4_UPDATE_PERIOD, eskf.ACCEL_BIAS_LEARNING_TAU)
+        eskf_kernel.manoeuvre_tick(state, imu, DT, PX4_UPDATE_PERIOD, eskf.ACCEL_BIAS_LEARNING_TAU)
         eskf.manoeuvre_levels(reference, imu, DT)
         np.testing.assert_allclose(state, reference, **TOL)
     assert (state[:, 1] > 0.0).all() and (state[4:, 0] > 0.0).all()  # gyro_samples: rows 0-3 still

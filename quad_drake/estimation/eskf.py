@@ -56,7 +56,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from quad_drake.conventions import GRAVITY, NO_SAMPLE_STAMP
+from quad_drake.conventions import GRAVITY, NO_SAMPLE_STAMP, PX4_UPDATE_PERIOD
 from quad_drake.estimation.ekf import mag_innovation
 from quad_drake.models.rotations import quat_product, rotation_entries
 
@@ -524,11 +524,6 @@ def initial_covariance(params, baro=False) -> np.ndarray:
     return np.diag(np.square(std))
 
 
-PX4_UPDATE_PERIOD = 0.010
-"""s: PX4 EKF2's update period (``EKF2_PREDICT_US``): its delayed IMU sums the samples over it
-(:func:`manoeuvre_levels`), and it fuses the gravity vector once per period: a filter updating
-every dt fuses it with the variance gravity_std^2 PX4_UPDATE_PERIOD / dt, the same information
-per second (:func:`gravity_variance`)."""
 GRAVITY_GATE = 0.25
 """sigma: PX4 EKF2's innovation gate of the gravity vector (``Ekf::controlGravityFusion``)."""
 GRAVITY_ACCEL_BAND = (0.9 * GRAVITY, 1.1 * GRAVITY)

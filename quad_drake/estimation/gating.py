@@ -40,7 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from quad_drake.estimation.eskf import PX4_UPDATE_PERIOD
+from quad_drake.conventions import PX4_UPDATE_PERIOD
 
 COVARIANCE_OK, COVARIANCE_REPAIRED, COVARIANCE_RESET = 0, 1, 2
 """Outcomes of :func:`repaired_covariance`: untouched, eigenvalues clipped, replaced by the fallback."""
@@ -62,7 +62,7 @@ the next sample with a reset of the height to it where the GNSS is its height re
 (``EKF2_HGT_REF`` 1): PX4-Autopilot ``src/modules/ekf2/EKF/aid_sources/gnss/gnss_height_control.cpp``,
 ``controlGnssHeightFusion`` ("stopping GNSS height fusion, no data" after 2 ``GNSS_MAX_INTERVAL``,
 0.5 s in ``common.h``; "starting GNSS height fusion, resetting height"). PX4 tests it once per
-filter update (``eskf.PX4_UPDATE_PERIOD``, 10 ms), so a sample less than one update late was never
+filter update (``conventions.PX4_UPDATE_PERIOD``, 10 ms), so a sample less than one update late was never
 missed: :func:`height_restarts` restarts after gaps longer than the sum (a 1 Hz receiver's
 1.000-1.008 s spacing restarts nothing; on x500v2_v6xrt PX4's height reset counter steps at the
 fixes after its longer gaps)."""

@@ -46,6 +46,7 @@ from quad_drake.conventions import (
     EKF_STATE_SIZE,
     IMU_SIZE,
     ONBOARD_PERIOD,
+    PX4_UPDATE_PERIOD,
     STATE_SIZE,
 )
 from quad_drake.estimation import ekf, gating
@@ -366,7 +367,7 @@ class Eskf(LeafSystem):
         self._predict_tick, self._write_estimate = eskf_kernel.predict_tick, eskf.write_estimate
         self._uncorrelate_accel_bias = eskf.uncorrelate_unobservable_accel_bias
         self._manoeuvre_tick = eskf_kernel.manoeuvre_tick
-        self._levels_timing = (eskf.PX4_UPDATE_PERIOD, eskf.ACCEL_BIAS_LEARNING_TAU)
+        self._levels_timing = (PX4_UPDATE_PERIOD, eskf.ACCEL_BIAS_LEARNING_TAU)
         self._bias_learning_tilt = params.accel_bias_learning_tilt if params.estimate_biases else 0.0
         correct = eskf_kernel.correct
         builders = {
