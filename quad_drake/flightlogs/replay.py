@@ -802,7 +802,7 @@ def _judge(result):
     }
     result.truth = comparison.truth_errors(result.times, result.logs, log, COMPARE_AFTER)
     result.truth_nees = comparison.truth_nees(vocabulary, result.times, result.logs, log, COMPARE_AFTER)
-    sources = {"imu": log.imu, "gps": log.gps, "mag": log.mag_field, "baro": log.baro}
+    sources = {"gps": log.gps, "mag": log.mag_field, "baro": log.baro}  # the IMU's are averaged
     result.superseded = {name: superseded_samples(s.times) for name, s in sources.items() if s is not None}
 
 

@@ -6,8 +6,18 @@ consumer sees it fresh once, as it sees a simulated sensor's sample). When two s
 stream fall between the same two ticks (faster than 500 Hz), the later one is emitted and the
 earlier one is superseded (counted by :func:`superseded_samples`).
 
+The IMU is not held that way: its stream carries at each tick j the mean of the log's IMU signal
+over the tick's own interval [t_j, t_j + ONBOARD_PERIOD) (:func:`imu_tick_means`), where the signal
+holds each sample from its time (the start of its integration interval, ``reader``) until the next
+sample's. The estimators integrate a tick's IMU row over that interval, so their prediction steps
+integrate the log's samples exactly, whatever the IMU's rate. Held at the first tick after each
+sample instead, a 200 Hz IMU's samples were integrated over 4 and 6 ms in turn; on a vibrating
+vehicle (a real multirotor's gyro swings by tenths of rad/s from sample to sample) that
+alternation drifts the integrated attitude and velocity by several mrad/s and cm/s^2
+(`docs/measurements/replay.md`).
+
 The streams have the simulated sensors' port layouts (``conventions``): ``imu`` (6: f_B m/s^2,
-w_NB_B rad/s, FRD; no stamp, a new sample every tick it changes), ``gps`` (7: p_N m, v_N m/s,
+w_NB_B rad/s, FRD; no stamp, a row every tick), ``gps`` (7: p_N m, v_N m/s,
 stamp s), ``mag`` (2: yaw rad, stamp s), plus the raw sensors a later estimator may fuse:
 ``mag_field`` (4: field_B gauss, FRD, stamp s), ``baro`` (2: pressure altitude m, up, stamp s) and
 ``gps_accuracy`` (4: the GPS receiver's reported accuracy of each GPS sample, horizontal and
@@ -96,6 +106,39 @@ def output_changes(per_vehicle) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     ticks = np.concatenate(ticks)
     order = np.argsort(ticks, kind="stable")
     return ticks[order], np.concatenate(vehicles)[order], np.concatenate(rows)[order]
+
+
+def imu_tick_means(times, values, period=ONBOARD_PERIOD) -> tuple[np.ndarray, np.ndarray]:
+    """(ticks (k,) ints, rows (k, w)): per onboard tick from the first sample's first tick to the
+    last sample's, the mean over the tick's interval [t_j, t_j + period) of the piecewise-constant
+    signal that holds each of the samples `values` (m, w) from its time `times` (m,) s (ascending)
+    until the next one's (the first one also before its time, the last one on). A tick whose
+    interval meets a non-finite sample's stretch of the signal is NaN in every column (the
+    estimators dead-reckon over it, ``kernels.imu_hold``). Samples on the ticks themselves come
+    back as they are; samples faster than the tick are averaged, none superseded."""
+    t = np.asarray(times, dtype=float)
+    v = np.asarray(values, dtype=float).reshape(len(t), -1)
+    ticks = np.arange(first_ticks(t[:1])[0], first_ticks(t[-1:])[0] + 1)
+    start = ticks * period
+    end = start + period
+    first = np.maximum(np.searchsorted(t, start, side="right") - 1, 0)  # the sample held at start
+    last = np.maximum(np.searchsorted(t, end, side="left") - 1, 0)  # the one held just before end
+    finite = np.isfinite(v).all(axis=1)
+    held = np.where(finite[:, None], v, 0.0)
+    rows = held[first].copy()  # a tick within one sample's stretch: that sample
+    spans = np.flatnonzero(last > first)
+    if len(spans):  # a tick that meets several: the first's part, the whole ones, the last's part
+        whole = np.vstack([np.zeros((1, v.shape[1])), np.cumsum(held[:-1] * np.diff(t)[:, None], axis=0)])
+        a, b = first[spans], last[spans]
+        integral = (
+            held[a] * (t[a + 1] - start[spans])[:, None]
+            + (whole[b] - whole[a + 1])
+            + held[b] * (end[spans] - t[b])[:, None]
+        )
+        rows[spans] = integral / period
+    nonfinite = np.concatenate([[0], np.cumsum(~finite)])
+    rows[nonfinite[last + 1] - nonfinite[first] > 0] = np.nan
+    return ticks, rows
 
 
 def superseded_samples(times, period=ONBOARD_PERIOD) -> int:
@@ -348,6 +391,8 @@ def playback_streams(
     for name, samples in sources.items():
         if samples is None:
             streams[name] = _stream(name, np.zeros(0), np.zeros((0, STREAM_WIDTHS[name])))
+        elif name == "imu":
+            streams[name] = Stream(*imu_tick_means(samples.times, samples.values), stamped=False)
         else:
             streams[name] = _stream(name, samples.times, samples.values)
     if log.heading is not None:  # a yaw magnetometer's samples as received
