@@ -17,6 +17,7 @@ from quad_drake.flightlogs.reader import FlightLogError, Samples, read_flight_lo
 from quad_drake.flightlogs.schedule import (
     first_ticks,
     gravity_directions,
+    imu_tick_means,
     initial_attitude,
     playback_streams,
     superseded_samples,
@@ -288,6 +289,56 @@ def test_a_sample_is_emitted_at_the_first_tick_at_or_after_its_time():
     assert superseded_samples(times) == 2  # 0.0021 by 0.004, 0.0059 by 0.006
 
 
+def _tick_means_by_overlap(times, values, ticks, period=0.002):
+    """The oracle of ``imu_tick_means``: each tick's mean by summing, sample by sample, the value
+    times the overlap of its stretch [t_i, t_i+1) (the first from -inf, the last to +inf) with the
+    tick's interval."""
+    rows = np.zeros((len(ticks), values.shape[1]))
+    bounds = np.concatenate([[-np.inf], times[1:], [np.inf]])
+    for j, tick in enumerate(ticks):
+        start, end = tick * period, tick * period + period
+        for i in range(len(times)):
+            overlap = min(end, bounds[i + 1]) - max(start, bounds[i])
+            if overlap > 0:
+                rows[j] = rows[j] + (values[i] * overlap if np.isfinite(values[i]).all() else np.nan)
+    return rows / period
+
+
+def test_each_imu_tick_is_the_mean_of_the_samples_over_its_interval():
+    rng = np.random.default_rng(11)
+    # a 200 Hz IMU with a jittered clock and a logger's missing sample, a vibration of 0.4 rad/s
+    times = np.cumsum(rng.uniform(0.0045, 0.0055, 400))
+    times = np.delete(times - times[0], 57)
+    values = rng.normal(0.0, 0.4, (len(times), 6))
+    ticks, rows = imu_tick_means(times, values)
+    assert ticks[0] == 0 and ticks[-1] == first_ticks(times[-1:])[0]
+    np.testing.assert_allclose(rows, _tick_means_by_overlap(times, values, ticks), rtol=0, atol=1e-12)
+    # the ticks' integral is the samples': no 4 ms / 6 ms alternation of a held sample
+    covered = (ticks[-1] + 1) * 0.002
+    exact = (values[:-1] * np.diff(times)[:, None]).sum(axis=0) + values[-1] * (covered - times[-1])
+    np.testing.assert_allclose(rows.sum(axis=0) * 0.002, exact, rtol=0, atol=1e-12)
+    # faster than the tick (1 kHz): averaged, none lost
+    fast = np.arange(50) * 0.001
+    ticks, rows = imu_tick_means(fast, np.arange(50.0)[:, None])
+    assert rows[:, 0].tolist() == pytest.approx([*(np.arange(25) * 2.0 + 0.5), 49.0], abs=1e-12)
+
+
+def test_imu_samples_on_the_ticks_come_back_as_they_are_and_a_nan_stays_local():
+    rng = np.random.default_rng(12)
+    times = np.cumsum(np.full(100, 0.002)) - 0.002  # a simulated run's 500 Hz IMU, its clock summed
+    values = rng.normal(0.0, 1.0, (100, 6))
+    ticks, rows = imu_tick_means(times, values)
+    np.testing.assert_array_equal(ticks, np.arange(100))
+    np.testing.assert_array_equal(rows, values)
+    slow = np.arange(40) * 0.005
+    held = rng.normal(0.0, 1.0, (40, 6))
+    held[10, 3] = np.nan  # its stretch [0.050, 0.055) meets ticks 25, 26, 27
+    ticks, rows = imu_tick_means(slow, held)
+    bad = np.flatnonzero(np.isnan(rows).any(axis=1))
+    assert bad.tolist() == [25, 26, 27] and np.isnan(rows[bad]).all()
+    np.testing.assert_allclose(rows, _tick_means_by_overlap(slow, held, ticks), rtol=0, atol=1e-12)
+
+
 def test_the_heading_of_a_tilted_vehicle_is_its_yaw_plus_the_declination():
     rng = np.random.default_rng(3)
     inclination, declination = math.radians(63.0), 0.06
@@ -328,6 +379,10 @@ def test_the_streams_have_the_simulated_sensors_layouts(sitl_log, real_log):
         "gps_accuracy": 4,  # the estimators' gps_accuracy input: none here (none given)
     }
     assert len(streams["no_aid"].rows) == 0 and len(streams["gps_accuracy"].rows) == 0
+    ticks, rows = imu_tick_means(sitl_log.imu.times, sitl_log.imu.values)  # the IMU: a mean per tick
+    np.testing.assert_array_equal(streams["imu"].first_tick, ticks)
+    np.testing.assert_array_equal(streams["imu"].rows, rows)
+    assert np.all(np.diff(ticks) == 1) and not streams["imu"].stamped
     given = playback_streams(sitl_log, gps_accuracy=sitl_log.gps_accuracy)["gps_accuracy"]
     assert given.rows[:, -1] == pytest.approx(sitl_log.gps.times)  # each describes its GPS sample
     assert streams["gps"].rows[:, -1] == pytest.approx(sitl_log.gps.times)  # the stamp is the sample's time

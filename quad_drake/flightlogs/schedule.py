@@ -117,10 +117,11 @@ def imu_tick_means(times, values, period=ONBOARD_PERIOD) -> tuple[np.ndarray, np
     estimators dead-reckon over it, ``kernels.imu_hold``). Samples on the ticks themselves come
     back as they are; samples faster than the tick are averaged, none superseded."""
     t = np.asarray(times, dtype=float)
+    nearest = np.round(t / period)
+    t = np.where(np.abs(t / period - nearest) < TICK_TOLERANCE, nearest * period, t)  # on a tick, exactly
     v = np.asarray(values, dtype=float).reshape(len(t), -1)
     ticks = np.arange(first_ticks(t[:1])[0], first_ticks(t[-1:])[0] + 1)
-    start = ticks * period
-    end = start + period
+    start, end = ticks * period, (ticks + 1) * period
     first = np.maximum(np.searchsorted(t, start, side="right") - 1, 0)  # the sample held at start
     last = np.maximum(np.searchsorted(t, end, side="left") - 1, 0)  # the one held just before end
     finite = np.isfinite(v).all(axis=1)
