@@ -66,7 +66,8 @@ def main(argv=None) -> int:
         print(
             f"{Path(name).stem} | {rate:.0f} | {shown} | {np.linalg.norm(spread[3:]):.3f}, "
             f"{np.linalg.norm(spread[:3]):.2f} | {1e3 * np.linalg.norm(mean[3:]):.2f}, "
-            f"{1e3 * np.linalg.norm(rms[3:]):.2f} | {np.linalg.norm(mean[:3]):.4f}, {np.linalg.norm(rms[:3]):.4f}"
+            f"{1e3 * np.linalg.norm(rms[3:]):.2f} | {np.linalg.norm(mean[:3]):.4f}, "
+            f"{np.linalg.norm(rms[:3]):.4f}"
         )
     return 0
 

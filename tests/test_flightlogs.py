@@ -337,6 +337,9 @@ def test_imu_samples_on_the_ticks_come_back_as_they_are_and_a_nan_stays_local():
     bad = np.flatnonzero(np.isnan(rows).any(axis=1))
     assert bad.tolist() == [25, 26, 27] and np.isnan(rows[bad]).all()
     np.testing.assert_allclose(rows, _tick_means_by_overlap(slow, held, ticks), rtol=0, atol=1e-12)
+    twice = np.array([0.0, 0.001, 0.001, 0.003])  # a NaN superseded at its own time spoils no tick
+    ticks, rows = imu_tick_means(twice, np.array([[1.0], [np.nan], [3.0], [5.0]]))
+    assert rows[:, 0].tolist() == pytest.approx([2.0, 4.0, 5.0])
 
 
 def test_the_heading_of_a_tilted_vehicle_is_its_yaw_plus_the_declination():

@@ -137,7 +137,8 @@ def imu_tick_means(times, values, period=ONBOARD_PERIOD) -> tuple[np.ndarray, np
             + held[b] * (end[spans] - t[b])[:, None]
         )
         rows[spans] = integral / period
-    nonfinite = np.concatenate([[0], np.cumsum(~finite)])
+    empty = np.append(np.diff(t) == 0.0, False)  # a sample with another at its time holds nowhere
+    nonfinite = np.concatenate([[0], np.cumsum(~finite & ~empty)])
     rows[nonfinite[last + 1] - nonfinite[first] > 0] = np.nan
     return ticks, rows
 
