@@ -368,23 +368,32 @@ def test_many_logs_replay_into_one_table_and_a_bad_one_is_said(quad_drake_cli, t
     assert (out / "sitl_ground_truth-eskf" / "summary.json").is_file()
 
 
-def test_an_imu_dropout_is_bridged_by_the_mean_of_the_samples_before_it():
+def test_an_imu_dropout_is_bridged_from_the_mean_motion_before_it_to_the_mean_after_it():
     from quad_drake.flightlogs.reader import Samples
-    from quad_drake.flightlogs.schedule import bridged_imu
+    from quad_drake.flightlogs.schedule import bridged_imu, imu_tick_means
 
     times = np.concatenate([np.arange(20) * 0.005, [0.45, 0.455, 0.46]])  # a 0.355 s dropout after 0.095 s
     values = np.zeros((len(times), 6))
     values[:20, 0] = np.where(np.arange(20) % 2, 3.0, -1.0)  # a vibrating accelerometer, mean 1 m/s^2
-    values[:20, 5] = np.arange(20) * 0.01
-    values[19, 2] = 5.0  # the last sample before the gap swings farther still
+    values[20:, 0] = [2.0, 4.0, 3.0]  # mean 3 m/s^2 after the gap
+    values[:20, 5] = 0.2  # a turn at 0.2 rad/s before the gap, 0.6 rad/s after it
+    values[20:, 5] = 0.6
     imu = Samples(times, values)
     bridged, count = bridged_imu(imu, 0.047)
     assert count == 1
-    np.testing.assert_array_equal(bridged.times, times)
-    window = values[10:20]  # the samples within 0.047 s before the gap (t >= 0.048 s), the last included
-    np.testing.assert_allclose(bridged.values[19], window.mean(axis=0), rtol=0, atol=1e-15)
-    assert bridged.values[19, 0] == 1.0 and bridged.values[19, 2] == 0.5
-    np.testing.assert_array_equal(np.delete(bridged.values, 19, axis=0), np.delete(values, 19, axis=0))
+    filled = np.isin(bridged.times, times, invert=True)
+    np.testing.assert_array_equal(bridged.times[~filled], times)  # every logged sample kept as it is
+    np.testing.assert_array_equal(bridged.values[~filled], values)
+    np.testing.assert_allclose(np.diff(bridged.times[filled]), 0.005, rtol=0, atol=1e-12)
+    assert bridged.times[filled][0] == pytest.approx(0.1) and bridged.times[filled][-1] < 0.45
+    before, after = values[10:20].mean(axis=0), values[20:].mean(axis=0)  # within 0.047 s of the gap
+    assert before[0] == 1.0 and after[0] == 3.0
+    ramp = bridged.values[filled]
+    assert np.all(np.diff(ramp[:, 0]) > 0) and 1.0 < ramp[0, 0] < ramp[-1, 0] < 3.0  # 1 -> 3 m/s^2
+    # the gap's integral is the mean of the two sides' means times its length: the turn's 0.4 rad/s
+    ticks, rows = imu_tick_means(bridged.times, bridged.values)
+    gap = (ticks * 0.002 >= 0.1) & (ticks * 0.002 < 0.45)
+    np.testing.assert_allclose(rows[gap, 5].sum() * 0.002, 0.4 * 0.35, rtol=0, atol=1e-12)
     assert bridged_imu(imu, 0.0) == (imu, 0)  # off: the last sample held, as before
     assert bridged_imu(imu, 0.4) == (imu, 0)  # no interval longer than the window
 

@@ -60,7 +60,8 @@ def log_warnings(log, compare_after=0.0) -> list[str]:
     if gaps.size:
         warnings.append(
             f"The IMU has {gaps.size} gaps longer than {IMU_GAP:g} s (longest {gaps.max():.2f} s): "
-            "the estimators hold over each the mean of the samples before it (--set imu_gap_bridge)."
+            "each is filled from the mean of the samples before it to the mean of those after it "
+            "(--set imu_gap_bridge)."
         )
     if log.duration - compare_after < SHORT_COMPARISON:
         warnings.append(

@@ -50,8 +50,9 @@ NO_AID_TIMEOUT = 5.0
 """s without a GPS sample after which PX4 EKF2 stops dead-reckoning and holds a fake position
 (``EKF2_NOAID_TOUT``, 5 s): a gap longer than this is a GPS loss (``aiding_gps``)."""
 IMU_BRIDGE_WINDOW = 0.05
-"""s: the default of ``ReplayConfig.imu_gap_bridge`` (:func:`bridged_imu`): over an IMU gap longer
-than this (a logger's dropout), the mean of the samples within this window before it is held."""
+"""s: the default of ``ReplayConfig.imu_gap_bridge`` (:func:`bridged_imu`): an IMU gap longer than
+this (a logger's dropout) is filled from the mean of the samples within this window before it to
+the mean of those within it after it."""
 BARO_SLOPE_WINDOW = 1.0
 """s of barometer samples whose least-squares slope is a held position's vertical velocity."""
 TICK_TOLERANCE = 1e-6
@@ -351,23 +352,38 @@ def fused_by_px4(log) -> object:
 
 
 def bridged_imu(imu, window) -> tuple[Samples, int]:
-    """(IMU Samples, gaps bridged): `imu` (6: f_B m/s^2, w_B rad/s) with the last sample before
-    each interval longer than `window` s (a dropout of the logger, which PX4's estimator did not
-    have) replaced by the mean of the samples within `window` s before that interval (it
-    included): the playback holds a sample until the next one, and one raw sample of a vibrating
-    vehicle (a real multirotor's accelerometer swings by several m/s^2 from sample to sample)
-    held over a long gap integrates its vibration into the velocity and the attitude, where the
-    mean holds the vehicle's motion at the gap. window 0: `imu` as it is."""
+    """(IMU Samples, gaps bridged): `imu` (6: f_B m/s^2, w_B rad/s) with each interval between two
+    samples longer than `window` s (a dropout of the logger, whose samples PX4's estimator had)
+    filled with samples one median sample interval apart, from one interval after the last sample
+    before it, whose values run linearly, each at its stretch's middle, from the mean of the
+    samples within `window` s before the gap (its last sample included) to the mean of those
+    within `window` s after it (its first included): the vehicle's mean motion interpolated
+    between the two sides (for a random walk, its mean given both ends). One raw sample of a
+    vibrating vehicle (a real multirotor's accelerometer swings by several m/s^2 from sample to
+    sample) held over the gap would integrate its vibration into the velocity and the attitude,
+    and the mean before the gap held over it misses the turn the vehicle made in it. window 0:
+    `imu` as it is."""
     if window <= 0.0 or len(imu) < 2:
         return imu, 0
-    gaps = np.flatnonzero(np.diff(imu.times) > window)
+    times, values = imu.times, imu.values
+    gaps = np.flatnonzero(np.diff(times) > window)
     if len(gaps) == 0:
         return imu, 0
-    values = imu.values.copy()
+    step = float(np.median(np.diff(times)))
+    added_times, added_values = [], []
     for i in gaps:
-        first = int(np.searchsorted(imu.times, imu.times[i] - window, side="left"))
-        values[i] = imu.values[first : i + 1].mean(axis=0)
-    return Samples(imu.times, values), len(gaps)
+        first = int(np.searchsorted(times, times[i] - window, side="left"))
+        last = int(np.searchsorted(times, times[i + 1] + window, side="right"))
+        before, after = values[first : i + 1].mean(axis=0), values[i + 1 : last].mean(axis=0)
+        start, end = times[i] + step, times[i + 1]  # the gap: after the last sample's own interval
+        filled = np.arange(start, end - 0.5 * step, step)
+        middles = 0.5 * (filled + np.append(filled[1:], end))
+        share = (middles - start) / (end - start)
+        added_times.append(filled)
+        added_values.append(before + share[:, None] * (after - before))
+    times = np.concatenate([times, *added_times])
+    order = np.argsort(times, kind="stable")
+    return Samples(times[order], np.vstack([values, *added_values])[order]), len(gaps)
 
 
 def playback_streams(

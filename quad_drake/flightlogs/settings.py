@@ -117,9 +117,9 @@ class ReplayConfig:
     # where the log holds its variances; a kind with bias states only (the ESKF). Off by default:
     # mixed across the logs measured (docs/measurements/replay.md)
     px4_start_biases: bool = False
-    # s: over an IMU gap longer than this (a logger's dropout), the mean of the samples within this
-    # window before it is held instead of the last raw sample (``schedule.bridged_imu``); 0 = the
-    # last sample held
+    # s: an IMU gap longer than this (a logger's dropout) is filled from the mean of the samples
+    # within this window before it to the mean of those within it after it, linearly, instead of
+    # the last raw sample held (``schedule.bridged_imu``); 0 = the last sample held
     imu_gap_bridge: float = number(IMU_BRIDGE_WINDOW, nonnegative=True)
     # true: where the log's GPS reports each sample's accuracy (eph, epv, s_variance_m_s), the
     # built-in kinds fuse the sample as PX4 EKF2 does, each std the larger of the receiver's and
