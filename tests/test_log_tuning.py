@@ -286,6 +286,28 @@ def test_a_delay_whose_grid_the_budget_cannot_hold_is_not_profiled(monkeypatch):
     assert abs(result.tuned.gps_delay - 0.12) <= 0.02 and "gps_delay" not in result.kept
 
 
+def test_a_noise_tuned_to_a_bound_of_its_range_is_said_to_be_one():
+    """x500v2_v6xrt's horizontal accelerometer noise ended at the search's floor (1/1000 of PX4's):
+    a bound, not an estimate, and the header says so; a noise inside its range and a delay at 0 ms
+    (a delay's own limit) are printed plainly."""
+    from quad_drake.tuning import logs
+    from quad_drake.tuning.log_output import header
+    from quad_drake.tuning.search import Evaluation, SearchResult
+    from quad_drake.tuning.settings import LogTuneSettings
+
+    space = [logs.Dimension("accel_xy", 0.78), logs.Dimension("baro", 3.5), logs.Dimension("gps_delay", 0.11)]
+    problem = logs.LogTuneProblem(default_replay("eskf"), [], [], space, LogTuneSettings(budget=2))
+    score = logs.LogScore(1.0, 0.0, ({},))
+    tuned = Evaluation(1, 1, (-logs.DECADES_DOWN, -0.5, 0.0), logs.LogScore(0.5, 0.0, ({},)))
+    result = logs.LogTuneResult(problem, SearchResult([Evaluation(0, 0, (0.0, 0.0, 1.1), score), tuned]))
+    lines = header(result)
+    assert "accel_xy: 0.78 -> 0.00078 (at the search's floor, 1/1000 of the start: it may lie lower)" in lines
+    assert "baro: 3.5 -> 1.107" in lines and "gps_delay: 110 -> 0 ms" in lines
+    ceiling = Evaluation(2, 1, (logs.DECADES_UP, 0.0, 1.1), logs.LogScore(0.1, 0.0, ({},)))
+    result.search.history.append(ceiling)
+    assert "accel_xy: 0.78 -> 78 (at the search's ceiling, 100 times the start: it may lie higher)" in header(result)
+
+
 def test_every_barometer_update_is_judged_whatever_its_delay():
     """The bundled SITL log's barometer samples come in pairs 4 ms apart; the replay's diagnostics,
     logged every 5 ms, show one NIS per log period, so at a barometer delay of 2 ms (and 292 ms)

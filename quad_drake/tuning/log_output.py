@@ -35,12 +35,28 @@ def header(result) -> list[str]:
         f"{best.score.consistency:.4g} (start {result.search.history[0].score.consistency:.4g})",
     ]
     start, tuned = _values(result, result.search.history[0].x), _values(result, best.x)
-    for name in start:
-        unit = "ms" if name.endswith("_delay") else ""
+    for d, x in zip(result.problem.space, best.x, strict=True):
+        unit = "ms" if d.is_delay else ""
         scale = 1e3 if unit else 1.0
-        lines.append(f"{name}: {scale * start[name]:.4g} -> {scale * tuned[name]:.4g} {unit}".rstrip())
+        line = f"{d.name}: {scale * start[d.name]:.4g} -> {scale * tuned[d.name]:.4g} {unit}".rstrip()
+        lines.append(line + _at_bound(d, x))
     lines += [f"{name} kept as it was: {why}" for name, why in result.kept.items()]
     return lines
+
+
+def _at_bound(dimension, x) -> str:
+    """" (at the search's floor: ...)" where a noise ended within its search tolerance of a bound
+    of its range (``logs.DECADES_DOWN``, ``DECADES_UP``): the likelihood may be least beyond it, so
+    the value is a bound, not an estimate; "" otherwise and for a delay (0 and PX4's 300 ms are
+    the delays' own limits)."""
+    if dimension.is_delay:
+        return ""
+    low, high = dimension.bounds
+    if x <= low + dimension.tolerance:
+        return f" (at the search's floor, 1/{10.0 ** -low:g} of the start: it may lie lower)"
+    if x >= high - dimension.tolerance:
+        return f" (at the search's ceiling, {10.0 ** high:g} times the start: it may lie higher)"
+    return ""
 
 
 def _stem(log):
