@@ -305,7 +305,8 @@ def test_a_noise_tuned_to_a_bound_of_its_range_is_said_to_be_one():
     assert "baro: 3.5 -> 1.107" in lines and "gps_delay: 110 -> 0 ms" in lines
     ceiling = Evaluation(2, 1, (logs.DECADES_UP, 0.0, 1.1), logs.LogScore(0.1, 0.0, ({},)))
     result.search.history.append(ceiling)
-    assert "accel_xy: 0.78 -> 78 (at the search's ceiling, 100 times the start: it may lie higher)" in header(result)
+    ceiling_line = "accel_xy: 0.78 -> 78 (at the search's ceiling, 100 times the start: it may lie higher)"
+    assert ceiling_line in header(result)
 
 
 def test_every_barometer_update_is_judged_whatever_its_delay():

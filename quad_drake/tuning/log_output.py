@@ -45,17 +45,17 @@ def header(result) -> list[str]:
 
 
 def _at_bound(dimension, x) -> str:
-    """" (at the search's floor: ...)" where a noise ended within its search tolerance of a bound
-    of its range (``logs.DECADES_DOWN``, ``DECADES_UP``): the likelihood may be least beyond it, so
-    the value is a bound, not an estimate; "" otherwise and for a delay (0 and PX4's 300 ms are
-    the delays' own limits)."""
+    """The note " (at the search's floor: ...)" where a noise ended within its search tolerance
+    of a bound of its range (``logs.DECADES_DOWN``, ``DECADES_UP``): the likelihood may be least
+    beyond it, so the value is a bound, not an estimate; "" otherwise and for a delay (0 and PX4's
+    300 ms are the delays' own limits)."""
     if dimension.is_delay:
         return ""
     low, high = dimension.bounds
     if x <= low + dimension.tolerance:
-        return f" (at the search's floor, 1/{10.0 ** -low:g} of the start: it may lie lower)"
+        return f" (at the search's floor, 1/{10.0**-low:g} of the start: it may lie lower)"
     if x >= high - dimension.tolerance:
-        return f" (at the search's ceiling, {10.0 ** high:g} times the start: it may lie higher)"
+        return f" (at the search's ceiling, {10.0**high:g} times the start: it may lie higher)"
     return ""
 
 
