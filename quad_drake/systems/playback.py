@@ -60,12 +60,13 @@ class LogPlayback(LeafSystem):
 
     def _emit(self, context, discrete_state):
         tick = scalar(discrete_state, self._tick)
+        due = int(tick)  # an int against the int ticks: a float would convert the whole schedule each tick
         following = discrete_state.get_mutable_value(self._next)
         for j, (ticks, vehicles, rows) in enumerate(self._schedules):
             start = int(following[j])
-            if start == len(ticks) or ticks[start] > tick:
+            if start == len(ticks) or ticks[start] > due:
                 continue
-            end = start + int(np.searchsorted(ticks[start:], tick, side="right"))
+            end = start + int(np.searchsorted(ticks[start:], due, side="right"))
             output = discrete_state.get_mutable_value(self._outputs[j]).reshape(self._n, self._widths[j])
             output[vehicles[start:end]] = rows[start:end]  # at most one change per vehicle and tick
             following[j] = end
