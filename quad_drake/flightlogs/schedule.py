@@ -127,7 +127,7 @@ def imu_tick_means(times, values, period=ONBOARD_PERIOD) -> tuple[np.ndarray, np
     last = np.maximum(np.searchsorted(t, end, side="left") - 1, 0)  # the one held just before end
     finite = np.isfinite(v).all(axis=1)
     held = np.where(finite[:, None], v, 0.0)
-    rows = held[first].copy()  # a tick within one sample's stretch: that sample
+    rows = held[first]  # (a new array) a tick within one sample's stretch: that sample
     spans = np.flatnonzero(last > first)
     if len(spans):  # a tick that meets several: the first's part, the whole ones, the last's part
         whole = np.vstack([np.zeros((1, v.shape[1])), np.cumsum(held[:-1] * np.diff(t)[:, None], axis=0)])

@@ -392,9 +392,9 @@ def fuse_gps(
             idx = list(components)
             noise = R[np.ix_(idx, idx)] if R.ndim == 2 else R[due][:, idx][:, :, idx]
             values = z_rows[due][:, idx]
-            if g == GPS_HEIGHT_GROUP and restarted is not None and (restarted & due).any():
-                moved = restarted & due  # a restart moves the baro bias with the height (baro.py)
-                step = z_rows[moved, 2] - x_new[moved, baro.HEIGHT_INDEX]
+            moved = restarted & due if g == GPS_HEIGHT_GROUP and restarted is not None else None
+            if moved is not None and moved.any():  # a restart moves the baro bias with the height (baro.py)
+                step = z_rows[moved, idx[0]] - x_new[moved, baro.HEIGHT_INDEX]
                 steps[index[moved]] = step
                 if baro_bias is not None:  # the bias in the state
                     x_new[moved, baro_bias] = baro.moved_bias(x_new[moved, baro_bias], step)

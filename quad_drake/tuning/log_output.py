@@ -34,11 +34,10 @@ def header(result) -> list[str]:
         f"candidate {best.index} (start {result.search.history[0].score.loss:.4g}); its consistency loss "
         f"{best.score.consistency:.4g} (start {result.search.history[0].score.consistency:.4g})",
     ]
-    start, tuned = _values(result, result.search.history[0].x), _values(result, best.x)
-    for d, x in zip(result.problem.space, best.x, strict=True):
+    for d, x0, x in zip(result.problem.space, result.search.history[0].x, best.x, strict=True):
         unit = "ms" if d.is_delay else ""
         scale = 1e3 if unit else 1.0
-        line = f"{d.name}: {scale * start[d.name]:.4g} -> {scale * tuned[d.name]:.4g} {unit}".rstrip()
+        line = f"{d.name}: {scale * d.value(x0):.4g} -> {scale * d.value(x):.4g} {unit}".rstrip()
         lines.append(line + _at_bound(d, x))
     lines += [f"{name} kept as it was: {why}" for name, why in result.kept.items()]
     return lines
