@@ -84,12 +84,11 @@ def rotation_matrix(code) -> np.ndarray:
 
 
 def is_raw(release) -> bool | None:
-    """Whether ``sensor_mag`` of a log of PX4 release word `release` (``ver_sw_release``:
-    0xMMmmpptt) is raw (True) or already calibrated (False); None when the log does not say."""
-    if not release:
+    """Whether ``sensor_mag`` of a log of PX4 release `release` ((major, minor), ``reader.px4_release``)
+    is raw (True) or already calibrated (False); None when the log does not say (None)."""
+    if release is None:
         return None
-    major, minor = (int(release) >> 24) & 0xFF, (int(release) >> 16) & 0xFF
-    return (major, minor) >= CALIBRATED_BY_SENSORS_MODULE
+    return release >= CALIBRATED_BY_SENSORS_MODULE
 
 
 def slot_of(device_id, parameters) -> int | None:

@@ -158,7 +158,8 @@ class FlightLog:
     where none or not logged (a CSV). estimator_switches: each change of PX4's primary EKF2
     instance, (t s, instance before, after), the same way. px4_gps_fusion: whether PX4's primary
     estimator fused GNSS (1, 0) from t = 0 on, each change at its time (:func:`_ulog_px4_gps_fusion`;
-    a CSV's ``gps_fused`` rows), or None where not recorded.
+    a CSV's ``gps_fused`` rows), or None where not recorded. px4_release: (major, minor) of the
+    PX4 release that wrote the log (:func:`px4_release`), or None where it does not say (a CSV).
     """
 
     source: str
@@ -187,6 +188,7 @@ class FlightLog:
     imu_switches: tuple = ()
     estimator_switches: tuple = ()
     px4_gps_fusion: Samples | None = None
+    px4_release: tuple | None = None
 
     @property
     def duration(self) -> float:
@@ -386,7 +388,18 @@ def read_ulog(path) -> FlightLog:
         imu_switches=_ulog_switches(topics, "sensor_selection", ("accel_device_id", "gyro_device_id"), imu),
         estimator_switches=_ulog_switches(topics, "estimator_selector_status", ("primary_instance",), imu),
         px4_gps_fusion=_ulog_px4_gps_fusion(topics, statuses, start),
+        px4_release=px4_release(ulog.msg_info_dict),
     )
+
+
+def px4_release(info) -> tuple[int, int] | None:
+    """(major, minor) of the PX4 release a ULog's info messages `info` name (``ver_sw_release``,
+    the word 0xMMmmpptt), or None where they name none (0 or absent: a development build of old,
+    another flight stack)."""
+    word = int(info.get("ver_sw_release", 0) or 0)
+    if not word:
+        return None
+    return (word >> 24) & 0xFF, (word >> 16) & 0xFF
 
 
 def _ulog_px4_gps_fusion(topics, statuses, start):
@@ -662,7 +675,7 @@ def _raw_mag(path, topics, raw_mags, parameters, info):
     data = raw_mags[chosen]
     samples = _ulog_samples(path, "sensor_mag", data, _sample_times(data), ["x", "y", "z"])
     what = f"the raw sensor_mag (instance {chosen}, device {devices[chosen]})"
-    raw = cal.is_raw(info.get("ver_sw_release"))
+    raw = cal.is_raw(px4_release(info))
     if raw is False:
         return samples, f"{what}, calibrated by its driver (PX4 before v1.12): taken as logged"
     try:

@@ -59,11 +59,14 @@ from quad_drake.flightlogs.schedule import (
     superseded_samples,
 )
 from quad_drake.flightlogs.settings import (
+    REST_VELOCITY_STD,
+    REST_VELOCITY_STD_BY_RELEASE,
     ReplayConfig,
     dump_replay,
     fuses_no_aid,
     height_reference,
     resolve_log,
+    rest_velocity_std,
     vehicle_for,
 )
 from quad_drake.judging.innovations import UPDATE_DIAGNOSTICS
@@ -161,6 +164,14 @@ class ReplayResult:
             fused = (
                 f"zero position and velocity every {c.fake_position_period:g} s, fused as its GPS "
                 "samples (with the GPS noise it assumes)"
+            )
+        release = self.log.px4_release
+        if rested is not None and rested[0] and release in REST_VELOCITY_STD_BY_RELEASE:
+            lines.append(
+                f"The zero velocity at rest fused with σ = {c.rest_velocity_std:g} m/s: PX4 "
+                f"v{release[0]}.{release[1]} (the log's release) fused it at "
+                f"{REST_VELOCITY_STD_BY_RELEASE[release]:g} m/s, later releases at "
+                f"{REST_VELOCITY_STD:g} m/s once aligned (--set rest_velocity_std=...)."
             )
         kept_as_px4 = self.aiding.gps_kept_as_px4
         if kept_as_px4 is not None:
@@ -446,12 +457,11 @@ def aiding_gps(log, config, separate=False) -> tuple[Samples, Samples | None, bo
 def no_aid_noise(log, config) -> NoAidNoise:
     """The ``schedule.NoAidNoise`` of a replay: PX4's fake position at ``fake_position_std``
     (``EKF2_NOAID_NOISE``) in flight and ``rest_position_std`` at rest, its zero velocity at
-    ``rest_velocity_std``; the height fused at ``fake_position_std`` only on a log without a
-    barometer (PX4's height is then the barometer's)."""
+    ``settings.rest_velocity_std`` (the log's PX4 release's unless set); the height fused at
+    ``fake_position_std`` only on a log without a barometer (PX4's height is then the barometer's)."""
     height_std = config.fake_position_std if log.baro is None else math.inf
-    return NoAidNoise(
-        config.fake_position_std, config.rest_position_std, config.rest_velocity_std, height_std
-    )
+    rest_velocity = rest_velocity_std(config, log.px4_release)
+    return NoAidNoise(config.fake_position_std, config.rest_position_std, rest_velocity, height_std)
 
 
 def delayed_log(log, config) -> object:
@@ -658,6 +668,7 @@ def _prepare(config, log=None) -> _Prepared:
     if config.px4_parameters:
         config = px4_parameters.from_parameters(config, log.parameters)
     config = px4_parameters.log_delays(config, log.parameters)
+    config = dataclasses.replace(config, rest_velocity_std=rest_velocity_std(config, log.px4_release))
     if not config.name:
         config = dataclasses.replace(config, name=Path(log.source).stem)
     if config.smooth and not KINDS[config.estimator.kind].smoothable:

@@ -69,6 +69,15 @@ HEIGHT_REFERENCES = ("log", "baro", "gps")
 """``ReplayConfig.height_reference``: as the log's parameters say (:func:`height_reference`), or forced."""
 MAX_SENSOR_DELAY = 0.5
 """s: the largest sensor delay a replay takes (PX4's EKF2_*_DELAY range ends at 300 ms)."""
+REST_VELOCITY_STD = 0.2
+"""m/s: PX4 EKF2's zero velocity at rest once its tilt is aligned, from v1.14 on
+(``controlZeroVelocityUpdate``; 0.001 before the alignment, which the replay's at-rest test,
+1 s of rest, comes after)."""
+REST_VELOCITY_STD_BY_RELEASE = {(1, 13): 0.001}
+"""m/s: PX4 releases whose zero velocity at rest had another std: v1.13 fused it at 0.001 m/s
+throughout (the 2022 code before PX4-Autopilot pull request 20611 relaxed it to 0.2 after the tilt
+alignment; measured on the SITL ground-truth log, v1.13: PX4's velocity variance falls to 1.0e-6
+(m/s)² at every zero-velocity update, 0.2 s apart, before and after its alignment)."""
 SENSOR_DELAYS = ("gps_delay", "mag_delay", "baro_delay")
 """The ReplayConfig's sensor delay fields (s; None: the log's own, ``px4_parameters.log_delays``)."""
 
@@ -87,10 +96,11 @@ class ReplayConfig:
     fake_position_period: float = number(0.2, tick_multiple=1)  # s
     # while not GPS-aided and at rest (``schedule.at_rest``: PX4's test on the log's IMU), the
     # fake position's std (m) and a zero velocity's (m/s), as PX4 EKF2 fuses them on the ground
-    # (``controlFakePosFusion``: 0.01 m; ``controlZeroVelocityUpdate``: 0.2 m/s); the built-in
-    # kinds and a custom estimator with ``update_no_aid`` fuse each sample with its own std
+    # (``controlFakePosFusion``: 0.01 m; ``controlZeroVelocityUpdate``); the built-in kinds and a
+    # custom estimator with ``update_no_aid`` fuse each sample with its own std. The zero
+    # velocity's None (the default): the std of the log's PX4 release (:func:`rest_velocity_std`)
     rest_position_std: float = number(0.01, positive=True)
-    rest_velocity_std: float = number(0.2, positive=True)
+    rest_velocity_std: Optional[float] = None
     # what the estimator's height follows on a log with GPS and a barometer: "log" as PX4's
     # EKF2_HGT_REF / EKF2_HGT_MODE say (0: the baro, the GPS height then not fused), "baro", "gps"
     height_reference: str = field(default="log", metadata={"choices": HEIGHT_REFERENCES})
@@ -268,12 +278,28 @@ def check_replay(config) -> ReplayConfig:
         )
     if config.mag_declination is not None and not abs(config.mag_declination) <= math.pi:
         raise ConfigError(f"mag_declination: must be within [-pi, pi] rad, got {config.mag_declination}")
+    if config.rest_velocity_std is not None and not config.rest_velocity_std > 0.0:
+        given = config.rest_velocity_std
+        raise ConfigError(
+            f"rest_velocity_std: must be > 0 m/s (or null: the log's PX4 release's), got {given}"
+        )
     for name in SENSOR_DELAYS:
         delay = getattr(config, name)
         if delay is not None and not 0.0 <= delay <= MAX_SENSOR_DELAY:
             bounds = f"[0, {MAX_SENSOR_DELAY:g}] s (or null: the log's own)"
             raise ConfigError(f"{name}: must be within {bounds}, got {delay}")
     return config
+
+
+def rest_velocity_std(config, release) -> float:
+    """m/s: the std of the zero velocity at rest of the ReplayConfig `config` on a log of PX4
+    release `release` ((major, minor) or None: ``FlightLog.px4_release``): `config`'s own where
+    set, else that release's (:data:`REST_VELOCITY_STD_BY_RELEASE`), else
+    :data:`REST_VELOCITY_STD` (later releases; a log that does not say, a CSV; PX4 before v1.13
+    fused no zero velocity, whose logs are replayed with the current rule)."""
+    if config.rest_velocity_std is not None:
+        return config.rest_velocity_std
+    return REST_VELOCITY_STD_BY_RELEASE.get(release, REST_VELOCITY_STD)
 
 
 def height_reference(config, parameters) -> str:
