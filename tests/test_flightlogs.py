@@ -75,6 +75,28 @@ def test_whether_px4s_estimator_fused_the_gps_is_read_from_its_control_flags(sit
     assert record.values[:, 0].tolist() == [0.0, 1.0] and 9.7 < record.times[1] < 9.9
 
 
+def test_the_zero_velocity_at_rest_is_the_logs_px4_releases(sitl_log):
+    from quad_drake.flightlogs.reader import px4_release
+    from quad_drake.flightlogs.replay import no_aid_noise
+    from quad_drake.flightlogs.settings import load_replay, rest_velocity_std
+
+    assert px4_release({"ver_sw_release": 0x010D0000}) == (1, 13)  # 0xMMmmpptt
+    assert px4_release({"ver_sw_release": 0x011100C0}) == (1, 17)
+    assert px4_release({"ver_sw_release": 0}) is None and px4_release({}) is None
+    assert sitl_log.px4_release == (1, 15)
+    config = load_replay(SITL, "{kind: eskf}")
+    assert config.rest_velocity_std is None  # the default: the log's release's
+    # PX4 v1.13 fused its zero velocity at rest at 0.001 m/s (its ground-truth log's own covariance
+    # record); from v1.14 on at 0.2 m/s once aligned; a log that names no release: the current rule
+    assert [rest_velocity_std(config, r) for r in ((1, 13), (1, 15), (1, 11), None)] == [0.001, 0.2, 0.2, 0.2]
+    assert rest_velocity_std(load_replay(SITL, "{kind: eskf}", ["rest_velocity_std=0.05"]), (1, 13)) == 0.05
+    v1_13 = dataclasses.replace(sitl_log, px4_release=(1, 13))
+    assert no_aid_noise(v1_13, config).rest_velocity_std == 0.001
+    assert no_aid_noise(sitl_log, config).rest_velocity_std == 0.2
+    with pytest.raises(Exception, match="rest_velocity_std"):
+        load_replay(SITL, "{kind: eskf}", ["rest_velocity_std=0"])
+
+
 def test_only_the_fixes_px4s_estimator_fused_are_kept():
     from quad_drake.flightlogs.reader import FlightLog
     from quad_drake.flightlogs.schedule import fused_by_px4
