@@ -19,6 +19,7 @@ from quad_drake.flightlogs.schedule import (
     gravity_directions,
     imu_tick_means,
     initial_attitude,
+    no_aid_samples,
     playback_streams,
     superseded_samples,
     tilt_compensated_heading,
@@ -87,12 +88,21 @@ def test_the_zero_velocity_at_rest_is_the_logs_px4_releases(sitl_log):
     config = load_replay(SITL, "{kind: eskf}")
     assert config.rest_velocity_std is None  # the default: the log's release's
     # PX4 v1.13 fused its zero velocity at rest at 0.001 m/s (its ground-truth log's own covariance
-    # record); from v1.14 on at 0.2 m/s once aligned; a log that names no release: the current rule
-    assert [rest_velocity_std(config, r) for r in ((1, 13), (1, 15), (1, 11), None)] == [0.001, 0.2, 0.2, 0.2]
+    # record); from v1.14 on at 0.2 m/s once aligned; before v1.13 none (inf: not fused); a log
+    # that names no release: the current rule
+    releases = ((1, 13), (1, 15), (1, 17), (1, 12), (1, 11), None)
+    assert [rest_velocity_std(config, r) for r in releases] == [0.001, 0.2, 0.2, math.inf, math.inf, 0.2]
     assert rest_velocity_std(load_replay(SITL, "{kind: eskf}", ["rest_velocity_std=0.05"]), (1, 13)) == 0.05
     v1_13 = dataclasses.replace(sitl_log, px4_release=(1, 13))
     assert no_aid_noise(v1_13, config).rest_velocity_std == 0.001
     assert no_aid_noise(sitl_log, config).rest_velocity_std == 0.2
+    v1_11 = dataclasses.replace(sitl_log, px4_release=(1, 11))
+    samples = no_aid_samples(
+        v1_11.imu, np.arange(1.0, 9.0, 0.2), no_aid_noise(v1_11, config), landed=v1_11.landed
+    )
+    assert (
+        np.isinf(samples.values[:, 9:12]).all() and (samples.values[:, 6:8] == 0.01).any()
+    )  # at rest: the fake position alone
     with pytest.raises(Exception, match="rest_velocity_std"):
         load_replay(SITL, "{kind: eskf}", ["rest_velocity_std=0"])
 

@@ -48,6 +48,7 @@ from quad_drake.flightlogs.schedule import (
     STAMPED,
     STREAM_WIDTHS,
     NoAidNoise,
+    at_rest,
     bridged_imu,
     fake_position,
     fused_by_px4,
@@ -61,6 +62,7 @@ from quad_drake.flightlogs.schedule import (
 from quad_drake.flightlogs.settings import (
     REST_VELOCITY_STD,
     REST_VELOCITY_STD_BY_RELEASE,
+    ZERO_VELOCITY_FROM,
     ReplayConfig,
     dump_replay,
     fuses_no_aid,
@@ -150,7 +152,7 @@ class ReplayResult:
             fused = (
                 f"PX4's no-aiding samples every {c.fake_position_period:g} s: at rest ({rested[0]} samples; "
                 f"PX4's land-detector test on the IMU) a fake position with σ = {c.rest_position_std:g} m "
-                f"and a zero velocity with σ = {c.rest_velocity_std:g} m/s, else ({rested[1]}) the fake "
+                f"and {_zero_velocity(c)}, else ({rested[1]}) the fake "
                 f"position with σ = {c.fake_position_std:g} m (EKF2_NOAID_NOISE), fused with these σ "
                 "(a custom estimator: by its update_no_aid where it has one, else as its GPS samples "
                 "with its own GPS noise)"
@@ -166,13 +168,20 @@ class ReplayResult:
                 "samples (with the GPS noise it assumes)"
             )
         release = self.log.px4_release
-        if rested is not None and rested[0] and release in REST_VELOCITY_STD_BY_RELEASE:
-            lines.append(
-                f"The zero velocity at rest fused with σ = {c.rest_velocity_std:g} m/s: PX4 "
-                f"v{release[0]}.{release[1]} (the log's release) fused it at "
-                f"{REST_VELOCITY_STD_BY_RELEASE[release]:g} m/s, later releases at "
-                f"{REST_VELOCITY_STD:g} m/s once aligned (--set rest_velocity_std=...)."
-            )
+        if rested is not None and rested[0] and release is not None:
+            version = f"PX4 v{release[0]}.{release[1]} (the log's release)"
+            since = f"v{ZERO_VELOCITY_FROM[0]}.{ZERO_VELOCITY_FROM[1]}"
+            if release < ZERO_VELOCITY_FROM:
+                lines.append(
+                    f"No zero velocity fused at rest, as {version} fused none (PX4 has since {since}: "
+                    f"--set rest_velocity_std={REST_VELOCITY_STD:g} fuses one)."
+                )
+            elif release in REST_VELOCITY_STD_BY_RELEASE:
+                lines.append(
+                    f"The zero velocity at rest fused with σ = {REST_VELOCITY_STD_BY_RELEASE[release]:g} "
+                    f"m/s, as {version} fused it (from v1.14 on {REST_VELOCITY_STD:g} m/s once "
+                    f"aligned: --set rest_velocity_std={REST_VELOCITY_STD:g})."
+                )
         kept_as_px4 = self.aiding.gps_kept_as_px4
         if kept_as_px4 is not None:
             lines.append(
@@ -201,8 +210,8 @@ class ReplayResult:
                 held = (
                     f"PX4's no-aiding samples every {c.fake_position_period:g} s: the last fix's "
                     f"horizontal position with σ = {c.fake_position_std:g} m (EKF2_NOAID_NOISE; at rest "
-                    f"σ = {c.rest_position_std:g} m and a zero velocity with σ = {c.rest_velocity_std:g} "
-                    f"m/s), {height}, fused with these σ on its no-aiding input (a custom estimator: by "
+                    f"σ = {c.rest_position_std:g} m and {_zero_velocity(c)}), {height}, fused with these "
+                    "σ on its no-aiding input (a custom estimator: by "
                     "its update_no_aid where it has one, else as its GPS samples with its own GPS noise)"
                 )
             else:
@@ -454,6 +463,13 @@ def aiding_gps(log, config, separate=False) -> tuple[Samples, Samples | None, bo
     return merged, no_aid, False, late_fix, losses
 
 
+def _zero_velocity(config) -> str:
+    """The words for the zero velocity at rest of a resolved ReplayConfig `config`: its σ, or none."""
+    if math.isinf(config.rest_velocity_std):
+        return "no zero velocity"
+    return f"a zero velocity with σ = {config.rest_velocity_std:g} m/s"
+
+
 def no_aid_noise(log, config) -> NoAidNoise:
     """The ``schedule.NoAidNoise`` of a replay: PX4's fake position at ``fake_position_std``
     (``EKF2_NOAID_NOISE``) in flight and ``rest_position_std`` at rest, its zero velocity at
@@ -526,7 +542,7 @@ def replay_setup(log, config) -> tuple[dict, VehicleConfig, Aiding]:
     baro_fused = vehicle.sensors.baro is not None
     rested = None
     if no_aid is not None:
-        resting = int(np.count_nonzero(np.isfinite(no_aid.values[:, 9])))
+        resting = int(np.count_nonzero(at_rest(log.imu, no_aid.times, log.landed)))
         rested = (resting, len(no_aid) - resting)
     aiding = Aiding(
         fake, magnetometer, late_fix, baro_fused, losses, baro_fused and baro_reference, rested, kept_as_px4

@@ -78,6 +78,10 @@ REST_VELOCITY_STD_BY_RELEASE = {(1, 13): 0.001}
 throughout (the 2022 code before PX4-Autopilot pull request 20611 relaxed it to 0.2 after the tilt
 alignment; measured on the SITL ground-truth log, v1.13: PX4's velocity variance falls to 1.0e-6
 (m/s)² at every zero-velocity update, 0.2 s apart, before and after its alignment)."""
+ZERO_VELOCITY_FROM = (1, 13)
+"""The first PX4 release whose EKF2 fuses a zero velocity at rest (PX4-Autopilot pull request
+19149, 2022); earlier ones fused none (measured: PX4's vertical velocity variance stays 0.026-0.037
+(m/s)² over sample_log_small's 6.5 s at rest, v1.11, and 0.12-0.30 on roboto_test, v1.12)."""
 SENSOR_DELAYS = ("gps_delay", "mag_delay", "baro_delay")
 """The ReplayConfig's sensor delay fields (s; None: the log's own, ``px4_parameters.log_delays``)."""
 
@@ -98,7 +102,8 @@ class ReplayConfig:
     # fake position's std (m) and a zero velocity's (m/s), as PX4 EKF2 fuses them on the ground
     # (``controlFakePosFusion``: 0.01 m; ``controlZeroVelocityUpdate``); the built-in kinds and a
     # custom estimator with ``update_no_aid`` fuse each sample with its own std. The zero
-    # velocity's None (the default): the std of the log's PX4 release (:func:`rest_velocity_std`)
+    # velocity's None (the default): the std of the log's PX4 release (:func:`rest_velocity_std`);
+    # .inf: none fused
     rest_position_std: float = number(0.01, positive=True)
     rest_velocity_std: Optional[float] = None
     # what the estimator's height follows on a log with GPS and a barometer: "log" as PX4's
@@ -294,11 +299,13 @@ def check_replay(config) -> ReplayConfig:
 def rest_velocity_std(config, release) -> float:
     """m/s: the std of the zero velocity at rest of the ReplayConfig `config` on a log of PX4
     release `release` ((major, minor) or None: ``FlightLog.px4_release``): `config`'s own where
-    set, else that release's (:data:`REST_VELOCITY_STD_BY_RELEASE`), else
-    :data:`REST_VELOCITY_STD` (later releases; a log that does not say, a CSV; PX4 before v1.13
-    fused no zero velocity, whose logs are replayed with the current rule)."""
+    set; else inf (none fused) for a release before :data:`ZERO_VELOCITY_FROM`, that release's
+    (:data:`REST_VELOCITY_STD_BY_RELEASE`), or :data:`REST_VELOCITY_STD` (later releases, and a
+    log that does not say: a CSV, PX4's older estimators)."""
     if config.rest_velocity_std is not None:
         return config.rest_velocity_std
+    if release is not None and release < ZERO_VELOCITY_FROM:
+        return math.inf
     return REST_VELOCITY_STD_BY_RELEASE.get(release, REST_VELOCITY_STD)
 
 
