@@ -76,10 +76,10 @@ def test_whether_px4s_estimator_fused_the_gps_is_read_from_its_control_flags(sit
     assert record.values[:, 0].tolist() == [0.0, 1.0] and 9.7 < record.times[1] < 9.9
 
 
-def test_the_zero_velocity_at_rest_is_the_logs_px4_releases(sitl_log):
+def test_the_zero_velocity_at_rest_is_the_logs_px4_releases(sitl_log, tmp_path):
     from quad_drake.flightlogs.reader import px4_release
     from quad_drake.flightlogs.replay import no_aid_noise
-    from quad_drake.flightlogs.settings import load_replay, rest_velocity_std
+    from quad_drake.flightlogs.settings import dump_replay, load_replay, rest_velocity_std
 
     assert px4_release({"ver_sw_release": 0x010D0000}) == (1, 13)  # 0xMMmmpptt
     assert px4_release({"ver_sw_release": 0x011100C0}) == (1, 17)
@@ -88,10 +88,10 @@ def test_the_zero_velocity_at_rest_is_the_logs_px4_releases(sitl_log):
     config = load_replay(SITL, "{kind: eskf}")
     assert config.rest_velocity_std is None  # the default: the log's release's
     # PX4 v1.13 fused its zero velocity at rest at 0.001 m/s (its ground-truth log's own covariance
-    # record); from v1.14 on at 0.2 m/s once aligned; before v1.13 none (inf: not fused); a log
+    # record); from v1.14 on at 0.2 m/s once aligned; before v1.13 none (0: not fused); a log
     # that names no release: the current rule
     releases = ((1, 13), (1, 15), (1, 17), (1, 12), (1, 11), None)
-    assert [rest_velocity_std(config, r) for r in releases] == [0.001, 0.2, 0.2, math.inf, math.inf, 0.2]
+    assert [rest_velocity_std(config, r) for r in releases] == [0.001, 0.2, 0.2, 0.0, 0.0, 0.2]
     assert rest_velocity_std(load_replay(SITL, "{kind: eskf}", ["rest_velocity_std=0.05"]), (1, 13)) == 0.05
     v1_13 = dataclasses.replace(sitl_log, px4_release=(1, 13))
     assert no_aid_noise(v1_13, config).rest_velocity_std == 0.001
@@ -103,8 +103,17 @@ def test_the_zero_velocity_at_rest_is_the_logs_px4_releases(sitl_log):
     assert (
         np.isinf(samples.values[:, 9:12]).all() and (samples.values[:, 6:8] == 0.01).any()
     )  # at rest: the fake position alone
+    assert (
+        no_aid_noise(sitl_log, load_replay(SITL, "{kind: eskf}", ["rest_velocity_std=0"])).rest_velocity_std
+        == math.inf
+    )
     with pytest.raises(Exception, match="rest_velocity_std"):
-        load_replay(SITL, "{kind: eskf}", ["rest_velocity_std=0"])
+        load_replay(SITL, "{kind: eskf}", ["rest_velocity_std=-1"])
+    # a replay's saved config holds the std it resolved, 0 for none, and loads again as it
+    resolved = dataclasses.replace(config, rest_velocity_std=rest_velocity_std(config, (1, 11)))
+    saved = tmp_path / "config.yaml"
+    saved.write_text(dump_replay(resolved), encoding="utf-8")
+    assert load_replay(str(saved)).rest_velocity_std == 0.0
 
 
 def test_only_the_fixes_px4s_estimator_fused_are_kept():

@@ -465,7 +465,7 @@ def aiding_gps(log, config, separate=False) -> tuple[Samples, Samples | None, bo
 
 def _zero_velocity(config) -> str:
     """The words for the zero velocity at rest of a resolved ReplayConfig `config`: its σ, or none."""
-    if math.isinf(config.rest_velocity_std):
+    if not config.rest_velocity_std:
         return "no zero velocity"
     return f"a zero velocity with σ = {config.rest_velocity_std:g} m/s"
 
@@ -473,10 +473,11 @@ def _zero_velocity(config) -> str:
 def no_aid_noise(log, config) -> NoAidNoise:
     """The ``schedule.NoAidNoise`` of a replay: PX4's fake position at ``fake_position_std``
     (``EKF2_NOAID_NOISE``) in flight and ``rest_position_std`` at rest, its zero velocity at
-    ``settings.rest_velocity_std`` (the log's PX4 release's unless set); the height fused at
-    ``fake_position_std`` only on a log without a barometer (PX4's height is then the barometer's)."""
+    ``settings.rest_velocity_std`` (the log's PX4 release's unless set; inf, not fused, for its
+    0); the height fused at ``fake_position_std`` only on a log without a barometer (PX4's height
+    is then the barometer's)."""
     height_std = config.fake_position_std if log.baro is None else math.inf
-    rest_velocity = rest_velocity_std(config, log.px4_release)
+    rest_velocity = rest_velocity_std(config, log.px4_release) or math.inf
     return NoAidNoise(config.fake_position_std, config.rest_position_std, rest_velocity, height_std)
 
 

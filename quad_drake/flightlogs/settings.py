@@ -103,7 +103,7 @@ class ReplayConfig:
     # (``controlFakePosFusion``: 0.01 m; ``controlZeroVelocityUpdate``); the built-in kinds and a
     # custom estimator with ``update_no_aid`` fuse each sample with its own std. The zero
     # velocity's None (the default): the std of the log's PX4 release (:func:`rest_velocity_std`);
-    # .inf: none fused
+    # 0: none fused
     rest_position_std: float = number(0.01, positive=True)
     rest_velocity_std: Optional[float] = None
     # what the estimator's height follows on a log with GPS and a barometer: "log" as PX4's
@@ -283,10 +283,10 @@ def check_replay(config) -> ReplayConfig:
         )
     if config.mag_declination is not None and not abs(config.mag_declination) <= math.pi:
         raise ConfigError(f"mag_declination: must be within [-pi, pi] rad, got {config.mag_declination}")
-    if config.rest_velocity_std is not None and not config.rest_velocity_std > 0.0:
+    if config.rest_velocity_std is not None and not config.rest_velocity_std >= 0.0:
         given = config.rest_velocity_std
         raise ConfigError(
-            f"rest_velocity_std: must be > 0 m/s (or null: the log's PX4 release's), got {given}"
+            f"rest_velocity_std: must be >= 0 m/s (0: none; null: the log's PX4 release's), got {given}"
         )
     for name in SENSOR_DELAYS:
         delay = getattr(config, name)
@@ -298,14 +298,14 @@ def check_replay(config) -> ReplayConfig:
 
 def rest_velocity_std(config, release) -> float:
     """m/s: the std of the zero velocity at rest of the ReplayConfig `config` on a log of PX4
-    release `release` ((major, minor) or None: ``FlightLog.px4_release``): `config`'s own where
-    set; else inf (none fused) for a release before :data:`ZERO_VELOCITY_FROM`, that release's
-    (:data:`REST_VELOCITY_STD_BY_RELEASE`), or :data:`REST_VELOCITY_STD` (later releases, and a
-    log that does not say: a CSV, PX4's older estimators)."""
+    release `release` ((major, minor) or None: ``FlightLog.px4_release``), 0 for none fused:
+    `config`'s own where set; else 0 for a release before :data:`ZERO_VELOCITY_FROM`, that
+    release's (:data:`REST_VELOCITY_STD_BY_RELEASE`), or :data:`REST_VELOCITY_STD` (later
+    releases, and a log that does not say: a CSV, PX4's older estimators)."""
     if config.rest_velocity_std is not None:
         return config.rest_velocity_std
     if release is not None and release < ZERO_VELOCITY_FROM:
-        return math.inf
+        return 0.0
     return REST_VELOCITY_STD_BY_RELEASE.get(release, REST_VELOCITY_STD)
 
 
