@@ -50,6 +50,8 @@ def test_the_bundled_logs_in_one_diagram_equal_each_alone_bit_for_bit(kind):
         assert set(shared.logs) == set(alone.logs)
         for name, data in alone.logs.items():
             np.testing.assert_array_equal(shared.logs[name], data, err_msg=f"{config.log} {name}")
+            for own in (data, shared.logs[name]):  # arrays of their own, not views of a sink's memory
+                assert own.flags.owndata and own.flags.writeable and own.flags.c_contiguous, name
         assert [d.rms for d in shared.attitude] == [d.rms for d in alone.attitude]
     # the two logs differ in every per-vehicle setting: start, GPS noise (one fake), field, barometer
     sitl = together[1]

@@ -603,7 +603,8 @@ def replay_as_flown(log, vehicle, ticks=False) -> tuple:
     context = simulator.get_mutable_context()
     simulator.Initialize()
     simulator.AdvanceTo(log.duration)
-    times, logs = _read_sinks(sinks, context)
+    times, views = _read_sinks(sinks, context)
+    logs = {name: np.ascontiguousarray(view) for name, view in views.items()}
     return (times, logs, smoothing.read_tick_sinks(tick, context)) if ticks else (times, logs)
 
 
@@ -785,18 +786,20 @@ def _replay_together(prepared) -> list[ReplayResult]:
 
 
 def _vehicle_rows(data, i, n, kept) -> np.ndarray:
-    """Vehicle i's samples `kept` ((samples,) bool) of a log of n vehicles (samples, n width): a
-    new (kept samples, width) array."""
+    """Vehicle i's samples `kept` ((samples,) bool) of a log of n vehicles (samples, n width, a
+    view of :func:`_read_sinks`): a new C-ordered (kept samples, width) array of its own."""
     width = data.shape[1] // n
-    return data[kept, i * width : (i + 1) * width]
+    return np.ascontiguousarray(data[kept, i * width : (i + 1) * width])
 
 
 def _read_sinks(sinks, context):
-    """(times (n,), {name: (n, width)}) of the LOG_PERIOD samples k >= 1 of every sink."""
+    """(times (n,), {name: (n, width)}) of the LOG_PERIOD samples k >= 1 of every sink; each
+    array a read-only view of its sink's memory, valid while `context` lives: a caller copies what
+    it keeps (each vehicle's rows, :func:`_vehicle_rows`), so no log is copied twice."""
     logs, times = {}, None
     for name, sink in sinks.items():
         found = sink.FindLog(context)
-        logs[name] = found.data()[:, 1:].T.copy()
+        logs[name] = found.data()[:, 1:].T
         times = found.sample_times()[1:].copy()
     return times, logs
 
