@@ -97,16 +97,12 @@ def test_the_zero_velocity_at_rest_is_the_logs_px4_releases(sitl_log, tmp_path):
     assert no_aid_noise(v1_13, config).rest_velocity_std == 0.001
     assert no_aid_noise(sitl_log, config).rest_velocity_std == 0.2
     v1_11 = dataclasses.replace(sitl_log, px4_release=(1, 11))
-    samples = no_aid_samples(
-        v1_11.imu, np.arange(1.0, 9.0, 0.2), no_aid_noise(v1_11, config), landed=v1_11.landed
-    )
-    assert (
-        np.isinf(samples.values[:, 9:12]).all() and (samples.values[:, 6:8] == 0.01).any()
-    )  # at rest: the fake position alone
-    assert (
-        no_aid_noise(sitl_log, load_replay(SITL, "{kind: eskf}", ["rest_velocity_std=0"])).rest_velocity_std
-        == math.inf
-    )
+    times = np.arange(1.0, 9.0, 0.2)
+    samples = no_aid_samples(v1_11.imu, times, no_aid_noise(v1_11, config), landed=v1_11.landed)
+    assert np.isinf(samples.values[:, 9:12]).all()  # no zero velocity (inf: not fused) ...
+    assert (samples.values[:, 6:8] == 0.01).any()  # ... and the fake position at rest as before
+    none = load_replay(SITL, "{kind: eskf}", ["rest_velocity_std=0"])
+    assert no_aid_noise(sitl_log, none).rest_velocity_std == math.inf
     with pytest.raises(Exception, match="rest_velocity_std"):
         load_replay(SITL, "{kind: eskf}", ["rest_velocity_std=-1"])
     # a replay's saved config holds the std it resolved, 0 for none, and loads again as it
