@@ -299,6 +299,10 @@ def test_the_sitl_ground_truth_is_read_and_both_estimates_are_judged_against_it(
         )
         for line in truth_replay.notes()
     )
+    overridden = replay(load_replay(str(TRUTH_LOG), "{kind: eskf}", ["rest_velocity_std=0.2"]))
+    assert overridden.config.rest_velocity_std == 0.2  # the user's, and no note of the release's
+    assert not any("as PX4 v1.13 (the log's release)" in line for line in overridden.notes())
+    assert errors["VZ"].ours_rms < {e.state: e for e in overridden.truth}["VZ"].ours_rms  # 1.1 < 3.3 mm/s
     # pitch still farther than PX4's (2.9 against 2.3 mrad: docs/measurements/replay.md)
     assert math.isnan(errors["X"].px4_rms) and errors["X"].figure(errors["X"].px4_rms) == "n/a"
     nees = {s.block: s for s in truth_replay.truth_nees}

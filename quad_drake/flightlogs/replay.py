@@ -171,12 +171,12 @@ class ReplayResult:
         if rested is not None and rested[0] and release is not None:
             version = f"PX4 v{release[0]}.{release[1]} (the log's release)"
             since = f"v{ZERO_VELOCITY_FROM[0]}.{ZERO_VELOCITY_FROM[1]}"
-            if release < ZERO_VELOCITY_FROM:
+            if release < ZERO_VELOCITY_FROM and not c.rest_velocity_std:
                 lines.append(
                     f"No zero velocity fused at rest, as {version} fused none (PX4 has since {since}: "
                     f"--set rest_velocity_std={REST_VELOCITY_STD:g} fuses one)."
                 )
-            elif release in REST_VELOCITY_STD_BY_RELEASE:
+            elif c.rest_velocity_std == REST_VELOCITY_STD_BY_RELEASE.get(release):
                 lines.append(
                     f"The zero velocity at rest fused with σ = {REST_VELOCITY_STD_BY_RELEASE[release]:g} "
                     f"m/s, as {version} fused it (from v1.14 on {REST_VELOCITY_STD:g} m/s once "
