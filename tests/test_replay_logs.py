@@ -299,6 +299,10 @@ def test_the_sitl_ground_truth_is_read_and_both_estimates_are_judged_against_it(
         )
         for line in truth_replay.notes()
     )
+    given = "PX4's no-aiding samples every 0.2 s: at rest (49 samples; PX4's land-detector test on the IMU)"
+    assert any(
+        given in line and "a zero velocity with σ = 0.001 m/s" in line for line in truth_replay.notes()
+    )
     overridden = replay(load_replay(str(TRUTH_LOG), "{kind: eskf}", ["rest_velocity_std=0.2"]))
     assert overridden.config.rest_velocity_std == 0.2  # the user's, and no note of the release's
     assert not any("as PX4 v1.13 (the log's release)" in line for line in overridden.notes())

@@ -61,12 +61,11 @@ from quad_drake.flightlogs.schedule import (
 )
 from quad_drake.flightlogs.settings import (
     REST_VELOCITY_STD,
-    REST_VELOCITY_STD_BY_RELEASE,
-    ZERO_VELOCITY_FROM,
     ReplayConfig,
     dump_replay,
     fuses_no_aid,
     height_reference,
+    release_rest_velocity_std,
     resolve_log,
     rest_velocity_std,
     vehicle_for,
@@ -168,20 +167,17 @@ class ReplayResult:
                 "samples (with the GPS noise it assumes)"
             )
         release = self.log.px4_release
-        if rested is not None and rested[0] and release is not None:
+        own = release_rest_velocity_std(release)  # what the log's release fused (0: none)
+        if rested is not None and rested[0] and own != REST_VELOCITY_STD and c.rest_velocity_std == own:
             version = f"PX4 v{release[0]}.{release[1]} (the log's release)"
-            since = f"v{ZERO_VELOCITY_FROM[0]}.{ZERO_VELOCITY_FROM[1]}"
-            if release < ZERO_VELOCITY_FROM and not c.rest_velocity_std:
-                lines.append(
-                    f"No zero velocity fused at rest, as {version} fused none (PX4 has since {since}: "
-                    f"--set rest_velocity_std={REST_VELOCITY_STD:g} fuses one)."
-                )
-            elif c.rest_velocity_std == REST_VELOCITY_STD_BY_RELEASE.get(release):
-                lines.append(
-                    f"The zero velocity at rest fused with σ = {REST_VELOCITY_STD_BY_RELEASE[release]:g} "
-                    f"m/s, as {version} fused it (from v1.14 on {REST_VELOCITY_STD:g} m/s once "
-                    f"aligned: --set rest_velocity_std={REST_VELOCITY_STD:g})."
-                )
+            later = (
+                f"--set rest_velocity_std={REST_VELOCITY_STD:g} fuses it as later releases do, once aligned"
+            )
+            if own:
+                said = f"The zero velocity at rest fused with σ = {own:g} m/s, as {version} fused it"
+            else:
+                said = f"No zero velocity fused at rest, as {version} fused none"
+            lines.append(f"{said} ({later}).")
         kept_as_px4 = self.aiding.gps_kept_as_px4
         if kept_as_px4 is not None:
             lines.append(

@@ -299,11 +299,17 @@ def check_replay(config) -> ReplayConfig:
 def rest_velocity_std(config, release) -> float:
     """m/s: the std of the zero velocity at rest of the ReplayConfig `config` on a log of PX4
     release `release` ((major, minor) or None: ``FlightLog.px4_release``), 0 for none fused:
-    `config`'s own where set; else 0 for a release before :data:`ZERO_VELOCITY_FROM`, that
-    release's (:data:`REST_VELOCITY_STD_BY_RELEASE`), or :data:`REST_VELOCITY_STD` (later
-    releases, and a log that does not say: a CSV, PX4's older estimators)."""
+    `config`'s own where set, else the release's (:func:`release_rest_velocity_std`)."""
     if config.rest_velocity_std is not None:
         return config.rest_velocity_std
+    return release_rest_velocity_std(release)
+
+
+def release_rest_velocity_std(release) -> float:
+    """m/s: the std of the zero velocity at rest that PX4 release `release` ((major, minor) or
+    None) fused, 0 for none: 0 before :data:`ZERO_VELOCITY_FROM`, the release's own
+    (:data:`REST_VELOCITY_STD_BY_RELEASE`), else :data:`REST_VELOCITY_STD` (later releases, and a
+    log that does not say)."""
     if release is not None and release < ZERO_VELOCITY_FROM:
         return 0.0
     return REST_VELOCITY_STD_BY_RELEASE.get(release, REST_VELOCITY_STD)
