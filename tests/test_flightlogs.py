@@ -15,6 +15,7 @@ from quad_drake.conventions import GRAVITY, NO_SAMPLE_STAMP
 from quad_drake.flightlogs import comparison
 from quad_drake.flightlogs.reader import FlightLogError, Samples, read_flight_log
 from quad_drake.flightlogs.schedule import (
+    RestTest,
     first_ticks,
     gravity_directions,
     imu_tick_means,
@@ -98,7 +99,8 @@ def test_the_zero_velocity_at_rest_is_the_logs_px4_releases(sitl_log, tmp_path):
     assert no_aid_noise(sitl_log, config).rest_velocity_std == 0.2
     v1_11 = dataclasses.replace(sitl_log, px4_release=(1, 11))
     times = np.arange(1.0, 9.0, 0.2)
-    samples = no_aid_samples(v1_11.imu, times, no_aid_noise(v1_11, config), landed=v1_11.landed)
+    rest = RestTest.of(v1_11.imu, v1_11.landed)
+    samples = no_aid_samples(rest, times, no_aid_noise(v1_11, config))
     assert np.isinf(samples.values[:, 9:12]).all()  # no zero velocity (inf: not fused) ...
     assert (samples.values[:, 6:8] == 0.01).any()  # ... and the fake position at rest as before
     none = load_replay(SITL, "{kind: eskf}", ["rest_velocity_std=0"])

@@ -33,7 +33,7 @@ What is read from a PX4 ULog (``pyulog``, PX4's own reader):
   ``pymap3d.geodetic2ned`` on the WGS84 ellipsoid; the altitudes are taken as heights above it:
   the geoid's offset is constant over a flight and cancels.
 - PX4's land detector (optional): ``vehicle_land_detected.landed`` (1 landed, 0 in the air), which
-  the no-aiding samples' rest test requires where logged (``schedule.at_rest``).
+  the no-aiding samples' rest test requires where logged (``schedule.RestTest``).
 - PX4's own estimate, the reference of the comparison (optional): ``vehicle_attitude.q`` (wxyz,
   body FRD to NED; at ``timestamp_sample`` where logged) and ``vehicle_local_position``
   (x, y, z, vx, vy, vz in NED about PX4's origin ``ref_lat``, ``ref_lon``, ``ref_alt``), moved
@@ -358,9 +358,10 @@ def read_ulog(path) -> FlightLog:
     start = float(imu.times[0])
     gps, origin, gps_accuracy = _ulog_gps(path, topics)
     parameters = dict(ulog.initial_parameters)
+    release = px4_release(ulog.msg_info_dict)
     declination = parameters.get("EKF2_MAG_DECL", parameters.get("ATT_MAG_DECL"))
     anchor = float(gps.times[0]) if gps is not None else start
-    mag_field, mag_source = _ulog_mag(path, topics, raw_mags, parameters, ulog.msg_info_dict)
+    mag_field, mag_source = _ulog_mag(path, topics, raw_mags, parameters, release)
     reference_position, gps_mismatches = _ulog_local_position(path, topics, origin, anchor, gps)
     return FlightLog(
         source=str(path),
@@ -388,7 +389,7 @@ def read_ulog(path) -> FlightLog:
         imu_switches=_ulog_switches(topics, "sensor_selection", ("accel_device_id", "gyro_device_id"), imu),
         estimator_switches=_ulog_switches(topics, "estimator_selector_status", ("primary_instance",), imu),
         px4_gps_fusion=_ulog_px4_gps_fusion(topics, statuses, start),
-        px4_release=px4_release(ulog.msg_info_dict),
+        px4_release=release,
     )
 
 
@@ -580,7 +581,7 @@ def _combined_samples(path, combined, sensor, label, fields):
     return _ulog_samples(path, f"sensor_combined ({label})", combined, stamps, fields, rows)
 
 
-def _ulog_mag(path, topics, raw_mags, parameters, info):
+def _ulog_mag(path, topics, raw_mags, parameters, release):
     """(Samples of the body field or None, mag_source): ``vehicle_magnetometer``, else
     ``sensor_combined``'s field, else the raw ``sensor_mag`` (:func:`_raw_mag`)."""
     fields = [f"magnetometer_ga[{i}]" for i in range(3)]
@@ -590,7 +591,7 @@ def _ulog_mag(path, topics, raw_mags, parameters, info):
     combined = _combined_samples(path, topics["sensor_combined"], "magnetometer", "magnetometer", fields)
     if combined is not None or not raw_mags:
         return combined, ""
-    return _raw_mag(path, topics, raw_mags, parameters, info)
+    return _raw_mag(path, topics, raw_mags, parameters, release)
 
 
 @dataclass(frozen=True)
@@ -665,9 +666,10 @@ def _ulog_estimator_mag_bias(topics, sensor_biases):
     return tuple(float(data[f"mag_bias[{axis}]"][0]) for axis in range(3))
 
 
-def _raw_mag(path, topics, raw_mags, parameters, info):
+def _raw_mag(path, topics, raw_mags, parameters, release):
     """(Samples, mag_source) of the preferred ``sensor_mag`` instance, calibrated as the log's
-    parameters say where it is raw (``flightlogs.mag_calibration``)."""
+    parameters say where it is raw (``flightlogs.mag_calibration``, by the log's PX4 `release`,
+    :func:`px4_release`)."""
     devices = [int(data["device_id"][0]) if "device_id" in data else 0 for data in raw_mags]
     selector = topics.get("estimator_selector_status", {})
     primary = int(selector["mag_device_id"][0]) if "mag_device_id" in selector else None
@@ -675,7 +677,7 @@ def _raw_mag(path, topics, raw_mags, parameters, info):
     data = raw_mags[chosen]
     samples = _ulog_samples(path, "sensor_mag", data, _sample_times(data), ["x", "y", "z"])
     what = f"the raw sensor_mag (instance {chosen}, device {devices[chosen]})"
-    raw = cal.is_raw(px4_release(info))
+    raw = cal.is_raw(release)
     if raw is False:
         return samples, f"{what}, calibrated by its driver (PX4 before v1.12): taken as logged"
     try:

@@ -48,7 +48,7 @@ from quad_drake.flightlogs.schedule import (
     STAMPED,
     STREAM_WIDTHS,
     NoAidNoise,
-    at_rest,
+    RestTest,
     bridged_imu,
     fake_position,
     fused_by_px4,
@@ -395,7 +395,9 @@ def magnetometer_for(log, config) -> earth_field.MagnetometerModel | None:
     return model
 
 
-def aiding_gps(log, config, separate=False) -> tuple[Samples, Samples | None, bool, float | None, list]:
+def aiding_gps(
+    log, config, separate=False, rest=None
+) -> tuple[Samples, Samples | None, bool, float | None, list]:
     """(GPS Samples to emit, no-aiding Samples or None, fake position used, first fix s or None,
     losses [(lost s, regained s)]): the log's GPS, with aiding where PX4 has none.
 
@@ -415,15 +417,17 @@ def aiding_gps(log, config, separate=False) -> tuple[Samples, Samples | None, bo
     the loss, so that the returning GPS ends an outage of the whole loss, a regain
     (``estimation/gating.py``: each group fused where its gate accepts it and reset to it where
     not, as PX4 resets to GNSS when it starts aiding again); else :func:`held_position` samples
-    merged into the GPS."""
+    merged into the GPS. rest: the log's ``schedule.RestTest`` (None: built here where needed)."""
     period = config.fake_position_period
     if config.fake_position_std <= 0:
         return log.gps, None, False, None, []
     noise = no_aid_noise(log, config)
+    if separate and rest is None:
+        rest = RestTest.of(log.imu, log.landed)
     if log.gps is None:
         times = np.arange(period, log.duration + 1e-9, period)
         if separate:
-            return None, no_aid_samples(log.imu, times, noise, landed=log.landed), True, None, []
+            return None, no_aid_samples(rest, times, noise), True, None, []
         return fake_position(log, period), None, True, None, []
     times, values = [log.gps.times], [log.gps.values]
     first_fix = float(log.gps.times[0])
@@ -432,7 +436,7 @@ def aiding_gps(log, config, separate=False) -> tuple[Samples, Samples | None, bo
     if late_fix is not None:
         held = np.arange(period, first_fix - 1e-9, period)
         if separate:
-            no_aid.append(no_aid_samples(log.imu, held, noise, landed=log.landed))
+            no_aid.append(no_aid_samples(rest, held, noise))
         else:
             times.append(held)
             values.append(np.zeros((len(held), 6)))
@@ -442,7 +446,7 @@ def aiding_gps(log, config, separate=False) -> tuple[Samples, Samples | None, bo
         losses.append((lost, regained))
         held = np.arange(lost + NO_AID_TIMEOUT, regained - period + 1e-9, period)
         if separate:
-            no_aid.append(no_aid_samples(log.imu, held, noise, log.gps.values[i, 0:3], log.landed))
+            no_aid.append(no_aid_samples(rest, held, noise, log.gps.values[i, 0:3]))
         else:
             times.append(held)
             values.append(held_position(log, lost, log.gps.values[i, 0:3], held))
@@ -513,7 +517,8 @@ def replay_setup(log, config) -> tuple[dict, VehicleConfig, Aiding]:
     if fused.gps is not log.gps:  # (counted here: a delay drops a fix measured before t = 0)
         kept_as_px4 = (0 if fused.gps is None else len(fused.gps), len(log.gps))
     log = played_log(fused, config)
-    gps, no_aid, fake, late_fix, losses = aiding_gps(log, config, fuses_no_aid(config))
+    rest = RestTest.of(log.imu, log.landed)
+    gps, no_aid, fake, late_fix, losses = aiding_gps(log, config, fuses_no_aid(config), rest)
     magnetometer = magnetometer_for(log, config)
     declination, hard_iron = (
         (0.0, (0.0, 0.0, 0.0))
@@ -539,7 +544,7 @@ def replay_setup(log, config) -> tuple[dict, VehicleConfig, Aiding]:
     baro_fused = vehicle.sensors.baro is not None
     rested = None
     if no_aid is not None:
-        resting = int(np.count_nonzero(at_rest(log.imu, no_aid.times, log.landed)))
+        resting = int(np.count_nonzero(rest.at(no_aid.times)))
         rested = (resting, len(no_aid) - resting)
     aiding = Aiding(
         fake, magnetometer, late_fix, baro_fused, losses, baro_fused and baro_reference, rested, kept_as_px4

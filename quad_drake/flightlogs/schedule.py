@@ -227,37 +227,55 @@ AT_REST_TIME = 1.0
 """s without motion before the vehicle is at rest (PX4's land detector)."""
 
 
-def at_rest(imu, times, landed=None) -> np.ndarray:
-    """(m,) bool: the vehicle at rest at each of `times` (s), from the log's IMU Samples (PX4's
-    land detector's test, ``vehicle_land_detected.at_rest``, which EKF2 takes as
-    ``vehicle_at_rest``): no IMU sample in the AT_REST_TIME s before t, nor since the log's start,
-    with a gyro rate above AT_REST_GYRO or a vibration metric (the low-passed sample-to-sample
-    change of the gyro rate or of the specific force) above AT_REST_GYRO_VIBRATION or
-    AT_REST_ACCEL_VIBRATION; and landed: PX4 fuses its rest σ only when not in the air, so where
-    the log has PX4's land detector (`landed`: Samples of ``landed``, 1 or 0, or None) its last
-    value at t (its first before it) must be 1. Without it the IMU alone decides: a flying
-    multirotor's motors shake its IMU above these limits, a simulator's IMU need not."""
-    from scipy.signal import lfilter
+@dataclass(frozen=True)
+class RestTest:
+    """PX4's at-rest test over one log (its land detector's ``vehicle_land_detected.at_rest``,
+    which EKF2 takes as ``vehicle_at_rest``), built once from the log's IMU Samples (:meth:`of`:
+    the vibration filters over every sample) and asked at any times (:meth:`at`). imu_times (s):
+    the IMU's sample times; last_motion (s): at each IMU sample, the latest sample time at or before
+    it that showed motion (-inf where none); landed: PX4's land detector's Samples (``landed``, 1
+    or 0) or None."""
 
-    imu_times, values = imu.times, imu.values
-    gain = AT_REST_VIBRATION_GAIN
+    imu_times: np.ndarray
+    last_motion: np.ndarray
+    landed: Samples | None = None
 
-    def vibration(signal):
-        change = np.linalg.norm(np.diff(signal, axis=0, prepend=signal[:1]), axis=1)
-        return lfilter([gain], [1.0, gain - 1.0], change)
+    @classmethod
+    def of(cls, imu, landed=None) -> "RestTest":
+        """The test of a log whose IMU Samples are `imu` (specific force m/s^2, rate rad/s) and
+        land detector `landed` (or None): an IMU sample shows motion where its gyro rate is above
+        AT_REST_GYRO or a vibration metric (the low-passed sample-to-sample change of the gyro
+        rate or of the specific force) above AT_REST_GYRO_VIBRATION or AT_REST_ACCEL_VIBRATION;
+        the first sample always (nothing is known before it)."""
+        from scipy.signal import lfilter
 
-    moving = np.linalg.norm(values[:, 3:6], axis=1) > AT_REST_GYRO
-    moving |= vibration(values[:, 3:6]) > AT_REST_GYRO_VIBRATION
-    moving |= vibration(values[:, 0:3]) > AT_REST_ACCEL_VIBRATION
-    moving[0] = True  # nothing is known before the first sample: rest is proven over AT_REST_TIME
-    last_moving = np.maximum.accumulate(np.where(moving, imu_times, -np.inf))
-    index = np.searchsorted(imu_times, times, side="right") - 1
-    before_start = index < 0
-    index = np.maximum(index, 0)
-    resting = ~before_start & (np.asarray(times, dtype=float) - last_moving[index] >= AT_REST_TIME)
-    if landed is not None:
-        resting &= flag_at(landed, times)
-    return resting
+        gain = AT_REST_VIBRATION_GAIN
+
+        def vibration(signal):
+            change = np.linalg.norm(np.diff(signal, axis=0, prepend=signal[:1]), axis=1)
+            return lfilter([gain], [1.0, gain - 1.0], change)
+
+        values = imu.values
+        moving = np.linalg.norm(values[:, 3:6], axis=1) > AT_REST_GYRO
+        moving |= vibration(values[:, 3:6]) > AT_REST_GYRO_VIBRATION
+        moving |= vibration(values[:, 0:3]) > AT_REST_ACCEL_VIBRATION
+        moving[0] = True  # nothing is known before the first sample: rest is proven over AT_REST_TIME
+        last_motion = np.maximum.accumulate(np.where(moving, imu.times, -np.inf))
+        return cls(imu.times, last_motion, landed)
+
+    def at(self, times) -> np.ndarray:
+        """(m,) bool: the vehicle at rest at each of `times` (s): no IMU sample in the
+        AT_REST_TIME s before t, nor since the log's start, showed motion; and landed: PX4 fuses
+        its rest σ only when not in the air, so where the log has PX4's land detector its last
+        value at t (its first before it) must be 1. Without it the IMU alone decides: a flying
+        multirotor's motors shake its IMU above these limits, a simulator's IMU need not."""
+        times = np.asarray(times, dtype=float)
+        index = np.searchsorted(self.imu_times, times, side="right") - 1
+        before_start = index < 0
+        resting = ~before_start & (times - self.last_motion[np.maximum(index, 0)] >= AT_REST_TIME)
+        if self.landed is not None:
+            resting &= flag_at(self.landed, times)
+        return resting
 
 
 def flag_at(record, times) -> np.ndarray:
@@ -280,17 +298,16 @@ class NoAidNoise:
     height_std: float = math.inf
 
 
-def no_aid_samples(imu, times, noise, position=(0.0, 0.0, 0.0), landed=None) -> Samples:
+def no_aid_samples(rest, times, noise, position=(0.0, 0.0, 0.0)) -> Samples:
     """No-aiding Samples (m, 12: p_N m, v_N m/s, then the std of each of the six, inf = not
     fused) at `times` (s), PX4 EKF2's while it has no position aiding: a fake position at
     `position` (p_N m: the origin before a first fix, the last fix's after a GPS loss; its
     horizontal part, and its height at noise.height_std) every sample, with noise.position_std
-    (``EKF2_NOAID_NOISE``); at rest (:func:`at_rest` of the log's IMU Samples `imu`) with
+    (``EKF2_NOAID_NOISE``); at rest (the log's :class:`RestTest` `rest`) with
     noise.rest_position_std, and a zero velocity (3 axes) with noise.rest_velocity_std (PX4's zero
-    velocity update); landed: the log's land detector for :func:`at_rest`, or None. noise: a
-    :class:`NoAidNoise`."""
+    velocity update). noise: a :class:`NoAidNoise`."""
     times = np.asarray(times, dtype=float)
-    resting = at_rest(imu, times, landed)
+    resting = rest.at(times)
     values = np.zeros((len(times), 12))
     values[:, 0:3] = position
     values[:, 6:8] = np.where(resting, noise.rest_position_std, noise.position_std)[:, None]

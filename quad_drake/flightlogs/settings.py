@@ -98,7 +98,7 @@ class ReplayConfig:
     # std (PX4's EKF2_NOAID_NOISE), so the estimator's velocity, and its tilt, stay bounded; 0 = off
     fake_position_std: float = number(10.0, nonnegative=True)
     fake_position_period: float = number(0.2, tick_multiple=1)  # s
-    # while not GPS-aided and at rest (``schedule.at_rest``: PX4's test on the log's IMU), the
+    # while not GPS-aided and at rest (``schedule.RestTest``: PX4's test on the log's IMU), the
     # fake position's std (m) and a zero velocity's (m/s), as PX4 EKF2 fuses them on the ground
     # (``controlFakePosFusion``: 0.01 m; ``controlZeroVelocityUpdate``); the built-in kinds and a
     # custom estimator with ``update_no_aid`` fuse each sample with its own std. The zero

@@ -13,7 +13,7 @@ from quad_drake.config import GpsParams, ImuParams, SensorsConfig, VehicleConfig
 from quad_drake.conventions import GRAVITY, NO_SAMPLE_STAMP, ONBOARD_PERIOD
 from quad_drake.estimation.registry import Ekf7EstimatorConfig, EskfEstimatorConfig
 from quad_drake.flightlogs.reader import Samples
-from quad_drake.flightlogs.schedule import NoAidNoise, at_rest, no_aid_samples
+from quad_drake.flightlogs.schedule import NoAidNoise, RestTest, no_aid_samples
 from quad_drake.systems.estimators import build_estimator
 
 AT_REST = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.01, 0.01, math.inf, 0.2, 0.2, 0.2]
@@ -60,7 +60,7 @@ def test_at_rest_is_a_second_without_motion_on_the_imu():
     times = np.arange(0.0, 4.0, 0.004)
     values = np.tile([0.0, 0.0, -GRAVITY, 0.0, 0.0, 0.0], (len(times), 1))
     values[(times > 2.0) & (times < 2.2), 3] = 0.2  # a roll at 0.2 rad/s (over PX4's 3°/s)
-    rest = at_rest(Samples(times, values), [0.5, 1.5, 2.1, 2.9, 3.3])
+    rest = RestTest.of(Samples(times, values)).at([0.5, 1.5, 2.1, 2.9, 3.3])
     np.testing.assert_array_equal(rest, [False, True, False, False, True])
 
 
@@ -69,15 +69,15 @@ def test_at_rest_also_needs_the_logs_land_detector_to_say_landed_where_it_has_on
     imu = Samples(times, np.tile([0.0, 0.0, -GRAVITY, 0.0, 0.0, 0.0], (len(times), 1)))
     landed = Samples(np.array([2.0, 3.0]), np.array([[1.0], [0.0]]))  # in the air from 3 s
     checked = [0.5, 1.5, 2.9, 3.0, 3.3]  # 1.5: before the detector's first sample, its first value
-    np.testing.assert_array_equal(at_rest(imu, checked), [False, True, True, True, True])
-    np.testing.assert_array_equal(at_rest(imu, checked, landed), [False, True, True, False, False])
+    np.testing.assert_array_equal(RestTest.of(imu).at(checked), [False, True, True, True, True])
+    np.testing.assert_array_equal(RestTest.of(imu, landed).at(checked), [False, True, True, False, False])
 
 
 def test_no_aid_samples_carry_pxs_std_at_rest_and_in_flight():
     times = np.arange(0.0, 4.0, 0.004)
     values = np.tile([0.0, 0.0, -GRAVITY, 0.0, 0.0, 0.0], (len(times), 1))
     values[times > 2.0, 3] = 0.2  # turning from 2 s on: not at rest
-    samples = no_aid_samples(Samples(times, values), [1.5, 3.0], NoAidNoise(10.0, 0.01, 0.2))
+    samples = no_aid_samples(RestTest.of(Samples(times, values)), [1.5, 3.0], NoAidNoise(10.0, 0.01, 0.2))
     np.testing.assert_array_equal(samples.values[:, 0:6], 0.0)
     np.testing.assert_array_equal(samples.values[0, 6:], [0.01, 0.01, math.inf, 0.2, 0.2, 0.2])
     np.testing.assert_array_equal(samples.values[1, 6:], [10.0, 10.0, math.inf] + [math.inf] * 3)
