@@ -1,5 +1,7 @@
-"""Command line: ``quad-drake list | run | montecarlo | tune | replay | diagram | noise-std | export``,
-``warmup``.
+"""quad-drake: a quadrotor's scenarios, campaigns, tuning, flight-log replay and grading on Drake.
+
+Commands: ``list | run | montecarlo | tune | replay | diagram | noise-std | grade | export |
+warmup``.
 
 Exit codes: 0 every criterion passed, 1 a criterion failed, 2 bad input
 (one line on stderr, no traceback), 3 results could not be written (a full disk, a folder

@@ -324,6 +324,25 @@ def test_the_sitl_ground_truth_is_read_and_both_estimates_are_judged_against_it(
     assert "Against the simulator's ground truth" in report and "mean NEES" in report
 
 
+def test_a_release_that_fused_its_zero_velocity_while_gps_aided_is_said(truth_replay):
+    # PX4 v1.13 fused its zero velocity at rest while GNSS aided too (before PX4-Autopilot pull
+    # request 20611, v1.14); the replay fuses it only while not aided, and says so where the GPS it
+    # fused came at rest: the bundled SITL log (v1.15) tagged as v1.13, against itself as it is
+    sitl = read_flight_log(SITL)
+    config = load_replay(str(SITL), "{kind: eskf}")
+    said = "PX4 v1.13 (the log's release) also fused its zero velocity at rest (σ = 0.001 m/s)"
+    as_v1_13 = replay(config, dataclasses.replace(sitl, px4_release=(1, 13)))
+    line = next(line for line in as_v1_13.notes() if line.startswith(said))
+    at_rest = as_v1_13.aiding.gps_at_rest
+    assert 0 < at_rest < len(sitl.gps) and f"{at_rest} of the {len(sitl.gps)} GPS samples fused" in line
+    as_logged = replay(config, sitl)
+    assert as_logged.aiding.gps_at_rest == at_rest  # the same samples at rest, and no such line
+    assert not any("while the GPS aided it" in line for line in as_logged.notes())
+    # a v1.13 log whose GPS its PX4 never fused (the ground-truth log): nothing fused at rest
+    assert truth_replay.aiding.gps_at_rest == 0
+    assert not any("while the GPS aided it" in line for line in truth_replay.notes())
+
+
 def test_the_height_reference_is_the_one_px4s_parameters_name():
     from quad_drake.flightlogs.settings import UNFUSED_HEIGHT_STD, height_reference, vehicle_for
 

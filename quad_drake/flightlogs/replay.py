@@ -61,6 +61,7 @@ from quad_drake.flightlogs.schedule import (
 )
 from quad_drake.flightlogs.settings import (
     REST_VELOCITY_STD,
+    ZERO_VELOCITY_STOPS_WHILE_AIDED_FROM,
     ReplayConfig,
     dump_replay,
     fuses_no_aid,
@@ -100,7 +101,8 @@ class Aiding:
     baro_height_reference (the barometer was the height reference: the GPS height not fused),
     no_aid_at_rest (the no-aiding samples given on the estimator's own input, at rest and not),
     gps_kept_as_px4 ((GPS samples fused, GPS samples in the log) where PX4's estimator fused only
-    some or none of them and the replay followed it, ``schedule.fused_by_px4``; None otherwise)."""
+    some or none of them and the replay followed it, ``schedule.fused_by_px4``; None otherwise),
+    gps_at_rest (the GPS samples fused while the vehicle was at rest, ``schedule.RestTest``)."""
 
     fake_position: bool = False
     magnetometer: object = None
@@ -110,6 +112,7 @@ class Aiding:
     baro_height_reference: bool = False
     no_aid_at_rest: tuple | None = None  # (samples at rest, samples not) on the no_aid input; None: none
     gps_kept_as_px4: tuple | None = None  # (GPS samples fused, in the log) where PX4 fused some or none
+    gps_at_rest: int = 0
 
 
 @dataclass
@@ -178,6 +181,20 @@ class ReplayResult:
             else:
                 said = f"No zero velocity fused at rest, as {version} fused none"
             lines.append(f"{said} ({later}).")
+        if (
+            self.aiding.gps_at_rest
+            and own
+            and release is not None
+            and release < ZERO_VELOCITY_STOPS_WHILE_AIDED_FROM
+            and c.rest_velocity_std == own
+        ):
+            lines.append(
+                f"PX4 v{release[0]}.{release[1]} (the log's release) also fused its zero velocity at "
+                f"rest (σ = {own:g} m/s) while the GPS aided it, as releases before v1.14 did: "
+                f"{self.aiding.gps_at_rest} of the {len(self.log.gps)} GPS samples fused came at rest, "
+                "where the replay fuses the GPS alone (as PX4 from v1.14 on); the velocities at rest "
+                "can part there."
+            )
         kept_as_px4 = self.aiding.gps_kept_as_px4
         if kept_as_px4 is not None:
             lines.append(
@@ -546,8 +563,17 @@ def replay_setup(log, config) -> tuple[dict, VehicleConfig, Aiding]:
     if no_aid is not None:
         resting = int(np.count_nonzero(rest.at(no_aid.times)))
         rested = (resting, len(no_aid) - resting)
+    gps_at_rest = 0 if log.gps is None else int(np.count_nonzero(rest.at(log.gps.times)))
     aiding = Aiding(
-        fake, magnetometer, late_fix, baro_fused, losses, baro_fused and baro_reference, rested, kept_as_px4
+        fake,
+        magnetometer,
+        late_fix,
+        baro_fused,
+        losses,
+        baro_fused and baro_reference,
+        rested,
+        kept_as_px4,
+        gps_at_rest,
     )
     return streams, vehicle, aiding
 

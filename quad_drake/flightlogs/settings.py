@@ -82,6 +82,12 @@ ZERO_VELOCITY_FROM = (1, 13)
 """The first PX4 release whose EKF2 fuses a zero velocity at rest (PX4-Autopilot pull request
 19149, 2022); earlier ones fused none (measured: PX4's vertical velocity variance stays 0.026-0.037
 (m/s)² over sample_log_small's 6.5 s at rest, v1.11, and 0.12-0.30 on roboto_test, v1.12)."""
+ZERO_VELOCITY_STOPS_WHILE_AIDED_FROM = (1, 14)
+"""The first PX4 release whose zero velocity at rest stops while GNSS (or another source) aids the
+velocity (PX4-Autopilot pull request 20611, November 2022: with it the filter was "too rigid" to
+follow a drifting GNSS position); v1.13 fused it while aided as well. A replay fuses it only
+while not GPS-aided (its no-aiding samples), whatever the release: the notes say where a log's
+release differed."""
 SENSOR_DELAYS = ("gps_delay", "mag_delay", "baro_delay")
 """The ReplayConfig's sensor delay fields (s; None: the log's own, ``px4_parameters.log_delays``)."""
 
