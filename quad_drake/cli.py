@@ -608,7 +608,14 @@ def cmd_tune_logs(args) -> int:
         imu_noise=not args.no_imu_noise,
         curve_points=0 if args.no_curves else LogTuneSettings.curve_points,
     )
-    problem = prepare(args.name, args.holdout_logs, args.set, settings)
+    from .flightlogs.settings import distinct_logs
+
+    names, repeated = distinct_logs(args.name)
+    holdout_names, repeated_held = distinct_logs(args.holdout_logs)
+    if repeated or repeated_held:
+        repeats = ", ".join(repeated + repeated_held)
+        print(f"note: {repeats}: given more than once (the same file); taken once")
+    problem = prepare(names, holdout_names, args.set, settings)
     stem = Path(problem.logs[0].source).stem
     out = check_output_dir("out") / f"{stem}_tune" if args.out is None else check_output_dir(args.out)
     result = tune_logs(problem, progress=not args.quiet)

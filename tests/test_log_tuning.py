@@ -9,7 +9,7 @@ import pytest
 
 from quad_drake.config.errors import ConfigError
 from quad_drake.flightlogs import px4_parameters as px4
-from quad_drake.flightlogs.settings import default_replay, load_replay
+from quad_drake.flightlogs.settings import LOG_DIR, default_replay, load_replay
 from quad_drake.judging import innovations
 
 
@@ -136,6 +136,18 @@ def test_a_missing_or_unreadable_log_is_one_line_and_exit_2(quad_drake_cli, tmp_
     assert done.returncode == 2 and done.stdout == ""
     assert message in done.stderr and len(done.stderr.strip().splitlines()) == 1
     assert "Traceback" not in done.stderr
+
+
+def test_a_log_both_tuned_on_and_held_out_is_one_line_and_exit_2(quad_drake_cli, tmp_path):
+    # a held-out log the search replays judges nothing held out: refused before any replay, by
+    # the file it names (a bundled name and its path alike)
+    bundled = str(LOG_DIR / "sitl_takeoff_land_gps.ulg")
+    done = quad_drake_cli(
+        "tune", "sitl_takeoff_land_gps", "--holdout-logs", bundled, "--out", tmp_path / "out"
+    )
+    assert done.returncode == 2 and done.stdout == "" and "Traceback" not in done.stderr
+    assert "is both tuned on and held out" in done.stderr and len(done.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "out").exists()
 
 
 @pytest.mark.slow

@@ -406,6 +406,26 @@ def test_many_logs_replay_into_one_table_and_a_bad_one_is_said(quad_drake_cli, t
     assert (out / "sitl_ground_truth-eskf" / "summary.json").is_file()
 
 
+def test_a_log_given_twice_is_replayed_once_and_said(quad_drake_cli, tmp_path):
+    # a folder and a file inside it, or a bundled name and its path: the same file, replayed once
+    folder = tmp_path / "logs"
+    folder.mkdir()
+    copy = folder / "truth.ulg"
+    copy.write_bytes(TRUTH_LOG.read_bytes())
+    out = tmp_path / "out"
+    result = quad_drake_cli(
+        "replay", folder, copy, "sitl_takeoff_land_gps", SITL, "--estimator", "{kind: eskf}", "--no-plots",
+        "--out", out,
+    )  # fmt: skip
+    assert result.returncode == 0
+    note = f"note: {copy}, {SITL}: given more than once (the same file); replayed once"
+    assert note in result.stdout
+    replayed = [line for line in result.stdout.splitlines() if line.startswith("== replay ")]
+    assert len(replayed) == 2
+    table = (out / "replay_table.csv").read_text(encoding="utf-8").splitlines()
+    assert [row.split(",")[0] for row in table[1:]] == ["truth", "sitl_takeoff_land_gps"]
+
+
 def test_an_imu_dropout_is_bridged_from_the_mean_motion_before_it_to_the_mean_after_it():
     from quad_drake.flightlogs.reader import Samples
     from quad_drake.flightlogs.schedule import bridged_imu, imu_tick_means

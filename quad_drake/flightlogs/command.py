@@ -9,7 +9,7 @@ from pathlib import Path
 
 from quad_drake.config.errors import ConfigError
 from quad_drake.flightlogs.replay import COMPARE_AFTER, breakdown_error, replay, replay_many, save_replay
-from quad_drake.flightlogs.settings import estimator_mapping, load_replay
+from quad_drake.flightlogs.settings import distinct_logs, estimator_mapping, load_replay
 from quad_drake.output.outdir import check_output_dir, is_result_folder, write_text_atomic
 from quad_drake.output.results import claim_run_folder, variant_name
 
@@ -95,7 +95,9 @@ def replay_command(args) -> int:
     are replayed in one Diagram, a vehicle each (``replay.replay_many``; ``--separately``: each in
     its own). Exit code 0 when every log replayed; 2 when one could not (its line printed, the
     others replayed and saved)."""
-    logs = expand_logs(args.log)
+    logs, repeated = distinct_logs(expand_logs(args.log))
+    if repeated:
+        print(f"note: {', '.join(repeated)}: given more than once (the same file); replayed once")
     overrides = [*args.set, *(["smooth=true"] if getattr(args, "smooth", False) else [])]
     configs = [load_replay(log, args.estimator, overrides) for log in logs]  # every input before any run
     if len(configs) == 1:

@@ -184,6 +184,21 @@ def resolve_log(name_or_path) -> Path:
     )
 
 
+def distinct_logs(names) -> tuple[list[str], list[str]]:
+    """(the logs `names`, each file once in the order given, by the file each resolves to
+    (:func:`resolve_log`: a path or a bundled log's name); the names left out as repeats).
+    ConfigError for a name that is neither."""
+    kept, repeated, seen = [], [], set()
+    for name in names:
+        key = resolve_log(name).resolve()
+        if key in seen:
+            repeated.append(str(name))
+            continue
+        seen.add(key)
+        kept.append(str(name))
+    return kept, repeated
+
+
 def load_replay(log, estimator=None, overrides=()) -> ReplayConfig:
     """Validated ReplayConfig of `log` (a flight log's path or bundled name, or the config.yaml of
     an earlier replay), an ``--estimator`` mapping (YAML text, e.g. ``{kind: eskf}``: the defaults

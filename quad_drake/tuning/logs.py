@@ -313,6 +313,13 @@ def prepare(log_names, holdout_names, overrides, settings) -> LogTuneProblem:
     if not 0.0 < settings.train_fraction <= 1.0:
         raise ConfigError(f"tune: --train-fraction must be in (0, 1], got {settings.train_fraction}")
     paths = [resolve_log(n) for n in [*log_names, *holdout_names]]
+    tuned_files = {p.resolve() for p in paths[: len(log_names)]}
+    for name, path in zip(holdout_names, paths[len(log_names) :], strict=True):
+        if path.resolve() in tuned_files:
+            raise ConfigError(
+                f"tune: {name} is both tuned on and held out; a held-out log must be one the search "
+                "never replays"
+            )
     config = load_replay(log_names[0], "{kind: eskf}", overrides)
     if not any(o.partition("=")[0].strip() == "gps_receiver_accuracy" for o in overrides):
         # the search is over the GPS noise the filter fuses: the receiver's reported accuracy,
