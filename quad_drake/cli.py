@@ -374,8 +374,8 @@ def _add_tune_arguments(parser):
         "name",
         metavar="NAME",
         nargs="+",
-        help="scenario name or YAML path; or flight logs (.ulg, .csv or a bundled log's name): "
-        "then the ESKF's noise and sensor delays are tuned on the logs' own innovations",
+        help="scenario name or YAML path; or flight logs (.ulg, .csv, a bundled log's name or a folder "
+        "of logs): then the ESKF's noise and sensor delays are tuned on the logs' own innovations",
     )
     parser.add_argument(
         "--params",
@@ -608,10 +608,11 @@ def cmd_tune_logs(args) -> int:
         imu_noise=not args.no_imu_noise,
         curve_points=0 if args.no_curves else LogTuneSettings.curve_points,
     )
+    from .flightlogs.command import expand_logs
     from .flightlogs.settings import distinct_logs
 
-    names, repeated = distinct_logs(args.name)
-    holdout_names, repeated_held = distinct_logs(args.holdout_logs)
+    names, repeated = distinct_logs(expand_logs(args.name))
+    holdout_names, repeated_held = distinct_logs(expand_logs(args.holdout_logs))
     if repeated or repeated_held:
         repeats = ", ".join(repeated + repeated_held)
         print(f"note: {repeats}: given more than once (the same file); taken once")

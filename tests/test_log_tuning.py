@@ -138,6 +138,16 @@ def test_a_missing_or_unreadable_log_is_one_line_and_exit_2(quad_drake_cli, tmp_
     assert "Traceback" not in done.stderr
 
 
+def test_a_folder_stands_for_its_logs_as_the_replay_takes_it(quad_drake_cli, tmp_path):
+    from quad_drake.tuning.logs import is_log_name
+
+    assert is_log_name(tmp_path) and is_log_name("a.ULG") and is_log_name("sitl_takeoff_land_gps")
+    assert not is_log_name("11_gps_update")
+    done = quad_drake_cli("tune", tmp_path, "--out", tmp_path / "out")  # a folder without logs
+    assert done.returncode == 2 and done.stdout == "" and "Traceback" not in done.stderr
+    assert "a folder without .ulg or .csv flight logs" in done.stderr
+
+
 def test_a_log_both_tuned_on_and_held_out_is_one_line_and_exit_2(quad_drake_cli, tmp_path):
     # a held-out log the search replays judges nothing held out: refused before any replay, by
     # the file it names (a bundled name and its path alike)

@@ -190,11 +190,12 @@ class LogTuneResult:
 
 
 def is_log_name(name) -> bool:
-    """A ``tune`` argument names a flight log (not a scenario): a .ulg or .csv path, or a bundled
-    log's name."""
+    """A ``tune`` argument names flight logs (not a scenario): a .ulg or .csv path, a bundled
+    log's name, or a folder (its logs, as ``quad-drake replay`` takes one)."""
     from ..flightlogs.settings import bundled_logs
 
-    return str(name).lower().endswith((".ulg", ".csv")) or str(name) in bundled_logs()
+    text = str(name)
+    return text.lower().endswith((".ulg", ".csv")) or text in bundled_logs() or Path(text).is_dir()
 
 
 def assumed_std(config) -> dict:
