@@ -333,13 +333,14 @@ def test_a_release_that_fused_its_zero_velocity_while_gps_aided_is_said(truth_re
     said = "PX4 v1.13 (the log's release) also fused its zero velocity at rest (σ = 0.001 m/s)"
     as_v1_13 = replay(config, dataclasses.replace(sitl, px4_release=(1, 13)))
     line = next(line for line in as_v1_13.notes() if line.startswith(said))
-    at_rest = as_v1_13.aiding.gps_at_rest
-    assert 0 < at_rest < len(sitl.gps) and f"{at_rest} of the {len(sitl.gps)} GPS samples fused" in line
+    at_rest, given = as_v1_13.aiding.gps_at_rest
+    assert 0 < at_rest < given == as_v1_13.aiding.gps_kept_as_px4[0]  # the fixes PX4 fused, 411 of 423
+    assert f"{at_rest} of the {given} GPS samples fused" in line
     as_logged = replay(config, sitl)
-    assert as_logged.aiding.gps_at_rest == at_rest  # the same samples at rest, and no such line
+    assert as_logged.aiding.gps_at_rest == (at_rest, given)  # the same samples at rest, and no such line
     assert not any("while the GPS aided it" in line for line in as_logged.notes())
     # a v1.13 log whose GPS its PX4 never fused (the ground-truth log): nothing fused at rest
-    assert truth_replay.aiding.gps_at_rest == 0
+    assert truth_replay.aiding.gps_at_rest is None
     assert not any("while the GPS aided it" in line for line in truth_replay.notes())
 
 

@@ -102,7 +102,8 @@ class Aiding:
     no_aid_at_rest (the no-aiding samples given on the estimator's own input, at rest and not),
     gps_kept_as_px4 ((GPS samples fused, GPS samples in the log) where PX4's estimator fused only
     some or none of them and the replay followed it, ``schedule.fused_by_px4``; None otherwise),
-    gps_at_rest (the GPS samples fused while the vehicle was at rest, ``schedule.RestTest``)."""
+    gps_at_rest ((GPS samples given while the vehicle was at rest, ``schedule.RestTest``, GPS
+    samples given); None where none was given)."""
 
     fake_position: bool = False
     magnetometer: object = None
@@ -112,7 +113,7 @@ class Aiding:
     baro_height_reference: bool = False
     no_aid_at_rest: tuple | None = None  # (samples at rest, samples not) on the no_aid input; None: none
     gps_kept_as_px4: tuple | None = None  # (GPS samples fused, in the log) where PX4 fused some or none
-    gps_at_rest: int = 0
+    gps_at_rest: tuple | None = None  # (GPS samples given at rest, GPS samples given); None: none
 
 
 @dataclass
@@ -181,8 +182,10 @@ class ReplayResult:
             else:
                 said = f"No zero velocity fused at rest, as {version} fused none"
             lines.append(f"{said} ({later}).")
+        gps_at_rest = self.aiding.gps_at_rest
         if (
-            self.aiding.gps_at_rest
+            gps_at_rest is not None
+            and gps_at_rest[0]
             and own
             and release is not None
             and release < ZERO_VELOCITY_STOPS_WHILE_AIDED_FROM
@@ -191,7 +194,7 @@ class ReplayResult:
             lines.append(
                 f"PX4 v{release[0]}.{release[1]} (the log's release) also fused its zero velocity at "
                 f"rest (σ = {own:g} m/s) while the GPS aided it, as releases before v1.14 did: "
-                f"{self.aiding.gps_at_rest} of the {len(self.log.gps)} GPS samples fused came at rest, "
+                f"{gps_at_rest[0]} of the {gps_at_rest[1]} GPS samples fused came at rest, "
                 "where the replay fuses the GPS alone (as PX4 from v1.14 on); the velocities at rest "
                 "can part there."
             )
@@ -563,7 +566,7 @@ def replay_setup(log, config) -> tuple[dict, VehicleConfig, Aiding]:
     if no_aid is not None:
         resting = int(np.count_nonzero(rest.at(no_aid.times)))
         rested = (resting, len(no_aid) - resting)
-    gps_at_rest = 0 if log.gps is None else int(np.count_nonzero(rest.at(log.gps.times)))
+    gps_at_rest = None if log.gps is None else (int(np.count_nonzero(rest.at(log.gps.times))), len(log.gps))
     aiding = Aiding(
         fake,
         magnetometer,
