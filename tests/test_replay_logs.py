@@ -344,6 +344,28 @@ def test_a_release_that_fused_its_zero_velocity_while_gps_aided_is_said(truth_re
     assert not any("while the GPS aided it" in line for line in truth_replay.notes())
 
 
+def test_where_px4_fused_no_fake_position_and_the_replay_gave_one_is_said(truth_replay):
+    # the bundled SITL log's PX4 (v1.15) fused its fake position until its fix, as the replay
+    # gives one: nothing said; a record of none fused (PX4 v1.16 and v1.17 in flight, e.g. the
+    # public quadrotor_local log: docs/measurements/replay.md) is said with the samples concerned
+    sitl = read_flight_log(SITL)
+    record = sitl.px4_fake_position
+    assert record.values[0, 0] == 1 and record.values[-1, 0] == 0 and 9.0 < record.times[-1] < 10.0
+    config = load_replay(str(SITL), "{kind: eskf}")
+    as_logged = replay(config, sitl)
+    in_motion = as_logged.aiding.no_aid_at_rest[1]
+    assert in_motion > 0 and as_logged.aiding.fake_unlike_px4 == (0, in_motion)
+    said = "PX4's estimator fused no fake position at"
+    assert not any(line.startswith(said) for line in as_logged.notes())
+    none_fused = Samples(np.array([0.0]), np.array([[0.0]]))
+    unlike = replay(config, dataclasses.replace(sitl, px4_fake_position=none_fused))
+    assert unlike.aiding.fake_unlike_px4 == (in_motion, in_motion)
+    line = next(line for line in unlike.notes() if line.startswith(said))
+    assert f"at {in_motion} of the {in_motion} no-aiding samples the replay gave in motion" in line
+    # a log without the record (PX4 v1.13's flags name no cs_fake_pos): nothing to say
+    assert truth_replay.log.px4_fake_position is None and truth_replay.aiding.fake_unlike_px4 is None
+
+
 def test_the_height_reference_is_the_one_px4s_parameters_name():
     from quad_drake.flightlogs.settings import UNFUSED_HEIGHT_STD, height_reference, vehicle_for
 

@@ -160,6 +160,9 @@ class FlightLog:
     estimator fused GNSS (1, 0) from t = 0 on, each change at its time (:func:`_ulog_px4_gps_fusion`;
     a CSV's ``gps_fused`` rows), or None where not recorded. px4_release: (major, minor) of the
     PX4 release that wrote the log (:func:`px4_release`), or None where it does not say (a CSV).
+    px4_fake_position: whether PX4's primary estimator fused a fake position (1, 0) from t = 0 on,
+    each change at its time (``estimator_status_flags.cs_fake_pos``, :func:`_ulog_px4_flag`), or
+    None where not recorded (PX4 before v1.14, a CSV).
     """
 
     source: str
@@ -189,6 +192,7 @@ class FlightLog:
     estimator_switches: tuple = ()
     px4_gps_fusion: Samples | None = None
     px4_release: tuple | None = None
+    px4_fake_position: Samples | None = None
 
     @property
     def duration(self) -> float:
@@ -252,6 +256,7 @@ ULOG_TOPICS = (
     "vehicle_land_detected",
     "sensor_selection",
     "estimator_status",
+    "estimator_status_flags",
 )
 US = 1e-6
 """s per microsecond (ULog timestamps)."""
@@ -335,7 +340,7 @@ def read_ulog(path) -> FlightLog:
     except Exception as e:  # pyulog raises whatever its parser meets in a foreign file
         reason = str(e).splitlines()[0] if str(e) else type(e).__name__
         raise FlightLogError(f"{path}: not a readable ULog file ({reason})") from None
-    topics, raw_mags, sensor_biases, statuses = {}, [], {}, {}
+    topics, raw_mags, sensor_biases, statuses, status_flags = {}, [], {}, {}, {}
     for dataset in ulog.data_list:
         if dataset.multi_id == 0:
             topics[dataset.name] = dataset.data
@@ -345,6 +350,8 @@ def read_ulog(path) -> FlightLog:
             sensor_biases[dataset.multi_id] = dataset.data
         if dataset.name == "estimator_status":
             statuses[dataset.multi_id] = dataset.data
+        if dataset.name == "estimator_status_flags":
+            status_flags[dataset.multi_id] = dataset.data
     if "sensor_combined" not in topics:
         raise FlightLogError(f"{path}: no sensor_combined topic (the IMU); cannot replay without it")
     combined = topics["sensor_combined"]
@@ -390,6 +397,7 @@ def read_ulog(path) -> FlightLog:
         estimator_switches=_ulog_switches(topics, "estimator_selector_status", ("primary_instance",), imu),
         px4_gps_fusion=_ulog_px4_gps_fusion(topics, statuses, start),
         px4_release=release,
+        px4_fake_position=_ulog_px4_flag(topics, status_flags, "cs_fake_pos", start),
     )
 
 
@@ -413,6 +421,17 @@ def _ulog_px4_gps_fusion(topics, statuses, start):
         return None
     fused = (np.asarray(data["control_mode_flags"], dtype=np.int64) >> CS_GPS_BIT) & 1
     return _changes_from(np.asarray(data["timestamp"], dtype=float), fused, start, US)
+
+
+def _ulog_px4_flag(topics, status_flags, field, start):
+    """Samples (s after `start`, µs in the log's clock) of a flag `field` of PX4's primary EKF2
+    instance's ``estimator_status_flags`` (1 or 0; :func:`_changes_from`), or None without the
+    topic or that field (its flags are named from PX4 v1.13 on, some later)."""
+    data = status_flags.get(_primary_estimator(topics))
+    if data is None or field not in data or len(data["timestamp"]) == 0:
+        return None
+    flags = np.asarray(data[field], dtype=np.int64) & 1
+    return _changes_from(np.asarray(data["timestamp"], dtype=float), flags, start, US)
 
 
 def _changes_from(times, flags, start, scale=1.0):

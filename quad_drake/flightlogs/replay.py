@@ -51,6 +51,7 @@ from quad_drake.flightlogs.schedule import (
     RestTest,
     bridged_imu,
     fake_position,
+    flag_at,
     fused_by_px4,
     held_position,
     initial_attitude,
@@ -103,7 +104,9 @@ class Aiding:
     gps_kept_as_px4 ((GPS samples fused, GPS samples in the log) where PX4's estimator fused only
     some or none of them and the replay followed it, ``schedule.fused_by_px4``; None otherwise),
     gps_at_rest ((GPS samples given while the vehicle was at rest, ``schedule.RestTest``, GPS
-    samples given); None where none was given)."""
+    samples given); None where none was given), fake_unlike_px4 ((the no-aiding samples not at
+    rest given where PX4's estimator fused no fake position, ``FlightLog.px4_fake_position``, those
+    not at rest); None where the log has no such record or the replay gave none)."""
 
     fake_position: bool = False
     magnetometer: object = None
@@ -114,6 +117,7 @@ class Aiding:
     no_aid_at_rest: tuple | None = None  # (samples at rest, samples not) on the no_aid input; None: none
     gps_kept_as_px4: tuple | None = None  # (GPS samples fused, in the log) where PX4 fused some or none
     gps_at_rest: tuple | None = None  # (GPS samples given at rest, GPS samples given); None: none
+    fake_unlike_px4: tuple | None = None  # (in motion where PX4 fused no fake position, in motion)
 
 
 @dataclass
@@ -197,6 +201,16 @@ class ReplayResult:
                 f"{gps_at_rest[0]} of the {gps_at_rest[1]} GPS samples fused came at rest, "
                 "where the replay fuses the GPS alone (as PX4 from v1.14 on); the velocities at rest "
                 "can part there."
+            )
+        unlike = self.aiding.fake_unlike_px4
+        if unlike is not None and unlike[0]:
+            lines.append(
+                f"PX4's estimator fused no fake position at {unlike[0]} of the {unlike[1]} no-aiding "
+                "samples the replay gave in motion (its record, estimator_status_flags.cs_fake_pos): "
+                "it dead-reckoned there, its tilt held by its gravity fusion and its magnetometer's "
+                "field states, which the ESKF does not have; ours is held by the fake position, so the "
+                "roll and pitch compared there are held differently (benchmarks/"
+                "tilt_gravity_consistency.py reads both against the accelerometer)."
             )
         kept_as_px4 = self.aiding.gps_kept_as_px4
         if kept_as_px4 is not None:
@@ -567,6 +581,11 @@ def replay_setup(log, config) -> tuple[dict, VehicleConfig, Aiding]:
         resting = int(np.count_nonzero(rest.at(no_aid.times)))
         rested = (resting, len(no_aid) - resting)
     gps_at_rest = None if log.gps is None else (int(np.count_nonzero(rest.at(log.gps.times))), len(log.gps))
+    fake_unlike_px4 = None
+    if no_aid is not None and log.px4_fake_position is not None:
+        moving = ~rest.at(no_aid.times)
+        unlike = moving & ~flag_at(log.px4_fake_position, no_aid.times)
+        fake_unlike_px4 = (int(np.count_nonzero(unlike)), int(np.count_nonzero(moving)))
     aiding = Aiding(
         fake,
         magnetometer,
@@ -577,6 +596,7 @@ def replay_setup(log, config) -> tuple[dict, VehicleConfig, Aiding]:
         rested,
         kept_as_px4,
         gps_at_rest,
+        fake_unlike_px4,
     )
     return streams, vehicle, aiding
 
