@@ -3,6 +3,7 @@ delay recovery on a simulated run written as a log with a delayed GPS, and bad i
 
 import dataclasses
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -146,6 +147,29 @@ def test_a_folder_stands_for_its_logs_as_the_replay_takes_it(quad_drake_cli, tmp
     done = quad_drake_cli("tune", tmp_path, "--out", tmp_path / "out")  # a folder without logs
     assert done.returncode == 2 and done.stdout == "" and "Traceback" not in done.stderr
     assert "a folder without .ulg or .csv flight logs" in done.stderr
+
+
+def test_a_log_named_twice_is_tuned_on_once_and_said(quad_drake_cli, tmp_path, monkeypatch):
+    # the logs the search is given, caught before any replay: the bundled name and its path, and
+    # a folder holding a copy of the ground-truth log beside that copy named again, each once
+    from quad_drake.tuning import logs as log_tuning
+
+    given = {}
+
+    def caught(log_names, holdout_names, overrides, settings):
+        given.update(tuned=log_names, held=holdout_names)
+        raise ConfigError("caught before any replay")
+
+    monkeypatch.setattr(log_tuning, "prepare", caught)
+    folder = tmp_path / "held"
+    folder.mkdir()
+    copy = folder / "truth.ulg"
+    copy.write_bytes((Path(__file__).parent / "data" / "flight_logs" / "sitl_ground_truth.ulg").read_bytes())
+    bundled = str(LOG_DIR / "sitl_takeoff_land_gps.ulg")
+    done = quad_drake_cli("tune", "sitl_takeoff_land_gps", bundled, "--holdout-logs", folder, copy)
+    assert done.returncode == 2 and "caught before any replay" in done.stderr
+    assert given == {"tuned": ["sitl_takeoff_land_gps"], "held": [str(copy)]}
+    assert f"note: {bundled}, {copy}: given more than once (the same file); taken once" in done.stdout
 
 
 def test_a_log_both_tuned_on_and_held_out_is_one_line_and_exit_2(quad_drake_cli, tmp_path):
