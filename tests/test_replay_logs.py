@@ -362,6 +362,11 @@ def test_where_px4_fused_no_fake_position_and_the_replay_gave_one_is_said(truth_
     assert unlike.aiding.fake_unlike_px4 == (in_motion, in_motion)
     line = next(line for line in unlike.notes() if line.startswith(said))
     assert f"at {in_motion} of the {in_motion} no-aiding samples the replay gave in motion" in line
+    # the course's estimator takes its no-aiding samples merged into its GPS: the same samples, said
+    none_logged = dataclasses.replace(sitl, px4_fake_position=none_fused)
+    student = Path(__file__).parent / "grading" / "correct_estimator.py"
+    merged = replay(load_replay(str(SITL), f"{{kind: course, module: {student}}}"), none_logged)
+    assert merged.aiding.no_aid_at_rest is None and merged.aiding.fake_unlike_px4 == (in_motion, in_motion)
     # a log without the record (PX4 v1.13's flags name no cs_fake_pos): nothing to say
     assert truth_replay.log.px4_fake_position is None and truth_replay.aiding.fake_unlike_px4 is None
 

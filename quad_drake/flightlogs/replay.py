@@ -106,7 +106,8 @@ class Aiding:
     gps_at_rest ((GPS samples given while the vehicle was at rest, ``schedule.RestTest``, GPS
     samples given); None where none was given), fake_unlike_px4 ((the no-aiding samples not at
     rest given where PX4's estimator fused no fake position, ``FlightLog.px4_fake_position``, those
-    not at rest); None where the log has no such record or the replay gave none)."""
+    not at rest; on the no-aiding input or, for a kind without one, merged into its GPS); None
+    where the log has no such record or the replay gave none)."""
 
     fake_position: bool = False
     magnetometer: object = None
@@ -208,7 +209,7 @@ class ReplayResult:
                 f"PX4's estimator fused no fake position at {unlike[0]} of the {unlike[1]} no-aiding "
                 "samples the replay gave in motion (its record, estimator_status_flags.cs_fake_pos): "
                 "it dead-reckoned there, its tilt held by its gravity fusion and its magnetometer's "
-                "field states, which the ESKF does not have; ours is held by the fake position, so the "
+                "field states, which ours does not have; ours is held by the fake position, so the "
                 "roll and pitch compared there are held differently (benchmarks/"
                 "tilt_gravity_consistency.py reads both against the accelerometer)."
             )
@@ -582,9 +583,11 @@ def replay_setup(log, config) -> tuple[dict, VehicleConfig, Aiding]:
         rested = (resting, len(no_aid) - resting)
     gps_at_rest = None if log.gps is None else (int(np.count_nonzero(rest.at(log.gps.times))), len(log.gps))
     fake_unlike_px4 = None
-    if no_aid is not None and log.px4_fake_position is not None:
-        moving = ~rest.at(no_aid.times)
-        unlike = moving & ~flag_at(log.px4_fake_position, no_aid.times)
+    if log.px4_fake_position is not None and (no_aid is not None or gps is not log.gps):
+        # the no-aiding samples: on their own input, or (a kind without one) merged into its GPS
+        given = no_aid.times if no_aid is not None else np.setdiff1d(gps.times, _times_of(log.gps))
+        moving = ~rest.at(given)
+        unlike = moving & ~flag_at(log.px4_fake_position, given)
         fake_unlike_px4 = (int(np.count_nonzero(unlike)), int(np.count_nonzero(moving)))
     aiding = Aiding(
         fake,
@@ -599,6 +602,11 @@ def replay_setup(log, config) -> tuple[dict, VehicleConfig, Aiding]:
         fake_unlike_px4,
     )
     return streams, vehicle, aiding
+
+
+def _times_of(samples) -> np.ndarray:
+    """The sample times (s) of Samples `samples`, none for None."""
+    return np.empty(0) if samples is None else samples.times
 
 
 def _playback_diagram(streams, vehicles, name, ticks=False, every_update=True):
