@@ -142,17 +142,28 @@ def consistency(folder, window, spans) -> None:
         )
 
 
-def main() -> None:
+def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("out", type=Path, help="a quad-drake replay --out folder")
     parser.add_argument("--window", type=float, default=8.0, help="s per window (default 8)")
     parser.add_argument("--spans", default="", help="spans A:B,C:D (s) for ours - PX4's RMS")
     args = parser.parse_args()
-    spans = [tuple(float(v) for v in span.split(":")) for span in args.spans.split(",") if span]
+    try:
+        spans = [tuple(float(v) for v in span.split(":", 1)) for span in args.spans.split(",") if span]
+    except ValueError:
+        spans = [()]
     folders = sorted(p.parent for p in args.out.glob("*/logs.npz"))
+    if not folders or not args.window > 0 or any(len(span) != 2 for span in spans):
+        print(
+            f"tilt_gravity_consistency: no replay folders under {args.out}, a window <= 0 or a span "
+            f"not A:B (--spans {args.spans!r})",
+            file=sys.stderr,
+        )
+        return 2
     for folder in folders:
         consistency(folder, args.window, spans)
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

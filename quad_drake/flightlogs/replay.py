@@ -177,8 +177,9 @@ class ReplayResult:
             )
         release = self.log.px4_release
         own = release_rest_velocity_std(release)  # what the log's release fused (0: none)
-        if rested is not None and rested[0] and own != REST_VELOCITY_STD and c.rest_velocity_std == own:
-            version = f"PX4 v{release[0]}.{release[1]} (the log's release)"
+        as_release = release is not None and c.rest_velocity_std == own  # the release's σ was fused
+        version = f"PX4 v{release[0]}.{release[1]} (the log's release)" if as_release else ""
+        if as_release and rested is not None and rested[0] and own != REST_VELOCITY_STD:
             later = (
                 f"--set rest_velocity_std={REST_VELOCITY_STD:g} fuses it as later releases do, once aligned"
             )
@@ -188,16 +189,10 @@ class ReplayResult:
                 said = f"No zero velocity fused at rest, as {version} fused none"
             lines.append(f"{said} ({later}).")
         gps_at_rest = self.aiding.gps_at_rest
-        if (
-            gps_at_rest is not None
-            and gps_at_rest[0]
-            and own
-            and release is not None
-            and release < ZERO_VELOCITY_STOPS_WHILE_AIDED_FROM
-            and c.rest_velocity_std == own
-        ):
+        aided_at_rest = gps_at_rest is not None and gps_at_rest[0]
+        if as_release and own and aided_at_rest and release < ZERO_VELOCITY_STOPS_WHILE_AIDED_FROM:
             lines.append(
-                f"PX4 v{release[0]}.{release[1]} (the log's release) also fused its zero velocity at "
+                f"{version} also fused its zero velocity at "
                 f"rest (σ = {own:g} m/s) while the GPS aided it, as releases before v1.14 did: "
                 f"{gps_at_rest[0]} of the {gps_at_rest[1]} GPS samples fused came at rest, "
                 "where the replay fuses the GPS alone (as PX4 from v1.14 on); the velocities at rest "
@@ -585,7 +580,8 @@ def replay_setup(log, config) -> tuple[dict, VehicleConfig, Aiding]:
     fake_unlike_px4 = None
     if log.px4_fake_position is not None and (no_aid is not None or gps is not log.gps):
         # the no-aiding samples: on their own input, or (a kind without one) merged into its GPS
-        given = no_aid.times if no_aid is not None else np.setdiff1d(gps.times, _times_of(log.gps))
+        logged = np.empty(0) if log.gps is None else log.gps.times
+        given = no_aid.times if no_aid is not None else np.setdiff1d(gps.times, logged)
         moving = ~rest.at(given)
         unlike = moving & ~flag_at(log.px4_fake_position, given)
         fake_unlike_px4 = (int(np.count_nonzero(unlike)), int(np.count_nonzero(moving)))
@@ -602,11 +598,6 @@ def replay_setup(log, config) -> tuple[dict, VehicleConfig, Aiding]:
         fake_unlike_px4,
     )
     return streams, vehicle, aiding
-
-
-def _times_of(samples) -> np.ndarray:
-    """The sample times (s) of Samples `samples`, none for None."""
-    return np.empty(0) if samples is None else samples.times
 
 
 def _playback_diagram(streams, vehicles, name, ticks=False, every_update=True):
