@@ -224,6 +224,15 @@ def test_estimator_choice_loads_by_kind_with_one_line_errors(tmp_path):
         ("estimator: {kind: ukf}", "vehicles.0.estimator.kind: 'ukf' is not one of ekf7, eskf"),
         ("estimator: {gps_gate_sigma: 3}", "vehicles.0.estimator.kind: missing; one of ekf7, eskf"),
         ("estimator: {kind: ekf7, accel_std: [1, 1, 1]}", "vehicles.0.estimator.accel_std: unknown key"),
+        (
+            "estimator: {kind:eskf}",
+            "vehicles.0.estimator.kind:eskf: unknown key: YAML reads 'kind:eskf' as one key; "
+            "write 'kind: eskf' (a space after the colon)",
+        ),
+        (
+            "estimator: {kind: eskf, gps_gate_sigma:4}",
+            "vehicles.0.estimator.gps_gate_sigma:4: unknown key: YAML reads 'gps_gate_sigma:4'",
+        ),
         ("estimator: {kind: eskf, init_pos_std: [1, 1]}", "vehicles.0.estimator.init_pos_std: expected 3"),
         ("estimator: {kind: eskf, gyro_std: [1, -1, 1]}", "vehicles.0.estimator.gyro_std: must be >= 0"),
         ("estimator: eskf", "vehicles.0.estimator: expected a mapping"),

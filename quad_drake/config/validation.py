@@ -69,7 +69,9 @@ def check_node(node, tp, path) -> str | None:
                 continue
             sub = f"{path}.{key}" if path else str(key)
             if key not in names:
-                return f"{sub}: unknown key{did_you_mean(key, names)} (known: {', '.join(names)})"
+                return _unspaced_colon(key, value, names, sub) or (
+                    f"{sub}: unknown key{did_you_mean(key, names)} (known: {', '.join(names)})"
+                )
             message = check_node(value, typing.get_type_hints(tp)[key], sub)
             if message:
                 return message
@@ -107,6 +109,18 @@ def _kind_of(member):
     return next(f.default for f in dataclasses.fields(member) if f.name == "kind")
 
 
+def _unspaced_colon(key, value, names, path) -> str | None:
+    """The message for a key YAML read as "name:value" with no value (``{kind:eskf}``: a flow
+    mapping's colon needs a space after it) where name is one of `names`, else None."""
+    name, colon, rest = str(key).partition(":")
+    if not colon or value is not None or name not in names:
+        return None
+    return (
+        f"{path}: unknown key: YAML reads {str(key)!r} as one key; "
+        f"write '{name}: {rest}' (a space after the colon)"
+    )
+
+
 def _check_kind_choice(node, members, path):
     """Check a mapping against the Union member its ``kind`` names; tag it for yaml_load_typed.
 
@@ -124,6 +138,10 @@ def _check_kind_choice(node, members, path):
     elif node.get("_tag") in by_tag:
         member = by_tag[node["_tag"]]
     else:
+        for key, value in node.items():
+            message = _unspaced_colon(key, value, ("kind",), f"{path}.{key}")
+            if message:
+                return message
         return f"{path}.kind: missing; one of {', '.join(by_kind)}"
     node["_tag"] = f"!{member.__name__}"
     return check_node(node, member, path)
