@@ -535,6 +535,29 @@ def test_clipped_imu_samples_are_read_and_said(sitl_log, real_log):
     assert not [w for w in log_warnings(sitl_log) + log_warnings(real_log) if "clipped" in w]
 
 
+def test_a_vehicle_that_is_not_a_multirotor_is_said(sitl_log):
+    # The bundled SITL log is a quadrotor (MAV_TYPE 2) and says nothing; the same log as a fixed
+    # wing, a standard VTOL (sample_log_small's MAV_TYPE 22) or a generic vehicle says so in one
+    # line; a log without the parameter (a CSV) says nothing.
+    from quad_drake.flightlogs.checks import log_warnings
+
+    def said(parameters):
+        log = dataclasses.replace(sitl_log, parameters=parameters)
+        return [w for w in log_warnings(log) if "MAV_TYPE" in w]
+
+    assert sitl_log.parameters["MAV_TYPE"] == 2 and said(sitl_log.parameters) == []
+    assert said({}) == []
+    (fixed_wing,) = said({"MAV_TYPE": 1})
+    assert fixed_wing.startswith("warning: the log's vehicle is a fixed wing (MAV_TYPE 1): in flight ")
+    assert "airspeed" in fixed_wing and "\n" not in fixed_wing
+    (vtol,) = said({"MAV_TYPE": 22})
+    assert vtol.startswith("warning: the log's vehicle is a VTOL (MAV_TYPE 22): in its fixed-wing flight ")
+    (generic,) = said({"MAV_TYPE": 0})
+    assert generic.startswith("warning: the log's vehicle is not said to be a multirotor (MAV_TYPE 0)")
+    for rotary in (3, 4, 13, 14, 15, 29):
+        assert said({"MAV_TYPE": rotary}) == []
+
+
 def _gps_first_half_then_away(ulog):
     # The GPS logged over the first half only; PX4 then 500 m north of where the GPS left it.
     data = ulog.get_dataset("vehicle_gps_position").data

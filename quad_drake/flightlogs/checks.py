@@ -16,7 +16,10 @@ and returns one line per weakness where it still can:
   the first, since the replay fuses them as logged;
 - PX4 switching the IMU that ``sensor_combined`` carries, or its primary EKF2 instance, within
   the replayed stretch (``FlightLog.imu_switches``, ``estimator_switches``: a failover): a
-  warning that the figures after the first switch compare estimates on different sensors.
+  warning that the figures after the first switch compare estimates on different sensors;
+- a vehicle that is not a multirotor by its ``MAV_TYPE`` parameter (a fixed wing, a VTOL, any
+  other): a warning that PX4's estimator fuses what the replay does not in forward flight, and
+  that the replay's at-rest test is a multirotor's.
 """
 
 import numpy as np
@@ -31,6 +34,11 @@ SHORT_COMPARISON = 10.0
 """s: a comparison over less than this is too short to judge an estimator by (a warning)."""
 IMU_GAP = 0.1
 """s: an interval between IMU samples longer than this is a gap (a dropout in the log)."""
+MULTIROTOR_TYPES = frozenset((2, 3, 4, 13, 14, 15, 29))
+"""MAVLink MAV_TYPE of a rotary-wing vehicle: quadrotor, coaxial, helicopter, hexa-, octo-,
+tri- and dodecarotor."""
+VTOL_TYPES = frozenset(range(19, 26))
+"""MAVLink MAV_TYPE of a VTOL (tailsitters, tiltrotor, fixed-rotor, tiltwing, reserved)."""
 
 
 def imu_rate(log) -> float:
@@ -76,7 +84,27 @@ def log_warnings(log, compare_after=0.0) -> list[str]:
             f"{GPS_MISMATCH:g} m from the GPS through PX4's own origin (ref_lat, ref_lon): an origin edited "
             "in the file (a scrubbed location?) or corrupted samples; their x, y and z are not compared."
         )
-    return warnings + _clipping_warning(log) + _switches_warning(log)
+    return warnings + _clipping_warning(log) + _switches_warning(log) + _vehicle_warning(log)
+
+
+def _vehicle_warning(log) -> list[str]:
+    """[one line] on a vehicle that is not a multirotor by the log's MAV_TYPE, or [] for a
+    multirotor or a log that does not say (a CSV)."""
+    mav_type = log.parameters.get("MAV_TYPE")
+    if mav_type is None or int(mav_type) in MULTIROTOR_TYPES:
+        return []
+    mav_type = int(mav_type)
+    if mav_type == 1:
+        vehicle, flight = "a fixed wing", "in flight"
+    elif mav_type in VTOL_TYPES:
+        vehicle, flight = "a VTOL", "in its fixed-wing flight"
+    else:
+        vehicle, flight = "not said to be a multirotor", "in forward flight"
+    return [
+        f"warning: the log's vehicle is {vehicle} (MAV_TYPE {mav_type}): {flight} PX4's estimator "
+        "can fuse its airspeed and a synthetic sideslip, which the replay does not, and the replay's "
+        "at-rest test (the IMU's vibration) is a multirotor's; the estimates can part there."
+    ]
 
 
 def _clipping_warning(log) -> list[str]:
