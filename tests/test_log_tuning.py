@@ -291,6 +291,25 @@ def test_the_search_sets_the_accelerometer_s_axes_apart_and_reaches_a_simulator_
     assert default_replay("eskf").gps_receiver_accuracy and not problem.config.gps_receiver_accuracy
 
 
+def test_a_gps_height_the_barometer_replaces_is_neither_searched_nor_judged():
+    """With the barometer the height reference (a log's EKF2_HGT_REF, or --set
+    height_reference=baro) the replay fuses no GPS height (its σ 1000 m, as PX4's): its noise is
+    no search coordinate and no channel judged; the GPS height reference keeps both."""
+    from quad_drake.tuning.logs import channel_statistics, prepare, split
+    from quad_drake.tuning.settings import LogTuneSettings
+
+    settings = LogTuneSettings(budget=10, imu_noise=False, delays=False)
+    by_gps = prepare(["sitl_takeoff_land_gps"], [], ["height_reference=gps"], settings)
+    by_baro = prepare(["sitl_takeoff_land_gps"], [], ["height_reference=baro"], settings)
+    searched = ["gps_pos_xy", "gps_pos_z", "gps_vel_xy", "gps_vel_z", "field", "baro"]
+    assert [d.name for d in by_gps.space] == searched
+    assert [d.name for d in by_baro.space] == [c for c in searched if c != "gps_pos_z"]
+    log = by_baro.logs[0]
+    _, held = split(log, settings)
+    assert "gps_pos_z" not in channel_statistics(by_baro.config, log, held)
+    assert "gps_pos_z" in channel_statistics(by_gps.config, log, held)
+
+
 def _synthetic_problem(monkeypatch, objective, budget):
     """A LogTuneProblem over the barometer's noise and the GPS and barometer delays whose loss is
     objective(config) (no replay: ``_score`` replaced), nothing held out."""

@@ -292,11 +292,15 @@ def channel_statistics(config, log, windows) -> dict:
 
 
 def _judged(config, result):
-    """{channel: assumed std or None} of the channels a replay fused: GPS (unless fake), the heading
-    or the 3-axis field, the barometer where fused."""
+    """{channel: assumed std or None} of the channels a replay fused: GPS (unless fake; its height
+    not where the barometer is the height reference, as PX4 then fuses none), the heading or the
+    3-axis field, the barometer where fused."""
     judged = {}
     if result.log.gps is not None and not result.fake_position:
-        judged |= {c: s for c, s in assumed_std(result.config).items() if c.startswith("gps_")}
+        unfused = ("gps_pos_z",) if result.aiding.baro_height_reference else ()
+        judged |= {
+            c: s for c, s in assumed_std(result.config).items() if c.startswith("gps_") and c not in unfused
+        }
     if result.log.heading is not None:
         judged["heading"] = assumed_std(result.config)["heading"]
     elif result.log.mag_field is not None:
