@@ -308,6 +308,10 @@ def test_a_gps_height_the_barometer_replaces_is_neither_searched_nor_judged():
     _, held = split(log, settings)
     assert "gps_pos_z" not in channel_statistics(by_baro.config, log, held)
     assert "gps_pos_z" in channel_statistics(by_gps.config, log, held)
+    # a log whose own EKF2_HGT_MODE makes the barometer the reference (PX4 v1.8 SITL, GPS throughout)
+    second = Path(__file__).parent / "data" / "flight_logs" / "sitl_v18_ground_truth.ulg"
+    by_log = prepare([str(second)], [], [], settings)
+    assert [d.name for d in by_log.space] == [c for c in searched if c != "gps_pos_z"]
 
 
 def _synthetic_problem(monkeypatch, objective, budget):
