@@ -34,9 +34,9 @@ SHORT_COMPARISON = 10.0
 """s: a comparison over less than this is too short to judge an estimator by (a warning)."""
 IMU_GAP = 0.1
 """s: an interval between IMU samples longer than this is a gap (a dropout in the log)."""
-MULTIROTOR_TYPES = frozenset((2, 3, 4, 13, 14, 15, 29))
-"""MAVLink MAV_TYPE of a rotary-wing vehicle: quadrotor, coaxial, helicopter, hexa-, octo-,
-tri- and dodecarotor."""
+ROTARY_WING_TYPES = frozenset((2, 3, 4, 13, 14, 15, 29))
+"""MAVLink MAV_TYPE of a vehicle the replay's rules fit (they are a multirotor's): quadrotor,
+coaxial, helicopter, hexa-, octo-, tri- and dodecarotor."""
 VTOL_TYPES = frozenset(range(19, 26))
 """MAVLink MAV_TYPE of a VTOL (tailsitters, tiltrotor, fixed-rotor, tiltwing, reserved)."""
 
@@ -88,10 +88,10 @@ def log_warnings(log, compare_after=0.0) -> list[str]:
 
 
 def _vehicle_warning(log) -> list[str]:
-    """[one line] on a vehicle that is not a multirotor by the log's MAV_TYPE, or [] for a
-    multirotor or a log that does not say (a CSV)."""
+    """[one line] on a vehicle that is not rotary-wing by the log's MAV_TYPE, or [] for a
+    rotary-wing one (ROTARY_WING_TYPES) or a log that does not say (a CSV)."""
     mav_type = log.parameters.get("MAV_TYPE")
-    if mav_type is None or int(mav_type) in MULTIROTOR_TYPES:
+    if mav_type is None or int(mav_type) in ROTARY_WING_TYPES:
         return []
     mav_type = int(mav_type)
     if mav_type == 1:
