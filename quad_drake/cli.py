@@ -608,14 +608,9 @@ def cmd_tune_logs(args) -> int:
         imu_noise=not args.no_imu_noise,
         curve_points=0 if args.no_curves else LogTuneSettings.curve_points,
     )
-    from .flightlogs.command import expand_logs
-    from .flightlogs.settings import distinct_logs
+    from .flightlogs.command import given_logs
 
-    names, repeated = distinct_logs(expand_logs(args.name))
-    holdout_names, repeated_held = distinct_logs(expand_logs(args.holdout_logs))
-    if repeated or repeated_held:
-        repeats = ", ".join(repeated + repeated_held)
-        print(f"note: {repeats}: given more than once (the same file); taken once")
+    names, holdout_names = given_logs(args.name, args.holdout_logs, done="taken")
     problem = prepare(names, holdout_names, args.set, settings)
     stem = Path(problem.logs[0].source).stem
     out = check_output_dir("out") / f"{stem}_tune" if args.out is None else check_output_dir(args.out)

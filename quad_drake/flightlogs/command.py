@@ -34,6 +34,20 @@ def expand_logs(names) -> list[str]:
     return logs
 
 
+def given_logs(*groups, done) -> list[list[str]]:
+    """Each group of LOG arguments as its logs (:func:`expand_logs`), each file once within its
+    group (``settings.distinct_logs``); one note over all the groups naming the repeats left out,
+    which were `done` ("replayed", "taken") once. ConfigError for a name that is no log."""
+    kept, repeated = [], []
+    for names in groups:
+        logs, again = distinct_logs(expand_logs(names))
+        kept.append(logs)
+        repeated += again
+    if repeated:
+        print(f"note: {', '.join(repeated)}: given more than once (the same file); {done} once")
+    return kept
+
+
 def _out_folder(args, log):
     """(output folder, the replay folder reproduced or None): ``--out`` (default ``out``), or for
     LOG = a replay folder's config.yaml without ``--out`` the folder holding that replay folder."""
@@ -95,9 +109,7 @@ def replay_command(args) -> int:
     are replayed in one Diagram, a vehicle each (``replay.replay_many``; ``--separately``: each in
     its own). Exit code 0 when every log replayed; 2 when one could not (its line printed, the
     others replayed and saved)."""
-    logs, repeated = distinct_logs(expand_logs(args.log))
-    if repeated:
-        print(f"note: {', '.join(repeated)}: given more than once (the same file); replayed once")
+    (logs,) = given_logs(args.log, done="replayed")
     overrides = [*args.set, *(["smooth=true"] if getattr(args, "smooth", False) else [])]
     configs = [load_replay(log, args.estimator, overrides) for log in logs]  # every input before any run
     if len(configs) == 1:
